@@ -1,0 +1,38 @@
+"""ament_python package marker_localizer; also installs with plain pip."""
+
+from pathlib import Path
+
+from setuptools import find_packages, setup
+
+PACKAGE = "marker_localizer"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", [str(p) for p in sorted(Path("config").glob("*.yaml"))]),
+    ],
+    package_data={PACKAGE: ["config/*.yaml"]},
+    python_requires=">=3.11",
+    install_requires=[
+        "numpy>=2.0",
+        "scipy>=1.11",
+        "opencv-python-headless>=4.8",
+        "scikit-image>=0.22",
+        "rosbags>=0.10",
+    ],
+    zip_safe=True,
+    maintainer="marker_localizer maintainers",
+    maintainer_email="maintainers@example.com",
+    description="Sub-pixel localisation of diagonal (X) ground markers for UAV navigation.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "marker-localizer = marker_localizer.cli:main",
+            "marker_localizer_node = marker_localizer.ros.node:main",
+        ],
+    },
+)
