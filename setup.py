@@ -23,6 +23,7 @@ setup(
         "opencv-python-headless>=4.8",
         "scikit-image>=0.22",
         "rosbags>=0.10",
+        "PyYAML>=6.0",
     ],
     zip_safe=True,
     maintainer="marker_localizer maintainers",
