@@ -27,8 +27,14 @@ class ParamSpec:
     choices: tuple[str, ...] = ()
 
 
-def _param(default: Any, description: str, unit: str = "", low: float | None = None,
-           high: float | None = None, choices: tuple[str, ...] = ()) -> Any:
+def _param(
+    default: Any,
+    description: str,
+    unit: str = "",
+    low: float | None = None,
+    high: float | None = None,
+    choices: tuple[str, ...] = (),
+) -> Any:
     spec = ParamSpec(description=description, unit=unit, low=low, high=high, choices=choices)
     return field(default=default, metadata={"spec": spec})
 
@@ -42,100 +48,180 @@ class DetectorConfig:
     """
 
     marker_radius_min_px: float = _param(
-        3.0, "Smallest expected marker radius in the image (centre to the outer edge "
+        3.0,
+        "Smallest expected marker radius in the image (centre to the outer edge "
         "of the X). 3 px is the smallest radius the screening resolves reliably.",
-        "px", 1.5, 1000.0)
+        "px",
+        1.5,
+        1000.0,
+    )
     marker_radius_max_px: float = _param(
-        40.0, "Largest expected marker radius in the image. Bounds the refinement "
-        "window and the coarsest screening scale.", "px", 1.5, 1000.0)
+        40.0,
+        "Largest expected marker radius in the image. Bounds the refinement "
+        "window and the coarsest screening scale.",
+        "px",
+        1.5,
+        1000.0,
+    )
 
     # Section 3.1: preprocessing.
     gdwgif_radius_px: int = _param(
-        2, "Window radius r of the gradient-domain weighted guided filter, Eq. (1): "
+        2,
+        "Window radius r of the gradient-domain weighted guided filter, Eq. (1): "
         "2 smooths sensor noise without merging the quadrants of a 3 px marker.",
-        "px", 1, 8)
+        "px",
+        1,
+        8,
+    )
     gdwgif_lambda: float = _param(
-        0.01, "Regularisation lambda of Eq. (1) on intensities scaled to [0, 1]: "
-        "flattens noise of a few DN while edges above ~25 DN survive.", "", 1e-6, 1.0)
+        0.01,
+        "Regularisation lambda of Eq. (1) on intensities scaled to [0, 1]: "
+        "flattens noise of a few DN while edges above ~25 DN survive.",
+        "",
+        1e-6,
+        1.0,
+    )
     gamma_alpha: float = _param(
-        2.0, "Scale alpha of the dynamic gamma, Eq. (2): gamma = alpha * local mean; "
-        "2 leaves mid-grey (mean 0.5) unchanged.", "", 0.1, 10.0)
+        2.0,
+        "Scale alpha of the dynamic gamma, Eq. (2): gamma = alpha * local mean; "
+        "2 leaves mid-grey (mean 0.5) unchanged.",
+        "",
+        0.1,
+        10.0,
+    )
     illumination_window_px: int = _param(
-        65, "Side of the box that measures the local mean luminance of Eq. (2); "
+        65,
+        "Side of the box that measures the local mean luminance of Eq. (2); "
         "larger than the largest marker so a marker does not correct itself.",
-        "px", 3, 1001)
+        "px",
+        3,
+        1001,
+    )
     structure_xi: float = _param(
-        0.04, "Scale xi of the structural component map, Eq. (3), in normalised "
-        "intensity: a local std of 0.04 (10 DN) maps to s = 0.63.", "", 1e-3, 1.0)
+        0.04,
+        "Scale xi of the structural component map, Eq. (3), in normalised "
+        "intensity: a local std of 0.04 (10 DN) maps to s = 0.63.",
+        "",
+        1e-3,
+        1.0,
+    )
     structure_t: float = _param(
-        1.5, "Exponent t of Eq. (3); t > 1 sharpens the response to edges "
-        "and suppresses flat noisy ground.", "", 0.1, 5.0)
+        1.5,
+        "Exponent t of Eq. (3); t > 1 sharpens the response to edges "
+        "and suppresses flat noisy ground.",
+        "",
+        0.1,
+        5.0,
+    )
     structure_keep_fraction: float = _param(
-        0.7, "Candidates are kept only where the structure map is in this top "
-        "fraction of its values (the paper's 70 %).", "", 0.05, 1.0)
+        0.7,
+        "Candidates are kept only where the structure map is in this top "
+        "fraction of its values (the paper's 70 %).",
+        "",
+        0.05,
+        1.0,
+    )
 
     # Section 3.2: multi-layer point screening.
     candidate_detector: str = _param(
-        "saddle", "How first candidates are found: 'curvature' is the paper's "
+        "saddle",
+        "How first candidates are found: 'curvature' is the paper's "
         "contour curvature (Eq. 4); 'saddle' is a scale-normalised Hessian saddle "
         "response, which keeps 3 px markers that binarised contours lose.",
-        choices=("saddle", "curvature"))
+        choices=("saddle", "curvature"),
+    )
     curvature_threshold_std: float = _param(
-        3.0, "Dual threshold of the curvature screening: a peak must exceed the mean "
-        "by this many standard deviations (the paper's 3).", "std", 0.0, 10.0)
+        3.0,
+        "Dual threshold of the curvature screening: a peak must exceed the mean "
+        "by this many standard deviations (the paper's 3).",
+        "std",
+        0.0,
+        10.0,
+    )
     min_peak_separation_px: float = _param(
-        5.0, "Minimum distance between two candidate peaks (the paper's 5 px).",
-        "px", 1.0, 100.0)
+        5.0, "Minimum distance between two candidate peaks (the paper's 5 px).", "px", 1.0, 100.0
+    )
     density_sigma_px: float = _param(
-        2.0, "Gaussian width sigma of the curvature-weighted density field, Eq. (5).",
-        "px", 0.5, 50.0)
+        2.0,
+        "Gaussian width sigma of the curvature-weighted density field, Eq. (5).",
+        "px",
+        0.5,
+        50.0,
+    )
     mean_shift_h_px: float = _param(
-        2.0, "Attenuation h of the curvature-density mean shift, Eq. (6).",
-        "px", 0.5, 50.0)
+        2.0, "Attenuation h of the curvature-density mean shift, Eq. (6).", "px", 0.5, 50.0
+    )
     entropy_cell_px: int = _param(
-        64, "Grid cell size of the spatial grid entropy, Eq. (7).", "px", 8, 4096)
+        64, "Grid cell size of the spatial grid entropy, Eq. (7).", "px", 8, 4096
+    )
     max_candidates_per_cell: int = _param(
-        32, "Greedy entropy thinning (Eq. 7) removes the weakest points of a cell "
+        32,
+        "Greedy entropy thinning (Eq. 7) removes the weakest points of a cell "
         "above this count: clutter crowds a cell, marker fields do not.",
-        "", 1, 100000)
+        "",
+        1,
+        100000,
+    )
     symmetry_min: float = _param(
-        0.6, "Minimum centre-symmetry score in [0, 1] of the annular scan: the "
+        0.6,
+        "Minimum centre-symmetry score in [0, 1] of the annular scan: the "
         "correlation of the ring profile with itself shifted by 180 degrees.",
-        "", 0.0, 1.0)
+        "",
+        0.0,
+        1.0,
+    )
     min_contrast_dn: float = _param(
-        8.0, "Minimum grey-level difference between the bright and the dark "
+        8.0,
+        "Minimum grey-level difference between the bright and the dark "
         "quadrants (after gamma). Twice the highest expected noise sigma.",
-        "DN", 0.0, 255.0)
+        "DN",
+        0.0,
+        255.0,
+    )
     line_check: bool = _param(
-        True, "Require the LSD double-line intersection of section 3.2 near the "
-        "candidate.")
+        True, "Require the LSD double-line intersection of section 3.2 near the candidate."
+    )
     line_extend_px: float = _param(
-        5.0, "Delta s of Eq. (9): segments are extended by this much at both ends.",
-        "px", 0.0, 50.0)
+        5.0, "Delta s of Eq. (9): segments are extended by this much at both ends.", "px", 0.0, 50.0
+    )
     line_max_distance_px: float = _param(
-        1.5, "Largest distance between the extended lines' intersection and the "
-        "candidate.", "px", 0.1, 20.0)
+        1.5,
+        "Largest distance between the extended lines' intersection and the candidate.",
+        "px",
+        0.1,
+        20.0,
+    )
 
     # Section 3.3: sub-pixel location.
     refinement: str = _param(
-        "symmetry", "'ncc' is the paper's adaptive template + NCC + quadratic surface "
+        "symmetry",
+        "'ncc' is the paper's adaptive template + NCC + quadratic surface "
         "(Eqs. 10-14); 'symmetry' continues from it with a least-squares "
         "point-symmetry fit over the whole marker, unbiased by blur and gamma.",
-        choices=("symmetry", "ncc"))
+        choices=("symmetry", "ncc"),
+    )
     template_offset_px: float = _param(
-        5.0, "Distance along the bisectors at which the template's grey levels are "
+        5.0,
+        "Distance along the bisectors at which the template's grey levels are "
         "sampled with 3x3 windows (the paper's 5 px; capped by the marker radius).",
-        "px", 1.0, 50.0)
+        "px",
+        1.0,
+        50.0,
+    )
     ncc_search_px: int = _param(
-        2, "Half-size of the NCC search window around the coarse position.",
-        "px", 1, 10)
+        2, "Half-size of the NCC search window around the coarse position.", "px", 1, 10
+    )
     refinement_max_iterations: int = _param(
-        12, "Gauss-Newton iterations of the symmetry fit; it converges in 3-5.",
-        "", 1, 100)
+        12, "Gauss-Newton iterations of the symmetry fit; it converges in 3-5.", "", 1, 100
+    )
     max_candidates: int = _param(
-        20000, "Cap on candidates per frame after screening; the weakest are cut "
+        20000,
+        "Cap on candidates per frame after screening; the weakest are cut "
         "and counted, which bounds the time of a frame full of clutter.",
-        "", 1, 10_000_000)
+        "",
+        1,
+        10_000_000,
+    )
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -143,7 +229,8 @@ class DetectorConfig:
         if self.marker_radius_min_px > self.marker_radius_max_px:
             raise ConfigError(
                 f"marker_radius_min_px={self.marker_radius_min_px} is larger than "
-                f"marker_radius_max_px={self.marker_radius_max_px}")
+                f"marker_radius_max_px={self.marker_radius_max_px}"
+            )
 
     def replace(self, **changes: Any) -> DetectorConfig:
         """Return a validated copy with ``changes`` applied (unknown keys raise)."""
@@ -171,7 +258,8 @@ def _check_field(f: dataclasses.Field[Any], value: Any) -> None:
         raise ConfigError(f"{f.name}={value!r} must be one of {', '.join(spec.choices)}")
     if spec.low is not None and spec.high is not None and not spec.low <= value <= spec.high:
         raise ConfigError(
-            f"{f.name}={value!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}".rstrip())
+            f"{f.name}={value!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}".rstrip()
+        )
 
 
 def parse_value(name: str, text: str) -> Any:
@@ -197,11 +285,14 @@ def from_mapping(values: Mapping[str, Any], base: DetectorConfig | None = None) 
     unknown = sorted(set(values) - set(specs))
     if unknown:
         raise ConfigError(f"unknown parameter(s): {', '.join(unknown)}")
-    converted = {}
-    for name, value in values.items():
-        if _field_type(specs[name][0]) is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        converted[name] = value
+    converted = {
+        name: float(value)
+        if _field_type(specs[name][0]) is float
+        and isinstance(value, int)
+        and not isinstance(value, bool)
+        else value
+        for name, value in values.items()
+    }
     return dataclasses.replace(base or DetectorConfig(), **converted)
 
 
@@ -237,4 +328,3 @@ def load_params_file(path: str | Path, node_name: str = "*") -> dict[str, Any]:
         if isinstance(entry, dict) and "ros__parameters" in entry:
             return dict((entry["ros__parameters"] or {}).get(DETECTOR_NAMESPACE, {}) or {})
     raise ConfigError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
-

@@ -1,0 +1,62 @@
+"""Input normalisation: any supported image to float32 grey levels in [0, 1]."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from marker_localizer.errors import ImageError
+
+_CHANNEL_CONVERSIONS = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}
+
+
+def bit_depth_scale(image: np.ndarray) -> float:
+    """Full-scale value of an integer image: 255 for uint8; for uint16 the smallest
+    2**b - 1 (b >= 8) that holds the data, so 10-, 12- and 14-bit sensors packed in
+    16-bit words keep their contrast.
+    """
+    if image.dtype == np.uint8:
+        return 255.0
+    peak = int(image.max()) if image.size else 0
+    bits = max(8, int(peak).bit_length())
+    return float(2**bits - 1)
+
+
+def to_gray_float(image: np.ndarray, *, rgb: bool = False) -> np.ndarray:
+    """Convert a uint8/uint16/float image, grey or colour, to (H, W) float32 in [0, 1].
+
+    Args:
+        image: (H, W), (H, W, 1), (H, W, 3) or (H, W, 4) array. Colour is BGR(A)
+            unless ``rgb``. Float images must already be in [0, 1].
+        rgb: the channels are RGB(A) instead of BGR(A).
+
+    Returns:
+        (H, W) float32.
+
+    Raises:
+        ImageError: empty image, unsupported shape or dtype, non-finite values.
+    """
+    if not isinstance(image, np.ndarray):
+        raise ImageError(f"expected a numpy array, got {type(image).__name__}")
+    if image.size == 0:
+        raise ImageError(f"empty image (shape {image.shape})")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim == 3:
+        if image.shape[2] not in _CHANNEL_CONVERSIONS:
+            raise ImageError(f"unsupported channel count {image.shape[2]} (shape {image.shape})")
+        if rgb:
+            image = image[:, :, [2, 1, 0, 3][: image.shape[2]]]
+        work = (
+            image if image.dtype in (np.uint8, np.uint16, np.float32) else image.astype(np.float32)
+        )
+        image = cv2.cvtColor(np.ascontiguousarray(work), _CHANNEL_CONVERSIONS[image.shape[2]])
+    if image.ndim != 2:
+        raise ImageError(f"expected a 2-D grey or 3-D colour image, got shape {image.shape}")
+    if image.dtype in (np.uint8, np.uint16):
+        return image.astype(np.float32) / np.float32(bit_depth_scale(image))
+    if image.dtype in (np.float32, np.float64):
+        if not np.isfinite(image).all():
+            raise ImageError("image contains NaN or infinite values")
+        return np.clip(image, 0.0, 1.0).astype(np.float32)
+    raise ImageError(f"unsupported dtype {image.dtype} (expected uint8, uint16 or float)")

@@ -1,0 +1,311 @@
+"""Section 3.3.2 of the paper: sub-pixel location.
+
+The paper's path: an NCC surface between the adaptive template and the image,
+computed as one matrix product over an im2col expansion (Eqs. 11-12), then a
+weighted least-squares quadratic surface (Eq. 13) whose extremum (Eq. 14) is
+the sub-pixel offset.
+
+The default path continues from there with :func:`refine_point_symmetry`, a
+Gauss-Newton fit of the centre of point symmetry over the whole marker. A
+diagonal marker is point-symmetric about its centre under any homography
+(180-degree rotation maps each line through the centre onto itself and each
+quadrant onto its opposite twin), and stays so under any symmetric blur and any
+monotonic grey-level change, which a template with a fixed edge profile does
+not. Using the whole marker is what brings the error towards the Cramer-Rao
+bound (design.md).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from marker_localizer.core.sampling import bilinear_with_gradient
+
+
+def ncc_surface(
+    image: np.ndarray, centres: np.ndarray, template: np.ndarray, search_px: int
+) -> np.ndarray:
+    """NCC of a template at every integer shift around each centre, Eqs. (11)-(12).
+
+    The image around each centre is expanded im2col-style into a matrix whose
+    rows are the (2r+1)^2 windows at every shift, so the whole surface is one
+    matrix product with the zero-mean, unit-norm template vector.
+
+    Args:
+        image: (H, W) float image.
+        centres: (N, 2) integer (x, y) positions; windows must lie inside the image.
+        template: (N, T, T) templates (T odd), one per centre.
+        search_px: S; shifts run over [-S, S] in x and y.
+
+    Returns:
+        (N, 2S+1, 2S+1) NCC values in [-1, 1]; element [n, j, i] is the shift
+        (dx, dy) = (i - S, j - S).
+    """
+    n, size, _ = template.shape
+    half = size // 2
+    span = 2 * (half + search_px) + 1
+    offsets = np.arange(span) - (half + search_px)
+    rows = centres[:, 1, None, None] + offsets[None, :, None]
+    cols = centres[:, 0, None, None] + offsets[None, None, :]
+    regions = image[rows, cols]  # (N, span, span)
+    # Eq. (11): the expanded tensor F~, one row per shift, (2r+1)^2 columns.
+    windows = sliding_window_view(regions, (size, size), axis=(1, 2))
+    expanded = windows.reshape(n, -1, size * size).astype(np.float64)
+    expanded -= expanded.mean(axis=2, keepdims=True)
+    expanded /= np.linalg.norm(expanded, axis=2, keepdims=True) + 1e-12
+    flat_template = template.reshape(n, -1).astype(np.float64)
+    flat_template = flat_template - flat_template.mean(axis=1, keepdims=True)
+    flat_template /= np.linalg.norm(flat_template, axis=1, keepdims=True) + 1e-12
+    # Eq. (12): R = F~_tar . F~_ref / (|F~_tar| |F~_ref|), as one batched product.
+    surface = np.matmul(expanded, flat_template[:, :, None])[..., 0]
+    return surface.reshape(n, 2 * search_px + 1, 2 * search_px + 1)
+
+
+def fit_quadratic_surface(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Weighted least-squares fit of c(x, y) = a x^2 + b y^2 + c xy + d x + e y + f, Eq. (13).
+
+    Args:
+        values: (N, K, K) samples on the integer grid centred on 0 (K odd).
+        weights: (N, K, K) non-negative weights.
+
+    Returns:
+        (N, 6) coefficients (a, b, c, d, e, f).
+    """
+    k = values.shape[1]
+    grid = np.arange(k) - k // 2
+    y, x = np.meshgrid(grid, grid, indexing="ij")
+    design = np.stack([x * x, y * y, x * y, x, y, np.ones_like(x)], axis=-1).reshape(-1, 6)
+    w = weights.reshape(len(values), -1)
+    normal = np.einsum("nk,ki,kj->nij", w, design, design)
+    rhs = np.einsum("nk,ki,nk->ni", w, design, values.reshape(len(values), -1))
+    return np.linalg.solve(normal + 1e-12 * np.eye(6), rhs[..., None])[..., 0]
+
+
+def quadratic_extremum(coefficients: np.ndarray) -> np.ndarray:
+    """Stationary point of the fitted quadratic surface, Eq. (14).
+
+    Setting the gradient to zero gives
+    dx = (2 b d - c e) / (c^2 - 4 a b), dy = (2 a e - c d) / (c^2 - 4 a b).
+    (The paper prints 2bc in the first numerator; 2bd is what the gradient gives.)
+
+    Args:
+        coefficients: (N, 6) from :func:`fit_quadratic_surface`.
+
+    Returns:
+        (N, 2) offsets (dx, dy); NaN where the surface has no unique extremum.
+    """
+    a, b, c, d, e = (coefficients[:, i] for i in range(5))
+    det = c * c - 4.0 * a * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dx = (2.0 * b * d - c * e) / det
+        dy = (2.0 * a * e - c * d) / det
+    singular = np.abs(det) < 1e-12
+    return np.where(singular[:, None], np.nan, np.stack([dx, dy], axis=1))
+
+
+def ncc_subpixel(surface: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel peak of NCC surfaces: WLS quadratic on the 3x3 around the best shift.
+
+    Args:
+        surface: (N, 2S+1, 2S+1) from :func:`ncc_surface`.
+
+    Returns:
+        (offset, peak): (N, 2) shift (dx, dy) of the peak from the window centre
+        (NaN where the fit has no maximum within 1 px of the best shift) and (N,) the
+        best NCC value.
+    """
+    n, k, _ = surface.shape
+    flat = surface.reshape(n, -1)
+    best = np.argmax(flat, axis=1)
+    by, bx = np.unravel_index(best, (k, k))
+    by = np.clip(by, 1, k - 2)
+    bx = np.clip(bx, 1, k - 2)
+    offsets = np.arange(-1, 2)
+    rows = by[:, None, None] + offsets[None, :, None]
+    cols = bx[:, None, None] + offsets[None, None, :]
+    patch = surface[np.arange(n)[:, None, None], rows, cols]
+    # Weights favour the higher-correlation samples near the peak.
+    weights = np.clip(patch, 1e-3, None)
+    coefficients = fit_quadratic_surface(patch, weights)
+    delta = quadratic_extremum(coefficients)
+    is_maximum = (coefficients[:, 0] < 0) & (coefficients[:, 1] < 0)
+    delta[~is_maximum | (np.abs(delta) > 1.0).any(axis=1)] = np.nan
+    centre = k // 2
+    offset = np.stack([bx - centre, by - centre], axis=1) + delta
+    return offset, flat[np.arange(n), best]
+
+
+class SymmetryFit(NamedTuple):
+    """Result of :func:`refine_point_symmetry` for N points.
+
+    Attributes:
+        xy: (N, 2) refined centres.
+        covariance: (N, 2, 2) covariance of the centre in px^2 from the fit.
+        residual: (N,) RMS symmetry residual divided by the local contrast (0 = perfect X).
+        converged: (N,) True where the last step was below tolerance and the
+            point stayed within ``max_shift_px`` of its start.
+    """
+
+    xy: np.ndarray
+    covariance: np.ndarray
+    residual: np.ndarray
+    converged: np.ndarray
+
+
+def symmetric_offsets(radius_px: float, max_samples: int = 400) -> tuple[np.ndarray, np.ndarray]:
+    """Half-disk sample offsets d (one of each +d/-d pair) and taper weights.
+
+    The grid spacing is a multiple of 0.5 px, so c + d and c - d always share the
+    same fractional position: bilinear interpolation errors then cancel in the
+    symmetry residual instead of biasing the centre.
+
+    Returns:
+        (offsets, weights): (K, 2) float64 and (K,) float64.
+    """
+    step = 0.5
+    while (np.pi * radius_px**2 / 2.0) / step**2 > max_samples:
+        step += 0.5
+    n = int(np.floor(radius_px / step))
+    grid = np.arange(-n, n + 1) * step
+    dx, dy = np.meshgrid(grid, grid)
+    dx, dy = dx.ravel(), dy.ravel()
+    r2 = dx * dx + dy * dy
+    upper = (dy > 0) | ((dy == 0) & (dx > 0))
+    inside = upper & (r2 <= radius_px**2)
+    # Taper so that the marker's outer edge, where symmetry ends, carries little weight.
+    weights = 1.0 - r2[inside] / radius_px**2
+    return np.stack([dx[inside], dy[inside]], axis=1), weights
+
+
+def refine_point_symmetry(
+    image: np.ndarray,
+    xy: np.ndarray,
+    radius_px: np.ndarray,
+    *,
+    iterations: int = 10,
+    tolerance_px: float = 1e-3,
+    max_shift_px: np.ndarray | float = 2.0,
+    model_gain: bool = True,
+    max_samples: int = 400,
+) -> SymmetryFit:
+    """Gauss-Newton fit of each marker's centre of point symmetry.
+
+    Minimises sum_d w(d) r(d)^2 over the half disk |d| <= radius with
+    r(d) = I(c + d) - I(c - d) - (g . d) (I(c + d) + I(c - d)),
+    where the optional gain gradient g absorbs a linear illumination slope across
+    the marker. Samples and Jacobian come from the bilinear interpolant and its
+    exact derivative.
+
+    Args:
+        image: (H, W) float image (raw intensities: no filtering, which would bias).
+        xy: (N, 2) start positions.
+        radius_px: (N,) radius of the disk used per point.
+        iterations: Gauss-Newton iterations at most.
+        tolerance_px: stop when every step is below this.
+        max_shift_px: a point further than this from its start has not converged.
+        model_gain: fit the gain gradient g (4 parameters instead of 2).
+        max_samples: cap on the samples per point (the grid coarsens for big disks).
+
+    Returns:
+        :class:`SymmetryFit`.
+    """
+    n = len(xy)
+    if n == 0:
+        return SymmetryFit(np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0), np.zeros(0, bool))
+    centre = xy.astype(np.float64).copy()
+    start = centre.copy()
+    covariance = np.full((n, 2, 2), np.nan)
+    residual_rms = np.full(n, np.inf)
+    converged = np.zeros(n, dtype=bool)
+    # Points sharing a radius share an offset pattern; group them so each group is
+    # one set of array operations.
+    radius_key = np.round(np.asarray(radius_px, dtype=np.float64) * 2.0) / 2.0
+    max_shift = np.broadcast_to(np.asarray(max_shift_px, dtype=np.float64), (n,))
+    for radius in np.unique(radius_key):
+        members = np.flatnonzero(radius_key == radius)
+        offsets, taper = symmetric_offsets(float(radius), max_samples)
+        fit = _gauss_newton_symmetry(
+            image, centre[members], offsets, taper, iterations, tolerance_px, model_gain
+        )
+        centre[members], covariance[members], residual_rms[members], converged[members] = fit
+    moved = np.linalg.norm(centre - start, axis=1)
+    converged &= moved <= max_shift
+    return SymmetryFit(centre, covariance, residual_rms, converged)
+
+
+def _symmetry_terms(
+    image: np.ndarray,
+    centre: np.ndarray,
+    gain: np.ndarray,
+    offsets: np.ndarray,
+    taper: np.ndarray,
+    model_gain: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals r(d), weights, Jacobian (N, K, P) and the samples I(c +- d) at ``centre``."""
+    dx, dy = offsets[:, 0], offsets[:, 1]
+    plus, gpx, gpy, valid_p = bilinear_with_gradient(
+        image, centre[:, 0, None] + dx, centre[:, 1, None] + dy
+    )
+    minus, gmx, gmy, valid_m = bilinear_with_gradient(
+        image, centre[:, 0, None] - dx, centre[:, 1, None] - dy
+    )
+    total = plus + minus
+    residual = plus - minus - (gain[:, 0, None] * dx + gain[:, 1, None] * dy) * total
+    weight = taper * (valid_p & valid_m)
+    jac = [gpx - gmx, gpy - gmy]
+    if model_gain:
+        jac += [-dx * total, -dy * total]
+    return residual, weight, np.stack(jac, axis=-1), np.concatenate([plus, minus], axis=1)
+
+
+def _gauss_newton_symmetry(
+    image: np.ndarray,
+    centre: np.ndarray,
+    offsets: np.ndarray,
+    taper: np.ndarray,
+    iterations: int,
+    tolerance_px: float,
+    model_gain: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    n_params = 4 if model_gain else 2
+    n = len(centre)
+    centre = centre.copy()
+    gain = np.zeros((n, 2))
+    step_norm = np.full(n, np.inf)
+    for iteration in range(iterations + 1):
+        residual, weight, jacobian, samples = _symmetry_terms(
+            image, centre, gain, offsets, taper, model_gain
+        )
+        normal = np.einsum("nk,nki,nkj->nij", weight, jacobian, jacobian)
+        active = step_norm > tolerance_px
+        if iteration == iterations or not active.any():
+            break
+        rhs = np.einsum("nk,nki,nk->ni", weight, jacobian, residual)
+        scale = np.maximum(np.einsum("nii->ni", normal), 1e-12)
+        damped = normal + 1e-9 * scale[:, :, None] * np.eye(n_params)
+        step = -np.linalg.solve(damped, rhs[..., None])[..., 0]
+        # A Gauss-Newton step larger than a pixel is untrustworthy this far from the optimum.
+        step[:, :2] = np.clip(step[:, :2], -1.0, 1.0)
+        step[~active] = 0.0
+        centre += step[:, :2]
+        if model_gain:
+            gain += step[:, 2:]
+        step_norm = np.where(active, np.linalg.norm(step[:, :2], axis=1), step_norm)
+    # Sandwich covariance of the weighted fit; residuals sampled closer than a pixel
+    # are correlated, so the effective count is that of pixels, not of samples.
+    w_sum = weight.sum(axis=1)
+    sigma2 = (weight * residual**2).sum(axis=1) / np.maximum(w_sum - n_params, 1.0)
+    meat = np.einsum("nk,nki,nkj->nij", weight**2, jacobian, jacobian)
+    bread = np.linalg.pinv(normal)
+    spacing = float(np.min(np.abs(offsets[offsets != 0])))
+    full = sigma2[:, None, None] * bread @ meat @ bread / min(spacing, 1.0) ** 2
+    covariance = full[:, :2, :2]
+    contrast = np.maximum(
+        np.percentile(samples, 90, axis=1) - np.percentile(samples, 10, axis=1), 1e-6
+    )
+    residual_rms = np.sqrt(sigma2) / contrast
+    converged = step_norm <= tolerance_px
+    return centre, covariance, residual_rms, converged

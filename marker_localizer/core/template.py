@@ -1,0 +1,153 @@
+"""Section 3.3.1 of the paper: adaptive template generation.
+
+From the two line angles phi1, phi2 of the verification stage, the template is
+an X whose lines have those directions (so it is built once per marker instead
+of matching a bank of rotated and scaled templates). Its grey levels are sampled
+from the image with 3x3 windows on the bisectors of the four sectors, it is
+blurred with the defocus sigma_b estimated from the edge spread, and of the two
+polarities the one closer to the image patch in L1 is kept (Eq. 10).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from marker_localizer.core.sampling import bilinear
+
+_SUPERSAMPLING = 4  # template pixels are area-integrated from 4x4 sub-samples
+
+
+def sector_sign(x: np.ndarray, y: np.ndarray, line_angles: np.ndarray) -> np.ndarray:
+    """+1 / -1 for the two pairs of opposite sectors between two lines through the origin.
+
+    Args:
+        x: (..., K) positions relative to the centre.
+        y: same shape as ``x``.
+        line_angles: (..., 2) line directions in radians, broadcast against x[..., :1].
+
+    Returns:
+        float array of the shape of ``x``: the product of the signed distances to
+        both lines, as a sign. Sectors facing each other across the centre share a sign.
+    """
+    a1, a2 = line_angles[..., 0:1], line_angles[..., 1:2]
+    side1 = np.sin(a1) * x - np.cos(a1) * y
+    side2 = np.sin(a2) * x - np.cos(a2) * y
+    return np.sign(side1 * side2)
+
+
+class GreyLevels(NamedTuple):
+    """Levels sampled on the sector bisectors; each (N,).
+
+    Attributes:
+        positive: mean level of the two sectors where :func:`sector_sign` is +1.
+        negative: mean level of the two sectors where it is -1.
+    """
+
+    positive: np.ndarray
+    negative: np.ndarray
+
+
+def sample_grey_levels(
+    image: np.ndarray, xy: np.ndarray, line_angles: np.ndarray, offset_px: np.ndarray
+) -> GreyLevels:
+    """Grey level of each sector pair from 3x3 windows on the bisectors (section 3.3.1).
+
+    The paper samples 5 px along theta / 2 from the centre; here the four
+    bisector directions of the two lines are used, at ``offset_px`` per marker
+    (5 px, or less for markers smaller than that).
+
+    Args:
+        image: (H, W) float image.
+        xy: (N, 2) centres.
+        line_angles: (N, 2) line directions.
+        offset_px: (N,) sampling distance from the centre.
+
+    Returns:
+        :class:`GreyLevels`.
+    """
+    a1, a2 = line_angles[:, 0], line_angles[:, 1]
+    # The bisectors of a line pair: their mean direction and its perpendicular, both ways.
+    mid = np.angle(np.exp(1j * a1) + np.exp(1j * a2))
+    directions = mid[:, None] + np.array([0.0, np.pi / 2, np.pi, 3 * np.pi / 2])[None, :]
+    wx, wy = np.meshgrid(np.arange(-1, 2), np.arange(-1, 2))
+    px = (
+        xy[:, 0, None, None] + offset_px[:, None, None] * np.cos(directions)[..., None] + wx.ravel()
+    )
+    py = (
+        xy[:, 1, None, None] + offset_px[:, None, None] * np.sin(directions)[..., None] + wy.ravel()
+    )
+    values, _ = bilinear(image, px, py)
+    means = values.mean(axis=-1)  # (N, 4)
+    bis_x = np.cos(directions)
+    bis_y = np.sin(directions)
+    sign = sector_sign(bis_x, bis_y, line_angles)
+    positive = np.where(sign > 0, means, 0.0).sum(1) / np.maximum((sign > 0).sum(1), 1)
+    negative = np.where(sign < 0, means, 0.0).sum(1) / np.maximum((sign < 0).sum(1), 1)
+    return GreyLevels(positive, negative)
+
+
+def estimate_defocus_sigma(gradient_magnitude_peak: np.ndarray, contrast: np.ndarray) -> np.ndarray:
+    """Gaussian blur sigma_b of an edge from its contrast and steepest slope.
+
+    A step of height C blurred by a Gaussian of sigma has slope C / (sqrt(2 pi) sigma)
+    at the edge, so sigma_b = C / (sqrt(2 pi) * max |grad I|).
+
+    Args:
+        gradient_magnitude_peak: (N,) largest gradient magnitude across the edges.
+        contrast: (N,) step height in the same units.
+
+    Returns:
+        (N,) sigma_b in pixels, clipped to [0.3, 5].
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sigma = np.abs(contrast) / (np.sqrt(2.0 * np.pi) * gradient_magnitude_peak)
+    return np.clip(np.nan_to_num(sigma, nan=1.0, posinf=5.0), 0.3, 5.0)
+
+
+def adaptive_template(
+    line_angles: np.ndarray, levels: GreyLevels, sigma_b: np.ndarray, half_size: int
+) -> np.ndarray:
+    """Render one X template per marker (section 3.3.1).
+
+    Args:
+        line_angles: (N, 2) line directions phi1, phi2 (theta = phi1 - phi2 is the
+            angle between them).
+        levels: sector grey levels.
+        sigma_b: (N,) defocus blur of each marker in pixels.
+        half_size: the templates are (2 half_size + 1) square.
+
+    Returns:
+        (N, T, T) float64 templates, T = 2 half_size + 1.
+    """
+    size = 2 * half_size + 1
+    sub = (np.arange(size * _SUPERSAMPLING) + 0.5) / _SUPERSAMPLING - 0.5 - half_size
+    sx, sy = np.meshgrid(sub, sub)
+    sign = sector_sign(sx.ravel()[None, :], sy.ravel()[None, :], line_angles)
+    fine = np.where(sign > 0, levels.positive[:, None], levels.negative[:, None])
+    fine = fine.reshape(-1, size, _SUPERSAMPLING, size, _SUPERSAMPLING).mean(axis=(2, 4))
+    templates = np.empty_like(fine)
+    for k in range(len(fine)):  # per marker (not per pixel): each has its own blur
+        templates[k] = cv2.GaussianBlur(
+            fine[k], (0, 0), float(sigma_b[k]), borderType=cv2.BORDER_REFLECT
+        )
+    return templates
+
+
+def choose_polarity(patch: np.ndarray, templates: np.ndarray) -> np.ndarray:
+    """Pick, per marker, the template polarity closer to the image patch in L1, Eq. (10).
+
+    Args:
+        patch: (N, T, T) image windows at the coarse centres.
+        templates: (N, T, T) templates; the alternative is the one with the two
+            sector levels exchanged (mirrored about the mean level).
+
+    Returns:
+        (N, T, T) the chosen templates.
+    """
+    mean = templates.mean(axis=(1, 2), keepdims=True)
+    swapped = 2.0 * mean - templates
+    keep = np.abs(patch - templates).sum(axis=(1, 2)) <= np.abs(patch - swapped).sum(axis=(1, 2))
+    return np.where(keep[:, None, None], templates, swapped)

@@ -1,0 +1,316 @@
+"""Section 3.2 of the paper, geometric checks: centre symmetry and double-line intersection.
+
+A diagonal marker keeps two invariants under blur, perspective and uneven light:
+(1) centre symmetry: on any circle around the centre the grey levels repeat
+after 180 degrees, with two dark and two bright sectors; (2) double line: two
+straight edges cross at the centre. :func:`centre_symmetry_check` tests (1) on
+concentric rings and, because the edges of an X are straight lines through the
+centre, also requires the sector boundaries to keep their angles from ring to
+ring (which rejects bars, blobs and plus signs that pass a single ring).
+:func:`double_line_check` tests (2) with OpenCV's LSD.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from marker_localizer.core.sampling import bilinear
+
+N_ANGLES = 36  # the paper's 10-degree sampling of the annulus
+_HALF_TURN = N_ANGLES // 2
+
+
+def annular_profiles(image: np.ndarray, xy: np.ndarray, radii_px: np.ndarray) -> np.ndarray:
+    """Grey levels on rings around each point, every 10 degrees.
+
+    Args:
+        image: (H, W) float image.
+        xy: (N, 2) ring centres.
+        radii_px: (J,) ring radii.
+
+    Returns:
+        (N, J, 36) samples; angle k is 10 k degrees from +x towards +y. NaN where
+        the ring leaves the image.
+    """
+    theta = np.deg2rad(np.arange(N_ANGLES) * 360.0 / N_ANGLES)
+    x = xy[:, 0, None, None] + radii_px[None, :, None] * np.cos(theta)
+    y = xy[:, 1, None, None] + radii_px[None, :, None] * np.sin(theta)
+    values, valid = bilinear(image, x, y)
+    return np.where(valid, values, np.nan)
+
+
+def _circular_smooth(profile: np.ndarray) -> np.ndarray:
+    """Smooth along the angle axis with a [1, 2, 1] / 4 kernel (the paper's DoG pre-filter)."""
+    return 0.25 * (np.roll(profile, 1, axis=-1) + 2.0 * profile + np.roll(profile, -1, axis=-1))
+
+
+class RingAnalysis(NamedTuple):
+    """Per-ring measurements of :func:`analyse_rings`, each (N, J).
+
+    Attributes:
+        contrast: bright minus dark level on the ring, in image units.
+        symmetry: correlation of the ring profile with itself turned by 180 degrees.
+        four_sectors: True where the ring has exactly two dark and two bright
+            sectors, each boundary 180 +- 30 degrees from its opposite twin.
+        line_angles: (N, J, 2) directions in [0, pi) of the two lines through the
+            centre, from the sector boundaries.
+    """
+
+    contrast: np.ndarray
+    symmetry: np.ndarray
+    four_sectors: np.ndarray
+    line_angles: np.ndarray
+
+
+def analyse_rings(profiles: np.ndarray) -> RingAnalysis:
+    """Measure the centre-symmetry invariants of annular profiles (section 3.2, check 1).
+
+    Args:
+        profiles: (N, J, 36) from :func:`annular_profiles`.
+
+    Returns:
+        :class:`RingAnalysis`; rings with NaN samples get symmetry -1 and contrast 0.
+    """
+    missing = np.isnan(profiles).any(axis=-1)
+    f = _circular_smooth(np.nan_to_num(profiles))
+    high, low = f.max(axis=-1), f.min(axis=-1)
+    contrast = np.where(missing, 0.0, high - low)
+    centred = f - f.mean(axis=-1, keepdims=True)
+    turned = np.roll(centred, _HALF_TURN, axis=-1)
+    norm = np.sqrt((centred**2).sum(-1) * (turned**2).sum(-1)) + 1e-12
+    symmetry = np.where(missing, -1.0, (centred * turned).sum(-1) / norm)
+    # Sector boundaries: crossings of the mid level between samples k and k+1.
+    level = 0.5 * (high + low)[..., None]
+    above = f > level
+    crossing = above != np.roll(above, -1, axis=-1)
+    n_cross = crossing.sum(axis=-1)
+    four = (n_cross == 4) & ~missing
+    # Sub-sample crossing angle by linear interpolation, for rings with four crossings.
+    nxt = np.roll(f, -1, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        frac = np.clip((level - f) / (nxt - f), 0.0, 1.0)
+    position = np.arange(N_ANGLES) + np.nan_to_num(frac)
+    order = np.argsort(~crossing, axis=-1, kind="stable")[..., :4]
+    first4 = np.take_along_axis(position, order, axis=-1) * (2 * np.pi / N_ANGLES)
+    # Boundaries i and i+2 must be opposite (180 deg apart) on a centrally symmetric X.
+    gap = np.abs(np.angle(np.exp(1j * (first4[..., 2:] - first4[..., :2] - np.pi))))
+    four &= (gap < np.deg2rad(30.0)).all(axis=-1)
+    # Each line's direction: circular mean of a boundary and its opposite twin (mod pi).
+    doubled = np.exp(2j * first4)
+    line_angles = (np.angle(doubled[..., :2] + doubled[..., 2:]) / 2.0) % np.pi
+    return RingAnalysis(contrast, symmetry, four, line_angles)
+
+
+def _angle_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Absolute difference of line directions modulo pi."""
+    return np.abs(np.angle(np.exp(2j * (a - b)))) / 2.0
+
+
+class SymmetryCheck(NamedTuple):
+    """Result of :func:`centre_symmetry_check` for N candidates.
+
+    Attributes:
+        accepted: (N,) bool.
+        score: (N,) mean symmetry over the accepted rings (0 where rejected).
+        radius_px: (N,) largest ring radius that still shows the X: the marker's extent.
+        line_angles: (N, 2) directions in [0, pi) of the marker's two lines.
+        contrast: (N,) bright-minus-dark level on the innermost accepted ring.
+    """
+
+    accepted: np.ndarray
+    score: np.ndarray
+    radius_px: np.ndarray
+    line_angles: np.ndarray
+    contrast: np.ndarray
+
+
+def ring_radii(radius_range_px: tuple[float, float]) -> np.ndarray:
+    """Ring radii of the annular scan: a sqrt(2) progression across the expected radii."""
+    r_min, r_max = radius_range_px
+    start = max(1.5, 0.5 * r_min)
+    count = int(np.floor(np.log(max(r_max, start) / start) / np.log(np.sqrt(2.0)))) + 1
+    return start * np.sqrt(2.0) ** np.arange(count)
+
+
+def centre_symmetry_check(
+    image: np.ndarray,
+    xy: np.ndarray,
+    radii_px: np.ndarray,
+    *,
+    min_contrast: float,
+    min_symmetry: float,
+    max_angle_drift_rad: float = np.deg2rad(15.0),
+    max_first_ring: int = 2,
+) -> SymmetryCheck:
+    """Annular-scan centre-symmetry check (section 3.2, invariant 1).
+
+    A ring is "good" when it has enough contrast, correlates with itself turned
+    by 180 degrees at least ``min_symmetry``, shows exactly four sector boundaries
+    in opposite pairs, and its line angles agree with the innermost good ring. A
+    candidate passes when a run of at least two consecutive good rings starts at
+    one of the ``max_first_ring`` innermost rings (the X must reach the centre).
+
+    Args:
+        image: (H, W) float image.
+        xy: (N, 2) candidate centres (already centred to ~1 px).
+        radii_px: (J,) ring radii, increasing (see :func:`ring_radii`).
+        min_contrast: minimum ring contrast in image units.
+        min_symmetry: minimum 180-degree self-correlation.
+        max_angle_drift_rad: largest change of a line angle between rings.
+        max_first_ring: the run must start at a ring index below this.
+
+    Returns:
+        :class:`SymmetryCheck`.
+    """
+    n, n_rings = len(xy), len(radii_px)
+    if n == 0:
+        return SymmetryCheck(
+            np.zeros(0, bool), np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.zeros(0)
+        )
+    rings = analyse_rings(annular_profiles(image, xy, radii_px))
+    good = rings.four_sectors & (rings.contrast >= min_contrast) & (rings.symmetry >= min_symmetry)
+    first = np.argmax(good[:, :max_first_ring], axis=1)
+    has_first = good[np.arange(n), first] & good[:, :max_first_ring].any(axis=1)
+    reference = rings.line_angles[np.arange(n), first]  # (N, 2)
+    # Lines may come out in either order on different rings: compare both pairings.
+    drift_same = np.maximum(
+        _angle_difference(rings.line_angles[..., 0], reference[:, None, 0]),
+        _angle_difference(rings.line_angles[..., 1], reference[:, None, 1]),
+    )
+    drift_swap = np.maximum(
+        _angle_difference(rings.line_angles[..., 0], reference[:, None, 1]),
+        _angle_difference(rings.line_angles[..., 1], reference[:, None, 0]),
+    )
+    good &= np.minimum(drift_same, drift_swap) <= max_angle_drift_rad
+    ring_index = np.arange(n_rings)[None, :]
+    after_first = ring_index >= first[:, None]
+    # The run continues while rings stay good: the first bad ring after `first` ends it.
+    broken = np.cumsum(~good & after_first, axis=1) > 0
+    in_run = good & after_first & ~broken & has_first[:, None]
+    run_length = in_run.sum(axis=1)
+    accepted = run_length >= 2
+    last = np.where(in_run.any(axis=1), n_rings - 1 - np.argmax(in_run[:, ::-1], axis=1), 0)
+    score = np.where(accepted, (rings.symmetry * in_run).sum(1) / np.maximum(run_length, 1), 0.0)
+    contrast = rings.contrast[np.arange(n), first]
+    return SymmetryCheck(accepted, score, radii_px[last], reference, contrast)
+
+
+class LineCheck(NamedTuple):
+    """Result of :func:`double_line_check` for N candidates.
+
+    Attributes:
+        accepted: (N,) bool: two extended segments of different direction cross
+            within the distance threshold.
+        line_angles: (N, 2) directions in [0, pi) of the two lines (NaN if rejected).
+        distance_px: (N,) distance of the crossing from the candidate (inf if none).
+    """
+
+    accepted: np.ndarray
+    line_angles: np.ndarray
+    distance_px: np.ndarray
+
+
+def _segment_intersections(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All pairwise intersections of infinite lines through segments (x1, y1, x2, y2).
+
+    Returns:
+        (points (M, 2), i (M,), j (M,)) for pairs i < j that are not parallel.
+    """
+    p = segments[:, :2]
+    d = segments[:, 2:] - segments[:, :2]
+    i, j = np.triu_indices(len(segments), 1)
+    cross = d[i, 0] * d[j, 1] - d[i, 1] * d[j, 0]
+    ok = np.abs(cross) > 1e-9
+    i, j, cross = i[ok], j[ok], cross[ok]
+    w = p[j] - p[i]
+    t = (w[:, 0] * d[j, 1] - w[:, 1] * d[j, 0]) / cross
+    return p[i] + t[:, None] * d[i], i, j
+
+
+def double_line_check(
+    image_u8: np.ndarray,
+    xy: np.ndarray,
+    radius_px: np.ndarray,
+    *,
+    extend_px: float = 5.0,
+    max_distance_px: float = 1.5,
+    min_angle_rad: float = np.deg2rad(20.0),
+) -> LineCheck:
+    """LSD double-line intersection check, Eq. (9) (section 3.2, invariant 2).
+
+    LSD runs on a window of twice the marker radius around each candidate; small
+    windows are upsampled first so that the segments of a 3-5 px marker are long
+    enough for LSD. Segments are extended by ``extend_px`` (Eq. 9, in full-image
+    pixels) at both ends, and the candidate passes when two of them with
+    directions at least ``min_angle_rad`` apart cross within ``max_distance_px``
+    of it and within both extended segments. The edges of an X change polarity at
+    the centre, so LSD returns up to four half-lines; any two of different
+    direction suffice.
+
+    Args:
+        image_u8: (H, W) uint8 image.
+        xy: (N, 2) candidate centres.
+        radius_px: (N,) marker radii (window half-size).
+        extend_px: Delta s of Eq. (9).
+        max_distance_px: largest distance of the crossing from the candidate.
+        min_angle_rad: smallest angle between the two lines.
+
+    Returns:
+        :class:`LineCheck`.
+    """
+    n = len(xy)
+    accepted = np.zeros(n, dtype=bool)
+    angles = np.full((n, 2), np.nan)
+    distance = np.full(n, np.inf)
+    lsd = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD)
+    height, width = image_u8.shape
+    # A loop over candidates (not pixels): each runs LSD on its own small window.
+    for k in range(n):
+        half = int(np.ceil(max(2.0 * radius_px[k], 6.0)))
+        cx, cy = int(round(xy[k, 0])), int(round(xy[k, 1]))
+        x0, y0 = max(cx - half, 0), max(cy - half, 0)
+        x1, y1 = min(cx + half + 1, width), min(cy + half + 1, height)
+        window = image_u8[y0:y1, x0:x1]
+        upsample = max(1, int(np.ceil(24.0 / max(min(window.shape), 1))))
+        if upsample > 1:
+            window = cv2.resize(
+                window, None, fx=upsample, fy=upsample, interpolation=cv2.INTER_CUBIC
+            )
+        found = lsd.detect(window)[0]
+        if found is None or len(found) < 2:
+            continue
+        # Back to full-image coordinates: the resize maps pixel centres by (u + 0.5) / s - 0.5.
+        segments = (found[:, 0, :].astype(np.float64) + 0.5) / upsample - 0.5
+        segments += np.array([x0, y0, x0, y0], dtype=np.float64)
+        direction = segments[:, 2:] - segments[:, :2]
+        length = np.linalg.norm(direction, axis=1)
+        unit = direction / np.maximum(length, 1e-9)[:, None]
+        extended = np.hstack(
+            [segments[:, :2] - extend_px * unit, segments[:, 2:] + extend_px * unit]
+        )
+        points, i, j = _segment_intersections(extended)
+        seg_angle = np.arctan2(direction[:, 1], direction[:, 0]) % np.pi
+        apart = _angle_difference(seg_angle[i], seg_angle[j]) >= min_angle_rad
+        within = _on_segment(points, extended[i]) & _on_segment(points, extended[j])
+        dist = np.linalg.norm(points - xy[k], axis=1)
+        usable = apart & within
+        if not usable.any():
+            continue
+        best = np.flatnonzero(usable)[np.argmin(dist[usable])]
+        distance[k] = dist[best]
+        if dist[best] <= max_distance_px:
+            accepted[k] = True
+            angles[k] = seg_angle[i[best]], seg_angle[j[best]]
+    return LineCheck(accepted, angles, distance)
+
+
+def _on_segment(points: np.ndarray, segments: np.ndarray, slack_px: float = 0.5) -> np.ndarray:
+    """True where each point projects inside its segment (with a little slack)."""
+    a, b = segments[:, :2], segments[:, 2:]
+    d = b - a
+    t = np.einsum("ij,ij->i", points - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+    slack = slack_px / np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+    return (t >= -slack) & (t <= 1.0 + slack)
