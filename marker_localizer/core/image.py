@@ -11,9 +11,10 @@ _CHANNEL_CONVERSIONS = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}
 
 
 def bit_depth_scale(image: np.ndarray) -> float:
-    """Full-scale value of an integer image: 255 for uint8; for uint16 the smallest
-    2**b - 1 (b >= 8) that holds the data, so 10-, 12- and 14-bit sensors packed in
-    16-bit words keep their contrast.
+    """Full-scale value of an integer image.
+
+    255 for uint8; for uint16 the smallest 2**b - 1 (b >= 8) that holds the data,
+    so 10-, 12- and 14-bit sensors packed in 16-bit words keep their contrast.
     """
     if image.dtype == np.uint8:
         return 255.0
