@@ -1,0 +1,1216 @@
+"""Ground-truth renderer: diagonal markers, hard negatives and checkerboards with exact centres.
+
+Coordinates: float64 pixels, x right, y down, (0, 0) at the centre of the
+top-left pixel, so pixel (row i, column j) covers x in [j - 0.5, j + 0.5] and
+y in [i - 0.5, i + 0.5].
+
+Every target (marker, hard negative, checkerboard) is an analytic pattern on
+a plane with coordinates (u, v), mapped into the image by a 3x3 homography
+(plane -> image). Its ground-truth point is the image of the plane origin,
+``H @ [0, 0, 1]``, so the truth is exact whatever the tilt or perspective.
+Pixels integrate the pattern over their area with S x S samples; the frame
+then goes through the imaging chain of :class:`ImagingConditions` (light,
+shadows, optics, gamma, noise, 8-bit quantisation).
+
+Stages, each a public function a flight simulator can reuse or replace:
+:func:`marker_homography` (placement -> homography), :func:`render_targets`
+(homographies -> 8-bit frame), :func:`apply_imaging` (radiance -> 8-bit frame).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from marker_localizer.errors import ConfigError
+from marker_localizer.synthetic.textures import (
+    flat_background,
+    smooth_random_field,
+    texture_background,
+)
+
+# --------------------------------------------------------------------------- constants
+
+_LOG = logging.getLogger(__name__)
+
+#: Half-side of the square plate that carries a marker, in marker radii.
+PLATE_HALF_SIDE = 1.25
+#: Focal length of the pinhole camera of :func:`marker_homography`, in pixels.
+#: With a marker of radius 40 px this puts the camera 30 marker radii away (a
+#: 0.5 m marker at 15 m), so a 60 degree tilt changes the scale by ~3 % across
+#: the marker: mild, true perspective.
+DEFAULT_FOCAL_PX = 1200.0
+#: Reflectance ranges of the dark and bright paint (matte black / white).
+DARK_REFLECTANCE_RANGE: tuple[float, float] = (0.05, 0.15)
+BRIGHT_REFLECTANCE_RANGE: tuple[float, float] = (0.75, 0.95)
+#: Reflectance of the "flat" background: mid-grey, distinct from both paints.
+FLAT_BACKGROUND_LEVEL = 0.45
+#: Sensor full-well capacity used for shot noise in :func:`render_scene`, in
+#: electrons: typical of machine-vision CMOS sensors.
+DEFAULT_FULL_WELL_E = 20000.0
+#: Largest tilt a placement may ask for, in degrees (beyond, the marker is a line).
+MAX_TILT_DEG = 80.0
+#: Free space kept between the bounding circles of two targets and between a
+#: target and the frame border, in pixels: 3 sigma of the widest default PSF.
+PLACEMENT_GAP_PX = 4.0
+#: Random positions tried per target before giving up.
+PLACEMENT_TRIES = 2048
+_PLACEMENT_BATCH = 32
+#: Largest number of sub-pixel samples evaluated at once (bounds memory to ~100 MB).
+SAMPLE_CHUNK = 1 << 20
+#: Distance from a pixel centre to its farthest sample, in pixels (< sqrt(2) / 2).
+_PIXEL_HALF_DIAGONAL = 0.7072
+#: Safety factor on the plane-space footprint of a pixel: covers the change of
+#: the homography's Jacobian within one pixel.
+_FOOTPRINT_MARGIN = 1.1
+
+MARKER_KINDS: tuple[str, ...] = ("quarter_disks", "checker")
+NEGATIVE_KINDS: tuple[str, ...] = (
+    "l_corner", "quarter_disk", "t_junction", "bar", "triangle", "plus", "blob",
+)
+BACKGROUNDS: tuple[str, ...] = ("texture", "flat")
+
+# --------------------------------------------------------------------------- patterns
+
+_Field = Callable[[np.ndarray, np.ndarray], np.ndarray]
+_Line = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Pattern:
+    """An analytic binary pattern on the target plane (units: marker radius = 1).
+
+    Attributes:
+        name: Pattern name (a marker kind, a negative kind or ``"checkerboard"``).
+        dark: ``dark(u, v)`` -> bool array, True where the paint is dark.
+        edge_distance: ``edge_distance(u, v)`` -> a lower bound of the plane
+            distance from (u, v) to the boundary of the dark region. Pixels
+            farther than their footprint from every boundary are uniform and
+            need one sample instead of S x S.
+        half_extent: (half-width along u, half-height along v) of the plate;
+            the dark region lies inside it.
+    """
+
+    name: str
+    dark: _Field
+    edge_distance: _Field
+    half_extent: tuple[float, float] = (PLATE_HALF_SIDE, PLATE_HALF_SIDE)
+
+
+def _lines_distance(*lines: _Line) -> _Field:
+    """Distance to the nearest of the lines a*u + b*v + c = 0 (unit normals (a, b))."""
+
+    def distance(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        result = np.full(u.shape, np.inf)
+        for a, b, c in lines:
+            np.minimum(result, np.abs(a * u + b * v + c), out=result)
+        return result
+
+    return distance
+
+
+def _with_circle(lines_distance: _Field, radius: float) -> _Field:
+    """Add a circle of ``radius`` about the origin to a set of edges."""
+
+    def distance(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return np.minimum(lines_distance(u, v), np.abs(np.hypot(u, v) - radius))
+
+    return distance
+
+
+def _axis_lines(*offsets: float) -> tuple[_Line, ...]:
+    """Lines u = +-o and v = +-o for every offset o."""
+    lines: list[_Line] = []
+    for offset in offsets:
+        lines += [(1.0, 0.0, -offset), (1.0, 0.0, offset), (0.0, 1.0, -offset), (0.0, 1.0, offset)]
+    return tuple(lines)
+
+
+def _line_through(p: tuple[float, float], q: tuple[float, float]) -> _Line:
+    """The line through two plane points, with a unit normal."""
+    a, b = q[1] - p[1], p[0] - q[0]
+    norm = math.hypot(a, b)
+    return a / norm, b / norm, -(a * p[0] + b * p[1]) / norm
+
+
+def _quarter_disks_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    # Quadrants 1 (u > 0, v > 0) and 3 (u < 0, v < 0) inside the unit circle.
+    return (u * v > 0) & (u * u + v * v <= 1.0)
+
+
+def _checker_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return (u * v > 0) & (np.abs(u) <= 1.0) & (np.abs(v) <= 1.0)
+
+
+_BAR_HALF_WIDTH = 0.2    # thick line: 0.4 marker radii wide
+_THIN_HALF_WIDTH = 0.06  # plus sign strokes: 0.12 marker radii wide
+_TRIANGLE = ((-1.0, -0.8), (1.0, -0.8), (0.0, 1.0))
+_BLOB_AXES = (0.55, 0.35)
+
+
+def _l_corner_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return (u >= 0) & (v >= 0) & (u <= 1.0) & (v <= 1.0)
+
+
+def _quarter_disk_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return (u >= 0) & (v >= 0) & (u * u + v * v <= 1.0)
+
+
+def _bar_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return (np.abs(v) <= _BAR_HALF_WIDTH) & (np.abs(u) <= 1.0)
+
+
+def _t_junction_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    stem = (np.abs(u) <= _BAR_HALF_WIDTH) & (v >= 0) & (v <= 1.0)
+    return _bar_dark(u, v) | stem
+
+
+def _plus_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    horizontal = (np.abs(v) <= _THIN_HALF_WIDTH) & (np.abs(u) <= 1.0)
+    vertical = (np.abs(u) <= _THIN_HALF_WIDTH) & (np.abs(v) <= 1.0)
+    return horizontal | vertical
+
+
+def _triangle_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    inside = np.ones(u.shape, dtype=bool)
+    for i in range(3):
+        a, b, c = _line_through(_TRIANGLE[i], _TRIANGLE[(i + 1) % 3])
+        inside &= a * u + b * v + c >= 0
+    return inside
+
+
+def _blob_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return (u / _BLOB_AXES[0]) ** 2 + (v / _BLOB_AXES[1]) ** 2 <= 1.0
+
+
+def _blob_distance(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    # q = |(u/a, v/b)| changes by at most 1/b per unit distance, so b*|q - 1| is a lower bound.
+    q = np.hypot(u / _BLOB_AXES[0], v / _BLOB_AXES[1])
+    return _BLOB_AXES[1] * np.abs(q - 1.0)
+
+
+_CENTRE_LINES: tuple[_Line, ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+
+#: Every built-in pattern by name: the marker kinds and the hard negatives.
+PATTERNS: dict[str, Pattern] = {
+    "quarter_disks": Pattern("quarter_disks", _quarter_disks_dark,
+                             _with_circle(_lines_distance(*_CENTRE_LINES), 1.0)),
+    "checker": Pattern("checker", _checker_dark,
+                       _lines_distance(*_CENTRE_LINES, *_axis_lines(1.0))),
+    "l_corner": Pattern("l_corner", _l_corner_dark,
+                        _lines_distance(*_CENTRE_LINES, *_axis_lines(1.0))),
+    "quarter_disk": Pattern("quarter_disk", _quarter_disk_dark,
+                            _with_circle(_lines_distance(*_CENTRE_LINES), 1.0)),
+    "t_junction": Pattern("t_junction", _t_junction_dark,
+                          _lines_distance(*_CENTRE_LINES, *_axis_lines(_BAR_HALF_WIDTH, 1.0))),
+    "bar": Pattern("bar", _bar_dark, _lines_distance(*_axis_lines(_BAR_HALF_WIDTH, 1.0))),
+    "triangle": Pattern("triangle", _triangle_dark, _lines_distance(
+        *(_line_through(_TRIANGLE[i], _TRIANGLE[(i + 1) % 3]) for i in range(3)))),
+    "plus": Pattern("plus", _plus_dark, _lines_distance(*_axis_lines(_THIN_HALF_WIDTH, 1.0))),
+    "blob": Pattern("blob", _blob_dark, _blob_distance),
+}
+
+
+def checkerboard_pattern(inner_corners: tuple[int, int]) -> Pattern:
+    """A chessboard with a one-square white border, in units of one square.
+
+    Args:
+        inner_corners: (columns, rows) of inner corners, i.e. corners where four
+            squares meet, along u and v. The board has (columns + 1) x (rows + 1)
+            squares, is centred on the origin, and its top-left square is dark.
+
+    Returns:
+        The pattern; inner corner (k, m) lies at
+        u = k - (columns - 1) / 2, v = m - (rows - 1) / 2.
+    """
+    n_u, n_v = inner_corners
+    half_u, half_v = (n_u + 1) / 2.0, (n_v + 1) / 2.0
+
+    def dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        i, j = np.floor(u + half_u), np.floor(v + half_v)
+        on_board = (i >= 0) & (i <= n_u) & (j >= 0) & (j <= n_v)
+        return on_board & ((i + j) % 2 == 0)
+
+    def edge_distance(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        # Distance to the nearest grid line of the board (lines at integer offsets).
+        s, t = u + half_u, v + half_v
+        return np.minimum(np.abs(s - np.clip(np.round(s), 0, n_u + 1)),
+                          np.abs(t - np.clip(np.round(t), 0, n_v + 1)))
+
+    return Pattern("checkerboard", dark, edge_distance, (half_u + 1.0, half_v + 1.0))
+
+
+# --------------------------------------------------------------------------- placements
+
+def _check_range(name: str, bounds: tuple[float, float], low: float,
+                 high: float = math.inf) -> None:
+    if len(bounds) != 2 or not low <= bounds[0] <= bounds[1] <= high:
+        raise ConfigError(f"{name} must be (min, max) with {low} <= min <= max <= {high}, "
+                          f"got {bounds!r}")
+
+
+@dataclass(frozen=True)
+class MarkerPlacement:
+    """Where and how to put one marker (or hard negative) in the image.
+
+    Attributes:
+        x: Image x of the marker centre, px.
+        y: Image y of the marker centre, px.
+        radius_px: Radius of the X (the quarter disks or checker squares)
+            before tilt, px. The plate extends to 1.25 radii.
+        rotation_rad: In-plane rotation, radians, from image +x towards +y.
+        tilt_deg: Out-of-plane tilt, degrees, in [0, 80].
+        tilt_axis_rad: Image direction of the tilt axis, radians from +x towards
+            +y: lengths along it are kept, lengths across it shrink by
+            cos(tilt), whatever the in-plane rotation.
+        kind: A marker kind (:data:`MARKER_KINDS`) or a hard-negative kind
+            (:data:`NEGATIVE_KINDS`).
+        inverted: Swap dark and bright paint.
+    """
+
+    x: float
+    y: float
+    radius_px: float
+    rotation_rad: float = 0.0
+    tilt_deg: float = 0.0
+    tilt_axis_rad: float = 0.0
+    kind: str = "quarter_disks"
+    inverted: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.radius_px > 0:
+            raise ConfigError(f"radius_px must be > 0, got {self.radius_px!r}")
+        if not 0.0 <= self.tilt_deg <= MAX_TILT_DEG:
+            raise ConfigError(f"tilt_deg must be in [0, {MAX_TILT_DEG}], got {self.tilt_deg!r}")
+        if self.kind not in PATTERNS:
+            raise ConfigError(f"unknown kind {self.kind!r}; choose from {tuple(PATTERNS)}")
+
+
+def _rodrigues(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """Rotation matrix about a unit ``axis`` by ``angle_rad``."""
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
+                      [-axis[1], axis[0], 0.0]])
+    return (math.cos(angle_rad) * np.eye(3) + math.sin(angle_rad) * cross
+            + (1.0 - math.cos(angle_rad)) * np.outer(axis, axis))
+
+
+def marker_homography(placement: MarkerPlacement, *,
+                      focal_px: float = DEFAULT_FOCAL_PX) -> np.ndarray:
+    """Plane -> image homography of a placed marker, seen by a pinhole camera.
+
+    The marker plane (units: marker radius) is rotated in-plane, tilted about
+    the axis ``tilt_axis_rad`` and set at depth 1 in front of a pinhole camera of focal
+    length ``focal_px`` whose principal point is the requested centre, at the
+    size that makes an untilted marker ``radius_px`` wide. Tilting therefore
+    foreshortens by cos(tilt) and adds true perspective: a marker spanning
+    2 * radius_px / focal_px radians changes scale across itself by about
+    radius_px / focal_px * sin(tilt).
+
+    Args:
+        placement: Centre, radius, rotation and tilt.
+        focal_px: Focal length of the camera, px; larger means less perspective.
+
+    Returns:
+        (3, 3) float64 homography H with H[2, 2] = 1 and H @ [0, 0, 1] exactly
+        [placement.x, placement.y, 1].
+    """
+    scale = placement.radius_px / focal_px
+    axis = np.array([math.cos(placement.tilt_axis_rad), math.sin(placement.tilt_axis_rad), 0.0])
+    tilt = _rodrigues(axis, math.radians(placement.tilt_deg))
+    cos, sin = math.cos(placement.rotation_rad), math.sin(placement.rotation_rad)
+    in_plane = np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]])
+    # Plane point (u, v) -> camera point scale * (tilt @ [u, v, 0]) + [0, 0, 1].
+    plane_to_camera = np.column_stack([scale * tilt[:, 0], scale * tilt[:, 1], [0.0, 0.0, 1.0]])
+    camera = np.array([[focal_px, 0.0, placement.x], [0.0, focal_px, placement.y],
+                       [0.0, 0.0, 1.0]])
+    # The third column is camera @ [0, 0, 1] = (x, y, 1) exactly: the truth is exact.
+    return camera @ plane_to_camera @ in_plane
+
+
+def project(homography: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
+    """Map plane points through a homography.
+
+    Args:
+        homography: (3, 3) plane -> image.
+        points_uv: (N, 2) plane points.
+
+    Returns:
+        (N, 2) float64 image points (x, y).
+    """
+    points = np.asarray(points_uv, dtype=np.float64)
+    mapped = points @ homography[:, :2].T + homography[:, 2]
+    return mapped[:, :2] / mapped[:, 2:]
+
+
+# --------------------------------------------------------------------------- truth records
+
+@dataclass(frozen=True)
+class MarkerTruth:
+    """Exact ground truth of one rendered marker (or checkerboard corner).
+
+    Attributes:
+        x: Image x of the centre, px: the image of the plane origin.
+        y: Image y of the centre, px.
+        radius_px: Nominal radius before tilt, px (checkerboard: square side).
+        kind: Marker kind, or ``"checkerboard_corner"``.
+        homography: (3, 3) plane -> image, with H @ [0, 0, 1] ~ [x, y, 1].
+        angles: Image directions, radians in [0, pi), of the two lines through
+            the centre: the images of the plane's u and v axes.
+    """
+
+    x: float
+    y: float
+    radius_px: float
+    kind: str
+    homography: np.ndarray = field(compare=False)  # arrays cannot take part in ==/hash
+    angles: tuple[float, float]
+
+    @classmethod
+    def from_homography(cls, homography: np.ndarray, radius_px: float,
+                        kind: str) -> MarkerTruth:
+        """Truth of a target whose plane origin is the marker centre."""
+        h = np.asarray(homography, dtype=np.float64) / homography[2, 2]
+        x, y = float(h[0, 2]), float(h[1, 2])
+        # Jacobian of the plane -> image map at the origin: its columns are the
+        # image directions of the u and v axes.
+        d_du = (h[0, 0] - x * h[2, 0], h[1, 0] - y * h[2, 0])
+        d_dv = (h[0, 1] - x * h[2, 1], h[1, 1] - y * h[2, 1])
+        angles = (math.atan2(d_du[1], d_du[0]) % math.pi, math.atan2(d_dv[1], d_dv[0]) % math.pi)
+        return cls(x, y, float(radius_px), kind, h, angles)
+
+
+@dataclass(frozen=True)
+class PlanarTarget:
+    """One thing to paint into the frame: a pattern seen through a homography.
+
+    This is the unit the compositing core works on; a flight simulator can
+    build targets from camera-derived homographies directly.
+
+    Attributes:
+        homography: (3, 3) plane -> image; must map the whole plate in front
+            of the camera.
+        pattern: The analytic pattern.
+        dark_reflectance: Reflectance of the dark paint, in [0, 1].
+        bright_reflectance: Reflectance of the plate (bright paint), in [0, 1].
+        on_plate: If True the pattern is painted on a bright plate that covers
+            ``pattern.half_extent``; if False only the dark region covers the
+            ground (a shape painted straight onto the ground).
+    """
+
+    homography: np.ndarray
+    pattern: Pattern
+    dark_reflectance: float
+    bright_reflectance: float
+    on_plate: bool = True
+
+
+@dataclass(frozen=True)
+class ImagingConditions:
+    """Light, optics and sensor of one frame; applied by :func:`apply_imaging`.
+
+    Attributes:
+        blur_sigma_px: Sigma of the Gaussian PSF, px (0: none).
+        motion_blur_px: Length of the linear motion blur, px (0: none).
+        motion_blur_angle_rad: Direction of the motion, radians from +x to +y.
+        illumination_strength: 0 = uniform light; 1 = a smooth gain field
+            (linear gradient plus random bumps) spanning 0.5 to 1.0.
+        n_shadows: Number of soft-edged shadow polygons (gain 0.4 to 0.7).
+        vignetting: Fraction of light lost in the frame corners (0: none).
+        gamma: Display gamma; the encoded signal is radiance ** (1 / gamma).
+        noise_sigma_dn: Gaussian read-noise sigma in output DN (8-bit levels).
+        full_well_e: Full-well capacity in electrons for shot noise (variance
+            signal / full_well in [0, 1] units); None: no shot noise.
+    """
+
+    blur_sigma_px: float = 0.0
+    motion_blur_px: float = 0.0
+    motion_blur_angle_rad: float = 0.0
+    illumination_strength: float = 0.0
+    n_shadows: int = 0
+    vignetting: float = 0.0
+    gamma: float = 1.0
+    noise_sigma_dn: float = 0.0
+    full_well_e: float | None = None
+
+    def __post_init__(self) -> None:
+        checks = {
+            "blur_sigma_px": self.blur_sigma_px >= 0,
+            "motion_blur_px": self.motion_blur_px >= 0,
+            "illumination_strength": 0 <= self.illumination_strength <= 1,
+            "n_shadows": self.n_shadows >= 0,
+            "vignetting": 0 <= self.vignetting < 1,
+            "gamma": self.gamma > 0,
+            "noise_sigma_dn": self.noise_sigma_dn >= 0,
+            "full_well_e": self.full_well_e is None or self.full_well_e > 0,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise ConfigError(f"{name} out of range: {getattr(self, name)!r}")
+
+
+@dataclass(frozen=True)
+class RenderedScene:
+    """A rendered frame and its exact ground truth.
+
+    Attributes:
+        image: (height, width) uint8 frame.
+        markers: Truth of every marker (or checkerboard corner), in the order
+            the markers were given or placed.
+        negatives: (kind, x, y) of every hard negative; (x, y) is the image of
+            its plane origin (the corner, junction or centre of the shape).
+        imaging: The light, optics and sensor the frame was rendered with.
+    """
+
+    image: np.ndarray
+    markers: list[MarkerTruth]
+    negatives: list[tuple[str, float, float]]
+    imaging: ImagingConditions = field(default_factory=ImagingConditions)
+
+    @property
+    def centres(self) -> np.ndarray:
+        """(N, 2) float64 array of the marker centres (x, y), px."""
+        return np.array([(m.x, m.y) for m in self.markers], dtype=np.float64).reshape(-1, 2)
+
+
+# --------------------------------------------------------------------------- compositing core
+
+def _normalised(homography: np.ndarray) -> np.ndarray:
+    h = np.asarray(homography, dtype=np.float64)
+    if h.shape != (3, 3) or h[2, 2] == 0:
+        raise ConfigError(f"homography must be 3x3 with H[2, 2] != 0, got {h!r}")
+    return h / h[2, 2]
+
+
+def _plate_corners(target: PlanarTarget) -> np.ndarray:
+    eu, ev = target.pattern.half_extent
+    return np.array([[-eu, -ev], [eu, -ev], [eu, ev], [-eu, ev]])
+
+
+def target_bounding_radius(target: PlanarTarget) -> float:
+    """Largest image distance from the target's centre to its plate corners, px."""
+    h = _normalised(target.homography)
+    corners = project(h, _plate_corners(target))
+    return float(np.max(np.hypot(corners[:, 0] - h[0, 2], corners[:, 1] - h[1, 2])))
+
+
+def _pixel_box(h: np.ndarray, target: PlanarTarget,
+               shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+    """Rows [r0, r1) and columns [c0, c1) that can touch the target's plate."""
+    corners = _plate_corners(target)
+    w = corners @ h[2, :2] + h[2, 2]
+    if np.any(w <= 0):
+        raise ConfigError("the homography maps part of the plate behind the camera")
+    xy = project(h, corners)
+    # The image of a convex plate in front of the camera is the convex hull of its corners.
+    c0 = max(0, math.floor(xy[:, 0].min()) - 1)
+    c1 = min(shape[1], math.ceil(xy[:, 0].max()) + 2)
+    r0 = max(0, math.floor(xy[:, 1].min()) - 1)
+    r1 = min(shape[0], math.ceil(xy[:, 1].max()) + 2)
+    return (r0, r1, c0, c1) if r0 < r1 and c0 < c1 else None
+
+
+def _to_plane(g: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Map image points through the image -> plane homography ``g``."""
+    w = g[2, 0] * x + g[2, 1] * y + g[2, 2]
+    return (g[0, 0] * x + g[0, 1] * y + g[0, 2]) / w, (g[1, 0] * x + g[1, 1] * y + g[1, 2]) / w
+
+
+def _footprint(g: np.ndarray, x: np.ndarray, y: np.ndarray, u: np.ndarray,
+               v: np.ndarray) -> np.ndarray:
+    """Upper bound of the plane distance from a pixel centre to any of its samples."""
+    w = g[2, 0] * x + g[2, 1] * y + g[2, 2]
+    # Jacobian of the image -> plane map (times w); its largest singular value
+    # is how far the plane moves per pixel in the worst direction.
+    j00, j01 = g[0, 0] - u * g[2, 0], g[0, 1] - u * g[2, 1]
+    j10, j11 = g[1, 0] - v * g[2, 0], g[1, 1] - v * g[2, 1]
+    frobenius_sq = j00 * j00 + j01 * j01 + j10 * j10 + j11 * j11
+    det = j00 * j11 - j01 * j10
+    sigma_max_sq = 0.5 * (frobenius_sq + np.sqrt(np.maximum(frobenius_sq ** 2 - 4 * det ** 2, 0)))
+    return _PIXEL_HALF_DIAGONAL * _FOOTPRINT_MARGIN * np.sqrt(sigma_max_sq) / np.abs(w)
+
+
+def _masks(target: PlanarTarget, u: np.ndarray,
+           v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which plane samples the target covers, and which of them are dark paint."""
+    dark = target.pattern.dark(u, v)
+    if not target.on_plate:
+        return dark, dark
+    eu, ev = target.pattern.half_extent
+    return (np.abs(u) <= eu) & (np.abs(v) <= ev), dark
+
+
+def _paint(target: PlanarTarget, coverage: np.ndarray, dark_fraction: np.ndarray) -> np.ndarray:
+    """Mean of coverage * reflectance, from the covered and the dark fractions."""
+    if not target.on_plate:
+        return target.dark_reflectance * dark_fraction
+    # The dark paint lies on the plate: bright everywhere covered, minus the dark part.
+    return (target.bright_reflectance * coverage
+            + (target.dark_reflectance - target.bright_reflectance) * dark_fraction)
+
+
+def _plate_distance(target: PlanarTarget, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    eu, ev = target.pattern.half_extent
+    return np.minimum(np.abs(np.abs(u) - eu), np.abs(np.abs(v) - ev))
+
+
+def _sample_offsets(supersampling: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-pixel sample offsets (k + 0.5) / S - 0.5 on an S x S grid, flattened."""
+    steps = (np.arange(supersampling) + 0.5) / supersampling - 0.5
+    dy, dx = np.meshgrid(steps, steps, indexing="ij")
+    return dx.ravel(), dy.ravel()
+
+
+def _supersample(target: PlanarTarget, g: np.ndarray, x: np.ndarray, y: np.ndarray,
+                 supersampling: int) -> tuple[np.ndarray, np.ndarray]:
+    """Covered and dark fractions of the S x S samples of each pixel centred at (x, y)."""
+    dx, dy = _sample_offsets(supersampling)
+    # Homogeneous plane coordinates are linear in the image point, so a sample's
+    # are its pixel centre's plus its offset's. Both are computed in float64;
+    # float32 then carries plane coordinates of magnitude ~1 to ~1e-7, far
+    # below any error that matters, at half the memory traffic.
+    centre = (g @ np.stack([x, y, np.ones_like(x)])).astype(np.float32)
+    offset = (g[:, :2] @ np.stack([dx, dy])).astype(np.float32)
+    coverage = np.empty(x.shape)
+    dark_fraction = np.empty(x.shape)
+    step = max(1, SAMPLE_CHUNK // dx.size)
+    for start in range(0, x.size, step):
+        rows = slice(start, start + step)
+        w = centre[2, rows, None] + offset[2]
+        u = (centre[0, rows, None] + offset[0]) / w
+        v = (centre[1, rows, None] + offset[1]) / w
+        covered, dark = _masks(target, u, v)
+        coverage[rows] = np.count_nonzero(covered, axis=1) / dx.size
+        dark_fraction[rows] = np.count_nonzero(dark, axis=1) / dx.size
+    return coverage, dark_fraction
+
+
+def composite_target(radiance: np.ndarray, target: PlanarTarget, supersampling: int = 16,
+                     *, exhaustive: bool = False) -> None:
+    """Paint one target into a reflectance image, integrating over pixel areas.
+
+    Each pixel becomes coverage * paint + (1 - coverage) * ground, averaged over
+    S x S samples at offsets (k + 0.5) / S - 0.5, each mapped to the plane
+    through the inverse homography. Pixels whose footprint is farther from
+    every edge than its own size are uniform; they get one sample, which gives
+    the same value the S x S samples would (``exhaustive=True`` samples every
+    pixel, for checking that claim).
+
+    Args:
+        radiance: (height, width) float32 image, modified in place.
+        target: What to paint.
+        supersampling: S, samples per pixel along each axis.
+        exhaustive: Supersample every pixel of the bounding box.
+    """
+    h = _normalised(target.homography)
+    box = _pixel_box(h, target, radiance.shape)
+    if box is None:
+        return
+    r0, r1, c0, c1 = box
+    g = np.linalg.inv(h)
+    y, x = np.mgrid[r0:r1, c0:c1].astype(np.float64)
+    u, v = _to_plane(g, x, y)
+    distance = target.pattern.edge_distance(u, v)
+    if target.on_plate:
+        distance = np.minimum(distance, _plate_distance(target, u, v))
+    edge = np.full(u.shape, True) if exhaustive else distance <= _footprint(g, x, y, u, v)
+    covered, dark = _masks(target, u, v)
+    coverage, dark_fraction = covered.astype(np.float64), dark.astype(np.float64)
+    coverage[edge], dark_fraction[edge] = _supersample(target, g, x[edge], y[edge],
+                                                       supersampling)
+    window = radiance[r0:r1, c0:c1]
+    window[...] = (1.0 - coverage) * window + _paint(target, coverage, dark_fraction)
+
+
+# --------------------------------------------------------------------------- imaging chain
+
+def motion_blur_kernel(length_px: float, angle_rad: float) -> np.ndarray:
+    """Centrally symmetric linear motion-blur kernel.
+
+    The segment from -length/2 to +length/2 along ``angle_rad`` is sampled
+    densely and splatted bilinearly, so fractional end points get partial
+    weight; the kernel is odd-sized and point-symmetric about its centre, so
+    blurring does not move anything.
+
+    Args:
+        length_px: Length of the motion, px (> 0).
+        angle_rad: Direction, radians from +x towards +y.
+
+    Returns:
+        (k, k) float32 kernel, k odd, summing to 1.
+    """
+    radius = math.ceil(length_px / 2.0) + 1
+    size = 2 * radius + 1
+    n_samples = max(2, math.ceil(length_px * 16))
+    t = ((np.arange(n_samples) + 0.5) / n_samples - 0.5) * length_px
+    x, y = radius + t * math.cos(angle_rad), radius + t * math.sin(angle_rad)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = x - x0, y - y0
+    kernel: np.ndarray = np.zeros((size, size))
+    for dy, dx, weight in ((0, 0, (1 - fx) * (1 - fy)), (0, 1, fx * (1 - fy)),
+                           (1, 0, (1 - fx) * fy), (1, 1, fx * fy)):
+        np.add.at(kernel, (y0 + dy, x0 + dx), weight)
+    # Symmetrise away rounding so the kernel cannot shift the image.
+    kernel = 0.5 * (kernel + kernel[::-1, ::-1])
+    return (kernel / kernel.sum()).astype(np.float32)
+
+
+def illumination_field(shape: tuple[int, int], strength: float,
+                       rng: np.random.Generator) -> np.ndarray:
+    """Smooth multiplicative light gain: a linear gradient plus random bumps.
+
+    Args:
+        shape: (height, width), px.
+        strength: 0 gives a gain of 1 everywhere; 1 spans the gain 0.5 to 1.0.
+        rng: Source of randomness.
+
+    Returns:
+        float32 gain of the given shape, in [1 - strength / 2, 1].
+    """
+    height, width = shape
+    angle = rng.uniform(0.0, 2.0 * math.pi)
+    # The gradient is separable: a row term plus a column term, shifted to start at 0.
+    along_x = (math.cos(angle) * np.arange(width)).astype(np.float32)
+    along_y = (math.sin(angle) * np.arange(height)).astype(np.float32)
+    along_x -= along_x.min()
+    along_y -= along_y.min()
+    span = max(float(along_x.max() + along_y.max()), 1e-6)
+    mix = rng.uniform(0.3, 0.7)
+    depth = 0.5 * strength
+    # gain = 1 - depth * (mix * gradient + (1 - mix) * bumps), in place on the bumps.
+    gain = smooth_random_field(shape, rng, cell_px=max(shape) / rng.uniform(2.0, 5.0))
+    gain *= np.float32(-depth * (1.0 - mix))
+    gain += (along_y[:, None] + along_x[None, :]) * np.float32(-depth * mix / span)
+    gain += np.float32(1.0)
+    return gain
+
+
+_SHADOW_DOWNSCALE = 4  # shadows are smooth: draw them at quarter resolution
+
+
+def shadow_field(shape: tuple[int, int], n_shadows: int, rng: np.random.Generator) -> np.ndarray:
+    """Multiplicative gain of soft-edged polygonal shadows.
+
+    Args:
+        shape: (height, width), px.
+        n_shadows: Number of shadows; each is a random 3- to 7-gon of 10-40 % of
+            the smaller frame side in radius, with a penumbra of 2-15 px, that
+            keeps 40-70 % of the light. Shadows may cross markers.
+        rng: Source of randomness.
+
+    Returns:
+        float32 gain of the given shape, in (0, 1].
+    """
+    low_shape = (max(1, shape[0] // _SHADOW_DOWNSCALE), max(1, shape[1] // _SHADOW_DOWNSCALE))
+    gain = np.ones(low_shape, dtype=np.float32)
+    for _ in range(n_shadows):
+        n_vertices = int(rng.integers(3, 8))
+        centre = rng.uniform((0, 0), low_shape[::-1])
+        radius = rng.uniform(0.1, 0.4) * min(low_shape) * rng.uniform(0.6, 1.0, n_vertices)
+        angles = np.sort(rng.uniform(0, 2 * math.pi, n_vertices))
+        polygon = centre + radius[:, None] * np.column_stack([np.cos(angles), np.sin(angles)])
+        outline = np.zeros(low_shape, dtype=np.float32)
+        cv2.fillPoly(outline, [np.round(polygon).astype(np.int32)], 1.0)
+        penumbra_px = rng.uniform(2.0, 15.0) / _SHADOW_DOWNSCALE
+        mask = cv2.GaussianBlur(outline, (0, 0), penumbra_px)
+        gain *= 1.0 - np.float32(1.0 - rng.uniform(0.4, 0.7)) * mask
+    return cv2.resize(gain, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+
+
+def vignetting_field(shape: tuple[int, int], vignetting: float) -> np.ndarray:
+    """Radial gain 1 - vignetting * (r / r_corner)^2 about the frame centre (float32)."""
+    height, width = shape
+    x = (np.arange(width, dtype=np.float32) - (width - 1) / 2) / ((width - 1) / 2 or 1)
+    y = (np.arange(height, dtype=np.float32) - (height - 1) / 2) / ((height - 1) / 2 or 1)
+    return (1.0 - vignetting * 0.5 * (x[None, :] ** 2 + y[:, None] ** 2)).astype(np.float32)
+
+
+def apply_imaging(radiance: np.ndarray, imaging: ImagingConditions,
+                  rng: np.random.Generator) -> np.ndarray:
+    """Turn a scene reflectance image into an 8-bit camera frame.
+
+    Order: light (illumination field, shadows) on the scene; optics (Gaussian
+    PSF, motion blur, vignetting); display gamma; Poisson-Gaussian noise on the
+    encoded signal (so the read-noise sigma is exact in output DN); rounding
+    to 8 bits with clipping.
+
+    Args:
+        radiance: (height, width) float32 reflectance in [0, 1]; overwritten.
+        imaging: Light, optics and sensor.
+        rng: Source of randomness.
+
+    Returns:
+        (height, width) uint8 frame.
+    """
+    shape = radiance.shape
+    if imaging.illumination_strength > 0:
+        radiance *= illumination_field(shape, imaging.illumination_strength, rng)
+    if imaging.n_shadows > 0:
+        radiance *= shadow_field(shape, imaging.n_shadows, rng)
+    if imaging.blur_sigma_px > 0:
+        radiance = cv2.GaussianBlur(radiance, (0, 0), imaging.blur_sigma_px)
+    if imaging.motion_blur_px > 0:
+        kernel = motion_blur_kernel(imaging.motion_blur_px, imaging.motion_blur_angle_rad)
+        radiance = cv2.filter2D(radiance, -1, kernel, borderType=cv2.BORDER_REFLECT_101)
+    if imaging.vignetting > 0:
+        radiance *= vignetting_field(shape, imaging.vignetting)
+    np.clip(radiance, 0.0, 1.0, out=radiance)
+    if imaging.gamma != 1.0:
+        radiance = cv2.pow(radiance, 1.0 / imaging.gamma)
+    return _add_noise_and_quantise(radiance, imaging, rng)
+
+
+def _add_noise_and_quantise(signal: np.ndarray, imaging: ImagingConditions,
+                            rng: np.random.Generator) -> np.ndarray:
+    """Poisson-Gaussian noise (normal approximation) and 8-bit rounding."""
+    read = imaging.noise_sigma_dn / 255.0
+    if imaging.full_well_e is not None:
+        # Shot-noise variance signal / full_well: at > 100 electrons per pixel
+        # the Poisson law is indistinguishable from this normal approximation.
+        sigma = np.sqrt(signal / np.float32(imaging.full_well_e) + np.float32(read * read))
+        signal = signal + sigma * rng.standard_normal(signal.shape, dtype=np.float32)
+    elif read > 0:
+        signal = signal + np.float32(read) * rng.standard_normal(signal.shape, dtype=np.float32)
+    signal *= np.float32(255.0)
+    np.rint(signal, out=signal)
+    np.clip(signal, 0, 255, out=signal)
+    return signal.astype(np.uint8)
+
+
+def make_background(shape: tuple[int, int], background: str | np.ndarray,
+                    rng: np.random.Generator,
+                    level: float = FLAT_BACKGROUND_LEVEL) -> np.ndarray:
+    """Ground reflectance image: ``"texture"``, ``"flat"`` or a given array.
+
+    Args:
+        shape: (height, width), px.
+        background: ``"texture"`` (cluttered photographs), ``"flat"`` (uniform
+            ``level``) or a (height, width) array of reflectances in [0, 1].
+        rng: Source of randomness (texture only).
+        level: Reflectance of the flat background.
+
+    Returns:
+        A new float32 (height, width) array.
+    """
+    if isinstance(background, np.ndarray):
+        if background.shape != tuple(shape):
+            raise ConfigError(f"background shape {background.shape} != frame shape {shape}")
+        return background.astype(np.float32, copy=True)
+    if background == "texture":
+        return texture_background(shape, rng)
+    if background == "flat":
+        return flat_background(shape, level)
+    raise ConfigError(f"unknown background {background!r}; choose from {BACKGROUNDS}")
+
+
+def render_targets(shape: tuple[int, int], targets: Sequence[PlanarTarget],
+                   rng: np.random.Generator, *, background: str | np.ndarray = "flat",
+                   background_level: float = FLAT_BACKGROUND_LEVEL,
+                   imaging: ImagingConditions | None = None,
+                   supersampling: int = 16) -> np.ndarray:
+    """Render planar targets over a background and through the imaging chain.
+
+    The core every renderer of this package uses; it takes homographies (in
+    the targets), so a flight simulator can feed camera-derived ones.
+
+    Args:
+        shape: (height, width) of the frame, px.
+        targets: Painted in order (later ones cover earlier ones).
+        rng: Source of randomness.
+        background: See :func:`make_background`.
+        background_level: Reflectance of the flat background.
+        imaging: Light, optics and sensor; default: none of them (exact frame).
+        supersampling: S, samples per pixel along each axis (>= 1).
+
+    Returns:
+        (height, width) uint8 frame.
+    """
+    if supersampling < 1:
+        raise ConfigError(f"supersampling must be >= 1, got {supersampling!r}")
+    radiance = make_background(shape, background, rng, background_level)
+    for target in targets:
+        composite_target(radiance, target, supersampling)
+    return apply_imaging(radiance, imaging or ImagingConditions(), rng)
+
+
+# --------------------------------------------------------------------------- placement
+
+def _random_paint(rng: np.random.Generator) -> tuple[float, float]:
+    return (float(rng.uniform(*DARK_REFLECTANCE_RANGE)),
+            float(rng.uniform(*BRIGHT_REFLECTANCE_RANGE)))
+
+
+def _target(placement: MarkerPlacement, paint: tuple[float, float],
+            on_plate: bool = True) -> PlanarTarget:
+    dark, bright = paint[::-1] if placement.inverted else paint
+    return PlanarTarget(marker_homography(placement), PATTERNS[placement.kind], dark, bright,
+                        on_plate)
+
+
+def _find_spot(radius: float, shape: tuple[int, int], occupied: np.ndarray,
+               rng: np.random.Generator) -> tuple[float, float] | None:
+    """A random centre whose circle of ``radius`` keeps clear of the border and others.
+
+    Args:
+        radius: Bounding radius of the new target, px.
+        shape: (height, width), px.
+        occupied: (M, 3) rows of (x, y, radius) already taken.
+        rng: Source of randomness.
+
+    Returns:
+        (x, y), or None after :data:`PLACEMENT_TRIES` failed tries.
+    """
+    reach = radius + PLACEMENT_GAP_PX
+    low = (reach - 0.5, reach - 0.5)
+    high = (shape[1] - 0.5 - reach, shape[0] - 0.5 - reach)
+    if low[0] > high[0] or low[1] > high[1]:
+        return None
+    # Small batches: in a sparse frame the first batch nearly always succeeds.
+    for _ in range(PLACEMENT_TRIES // _PLACEMENT_BATCH):
+        candidates = rng.uniform(low, high, size=(_PLACEMENT_BATCH, 2))
+        gaps = np.hypot(candidates[:, None, 0] - occupied[None, :, 0],
+                        candidates[:, None, 1] - occupied[None, :, 1])
+        clear = np.flatnonzero(np.all(gaps >= occupied[None, :, 2] + reach, axis=1))
+        if clear.size:
+            return float(candidates[clear[0], 0]), float(candidates[clear[0], 1])
+    return None
+
+
+def _bounding_radius(placement: MarkerPlacement) -> float:
+    return target_bounding_radius(_target(placement, (0.0, 1.0)))
+
+
+def _occupied(placements: Sequence[MarkerPlacement]) -> np.ndarray:
+    rows = [(p.x, p.y, _bounding_radius(p)) for p in placements]
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def random_negatives(shape: tuple[int, int], n_negatives: int, rng: np.random.Generator,
+                     avoid: Sequence[MarkerPlacement] = (), *,
+                     radius_px: tuple[float, float] = (6.0, 40.0),
+                     max_tilt_deg: float = 60.0) -> list[tuple[MarkerPlacement, bool]]:
+    """Random hard negatives that overlap neither ``avoid`` nor each other.
+
+    Kinds are drawn from :data:`NEGATIVE_KINDS`; half are painted on a bright
+    plate, half straight onto the ground. A negative that finds no free spot
+    is left out (see the length of the result).
+
+    Args:
+        shape: (height, width), px.
+        n_negatives: How many to try to place.
+        rng: Source of randomness.
+        avoid: Placements (markers) to keep clear of.
+        radius_px: (min, max) size, px.
+        max_tilt_deg: Largest tilt, degrees.
+
+    Returns:
+        (placement, on_plate) per placed negative.
+    """
+    occupied = _occupied(avoid)
+    placed: list[tuple[MarkerPlacement, bool]] = []
+    for _ in range(n_negatives):
+        shape_only = _random_placement(rng, NEGATIVE_KINDS, radius_px, max_tilt_deg, 0.5)
+        spot = _find_spot(_bounding_radius(shape_only), shape, occupied, rng)
+        if spot is None:
+            continue
+        negative = MarkerPlacement(spot[0], spot[1], shape_only.radius_px,
+                                   shape_only.rotation_rad, shape_only.tilt_deg,
+                                   shape_only.tilt_axis_rad, shape_only.kind, shape_only.inverted)
+        occupied = np.vstack([occupied, (spot[0], spot[1], _bounding_radius(negative))])
+        placed.append((negative, bool(rng.random() < 0.5)))
+    if len(placed) < n_negatives:
+        _LOG.warning("placed only %d of %d hard negatives in a %dx%d frame",
+                     len(placed), n_negatives, shape[1], shape[0])
+    return placed
+
+
+def _random_placement(rng: np.random.Generator, kinds: Sequence[str],
+                      radius_px: tuple[float, float], max_tilt_deg: float,
+                      inverted_fraction: float) -> MarkerPlacement:
+    """A placement at (0, 0) with random size, rotation, tilt, kind and polarity."""
+    return MarkerPlacement(
+        0.0, 0.0, float(rng.uniform(*radius_px)),
+        rotation_rad=float(rng.uniform(0.0, 2.0 * math.pi)),
+        tilt_deg=float(rng.uniform(0.0, max_tilt_deg)),
+        tilt_axis_rad=float(rng.uniform(0.0, math.pi)),
+        kind=str(kinds[int(rng.integers(len(kinds)))]),
+        inverted=bool(rng.random() < inverted_fraction))
+
+
+# --------------------------------------------------------------------------- public renderers
+
+def render_markers(shape: tuple[int, int], markers: Sequence[MarkerPlacement],
+                   rng: int | np.random.Generator | None = None, *,
+                   background: str | np.ndarray = "flat",
+                   background_level: float = FLAT_BACKGROUND_LEVEL,
+                   reflectances: tuple[float, float] | None = None,
+                   blur_sigma_px: float = 0.0,
+                   motion_blur_px: float = 0.0,
+                   motion_blur_angle_rad: float = 0.0,
+                   illumination_strength: float = 0.0,
+                   n_shadows: int = 0,
+                   vignetting: float = 0.0,
+                   gamma: float = 1.0,
+                   noise_sigma_dn: float = 0.0,
+                   full_well_e: float | None = None,
+                   n_hard_negatives: int = 0,
+                   negative_radius_px: tuple[float, float] = (6.0, 40.0),
+                   negative_max_tilt_deg: float = 60.0,
+                   supersampling: int = 16) -> RenderedScene:
+    """Render markers at explicit placements; the defaults give an exact, clean frame.
+
+    With the defaults (flat background, no blur, gamma 1, no noise, no
+    negatives) every pixel is exactly the area-weighted paint, up to 1/S of
+    the pixel area and 8-bit rounding. Placements are used as given: they are
+    not checked for overlap or for lying inside the frame.
+
+    Args:
+        shape: (height, width) of the frame, px.
+        markers: Where to put each marker.
+        rng: Seed or Generator for everything random (paint, texture, light,
+            negatives, noise).
+        background: ``"flat"``, ``"texture"`` or a reflectance array.
+        background_level: Reflectance of the flat background, [0, 1].
+        reflectances: (dark, bright) paint for every marker; None draws each
+            marker's from :data:`DARK_REFLECTANCE_RANGE` and
+            :data:`BRIGHT_REFLECTANCE_RANGE`.
+        blur_sigma_px: Gaussian PSF sigma, px.
+        motion_blur_px: Length of the linear, centred motion blur, px.
+        motion_blur_angle_rad: Its direction, radians from +x towards +y.
+        illumination_strength: 0 (uniform) to 1 (gain 0.5 to 1.0).
+        n_shadows: Number of soft shadow polygons.
+        vignetting: Fraction of light lost in the frame corners.
+        gamma: Display gamma (signal = radiance ** (1 / gamma)).
+        noise_sigma_dn: Gaussian read-noise sigma, output DN.
+        full_well_e: Full well in electrons for shot noise; None: none.
+        n_hard_negatives: Number of hard negatives to scatter, clear of markers.
+        negative_radius_px: (min, max) radius of the negatives, px.
+        negative_max_tilt_deg: Largest tilt of the negatives, degrees.
+        supersampling: S, samples per pixel along each axis.
+
+    Returns:
+        The frame, one :class:`MarkerTruth` per placement (same order) and the
+        negatives actually drawn.
+    """
+    rng = np.random.default_rng(rng)
+    imaging = ImagingConditions(blur_sigma_px, motion_blur_px, motion_blur_angle_rad,
+                                illumination_strength, n_shadows, vignetting, gamma,
+                                noise_sigma_dn, full_well_e)
+    targets = [_target(p, reflectances or _random_paint(rng)) for p in markers]
+    truths = [MarkerTruth.from_homography(t.homography, p.radius_px, p.kind)
+              for t, p in zip(targets, markers, strict=True)]
+    negatives = random_negatives(shape, n_hard_negatives, rng, markers,
+                                 radius_px=negative_radius_px, max_tilt_deg=negative_max_tilt_deg)
+    targets += [_target(p, _random_paint(rng), on_plate) for p, on_plate in negatives]
+    image = render_targets(shape, targets, rng, background=background,
+                           background_level=background_level, imaging=imaging,
+                           supersampling=supersampling)
+    return RenderedScene(image, truths, [(p.kind, p.x, p.y) for p, _ in negatives], imaging)
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Random scene to render with :func:`render_scene`; validated on construction.
+
+    Ranges are (min, max) and drawn uniformly, per marker or per frame.
+
+    Attributes:
+        width: Frame width, px.
+        height: Frame height, px.
+        n_markers: Number of markers; all must fit without overlap.
+        radius_px: Marker radius range before tilt, px.
+        blur_sigma_px: Gaussian PSF sigma range (per frame), px.
+        motion_blur_px: Linear motion blur length range (per frame), px.
+        noise_sigma_dn: Read-noise sigma range (per frame), DN.
+        max_tilt_deg: Largest marker tilt, degrees (<= 80).
+        marker_kinds: Marker kinds to draw from (:data:`MARKER_KINDS`).
+        background: ``"texture"`` or ``"flat"``.
+        n_hard_negatives: Hard negatives to scatter (fewer if they do not fit).
+        illumination_strength: 0 = uniform light, 1 = strong gradients/bumps.
+        n_shadows: Number of soft shadow polygons.
+        gamma: Display gamma range (per frame).
+        supersampling: S, samples per pixel along each axis.
+        inverted_fraction: Probability that a marker's polarity is swapped.
+        vignetting: Fraction of light lost in the frame corners.
+        full_well_e: Full well for shot noise, electrons; None: no shot noise.
+    """
+
+    width: int = 1280
+    height: int = 960
+    n_markers: int = 12
+    radius_px: tuple[float, float] = (6.0, 40.0)
+    blur_sigma_px: tuple[float, float] = (0.5, 1.4)
+    motion_blur_px: tuple[float, float] = (0.0, 0.0)
+    noise_sigma_dn: tuple[float, float] = (0.0, 4.0)
+    max_tilt_deg: float = 60.0
+    marker_kinds: tuple[str, ...] = ("quarter_disks", "checker")
+    background: str = "texture"
+    n_hard_negatives: int = 20
+    illumination_strength: float = 0.5
+    n_shadows: int = 2
+    gamma: tuple[float, float] = (0.8, 1.25)
+    supersampling: int = 16
+    inverted_fraction: float = 0.5
+    vignetting: float = 0.0
+    full_well_e: float | None = DEFAULT_FULL_WELL_E
+
+    def __post_init__(self) -> None:
+        if self.width < 1 or self.height < 1:
+            raise ConfigError(f"frame size must be positive, got {self.width}x{self.height}")
+        if self.n_markers < 0 or self.n_hard_negatives < 0 or self.n_shadows < 0:
+            raise ConfigError("n_markers, n_hard_negatives and n_shadows must be >= 0")
+        _check_range("radius_px", self.radius_px, 0.5)
+        _check_range("blur_sigma_px", self.blur_sigma_px, 0.0)
+        _check_range("motion_blur_px", self.motion_blur_px, 0.0)
+        _check_range("noise_sigma_dn", self.noise_sigma_dn, 0.0)
+        _check_range("gamma", self.gamma, 0.05)
+        if not 0.0 <= self.max_tilt_deg <= MAX_TILT_DEG:
+            raise ConfigError(f"max_tilt_deg must be in [0, {MAX_TILT_DEG}], "
+                              f"got {self.max_tilt_deg!r}")
+        unknown = set(self.marker_kinds) - set(MARKER_KINDS)
+        if not self.marker_kinds or unknown:
+            raise ConfigError(f"marker_kinds must be a non-empty subset of {MARKER_KINDS}, "
+                              f"got {self.marker_kinds!r}")
+        if self.background not in BACKGROUNDS:
+            raise ConfigError(f"background must be one of {BACKGROUNDS}, "
+                              f"got {self.background!r}")
+        if self.supersampling < 1:
+            raise ConfigError(f"supersampling must be >= 1, got {self.supersampling!r}")
+        if not 0.0 <= self.inverted_fraction <= 1.0:
+            raise ConfigError(f"inverted_fraction must be in [0, 1], "
+                              f"got {self.inverted_fraction!r}")
+        # Validates the remaining scalar ranges with the same rules as the renderer.
+        ImagingConditions(illumination_strength=self.illumination_strength,
+                          vignetting=self.vignetting, full_well_e=self.full_well_e)
+
+
+def _place_markers(config: SceneConfig, rng: np.random.Generator) -> list[MarkerPlacement]:
+    """Random non-overlapping marker placements (largest first, which packs best)."""
+    shape = (config.height, config.width)
+    drafts = [_random_placement(rng, config.marker_kinds, config.radius_px,
+                                config.max_tilt_deg, config.inverted_fraction)
+              for _ in range(config.n_markers)]
+    drafts.sort(key=_bounding_radius, reverse=True)
+    occupied: np.ndarray = np.empty((0, 3))
+    placed: list[MarkerPlacement] = []
+    for draft in drafts:
+        radius = _bounding_radius(draft)
+        spot = _find_spot(radius, shape, occupied, rng)
+        if spot is None:
+            raise ConfigError(
+                f"could not place marker {len(placed) + 1} of {config.n_markers} "
+                f"(bounding radius {radius:.1f} px) in a {config.width}x{config.height} frame "
+                f"after {PLACEMENT_TRIES} tries without overlap; use fewer markers "
+                f"(n_markers={config.n_markers}) or smaller radius_px={config.radius_px}")
+        placed.append(MarkerPlacement(spot[0], spot[1], draft.radius_px, draft.rotation_rad,
+                                      draft.tilt_deg, draft.tilt_axis_rad, draft.kind,
+                                      draft.inverted))
+        occupied = np.vstack([occupied, (spot[0], spot[1], radius)])
+    return placed
+
+
+def render_scene(config: SceneConfig, seed: int | np.random.Generator) -> RenderedScene:
+    """Render a random frame of markers and hard negatives on cluttered ground.
+
+    Args:
+        config: What to render.
+        seed: Seed or Generator; the same seed gives the same frame.
+
+    Returns:
+        The frame and its exact truth.
+
+    Raises:
+        ConfigError: (a ValueError) if the markers do not all fit in the frame.
+    """
+    rng = np.random.default_rng(seed)
+    placements = _place_markers(config, rng)
+    return render_markers(
+        (config.height, config.width), placements, rng,
+        background=config.background,
+        blur_sigma_px=float(rng.uniform(*config.blur_sigma_px)),
+        motion_blur_px=float(rng.uniform(*config.motion_blur_px)),
+        motion_blur_angle_rad=float(rng.uniform(0.0, math.pi)),
+        illumination_strength=config.illumination_strength,
+        n_shadows=config.n_shadows,
+        vignetting=config.vignetting,
+        gamma=float(rng.uniform(*config.gamma)),
+        noise_sigma_dn=float(rng.uniform(*config.noise_sigma_dn)),
+        full_well_e=config.full_well_e,
+        n_hard_negatives=config.n_hard_negatives,
+        negative_radius_px=config.radius_px,
+        negative_max_tilt_deg=config.max_tilt_deg,
+        supersampling=config.supersampling)
+
+
+def render_checkerboard(shape: tuple[int, int] = (960, 1280),
+                        inner_corners: tuple[int, int] = (10, 10),
+                        square_px: float = 40.0, *,
+                        centre: tuple[float, float] | None = None,
+                        rotation_rad: float = 0.0,
+                        tilt_deg: float = 0.0,
+                        tilt_axis_rad: float = 0.0,
+                        homography: np.ndarray | None = None,
+                        background: str | np.ndarray = "texture",
+                        reflectances: tuple[float, float] = (0.08, 0.85),
+                        blur_sigma_px: float = 0.8,
+                        noise_sigma_dn: float = 2.0,
+                        gamma: float = 1.0,
+                        seed: int | np.random.Generator | None = 0,
+                        supersampling: int = 16) -> RenderedScene:
+    """Render a chessboard under perspective; its inner corners are the truth.
+
+    Args:
+        shape: (height, width) of the frame, px.
+        inner_corners: (columns, rows) of inner corners (4 squares meeting).
+        square_px: Side of a square before tilt, px.
+        centre: Image position of the board centre, px; default: frame centre.
+        rotation_rad: In-plane rotation of the board, radians.
+        tilt_deg: Out-of-plane tilt, degrees.
+        tilt_axis_rad: Tilt axis direction in the board plane, radians.
+        homography: (3, 3) board plane -> image, the plane in units of one
+            square with the origin at the board centre; overrides the pose
+            arguments above.
+        background: ``"texture"``, ``"flat"`` or a reflectance array.
+        reflectances: (dark, bright) paint of the board.
+        blur_sigma_px: Gaussian PSF sigma, px.
+        noise_sigma_dn: Gaussian read-noise sigma, DN.
+        gamma: Display gamma.
+        seed: Seed or Generator.
+        supersampling: S, samples per pixel along each axis.
+
+    Returns:
+        The frame; ``markers`` holds one truth per inner corner, row by row
+        (v outer, u inner, as OpenCV orders chessboard corners), each with the
+        homography translated so that its plane origin is that corner.
+
+    Raises:
+        ConfigError: If the board (with its white border) leaves the frame.
+    """
+    rng = np.random.default_rng(seed)
+    if homography is None:
+        x, y = centre if centre is not None else ((shape[1] - 1) / 2, (shape[0] - 1) / 2)
+        homography = marker_homography(MarkerPlacement(x, y, square_px, rotation_rad, tilt_deg,
+                                                       tilt_axis_rad, "checker"))
+    board = PlanarTarget(_normalised(homography), checkerboard_pattern(inner_corners),
+                         *reflectances)
+    outline = project(board.homography, _plate_corners(board))
+    if outline.min() < -0.5 or np.any(outline.max(axis=0) > (shape[1] - 0.5, shape[0] - 0.5)):
+        raise ConfigError(f"a board of {inner_corners} inner corners with {square_px} px "
+                          f"squares does not fit in a {shape[1]}x{shape[0]} frame")
+    n_u, n_v = inner_corners
+    truths = []
+    for m in range(n_v):
+        for k in range(n_u):
+            to_corner = np.array([[1.0, 0.0, k - (n_u - 1) / 2],
+                                  [0.0, 1.0, m - (n_v - 1) / 2], [0.0, 0.0, 1.0]])
+            truths.append(MarkerTruth.from_homography(board.homography @ to_corner, square_px,
+                                                      "checkerboard_corner"))
+    imaging = ImagingConditions(blur_sigma_px=blur_sigma_px, gamma=gamma,
+                                noise_sigma_dn=noise_sigma_dn)
+    image = render_targets(shape, [board], rng, background=background, imaging=imaging,
+                           supersampling=supersampling)
+    return RenderedScene(image, truths, [], imaging)
