@@ -1,0 +1,248 @@
+"""sensor_msgs <-> numpy, written small because cv_bridge and sensor_msgs_py are not wheels.
+
+Everything here works on rclpy message classes (``sensor_msgs.msg``), the same
+classes ``rclpy.serialization.deserialize_message`` returns for bag bytes, so the
+node and bag replay share one conversion path.
+
+Marker point cloud layout (:func:`detections_to_cloud`): ``height`` 1, ``width``
+N markers, little-endian, ``is_dense`` True, ``point_step`` 48 bytes, six
+float64 fields in this order:
+
+====== ====== =====================================================================
+offset field  meaning
+====== ====== =====================================================================
+0      x      column of the centre, px; (0, 0) is the centre of the top-left pixel
+8      y      row of the centre, px (y down)
+16     sigma  1-sigma radial position uncertainty, px
+24     score  confidence in [0, 1]
+32     angle1 direction of the first line through the centre, rad in [0, pi)
+40     angle2 direction of the second line, rad in [0, pi)
+====== ====== =====================================================================
+"""
+
+from __future__ import annotations
+
+import array
+import sys
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+from sensor_msgs.msg import Image, PointCloud2, PointField
+from std_msgs.msg import Header
+
+from marker_localizer.core.pipeline import Detection
+from marker_localizer.errors import ImageError
+
+#: Encodings the node accepts: numpy dtype and channel count of each.
+ENCODINGS: dict[str, tuple[np.dtype, int]] = {
+    "mono8": (np.dtype(np.uint8), 1),
+    "mono16": (np.dtype(np.uint16), 1),
+    "bgr8": (np.dtype(np.uint8), 3),
+    "rgb8": (np.dtype(np.uint8), 3),
+    "bgra8": (np.dtype(np.uint8), 4),
+    "rgba8": (np.dtype(np.uint8), 4),
+}
+
+#: Channel order that turns an RGB(A) image into the BGR(A) order the core reads.
+_TO_BGR = {"rgb8": [2, 1, 0], "rgba8": [2, 1, 0, 3]}
+
+#: Fields of the marker point cloud, in byte order; all float64.
+CLOUD_FIELDS: tuple[str, ...] = ("x", "y", "sigma", "score", "angle1", "angle2")
+#: Bytes per marker in the point cloud: six float64.
+CLOUD_POINT_STEP = 8 * len(CLOUD_FIELDS)
+
+#: numpy type of each sensor_msgs/PointField datatype.
+_POINT_FIELD_DTYPES: dict[int, np.dtype] = {
+    PointField.INT8: np.dtype(np.int8),
+    PointField.UINT8: np.dtype(np.uint8),
+    PointField.INT16: np.dtype(np.int16),
+    PointField.UINT16: np.dtype(np.uint16),
+    PointField.INT32: np.dtype(np.int32),
+    PointField.UINT32: np.dtype(np.uint32),
+    PointField.FLOAT32: np.dtype(np.float32),
+    PointField.FLOAT64: np.dtype(np.float64),
+}
+
+_HOST_IS_BIGENDIAN = sys.byteorder == "big"
+
+
+def image_to_array(msg: Image) -> np.ndarray:
+    """View the pixels of a sensor_msgs/Image as a numpy array.
+
+    Row padding (``step`` larger than ``width`` times the pixel size) is honoured
+    without copying; big-endian mono16 is byte-swapped into a native copy.
+
+    Args:
+        msg: Image with one of the :data:`ENCODINGS`.
+
+    Returns:
+        (height, width) uint8/uint16 for mono encodings, (height, width, C)
+        uint8 in the message's own channel order for colour ones. The array
+        shares memory with ``msg.data`` unless a byte swap was needed.
+
+    Raises:
+        ImageError: unsupported encoding, empty image, ``step`` shorter than a
+            row, or ``data`` length different from ``height * step``.
+    """
+    if msg.encoding not in ENCODINGS:
+        raise ImageError(
+            f"unsupported encoding {msg.encoding!r} (expected one of {', '.join(ENCODINGS)})"
+        )
+    dtype, channels = ENCODINGS[msg.encoding]
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if height == 0 or width == 0:
+        raise ImageError(f"empty image ({width}x{height})")
+    row_bytes = width * channels * dtype.itemsize
+    if step < row_bytes:
+        raise ImageError(
+            f"step {step} B is shorter than one row of {width} {msg.encoding} pixels "
+            f"({row_bytes} B)"
+        )
+    if len(msg.data) != height * step:
+        raise ImageError(
+            f"data holds {len(msg.data)} B but height {height} x step {step} = "
+            f"{height * step} B"
+        )
+    if msg.encoding == "mono16" and bool(msg.is_bigendian) != _HOST_IS_BIGENDIAN:
+        dtype = dtype.newbyteorder()
+    shape: tuple[int, ...] = (height, width) if channels == 1 else (height, width, channels)
+    strides: tuple[int, ...] = (step, channels * dtype.itemsize, dtype.itemsize)[: len(shape)]
+    pixels: np.ndarray = np.ndarray(
+        shape, dtype=dtype, buffer=memoryview(msg.data), strides=strides
+    )
+    if not dtype.isnative:
+        pixels = pixels.astype(dtype.newbyteorder("="))
+    return pixels
+
+
+def image_to_detector_input(msg: Image) -> np.ndarray:
+    """Pixels of ``msg`` in the layout :meth:`Detector.detect` reads (grey or BGR(A)).
+
+    Args:
+        msg: Image with one of the :data:`ENCODINGS`.
+
+    Returns:
+        (H, W) uint8/uint16 or (H, W, 3|4) uint8 BGR(A); RGB(A) input is reordered.
+
+    Raises:
+        ImageError: as :func:`image_to_array`.
+    """
+    pixels = image_to_array(msg)
+    order = _TO_BGR.get(msg.encoding)
+    return pixels if order is None else pixels[:, :, order]
+
+
+def array_to_image(pixels: np.ndarray, encoding: str, header: Header | None = None) -> Image:
+    """Pack a numpy image into a sensor_msgs/Image (no row padding, host byte order).
+
+    Args:
+        pixels: (H, W) or (H, W, C) array whose dtype and channel count match
+            ``encoding``.
+        encoding: one of :data:`ENCODINGS`.
+        header: copied into the message; an empty header if None.
+
+    Returns:
+        The image message.
+
+    Raises:
+        ImageError: unsupported encoding, or ``pixels`` does not fit it.
+    """
+    if encoding not in ENCODINGS:
+        raise ImageError(
+            f"unsupported encoding {encoding!r} (expected one of {', '.join(ENCODINGS)})"
+        )
+    dtype, channels = ENCODINGS[encoding]
+    got_channels = 1 if pixels.ndim == 2 else pixels.shape[2] if pixels.ndim == 3 else -1
+    if pixels.dtype != dtype or got_channels != channels:
+        raise ImageError(
+            f"a {encoding} image needs {channels} channel(s) of {dtype}, "
+            f"got shape {pixels.shape} of {pixels.dtype}"
+        )
+    msg = Image()
+    msg.header = header if header is not None else Header()
+    msg.height, msg.width = int(pixels.shape[0]), int(pixels.shape[1])
+    msg.encoding = encoding
+    msg.is_bigendian = _HOST_IS_BIGENDIAN
+    msg.step = msg.width * channels * dtype.itemsize
+    # array.array('B', bytes) copies once through frombytes(); a list would be per-byte slow.
+    msg.data = array.array("B", np.ascontiguousarray(pixels).tobytes())
+    return msg
+
+
+def detections_to_cloud(header: Header, detections: Sequence[Detection]) -> PointCloud2:
+    """Pack detections into the marker PointCloud2 (layout in the module docstring).
+
+    Args:
+        header: copied unchanged (stamp and frame_id of the input image).
+        detections: markers of one frame; may be empty.
+
+    Returns:
+        PointCloud2 with ``width`` = number of detections.
+    """
+    points = np.array(
+        [[d.x, d.y, d.sigma, d.score, d.angle1, d.angle2] for d in detections],
+        dtype="<f8",
+    ).reshape(-1, len(CLOUD_FIELDS))
+    cloud = PointCloud2()
+    cloud.header = header
+    cloud.height = 1
+    cloud.width = len(points)
+    cloud.fields = [
+        PointField(name=name, offset=8 * i, datatype=PointField.FLOAT64, count=1)
+        for i, name in enumerate(CLOUD_FIELDS)
+    ]
+    cloud.is_bigendian = False
+    cloud.point_step = CLOUD_POINT_STEP
+    cloud.row_step = CLOUD_POINT_STEP * len(points)
+    cloud.is_dense = True
+    cloud.data = array.array("B", points.tobytes())
+    return cloud
+
+
+def cloud_to_array(cloud: PointCloud2) -> np.ndarray:
+    """Read any PointCloud2 of scalar fields into a structured numpy array.
+
+    Args:
+        cloud: point cloud; every field must have ``count`` 1.
+
+    Returns:
+        (height * width,) structured array with one named column per field
+        (for the marker cloud: x, y, sigma, score, angle1, angle2 as float64).
+        Use ``numpy.lib.recfunctions.structured_to_unstructured`` for an
+        (N, 6) array.
+
+    Raises:
+        ImageError: unknown field datatype, count other than 1, or a data
+            length that does not match the declared size.
+    """
+    order: Literal[">", "<"] = ">" if cloud.is_bigendian else "<"
+    names: list[str] = []
+    formats: list[np.dtype] = []
+    offsets: list[int] = []
+    for f in cloud.fields:
+        if f.datatype not in _POINT_FIELD_DTYPES or f.count != 1:
+            raise ImageError(
+                f"point field {f.name!r}: datatype {f.datatype} x count {f.count} "
+                "is not a supported scalar"
+            )
+        names.append(f.name)
+        formats.append(_POINT_FIELD_DTYPES[f.datatype].newbyteorder(order))
+        offsets.append(f.offset)
+    dtype = np.dtype(
+        {"names": names, "formats": formats, "offsets": offsets, "itemsize": cloud.point_step}
+    )
+    n_points = int(cloud.height) * int(cloud.width)
+    if cloud.row_step < cloud.width * cloud.point_step or len(cloud.data) != (
+        cloud.height * cloud.row_step
+    ):
+        raise ImageError(
+            f"cloud data holds {len(cloud.data)} B, expected height {cloud.height} x "
+            f"row_step {cloud.row_step} with row_step >= width {cloud.width} x "
+            f"point_step {cloud.point_step}"
+        )
+    rows = np.frombuffer(memoryview(cloud.data), dtype=np.uint8).reshape(
+        cloud.height, cloud.row_step
+    )
+    packed = rows[:, : cloud.width * cloud.point_step].copy()
+    return packed.view(dtype).reshape(n_points)

@@ -1,0 +1,347 @@
+"""Per-camera statistics and /diagnostics messages in diagnostic_updater's conventions.
+
+diagnostic_updater is not available as a wheel, so this module reproduces its
+conventions: one DiagnosticStatus per task named ``"<node name>: <task>"``, here
+one per camera (``hardware_id`` = camera name) plus one for the node, values as
+KeyValue strings whose keys carry their units (``"latency p95 (ms)"``).
+
+Levels of a camera:
+
+* ERROR: no frame arrived within ``input_timeout_s`` (counted from start when
+  none ever arrived), or a frame failed (bad input or a processing exception)
+  within the last ``window_s``.
+* WARN: more than ``drop_warn_fraction`` of the frames received in the last
+  ``window_s`` were dropped (replaced in the mailbox or too old), or the latency
+  p95 exceeds ``latency_warn_ms``.
+* OK otherwise.
+
+All times come from one clock in nanoseconds (the node's ROS clock, so
+``use_sim_time`` applies); statistics are thread-safe because worker threads
+write them while the executor reads them.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from std_msgs.msg import Header
+
+OK, WARN, ERROR = 0, 1, 2
+_LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
+_NS_PER_S = 1_000_000_000
+#: Results kept per camera for the windowed latency and marker statistics; the
+#: newest 200 within the window bound memory and the sort, and give a stable p95.
+_LATENCY_SAMPLES = 200
+
+
+@dataclass(frozen=True)
+class DiagnosticThresholds:
+    """When a camera's status turns WARN or ERROR.
+
+    Attributes:
+        latency_warn_ms: WARN when the latency p95 (header stamp to publish) is above, ms.
+        input_timeout_s: ERROR when no frame arrived for this long, s.
+        window_s: sliding window of rates, drop fraction and recent errors, s.
+        drop_warn_fraction: WARN when more than this fraction of the frames
+            received in the window was dropped.
+    """
+
+    latency_warn_ms: float
+    input_timeout_s: float
+    window_s: float
+    drop_warn_fraction: float = 0.10
+
+
+@dataclass(frozen=True)
+class CameraSnapshot:
+    """Statistics of one camera at one instant (see :meth:`CameraStats.snapshot`).
+
+    Attributes:
+        camera: camera name.
+        received: frames that entered the mailbox since start.
+        processed: frames whose result was delivered since start.
+        dropped_mailbox: frames replaced by a newer one before a worker took them.
+        dropped_age: frames older than the age limit when a worker took them.
+        errors: frames that failed (bad input or processing exception).
+        received_in_window: frames received within the window.
+        dropped_in_window: frames dropped (either reason) within the window.
+        input_rate_hz: received frames per second over the window.
+        processed_rate_hz: delivered results per second over the window.
+        latency_p50_ms: median header-stamp-to-publish latency in the window, ms
+            (NaN: no sample).
+        latency_p95_ms: 95th percentile of the same, ms (NaN: no sample).
+        in_node_mean_ms: mean time from arrival in the mailbox to publish in the
+            window, ms (NaN: no sample).
+        markers_per_frame: mean markers per delivered frame in the window (NaN: none).
+        since_last_frame_s: time since the last frame arrived, or since start
+            if none did, s.
+        any_frame: whether a frame ever arrived.
+        last_error: text of the newest failure ("" if none).
+        since_last_error_s: time since that failure, s (None if none).
+    """
+
+    camera: str
+    received: int
+    processed: int
+    dropped_mailbox: int
+    dropped_age: int
+    errors: int
+    received_in_window: int
+    dropped_in_window: int
+    input_rate_hz: float
+    processed_rate_hz: float
+    latency_p50_ms: float
+    latency_p95_ms: float
+    in_node_mean_ms: float
+    markers_per_frame: float
+    since_last_frame_s: float
+    any_frame: bool
+    last_error: str
+    since_last_error_s: float | None
+
+
+class CameraStats:
+    """Thread-safe counters and sliding windows of one camera.
+
+    Args:
+        camera: camera name.
+        start_ns: clock time at start, ns (the input timeout counts from it).
+        window_s: length of the sliding window, s.
+    """
+
+    def __init__(self, camera: str, start_ns: int, window_s: float) -> None:
+        self.camera = camera
+        self._lock = threading.Lock()
+        self._start_ns = start_ns
+        self._window_ns = int(window_s * _NS_PER_S)
+        self._received = self._processed = 0
+        self._dropped_mailbox = self._dropped_age = self._errors = 0
+        self._last_frame_ns: int | None = None
+        self._last_error = ""
+        self._last_error_ns: int | None = None
+        self._received_at: deque[int] = deque()
+        self._dropped_at: deque[int] = deque()
+        # (delivery time ns, latency ms, time in node ms, markers) per delivered frame.
+        self._results: deque[tuple[int, float, float, int]] = deque()
+
+    def frame_received(self, now_ns: int) -> None:
+        """Count a frame put into the mailbox."""
+        with self._lock:
+            self._received += 1
+            self._last_frame_ns = now_ns
+            self._received_at.append(now_ns)
+
+    def frame_replaced(self, now_ns: int) -> None:
+        """Count a frame replaced in the mailbox by a newer one."""
+        with self._lock:
+            self._dropped_mailbox += 1
+            self._dropped_at.append(now_ns)
+
+    def frame_too_old(self, now_ns: int) -> None:
+        """Count a frame dropped because it exceeded the age limit."""
+        with self._lock:
+            self._dropped_age += 1
+            self._dropped_at.append(now_ns)
+
+    def frame_processed(
+        self, now_ns: int, latency_ms: float, in_node_ms: float, markers: int
+    ) -> None:
+        """Count a delivered result.
+
+        Args:
+            now_ns: clock time of delivery, ns.
+            latency_ms: header stamp to delivery, ms.
+            in_node_ms: arrival in the mailbox to delivery, ms.
+            markers: markers found in the frame.
+        """
+        with self._lock:
+            self._processed += 1
+            self._results.append((now_ns, latency_ms, in_node_ms, markers))
+            while len(self._results) > _LATENCY_SAMPLES:
+                self._results.popleft()
+
+    def frame_failed(self, now_ns: int, message: str) -> None:
+        """Count a frame that could not be processed, keeping ``message`` as the last error."""
+        with self._lock:
+            self._errors += 1
+            self._last_error = message
+            self._last_error_ns = now_ns
+
+    def snapshot(self, now_ns: int) -> CameraSnapshot:
+        """Freeze the statistics at ``now_ns`` (clock time, ns)."""
+        with self._lock:
+            horizon = now_ns - self._window_ns
+            for times in (self._received_at, self._dropped_at):
+                while times and times[0] < horizon:
+                    times.popleft()
+            recent = [r for r in self._results if r[0] >= horizon]
+            span_s = max(min(now_ns - self._start_ns, self._window_ns), 1) / _NS_PER_S
+            latency = np.array([r[1] for r in recent])
+            last_frame = self._start_ns if self._last_frame_ns is None else self._last_frame_ns
+            return CameraSnapshot(
+                camera=self.camera,
+                received=self._received,
+                processed=self._processed,
+                dropped_mailbox=self._dropped_mailbox,
+                dropped_age=self._dropped_age,
+                errors=self._errors,
+                received_in_window=len(self._received_at),
+                dropped_in_window=len(self._dropped_at),
+                input_rate_hz=len(self._received_at) / span_s,
+                processed_rate_hz=len(recent) / span_s,
+                latency_p50_ms=_percentile(latency, 50),
+                latency_p95_ms=_percentile(latency, 95),
+                in_node_mean_ms=_mean([r[2] for r in recent]),
+                markers_per_frame=_mean([r[3] for r in recent]),
+                since_last_frame_s=max(now_ns - last_frame, 0) / _NS_PER_S,
+                any_frame=self._last_frame_ns is not None,
+                last_error=self._last_error,
+                since_last_error_s=None
+                if self._last_error_ns is None
+                else max(now_ns - self._last_error_ns, 0) / _NS_PER_S,
+            )
+
+
+def _percentile(values: np.ndarray, q: float) -> float:
+    return float(np.percentile(values, q)) if values.size else math.nan
+
+
+def _mean(values: Sequence[float]) -> float:
+    return float(np.mean(values)) if values else math.nan
+
+
+def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> tuple[int, str]:
+    """Level (OK, WARN or ERROR) and a one-line reason for one camera.
+
+    Args:
+        snapshot: the camera's statistics.
+        thresholds: limits; see the module docstring for the rules.
+
+    Returns:
+        (level, message); every rule that fires is named in the message,
+        the most severe first.
+    """
+    errors, warnings = [], []
+    if snapshot.since_last_frame_s > thresholds.input_timeout_s:
+        what = "no frame for" if snapshot.any_frame else "no frame since start,"
+        errors.append(f"{what} {snapshot.since_last_frame_s:.1f} s")
+    if (
+        snapshot.since_last_error_s is not None
+        and snapshot.since_last_error_s <= thresholds.window_s
+    ):
+        errors.append(
+            f"frame failed {snapshot.since_last_error_s:.1f} s ago: {snapshot.last_error}"
+        )
+    if snapshot.received_in_window and (
+        snapshot.dropped_in_window > thresholds.drop_warn_fraction * snapshot.received_in_window
+    ):
+        share = 100.0 * snapshot.dropped_in_window / snapshot.received_in_window
+        warnings.append(f"{share:.0f} % of frames dropped")
+    if snapshot.latency_p95_ms > thresholds.latency_warn_ms:
+        warnings.append(
+            f"latency p95 {snapshot.latency_p95_ms:.0f} ms > {thresholds.latency_warn_ms:g} ms"
+        )
+    if errors:
+        return ERROR, "; ".join(errors + warnings)
+    if warnings:
+        return WARN, "; ".join(warnings)
+    return OK, "ok"
+
+
+def camera_status(
+    node_name: str,
+    snapshot: CameraSnapshot,
+    thresholds: DiagnosticThresholds,
+    extra: Mapping[str, str] | None = None,
+) -> DiagnosticStatus:
+    """Build the DiagnosticStatus of one camera.
+
+    Args:
+        node_name: node name without namespace (diagnostic_updater's prefix).
+        snapshot: the camera's statistics.
+        thresholds: limits that decide the level.
+        extra: further key/value pairs to append (e.g. camera_info size).
+
+    Returns:
+        Status named ``"<node name>: <camera>"`` with ``hardware_id`` = camera.
+    """
+    level, message = camera_level(snapshot, thresholds)
+    dropped_pct = (
+        100.0 * snapshot.dropped_in_window / snapshot.received_in_window
+        if snapshot.received_in_window
+        else 0.0
+    )
+    values = {
+        "frames received": str(snapshot.received),
+        "frames processed": str(snapshot.processed),
+        "dropped by mailbox": str(snapshot.dropped_mailbox),
+        "dropped by age": str(snapshot.dropped_age),
+        "dropped in window (%)": f"{dropped_pct:.1f}",
+        "input rate (Hz)": f"{snapshot.input_rate_hz:.2f}",
+        "processed rate (Hz)": f"{snapshot.processed_rate_hz:.2f}",
+        "latency p50 (ms)": f"{snapshot.latency_p50_ms:.1f}",
+        "latency p95 (ms)": f"{snapshot.latency_p95_ms:.1f}",
+        "time in node mean (ms)": f"{snapshot.in_node_mean_ms:.1f}",
+        "markers per frame": f"{snapshot.markers_per_frame:.2f}",
+        "time since last frame (s)": f"{snapshot.since_last_frame_s:.2f}",
+        "errors": str(snapshot.errors),
+        "last error": snapshot.last_error,
+        "window (s)": f"{thresholds.window_s:g}",
+        **(extra or {}),
+    }
+    return _status(level, f"{node_name}: {snapshot.camera}", message, snapshot.camera, values)
+
+
+def node_status(
+    node_name: str, cameras: Sequence[DiagnosticStatus], values: Mapping[str, str]
+) -> DiagnosticStatus:
+    """Build the node's own status: the worst camera level and which cameras cause it.
+
+    Args:
+        node_name: node name without namespace.
+        cameras: the camera statuses built by :func:`camera_status`.
+        values: node-wide key/value pairs (workers, frames in flight, ...).
+
+    Returns:
+        Status named ``"<node name>: node"`` with ``hardware_id`` = node name.
+    """
+    level = max((_level_of(s) for s in cameras), default=OK)
+    problems = [
+        f"{s.hardware_id} {_LEVEL_NAMES[_level_of(s)]}: {s.message}"
+        for s in cameras
+        if _level_of(s) != OK
+    ]
+    message = "; ".join(problems) if problems else f"all {len(cameras)} cameras ok"
+    return _status(level, f"{node_name}: node", message, node_name, values)
+
+
+def diagnostic_array(stamp: Time, statuses: Sequence[DiagnosticStatus]) -> DiagnosticArray:
+    """Wrap statuses into the message published on /diagnostics."""
+    array = DiagnosticArray()
+    array.header = Header(stamp=stamp)
+    array.status = list(statuses)
+    return array
+
+
+def _status(
+    level: int, name: str, message: str, hardware_id: str, values: Mapping[str, str]
+) -> DiagnosticStatus:
+    status = DiagnosticStatus()
+    # The message field is a ROS "byte": bytes of length 1 in rclpy.
+    status.level = bytes([level])
+    status.name = name
+    status.message = message
+    status.hardware_id = hardware_id
+    status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+    return status
+
+
+def _level_of(status: DiagnosticStatus) -> int:
+    return status.level[0] if isinstance(status.level, bytes) else int(status.level)

@@ -1,0 +1,211 @@
+"""sensor_msgs <-> numpy conversions: every encoding, row padding, byte order, errors, clouds."""
+
+import array
+
+import cv2
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from numpy.lib import recfunctions
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import Image, PointCloud2, PointField
+from std_msgs.msg import Header
+
+from marker_localizer.config import DetectorConfig
+from marker_localizer.core.pipeline import Detection, Detector
+from marker_localizer.errors import ImageError
+from marker_localizer.ros.conversions import (
+    CLOUD_FIELDS,
+    ENCODINGS,
+    array_to_image,
+    cloud_to_array,
+    detections_to_cloud,
+    image_to_array,
+    image_to_detector_input,
+)
+from marker_localizer.ros.processing import draw_detections
+
+HEADER = Header(stamp=Time(sec=1_700_000_123, nanosec=456_789_012), frame_id="cam3_optical")
+
+
+def pixels_for(encoding: str, height: int = 5, width: int = 7) -> np.ndarray:
+    dtype, channels = ENCODINGS[encoding]
+    shape = (height, width) if channels == 1 else (height, width, channels)
+    high = 65535 if dtype == np.uint16 else 255
+    return np.random.default_rng(3).integers(0, high + 1, shape).astype(dtype)
+
+
+def padded_message(pixels: np.ndarray, encoding: str, pad: int, bigendian: bool) -> Image:
+    """An Image whose rows carry ``pad`` garbage bytes, in the byte order asked for."""
+    order = ">" if bigendian else "<"
+    rows = pixels.astype(pixels.dtype.newbyteorder(order)).reshape(pixels.shape[0], -1)
+    raw = rows.view(np.uint8).reshape(pixels.shape[0], -1)
+    padded = np.hstack([raw, np.full((raw.shape[0], pad), 0xAB, np.uint8)])
+    return Image(
+        header=HEADER,
+        height=pixels.shape[0],
+        width=pixels.shape[1],
+        encoding=encoding,
+        is_bigendian=bigendian,
+        step=padded.shape[1],
+        data=array.array("B", padded.tobytes()),
+    )
+
+
+def x_marker_64() -> np.ndarray:
+    """The analytic X of the Detector docstring: exact centre (31.5, 31.5)."""
+    image = np.full((64, 64), 200, np.uint8)
+    image[:32, :32] = image[32:, 32:] = 30
+    return cv2.GaussianBlur(image, (0, 0), 1.0)
+
+
+@pytest.mark.parametrize("encoding", sorted(ENCODINGS))
+def test_array_to_image_round_trips_every_encoding(encoding):
+    pixels = pixels_for(encoding)
+    msg = array_to_image(pixels, encoding, HEADER)
+    assert (msg.encoding, msg.height, msg.width) == (encoding, 5, 7)
+    assert msg.header == HEADER
+    np.testing.assert_array_equal(image_to_array(msg), pixels)
+
+
+@pytest.mark.parametrize("encoding", sorted(ENCODINGS))
+@pytest.mark.parametrize("bigendian", [False, True])
+def test_image_to_array_honours_row_padding_and_byte_order(encoding, bigendian):
+    pixels = pixels_for(encoding)
+    msg = padded_message(pixels, encoding, pad=5, bigendian=bigendian)
+    result = image_to_array(msg)
+    assert result.dtype.isnative
+    np.testing.assert_array_equal(result, pixels)
+
+
+def test_image_to_array_reads_big_endian_mono16_values():
+    msg = Image(height=1, width=2, encoding="mono16", is_bigendian=True, step=4)
+    msg.data = array.array("B", bytes([0x12, 0x34, 0xFF, 0x00]))
+    np.testing.assert_array_equal(image_to_array(msg), [[0x1234, 0xFF00]])
+
+
+@pytest.mark.parametrize(
+    ("encoding", "expected_bgr"),
+    [("rgb8", [30, 20, 10]), ("rgba8", [30, 20, 10, 40]), ("bgr8", [10, 20, 30])],
+)
+def test_detector_input_is_in_bgr_order(encoding, expected_bgr):
+    channels = ENCODINGS[encoding][1]
+    pixels = np.tile(np.array([10, 20, 30, 40][:channels], np.uint8), (2, 3, 1))
+    result = image_to_detector_input(array_to_image(pixels, encoding))
+    np.testing.assert_array_equal(result[1, 2], expected_bgr)
+
+
+@pytest.mark.parametrize("encoding", sorted(ENCODINGS))
+def test_detector_finds_the_exact_centre_through_every_encoding(encoding):
+    grey = x_marker_64()
+    dtype, channels = ENCODINGS[encoding]
+    pixels = grey.astype(np.uint16) * 257 if dtype == np.uint16 else grey
+    if channels > 1:
+        pixels = np.repeat(pixels[:, :, None], channels, axis=2)
+    msg = padded_message(pixels, encoding, pad=3, bigendian=True)
+    found = Detector(DetectorConfig()).detect(image_to_detector_input(msg)).detections
+    assert [(round(d.x, 3), round(d.y, 3)) for d in found] == [(31.5, 31.5)]
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ({"encoding": "yuv422"}, r"unsupported encoding 'yuv422'"),
+        ({"encoding": "bayer_rggb8"}, r"unsupported encoding 'bayer_rggb8'"),
+        ({"height": 0, "data": array.array("B")}, r"empty image \(7x0\)"),
+        ({"width": 0}, r"empty image \(0x5\)"),
+        ({"step": 6}, r"step 6 B is shorter than one row of 7 mono8 pixels \(7 B\)"),
+        ({"data": array.array("B", bytes(34))}, r"data holds 34 B but height 5 x step 7 = 35 B"),
+    ],
+)
+def test_image_to_array_raises_naming_the_problem(change, match):
+    msg = array_to_image(pixels_for("mono8"), "mono8", HEADER)
+    for name, value in change.items():
+        setattr(msg, name, value)
+    with pytest.raises(ImageError, match=match):
+        image_to_array(msg)
+
+
+def test_array_to_image_rejects_pixels_that_do_not_fit_the_encoding():
+    with pytest.raises(ImageError, match=r"a bgr8 image needs 3 channel\(s\) of uint8"):
+        array_to_image(np.zeros((4, 4), np.uint8), "bgr8")
+    with pytest.raises(ImageError, match=r"unsupported encoding 'mono32'"):
+        array_to_image(np.zeros((4, 4), np.uint32), "mono32")
+
+
+def make_detections(n):
+    return [
+        Detection(
+            x=10.25 + i, y=20.5 - i, score=0.9, sigma=0.01 * (i + 1), angle1=0.1, angle2=1.7,
+            radius_px=12.0,
+        )
+        for i in range(n)
+    ]
+
+
+def test_detections_to_cloud_has_the_documented_layout():
+    cloud = detections_to_cloud(HEADER, make_detections(3))
+    assert cloud.header == HEADER
+    assert (cloud.height, cloud.width, cloud.point_step, cloud.row_step) == (1, 3, 48, 144)
+    assert cloud.is_dense and not cloud.is_bigendian
+    assert [(f.name, f.offset, f.datatype, f.count) for f in cloud.fields] == [
+        (name, 8 * i, PointField.FLOAT64, 1) for i, name in enumerate(CLOUD_FIELDS)
+    ]
+    assert len(cloud.data) == 144
+
+
+def test_cloud_round_trips_through_serialisation():
+    detections = make_detections(4)
+    wire = serialize_message(detections_to_cloud(HEADER, detections))
+    cloud = deserialize_message(wire, PointCloud2)
+    points = cloud_to_array(cloud)
+    assert points.dtype.names == CLOUD_FIELDS
+    expected = [[d.x, d.y, d.sigma, d.score, d.angle1, d.angle2] for d in detections]
+    np.testing.assert_array_equal(recfunctions.structured_to_unstructured(points), expected)
+    assert cloud.header == HEADER
+
+
+def test_cloud_of_no_detection_is_empty():
+    cloud = detections_to_cloud(HEADER, [])
+    assert (cloud.width, cloud.row_step, len(cloud.data)) == (0, 0, 0)
+    assert cloud_to_array(cloud).shape == (0,)
+
+
+def test_cloud_to_array_reads_a_foreign_padded_big_endian_cloud():
+    points = np.array([(1.5, -2.0), (3.25, 4.0)], dtype=[("u", ">f4"), ("v", ">f8")])
+    cloud = PointCloud2(height=1, width=2, point_step=16, row_step=32, is_bigendian=True)
+    cloud.fields = [
+        PointField(name="u", offset=0, datatype=PointField.FLOAT32, count=1),
+        PointField(name="v", offset=8, datatype=PointField.FLOAT64, count=1),
+    ]
+    packed = np.zeros(2, dtype={"names": ["u", "v"], "formats": [">f4", ">f8"],
+                                "offsets": [0, 8], "itemsize": 16})
+    packed["u"], packed["v"] = points["u"], points["v"]
+    cloud.data = array.array("B", packed.tobytes())
+    result = cloud_to_array(cloud)
+    np.testing.assert_array_equal(result["u"], [1.5, 3.25])
+    np.testing.assert_array_equal(result["v"], [-2.0, 4.0])
+
+
+def test_cloud_to_array_rejects_vector_fields_and_short_data():
+    cloud = detections_to_cloud(HEADER, make_detections(2))
+    cloud.data = cloud.data[:-1]
+    with pytest.raises(ImageError, match=r"cloud data holds 95 B"):
+        cloud_to_array(cloud)
+    cloud.fields[0].count = 3
+    with pytest.raises(ImageError, match=r"point field 'x': datatype 8 x count 3"):
+        cloud_to_array(cloud)
+
+
+@pytest.mark.parametrize("encoding", ["mono8", "mono16", "bgra8"])
+def test_overlay_is_a_bgr_copy_with_the_marker_drawn(encoding):
+    black = np.zeros_like(pixels_for(encoding, 40, 40))
+    pixels = image_to_detector_input(array_to_image(black, encoding))
+    found = [Detection(20.0, 20.0, 1.0, 0.01, 0.0, np.pi / 2, 10.0)]
+    overlay = draw_detections(pixels, found)
+    assert overlay.shape == (40, 40, 3)
+    assert overlay.dtype == np.uint8
+    assert not pixels.any()  # the input frame is left alone
+    blue, green, red = overlay[20, 25]  # on the horizontal line, away from the circle
+    assert green > 200
+    assert blue == red == 0

@@ -1,0 +1,155 @@
+"""Per-camera statistics and diagnostic levels, on a clock the tests drive."""
+
+import math
+
+import pytest
+from builtin_interfaces.msg import Time
+
+from marker_localizer.ros.diagnostics import (
+    ERROR,
+    OK,
+    WARN,
+    CameraStats,
+    DiagnosticThresholds,
+    camera_level,
+    camera_status,
+    diagnostic_array,
+    node_status,
+)
+
+S = 1_000_000_000  # ns per s
+LIMITS = DiagnosticThresholds(latency_warn_ms=200.0, input_timeout_s=2.0, window_s=10.0)
+
+
+def healthy_camera(frames=10, period_s=0.5, latency_ms=50.0, markers=3):
+    """A camera that sent ``frames`` frames at ``period_s``, each processed; the last one now."""
+    stats = CameraStats("cam1", start_ns=0, window_s=LIMITS.window_s)
+    for i in range(frames):
+        t = int((i + 1) * period_s * S)
+        stats.frame_received(t)
+        stats.frame_processed(t, latency_ms=latency_ms, in_node_ms=latency_ms / 2, markers=markers)
+    return stats, int(frames * period_s * S)
+
+
+def values_of(status):
+    return {kv.key: kv.value for kv in status.values}
+
+
+def test_camera_with_steady_frames_is_ok_and_reports_rates():
+    stats, now = healthy_camera()
+    snap = stats.snapshot(now)
+    assert camera_level(snap, LIMITS) == (OK, "ok")
+    assert snap.input_rate_hz == pytest.approx(2.0)
+    assert snap.processed_rate_hz == pytest.approx(2.0)
+    assert snap.latency_p50_ms == pytest.approx(50.0)
+    assert snap.markers_per_frame == pytest.approx(3.0)
+
+
+def test_camera_warns_when_more_than_ten_percent_of_frames_are_dropped():
+    stats, now = healthy_camera(frames=10)
+    stats.frame_replaced(now)
+    assert camera_level(stats.snapshot(now), LIMITS)[0] == OK  # 1 of 10: not more than 10 %
+    stats.frame_too_old(now)
+    level, message = camera_level(stats.snapshot(now), LIMITS)
+    assert (level, message) == (WARN, "20 % of frames dropped")
+
+
+def test_dropped_frames_leave_the_window_and_the_warning_clears():
+    stats, now = healthy_camera(frames=10)
+    stats.frame_replaced(now)
+    stats.frame_replaced(now)
+    later = now + 11 * S
+    for i in range(4):
+        stats.frame_received(later - i * S // 2)
+    assert camera_level(stats.snapshot(later), LIMITS)[0] == OK
+
+
+def test_camera_warns_when_latency_p95_exceeds_the_limit():
+    stats, now = healthy_camera(latency_ms=250.0)
+    level, message = camera_level(stats.snapshot(now), LIMITS)
+    assert level == WARN
+    assert message == "latency p95 250 ms > 200 ms"
+
+
+def test_camera_is_error_when_no_frame_arrives_within_the_timeout():
+    stats, now = healthy_camera()
+    level, message = camera_level(stats.snapshot(now + 3 * S), LIMITS)
+    assert (level, message) == (ERROR, "no frame for 3.0 s")
+
+
+def test_camera_that_never_sent_a_frame_is_error_after_the_timeout_only():
+    stats = CameraStats("cam4", start_ns=5 * S, window_s=10.0)
+    assert camera_level(stats.snapshot(6 * S), LIMITS)[0] == OK
+    assert camera_level(stats.snapshot(8 * S), LIMITS) == (ERROR, "no frame since start, 3.0 s")
+
+
+def test_failed_frame_keeps_the_camera_at_error_for_one_window():
+    stats, now = healthy_camera()
+    stats.frame_failed(now, "ImageError: unsupported encoding 'yuv422'")
+    level, message = camera_level(stats.snapshot(now + S // 2), LIMITS)
+    assert level == ERROR
+    assert "unsupported encoding 'yuv422'" in message
+    for i in range(25):  # frames keep coming, all good
+        stats.frame_received(now + (i + 1) * S // 2)
+    assert camera_level(stats.snapshot(now + 12 * S), LIMITS)[0] == OK
+    assert stats.snapshot(now + 12 * S).errors == 1
+
+
+def test_error_wins_over_warning_and_both_are_named():
+    stats, now = healthy_camera(latency_ms=900.0)
+    level, message = camera_level(stats.snapshot(now + 5 * S), LIMITS)
+    assert (level, message) == (ERROR, "no frame for 5.0 s; latency p95 900 ms > 200 ms")
+    stats.frame_received(now + 5 * S)
+    stats.frame_failed(now + 5 * S, "RuntimeError: boom")
+    level, message = camera_level(stats.snapshot(now + 5 * S), LIMITS)
+    assert (level, message) == (
+        ERROR,
+        "frame failed 0.0 s ago: RuntimeError: boom; latency p95 900 ms > 200 ms",
+    )
+
+
+def test_snapshot_without_results_has_nan_statistics():
+    snap = CameraStats("cam0", 0, 10.0).snapshot(S)
+    assert math.isnan(snap.latency_p95_ms)
+    assert math.isnan(snap.markers_per_frame)
+    assert not snap.any_frame
+
+
+def test_camera_status_follows_diagnostic_updater_conventions():
+    stats, now = healthy_camera()
+    extra = {"camera_info": "640x480"}
+    status = camera_status("marker_localizer", stats.snapshot(now), LIMITS, extra)
+    assert status.name == "marker_localizer: cam1"
+    assert status.hardware_id == "cam1"
+    assert status.level == bytes([OK])
+    values = values_of(status)
+    assert values["frames received"] == "10"
+    assert values["input rate (Hz)"] == "2.00"
+    assert values["latency p95 (ms)"] == "50.0"
+    assert values["dropped by mailbox"] == values["dropped by age"] == "0"
+    assert values["camera_info"] == "640x480"
+    assert all(isinstance(v, str) for v in values.values())
+
+
+def test_node_status_reports_the_worst_camera_and_names_it():
+    good, now = healthy_camera()
+    bad = CameraStats("cam2", start_ns=0, window_s=10.0)
+    statuses = [
+        camera_status("loc", good.snapshot(now), LIMITS),
+        camera_status("loc", bad.snapshot(now), LIMITS),
+    ]
+    status = node_status("loc", statuses, {"workers": "2"})
+    assert status.name == "loc: node"
+    assert status.level == bytes([ERROR])
+    assert status.message == "cam2 ERROR: no frame since start, 5.0 s"
+    assert values_of(status) == {"workers": "2"}
+    healthy = node_status("loc", statuses[:1], {})
+    assert (healthy.level, healthy.message) == (bytes([OK]), "all 1 cameras ok")
+
+
+def test_diagnostic_array_carries_the_stamp_and_every_status():
+    stats, now = healthy_camera()
+    statuses = [camera_status("loc", stats.snapshot(now), LIMITS)]
+    array = diagnostic_array(Time(sec=12, nanosec=5), statuses)
+    assert array.header.stamp == Time(sec=12, nanosec=5)
+    assert [s.name for s in array.status] == ["loc: cam1"]
