@@ -144,7 +144,8 @@ class SymmetryFit(NamedTuple):
     Attributes:
         xy: (N, 2) refined centres.
         covariance: (N, 2, 2) covariance of the centre in px^2 from the fit.
-        residual: (N,) RMS symmetry residual divided by the local contrast (0 = perfect X).
+        residual: (N,) RMS symmetry residual, in image units (0 = perfect symmetry).
+        contrast: (N,) spread of the grey levels in the disk (90th - 10th percentile).
         converged: (N,) True where the last step was below tolerance and the
             point stayed within ``max_shift_px`` of its start.
     """
@@ -152,6 +153,7 @@ class SymmetryFit(NamedTuple):
     xy: np.ndarray
     covariance: np.ndarray
     residual: np.ndarray
+    contrast: np.ndarray
     converged: np.ndarray
 
 
@@ -214,11 +216,14 @@ def refine_point_symmetry(
     """
     n = len(xy)
     if n == 0:
-        return SymmetryFit(np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0), np.zeros(0, bool))
+        return SymmetryFit(
+            np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0), np.zeros(0), np.zeros(0, bool)
+        )
     centre = xy.astype(np.float64).copy()
     start = centre.copy()
     covariance = np.full((n, 2, 2), np.nan)
     residual_rms = np.full(n, np.inf)
+    contrast = np.zeros(n)
     converged = np.zeros(n, dtype=bool)
     # Points sharing a radius share an offset pattern; group them so each group is
     # one set of array operations.
@@ -230,10 +235,16 @@ def refine_point_symmetry(
         fit = _gauss_newton_symmetry(
             image, centre[members], offsets, taper, iterations, tolerance_px, model_gain
         )
-        centre[members], covariance[members], residual_rms[members], converged[members] = fit
+        (
+            centre[members],
+            covariance[members],
+            residual_rms[members],
+            contrast[members],
+            converged[members],
+        ) = fit
     moved = np.linalg.norm(centre - start, axis=1)
     converged &= moved <= max_shift
-    return SymmetryFit(centre, covariance, residual_rms, converged)
+    return SymmetryFit(centre, covariance, residual_rms, contrast, converged)
 
 
 def _symmetry_terms(
@@ -269,7 +280,7 @@ def _gauss_newton_symmetry(
     iterations: int,
     tolerance_px: float,
     model_gain: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     n_params = 4 if model_gain else 2
     n = len(centre)
     centre = centre.copy()
@@ -303,9 +314,6 @@ def _gauss_newton_symmetry(
     spacing = float(np.min(np.abs(offsets[offsets != 0])))
     full = sigma2[:, None, None] * bread @ meat @ bread / min(spacing, 1.0) ** 2
     covariance = full[:, :2, :2]
-    contrast = np.maximum(
-        np.percentile(samples, 90, axis=1) - np.percentile(samples, 10, axis=1), 1e-6
-    )
-    residual_rms = np.sqrt(sigma2) / contrast
+    contrast = np.percentile(samples, 90, axis=1) - np.percentile(samples, 10, axis=1)
     converged = step_norm <= tolerance_px
-    return centre, covariance, residual_rms, converged
+    return centre, covariance, np.sqrt(sigma2), contrast, converged

@@ -114,7 +114,7 @@ class SymmetryCheck(NamedTuple):
 
     Attributes:
         accepted: (N,) bool.
-        score: (N,) mean symmetry over the accepted rings (0 where rejected).
+        score: (N,) mean symmetry over the three innermost accepted rings (0 where rejected).
         radius_px: (N,) largest ring radius that still shows the X: the marker's extent.
         line_angles: (N, 2) directions in [0, pi) of the marker's two lines.
         contrast: (N,) bright-minus-dark level on the innermost accepted ring.
@@ -193,9 +193,20 @@ def centre_symmetry_check(
     run_length = in_run.sum(axis=1)
     accepted = run_length >= 2
     last = np.where(in_run.any(axis=1), n_rings - 1 - np.argmax(in_run[:, ::-1], axis=1), 0)
-    score = np.where(accepted, (rings.symmetry * in_run).sum(1) / np.maximum(run_length, 1), 0.0)
+    # The score uses the three innermost rings of the run: outer rings of a large marker
+    # meet its plate boundary, which perspective leaves less symmetric than the X itself.
+    inner = in_run & (np.cumsum(in_run, axis=1) <= 3)
+    score = np.where(accepted, (rings.symmetry * inner).sum(1) / np.maximum(inner.sum(1), 1), 0.0)
+    # Outer rings fix the line directions best (more pixels per degree): average the
+    # doubled angles over the run, weighted by ring radius.
+    weight = in_run * radii_px[None, :]
+    aligned = np.where(
+        (drift_same <= drift_swap)[..., None], rings.line_angles, rings.line_angles[..., ::-1]
+    )
+    mean_doubled = (weight[..., None] * np.exp(2j * aligned)).sum(axis=1)
+    line_angles = np.where(accepted[:, None], (np.angle(mean_doubled) / 2.0) % np.pi, reference)
     contrast = rings.contrast[np.arange(n), first]
-    return SymmetryCheck(accepted, score, radii_px[last], reference, contrast)
+    return SymmetryCheck(accepted, score, radii_px[last], line_angles, contrast)
 
 
 class LineCheck(NamedTuple):
