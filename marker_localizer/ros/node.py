@@ -1,0 +1,252 @@
+"""The ROS 2 node: per-camera subscriptions feeding a :class:`FrameProcessor`, points out.
+
+Topics, relative to the node's namespace and remappable as usual:
+
+* in ``<cam>/image_raw`` (sensor_msgs/Image: mono8, mono16, bgr8, rgb8, bgra8,
+  rgba8). QoS reliable, keep-last 1. Measured on this stack (two processes,
+  default Fast DDS): a best-effort subscription receives none of the 1.2 MB or
+  12 MB images a reliable publisher sends, while reliable keep-last 1 receives
+  them, with frames the node has no time for replaced by newer ones. Switch to
+  best effort through the parameter
+  ``qos_overrides./<cam>/image_raw.subscription.reliability`` if your driver
+  publishes best effort.
+* in ``<cam>/camera_info`` (sensor_msgs/CameraInfo), cached and reported in
+  the diagnostics when published.
+* out ``<cam>/marker_points`` (sensor_msgs/PointCloud2, layout in
+  :mod:`marker_localizer.ros.conversions`): one per processed frame, with the
+  input image's header unchanged, empty when no marker was found.
+* out ``<cam>/marker_overlay`` (sensor_msgs/Image, bgr8) when ``publish_overlay``.
+* out ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) every
+  ``diagnostics_period_s``.
+
+Executor callbacks never block: an image callback only puts the frame into the
+camera's mailbox; worker threads do the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+import traceback
+from collections.abc import Sequence
+from functools import partial
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import Header
+
+from marker_localizer.config import DetectorConfig
+from marker_localizer.errors import MarkerLocalizerError
+from marker_localizer.ros import diagnostics
+from marker_localizer.ros.parameters import LiveParameters, NodeConfig, changed_fields
+from marker_localizer.ros.processing import FrameProcessor
+
+NODE_NAME = "marker_localizer"
+#: Per camera, at most one log line about failing frames in this many seconds:
+#: a camera sending bad frames at 10 Hz must not flood the log, and the
+#: diagnostics carry the count and the last error anyway.
+_FAILURE_LOG_PERIOD_S = 5.0
+#: Longest wait for the frames in flight at shutdown, s: a 12 MP frame takes
+#: about 15 s on a 2-core computer.
+_SHUTDOWN_TIMEOUT_S = 60.0
+#: How often the main loop looks at the stop flag set by SIGINT/SIGTERM, s.
+_SPIN_PERIOD_S = 0.1
+
+_IMAGE_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE
+)
+#: Results: keep a few so that a slow consumer does not lose points.
+_OUTPUT_DEPTH = 10
+
+
+class MarkerLocalizerNode(Node):
+    """Detect diagonal markers in the images of several cameras and publish their centres.
+
+    Args:
+        node_name: name of the node (the parameter file's top-level key).
+        **kwargs: passed to :class:`rclpy.node.Node` (namespace, context,
+            parameter_overrides, cli_args, ...).
+
+    Raises:
+        ConfigError: a parameter's start value is invalid.
+    """
+
+    def __init__(self, node_name: str = NODE_NAME, **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._live = LiveParameters(self, self._on_parameters)
+        settings = self._live.node_config
+        self._thresholds = _thresholds(settings)
+        self._camera_info: dict[str, CameraInfo] = {}
+        self._last_failure_log: dict[str, float] = {}
+        self._points = {
+            c: self.create_publisher(PointCloud2, f"{c}/marker_points", _OUTPUT_DEPTH)
+            for c in settings.cameras
+        }
+        self._overlays = {
+            c: self.create_publisher(Image, f"{c}/marker_overlay", _OUTPUT_DEPTH)
+            for c in settings.cameras
+        }
+        self.processor = FrameProcessor(
+            settings.cameras,
+            self._live.detector_config,
+            self._deliver,
+            workers=settings.workers,
+            max_frame_age_s=settings.max_frame_age_s,
+            clock_ns=lambda: self.get_clock().now().nanoseconds,
+            publish_overlay=settings.publish_overlay,
+            on_error=self._frame_failed,
+            stats_window_s=settings.stats_window_s,
+        )
+        for camera in settings.cameras:
+            self.create_subscription(
+                Image,
+                f"{camera}/image_raw",
+                partial(self._on_image, camera),
+                _IMAGE_QOS,
+                qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            )
+            self.create_subscription(
+                CameraInfo, f"{camera}/camera_info", partial(self._on_camera_info, camera), 1
+            )
+        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", _OUTPUT_DEPTH)
+        self.create_timer(settings.diagnostics_period_s, self.publish_diagnostics)
+        self.get_logger().info(
+            f"serving cameras {', '.join(settings.cameras)} with {settings.workers} worker(s)"
+        )
+
+    def publish_diagnostics(self) -> None:
+        """Publish one DiagnosticArray: a status per camera and one for the node."""
+        name = self.get_name()
+        statuses = [
+            diagnostics.camera_status(
+                name, snapshot, self._thresholds, {"camera_info": self._info_text(camera)}
+            )
+            for camera, snapshot in self.processor.snapshots().items()
+        ]
+        config = self.processor.config
+        node_values = {
+            "workers": str(self.processor.workers),
+            "frames in flight": str(self.processor.in_flight()),
+            "max frame age (s)": f"{self.processor.max_frame_age_s:g}",
+            "marker radius range (px)": (
+                f"{config.marker_radius_min_px:g}..{config.marker_radius_max_px:g}"
+            ),
+        }
+        statuses.append(diagnostics.node_status(name, statuses, node_values))
+        self._diagnostics.publish(
+            diagnostics.diagnostic_array(self.get_clock().now().to_msg(), statuses)
+        )
+
+    def destroy_node(self) -> None:
+        """Drain the worker pool (frames in flight are published), then destroy the node."""
+        if not self.processor.shutdown(_SHUTDOWN_TIMEOUT_S):
+            self.get_logger().warning(
+                f"frames still in flight after {_SHUTDOWN_TIMEOUT_S:g} s were abandoned"
+            )
+        super().destroy_node()
+
+    def _on_image(self, camera: str, msg: Image) -> None:
+        self.processor.submit(camera, msg)
+
+    def _on_camera_info(self, camera: str, msg: CameraInfo) -> None:
+        self._camera_info[camera] = msg
+
+    def _info_text(self, camera: str) -> str:
+        info = self._camera_info.get(camera)
+        return "none received" if info is None else f"{info.width}x{info.height}"
+
+    def _deliver(
+        self, camera: str, header: Header, cloud: PointCloud2, overlay: Image | None
+    ) -> None:
+        self._points[camera].publish(cloud)
+        if overlay is not None:
+            self._overlays[camera].publish(overlay)
+
+    def _frame_failed(self, camera: str, err: Exception) -> None:
+        now = time.monotonic()
+        if now - self._last_failure_log.get(camera, -_FAILURE_LOG_PERIOD_S) < (
+            _FAILURE_LOG_PERIOD_S
+        ):
+            return
+        self._last_failure_log[camera] = now
+        if isinstance(err, MarkerLocalizerError):
+            self.get_logger().warning(f"{camera}: frame rejected: {err}")
+        else:  # a bug: keep the traceback
+            text = "".join(traceback.format_exception(err)).rstrip()
+            self.get_logger().error(f"{camera}: frame failed:\n{text}")
+
+    def _on_parameters(self, settings: NodeConfig, config: DetectorConfig) -> None:
+        self.processor.max_frame_age_s = settings.max_frame_age_s
+        self.processor.publish_overlay = settings.publish_overlay
+        self._thresholds = _thresholds(settings)
+        changes = changed_fields(self.processor.config, config)
+        if changes:
+            self.processor.set_config(config)
+            listed = ", ".join(f"{k}={v!r}" for k, v in changes.items())
+            self.get_logger().info(f"detector reconfigured for the next frames: {listed}")
+
+
+def _thresholds(settings: NodeConfig) -> diagnostics.DiagnosticThresholds:
+    return diagnostics.DiagnosticThresholds(
+        latency_warn_ms=settings.latency_warn_ms,
+        input_timeout_s=settings.input_timeout_s,
+        window_s=settings.stats_window_s,
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the node until SIGINT or SIGTERM.
+
+    Args:
+        argv: command-line arguments after the program name (default:
+            ``sys.argv[1:]``); ROS arguments follow ``--ros-args`` as for any
+            node (``-p name:=value``, ``--params-file FILE``, ``-r from:=to``).
+
+    Returns:
+        Exit status: 0 after a clean shutdown, 1 on invalid configuration.
+    """
+    args = [sys.argv[0] if sys.argv else NODE_NAME, *(sys.argv[1:] if argv is None else argv)]
+    own_args = rclpy.utilities.remove_ros_args(args)[1:]
+    argparse.ArgumentParser(
+        prog="marker_localizer_node",
+        description="ROS 2 node localising diagonal ground markers; configure it with "
+        "--ros-args -p name:=value or --params-file config/marker_localizer.yaml.",
+    ).parse_args(own_args)
+    # rclpy's own handlers would shut the context down before the pool drains;
+    # ours only set a flag, so frames in flight are still published.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    try:
+        try:
+            node = MarkerLocalizerNode()
+        except MarkerLocalizerError as err:
+            rclpy.logging.get_logger(NODE_NAME).fatal(f"invalid configuration: {err}")
+            return 1
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        try:
+            while not stop.is_set() and rclpy.ok():
+                executor.spin_once(timeout_sec=_SPIN_PERIOD_S)
+        finally:
+            executor.remove_node(node)
+            node.destroy_node()
+        node.get_logger().info("stopped")
+        return 0
+    finally:
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,337 @@
+"""ROS parameters generated from the typed configurations, validated before they apply.
+
+Two configurations back the node's parameters, neither written twice:
+
+* :class:`marker_localizer.config.DetectorConfig`, declared as ``detector.<field>``
+  with descriptors generated from :func:`marker_localizer.config.param_specs`
+  (description with unit, range, choices); all of them can change live.
+* :class:`NodeConfig`, the node's own parameters; ``cameras``, ``workers``,
+  ``diagnostics_period_s`` and ``stats_window_s`` are structural and read-only.
+
+:class:`LiveParameters` validates a change in the on-set callback by building
+the new configurations (any :class:`ConfigError` rejects the whole request with
+its text as the reason, so nothing is half-applied and cross-field rules such as
+``marker_radius_min_px <= marker_radius_max_px`` hold), and applies it in the
+post-set callback. rclpy itself checks types, ranges and read-only flags first.
+The ``SetParameters`` service applies parameters one by one; change dependent
+values (both radius bounds) together with ``SetParametersAtomically``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import sys
+import textwrap
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from marker_localizer.config import (
+    DETECTOR_NAMESPACE,
+    DetectorConfig,
+    ParamSpec,
+    from_mapping,
+    param_specs,
+)
+from marker_localizer.errors import ConfigError
+
+_CAMERA_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+
+
+def _node_param(
+    default: Any,
+    description: str,
+    unit: str = "",
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    read_only: bool = False,
+) -> Any:
+    spec = ParamSpec(description=description, unit=unit, low=low, high=high)
+    return field(default=default, metadata={"spec": spec, "read_only": read_only})
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    """The node's own settings; validated on construction (raises :class:`ConfigError`)."""
+
+    cameras: tuple[str, ...] = _node_param(
+        ("cam0", "cam1", "cam2", "cam3", "cam4"),
+        "Camera names; the node subscribes <cam>/image_raw and <cam>/camera_info and "
+        "publishes <cam>/marker_points. Default: the five cameras of the UAV rig.",
+        read_only=True,
+    )
+    workers: int = _node_param(
+        2,
+        "Worker threads that run the detector; one frame per camera at a time. "
+        "2 = one per core of the target computer.",
+        "",
+        1,
+        64,
+        read_only=True,
+    )
+    max_frame_age_s: float = _node_param(
+        2.0,
+        "A frame whose header stamp is older than this when a worker takes it is "
+        "dropped: two periods of a 1 Hz mapping camera, past which a fresher frame is "
+        "due and the old one is stale for navigation. 0 disables the check.",
+        "s",
+        0.0,
+        3600.0,
+    )
+    publish_overlay: bool = _node_param(
+        False,
+        "Publish <cam>/marker_overlay (bgr8, detections drawn) for every processed "
+        "frame. Off by default: a 12 MP overlay costs a 36 MB copy and a publish per frame.",
+    )
+    latency_warn_ms: float = _node_param(
+        1000.0,
+        "Diagnostics WARN when the latency p95 (header stamp to publish) exceeds this: "
+        "about the state buffer of a navigation filter that fuses delayed measurements.",
+        "ms",
+        1.0,
+        3_600_000.0,
+    )
+    input_timeout_s: float = _node_param(
+        2.0,
+        "Diagnostics ERROR when a camera sent no frame for this long: at least two "
+        "missed frames of a camera running at 1 Hz or faster.",
+        "s",
+        0.01,
+        3600.0,
+    )
+    diagnostics_period_s: float = _node_param(
+        1.0,
+        "Period of /diagnostics (diagnostic_updater's 1 Hz).",
+        "s",
+        0.05,
+        60.0,
+        read_only=True,
+    )
+    stats_window_s: float = _node_param(
+        10.0,
+        "Sliding window of the diagnostics' rates, drop fraction, latency percentiles "
+        "and of how long a failed frame keeps a camera at ERROR.",
+        "s",
+        0.5,
+        3600.0,
+        read_only=True,
+    )
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "cameras", tuple(self.cameras))
+        bad = [c for c in self.cameras if not isinstance(c, str) or not _CAMERA_NAME.match(c)]
+        if not self.cameras or bad or len(set(self.cameras)) != len(self.cameras):
+            raise ConfigError(
+                f"cameras={list(self.cameras)!r} must be non-empty, unique names of letters, "
+                "digits and '_' starting with a letter"
+            )
+        for f in dataclasses.fields(self):
+            spec: ParamSpec = f.metadata["spec"]
+            value = getattr(self, f.name)
+            if spec.low is not None and spec.high is not None and not (
+                spec.low <= value <= spec.high
+            ):
+                raise ConfigError(
+                    f"{f.name}={value!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}"
+                )
+
+
+def node_specs() -> dict[str, tuple[dataclasses.Field[Any], ParamSpec]]:
+    """Every :class:`NodeConfig` field with its :class:`ParamSpec`, in declaration order."""
+    return {f.name: (f, f.metadata["spec"]) for f in dataclasses.fields(NodeConfig)}
+
+
+def descriptor(
+    name: str, spec: ParamSpec, kind: str, *, read_only: bool = False
+) -> ParameterDescriptor:
+    """Build the ParameterDescriptor of one configuration field.
+
+    Args:
+        name: full parameter name (``detector.marker_radius_min_px``).
+        spec: the field's description, unit, range and choices.
+        kind: the field's Python type name (``float``, ``int``, ``str``, ``bool``, ...).
+        read_only: structural parameter that cannot change after start.
+
+    Returns:
+        Descriptor whose description ends with the unit in brackets, with a
+        FloatingPointRange or IntegerRange where the field has bounds and the
+        choices in ``additional_constraints``.
+    """
+    unit = f" [{spec.unit}]" if spec.unit else ""
+    result = ParameterDescriptor(
+        name=name, description=f"{spec.description}{unit}", read_only=read_only
+    )
+    if spec.low is not None and spec.high is not None:
+        if kind == "float":
+            result.floating_point_range = [
+                FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high), step=0.0)
+            ]
+        elif kind == "int":
+            result.integer_range = [
+                IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)
+            ]
+    if spec.choices:
+        result.additional_constraints = f"one of: {', '.join(spec.choices)}"
+    return result
+
+
+def _declare(node: Node, name: str, f: dataclasses.Field[Any], default: Any) -> Any:
+    """Declare one field as parameter ``name``; return its start value (override or default)."""
+    read_only = bool(f.metadata.get("read_only", False))
+    described = descriptor(name, f.metadata["spec"], str(f.type), read_only=read_only)
+    # rclpy infers STRING_ARRAY from a list, not from a tuple.
+    ros_default = list(default) if isinstance(default, tuple) else default
+    value = node.declare_parameter(name, ros_default, described).value
+    return tuple(value) if isinstance(default, tuple) else value
+
+
+class LiveParameters:
+    """Declare the node's parameters and keep both configurations in step with them.
+
+    Args:
+        node: the node to declare on; its overrides (``-p``, ``--params-file``)
+            give the start values.
+        on_change: called with (node config, detector config) after an
+            accepted change, from the executor thread that serves the
+            parameter service.
+
+    Raises:
+        ConfigError: a start value is out of range, of the wrong type, or
+            breaks a cross-field rule.
+    """
+
+    def __init__(
+        self, node: Node, on_change: Callable[[NodeConfig, DetectorConfig], None]
+    ) -> None:
+        self._on_change = on_change
+        self._detector_names = {f"{DETECTOR_NAMESPACE}.{name}": name for name in param_specs()}
+        defaults = DetectorConfig()
+        try:
+            node_values = {
+                name: _declare(node, name, f, f.default) for name, (f, _) in node_specs().items()
+            }
+            detector_values = {
+                name: _declare(node, full, param_specs()[name][0], getattr(defaults, name))
+                for full, name in self._detector_names.items()
+            }
+        except (InvalidParameterValueException, InvalidParameterTypeException) as err:
+            raise ConfigError(str(err)) from err
+        self.node_config = NodeConfig(**node_values)
+        self.detector_config = from_mapping(detector_values)
+        node.add_on_set_parameters_callback(self._validate)
+        node.add_post_set_parameters_callback(self._apply)
+
+    def _merged(self, parameters: Sequence[Parameter]) -> tuple[NodeConfig, DetectorConfig]:
+        """The configurations that ``parameters`` would give (raises ConfigError)."""
+        node_changes: dict[str, Any] = {}
+        detector_changes: dict[str, Any] = {}
+        for p in parameters:
+            if p.name in self._detector_names:
+                detector_changes[self._detector_names[p.name]] = p.value
+            elif p.name in node_specs():
+                node_changes[p.name] = p.value
+        return (
+            dataclasses.replace(self.node_config, **node_changes),
+            from_mapping(detector_changes, base=self.detector_config),
+        )
+
+    def _validate(self, parameters: list[Parameter]) -> SetParametersResult:
+        try:
+            self._merged(parameters)
+        except ConfigError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _apply(self, parameters: list[Parameter]) -> None:
+        self.node_config, self.detector_config = self._merged(parameters)
+        self._on_change(self.node_config, self.detector_config)
+
+
+_YAML_WIDTH = 96
+_YAML_HEADER = """\
+# Parameters of the marker_localizer node, every one at its default with its unit and
+# the reason for the default (the descriptors the node declares carry the same text).
+# Use: marker_localizer_node --ros-args --params-file config/marker_localizer.yaml
+# GENERATED from NodeConfig and DetectorConfig by
+#   python -m marker_localizer.ros.parameters > config/marker_localizer.yaml
+# (a test fails when it is stale). Doubles keep their decimal point: ROS rejects an
+# integer for a double parameter.
+"""
+
+
+def params_yaml(node_name: str = "marker_localizer") -> str:
+    """The node's parameter file: every parameter at its default, each with a comment.
+
+    Args:
+        node_name: top-level key (the node's name).
+
+    Returns:
+        YAML text in the ``<node>: ros__parameters:`` layout, the detector
+        settings under ``detector:``.
+    """
+    lines = [_YAML_HEADER.rstrip("\n"), f"{node_name}:", "  ros__parameters:"]
+    for name, (f, spec) in node_specs().items():
+        lines += _yaml_entry(4, name, spec, f.default, bool(f.metadata.get("read_only")))
+    lines += [
+        "    # Detector settings (marker_localizer.config.DetectorConfig), all live-tunable.",
+        f"    {DETECTOR_NAMESPACE}:",
+    ]
+    defaults = DetectorConfig()
+    for name, (_, spec) in param_specs().items():
+        lines += _yaml_entry(6, name, spec, getattr(defaults, name), False)
+    return "\n".join(lines) + "\n"
+
+
+def _yaml_entry(indent: int, name: str, spec: ParamSpec, value: Any, read_only: bool) -> list[str]:
+    notes = [spec.description]
+    if spec.unit:
+        notes.append(f"Unit: {spec.unit}.")
+    if spec.low is not None and spec.high is not None:
+        notes.append(f"Range: [{spec.low:g}, {spec.high:g}].")
+    if spec.choices:
+        notes.append(f"One of: {', '.join(spec.choices)}.")
+    if read_only:
+        notes.append("Read-only.")
+    pad = " " * indent
+    comment = textwrap.wrap(" ".join(notes), _YAML_WIDTH - indent - 2)
+    return [f"{pad}# {line}" for line in comment] + [f"{pad}{name}: {_yaml_scalar(value)}"]
+
+
+def _yaml_scalar(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):
+        return "[" + ", ".join(_yaml_scalar(v) for v in value) + "]"
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, float):
+        text = repr(value)
+        # YAML 1.1 reads 1e-05 as a string: the mantissa needs a decimal point.
+        mantissa, _, exponent = text.partition("e")
+        return text if "." in mantissa else f"{mantissa}.0" + (f"e{exponent}" if exponent else "")
+    return str(value)
+
+
+def changed_fields(old: Any, new: Any) -> Mapping[str, Any]:
+    """Fields of two dataclass instances of one type that differ, with their new values."""
+    return {
+        f.name: getattr(new, f.name)
+        for f in dataclasses.fields(old)
+        if getattr(old, f.name) != getattr(new, f.name)
+    }
+
+
+if __name__ == "__main__":
+    sys.stdout.write(params_yaml())

@@ -1,0 +1,675 @@
+"""The node with real rclpy and real DDS: rendered frames in, sub-pixel points and diagnostics out.
+
+Nodes under test run in this process (each spun by its own executor thread) and,
+once, as a separate process started like a user would. A tester node publishes
+rendered frames with exact ground truth and listens to every output. Waits are
+polls with generous deadlines, never fixed sleeps.
+"""
+
+import array
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import rclpy
+import yaml
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.srv import (
+    DescribeParameters,
+    GetParameters,
+    SetParameters,
+    SetParametersAtomically,
+)
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image, PointCloud2
+from std_msgs.msg import Header
+
+from marker_localizer.config import DetectorConfig
+from marker_localizer.errors import ImageError
+from marker_localizer.ros.conversions import array_to_image, cloud_to_array
+from marker_localizer.ros.diagnostics import ERROR, OK, WARN
+from marker_localizer.ros.node import MarkerLocalizerNode
+from marker_localizer.ros.parameters import params_yaml
+from marker_localizer.ros.processing import FrameProcessor
+from marker_localizer.synthetic import SceneConfig, render_scene
+
+REPO = Path(__file__).resolve().parents[1]
+PARAMS_FILE = REPO / "config" / "marker_localizer.yaml"
+CAMERAS = ("cam0", "cam1", "cam2", "cam3", "cam4")
+TIMEOUT_S = 30.0
+#: Sub-pixel accuracy the node must deliver on rendered frames, px.
+TOLERANCE_PX = 0.1
+IMAGE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def wait_until(predicate, what, timeout_s=TIMEOUT_S):
+    """Poll ``predicate`` until it returns something truthy; fail naming ``what``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        result = predicate()
+        if result:
+            return result
+        time.sleep(0.01)
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+
+
+def scene(width, height, n_markers, seed):
+    """A rendered frame on flat ground with exact marker centres."""
+    config = SceneConfig(
+        width=width,
+        height=height,
+        n_markers=n_markers,
+        radius_px=(12.0, 30.0),
+        max_tilt_deg=30.0,
+        noise_sigma_dn=(0.0, 2.0),
+        background="flat",
+        n_hard_negatives=0,
+        supersampling=4,
+    )
+    return render_scene(config, seed)
+
+
+def x_marker_64():
+    """The analytic X of the Detector docstring: exact centre (31.5, 31.5)."""
+    image = np.full((64, 64), 200, np.uint8)
+    image[:32, :32] = image[32:, 32:] = 30
+    return cv2.GaussianBlur(image, (0, 0), 1.0)
+
+
+def points_xy(cloud):
+    points = cloud_to_array(cloud)
+    return np.column_stack([points["x"], points["y"]])
+
+
+def assert_matches_truth(found_xy, truth_xy):
+    """Every marker found within TOLERANCE_PX of its truth, and nothing else found."""
+    assert len(found_xy) == len(truth_xy), f"found {found_xy}, truth {truth_xy}"
+    distance = np.linalg.norm(found_xy[:, None, :] - truth_xy[None, :, :], axis=2)
+    assert distance.min(axis=0).max() < TOLERANCE_PX
+    assert distance.min(axis=1).max() < TOLERANCE_PX
+
+
+def level_of(status):
+    return status.level[0]
+
+
+def values_of(status):
+    return {kv.key: kv.value for kv in status.values}
+
+
+class Spinner:
+    """Spin one node with its own executor in a background thread."""
+
+    def __init__(self, node):
+        self.node = node
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def stop(self):
+        self.executor.shutdown()
+        self.thread.join(TIMEOUT_S)
+        self.node.destroy_node()
+
+
+class Peer:
+    """The other side of the node: publishes frames, collects outputs, calls services."""
+
+    def __init__(self, name, namespace):
+        self.node = rclpy.create_node(name, namespace=namespace)
+        self.lock = threading.Lock()
+        self.received = defaultdict(list)  # topic -> messages
+        self.publishers = {}
+        self.subscriptions = {}
+        self.spinner = Spinner(self.node)
+
+    def listen(self, topic, msg_type):
+        """Subscribe to ``topic`` (once) and wait until a publisher is matched."""
+        if topic not in self.subscriptions:
+            def collect(msg, topic=topic):
+                with self.lock:
+                    self.received[topic].append(msg)
+
+            self.subscriptions[topic] = self.node.create_subscription(
+                msg_type, topic, collect, 50
+            )
+        sub = self.subscriptions[topic]
+        wait_until(lambda: sub.get_publisher_count() > 0, f"a publisher on {topic}")
+
+    def messages(self, topic):
+        with self.lock:
+            return list(self.received[topic])
+
+    def frame(self, pixels, encoding="mono8", frame_id="camera", stamp=None):
+        header = Header(stamp=stamp or self.node.get_clock().now().to_msg(), frame_id=frame_id)
+        return array_to_image(pixels, encoding, header)
+
+    def publish(self, topic, msg):
+        if topic not in self.publishers:
+            self.publishers[topic] = self.node.create_publisher(Image, topic, IMAGE_QOS)
+        pub = self.publishers[topic]
+        wait_until(lambda: pub.get_subscription_count() > 0, f"the node subscribing {topic}")
+        pub.publish(msg)
+
+    def result_for(self, topic, header, timeout_s=TIMEOUT_S):
+        """The output on ``topic`` whose stamp is the stamp of ``header``."""
+        return wait_until(
+            lambda: next((m for m in self.messages(topic) if m.header.stamp == header.stamp), None),
+            f"{topic} for stamp {header.stamp.sec}.{header.stamp.nanosec:09d}",
+            timeout_s,
+        )
+
+    def call(self, srv_type, name, request):
+        client = self.node.create_client(srv_type, name)
+        try:
+            wait_until(lambda: client.wait_for_service(timeout_sec=0.1), f"service {name}")
+            future = client.call_async(request)
+            wait_until(future.done, f"the answer of {name}")
+            return future.result()
+        finally:
+            self.node.destroy_client(client)
+
+    def set_parameters(self, node_fqn, parameters, atomically=False):
+        msgs = [Parameter(name, value=value).to_parameter_msg() for name, value in parameters]
+        if atomically:
+            request = SetParametersAtomically.Request(parameters=msgs)
+            return [self.call(SetParametersAtomically, f"{node_fqn}/set_parameters_atomically",
+                              request).result]
+        request = SetParameters.Request(parameters=msgs)
+        return self.call(SetParameters, f"{node_fqn}/set_parameters", request).results
+
+    def get_parameter(self, node_fqn, name):
+        request = GetParameters.Request(names=[name])
+        (value,) = self.call(GetParameters, f"{node_fqn}/get_parameters", request).values
+        return parameter_value_to_python(value)
+
+    def stop(self):
+        self.spinner.stop()
+
+
+# --------------------------------------------------------------------------- fixtures
+
+
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()
+
+
+@pytest.fixture(scope="module")
+def localizer(ros):
+    """The node under test in namespace /inproc, default cameras, fast diagnostics.
+
+    No age limit and a loose latency limit: on a loaded 2-core machine five
+    1280x960 frames may wait longer than the defaults allow for a worker (both
+    limits have their own tests).
+    """
+    node = MarkerLocalizerNode(
+        namespace="/inproc",
+        parameter_overrides=[
+            Parameter("max_frame_age_s", value=0.0),
+            Parameter("latency_warn_ms", value=60_000.0),
+            Parameter("diagnostics_period_s", value=0.2),
+            Parameter("input_timeout_s", value=600.0),
+        ],
+    )
+    spinner = Spinner(node)
+    yield node
+    spinner.stop()
+
+
+@pytest.fixture(scope="module")
+def tester(ros):
+    tester = Peer("tester", "/inproc")
+    yield tester
+    tester.stop()
+
+
+# --------------------------------------------------------------------------- in-process node
+
+
+def test_node_publishes_points_at_ground_truth_with_headers_unchanged_on_five_cameras(
+    localizer, tester
+):
+    seeds = (0, 2, 3, 4, 5)
+    scenes = {cam: scene(1280, 960, 4, seed) for cam, seed in zip(CAMERAS, seeds, strict=True)}
+    for camera in CAMERAS:
+        tester.listen(f"{camera}/marker_points", PointCloud2)
+    sent = {}
+    for camera, rendered in scenes.items():
+        sent[camera] = tester.frame(rendered.image, frame_id=f"{camera}_optical")
+        tester.publish(f"{camera}/image_raw", sent[camera])
+    for camera, rendered in scenes.items():
+        cloud = tester.result_for(f"{camera}/marker_points", sent[camera].header)
+        assert cloud.header == sent[camera].header  # stamp and frame_id unchanged
+        assert_matches_truth(points_xy(cloud), rendered.centres)
+        assert cloud.is_dense
+        assert cloud.point_step == 48
+
+
+def test_node_publishes_empty_cloud_when_frame_has_no_marker(localizer, tester):
+    tester.listen("cam2/marker_points", PointCloud2)
+    blank = np.random.default_rng(7).normal(120.0, 3.0, (240, 320)).clip(0, 255).astype(np.uint8)
+    frame = tester.frame(blank, frame_id="cam2_optical")
+    tester.publish("cam2/image_raw", frame)
+    cloud = tester.result_for("cam2/marker_points", frame.header)
+    assert cloud.header == frame.header
+    assert (cloud.width, len(cloud.data)) == (0, 0)
+
+
+@pytest.mark.parametrize("encoding", ["mono16", "bgr8", "rgb8"])
+def test_node_reads_colour_and_16_bit_frames(localizer, tester, encoding):
+    tester.listen("cam3/marker_points", PointCloud2)
+    grey = x_marker_64()
+    pixels = {
+        "mono16": grey.astype(np.uint16) * 16,  # a 12-bit sensor
+        "bgr8": np.dstack([grey] * 3),
+        "rgb8": np.dstack([grey] * 3),
+    }[encoding]
+    frame = tester.frame(pixels, encoding)
+    tester.publish("cam3/image_raw", frame)
+    cloud = tester.result_for("cam3/marker_points", frame.header)
+    np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=1e-3)
+
+
+def test_accepted_parameter_change_takes_effect_on_the_next_frame(localizer, tester):
+    tester.listen("cam1/marker_points", PointCloud2)
+    image = x_marker_64()
+
+    def markers_in_next_frame():
+        frame = tester.frame(image)
+        tester.publish("cam1/image_raw", frame)
+        return tester.result_for("cam1/marker_points", frame.header).width
+
+    assert markers_in_next_frame() == 1
+    (result,) = tester.set_parameters(
+        "/inproc/marker_localizer", [("detector.min_contrast_dn", 255.0)]
+    )
+    assert result.successful, result.reason
+    assert tester.get_parameter("/inproc/marker_localizer", "detector.min_contrast_dn") == 255.0
+    assert markers_in_next_frame() == 0  # no marker has 255 DN between its quadrants
+    (result,) = tester.set_parameters(
+        "/inproc/marker_localizer",
+        [("detector.min_contrast_dn", DetectorConfig().min_contrast_dn)],
+        atomically=True,
+    )
+    assert result.successful, result.reason
+    assert markers_in_next_frame() == 1
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "reason"),
+    [
+        ("detector.marker_radius_min_px", 0.5, "out of range"),
+        ("detector.marker_radius_min_px", 50.0,
+         "marker_radius_min_px=50.0 is larger than marker_radius_max_px=40.0"),
+        ("detector.refinement", "magic", "refinement='magic' must be one of symmetry, ncc"),
+        ("detector.marker_radius_max_px", "big", "Wrong parameter type"),
+        ("detector.ncc_search_px", 2.5, "Wrong parameter type"),
+        ("max_frame_age_s", -1.0, "out of range"),
+        ("workers", 4, "read-only"),
+        ("cameras", ["cam0"], "read-only"),
+    ],
+)
+def test_invalid_parameter_values_are_rejected_with_a_reason(
+    localizer, tester, name, value, reason
+):
+    before = tester.get_parameter("/inproc/marker_localizer", name)
+    (result,) = tester.set_parameters("/inproc/marker_localizer", [(name, value)])
+    assert not result.successful
+    assert reason in result.reason
+    assert tester.get_parameter("/inproc/marker_localizer", name) == before
+
+
+def test_atomic_request_with_one_invalid_value_applies_nothing(localizer, tester):
+    (result,) = tester.set_parameters(
+        "/inproc/marker_localizer",
+        [("detector.marker_radius_max_px", 60.0), ("detector.marker_radius_min_px", 70.0)],
+        atomically=True,
+    )
+    assert not result.successful
+    assert "marker_radius_min_px=70.0 is larger than marker_radius_max_px=60.0" in result.reason
+    assert tester.get_parameter("/inproc/marker_localizer", "detector.marker_radius_max_px") == 40.0
+    assert localizer.processor.config.marker_radius_max_px == 40.0
+
+
+def test_parameter_descriptors_state_unit_range_and_read_only(localizer, tester):
+    names = ["detector.marker_radius_min_px", "detector.refinement", "workers", "max_frame_age_s"]
+    request = DescribeParameters.Request(names=names)
+    radius, refinement, workers, age = tester.call(
+        DescribeParameters, "/inproc/marker_localizer/describe_parameters", request
+    ).descriptors
+    assert radius.description.endswith("[px]")
+    assert radius.type == ParameterType.PARAMETER_DOUBLE
+    assert (radius.floating_point_range[0].from_value, radius.floating_point_range[0].to_value) == (
+        1.5, 1000.0)
+    assert not radius.read_only
+    assert refinement.additional_constraints == "one of: symmetry, ncc"
+    assert workers.read_only
+    assert workers.integer_range[0].from_value == 1
+    assert age.description.endswith("[s]")
+
+
+def test_overlay_is_published_once_switched_on_live(localizer, tester):
+    tester.listen("cam4/marker_points", PointCloud2)
+    tester.listen("cam4/marker_overlay", Image)
+    (result,) = tester.set_parameters("/inproc/marker_localizer", [("publish_overlay", True)])
+    assert result.successful, result.reason
+    try:
+        frame = tester.frame(x_marker_64(), frame_id="cam4_optical")
+        tester.publish("cam4/image_raw", frame)
+        overlay = tester.result_for("cam4/marker_overlay", frame.header)
+    finally:
+        tester.set_parameters("/inproc/marker_localizer", [("publish_overlay", False)])
+    assert overlay.header == frame.header
+    assert (overlay.encoding, overlay.width, overlay.height) == ("bgr8", 64, 64)
+
+
+def test_image_subscriptions_are_reliable_keep_last_one_and_overridable(localizer, tester):
+    (info,) = tester.node.get_subscriptions_info_by_topic("/inproc/cam0/image_raw")
+    assert info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    name = "qos_overrides./inproc/cam0/image_raw.subscription.reliability"
+    assert tester.get_parameter("/inproc/marker_localizer", name) == "reliable"
+    depth = "qos_overrides./inproc/cam0/image_raw.subscription.depth"
+    assert tester.get_parameter("/inproc/marker_localizer", depth) == 1
+
+
+def test_diagnostics_report_ok_levels_values_and_node_status(localizer, tester):
+    tester.listen("/diagnostics", DiagnosticArray)
+    tester.listen("cam0/marker_points", PointCloud2)
+    frame = tester.frame(x_marker_64())
+    tester.publish("cam0/image_raw", frame)
+    tester.result_for("cam0/marker_points", frame.header)
+
+    def fresh_status():
+        for array_msg in reversed(tester.messages("/diagnostics")):
+            statuses = {s.name: s for s in array_msg.status}
+            cam0 = statuses.get("marker_localizer: cam0")
+            if cam0 and int(values_of(cam0)["frames processed"]) >= 1:
+                return statuses
+        return None
+
+    statuses = wait_until(fresh_status, "diagnostics counting the cam0 frame")
+    cam0 = statuses["marker_localizer: cam0"]
+    assert (level_of(cam0), cam0.hardware_id) == (OK, "cam0")
+    values = values_of(cam0)
+    assert float(values["latency p95 (ms)"]) > 0.0
+    assert values["camera_info"] == "none received"
+    node = statuses["marker_localizer: node"]
+    assert level_of(node) == OK
+    assert values_of(node)["workers"] == "2"
+
+
+# --------------------------------------------------------------------------- diagnostics levels
+
+
+def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros):
+    """One node, five cameras in five states: steady, flooded, silent, bad encoding, truncated."""
+    node = MarkerLocalizerNode(
+        "diag_localizer",
+        namespace="/diag",
+        parameter_overrides=[
+            Parameter("diagnostics_period_s", value=0.2),
+            Parameter("input_timeout_s", value=1.0),
+            Parameter("stats_window_s", value=60.0),
+            Parameter("latency_warn_ms", value=60_000.0),
+            Parameter("qos_overrides./diag/cam2/image_raw.subscription.reliability",
+                      value="best_effort"),
+        ],
+    )
+    spinner = Spinner(node)
+    tester = Peer("diag_tester", "/diag")
+    stop = threading.Event()
+    try:
+        tester.listen("/diagnostics", DiagnosticArray)
+        tester.listen("cam0/marker_points", PointCloud2)
+        tester.listen("cam4/marker_points", PointCloud2)
+        small = x_marker_64()
+        busy = scene(640, 480, 2, 1).image  # ~0.1 s of work, sent at 50 Hz
+        bad_encoding = tester.frame(np.zeros((48, 64), np.uint8))
+        bad_encoding.encoding = "yuv422"
+        truncated = tester.frame(small)
+        truncated.data = truncated.data[: len(truncated.data) // 2]
+        tester.publish("cam3/image_raw", bad_encoding)
+        tester.publish("cam4/image_raw", truncated)
+
+        def feed():
+            next_steady = 0.0
+            while not stop.is_set():
+                if time.monotonic() >= next_steady:
+                    tester.publish("cam0/image_raw", tester.frame(small))
+                    next_steady = time.monotonic() + 0.2
+                tester.publish("cam1/image_raw", tester.frame(busy))
+                stop.wait(0.02)
+
+        feeder = threading.Thread(target=feed, daemon=True)
+        feeder.start()
+        expected = {"cam0": OK, "cam1": WARN, "cam2": ERROR, "cam3": ERROR, "cam4": ERROR}
+        last = {}
+
+        def levels_reached():
+            for array_msg in reversed(tester.messages("/diagnostics")[-5:]):
+                statuses = {s.hardware_id: s for s in array_msg.status
+                            if s.name.startswith("diag_localizer: ")}
+                last.update(statuses)
+                if all(c in statuses and level_of(statuses[c]) == lvl
+                       for c, lvl in expected.items()):
+                    return statuses
+            return None
+
+        try:
+            statuses = wait_until(levels_reached, "the five camera levels")
+        except AssertionError:
+            raise AssertionError({c: (level_of(s), s.message) for c, s in last.items()}) from None
+        stop.set()
+        feeder.join(TIMEOUT_S)
+
+        assert statuses["cam0"].message == "ok"
+        assert "% of frames dropped" in statuses["cam1"].message
+        assert int(values_of(statuses["cam1"])["dropped by mailbox"]) > 0
+        assert statuses["cam2"].message.startswith("no frame since start")
+        assert "unsupported encoding 'yuv422'" in statuses["cam3"].message
+        assert "data holds 2048 B" in values_of(statuses["cam4"])["last error"]
+        node_status = statuses["diag_localizer"]
+        assert level_of(node_status) == ERROR
+        assert "cam3 ERROR" in node_status.message
+
+        # The camera that sent a truncated frame is served again as soon as a good one comes.
+        good = tester.frame(small)
+        tester.publish("cam4/image_raw", good)
+        assert tester.result_for("cam4/marker_points", good.header).width == 1
+        (info,) = tester.node.get_subscriptions_info_by_topic("/diag/cam2/image_raw")
+        assert info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+    finally:
+        stop.set()
+        tester.stop()
+        spinner.stop()
+
+
+# --------------------------------------------------------------------------- FrameProcessor
+
+
+class Collector:
+    """Result callback that records (camera, stamp sec) and can hold the worker."""
+
+    def __init__(self):
+        self.results = []
+        self.release = threading.Event()
+        self.release.set()
+        self.entered = threading.Event()
+
+    def __call__(self, camera, header, cloud, overlay):
+        self.entered.set()
+        self.release.wait(TIMEOUT_S)
+        self.results.append((camera, header.stamp.sec, cloud.width))
+
+
+def stamped(sec, pixels=None):
+    pixels = x_marker_64() if pixels is None else pixels
+    return array_to_image(pixels, "mono8", Header(stamp=Time(sec=sec)))
+
+
+def clock_at(seconds):
+    return lambda: int(seconds * 1e9)
+
+
+def test_mailbox_keeps_only_the_newest_frame_and_counts_the_replaced_ones():
+    collect = Collector()
+    processor = FrameProcessor(["cam0"], DetectorConfig(), collect, workers=1,
+                               clock_ns=clock_at(10))
+    try:
+        collect.release.clear()
+        processor.submit("cam0", stamped(1))
+        wait_until(collect.entered.is_set, "the worker to take frame 1")
+        processor.submit("cam0", stamped(2))
+        processor.submit("cam0", stamped(3))  # replaces frame 2
+        collect.release.set()
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert collect.results == [("cam0", 1, 1), ("cam0", 3, 1)]
+    snap = processor.snapshots()["cam0"]
+    assert (snap.received, snap.processed, snap.dropped_mailbox) == (3, 2, 1)
+
+
+def test_frames_older_than_max_age_on_the_given_clock_are_dropped():
+    collect = Collector()
+    processor = FrameProcessor(["cam0"], DetectorConfig(), collect, workers=1,
+                               max_frame_age_s=2.0, clock_ns=clock_at(100))
+    try:
+        processor.submit("cam0", stamped(97))  # 3 s old
+        processor.submit("cam0", stamped(99), block=True)  # 1 s old
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert collect.results == [("cam0", 99, 1)]
+    snap = processor.snapshots()["cam0"]
+    assert (snap.dropped_age, snap.processed) == (1, 1)
+
+
+def test_blocking_submit_processes_every_frame_in_order_per_camera():
+    collect = Collector()
+    processor = FrameProcessor(["a", "b"], DetectorConfig(), collect, workers=2)
+    try:
+        for sec in range(1, 9):
+            for camera in ("a", "b"):
+                assert processor.submit(camera, stamped(sec), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    for camera in ("a", "b"):
+        assert [s for c, s, _ in collect.results if c == camera] == list(range(1, 9))
+    assert all(s.dropped_mailbox == s.dropped_age == 0 for s in processor.snapshots().values())
+
+
+def test_shutdown_delivers_the_frame_in_flight_and_discards_waiting_ones():
+    collect = Collector()
+    processor = FrameProcessor(["cam0"], DetectorConfig(), collect, workers=1)
+    collect.release.clear()
+    processor.submit("cam0", stamped(1))
+    wait_until(collect.entered.is_set, "the worker to take frame 1")
+    processor.submit("cam0", stamped(2))  # still waiting in the mailbox at shutdown
+    finished = []
+    stopper = threading.Thread(target=lambda: finished.append(processor.shutdown()))
+    stopper.start()
+    wait_until(lambda: not processor.submit("cam0", stamped(3)), "the processor to refuse frames")
+    collect.release.set()
+    stopper.join(TIMEOUT_S)
+    assert finished == [True]  # every worker ended
+    assert collect.results == [("cam0", 1, 1)]
+
+
+def test_failed_frame_is_counted_and_the_worker_goes_on():
+    collect = Collector()
+    failures = []
+    processor = FrameProcessor(["cam0"], DetectorConfig(), collect, workers=1,
+                               on_error=lambda camera, err: failures.append((camera, err)))
+    bad = stamped(1)
+    bad.data = array.array("B", bytes(10))
+    try:
+        processor.submit("cam0", bad, block=True)
+        processor.submit("cam0", stamped(2), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert collect.results == [("cam0", 2, 1)]
+    ((camera, err),) = failures
+    assert camera == "cam0"
+    assert isinstance(err, ImageError)
+    snap = processor.snapshots()["cam0"]
+    assert snap.errors == 1
+    assert snap.last_error.startswith("ImageError: data holds 10 B")
+
+
+# --------------------------------------------------------------------------- separate process
+
+
+def test_parameter_file_lists_every_parameter_at_its_default():
+    assert PARAMS_FILE.read_text() == params_yaml()
+    params = yaml.safe_load(PARAMS_FILE.read_text())["marker_localizer"]["ros__parameters"]
+    assert DetectorConfig(**params["detector"]) == DetectorConfig()
+
+
+#: The two ways a user starts the node: the console script setup.py declares, and -m.
+CONSOLE_SCRIPT = [str(Path(sys.executable).with_name("marker_localizer_node"))]
+MODULE = [sys.executable, "-m", "marker_localizer.node"]
+
+
+def node_command(launcher, *ros_args):
+    return [*launcher, "--ros-args", "--params-file", str(PARAMS_FILE), *ros_args]
+
+
+@pytest.mark.parametrize(
+    ("launcher", "stop_signal"),
+    [(CONSOLE_SCRIPT, signal.SIGINT), (MODULE, signal.SIGTERM)],
+    ids=["console-script-SIGINT", "python-m-SIGTERM"],
+)
+def test_node_process_serves_a_frame_and_stops_cleanly_on_signal(ros, launcher, stop_signal):
+    process = subprocess.Popen(
+        node_command(launcher, "-p", "cameras:=[cam0,cam1]", "-p", "workers:=1",
+                     "-r", "cam0/marker_points:=cam0/points_remapped"),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy(),
+    )
+    tester = Peer(f"process_tester_{stop_signal.name.lower()}", "/")
+    try:
+        rendered = scene(1280, 960, 3, 12)
+        tester.listen("/cam0/points_remapped", PointCloud2)
+        frame = tester.frame(rendered.image, frame_id="cam0_optical")
+        tester.publish("/cam0/image_raw", frame)
+        cloud = tester.result_for("/cam0/points_remapped", frame.header, timeout_s=60.0)
+        assert cloud.header == frame.header
+        assert_matches_truth(points_xy(cloud), rendered.centres)
+    finally:
+        process.send_signal(stop_signal)
+        stdout, stderr = process.communicate(timeout=TIMEOUT_S)
+        tester.stop()
+    assert process.returncode == 0, stderr
+    assert "Traceback" not in stderr + stdout
+    assert "stopped" in stderr + stdout
+
+
+def test_node_process_exits_with_status_1_on_invalid_configuration():
+    result = subprocess.run(
+        node_command(MODULE, "-p", "detector.marker_radius_min_px:=50.0"),
+        capture_output=True, text=True, timeout=TIMEOUT_S, check=False,
+    )
+    assert result.returncode == 1
+    assert "invalid configuration: marker_radius_min_px=50.0 is larger than" in result.stderr
+    assert "Traceback" not in result.stderr
