@@ -317,7 +317,7 @@ def from_mapping(values: Mapping[str, Any], base: DetectorConfig | None = None) 
     unknown = sorted(set(values) - set(specs))
     if unknown:
         raise ConfigError(f"unknown parameter(s): {', '.join(unknown)}")
-    converted = {
+    converted: dict[str, Any] = {
         name: float(value)
         if _field_type(specs[name][0]) is float
         and isinstance(value, int)

@@ -18,7 +18,7 @@ import numpy as np
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import preprocessing, screening, subpixel, template, verification
-from marker_localizer.core.image import to_gray_float
+from marker_localizer.core.image import bit_depth_scale, to_gray_float
 from marker_localizer.core.screening import Candidates
 
 #: Gauss-Newton iterations of the coarse centring (a few tenths of a pixel suffice there).
@@ -139,7 +139,13 @@ class Detector:
             candidates, radius, angles, score = self._verify(corrected, candidates, result.counts)
         with timer("subpixel"):
             result.detections = self._locate(
-                gray, candidates.xy, radius, angles, score, result.counts
+                gray,
+                candidates.xy,
+                radius,
+                angles,
+                score,
+                result.counts,
+                _quantisation_noise(image),
             )
         result.counts["accepted"] = len(result.detections)
         return result
@@ -267,52 +273,56 @@ class Detector:
         angles: np.ndarray,
         score: np.ndarray,
         counts: dict[str, int],
+        noise_floor: float,
     ) -> list[Detection]:
+        """Section 3.3: sub-pixel centres, the final gates, and each point's sigma.
+
+        The point-symmetry fit runs in both modes: it is the default position, and
+        its residual gates and scores every point. With ``refinement="ncc"`` the
+        reported position is the paper's NCC extremum, and its distance from the
+        symmetry centre is added to sigma, as a direct estimate of its error.
+        """
         cfg = self.config
         if len(xy) == 0:
-            counts["rejected_refinement"] = 0
+            counts["rejected_refinement"] = counts["rejected_score"] = 0
             return []
-        disk = np.clip(0.9 * radius, 2.0, cfg.marker_radius_max_px)
-        if cfg.refinement == "ncc":
-            start = self._ncc_locate(gray, xy, radius, angles)
-            iterations = 0
-        else:
-            start = xy
-            iterations = cfg.refinement_max_iterations
-        ok_start = np.isfinite(start).all(axis=1)
-        start = np.where(ok_start[:, None], start, xy)
         fit = subpixel.refine_point_symmetry(
             gray,
-            start,
-            disk,
-            iterations=iterations,
+            xy,
+            np.clip(0.9 * radius, 2.0, cfg.marker_radius_max_px),
+            iterations=cfg.refinement_max_iterations,
             tolerance_px=1e-3,
             max_shift_px=1.5,
             model_gain=True,
+            noise_floor=noise_floor,
         )
-        converged = fit.converged if iterations else np.ones(len(xy), bool)
+        position = fit.xy
+        variance = fit.covariance[:, 0, 0] + fit.covariance[:, 1, 1]
+        located = np.ones(len(xy), bool)
+        if cfg.refinement == "ncc":
+            position = self._ncc_locate(gray, xy, radius, angles)
+            located = np.isfinite(position).all(axis=1)
+            discrepancy = np.where(located, np.sum((position - fit.xy) ** 2, axis=1), 0.0)
+            variance = variance + discrepancy / _SIGMA_CALIBRATION**2
+        sigma = _SIGMA_CALIBRATION * np.sqrt(np.maximum(variance, 0.0))
         relative_residual = fit.residual / np.maximum(fit.contrast, 1e-6)
         final_score = score * np.clip(1.0 - relative_residual, 0.0, 1.0)
-        ok = ok_start & converged & (relative_residual <= cfg.max_symmetry_residual)
-        ok &= np.isfinite(fit.covariance).all(axis=(1, 2))
+        ok = located & fit.converged & (relative_residual <= cfg.max_symmetry_residual)
+        ok &= np.isfinite(sigma)
         counts["rejected_refinement"] = int((~ok).sum())
         weak = ok & (final_score < cfg.min_score)
         counts["rejected_score"] = int(weak.sum())
-        ok &= ~weak
-        keep = np.flatnonzero(ok)
+        keep = np.flatnonzero(ok & ~weak)
         unique = screening.non_maximum_suppression(
-            fit.xy[keep], final_score[keep], cfg.min_peak_separation_px / 2.0
+            position[keep], final_score[keep], cfg.min_peak_separation_px / 2.0
         )
         counts["merged_duplicates"] += int((~unique).sum())
         keep = keep[unique]
         keep = keep[np.argsort(-final_score[keep])]
-        sigma = _SIGMA_CALIBRATION * np.sqrt(
-            np.maximum(fit.covariance[:, 0, 0] + fit.covariance[:, 1, 1], 0.0)
-        )
         return [
             Detection(
-                float(fit.xy[k, 0]),
-                float(fit.xy[k, 1]),
+                float(position[k, 0]),
+                float(position[k, 1]),
                 float(final_score[k]),
                 float(sigma[k]),
                 float(angles[k, 0]),
@@ -362,6 +372,17 @@ class Detector:
         offset_xy, _ = subpixel.ncc_subpixel(surface)
         located[inside] = c + offset_xy
         return located
+
+
+def _quantisation_noise(image: np.ndarray) -> float:
+    """Std of the difference of two samples' rounding errors, in [0, 1] intensity units.
+
+    The floor of the symmetry residual: without it a noise-free frame would claim
+    sigma = 0.
+    """
+    if image.dtype.kind not in "ui":
+        return 0.0
+    return float(np.sqrt(2.0 / 12.0) / bit_depth_scale(image))
 
 
 def _keep_structured(

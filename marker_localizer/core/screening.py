@@ -45,7 +45,7 @@ class Candidates(NamedTuple):
         """Return the candidates selected by a boolean mask or index array."""
         return Candidates(self.xy[index], self.strength[index], self.scale_px[index])
 
-    def __len__(self) -> int:  # type: ignore[override]
+    def __len__(self) -> int:
         return int(self.strength.shape[0])
 
 

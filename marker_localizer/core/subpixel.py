@@ -52,7 +52,7 @@ def ncc_surface(
     cols = centres[:, 0, None, None] + offsets[None, None, :]
     regions = image[rows, cols]  # (N, span, span)
     # Eq. (11): the expanded tensor F~, one row per shift, (2r+1)^2 columns.
-    windows = sliding_window_view(regions, (size, size), axis=(1, 2))
+    windows = sliding_window_view(regions, (int(size), int(size)), axis=(1, 2))
     expanded = windows.reshape(n, -1, size * size).astype(np.float64)
     expanded -= expanded.mean(axis=2, keepdims=True)
     expanded /= np.linalg.norm(expanded, axis=2, keepdims=True) + 1e-12
@@ -192,6 +192,7 @@ def refine_point_symmetry(
     max_shift_px: np.ndarray | float = 2.0,
     model_gain: bool = True,
     max_samples: int = 400,
+    noise_floor: float = 0.0,
 ) -> SymmetryFit:
     """Gauss-Newton fit of each marker's centre of point symmetry.
 
@@ -210,6 +211,8 @@ def refine_point_symmetry(
         max_shift_px: a point further than this from its start has not converged.
         model_gain: fit the gain gradient g (4 parameters instead of 2).
         max_samples: cap on the samples per point (the grid coarsens for big disks).
+        noise_floor: smallest residual std assumed for the covariance (image units),
+            e.g. the quantisation noise, so a noise-free frame does not claim sigma 0.
 
     Returns:
         :class:`SymmetryFit`.
@@ -233,7 +236,14 @@ def refine_point_symmetry(
         members = np.flatnonzero(radius_key == radius)
         offsets, taper = symmetric_offsets(float(radius), max_samples)
         fit = _gauss_newton_symmetry(
-            image, centre[members], offsets, taper, iterations, tolerance_px, model_gain
+            image,
+            centre[members],
+            offsets,
+            taper,
+            iterations,
+            tolerance_px,
+            model_gain,
+            noise_floor,
         )
         (
             centre[members],
@@ -280,12 +290,13 @@ def _gauss_newton_symmetry(
     iterations: int,
     tolerance_px: float,
     model_gain: bool,
+    noise_floor: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     n_params = 4 if model_gain else 2
     n = len(centre)
     centre = centre.copy()
     gain = np.zeros((n, 2))
-    step_norm = np.full(n, np.inf)
+    step_norm: np.ndarray = np.full(n, np.inf)
     for iteration in range(iterations + 1):
         residual, weight, jacobian, samples = _symmetry_terms(
             image, centre, gain, offsets, taper, model_gain
@@ -309,6 +320,8 @@ def _gauss_newton_symmetry(
     # are correlated, so the effective count is that of pixels, not of samples.
     w_sum = weight.sum(axis=1)
     sigma2 = (weight * residual**2).sum(axis=1) / np.maximum(w_sum - n_params, 1.0)
+    residual_rms = np.sqrt(sigma2)
+    sigma2 = np.maximum(sigma2, noise_floor**2)
     meat = np.einsum("nk,nki,nkj->nij", weight**2, jacobian, jacobian)
     bread = np.linalg.pinv(normal)
     spacing = float(np.min(np.abs(offsets[offsets != 0])))
@@ -316,4 +329,4 @@ def _gauss_newton_symmetry(
     covariance = full[:, :2, :2]
     contrast = np.percentile(samples, 90, axis=1) - np.percentile(samples, 10, axis=1)
     converged = step_norm <= tolerance_px
-    return centre, covariance, np.sqrt(sigma2), contrast, converged
+    return centre, covariance, residual_rms, contrast, converged

@@ -1,0 +1,206 @@
+"""Command line: ``marker-localizer detect|demo|simulate|replay|play|bench``.
+
+Thin by design: argument parsing and output formatting live here, the work in
+the library. Known errors (:class:`~marker_localizer.errors.MarkerLocalizerError`)
+become one line on stderr and exit status 1; only a bug shows a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from marker_localizer import config as config_module
+from marker_localizer.core.pipeline import DetectionResult, Detector
+from marker_localizer.errors import ConfigError, ImageError, MarkerLocalizerError
+
+PROG = "marker-localizer"
+
+#: Sub-commands implemented in other modules: name -> (module, function, help).
+_DELEGATED: dict[str, tuple[str, str, str]] = {
+    "simulate": (
+        "marker_localizer.bag.record",
+        "main",
+        "render a five-camera flight and record it as a rosbag2",
+    ),
+    "replay": (
+        "marker_localizer.bag.replay",
+        "main",
+        "run a recorded bag through the node's processing, write the results to a bag",
+    ),
+    "play": (
+        "marker_localizer.bag.play",
+        "main",
+        "publish a bag's messages on their ROS topics (like 'ros2 bag play')",
+    ),
+}
+_BENCHMARKS: dict[str, str] = {
+    "accuracy": "marker_localizer.bench.accuracy",
+    "speed": "marker_localizer.bench.speed",
+    "throughput": "marker_localizer.bench.throughput",
+}
+
+
+def build_config(params: Sequence[str], params_file: str | None) -> config_module.DetectorConfig:
+    """Detector config from a node parameter YAML and ``key=value`` overrides (in that order)."""
+    values: dict[str, Any] = {}
+    if params_file:
+        values.update(config_module.load_params_file(params_file))
+    for item in params:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ConfigError(f"--param expects key=value, got {item!r}")
+        values[key.strip()] = config_module.parse_value(key.strip(), text)
+    return config_module.from_mapping(values)
+
+
+def read_image(path: str) -> np.ndarray:
+    """Read an image file as stored (grey, colour or 16-bit); raise ImageError naming the file."""
+    if not Path(path).is_file():
+        raise ImageError(f"{path}: no such file")
+    image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ImageError(f"{path}: not a readable image")
+    if image.size == 0:
+        raise ImageError(f"{path}: empty image")
+    return image
+
+
+def result_record(
+    path: str, image: np.ndarray, result: DetectionResult, elapsed_ms: float
+) -> dict[str, Any]:
+    """The JSON-lines record of one image (design.md's CLI contract)."""
+    return {
+        "image": path,
+        "width": int(image.shape[1]),
+        "height": int(image.shape[0]),
+        "elapsed_ms": round(elapsed_ms, 3),
+        "markers": [
+            {"x": d.x, "y": d.y, "score": d.score, "sigma": d.sigma, "angles": [d.angle1, d.angle2]}
+            for d in result
+        ],
+    }
+
+
+def _write_table(record: dict[str, Any]) -> None:
+    print(
+        f"{record['image']}: {len(record['markers'])} marker(s), "
+        f"{record['width']}x{record['height']}, {record['elapsed_ms']:.1f} ms"
+    )
+    for m in record["markers"]:
+        print(
+            f"  x={m['x']:10.4f}  y={m['y']:10.4f}  sigma={m['sigma']:.4f} px  "
+            f"score={m['score']:.3f}"
+        )
+
+
+def run_detect(args: argparse.Namespace) -> int:
+    """``detect``: one result per image; unreadable images are reported and skipped."""
+    detector = Detector(build_config(args.param, args.params_file))
+    failed = 0
+    for path in args.images:
+        try:
+            image = read_image(path)
+            start = time.perf_counter()
+            result = detector.detect(image)
+            elapsed_ms = (time.perf_counter() - start) * 1000.0
+        except ImageError as err:
+            failed += 1
+            print(f"{PROG}: error: {err}", file=sys.stderr)
+            continue
+        record = result_record(path, image, result, elapsed_ms)
+        if args.json:
+            print(json.dumps(record), flush=True)
+        else:
+            _write_table(record)
+        if args.overlay:
+            from marker_localizer.overlay import draw_detections  # noqa: PLC0415 - only on request
+
+            out = Path(args.overlay) / f"{Path(path).stem}_markers.png"
+            out.parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(out), draw_detections(image, result.detections))
+    return 1 if failed else 0
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    """``demo``: the README's main job."""
+    from marker_localizer.demo import run  # noqa: PLC0415 - keeps `detect` start-up light
+
+    return run(Path(args.out), frames=args.frames, seed=args.seed)
+
+
+def _delegate(module: str, function: str) -> Callable[[list[str]], int]:
+    def call(argv: list[str]) -> int:
+        return int(getattr(importlib.import_module(module), function)(argv))
+
+    return call
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``marker-localizer`` (delegated commands take their own)."""
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="Sub-pixel localisation of diagonal (X) ground markers."
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    detect = sub.add_parser("detect", help="detect markers in image files")
+    detect.add_argument("images", nargs="+", metavar="IMAGE")
+    detect.add_argument("--json", action="store_true", help="one JSON object per image per line")
+    detect.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a detector parameter (repeatable), e.g. marker_radius_min_px=4",
+    )
+    detect.add_argument(
+        "--params-file",
+        metavar="YAML",
+        help="the node's parameter file (its detector: section is used)",
+    )
+    detect.add_argument("--overlay", metavar="DIR", help="write annotated PNGs into DIR")
+    detect.set_defaults(handler=run_detect)
+
+    demo = sub.add_parser("demo", help="render frames, detect, print accuracy, write overlays")
+    demo.add_argument("--out", default="out/demo", help="folder for the annotated frames")
+    demo.add_argument("--frames", type=int, default=4, help="frames per camera")
+    demo.add_argument("--seed", type=int, default=7)
+    demo.set_defaults(handler=run_demo)
+
+    for name, (_, _, text) in _DELEGATED.items():
+        sub.add_parser(name, help=text, add_help=False)
+    bench = sub.add_parser("bench", help="benchmarks: " + ", ".join(_BENCHMARKS), add_help=False)
+    bench.add_argument("which", choices=sorted(_BENCHMARKS))
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``marker-localizer`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    try:
+        if argv and argv[0] in _DELEGATED:
+            module, function, _ = _DELEGATED[argv[0]]
+            return _delegate(module, function)(argv[1:])
+        if argv[:1] == ["bench"] and len(argv) > 1 and argv[1] in _BENCHMARKS:
+            return _delegate(_BENCHMARKS[argv[1]], "main")(argv[2:])
+        args = parser.parse_args(argv)
+        return int(args.handler(args))
+    except MarkerLocalizerError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,87 @@
+"""Annotated frames: detections (and optionally the truth) drawn on a copy of the image.
+
+Shared by the CLI, the demo and the node's ``marker_overlay`` topic; needs only OpenCV.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from marker_localizer.core.image import bit_depth_scale
+from marker_localizer.core.pipeline import Detection
+
+_LINE_BGR = (0, 255, 0)
+_EXTENT_BGR = (0, 255, 255)
+_TRUTH_BGR = (255, 0, 255)
+#: Fixed-point bits for cv2 drawing, so sub-pixel centres are drawn where they are.
+_DRAW_SHIFT = 4
+
+
+def _fixed(point: np.ndarray) -> tuple[int, int]:
+    scale = 1 << _DRAW_SHIFT
+    # cv2 draws pixel centres at integers, like the package's convention.
+    return round(float(point[0]) * scale), round(float(point[1]) * scale)
+
+
+def to_bgr(pixels: np.ndarray) -> np.ndarray:
+    """An 8-bit BGR copy of a grey (uint8/uint16) or BGR(A) frame."""
+    if pixels.ndim == 2:
+        grey = (
+            pixels
+            if pixels.dtype == np.uint8
+            else cv2.convertScaleAbs(pixels, alpha=255.0 / bit_depth_scale(pixels))
+        )
+        return cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
+    return np.ascontiguousarray(pixels[:, :, :3]).copy()
+
+
+def draw_detections(
+    pixels: np.ndarray, detections: Sequence[Detection], truth: np.ndarray | None = None
+) -> np.ndarray:
+    """Draw each marker's two lines and extent circle through its sub-pixel centre.
+
+    Args:
+        pixels: (H, W) uint8/uint16 grey or (H, W, 3|4) uint8 BGR(A) frame.
+        detections: markers to draw (pixel coordinates, (0, 0) = centre of the
+            top-left pixel).
+        truth: optional (N, 2) true centres, drawn as small magenta crosses.
+
+    Returns:
+        (H, W, 3) uint8 BGR image.
+    """
+    canvas = to_bgr(pixels)
+    for d in detections:
+        centre = np.array([d.x, d.y])
+        for angle in (d.angle1, d.angle2):
+            reach = d.radius_px * np.array([np.cos(angle), np.sin(angle)])
+            cv2.line(
+                canvas,
+                _fixed(centre - reach),
+                _fixed(centre + reach),
+                _LINE_BGR,
+                1,
+                cv2.LINE_AA,
+                _DRAW_SHIFT,
+            )
+        cv2.circle(
+            canvas,
+            _fixed(centre),
+            round(d.radius_px * (1 << _DRAW_SHIFT)),
+            _EXTENT_BGR,
+            1,
+            cv2.LINE_AA,
+            _DRAW_SHIFT,
+        )
+    for point in np.asarray(truth if truth is not None else np.zeros((0, 2))):
+        cv2.drawMarker(
+            canvas,
+            (round(float(point[0])), round(float(point[1]))),
+            _TRUTH_BGR,
+            cv2.MARKER_TILTED_CROSS,
+            7,
+            1,
+        )
+    return canvas

@@ -1,0 +1,90 @@
+"""The marker-localizer command line: JSON-lines contract and error handling."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from marker_localizer.cli import main
+
+
+@pytest.fixture
+def x_image(tmp_path):
+    image = np.full((64, 64), 200.0, np.float32)
+    image[:32, :32] = image[32:, 32:] = 30.0
+    image = cv2.GaussianBlur(image, (0, 0), 1.0).round().astype(np.uint8)
+    path = tmp_path / "x.png"
+    cv2.imwrite(str(path), image)
+    return path, image
+
+
+def test_detect_json_prints_one_object_per_image_with_the_contract_keys(x_image, tmp_path, capsys):
+    path, _image = x_image
+    flat = tmp_path / "flat.png"
+    cv2.imwrite(str(flat), np.full((40, 50), 80, np.uint8))
+    assert main(["detect", str(path), str(flat), "--json"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    first, second = (json.loads(line) for line in lines)
+    assert set(first) == {"image", "width", "height", "elapsed_ms", "markers"}
+    assert (first["width"], first["height"]) == (64, 64)
+    marker = first["markers"][0]
+    assert set(marker) == {"x", "y", "score", "sigma", "angles"}
+    assert marker["x"] == pytest.approx(31.5, abs=1e-3) and len(marker["angles"]) == 2
+    assert second["markers"] == []
+
+
+def test_colour_and_16_bit_files_are_converted(x_image, tmp_path, capsys):
+    _, image = x_image
+    colour = tmp_path / "colour.png"
+    deep = tmp_path / "deep.png"
+    cv2.imwrite(str(colour), cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+    cv2.imwrite(str(deep), image.astype(np.uint16) * 257)
+    assert main(["detect", str(colour), str(deep), "--json"]) == 0
+    records = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [len(r["markers"]) for r in records] == [1, 1]
+
+
+def test_unreadable_files_give_one_line_naming_the_file_and_exit_1(x_image, tmp_path, capsys):
+    path, _ = x_image
+    junk = tmp_path / "junk.png"
+    junk.write_bytes(b"not an image")
+    assert main(["detect", str(tmp_path / "missing.png"), str(junk), str(path), "--json"]) == 1
+    captured = capsys.readouterr()
+    errors = captured.err.strip().splitlines()
+    assert errors == [
+        f"marker-localizer: error: {tmp_path / 'missing.png'}: no such file",
+        f"marker-localizer: error: {junk}: not a readable image",
+    ]
+    assert "Traceback" not in captured.err
+    assert len(captured.out.strip().splitlines()) == 1  # the good image is still processed
+
+
+def test_param_overrides_and_params_file_are_validated(x_image, tmp_path, capsys):
+    path, _ = x_image
+    assert main(["detect", str(path), "--param", "min_score=1.5"]) == 1
+    assert "min_score=1.5 is outside" in capsys.readouterr().err
+    params = tmp_path / "node.yaml"
+    params.write_text(
+        "marker_localizer:\n  ros__parameters:\n    detector:\n      marker_radius_min_px: 5.0\n"
+    )
+    assert (
+        main(
+            [
+                "detect",
+                str(path),
+                "--params-file",
+                str(params),
+                "--param",
+                "marker_radius_max_px=30",
+            ]
+        )
+        == 0
+    )
+
+
+def test_overlay_writes_an_annotated_png(x_image, tmp_path):
+    path, _ = x_image
+    assert main(["detect", str(path), "--overlay", str(tmp_path / "out")]) == 0
+    drawn = cv2.imread(str(tmp_path / "out" / "x_markers.png"))
+    assert drawn.shape == (64, 64, 3)

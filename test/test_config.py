@@ -1,0 +1,100 @@
+"""The typed configuration shared by library, CLI and node."""
+
+import pytest
+
+from marker_localizer.config import (
+    DetectorConfig,
+    from_mapping,
+    load_params_file,
+    param_specs,
+    parse_value,
+)
+from marker_localizer.errors import ConfigError
+
+
+def test_defaults_are_valid_and_every_field_documents_itself():
+    DetectorConfig()
+    for name, (_, spec) in param_specs().items():
+        assert spec.description, name
+        assert (
+            spec.choices
+            or spec.low is not None
+            or isinstance(getattr(DetectorConfig(), name), bool)
+        ), name
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"marker_radius_min_px": 0.1}, r"marker_radius_min_px=0.1 is outside \[1.5, 1000\] px"),
+        ({"refinement": "magic"}, "refinement='magic' must be one of symmetry, ncc"),
+        ({"gdwgif_radius_px": 2.5}, "gdwgif_radius_px=2.5 must be of type int"),
+        ({"line_check": 1}, "line_check=1 must be of type bool"),
+        ({"marker_radius_min_px": 30.0, "marker_radius_max_px": 10.0}, "is larger than"),
+        ({"nonsense": 1}, "unknown parameter"),
+    ],
+)
+def test_invalid_values_are_rejected_with_the_value_named(change, message):
+    with pytest.raises(ConfigError, match=message):
+        from_mapping(change)
+
+
+def test_integers_are_accepted_for_float_fields():
+    assert from_mapping({"marker_radius_max_px": 50}).marker_radius_max_px == 50.0
+
+
+def test_replace_returns_a_validated_copy():
+    config = DetectorConfig().replace(min_score=0.5)
+    assert config.min_score == 0.5
+    with pytest.raises(ConfigError):
+        config.replace(min_score=2.0)
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "value"),
+    [
+        ("marker_radius_min_px", "4", 4.0),
+        ("line_check", "false", False),
+        ("gdwgif_radius_px", "3", 3),
+        ("refinement", "ncc", "ncc"),
+    ],
+)
+def test_parse_value_converts_command_line_text(name, text, value):
+    assert parse_value(name, text) == value
+
+
+def test_parse_value_rejects_text_of_the_wrong_type():
+    with pytest.raises(ConfigError, match="not a valid int"):
+        parse_value("gdwgif_radius_px", "two")
+
+
+def test_load_params_file_reads_the_detector_section_of_a_node_yaml(tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text(
+        "marker_localizer:\n  ros__parameters:\n    workers: 2\n"
+        "    detector:\n      marker_radius_min_px: 4.0\n      line_check: false\n"
+    )
+    assert load_params_file(path, "marker_localizer") == {
+        "marker_radius_min_px": 4.0,
+        "line_check": False,
+    }
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("a: [", "not valid YAML"),
+        ("- 1\n- 2\n", "expected a mapping"),
+        ("other:\n  x: 1\n", "no ros__parameters"),
+    ],
+)
+def test_load_params_file_explains_what_is_wrong(tmp_path, text, message):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_params_file(path)
+
+
+def test_load_params_file_names_a_missing_file(tmp_path):
+    with pytest.raises(ConfigError, match="cannot read parameters file"):
+        load_params_file(tmp_path / "missing.yaml")

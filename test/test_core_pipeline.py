@@ -1,0 +1,133 @@
+"""The Detector end to end: analytic images, rendered frames, input handling."""
+
+import time
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from marker_localizer import Detector, DetectorConfig
+from marker_localizer.errors import ImageError
+from marker_localizer.synthetic import SceneConfig, render_scene
+
+
+def _checker_2x2(size: int = 64, blur: float = 1.0) -> np.ndarray:
+    image = np.full((size, size), 200.0, np.float32)
+    image[: size // 2, : size // 2] = 30.0
+    image[size // 2 :, size // 2 :] = 30.0
+    return cv2.GaussianBlur(image, (0, 0), blur).round().astype(np.uint8)
+
+
+def test_the_corner_of_a_2x2_checkerboard_is_exactly_between_the_four_pixels():
+    result = Detector().detect(_checker_2x2())
+    assert len(result) == 1
+    assert result[0].x == pytest.approx(31.5, abs=1e-3)
+    assert result[0].y == pytest.approx(31.5, abs=1e-3)
+    assert 0 < result[0].sigma < 0.05
+
+
+def test_detections_carry_both_line_angles_and_the_marker_extent():
+    d = Detector().detect(_checker_2x2())[0]
+    assert sorted([d.angle1, d.angle2]) == pytest.approx([0.0, np.pi / 2], abs=0.02) or sorted(
+        [d.angle1, d.angle2]
+    ) == pytest.approx([np.pi / 2, np.pi], abs=0.02)
+    assert d.radius_px >= 16
+
+
+@pytest.fixture(scope="module")
+def cluttered_frames():
+    return [render_scene(SceneConfig(), seed) for seed in (11, 12, 13)]
+
+
+def _score(detections: np.ndarray, truth: np.ndarray) -> tuple[int, int, np.ndarray]:
+    distance, index = cKDTree(truth).query(detections[:, :2])
+    hit = distance <= 1.5
+    return len(np.unique(index[hit])), int((~hit).sum()), distance[hit]
+
+
+def test_cluttered_frames_meet_the_core_targets(cluttered_frames):
+    """Issue 2: recall >= 95 %, mean error <= 0.05 px, <= 1 false positive per frame."""
+    detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
+    found = false = total = 0
+    errors = []
+    for scene in cluttered_frames:
+        hits, misses, err = _score(detector.detect(scene.image).as_array(), scene.centres)
+        found, false, total = found + hits, false + misses, total + len(scene.centres)
+        errors.extend(err)
+    assert found / total >= 0.95
+    assert np.mean(errors) <= 0.05
+    assert false / len(cluttered_frames) <= 1.0
+
+
+def test_the_papers_ncc_refinement_is_selectable_and_less_precise(cluttered_frames):
+    scene = cluttered_frames[0]
+    base = dict(marker_radius_min_px=6.0, marker_radius_max_px=40.0)
+    _, _, paper = _score(
+        Detector(DetectorConfig(refinement="ncc", **base)).detect(scene.image).as_array(),
+        scene.centres,
+    )
+    _, _, ours = _score(
+        Detector(DetectorConfig(**base)).detect(scene.image).as_array(), scene.centres
+    )
+    assert len(paper) >= 0.9 * len(scene.centres)
+    assert np.mean(paper) < 0.25
+    assert np.mean(ours) < np.mean(paper)
+
+
+def test_the_papers_curvature_screening_is_selectable():
+    result = Detector(DetectorConfig(candidate_detector="curvature")).detect(_checker_2x2(96))
+    assert len(result) == 1 and result[0].x == pytest.approx(47.5, abs=0.01)
+
+
+def test_every_stage_reports_its_count_and_time(cluttered_frames):
+    result = Detector().detect(cluttered_frames[1].image)
+    for key in (
+        "candidates",
+        "after_suppression",
+        "rejected_symmetry",
+        "rejected_template",
+        "rejected_lines",
+        "rejected_refinement",
+        "rejected_score",
+        "accepted",
+    ):
+        assert key in result.counts
+    assert result.counts["accepted"] == len(result)
+    assert set(result.timings_ms) >= {"preprocessing", "screening", "verification", "subpixel"}
+
+
+def test_an_image_without_markers_gives_an_empty_result_quickly():
+    flat = np.full((960, 1280), 90, np.uint8)
+    start = time.perf_counter()
+    result = Detector().detect(flat)
+    assert len(result) == 0
+    assert time.perf_counter() - start < 2.0
+
+
+@pytest.mark.parametrize(
+    "convert",
+    [
+        lambda g: cv2.cvtColor(g, cv2.COLOR_GRAY2BGR),
+        lambda g: g.astype(np.uint16) * 16,  # a 12-bit sensor in 16-bit words
+        lambda g: g.astype(np.float32) / 255.0,
+    ],
+    ids=["bgr8", "mono16", "float"],
+)
+def test_colour_16_bit_and_float_images_are_converted_not_rejected(convert):
+    result = Detector().detect(convert(_checker_2x2()))
+    assert len(result) == 1 and result[0].x == pytest.approx(31.5, abs=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("image", "message"),
+    [
+        (np.zeros((0, 10), np.uint8), "empty image"),
+        (np.zeros((8, 8), np.complex64), "unsupported dtype complex64"),
+        (np.zeros((8, 8, 2), np.uint8), "unsupported channel count 2"),
+        (np.full((8, 8), np.nan, np.float32), "NaN"),
+    ],
+)
+def test_bad_images_raise_a_clear_image_error(image, message):
+    with pytest.raises(ImageError, match=message):
+        Detector().detect(image)

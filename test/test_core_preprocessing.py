@@ -1,0 +1,55 @@
+"""Section 3.1: GDWGIF, dynamic gamma and the structure map."""
+
+import numpy as np
+import pytest
+
+from marker_localizer.core import preprocessing
+
+
+def _noisy_step(noise: float = 0.03, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    clean = np.full((80, 80), 0.2, np.float32)
+    clean[:, 40:] = 0.8
+    noisy = clean + np.random.default_rng(seed).normal(0, noise, clean.shape).astype(np.float32)
+    return clean, noisy
+
+
+def test_gdwgif_smooths_flat_noise_and_keeps_the_edge():
+    _clean, noisy = _noisy_step()
+    filtered = preprocessing.gdwgif(noisy, radius_px=2, regularisation=0.01)
+    flat = np.s_[10:70, 5:30]
+    assert filtered[flat].std() < 0.5 * noisy[flat].std()
+    # The step keeps at least 90 % of its height across two pixels.
+    step = filtered[10:70, 41].mean() - filtered[10:70, 38].mean()
+    assert step > 0.9 * 0.6
+
+
+def test_gdwgif_returns_float32_of_the_input_shape():
+    _, noisy = _noisy_step()
+    out = preprocessing.gdwgif(noisy)
+    assert out.shape == noisy.shape and out.dtype == np.float32
+
+
+def test_dynamic_gamma_leaves_mid_grey_alone_and_brightens_dark_surroundings():
+    mid = np.full((40, 40), 0.5, np.float32)
+    np.testing.assert_allclose(
+        preprocessing.dynamic_gamma(mid, alpha=2.0, window_px=9), 0.5, rtol=1e-5
+    )
+    dark = np.full((40, 40), 0.2, np.float32)
+    assert (preprocessing.dynamic_gamma(dark, alpha=2.0, window_px=9) > 0.2).all()
+    bright = np.full((40, 40), 0.8, np.float32)
+    assert (preprocessing.dynamic_gamma(bright, alpha=2.0, window_px=9) < 0.8).all()
+
+
+def test_structure_map_follows_eq_3_for_a_known_local_std():
+    # Alternating rows of 0 and 1: every 3x3 window holds 3 or 6 ones, std sqrt(2)/3.
+    image = np.zeros((30, 30), np.float32)
+    image[::2] = 1.0
+    xi, t = 0.3, 1.5
+    expected = 1.0 - np.exp(-(((np.sqrt(2.0) / 3.0) / xi) ** t))
+    s = preprocessing.structure_map(image, diameters_px=(3,), xi=xi, t=t)
+    np.testing.assert_allclose(s[5:-5, 5:-5], expected, rtol=1e-4)
+
+
+def test_structure_map_is_zero_on_flat_ground():
+    s = preprocessing.structure_map(np.full((20, 20), 0.4, np.float32))
+    assert s.max() == pytest.approx(0.0, abs=1e-3)

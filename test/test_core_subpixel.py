@@ -1,0 +1,131 @@
+"""Sections 3.3.1-3.3.2: adaptive template, NCC by matrix product, quadratic extremum,
+and the point-symmetry refinement."""
+
+import numpy as np
+import pytest
+
+from marker_localizer.core import subpixel, template
+from marker_localizer.synthetic import MarkerPlacement, render_markers
+
+
+def test_ncc_surface_by_matrix_product_equals_direct_ncc():
+    rng = np.random.default_rng(3)
+    image = rng.random((40, 40))
+    tmpl = rng.random((1, 7, 7))
+    centre = np.array([[20, 18]])
+    surface = subpixel.ncc_surface(image, centre, tmpl, search_px=2)
+    for j, dy in enumerate(range(-2, 3)):
+        for i, dx in enumerate(range(-2, 3)):
+            window = image[18 + dy - 3 : 18 + dy + 4, 20 + dx - 3 : 20 + dx + 4]
+            a = window - window.mean()
+            b = tmpl[0] - tmpl[0].mean()
+            direct = (a * b).sum() / np.sqrt((a * a).sum() * (b * b).sum())
+            assert surface[0, j, i] == pytest.approx(direct, abs=1e-12)
+
+
+def test_quadratic_fit_and_extremum_recover_a_known_subpixel_peak():
+    peak = np.array([0.31, -0.27])
+    grid = np.arange(-1, 2)
+    y, x = np.meshgrid(grid, grid, indexing="ij")
+    # c(x, y) = -(x - x0)^2 - 2 (y - y0)^2 + 0.5 (x - x0)(y - y0) + 3
+    values = (
+        -((x - peak[0]) ** 2) - 2 * (y - peak[1]) ** 2 + 0.5 * (x - peak[0]) * (y - peak[1]) + 3
+    )[None]
+    coefficients = subpixel.fit_quadratic_surface(values, np.ones_like(values))
+    np.testing.assert_allclose(subpixel.quadratic_extremum(coefficients)[0], peak, atol=1e-10)
+
+
+def test_quadratic_extremum_is_nan_for_a_degenerate_surface():
+    flat = np.zeros((1, 6))
+    assert np.isnan(subpixel.quadratic_extremum(flat)).all()
+
+
+def _x_image(
+    x: float,
+    y: float,
+    *,
+    blur: float = 1.0,
+    gamma: float = 1.0,
+    light: float = 0.0,
+    noise: float = 0.0,
+    seed: int = 0,
+) -> np.ndarray:
+    scene = render_markers(
+        (96, 96),
+        [MarkerPlacement(x, y, 24.0, 0.4, 30.0, 1.0, "checker")],
+        seed,
+        blur_sigma_px=blur,
+        gamma=gamma,
+        noise_sigma_dn=noise,
+        illumination_strength=light,
+    )
+    return scene, scene.image.astype(np.float64) / 255.0
+
+
+def test_point_symmetry_refinement_recovers_the_exact_centre_of_a_blurred_tilted_x():
+    scene, image = _x_image(47.37, 48.81)
+    truth = scene.centres[0]
+    fit = subpixel.refine_point_symmetry(image, truth[None] + [0.6, -0.5], np.array([18.0]))
+    assert fit.converged[0]
+    assert np.linalg.norm(fit.xy[0] - truth) < 0.01
+
+
+def test_point_symmetry_refinement_absorbs_gamma_and_uneven_light_with_its_gain_term():
+    scene, image = _x_image(47.62, 48.13, gamma=0.6, light=0.5, seed=4)
+    truth = scene.centres[0]
+    start = np.round(truth)[None]
+    with_gain = subpixel.refine_point_symmetry(image, start, np.array([18.0]))
+    without = subpixel.refine_point_symmetry(image, start, np.array([18.0]), model_gain=False)
+    error = np.linalg.norm(with_gain.xy[0] - truth)
+    assert error < 0.02
+    assert np.linalg.norm(without.xy[0] - truth) > 2 * error
+
+
+def test_point_symmetry_covariance_grows_with_noise():
+    _, clean = _x_image(47.5, 48.5, noise=1.0)
+    _, noisy = _x_image(47.5, 48.5, noise=8.0)
+    start = np.array([[47.5, 48.5]])
+    quiet = subpixel.refine_point_symmetry(clean, start, np.array([18.0])).covariance[0]
+    loud = subpixel.refine_point_symmetry(noisy, start, np.array([18.0])).covariance[0]
+    assert np.trace(loud) > 10 * np.trace(quiet)
+
+
+def test_template_has_the_sampled_levels_in_opposite_sectors():
+    angles = np.array([[0.2, 0.2 + np.pi / 2]])
+    levels = template.GreyLevels(np.array([0.9]), np.array([0.1]))
+    tmpl = template.adaptive_template(angles, levels, np.array([0.3]), half_size=10)[0]
+    far = 8.0
+    along = 0.2 + np.pi / 4  # a bisector
+    p = np.round(10 + far * np.array([np.cos(along), np.sin(along)])).astype(int)
+    q = np.round(10 - far * np.array([np.cos(along), np.sin(along)])).astype(int)
+    assert tmpl[p[1], p[0]] == pytest.approx(tmpl[q[1], q[0]], abs=0.02)
+    assert {round(tmpl[p[1], p[0]], 1), round(tmpl[10 + (10 - p[1]) % 21 - 10, p[0]], 1)} <= {
+        0.1,
+        0.9,
+    }
+
+
+def test_choose_polarity_picks_the_template_matching_the_patch_in_l1():
+    angles = np.array([[0.0, np.pi / 2]])
+    levels = template.GreyLevels(np.array([0.9]), np.array([0.1]))
+    tmpl = template.adaptive_template(angles, levels, np.array([0.5]), half_size=6)
+    inverted = 1.0 - tmpl
+    chosen = template.choose_polarity(inverted, tmpl)
+    np.testing.assert_allclose(chosen, inverted, atol=1e-12)
+
+
+def test_template_correlation_is_near_one_on_an_x_and_low_on_an_l_corner():
+    scene, image = _x_image(47.4, 48.6, noise=1.0)
+    x = scene.markers[0]
+    ncc, _ = template.template_correlation(
+        image, scene.centres, np.array([x.angles]), np.array([12.0])
+    )
+    assert ncc[0] > 0.97
+    l_scene = render_markers(
+        (96, 96), [MarkerPlacement(47.4, 48.6, 24.0, 0.4, kind="l_corner")], 0, blur_sigma_px=1.0
+    )
+    l_image = l_scene.image.astype(np.float64) / 255.0
+    ncc_l, _ = template.template_correlation(
+        l_image, np.array([[47.4, 48.6]]), np.array([[0.4, 0.4 + np.pi / 2]]), np.array([12.0])
+    )
+    assert ncc_l[0] < 0.8
