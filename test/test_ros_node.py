@@ -549,6 +549,25 @@ def test_mailbox_keeps_only_the_newest_frame_and_counts_the_replaced_ones():
     assert (snap.received, snap.processed, snap.dropped_mailbox) == (3, 2, 1)
 
 
+def test_camera_waiting_longest_is_served_first_even_if_its_frame_was_replaced():
+    collect = Collector()
+    now = [0]
+    processor = FrameProcessor(["a", "b", "c"], DetectorConfig(), collect, workers=1,
+                               clock_ns=lambda: now[0])
+    try:
+        collect.release.clear()
+        processor.submit("a", stamped(1))
+        wait_until(collect.entered.is_set, "the worker to take a's frame")
+        for camera, sec in [("b", 2), ("c", 3), ("a", 4), ("b", 5)]:  # b's frame 2 replaced
+            now[0] += 1
+            processor.submit(camera, stamped(sec))
+        collect.release.set()
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert [(c, s) for c, s, _ in collect.results] == [("a", 1), ("b", 5), ("c", 3), ("a", 4)]
+
+
 def test_frames_older_than_max_age_on_the_given_clock_are_dropped():
     collect = Collector()
     processor = FrameProcessor(["cam0"], DetectorConfig(), collect, workers=1,

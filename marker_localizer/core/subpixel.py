@@ -52,7 +52,8 @@ def ncc_surface(
     cols = centres[:, 0, None, None] + offsets[None, None, :]
     regions = image[rows, cols]  # (N, span, span)
     # Eq. (11): the expanded tensor F~, one row per shift, (2r+1)^2 columns.
-    windows = sliding_window_view(regions, (int(size), int(size)), axis=(1, 2))
+    # numpy's stubs do not admit a tuple axis, which sliding_window_view accepts.
+    windows = sliding_window_view(regions, (size, size), axis=(1, 2))  # type: ignore[call-overload]
     expanded = windows.reshape(n, -1, size * size).astype(np.float64)
     expanded -= expanded.mean(axis=2, keepdims=True)
     expanded /= np.linalg.norm(expanded, axis=2, keepdims=True) + 1e-12

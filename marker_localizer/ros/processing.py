@@ -18,7 +18,9 @@ Guarantees:
   takes it is dropped and counted (``dropped by age``); the age is measured on
   the clock passed in, so the node's ROS clock makes ``use_sim_time`` work;
 * at most one frame per camera is processed at a time, so each camera's
-  results are delivered in order; cameras are served oldest-waiting first;
+  results are delivered in order; the camera that has waited longest is
+  served first (replacing its frame does not reset its wait), so every camera
+  gets its turn however the frames of the cameras interleave;
 * the result callback is never called concurrently with itself, and never
   after :meth:`FrameProcessor.shutdown` returned;
 * a frame that fails (bad input, an exception in the detector or in the result
@@ -67,6 +69,9 @@ class _Frame:
     camera: str
     msg: Image
     received_ns: int
+    #: Since when the camera's mailbox has been non-empty: a replacement keeps it,
+    #: so a camera whose frames keep being replaced is not pushed back in the queue.
+    waiting_since_ns: int
 
 
 def stamp_to_ns(header: Header) -> int:
@@ -199,8 +204,10 @@ class FrameProcessor:
             if self._stopping:
                 return False
             now_ns = self._clock_ns()
-            replaced = self._pending[camera] is not None
-            self._pending[camera] = _Frame(camera, msg, now_ns)
+            waiting = self._pending[camera]
+            replaced = waiting is not None
+            since_ns = now_ns if waiting is None else waiting.waiting_since_ns
+            self._pending[camera] = _Frame(camera, msg, now_ns, since_ns)
             self._cond.notify_all()
         stats.frame_received(now_ns)
         if replaced:
@@ -271,14 +278,14 @@ class FrameProcessor:
                     self._cond.notify_all()
 
     def _take(self) -> _Frame | None:
-        """Under the lock: claim the oldest waiting frame of an idle camera (None: none)."""
+        """Under the lock: claim the frame of the idle camera waiting longest (None: none)."""
         while not self._stopping:
             waiting = [
                 f for c, f in self._pending.items() if f is not None and c not in self._busy
             ]
             if not waiting:
                 return None
-            frame = min(waiting, key=lambda f: f.received_ns)
+            frame = min(waiting, key=lambda f: f.waiting_since_ns)
             self._pending[frame.camera] = None
             self._cond.notify_all()
             now_ns = self._clock_ns()
