@@ -1,0 +1,642 @@
+"""``marker-localizer replay``: run a bag through the node's own frame processing, offline.
+
+Every ``/<cam>/image_raw`` (sensor_msgs/Image) frame of the input bag goes
+through :class:`marker_localizer.ros.processing.FrameProcessor`, the worker
+pool the node uses, in its blocking mode: the reader waits for a free worker
+instead of letting a newer frame replace a waiting one, so no frame is
+dropped. Results are written to a new bag as ``/<cam>/marker_points`` at the
+input frame's bag time (the header is the input's, unchanged, as the node
+publishes it), with ``/diagnostics`` every second of bag time and once at the
+end. The processor's clock is the bag time, as the node's is under
+``use_sim_time`` with ``play --clock``.
+
+Input the replay will not process, each counted per camera and shown in the summary:
+
+* an image whose encoding the node does not accept (``skipped: encoding``);
+* an image whose header stamp is not newer than the last processed frame of
+  its camera (``skipped: order``). Replay streams the bag in one pass, and a
+  stream consumer (the node, a navigation filter) cannot go back in time
+  either, so such frames are skipped, not re-sorted; duplicates of a stamp
+  are skipped by the same rule;
+* a frame the processor rejects (bad step or data size) or fails on (``failed``).
+
+When the bag carries ``/<cam>/marker_points_truth`` (as ``simulate`` writes),
+the detections of each frame are matched one-to-one to the truth of the same
+stamp (minimum total distance, within ``match_distance_px``) and the summary
+adds recall, false positives per frame and the error statistics. Detections on
+a marker listed in ``/<cam>/marker_points_partial`` (cut by the frame border)
+count neither way.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from sensor_msgs.msg import Image, PointCloud2
+from std_msgs.msg import Header
+
+from marker_localizer.bag.io import (
+    DEFAULT_STORAGE,
+    STORAGES,
+    BagMessage,
+    BagReader,
+    BagWriter,
+    ProgressBar,
+    run_command,
+)
+from marker_localizer.bag.record import IMAGE_SUFFIX, PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
+from marker_localizer.config import DetectorConfig, from_mapping, load_params_file
+from marker_localizer.errors import BagError
+from marker_localizer.ros import diagnostics
+from marker_localizer.ros.conversions import ENCODINGS, cloud_to_array
+from marker_localizer.ros.node import NODE_NAME
+from marker_localizer.ros.parameters import NodeConfig
+from marker_localizer.ros.processing import FrameProcessor, stamp_to_ns
+
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
+POINTS_SUFFIX = "marker_points"
+DIAGNOSTICS_TOPIC = "/diagnostics"
+#: Largest distance between a detection and the truth it is matched to, px: a
+#: fraction of the smallest marker radius (3 px), far above the sub-pixel error.
+DEFAULT_MATCH_DISTANCE_PX = 2.0
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+@dataclass
+class Evaluation:
+    """Detections matched against truth, accumulated over frames.
+
+    Attributes:
+        frames: Frames evaluated.
+        truth: Truth markers in them.
+        matched: Truth markers with a detection within the match distance.
+        false_positives: Detections matched to no truth and no partial marker.
+        errors_px: Distance of each matched detection from its truth, px.
+    """
+
+    frames: int = 0
+    truth: int = 0
+    matched: int = 0
+    false_positives: int = 0
+    errors_px: list[float] = field(default_factory=list)
+
+    def add(
+        self,
+        found_xy: np.ndarray,
+        truth_xy: np.ndarray,
+        partial_xy: np.ndarray | None = None,
+        match_distance_px: float = DEFAULT_MATCH_DISTANCE_PX,
+    ) -> None:
+        """Match one frame's detections to its truth and accumulate.
+
+        Args:
+            found_xy: (N, 2) detected centres (x, y), px.
+            truth_xy: (M, 2) true centres, px.
+            partial_xy: (K, 2) centres of markers cut by the frame border, px:
+                detections near them are not false positives.
+            match_distance_px: Largest distance of a match, px.
+        """
+        found_xy = np.asarray(found_xy, dtype=np.float64).reshape(-1, 2)
+        truth_xy = np.asarray(truth_xy, dtype=np.float64).reshape(-1, 2)
+        self.frames += 1
+        self.truth += len(truth_xy)
+        distance = np.linalg.norm(found_xy[:, None, :] - truth_xy[None, :, :], axis=2)
+        # One-to-one: minimum total distance, pairs beyond the limit made prohibitive.
+        cost = np.where(distance <= match_distance_px, distance, 1e9)
+        rows, cols = linear_sum_assignment(cost)
+        good = distance[rows, cols] <= match_distance_px
+        self.matched += int(good.sum())
+        self.errors_px.extend(distance[rows[good], cols[good]].tolist())
+        unmatched = np.setdiff1d(np.arange(len(found_xy)), rows[good])
+        if partial_xy is not None and len(partial_xy) and len(unmatched):
+            near = np.linalg.norm(
+                found_xy[unmatched, None, :] - np.asarray(partial_xy)[None, :, :], axis=2
+            )
+            unmatched = unmatched[near.min(axis=1) > match_distance_px]
+        self.false_positives += len(unmatched)
+
+    @classmethod
+    def merged(cls, parts: Sequence[Evaluation]) -> Evaluation:
+        """Sum of several evaluations."""
+        total = cls()
+        for part in parts:
+            total.frames += part.frames
+            total.truth += part.truth
+            total.matched += part.matched
+            total.false_positives += part.false_positives
+            total.errors_px.extend(part.errors_px)
+        return total
+
+    @property
+    def recall(self) -> float:
+        """Matched / truth (NaN without truth)."""
+        return self.matched / self.truth if self.truth else math.nan
+
+    @property
+    def false_positives_per_frame(self) -> float:
+        """False positives per evaluated frame (NaN without frames)."""
+        return self.false_positives / self.frames if self.frames else math.nan
+
+    def error_stats(self) -> dict[str, float]:
+        """Mean, RMS, 95th percentile and maximum of the match errors, px (NaN if none)."""
+        errors = np.asarray(self.errors_px)
+        if not errors.size:
+            return dict.fromkeys(("mean", "rms", "p95", "max"), math.nan)
+        return {
+            "mean": float(errors.mean()),
+            "rms": float(np.sqrt(np.mean(errors**2))),
+            "p95": float(np.percentile(errors, 95)),
+            "max": float(errors.max()),
+        }
+
+
+# --------------------------------------------------------------------------- report
+
+
+@dataclass
+class CameraReplay:
+    """What replay did with one camera's frames.
+
+    Attributes:
+        camera: Camera name (the topic prefix, e.g. ``cam0``).
+        frames: Frames processed and written.
+        markers: Markers detected in them.
+        processing_ms: Per processed frame: submission to the worker pool to
+            the written result, ms (conversion, detection, packing, writing).
+        skipped_encoding: Frames with an encoding the node does not accept.
+        skipped_out_of_order: Frames whose stamp was not newer than the last one.
+        failed: Frames the processor rejected or failed on.
+        last_error: Text of the newest failure.
+        evaluation: Against the bag's truth; None without truth topics.
+    """
+
+    camera: str
+    frames: int = 0
+    markers: int = 0
+    processing_ms: list[float] = field(default_factory=list)
+    skipped_encoding: int = 0
+    skipped_out_of_order: int = 0
+    failed: int = 0
+    last_error: str = ""
+    evaluation: Evaluation | None = None
+
+    @property
+    def markers_per_frame(self) -> float:
+        """Mean markers per processed frame (NaN if none)."""
+        return self.markers / self.frames if self.frames else math.nan
+
+    @property
+    def mean_ms(self) -> float:
+        """Mean processing time per frame, ms (NaN if none)."""
+        return float(np.mean(self.processing_ms)) if self.processing_ms else math.nan
+
+
+@dataclass
+class ReplayReport:
+    """Outcome of :func:`replay_bag`.
+
+    Attributes:
+        bag: Input bag.
+        out: Output bag.
+        workers: Worker threads used.
+        wall_s: Wall time from the first frame read to the last result written, s.
+        cameras: Per camera, in topic order.
+    """
+
+    bag: Path
+    out: Path
+    workers: int
+    wall_s: float
+    cameras: dict[str, CameraReplay]
+
+    @property
+    def frames(self) -> int:
+        """Frames processed, all cameras."""
+        return sum(c.frames for c in self.cameras.values())
+
+    @property
+    def frames_per_s(self) -> float:
+        """Processed frames per second of wall time."""
+        return self.frames / self.wall_s if self.wall_s > 0 else math.nan
+
+    @property
+    def evaluation(self) -> Evaluation | None:
+        """All cameras' evaluations merged (None without truth)."""
+        parts = [c.evaluation for c in self.cameras.values() if c.evaluation is not None]
+        return Evaluation.merged(parts) if parts else None
+
+
+def format_report(
+    report: ReplayReport, match_distance_px: float = DEFAULT_MATCH_DISTANCE_PX
+) -> str:
+    """The summary tables replay prints: throughput per camera, then accuracy if truth exists."""
+    cams = list(report.cameras.values())
+    lines = [
+        f"replayed {report.bag} -> {report.out}: {report.frames} frames in "
+        f"{report.wall_s:.2f} s ({report.frames_per_s:.2f} frames/s, {report.workers} workers)",
+        f"{'camera':<12}{'frames':>8}{'markers/frame':>15}{'ms/frame':>10}"
+        f"{'skipped: encoding':>19}{'order':>7}{'failed':>8}",
+    ]
+    for c in cams:
+        lines.append(
+            f"{c.camera:<12}{c.frames:>8}{c.markers_per_frame:>15.2f}{c.mean_ms:>10.1f}"
+            f"{c.skipped_encoding:>19}{c.skipped_out_of_order:>7}{c.failed:>8}"
+        )
+    total = CameraReplay(
+        "all",
+        frames=report.frames,
+        markers=sum(c.markers for c in cams),
+        processing_ms=[ms for c in cams for ms in c.processing_ms],
+        skipped_encoding=sum(c.skipped_encoding for c in cams),
+        skipped_out_of_order=sum(c.skipped_out_of_order for c in cams),
+        failed=sum(c.failed for c in cams),
+    )
+    lines.append(
+        f"{'all':<12}{total.frames:>8}{total.markers_per_frame:>15.2f}{total.mean_ms:>10.1f}"
+        f"{total.skipped_encoding:>19}{total.skipped_out_of_order:>7}{total.failed:>8}"
+    )
+    for c in cams:
+        if c.last_error:
+            lines.append(f"{c.camera}: last failure: {c.last_error}")
+    overall = report.evaluation
+    if overall is None:
+        return "\n".join(lines)
+    lines += [
+        f"accuracy against {TRUTH_SUFFIX} (one-to-one matches within {match_distance_px:g} px):",
+        f"{'camera':<12}{'truth':>7}{'recall':>8}{'FP/frame':>10}{'mean px':>9}{'RMS px':>9}"
+        f"{'p95 px':>9}{'max px':>9}",
+    ]
+    rows = [(c.camera, c.evaluation) for c in cams if c.evaluation is not None]
+    for name, evaluation in [*rows, ("all", overall)]:
+        stats = evaluation.error_stats()
+        lines.append(
+            f"{name:<12}{evaluation.truth:>7}{evaluation.recall:>8.3f}"
+            f"{evaluation.false_positives_per_frame:>10.2f}{stats['mean']:>9.4f}"
+            f"{stats['rms']:>9.4f}{stats['p95']:>9.4f}{stats['max']:>9.4f}"
+        )
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- replay
+
+
+def image_cameras(topics: dict[str, str]) -> dict[str, str]:
+    """Cameras of a bag: ``<cam>/image_raw`` topics of type sensor_msgs/Image.
+
+    Returns:
+        Camera name (the topic's namespace without the leading slash) -> image topic.
+    """
+    suffix = f"/{IMAGE_SUFFIX}"
+    return {
+        topic.removesuffix(suffix).lstrip("/"): topic
+        for topic, msgtype in sorted(topics.items())
+        if msgtype == IMAGE_TYPE and topic.endswith(suffix) and topic != suffix
+    }
+
+
+def _xy(cloud: PointCloud2) -> np.ndarray:
+    points = cloud_to_array(cloud)
+    return np.column_stack([points["x"], points["y"]]) if len(points) else np.empty((0, 2))
+
+
+@dataclass
+class _InFlight:
+    stamp_ns: int
+    time_ns: int
+    started_s: float
+
+
+class _Session:
+    """Feeds one bag's frames to a FrameProcessor and writes what comes back."""
+
+    def __init__(
+        self,
+        cameras: Sequence[str],
+        config: DetectorConfig,
+        writer: BagWriter,
+        workers: int,
+    ) -> None:
+        self.writer = writer
+        self.workers = workers
+        self.stats = {c: CameraReplay(c) for c in cameras}
+        self.found: dict[tuple[str, int], np.ndarray] = {}
+        self._last_stamp: dict[str, int] = {}
+        self._in_flight: dict[str, _InFlight] = {}
+        self._cond = threading.Condition()
+        self._write_error: BaseException | None = None
+        self.now_ns = 0
+        settings = NodeConfig()
+        self._thresholds = diagnostics.DiagnosticThresholds(
+            latency_warn_ms=settings.latency_warn_ms,
+            input_timeout_s=settings.input_timeout_s,
+            window_s=settings.stats_window_s,
+        )
+        self._diagnostics_period_ns = round(settings.diagnostics_period_s * 1e9)
+        self._next_diagnostics_ns: int | None = None
+        self.processor = FrameProcessor(
+            cameras,
+            config,
+            self._on_result,
+            workers=workers,
+            max_frame_age_s=0.0,
+            clock_ns=lambda: self.now_ns,
+            on_error=self._on_error,
+            stats_window_s=settings.stats_window_s,
+        )
+
+    def submit(self, camera: str, message: BagMessage) -> None:
+        """Hand one image to the pool, or count why it is skipped."""
+        stats = self.stats[camera]
+        image: Image = message.decode()
+        self.now_ns = message.time_ns
+        stamp_ns = stamp_to_ns(image.header)
+        if image.encoding not in ENCODINGS:
+            stats.skipped_encoding += 1
+            return
+        if stamp_ns <= self._last_stamp.get(camera, -1):
+            stats.skipped_out_of_order += 1
+            return
+        self._last_stamp[camera] = stamp_ns
+        # Start a frame only when a worker and the camera are free: the pool then
+        # never holds a waiting frame, and submission-to-result is processing time.
+        with self._cond:
+            self._cond.wait_for(
+                lambda: len(self._in_flight) < self.workers and camera not in self._in_flight
+            )
+            self._raise_write_error()
+            self._in_flight[camera] = _InFlight(stamp_ns, message.time_ns, time.perf_counter())
+        if not self.processor.submit(camera, image, block=True):
+            raise BagError(f"{self.writer.path}: the worker pool stopped unexpectedly")
+        self._maybe_write_diagnostics()
+
+    def finish(self) -> None:
+        """Wait for every frame in flight, then write the final diagnostics."""
+        with self._cond:
+            self._cond.wait_for(lambda: not self._in_flight)
+        self.processor.wait_idle()
+        self._raise_write_error()
+        if self._next_diagnostics_ns is not None:
+            self._write_diagnostics(self.now_ns)
+
+    def _on_result(
+        self, camera: str, header: Header, cloud: PointCloud2, overlay: Image | None
+    ) -> None:
+        with self._cond:
+            flight = self._in_flight[camera]
+        try:
+            self.writer.write(f"/{camera}/{POINTS_SUFFIX}", flight.time_ns, cloud)
+        except Exception as err:  # disk full and the like: the reading thread stops the replay
+            self._write_error = err
+        stats = self.stats[camera]
+        stats.processing_ms.append((time.perf_counter() - flight.started_s) * 1e3)
+        stats.frames += 1
+        stats.markers += int(cloud.width) * int(cloud.height)
+        self.found[(camera, flight.stamp_ns)] = _xy(cloud)
+        self._release(camera)
+
+    def _on_error(self, camera: str, err: Exception) -> None:
+        stats = self.stats[camera]
+        stats.failed += 1
+        stats.last_error = f"{type(err).__name__}: {err}"
+        self._release(camera)
+
+    def _release(self, camera: str) -> None:
+        with self._cond:
+            self._in_flight.pop(camera, None)
+            self._cond.notify_all()
+
+    def _raise_write_error(self) -> None:
+        if self._write_error is not None:
+            raise BagError(
+                f"{self.writer.path}: writing results failed ({self._write_error})"
+            ) from self._write_error
+
+    def _maybe_write_diagnostics(self) -> None:
+        if self._next_diagnostics_ns is None:
+            self._next_diagnostics_ns = self.now_ns + self._diagnostics_period_ns
+        elif self.now_ns >= self._next_diagnostics_ns:
+            self._write_diagnostics(self.now_ns)
+            self._next_diagnostics_ns = self.now_ns + self._diagnostics_period_ns
+
+    def _write_diagnostics(self, time_ns: int) -> None:
+        """The node's /diagnostics content, stamped and written at bag time ``time_ns``."""
+        statuses = [
+            diagnostics.camera_status(NODE_NAME, snapshot, self._thresholds)
+            for snapshot in self.processor.snapshots().values()
+        ]
+        node_values = {
+            "workers": str(self.processor.workers),
+            "frames in flight": str(self.processor.in_flight()),
+            "mode": "replay",
+        }
+        statuses.append(diagnostics.node_status(NODE_NAME, statuses, node_values))
+        self.writer.write(
+            DIAGNOSTICS_TOPIC, time_ns, diagnostics.diagnostic_array(stamp_msg(time_ns), statuses)
+        )
+
+
+def replay_bag(
+    bag: str | Path,
+    out: str | Path,
+    *,
+    config: DetectorConfig | None = None,
+    workers: int | None = None,
+    storage: str = DEFAULT_STORAGE,
+    match_distance_px: float = DEFAULT_MATCH_DISTANCE_PX,
+    progress: Callable[[int, int], None] | None = None,
+) -> ReplayReport:
+    """Process every image of ``bag`` with the node's frame processor; write the results.
+
+    Args:
+        bag: Input bag (directory, ``.mcap`` or ``.db3``).
+        out: Output bag directory to create; must not exist. It appears only
+            when the replay finished.
+        config: Detector configuration (default: the defaults).
+        workers: Worker threads (default: the node's default).
+        storage: Storage of the output, ``"mcap"`` or ``"sqlite3"``.
+        match_distance_px: Largest detection-to-truth distance of a match, px.
+        progress: Called with (image messages handled, image messages in the bag).
+
+    Returns:
+        Per-camera counts, times and, when the bag has truth, accuracy.
+
+    Raises:
+        BagError: ``bag`` is missing, not a bag, corrupt or truncated, or has
+            no ``<cam>/image_raw`` topic; ``out`` exists or cannot be written.
+        ConfigError: ``workers`` < 1.
+    """
+    workers = NodeConfig().workers if workers is None else workers
+    with BagReader(bag) as reader:
+        topics = reader.topics
+        cameras = image_cameras(topics)
+        if not cameras:
+            listed = ", ".join(f"{t} ({m})" for t, m in sorted(topics.items())) or "none"
+            raise BagError(
+                f"{bag}: no image topics (sensor_msgs/msg/Image on <cam>/{IMAGE_SUFFIX}); "
+                f"topics: {listed}"
+            )
+        truth = _cloud_topics(topics, cameras, TRUTH_SUFFIX)
+        partial = _cloud_topics(topics, cameras, PARTIAL_SUFFIX)
+        topic_camera = {topic: cam for cam, topic in cameras.items()}
+        counts = reader.message_counts
+        total = sum(counts.get(t, 0) for t in cameras.values())
+        clouds: dict[str, dict[tuple[str, int], np.ndarray]] = {
+            TRUTH_SUFFIX: {},
+            PARTIAL_SUFFIX: {},
+        }
+        cloud_kind = {t: (TRUTH_SUFFIX, c) for c, t in truth.items()}
+        cloud_kind |= {t: (PARTIAL_SUFFIX, c) for c, t in partial.items()}
+        with BagWriter(out, storage) as writer:
+            for camera in cameras:
+                writer.add_topic(f"/{camera}/{POINTS_SUFFIX}", CLOUD_TYPE)
+            writer.add_topic(DIAGNOSTICS_TOPIC, "diagnostic_msgs/msg/DiagnosticArray")
+            session = _Session(list(cameras), config or DetectorConfig(), writer, workers)
+            started = time.perf_counter()
+            handled = 0
+            try:
+                for message in reader.messages({*cameras.values(), *cloud_kind}):
+                    if message.topic in cloud_kind:
+                        kind, camera = cloud_kind[message.topic]
+                        cloud: PointCloud2 = message.decode()
+                        clouds[kind][(camera, stamp_to_ns(cloud.header))] = _xy(cloud)
+                        continue
+                    session.submit(topic_camera[message.topic], message)
+                    handled += 1
+                    if progress is not None:
+                        progress(handled, total)
+                session.finish()
+                _require_results(bag, session.stats)
+            finally:
+                session.processor.shutdown()
+            wall_s = time.perf_counter() - started
+    if truth:
+        _evaluate(session, clouds[TRUTH_SUFFIX], clouds[PARTIAL_SUFFIX], match_distance_px)
+    return ReplayReport(Path(bag), Path(out), workers, wall_s, session.stats)
+
+
+def _require_results(bag: str | Path, stats: dict[str, CameraReplay]) -> None:
+    """Raise when no frame gave a result: the output bag is then not kept."""
+    if any(c.frames for c in stats.values()):
+        return
+    skipped_encoding = sum(c.skipped_encoding for c in stats.values())
+    skipped_order = sum(c.skipped_out_of_order for c in stats.values())
+    failed = [c for c in stats.values() if c.failed]
+    reason = f"; last failure: {failed[-1].last_error}" if failed else ""
+    raise BagError(
+        f"{bag}: no frame could be processed ({skipped_encoding} with an unsupported "
+        f"encoding, {skipped_order} out of order, {sum(c.failed for c in failed)} failed; "
+        f"supported encodings: {', '.join(ENCODINGS)}){reason}"
+    )
+
+
+def _cloud_topics(topics: dict[str, str], cameras: dict[str, str], suffix: str) -> dict[str, str]:
+    return {
+        camera: f"/{camera}/{suffix}"
+        for camera in cameras
+        if topics.get(f"/{camera}/{suffix}") == CLOUD_TYPE
+    }
+
+
+def _evaluate(
+    session: _Session,
+    truth: dict[tuple[str, int], np.ndarray],
+    partial: dict[tuple[str, int], np.ndarray],
+    match_distance_px: float,
+) -> None:
+    """Match every processed frame that has truth; frames without truth are not evaluated."""
+    for camera, stats in session.stats.items():
+        stats.evaluation = Evaluation()
+        for key, found in session.found.items():
+            if key[0] == camera and key in truth:
+                stats.evaluation.add(found, truth[key], partial.get(key), match_distance_px)
+
+
+# --------------------------------------------------------------------------- command
+
+
+def build_replay_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """Arguments of ``marker-localizer replay`` (added to ``parser`` if given)."""
+    parser = parser or argparse.ArgumentParser(
+        prog="marker-localizer replay",
+        description="Run every <cam>/image_raw frame of a rosbag2 through the node's "
+        "processing (no frame dropped) and write <cam>/marker_points and /diagnostics to a "
+        "new bag; prints per-camera throughput and, when the bag has truth, accuracy.",
+    )
+    parser.add_argument("bag", type=Path, help="input rosbag2 (directory, .mcap or .db3)")
+    parser.add_argument("--out", required=True, type=Path, help="output bag directory to create")
+    parser.add_argument(
+        "--params-file",
+        type=Path,
+        default=None,
+        help="the node's parameter YAML; its detector.* values are used",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=NodeConfig().workers,
+        help="worker threads (default: %(default)s, as the node)",
+    )
+    parser.add_argument(
+        "--storage",
+        choices=tuple(STORAGES),
+        default=DEFAULT_STORAGE,
+        help="storage of the output bag (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--match-distance",
+        type=float,
+        default=DEFAULT_MATCH_DISTANCE_PX,
+        metavar="PX",
+        help="largest detection-to-truth distance of a match, px (default: %(default)s)",
+    )
+    return parser
+
+
+def replay_main(argv: Sequence[str] | None = None) -> int:
+    """Run ``marker-localizer replay``; returns the exit status (1: bad input)."""
+    args = build_replay_parser().parse_args(argv)
+
+    def body() -> int:
+        config = (
+            from_mapping(load_params_file(args.params_file))
+            if args.params_file is not None
+            else DetectorConfig()
+        )
+        bar = ProgressBar(0, "replay")
+
+        def progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done)
+
+        try:
+            report = replay_bag(
+                args.bag,
+                args.out,
+                config=config,
+                workers=args.workers,
+                storage=args.storage,
+                match_distance_px=args.match_distance,
+                progress=progress,
+            )
+        finally:
+            bar.close()
+        sys.stdout.write(format_report(report, args.match_distance) + "\n")
+        return 0
+
+    return run_command("replay", body)
+
+
+#: Entry point under the name the CLI dispatcher looks up.
+main = replay_main
