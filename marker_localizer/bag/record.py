@@ -338,3 +338,7 @@ def simulate_main(argv: Sequence[str] | None = None) -> int:
         return 0
 
     return run_command("simulate", body)
+
+
+#: Entry point under the name the CLI dispatcher looks up.
+main = simulate_main

@@ -518,7 +518,8 @@ class _GroundMosaic:
         ground = image_to_ground(homography, np.array([[cx, cy], [cx + 1, cy], [cx, cy + 1]]))
         if np.isnan(ground).any():
             return 0
-        area = abs(float(np.cross(ground[1] - ground[0], ground[2] - ground[0])))
+        (ax, ay), (bx, by) = ground[1] - ground[0], ground[2] - ground[0]
+        area = abs(float(ax * by - ay * bx))  # ground area of one pixel, m^2
         ratio = math.sqrt(area) / self.sample_m
         return int(np.clip(round(math.log2(max(ratio, 1e-9))), 0, len(self.levels) - 1))
 

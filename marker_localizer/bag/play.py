@@ -1,0 +1,413 @@
+"""``marker-localizer play``: publish a bag's messages on their topics, like ``ros2 bag play``.
+
+``ros2 bag`` is not installable here, so this player reads the bag with
+``rosbags`` and publishes the recorded CDR bytes unchanged through rclpy
+publishers (no deserialisation, so 12 MB images cost one copy). Topics whose
+message package is not installed (``/tf_static``: tf2_msgs has no wheel) are
+skipped and listed.
+
+Publishers are reliable, keep-last (``qos_depth``), the QoS camera drivers
+use and the node subscribes with. Before the first message the player waits up
+to ``wait_for_subscribers_s`` until every image topic (every topic if the bag
+has no images) has a subscriber, so the first frames are not lost to
+discovery. Timing:
+
+* at the recorded rate (times ``rate``): each message is published when its
+  bag time is due on the wall clock;
+* ``as_fast_as_possible``: a message is published once the previous one on
+  its topic was acknowledged by every matched subscription
+  (``wait_for_all_acked``) and ``min_topic_interval_s`` (0.1 s) has passed
+  since it went out. An acknowledgement only says the sample reached the
+  subscriber's history; the interval gives its executor time to take it
+  before the next sample replaces it in a keep-last-1 history, so such a
+  subscriber receives every frame. A consumer slower at *processing* than
+  that (the node on 12 MP frames) still replaces frames in its own mailbox, as
+  with a live camera, and counts them in its diagnostics; use ``rate`` to pace
+  for it. Topics are paced independently, so five cameras go out in parallel.
+
+At the end the player waits for every subscriber to acknowledge the last
+messages before it destroys its publishers.
+
+With ``clock``, ``/clock`` (rosgraph_msgs/Clock, best effort, keep-last 1 as
+``ros2 bag play --clock``) carries the bag time: before every message and at
+``clock_hz`` while waiting, so nodes with ``use_sim_time`` follow the bag.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import rclpy
+from rclpy.context import Context
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock
+
+from marker_localizer.bag.io import BagReader, ProgressBar, message_class, run_command
+from marker_localizer.bag.record import stamp_msg
+from marker_localizer.errors import BagError, ConfigError
+
+NODE_NAME = "marker_localizer_player"
+CLOCK_TOPIC = "/clock"
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+_CLOCK_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT
+)
+#: How often the subscriber wait looks at the publishers' match counts, s.
+_POLL_S = 0.01
+
+
+@dataclass(frozen=True)
+class PlayOptions:
+    """How to play a bag; validated on construction (raises ConfigError).
+
+    Attributes:
+        rate: Playback speed relative to the recording (2.0 = twice as fast).
+        as_fast_as_possible: Ignore the recorded timing; publish each message
+            once the previous one on its topic was acknowledged.
+        clock: Publish the bag time on ``/clock``.
+        clock_hz: ``/clock`` rate while waiting for the next message, Hz
+            (``ros2 bag play``'s default 40).
+        topics: Play only these topics (None: all playable).
+        qos_depth: History depth of the reliable publishers.
+        wait_for_subscribers_s: Longest wait for the image topics' subscribers
+            before the first message, s.
+        ack_timeout_s: Longest wait for a message's acknowledgement, s
+            (``as_fast_as_possible``, and for the last messages at the end).
+        min_topic_interval_s: ``as_fast_as_possible`` only: least time between
+            two messages on one topic, s; lets a subscriber's executor take a
+            frame from a keep-last-1 history before the next replaces it.
+    """
+
+    rate: float = 1.0
+    as_fast_as_possible: bool = False
+    clock: bool = False
+    clock_hz: float = 40.0
+    topics: tuple[str, ...] | None = None
+    qos_depth: int = 10
+    wait_for_subscribers_s: float = 2.0
+    ack_timeout_s: float = 10.0
+    min_topic_interval_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not self.rate > 0:
+            raise ConfigError(f"rate={self.rate!r} must be positive")
+        if not self.clock_hz > 0:
+            raise ConfigError(f"clock_hz={self.clock_hz!r} must be positive")
+        if self.qos_depth < 1:
+            raise ConfigError(f"qos_depth={self.qos_depth!r} must be at least 1")
+        if min(self.wait_for_subscribers_s, self.ack_timeout_s, self.min_topic_interval_s) < 0:
+            raise ConfigError(
+                "wait_for_subscribers_s, ack_timeout_s and min_topic_interval_s must be >= 0"
+            )
+
+
+@dataclass
+class PlayReport:
+    """What :func:`play_bag` published.
+
+    Attributes:
+        published: Messages published per topic.
+        skipped_topics: Topic -> type, for topics whose message package is not installed.
+        without_subscribers: Awaited topics that had no subscriber when playing started.
+        unacknowledged: Times a wait for acknowledgements ran out (``ack_timeout_s``).
+        wall_s: Wall time of the playback, s.
+        bag_s: Bag time between the first and the last message played, s.
+    """
+
+    published: dict[str, int] = field(default_factory=dict)
+    skipped_topics: dict[str, str] = field(default_factory=dict)
+    without_subscribers: list[str] = field(default_factory=list)
+    unacknowledged: int = 0
+    wall_s: float = 0.0
+    bag_s: float = 0.0
+
+
+class _Player:
+    """Publishers for a bag's topics and the pacing between messages."""
+
+    def __init__(self, node: Node, topics: dict[str, str], options: PlayOptions) -> None:
+        self.node = node
+        self.options = options
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=options.qos_depth,
+            reliability=ReliabilityPolicy.RELIABLE,
+        )
+        self.publishers: dict[str, Publisher] = {}
+        for topic, msgtype in topics.items():
+            cls = message_class(msgtype)
+            assert cls is not None  # filtered by the caller
+            self.publishers[topic] = node.create_publisher(cls, topic, qos)
+        self.clock = (
+            node.create_publisher(Clock, CLOCK_TOPIC, _CLOCK_QOS) if options.clock else None
+        )
+        self._last_publish_s: dict[str, float] = {}
+
+    def destroy(self) -> None:
+        for publisher in self.publishers.values():
+            self.node.destroy_publisher(publisher)
+        if self.clock is not None:
+            self.node.destroy_publisher(self.clock)
+
+    def wait_for_subscribers(self, topics: Sequence[str]) -> list[str]:
+        """Wait until each of ``topics`` has a subscriber; return those still without."""
+        deadline = time.monotonic() + self.options.wait_for_subscribers_s
+        missing = list(topics)
+        while True:
+            missing = [t for t in missing if self.publishers[t].get_subscription_count() == 0]
+            if not missing or time.monotonic() >= deadline:
+                return missing
+            time.sleep(_POLL_S)
+
+    def publish_clock(self, time_ns: int) -> None:
+        if self.clock is not None:
+            self.clock.publish(Clock(clock=stamp_msg(time_ns)))
+
+    def sleep_until(self, due_s: float, bag_ns_at: float, start_s: float) -> None:
+        """Sleep until monotonic time ``due_s``, publishing /clock meanwhile if asked.
+
+        Args:
+            due_s: Monotonic time to wake up at, s.
+            bag_ns_at: Bag time at monotonic ``start_s``, ns.
+            start_s: Monotonic time the playback started, s.
+        """
+        period_s = 1.0 / self.options.clock_hz
+        while (remaining := due_s - time.monotonic()) > 0:
+            time.sleep(min(remaining, period_s) if self.clock is not None else remaining)
+            if self.clock is not None:
+                elapsed = min(time.monotonic(), due_s) - start_s
+                self.publish_clock(round(bag_ns_at + elapsed * self.options.rate * 1e9))
+
+    def pace(self, topic: str) -> bool:
+        """Hold the next message on ``topic`` until the consumer can have taken the last one.
+
+        Waits until the previous message on ``topic`` was acknowledged by every
+        matched subscription and at least ``min_topic_interval_s`` passed since
+        it was published: an acknowledgement only means the sample reached the
+        subscriber's history, and a keep-last-1 history loses it if the next
+        one arrives before the subscriber's executor took it.
+
+        Returns:
+            False if the acknowledgement timed out.
+        """
+        publisher = self.publishers[topic]
+        previous = self._last_publish_s.get(topic)
+        if previous is None:
+            return True
+        acked = publisher.get_subscription_count() == 0 or publisher.wait_for_all_acked(
+            Duration(seconds=self.options.ack_timeout_s)
+        )
+        remaining = previous + self.options.min_topic_interval_s - time.monotonic()
+        if remaining > 0:
+            time.sleep(remaining)
+        return acked
+
+    def publish(self, topic: str, raw: bytes) -> None:
+        self.publishers[topic].publish(raw)
+        self._last_publish_s[topic] = time.monotonic()
+
+    def flush(self) -> int:
+        """Wait until every publisher's messages were acknowledged; return those that were not."""
+        timeout = Duration(seconds=self.options.ack_timeout_s)
+        return sum(
+            1
+            for publisher in self.publishers.values()
+            if publisher.get_subscription_count() and not publisher.wait_for_all_acked(timeout)
+        )
+
+
+def play_bag(
+    bag: str | Path,
+    node: Node,
+    options: PlayOptions | None = None,
+    *,
+    progress: ProgressBar | None = None,
+) -> PlayReport:
+    """Publish the messages of ``bag`` on their topics through ``node``.
+
+    Args:
+        bag: The bag (directory, ``.mcap`` or ``.db3``).
+        node: An rclpy node to create the publishers on; they are destroyed
+            before returning. The node does not need spinning.
+        options: Timing, clock and topic selection.
+        progress: Updated with the number of messages published.
+
+    Returns:
+        Counts per topic and what was skipped.
+
+    Raises:
+        BagError: the bag is missing, corrupt or truncated, or has no topic
+            left to play (after ``options.topics`` and the installed packages).
+    """
+    options = options or PlayOptions()
+    report = PlayReport()
+    with BagReader(bag) as reader:
+        selected = {
+            topic: msgtype
+            for topic, msgtype in reader.topics.items()
+            if (options.topics is None or topic in options.topics)
+            and not (options.clock and topic == CLOCK_TOPIC)
+        }
+        report.skipped_topics = {t: m for t, m in selected.items() if message_class(m) is None}
+        playable = {t: m for t, m in selected.items() if t not in report.skipped_topics}
+        if not playable:
+            raise BagError(
+                f"{bag}: nothing to play (topics: {', '.join(sorted(reader.topics)) or 'none'}; "
+                f"asked for: {', '.join(options.topics or ()) or 'all'}; "
+                f"not installed: {', '.join(report.skipped_topics) or 'none'})"
+            )
+        if progress is not None:
+            counts = reader.message_counts
+            progress.total = sum(counts.get(t, 0) for t in playable)
+        player = _Player(node, playable, options)
+        try:
+            awaited = [t for t, m in playable.items() if m == IMAGE_TYPE] or list(playable)
+            report.without_subscribers = player.wait_for_subscribers(awaited)
+            _play(reader, player, playable, report, progress)
+        finally:
+            player.destroy()
+    return report
+
+
+def _play(
+    reader: BagReader,
+    player: _Player,
+    topics: dict[str, str],
+    report: PlayReport,
+    progress: ProgressBar | None,
+) -> None:
+    options = player.options
+    start_s = time.monotonic()
+    first_ns: int | None = None
+    last_ns = 0
+    for done, message in enumerate(reader.messages(topics), start=1):
+        if first_ns is None:
+            first_ns = message.time_ns
+            player.publish_clock(first_ns)
+        if not options.as_fast_as_possible:
+            due_s = start_s + (message.time_ns - first_ns) / 1e9 / options.rate
+            player.sleep_until(due_s, first_ns, start_s)
+        elif not player.pace(message.topic):
+            report.unacknowledged += 1
+        player.publish_clock(message.time_ns)
+        player.publish(message.topic, message.raw)
+        report.published[message.topic] = report.published.get(message.topic, 0) + 1
+        last_ns = max(last_ns, message.time_ns)
+        if progress is not None:
+            progress.update(done)
+    # Publishers are destroyed next: let the last messages reach their subscribers.
+    report.unacknowledged += player.flush()
+    report.wall_s = time.monotonic() - start_s
+    report.bag_s = (last_ns - first_ns) / 1e9 if first_ns is not None else 0.0
+
+
+# --------------------------------------------------------------------------- command
+
+
+def build_play_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """Arguments of ``marker-localizer play`` (added to ``parser`` if given)."""
+    parser = parser or argparse.ArgumentParser(
+        prog="marker-localizer play",
+        description="Publish a rosbag2's messages on their ROS 2 topics, like 'ros2 bag play'. "
+        "ROS arguments follow --ros-args.",
+    )
+    defaults = PlayOptions()
+    parser.add_argument("bag", type=Path, help="rosbag2 to play (directory, .mcap or .db3)")
+    timing = parser.add_mutually_exclusive_group()
+    timing.add_argument(
+        "--rate",
+        type=float,
+        default=defaults.rate,
+        help="playback speed relative to the recording (default: %(default)s)",
+    )
+    timing.add_argument(
+        "--as-fast-as-possible",
+        action="store_true",
+        help="publish each message once the previous one on its topic was "
+        "acknowledged by every subscriber",
+    )
+    parser.add_argument(
+        "--clock", action="store_true", help="publish the bag time on /clock (for use_sim_time)"
+    )
+    parser.add_argument(
+        "--clock-hz",
+        type=float,
+        default=defaults.clock_hz,
+        help="/clock rate between messages, Hz (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--topics", nargs="+", default=None, metavar="TOPIC", help="play only these topics"
+    )
+    parser.add_argument(
+        "--wait-for-subscribers",
+        type=float,
+        default=defaults.wait_for_subscribers_s,
+        metavar="S",
+        help="longest wait for the image topics' subscribers, s (default: %(default)s)",
+    )
+    return parser
+
+
+def play_main(argv: Sequence[str] | None = None) -> int:
+    """Run ``marker-localizer play``; returns the exit status (1: bad input, 130: Ctrl-C)."""
+    args = [NODE_NAME, *(sys.argv[1:] if argv is None else argv)]
+    parsed = build_play_parser().parse_args(rclpy.utilities.remove_ros_args(args)[1:])
+
+    def body() -> int:
+        options = PlayOptions(
+            rate=parsed.rate,
+            as_fast_as_possible=parsed.as_fast_as_possible,
+            clock=parsed.clock,
+            clock_hz=parsed.clock_hz,
+            topics=tuple(parsed.topics) if parsed.topics else None,
+            wait_for_subscribers_s=parsed.wait_for_subscribers,
+        )
+        BagReader(parsed.bag)  # a missing or foreign path fails before DDS starts
+        # Our own context: the player can run beside other rclpy users in one
+        # process, and Ctrl-C stays a KeyboardInterrupt (rclpy's handler would
+        # shut the context down under the publishers).
+        context = Context()
+        rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+        bar = ProgressBar(0, "play")
+        try:
+            node = rclpy.create_node(NODE_NAME, context=context)
+            try:
+                report = play_bag(parsed.bag, node, options, progress=bar)
+            finally:
+                node.destroy_node()
+        finally:
+            bar.close()
+            rclpy.try_shutdown(context=context)
+        sys.stdout.write(_summary(parsed.bag, report) + "\n")
+        return 0
+
+    return run_command("play", body)
+
+
+def _summary(bag: Path, report: PlayReport) -> str:
+    total = sum(report.published.values())
+    lines = [
+        f"played {total} messages on {len(report.published)} topics of {bag} in "
+        f"{report.wall_s:.2f} s (bag time {report.bag_s:.2f} s)"
+    ]
+    if report.skipped_topics:
+        skipped = ", ".join(f"{t} ({m})" for t, m in sorted(report.skipped_topics.items()))
+        lines.append(f"skipped, message package not installed: {skipped}")
+    if report.without_subscribers:
+        lines.append(f"no subscriber when playing started: {', '.join(report.without_subscribers)}")
+    if report.unacknowledged:
+        lines.append(f"{report.unacknowledged} messages not acknowledged in time")
+    return "\n".join(lines)
+
+
+#: Entry point under the name the CLI dispatcher looks up.
+main = play_main
