@@ -1,0 +1,232 @@
+"""Loading the real image sets of ``<repo>/../shared/data`` and their reference points.
+
+The images are test data, not part of the package: nothing here is copied into
+the repository, and :func:`data_root` returns None when the folder is absent (a
+user's fresh clone), so callers can skip cleanly.
+
+Coordinates returned here follow the project's convention, (0, 0) = centre of
+the top-left pixel; ValidationBoof's hand clicks (origin at the pixel's top-left
+corner) are shifted by -0.5 px on load.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from marker_localizer.bench.metrics import order_grid
+from marker_localizer.bench.peers import corner_subpix
+
+#: ValidationBoof boards: 5 x 7 squares, so 4 x 6 inner corners (columns, rows).
+VALIDATIONBOOF_PATTERN = (4, 6)
+#: ValidationBoof's hand clicks put (0, 0) at the top-left corner of the first pixel.
+VALIDATIONBOOF_OFFSET_PX = -0.5
+#: The two ground targets of the cirn_uas frames (x, y), px, good to a few pixels.
+CIRN_TARGETS = np.array([[2705.0, 2060.0], [3770.0, 1798.0]])
+#: A detection within this distance of a target finds it, px.
+CIRN_FOUND_PX = 6.0
+#: A detection farther than this from both targets is a false positive, px.
+CIRN_FALSE_PX = 10.0
+#: libcbdetect's e7 is a deltille (triangle) board: its junctions are six-way,
+#: not X-corners, so it is left out of the chessboard sets.
+SKIPPED_IMAGES = frozenset({"e7.png"})
+#: Largest image side at which OpenCV's board search runs; larger frames are
+#: searched downscaled and refined at full resolution (the search is quadratic-ish).
+_SEARCH_MAX_SIDE_PX = 1600
+#: At most this many boards are searched for per image (the busiest libcbdetect scene has 7).
+_MAX_BOARDS = 8
+
+
+def data_root(repo_root: Path | None = None) -> Path | None:
+    """The shared data folder ``<repo>/../shared/data``, or None when it is absent.
+
+    Args:
+        repo_root: repository root; default: the one this module is installed from.
+    """
+    root = repo_root or Path(__file__).resolve().parents[2]
+    candidate = root.parent / "shared" / "data"
+    return candidate if candidate.is_dir() else None
+
+
+def read_gray(path: Path) -> np.ndarray:
+    """Read an image file as (H, W) uint8 grey (colour and alpha are converted)."""
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise OSError(f"{path}: cannot read image")
+    return image
+
+
+@dataclass(frozen=True)
+class BoardImage:
+    """A real chessboard image with its reference corners.
+
+    Attributes:
+        set_name: ``"validationboof"``, ``"libcbdetect"`` or ``"pycbd"``.
+        name: image name within the set (``folder/file``).
+        image: (H, W) uint8 grey image.
+        boards: one (rows, cols, 2) grid of reference corners per board, px:
+            the hand clicks for ValidationBoof, OpenCV's boards for the others.
+        opencv: OpenCV's refined corners of every board it finds (the paper's
+            Table 1 reference), (N, 2) px.
+    """
+
+    set_name: str
+    name: str
+    image: np.ndarray
+    boards: list[np.ndarray]
+    opencv: np.ndarray
+
+    @property
+    def reference(self) -> np.ndarray:
+        """All reference corners of all boards, (N, 2) px."""
+        return _stack(self.boards)
+
+
+def _stack(grids: list[np.ndarray]) -> np.ndarray:
+    """All corners of a list of grids as one (N, 2) array, px."""
+    return np.concatenate([g.reshape(-1, 2) for g in grids]) if grids else np.empty((0, 2))
+
+
+def load_hand_points(path: Path) -> np.ndarray:
+    """Read a ValidationBoof ``.txt`` of hand clicks, converted to the project's convention."""
+    return np.loadtxt(path, comments="#", dtype=np.float64).reshape(-1, 2) + (
+        VALIDATIONBOOF_OFFSET_PX)
+
+
+def iter_validationboof(root: Path, limit_per_folder: int | None = None) -> Iterator[BoardImage]:
+    """ValidationBoof images whose hand clicks form the 4 x 6 grid, folder by folder.
+
+    The reference grid is the hand clicks (good to ~0.2 px), arranged into rows
+    and columns by :func:`order_grid`.
+    """
+    for folder in sorted((root / "validationboof").iterdir()):
+        if not folder.is_dir():
+            continue
+        for path in sorted(folder.glob("*.txt"))[:limit_per_folder]:
+            image_path = path.with_suffix(".jpg")
+            points = load_hand_points(path)
+            grid = order_grid(points, VALIDATIONBOOF_PATTERN)
+            if grid is None or not image_path.exists():
+                continue
+            image = read_gray(image_path)
+            yield BoardImage("validationboof", f"{folder.name}/{image_path.name}", image,
+                             [grid], opencv_pattern_corners(image, VALIDATIONBOOF_PATTERN))
+
+
+def iter_unlabelled_boards(root: Path, set_name: str,
+                           limit: int | None = None) -> Iterator[BoardImage]:
+    """Images of the libcbdetect or pycbd set, with OpenCV's boards as the reference."""
+    paths = sorted(p for p in (root / set_name).iterdir()
+                   if p.suffix.lower() in (".png", ".jpg") and p.name not in SKIPPED_IMAGES)
+    for path in paths[:limit]:
+        image = read_gray(path)
+        boards = opencv_boards(image)
+        yield BoardImage(set_name, path.name, image, boards, _stack(boards))
+
+
+def opencv_pattern_corners(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray:
+    """OpenCV's refined corners of a board of known size (the paper's Table 1 reference).
+
+    ``findChessboardCorners`` + ``cornerSubPix`` as the paper did, falling back
+    to ``findChessboardCornersSB`` where the classic detector fails.
+
+    Args:
+        image: (H, W) uint8 grey image.
+        pattern: (columns, rows) of inner corners.
+
+    Returns:
+        (N, 2) corners, px; empty when OpenCV finds no board.
+    """
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    found, corners = cv2.findChessboardCorners(image, pattern, flags=flags)
+    if not found:
+        found, corners = cv2.findChessboardCornersSB(image, pattern, flags=cv2.CALIB_CB_ACCURACY)
+    if not found:
+        return np.empty((0, 2))
+    grid = corners.reshape(pattern[1], pattern[0], 2).astype(np.float64)
+    return _refine_grid(image, grid).reshape(-1, 2)
+
+
+def _refine_grid(image: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Refine a grid with cornerSubPix, window 0.4 of the corner spacing (2 to 5 px)."""
+    half = int(np.clip(round(0.4 * _median_spacing(grid)), 2, 5))
+    return corner_subpix(image, grid.reshape(-1, 2), half).reshape(grid.shape)
+
+
+def opencv_boards(image: np.ndarray, max_boards: int = _MAX_BOARDS) -> list[np.ndarray]:
+    """Every chessboard OpenCV's sector-based detector finds, as refined grids.
+
+    ``findChessboardCornersSBWithMeta`` with ``CALIB_CB_LARGER`` returns a whole
+    board of any size from a 3 x 3 seed; found boards are painted over with
+    their mean grey and the search repeats. Corners are refined with
+    ``cornerSubPix`` at full resolution (the paper's "OpenCV refined corners").
+
+    Args:
+        image: (H, W) uint8 grey image.
+        max_boards: most boards to look for.
+
+    Returns:
+        (rows, cols, 2) grids, px; empty when OpenCV finds none.
+    """
+    scale = min(1.0, _SEARCH_MAX_SIDE_PX / max(image.shape))
+    search = image if scale == 1.0 else cv2.resize(image, None, fx=scale, fy=scale,
+                                                   interpolation=cv2.INTER_AREA)
+    search = search.copy()
+    flags = cv2.CALIB_CB_LARGER | cv2.CALIB_CB_ACCURACY
+    boards = []
+    for _ in range(max_boards):
+        found, corners, meta = cv2.findChessboardCornersSBWithMeta(search, (3, 3), flags)
+        if not found:
+            break
+        rows, cols = meta.shape
+        small = corners.reshape(rows, cols, 2).astype(np.float64)
+        _paint_over(search, small)
+        # Pixel-centre convention: x_full + 0.5 = (x_small + 0.5) / scale.
+        boards.append(_refine_grid(image, (small + 0.5) / scale - 0.5))
+    return boards
+
+
+def _median_spacing(grid: np.ndarray) -> float:
+    """Median distance between neighbouring corners of a grid, px."""
+    steps = np.concatenate([
+        np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel(),
+        np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
+    ])
+    return float(np.nanmedian(steps))
+
+
+def _paint_over(image: np.ndarray, grid: np.ndarray) -> None:
+    """Fill a found board (its corners' hull, grown by one square) with flat grey, in place."""
+    pts = grid.reshape(-1, 2)
+    centre = pts.mean(axis=0)
+    spacing = _median_spacing(grid)
+    hull = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2)
+    direction = hull - centre
+    norm = np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-9)
+    grown = hull + 1.5 * spacing * direction / norm
+    mask = np.zeros(image.shape, np.uint8)
+    cv2.fillConvexPoly(mask, np.round(grown).astype(np.int32), 255)
+    image[mask > 0] = int(image[mask > 0].mean()) if (mask > 0).any() else 128
+
+
+@dataclass(frozen=True)
+class UasFrame:
+    """One cirn_uas video frame.
+
+    Attributes:
+        name: file name.
+        image: (H, W) uint8 grey image.
+    """
+
+    name: str
+    image: np.ndarray
+
+
+def iter_cirn_uas(root: Path, limit: int | None = None) -> Iterator[UasFrame]:
+    """The cirn_uas frames (3840 x 2160 JPEG, two ground targets each)."""
+    for path in sorted((root / "cirn_uas").glob("*.jpg"))[:limit]:
+        yield UasFrame(path.name, read_gray(path))
