@@ -23,7 +23,6 @@ from marker_localizer.ros.conversions import (
     image_to_array,
     image_to_detector_input,
 )
-from marker_localizer.ros.processing import draw_detections
 
 HEADER = Header(stamp=Time(sec=1_700_000_123, nanosec=456_789_012), frame_id="cam3_optical")
 
@@ -195,17 +194,3 @@ def test_cloud_to_array_rejects_vector_fields_and_short_data():
     cloud.fields[0].count = 3
     with pytest.raises(ImageError, match=r"point field 'x': datatype 8 x count 3"):
         cloud_to_array(cloud)
-
-
-@pytest.mark.parametrize("encoding", ["mono8", "mono16", "bgra8"])
-def test_overlay_is_a_bgr_copy_with_the_marker_drawn(encoding):
-    black = np.zeros_like(pixels_for(encoding, 40, 40))
-    pixels = image_to_detector_input(array_to_image(black, encoding))
-    found = [Detection(20.0, 20.0, 1.0, 0.01, 0.0, np.pi / 2, 10.0)]
-    overlay = draw_detections(pixels, found)
-    assert overlay.shape == (40, 40, 3)
-    assert overlay.dtype == np.uint8
-    assert not pixels.any()  # the input frame is left alone
-    blue, green, red = overlay[20, 25]  # on the horizontal line, away from the circle
-    assert green > 200
-    assert blue == red == 0

@@ -36,6 +36,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
+from marker_localizer.bench import throughput
 from marker_localizer.config import DetectorConfig
 from marker_localizer.errors import ImageError
 from marker_localizer.ros.conversions import array_to_image, cloud_to_array
@@ -635,6 +636,23 @@ def test_failed_frame_is_counted_and_the_worker_goes_on():
     snap = processor.snapshots()["cam0"]
     assert snap.errors == 1
     assert snap.last_error.startswith("ImageError: data holds 10 B")
+
+
+# --------------------------------------------------------------------------- benchmark
+
+
+def test_throughput_benchmark_measures_one_and_two_workers_on_small_frames(ros):
+    frames = throughput.render_frames(320, 240, markers=1)
+    results = [throughput.run_once(frames, n, seconds=1.0, rate_hz=10.0) for n in (1, 2)]
+    for result in results:
+        assert result.processed > 0
+        assert result.frames_per_s > 0
+        assert result.published == 5 * 10
+        assert result.dropped_mailbox + result.dropped_age + result.processed <= result.received
+        assert result.latency_p95_ms >= result.latency_p50_ms > 0
+    table = throughput.format_table(results)
+    assert table.splitlines()[0].split()[:2] == ["workers", "frames/s"]
+    assert len(table.splitlines()) == 4
 
 
 # --------------------------------------------------------------------------- separate process

@@ -35,15 +35,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-import cv2
-import numpy as np
 from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig
-from marker_localizer.core.image import bit_depth_scale
-from marker_localizer.core.pipeline import Detection, Detector
+from marker_localizer.core.pipeline import Detector
 from marker_localizer.errors import ConfigError
+from marker_localizer.overlay import draw_detections
 from marker_localizer.ros.conversions import (
     array_to_image,
     detections_to_cloud,
@@ -57,11 +55,6 @@ ResultCallback = Callable[[str, Header, PointCloud2, Image | None], None]
 ErrorCallback = Callable[[str, Exception], None]
 
 _NS_PER_S = 1_000_000_000
-#: Overlay colours (BGR): centre and lines green, the marker extent yellow.
-_LINE_BGR = (0, 255, 0)
-_EXTENT_BGR = (0, 255, 255)
-#: Fixed-point bits of OpenCV's drawing coordinates: 1/16 px keeps sub-pixel positions.
-_DRAW_SHIFT = 4
 
 
 @dataclass(frozen=True)
@@ -327,57 +320,3 @@ class FrameProcessor:
             in_node_ms=(now_ns - frame.received_ns) / 1e6,
             markers=len(detections),
         )
-
-
-def draw_detections(pixels: np.ndarray, detections: Sequence[Detection]) -> np.ndarray:
-    """Draw the detections onto an 8-bit BGR copy of the frame.
-
-    Each marker gets its two lines (length: its radius) through the sub-pixel
-    centre and a circle of its radius.
-
-    Args:
-        pixels: (H, W) uint8/uint16 grey or (H, W, 3|4) uint8 BGR(A) frame.
-        detections: markers to draw (pixel coordinates, (0, 0) = centre of
-            the top-left pixel).
-
-    Returns:
-        (H, W, 3) uint8 BGR image.
-    """
-    if pixels.ndim == 2:
-        grey = (
-            pixels
-            if pixels.dtype == np.uint8
-            else cv2.convertScaleAbs(pixels, alpha=255.0 / bit_depth_scale(pixels))
-        )
-        canvas = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
-    else:
-        # A copy: the pixels may be a view of the input message.
-        canvas = pixels[:, :, :3].copy()
-    scale = 1 << _DRAW_SHIFT
-    for d in detections:
-        centre = np.array([d.x, d.y])
-        for angle in (d.angle1, d.angle2):
-            reach = d.radius_px * np.array([np.cos(angle), np.sin(angle)])
-            cv2.line(
-                canvas,
-                _fixed(centre - reach, scale),
-                _fixed(centre + reach, scale),
-                _LINE_BGR,
-                1,
-                cv2.LINE_AA,
-                _DRAW_SHIFT,
-            )
-        cv2.circle(
-            canvas,
-            _fixed(centre, scale),
-            round(d.radius_px * scale),
-            _EXTENT_BGR,
-            1,
-            cv2.LINE_AA,
-            _DRAW_SHIFT,
-        )
-    return canvas
-
-
-def _fixed(point: np.ndarray, scale: int) -> tuple[int, int]:
-    return round(point[0] * scale), round(point[1] * scale)

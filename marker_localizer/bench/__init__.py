@@ -1,0 +1,1 @@
+"""Benchmarks: accuracy and speed of the detector against peers, on rendered and real frames."""

@@ -1,0 +1,245 @@
+"""Throughput of the node: five cameras of rendered 12 MP frames over real DDS, 1 and 2 workers.
+
+``marker-localizer bench throughput`` (or ``python -m marker_localizer.bench.throughput``)
+renders one frame per camera once, then for each worker count starts a
+:class:`MarkerLocalizerNode` in this process and publishes the five frames over
+DDS at ``--rate-hz`` per camera, faster than the detector can keep up with, for
+``--seconds``. Publishing stops, the frames already in the node are finished,
+and the run reports:
+
+* frames processed per second: results delivered / (time from the first
+  publish to the last result). Every worker is busy from start to end, so this
+  is the pool's capacity; with a handful of 10 s frames it is coarse, which is
+  why the default run is 90 s per worker count;
+* the scaling ratio (2 workers over 1);
+* dropped frames: replaced in a mailbox, too old, or never reaching the node
+  (replaced in the keep-last-1 DDS queue). When publishing stops, the frames
+  still waiting in the mailboxes grow old and are dropped by age (up to one
+  per camera): the end of the feed, not a steady-state loss;
+* latency p50/p95 from the header stamp to the result's arrival at a subscriber;
+* CPU use of the process (100 % = one core busy) and peak resident memory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image, PointCloud2
+from std_msgs.msg import Header
+
+from marker_localizer.ros.conversions import array_to_image
+from marker_localizer.ros.node import MarkerLocalizerNode
+from marker_localizer.ros.processing import stamp_to_ns
+from marker_localizer.synthetic import SceneConfig, render_scene
+
+CAMERAS = ("cam0", "cam1", "cam2", "cam3", "cam4")
+#: Longest wait for the frames in flight after publishing stops, s (a 12 MP
+#: frame takes about 10 s on one core).
+_DRAIN_TIMEOUT_S = 120.0
+_NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """Figures of one run with a given number of workers."""
+
+    workers: int
+    published: int
+    received: int
+    processed: int
+    dropped_mailbox: int
+    dropped_age: int
+    frames_per_s: float
+    latency_p50_ms: float
+    latency_p95_ms: float
+    cpu_percent: float
+    peak_rss_mb: float
+
+    @property
+    def dropped_in_transport(self) -> int:
+        """Frames published that never reached a mailbox (replaced in the DDS queue)."""
+        return self.published - self.received
+
+
+def render_frames(width: int, height: int, markers: int) -> dict[str, Image]:
+    """One rendered mono8 frame per camera (textured ground, hard negatives), made once."""
+    frames = {}
+    for seed, camera in enumerate(CAMERAS):
+        scene = render_scene(
+            SceneConfig(width=width, height=height, n_markers=markers, supersampling=4), seed
+        )
+        frames[camera] = array_to_image(scene.image, "mono8", Header(frame_id=camera))
+    return frames
+
+
+def run_once(frames: dict[str, Image], workers: int, seconds: float, rate_hz: float) -> RunResult:
+    """Start a node with ``workers`` workers, feed it for ``seconds``, finish, measure."""
+    namespace = f"/bench_w{workers}"
+    node = MarkerLocalizerNode(
+        f"bench_localizer_w{workers}",
+        namespace=namespace,
+        parameter_overrides=[Parameter("workers", value=workers)],
+    )
+    peer = Node("bench_peer", namespace=namespace)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    executor.add_node(peer)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    arrivals: list[tuple[int, int]] = []  # (arrival ns, stamp ns) per result
+
+    def on_points(cloud: PointCloud2) -> None:
+        arrivals.append((time.time_ns(), stamp_to_ns(cloud.header)))
+
+    qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+    publishers = {c: peer.create_publisher(Image, f"{c}/image_raw", qos) for c in frames}
+    for camera in frames:
+        peer.create_subscription(PointCloud2, f"{camera}/marker_points", on_points, 50)
+    spinner.start()
+    try:
+        _wait(
+            lambda: all(p.get_subscription_count() for p in publishers.values()),
+            "the node's subscriptions",
+        )
+        cpu_start, start_ns = _cpu_s(), time.time_ns()
+        published = _publish(frames, publishers, seconds, rate_hz)
+        if not node.processor.wait_idle(_DRAIN_TIMEOUT_S):
+            raise RuntimeError(f"frames still in flight {_DRAIN_TIMEOUT_S:g} s after the end")
+        _wait(lambda: len(arrivals) >= _processed(node), "the last results")
+        cpu_s = _cpu_s() - cpu_start
+        end_ns = max(a for a, _ in arrivals) if arrivals else time.time_ns()
+    finally:
+        executor.shutdown()
+        spinner.join()
+        node.destroy_node()
+        peer.destroy_node()
+    snaps = node.processor.snapshots().values()
+    latency_ms = np.array([(a - s) / 1e6 for a, s in arrivals])
+    span_s = (end_ns - start_ns) / _NS_PER_S
+    return RunResult(
+        workers=workers,
+        published=published,
+        received=sum(s.received for s in snaps),
+        processed=len(arrivals),
+        dropped_mailbox=sum(s.dropped_mailbox for s in snaps),
+        dropped_age=sum(s.dropped_age for s in snaps),
+        frames_per_s=len(arrivals) / span_s,
+        latency_p50_ms=float(np.percentile(latency_ms, 50)) if arrivals else float("nan"),
+        latency_p95_ms=float(np.percentile(latency_ms, 95)) if arrivals else float("nan"),
+        cpu_percent=100.0 * cpu_s / span_s,
+        # ru_maxrss is in KiB on Linux.
+        peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+    )
+
+
+def _publish(
+    frames: dict[str, Image],
+    publishers: dict[str, rclpy.publisher.Publisher],
+    seconds: float,
+    rate_hz: float,
+) -> int:
+    """Publish every camera's frame with a fresh stamp, ``seconds * rate_hz`` times."""
+    start = time.monotonic()
+    ticks = max(1, round(seconds * rate_hz))
+    for tick in range(ticks):
+        for camera, msg in frames.items():
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(time.time_ns(), _NS_PER_S)
+            publishers[camera].publish(msg)
+        time.sleep(max(start + (tick + 1) / rate_hz - time.monotonic(), 0.0))
+    return ticks * len(frames)
+
+
+def _processed(node: MarkerLocalizerNode) -> int:
+    return sum(s.processed for s in node.processor.snapshots().values())
+
+
+def _cpu_s() -> float:
+    times = os.times()
+    return times.user + times.system
+
+
+def _wait(predicate: Callable[[], bool], what: str, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"timed out waiting for {what}")
+        time.sleep(0.05)
+
+
+def format_table(results: Sequence[RunResult]) -> str:
+    """The results as a fixed-width text table, one row per worker count."""
+    header = (
+        f"{'workers':>7} {'frames/s':>9} {'processed':>9} {'published':>9} "
+        f"{'drop DDS':>8} {'drop mbox':>9} {'drop age':>8} {'lat p50 ms':>10} "
+        f"{'lat p95 ms':>10} {'CPU %':>6} {'peak MB':>8}"
+    )
+    rows = [header, "-" * len(header)]
+    for r in results:
+        rows.append(
+            f"{r.workers:>7} {r.frames_per_s:>9.3f} {r.processed:>9} {r.published:>9} "
+            f"{r.dropped_in_transport:>8} {r.dropped_mailbox:>9} {r.dropped_age:>8} "
+            f"{r.latency_p50_ms:>10.0f} {r.latency_p95_ms:>10.0f} {r.cpu_percent:>6.0f} "
+            f"{r.peak_rss_mb:>8.0f}"
+        )
+    return "\n".join(rows)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Command-line options of the benchmark."""
+    parser = argparse.ArgumentParser(
+        prog="marker-localizer bench throughput",
+        description="Frames per second of the node with 1 and 2 workers, five cameras.",
+    )
+    parser.add_argument("--width", type=int, default=4096, help="frame width, px")
+    parser.add_argument("--height", type=int, default=3000, help="frame height, px")
+    parser.add_argument(
+        "--seconds", type=float, default=90.0, help="publishing time per worker count, s"
+    )
+    parser.add_argument(
+        "--rate-hz", type=float, default=1.0, help="frames per second and camera published"
+    )
+    parser.add_argument("--markers", type=int, default=20, help="markers per frame")
+    parser.add_argument(
+        "--workers", type=int, nargs="+", default=[1, 2], help="worker counts to run"
+    )
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the benchmark and print a table; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    print(f"rendering {len(CAMERAS)} frames of {args.width}x{args.height} ...", flush=True)
+    frames = render_frames(args.width, args.height, args.markers)
+    rclpy.init()
+    try:
+        results = []
+        for workers in args.workers:
+            print(f"running {workers} worker(s) for {args.seconds:g} s ...", flush=True)
+            results.append(run_once(frames, workers, args.seconds, args.rate_hz))
+    finally:
+        rclpy.try_shutdown()
+    print(
+        f"\n{len(CAMERAS)} cameras, {args.width}x{args.height} mono8, {args.rate_hz:g} Hz each, "
+        f"{args.seconds:g} s per run, {os.cpu_count()} CPUs"
+    )
+    print(format_table(results))
+    by_workers = {r.workers: r for r in results}
+    if 1 in by_workers and 2 in by_workers:
+        ratio = by_workers[2].frames_per_s / by_workers[1].frames_per_s
+        print(f"scaling 2 workers / 1 worker: {ratio:.2f}x")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
