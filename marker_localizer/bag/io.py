@@ -27,7 +27,6 @@ import math
 import os
 import shutil
 import sys
-import threading
 import time
 from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass
@@ -203,7 +202,7 @@ class BagWriter:
     Use as a context manager. Messages go into ``.<name>.partial-<pid>/<name>``
     beside ``path``; a clean exit closes the bag (writing its index and
     ``metadata.yaml``) and renames it onto ``path``, an exception removes it.
-    :meth:`write` may be called from several threads.
+    Write from the thread that entered it: the sqlite3 storage refuses any other.
 
     Args:
         path: The bag directory to create; must not exist.
@@ -224,7 +223,6 @@ class BagWriter:
         self._staging = self.path.parent / f".{self.path.name}.partial-{os.getpid()}"
         self._writer: Writer | None = None
         self._connections: dict[str, Any] = {}
-        self._lock = threading.Lock()
         self.counts: dict[str, int] = {}
 
     def __enter__(self) -> Self:
@@ -278,17 +276,16 @@ class BagWriter:
             qos: Offered QoS profiles recorded for players (``ros2 bag play``
                 uses them, e.g. transient-local for ``/tf_static``).
         """
-        with self._lock:
-            if topic in self._connections:
-                return
-            self._connections[topic] = self._open_writer().add_connection(
-                topic,
-                msgtype,
-                typestore=typestore(),
-                serialization_format="cdr",
-                offered_qos_profiles=list(qos),
-            )
-            self.counts[topic] = 0
+        if topic in self._connections:
+            return
+        self._connections[topic] = self._open_writer().add_connection(
+            topic,
+            msgtype,
+            typestore=typestore(),
+            serialization_format="cdr",
+            offered_qos_profiles=list(qos),
+        )
+        self.counts[topic] = 0
 
     def write(self, topic: str, time_ns: int, msg: Any) -> None:
         """Serialise an rclpy message and write it at bag time ``time_ns`` (ns)."""
@@ -300,11 +297,10 @@ class BagWriter:
         Raises:
             BagError: the topic was not declared with :meth:`add_topic`.
         """
-        with self._lock:
-            if topic not in self._connections:
-                raise BagError(f"{self.path}: topic {topic} was not declared")
-            self._open_writer().write(self._connections[topic], time_ns, raw)
-            self.counts[topic] += 1
+        if topic not in self._connections:
+            raise BagError(f"{self.path}: topic {topic} was not declared")
+        self._open_writer().write(self._connections[topic], time_ns, raw)
+        self.counts[topic] += 1
 
     def _open_writer(self) -> Writer:
         if self._writer is None:

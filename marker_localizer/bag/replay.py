@@ -174,7 +174,7 @@ class CameraReplay:
         frames: Frames processed and written.
         markers: Markers detected in them.
         processing_ms: Per processed frame: submission to the worker pool to
-            the written result, ms (conversion, detection, packing, writing).
+            the delivered result, ms (conversion, detection, point cloud packing).
         skipped_encoding: Frames with an encoding the node does not accept.
         skipped_out_of_order: Frames whose stamp was not newer than the last one.
         failed: Frames the processor rejected or failed on.
@@ -319,7 +319,11 @@ class _InFlight:
 
 
 class _Session:
-    """Feeds one bag's frames to a FrameProcessor and writes what comes back."""
+    """Feeds one bag's frames to a FrameProcessor and writes what comes back.
+
+    Worker threads only queue their results; the reading thread writes them
+    (the sqlite3 storage accepts writes only from the thread that opened it).
+    """
 
     def __init__(
         self,
@@ -334,8 +338,8 @@ class _Session:
         self.found: dict[tuple[str, int], np.ndarray] = {}
         self._last_stamp: dict[str, int] = {}
         self._in_flight: dict[str, _InFlight] = {}
+        self._done: list[tuple[str, int, PointCloud2]] = []
         self._cond = threading.Condition()
-        self._write_error: BaseException | None = None
         self.now_ns = 0
         settings = NodeConfig()
         self._thresholds = diagnostics.DiagnosticThresholds(
@@ -375,53 +379,48 @@ class _Session:
             self._cond.wait_for(
                 lambda: len(self._in_flight) < self.workers and camera not in self._in_flight
             )
-            self._raise_write_error()
             self._in_flight[camera] = _InFlight(stamp_ns, message.time_ns, time.perf_counter())
+        self._write_done()
         if not self.processor.submit(camera, image, block=True):
             raise BagError(f"{self.writer.path}: the worker pool stopped unexpectedly")
         self._maybe_write_diagnostics()
 
     def finish(self) -> None:
-        """Wait for every frame in flight, then write the final diagnostics."""
+        """Wait for every frame in flight, write the results and the final diagnostics."""
         with self._cond:
             self._cond.wait_for(lambda: not self._in_flight)
         self.processor.wait_idle()
-        self._raise_write_error()
+        self._write_done()
         if self._next_diagnostics_ns is not None:
             self._write_diagnostics(self.now_ns)
 
     def _on_result(
         self, camera: str, header: Header, cloud: PointCloud2, overlay: Image | None
     ) -> None:
+        elapsed_s = time.perf_counter()
         with self._cond:
-            flight = self._in_flight[camera]
-        try:
-            self.writer.write(f"/{camera}/{POINTS_SUFFIX}", flight.time_ns, cloud)
-        except Exception as err:  # disk full and the like: the reading thread stops the replay
-            self._write_error = err
-        stats = self.stats[camera]
-        stats.processing_ms.append((time.perf_counter() - flight.started_s) * 1e3)
-        stats.frames += 1
-        stats.markers += int(cloud.width) * int(cloud.height)
-        self.found[(camera, flight.stamp_ns)] = _xy(cloud)
-        self._release(camera)
-
-    def _on_error(self, camera: str, err: Exception) -> None:
-        stats = self.stats[camera]
-        stats.failed += 1
-        stats.last_error = f"{type(err).__name__}: {err}"
-        self._release(camera)
-
-    def _release(self, camera: str) -> None:
-        with self._cond:
-            self._in_flight.pop(camera, None)
+            flight = self._in_flight.pop(camera)
+            stats = self.stats[camera]
+            stats.processing_ms.append((elapsed_s - flight.started_s) * 1e3)
+            stats.frames += 1
+            stats.markers += int(cloud.width) * int(cloud.height)
+            self.found[(camera, flight.stamp_ns)] = _xy(cloud)
+            self._done.append((camera, flight.time_ns, cloud))
             self._cond.notify_all()
 
-    def _raise_write_error(self) -> None:
-        if self._write_error is not None:
-            raise BagError(
-                f"{self.writer.path}: writing results failed ({self._write_error})"
-            ) from self._write_error
+    def _on_error(self, camera: str, err: Exception) -> None:
+        with self._cond:
+            self._in_flight.pop(camera, None)
+            stats = self.stats[camera]
+            stats.failed += 1
+            stats.last_error = f"{type(err).__name__}: {err}"
+            self._cond.notify_all()
+
+    def _write_done(self) -> None:
+        with self._cond:
+            done, self._done = self._done, []
+        for camera, time_ns, cloud in done:
+            self.writer.write(f"/{camera}/{POINTS_SUFFIX}", time_ns, cloud)
 
     def _maybe_write_diagnostics(self) -> None:
         if self._next_diagnostics_ns is None:

@@ -1,0 +1,372 @@
+"""Simulate -> bag -> offline replay through the node's frame processor, and bad input.
+
+Bags are written into ``tmp_path`` by the code under test (``simulate``) or by
+small helpers here; nothing binary is committed. Frames are 320 x 240 (the
+simulator keeps markers at 4 to 20 px radius at any frame size).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from sensor_msgs.msg import Image
+from std_msgs.msg import Header
+
+from marker_localizer.bag.io import BagReader, BagWriter, ProgressBar, typestore
+from marker_localizer.bag.record import simulate_main
+from marker_localizer.bag.replay import Evaluation, replay_bag, replay_main
+from marker_localizer.errors import BagError
+from marker_localizer.ros.conversions import CLOUD_FIELDS, array_to_image, cloud_to_array
+from marker_localizer.synthetic import render_markers
+from marker_localizer.synthetic.scene import MarkerPlacement
+
+REPO = Path(__file__).resolve().parents[1]
+PARAMS_FILE = REPO / "config" / "marker_localizer.yaml"
+CAMERAS = ("cam0", "cam1", "cam2", "cam3", "cam4")
+FRAMES = 3
+#: What replay must reach on the simulated 320 x 240 flight (measured: recall
+#: 0.955, mean error 0.018 px, no false positive; README "Replay").
+MIN_RECALL = 0.9
+MAX_MEAN_ERROR_PX = 0.1
+
+
+# --------------------------------------------------------------------------- fixtures
+
+
+@pytest.fixture(scope="module")
+def flight_bag(tmp_path_factory):
+    path = tmp_path_factory.mktemp("flight") / "flight"
+    argv = ["--out", str(path), "--frames", str(FRAMES), "--width", "320", "--height", "240"]
+    assert simulate_main([*argv, "--seed", "0"]) == 0
+    return path
+
+
+@pytest.fixture(scope="module")
+def replayed(flight_bag, tmp_path_factory):
+    out = tmp_path_factory.mktemp("replay") / "out"
+    return replay_bag(flight_bag, out, workers=2), out
+
+
+def stamp(ns: int) -> Time:
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def x_marker_frame(centre=(40.3, 30.6)) -> np.ndarray:
+    """A 80 x 64 frame with one blurred marker of radius 14 px at ``centre``."""
+    scene = render_markers(
+        (64, 80),
+        [MarkerPlacement(*centre, 14.0, rotation_rad=0.4)],
+        1,
+        reflectances=(0.1, 0.9),
+        blur_sigma_px=0.8,
+    )
+    return scene.image
+
+
+def write_bag(path: Path, frames, storage: str = "mcap") -> Path:
+    """A bag of ``(topic, stamp_ns, Image)``; bag time = stamp."""
+    with BagWriter(path, storage) as bag:
+        for topic, stamp_ns, msg in frames:
+            bag.add_topic(topic, "sensor_msgs/msg/Image")
+            bag.write(topic, stamp_ns, msg)
+    return path
+
+
+def image(pixels: np.ndarray, stamp_ns: int, encoding: str = "mono8") -> Image:
+    return array_to_image(pixels, encoding, Header(stamp=stamp(stamp_ns), frame_id="cam0_optical"))
+
+
+def leftovers(directory: Path) -> list[str]:
+    return sorted(p.name for p in directory.iterdir())
+
+
+# --------------------------------------------------------------------------- simulate
+
+
+def test_simulated_bag_has_images_camera_info_truth_and_tf_static_per_camera(flight_bag):
+    with BagReader(flight_bag) as bag:
+        topics = bag.topics
+        counts = bag.message_counts
+        for cam in CAMERAS:
+            assert topics[f"/{cam}/image_raw"] == "sensor_msgs/msg/Image"
+            assert topics[f"/{cam}/camera_info"] == "sensor_msgs/msg/CameraInfo"
+            assert topics[f"/{cam}/marker_points_truth"] == "sensor_msgs/msg/PointCloud2"
+            assert counts[f"/{cam}/image_raw"] == FRAMES
+        assert topics["/tf_static"] == "tf2_msgs/msg/TFMessage"
+        messages = list(bag.messages())
+    images = [m for m in messages if m.topic == "/cam3/image_raw"]
+    info = next(m for m in messages if m.topic == "/cam3/camera_info").decode()
+    truth = next(m for m in messages if m.topic == "/cam3/marker_points_truth").decode()
+    first = images[0].decode()
+    assert (first.encoding, first.width, first.height) == ("mono8", 320, 240)
+    assert first.header.frame_id == "cam3_optical"
+    for m in images:  # bag time is the header stamp is the frame time, 2 Hz
+        header = m.decode().header
+        assert header.stamp.sec * 1_000_000_000 + header.stamp.nanosec == m.time_ns
+    assert np.diff([m.time_ns for m in images]).tolist() == [500_000_000] * (FRAMES - 1)
+    k = np.reshape(info.k, (3, 3))
+    assert k[0, 0] == pytest.approx(160.0 / np.tan(np.radians(30.0)))
+    assert (k[0, 2], k[1, 2]) == (159.5, 119.5)
+    np.testing.assert_array_equal(np.reshape(info.p, (3, 4))[:, :3], k)
+    np.testing.assert_array_equal(info.d, np.zeros(5))
+    np.testing.assert_array_equal(np.reshape(info.r, (3, 3)), np.eye(3))
+    points = cloud_to_array(truth)
+    assert points.dtype.names == CLOUD_FIELDS and len(points) > 3
+    assert (points["sigma"] == 0).all() and (points["score"] == 1).all()
+    tf_raw = next(m for m in messages if m.topic == "/tf_static").raw
+    tf = typestore().deserialize_cdr(tf_raw, "tf2_msgs/msg/TFMessage")
+    assert [t.child_frame_id for t in tf.transforms] == [f"{c}_optical" for c in CAMERAS]
+    assert {t.header.frame_id for t in tf.transforms} == {"base_link"}
+    nadir = tf.transforms[0].transform.rotation  # optical z = body -z: 180 deg about an xy axis
+    assert abs(nadir.w) < 1e-9
+
+
+# --------------------------------------------------------------------------- replay
+
+
+def test_replay_finds_the_simulated_markers_with_sub_pixel_error(replayed):
+    report, _ = replayed
+    assert list(report.cameras) == list(CAMERAS)
+    assert all(c.frames == FRAMES for c in report.cameras.values())
+    overall = report.evaluation
+    stats = overall.error_stats()
+    sys.stdout.write(
+        f"\nreplay 320x240 x5 cameras x{FRAMES}: recall {overall.recall:.3f} of {overall.truth}, "
+        f"FP/frame {overall.false_positives_per_frame:.2f}, error mean {stats['mean']:.4f} "
+        f"RMS {stats['rms']:.4f} p95 {stats['p95']:.4f} max {stats['max']:.4f} px, "
+        f"{report.frames_per_s:.2f} frames/s\n"
+    )
+    assert overall.recall >= MIN_RECALL
+    assert stats["mean"] <= MAX_MEAN_ERROR_PX
+    assert overall.false_positives_per_frame <= 0.5
+    for camera in report.cameras.values():
+        assert camera.evaluation.recall >= 0.8
+        assert camera.mean_ms > 0
+
+
+def test_replay_writes_points_with_the_input_header_at_the_input_bag_time(flight_bag, replayed):
+    _, out = replayed
+    with BagReader(flight_bag) as bag:
+        inputs = {
+            (m.topic.split("/")[1], m.time_ns): m.decode().header
+            for m in bag.messages([f"/{c}/image_raw" for c in CAMERAS])
+        }
+    with BagReader(out) as bag:
+        assert bag.topics["/diagnostics"] == "diagnostic_msgs/msg/DiagnosticArray"
+        outputs = list(bag.messages([f"/{c}/marker_points" for c in CAMERAS]))
+        diagnostics = [m.decode() for m in bag.messages(["/diagnostics"])]
+    assert len(outputs) == len(inputs) == FRAMES * len(CAMERAS)
+    for message in outputs:
+        cloud = message.decode()
+        header = inputs[(message.topic.split("/")[1], message.time_ns)]
+        assert cloud.header == header
+        assert cloud_to_array(cloud).dtype.names == CLOUD_FIELDS
+    assert diagnostics, "at least the final /diagnostics"
+    names = {s.name for s in diagnostics[-1].status}
+    assert {f"marker_localizer: {c}" for c in CAMERAS} <= names
+    final = {s.name: {kv.key: kv.value for kv in s.values} for s in diagnostics[-1].status}
+    assert final["marker_localizer: cam0"]["frames processed"] == str(FRAMES)
+
+
+def test_replay_main_reads_sqlite3_with_the_node_params_file_and_prints_both_tables(
+    tmp_path, capsys
+):
+    bag = tmp_path / "flight_sqlite"
+    argv = ["--out", str(bag), "--frames", "1", "--width", "320", "--height", "240"]
+    assert simulate_main([*argv, "--storage", "sqlite3", "--seed", "4"]) == 0
+    assert (bag / "flight_sqlite.db3").exists()
+    out = tmp_path / "replayed_sqlite"
+    status = replay_main(
+        [
+            str(bag),
+            "--out",
+            str(out),
+            "--params-file",
+            str(PARAMS_FILE),
+            "--storage",
+            "sqlite3",
+            "--workers",
+            "2",
+        ]
+    )
+    text = capsys.readouterr().out
+    assert status == 0, text
+    assert "markers/frame" in text and "ms/frame" in text
+    assert "recall" in text and "p95 px" in text
+    all_row = next(line for line in text.splitlines() if line.startswith("all ") and "." in line)
+    assert all_row.split()[1] == "5"  # frames
+    with BagReader(out) as replayed_bag:
+        assert replayed_bag.message_counts["/cam0/marker_points"] == 1
+
+
+def test_evaluation_matches_one_to_one_and_ignores_detections_on_cut_markers():
+    evaluation = Evaluation()
+    truth = np.array([[10.0, 10.0], [30.0, 10.0]])
+    found = np.array([[10.05, 10.0], [10.5, 10.0], [60.0, 60.0], [90.0, 5.0]])
+    evaluation.add(found, truth, partial_xy=np.array([[90.5, 5.0]]), match_distance_px=2.0)
+    assert (evaluation.truth, evaluation.matched) == (2, 1)
+    assert evaluation.errors_px == pytest.approx([0.05])
+    assert evaluation.false_positives == 2  # (10.5, 10) is a duplicate, (60, 60) is nothing
+    assert evaluation.recall == 0.5
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def test_missing_bag_raises_bag_error_naming_it_and_main_exits_1(tmp_path, capsys):
+    missing = tmp_path / "nothing_here"
+    with pytest.raises(BagError, match=re.escape(f"{missing}: no such bag")):
+        replay_bag(missing, tmp_path / "out")
+    assert replay_main([str(missing), "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no such bag" in err
+    assert leftovers(tmp_path) == []
+
+
+def test_truncated_bag_raises_bag_error(flight_bag, tmp_path):
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for item in flight_bag.iterdir():
+        (broken / item.name).write_bytes(item.read_bytes())
+    storage = broken / "flight.mcap"
+    with storage.open("r+b") as handle:
+        handle.truncate(storage.stat().st_size // 2)
+    with pytest.raises(BagError, match="broken: cannot open bag, corrupt or truncated"):
+        replay_bag(broken, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def test_corrupt_metadata_and_foreign_paths_raise_bag_error(tmp_path):
+    garbled = tmp_path / "garbled"
+    garbled.mkdir()
+    (garbled / "metadata.yaml").write_text("rosbag2_bagfile_information: [oops\n")
+    with pytest.raises(BagError, match="garbled: cannot open bag"):
+        replay_bag(garbled, tmp_path / "out1")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(BagError, match=r"no metadata\.yaml"):
+        replay_bag(empty, tmp_path / "out2")
+    text = tmp_path / "notes.txt"
+    text.write_text("not a bag")
+    with pytest.raises(BagError, match=r"notes\.txt: not a rosbag2"):
+        replay_bag(text, tmp_path / "out3")
+
+
+def test_bag_without_image_topics_raises_bag_error_listing_its_topics(tmp_path):
+    bag = tmp_path / "no_images"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/cam0/marker_points", "sensor_msgs/msg/PointCloud2")
+    with pytest.raises(BagError, match=r"no image topics .*/cam0/marker_points"):
+        replay_bag(bag, tmp_path / "out")
+    assert replay_main([str(bag), "--out", str(tmp_path / "out")]) == 1
+
+
+def test_existing_output_is_refused_and_left_untouched(flight_bag, tmp_path, capsys):
+    out = tmp_path / "taken"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    with pytest.raises(BagError, match="taken: output path exists"):
+        replay_bag(flight_bag, out)
+    assert replay_main([str(flight_bag), "--out", str(out)]) == 1
+    assert "output path exists" in capsys.readouterr().err
+    assert leftovers(out) == ["keep.txt"]
+    assert leftovers(tmp_path) == ["taken"]
+
+
+def test_unknown_encodings_are_counted_and_skipped(tmp_path):
+    pixels = x_marker_frame()
+    yuv = array_to_image(np.zeros((64, 80, 3), np.uint8), "rgb8")
+    yuv.encoding = "yuv444"
+    yuv.header.stamp = stamp(2)
+    bag = write_bag(
+        tmp_path / "mixed", [("/cam0/image_raw", 1, image(pixels, 1)), ("/cam0/image_raw", 2, yuv)]
+    )
+    report = replay_bag(bag, tmp_path / "out", workers=1)
+    cam = report.cameras["cam0"]
+    assert (cam.frames, cam.skipped_encoding, cam.failed) == (1, 1, 0)
+    assert cam.markers == 1
+
+
+def test_bag_with_nothing_processable_fails_and_leaves_no_output(tmp_path):
+    yuv = array_to_image(np.zeros((8, 8, 3), np.uint8), "rgb8")
+    yuv.encoding = "yuv444"
+    bag = write_bag(tmp_path / "yuv", [("/cam0/image_raw", 1, yuv)])
+    with pytest.raises(BagError, match=r"no frame could be processed \(1 with an unsupported"):
+        replay_bag(bag, tmp_path / "out")
+    assert leftovers(tmp_path) == ["yuv"]
+
+
+def test_frames_out_of_stamp_order_are_counted_and_skipped(tmp_path):
+    pixels = x_marker_frame()
+    frames = [
+        ("/cam0/image_raw", t, image(pixels, s)) for t, s in [(1, 20), (2, 10), (3, 30), (4, 30)]
+    ]
+    report = replay_bag(write_bag(tmp_path / "order", frames), tmp_path / "out", workers=1)
+    cam = report.cameras["cam0"]
+    assert (cam.frames, cam.skipped_out_of_order) == (2, 2)  # 10 is older, 30 is a repeat
+    with BagReader(tmp_path / "out") as out:
+        times = [m.time_ns for m in out.messages(["/cam0/marker_points"])]
+    assert times == [1, 3]
+
+
+def test_frame_with_a_bad_layout_is_counted_as_failed(tmp_path):
+    good = image(x_marker_frame(), 1)
+    bad = image(x_marker_frame(), 2)
+    bad.step = 10  # shorter than a row
+    report = replay_bag(
+        write_bag(tmp_path / "bad", [("/cam0/image_raw", 1, good), ("/cam0/image_raw", 2, bad)]),
+        tmp_path / "out",
+        workers=1,
+    )
+    cam = report.cameras["cam0"]
+    assert (cam.frames, cam.failed) == (1, 1)
+    assert "step 10" in cam.last_error
+
+
+def test_interrupted_replay_leaves_no_output_bag(flight_bag, tmp_path):
+    def interrupt(done, total):
+        if done == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        replay_bag(flight_bag, tmp_path / "out", progress=interrupt)
+    assert leftovers(tmp_path) == []
+
+
+def test_progress_bar_draws_only_on_a_terminal():
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    terminal, pipe = Terminal(), io.StringIO()
+    for stream in (terminal, pipe):
+        bar = ProgressBar(4, "replay", stream=stream, min_interval_s=0.0)
+        for done in range(1, 5):
+            bar.update(done)
+        bar.close()
+    assert pipe.getvalue() == ""
+    assert "\r" in terminal.getvalue() and "4/4" in terminal.getvalue()
+    assert terminal.getvalue().endswith("\n")
+
+
+def test_writer_in_a_missing_parent_creates_it_and_renames_only_on_success(tmp_path):
+    target = tmp_path / "deep" / "bag"
+    with pytest.raises(RuntimeError), BagWriter(target) as bag:
+        bag.add_topic("/x/image_raw", "sensor_msgs/msg/Image")
+        assert [p.name.startswith(".bag.partial-") for p in target.parent.iterdir()] == [True]
+        raise RuntimeError("boom")
+    assert leftovers(target.parent) == []
+    with BagWriter(target, "sqlite3") as bag:
+        bag.add_topic("/x/image_raw", "sensor_msgs/msg/Image")
+        bag.write("/x/image_raw", 5, image(np.zeros((4, 4), np.uint8), 5))
+    assert leftovers(target.parent) == ["bag"]
+    assert sorted(os.listdir(target)) == ["bag.db3", "metadata.yaml"]
+    with BagReader(target) as bag:
+        assert [m.time_ns for m in bag.messages()] == [5]
