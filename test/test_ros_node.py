@@ -33,6 +33,7 @@ from rcl_interfaces.srv import (
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
@@ -501,6 +502,45 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros)
     finally:
         stop.set()
         tester.stop()
+        spinner.stop()
+
+
+def test_frame_age_is_measured_on_sim_time_when_use_sim_time_is_set(ros):
+    node = MarkerLocalizerNode(
+        "sim_localizer",
+        namespace="/sim",
+        parameter_overrides=[
+            Parameter("use_sim_time", value=True),
+            Parameter("cameras", value=["cam0"]),
+            Parameter("max_frame_age_s", value=2.0),
+        ],
+    )
+    spinner = Spinner(node)
+    peer = Peer("sim_peer", "/sim")
+    clock_pub = peer.node.create_publisher(Clock, "/clock", 10)
+    stop = threading.Event()
+
+    def tick():  # a simulator's clock standing at t = 1000 s
+        while not stop.wait(0.02):
+            clock_pub.publish(Clock(clock=Time(sec=1000)))
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    ticker.start()
+    try:
+        wait_until(lambda: node.get_clock().now().nanoseconds == 1000 * 10**9, "sim time 1000 s")
+        peer.listen("cam0/marker_points", PointCloud2)
+        fresh = peer.frame(x_marker_64(), stamp=Time(sec=999, nanosec=500_000_000))
+        stale = peer.frame(x_marker_64(), stamp=Time(sec=990))  # 10 s old in sim time
+        peer.publish("cam0/image_raw", fresh)
+        assert peer.result_for("cam0/marker_points", fresh.header).width == 1
+        peer.publish("cam0/image_raw", stale)
+        wait_until(lambda: node.processor.snapshots()["cam0"].dropped_age == 1, "the age drop")
+        assert all(m.header.stamp != stale.header.stamp
+                   for m in peer.messages("cam0/marker_points"))
+    finally:
+        stop.set()
+        ticker.join(TIMEOUT_S)
+        peer.stop()
         spinner.stop()
 
 

@@ -17,7 +17,10 @@ and the run reports:
   still waiting in the mailboxes grow old and are dropped by age (up to one
   per camera): the end of the feed, not a steady-state loss;
 * latency p50/p95 from the header stamp to the result's arrival at a subscriber;
-* CPU use of the process (100 % = one core busy) and peak resident memory.
+* CPU use of this process (100 % = one core busy), CPU used meanwhile by
+  other processes on the machine (from /proc/stat, 100 % = one core), and
+  peak resident memory. On a shared machine the scaling ratio means little
+  unless the other processes left the second core free.
 """
 
 from __future__ import annotations
@@ -65,6 +68,7 @@ class RunResult:
     latency_p50_ms: float
     latency_p95_ms: float
     cpu_percent: float
+    others_cpu_percent: float
     peak_rss_mb: float
 
     @property
@@ -112,12 +116,13 @@ def run_once(frames: dict[str, Image], workers: int, seconds: float, rate_hz: fl
             lambda: all(p.get_subscription_count() for p in publishers.values()),
             "the node's subscriptions",
         )
-        cpu_start, start_ns = _cpu_s(), time.time_ns()
+        cpu_start, machine_start, start_ns = _cpu_s(), _machine_busy_s(), time.time_ns()
         published = _publish(frames, publishers, seconds, rate_hz)
         if not node.processor.wait_idle(_DRAIN_TIMEOUT_S):
             raise RuntimeError(f"frames still in flight {_DRAIN_TIMEOUT_S:g} s after the end")
         _wait(lambda: len(arrivals) >= _processed(node), "the last results")
         cpu_s = _cpu_s() - cpu_start
+        machine_s = _machine_busy_s() - machine_start
         end_ns = max(a for a, _ in arrivals) if arrivals else time.time_ns()
     finally:
         executor.shutdown()
@@ -138,6 +143,7 @@ def run_once(frames: dict[str, Image], workers: int, seconds: float, rate_hz: fl
         latency_p50_ms=float(np.percentile(latency_ms, 50)) if arrivals else float("nan"),
         latency_p95_ms=float(np.percentile(latency_ms, 95)) if arrivals else float("nan"),
         cpu_percent=100.0 * cpu_s / span_s,
+        others_cpu_percent=100.0 * max(machine_s - cpu_s, 0.0) / span_s,
         # ru_maxrss is in KiB on Linux.
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     )
@@ -169,6 +175,17 @@ def _cpu_s() -> float:
     return times.user + times.system
 
 
+def _machine_busy_s() -> float:
+    """CPU seconds all processes have used since boot (NaN where /proc/stat is missing)."""
+    try:
+        with open("/proc/stat") as stat:
+            fields = [int(v) for v in stat.readline().split()[1:]]
+    except OSError:
+        return float("nan")
+    idle = fields[3] + fields[4]  # idle + iowait
+    return (sum(fields[:8]) - idle) / os.sysconf("SC_CLK_TCK")
+
+
 def _wait(predicate: Callable[[], bool], what: str, timeout_s: float = 60.0) -> None:
     deadline = time.monotonic() + timeout_s
     while not predicate():
@@ -182,7 +199,7 @@ def format_table(results: Sequence[RunResult]) -> str:
     header = (
         f"{'workers':>7} {'frames/s':>9} {'processed':>9} {'published':>9} "
         f"{'drop DDS':>8} {'drop mbox':>9} {'drop age':>8} {'lat p50 ms':>10} "
-        f"{'lat p95 ms':>10} {'CPU %':>6} {'peak MB':>8}"
+        f"{'lat p95 ms':>10} {'CPU %':>6} {'others %':>8} {'peak MB':>8}"
     )
     rows = [header, "-" * len(header)]
     for r in results:
@@ -190,7 +207,7 @@ def format_table(results: Sequence[RunResult]) -> str:
             f"{r.workers:>7} {r.frames_per_s:>9.3f} {r.processed:>9} {r.published:>9} "
             f"{r.dropped_in_transport:>8} {r.dropped_mailbox:>9} {r.dropped_age:>8} "
             f"{r.latency_p50_ms:>10.0f} {r.latency_p95_ms:>10.0f} {r.cpu_percent:>6.0f} "
-            f"{r.peak_rss_mb:>8.0f}"
+            f"{r.others_cpu_percent:>8.0f} {r.peak_rss_mb:>8.0f}"
         )
     return "\n".join(rows)
 
