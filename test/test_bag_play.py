@@ -1,0 +1,258 @@
+"""``play``: a bag's messages published over real DDS, into the running node and into plain peers.
+
+Everything runs in this process with its own rclpy Context (the player makes
+its own, as its command does); ``ROS_DOMAIN_ID`` from conftest.py isolates the
+traffic. Waits are polls with deadlines, never fixed sleeps.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+import threading
+import time
+from collections import defaultdict
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Image, PointCloud2
+
+from marker_localizer.bag.io import BagReader
+from marker_localizer.bag.play import PlayOptions, play_bag, play_main
+from marker_localizer.bag.record import simulate_main
+from marker_localizer.bag.replay import Evaluation
+from marker_localizer.errors import BagError, ConfigError
+from marker_localizer.ros.conversions import cloud_to_array
+from marker_localizer.ros.node import MarkerLocalizerNode
+
+CAMERAS = ("cam0", "cam1", "cam2", "cam3", "cam4")
+TIMEOUT_S = 60.0
+#: A reliable keep-last-1 subscription: the QoS the node subscribes images with.
+KEEP_LAST_1 = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+#: /clock is best effort (as ``ros2 bag play --clock``); a reliable reader would not match.
+CLOCK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+def wait_until(predicate, what, timeout_s=TIMEOUT_S):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        result = predicate()
+        if result:
+            return result
+        time.sleep(0.01)
+    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+
+
+def time_ns(t) -> int:
+    return t.sec * 1_000_000_000 + t.nanosec
+
+
+def stamp_ns(header) -> int:
+    return time_ns(header.stamp)
+
+
+def xy(cloud: PointCloud2) -> np.ndarray:
+    points = cloud_to_array(cloud)
+    return np.column_stack([points["x"], points["y"]]).reshape(-1, 2)
+
+
+class Spun:
+    """Nodes spun by one executor in a background thread, all in ``context``."""
+
+    def __init__(self, context: Context, *nodes) -> None:
+        self.nodes = nodes
+        self.executor = SingleThreadedExecutor(context=context)
+        for node in nodes:
+            self.executor.add_node(node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+
+    def stop(self) -> None:
+        self.executor.shutdown()
+        self.thread.join(TIMEOUT_S)
+        for node in self.nodes:
+            node.destroy_node()
+
+
+class Listener:
+    """Collects every message on the given topics."""
+
+    def __init__(self, context: Context, topics: dict[str, type], qos=50) -> None:
+        self.node = rclpy.create_node("play_listener", context=context)
+        self.lock = threading.Lock()
+        self.received: dict[str, list] = defaultdict(list)
+        for topic, msg_type in topics.items():
+            self.node.create_subscription(
+                msg_type,
+                topic,
+                lambda msg, topic=topic: self._keep(topic, msg),
+                CLOCK_QOS if topic == "/clock" else qos,
+            )
+
+    def _keep(self, topic, msg) -> None:
+        with self.lock:
+            self.received[topic].append(msg)
+
+    def messages(self, topic: str) -> list:
+        with self.lock:
+            return list(self.received[topic])
+
+
+@pytest.fixture(scope="module")
+def context():
+    context = Context()
+    rclpy.init(context=context)
+    yield context
+    rclpy.try_shutdown(context=context)
+
+
+@pytest.fixture(scope="module")
+def flight_bag(tmp_path_factory):
+    path = tmp_path_factory.mktemp("play") / "flight"
+    argv = ["--out", str(path), "--frames", "3", "--width", "320", "--height", "240"]
+    assert simulate_main([*argv, "--seed", "1"]) == 0
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiny_sqlite_bag(tmp_path_factory):
+    path = tmp_path_factory.mktemp("play_sqlite") / "tiny"
+    argv = ["--out", str(path), "--frames", "4", "--width", "64", "--height", "48"]
+    assert simulate_main([*argv, "--storage", "sqlite3", "--cameras", "2"]) == 0
+    return path
+
+
+def bag_truth(path) -> tuple[dict, dict, dict]:
+    """(camera, stamp) -> truth and partial centres; camera -> image stamps, from the bag."""
+    truth, partial, stamps = {}, {}, defaultdict(list)
+    with BagReader(path) as bag:
+        for message in bag.messages():
+            camera, _, kind = message.topic.strip("/").partition("/")
+            if kind == "marker_points_truth":
+                cloud = message.decode()
+                truth[(camera, stamp_ns(cloud.header))] = xy(cloud)
+            elif kind == "marker_points_partial":
+                cloud = message.decode()
+                partial[(camera, stamp_ns(cloud.header))] = xy(cloud)
+            elif kind == "image_raw":
+                stamps[camera].append(message.time_ns)
+    return truth, partial, stamps
+
+
+# --------------------------------------------------------------------------- into the node
+
+
+def test_playing_into_the_running_node_gives_points_at_the_truth_on_sim_time(
+    context, flight_bag, capsys
+):
+    truth, partial, stamps = bag_truth(flight_bag)
+    localizer = MarkerLocalizerNode(
+        context=context, parameter_overrides=[Parameter("use_sim_time", value=True)]
+    )
+    points = {f"/{c}/marker_points": PointCloud2 for c in CAMERAS}
+    listener = Listener(context, {**points, "/clock": Clock})
+    spun = Spun(context, localizer, listener.node)
+    try:
+        status = play_main([str(flight_bag), "--as-fast-as-possible", "--clock"])
+        assert status == 0
+        summary = capsys.readouterr().out
+        assert re.search(r"played 60 messages on 20 topics", summary), summary
+        assert "/tf_static (tf2_msgs/msg/TFMessage)" in summary
+        # The newest frame of a camera is never replaced in the node's mailbox.
+        for camera in CAMERAS:
+            last = stamps[camera][-1]
+            wait_until(
+                lambda camera=camera, last=last: any(
+                    stamp_ns(m.header) == last
+                    for m in listener.messages(f"/{camera}/marker_points")
+                ),
+                f"the {camera} result of the last frame",
+            )
+        evaluation = Evaluation()
+        for camera in CAMERAS:
+            for cloud in listener.messages(f"/{camera}/marker_points"):
+                assert cloud.header.frame_id == f"{camera}_optical"
+                key = (camera, stamp_ns(cloud.header))
+                evaluation.add(xy(cloud), truth[key], partial[key])
+        mean_px = evaluation.error_stats()["mean"]
+        sys.stdout.write(
+            f"\nplay -> node: {evaluation.frames} of 15 frames processed, recall "
+            f"{evaluation.recall:.3f} of {evaluation.truth}, mean error {mean_px:.4f} px, "
+            f"FP/frame {evaluation.false_positives_per_frame:.2f}\n"
+        )
+        assert evaluation.frames >= len(CAMERAS)
+        assert evaluation.recall >= 0.9, evaluation
+        assert mean_px <= 0.1
+        assert evaluation.false_positives_per_frame <= 0.5
+        clock = [time_ns(m.clock) for m in listener.messages("/clock")]
+        assert clock and clock == sorted(clock)
+        # The node ran on the bag's time (use_sim_time), so no frame was too old for it.
+        last_ns = max(stamps["cam0"])
+        wait_until(lambda: localizer.get_clock().now().nanoseconds == last_ns, "sim time")
+    finally:
+        spun.stop()
+
+
+# --------------------------------------------------------------------------- plain peers
+
+
+@pytest.mark.parametrize("as_fast_as_possible", [False, True])
+def test_a_keep_last_1_subscriber_receives_every_frame_in_order_from_sqlite3(
+    context, tiny_sqlite_bag, as_fast_as_possible
+):
+    _, _, stamps = bag_truth(tiny_sqlite_bag)
+    listener = Listener(context, {"/cam0/image_raw": Image, "/cam1/image_raw": Image}, KEEP_LAST_1)
+    spun = Spun(context, listener.node)
+    player = rclpy.create_node("test_player", context=context)
+    try:
+        options = PlayOptions(rate=4.0, as_fast_as_possible=as_fast_as_possible)
+        report = play_bag(tiny_sqlite_bag, player, options)
+        assert report.published["/cam0/image_raw"] == 4
+        assert report.skipped_topics == {"/tf_static": "tf2_msgs/msg/TFMessage"}
+        assert report.without_subscribers == [] and report.unacknowledged == 0
+        if not as_fast_as_possible:  # 1.5 s of bag time at 4x
+            assert report.wall_s >= 0.9 * report.bag_s / 4.0
+        for camera in ("cam0", "cam1"):
+            topic = f"/{camera}/image_raw"
+            wait_until(
+                lambda topic=topic: len(listener.messages(topic)) == 4, f"4 frames on {topic}"
+            )
+            received = [stamp_ns(m.header) for m in listener.messages(topic)]
+            assert received == stamps[camera]
+    finally:
+        player.destroy_node()
+        spun.stop()
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def test_play_of_a_missing_bag_exits_1_with_one_line(tmp_path, capsys):
+    assert play_main([str(tmp_path / "gone")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "gone: no such bag" in err
+
+
+def test_play_with_nothing_to_play_raises_bag_error(context, tiny_sqlite_bag, capsys):
+    player = rclpy.create_node("test_player_nothing", context=context)
+    try:
+        with pytest.raises(BagError, match=r"nothing to play .*asked for: /nope"):
+            play_bag(tiny_sqlite_bag, player, PlayOptions(topics=("/nope",)))
+    finally:
+        player.destroy_node()
+    assert play_main([str(tiny_sqlite_bag), "--topics", "/tf_static"]) == 1
+    assert "not installed: /tf_static" in capsys.readouterr().err
+
+
+def test_play_options_are_validated(tiny_sqlite_bag):
+    with pytest.raises(ConfigError, match="rate"):
+        PlayOptions(rate=0.0)
+    with pytest.raises(ConfigError, match="qos_depth"):
+        PlayOptions(qos_depth=0)
+    assert play_main([str(tiny_sqlite_bag), "--rate", "-1"]) == 1
