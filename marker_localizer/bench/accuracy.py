@@ -1,0 +1,530 @@
+"""Accuracy benchmark: this detector and its peers on rendered families and real images.
+
+``marker-localizer bench accuracy`` (or ``python -m marker_localizer.bench.accuracy``)
+prints one table per scenario family of the renderer, then tables for the real
+sets in ``<repo>/../shared/data`` (skipped when absent):
+
+* rendered families (exact truth): recall, false positives per frame, error
+  mean / RMS / p95 / max / share within 0.1 px, share within 2 reported sigma,
+  and each peer's mean error over ours ("peer/ours", ours = the default
+  ``refinement="symmetry"`` variant). Our detector gets the family's true
+  radius range as ``marker_radius_min_px`` / ``marker_radius_max_px``;
+  ``cv2.cornerSubPix`` starts from the truth moved by a random offset of up to
+  1 px (seeded) and measures refinement only.
+* real chessboards: recall of the reference corners, boards with every corner
+  found, the paper's Table 1 deviation from OpenCV's refined corners, and the
+  reference-free row/column residuals (straight line and projective spacing).
+* cirn_uas: both ground targets found per frame, false positives per frame.
+
+A detection matches a truth point within :data:`metrics.DEFAULT_GATE_PX` (2 px).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from marker_localizer.bench import metrics, peers, real_data
+from marker_localizer.bench.metrics import DetectionTally, LineResiduals
+from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
+from marker_localizer.errors import ConfigError
+from marker_localizer.synthetic import RenderedScene, SceneConfig, render_checkerboard, render_scene
+
+#: The row every peer is compared with ("peer/ours" = peer mean error / this row's).
+REFERENCE_ROW = "ours (symmetry)"
+#: Largest offset of cornerSubPix's start from the truth, px.
+SUBPIX_START_PX = 1.0
+#: Our detector's radius range per real set, px (centre to the end of the X).
+#: ValidationBoof / libcbdetect: square sides from 11 to 110 px; a chessboard
+#: corner's X ends at the neighbouring corners, and 40 px of it is plenty.
+#: pycbd: 65 to 215 px squares in 1 to 12 MP frames. cirn_uas: the targets are
+#: about 30 px across, so their X's reach 12 to 15 px.
+REAL_RADIUS_RANGES: dict[str, RadiusRange] = {
+    "validationboof": (5.0, 40.0),
+    "libcbdetect": (5.0, 40.0),
+    "pycbd": (10.0, 80.0),
+    "cirn_uas": (6.0, 24.0),
+}
+FAMILY_KEYS = ("a", "b", "c", "d", "e", "real")
+
+
+# --------------------------------------------------------------------------- families
+
+@dataclass(frozen=True)
+class Family:
+    """A rendered scenario family.
+
+    Attributes:
+        key: short name used by ``--families`` (several families may share one).
+        title: table heading.
+        radius_range: true marker radius range, px (what a user would configure).
+        frames: default number of frames; ``--quick`` uses ``quick_frames``.
+        quick_frames: frames in a quick run.
+        render: seed -> rendered frame with exact truth.
+        board_pattern: (columns, rows) for chessboard families (board peers run), else None.
+    """
+
+    key: str
+    title: str
+    radius_range: RadiusRange
+    frames: int
+    quick_frames: int
+    render: Callable[[int], RenderedScene]
+    board_pattern: tuple[int, int] | None = None
+
+
+def _scene(**fields: Any) -> Callable[[int], RenderedScene]:
+    config = SceneConfig(**fields)
+    return lambda seed: render_scene(config, seed)
+
+
+_BASE = {"radius_px": (6.0, 40.0), "blur_sigma_px": (0.5, 1.5), "noise_sigma_dn": (0.0, 4.0),
+         "max_tilt_deg": 60.0}
+_CLUTTER = {"illumination_strength": 1.0, "n_shadows": 4}
+#: Square sides of the rendered chessboards before tilt, px.
+BOARD_SQUARE_PX = (24.0, 44.0)
+#: Largest out-of-plane tilt of the rendered chessboards, degrees.
+BOARD_MAX_TILT_DEG = 50.0
+
+
+def render_board_frame(seed: int) -> RenderedScene:
+    """A 10 x 10 inner-corner chessboard under random perspective, 1280 x 960, exact truth.
+
+    Draws square size, rotation, tilt (up to :data:`BOARD_MAX_TILT_DEG`), blur
+    (0.5-1.5 px) and noise (0-4 DN); redraws when the board leaves the frame.
+    """
+    rng = np.random.default_rng(seed)
+    for _ in range(50):
+        square = float(rng.uniform(*BOARD_SQUARE_PX))
+        try:
+            return render_checkerboard(
+                (960, 1280), (10, 10), square,
+                centre=(float(rng.uniform(560, 720)), float(rng.uniform(400, 560))),
+                rotation_rad=float(rng.uniform(0, np.pi)),
+                tilt_deg=float(rng.uniform(0, BOARD_MAX_TILT_DEG)),
+                tilt_axis_rad=float(rng.uniform(0, np.pi)),
+                blur_sigma_px=float(rng.uniform(0.5, 1.5)),
+                noise_sigma_dn=float(rng.uniform(0.0, 4.0)),
+                gamma=float(rng.uniform(0.8, 1.25)),
+                seed=rng,
+            )
+        except ConfigError:
+            continue
+    raise ConfigError(f"no chessboard pose fits the frame for seed {seed}")
+
+
+def families() -> list[Family]:
+    """The scenario families of issue 6, in table order."""
+    return [
+        Family("a", "(a) radius 6-40 px, blur 0.5-1.5, noise <= 4 DN, tilt <= 60 deg, 1280x960",
+               (6.0, 40.0), 8, 2, _scene(**_BASE)),
+        Family("b", "(b) tiny markers, radius 2.5-5 px (otherwise as (a)), 24 per frame",
+               (2.5, 5.0), 6, 1, _scene(**{**_BASE, "radius_px": (2.5, 5.0), "n_markers": 24})),
+        Family("c", "(c) motion blur 0-4 px (otherwise as (a))",
+               (6.0, 40.0), 6, 1, _scene(**_BASE, motion_blur_px=(0.0, 4.0))),
+        Family("d", "(d) cluttered 1280x960: 150 hard negatives, strong light gradient, 4 shadows",
+               (6.0, 40.0), 6, 1, _scene(**_BASE, **_CLUTTER, n_hard_negatives=150)),
+        Family("d", "(d) cluttered 4096x3000: 400 hard negatives, strong light gradient, "
+               "4 shadows, 24 markers",
+               (6.0, 40.0), 2, 1, _scene(**_BASE, **_CLUTTER, width=4096, height=3000,
+                                         n_markers=24, n_hard_negatives=400)),
+        Family("e", "(e) chessboards 10x10 inner corners, squares 24-44 px, tilt <= 50 deg",
+               BOARD_SQUARE_PX, 6, 1, render_board_frame, board_pattern=(10, 10)),
+    ]
+
+
+# --------------------------------------------------------------------------- evaluation
+
+@dataclass
+class Row:
+    """One detector's totals in one table.
+
+    Attributes:
+        name: detector label.
+        tally: recall / FP / error totals.
+        refiner: True for a refinement-only peer (no FP figure).
+        extra: further figures of real-data tables, by column name.
+    """
+
+    name: str
+    tally: DetectionTally = field(default_factory=DetectionTally)
+    refiner: bool = False
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+def _timed_detect(detector: PointDetector, image: np.ndarray,
+                  radius_range: RadiusRange) -> tuple[np.ndarray, float]:
+    start = time.perf_counter()
+    points = detector.detect(image, radius_range)
+    return points, time.perf_counter() - start
+
+
+def _sigmas(detector: PointDetector) -> np.ndarray | None:
+    return detector.last_sigmas if isinstance(detector, OurDetector) else None
+
+
+def subpix_starts(truth: np.ndarray, rng: np.random.Generator,
+                  max_offset_px: float = SUBPIX_START_PX) -> np.ndarray:
+    """Truth moved by a random offset: direction uniform, length uniform in [0, max] px."""
+    angle = rng.uniform(0.0, 2.0 * np.pi, len(truth))
+    length = rng.uniform(0.0, max_offset_px, len(truth))
+    return truth + np.column_stack([np.cos(angle), np.sin(angle)]) * length[:, None]
+
+
+def evaluate_family(family: Family, n_frames: int, seed: int,
+                    detectors: Sequence[PointDetector]) -> list[Row]:
+    """Render ``n_frames`` of a family and score every detector and cornerSubPix on them.
+
+    Args:
+        family: what to render.
+        n_frames: frames to render (seeds ``seed * 1000 + i``).
+        seed: base seed.
+        detectors: point detectors to score (ours and peers).
+
+    Returns:
+        One :class:`Row` per detector, then the cornerSubPix row, then the
+        board peers' rows for chessboard families.
+    """
+    board = peers.board_detectors(family.board_pattern) if family.board_pattern else []
+    everyone = [*detectors, *board]
+    rows = {d.name: Row(d.name) for d in everyone}
+    refiner = peers.CornerSubPixRefiner(peers.subpix_half_window(family.radius_range))
+    refiner_row = Row(f"{refiner.name} (start <= 1 px)", refiner=True)
+    rng = np.random.default_rng(seed)
+    for i in range(n_frames):
+        scene = family.render(seed * 1000 + i)
+        truth = scene.centres
+        for detector in everyone:
+            points, seconds = _timed_detect(detector, scene.image, family.radius_range)
+            rows[detector.name].tally.add(metrics.match_points(points, truth), _sigmas(detector),
+                                          seconds)
+        start = time.perf_counter()
+        refined = refiner.refine(scene.image, subpix_starts(truth, rng))
+        refiner_row.tally.add(metrics.match_points(refined, truth),
+                              seconds=time.perf_counter() - start)
+    ordered = [rows[d.name] for d in detectors]
+    return [*ordered, refiner_row, *(rows[d.name] for d in board)]
+
+
+# --------------------------------------------------------------------------- real images
+
+def evaluate_boards(images: Sequence[real_data.BoardImage], detectors: Sequence[PointDetector],
+                    radius_range: RadiusRange) -> list[Row]:
+    """Score detectors on real chessboards against their reference corners.
+
+    Figures per detector (``Row.extra``): ``boards_complete`` (share of boards
+    with every reference corner found), ``t1_max`` / ``t1_mean`` / ``t1_fine``
+    (the paper's Table 1: deviation from OpenCV's refined corners, px, and share
+    within 0.1 px), ``line_rms`` / ``spacing_rms`` (row/column residuals, px) and
+    ``line_points``. ``Row.tally`` holds recall against the reference corners.
+    """
+    rows = []
+    for detector in detectors:
+        row = Row(detector.name)
+        complete, boards, t1_errors = 0, 0, []
+        residuals: list[LineResiduals] = []
+        for item in images:
+            points, seconds = _timed_detect(detector, item.image, radius_range)
+            row.tally.add(metrics.match_points(points, item.reference), seconds=seconds)
+            t1_errors.append(metrics.match_points(points, item.opencv).errors_px)
+            for grid in item.boards:
+                placed = metrics.grid_positions(grid, points)
+                complete += int(np.isfinite(placed).all())
+                boards += 1
+                residuals.append(metrics.line_residuals(placed))
+        row.extra = _board_figures(complete, boards, t1_errors, residuals)
+        rows.append(row)
+    return rows
+
+
+def _board_figures(complete: int, boards: int, t1_errors: list[np.ndarray],
+                   residuals: list[LineResiduals]) -> dict[str, float]:
+    t1 = metrics.ErrorStats.from_errors(np.concatenate(t1_errors) if t1_errors else [])
+    pooled = metrics.pool_line_residuals(residuals)
+    return {
+        "boards_complete": complete / boards if boards else math.nan,
+        "t1_max": t1.max, "t1_mean": t1.mean, "t1_fine": t1.within_fine,
+        "line_rms": pooled.straight_rms_px, "spacing_rms": pooled.spacing_rms_px,
+        "line_points": float(pooled.n_points),
+    }
+
+
+def reference_residual_row(images: Sequence[real_data.BoardImage], label: str) -> Row:
+    """Row/column residuals of the reference grids themselves (hand clicks or OpenCV)."""
+    row = Row(label)
+    pooled = metrics.pool_line_residuals([metrics.line_residuals(g) for item in images
+                                          for g in item.boards])
+    row.extra = {"line_rms": pooled.straight_rms_px, "spacing_rms": pooled.spacing_rms_px,
+                 "line_points": float(pooled.n_points)}
+    return row
+
+
+def evaluate_uas(frames: Sequence[real_data.UasFrame], detectors: Sequence[PointDetector],
+                 radius_range: RadiusRange) -> list[Row]:
+    """Score detectors on the cirn_uas frames: both targets found, false positives.
+
+    ``Row.extra``: ``both_found`` (share of frames with both targets within
+    6 px), ``found_1`` / ``found_2`` (share per target), ``fp_per_frame``
+    (detections farther than 10 px from both), ``seconds``.
+    """
+    rows = []
+    for detector in detectors:
+        found = np.zeros((len(frames), 2), bool)
+        false_positives, seconds = 0, 0.0
+        for i, frame in enumerate(frames):
+            points, dt = _timed_detect(detector, frame.image, radius_range)
+            seconds += dt
+            to_target = metrics.nearest_distances(real_data.CIRN_TARGETS, points)
+            found[i] = to_target <= real_data.CIRN_FOUND_PX
+            false_positives += int(
+                (metrics.nearest_distances(points, real_data.CIRN_TARGETS)
+                 > real_data.CIRN_FALSE_PX).sum())
+        n = max(len(frames), 1)
+        rows.append(Row(detector.name, extra={
+            "both_found": float(found.all(axis=1).mean()) if len(frames) else math.nan,
+            "found_1": float(found[:, 0].mean()) if len(frames) else math.nan,
+            "found_2": float(found[:, 1].mean()) if len(frames) else math.nan,
+            "fp_per_frame": false_positives / n, "seconds": seconds / n,
+        }))
+    return rows
+
+
+# --------------------------------------------------------------------------- tables
+
+def _fmt(value: float, digits: int = 3) -> str:
+    return "-" if value is None or not np.isfinite(value) else f"{value:.{digits}f}"
+
+
+def _pct(value: float) -> str:
+    return "-" if not np.isfinite(value) else f"{100.0 * value:.1f}%"
+
+
+def family_table(title: str, rows: Sequence[Row]) -> str:
+    """Format a rendered family's table (errors in px)."""
+    ours = next((r.tally.stats.mean for r in rows if r.name == REFERENCE_ROW), math.nan)
+    header = (f"{'detector':<34}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'RMS':>8}{'p95':>8}"
+              f"{'max':>8}{'<=0.1':>8}{'in 2sig':>8}{'peer/ours':>10}{'s/frame':>9}")
+    lines = [title, header, "-" * len(header)]
+    for row in rows:
+        t, s = row.tally, row.tally.stats
+        ratio = s.mean / ours if row.name != REFERENCE_ROW and ours > 0 else math.nan
+        lines.append(
+            f"{row.name:<34}{_pct(t.recall):>8}"
+            f"{'-' if row.refiner else _fmt(t.fp_per_frame, 2):>8}"
+            f"{_fmt(s.mean):>8}{_fmt(s.rms):>8}{_fmt(s.p95):>8}{_fmt(s.max):>8}"
+            f"{_pct(s.within_fine):>8}{_pct(t.within_two_sigma):>8}{_fmt(ratio, 2):>10}"
+            f"{_fmt(t.seconds / max(t.frames, 1), 2):>9}")
+    return "\n".join(lines)
+
+
+def boards_table(title: str, rows: Sequence[Row]) -> str:
+    """Format a real chessboard set's table (errors and residuals in px)."""
+    header = (f"{'detector':<34}{'recall':>8}{'boards':>8}{'T1 max':>8}{'T1 mean':>8}"
+              f"{'T1<=0.1':>8}{'line':>8}{'spacing':>8}{'points':>7}{'s/img':>7}")
+    lines = [title, header, "-" * len(header)]
+    for row in rows:
+        e, t = row.extra, row.tally
+        lines.append(
+            f"{row.name:<34}{_pct(t.recall):>8}{_pct(e.get('boards_complete', math.nan)):>8}"
+            f"{_fmt(e.get('t1_max', math.nan), 2):>8}{_fmt(e.get('t1_mean', math.nan)):>8}"
+            f"{_pct(e.get('t1_fine', math.nan)):>8}{_fmt(e['line_rms']):>8}"
+            f"{_fmt(e['spacing_rms']):>8}{int(e['line_points']):>7}"
+            f"{_fmt(t.seconds / t.frames if t.frames else math.nan, 2):>7}")
+    return "\n".join(lines)
+
+
+def uas_table(title: str, rows: Sequence[Row]) -> str:
+    """Format the cirn_uas table."""
+    header = (f"{'detector':<34}{'both':>8}{'target1':>9}{'target2':>9}{'FP/frame':>10}"
+              f"{'s/frame':>9}")
+    lines = [title, header, "-" * len(header)]
+    for row in rows:
+        e = row.extra
+        lines.append(f"{row.name:<34}{_pct(e['both_found']):>8}{_pct(e['found_1']):>9}"
+                     f"{_pct(e['found_2']):>9}{_fmt(e['fp_per_frame'], 2):>10}"
+                     f"{_fmt(e['seconds'], 2):>9}")
+    return "\n".join(lines)
+
+
+def row_record(row: Row) -> dict[str, Any]:
+    """JSON-ready figures of a row."""
+    t, s = row.tally, row.tally.stats
+    record: dict[str, Any] = {
+        "frames": t.frames, "truth": t.n_truth, "found": t.n_matched,
+        "recall": t.recall, "fp_per_frame": None if row.refiner else t.fp_per_frame,
+        "mean_px": s.mean, "rms_px": s.rms, "p95_px": s.p95, "max_px": s.max,
+        "within_0p1": s.within_fine, "within_2sigma": t.within_two_sigma,
+        "seconds_per_frame": t.seconds / t.frames if t.frames else None,
+    }
+    record.update(row.extra)
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in record.items()}
+
+
+# --------------------------------------------------------------------------- driver
+
+@dataclass(frozen=True)
+class Options:
+    """What one run does (parsed from the command line, or built by tests).
+
+    Attributes:
+        frames: frames per family (None: each family's default, or quick count).
+        quick: small run (a couple of frames per family, a subset of real images).
+        seed: base seed of the rendering and of cornerSubPix's start offsets.
+        families: keys of the families to run (``a``-``e`` and ``real``).
+        curvature: include ``candidate_detector="curvature"``.
+        data_root: the real data folder (None: skip real images).
+    """
+
+    frames: int | None = None
+    quick: bool = False
+    seed: int = 0
+    families: tuple[str, ...] = FAMILY_KEYS
+    curvature: bool = True
+    data_root: Path | None = None
+
+
+def frames_for(family: Family, options: Options) -> int:
+    """Frames to render for a family under these options."""
+    if options.frames is not None:
+        return options.frames
+    return family.quick_frames if options.quick else family.frames
+
+
+def run_synthetic(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
+    """Evaluate the rendered families; report each table as it is done."""
+    detectors: list[PointDetector] = [*peers.our_variants(options.curvature),
+                                      *peers.point_detectors()]
+    results: dict[str, Any] = {}
+    for family in families():
+        if family.key not in options.families:
+            continue
+        rows = evaluate_family(family, frames_for(family, options), options.seed, detectors)
+        frames = rows[0].tally.frames
+        title = (f"Family {family.title}; {frames} frames, {rows[0].tally.n_truth} markers, "
+                 f"radius range given to ours {family.radius_range[0]:g}-"
+                 f"{family.radius_range[1]:g} px")
+        report(family_table(title, rows))
+        results[family.title] = {r.name: row_record(r) for r in rows}
+    return results
+
+
+def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
+    """Evaluate the real sets (chessboards, cirn_uas); report each table as it is done."""
+    root = options.data_root
+    if root is None:
+        report("Real images: ../shared/data not found, skipped.")
+        return {}
+    results: dict[str, Any] = {}
+    limit = 1 if options.quick else None
+    detectors: list[PointDetector] = [*peers.our_variants(options.curvature),
+                                      *peers.point_detectors()]
+    board_sets = {
+        "validationboof": list(real_data.iter_validationboof(root, limit)),
+        "libcbdetect": list(real_data.iter_unlabelled_boards(root, "libcbdetect",
+                                                             2 if options.quick else None)),
+        "pycbd": list(real_data.iter_unlabelled_boards(root, "pycbd", limit)),
+    }
+    for name, images in board_sets.items():
+        rows = evaluate_boards(images, [*detectors, *_real_board_peers(name)],
+                               REAL_RADIUS_RANGES[name])
+        rows.append(reference_residual_row(
+            images, "hand clicks (reference)" if name == "validationboof"
+            else "OpenCV SB boards (reference)"))
+        n_corners = sum(len(i.reference) for i in images)
+        n_boards = sum(len(i.boards) for i in images)
+        report(boards_table(f"Real chessboards: {name}; {len(images)} images, {n_boards} "
+                            f"boards, {n_corners} reference corners; {_real_note(name)}", rows))
+        results[name] = {r.name: row_record(r) for r in rows}
+    frames = list(real_data.iter_cirn_uas(root, limit))
+    rows = evaluate_uas(frames, detectors, REAL_RADIUS_RANGES["cirn_uas"])
+    report(uas_table(f"Real UAV frames: cirn_uas; {len(frames)} frames (3840x2160); targets "
+                     f"found within {real_data.CIRN_FOUND_PX:g} px, FP = farther than "
+                     f"{real_data.CIRN_FALSE_PX:g} px from both; radius range "
+                     f"{_range_text('cirn_uas')}", rows))
+    results["cirn_uas"] = {r.name: row_record(r) for r in rows}
+    return results
+
+
+def _real_board_peers(set_name: str) -> list[PointDetector]:
+    """Board-model peers for a real set: only where the board size is known (ValidationBoof)."""
+    if set_name != "validationboof":
+        return []
+    return peers.board_detectors(real_data.VALIDATIONBOOF_PATTERN)
+
+
+def _range_text(set_name: str) -> str:
+    low, high = REAL_RADIUS_RANGES[set_name]
+    return f"{low:g}-{high:g} px"
+
+
+def _real_note(set_name: str) -> str:
+    if set_name == "validationboof":
+        return (f"reference = hand clicks - 0.5 px; radius range {_range_text(set_name)}; "
+                "mrgingham n/a (square grids only)")
+    return (f"reference = OpenCV findChessboardCornersSB boards (partial: only what it finds); "
+            f"radius range {_range_text(set_name)}")
+
+
+def run(options: Options, report: Callable[[str], None] = print) -> dict[str, Any]:
+    """Run the benchmark; every table goes to ``report``; returns the figures for JSON."""
+    for line in peers.unavailable_peers():
+        report(line)
+    results: dict[str, Any] = {"seed": options.seed, "quick": options.quick}
+    results["synthetic"] = run_synthetic(options, report)
+    if "real" in options.families:
+        results["real"] = run_real(options, report)
+    return results
+
+
+def parse_args(argv: list[str] | None) -> tuple[Options, Path | None]:
+    """Parse the command line into :class:`Options` and the JSON output path."""
+    parser = argparse.ArgumentParser(
+        prog="marker-localizer bench accuracy",
+        description="Accuracy of this detector and its peers on rendered and real images.")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="frames per rendered family (default: per family)")
+    parser.add_argument("--quick", action="store_true", help="small run (< 2 minutes)")
+    parser.add_argument("--seed", type=int, default=0, help="base seed")
+    parser.add_argument("--families", default=",".join(FAMILY_KEYS),
+                        help=f"comma-separated subset of {','.join(FAMILY_KEYS)}")
+    parser.add_argument("--no-curvature", action="store_true",
+                        help="leave out the paper's curvature screening variant")
+    parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
+    args = parser.parse_args(argv)
+    chosen = tuple(k.strip() for k in args.families.split(",") if k.strip())
+    unknown = sorted(set(chosen) - set(FAMILY_KEYS))
+    if unknown:
+        parser.error(f"unknown families {unknown}; choose from {','.join(FAMILY_KEYS)}")
+    options = Options(frames=args.frames, quick=args.quick, seed=args.seed, families=chosen,
+                      curvature=not args.no_curvature, data_root=real_data.data_root())
+    return options, args.json
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point; returns the exit status."""
+    options, json_path = parse_args(argv)
+    start = time.perf_counter()
+
+    def report(text: str) -> None:
+        print(f"\n{text}", flush=True)
+
+    results = run(options, report)
+    elapsed = time.perf_counter() - start
+    print(f"\naccuracy benchmark finished in {elapsed:.0f} s", flush=True)
+    if json_path is not None:
+        results["elapsed_s"] = elapsed
+        json_path.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,415 @@
+"""Speed benchmark: full-frame detection time and memory, ours against peers, on one core.
+
+``marker-localizer bench speed`` (or ``python -m marker_localizer.bench.speed``)
+renders three cluttered 4096 x 3000 frames once (24 markers of radius 6-40 px,
+400 hard negatives, strong light gradient, shadows: the accuracy benchmark's
+family (d)), then runs every subject in a fresh subprocess on those same frames:
+
+* this detector (default ``refinement="symmetry"``, and ``"ncc"``; radius range
+  6-40 px), with its per-stage times from ``DetectionResult.timings_ms``;
+* the OpenCV Hessian-saddle + cornerSubPix detector and chess-corners (ChESS,
+  Radon) from :mod:`marker_localizer.bench.peers`;
+* a tracking-mode row once ``marker_localizer.core.tracking.Tracker`` exists
+  (see :func:`tracker_class`); skipped until then.
+
+Each subprocess runs with ``OMP_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS`` /
+``MKL_NUM_THREADS`` = 1 set before numpy loads and ``cv2.setNumThreads(1)``: the
+"one core" figure. Times are the median and 95th percentile over every
+(frame, repeat) pair, after one untimed warm-up detection per frame.
+
+Peak memory: in the fresh subprocess, after the frames are loaded and the
+detector is built, the kernel's peak-RSS mark is reset (``/proc/self/clear_refs``)
+and the warm-up detections run; the growth is VmHWM after minus VmRSS before:
+the detector's peak working memory, whole process (numpy, OpenCV and native
+allocations alike). Where the mark cannot be reset it falls back to the growth
+of ``resource.getrusage(RUSAGE_SELF).ru_maxrss``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: Subjects in table order, by the short key ``--subjects`` takes; "ours (symmetry)"
+#: is the row every ratio divides by.
+SUBJECTS = {
+    "symmetry": "ours (symmetry)",
+    "ncc": "ours (ncc, paper)",
+    "tracking": "ours (tracking)",
+    "hessian": "OpenCV Hessian+cornerSubPix",
+    "chess": "chess-corners chess",
+    "radon": "chess-corners radon",
+}
+REFERENCE_SUBJECT = "ours (symmetry)"
+#: The issue's targets for the "one core" figure.
+TARGET_MEDIAN_MS = 200.0
+TARGET_RATIO_TO_HESSIAN = 0.5
+#: Marker radius range given to our detector and the peers, px (family (d)).
+RADIUS_RANGE = (6.0, 40.0)
+FRAME_WIDTH, FRAME_HEIGHT = 4096, 3000
+_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                     "NUMEXPR_NUM_THREADS")
+_WORKER_TIMEOUT_S = 1800
+
+
+def render_frames(n_frames: int, seed: int) -> list[np.ndarray]:
+    """Render the cluttered 4096 x 3000 frames every subject is timed on (uint8)."""
+    from marker_localizer.synthetic import SceneConfig, render_scene  # noqa: PLC0415
+
+    config = SceneConfig(width=FRAME_WIDTH, height=FRAME_HEIGHT, n_markers=24,
+                         radius_px=RADIUS_RANGE, blur_sigma_px=(0.5, 1.5),
+                         noise_sigma_dn=(0.0, 4.0), max_tilt_deg=60.0,
+                         n_hard_negatives=400, illumination_strength=1.0, n_shadows=4)
+    return [render_scene(config, seed * 1000 + i).image for i in range(n_frames)]
+
+
+def tracker_class() -> Any | None:
+    """The tracker class, once it exists; None until then.
+
+    The hook expects ``marker_localizer.core.tracking.Tracker(config)`` with
+    ``track(image) -> DetectionResult``: the first call detects on the full
+    frame, later calls search around the previous markers.
+    """
+    try:
+        module = importlib.import_module("marker_localizer.core.tracking")
+    except ImportError:
+        return None
+    return getattr(module, "Tracker", None)
+
+
+# --------------------------------------------------------------------------- worker side
+
+def _make_subject(name: str) -> Callable[[np.ndarray], dict[str, float]]:
+    """Build a subject: image -> its stage timings in ms (empty for peers)."""
+    from marker_localizer.bench import peers  # noqa: PLC0415 - after the thread settings
+
+    if name.startswith("ours"):
+        if name == "ours (tracking)":
+            return _make_tracking_subject()
+        variant = next(v for v in peers.our_variants() if v.name == name)
+        detector = variant.detector(RADIUS_RANGE)
+        return lambda image: dict(detector.detect(image).timings_ms)
+    chosen = next(p for p in peers.point_detectors() if p.name == name)
+
+    def run_peer(image: np.ndarray) -> dict[str, float]:
+        chosen.detect(image, RADIUS_RANGE)
+        return {}
+
+    return run_peer
+
+
+def _make_tracking_subject() -> Callable[[np.ndarray], dict[str, float]]:
+    """Tracking mode: each call moves the frame by 1 px and tracks (first call: full detect)."""
+    from marker_localizer.config import DetectorConfig  # noqa: PLC0415
+
+    tracker_type = tracker_class()
+    if tracker_type is None:
+        raise ImportError("marker_localizer.core.tracking.Tracker is not available")
+    tracker = tracker_type(DetectorConfig(marker_radius_min_px=RADIUS_RANGE[0],
+                                          marker_radius_max_px=RADIUS_RANGE[1]))
+    step = [0]
+
+    def track(image: np.ndarray) -> dict[str, float]:
+        step[0] += 1
+        return dict(tracker.track(np.roll(image, step[0], axis=1)).timings_ms)
+
+    return track
+
+
+@dataclass
+class WorkerResult:
+    """What one subject's subprocess measured.
+
+    Attributes:
+        name: subject.
+        times_ms: wall time of every timed detection, ms.
+        stages_ms: per-stage times of every timed detection (ours only), ms.
+        rss_growth_mb: peak RSS growth around the warm-up detections, MiB.
+        error: why the subject could not run ("" when it ran).
+    """
+
+    name: str
+    times_ms: list[float] = field(default_factory=list)
+    stages_ms: list[dict[str, float]] = field(default_factory=list)
+    rss_growth_mb: float = float("nan")
+    error: str = ""
+
+
+def _max_rss_mb() -> float:
+    """Peak resident set size of this process so far, MiB (Linux reports KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _status_mb(key: str) -> float:
+    """A ``/proc/self/status`` memory figure (``VmRSS``, ``VmHWM``), MiB; NaN if unreadable."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(f"{key}:"):
+                return float(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
+def _reset_peak_rss() -> bool:
+    """Reset the kernel's peak-RSS mark (VmHWM) to the current RSS; False where unsupported."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        return False
+    return True
+
+
+def peak_growth_mb(work: Callable[[], object]) -> float:
+    """Peak RSS growth while ``work`` runs, MiB.
+
+    With a resettable peak (Linux >= 4.0): VmHWM after minus VmRSS before, after
+    resetting VmHWM, so earlier peaks (imports, loading) do not hide it.
+    Elsewhere: growth of ``ru_maxrss``, which misses peaks below earlier ones.
+    """
+    if _reset_peak_rss():
+        before = _status_mb("VmRSS")
+        work()
+        return _status_mb("VmHWM") - before
+    before = _max_rss_mb()
+    work()
+    return _max_rss_mb() - before
+
+
+def measure(name: str, frames: Sequence[np.ndarray], repeats: int) -> WorkerResult:
+    """Time one subject on the frames (in this process): warm-up, memory, repeats."""
+    import cv2  # noqa: PLC0415
+
+    cv2.setNumThreads(1)
+    result = WorkerResult(name)
+    try:
+        subject = _make_subject(name)
+    except ImportError as err:
+        result.error = str(err)
+        return result
+    result.rss_growth_mb = peak_growth_mb(lambda: [subject(frame) for frame in frames])
+    for _ in range(repeats):
+        for frame in frames:
+            start = time.perf_counter()
+            stages = subject(frame)
+            result.times_ms.append((time.perf_counter() - start) * 1000.0)
+            if stages:
+                result.stages_ms.append(stages)
+    return result
+
+
+def worker_main(name: str, frames_path: Path, repeats: int) -> int:
+    """Subprocess entry: load the frames, measure one subject, print its JSON on stdout."""
+    with np.load(frames_path) as archive:
+        frames = [archive[key] for key in sorted(archive.files)]
+    result = measure(name, frames, repeats)
+    print(json.dumps(result.__dict__))
+    return 0
+
+
+# --------------------------------------------------------------------------- driver side
+
+def single_thread_env() -> dict[str, str]:
+    """This process's environment with every BLAS/OpenMP pool limited to one thread."""
+    env = dict(os.environ)
+    env.update(dict.fromkeys(_THREAD_VARIABLES, "1"))
+    return env
+
+
+def run_subject(name: str, frames_path: Path, repeats: int) -> WorkerResult:
+    """Measure one subject in a fresh single-threaded subprocess."""
+    command = [sys.executable, "-m", "marker_localizer.bench.speed", "--worker", name,
+               "--frames-file", str(frames_path), "--repeats", str(repeats)]
+    done = subprocess.run(command, capture_output=True, text=True, env=single_thread_env(),
+                          check=False, timeout=_WORKER_TIMEOUT_S)
+    if done.returncode != 0:
+        tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
+        return WorkerResult(name, error=f"worker failed: {tail}")
+    return WorkerResult(**json.loads(done.stdout.strip().splitlines()[-1]))
+
+
+def available_subjects(include_ncc: bool = True) -> list[str]:
+    """Subjects that can run here, in table order."""
+    from marker_localizer.bench import peers  # noqa: PLC0415
+
+    names = [REFERENCE_SUBJECT]
+    if include_ncc:
+        names.append("ours (ncc, paper)")
+    if tracker_class() is not None:
+        names.append("ours (tracking)")
+    return names + [p.name for p in peers.point_detectors()]
+
+
+def _median(values: Sequence[float]) -> float:
+    return float(np.median(values)) if len(values) else float("nan")
+
+
+def _p95(values: Sequence[float]) -> float:
+    return float(np.percentile(values, 95)) if len(values) else float("nan")
+
+
+def stage_medians(stages: Sequence[dict[str, float]]) -> dict[str, float]:
+    """Median time of every stage over the runs, ms, in the pipeline's order."""
+    names = list(stages[0]) if stages else []
+    return {stage: _median([s.get(stage, float("nan")) for s in stages]) for stage in names}
+
+
+def speed_table(results: Sequence[WorkerResult]) -> str:
+    """Format the timing table (ms, MiB) with ratios ours / peer."""
+    ours = next((_median(r.times_ms) for r in results if r.name == REFERENCE_SUBJECT),
+                float("nan"))
+    header = (f"{'subject':<32}{'median ms':>11}{'p95 ms':>10}{'runs':>6}{'RSS +MiB':>10}"
+              f"{'ours/peer':>11}")
+    lines = [header, "-" * len(header)]
+    for r in results:
+        if r.error:
+            lines.append(f"{r.name:<32}  not run: {r.error}")
+            continue
+        median = _median(r.times_ms)
+        ratio = ours / median if r.name != REFERENCE_SUBJECT and median > 0 else float("nan")
+        lines.append(f"{r.name:<32}{median:>11.1f}{_p95(r.times_ms):>10.1f}"
+                     f"{len(r.times_ms):>6}{r.rss_growth_mb:>10.1f}"
+                     f"{'-' if not np.isfinite(ratio) else f'{ratio:.2f}':>11}")
+    return "\n".join(lines)
+
+
+def stages_table(results: Sequence[WorkerResult]) -> str:
+    """Format the per-stage medians of our variants, ms."""
+    ours = [r for r in results if r.stages_ms]
+    if not ours:
+        return ""
+    stages = list(stage_medians(ours[0].stages_ms))
+    header = f"{'stage (median ms)':<20}" + "".join(f"{r.name:>22}" for r in ours)
+    lines = [header, "-" * len(header)]
+    for stage in stages:
+        cells = "".join(f"{stage_medians(r.stages_ms).get(stage, float('nan')):>22.1f}"
+                        for r in ours)
+        lines.append(f"{stage:<20}{cells}")
+    return "\n".join(lines)
+
+
+def verdict(results: Sequence[WorkerResult]) -> str:
+    """One line on the issue's two targets (median <= 200 ms; <= 0.5x the Hessian peer)."""
+    by_name = {r.name: _median(r.times_ms) for r in results if not r.error}
+    ours = by_name.get(REFERENCE_SUBJECT, float("nan"))
+    hessian = by_name.get("OpenCV Hessian+cornerSubPix", float("nan"))
+    return (f"targets: median {ours:.0f} ms (target <= {TARGET_MEDIAN_MS:.0f} ms: "
+            f"{'met' if ours <= TARGET_MEDIAN_MS else 'missed'}); ours/Hessian "
+            f"{ours / hessian:.2f} (target <= {TARGET_RATIO_TO_HESSIAN}: "
+            f"{'met' if ours / hessian <= TARGET_RATIO_TO_HESSIAN else 'missed'})")
+
+
+@dataclass(frozen=True)
+class Options:
+    """What one run measures.
+
+    Attributes:
+        frames: rendered frames (all subjects use the same ones).
+        repeats: timed passes over the frames per subject.
+        seed: rendering seed.
+        subjects: subjects to run (None: every available one).
+    """
+
+    frames: int = 3
+    repeats: int = 3
+    seed: int = 0
+    subjects: tuple[str, ...] | None = None
+
+
+def run(options: Options, report: Callable[[str], None] = print) -> dict[str, Any]:
+    """Render once, measure every subject in its own subprocess, report the tables."""
+    from marker_localizer.bench import peers  # noqa: PLC0415
+
+    for line in peers.unavailable_peers():
+        report(line)
+    if tracker_class() is None:
+        report("ours (tracking): skipped, marker_localizer.core.tracking.Tracker does not exist")
+    names = list(options.subjects) if options.subjects else available_subjects()
+    frames = render_frames(options.frames, options.seed)
+    with tempfile.TemporaryDirectory() as folder:
+        frames_path = Path(folder) / "frames.npz"
+        np.savez(frames_path, **{f"frame{i:02d}": f for i, f in enumerate(frames)})
+        results = [run_subject(name, frames_path, options.repeats) for name in names]
+    report(f"Full-frame detection, {options.frames} rendered {FRAME_WIDTH}x{FRAME_HEIGHT} "
+           f"cluttered frames x {options.repeats} repeats, one core (cv2.setNumThreads(1), "
+           f"OMP/OPENBLAS/MKL threads = 1), radius range {RADIUS_RANGE[0]:g}-"
+           f"{RADIUS_RANGE[1]:g} px; RSS + = peak RSS growth (VmHWM) in a fresh subprocess")
+    report(speed_table(results))
+    stages = stages_table(results)
+    if stages:
+        report(stages)
+    report(verdict(results))
+    return {"frames": options.frames, "repeats": options.repeats, "seed": options.seed,
+            "subjects": {r.name: {"median_ms": _median(r.times_ms), "p95_ms": _p95(r.times_ms),
+                                  "times_ms": r.times_ms, "rss_growth_mb": r.rss_growth_mb,
+                                  "stages_median_ms": stage_medians(r.stages_ms),
+                                  "error": r.error} for r in results}}
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """Parse the command line (the driver's options and the hidden worker ones)."""
+    parser = argparse.ArgumentParser(
+        prog="marker-localizer bench speed",
+        description="Full-frame detection time on one core: ours against peers.")
+    parser.add_argument("--frames", type=int, default=3, help="rendered frames (default 3)")
+    parser.add_argument("--repeats", type=int, default=None,
+                        help="timed passes over the frames (default 3; 1 with --quick)")
+    parser.add_argument("--quick", action="store_true",
+                        help="one timed pass, no ncc variant (< 2 minutes)")
+    parser.add_argument("--seed", type=int, default=0, help="rendering seed")
+    parser.add_argument("--families", default=None,
+                        help="accepted for symmetry with the accuracy benchmark; "
+                             "speed always uses family (d) 4096x3000")
+    parser.add_argument("--subjects", default=None,
+                        help=f"comma-separated subset of {','.join(SUBJECTS)}")
+    parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
+    parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--frames-file", type=Path, default=None, help=argparse.SUPPRESS)
+    return parser.parse_args(argv)
+
+
+def options_from(args: argparse.Namespace) -> Options:
+    """Turn parsed arguments into :class:`Options`."""
+    repeats = args.repeats if args.repeats is not None else (1 if args.quick else 3)
+    subjects = None
+    if args.subjects:
+        keys = [key.strip() for key in args.subjects.split(",") if key.strip()]
+        unknown = sorted(set(keys) - set(SUBJECTS))
+        if unknown:
+            raise SystemExit(f"unknown subjects {unknown}; choose from {','.join(SUBJECTS)}")
+        subjects = tuple(SUBJECTS[key] for key in keys)
+    elif args.quick:
+        subjects = tuple(available_subjects(include_ncc=False))
+    return Options(frames=args.frames, repeats=repeats, seed=args.seed, subjects=subjects)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point; returns the exit status."""
+    args = parse_args(argv)
+    if args.worker is not None:
+        return worker_main(args.worker, args.frames_file, args.repeats or 1)
+    start = time.perf_counter()
+    results = run(options_from(args), lambda text: print(f"\n{text}", flush=True))
+    elapsed = time.perf_counter() - start
+    print(f"\nspeed benchmark finished in {elapsed:.0f} s", flush=True)
+    if args.json is not None:
+        results["elapsed_s"] = elapsed
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
