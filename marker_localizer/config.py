@@ -130,6 +130,13 @@ class DetectorConfig:
         "response, which keeps 3 px markers that binarised contours lose.",
         choices=("saddle", "curvature"),
     )
+    saddle_threshold: float = _param(
+        1.5,
+        "Saddle screening keeps Hessian saddles stronger than this multiple of what an "
+        "X of contrast min_contrast_dn blurred by 1.5 px gives. On the renderer every "
+        "marker scored above 2.3 (3-5 px markers) and 3.2 (6-40 px, motion blur).",
+        low=0.05, high=20.0,
+    )
     curvature_threshold_std: float = _param(
         3.0,
         "Dual threshold of the curvature screening: a peak must exceed the mean "
@@ -178,6 +185,14 @@ class DetectorConfig:
         unit="DN",
         low=0.0,
         high=255.0,
+    )
+    min_modulation: float = _param(
+        0.3,
+        "Minimum modulation (bright - dark) / (bright + dark) of the raw sector grey "
+        "levels, which illumination does not change. Printed black and white give "
+        "0.7-0.8, partly shadowed markers on the renderer kept 0.31 and more, "
+        "ground-texture saddles (gravel gaps) stayed below 0.38 and mostly below 0.3.",
+        low=0.0, high=1.0,
     )
     min_extent_fraction: float = _param(
         0.7,

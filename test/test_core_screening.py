@@ -31,11 +31,17 @@ def _x_frame(x: float, y: float, radius: float, shape=(160, 200)) -> np.ndarray:
 def test_saddle_candidates_find_small_and_large_markers_within_a_pixel():
     image = _x_frame(50.3, 60.7, 4.0) + _x_frame(140.2, 90.4, 30.0) - 0.45
     found = screening.saddle_candidates(
-        np.clip(image, 0, 1), (3.0, 40.0), contrast_floor=0.03, threshold=0.1
+        np.clip(image, 0, 1).astype(np.float32), (3.0, 40.0), min_contrast=20 / 255
     )
-    for truth in ([50.3, 60.7], [140.2, 90.4]):
-        nearest = np.linalg.norm(found.xy - truth, axis=1).min()
-        assert nearest < 1.0 * (4 if truth[0] > 100 else 1)
+    # The small one answers at full resolution, the large one at a coarse level.
+    for truth, tolerance in (([50.3, 60.7], 1.0), ([140.2, 90.4], 4.0)):
+        assert np.linalg.norm(found.xy - truth, axis=1).min() < tolerance
+
+
+def test_saddle_levels_start_at_full_resolution_only_for_small_markers():
+    assert screening.saddle_levels((3.0, 40.0)).start == 0
+    assert screening.saddle_levels((20.0, 80.0)).start == 2
+    assert screening.saddle_levels((3.0, 40.0)).stop >= 4
 
 
 def test_curvature_candidates_put_a_point_near_the_centre_of_an_x():

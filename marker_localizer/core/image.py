@@ -23,16 +23,21 @@ def bit_depth_scale(image: np.ndarray) -> float:
     return float(2**bits - 1)
 
 
-def to_gray_float(image: np.ndarray, *, rgb: bool = False) -> np.ndarray:
-    """Convert a uint8/uint16/float image, grey or colour, to (H, W) float32 in [0, 1].
+def to_gray(image: np.ndarray, *, rgb: bool = False) -> tuple[np.ndarray, float]:
+    """Reduce a grey or colour image to one channel, keeping its dtype.
+
+    The detector samples the frame in its native dtype (a 12-megapixel uint8
+    frame is never copied to float), so this only drops channels and validates.
 
     Args:
-        image: (H, W), (H, W, 1), (H, W, 3) or (H, W, 4) array. Colour is BGR(A)
-            unless ``rgb``. Float images must already be in [0, 1].
+        image: (H, W), (H, W, 1), (H, W, 3) or (H, W, 4) array of uint8, uint16,
+            float32 or float64. Colour is BGR(A) unless ``rgb``. Float images must
+            be in [0, 1].
         rgb: the channels are RGB(A) instead of BGR(A).
 
     Returns:
-        (H, W) float32.
+        (grey, full_scale): the (H, W) image and the value of white in it
+        (see :func:`bit_depth_scale`; 1.0 for float images).
 
     Raises:
         ImageError: empty image, unsupported shape or dtype, non-finite values.
@@ -41,6 +46,8 @@ def to_gray_float(image: np.ndarray, *, rgb: bool = False) -> np.ndarray:
         raise ImageError(f"expected a numpy array, got {type(image).__name__}")
     if image.size == 0:
         raise ImageError(f"empty image (shape {image.shape})")
+    if image.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        raise ImageError(f"unsupported dtype {image.dtype} (expected uint8, uint16 or float)")
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
     if image.ndim == 3:
@@ -48,16 +55,23 @@ def to_gray_float(image: np.ndarray, *, rgb: bool = False) -> np.ndarray:
             raise ImageError(f"unsupported channel count {image.shape[2]} (shape {image.shape})")
         if rgb:
             image = image[:, :, [2, 1, 0, 3][: image.shape[2]]]
-        work = (
-            image if image.dtype in (np.uint8, np.uint16, np.float32) else image.astype(np.float32)
-        )
-        image = cv2.cvtColor(np.ascontiguousarray(work), _CHANNEL_CONVERSIONS[image.shape[2]])
+        if image.dtype == np.float64:
+            image = image.astype(np.float32)
+        image = cv2.cvtColor(np.ascontiguousarray(image), _CHANNEL_CONVERSIONS[image.shape[2]])
     if image.ndim != 2:
         raise ImageError(f"expected a 2-D grey or 3-D colour image, got shape {image.shape}")
-    if image.dtype in (np.uint8, np.uint16):
-        return image.astype(np.float32) / np.float32(bit_depth_scale(image))
-    if image.dtype in (np.float32, np.float64):
+    if image.dtype.kind == "f":
         if not np.isfinite(image).all():
             raise ImageError("image contains NaN or infinite values")
-        return np.clip(image, 0.0, 1.0).astype(np.float32)
-    raise ImageError(f"unsupported dtype {image.dtype} (expected uint8, uint16 or float)")
+        return np.ascontiguousarray(np.clip(image, 0.0, 1.0), dtype=np.float32), 1.0
+    return np.ascontiguousarray(image), bit_depth_scale(image)
+
+
+def to_gray_float(image: np.ndarray, *, rgb: bool = False) -> np.ndarray:
+    """Convert a uint8/uint16/float image, grey or colour, to (H, W) float32 in [0, 1].
+
+    Raises:
+        ImageError: as :func:`to_gray`.
+    """
+    gray, full_scale = to_gray(image, rgb=rgb)
+    return gray.astype(np.float32) / np.float32(full_scale)

@@ -6,7 +6,13 @@ refinement at ~0.03 px; this gathers the four neighbours in numpy instead.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
+
+#: Maps raw samples (N, ...) taken around points (N, 2) to normalised intensities,
+#: e.g. :class:`~marker_localizer.core.preprocessing.LocalGamma`.
+Normaliser = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -59,8 +65,11 @@ def bilinear_with_gradient(
     iy = np.clip(y0, 0, height - 2).astype(np.intp)
     flat = image.reshape(-1)
     base = iy * width + ix
-    v00, v01 = flat[base], flat[base + 1]
-    v10, v11 = flat[base + width], flat[base + width + 1]
+    # Gathered as float64: differences of uint8/uint16 samples would wrap around.
+    v00 = flat[base].astype(np.float64)
+    v01 = flat[base + 1].astype(np.float64)
+    v10 = flat[base + width].astype(np.float64)
+    v11 = flat[base + width + 1].astype(np.float64)
     top = v00 + (v01 - v00) * fx
     bottom = v10 + (v11 - v10) * fx
     d_dx = (v01 - v00) * (1.0 - fy) + (v11 - v10) * fy

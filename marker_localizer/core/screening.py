@@ -55,13 +55,6 @@ def _concat(parts: list[Candidates]) -> Candidates:
     return Candidates(*(np.concatenate([getattr(p, f) for p in parts]) for f in Candidates._fields))
 
 
-def local_maxima(response: np.ndarray, threshold: float, separation_px: float) -> np.ndarray:
-    """Return (N, 2) integer (row, col) of maxima above ``threshold`` with the given spacing."""
-    size = 2 * int(np.ceil(separation_px)) + 1
-    dilated = cv2.dilate(response, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
-    return np.argwhere((response >= dilated) & (response > threshold))
-
-
 def _parabolic_offset(minus: np.ndarray, centre: np.ndarray, plus: np.ndarray) -> np.ndarray:
     """Sub-sample vertex of a parabola through three samples, clipped to half a sample."""
     curvature = minus - 2.0 * centre + plus
@@ -70,86 +63,131 @@ def _parabolic_offset(minus: np.ndarray, centre: np.ndarray, plus: np.ndarray) -
     return np.clip(offset, -0.5, 0.5)
 
 
-def saddle_response(image: np.ndarray, sigma_px: float, contrast_floor: float) -> np.ndarray:
-    """Scale-normalised saddle strength of a diagonal marker at scale ``sigma_px``.
+#: Gain of OpenCV's 5x5 Sobel second-derivative kernels (f_xx, f_yy, f_xy alike):
+#: [1 0 -2 0 1] (4 f'') times the [1 4 6 4 1] smoothing (16).
+_SOBEL5_GAIN = 64.0
+#: Saddle strength of a blurred X per unit contrast: f_xy = C / (pi sigma_t^2) at
+#: its centre, sigma_t^2 = 1 px^2 (the 5x5 kernel's smoothing) + sigma_b^2 (the blur).
+_SADDLE_PER_CONTRAST = 1.0 / np.pi
+#: The optics blur the markers are expected to carry (full-resolution px): at level L
+#: it is 2**L times smaller, so the expected response grows with the level.
+_EXPECTED_BLUR_PX = 1.5
 
-    sqrt(max(-det H, 0)) * sigma^2, with H the Hessian of the image smoothed by
-    ``sigma_px``, divided by the local contrast (2 x local std), so the response
-    is independent of illumination and near 1/(2 pi) at the centre of an ideal X.
+
+def saddle_response(image: np.ndarray) -> np.ndarray:
+    """Squared saddle strength f_xy^2 - f_xx f_yy (= -det H) from 5x5 Sobel derivatives.
+
+    The 5x5 Sobel kernels smooth with a binomial of variance 1 px^2, so no
+    separate Gaussian pass is needed. The response is in the image's own grey
+    units per px^2 (times the kernels' gain), so a threshold in DN of contrast
+    applies directly, with no per-pixel normalisation pass.
 
     Args:
-        image: (H, W) float32 in [0, 1].
-        sigma_px: Gaussian derivative scale.
-        contrast_floor: smallest contrast divided by, so flat noise stays small.
+        image: (H, W) uint8, uint16 or float32 image.
 
     Returns:
-        (H, W) float32 response, 0 where the Hessian is not a saddle.
+        (H, W) float32 response, positive at saddles (squared grey units).
     """
-    smooth = cv2.GaussianBlur(image, (0, 0), sigma_px)
-    dxx = cv2.Sobel(smooth, cv2.CV_32F, 2, 0, ksize=3, scale=0.25)
-    dyy = cv2.Sobel(smooth, cv2.CV_32F, 0, 2, ksize=3, scale=0.25)
-    dxy = cv2.Sobel(smooth, cv2.CV_32F, 1, 1, ksize=3, scale=0.25)
-    saddle = np.sqrt(np.maximum(dxy * dxy - dxx * dyy, 0.0)) * np.float32(sigma_px**2)
-    window = 2 * int(round(2.5 * sigma_px)) + 1
-    contrast = np.maximum(2.0 * local_std(image, window), np.float32(contrast_floor))
-    return saddle / contrast
+    dxx = cv2.Sobel(image, cv2.CV_32F, 2, 0, ksize=5)
+    dyy = cv2.Sobel(image, cv2.CV_32F, 0, 2, ksize=5)
+    dxy = cv2.Sobel(image, cv2.CV_32F, 1, 1, ksize=5)
+    # In place with OpenCV: numpy temporaries would double the passes over 12 MP.
+    cv2.multiply(dxx, dyy, dst=dxx)
+    cv2.multiply(dxy, dxy, dst=dxy)
+    cv2.subtract(dxy, dxx, dst=dxy)
+    return dxy
+
+
+def _sparse_maxima(response: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of 3x3 local maxima above ``threshold``, away from the border.
+
+    Only pixels above the threshold (a small share of a frame) are compared with
+    their eight neighbours, instead of dilating the whole frame.
+    """
+    height, width = response.shape
+    flat_index = np.flatnonzero(response > threshold)
+    rows, cols = np.divmod(flat_index, width)
+    inner = (rows > 0) & (rows < height - 1) & (cols > 0) & (cols < width - 1)
+    flat_index, rows, cols = flat_index[inner], rows[inner], cols[inner]
+    flat = response.reshape(-1)
+    centre = flat[flat_index]
+    is_max = np.ones(len(flat_index), dtype=bool)
+    for offset in (-width - 1, -width, -width + 1, -1, 1, width - 1, width, width + 1):
+        neighbour = flat[flat_index + offset]
+        # Ties go to the first pixel in raster order, so a plateau yields one peak.
+        is_max &= (centre > neighbour) | ((centre == neighbour) & (offset > 0))
+    return rows[is_max], cols[is_max]
+
+
+def saddle_levels(radius_range_px: tuple[float, float]) -> range:
+    """Pyramid levels searched for markers of the given radius range.
+
+    Level L (image reduced by 2**L) answers best to markers of radius ~2-6 px at
+    that level (2**L * (2..6) px in the frame); the first level is the coarsest
+    at which the smallest marker, foreshortened to half its radius by a 60-degree
+    tilt, still spans 2.5 px, so a frame of small markers is searched at full
+    resolution and one of large markers is not.
+    """
+    r_min, r_max = radius_range_px
+    r_min *= 0.5
+    first = max(0, int(np.floor(np.log2(max(r_min, 1.0) / 2.5))))
+    last = max(first, int(np.ceil(np.log2(max(r_max, 1.0) / 6.0))))
+    return range(first, last + 1)
 
 
 def saddle_candidates(
     image: np.ndarray,
     radius_range_px: tuple[float, float],
-    contrast_floor: float,
-    threshold: float = 0.04,
-    separation_px: float = 5.0,
+    min_contrast: float,
+    *,
+    relative_threshold: float = 1.5,
 ) -> Candidates:
     """Saddle points over an image pyramid covering the expected marker radii.
 
-    Level L (image reduced by 2**L with ``cv2.pyrDown``) is searched at sigma 1.2 px,
-    which answers best to markers of radius ~3-6 px at that level. Peaks are
-    refined to sub-sample precision with a parabola per axis.
+    A peak is kept when its response exceeds ``relative_threshold`` times what an
+    X of contrast ``min_contrast`` blurred by 1.5 px would give at that level, so
+    the threshold follows the user's contrast in grey levels. Peaks are refined to
+    sub-sample precision with a parabola per axis.
 
     Args:
-        image: (H, W) float32 in [0, 1] (the preprocessed image).
-        radius_range_px: (min, max) expected marker radius.
-        contrast_floor: see :func:`saddle_response` (intensity units).
-        threshold: minimum normalised response.
-        separation_px: minimum distance between peaks at one level (level pixels).
+        image: (H, W) grey image, native dtype (uint8, uint16 or float32).
+        radius_range_px: (min, max) expected marker radius in the frame.
+        min_contrast: smallest marker contrast, in the image's grey units.
+        relative_threshold: fraction of that expected response kept (tilt, motion
+            and perspective weaken real markers further).
 
     Returns:
-        Candidates in full-resolution coordinates; ``scale_px`` is 4 * 2**L.
+        Candidates in full-resolution coordinates; ``scale_px`` is 4 * 2**L and
+        ``strength`` the response relative to the expected one.
     """
-    r_min, r_max = radius_range_px
-    top_level = max(0, int(np.floor(np.log2(max(r_max, 1.0) / 4.0)) + 1))
-    first_level = max(0, int(np.floor(np.log2(max(r_min, 1.0) / 6.0))))
+    levels = saddle_levels(radius_range_px)
     parts = []
     level_image = image
-    for level in range(top_level + 1):
+    for level in range(levels.stop):
         if level > 0:
-            level_image = cv2.pyrDown(level_image)
-        if level < first_level or min(level_image.shape) < 16:
+            height, width = level_image.shape
+            if min(height, width) < 32:
+                break
+            level_image = cv2.resize(
+                level_image, (width // 2, height // 2), interpolation=cv2.INTER_AREA
+            )
+        if level < levels.start:
             continue
-        response = saddle_response(level_image, 1.2, contrast_floor)
-        peaks = local_maxima(response, threshold, max(1.0, separation_px / 2**level))
-        inner = (
-            (peaks[:, 0] > 0)
-            & (peaks[:, 0] < response.shape[0] - 1)
-            & (peaks[:, 1] > 0)
-            & (peaks[:, 1] < response.shape[1] - 1)
-        )
-        rows, cols = peaks[inner, 0], peaks[inner, 1]
+        blur_sq = (_EXPECTED_BLUR_PX / 2**level) ** 2
+        expected = _SOBEL5_GAIN * _SADDLE_PER_CONTRAST * min_contrast / (1.0 + blur_sq)
+        threshold = relative_threshold * expected
+        response = saddle_response(level_image)
+        rows, cols = _sparse_maxima(response, threshold**2)
         dx = _parabolic_offset(
             response[rows, cols - 1], response[rows, cols], response[rows, cols + 1]
         )
         dy = _parabolic_offset(
             response[rows - 1, cols], response[rows, cols], response[rows + 1, cols]
         )
-        # pyrDown keeps sample i of a level on sample 2**L * i of the full image.
-        xy = np.stack([cols + dx, rows + dy], axis=1).astype(np.float64) * 2**level
-        parts.append(
-            Candidates(
-                xy, response[rows, cols].astype(np.float64), np.full(len(rows), 4.0 * 2**level)
-            )
-        )
+        # INTER_AREA halving maps level coordinate u to full-resolution (u + 0.5) 2**L - 0.5.
+        xy = (np.stack([cols + dx, rows + dy], axis=1) + 0.5) * 2**level - 0.5
+        strength = np.sqrt(response[rows, cols].astype(np.float64)) / expected
+        parts.append(Candidates(xy, strength, np.full(len(rows), 4.0 * 2**level)))
     return _concat(parts)
 
 
@@ -201,7 +239,9 @@ def curvature_candidates(
         keep_fraction: top fraction of the structure map kept.
 
     Returns:
-        Candidates with ``scale_px`` equal to the curvature window.
+        Candidates; ``scale_px`` is 2.5 times the smallest marker radius (at least 8 px):
+        contour corners sit up to a pixel off the centre, so the later stages look
+        around them at that scale.
     """
     r_min, r_max = radius_range_px
     window = 2 * int(2 * r_max) + 1
@@ -228,7 +268,7 @@ def curvature_candidates(
     in_structure = structure[rows, cols] >= s_threshold
     points, kappa = points[in_structure], kappa[in_structure]
     keep = non_maximum_suppression(points, kappa, separation_px)
-    return Candidates(points[keep], kappa[keep], np.full(int(keep.sum()), float(window_px)))
+    return Candidates(points[keep], kappa[keep], np.full(int(keep.sum()), max(8.0, 2.5 * r_min)))
 
 
 def non_maximum_suppression(xy: np.ndarray, strength: np.ndarray, radius_px: float) -> np.ndarray:

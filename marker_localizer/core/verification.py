@@ -17,19 +17,22 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from marker_localizer.core.sampling import bilinear
+from marker_localizer.core.sampling import Normaliser, bilinear
 
 N_ANGLES = 36  # the paper's 10-degree sampling of the annulus
 _HALF_TURN = N_ANGLES // 2
 
 
-def annular_profiles(image: np.ndarray, xy: np.ndarray, radii_px: np.ndarray) -> np.ndarray:
+def annular_profiles(
+    image: np.ndarray, xy: np.ndarray, radii_px: np.ndarray, normalise: Normaliser | None = None
+) -> np.ndarray:
     """Grey levels on rings around each point, every 10 degrees.
 
     Args:
-        image: (H, W) float image.
+        image: (H, W) image (any numeric dtype).
         xy: (N, 2) ring centres.
         radii_px: (J,) ring radii.
+        normalise: applied to each point's samples (e.g. the dynamic gamma).
 
     Returns:
         (N, J, 36) samples; angle k is 10 k degrees from +x towards +y. NaN where
@@ -39,6 +42,8 @@ def annular_profiles(image: np.ndarray, xy: np.ndarray, radii_px: np.ndarray) ->
     x = xy[:, 0, None, None] + radii_px[None, :, None] * np.cos(theta)
     y = xy[:, 1, None, None] + radii_px[None, :, None] * np.sin(theta)
     values, valid = bilinear(image, x, y)
+    if normalise is not None:
+        values = normalise(values, xy)
     return np.where(valid, values, np.nan)
 
 
@@ -144,6 +149,7 @@ def centre_symmetry_check(
     min_symmetry: float,
     max_angle_drift_rad: float = np.deg2rad(15.0),
     max_first_ring: int = 2,
+    normalise: Normaliser | None = None,
 ) -> SymmetryCheck:
     """Annular-scan centre-symmetry check (section 3.2, invariant 1).
 
@@ -161,6 +167,7 @@ def centre_symmetry_check(
         min_symmetry: minimum 180-degree self-correlation.
         max_angle_drift_rad: largest change of a line angle between rings.
         max_first_ring: the run must start at a ring index below this.
+        normalise: applied to the ring samples (contrast is measured after it).
 
     Returns:
         :class:`SymmetryCheck`.
@@ -170,7 +177,7 @@ def centre_symmetry_check(
         return SymmetryCheck(
             np.zeros(0, bool), np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.zeros(0)
         )
-    rings = analyse_rings(annular_profiles(image, xy, radii_px))
+    rings = analyse_rings(annular_profiles(image, xy, radii_px, normalise))
     good = rings.four_sectors & (rings.contrast >= min_contrast) & (rings.symmetry >= min_symmetry)
     first = np.argmax(good[:, :max_first_ring], axis=1)
     has_first = good[np.arange(n), first] & good[:, :max_first_ring].any(axis=1)
@@ -198,8 +205,11 @@ def centre_symmetry_check(
     inner = in_run & (np.cumsum(in_run, axis=1) <= 3)
     score = np.where(accepted, (rings.symmetry * inner).sum(1) / np.maximum(inner.sum(1), 1), 0.0)
     # Outer rings fix the line directions best (more pixels per degree): average the
-    # doubled angles over the run, weighted by ring radius.
-    weight = in_run * radii_px[None, :]
+    # doubled angles over the run, weighted by ring radius. The run's last ring runs
+    # along the marker's own edge (a quarter disk's arc), which bends its boundaries,
+    # so it is left out when the run has more than two rings.
+    outermost = ring_index == last[:, None]
+    weight = (in_run & ~(outermost & (run_length[:, None] > 2))) * radii_px[None, :]
     aligned = np.where(
         (drift_same <= drift_swap)[..., None], rings.line_angles, rings.line_angles[..., ::-1]
     )
@@ -242,13 +252,14 @@ def _segment_intersections(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def double_line_check(
-    image_u8: np.ndarray,
+    image: np.ndarray,
     xy: np.ndarray,
     radius_px: np.ndarray,
     *,
     extend_px: float = 5.0,
     max_distance_px: float = 1.5,
     min_angle_rad: float = np.deg2rad(20.0),
+    normalise: Normaliser | None = None,
 ) -> LineCheck:
     """LSD double-line intersection check, Eq. (9) (section 3.2, invariant 2).
 
@@ -262,12 +273,13 @@ def double_line_check(
     direction suffice.
 
     Args:
-        image_u8: (H, W) uint8 image.
+        image: (H, W) image; uint8 unless ``normalise`` maps it to [0, 1].
         xy: (N, 2) candidate centres.
         radius_px: (N,) marker radii (window half-size).
         extend_px: Delta s of Eq. (9).
         max_distance_px: largest distance of the crossing from the candidate.
         min_angle_rad: smallest angle between the two lines.
+        normalise: applied to each window before LSD (e.g. the dynamic gamma).
 
     Returns:
         :class:`LineCheck`.
@@ -277,14 +289,18 @@ def double_line_check(
     angles = np.full((n, 2), np.nan)
     distance = np.full(n, np.inf)
     lsd = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD)
-    height, width = image_u8.shape
+    height, width = image.shape
     # A loop over candidates (not pixels): each runs LSD on its own small window.
     for k in range(n):
         half = int(np.ceil(max(2.0 * radius_px[k], 6.0)))
         cx, cy = int(round(xy[k, 0])), int(round(xy[k, 1]))
         x0, y0 = max(cx - half, 0), max(cy - half, 0)
         x1, y1 = min(cx + half + 1, width), min(cy + half + 1, height)
-        window = image_u8[y0:y1, x0:x1]
+        window = image[y0:y1, x0:x1]
+        if normalise is not None:
+            window = np.clip(
+                normalise(window[None].astype(np.float64), xy[k : k + 1])[0] * 255.0 + 0.5, 0, 255
+            ).astype(np.uint8)
         upsample = max(1, int(np.ceil(24.0 / max(min(window.shape), 1))))
         if upsample > 1:
             window = cv2.resize(
