@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from marker_localizer.core.preprocessing import box_mean, local_std
+from marker_localizer.core.preprocessing import box_mean
 
 
 class Candidates(NamedTuple):
