@@ -1,0 +1,190 @@
+"""Specification of the benchmark metrics (marker_localizer.bench.metrics) and peer helpers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from marker_localizer.bench import metrics
+from marker_localizer.bench.peers import parse_mrgingham, subpix_half_window
+
+
+def projective_grid(rows: int, cols: int) -> np.ndarray:
+    """A (rows, cols, 2) grid seen through a strong perspective homography, px."""
+    h = np.array([[40.0, 6.0, 100.0], [-3.0, 35.0, 80.0], [2e-3, 1.5e-2, 1.0]])
+    v, u = np.mgrid[:rows, :cols].astype(np.float64)
+    mapped = np.stack([u, v, np.ones_like(u)], axis=-1) @ h.T
+    return mapped[..., :2] / mapped[..., 2:]
+
+
+# --------------------------------------------------------------------------- matching
+
+def test_a_detection_0p3_px_off_has_error_0p3():
+    matching = metrics.match_points(np.array([[10.3, 20.0]]), np.array([[10.0, 20.0]]))
+    assert matching.n_matched == 1
+    assert matching.errors_px[0] == pytest.approx(0.3)
+
+
+def test_a_detection_beyond_the_gate_is_a_false_positive_and_the_truth_is_missed():
+    matching = metrics.match_points(np.array([[50.0, 50.0]]), np.array([[10.0, 10.0]]), 2.0)
+    assert matching.n_matched == 0
+    assert matching.n_false_positives == 1
+    assert matching.unmatched_detections.tolist() == [0]
+
+
+def test_a_second_detection_on_the_same_marker_is_a_false_positive():
+    truth = np.array([[10.0, 10.0]])
+    detections = np.array([[10.5, 10.0], [10.1, 10.0]])
+    matching = metrics.match_points(detections, truth)
+    assert matching.n_matched == 1
+    assert matching.detection_index.tolist() == [1]
+    assert matching.n_false_positives == 1
+
+
+def test_matching_is_one_to_one_and_minimises_the_total_distance():
+    truth = np.array([[0.0, 0.0], [1.5, 0.0]])
+    detections = np.array([[1.0, 0.0], [2.2, 0.0]])
+    matching = metrics.match_points(detections, truth)
+    pairs = dict(zip(matching.truth_index.tolist(), matching.detection_index.tolist(),
+                     strict=True))
+    assert pairs == {0: 0, 1: 1}
+
+
+def test_nan_detections_never_match():
+    matching = metrics.match_points(np.array([[np.nan, np.nan]]), np.array([[0.0, 0.0]]))
+    assert matching.n_matched == 0
+    assert matching.n_false_positives == 1
+
+
+def test_matching_with_no_detections_reports_every_truth_missed():
+    matching = metrics.match_points(np.empty((0, 2)), np.array([[1.0, 1.0], [5.0, 5.0]]))
+    assert (matching.n_matched, matching.n_truth, matching.n_false_positives) == (0, 2, 0)
+
+
+def test_nearest_distances_measures_to_the_closest_target():
+    d = metrics.nearest_distances(np.array([[0.0, 0.0], [10.0, 0.0]]),
+                                  np.array([[3.0, 4.0], [10.0, 1.0]]))
+    np.testing.assert_allclose(d, [5.0, 1.0])
+
+
+# --------------------------------------------------------------------------- statistics
+
+def test_error_stats_of_known_errors():
+    stats = metrics.ErrorStats.from_errors([0.05, 0.1, 0.2, 0.4])
+    assert stats.count == 4
+    assert stats.mean == pytest.approx(0.1875)
+    assert stats.rms == pytest.approx(math.sqrt((0.0025 + 0.01 + 0.04 + 0.16) / 4))
+    assert stats.max == pytest.approx(0.4)
+    assert stats.within_fine == pytest.approx(0.5)
+    assert stats.p95 == pytest.approx(np.percentile([0.05, 0.1, 0.2, 0.4], 95))
+
+
+def test_error_stats_of_nothing_are_nan():
+    stats = metrics.ErrorStats.from_errors([])
+    assert stats.count == 0
+    assert math.isnan(stats.mean)
+
+
+def test_tally_counts_recall_and_false_positives_per_frame():
+    tally = metrics.DetectionTally()
+    truth = np.array([[0.0, 0.0], [10.0, 0.0]])
+    tally.add(metrics.match_points(np.array([[0.1, 0.0], [40.0, 40.0]]), truth))
+    tally.add(metrics.match_points(np.array([[0.0, 0.2], [10.0, 0.1], [80.0, 0.0]]), truth))
+    assert tally.recall == pytest.approx(3 / 4)
+    assert tally.fp_per_frame == pytest.approx(1.0)
+    assert tally.stats.mean == pytest.approx((0.1 + 0.2 + 0.1) / 3)
+
+
+def test_share_within_two_sigma_counts_errors_against_their_own_sigma():
+    errors = np.array([0.01, 0.05, 0.2])
+    sigmas = np.array([0.01, 0.01, 0.2])
+    assert metrics.share_within_sigma(errors, sigmas, 2.0) == pytest.approx(2 / 3)
+
+
+def test_tally_keeps_the_sigma_of_the_matched_detection():
+    tally = metrics.DetectionTally()
+    matching = metrics.match_points(np.array([[90.0, 0.0], [0.03, 0.0]]), np.array([[0.0, 0.0]]))
+    tally.add(matching, sigmas_px=np.array([5.0, 0.01]))
+    assert tally.sigmas_px == [0.01]
+    assert tally.within_two_sigma == 0.0
+
+
+# --------------------------------------------------------------------------- grid geometry
+
+def test_line_residual_of_exactly_collinear_points_is_zero():
+    points = np.array([[0.0, 1.0], [1.0, 3.0], [2.5, 6.0], [4.0, 9.0]])
+    np.testing.assert_allclose(metrics.straight_line_residuals(points), 0.0, atol=1e-12)
+
+
+def test_line_residual_of_a_point_off_the_line_is_its_share_of_the_offset():
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.3], [3.0, 0.0], [4.0, 0.0]])
+    residuals = metrics.straight_line_residuals(points)
+    assert residuals[2] - residuals[0] == pytest.approx(0.3, abs=0.02)
+
+
+def test_a_grid_seen_through_a_homography_has_zero_line_and_spacing_residuals():
+    result = metrics.line_residuals(projective_grid(6, 8))
+    assert result.straight_rms_px == pytest.approx(0.0, abs=1e-9)
+    assert result.spacing_rms_px == pytest.approx(0.0, abs=1e-9)
+    assert result.n_lines == 6 + 8
+
+
+def test_uneven_spacing_along_a_straight_line_shows_in_the_spacing_residual_only():
+    grid = projective_grid(5, 7)
+    grid[2, 3] += 0.2 * (grid[2, 4] - grid[2, 2]) / np.linalg.norm(grid[2, 4] - grid[2, 2])
+    result = metrics.line_residuals(grid[2:3])
+    assert result.straight_rms_px == pytest.approx(0.0, abs=1e-6)
+    assert result.spacing_rms_px > 0.05
+
+
+def test_missing_corners_are_skipped_and_short_lines_do_not_count():
+    grid = projective_grid(3, 5)
+    grid[:, 1:] = np.nan
+    result = metrics.line_residuals(grid)
+    assert result.n_lines == 1  # only the first column keeps three points
+
+
+def test_pooled_residuals_weight_boards_by_their_points():
+    a = metrics.LineResiduals(1.0, 1.0, 30, 3)
+    b = metrics.LineResiduals(0.0, 0.0, 10, 1)
+    pooled = metrics.pool_line_residuals([a, b])
+    assert pooled.straight_rms_px == pytest.approx(math.sqrt(30 / 40))
+    assert pooled.n_points == 40
+
+
+def test_grid_positions_places_each_detection_at_its_corner():
+    grid = projective_grid(3, 4)
+    detections = grid.reshape(-1, 2)[[5, 0, 11]] + 0.1
+    placed = metrics.grid_positions(grid, detections)
+    assert np.isfinite(placed).all(axis=2).sum() == 3
+    np.testing.assert_allclose(placed[1, 1], grid[1, 1] + 0.1)
+
+
+def test_order_grid_recovers_rows_and_columns_from_shuffled_points():
+    grid = projective_grid(6, 4)
+    shuffled = np.random.default_rng(1).permutation(grid.reshape(-1, 2))
+    ordered = metrics.order_grid(shuffled, (4, 6))
+    assert ordered is not None
+    assert ordered.shape == (6, 4, 2)
+    residuals = metrics.line_residuals(ordered)
+    assert residuals.straight_rms_px == pytest.approx(0.0, abs=1e-9)
+
+
+def test_order_grid_refuses_points_of_another_pattern():
+    assert metrics.order_grid(projective_grid(5, 5).reshape(-1, 2), (4, 6)) is None
+
+
+# --------------------------------------------------------------------------- peer helpers
+
+def test_mrgingham_output_is_parsed_and_failures_give_no_points():
+    text = "# filename x y level\nimg.png 10.5 20.25 0\nimg.png 11 21 1\nother.png - - -\n"
+    np.testing.assert_allclose(parse_mrgingham(text), [[10.5, 20.25], [11.0, 21.0]])
+    assert parse_mrgingham("# filename x y level\nimg.png - - -\n").shape == (0, 2)
+
+
+def test_cornersubpix_window_follows_the_smallest_radius_within_limits():
+    assert subpix_half_window((6.0, 40.0)) == 4
+    assert subpix_half_window((2.5, 5.0)) == 2
+    assert subpix_half_window((30.0, 60.0)) == 10
