@@ -30,6 +30,8 @@ _COARSE_ITERATIONS = 4
 _SIGMA_CALIBRATION = 2.0
 #: Sector levels sampled closer than this to the centre are mixed by the blur.
 _MODULATION_MIN_OFFSET_PX = 2.5
+#: ... and from this distance on they are clear of it for any expected blur.
+_MODULATION_FREE_OFFSET_PX = 3.0
 
 
 @dataclass(frozen=True)
@@ -214,10 +216,11 @@ class Detector:
         gamma: preprocessing.LocalGamma,
         counts: dict[str, int],
     ) -> Candidates:
-        """A two-ring centre-symmetry test at each candidate's own scale, before any fit.
+        """A three-ring centre-symmetry test at each candidate's own scale, before any fit.
 
-        Lenient (the candidate may sit a fraction of its scale off the centre), but it
-        removes most texture saddles for the price of 72 samples each.
+        Lenient (one good ring of three suffices: the candidate may sit a fraction of
+        its scale off the centre), but it removes most texture saddles for the price
+        of 108 samples each.
         """
         keep = np.zeros(len(candidates), dtype=bool)
         for scale in np.unique(candidates.scale_px):
@@ -225,10 +228,12 @@ class Detector:
             check = verification.centre_symmetry_check(
                 gray,
                 candidates.xy[members],
-                np.array([0.35, 0.5]) * scale,
+                np.array([0.35, 0.5, 0.7]) * scale,
                 min_contrast=0.5 * self.config.min_contrast_dn / 255.0,
                 min_symmetry=0.5,
                 max_angle_drift_rad=np.deg2rad(25.0),
+                max_first_ring=3,
+                min_rings=1,
                 normalise=gamma,
             )
             keep[members] = check.accepted
@@ -299,8 +304,12 @@ class Detector:
         dark = np.minimum(levels.positive, levels.negative)
         modulation = (bright - dark) / np.maximum(bright + dark, 1e-12)
         # Closer than 2.5 px to the centre the blur mixes the sectors, so the levels
-        # of markers with an extent under ~4 px say nothing about their paint.
-        measurable = offset >= _MODULATION_MIN_OFFSET_PX
+        # of markers with an extent under ~4 px say little about their paint: they are
+        # tested only when they also fall short of the expected radius, as texture
+        # saddles do (a small marker in a frame of small markers is not suspect).
+        measurable = (offset >= _MODULATION_MIN_OFFSET_PX) & (
+            (radius < cfg.marker_radius_min_px) | (offset >= _MODULATION_FREE_OFFSET_PX)
+        )
         keep = (ncc >= cfg.template_ncc_min) & (~measurable | (modulation >= cfg.min_modulation))
         counts["rejected_template"] = int((~keep).sum())
         candidates, radius, angles, score = (

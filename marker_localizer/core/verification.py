@@ -149,6 +149,7 @@ def centre_symmetry_check(
     min_symmetry: float,
     max_angle_drift_rad: float = np.deg2rad(15.0),
     max_first_ring: int = 2,
+    min_rings: int = 2,
     normalise: Normaliser | None = None,
 ) -> SymmetryCheck:
     """Annular-scan centre-symmetry check (section 3.2, invariant 1).
@@ -167,6 +168,7 @@ def centre_symmetry_check(
         min_symmetry: minimum 180-degree self-correlation.
         max_angle_drift_rad: largest change of a line angle between rings.
         max_first_ring: the run must start at a ring index below this.
+        min_rings: the run must have at least this many rings.
         normalise: applied to the ring samples (contrast is measured after it).
 
     Returns:
@@ -198,7 +200,7 @@ def centre_symmetry_check(
     broken = np.cumsum(~good & after_first, axis=1) > 0
     in_run = good & after_first & ~broken & has_first[:, None]
     run_length = in_run.sum(axis=1)
-    accepted = run_length >= 2
+    accepted = run_length >= min_rings
     last = np.where(in_run.any(axis=1), n_rings - 1 - np.argmax(in_run[:, ::-1], axis=1), 0)
     # The score uses the three innermost rings of the run: outer rings of a large marker
     # meet its plate boundary, which perspective leaves less symmetric than the X itself.
