@@ -87,8 +87,11 @@ class BoardImage:
 
 
 def _stack(grids: list[np.ndarray]) -> np.ndarray:
-    """All corners of a list of grids as one (N, 2) array, px."""
-    return np.concatenate([g.reshape(-1, 2) for g in grids]) if grids else np.empty((0, 2))
+    """All valid corners of a list of grids as one (N, 2) array, px (NaN nodes left out)."""
+    if not grids:
+        return np.empty((0, 2))
+    points = np.concatenate([g.reshape(-1, 2) for g in grids])
+    return points[np.isfinite(points).all(axis=1)]
 
 
 def load_hand_points(path: Path) -> np.ndarray:
