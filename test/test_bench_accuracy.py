@@ -1,0 +1,219 @@
+"""Fast subset of the accuracy benchmark (marker_localizer.bench.accuracy), peers and real data.
+
+Small rendered frames only; the real-data part skips when ``../shared/data`` is
+absent; the whole module runs in well under a minute.
+"""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from marker_localizer.bench import accuracy, metrics, peers, real_data, speed
+from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
+
+SMALL = SceneConfig(width=480, height=360, n_markers=4, radius_px=(8.0, 16.0),
+                    blur_sigma_px=(0.8, 1.0), noise_sigma_dn=(1.0, 2.0), max_tilt_deg=30.0,
+                    n_hard_negatives=4)
+
+
+def exact_x(size: int = 64) -> np.ndarray:
+    """A blurred checker X whose centre is exactly (size/2 - 0.5, size/2 - 0.5), uint8."""
+    image = np.full((size, size), 200, np.uint8)
+    half = size // 2
+    image[:half, :half] = 40
+    image[half:, half:] = 40
+    return cv2.GaussianBlur(image, (0, 0), 1.2)
+
+
+def small_family(frames: int = 2) -> accuracy.Family:
+    return accuracy.Family("t", "test", (8.0, 16.0), frames, 1,
+                           lambda seed: render_scene(SMALL, seed))
+
+
+class FixedDetector:
+    """A peer that returns given points, for testing the scoring."""
+
+    def __init__(self, name: str, points: np.ndarray) -> None:
+        self.name = name
+        self.points = points
+
+    def detect(self, image_u8: np.ndarray, radius_range: peers.RadiusRange) -> np.ndarray:
+        return self.points
+
+
+# --------------------------------------------------------------------------- peers
+
+def test_cornersubpix_refines_a_start_1_px_off_onto_the_exact_centre():
+    refined = peers.corner_subpix(exact_x(), np.array([[30.8, 32.1]]), 5)
+    np.testing.assert_allclose(refined, [[31.5, 31.5]], atol=0.02)
+
+
+def test_cornersubpix_returns_nan_for_starts_at_the_border():
+    refined = peers.corner_subpix(exact_x(), np.array([[1.0, 1.0], [31.0, 31.0]]), 5)
+    assert np.isnan(refined[0]).all()
+    assert np.isfinite(refined[1]).all()
+
+
+def test_hessian_saddle_peer_finds_the_exact_x_and_nothing_else():
+    found = peers.HessianSaddleDetector().detect(exact_x(), (8.0, 20.0))
+    np.testing.assert_allclose(found, [[31.5, 31.5]], atol=0.02)
+
+
+@pytest.mark.skipif(not peers.chess_corners_available(), reason="chess-corners not installed")
+@pytest.mark.parametrize("method", ["chess", "radon"])
+def test_chess_corners_points_use_the_pixel_centre_convention(method):
+    found = peers.ChessCornersDetector(method).detect(exact_x(), (8.0, 20.0))
+    distance = metrics.nearest_distances(np.array([[31.5, 31.5]]), found)
+    assert distance[0] < 0.05
+
+
+@pytest.mark.skipif(not peers.mrgingham_available(), reason="mrgingham not installed")
+def test_mrgingham_points_use_the_pixel_centre_convention():
+    scene = render_checkerboard((480, 640), (10, 10), 26.0, background="flat", seed=0)
+    found = peers.Mrgingham(10).detect(scene.image, (10.0, 30.0))
+    matching = metrics.match_points(found, scene.centres)
+    assert matching.n_matched == 100
+    offset = found[matching.detection_index] - scene.centres[matching.truth_index]
+    assert np.abs(offset.mean(axis=0)).max() < 0.05
+
+
+def test_opencv_board_peer_finds_every_corner_of_a_rendered_board():
+    scene = render_checkerboard((480, 640), (6, 5), 30.0, tilt_deg=20.0, seed=2)
+    found = peers.OpenCVChessboard((6, 5)).detect(scene.image, (10.0, 30.0))
+    assert metrics.match_points(found, scene.centres).n_matched == 30
+
+
+# --------------------------------------------------------------------------- rendered families
+
+def test_subpix_starts_lie_within_one_pixel_and_repeat_with_the_seed():
+    truth = np.zeros((500, 2))
+    a = accuracy.subpix_starts(truth, np.random.default_rng(3))
+    b = accuracy.subpix_starts(truth, np.random.default_rng(3))
+    assert np.linalg.norm(a, axis=1).max() <= 1.0
+    assert np.linalg.norm(a, axis=1).mean() == pytest.approx(0.5, abs=0.05)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_every_issue_family_is_defined_with_its_true_radius_range():
+    by_key: dict[str, list[accuracy.Family]] = {}
+    for family in accuracy.families():
+        by_key.setdefault(family.key, []).append(family)
+    assert sorted(by_key) == ["a", "b", "c", "d", "e"]
+    assert by_key["b"][0].radius_range == (2.5, 5.0)
+    assert len(by_key["d"]) == 2
+    assert by_key["e"][0].board_pattern == (10, 10)
+
+
+def test_a_rendered_chessboard_frame_has_one_hundred_corners_in_the_frame():
+    scene = accuracy.render_board_frame(4)
+    assert len(scene.markers) == 100
+    assert scene.image.shape == (960, 1280)
+
+
+def test_family_evaluation_scores_ours_and_cornersubpix_on_the_same_frames():
+    detectors = [peers.OurDetector(accuracy.REFERENCE_ROW, {}),
+                 FixedDetector("nothing", np.empty((0, 2)))]
+    rows = accuracy.evaluate_family(small_family(), 2, 0, detectors)
+    by_name = {r.name: r for r in rows}
+    ours = by_name[accuracy.REFERENCE_ROW].tally
+    assert ours.frames == 2
+    assert ours.recall >= 0.75
+    assert ours.stats.mean < 0.1
+    assert by_name["nothing"].tally.recall == 0.0
+    subpix = rows[2]
+    assert subpix.refiner
+    assert subpix.tally.n_truth == ours.n_truth
+
+
+def test_family_table_prints_the_peer_to_ours_ratio():
+    ours = accuracy.Row(accuracy.REFERENCE_ROW)
+    ours.tally.add(metrics.match_points(np.array([[0.02, 0.0]]), np.zeros((1, 2))))
+    peer = accuracy.Row("peer")
+    peer.tally.add(metrics.match_points(np.array([[0.1, 0.0]]), np.zeros((1, 2))))
+    table = accuracy.family_table("t", [ours, peer])
+    assert "5.00" in table.splitlines()[-1]
+
+
+def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
+    out = tmp_path / "accuracy.json"
+    status = accuracy.main(["--families", "e", "--frames", "1", "--no-curvature",
+                            "--json", str(out)])
+    assert status == 0
+    printed = capsys.readouterr().out
+    assert "Family (e)" in printed
+    assert "cv2.cornerSubPix" in printed
+    saved = json.loads(out.read_text())
+    (table,) = saved["synthetic"].values()
+    assert table[accuracy.REFERENCE_ROW]["recall"] == 1.0
+
+
+# --------------------------------------------------------------------------- real data
+
+def test_uas_scoring_counts_both_targets_and_far_detections():
+    frame = real_data.UasFrame("blank", np.zeros((8, 8), np.uint8))
+    points = np.vstack([real_data.CIRN_TARGETS + 2.0, [[100.0, 100.0]]])
+    (row,) = accuracy.evaluate_uas([frame], [FixedDetector("fixed", points)], (6.0, 24.0))
+    assert row.extra["both_found"] == 1.0
+    assert row.extra["fp_per_frame"] == 1.0
+
+
+def test_board_scoring_counts_complete_boards_and_residuals():
+    grid = np.stack(np.meshgrid(np.arange(4) * 20.0 + 50, np.arange(3) * 20.0 + 40), axis=-1)
+    item = real_data.BoardImage("set", "img", np.zeros((8, 8), np.uint8), [grid],
+                                grid.reshape(-1, 2))
+    full = FixedDetector("all", grid.reshape(-1, 2) + 0.05)
+    partial = FixedDetector("some", grid.reshape(-1, 2)[:5])
+    rows = accuracy.evaluate_boards([item], [full, partial], (5.0, 40.0))
+    assert rows[0].extra["boards_complete"] == 1.0
+    assert rows[0].extra["line_rms"] == pytest.approx(0.0, abs=1e-9)
+    assert rows[1].tally.recall == pytest.approx(5 / 12)
+    assert rows[1].extra["boards_complete"] == 0.0
+
+
+def test_data_root_is_none_without_the_shared_folder(tmp_path):
+    assert real_data.data_root(tmp_path / "repo") is None
+
+
+DATA = real_data.data_root()
+needs_data = pytest.mark.skipif(DATA is None, reason="../shared/data is absent")
+
+
+@needs_data
+def test_validationboof_hand_clicks_agree_with_opencv_after_the_half_pixel_shift():
+    item = next(real_data.iter_validationboof(DATA, limit_per_folder=1))
+    assert item.boards[0].shape == (6, 4, 2)
+    matching = metrics.match_points(item.opencv, item.reference)
+    assert matching.n_matched == 24
+    shifted = metrics.match_points(item.opencv, item.reference + 0.5)
+    # The shift removes a systematic +0.5 px bias, so the errors must be smaller with it.
+    assert matching.errors_px.mean() < shifted.errors_px.mean()
+
+
+@needs_data
+def test_our_detector_finds_the_inner_corners_of_a_real_board():
+    item = next(real_data.iter_validationboof(DATA, limit_per_folder=1))
+    ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
+    found = ours.detect(item.image, accuracy.REAL_RADIUS_RANGES["validationboof"])
+    assert metrics.match_points(found, item.reference).n_matched >= 22
+
+
+# --------------------------------------------------------------------------- speed helpers
+
+def test_peak_growth_sees_a_large_temporary_allocation():
+    grown = speed.peak_growth_mb(lambda: np.ones(64 * 1024 * 1024 // 8).sum())
+    assert grown > 40.0
+
+
+def test_stage_medians_keep_the_pipeline_order():
+    medians = speed.stage_medians([{"a": 1.0, "b": 5.0}, {"a": 3.0, "b": 7.0}])
+    assert list(medians) == ["a", "b"]
+    assert medians["a"] == pytest.approx(2.0)
+
+
+def test_speed_worker_env_limits_every_thread_pool_to_one():
+    env = speed.single_thread_env()
+    assert env["OMP_NUM_THREADS"] == env["OPENBLAS_NUM_THREADS"] == "1"
