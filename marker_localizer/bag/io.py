@@ -32,7 +32,7 @@ from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, Self
+from typing import IO, Any, Literal, Self
 
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.interfaces import Qos
@@ -46,7 +46,7 @@ from marker_localizer.errors import BagError, MarkerLocalizerError
 STORAGES: dict[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 DEFAULT_STORAGE = "mcap"
 #: rosbag2 metadata version written (Jazzy's).
-_BAG_VERSION = 9
+_BAG_VERSION: Literal[9] = 9
 
 
 @functools.cache

@@ -35,7 +35,7 @@ import math
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -521,7 +521,9 @@ def replay_bag(
                 session.processor.shutdown()
             wall_s = time.perf_counter() - started
     if truth:
-        _evaluate(session, clouds[TRUTH_SUFFIX], clouds[PARTIAL_SUFFIX], match_distance_px)
+        _evaluate(
+            session, clouds[TRUTH_SUFFIX], clouds[PARTIAL_SUFFIX], list(truth), match_distance_px
+        )
     return ReplayReport(Path(bag), Path(out), workers, wall_s, session.stats)
 
 
@@ -552,14 +554,15 @@ def _evaluate(
     session: _Session,
     truth: dict[tuple[str, int], np.ndarray],
     partial: dict[tuple[str, int], np.ndarray],
+    cameras: Collection[str],
     match_distance_px: float,
 ) -> None:
-    """Match every processed frame that has truth; frames without truth are not evaluated."""
-    for camera, stats in session.stats.items():
-        stats.evaluation = Evaluation()
+    """Match every processed frame of ``cameras`` that has truth; others are not evaluated."""
+    for camera in cameras:
+        evaluation = session.stats[camera].evaluation = Evaluation()
         for key, found in session.found.items():
             if key[0] == camera and key in truth:
-                stats.evaluation.add(found, truth[key], partial.get(key), match_distance_px)
+                evaluation.add(found, truth[key], partial.get(key), match_distance_px)
 
 
 # --------------------------------------------------------------------------- command
