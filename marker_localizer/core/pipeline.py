@@ -118,11 +118,14 @@ class Detector:
             (self.config.marker_radius_min_px, self.config.marker_radius_max_px)
         )
 
-    def detect(self, image: np.ndarray) -> DetectionResult:
+    def detect(self, image: np.ndarray, regions: np.ndarray | None = None) -> DetectionResult:
         """Find and locate every diagonal marker in ``image``.
 
         Args:
             image: (H, W) uint8/uint16/float grey image, or BGR(A) colour.
+            regions: optional (K, 4) int windows (x0, y0, x1, y1), end-exclusive, to
+                search instead of the whole frame (tracking mode); no full-frame
+                pass is made then.
 
         Returns:
             :class:`DetectionResult` (iterable of :class:`Detection`).
@@ -131,23 +134,74 @@ class Detector:
             ImageError: the image is empty or of an unsupported type.
         """
         result = DetectionResult()
-        counts = result.counts
         timer = _StageTimer(result.timings_ms)
+        cfg = self.config
         with timer("input"):
             gray, full_scale = to_gray(image)
-        cfg = self.config
         with timer("preprocessing"):
             gamma = preprocessing.LocalGamma(
-                gray, full_scale, cfg.gamma_alpha, cfg.illumination_window_px
+                gray, full_scale, cfg.gamma_alpha, cfg.illumination_window_px, regions=regions
             )
         with timer("screening"):
-            candidates = self._screen(gray, full_scale, counts)
-        with timer("centring"):
-            counts["rejected_prescreen"] = 0
+            candidates = self._screen(gray, full_scale, result.counts, regions)
+        with timer("prescreen"):
+            result.counts["rejected_prescreen"] = 0
             if cfg.candidate_detector == "saddle":
                 # Contour corners sit up to 2 px off the centre, too far for the
                 # prescreen's small rings; the paper's path goes straight to centring.
-                candidates = self._prescreen(gray, candidates, gamma, counts)
+                candidates = self._prescreen(gray, candidates, gamma, result.counts)
+        return self._confirm(gray, gamma, candidates, result, timer)
+
+    def detect_near(
+        self, image: np.ndarray, xy: np.ndarray, radius_px: np.ndarray
+    ) -> DetectionResult:
+        """Locate markers expected near ``xy`` (tracking mode), with no screening pass.
+
+        Each seed is centred with a disk of its radius (it converges from up to half
+        a radius away) and then verified and refined exactly as in :meth:`detect`,
+        so a tracked marker gets the same position, score and sigma as a detected
+        one. Only the pixels around the seeds are read.
+
+        Args:
+            image: as for :meth:`detect`.
+            xy: (N, 2) predicted centres.
+            radius_px: (N,) expected marker extents (e.g. the last ``radius_px``).
+
+        Returns:
+            :class:`DetectionResult` with the seeds that were confirmed.
+        """
+        result = DetectionResult()
+        timer = _StageTimer(result.timings_ms)
+        cfg = self.config
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        radius = np.clip(
+            np.asarray(radius_px, dtype=np.float64).reshape(-1), 2.0, cfg.marker_radius_max_px
+        )
+        with timer("input"):
+            gray, full_scale = to_gray(image)
+        with timer("preprocessing"):
+            reach = radius[:, None] + 2.0
+            boxes = np.hstack([np.floor(xy - reach), np.ceil(xy + reach) + 1]).astype(np.int64)
+            gamma = preprocessing.LocalGamma(
+                gray, full_scale, cfg.gamma_alpha, cfg.illumination_window_px, regions=boxes
+            )
+        for key in ("candidates", "after_suppression"):
+            result.counts[key] = len(xy)
+        result.counts["dropped_over_cap"] = result.counts["rejected_prescreen"] = 0
+        seeds = Candidates(xy, np.ones(len(xy)), radius)
+        return self._confirm(gray, gamma, seeds, result, timer)
+
+    def _confirm(
+        self,
+        gray: np.ndarray,
+        gamma: preprocessing.LocalGamma,
+        candidates: Candidates,
+        result: DetectionResult,
+        timer: _StageTimer,
+    ) -> DetectionResult:
+        """Centre, verify and locate candidates: the stages every path shares."""
+        counts = result.counts
+        with timer("centring"):
             candidates = self._centre(gray, candidates, counts)
         with timer("verification"):
             candidates, radius, angles, score = self._verify(gray, candidates, gamma, counts)
@@ -164,8 +218,33 @@ class Detector:
         counts["accepted"] = len(result.detections)
         return result
 
-    def _screen(self, gray: np.ndarray, full_scale: float, counts: dict[str, int]) -> Candidates:
+    def _screen(
+        self,
+        gray: np.ndarray,
+        full_scale: float,
+        counts: dict[str, int],
+        regions: np.ndarray | None = None,
+    ) -> Candidates:
         """Section 3.2, first layers: candidates, suppression, grid-entropy thinning, cap."""
+        cfg = self.config
+        if regions is None:
+            found = self._find_candidates(gray, full_scale)
+        else:
+            found = self._find_in_regions(gray, full_scale, np.asarray(regions, np.int64))
+        counts["candidates"] = len(found)
+        if cfg.candidate_detector == "curvature":
+            found = screening.density_mean_shift(found, cfg.density_sigma_px, cfg.mean_shift_h_px)
+        thinned = screening.grid_entropy_thinning(
+            found, cfg.entropy_cell_px, cfg.max_candidates_per_cell
+        )
+        counts["after_suppression"] = len(thinned)
+        if len(thinned) > cfg.max_candidates:
+            strongest = np.argsort(-thinned.strength)[: cfg.max_candidates]
+            thinned = thinned.take(np.sort(strongest))
+        counts["dropped_over_cap"] = counts["after_suppression"] - len(thinned)
+        return thinned
+
+    def _find_candidates(self, gray: np.ndarray, full_scale: float) -> Candidates:
         cfg = self.config
         radius_range = (cfg.marker_radius_min_px, cfg.marker_radius_max_px)
         if cfg.candidate_detector == "curvature":
@@ -178,7 +257,7 @@ class Detector:
             structure = preprocessing.structure_map(
                 corrected, xi=cfg.structure_xi, t=cfg.structure_t
             )
-            found = screening.curvature_candidates(
+            return screening.curvature_candidates(
                 corrected,
                 structure,
                 radius_range,
@@ -186,28 +265,33 @@ class Detector:
                 cfg.min_peak_separation_px,
                 cfg.structure_keep_fraction,
             )
-            counts["candidates"] = len(found)
-            found = screening.density_mean_shift(found, cfg.density_sigma_px, cfg.mean_shift_h_px)
-        else:
-            # The Hessian's own 5x5 smoothing replaces GDWGIF, and the threshold in
-            # grey levels replaces the structure percentile: two full-frame passes
-            # fewer, with the same recall on the renderer (README, "Speed").
-            found = screening.saddle_candidates(
-                gray,
-                radius_range,
-                cfg.min_contrast_dn / 255.0 * full_scale,
-                relative_threshold=cfg.saddle_threshold,
-            )
-            counts["candidates"] = len(found)
-        thinned = screening.grid_entropy_thinning(
-            found, cfg.entropy_cell_px, cfg.max_candidates_per_cell
+        # The Hessian's own 5x5 smoothing replaces GDWGIF, and the threshold in grey
+        # levels replaces the structure percentile: two full-frame passes fewer, with
+        # the same recall on the renderer (README, "Speed").
+        return screening.saddle_candidates(
+            gray,
+            radius_range,
+            cfg.min_contrast_dn / 255.0 * full_scale,
+            relative_threshold=cfg.saddle_threshold,
         )
-        counts["after_suppression"] = len(thinned)
-        if len(thinned) > cfg.max_candidates:
-            strongest = np.argsort(-thinned.strength)[: cfg.max_candidates]
-            thinned = thinned.take(np.sort(strongest))
-        counts["dropped_over_cap"] = counts["after_suppression"] - len(thinned)
-        return thinned
+
+    def _find_in_regions(
+        self, gray: np.ndarray, full_scale: float, regions: np.ndarray
+    ) -> Candidates:
+        """Candidates inside each window, found on the window plus a margin for the filters."""
+        height, width = gray.shape
+        margin = int(np.ceil(2.0 * self.config.marker_radius_max_px)) + 4
+        parts = []
+        for x0, y0, x1, y1 in regions:
+            cx0, cy0 = max(int(x0) - margin, 0), max(int(y0) - margin, 0)
+            cx1, cy1 = min(int(x1) + margin, width), min(int(y1) + margin, height)
+            if cx1 - cx0 < 8 or cy1 - cy0 < 8:
+                continue
+            found = self._find_candidates(gray[cy0:cy1, cx0:cx1], full_scale)
+            xy = found.xy + [cx0, cy0]
+            inside = (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
+            parts.append(Candidates(xy, found.strength, found.scale_px).take(inside))
+        return Candidates.concat(parts)
 
     def _prescreen(
         self,
@@ -456,4 +540,5 @@ class _StageTimer:
         try:
             yield
         finally:
-            self._timings[stage] = (time.perf_counter() - start) * 1000.0
+            elapsed_ms = (time.perf_counter() - start) * 1000.0
+            self._timings[stage] = self._timings.get(stage, 0.0) + elapsed_ms

@@ -116,7 +116,9 @@ class LocalGamma:
     than a marker), so it is measured once on a reduced image and the gamma
     L' = L ** (alpha * mu) is applied to the samples of each candidate instead of
     to every pixel of the frame: the same values, at a fraction of the cost on
-    12-megapixel frames.
+    12-megapixel frames. With ``regions`` only those windows (plus the mean's
+    margin) are read, which is what makes tracking mode independent of the frame
+    size.
 
     Args:
         image: (H, W) grey image in its native dtype.
@@ -124,6 +126,8 @@ class LocalGamma:
         alpha: contrast-adaptive scale alpha of Eq. (2).
         window_px: side of the box measuring mu(k).
         gamma_limits: (low, high) clip of the gamma.
+        regions: optional (K, 4) windows (x0, y0, x1, y1), end-exclusive; points
+            are then only looked up inside them.
     """
 
     def __init__(
@@ -133,32 +137,64 @@ class LocalGamma:
         alpha: float = 2.0,
         window_px: int = 65,
         gamma_limits: tuple[float, float] = (0.25, 4.0),
+        regions: np.ndarray | None = None,
     ) -> None:
         self._reduction = max(1, window_px // 8)
-        height, width = image.shape
-        small = cv2.resize(
-            image,
-            (max(1, width // self._reduction), max(1, height // self._reduction)),
-            interpolation=cv2.INTER_AREA,
-        ).astype(np.float32) / np.float32(full_scale)
-        diameter = max(1, round(window_px / self._reduction)) | 1
-        self._mean = box_mean(small, diameter)
+        self._diameter = max(1, round(window_px / self._reduction)) | 1
         self._alpha = alpha
         self._limits = gamma_limits
         self._full_scale = full_scale
+        height, width = image.shape
+        if regions is None:
+            boxes = np.array([[0, 0, width, height]])
+        else:
+            margin = window_px // 2 + self._reduction
+            boxes = np.asarray(regions, dtype=np.int64).reshape(-1, 4) + [
+                -margin,
+                -margin,
+                margin,
+                margin,
+            ]
+            boxes = np.clip(boxes, 0, [width, height, width, height])
+            # Align to the reduction grid so every map samples the same lattice.
+            boxes[:, :2] -= boxes[:, :2] % self._reduction
+        self._boxes = boxes
+        maps = [self._mean_map(image[y0:y1, x0:x1]) for x0, y0, x1, y1 in boxes]
+        # One stack of equally padded maps, so a lookup is a single gather for all points.
+        rows = max(m.shape[0] for m in maps)
+        cols = max(m.shape[1] for m in maps)
+        self._map_shapes = np.array([m.shape for m in maps], dtype=np.float64)
+        self._stack = np.stack(
+            [np.pad(m, ((0, rows - m.shape[0]), (0, cols - m.shape[1])), mode="edge") for m in maps]
+        ).reshape(-1, cols)
+        self._rows_per_map = rows
+
+    def _mean_map(self, crop: np.ndarray) -> np.ndarray:
+        height, width = crop.shape
+        small = cv2.resize(
+            crop,
+            (max(2, width // self._reduction), max(2, height // self._reduction)),
+            interpolation=cv2.INTER_AREA,
+        ).astype(np.float32) / np.float32(self._full_scale)
+        return box_mean(small, self._diameter)
 
     def mean_at(self, xy: np.ndarray) -> np.ndarray:
-        """Local mean luminance mu(k) in [0, 1] at (N, 2) points."""
-        # INTER_AREA maps full-resolution x to (x + 0.5) / f - 0.5 on the reduced grid.
-        scaled = (xy + 0.5) / self._reduction - 0.5
-        height, width = self._mean.shape
-        x = np.clip(scaled[:, 0], 0.0, width - 1.0)
-        y = np.clip(scaled[:, 1], 0.0, height - 1.0)
-        return (
-            bilinear(self._mean, x, y)[0]
-            if min(height, width) > 1
-            else np.full(len(xy), float(self._mean.mean()))
+        """Local mean luminance mu(k) in [0, 1] at (N, 2) points (0.5 outside every region)."""
+        boxes = self._boxes
+        inside = (
+            (xy[:, None, 0] >= boxes[:, 0])
+            & (xy[:, None, 0] < boxes[:, 2])
+            & (xy[:, None, 1] >= boxes[:, 1])
+            & (xy[:, None, 1] < boxes[:, 3])
         )
+        owner = np.argmax(inside, axis=1)
+        # INTER_AREA maps x to (x + 0.5) / f - 0.5 on the reduced grid.
+        local = (xy - boxes[owner, :2] + 0.5) / self._reduction - 0.5
+        shape = self._map_shapes[owner]
+        x = np.clip(local[:, 0], 0.0, np.maximum(shape[:, 1] - 1.001, 0.0))
+        y = np.clip(local[:, 1], 0.0, np.maximum(shape[:, 0] - 1.001, 0.0))
+        mean, _ = bilinear(self._stack, x, y + owner * self._rows_per_map)
+        return np.where(inside.any(axis=1), mean, 0.5)
 
     def __call__(self, values: np.ndarray, xy: np.ndarray) -> np.ndarray:
         """Apply Eq. (2) to raw samples ``values`` (N, ...) taken around the points ``xy``."""

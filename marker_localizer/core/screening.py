@@ -41,18 +41,19 @@ class Candidates(NamedTuple):
         """Return a set of zero candidates."""
         return cls(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
 
+    @classmethod
+    def concat(cls, parts: list[Candidates]) -> Candidates:
+        """Join several candidate sets into one."""
+        if not parts:
+            return cls.empty()
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in cls._fields))
+
     def take(self, index: np.ndarray) -> Candidates:
         """Return the candidates selected by a boolean mask or index array."""
         return Candidates(self.xy[index], self.strength[index], self.scale_px[index])
 
     def __len__(self) -> int:
         return int(self.strength.shape[0])
-
-
-def _concat(parts: list[Candidates]) -> Candidates:
-    if not parts:
-        return Candidates.empty()
-    return Candidates(*(np.concatenate([getattr(p, f) for p in parts]) for f in Candidates._fields))
 
 
 def _parabolic_offset(minus: np.ndarray, centre: np.ndarray, plus: np.ndarray) -> np.ndarray:
@@ -188,7 +189,7 @@ def saddle_candidates(
         xy = (np.stack([cols + dx, rows + dy], axis=1) + 0.5) * 2**level - 0.5
         strength = np.sqrt(response[rows, cols].astype(np.float64)) / expected
         parts.append(Candidates(xy, strength, np.full(len(rows), 4.0 * 2**level)))
-    return _concat(parts)
+    return Candidates.concat(parts)
 
 
 def contour_curvature(contour: np.ndarray, window_px: int) -> np.ndarray:
