@@ -48,12 +48,14 @@ class DetectorConfig:
     """
 
     marker_radius_min_px: float = _param(
-        3.0,
-        "Smallest expected marker radius in the image (centre to the outer edge "
-        "of the X). 3 px is the smallest radius the screening resolves reliably.",
-        "px",
-        1.5,
-        1000.0,
+        4.0,
+        "Smallest expected marker radius in the image (centre to the outer edge of the "
+        "X). Below ~4 px a marker on textured ground looks like the ground's own "
+        "saddles (stones meeting): set it lower only for markers that small (the "
+        "detector resolves 2.5 px), and expect more false points on clutter.",
+        unit="px",
+        low=1.5,
+        high=1000.0,
     )
     marker_radius_max_px: float = _param(
         40.0,
@@ -67,7 +69,8 @@ class DetectorConfig:
     # Section 3.1: preprocessing.
     gdwgif_radius_px: int = _param(
         2,
-        "Window radius r of the gradient-domain weighted guided filter, Eq. (1): "
+        "Paper path (candidate_detector=curvature): window radius r of the gradient-domain "
+        "weighted guided filter, Eq. (1): "
         "2 smooths sensor noise without merging the quadrants of a 3 px marker.",
         "px",
         1,
@@ -75,7 +78,7 @@ class DetectorConfig:
     )
     gdwgif_lambda: float = _param(
         0.01,
-        "Regularisation lambda of Eq. (1) on intensities scaled to [0, 1]: "
+        "Paper path: regularisation lambda of Eq. (1) on intensities scaled to [0, 1]: "
         "flattens noise of a few DN while edges above ~25 DN survive.",
         "",
         1e-6,
@@ -99,7 +102,7 @@ class DetectorConfig:
     )
     structure_xi: float = _param(
         0.04,
-        "Scale xi of the structural component map, Eq. (3), in normalised "
+        "Paper path: scale xi of the structural component map, Eq. (3), in normalised "
         "intensity: a local std of 0.04 (10 DN) maps to s = 0.63.",
         "",
         1e-3,
@@ -107,7 +110,7 @@ class DetectorConfig:
     )
     structure_t: float = _param(
         1.5,
-        "Exponent t of Eq. (3); t > 1 sharpens the response to edges "
+        "Paper path: exponent t of Eq. (3); t > 1 sharpens the response to edges "
         "and suppresses flat noisy ground.",
         "",
         0.1,
@@ -115,7 +118,7 @@ class DetectorConfig:
     )
     structure_keep_fraction: float = _param(
         0.7,
-        "Candidates are kept only where the structure map is in this top "
+        "Paper path: candidates are kept only where the structure map is in this top "
         "fraction of its values (the paper's 70 %).",
         "",
         0.05,
@@ -135,11 +138,12 @@ class DetectorConfig:
         "Saddle screening keeps Hessian saddles stronger than this multiple of what an "
         "X of contrast min_contrast_dn blurred by 1.5 px gives. On the renderer every "
         "marker scored above 2.3 (3-5 px markers) and 3.2 (6-40 px, motion blur).",
-        low=0.05, high=20.0,
+        low=0.05,
+        high=20.0,
     )
     curvature_threshold_std: float = _param(
         3.0,
-        "Dual threshold of the curvature screening: a peak must exceed the mean "
+        "Paper path: dual threshold of the curvature screening: a peak must exceed the mean "
         "by this many standard deviations (the paper's 3).",
         "std",
         0.0,
@@ -150,13 +154,17 @@ class DetectorConfig:
     )
     density_sigma_px: float = _param(
         2.0,
-        "Gaussian width sigma of the curvature-weighted density field, Eq. (5).",
+        "Paper path: Gaussian width sigma of the curvature-weighted density field, Eq. (5).",
         "px",
         0.5,
         50.0,
     )
     mean_shift_h_px: float = _param(
-        2.0, "Attenuation h of the curvature-density mean shift, Eq. (6).", "px", 0.5, 50.0
+        2.0,
+        "Paper path: attenuation h of the curvature-density mean shift, Eq. (6).",
+        "px",
+        0.5,
+        50.0,
     )
     entropy_cell_px: int = _param(
         64, "Grid cell size of the spatial grid entropy, Eq. (7).", "px", 8, 4096
@@ -192,7 +200,8 @@ class DetectorConfig:
         "levels, which illumination does not change. Printed black and white give "
         "0.7-0.8, partly shadowed markers on the renderer kept 0.31 and more, "
         "ground-texture saddles (gravel gaps) stayed below 0.38 and mostly below 0.3.",
-        low=0.0, high=1.0,
+        low=0.0,
+        high=1.0,
     )
     min_extent_fraction: float = _param(
         0.7,
