@@ -172,6 +172,9 @@ def test_board_scoring_counts_complete_boards_and_residuals():
     assert rows[0].extra["line_rms"] == pytest.approx(0.0, abs=1e-9)
     assert rows[1].tally.recall == pytest.approx(5 / 12)
     assert rows[1].extra["boards_complete"] == 0.0
+    # Only detectors with recall >= 50 % share the common-corner comparison.
+    assert rows[0].extra["common_points"] == 2 * 12
+    assert np.isnan(rows[1].extra["common_line_rms"])
 
 
 def test_data_root_is_none_without_the_shared_folder(tmp_path):

@@ -330,6 +330,8 @@ def pool_line_residuals(parts: Sequence[LineResiduals]) -> LineResiduals:
     def pooled(values: list[float]) -> float:
         v = np.asarray(values)
         ok = np.isfinite(v)
+        if not ok.any():
+            return math.nan
         return float(np.sqrt(np.sum(weights[ok] * v[ok] ** 2) / weights[ok].sum()))
 
     return LineResiduals(

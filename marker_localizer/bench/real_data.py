@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from marker_localizer.bench.metrics import order_grid
+from marker_localizer.bench.metrics import line_residuals, order_grid
 from marker_localizer.bench.peers import corner_subpix
 
 #: ValidationBoof boards: 5 x 7 squares, so 4 x 6 inner corners (columns, rows).
@@ -39,6 +39,9 @@ SKIPPED_IMAGES = frozenset({"e7.png"})
 _SEARCH_MAX_SIDE_PX = 1600
 #: At most this many boards are searched for per image (the busiest libcbdetect scene has 7).
 _MAX_BOARDS = 8
+#: Largest RMS straight-line residual of an OpenCV board, as a fraction of its corner
+#: spacing, for it to serve as a reference (see :func:`_is_planar_grid`).
+_MAX_BEND = 0.02
 
 
 def data_root(repo_root: Path | None = None) -> Path | None:
@@ -167,6 +170,8 @@ def opencv_boards(image: np.ndarray, max_boards: int = _MAX_BOARDS) -> list[np.n
     board of any size from a 3 x 3 seed; found boards are painted over with
     their mean grey and the search repeats. Corners are refined with
     ``cornerSubPix`` at full resolution (the paper's "OpenCV refined corners").
+    Boards that are not planar grids (joined across two boards, or bent) are
+    left out.
 
     Args:
         image: (H, W) uint8 grey image.
@@ -189,8 +194,22 @@ def opencv_boards(image: np.ndarray, max_boards: int = _MAX_BOARDS) -> list[np.n
         small = corners.reshape(rows, cols, 2).astype(np.float64)
         _paint_over(search, small)
         # Pixel-centre convention: x_full + 0.5 = (x_small + 0.5) / scale.
-        boards.append(_refine_grid(image, (small + 0.5) / scale - 0.5))
+        grid = _refine_grid(image, (small + 0.5) / scale - 0.5)
+        if _is_planar_grid(grid):
+            boards.append(grid)
     return boards
+
+
+def _is_planar_grid(grid: np.ndarray) -> bool:
+    """Whether a found grid's rows and columns are straight to :data:`_MAX_BEND` of its spacing.
+
+    ``CALIB_CB_LARGER`` sometimes joins two boards that meet at an edge (libcbdetect
+    e2), and pycbd's warped board is physically bent: neither is a reference
+    for corner precision. Lens distortion over a whole 12 MP board (pycbd flare)
+    stays near 1 % of the spacing.
+    """
+    residuals = line_residuals(grid)
+    return bool(residuals.straight_rms_px <= _MAX_BEND * _median_spacing(grid))
 
 
 def _median_spacing(grid: np.ndarray) -> float:
