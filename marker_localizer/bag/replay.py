@@ -397,11 +397,11 @@ class _Session:
     def _on_result(
         self, camera: str, header: Header, cloud: PointCloud2, overlay: Image | None
     ) -> None:
-        elapsed_s = time.perf_counter()
+        delivered_s = time.perf_counter()
         with self._cond:
             flight = self._in_flight.pop(camera)
             stats = self.stats[camera]
-            stats.processing_ms.append((elapsed_s - flight.started_s) * 1e3)
+            stats.processing_ms.append((delivered_s - flight.started_s) * 1e3)
             stats.frames += 1
             stats.markers += int(cloud.width) * int(cloud.height)
             self.found[(camera, flight.stamp_ns)] = _xy(cloud)
