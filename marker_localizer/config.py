@@ -226,6 +226,15 @@ class DetectorConfig:
         low=0.0,
         high=1.0,
     )
+    min_score_small: float = _param(
+        0.91,
+        "Minimum score of a detection whose X extends less than 1.5 x "
+        "marker_radius_min_px: the regime of ground-texture saddles (stones meeting), "
+        "which scored up to 0.906 on the simulated flights while markers of that size "
+        "scored 0.94 and more.",
+        low=0.0,
+        high=1.0,
+    )
     max_symmetry_residual: float = _param(
         0.1,
         "Largest RMS point-symmetry residual of the final fit, as a fraction of the "

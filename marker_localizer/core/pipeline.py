@@ -28,6 +28,9 @@ _COARSE_ITERATIONS = 4
 #: independent residuals than there are. Measured with /bench accuracy (README): with it,
 #: 96 % of errors fall within 2 sigma.
 _SIGMA_CALIBRATION = 2.0
+#: Detections whose X extends less than this times the smallest expected radius need
+#: ``min_score_small``: ground texture produces saddles of that size, not larger.
+_SMALL_EXTENT_FACTOR = 1.5
 #: Sector levels sampled closer than this to the centre are mixed by the blur.
 _MODULATION_MIN_OFFSET_PX = 2.5
 #: ... and from this distance on they are clear of it for any expected blur.
@@ -464,7 +467,8 @@ class Detector:
         ok = located & fit.converged & (relative_residual <= cfg.max_symmetry_residual)
         ok &= np.isfinite(sigma)
         counts["rejected_refinement"] = int((~ok).sum())
-        weak = ok & (final_score < cfg.min_score)
+        small = radius < _SMALL_EXTENT_FACTOR * cfg.marker_radius_min_px
+        weak = ok & (final_score < np.where(small, cfg.min_score_small, cfg.min_score))
         counts["rejected_score"] = int(weak.sum())
         keep = np.flatnonzero(ok & ~weak)
         unique = screening.non_maximum_suppression(
