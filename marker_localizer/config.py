@@ -279,6 +279,20 @@ class DetectorConfig:
     refinement_max_iterations: int = _param(
         12, "Gauss-Newton iterations of the symmetry fit; it converges in 3-5.", "", 1, 100
     )
+    tracking: bool = _param(
+        True,
+        "Node and replay: between full-frame passes, search only windows around the "
+        "markers of the previous frames and the frame border (MarkerTracker). A marker "
+        "not confirmed triggers a full-frame pass on the same frame, so recall is that "
+        "of full-frame detection.",
+    )
+    tracking_full_frame_every: int = _param(
+        10,
+        "With tracking, a full-frame pass at least every this many frames of a camera: "
+        "5 s at the rig's 2 Hz, short enough to pick up markers that appear inside the "
+        "frame (e.g. uncovered), not only across its border.",
+        low=1, high=10000,
+    )
     max_candidates: int = _param(
         20000,
         "Cap on candidates per frame after screening; the weakest are cut "

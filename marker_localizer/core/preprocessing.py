@@ -158,6 +158,9 @@ class LocalGamma:
             boxes = np.clip(boxes, 0, [width, height, width, height])
             # Align to the reduction grid so every map samples the same lattice.
             boxes[:, :2] -= boxes[:, :2] % self._reduction
+            boxes = boxes[(boxes[:, 2] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 1])]
+            if not len(boxes):
+                boxes = np.array([[0, 0, width, height]])
         self._boxes = boxes
         maps = [self._mean_map(image[y0:y1, x0:x1]) for x0, y0, x1, y1 in boxes]
         # One stack of equally padded maps, so a lookup is a single gather for all points.

@@ -98,7 +98,7 @@ class MarkerTracker:
         """(4, 4) windows along the frame border through which markers come into view."""
         height, width = shape[:2]
         band = int(np.ceil(self.max_motion_px + 2.5 * self.detector.config.marker_radius_max_px))
-        return np.array(
+        bands = np.array(
             [
                 [0, 0, width, band],
                 [0, height - band, width, height],
@@ -106,6 +106,8 @@ class MarkerTracker:
                 [width - band, band, width, height - band],
             ]
         )
+        # On a frame narrower than two bands they overlap: clip them to the frame.
+        return np.clip(bands, 0, [width, height, width, height])
 
     def _windows(self, centres: np.ndarray, half: np.ndarray) -> np.ndarray:
         return np.hstack(

@@ -40,6 +40,7 @@ from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core.pipeline import Detector
+from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.errors import ConfigError
 from marker_localizer.overlay import draw_detections
 from marker_localizer.ros.conversions import (
@@ -117,6 +118,9 @@ class FrameProcessor:
         self.max_frame_age_s = max_frame_age_s
         self.publish_overlay = publish_overlay
         self._detector = Detector(config)
+        # One tracker per camera (a camera is processed by one worker at a time), built
+        # for the detector in use and rebuilt when the configuration changes.
+        self._trackers: dict[str, MarkerTracker] = {}
         self._on_result = on_result
         self._on_error = on_error
         self._clock_ns = clock_ns
@@ -251,6 +255,14 @@ class FrameProcessor:
             self._gate_open = False
         return not any(thread.is_alive() for thread in self._threads)
 
+    def _tracker(self, camera: str, detector: Detector) -> MarkerTracker:
+        """The camera's tracker around ``detector`` (a new one after a configuration change)."""
+        tracker = self._trackers.get(camera)
+        if tracker is None or tracker.detector is not detector:
+            tracker = MarkerTracker(detector, detector.config.tracking_full_frame_every)
+            self._trackers[camera] = tracker
+        return tracker
+
     def _idle(self) -> bool:
         return not self._busy and all(frame is None for frame in self._pending.values())
 
@@ -297,7 +309,12 @@ class FrameProcessor:
         header = frame.msg.header
         try:
             pixels = image_to_detector_input(frame.msg)
-            detections = detector.detect(pixels).detections
+            if detector.config.tracking:
+                detections = self._tracker(frame.camera, detector).update(
+                    pixels, stamp_to_ns(header) / _NS_PER_S
+                ).detections
+            else:
+                detections = detector.detect(pixels).detections
             cloud = detections_to_cloud(header, detections)
             overlay = (
                 array_to_image(draw_detections(pixels, detections), "bgr8", header)
