@@ -339,10 +339,14 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         report("ours (tracking): skipped, marker_localizer.core.tracking.Tracker does not exist")
     names = list(options.subjects) if options.subjects else available_subjects()
     frames = render_frames(options.frames, options.seed)
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as folder:
         frames_path = Path(folder) / "frames.npz"
         np.savez(frames_path, **{f"frame{i:02d}": f for i, f in enumerate(frames)})
         results = [run_subject(name, frames_path, options.repeats) for name in names]
+    # Other processes on the machine inflate every time: the load tells how much.
+    report(f"load average (1 min) before / after the measurements: {load_before:.1f} / "
+           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
     report(f"Full-frame detection, {options.frames} rendered {FRAME_WIDTH}x{FRAME_HEIGHT} "
            f"cluttered frames x {options.repeats} repeats, one core (cv2.setNumThreads(1), "
            f"OMP/OPENBLAS/MKL threads = 1), radius range {RADIUS_RANGE[0]:g}-"
