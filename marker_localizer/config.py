@@ -170,12 +170,12 @@ class DetectorConfig:
         64, "Grid cell size of the spatial grid entropy, Eq. (7).", "px", 8, 4096
     )
     max_candidates_per_cell: int = _param(
-        32,
-        "Greedy entropy thinning (Eq. 7) removes the weakest points of a cell "
-        "above this count: clutter crowds a cell, marker fields do not.",
-        "",
-        1,
-        100000,
+        12,
+        "Greedy entropy thinning (Eq. 7) keeps at most this many candidates per "
+        "entropy_cell_px cell, the strongest: clutter crowds a cell with hundreds of "
+        "saddles, a 10x10 board with squares of 20 px puts 9 corners in it.",
+        low=1,
+        high=100000,
     )
     symmetry_min: float = _param(
         0.8,
@@ -291,7 +291,8 @@ class DetectorConfig:
         "With tracking, a full-frame pass at least every this many frames of a camera: "
         "5 s at the rig's 2 Hz, short enough to pick up markers that appear inside the "
         "frame (e.g. uncovered), not only across its border.",
-        low=1, high=10000,
+        low=1,
+        high=10000,
     )
     max_candidates: int = _param(
         20000,

@@ -21,8 +21,13 @@ from marker_localizer.core import preprocessing, screening, subpixel, template, 
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.screening import Candidates
 
+#: The prescreen's 180-degree self-correlation threshold: lenient, the candidate may
+#: sit a fraction of its scale off the centre.
+_PRESCREEN_SYMMETRY = 0.5
 #: Gauss-Newton iterations of the coarse centring (a few tenths of a pixel suffice there).
-_COARSE_ITERATIONS = 4
+_COARSE_ITERATIONS = 3
+#: Samples per candidate in the coarse centring: enough for a few tenths of a pixel.
+_COARSE_SAMPLES = 60
 #: Ratio of the observed to the fit-predicted error on the renderer's family (a) frames:
 #: neighbouring bilinear samples share pixels, so the fit's covariance counts more
 #: independent residuals than there are. Measured with /bench accuracy (README): with it,
@@ -152,7 +157,7 @@ class Detector:
             if cfg.candidate_detector == "saddle":
                 # Contour corners sit up to 2 px off the centre, too far for the
                 # prescreen's small rings; the paper's path goes straight to centring.
-                candidates = self._prescreen(gray, candidates, gamma, result.counts)
+                candidates = self._prescreen(gray, full_scale, candidates, result.counts)
         return self._confirm(gray, gamma, candidates, result, timer)
 
     def detect_near(
@@ -299,31 +304,36 @@ class Detector:
     def _prescreen(
         self,
         gray: np.ndarray,
+        full_scale: float,
         candidates: Candidates,
-        gamma: preprocessing.LocalGamma,
         counts: dict[str, int],
     ) -> Candidates:
         """A three-ring centre-symmetry test at each candidate's own scale, before any fit.
 
         Lenient (one good ring of three suffices: the candidate may sit a fraction of
-        its scale off the centre), but it removes most texture saddles for the price
-        of 108 samples each.
+        its scale off the centre; raw grey levels, half the contrast), but it removes
+        most texture saddles for the price of 108 nearest-pixel samples each.
         """
         keep = np.zeros(len(candidates), dtype=bool)
+        threshold = 0.5 * self.config.min_contrast_dn / 255.0 * full_scale
         for scale in np.unique(candidates.scale_px):
             members = np.flatnonzero(candidates.scale_px == scale)
-            check = verification.centre_symmetry_check(
+            profiles = verification.annular_profiles(
                 gray,
                 candidates.xy[members],
                 np.array([0.35, 0.5, 0.7]) * scale,
-                min_contrast=0.5 * self.config.min_contrast_dn / 255.0,
-                min_symmetry=0.5,
-                max_angle_drift_rad=np.deg2rad(25.0),
-                max_first_ring=3,
-                min_rings=1,
-                normalise=gamma,
+                interpolate=False,
             )
-            keep[members] = check.accepted
+            # Contrast and 180-degree symmetry first: they are cheap and reject most.
+            contrast, symmetry = verification.ring_contrast_and_symmetry(profiles)
+            maybe = ((contrast >= threshold) & (symmetry >= _PRESCREEN_SYMMETRY)).any(axis=1)
+            rings = verification.analyse_rings(profiles[maybe])
+            good = (
+                rings.four_sectors
+                & (rings.contrast >= threshold)
+                & (rings.symmetry >= _PRESCREEN_SYMMETRY)
+            )
+            keep[members[maybe]] = good.any(axis=1)
         counts["rejected_prescreen"] = int((~keep).sum())
         return candidates.take(keep)
 
@@ -341,7 +351,7 @@ class Detector:
             tolerance_px=0.05,
             max_shift_px=0.5 * radius + 1.0,
             model_gain=False,
-            max_samples=120,
+            max_samples=_COARSE_SAMPLES,
         )
         inside = np.isfinite(fit.xy).all(axis=1) & (
             np.linalg.norm(fit.xy - candidates.xy, axis=1) <= 0.5 * radius + 1.0
