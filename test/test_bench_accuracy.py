@@ -220,3 +220,11 @@ def test_stage_medians_keep_the_pipeline_order():
 def test_speed_worker_env_limits_every_thread_pool_to_one():
     env = speed.single_thread_env()
     assert env["OMP_NUM_THREADS"] == env["OPENBLAS_NUM_THREADS"] == "1"
+
+
+def test_tracking_views_keep_their_size_and_pan_by_the_step():
+    base = np.arange(200 * 300, dtype=np.int64).reshape(200, 300)
+    first, second = speed.tracking_view(base, 0), speed.tracking_view(base, 1)
+    assert first.shape == second.shape
+    dx, dy = speed.TRACKING_STEP_PX
+    np.testing.assert_array_equal(second[:-dy, :-dx], first[dy:, dx:])
