@@ -33,9 +33,10 @@ _COARSE_SAMPLES = 60
 #: independent residuals than there are. Measured with /bench accuracy (README): with it,
 #: 96 % of errors fall within 2 sigma.
 _SIGMA_CALIBRATION = 2.0
-#: Detections whose X extends less than this times the smallest expected radius need
-#: ``min_score_small``: ground texture produces saddles of that size, not larger.
-_SMALL_EXTENT_FACTOR = 1.5
+#: Detections whose X extends no further than the smallest expected radius (times this,
+#: for the ring ladder's rounding) need ``min_score_small``: ground texture produces
+#: saddles of that size, rarely larger.
+_SMALL_EXTENT_FACTOR = 1.05
 #: Sector levels sampled closer than this to the centre are mixed by the blur.
 _MODULATION_MIN_OFFSET_PX = 2.5
 #: ... and from this distance on they are clear of it for any expected blur.
