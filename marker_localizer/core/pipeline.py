@@ -289,7 +289,10 @@ class Detector:
     ) -> Candidates:
         """Candidates inside each window, found on the window plus a margin for the filters."""
         height, width = gray.shape
-        margin = int(np.ceil(2.0 * self.config.marker_radius_max_px)) + 4
+        # The filters of the coarsest pyramid level reach 2 level pixels (5x5 Sobel)
+        # plus the halving alignment: that much context around a window suffices.
+        radius_range = (self.config.marker_radius_min_px, self.config.marker_radius_max_px)
+        margin = 4 * 2 ** (screening.saddle_levels(radius_range).stop - 1) + 4
         parts = []
         for x0, y0, x1, y1 in regions:
             cx0, cy0 = max(int(x0) - margin, 0), max(int(y0) - margin, 0)

@@ -22,6 +22,10 @@ from scipy.spatial import cKDTree
 
 from marker_localizer.core.pipeline import DetectionResult, Detector
 
+#: Half-width of a marker's plate in marker radii (the plates of the renderer and of
+#: printed targets extend a quarter radius beyond the X).
+PLATE_HALF_WIDTH = 1.25
+
 
 @dataclass
 class _Track:
@@ -46,7 +50,7 @@ class MarkerTracker:
 
     detector: Detector
     full_frame_every: int = 10
-    max_motion_px: float = 128.0
+    max_motion_px: float = 64.0
     match_px: float = 3.0
     _tracks: list[_Track] = field(default_factory=list)
     _frames_since_full: int = 0
@@ -94,22 +98,38 @@ class MarkerTracker:
             ]
         ).reshape(-1, 2)
 
-    def _border_bands(self, shape: tuple[int, ...]) -> np.ndarray:
-        """(4, 4) windows along the frame border through which markers come into view."""
+    def _border_bands(self, shape: tuple[int, ...], motion: np.ndarray) -> np.ndarray:
+        """Windows along the frame border through which markers can have come into view.
+
+        Args:
+            shape: the frame's shape.
+            motion: (N, 2) displacement of every track since the last frame, px
+                (anchor correction included).
+
+        Returns:
+            (K, 4) windows, K <= 4: only the sides the image content moves away from
+            (new ground enters there); all four while the content is about still.
+        """
         height, width = shape[:2]
-        band = int(np.ceil(self.max_motion_px + 2.5 * self.detector.config.marker_radius_max_px))
-        bands = np.array(
-            [
-                [0, 0, width, band],
-                [0, height - band, width, height],
-                [0, band, band, height - band],
-                [width - band, band, width, height - band],
-            ]
-        )
+        step = float(np.max(np.linalg.norm(motion, axis=1))) if len(motion) else 0.0
+        # A marker whose plate was cut by the border last frame and is whole now has
+        # its centre within its plate's half-width plus one frame's motion of the
+        # border; the match tolerance covers the motion's own error.
+        reach = PLATE_HALF_WIDTH * self.detector.config.marker_radius_max_px
+        band = int(np.ceil(min(step, self.max_motion_px) + reach + self.match_px))
+        dx, dy = np.mean(motion, axis=0) if len(motion) else (0.0, 0.0)
+        sides = [
+            (dy > -self.match_px, [0, 0, width, band]),
+            (dy < self.match_px, [0, height - band, width, height]),
+            (dx > -self.match_px, [0, 0, band, height]),
+            (dx < self.match_px, [width - band, 0, width, height]),
+        ]
+        bands = np.array([box for inflow, box in sides if inflow]).reshape(-1, 4)
         # On a frame narrower than two bands they overlap: clip them to the frame.
         return np.clip(bands, 0, [width, height, width, height])
 
     def _windows(self, centres: np.ndarray, half: np.ndarray) -> np.ndarray:
+        """(N, 4) windows (x0, y0, x1, y1) of half-size ``half`` around ``centres``."""
         return np.hstack(
             [np.floor(centres - half[:, None]), np.ceil(centres + half[:, None]) + 1]
         ).astype(np.int64)
@@ -149,11 +169,12 @@ class MarkerTracker:
         if (distance > self.max_motion_px + 0.5 * radius[anchors]).any():
             return None
         corrected = _apply_similarity(predicted[anchors], found[owner, :2], predicted)
+        motion = corrected - np.array([t.xy for t in self._tracks])
         reach = self.match_px + 0.5 * radius
         regions = np.vstack(
             [
                 self._windows(corrected[in_view], 1.5 * radius[in_view] + reach[in_view]),
-                self._border_bands(image.shape),
+                self._border_bands(image.shape, motion),
             ]
         )
         result = self.detector.detect(image, regions=regions)
