@@ -10,12 +10,12 @@ from __future__ import annotations
 import re
 import sys
 import threading
-import time
 from collections import defaultdict
 
 import numpy as np
 import pytest
 import rclpy
+import waiting
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
@@ -39,14 +39,10 @@ KEEP_LAST_1 = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 CLOCK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
+
 def wait_until(predicate, what, timeout_s=TIMEOUT_S):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        result = predicate()
-        if result:
-            return result
-        time.sleep(0.01)
-    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+    """Poll ``predicate`` for up to this module's timeout."""
+    return waiting.wait_until(predicate, what, timeout_s)
 
 
 def time_ns(t) -> int:

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
+import waiting
 import yaml
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
@@ -59,15 +60,10 @@ IMAGE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 # --------------------------------------------------------------------------- helpers
 
 
+
 def wait_until(predicate, what, timeout_s=TIMEOUT_S):
-    """Poll ``predicate`` until it returns something truthy; fail naming ``what``."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        result = predicate()
-        if result:
-            return result
-        time.sleep(0.01)
-    raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+    """Poll ``predicate`` for up to this module's timeout."""
+    return waiting.wait_until(predicate, what, timeout_s)
 
 
 def scene(width, height, n_markers, seed):
