@@ -386,7 +386,7 @@ def load_params_file(path: str | Path, node_name: str = "*") -> dict[str, Any]:
     The file has the node's layout (``node_name: ros__parameters: detector: {...}``);
     the entry for ``node_name`` or the wildcard ``/**`` is used.
     """
-    import yaml  # noqa: PLC0415 - PyYAML ships with the ROS wheels; only this helper needs it
+    import yaml  # noqa: PLC0415 - only this helper needs PyYAML
 
     try:
         document = yaml.safe_load(Path(path).read_text())
