@@ -160,15 +160,10 @@ class TemplateMatch(NamedTuple):
     Attributes:
         ncc: the largest |NCC| over the candidate blurs (1 = a perfect X).
         sigma_b: the defocus sigma achieving it, px.
-        dark: the darker sector level of the least-squares template fit on the raw
-            samples (before ``normalise``), i.e. de-blurred, in image units.
-        bright: the brighter sector level, likewise.
     """
 
     ncc: np.ndarray
     sigma_b: np.ndarray
-    dark: np.ndarray
-    bright: np.ndarray
 
 
 def template_correlation(
@@ -188,9 +183,7 @@ def template_correlation(
     PSF on perpendicular lines. NCC is invariant to the grey levels, so only the
     angles and sigma_b matter; sigma_b is chosen from ``sigmas_px`` as the best
     match (the edge-spread estimate of the paper), and the sign of the NCC is the
-    polarity choice of Eq. (10). The grey levels of the template (m +- a for the
-    fit m + a T) are fitted on the raw samples: they are the paints' levels with
-    the blur taken out, which a 3x3 window cannot give on a 3 px marker.
+    polarity choice of Eq. (10).
 
     Args:
         image: (H, W) image (any numeric dtype).
@@ -208,8 +201,6 @@ def template_correlation(
     n = len(xy)
     ncc = np.zeros(n)
     best_sigma = np.full(n, np.nan)
-    mean_level = np.zeros(n)
-    amplitude = np.zeros(n)
     radius_key = np.round(np.asarray(radius_px, dtype=np.float64))
     for radius in np.unique(radius_key):
         members = np.flatnonzero(radius_key == radius)
@@ -218,29 +209,22 @@ def template_correlation(
         gx, gy = np.meshgrid(grid, grid)
         inside = gx**2 + gy**2 <= radius**2
         dx, dy = gx[inside], gy[inside]
-        raw, valid = bilinear(image, xy[members, 0, None] + dx, xy[members, 1, None] + dy)
-        values = normalise(raw, xy[members]) if normalise is not None else raw
+        values, valid = bilinear(image, xy[members, 0, None] + dx, xy[members, 1, None] + dy)
+        if normalise is not None:
+            values = normalise(values, xy[members])
         a1, a2 = line_angles[members, 0:1], line_angles[members, 1:2]
         s1 = np.sin(a1) * dx - np.cos(a1) * dy
         s2 = np.sin(a2) * dx - np.cos(a2) * dy
         centred = (values - values.mean(axis=1, keepdims=True)) * valid
-        raw_mean = raw.mean(axis=1, keepdims=True)
-        raw_centred = (raw - raw_mean) * valid
         norm_i = np.linalg.norm(centred, axis=1) + 1e-12
         for sigma in sigmas_px:
             # Pixel integration adds 1/12 px^2 to the Gaussian PSF variance.
             scale = 1.0 / np.sqrt(2.0 * (sigma**2 + 1.0 / 12.0))
             model = erf(s1 * scale) * erf(s2 * scale)
-            model_mean = model.mean(axis=1, keepdims=True)
-            model_centred = model - model_mean
+            model_centred = model - model.mean(axis=1, keepdims=True)
             model_norm2 = (model_centred**2).sum(axis=1) + 1e-12
             corr = np.abs((centred * model_centred).sum(axis=1)) / (norm_i * np.sqrt(model_norm2))
             better = corr > ncc[members]
-            index = members[better]
-            ncc[index] = corr[better]
-            best_sigma[index] = sigma
-            # Least squares raw = m + a T: a = cov / var, m = mean(raw) - a mean(T).
-            a = (raw_centred * model_centred).sum(axis=1) / model_norm2
-            amplitude[index] = np.abs(a[better])
-            mean_level[index] = (raw_mean[:, 0] - a * model_mean[:, 0])[better]
-    return TemplateMatch(ncc, best_sigma, mean_level - amplitude, mean_level + amplitude)
+            ncc[members[better]] = corr[better]
+            best_sigma[members[better]] = sigma
+    return TemplateMatch(ncc, best_sigma)

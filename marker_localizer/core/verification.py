@@ -173,9 +173,7 @@ def centre_symmetry_check(
     min_symmetry: float,
     max_angle_drift_rad: float = np.deg2rad(15.0),
     max_first_ring: int = 2,
-    min_rings: int = 2,
     normalise: Normaliser | None = None,
-    interpolate: bool = True,
 ) -> SymmetryCheck:
     """Annular-scan centre-symmetry check (section 3.2, invariant 1).
 
@@ -193,9 +191,7 @@ def centre_symmetry_check(
         min_symmetry: minimum 180-degree self-correlation.
         max_angle_drift_rad: largest change of a line angle between rings.
         max_first_ring: the run must start at a ring index below this.
-        min_rings: the run must have at least this many rings.
         normalise: applied to the ring samples (contrast is measured after it).
-        interpolate: see :func:`annular_profiles`.
 
     Returns:
         :class:`SymmetryCheck`.
@@ -205,7 +201,7 @@ def centre_symmetry_check(
         return SymmetryCheck(
             np.zeros(0, bool), np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.zeros(0)
         )
-    rings = analyse_rings(annular_profiles(image, xy, radii_px, normalise, interpolate=interpolate))
+    rings = analyse_rings(annular_profiles(image, xy, radii_px, normalise))
     good = rings.four_sectors & (rings.contrast >= min_contrast) & (rings.symmetry >= min_symmetry)
     first = np.argmax(good[:, :max_first_ring], axis=1)
     has_first = good[np.arange(n), first] & good[:, :max_first_ring].any(axis=1)
@@ -226,7 +222,7 @@ def centre_symmetry_check(
     broken = np.cumsum(~good & after_first, axis=1) > 0
     in_run = good & after_first & ~broken & has_first[:, None]
     run_length = in_run.sum(axis=1)
-    accepted = run_length >= min_rings
+    accepted = run_length >= 2
     last = np.where(in_run.any(axis=1), n_rings - 1 - np.argmax(in_run[:, ::-1], axis=1), 0)
     # The score uses the three innermost rings of the run: outer rings of a large marker
     # meet its plate boundary, which perspective leaves less symmetric than the X itself.
