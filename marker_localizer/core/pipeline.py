@@ -123,9 +123,8 @@ class Detector:
 
     def __init__(self, config: DetectorConfig | None = None) -> None:
         self.config = config or DetectorConfig()
-        self._radii = verification.ring_radii(
-            (self.config.marker_radius_min_px, self.config.marker_radius_max_px)
-        )
+        self._radius_range = (self.config.marker_radius_min_px, self.config.marker_radius_max_px)
+        self._radii = verification.ring_radii(self._radius_range)
 
     def detect(self, image: np.ndarray, regions: np.ndarray | None = None) -> DetectionResult:
         """Find and locate every diagonal marker in ``image``.
@@ -216,7 +215,6 @@ class Detector:
 
     def _find_candidates(self, gray: np.ndarray, full_scale: float) -> Candidates:
         cfg = self.config
-        radius_range = (cfg.marker_radius_min_px, cfg.marker_radius_max_px)
         if cfg.candidate_detector == "curvature":
             # The paper's path: GDWGIF, dynamic gamma and structure map on the whole frame.
             frame = gray.astype(np.float32) / np.float32(full_scale)
@@ -230,17 +228,17 @@ class Detector:
             return screening.curvature_candidates(
                 corrected,
                 structure,
-                radius_range,
+                self._radius_range,
                 cfg.curvature_threshold_std,
                 cfg.min_peak_separation_px,
                 cfg.structure_keep_fraction,
             )
         # The Hessian's own 5x5 smoothing replaces GDWGIF, and the threshold in grey
-        # levels replaces the structure percentile: two full-frame passes fewer, with
-        # the same recall on the renderer (README, "Speed").
+        # levels replaces the structure percentile: no full-frame float passes (those
+        # cost seconds on 12 MP); both paths' recall is in the README's tables.
         return screening.saddle_candidates(
             gray,
-            radius_range,
+            self._radius_range,
             cfg.min_contrast_dn / 255.0 * full_scale,
             relative_threshold=cfg.saddle_threshold,
         )
@@ -252,8 +250,7 @@ class Detector:
         height, width = gray.shape
         # The filters of the coarsest pyramid level reach 2 level pixels (5x5 Sobel)
         # plus the halving alignment: that much context around a window suffices.
-        radius_range = (self.config.marker_radius_min_px, self.config.marker_radius_max_px)
-        margin = 4 * 2 ** (screening.saddle_levels(radius_range).stop - 1) + 4
+        margin = 4 * 2 ** (screening.saddle_levels(self._radius_range).stop - 1) + 4
         parts = []
         for x0, y0, x1, y1 in regions:
             cx0, cy0 = max(int(x0) - margin, 0), max(int(y0) - margin, 0)
