@@ -84,8 +84,14 @@ def dynamic_gamma(
         (H, W) float32 in [0, 1].
     """
     mu = box_mean(image, window_px)
-    gamma = np.clip(alpha * mu, *gamma_limits)
-    return np.power(np.maximum(image, 1e-6), gamma).astype(np.float32)
+    return apply_gamma(image, mu, alpha, gamma_limits).astype(np.float32)
+
+
+def apply_gamma(
+    luminance: np.ndarray, mean: np.ndarray, alpha: float, gamma_limits: tuple[float, float]
+) -> np.ndarray:
+    """Eq. (2) itself: L ** clip(alpha * mu) for intensities in [0, 1] (broadcasting)."""
+    return np.power(np.maximum(luminance, 1e-6), np.clip(alpha * mean, *gamma_limits))
 
 
 def structure_map(
@@ -201,6 +207,5 @@ class LocalGamma:
 
     def __call__(self, values: np.ndarray, xy: np.ndarray) -> np.ndarray:
         """Apply Eq. (2) to raw samples ``values`` (N, ...) taken around the points ``xy``."""
-        gamma = np.clip(self._alpha * self.mean_at(xy), *self._limits)
-        gamma = gamma.reshape((-1,) + (1,) * (values.ndim - 1))
-        return np.power(np.maximum(values / self._full_scale, 1e-6), gamma)
+        mean = self.mean_at(xy).reshape((-1,) + (1,) * (values.ndim - 1))
+        return apply_gamma(values / self._full_scale, mean, self._alpha, self._limits)
