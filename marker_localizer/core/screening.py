@@ -75,6 +75,11 @@ _SADDLE_PER_CONTRAST = 1.0 / np.pi
 _EXPECTED_BLUR_PX = 1.5
 
 
+#: Smallest half-width (level px) of a foreshortened marker at the first level searched:
+#: below ~1.5 px the 5x5 Sobel kernels' smoothing mixes the quadrants with the plate.
+MIN_LEVEL_RADIUS_PX = 1.5
+
+
 def saddle_response(image: np.ndarray) -> np.ndarray:
     """Squared saddle strength f_xy^2 - f_xx f_yy (= -det H) from 5x5 Sobel derivatives.
 
@@ -124,15 +129,19 @@ def saddle_levels(radius_range_px: tuple[float, float]) -> range:
     """Pyramid levels searched for markers of the given radius range.
 
     Level L (image reduced by 2**L) answers best to markers of radius ~2-6 px at
-    that level (2**L * (2..6) px in the frame); the first level is the coarsest
+    that level (2**L * (2..6) px in the frame). The first level is the coarsest
     at which the smallest marker, foreshortened to half its radius by a 60-degree
-    tilt, still spans 2.5 px, so a frame of small markers is searched at full
-    resolution and one of large markers is not.
+    tilt, still spans :data:`MIN_LEVEL_RADIUS_PX`, so only frames of markers
+    under ~6 px are searched at full resolution (the other levels together cost
+    a third of that one). At least two levels are searched: a response peaking
+    between two levels, as chessboard corners crowded by their neighbours do,
+    is then seen at the finer one.
     """
     r_min, r_max = radius_range_px
-    r_min *= 0.5
-    first = max(0, int(np.floor(np.log2(max(r_min, 1.0) / 2.5))))
-    last = max(first, int(np.ceil(np.log2(max(r_max, 1.0) / 6.0))))
+    foreshortened = 0.5 * r_min
+    last = max(0, int(np.ceil(np.log2(max(r_max, 1.0) / 6.0))))
+    first = max(0, int(np.floor(np.log2(max(foreshortened, 1.0) / MIN_LEVEL_RADIUS_PX))))
+    return range(min(first, max(last - 1, 0)), last + 1)
     return range(first, last + 1)
 
 
@@ -169,8 +178,13 @@ def saddle_candidates(
             height, width = level_image.shape
             if min(height, width) < 32:
                 break
+            # An even crop makes INTER_AREA average exact 2 x 2 blocks; from an odd
+            # size it would stretch the grid, and windows would see other pixels than
+            # the full frame does.
             level_image = cv2.resize(
-                level_image, (width // 2, height // 2), interpolation=cv2.INTER_AREA
+                level_image[: height - height % 2, : width - width % 2],
+                (width // 2, height // 2),
+                interpolation=cv2.INTER_AREA,
             )
         if level < levels.start:
             continue
@@ -188,7 +202,12 @@ def saddle_candidates(
         # INTER_AREA halving maps level coordinate u to full-resolution (u + 0.5) 2**L - 0.5.
         xy = (np.stack([cols + dx, rows + dy], axis=1) + 0.5) * 2**level - 0.5
         strength = np.sqrt(response[rows, cols].astype(np.float64)) / expected
-        parts.append(Candidates(xy, strength, np.full(len(rows), 4.0 * 2**level)))
+        # The first level also holds markers smaller than its typical radius, down to
+        # the smallest expected: their centre checks must fit inside them.
+        scale = 4.0 * 2**level
+        if level == levels.start:
+            scale = min(scale, max(radius_range_px[0], 4.0))
+        parts.append(Candidates(xy, strength, np.full(len(rows), scale)))
     return Candidates.concat(parts)
 
 
