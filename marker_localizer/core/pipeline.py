@@ -33,7 +33,7 @@ _PRESCREEN_GOOD_RINGS = 3
 #: Gauss-Newton iterations of the coarse centring (a few tenths of a pixel suffice there).
 _COARSE_ITERATIONS = 3
 #: Samples per candidate in the coarse centring: enough for a few tenths of a pixel.
-_COARSE_SAMPLES = 60
+_COARSE_SAMPLES = 40
 #: Ratio of the observed to the fit-predicted error on the renderer's family (a) frames:
 #: neighbouring bilinear samples share pixels, so the fit's covariance counts more
 #: independent residuals than there are. Measured with ``marker-localizer bench accuracy``:

@@ -20,6 +20,12 @@ import numpy as np
 from marker_localizer.core.sampling import Normaliser, bilinear
 
 N_ANGLES = 36  # the paper's 10-degree sampling of the annulus
+#: Smallest LSD window side, px: smaller windows are enlarged so that the edges of a
+#: 3-5 px marker make segments LSD accepts.
+_LSD_MIN_WINDOW_PX = 24
+#: LSD window half-width in marker radii: the X and a margin for its blurred edges,
+#: but not the plate's outline, whose segments would only add crossings to test.
+_LSD_WINDOW_RADII = 1.25
 _HALF_TURN = N_ANGLES // 2
 
 
@@ -356,7 +362,7 @@ def double_line_check(
 ) -> LineCheck:
     """LSD double-line intersection check, Eq. (9) (section 3.2, invariant 2).
 
-    LSD runs on a window of twice the marker radius around each candidate; small
+    LSD runs on a window of 1.25 marker radii around each candidate; small
     windows are upsampled first so that the segments of a 3-5 px marker are long
     enough for LSD. Segments are extended by ``extend_px`` (Eq. 9, in full-image
     pixels) at both ends, and the candidate passes when two of them with
@@ -385,7 +391,7 @@ def double_line_check(
     height, width = image.shape
     # A loop over candidates (not pixels): each runs LSD on its own small window.
     for k in range(n):
-        half = int(np.ceil(max(2.0 * radius_px[k], 6.0)))
+        half = int(np.ceil(max(_LSD_WINDOW_RADII * radius_px[k], 6.0)))
         cx, cy = int(round(xy[k, 0])), int(round(xy[k, 1]))
         x0, y0 = max(cx - half, 0), max(cy - half, 0)
         x1, y1 = min(cx + half + 1, width), min(cy + half + 1, height)
@@ -394,16 +400,14 @@ def double_line_check(
             window = np.clip(
                 normalise(window[None].astype(np.float64), xy[k : k + 1])[0] * 255.0 + 0.5, 0, 255
             ).astype(np.uint8)
-        upsample = max(1, int(np.ceil(24.0 / max(min(window.shape), 1))))
-        if upsample > 1:
-            window = cv2.resize(
-                window, None, fx=upsample, fy=upsample, interpolation=cv2.INTER_CUBIC
-            )
+        zoom = max(1, int(np.ceil(_LSD_MIN_WINDOW_PX / max(min(window.shape), 1))))
+        if zoom > 1:
+            window = cv2.resize(window, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
         found = lsd.detect(window)[0]
         if found is None or len(found) < 2:
             continue
         # Back to full-image coordinates: the resize maps pixel centres by (u + 0.5) / s - 0.5.
-        segments = (found[:, 0, :].astype(np.float64) + 0.5) / upsample - 0.5
+        segments = (found[:, 0, :].astype(np.float64) + 0.5) / zoom - 0.5
         segments += np.array([x0, y0, x0, y0], dtype=np.float64)
         direction = segments[:, 2:] - segments[:, :2]
         length = np.linalg.norm(direction, axis=1)
