@@ -223,36 +223,36 @@ def refine_point_symmetry(
         return SymmetryFit(
             np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0), np.zeros(0), np.zeros(0, bool)
         )
-    centre = xy.astype(np.float64).copy()
+    centre = xy.astype(np.float64)
     start = centre.copy()
-    covariance = np.full((n, 2, 2), np.nan)
-    residual_rms = np.full(n, np.inf)
-    contrast = np.zeros(n)
-    converged = np.zeros(n, dtype=bool)
-    # Points sharing a radius share an offset pattern; group them so each group is
-    # one set of array operations.
+    # Points sharing a radius share an offset pattern; the patterns are padded to one
+    # length (with zero weight) so that all points are one set of array operations:
+    # per-call overheads, not samples, dominate for a few dozen markers.
     radius_key = np.round(np.asarray(radius_px, dtype=np.float64) * 2.0) / 2.0
+    keys, pattern_of = np.unique(radius_key, return_inverse=True)
+    patterns = [symmetric_offsets(float(radius), max_samples) for radius in keys]
+    length = max(len(taper) for _, taper in patterns)
+    offsets = np.zeros((len(keys), length, 2))
+    tapers = np.zeros((len(keys), length))
+    present = np.zeros((len(keys), length), dtype=bool)
+    spacing = np.ones(len(keys))
+    for k, (pattern, taper) in enumerate(patterns):
+        offsets[k, : len(taper)], tapers[k, : len(taper)] = pattern, taper
+        present[k, : len(taper)] = True
+        spacing[k] = np.min(np.abs(pattern[pattern != 0]), initial=1.0)
     max_shift = np.broadcast_to(np.asarray(max_shift_px, dtype=np.float64), (n,))
-    for radius in np.unique(radius_key):
-        members = np.flatnonzero(radius_key == radius)
-        offsets, taper = symmetric_offsets(float(radius), max_samples)
-        fit = _gauss_newton_symmetry(
-            image,
-            centre[members],
-            offsets,
-            taper,
-            iterations,
-            tolerance_px,
-            model_gain,
-            noise_floor,
-        )
-        (
-            centre[members],
-            covariance[members],
-            residual_rms[members],
-            contrast[members],
-            converged[members],
-        ) = fit
+    centre, covariance, residual_rms, contrast, converged = _gauss_newton_symmetry(
+        image,
+        centre,
+        offsets[pattern_of],
+        tapers[pattern_of],
+        present[pattern_of],
+        spacing[pattern_of],
+        iterations,
+        tolerance_px,
+        model_gain,
+        noise_floor,
+    )
     moved = np.linalg.norm(centre - start, axis=1)
     converged &= moved <= max_shift
     return SymmetryFit(centre, covariance, residual_rms, contrast, converged)
@@ -266,8 +266,11 @@ def _symmetry_terms(
     taper: np.ndarray,
     model_gain: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Residuals r(d), weights, Jacobian (N, K, P) and the samples I(c +- d) at ``centre``."""
-    dx, dy = offsets[:, 0], offsets[:, 1]
+    """Residuals r(d), weights, Jacobian (N, K, P) and the samples I(c +- d) at ``centre``.
+
+    ``offsets`` is (N, K, 2) and ``taper`` (N, K): each point's own pattern.
+    """
+    dx, dy = offsets[..., 0], offsets[..., 1]
     plus, gpx, gpy, valid_p = bilinear_with_gradient(
         image, centre[:, 0, None] + dx, centre[:, 1, None] + dy
     )
@@ -288,6 +291,8 @@ def _gauss_newton_symmetry(
     centre: np.ndarray,
     offsets: np.ndarray,
     taper: np.ndarray,
+    present: np.ndarray,
+    spacing: np.ndarray,
     iterations: int,
     tolerance_px: float,
     model_gain: bool,
@@ -325,9 +330,21 @@ def _gauss_newton_symmetry(
     sigma2 = np.maximum(sigma2, noise_floor**2)
     meat = np.einsum("nk,nki,nkj->nij", weight**2, jacobian, jacobian)
     bread = np.linalg.pinv(normal)
-    spacing = float(np.min(np.abs(offsets[offsets != 0])))
-    full = sigma2[:, None, None] * bread @ meat @ bread / min(spacing, 1.0) ** 2
-    covariance = full[:, :2, :2]
-    contrast = np.percentile(samples, 90, axis=1) - np.percentile(samples, 10, axis=1)
+    cell = np.minimum(spacing, 1.0)[:, None, None] ** 2
+    covariance = (sigma2[:, None, None] * bread @ meat @ bread / cell)[:, :2, :2]
+    both = np.concatenate([present, present], axis=1)
+    contrast = _row_percentile(samples, both, 90.0) - _row_percentile(samples, both, 10.0)
     converged = step_norm <= tolerance_px
     return centre, covariance, residual_rms, contrast, converged
+
+
+def _row_percentile(values: np.ndarray, present: np.ndarray, q: float) -> np.ndarray:
+    """Per-row percentile over the ``present`` entries, as ``np.percentile`` (linear)."""
+    ordered = np.sort(np.where(present, values, np.inf), axis=1)
+    position = q / 100.0 * (present.sum(axis=1) - 1)
+    low = np.floor(position).astype(np.intp)
+    high = np.minimum(low + 1, ordered.shape[1] - 1)
+    fraction = position - low
+    below = np.take_along_axis(ordered, low[:, None], axis=1)[:, 0]
+    above = np.take_along_axis(ordered, high[:, None], axis=1)[:, 0]
+    return below + (np.where(fraction > 0, above, below) - below) * fraction

@@ -128,16 +128,18 @@ def _nearest_ring(image: np.ndarray, xy: np.ndarray, radius_px: float) -> np.nda
     """(N, 36) float32 nearest-pixel samples on one ring; rows leaving the image are NaN."""
     theta = np.arange(N_ANGLES) * (2.0 * np.pi / N_ANGLES)
     height, width = image.shape
-    col = np.rint(xy[:, 0, None] + radius_px * np.cos(theta)).astype(np.intp)
-    row = np.rint(xy[:, 1, None] + radius_px * np.sin(theta)).astype(np.intp)
+    reach = np.ceil(radius_px) + 1.0
     inside = (
-        (col.min(axis=1) >= 0)
-        & (row.min(axis=1) >= 0)
-        & (col.max(axis=1) < width)
-        & (row.max(axis=1) < height)
+        (xy[:, 0] >= reach)
+        & (xy[:, 1] >= reach)
+        & (xy[:, 0] < width - reach)
+        & (xy[:, 1] < height - reach)
     )
-    flat = np.where(inside[:, None], row * width + col, 0)
-    values = image.reshape(-1)[flat].astype(np.float32)
+    centre = np.where(inside[:, None], xy, reach) + 0.5
+    # Coordinates are positive here, so truncation after +0.5 rounds to the nearest pixel.
+    col = (centre[:, 0, None] + radius_px * np.cos(theta)).astype(np.intp)
+    row = (centre[:, 1, None] + radius_px * np.sin(theta)).astype(np.intp)
+    values = image.reshape(-1)[row * width + col].astype(np.float32)
     values[~inside] = np.nan
     return values
 
