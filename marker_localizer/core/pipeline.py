@@ -164,11 +164,12 @@ class Detector:
                 # Contour corners sit up to 2 px off the centre, too far for the
                 # prescreen's small rings; the paper's path goes straight to centring.
                 candidates = self._prescreen(gray, full_scale, candidates, result.counts)
-        return self._confirm(gray, gamma, candidates, result, timer)
+        return self._confirm(gray, full_scale, gamma, candidates, result, timer)
 
     def _confirm(
         self,
         gray: np.ndarray,
+        full_scale: float,
         gamma: preprocessing.LocalGamma,
         candidates: Candidates,
         result: DetectionResult,
@@ -179,7 +180,9 @@ class Detector:
         with timer("centring"):
             candidates = self._centre(gray, candidates, counts)
         with timer("verification"):
-            candidates, radius, angles, score = self._verify(gray, candidates, gamma, counts)
+            candidates, radius, angles, score = self._verify(
+                gray, full_scale, candidates, gamma, counts
+            )
         with timer("subpixel"):
             result.detections = self._locate(
                 gray,
@@ -331,6 +334,7 @@ class Detector:
     def _verify(
         self,
         gray: np.ndarray,
+        full_scale: float,
         candidates: Candidates,
         gamma: preprocessing.LocalGamma,
         counts: dict[str, int],
@@ -388,7 +392,7 @@ class Detector:
                 radius,
                 extend_px=cfg.line_extend_px,
                 max_distance_px=max(cfg.line_max_distance_px, 0.0),
-                normalise=gamma,
+                full_scale=full_scale,
             )
             counts["rejected_lines"] = int((~lines.accepted).sum())
             ok = lines.accepted
