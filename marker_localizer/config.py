@@ -220,10 +220,11 @@ class DetectorConfig:
         high=1.0,
     )
     min_score: float = _param(
-        0.88,
+        0.80,
         "Minimum detection score (ring symmetry x template NCC x (1 - relative symmetry "
-        "residual)). On the renderer's cluttered frames markers score 0.89-1.0 and the "
-        "best ground-texture saddles 0.87-0.90.",
+        "residual)) of a marker wider than ground texture's saddles (extent 6 px and "
+        "more); smaller ones need at least 0.88, where the best texture saddles score "
+        "0.87-0.93. Real chessboard corners under lens blur score 0.80-1.0.",
         low=0.0,
         high=1.0,
     )
@@ -251,8 +252,10 @@ class DetectorConfig:
         5.0, "Delta s of Eq. (9): segments are extended by this much at both ends.", "px", 0.0, 50.0
     )
     line_max_distance_px: float = _param(
-        1.5,
-        "Largest distance between the extended lines' intersection and the candidate.",
+        2.0,
+        "Largest distance between the extended lines' intersection and the candidate "
+        "(LSD stops short of a blurred centre; lines extrapolated from there cross up to "
+        "~2 px from it on rendered markers).",
         "px",
         0.1,
         20.0,

@@ -43,6 +43,11 @@ _SIGMA_CALIBRATION = 2.0
 #: for the ring ladder's rounding) need ``min_score_small``: ground texture produces
 #: saddles of that size, rarely larger.
 _SMALL_EXTENT_FACTOR = 1.05
+#: Ground texture makes saddles that pass every check up to this extent (px), with
+#: scores up to ~0.93; below it a detection needs at least ``_TEXTURE_MIN_SCORE``
+#: (measured on the renderer's families (b) and (d): markers that small score 0.88+).
+_TEXTURE_EXTENT_PX = 6.0
+_TEXTURE_MIN_SCORE = 0.88
 #: Sector levels sampled closer than this to the centre are mixed by the blur.
 _MODULATION_MIN_OFFSET_PX = 2.5
 #: ... and from this distance on they are clear of it for any expected blur.
@@ -447,8 +452,11 @@ class Detector:
         ok = located & fit.converged & (relative_residual <= cfg.max_symmetry_residual)
         ok &= np.isfinite(sigma)
         counts["rejected_refinement"] = int((~ok).sum())
+        threshold = np.where(
+            radius < _TEXTURE_EXTENT_PX, max(cfg.min_score, _TEXTURE_MIN_SCORE), cfg.min_score
+        )
         small = radius < _SMALL_EXTENT_FACTOR * cfg.marker_radius_min_px
-        weak = ok & (final_score < np.where(small, cfg.min_score_small, cfg.min_score))
+        weak = ok & (final_score < np.where(small, cfg.min_score_small, threshold))
         counts["rejected_score"] = int(weak.sum())
         keep = np.flatnonzero(ok & ~weak)
         unique = screening.non_maximum_suppression(
