@@ -200,7 +200,8 @@ class DetectorConfig:
         "Minimum modulation (bright - dark) / (bright + dark) of the raw sector grey "
         "levels, which illumination does not change. Printed black and white give "
         "0.7-0.8, partly shadowed markers on the renderer kept 0.31 and more, "
-        "ground-texture saddles (gravel gaps) stayed below 0.38 and mostly below 0.3.",
+        "ground-texture saddles (gravel gaps) stayed below 0.38 and mostly below 0.3. "
+        "Tested on X's under 10 px only (texture's scale): dim real boards give 0.18.",
         low=0.0,
         high=1.0,
     )

@@ -48,6 +48,9 @@ _SMALL_EXTENT_FACTOR = 1.05
 #: (measured on the renderer's families (b) and (d): markers that small score 0.88+).
 _TEXTURE_EXTENT_PX = 6.0
 _TEXTURE_MIN_SCORE = 0.88
+#: The grey-level modulation gate applies below this extent (px): texture saddles
+#: that pass the other checks extend at most 8.5 px on the renderer's family (d).
+_MODULATION_MAX_EXTENT_PX = 10.0
 #: Sector levels sampled closer than this to the centre are mixed by the blur.
 _MODULATION_MIN_OFFSET_PX = 2.5
 #: ... and from this distance on they are clear of it for any expected blur.
@@ -379,9 +382,11 @@ class Detector:
         # of markers with an extent under ~4 px say little about their paint: they are
         # tested only when they also fall short of the expected radius, as texture
         # saddles do (a small marker in a frame of small markers is not suspect).
+        # Larger X's than texture makes are not tested: dim real boards (black level,
+        # haze) modulate as little as 0.18.
         measurable = (offset >= _MODULATION_MIN_OFFSET_PX) & (
             (radius < cfg.marker_radius_min_px) | (offset >= _MODULATION_FREE_OFFSET_PX)
-        )
+        ) & (radius < _MODULATION_MAX_EXTENT_PX)
         keep = (ncc >= cfg.template_ncc_min) & (~measurable | (modulation >= cfg.min_modulation))
         counts["rejected_template"] = int((~keep).sum())
         candidates, radius, angles, score = (
