@@ -201,7 +201,7 @@ class DetectorConfig:
         "levels, which illumination does not change. Printed black and white give "
         "0.7-0.8, partly shadowed markers on the renderer kept 0.31 and more, "
         "ground-texture saddles (gravel gaps) stayed below 0.38 and mostly below 0.3. "
-        "Tested on X's under 10 px only (texture's scale): dim real boards give 0.18.",
+        "Tested on X's under 9 px only (texture's scale): dim real boards give 0.18.",
         low=0.0,
         high=1.0,
     )
@@ -223,7 +223,7 @@ class DetectorConfig:
     min_score: float = _param(
         0.80,
         "Minimum detection score (ring symmetry x template NCC x (1 - relative symmetry "
-        "residual)) of a marker wider than ground texture's saddles (extent 6 px and "
+        "residual)) of a marker wider than ground texture's saddles (extent 9 px and "
         "more); smaller ones need at least 0.88, where the best texture saddles score "
         "0.87-0.93. Real chessboard corners under lens blur score 0.80-1.0.",
         low=0.0,
@@ -232,7 +232,8 @@ class DetectorConfig:
     min_score_small: float = _param(
         0.945,
         "Minimum score of a detection whose X extends no further than "
-        "marker_radius_min_px: the regime of ground-texture saddles (stones meeting). "
+        "marker_radius_min_px and less than 9 px: the regime of ground-texture saddles "
+        "(stones meeting). "
         "On the simulated flights those scored up to 0.944 and markers of that extent "
         "0.946 and more (a thin margin: see the README).",
         low=0.0,

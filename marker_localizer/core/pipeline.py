@@ -40,17 +40,16 @@ _COARSE_SAMPLES = 40
 #: with it, 96 % of the errors on family (a) fall within 2 sigma.
 _SIGMA_CALIBRATION = 2.0
 #: Detections whose X extends no further than the smallest expected radius (times this,
-#: for the ring ladder's rounding) need ``min_score_small``: ground texture produces
-#: saddles of that size, rarely larger.
+#: for the ring ladder's rounding), and less than ``_TEXTURE_EXTENT_PX``, need
+#: ``min_score_small``: ground texture produces saddles of that size, rarely larger.
 _SMALL_EXTENT_FACTOR = 1.05
-#: Ground texture makes saddles that pass every check up to this extent (px), with
-#: scores up to ~0.93; below it a detection needs at least ``_TEXTURE_MIN_SCORE``
-#: (measured on the renderer's families (b) and (d): markers that small score 0.88+).
-_TEXTURE_EXTENT_PX = 6.0
+#: Ground texture makes saddles that pass the geometric checks up to this extent
+#: (px; at most 8.5 px on the renderer's families (b) and (d)), with scores up to
+#: ~0.93. Below it the modulation gate applies, a detection needs at least
+#: ``_TEXTURE_MIN_SCORE`` (markers that small score 0.88 and more) and, where it
+#: is also no larger than the smallest expected marker, ``min_score_small``.
+_TEXTURE_EXTENT_PX = 9.0
 _TEXTURE_MIN_SCORE = 0.88
-#: The grey-level modulation gate applies below this extent (px): texture saddles
-#: that pass the other checks extend at most 8.5 px on the renderer's family (d).
-_MODULATION_MAX_EXTENT_PX = 10.0
 #: Sector levels sampled closer than this to the centre are mixed by the blur.
 _MODULATION_MIN_OFFSET_PX = 2.5
 #: ... and from this distance on they are clear of it for any expected blur.
@@ -386,7 +385,7 @@ class Detector:
         # haze) modulate as little as 0.18.
         measurable = (offset >= _MODULATION_MIN_OFFSET_PX) & (
             (radius < cfg.marker_radius_min_px) | (offset >= _MODULATION_FREE_OFFSET_PX)
-        ) & (radius < _MODULATION_MAX_EXTENT_PX)
+        ) & (radius < _TEXTURE_EXTENT_PX)
         keep = (ncc >= cfg.template_ncc_min) & (~measurable | (modulation >= cfg.min_modulation))
         counts["rejected_template"] = int((~keep).sum())
         candidates, radius, angles, score = (
@@ -460,7 +459,9 @@ class Detector:
         threshold = np.where(
             radius < _TEXTURE_EXTENT_PX, max(cfg.min_score, _TEXTURE_MIN_SCORE), cfg.min_score
         )
-        small = radius < _SMALL_EXTENT_FACTOR * cfg.marker_radius_min_px
+        small = (radius < _SMALL_EXTENT_FACTOR * cfg.marker_radius_min_px) & (
+            radius < _TEXTURE_EXTENT_PX
+        )
         weak = ok & (final_score < np.where(small, cfg.min_score_small, threshold))
         counts["rejected_score"] = int(weak.sum())
         keep = np.flatnonzero(ok & ~weak)
