@@ -1,45 +1,47 @@
 """Throughput of the node: five cameras of rendered 12 MP frames over real DDS, 1 and 2 workers.
 
 ``marker-localizer bench throughput`` (or ``python -m marker_localizer.bench.throughput``)
-renders one frame per camera once, then for each worker count starts a
-:class:`MarkerLocalizerNode` in this process and publishes the five frames over
-DDS at ``--rate-hz`` per camera, faster than the detector can keep up with, for
-``--seconds``.
-
-By default every frame gets a full-frame detection (``detector.tracking``
-off): the cost of the paper's method and of every ``tracking_full_frame_every``-th
-frame in flight. ``--tracking`` runs the node's default tracking mode instead;
-since the benchmark's frames do not move, every marker is confirmed in its
-window and the figure is a best case.
+renders one ground frame per camera once, then for each worker count starts a
+:class:`MarkerLocalizerNode` in this process and a camera process that
+publishes the five cameras over DDS at ``--rate-hz`` each, faster than the node
+can keep up with, for ``--seconds``. The cameras pan over their ground at
+:data:`PAN_STEP_PX` per frame and turn back at the end of their ground, so
+tracking mode (the node's default, ``detector.tracking``) meets moving markers,
+markers entering and leaving the view and changes of direction, as in flight.
+The cameras run in their own process, as camera drivers do: the 12 MB
+messages they build and serialise do not take this process's cores.
 
 Publishing stops, the frames already in the node are finished, and the run
 reports:
 
 * frames processed per second: results delivered / (time from the first
   publish to the last result). Every worker is busy from start to end, so this
-  is the pool's capacity; frames take seconds each, so the count is coarse,
-  which is why the default run is 90 s per worker count;
+  is the pool's capacity;
 * the scaling ratio (2 workers over 1);
 * dropped frames: replaced in a mailbox, too old, or never reaching the node
   (replaced in the keep-last-1 DDS queue). When publishing stops, the frames
   still waiting in the mailboxes grow old and are dropped by age (up to one
   per camera): the end of the feed, not a steady-state loss;
 * latency p50/p95 from the header stamp to the result's arrival at a subscriber;
-* CPU use of this process (100 % = one core busy), CPU used meanwhile by
-  other processes on the machine (from /proc/stat, 100 % = one core), and
-  peak resident memory. On a shared machine the scaling ratio means little
-  unless the other processes left the second core free.
+* CPU use of the node's process and of the camera process (100 % = one core
+  busy), CPU used meanwhile by any other process on the machine (from
+  /proc/stat), and the node process's peak resident memory. On a shared machine
+  the scaling ratio means little unless the other processes left the second
+  core free.
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
 import resource
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import rclpy
@@ -50,15 +52,21 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
+from marker_localizer.config import DetectorConfig
 from marker_localizer.ros.conversions import array_to_image
 from marker_localizer.ros.node import MarkerLocalizerNode
 from marker_localizer.ros.processing import stamp_to_ns
 from marker_localizer.synthetic import SceneConfig, render_scene
 
 CAMERAS = ("cam0", "cam1", "cam2", "cam3", "cam4")
-#: Longest wait for the frames in flight after publishing stops, s (a 12 MP
-#: frame takes about 10 s on one core).
+#: Image motion of every camera per frame, px (x, y): a drone at 10 m/s and 10 Hz.
+PAN_STEP_PX = (3, 2)
+#: Frames a camera pans before it turns back (its ground is that much larger).
+PAN_FRAMES = 32
+#: Longest wait for the frames in flight after publishing stops, s.
 _DRAIN_TIMEOUT_S = 120.0
+#: Longest wait for the camera process to start publishing (imports, DDS discovery), s.
+_CAMERA_START_TIMEOUT_S = 120.0
 _NS_PER_S = 1_000_000_000
 
 
@@ -76,6 +84,7 @@ class RunResult:
     latency_p50_ms: float
     latency_p95_ms: float
     cpu_percent: float
+    camera_cpu_percent: float
     others_cpu_percent: float
     peak_rss_mb: float
 
@@ -85,29 +94,52 @@ class RunResult:
         return self.published - self.received
 
 
-def render_frames(width: int, height: int, markers: int) -> dict[str, Image]:
-    """One rendered mono8 frame per camera (textured ground, hard negatives), made once."""
-    frames = {}
-    for seed, camera in enumerate(CAMERAS):
-        scene = render_scene(
-            SceneConfig(width=width, height=height, n_markers=markers, supersampling=4), seed
-        )
-        frames[camera] = array_to_image(scene.image, "mono8", Header(frame_id=camera))
-    return frames
+def render_grounds(width: int, height: int, markers: int, directory: Path) -> Path:
+    """Render each camera's ground once: the frame plus its pan (textured, hard negatives).
+
+    Args:
+        width: width of the published frames, px.
+        height: height of the published frames, px.
+        markers: markers per ground.
+        directory: where to write the grounds.
+
+    Returns:
+        Path of a (cameras, H, W) uint8 ``.npy`` file, read by the camera process.
+    """
+    dx, dy = PAN_STEP_PX
+    config = SceneConfig(
+        width=width + PAN_FRAMES * dx,
+        height=height + PAN_FRAMES * dy,
+        n_markers=markers,
+        supersampling=4,
+    )
+    path = Path(directory) / "grounds.npy"
+    np.save(path, np.stack([render_scene(config, seed).image for seed in range(len(CAMERAS))]))
+    return path
+
+
+def camera_view(ground: np.ndarray, frame: int) -> np.ndarray:
+    """Frame ``frame`` of a camera panning over ``ground`` and turning back every PAN_FRAMES."""
+    dx, dy = PAN_STEP_PX
+    step = frame % (2 * PAN_FRAMES)
+    k = step if step <= PAN_FRAMES else 2 * PAN_FRAMES - step
+    height = ground.shape[0] - PAN_FRAMES * dy
+    width = ground.shape[1] - PAN_FRAMES * dx
+    return ground[k * dy : k * dy + height, k * dx : k * dx + width]
 
 
 def run_once(
-    frames: dict[str, Image],
+    grounds: Path,
     workers: int,
     seconds: float,
     rate_hz: float,
     *,
-    tracking: bool = False,
+    tracking: bool = True,
 ) -> RunResult:
-    """Start a node with ``workers`` workers, feed it for ``seconds``, finish, measure.
+    """Start a node with ``workers`` workers, feed it from a camera process, finish, measure.
 
     Args:
-        frames: one frame per camera, published again and again with new stamps.
+        grounds: the cameras' grounds from :func:`render_grounds`.
         workers: the node's ``workers`` parameter.
         seconds: how long to publish, s.
         rate_hz: frames per second and camera.
@@ -125,7 +157,7 @@ def run_once(
             Parameter("detector.tracking", value=tracking),
         ],
     )
-    peer = Node("bench_peer", namespace=namespace)
+    peer = Node("bench_results", namespace=namespace)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     executor.add_node(peer)
@@ -135,18 +167,26 @@ def run_once(
     def on_points(cloud: PointCloud2) -> None:
         arrivals.append((time.time_ns(), stamp_to_ns(cloud.header)))
 
-    qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-    publishers = {c: peer.create_publisher(Image, f"{c}/image_raw", qos) for c in frames}
-    for camera in frames:
+    for camera in CAMERAS:
         peer.create_subscription(PointCloud2, f"{camera}/marker_points", on_points, 50)
+    # Spawned, not forked: the child starts its own rclpy context.
+    context = multiprocessing.get_context("spawn")
+    started, report = context.Event(), context.Queue()
+    cameras = context.Process(
+        target=_camera_process,
+        args=(str(grounds), namespace, rate_hz, seconds, started, report),
+        name="bench_cameras",
+    )
     spinner.start()
+    cameras.start()
     try:
-        _wait(
-            lambda: all(p.get_subscription_count() for p in publishers.values()),
-            "the node's subscriptions",
-        )
+        _wait(lambda: started.is_set() or not cameras.is_alive(), "the camera process",
+              _CAMERA_START_TIMEOUT_S)
+        if not started.is_set():
+            raise RuntimeError(f"the camera process exited with code {cameras.exitcode}")
         cpu_start, machine_start, start_ns = _cpu_s(), _machine_busy_s(), time.time_ns()
-        published = _publish(frames, publishers, seconds, rate_hz)
+        published, camera_cpu_s = report.get(timeout=seconds + _CAMERA_START_TIMEOUT_S)
+        cameras.join()
         if not node.processor.wait_idle(_DRAIN_TIMEOUT_S):
             raise RuntimeError(f"frames still in flight {_DRAIN_TIMEOUT_S:g} s after the end")
         _wait(lambda: len(arrivals) >= _processed(node), "the last results")
@@ -154,6 +194,8 @@ def run_once(
         machine_s = _machine_busy_s() - machine_start
         end_ns = max(a for a, _ in arrivals) if arrivals else time.time_ns()
     finally:
+        if cameras.is_alive():
+            cameras.terminate()
         executor.shutdown()
         spinner.join()
         node.destroy_node()
@@ -172,27 +214,48 @@ def run_once(
         latency_p50_ms=float(np.percentile(latency_ms, 50)) if arrivals else float("nan"),
         latency_p95_ms=float(np.percentile(latency_ms, 95)) if arrivals else float("nan"),
         cpu_percent=100.0 * cpu_s / span_s,
-        others_cpu_percent=100.0 * max(machine_s - cpu_s, 0.0) / span_s,
+        camera_cpu_percent=100.0 * camera_cpu_s / span_s,
+        others_cpu_percent=100.0 * max(machine_s - cpu_s - camera_cpu_s, 0.0) / span_s,
         # ru_maxrss is in KiB on Linux.
         peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     )
 
 
-def _publish(
-    frames: dict[str, Image],
-    publishers: dict[str, rclpy.publisher.Publisher],
-    seconds: float,
+def _camera_process(
+    grounds: str,
+    namespace: str,
     rate_hz: float,
-) -> int:
-    """Publish every camera's frame with a fresh stamp, ``seconds * rate_hz`` times."""
-    start = time.monotonic()
-    ticks = max(1, round(seconds * rate_hz))
-    for tick in range(ticks):
-        for camera, msg in frames.items():
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(time.time_ns(), _NS_PER_S)
-            publishers[camera].publish(msg)
-        time.sleep(max(start + (tick + 1) / rate_hz - time.monotonic(), 0.0))
-    return ticks * len(frames)
+    seconds: float,
+    started: multiprocessing.synchronize.Event,
+    report: multiprocessing.Queue,
+) -> None:
+    """The camera process: publish ``seconds * rate_hz`` panning frames per camera.
+
+    Sets ``started`` once the node's subscriptions are matched, then puts
+    (frames published, CPU seconds used while publishing) on ``report``.
+    """
+    ground = np.load(grounds)
+    rclpy.init()
+    try:
+        node = Node("bench_cameras", namespace=namespace)
+        qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+        publishers = [node.create_publisher(Image, f"{c}/image_raw", qos) for c in CAMERAS]
+        _wait(lambda: all(p.get_subscription_count() for p in publishers), "the node")
+        started.set()
+        cpu_start = _cpu_s()
+        start = time.monotonic()
+        ticks = max(1, round(seconds * rate_hz))
+        for tick in range(ticks):
+            for camera, (publisher, view) in enumerate(zip(publishers, ground, strict=True)):
+                stamp = Header(frame_id=CAMERAS[camera])
+                stamp.stamp.sec, stamp.stamp.nanosec = divmod(time.time_ns(), _NS_PER_S)
+                pixels = np.ascontiguousarray(camera_view(view, tick))
+                publisher.publish(array_to_image(pixels, "mono8", stamp))
+            time.sleep(max(start + (tick + 1) / rate_hz - time.monotonic(), 0.0))
+        report.put((ticks * len(CAMERAS), _cpu_s() - cpu_start))
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
 
 
 def _processed(node: MarkerLocalizerNode) -> int:
@@ -228,7 +291,7 @@ def format_table(results: Sequence[RunResult]) -> str:
     header = (
         f"{'workers':>7} {'frames/s':>9} {'processed':>9} {'published':>9} "
         f"{'drop DDS':>8} {'drop mbox':>9} {'drop age':>8} {'lat p50 ms':>10} "
-        f"{'lat p95 ms':>10} {'CPU %':>6} {'others %':>8} {'peak MB':>8}"
+        f"{'lat p95 ms':>10} {'CPU %':>6} {'cameras %':>9} {'others %':>8} {'peak MB':>8}"
     )
     rows = [header, "-" * len(header)]
     for r in results:
@@ -236,7 +299,7 @@ def format_table(results: Sequence[RunResult]) -> str:
             f"{r.workers:>7} {r.frames_per_s:>9.3f} {r.processed:>9} {r.published:>9} "
             f"{r.dropped_in_transport:>8} {r.dropped_mailbox:>9} {r.dropped_age:>8} "
             f"{r.latency_p50_ms:>10.0f} {r.latency_p95_ms:>10.0f} {r.cpu_percent:>6.0f} "
-            f"{r.others_cpu_percent:>8.0f} {r.peak_rss_mb:>8.0f}"
+            f"{r.camera_cpu_percent:>9.0f} {r.others_cpu_percent:>8.0f} {r.peak_rss_mb:>8.0f}"
         )
     return "\n".join(rows)
 
@@ -250,20 +313,23 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--width", type=int, default=4096, help="frame width, px")
     parser.add_argument("--height", type=int, default=3000, help="frame height, px")
     parser.add_argument(
-        "--seconds", type=float, default=90.0, help="publishing time per worker count, s"
+        "--seconds", type=float, default=40.0, help="publishing time per worker count, s"
     )
     parser.add_argument(
-        "--rate-hz", type=float, default=1.0, help="frames per second and camera published"
+        "--rate-hz",
+        type=float,
+        default=4.0,
+        help="frames per second and camera published (20 in all: more than the node takes)",
     )
     parser.add_argument("--markers", type=int, default=20, help="markers per frame")
     parser.add_argument(
         "--workers", type=int, nargs="+", default=[1, 2], help="worker counts to run"
     )
     parser.add_argument(
-        "--tracking",
+        "--full-frame",
         action="store_true",
-        help="the node's tracking mode (best case: the frames do not move) instead of "
-        "a full-frame detection per frame",
+        help="a full-frame detection per frame (detector.tracking off) instead of the "
+        "node's default tracking mode",
     )
     return parser
 
@@ -271,22 +337,30 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark and print a table; returns the exit status."""
     args = build_parser().parse_args(argv)
-    print(f"rendering {len(CAMERAS)} frames of {args.width}x{args.height} ...", flush=True)
-    frames = render_frames(args.width, args.height, args.markers)
-    rclpy.init()
-    try:
-        results = []
-        for workers in args.workers:
-            print(f"running {workers} worker(s) for {args.seconds:g} s ...", flush=True)
-            results.append(
-                run_once(frames, workers, args.seconds, args.rate_hz, tracking=args.tracking)
-            )
-    finally:
-        rclpy.try_shutdown()
-    mode = "tracking (static frames: best case)" if args.tracking else "full-frame detection"
+    tracking = not args.full_frame
+    with tempfile.TemporaryDirectory(prefix="marker_bench_") as directory:
+        print(f"rendering {len(CAMERAS)} grounds for {args.width}x{args.height} frames ...",
+              flush=True)
+        grounds = render_grounds(args.width, args.height, args.markers, Path(directory))
+        rclpy.init()
+        try:
+            results = []
+            for workers in args.workers:
+                print(f"running {workers} worker(s) for {args.seconds:g} s ...", flush=True)
+                results.append(
+                    run_once(grounds, workers, args.seconds, args.rate_hz, tracking=tracking)
+                )
+        finally:
+            rclpy.try_shutdown()
+    mode = (
+        f"tracking (full frame every {DetectorConfig().tracking_full_frame_every} frames)"
+        if tracking
+        else "full-frame detection"
+    )
     print(
-        f"\n{len(CAMERAS)} cameras, {args.width}x{args.height} mono8, {args.rate_hz:g} Hz each, "
-        f"{args.seconds:g} s per run, {mode}, {os.cpu_count()} CPUs"
+        f"\n{len(CAMERAS)} cameras, {args.width}x{args.height} mono8 panning "
+        f"{PAN_STEP_PX} px per frame, {args.rate_hz:g} Hz each, {args.seconds:g} s per run, "
+        f"{mode}, {os.cpu_count()} CPUs"
     )
     print(format_table(results))
     by_workers = {r.workers: r for r in results}
