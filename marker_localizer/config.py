@@ -224,8 +224,9 @@ class DetectorConfig:
         0.80,
         "Minimum detection score (ring symmetry x template NCC x (1 - relative symmetry "
         "residual)) of a marker wider than ground texture's saddles (extent 9 px and "
-        "more); smaller ones need at least 0.88, where the best texture saddles score "
-        "0.87-0.93. Real chessboard corners under lens blur score 0.80-1.0.",
+        "more); smaller ones need at least 0.88 (under 6 px: 0.92), where the best "
+        "texture saddles score 0.87-0.93. Real chessboard corners under lens blur score "
+        "0.80-1.0.",
         low=0.0,
         high=1.0,
     )

@@ -44,12 +44,16 @@ _SIGMA_CALIBRATION = 2.0
 #: ``min_score_small``: ground texture produces saddles of that size, rarely larger.
 _SMALL_EXTENT_FACTOR = 1.05
 #: Ground texture makes saddles that pass the geometric checks up to this extent
-#: (px; at most 8.5 px on the renderer's families (b) and (d)), with scores up to
-#: ~0.93. Below it the modulation gate applies, a detection needs at least
-#: ``_TEXTURE_MIN_SCORE`` (markers that small score 0.88 and more) and, where it
-#: is also no larger than the smallest expected marker, ``min_score_small``.
+#: (px; at most 8.5 px on the renderer's families (b) and (d)). Below it the
+#: modulation gate applies, a detection needs the score floor of its extent from
+#: ``_TEXTURE_SCORE_FLOORS`` and, where it is also no larger than the smallest
+#: expected marker, ``min_score_small``.
 _TEXTURE_EXTENT_PX = 9.0
-_TEXTURE_MIN_SCORE = 0.88
+#: (extent below, px; lowest score): texture saddles score up to 0.93 below 6 px
+#: and up to 0.87 at 6-9 px; markers of those extents score 0.92 and more on the
+#: simulated flights (where 0.88 let 1 texture point per frame through) and the
+#: renderer's families, but for 8 % of the tiny ones of family (b).
+_TEXTURE_SCORE_FLOORS = ((6.0, 0.92), (_TEXTURE_EXTENT_PX, 0.88))
 #: Sector levels sampled closer than this to the centre are mixed by the blur.
 _MODULATION_MIN_OFFSET_PX = 2.5
 #: ... and from this distance on they are clear of it for any expected blur.
@@ -456,9 +460,9 @@ class Detector:
         ok = located & fit.converged & (relative_residual <= cfg.max_symmetry_residual)
         ok &= np.isfinite(sigma)
         counts["rejected_refinement"] = int((~ok).sum())
-        threshold = np.where(
-            radius < _TEXTURE_EXTENT_PX, max(cfg.min_score, _TEXTURE_MIN_SCORE), cfg.min_score
-        )
+        threshold = np.full(len(radius), cfg.min_score)
+        for extent, floor in reversed(_TEXTURE_SCORE_FLOORS):
+            threshold[radius < extent] = max(cfg.min_score, floor)
         small = (radius < _SMALL_EXTENT_FACTOR * cfg.marker_radius_min_px) & (
             radius < _TEXTURE_EXTENT_PX
         )
