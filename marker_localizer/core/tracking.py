@@ -1,38 +1,92 @@
 """Tracking mode: detect near where markers are expected, the whole frame only when needed.
 
-Between full-frame passes every tracked marker is predicted with a constant
-velocity, the prediction is corrected for the attitude jitter that moves the
-whole image by tens of pixels between frames (measured on a few anchor markers
-searched in large windows), and each marker is searched for in a small window
-around it. Inside the windows the detector runs exactly as on a full frame, so
-a tracked marker's position, score and sigma are those a full pass would give.
-Markers that come into view can only do so across the frame border, so a band
-along the border is searched on every frame as well. A full-frame pass
-runs every ``full_frame_every`` frames, while any track has no velocity yet, and
-at once (on the same frame) when a tracked marker is not confirmed inside the
-frame: a lost marker costs time, never recall.
+Between full-frame passes the image motion from the last frame is measured on a
+few anchor markers: each is found again by matching its grey patch from the
+last frame (normalised cross-correlation within ``max_motion_px`` of its
+constant-velocity prediction, which leaves the attitude jitter of tens of pixels
+to the match). Markers lie on the ground, a plane, so the motion is a
+homography; fitted to the anchors (a similarity or a shift from fewer than
+four), it maps every track's last position into the frame. Each marker is then
+searched for in a small window, only as large as that prediction's error
+(``match_px``) plus the few pixels a marker's screening candidate may lie off
+its centre. Inside the windows the detector runs exactly as on a full frame (it
+samples the whole image; a window only bounds where candidates are screened), so
+a tracked marker's position and sigma are those a full pass gives. Markers come
+into view across the frame border, so the border is searched too, but only on
+the sides whose content moves inward and only as deep as a marker's plate plus
+that motion.
+
+The rule for full-frame passes, precisely. A frame gets a full-frame pass
+
+* when no marker is tracked (the first frame, after :meth:`MarkerTracker.reset`);
+* when ``full_frame_every - 1`` frames have been tracked since the last one;
+* when the image motion cannot be measured: no anchor's patch is found again;
+* when a marker is lost: the detector does not confirm a track whose predicted
+  centre lies farther than its plate's half-width inside the frame, and the
+  track's grey patch (cut when it was last confirmed) is not found within
+  ``match_px`` of that prediction either. The prediction, or the marker, is
+  then not where it was expected, and only a full pass can tell where it is.
+
+The pass runs on the same frame and its detections replace the tracks, so a lost
+marker costs time, not recall. A track that is not confirmed but whose patch is
+found where predicted is a marker in view that the detector rejects on this frame
+(one at the acceptance threshold, which a full pass rejects as well): it costs no
+pass and is searched for on up to ``max_missed_frames`` further frames before it
+is dropped, so a marker that flickers at the threshold is found again when it
+comes back. A full pass keeps the tracks it misses inside the frame in the same
+way, whatever their patch shows (a marker at a shadow's edge, under glare), and
+they are not lost again: the pass has shown that they cannot be detected there
+now. A track predicted outside the frame or within its plate's half-width of the
+border that is not confirmed has left the view and ends without a pass.
+
+What tracking cannot see until the next scheduled pass: a marker that becomes
+detectable inside the frame without having been tracked (one at the threshold
+that no pass has found, or one the detector first accepts well inside the
+border).
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from marker_localizer.core.image import to_gray
 from marker_localizer.core.pipeline import DetectionResult, Detector
+from marker_localizer.core.screening import non_maximum_suppression
 
 #: Half-width of a marker's plate in marker radii (the plates of the renderer and of
 #: printed targets extend a quarter radius beyond the X).
 PLATE_HALF_WIDTH = 1.25
+#: Anchors whose patches measure the image motion: four fix a homography, the
+#: fifth lets RANSAC leave out a patch matched on the wrong spot.
+_ANCHORS = 5
+#: Half-size of a track's patch, px: its plate, within these bounds (a smaller
+#: patch is ambiguous in texture, a larger one costs time and meets perspective).
+_PATCH_HALF_PX = (8, 24)
+#: Lowest normalised cross-correlation of a track's patch with its new view; the
+#: same marker a frame later correlates above 0.9, ground texture rarely above 0.5.
+_MIN_PATCH_NCC = 0.7
+#: A marker's strongest screening candidate lies within this distance of the centre
+#: the detector reports (measured on the speed benchmark's frames: windows of this
+#: half-size around full-frame detections give back every one of them).
+_CANDIDATE_OFFSET_PX = 2.0
 
 
 @dataclass
 class _Track:
-    xy: np.ndarray  # (2,) last position, px
-    velocity: np.ndarray | None  # (2,) px per second; None until seen twice
+    xy: np.ndarray  # (2,) position on the last frame (detected, or predicted if missed), px
+    velocity: np.ndarray | None  # (2,) px per second; None until confirmed twice
     radius_px: float
-    stamp_s: float
+    stamp_s: float  # time of the last frame
+    missed: int = 0  # consecutive frames searched without a confirmation
+    patch: np.ndarray | None = None  # grey patch centred on round(xy) at the last confirmation
+    anchor: bool = False  # its patch measures the next frame's motion
+    missed_by_full_pass: bool = False  # since its last confirmation
 
 
 @dataclass
@@ -42,16 +96,22 @@ class MarkerTracker:
     Attributes:
         detector: the detector whose settings apply to both kinds of pass.
         full_frame_every: a full-frame pass every this many frames (1 = always).
-        max_motion_px: the largest image motion of a marker between two frames;
-            sets how far a new track is associated and the width of the border band.
-        match_px: once the anchors have corrected the predictions, a marker must
-            lie within this distance (plus half its radius) of its prediction.
+        max_motion_px: the largest error of a constant-velocity prediction (the
+            image motion between two frames that the velocity does not foresee):
+            how far an anchor's patch is searched for, and how far a detection of
+            a full pass may lie from a track it continues.
+        match_px: the largest error of a position mapped by the measured motion: a
+            marker is confirmed by a detection this close to it, and the border is
+            searched on the sides whose content may have moved inward by this much.
+        max_missed_frames: consecutive frames a track whose marker is in view but
+            rejected by the detector is still searched for (see the module's rule).
     """
 
     detector: Detector
     full_frame_every: int = 10
     max_motion_px: float = 64.0
-    match_px: float = 3.0
+    match_px: float = 1.5
+    max_missed_frames: int = 2
     _tracks: list[_Track] = field(default_factory=list)
     _frames_since_full: int = 0
     _last_stamp_s: float = 0.0
@@ -71,156 +131,422 @@ class MarkerTracker:
 
         Returns:
             The frame's result; ``counts["full_frame"]`` is 1 when the frame got a
-            full-frame pass, ``counts["tracked"]`` the markers confirmed by tracking.
+            full-frame pass, ``counts["tracked"]`` the markers confirmed by tracking;
+            ``timings_ms["registration"]`` is the anchor matching of a tracked frame.
         """
         stamp = self._last_stamp_s + 1.0 if stamp_s is None else float(stamp_s)
         if self._tracks and stamp <= self._last_stamp_s:
             self.reset()
         self._last_stamp_s = stamp
-        ready = bool(self._tracks) and all(t.velocity is not None for t in self._tracks)
-        if ready and self._frames_since_full + 1 < self.full_frame_every:
-            result = self._track(image, stamp)
+        # Once, not per detector call: a strided view (a crop) is copied here.
+        gray, _ = to_gray(image)
+        # Measured on full passes too: it carries the tracks a pass misses.
+        start = time.perf_counter()
+        motion = self._register(gray, stamp) if self._tracks else None
+        registration_ms = (time.perf_counter() - start) * 1000.0
+        if motion is not None and self._frames_since_full + 1 < self.full_frame_every:
+            result = self._track(gray, stamp, motion)
             if result is not None:
+                result.timings_ms["registration"] = registration_ms
                 self._frames_since_full += 1
+                self._cut_patches(gray)
                 return result
-        result = self.detector.detect(image)
+        result = self.detector.detect(gray)
         result.counts["full_frame"] = 1
         result.counts["tracked"] = 0
-        self._adopt(result, stamp)
+        self._adopt(gray, result, stamp, motion)
         self._frames_since_full = 0
+        self._cut_patches(gray)
         return result
 
     def _predict(self, stamp: float) -> np.ndarray:
+        """(N, 2) constant-velocity predictions; a track without velocity moves with the rest."""
+        known = [t.velocity for t in self._tracks if t.velocity is not None]
+        common = np.median(known, axis=0) if known else np.zeros(2)
         return np.array(
             [
-                t.xy + (t.velocity if t.velocity is not None else 0.0) * (stamp - t.stamp_s)
+                t.xy + (t.velocity if t.velocity is not None else common) * (stamp - t.stamp_s)
                 for t in self._tracks
             ]
         ).reshape(-1, 2)
 
-    def _border_bands(self, shape: tuple[int, ...], motion: np.ndarray) -> np.ndarray:
-        """Windows along the frame border through which markers can have come into view.
+    def _register(self, gray: np.ndarray, stamp: float) -> np.ndarray | None:
+        """(3, 3) image motion from the last frame, measured on the anchors; None if none found."""
+        predicted = self._predict(stamp)
+        sources, targets = [], []
+        for track, prediction in zip(self._tracks, predicted, strict=True):
+            if not track.anchor or track.patch is None:
+                continue
+            found = self._match_patch(gray, track.patch, prediction, self.max_motion_px)
+            if found is not None:
+                # The patch was cut at the rounded centre: restore the fraction.
+                sources.append(track.xy)
+                targets.append(found + track.xy - np.round(track.xy))
+        if not sources:
+            return None
+        return _frame_motion(np.array(sources), np.array(targets), self.match_px)
+
+    @staticmethod
+    def _match_patch(
+        gray: np.ndarray, patch: np.ndarray, prediction: np.ndarray, search_px: float
+    ) -> np.ndarray | None:
+        """Centre of the best match of ``patch`` within ``search_px`` of ``prediction``."""
+        height, width = gray.shape
+        half = patch.shape[0] // 2
+        reach = half + int(np.ceil(search_px))
+        cx, cy = np.round(prediction).astype(np.int64)
+        x0, y0 = max(cx - reach, 0), max(cy - reach, 0)
+        x1, y1 = min(cx + reach + 1, width), min(cy + reach + 1, height)
+        if x1 - x0 < patch.shape[1] or y1 - y0 < patch.shape[0]:
+            return None
+        search = gray[y0:y1, x0:x1]
+        # matchTemplate takes 8-bit or float32 images only.
+        ncc = cv2.matchTemplate(search.astype(patch.dtype, copy=False), patch, cv2.TM_CCOEFF_NORMED)
+        row, col = np.unravel_index(int(np.argmax(ncc)), ncc.shape)
+        if not ncc[row, col] >= _MIN_PATCH_NCC:
+            return None
+        dx = _parabola_peak(ncc[row, col - 1 : col + 2]) if 0 < col < ncc.shape[1] - 1 else 0.0
+        dy = _parabola_peak(ncc[row - 1 : row + 2, col]) if 0 < row < ncc.shape[0] - 1 else 0.0
+        return np.array([x0 + col + dx + half, y0 + row + dy + half])
+
+    def _track(self, gray: np.ndarray, stamp: float, motion: np.ndarray) -> DetectionResult | None:
+        """Search the tracks' windows and the border bands; None if the frame needs a full pass."""
+        shape = gray.shape
+        height, width = shape
+        corrected = _transform(motion, np.array([t.xy for t in self._tracks]))
+        inside = (
+            (corrected[:, 0] >= 0)
+            & (corrected[:, 0] <= width - 1)
+            & (corrected[:, 1] >= 0)
+            & (corrected[:, 1] <= height - 1)
+        )
+        bands, interior = self._border_bands(shape, motion)
+        half = self.match_px + _CANDIDATE_OFFSET_PX
+        windows = np.hstack([corrected[inside] - half, corrected[inside] + half + 1])
+        windows = _merge_overlapping(self._snap(windows, shape))
+        # Band and window areas are searched once: windows are cut to the interior.
+        windows[:, :2] = np.maximum(windows[:, :2], interior[:2])
+        windows[:, 2:] = np.minimum(windows[:, 2:], interior[2:])
+        windows = windows[(windows[:, 2] > windows[:, 0]) & (windows[:, 3] > windows[:, 1])]
+        # Two calls: the detector's local-mean maps of one call are padded to its
+        # largest region, and a band's map is about a hundred times a window's.
+        result = _combine(
+            [
+                self.detector.detect(gray, regions=regions)
+                for regions in (windows, bands)
+                if len(regions)
+            ],
+            self.detector.config.min_peak_separation_px / 2.0,
+        )
+        found = result.as_array()
+        owner = _associate(found[:, :2], corrected, inside, self.match_px)
+        missed = owner < 0
+        kept = self._kept(gray, corrected, missed)
+        excused = np.array([t.missed_by_full_pass for t in self._tracks])
+        if (missed & ~self._leaving(corrected, shape) & ~kept & ~excused).any():
+            return None  # a marker is lost
+        tracks = []
+        for track, index, prediction, keep in zip(
+            self._tracks, owner, corrected, kept, strict=True
+        ):
+            if index >= 0:
+                tracks.append(_confirmed(track, found[index], stamp))
+            elif keep:
+                tracks.append(_coasting(track, prediction, stamp, track.missed_by_full_pass))
+        claimed = np.zeros(len(found), dtype=bool)
+        claimed[owner[owner >= 0]] = True
+        tracks += [_Track(row[:2].copy(), None, float(row[6]), stamp) for row in found[~claimed]]
+        self._tracks = tracks
+        result.counts["full_frame"] = 0
+        result.counts["tracked"] = int((~missed).sum())
+        return result
+
+    def _border_bands(
+        self, shape: tuple[int, ...], motion: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Bands along the frame border through which markers can have come into view.
+
+        A marker whose plate was cut by the border on the last frame and is whole now
+        has its centre within its plate's half-width plus the inward motion of the
+        content at that side. A side is searched when that motion, plus the error
+        ``match_px``, is positive (all four sides while the image is still).
 
         Args:
             shape: the frame's shape.
-            motion: (N, 2) displacement of every track since the last frame, px
-                (anchor correction included).
+            motion: (3, 3) image motion from the last frame.
 
         Returns:
-            (K, 4) windows, K <= 4: only the sides the image content moves away from
-            (new ground enters there); all four while the content is about still.
+            (bands, interior): (K, 4) windows (x0, y0, x1, y1), K <= 4, that tile the
+            searched border without overlap, and the (4,) rectangle they leave free.
         """
         height, width = shape[:2]
-        step = float(np.max(np.linalg.norm(motion, axis=1))) if len(motion) else 0.0
-        # A marker whose plate was cut by the border last frame and is whole now has
-        # its centre within its plate's half-width plus one frame's motion of the
-        # border; the match tolerance covers the motion's own error.
         reach = PLATE_HALF_WIDTH * self.detector.config.marker_radius_max_px
-        band = int(np.ceil(min(step, self.max_motion_px) + reach + self.match_px))
-        dx, dy = np.mean(motion, axis=0) if len(motion) else (0.0, 0.0)
-        sides = [
-            (dy > -self.match_px, [0, 0, width, band]),
-            (dy < self.match_px, [0, height - band, width, height]),
-            (dx > -self.match_px, [0, 0, band, height]),
-            (dx < self.match_px, [width - band, 0, width, height]),
-        ]
-        bands = np.array([box for inflow, box in sides if inflow]).reshape(-1, 4)
-        # On a frame narrower than two bands they overlap: clip them to the frame.
-        return np.clip(bands, 0, [width, height, width, height])
-
-    def _windows(self, centres: np.ndarray, half: np.ndarray) -> np.ndarray:
-        """(N, 4) windows (x0, y0, x1, y1) of half-size ``half`` around ``centres``."""
-        return np.hstack(
-            [np.floor(centres - half[:, None]), np.ceil(centres + half[:, None]) + 1]
-        ).astype(np.int64)
-
-    def _track(self, image: np.ndarray, stamp: float) -> DetectionResult | None:
-        """Search every track near its prediction and the border bands; None if one was lost.
-
-        The prediction is corrected in two steps: up to three anchor tracks (the
-        largest markers, spread over the frame) are searched within the full motion
-        bound, and the similarity transform that takes their predictions to their
-        detections (attitude jitter: shift, roll, scale) is applied to every other
-        prediction, which then needs only a small window.
-        """
-        height, width = image.shape[:2]
-        predicted = self._predict(stamp)
-        radius = np.array([t.radius_px for t in self._tracks])
-        margin = 1.25 * radius
-        # Markers predicted to have left the frame end their tracks without a search.
-        in_view = (
-            (predicted[:, 0] > margin)
-            & (predicted[:, 0] < width - 1 - margin)
-            & (predicted[:, 1] > margin)
-            & (predicted[:, 1] < height - 1 - margin)
+        # The last frame's border, three points a side, moved by the motion: the
+        # content's inward displacement at the top, bottom, left and right sides.
+        t = np.array([0.0, 0.5, 1.0])
+        zero, one = np.zeros(3), np.ones(3)
+        sides = [((t, zero), 1, 1), ((t, one), 1, -1), ((zero, t), 0, 1), ((one, t), 0, -1)]
+        inward = np.zeros(4)
+        for side, ((u, v), axis, sign) in enumerate(sides):
+            border = np.stack([u * (width - 1), v * (height - 1)], axis=1)
+            inward[side] = np.max(sign * (_transform(motion, border) - border)[:, axis])
+        depth = np.where(
+            inward + self.match_px > 0,
+            reach + np.clip(inward, 0.0, self.max_motion_px) + self.match_px,
+            0.0,
         )
-        if not in_view.any():
-            return None
-        index = np.flatnonzero(in_view)
-        anchors = index[np.argsort(-radius[index])[:3]]
-        anchor_result = self.detector.detect(
-            image,
-            regions=self._windows(predicted[anchors], 1.5 * radius[anchors] + self.max_motion_px),
-        )
-        found = anchor_result.as_array()
-        if len(found) < len(anchors):
-            return None
-        distance, owner = cKDTree(found[:, :2]).query(predicted[anchors])
-        if (distance > self.max_motion_px + 0.5 * radius[anchors]).any():
-            return None
-        corrected = _apply_similarity(predicted[anchors], found[owner, :2], predicted)
-        motion = corrected - np.array([t.xy for t in self._tracks])
-        reach = self.match_px + 0.5 * radius
-        regions = np.vstack(
+        lattice = self._lattice_px()
+        top, left = (np.ceil(depth[[0, 2]] / lattice) * lattice).astype(np.int64)
+        bottom = int(np.floor((height - depth[1]) / lattice) * lattice) if depth[1] else height
+        right = int(np.floor((width - depth[3]) / lattice) * lattice) if depth[3] else width
+        top, left = min(top, height), min(left, width)
+        bottom, right = max(bottom, top), max(right, left)
+        bands = np.array(
             [
-                self._windows(corrected[in_view], 1.5 * radius[in_view] + reach[in_view]),
-                self._border_bands(image.shape, motion),
+                [0, 0, width, top],
+                [0, bottom, width, height],
+                [0, top, left, bottom],
+                [right, top, width, bottom],
             ]
         )
-        result = self.detector.detect(image, regions=regions)
-        found = result.as_array()
-        if not len(found):
-            return None
-        distance, _ = cKDTree(found[:, :2]).query(corrected[in_view])
-        if (distance > reach[in_view]).any():
-            return None
-        for stage, ms in anchor_result.timings_ms.items():
-            result.timings_ms[stage] = result.timings_ms.get(stage, 0.0) + ms
-        result.counts["full_frame"] = 0
-        result.counts["tracked"] = int(in_view.sum())
-        self._adopt(result, stamp, corrected)
-        return result
+        bands = bands[(bands[:, 2] > bands[:, 0]) & (bands[:, 3] > bands[:, 1])]
+        return bands, np.array([left, top, right, bottom])
+
+    def _lattice_px(self) -> int:
+        """Grid that windows are snapped to: that of the detector's local-mean map.
+
+        ``LocalGamma`` measures the local mean of Eq. (2) on the frame reduced by
+        ``illumination_window_px // 8`` and aligns only the start of each region to
+        that grid; a region whose end is off it is reduced by a non-integer factor,
+        and its scores then differ by up to a few per cent from the full frame's
+        (enough to flip a marker at the acceptance threshold).
+        """
+        return max(1, self.detector.config.illumination_window_px // 8)
+
+    def _snap(self, windows: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+        """(K, 4) float windows grown to the lattice and clipped to the frame, int64."""
+        height, width = shape[:2]
+        lattice = self._lattice_px()
+        snapped = (
+            np.hstack(
+                [np.floor(windows[:, :2] / lattice), np.ceil(windows[:, 2:] / lattice)]
+            ).astype(np.int64)
+            * lattice
+        )
+        return np.clip(snapped, 0, [width, height, width, height]).reshape(-1, 4)
 
     def _adopt(
-        self, result: DetectionResult, stamp: float, predicted: np.ndarray | None = None
+        self,
+        gray: np.ndarray,
+        result: DetectionResult,
+        stamp: float,
+        motion: np.ndarray | None,
     ) -> None:
-        """Start tracks from a frame's detections, continuing those matching a track."""
-        tracks = []
+        """Replace the tracks by a full pass's detections, continuing those matching a track."""
+        tracks = [_Track(np.array([d.x, d.y]), None, d.radius_px, stamp) for d in result]
         if self._tracks:
-            predicted = self._predict(stamp) if predicted is None else predicted
-            tree = cKDTree(predicted)
-        for d in result.detections:
-            xy = np.array([d.x, d.y])
-            velocity = None
-            if self._tracks:
-                distance, index = tree.query(xy)
-                old = self._tracks[int(index)]
-                # A track without velocity may have moved anywhere within the motion bound.
-                gate = self.max_motion_px + 0.5 * old.radius_px
-                if distance <= gate and stamp > old.stamp_s:
-                    velocity = (xy - old.xy) / (stamp - old.stamp_s)
-            tracks.append(_Track(xy, velocity, d.radius_px, stamp))
+            if motion is None:
+                predicted = self._predict(stamp)
+            else:
+                predicted = _transform(motion, np.array([t.xy for t in self._tracks]))
+            found = result.as_array()
+            owner = _associate(
+                found[:, :2], predicted, np.ones(len(predicted), bool), self.max_motion_px
+            )
+            # Without a measured motion, a missed track's position is a guess: it ends.
+            inside = ~self._leaving(predicted, gray.shape) & (motion is not None)
+            for track, index, prediction, keep in zip(
+                self._tracks, owner, predicted, inside, strict=True
+            ):
+                if index >= 0 and stamp > track.stamp_s:
+                    tracks[index] = _confirmed(track, found[index], stamp)
+                elif index < 0 and keep and track.missed < self.max_missed_frames:
+                    tracks.append(_coasting(track, prediction, stamp, missed_by_full_pass=True))
         self._tracks = tracks
 
+    def _kept(self, gray: np.ndarray, predicted: np.ndarray, missed: np.ndarray) -> np.ndarray:
+        """(N,) True for the missed tracks to search again on the next frame.
 
-def _apply_similarity(source: np.ndarray, target: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Map ``points`` by the similarity (or, from one pair, the shift) taking source to target."""
+        A missed track is kept for up to ``max_missed_frames`` frames while its
+        prediction lies inside the frame, away from the border by its plate's
+        half-width, and a full pass has missed it too or its patch is found within
+        ``match_px`` of the prediction (a marker in view that the detector rejects).
+        """
+        inside = ~self._leaving(predicted, gray.shape)
+        kept = np.zeros(len(self._tracks), dtype=bool)
+        for k in np.flatnonzero(missed & inside):
+            track = self._tracks[k]
+            kept[k] = track.missed < self.max_missed_frames and (
+                track.missed_by_full_pass
+                or (
+                    track.patch is not None
+                    and self._match_patch(gray, track.patch, predicted[k], self.match_px)
+                    is not None
+                )
+            )
+        return kept
+
+    def _leaving(self, predicted: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+        """(N,) True where a track's predicted centre is within its plate of the border or out."""
+        height, width = shape[:2]
+        border_distance = np.minimum(
+            np.minimum(predicted[:, 0], width - 1 - predicted[:, 0]),
+            np.minimum(predicted[:, 1], height - 1 - predicted[:, 1]),
+        )
+        return border_distance < PLATE_HALF_WIDTH * np.array([t.radius_px for t in self._tracks])
+
+    def _cut_patches(self, gray: np.ndarray) -> None:
+        """Cut the patch of every marker confirmed on this frame; mark a few as anchors.
+
+        The anchors are large markers (the most distinct patches) far apart (the
+        motion's roll, scale and perspective are then fixed best) whose patches stay
+        in view after the largest unforeseen motion.
+        """
+        height, width = gray.shape
+        candidates = []
+        for track in self._tracks:
+            track.anchor = False
+            if track.missed:
+                continue  # its patch is the one from its last confirmation
+            half = int(np.clip(np.ceil(PLATE_HALF_WIDTH * track.radius_px), *_PATCH_HALF_PX))
+            cx, cy = np.round(track.xy).astype(np.int64)
+            track.patch = None
+            if half <= cx < width - half and half <= cy < height - half:
+                patch = gray[cy - half : cy + half + 1, cx - half : cx + half + 1]
+                # matchTemplate takes 8-bit or float32 images only.
+                track.patch = patch.copy() if patch.dtype == np.uint8 else patch.astype(np.float32)
+            margin = half + int(np.ceil(self.max_motion_px))
+            if margin <= cx < width - margin and margin <= cy < height - margin:
+                candidates.append((track, cx, cy))
+        if not candidates:
+            return
+        candidates.sort(key=lambda c: -c[0].radius_px)
+        candidates = candidates[: max(_ANCHORS, len(candidates) // 2)]
+        chosen = [candidates.pop(0)]
+        while candidates and len(chosen) < _ANCHORS:
+            spread = [min(np.hypot(c[1] - a[1], c[2] - a[2]) for a in chosen) for c in candidates]
+            chosen.append(candidates.pop(int(np.argmax(spread))))
+        for track, _, _ in chosen:
+            track.anchor = True
+
+
+def _confirmed(track: _Track, detection: np.ndarray, stamp: float) -> _Track:
+    """The track continued by a detection row (x, y, ..., radius) at ``stamp``."""
+    xy = detection[:2].copy()
+    velocity = (xy - track.xy) / (stamp - track.stamp_s)
+    return _Track(xy, velocity, float(detection[6]), stamp)
+
+
+def _coasting(
+    track: _Track, prediction: np.ndarray, stamp: float, missed_by_full_pass: bool
+) -> _Track:
+    """The track carried to ``stamp`` at its predicted position, one more frame missed."""
+    return _Track(
+        prediction,
+        track.velocity,
+        track.radius_px,
+        stamp,
+        track.missed + 1,
+        track.patch,
+        missed_by_full_pass=missed_by_full_pass,
+    )
+
+
+def _associate(
+    points: np.ndarray, predicted: np.ndarray, searched: np.ndarray, gate_px: float
+) -> np.ndarray:
+    """(N,) index of the point continuing each searched prediction, -1 for none.
+
+    Each point continues at most one track, the one predicted closest to it.
+    """
+    owner = np.full(len(predicted), -1, dtype=np.int64)
+    if not len(points):
+        return owner
+    distance, nearest = cKDTree(points).query(predicted, distance_upper_bound=gate_px)
+    taken = np.zeros(len(points), dtype=bool)
+    for index in np.argsort(distance):
+        if searched[index] and np.isfinite(distance[index]) and not taken[nearest[index]]:
+            owner[index] = nearest[index]
+            taken[nearest[index]] = True
+    return owner
+
+
+def _merge_overlapping(windows: np.ndarray) -> np.ndarray:
+    """Replace overlapping windows by their bounding box until none overlap."""
+    while len(windows) > 1:
+        overlap = (
+            (windows[:, None, 0] < windows[None, :, 2])
+            & (windows[None, :, 0] < windows[:, None, 2])
+            & (windows[:, None, 1] < windows[None, :, 3])
+            & (windows[None, :, 1] < windows[:, None, 3])
+        )
+        count, label = connected_components(overlap, directed=False)
+        if count == len(windows):
+            break
+        windows = np.array(
+            [
+                np.r_[windows[label == k, :2].min(axis=0), windows[label == k, 2:].max(axis=0)]
+                for k in range(count)
+            ]
+        )
+    return windows.reshape(-1, 4)
+
+
+def _combine(results: list[DetectionResult], separation_px: float) -> DetectionResult:
+    """One result from the calls of a tracked frame: summed counts and times.
+
+    A marker on the edge between a window and a band can be found by both calls;
+    the weaker copy is merged away as the detector's own last suppression would.
+    """
+    combined = DetectionResult()
+    for part in results:
+        combined.detections += part.detections
+        for key, count in part.counts.items():
+            combined.counts[key] = combined.counts.get(key, 0) + count
+        for stage, ms in part.timings_ms.items():
+            combined.timings_ms[stage] = combined.timings_ms.get(stage, 0.0) + ms
+    found = combined.as_array()
+    keep = non_maximum_suppression(found[:, :2], found[:, 2], separation_px)
+    combined.counts["merged_duplicates"] = combined.counts.get("merged_duplicates", 0) + int(
+        (~keep).sum()
+    )
+    order = np.flatnonzero(keep)[np.argsort(-found[keep, 2], kind="stable")]
+    combined.detections = [combined.detections[k] for k in order]
+    combined.counts["accepted"] = len(combined.detections)
+    return combined
+
+
+def _parabola_peak(values: np.ndarray) -> float:
+    """Sub-sample offset of the vertex of the parabola through three samples."""
+    curvature = values[0] - 2.0 * values[1] + values[2]
+    if not curvature < 0:
+        return 0.0
+    return float(np.clip(0.5 * (values[0] - values[2]) / curvature, -0.5, 0.5))
+
+
+def _frame_motion(source: np.ndarray, target: np.ndarray, tolerance_px: float) -> np.ndarray:
+    """(3, 3) map taking the (N, 2) source points to the targets.
+
+    A homography from four pairs or more (the ground plane seen from two poses),
+    fitted by RANSAC so that a patch matched on the wrong spot is left out; else a
+    least-squares similarity (shift, roll, scale) from two or three, a shift from one.
+    """
+    if len(source) >= 4:
+        homography, _ = cv2.findHomography(source, target, cv2.RANSAC, tolerance_px)
+        if homography is not None:
+            return np.asarray(homography, dtype=np.float64)
     if len(source) == 1:
-        return points + (target[0] - source[0])
+        shift = target[0] - source[0]
+        return np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]])
     # Least-squares similarity x' = s R x + t in complex form: z' = a z + b.
     z = source[:, 0] + 1j * source[:, 1]
     w = target[:, 0] + 1j * target[:, 1]
     zc, wc = z - z.mean(), w - w.mean()
     a = (np.conj(zc) @ wc) / max(float(np.real(np.conj(zc) @ zc)), 1e-12)
-    mapped = a * (points[:, 0] + 1j * points[:, 1] - z.mean()) + w.mean()
-    return np.stack([mapped.real, mapped.imag], axis=1)
+    b = w.mean() - a * z.mean()
+    return np.array([[a.real, -a.imag, b.real], [a.imag, a.real, b.imag], [0.0, 0.0, 1.0]])
+
+
+def _transform(motion: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N, 2) points mapped by the (3, 3) projective ``motion``."""
+    return cv2.perspectiveTransform(points.reshape(-1, 1, 2), motion).reshape(-1, 2)
