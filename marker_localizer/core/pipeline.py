@@ -73,6 +73,9 @@ class Detection:
         angle1: direction of the first line through the centre, radians in [0, pi).
         angle2: direction of the second line, radians in [0, pi).
         radius_px: extent of the X pattern found by the annular scan.
+        evidence: the verification's part of the score (ring symmetry x template
+            NCC); ``score`` is ``evidence`` x (1 - relative symmetry residual of the
+            fit). :meth:`Detector.locate` takes it back to confirm a tracked marker.
     """
 
     x: float
@@ -82,6 +85,7 @@ class Detection:
     angle1: float
     angle2: float
     radius_px: float
+    evidence: float = 1.0
 
 
 @dataclass
@@ -177,6 +181,53 @@ class Detector:
                 candidates = self._prescreen(gray, full_scale, candidates, result.counts)
         return self._confirm(gray, full_scale, gamma, candidates, result, timer)
 
+    def locate(
+        self,
+        image: np.ndarray,
+        xy: np.ndarray,
+        radius_px: np.ndarray,
+        line_angles: np.ndarray,
+        evidence: np.ndarray,
+    ) -> DetectionResult:
+        """Section 3.3 alone: sub-pixel centres and final gates of markers known to be there.
+
+        Tracking mode confirms the markers of the last frame with this instead of
+        screening and verifying them again: the fit, its gates and the score are
+        those of :meth:`detect`, with the extent, line angles and verification
+        evidence the marker had when it was last detected. A position within a
+        pixel or so of the centre converges to the centre :meth:`detect` reports
+        (to the fit's tolerance, 0.001 px); a marker no longer there fails the
+        fit's residual gate or moves too far.
+
+        Args:
+            image: the frame, as for :meth:`detect`.
+            xy: (N, 2) predicted centres.
+            radius_px: (N,) extents (``Detection.radius_px``).
+            line_angles: (N, 2) line directions (``Detection.angle1``, ``angle2``).
+            evidence: (N,) ``Detection.evidence``.
+
+        Returns:
+            :class:`DetectionResult` of the confirmed markers.
+        """
+        result = DetectionResult()
+        timer = _StageTimer(result.timings_ms)
+        with timer("input"):
+            gray, full_scale = to_gray(image)
+        counts = result.counts
+        counts["merged_duplicates"] = 0
+        with timer("subpixel"):
+            result.detections = self._locate(
+                gray,
+                np.asarray(xy, np.float64).reshape(-1, 2),
+                np.asarray(radius_px, np.float64),
+                np.asarray(line_angles, np.float64).reshape(-1, 2),
+                np.asarray(evidence, np.float64),
+                counts,
+                full_scale,
+            )
+        counts["accepted"] = len(result.detections)
+        return result
+
     def _confirm(
         self,
         gray: np.ndarray,
@@ -202,7 +253,7 @@ class Detector:
                 angles,
                 score,
                 counts,
-                np.sqrt(2.0 / 12.0) if gray.dtype.kind in "ui" else 0.0,
+                full_scale,
             )
         counts["accepted"] = len(result.detections)
         return result
@@ -423,7 +474,7 @@ class Detector:
         angles: np.ndarray,
         score: np.ndarray,
         counts: dict[str, int],
-        noise_floor: float,
+        full_scale: float,
     ) -> list[Detection]:
         """Section 3.3: sub-pixel centres, the final gates, and each point's sigma.
 
@@ -444,7 +495,7 @@ class Detector:
             tolerance_px=1e-3,
             max_shift_px=1.5,
             model_gain=True,
-            noise_floor=noise_floor,
+            noise_floor=_noise_floor(gray),
         )
         position = fit.xy
         variance = fit.covariance[:, 0, 0] + fit.covariance[:, 1, 1]
@@ -457,7 +508,11 @@ class Detector:
         sigma = _SIGMA_CALIBRATION * np.sqrt(np.maximum(variance, 0.0))
         relative_residual = fit.residual / np.maximum(fit.contrast, 1e-6)
         final_score = score * np.clip(1.0 - relative_residual, 0.0, 1.0)
-        ok = located & fit.converged & (relative_residual <= cfg.max_symmetry_residual)
+        # The prescreen's contrast floor (raw grey levels, half the configured contrast)
+        # holds for every detection; it matters for a tracked marker confirmed by the
+        # fit alone (see :meth:`locate`), which no ring has measured on this frame.
+        faint = fit.contrast < 0.5 * cfg.min_contrast_dn / 255.0 * full_scale
+        ok = located & fit.converged & (relative_residual <= cfg.max_symmetry_residual) & ~faint
         ok &= np.isfinite(sigma)
         counts["rejected_refinement"] = int((~ok).sum())
         threshold = np.full(len(radius), cfg.min_score)
@@ -484,6 +539,7 @@ class Detector:
                 float(angles[k, 0]),
                 float(angles[k, 1]),
                 float(radius[k]),
+                float(score[k]),
             )
             for k in keep
         ]
@@ -528,6 +584,11 @@ class Detector:
         offset_xy, _ = subpixel.ncc_subpixel(surface)
         located[inside] = c + offset_xy
         return located
+
+
+def _noise_floor(gray: np.ndarray) -> float:
+    """Smallest residual std of the fit: the quantisation of a difference of two DN samples."""
+    return float(np.sqrt(2.0 / 12.0)) if gray.dtype.kind in "ui" else 0.0
 
 
 class _StageTimer:

@@ -56,7 +56,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from marker_localizer.core.image import to_gray
-from marker_localizer.core.pipeline import DetectionResult, Detector
+from marker_localizer.core.pipeline import Detection, DetectionResult, Detector
 from marker_localizer.core.screening import non_maximum_suppression
 
 #: Half-width of a marker's plate in marker radii (the plates of the renderer and of
@@ -81,7 +81,7 @@ _CANDIDATE_OFFSET_PX = 2.0
 class _Track:
     xy: np.ndarray  # (2,) position on the last frame (detected, or predicted if missed), px
     velocity: np.ndarray | None  # (2,) px per second; None until confirmed twice
-    radius_px: float
+    detection: Detection  # the last detection: extent, line angles, evidence
     stamp_s: float  # time of the last frame
     missed: int = 0  # consecutive frames searched without a confirmation
     patch: np.ndarray | None = None  # grey patch centred on round(xy) at the last confirmation
@@ -210,7 +210,10 @@ class MarkerTracker:
         return np.array([x0 + col + dx + half, y0 + row + dy + half])
 
     def _track(self, gray: np.ndarray, stamp: float, motion: np.ndarray) -> DetectionResult | None:
-        """Search the tracks' windows and the border bands; None if the frame needs a full pass."""
+        """Confirm the tracks where the motion puts them, search the border bands.
+
+        None if the frame needs a full pass.
+        """
         shape = gray.shape
         height, width = shape
         corrected = _transform(motion, np.array([t.xy for t in self._tracks]))
@@ -221,20 +224,40 @@ class MarkerTracker:
             & (corrected[:, 1] <= height - 1)
         )
         bands, interior = self._border_bands(shape, motion)
+        # First the fit alone, from where the motion puts each marker: a fraction of a
+        # millisecond per marker, the same centre as a full pass.
+        # Where a full pass would see the whole plate: nearer the border its rings
+        # leave the frame and it rejects the marker, which the windows reproduce.
+        fitted = inside & ~self._leaving(corrected, shape)
+        known = [t.detection for t, seen in zip(self._tracks, fitted, strict=True) if seen]
+        located = self.detector.locate(
+            gray,
+            corrected[fitted],
+            np.array([d.radius_px for d in known]),
+            np.array([[d.angle1, d.angle2] for d in known]).reshape(-1, 2),
+            np.array([d.evidence for d in known]),
+        )
+        confirmed = _associate(located.as_array()[:, :2], corrected, fitted, self.match_px) >= 0
+        # Then the detector in a window around each marker the fit did not confirm
+        # (a prediction off by more than the fit's reach, or a marker changed).
+        retry = inside & ~confirmed
         half = self.match_px + _CANDIDATE_OFFSET_PX
-        windows = np.hstack([corrected[inside] - half, corrected[inside] + half + 1])
+        windows = np.hstack([corrected[retry] - half, corrected[retry] + half + 1])
         windows = _merge_overlapping(self._snap(windows, shape))
         # Band and window areas are searched once: windows are cut to the interior.
         windows[:, :2] = np.maximum(windows[:, :2], interior[:2])
         windows[:, 2:] = np.minimum(windows[:, 2:], interior[2:])
         windows = windows[(windows[:, 2] > windows[:, 0]) & (windows[:, 3] > windows[:, 1])]
-        # Two calls: the detector's local-mean maps of one call are padded to its
-        # largest region, and a band's map is about a hundred times a window's.
+        # Separate calls: the detector's local-mean maps of one call are padded to
+        # its largest region, and a band's map is about a hundred times a window's.
         result = _combine(
             [
-                self.detector.detect(gray, regions=regions)
-                for regions in (windows, bands)
-                if len(regions)
+                located,
+                *(
+                    self.detector.detect(gray, regions=regions)
+                    for regions in (windows, bands)
+                    if len(regions)
+                ),
             ],
             self.detector.config.min_peak_separation_px / 2.0,
         )
@@ -250,12 +273,15 @@ class MarkerTracker:
             self._tracks, owner, corrected, kept, strict=True
         ):
             if index >= 0:
-                tracks.append(_confirmed(track, found[index], stamp))
+                tracks.append(_confirmed(track, result.detections[index], stamp))
             elif keep:
                 tracks.append(_coasting(track, prediction, stamp, track.missed_by_full_pass))
         claimed = np.zeros(len(found), dtype=bool)
         claimed[owner[owner >= 0]] = True
-        tracks += [_Track(row[:2].copy(), None, float(row[6]), stamp) for row in found[~claimed]]
+        tracks += [
+            _Track(found[k, :2].copy(), None, result.detections[k], stamp)
+            for k in np.flatnonzero(~claimed)
+        ]
         self._tracks = tracks
         result.counts["full_frame"] = 0
         result.counts["tracked"] = int((~missed).sum())
@@ -343,7 +369,7 @@ class MarkerTracker:
         motion: np.ndarray | None,
     ) -> None:
         """Replace the tracks by a full pass's detections, continuing those matching a track."""
-        tracks = [_Track(np.array([d.x, d.y]), None, d.radius_px, stamp) for d in result]
+        tracks = [_Track(np.array([d.x, d.y]), None, d, stamp) for d in result]
         if self._tracks:
             if motion is None:
                 predicted = self._predict(stamp)
@@ -359,7 +385,7 @@ class MarkerTracker:
                 self._tracks, owner, predicted, inside, strict=True
             ):
                 if index >= 0 and stamp > track.stamp_s:
-                    tracks[index] = _confirmed(track, found[index], stamp)
+                    tracks[index] = _confirmed(track, result.detections[index], stamp)
                 elif index < 0 and keep and track.missed < self.max_missed_frames:
                     tracks.append(_coasting(track, prediction, stamp, missed_by_full_pass=True))
         self._tracks = tracks
@@ -393,7 +419,8 @@ class MarkerTracker:
             np.minimum(predicted[:, 0], width - 1 - predicted[:, 0]),
             np.minimum(predicted[:, 1], height - 1 - predicted[:, 1]),
         )
-        return border_distance < PLATE_HALF_WIDTH * np.array([t.radius_px for t in self._tracks])
+        radius = np.array([t.detection.radius_px for t in self._tracks])
+        return border_distance < PLATE_HALF_WIDTH * radius
 
     def _cut_patches(self, gray: np.ndarray) -> None:
         """Cut the patch of every marker confirmed on this frame; mark a few as anchors.
@@ -408,7 +435,8 @@ class MarkerTracker:
             track.anchor = False
             if track.missed:
                 continue  # its patch is the one from its last confirmation
-            half = int(np.clip(np.ceil(PLATE_HALF_WIDTH * track.radius_px), *_PATCH_HALF_PX))
+            plate = PLATE_HALF_WIDTH * track.detection.radius_px
+            half = int(np.clip(np.ceil(plate), *_PATCH_HALF_PX))
             cx, cy = np.round(track.xy).astype(np.int64)
             track.patch = None
             if half <= cx < width - half and half <= cy < height - half:
@@ -420,7 +448,7 @@ class MarkerTracker:
                 candidates.append((track, cx, cy))
         if not candidates:
             return
-        candidates.sort(key=lambda c: -c[0].radius_px)
+        candidates.sort(key=lambda c: -c[0].detection.radius_px)
         candidates = candidates[: max(_ANCHORS, len(candidates) // 2)]
         chosen = [candidates.pop(0)]
         while candidates and len(chosen) < _ANCHORS:
@@ -430,11 +458,11 @@ class MarkerTracker:
             track.anchor = True
 
 
-def _confirmed(track: _Track, detection: np.ndarray, stamp: float) -> _Track:
-    """The track continued by a detection row (x, y, ..., radius) at ``stamp``."""
-    xy = detection[:2].copy()
+def _confirmed(track: _Track, detection: Detection, stamp: float) -> _Track:
+    """The track continued by ``detection`` at ``stamp``."""
+    xy = np.array([detection.x, detection.y])
     velocity = (xy - track.xy) / (stamp - track.stamp_s)
-    return _Track(xy, velocity, float(detection[6]), stamp)
+    return _Track(xy, velocity, detection, stamp)
 
 
 def _coasting(
@@ -444,7 +472,7 @@ def _coasting(
     return _Track(
         prediction,
         track.velocity,
-        track.radius_px,
+        track.detection,
         stamp,
         track.missed + 1,
         track.patch,
