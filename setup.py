@@ -13,7 +13,10 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", [str(p) for p in sorted(Path("config").glob("*.yaml"))]),
+        (
+            f"share/{PACKAGE}/config",
+            sorted(str(p) for pattern in ("*.yaml", "*.xml") for p in Path("config").glob(pattern)),
+        ),
     ],
     package_data={PACKAGE: ["config/*.yaml"]},
     python_requires=">=3.11",

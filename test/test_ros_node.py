@@ -691,7 +691,7 @@ def test_benchmark_cameras_pan_at_a_constant_step_and_turn_back_at_the_end_of_th
 
 
 def test_throughput_benchmark_measures_one_and_two_workers_on_small_frames(ros, tmp_path):
-    grounds = throughput.render_grounds(320, 240, markers=1, directory=tmp_path)
+    grounds = throughput.render_grounds(320, 240, directory=tmp_path, markers=1)
     results = [throughput.run_once(grounds, n, seconds=1.0, rate_hz=10.0) for n in (1, 2)]
     for result in results:
         assert result.processed > 0

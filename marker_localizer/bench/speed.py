@@ -66,14 +66,21 @@ _THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS
 _WORKER_TIMEOUT_S = 1800
 
 
+def cluttered_scene(width: int = FRAME_WIDTH, height: int = FRAME_HEIGHT) -> Any:
+    """The SceneConfig of the timed frames: the accuracy benchmark's family (d)."""
+    from marker_localizer.synthetic import SceneConfig  # noqa: PLC0415
+
+    return SceneConfig(width=width, height=height, n_markers=24,
+                       radius_px=RADIUS_RANGE, blur_sigma_px=(0.5, 1.5),
+                       noise_sigma_dn=(0.0, 4.0), max_tilt_deg=60.0,
+                       n_hard_negatives=400, illumination_strength=1.0, n_shadows=4)
+
+
 def render_frames(n_frames: int, seed: int) -> list[np.ndarray]:
     """Render the cluttered 4096 x 3000 frames every subject is timed on (uint8)."""
-    from marker_localizer.synthetic import SceneConfig, render_scene  # noqa: PLC0415
+    from marker_localizer.synthetic import render_scene  # noqa: PLC0415
 
-    config = SceneConfig(width=FRAME_WIDTH, height=FRAME_HEIGHT, n_markers=24,
-                         radius_px=RADIUS_RANGE, blur_sigma_px=(0.5, 1.5),
-                         noise_sigma_dn=(0.0, 4.0), max_tilt_deg=60.0,
-                         n_hard_negatives=400, illumination_strength=1.0, n_shadows=4)
+    config = cluttered_scene()
     return [render_scene(config, seed * 1000 + i).image for i in range(n_frames)]
 
 

@@ -33,6 +33,7 @@ reports:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import multiprocessing
 import os
 import resource
@@ -52,11 +53,12 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
+from marker_localizer.bench import speed
 from marker_localizer.config import DetectorConfig
 from marker_localizer.ros.conversions import array_to_image
 from marker_localizer.ros.node import MarkerLocalizerNode
 from marker_localizer.ros.processing import stamp_to_ns
-from marker_localizer.synthetic import SceneConfig, render_scene
+from marker_localizer.synthetic import render_scene
 
 CAMERAS = ("cam0", "cam1", "cam2", "cam3", "cam4")
 #: Image motion of every camera per frame, px (x, y): a drone at 10 m/s and 10 Hz.
@@ -68,6 +70,9 @@ _DRAIN_TIMEOUT_S = 120.0
 #: Longest wait for the camera process to start publishing (imports, DDS discovery), s.
 _CAMERA_START_TIMEOUT_S = 120.0
 _NS_PER_S = 1_000_000_000
+#: The Fast DDS profile for 12 MP images the benchmark runs with (README, "Speed").
+FASTDDS_PROFILE = Path(__file__).resolve().parents[2] / "config" / "fastdds_large_images.xml"
+_PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
 
 
 @dataclass(frozen=True)
@@ -94,24 +99,28 @@ class RunResult:
         return self.published - self.received
 
 
-def render_grounds(width: int, height: int, markers: int, directory: Path) -> Path:
-    """Render each camera's ground once: the frame plus its pan (textured, hard negatives).
+def render_grounds(width: int, height: int, directory: Path, markers: int = 24) -> Path:
+    """Render each camera's ground once: the frame plus its pan.
+
+    The grounds are the speed benchmark's cluttered scenes (24 markers of radius
+    6-40 px, 400 hard negatives, strong light gradient, shadows), so the node's
+    figures and the single-core figures describe the same frames.
 
     Args:
         width: width of the published frames, px.
         height: height of the published frames, px.
-        markers: markers per ground.
         directory: where to write the grounds.
+        markers: markers per ground (fewer for small test frames).
 
     Returns:
         Path of a (cameras, H, W) uint8 ``.npy`` file, read by the camera process.
     """
     dx, dy = PAN_STEP_PX
-    config = SceneConfig(
-        width=width + PAN_FRAMES * dx,
-        height=height + PAN_FRAMES * dy,
-        n_markers=markers,
-        supersampling=4,
+    config = speed.cluttered_scene(width + PAN_FRAMES * dx, height + PAN_FRAMES * dy)
+    # The hard negatives at the speed benchmark's density.
+    area = config.width * config.height / (speed.FRAME_WIDTH * speed.FRAME_HEIGHT)
+    config = dataclasses.replace(
+        config, n_markers=markers, n_hard_negatives=round(config.n_hard_negatives * area)
     )
     path = Path(directory) / "grounds.npy"
     np.save(path, np.stack([render_scene(config, seed).image for seed in range(len(CAMERAS))]))
@@ -155,6 +164,9 @@ def run_once(
         parameter_overrides=[
             Parameter("workers", value=workers),
             Parameter("detector.tracking", value=tracking),
+            # The marker sizes of the scenes, as a user configures them.
+            Parameter("detector.marker_radius_min_px", value=speed.RADIUS_RANGE[0]),
+            Parameter("detector.marker_radius_max_px", value=speed.RADIUS_RANGE[1]),
         ],
     )
     peer = Node("bench_results", namespace=namespace)
@@ -241,16 +253,29 @@ def _camera_process(
         qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
         publishers = [node.create_publisher(Image, f"{c}/image_raw", qos) for c in CAMERAS]
         _wait(lambda: all(p.get_subscription_count() for p in publishers), "the node")
+        # One message per camera, its pixels rewritten in place for every frame: a
+        # camera driver fills its buffer, it does not build a new 12 MB message.
+        messages = [
+            array_to_image(camera_view(view, 0).copy(), "mono8", Header(frame_id=camera))
+            for camera, view in zip(CAMERAS, ground, strict=True)
+        ]
+        pixels = [
+            np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.width)
+            for msg in messages
+        ]
         started.set()
         cpu_start = _cpu_s()
         start = time.monotonic()
         ticks = max(1, round(seconds * rate_hz))
         for tick in range(ticks):
-            for camera, (publisher, view) in enumerate(zip(publishers, ground, strict=True)):
-                stamp = Header(frame_id=CAMERAS[camera])
-                stamp.stamp.sec, stamp.stamp.nanosec = divmod(time.time_ns(), _NS_PER_S)
-                pixels = np.ascontiguousarray(camera_view(view, tick))
-                publisher.publish(array_to_image(pixels, "mono8", stamp))
+            for publisher, msg, buffer, view in zip(
+                publishers, messages, pixels, ground, strict=True
+            ):
+                buffer[:] = camera_view(view, tick)
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
+                    time.time_ns(), _NS_PER_S
+                )
+                publisher.publish(msg)
             time.sleep(max(start + (tick + 1) / rate_hz - time.monotonic(), 0.0))
         report.put((ticks * len(CAMERAS), _cpu_s() - cpu_start))
         node.destroy_node()
@@ -321,7 +346,6 @@ def build_parser() -> argparse.ArgumentParser:
         default=4.0,
         help="frames per second and camera published (20 in all: more than the node takes)",
     )
-    parser.add_argument("--markers", type=int, default=20, help="markers per frame")
     parser.add_argument(
         "--workers", type=int, nargs="+", default=[1, 2], help="worker counts to run"
     )
@@ -338,10 +362,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark and print a table; returns the exit status."""
     args = build_parser().parse_args(argv)
     tracking = not args.full_frame
+    # Before rclpy starts; the camera process inherits it. A profile of the user's own
+    # (the variable already set) is kept.
+    if _PROFILE_VARIABLE not in os.environ and FASTDDS_PROFILE.is_file():
+        os.environ[_PROFILE_VARIABLE] = str(FASTDDS_PROFILE)
+    transport = os.environ.get(_PROFILE_VARIABLE, "Fast DDS defaults")
     with tempfile.TemporaryDirectory(prefix="marker_bench_") as directory:
         print(f"rendering {len(CAMERAS)} grounds for {args.width}x{args.height} frames ...",
               flush=True)
-        grounds = render_grounds(args.width, args.height, args.markers, Path(directory))
+        grounds = render_grounds(args.width, args.height, Path(directory))
         rclpy.init()
         try:
             results = []
@@ -360,7 +389,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(
         f"\n{len(CAMERAS)} cameras, {args.width}x{args.height} mono8 panning "
         f"{PAN_STEP_PX} px per frame, {args.rate_hz:g} Hz each, {args.seconds:g} s per run, "
-        f"{mode}, {os.cpu_count()} CPUs"
+        f"{mode}, {os.cpu_count()} CPUs, DDS profile: {transport}"
     )
     print(format_table(results))
     by_workers = {r.workers: r for r in results}
