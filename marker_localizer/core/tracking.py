@@ -316,9 +316,11 @@ class MarkerTracker:
         for side, ((u, v), axis, sign) in enumerate(sides):
             border = np.stack([u * (width - 1), v * (height - 1)], axis=1)
             inward[side] = np.max(sign * (_transform(motion, border) - border)[:, axis])
+        # The whole measured motion, not only max_motion_px: that bounds the error of
+        # the constant-velocity prediction, and a fast flight moves the image further.
         depth = np.where(
             inward + self.match_px > 0,
-            reach + np.clip(inward, 0.0, self.max_motion_px) + self.match_px,
+            np.minimum(reach + np.maximum(inward, 0.0) + self.match_px, max(height, width)),
             0.0,
         )
         lattice = self._lattice_px()
