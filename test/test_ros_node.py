@@ -699,9 +699,9 @@ def test_throughput_benchmark_measures_one_and_two_workers_on_small_frames(ros, 
         assert result.published == 5 * 10
         assert result.dropped_mailbox + result.dropped_age + result.processed <= result.received
         assert result.latency_p95_ms >= result.latency_p50_ms > 0
-        assert result.camera_cpu_percent > 0
     table = throughput.format_table(results)
     assert table.splitlines()[0].split()[:2] == ["workers", "frames/s"]
+    assert "cameras %" in table.splitlines()[0]  # the camera process's CPU apart
     assert len(table.splitlines()) == 4
 
 
