@@ -352,19 +352,16 @@ class Detector:
         three), it removes ~95 % of the texture saddles for the price of at most
         108 nearest-pixel samples each (the cascade stops at the first bad ring).
         """
-        keep = np.zeros(len(candidates), dtype=bool)
         threshold = 0.5 * self.config.min_contrast_dn / 255.0 * full_scale
-        for scale in np.unique(candidates.scale_px):
-            members = np.flatnonzero(candidates.scale_px == scale)
-            good = verification.count_symmetric_rings(
-                gray,
-                candidates.xy[members],
-                np.array(_PRESCREEN_RINGS) * scale,
-                min_contrast=threshold,
-                min_symmetry=_PRESCREEN_SYMMETRY,
-                min_good=_PRESCREEN_GOOD_RINGS,
-            )
-            keep[members] = good >= _PRESCREEN_GOOD_RINGS
+        good = verification.count_symmetric_rings(
+            gray,
+            candidates.xy,
+            candidates.scale_px[:, None] * np.array(_PRESCREEN_RINGS),
+            min_contrast=threshold,
+            min_symmetry=_PRESCREEN_SYMMETRY,
+            min_good=_PRESCREEN_GOOD_RINGS,
+        )
+        keep = good >= _PRESCREEN_GOOD_RINGS
         counts["rejected_prescreen"] = int((~keep).sum())
         return candidates.take(keep)
 

@@ -124,8 +124,11 @@ def analyse_rings(profiles: np.ndarray) -> RingAnalysis:
     return RingAnalysis(contrast, symmetry, four, line_angles)
 
 
-def _nearest_ring(image: np.ndarray, xy: np.ndarray, radius_px: float) -> np.ndarray:
-    """(N, 36) float32 nearest-pixel samples on one ring; rows leaving the image are NaN."""
+def _nearest_ring(image: np.ndarray, xy: np.ndarray, radius_px: np.ndarray) -> np.ndarray:
+    """(N, 36) float32 nearest-pixel samples, each point's ring of its own radius (N,).
+
+    Rows whose ring leaves the image are NaN.
+    """
     theta = np.arange(N_ANGLES) * (2.0 * np.pi / N_ANGLES)
     height, width = image.shape
     reach = np.ceil(radius_px) + 1.0
@@ -135,10 +138,10 @@ def _nearest_ring(image: np.ndarray, xy: np.ndarray, radius_px: float) -> np.nda
         & (xy[:, 0] < width - reach)
         & (xy[:, 1] < height - reach)
     )
-    centre = np.where(inside[:, None], xy, reach) + 0.5
+    centre = np.where(inside[:, None], xy, reach[:, None]) + 0.5
     # Coordinates are positive here, so truncation after +0.5 rounds to the nearest pixel.
-    col = (centre[:, 0, None] + radius_px * np.cos(theta)).astype(np.intp)
-    row = (centre[:, 1, None] + radius_px * np.sin(theta)).astype(np.intp)
+    col = (centre[:, 0, None] + radius_px[:, None] * np.cos(theta)).astype(np.intp)
+    row = (centre[:, 1, None] + radius_px[:, None] * np.sin(theta)).astype(np.intp)
     values = image.reshape(-1)[row * width + col].astype(np.float32)
     values[~inside] = np.nan
     return values
@@ -182,7 +185,8 @@ def count_symmetric_rings(
     Args:
         image: (H, W) image, native dtype.
         xy: (N, 2) points.
-        radii_px: (J,) ring radii.
+        radii_px: (J,) ring radii, or (N, J): each point's own (one cascade for
+            candidates of every scale).
         min_contrast: smallest bright-minus-dark level of a good ring, image units.
         min_symmetry: smallest 180-degree self-correlation of a good ring.
         min_good: the count the caller will require.
@@ -190,18 +194,21 @@ def count_symmetric_rings(
     Returns:
         (N,) int number of good rings.
     """
-    n_rings = len(radii_px)
+    n_rings = np.shape(radii_px)[-1]
+    radii = np.broadcast_to(np.asarray(radii_px, dtype=np.float64), (len(xy), n_rings))
     passed = np.zeros(len(xy), dtype=np.int64)
     alive = np.arange(len(xy))
-    for j, radius in enumerate(radii_px):
-        ring = _nearest_ring(image, xy[alive], float(radius))
+    for j in range(n_rings):
+        ring = _nearest_ring(image, xy[alive], radii[alive, j])
         passed[alive] += _ring_passes(ring, min_contrast, min_symmetry)
         failed = j + 1 - passed[alive]
         alive = alive[failed <= n_rings - min_good]
     # Points that dropped out have failed too many rings; their partial count says so.
     np.minimum(passed, min_good - 1, out=passed)
     if len(alive):
-        profiles = np.stack([_nearest_ring(image, xy[alive], float(r)) for r in radii_px], axis=1)
+        profiles = np.stack(
+            [_nearest_ring(image, xy[alive], radii[alive, j]) for j in range(n_rings)], axis=1
+        )
         rings = analyse_rings(profiles.astype(np.float64))
         good = rings.four_sectors & (rings.contrast >= min_contrast) & (
             rings.symmetry >= min_symmetry
