@@ -452,12 +452,15 @@ class MarkerTracker:
             return
         candidates.sort(key=lambda c: -c[0].detection.radius_px)
         candidates = candidates[: max(_ANCHORS, len(candidates) // 2)]
-        chosen = [candidates.pop(0)]
-        while candidates and len(chosen) < _ANCHORS:
-            spread = [min(np.hypot(c[1] - a[1], c[2] - a[2]) for a in chosen) for c in candidates]
-            chosen.append(candidates.pop(int(np.argmax(spread))))
-        for track, _, _ in chosen:
-            track.anchor = True
+        # Farthest-point choice: each next anchor farthest from those chosen.
+        points = np.array([(cx, cy) for _, cx, cy in candidates], dtype=np.float64)
+        spread = np.hypot(*(points - points[0]).T)
+        chosen = [0]
+        while len(chosen) < min(_ANCHORS, len(points)):
+            chosen.append(int(np.argmax(spread)))
+            spread = np.minimum(spread, np.hypot(*(points - points[chosen[-1]]).T))
+        for k in chosen:
+            candidates[k][0].anchor = True
 
 
 def _confirmed(track: _Track, detection: Detection, stamp: float) -> _Track:
