@@ -7,14 +7,17 @@ constant-velocity prediction, which leaves the attitude jitter of tens of pixels
 to the match). Markers lie on the ground, a plane, so the motion is a
 homography; fitted to the anchors (a similarity or a shift from fewer than
 four), it maps every track's last position into the frame. Each marker is then
-searched for in a small window, only as large as that prediction's error
-(``match_px``) plus the few pixels a marker's screening candidate may lie off
-its centre. Inside the windows the detector runs exactly as on a full frame (it
-samples the whole image; a window only bounds where candidates are screened), so
-a tracked marker's position and sigma are those a full pass gives. Markers come
-into view across the frame border, so the border is searched too, but only on
-the sides whose content moves inward and only as deep as a marker's plate plus
-that motion.
+confirmed by the detector's sub-pixel fit alone (:meth:`Detector.locate`),
+started where the motion puts it, with the extent, line angles and verification
+evidence of its last detection: the same fit and gates as a full pass, so its
+position is a full pass's to the fit's tolerance. A marker the fit does not
+confirm is searched for in a small window, only as large as the prediction's
+error (``match_px``) plus the few pixels a marker's screening candidate may lie
+off its centre; inside a window the detector runs exactly as on a full frame (it
+samples the whole image; a window only bounds where candidates are screened).
+Markers come into view across the frame border, so the border is searched too,
+but only on the sides whose content moves inward and only as deep as a marker's
+plate plus that motion.
 
 The rule for full-frame passes, precisely. A frame gets a full-frame pass
 
