@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from marker_localizer.core.sampling import bilinear
+from marker_localizer.core.sampling import corners, interpolate
 
 FloatImage = np.ndarray  # (H, W) float32
 
@@ -169,14 +169,12 @@ class LocalGamma:
                 boxes = np.array([[0, 0, width, height]])
         self._boxes = boxes
         maps = [self._mean_map(image[y0:y1, x0:x1]) for x0, y0, x1, y1 in boxes]
-        # One stack of equally padded maps, so a lookup is a single gather for all points.
-        rows = max(m.shape[0] for m in maps)
-        cols = max(m.shape[1] for m in maps)
-        self._map_shapes = np.array([m.shape for m in maps], dtype=np.float64)
-        self._stack = np.stack(
-            [np.pad(m, ((0, rows - m.shape[0]), (0, cols - m.shape[1])), mode="edge") for m in maps]
-        ).reshape(-1, cols)
-        self._rows_per_map = rows
+        # The maps raveled one after the other (no padding: a wide band and a tall one
+        # would each be padded to both sizes), so a lookup is one gather for all points.
+        self._map_shapes = np.array([m.shape for m in maps], dtype=np.int64)
+        sizes = self._map_shapes.prod(axis=1)
+        self._map_starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        self._maps = np.concatenate([m.ravel() for m in maps])
 
     def _mean_map(self, crop: np.ndarray) -> np.ndarray:
         height, width = crop.shape
@@ -199,10 +197,13 @@ class LocalGamma:
         owner = np.argmax(inside, axis=1)
         # INTER_AREA maps x to (x + 0.5) / f - 0.5 on the reduced grid.
         local = (xy - boxes[owner, :2] + 0.5) / self._reduction - 0.5
-        shape = self._map_shapes[owner]
-        x = np.clip(local[:, 0], 0.0, np.maximum(shape[:, 1] - 1.001, 0.0))
-        y = np.clip(local[:, 1], 0.0, np.maximum(shape[:, 0] - 1.001, 0.0))
-        mean, _ = bilinear(self._stack, x, y + owner * self._rows_per_map)
+        rows, cols = self._map_shapes[owner].T
+        # Maps are at least 2 x 2, so the four corners stay inside the point's own map.
+        x = np.clip(local[:, 0], 0.0, cols - 1.001)
+        y = np.clip(local[:, 1], 0.0, rows - 1.001)
+        x0, y0 = np.floor(x), np.floor(y)
+        base = self._map_starts[owner] + y0.astype(np.int64) * cols + x0.astype(np.int64)
+        mean = interpolate(*corners(self._maps, base, cols), x - x0, y - y0)
         return np.where(inside.any(axis=1), mean, 0.5)
 
     def __call__(self, values: np.ndarray, xy: np.ndarray) -> np.ndarray:

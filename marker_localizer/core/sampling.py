@@ -15,6 +15,41 @@ import numpy as np
 Normaliser = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
+def corners(
+    flat: np.ndarray, base: np.ndarray, stride: np.ndarray | int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The four pixels (top-left, top-right, bottom-left, bottom-right) from ``base``.
+
+    Args:
+        flat: a raveled image, or several raveled images one after the other.
+        base: flat index of each top-left pixel.
+        stride: row length of the image each index lies in.
+
+    Returns:
+        Four float64 arrays: differences of uint8/uint16 samples would wrap around.
+    """
+    return (
+        flat[base].astype(np.float64),
+        flat[base + 1].astype(np.float64),
+        flat[base + stride].astype(np.float64),
+        flat[base + stride + 1].astype(np.float64),
+    )
+
+
+def interpolate(
+    v00: np.ndarray,
+    v01: np.ndarray,
+    v10: np.ndarray,
+    v11: np.ndarray,
+    fx: np.ndarray,
+    fy: np.ndarray,
+) -> np.ndarray:
+    """Bilinear interpolation between four corner values at fractions (fx, fy)."""
+    top = v00 + (v01 - v00) * fx
+    bottom = v10 + (v11 - v10) * fx
+    return top + (bottom - top) * fy
+
+
 def _neighbours(
     image: np.ndarray, x: np.ndarray, y: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -25,13 +60,7 @@ def _neighbours(
     valid = (x0 >= 0) & (y0 >= 0) & (x0 <= width - 2) & (y0 <= height - 2)
     ix = np.clip(x0, 0, width - 2).astype(np.intp)
     iy = np.clip(y0, 0, height - 2).astype(np.intp)
-    flat = image.reshape(-1)
-    base = iy * width + ix
-    # Gathered as float64: differences of uint8/uint16 samples would wrap around.
-    v00 = flat[base].astype(np.float64)
-    v01 = flat[base + 1].astype(np.float64)
-    v10 = flat[base + width].astype(np.float64)
-    v11 = flat[base + width + 1].astype(np.float64)
+    v00, v01, v10, v11 = corners(image.reshape(-1), iy * width + ix, width)
     return v00, v01, v10, v11, x - x0, y - y0, valid
 
 
@@ -49,9 +78,7 @@ def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarra
         is then taken from the clamped border and must not be trusted).
     """
     v00, v01, v10, v11, fx, fy, valid = _neighbours(image, x, y)
-    top = v00 + (v01 - v00) * fx
-    bottom = v10 + (v11 - v10) * fx
-    return top + (bottom - top) * fy, valid
+    return interpolate(v00, v01, v10, v11, fx, fy), valid
 
 
 def bilinear_with_gradient(
