@@ -161,9 +161,12 @@ class LocalGamma:
                 margin,
                 margin,
             ]
-            boxes = np.clip(boxes, 0, [width, height, width, height])
-            # Align to the reduction grid so every map samples the same lattice.
+            # Align both ends to the reduction grid: every map then averages the same
+            # blocks as the full frame's (a region whose size is off the grid would be
+            # reduced by a non-integer factor, its means, and so the scores, shifted).
             boxes[:, :2] -= boxes[:, :2] % self._reduction
+            boxes[:, 2:] += -boxes[:, 2:] % self._reduction
+            boxes = np.clip(boxes, 0, [width, height, width, height])
             boxes = boxes[(boxes[:, 2] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 1])]
             if not len(boxes):
                 boxes = np.array([[0, 0, width, height]])
