@@ -142,7 +142,6 @@ def saddle_levels(radius_range_px: tuple[float, float]) -> range:
     last = max(0, int(np.ceil(np.log2(max(r_max, 1.0) / 6.0))))
     first = max(0, int(np.floor(np.log2(max(foreshortened, 1.0) / MIN_LEVEL_RADIUS_PX))))
     return range(min(first, max(last - 1, 0)), last + 1)
-    return range(first, last + 1)
 
 
 def saddle_candidates(
