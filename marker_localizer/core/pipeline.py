@@ -352,18 +352,24 @@ class Detector:
         three), it removes ~95 % of the texture saddles for the price of at most
         108 nearest-pixel samples each (the cascade stops at the first bad ring).
         """
-        threshold = 0.5 * self.config.min_contrast_dn / 255.0 * full_scale
         good = verification.count_symmetric_rings(
             gray,
             candidates.xy,
             candidates.scale_px[:, None] * np.array(_PRESCREEN_RINGS),
-            min_contrast=threshold,
+            min_contrast=self._raw_contrast_floor(full_scale),
             min_symmetry=_PRESCREEN_SYMMETRY,
             min_good=_PRESCREEN_GOOD_RINGS,
         )
         keep = good >= _PRESCREEN_GOOD_RINGS
         counts["rejected_prescreen"] = int((~keep).sum())
         return candidates.take(keep)
+
+    def _raw_contrast_floor(self, full_scale: float) -> float:
+        """Half the configured contrast in raw (not gamma-corrected) grey units.
+
+        The prescreen's ring floor, which every detection's fit also meets.
+        """
+        return 0.5 * self.config.min_contrast_dn / 255.0 * full_scale
 
     def _centre(
         self, gray: np.ndarray, candidates: Candidates, counts: dict[str, int]
@@ -508,7 +514,7 @@ class Detector:
         # The prescreen's contrast floor (raw grey levels, half the configured contrast)
         # holds for every detection; it matters for a tracked marker confirmed by the
         # fit alone (see :meth:`locate`), which no ring has measured on this frame.
-        faint = fit.contrast < 0.5 * cfg.min_contrast_dn / 255.0 * full_scale
+        faint = fit.contrast < self._raw_contrast_floor(full_scale)
         ok = located & fit.converged & (relative_residual <= cfg.max_symmetry_residual) & ~faint
         ok &= np.isfinite(sigma)
         counts["rejected_refinement"] = int((~ok).sum())
