@@ -198,16 +198,19 @@ def count_symmetric_rings(
     radii = np.broadcast_to(np.asarray(radii_px, dtype=np.float64), (len(xy), n_rings))
     passed = np.zeros(len(xy), dtype=np.int64)
     alive = np.arange(len(xy))
+    sampled = []  # (points, their ring j) per radius, for the survivors' sector analysis
     for j in range(n_rings):
         ring = _nearest_ring(image, xy[alive], radii[alive, j])
+        sampled.append((alive, ring))
         passed[alive] += _ring_passes(ring, min_contrast, min_symmetry)
         failed = j + 1 - passed[alive]
         alive = alive[failed <= n_rings - min_good]
     # Points that dropped out have failed too many rings; their partial count says so.
     np.minimum(passed, min_good - 1, out=passed)
     if len(alive):
+        # The survivors are a sorted subset of every earlier round's points.
         profiles = np.stack(
-            [_nearest_ring(image, xy[alive], radii[alive, j]) for j in range(n_rings)], axis=1
+            [ring[np.searchsorted(points, alive)] for points, ring in sampled], axis=1
         )
         rings = analyse_rings(profiles.astype(np.float64))
         good = rings.four_sectors & (rings.contrast >= min_contrast) & (
