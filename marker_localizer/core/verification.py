@@ -148,21 +148,13 @@ def _nearest_ring(image: np.ndarray, xy: np.ndarray, radius_px: np.ndarray) -> n
 
 
 def _ring_passes(ring: np.ndarray, min_contrast: float, min_symmetry: float) -> np.ndarray:
-    """Contrast and 180-degree self-correlation of (N, 36) rings, in float32; (N,) bool.
+    """(N,) bool: contrast and 180-degree self-correlation of (N, 36) rings.
 
-    The same measures as :func:`analyse_rings` (after its [1, 2, 1] smoothing),
-    without the sector analysis: what a first look over ~10^4 candidates affords.
+    :func:`analyse_rings` without its sector analysis: what a first look over
+    ~10^4 candidates affords.
     """
-    wrapped = np.concatenate([ring[:, -1:], ring, ring[:, :1]], axis=1)
-    f = wrapped[:, :-2] + 2.0 * wrapped[:, 1:-1] + wrapped[:, 2:]
-    contrast = 0.25 * (f.max(axis=1) - f.min(axis=1))
-    centred = f - f.mean(axis=1, keepdims=True)
-    turned = np.concatenate([centred[:, _HALF_TURN:], centred[:, :_HALF_TURN]], axis=1)
-    # A half turn keeps the norm, so the correlation divides by one sum of squares.
-    correlation = np.einsum("ij,ij->i", centred, turned)
-    energy = np.einsum("ij,ij->i", centred, centred)
-    # NaN rows (off the image) compare False.
-    return (contrast >= min_contrast) & (correlation >= min_symmetry * energy) & (energy > 0)
+    _, contrast, symmetry = _smoothed_contrast_symmetry(ring)
+    return (contrast >= min_contrast) & (symmetry >= min_symmetry)
 
 
 def count_symmetric_rings(
