@@ -231,7 +231,8 @@ class MarkerTracker:
         # millisecond per marker, the same centre as a full pass.
         # Where a full pass would see the whole plate: nearer the border its rings
         # leave the frame and it rejects the marker, which the windows reproduce.
-        fitted = inside & ~self._leaving(corrected, shape)
+        leaving = self._leaving(corrected, shape)
+        fitted = inside & ~leaving
         known = [t.detection for t, seen in zip(self._tracks, fitted, strict=True) if seen]
         located = self.detector.locate(
             gray,
@@ -251,25 +252,17 @@ class MarkerTracker:
         windows[:, :2] = np.maximum(windows[:, :2], interior[:2])
         windows[:, 2:] = np.minimum(windows[:, 2:], interior[2:])
         windows = windows[(windows[:, 2] > windows[:, 0]) & (windows[:, 3] > windows[:, 1])]
-        # Separate calls: the detector's local-mean maps of one call are padded to
-        # its largest region, and a band's map is about a hundred times a window's.
-        result = _combine(
-            [
-                located,
-                *(
-                    self.detector.detect(gray, regions=regions)
-                    for regions in (windows, bands)
-                    if len(regions)
-                ),
-            ],
-            self.detector.config.min_peak_separation_px / 2.0,
-        )
+        regions = np.vstack([windows, bands])
+        parts = [located]
+        if len(regions):
+            parts.append(self.detector.detect(gray, regions=regions))
+        result = _combine(parts, self.detector.config.min_peak_separation_px / 2.0)
         found = result.as_array()
         owner = _associate(found[:, :2], corrected, inside, self.match_px)
         missed = owner < 0
         kept = self._kept(gray, corrected, missed)
         excused = np.array([t.missed_by_full_pass for t in self._tracks])
-        if (missed & ~self._leaving(corrected, shape) & ~kept & ~excused).any():
+        if (missed & ~leaving & ~kept & ~excused).any():
             return None  # a marker is lost
         tracks = []
         for track, index, prediction, keep in zip(
@@ -344,13 +337,12 @@ class MarkerTracker:
         return bands, np.array([left, top, right, bottom])
 
     def _lattice_px(self) -> int:
-        """Grid that windows are snapped to: that of the detector's local-mean map.
+        """Grid that windows and bands are snapped to: that of the local-mean map.
 
         ``LocalGamma`` measures the local mean of Eq. (2) on the frame reduced by
-        ``illumination_window_px // 8`` and aligns only the start of each region to
-        that grid; a region whose end is off it is reduced by a non-integer factor,
-        and its scores then differ by up to a few per cent from the full frame's
-        (enough to flip a marker at the acceptance threshold).
+        ``illumination_window_px // 8`` and now aligns every region to that grid
+        itself, so the snapping no longer changes a score; it only rounds windows
+        and bands up to whole blocks of that map.
         """
         return max(1, self.detector.config.illumination_window_px // 8)
 
