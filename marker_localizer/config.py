@@ -288,10 +288,10 @@ class DetectorConfig:
     )
     tracking: bool = _param(
         True,
-        "Node and replay: between full-frame passes, search only windows around the "
-        "markers of the previous frames and the frame border (MarkerTracker). A marker "
-        "not confirmed triggers a full-frame pass on the same frame, so recall is that "
-        "of full-frame detection.",
+        "Node and replay: between full-frame passes, confirm the markers of the previous "
+        "frames by the sub-pixel fit where the measured image motion puts them, and "
+        "search the frame border for new ones (MarkerTracker). A lost marker triggers a "
+        "full-frame pass on the same frame.",
     )
     tracking_full_frame_every: int = _param(
         10,

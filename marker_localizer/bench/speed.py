@@ -9,9 +9,8 @@ family (d)), then runs every subject in a fresh subprocess on those same frames:
   6-40 px), with its per-stage times from ``DetectionResult.timings_ms``;
 * the OpenCV Hessian-saddle + cornerSubPix detector and chess-corners (ChESS,
   Radon) from :mod:`marker_localizer.bench.peers`;
-* tracking mode (``marker_localizer.core.tracking.MarkerTracker``, see
-  :func:`tracker_class`) on a moving sequence made from the first frame; the
-  row is skipped where the tracker is absent.
+* tracking mode (``marker_localizer.core.tracking.MarkerTracker``) on a moving
+  sequence made from the first frame.
 
 Each subprocess runs with ``OMP_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS`` /
 ``MKL_NUM_THREADS`` = 1 set before numpy loads and ``cv2.setNumThreads(1)``: the
@@ -29,7 +28,6 @@ of ``resource.getrusage(RUSAGE_SELF).ru_maxrss``.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
 import resource
@@ -85,21 +83,6 @@ def render_frames(n_frames: int, seed: int) -> list[np.ndarray]:
     return [render_scene(config, seed * 1000 + i).image for i in range(n_frames)]
 
 
-def tracker_class() -> Any | None:
-    """The tracker class (``marker_localizer.core.tracking.MarkerTracker``), None if absent.
-
-    The hook expects ``MarkerTracker(detector, full_frame_every)`` with
-    ``update(image, stamp_s) -> DetectionResult``: full-frame passes until every
-    track has a velocity and every ``full_frame_every`` frames, windows around
-    the predicted markers in between.
-    """
-    try:
-        module = importlib.import_module("marker_localizer.core.tracking")
-    except ImportError:
-        return None
-    return getattr(module, "MarkerTracker", None)
-
-
 # --------------------------------------------------------------------------- worker side
 
 def _make_subject(name: str) -> Callable[[np.ndarray], dict[str, float]]:
@@ -145,16 +128,14 @@ def _make_tracking_subject() -> Callable[[np.ndarray], dict[str, float]]:
 
     Call k tracks :func:`tracking_view` (base, k) with a time stamp of k seconds;
     the warm-up calls let every track get a velocity, so the timed calls are the
-    tracker's steady state (windows around the predicted markers and the border
+    tracker's steady state (the fit confirming the tracked markers, and the border
     bands), with its full-frame passes (every ``tracking_full_frame_every`` frames,
     or when a marker is not confirmed) amortised in.
     """
     from marker_localizer.config import DetectorConfig  # noqa: PLC0415
     from marker_localizer.core.pipeline import Detector  # noqa: PLC0415
+    from marker_localizer.core.tracking import MarkerTracker  # noqa: PLC0415
 
-    tracker_type = tracker_class()
-    if tracker_type is None:
-        raise ImportError("marker_localizer.core.tracking.MarkerTracker is not available")
     config = DetectorConfig(marker_radius_min_px=RADIUS_RANGE[0],
                             marker_radius_max_px=RADIUS_RANGE[1])
     detector = Detector(config)
@@ -163,7 +144,7 @@ def _make_tracking_subject() -> Callable[[np.ndarray], dict[str, float]]:
     def track(image: np.ndarray) -> dict[str, float]:
         if state["step"] % TRACKING_SEQUENCE == 0:
             state["base"] = image if state["base"] is None else state["base"]
-            state["tracker"] = tracker_type(detector, config.tracking_full_frame_every)
+            state["tracker"] = MarkerTracker(detector, config.tracking_full_frame_every)
         view = tracking_view(state["base"], state["step"])
         state["step"] += 1
         result = state["tracker"].update(view, float(state["step"]))
@@ -291,8 +272,7 @@ def available_subjects(include_ncc: bool = True) -> list[str]:
     names = [REFERENCE_SUBJECT]
     if include_ncc:
         names.append("ours (ncc, paper)")
-    if tracker_class() is not None:
-        names.append("ours (tracking)")
+    names.append("ours (tracking)")
     return names + [p.name for p in peers.point_detectors()]
 
 
@@ -386,8 +366,6 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
 
     for line in peers.unavailable_peers():
         report(line)
-    if tracker_class() is None:
-        report("ours (tracking): skipped, marker_localizer.core.tracking.MarkerTracker is absent")
     names = list(options.subjects) if options.subjects else available_subjects()
     frames = render_frames(options.frames, options.seed)
     load_before = os.getloadavg()[0]
