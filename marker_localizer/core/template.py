@@ -10,6 +10,7 @@ polarities the one closer to the image patch in L1 is kept (Eq. 10).
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import cv2
@@ -166,6 +167,21 @@ class TemplateMatch(NamedTuple):
     sigma_b: np.ndarray
 
 
+@functools.lru_cache(maxsize=256)
+def _disk_offsets(radius_px: float, max_samples: int) -> np.ndarray:
+    """(K, 2) offsets of a square grid inside the disk, at most ~``max_samples`` of them.
+
+    Cached and shared between calls: read-only.
+    """
+    step = max(0.5, np.sqrt(np.pi * radius_px**2 / max_samples))
+    grid = np.arange(-radius_px, radius_px + 1e-9, step)
+    gx, gy = np.meshgrid(grid, grid)
+    inside = gx**2 + gy**2 <= radius_px**2
+    offsets = np.stack([gx[inside], gy[inside]], axis=1)
+    offsets.flags.writeable = False
+    return offsets
+
+
 def template_correlation(
     image: np.ndarray,
     xy: np.ndarray,
@@ -199,32 +215,40 @@ def template_correlation(
         :class:`TemplateMatch`.
     """
     n = len(xy)
+    if n == 0:
+        return TemplateMatch(np.zeros(0), np.zeros(0))
+    # One disk pattern per rounded radius, padded to one length with absent samples,
+    # so that all points are one set of array operations (as in the symmetry fit).
+    radius_key = np.round(np.asarray(radius_px, dtype=np.float64))
+    keys, pattern_of = np.unique(radius_key, return_inverse=True)
+    patterns = [_disk_offsets(float(radius), max_samples) for radius in keys]
+    length = max(len(pattern) for pattern in patterns)
+    padded = np.zeros((len(keys), length, 2))
+    present = np.zeros((len(keys), length), dtype=bool)
+    for k, pattern in enumerate(patterns):
+        padded[k, : len(pattern)] = pattern
+        present[k, : len(pattern)] = True
+    dx, dy = padded[pattern_of, :, 0], padded[pattern_of, :, 1]
+    present = present[pattern_of]
+    values, valid = bilinear(image, xy[:, 0, None] + dx, xy[:, 1, None] + dy)
+    if normalise is not None:
+        values = normalise(values, xy)
+    count = present.sum(axis=1, keepdims=True)
+    a1, a2 = line_angles[:, 0:1], line_angles[:, 1:2]
+    s1 = np.sin(a1) * dx - np.cos(a1) * dy
+    s2 = np.sin(a2) * dx - np.cos(a2) * dy
+    centred = (values - (values * present).sum(axis=1, keepdims=True) / count) * (valid & present)
+    norm_i = np.linalg.norm(centred, axis=1) + 1e-12
     ncc = np.zeros(n)
     best_sigma = np.full(n, np.nan)
-    radius_key = np.round(np.asarray(radius_px, dtype=np.float64))
-    for radius in np.unique(radius_key):
-        members = np.flatnonzero(radius_key == radius)
-        step = max(0.5, np.sqrt(np.pi * radius**2 / max_samples))
-        grid = np.arange(-radius, radius + 1e-9, step)
-        gx, gy = np.meshgrid(grid, grid)
-        inside = gx**2 + gy**2 <= radius**2
-        dx, dy = gx[inside], gy[inside]
-        values, valid = bilinear(image, xy[members, 0, None] + dx, xy[members, 1, None] + dy)
-        if normalise is not None:
-            values = normalise(values, xy[members])
-        a1, a2 = line_angles[members, 0:1], line_angles[members, 1:2]
-        s1 = np.sin(a1) * dx - np.cos(a1) * dy
-        s2 = np.sin(a2) * dx - np.cos(a2) * dy
-        centred = (values - values.mean(axis=1, keepdims=True)) * valid
-        norm_i = np.linalg.norm(centred, axis=1) + 1e-12
-        for sigma in sigmas_px:
-            # Pixel integration adds 1/12 px^2 to the Gaussian PSF variance.
-            scale = 1.0 / np.sqrt(2.0 * (sigma**2 + 1.0 / 12.0))
-            model = erf(s1 * scale) * erf(s2 * scale)
-            model_centred = model - model.mean(axis=1, keepdims=True)
-            model_norm2 = (model_centred**2).sum(axis=1) + 1e-12
-            corr = np.abs((centred * model_centred).sum(axis=1)) / (norm_i * np.sqrt(model_norm2))
-            better = corr > ncc[members]
-            ncc[members[better]] = corr[better]
-            best_sigma[members[better]] = sigma
+    for sigma in sigmas_px:
+        # Pixel integration adds 1/12 px^2 to the Gaussian PSF variance.
+        scale = 1.0 / np.sqrt(2.0 * (sigma**2 + 1.0 / 12.0))
+        model = erf(s1 * scale) * erf(s2 * scale)
+        model_centred = (model - (model * present).sum(axis=1, keepdims=True) / count) * present
+        model_norm2 = (model_centred**2).sum(axis=1) + 1e-12
+        corr = np.abs((centred * model_centred).sum(axis=1)) / (norm_i * np.sqrt(model_norm2))
+        better = corr > ncc
+        ncc[better] = corr[better]
+        best_sigma[better] = sigma
     return TemplateMatch(ncc, best_sigma)
