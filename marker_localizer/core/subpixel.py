@@ -276,19 +276,22 @@ def _symmetry_terms(
     ``offsets`` is (N, K, 2) and ``taper`` (N, K): each point's own pattern.
     """
     dx, dy = offsets[..., 0], offsets[..., 1]
-    plus, gpx, gpy, valid_p = bilinear_with_gradient(
-        image, centre[:, 0, None] + dx, centre[:, 1, None] + dy
+    k = dx.shape[1]
+    # c + d and c - d in one gather: for a few dozen points the calls, not the
+    # samples, are the cost.
+    both, gx, gy, valid = bilinear_with_gradient(
+        image,
+        np.concatenate([centre[:, 0, None] + dx, centre[:, 0, None] - dx], axis=1),
+        np.concatenate([centre[:, 1, None] + dy, centre[:, 1, None] - dy], axis=1),
     )
-    minus, gmx, gmy, valid_m = bilinear_with_gradient(
-        image, centre[:, 0, None] - dx, centre[:, 1, None] - dy
-    )
+    plus, minus = both[:, :k], both[:, k:]
     total = plus + minus
     residual = plus - minus - (gain[:, 0, None] * dx + gain[:, 1, None] * dy) * total
-    weight = taper * (valid_p & valid_m)
-    jac = [gpx - gmx, gpy - gmy]
+    weight = taper * (valid[:, :k] & valid[:, k:])
+    jac = [gx[:, :k] - gx[:, k:], gy[:, :k] - gy[:, k:]]
     if model_gain:
         jac += [-dx * total, -dy * total]
-    return residual, weight, np.stack(jac, axis=-1), np.concatenate([plus, minus], axis=1)
+    return residual, weight, np.stack(jac, axis=-1), both
 
 
 def _gauss_newton_symmetry(
@@ -329,6 +332,10 @@ def _gauss_newton_symmetry(
         if model_gain:
             gain += step[:, 2:]
         step_norm = np.where(active, np.linalg.norm(step[:, :2], axis=1), step_norm)
+        if not (step_norm > tolerance_px).any():
+            # The residuals and Jacobian a last step below the tolerance away serve the
+            # covariance as well as those at the end point: one evaluation fewer.
+            break
     # Sandwich covariance of the weighted fit; residuals sampled closer than a pixel
     # are correlated, so the effective count is that of pixels, not of samples.
     w_sum = weight.sum(axis=1)
