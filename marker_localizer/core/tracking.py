@@ -74,6 +74,12 @@ _PATCH_HALF_PX = (8, 24)
 #: Lowest normalised cross-correlation of a track's patch with its new view; the
 #: same marker a frame later correlates above 0.9, ground texture rarely above 0.5.
 _MIN_PATCH_NCC = 0.7
+#: An anchor is first looked for this close to its constant-velocity prediction,
+#: px, and taken there when its patch correlates above ``_NEAR_MIN_PATCH_NCC`` at a
+#: peak inside that search: in a steady flight the prediction holds to a pixel or
+#: two, and this search costs a hundredth of one over ``max_motion_px``.
+_NEAR_SEARCH_PX = 6.0
+_NEAR_MIN_PATCH_NCC = 0.9
 #: A marker's strongest screening candidate lies within this distance of the centre
 #: the detector reports (measured on the speed benchmark's frames: windows of this
 #: half-size around full-frame detections give back every one of them).
@@ -145,10 +151,14 @@ class MarkerTracker:
         gray, _ = to_gray(image)
         # Measured on full passes too: it carries the tracks a pass misses.
         start = time.perf_counter()
-        motion = self._register(gray, stamp) if self._tracks else None
+        motion, located = None, None
+        if self._tracks:
+            motion, located = self._motion_from_fit(gray, stamp)
+            if motion is None:
+                motion = self._register(gray, stamp)
         registration_ms = (time.perf_counter() - start) * 1000.0
         if motion is not None and self._frames_since_full + 1 < self.full_frame_every:
-            result = self._track(gray, stamp, motion)
+            result = self._track(gray, stamp, motion, located)
             if result is not None:
                 result.timings_ms["registration"] = registration_ms
                 self._frames_since_full += 1
@@ -173,6 +183,46 @@ class MarkerTracker:
             ]
         ).reshape(-1, 2)
 
+    def _motion_from_fit(
+        self, gray: np.ndarray, stamp: float
+    ) -> tuple[np.ndarray | None, DetectionResult | None]:
+        """(3, 3) image motion from the tracks' own fits, and those fits; (None, None) if unsure.
+
+        In a steady flight the constant-velocity prediction lies within the fit's
+        reach of each marker, and the fitted centres measure the motion better than
+        matched patches, for the fit that confirms them anyway. Taken only when at
+        least four tracks, and at least half of those the fit is started on, are
+        confirmed within ``match_px`` of their prediction; else the prediction is
+        off (a jolt, a turn) and the anchors' patches measure the motion.
+        """
+        predicted = self._predict(stamp)
+        # Where a full pass would see the whole plate: nearer the border its rings
+        # leave the frame and it rejects the marker, which the windows reproduce.
+        fitted = ~self._leaving(predicted, gray.shape)
+        if fitted.sum() < 4:
+            return None, None
+        located = self._locate_tracks(gray, predicted, fitted)
+        owner = _associate(located.as_array()[:, :2], predicted, fitted, self.match_px)
+        confirmed = owner >= 0
+        if confirmed.sum() < max(4, fitted.sum() / 2):
+            return None, None
+        sources = np.array([t.xy for t in self._tracks])[confirmed]
+        targets = located.as_array()[owner[confirmed], :2]
+        return _frame_motion(sources, targets, self.match_px), located
+
+    def _locate_tracks(
+        self, gray: np.ndarray, predicted: np.ndarray, fitted: np.ndarray
+    ) -> DetectionResult:
+        """The fit alone, started at the ``fitted`` tracks' predictions, with their last extent."""
+        known = [t.detection for t, seen in zip(self._tracks, fitted, strict=True) if seen]
+        return self.detector.locate(
+            gray,
+            predicted[fitted],
+            np.array([d.radius_px for d in known]),
+            np.array([[d.angle1, d.angle2] for d in known]).reshape(-1, 2),
+            np.array([d.evidence for d in known]),
+        )
+
     def _register(self, gray: np.ndarray, stamp: float) -> np.ndarray | None:
         """(3, 3) image motion from the last frame, measured on the anchors; None if none found."""
         predicted = self._predict(stamp)
@@ -180,7 +230,11 @@ class MarkerTracker:
         for track, prediction in zip(self._tracks, predicted, strict=True):
             if not track.anchor or track.patch is None:
                 continue
-            found = self._match_patch(gray, track.patch, prediction, self.max_motion_px)
+            found = self._match_patch(
+                gray, track.patch, prediction, _NEAR_SEARCH_PX, _NEAR_MIN_PATCH_NCC, interior=True
+            )
+            if found is None:
+                found = self._match_patch(gray, track.patch, prediction, self.max_motion_px)
             if found is not None:
                 # The patch was cut at the rounded centre: restore the fraction.
                 sources.append(track.xy)
@@ -191,9 +245,18 @@ class MarkerTracker:
 
     @staticmethod
     def _match_patch(
-        gray: np.ndarray, patch: np.ndarray, prediction: np.ndarray, search_px: float
+        gray: np.ndarray,
+        patch: np.ndarray,
+        prediction: np.ndarray,
+        search_px: float,
+        min_ncc: float = _MIN_PATCH_NCC,
+        interior: bool = False,
     ) -> np.ndarray | None:
-        """Centre of the best match of ``patch`` within ``search_px`` of ``prediction``."""
+        """Centre of the best match of ``patch`` within ``search_px`` of ``prediction``.
+
+        None when its correlation is below ``min_ncc`` or, with ``interior``, when it
+        lies on the search's edge (the best match may then lie beyond it).
+        """
         height, width = gray.shape
         half = patch.shape[0] // 2
         reach = half + int(np.ceil(search_px))
@@ -206,16 +269,25 @@ class MarkerTracker:
         # matchTemplate takes 8-bit or float32 images only.
         ncc = cv2.matchTemplate(search.astype(patch.dtype, copy=False), patch, cv2.TM_CCOEFF_NORMED)
         row, col = np.unravel_index(int(np.argmax(ncc)), ncc.shape)
-        if not ncc[row, col] >= _MIN_PATCH_NCC:
+        if not ncc[row, col] >= min_ncc:
+            return None
+        if interior and not (0 < row < ncc.shape[0] - 1 and 0 < col < ncc.shape[1] - 1):
             return None
         dx = _parabola_peak(ncc[row, col - 1 : col + 2]) if 0 < col < ncc.shape[1] - 1 else 0.0
         dy = _parabola_peak(ncc[row - 1 : row + 2, col]) if 0 < row < ncc.shape[0] - 1 else 0.0
         return np.array([x0 + col + dx + half, y0 + row + dy + half])
 
-    def _track(self, gray: np.ndarray, stamp: float, motion: np.ndarray) -> DetectionResult | None:
+    def _track(
+        self,
+        gray: np.ndarray,
+        stamp: float,
+        motion: np.ndarray,
+        located: DetectionResult | None = None,
+    ) -> DetectionResult | None:
         """Confirm the tracks where the motion puts them, search the border bands.
 
-        None if the frame needs a full pass.
+        ``located``: the fits that measured the motion, if they did (they are not
+        run again). None if the frame needs a full pass.
         """
         shape = gray.shape
         height, width = shape
@@ -229,18 +301,10 @@ class MarkerTracker:
         bands, interior = self._border_bands(shape, motion)
         # First the fit alone, from where the motion puts each marker: a fraction of a
         # millisecond per marker, the same centre as a full pass.
-        # Where a full pass would see the whole plate: nearer the border its rings
-        # leave the frame and it rejects the marker, which the windows reproduce.
         leaving = self._leaving(corrected, shape)
-        fitted = inside & ~leaving
-        known = [t.detection for t, seen in zip(self._tracks, fitted, strict=True) if seen]
-        located = self.detector.locate(
-            gray,
-            corrected[fitted],
-            np.array([d.radius_px for d in known]),
-            np.array([[d.angle1, d.angle2] for d in known]).reshape(-1, 2),
-            np.array([d.evidence for d in known]),
-        )
+        fitted = ~leaving
+        if located is None:
+            located = self._locate_tracks(gray, corrected, fitted)
         confirmed = _associate(located.as_array()[:, :2], corrected, fitted, self.match_px) >= 0
         # Then the detector in a window around each marker the fit did not confirm
         # (a prediction off by more than the fit's reach, or a marker changed).
