@@ -1,12 +1,14 @@
 """Tracking mode: detect near where markers are expected, the whole frame only when needed.
 
-Between full-frame passes the image motion from the last frame is measured on a
-few anchor markers: each is found again by matching its grey patch from the
-last frame (normalised cross-correlation within ``max_motion_px`` of its
-constant-velocity prediction, which leaves the attitude jitter of tens of pixels
-to the match). Markers lie on the ground, a plane, so the motion is a
-homography; fitted to the anchors (a similarity or a shift from fewer than
-four), it maps every track's last position into the frame. Each marker is then
+Between full-frame passes the image motion from the last frame is measured on
+the markers. In a steady flight each track's constant-velocity prediction lies
+within reach of the sub-pixel fit, which then confirms the markers and measures
+the motion in one go. When it does not (a jolt of the attitude moves the image
+by tens of pixels), a few anchor markers are found again by matching their grey
+patch from the last frame (normalised cross-correlation within ``max_motion_px``
+of the prediction). Markers lie on the ground, a plane, so the motion is a
+homography; fitted to the markers (a similarity or a shift from fewer than
+four anchors), it maps every track's last position into the frame. Each marker is then
 confirmed by the detector's sub-pixel fit alone (:meth:`Detector.locate`),
 started where the motion puts it, with the extent, line angles and verification
 evidence of its last detection: the same fit and gates as a full pass, so its
