@@ -27,6 +27,12 @@ _LSD_MIN_WINDOW_PX = 24
 #: but not the plate's outline, whose segments would only add crossings to test.
 _LSD_WINDOW_RADII = 1.25
 _HALF_TURN = N_ANGLES // 2
+# Indices of each angle's neighbours and opposite on the ring: a gather along the
+# last axis costs a fraction of np.roll's slicing and concatenation, which the small
+# per-call arrays of a few candidates make the cost.
+_PREVIOUS = np.roll(np.arange(N_ANGLES), 1)
+_NEXT = np.roll(np.arange(N_ANGLES), -1)
+_OPPOSITE = np.roll(np.arange(N_ANGLES), -_HALF_TURN)
 
 
 def annular_profiles(
@@ -58,7 +64,7 @@ def annular_profiles(
 
 def _circular_smooth(profile: np.ndarray) -> np.ndarray:
     """Smooth along the angle axis with a [1, 2, 1] / 4 kernel (the paper's DoG pre-filter)."""
-    return 0.25 * (np.roll(profile, 1, axis=-1) + 2.0 * profile + np.roll(profile, -1, axis=-1))
+    return 0.25 * (profile[..., _PREVIOUS] + 2.0 * profile + profile[..., _NEXT])
 
 
 class RingAnalysis(NamedTuple):
@@ -81,11 +87,12 @@ class RingAnalysis(NamedTuple):
 
 def _smoothed_contrast_symmetry(profiles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The [1, 2, 1]-smoothed profiles, their contrast and their 180-degree self-correlation."""
-    missing = np.isnan(profiles).any(axis=-1)
-    f = _circular_smooth(np.nan_to_num(profiles))
+    nan = np.isnan(profiles)
+    missing = nan.any(axis=-1)
+    f = _circular_smooth(np.where(nan, 0.0, profiles))
     contrast = np.where(missing, 0.0, f.max(axis=-1) - f.min(axis=-1))
     centred = f - f.mean(axis=-1, keepdims=True)
-    turned = np.roll(centred, _HALF_TURN, axis=-1)
+    turned = centred[..., _OPPOSITE]
     norm = np.sqrt((centred**2).sum(-1) * (turned**2).sum(-1)) + 1e-12
     symmetry = np.where(missing, -1.0, (centred * turned).sum(-1) / norm)
     return f, contrast, symmetry
@@ -105,14 +112,14 @@ def analyse_rings(profiles: np.ndarray) -> RingAnalysis:
     # Sector boundaries: crossings of the mid level between samples k and k+1.
     level = 0.5 * (high + low)[..., None]
     above = f > level
-    crossing = above != np.roll(above, -1, axis=-1)
+    crossing = above != above[..., _NEXT]
     n_cross = crossing.sum(axis=-1)
     four = (n_cross == 4) & (contrast > 0)
     # Sub-sample crossing angle by linear interpolation, for rings with four crossings.
-    nxt = np.roll(f, -1, axis=-1)
+    nxt = f[..., _NEXT]
     with np.errstate(divide="ignore", invalid="ignore"):
         frac = np.clip((level - f) / (nxt - f), 0.0, 1.0)
-    position = np.arange(N_ANGLES) + np.nan_to_num(frac)
+    position = np.arange(N_ANGLES) + np.where(np.isnan(frac), 0.0, frac)
     order = np.argsort(~crossing, axis=-1, kind="stable")[..., :4]
     first4 = np.take_along_axis(position, order, axis=-1) * (2 * np.pi / N_ANGLES)
     # Boundaries i and i+2 must be opposite (180 deg apart) on a centrally symmetric X.
