@@ -386,6 +386,7 @@ class Detector:
             max_shift_px=0.5 * radius + 1.0,
             model_gain=False,
             max_samples=_COARSE_SAMPLES,
+            uncertainty=False,
         )
         inside = np.isfinite(fit.xy).all(axis=1) & (
             np.linalg.norm(fit.xy - candidates.xy, axis=1) <= 0.5 * radius + 1.0

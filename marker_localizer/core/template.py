@@ -224,12 +224,12 @@ def template_correlation(
     patterns = [_disk_offsets(float(radius), max_samples) for radius in keys]
     length = max(len(pattern) for pattern in patterns)
     padded = np.zeros((len(keys), length, 2))
-    present = np.zeros((len(keys), length), dtype=bool)
+    in_pattern = np.zeros((len(keys), length), dtype=bool)
     for k, pattern in enumerate(patterns):
         padded[k, : len(pattern)] = pattern
-        present[k, : len(pattern)] = True
+        in_pattern[k, : len(pattern)] = True
     dx, dy = padded[pattern_of, :, 0], padded[pattern_of, :, 1]
-    present = present[pattern_of]
+    present = in_pattern[pattern_of]
     values, valid = bilinear(image, xy[:, 0, None] + dx, xy[:, 1, None] + dy)
     if normalise is not None:
         values = normalise(values, xy)
