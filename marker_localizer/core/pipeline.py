@@ -26,6 +26,18 @@ from marker_localizer.core.screening import Candidates
 _PRESCREEN_SYMMETRY = 0.5
 #: Prescreen ring radii in units of the candidate's scale, the likeliest ring first.
 _PRESCREEN_RINGS = (0.5, 0.35, 0.7)
+#: Smallest prescreen ring radius, px. A nearest-pixel ring of 1.4 px (0.35 of the
+#: first level's 4 px scale) visits only the eight neighbours; around a candidate up to
+#: half a pixel off the centre (the level's parabolic peak) that misplaces each sector
+#: boundary by ~20 degrees and fails the four-sector test on sharp, aliased chessboard
+#: corners (two of ValidationBoof's image 38). Rings of 1.7-2.0 px keep them with the
+#: same recall elsewhere (1.75 lost two libcbdetect corners: rings this small are
+#: sensitive to the exact radius, so the floor is not set any closer).
+_PRESCREEN_MIN_RING_PX = 1.8
+#: ... but never beyond this fraction of the smallest expected radius: in frames of
+#: 2.5-5 px markers (family (b)) the 1.4 px ring lies well inside the smallest marker,
+#: and raising it there let one more texture saddle through per 8 frames.
+_PRESCREEN_MIN_RING_FRACTION = 0.5
 #: Prescreen rings (of three) that must show the X: all of them. Each marker has a
 #: candidate close enough to its centre at some level for all three to pass, while
 #: texture saddles rarely keep the X over a factor of two in radius.
@@ -352,10 +364,14 @@ class Detector:
         three), it removes ~95 % of the texture saddles for the price of at most
         108 nearest-pixel samples each (the cascade stops at the first bad ring).
         """
+        floor_px = min(
+            _PRESCREEN_MIN_RING_PX,
+            _PRESCREEN_MIN_RING_FRACTION * self.config.marker_radius_min_px,
+        )
         good = verification.count_symmetric_rings(
             gray,
             candidates.xy,
-            candidates.scale_px[:, None] * np.array(_PRESCREEN_RINGS),
+            np.maximum(candidates.scale_px[:, None] * np.array(_PRESCREEN_RINGS), floor_px),
             min_contrast=self._raw_contrast_floor(full_scale),
             min_symmetry=_PRESCREEN_SYMMETRY,
             min_good=_PRESCREEN_GOOD_RINGS,
