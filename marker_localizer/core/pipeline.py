@@ -296,7 +296,13 @@ class Detector:
         counts["dropped_over_cap"] = counts["after_suppression"] - len(thinned)
         return thinned
 
-    def _find_candidates(self, gray: np.ndarray, full_scale: float) -> Candidates:
+    def _find_candidates(
+        self,
+        gray: np.ndarray,
+        full_scale: float,
+        window: tuple[int, int, int, int] | None = None,
+    ) -> Candidates:
+        """Screening candidates; ``window`` (x0, y0, x1, y1) bounds where they are wanted."""
         cfg = self.config
         if cfg.candidate_detector == "curvature":
             # The paper's path: GDWGIF, dynamic gamma and structure map on the whole frame.
@@ -324,6 +330,7 @@ class Detector:
             self._radius_range,
             cfg.min_contrast_dn / 255.0 * full_scale,
             relative_threshold=cfg.saddle_threshold,
+            window=window,
         )
 
     def _find_in_regions(
@@ -344,7 +351,11 @@ class Detector:
             cx1, cy1 = min(int(x1) + margin, width), min(int(y1) + margin, height)
             if cx1 - cx0 < 8 or cy1 - cy0 < 8:
                 continue
-            found = self._find_candidates(gray[cy0:cy1, cx0:cx1], full_scale)
+            found = self._find_candidates(
+                gray[cy0:cy1, cx0:cx1],
+                full_scale,
+                (int(x0) - cx0, int(y0) - cy0, int(x1) - cx0, int(y1) - cy0),
+            )
             xy = found.xy + [cx0, cy0]
             inside = (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
             parts.append(Candidates(xy, found.strength, found.scale_px).take(inside))

@@ -144,12 +144,40 @@ def saddle_levels(radius_range_px: tuple[float, float]) -> range:
     return range(min(first, max(last - 1, 0)), last + 1)
 
 
+#: Level pixels a peak must lie inside a cropped response for it to equal the whole
+#: image's: the 5x5 kernels' reach (2), the 3x3 maximum and the parabola (1 more).
+_RESPONSE_REACH_PX = 3
+
+
+def _level_window(
+    window: tuple[int, int, int, int] | None, level: int, shape: tuple[int, ...]
+) -> tuple[int, int, int, int]:
+    """(u0, v0, u1, v1): the part of a level's image whose response finds ``window``'s peaks.
+
+    Full-resolution x maps to level u = (x + 0.5) / 2**L - 0.5; the window is grown
+    by the filters' reach, and one more pixel than that lets a peak on the edge of
+    the crop be compared with its neighbours.
+    """
+    height, width = shape[:2]
+    if window is None:
+        return 0, 0, width, height
+    x0, y0, x1, y1 = window
+    scale = 2.0**level
+    grow = _RESPONSE_REACH_PX + 1
+    u0 = max(int(np.floor((x0 + 0.5) / scale - 0.5)) - grow, 0)
+    v0 = max(int(np.floor((y0 + 0.5) / scale - 0.5)) - grow, 0)
+    u1 = min(int(np.ceil((x1 + 0.5) / scale - 0.5)) + grow + 1, width)
+    v1 = min(int(np.ceil((y1 + 0.5) / scale - 0.5)) + grow + 1, height)
+    return u0, v0, max(u1, u0), max(v1, v0)
+
+
 def saddle_candidates(
     image: np.ndarray,
     radius_range_px: tuple[float, float],
     min_contrast: float,
     *,
     relative_threshold: float = 1.5,
+    window: tuple[int, int, int, int] | None = None,
 ) -> Candidates:
     """Saddle points over an image pyramid covering the expected marker radii.
 
@@ -164,6 +192,11 @@ def saddle_candidates(
         min_contrast: smallest marker contrast, in the image's grey units.
         relative_threshold: fraction of that expected response kept (tilt, motion
             and perspective weaken real markers further).
+        window: (x0, y0, x1, y1), image pixels: only the peaks inside are wanted.
+            Each level's response is then computed over the window and the reach
+            of its filters alone (the pyramid still reduces the whole image, so
+            every level keeps the full-image grid); the peaks inside are those of
+            the whole image, and some just outside come too.
 
     Returns:
         Candidates in full-resolution coordinates; ``scale_px`` is 4 * 2**L and
@@ -190,7 +223,8 @@ def saddle_candidates(
         blur_sq = (_EXPECTED_BLUR_PX / 2**level) ** 2
         expected = _SOBEL5_GAIN * _SADDLE_PER_CONTRAST * min_contrast / (1.0 + blur_sq)
         threshold = relative_threshold * expected
-        response = saddle_response(level_image)
+        u0, v0, u1, v1 = _level_window(window, level, level_image.shape)
+        response = saddle_response(level_image[v0:v1, u0:u1])
         rows, cols = _sparse_maxima(response, threshold**2)
         dx = _parabolic_offset(
             response[rows, cols - 1], response[rows, cols], response[rows, cols + 1]
@@ -199,7 +233,7 @@ def saddle_candidates(
             response[rows - 1, cols], response[rows, cols], response[rows + 1, cols]
         )
         # INTER_AREA halving maps level coordinate u to full-resolution (u + 0.5) 2**L - 0.5.
-        xy = (np.stack([cols + dx, rows + dy], axis=1) + 0.5) * 2**level - 0.5
+        xy = (np.stack([cols + u0 + dx, rows + v0 + dy], axis=1) + 0.5) * 2**level - 0.5
         strength = np.sqrt(response[rows, cols].astype(np.float64)) / expected
         # The first level also holds markers smaller than its typical radius, down to
         # the smallest expected: their centre checks must fit inside them.
