@@ -52,6 +52,7 @@ border).
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -311,14 +312,16 @@ class MarkerTracker:
         # Then the detector in a window around each marker the fit did not confirm
         # (a prediction off by more than the fit's reach, or a marker changed).
         retry = inside & ~confirmed
-        half = self.match_px + _CANDIDATE_OFFSET_PX
-        windows = np.hstack([corrected[retry] - half, corrected[retry] + half + 1])
-        windows = _merge_overlapping(self._snap(windows, shape))
-        # Band and window areas are searched once: windows are cut to the interior.
-        windows[:, :2] = np.maximum(windows[:, :2], interior[:2])
-        windows[:, 2:] = np.minimum(windows[:, 2:], interior[2:])
-        windows = windows[(windows[:, 2] > windows[:, 0]) & (windows[:, 3] > windows[:, 1])]
-        regions = np.vstack([windows, bands])
+        regions = bands
+        if retry.any():
+            half = self.match_px + _CANDIDATE_OFFSET_PX
+            windows = np.hstack([corrected[retry] - half, corrected[retry] + half + 1])
+            windows = _merge_overlapping(self._snap(windows, shape))
+            # Band and window areas are searched once: windows are cut to the interior.
+            windows[:, :2] = np.maximum(windows[:, :2], interior[:2])
+            windows[:, 2:] = np.minimum(windows[:, 2:], interior[2:])
+            windows = windows[(windows[:, 2] > windows[:, 0]) & (windows[:, 3] > windows[:, 1])]
+            regions = np.vstack([windows, bands])
         parts = [located]
         if len(regions):
             parts.append(self.detector.detect(gray, regions=regions))
@@ -499,8 +502,9 @@ class MarkerTracker:
             if track.missed:
                 continue  # its patch is the one from its last confirmation
             plate = PLATE_HALF_WIDTH * track.detection.radius_px
-            half = int(np.clip(np.ceil(plate), *_PATCH_HALF_PX))
-            cx, cy = np.round(track.xy).astype(np.int64)
+            # Python scalars: numpy's per-call cost on scalars is a millisecond a frame.
+            half = min(max(math.ceil(plate), _PATCH_HALF_PX[0]), _PATCH_HALF_PX[1])
+            cx, cy = round(float(track.xy[0])), round(float(track.xy[1]))
             track.patch = None
             if half <= cx < width - half and half <= cy < height - half:
                 patch = gray[cy - half : cy + half + 1, cx - half : cx + half + 1]
