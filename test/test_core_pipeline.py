@@ -97,6 +97,20 @@ def test_every_stage_reports_its_count_and_time(cluttered_frames):
     assert set(result.timings_ms) >= {"preprocessing", "screening", "verification", "subpixel"}
 
 
+def test_markers_already_located_are_not_searched_again_but_the_others_are(cluttered_frames):
+    """Tracking mode passes the markers the fit confirmed as ``known``."""
+    detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
+    image = cluttered_frames[0].image
+    full = detector.detect(image).as_array()[:, :2]
+    known, others = full[::2], full[1::2]
+    height, width = image.shape[:2]
+    result = detector.detect(image, regions=np.array([[0, 0, width, height]]), known=known)
+    found = result.as_array()[:, :2]
+    assert result.counts["skipped_known"] >= len(known)
+    assert len(found) == len(others)
+    assert np.abs(np.sort(found, axis=0) - np.sort(others, axis=0)).max() < 1e-9
+
+
 def test_an_image_without_markers_gives_an_empty_result_quickly():
     flat = np.full((960, 1280), 90, np.uint8)
     start = time.perf_counter()

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import preprocessing, screening, subpixel, template, verification
@@ -109,7 +110,8 @@ class DetectionResult:
     Attributes:
         detections: accepted markers, strongest first.
         counts: how many points entered or left each stage (``candidates``,
-            ``after_suppression``, ``dropped_over_cap``, ``rejected_prescreen``,
+            ``after_suppression``, ``dropped_over_cap``, ``skipped_known``,
+            ``rejected_prescreen``,
             ``rejected_centring``,
             ``rejected_symmetry``, ``rejected_template``, ``rejected_lines``,
             ``rejected_refinement``, ``rejected_score``,
@@ -159,7 +161,12 @@ class Detector:
         self._radius_range = (self.config.marker_radius_min_px, self.config.marker_radius_max_px)
         self._radii = verification.ring_radii(self._radius_range)
 
-    def detect(self, image: np.ndarray, regions: np.ndarray | None = None) -> DetectionResult:
+    def detect(
+        self,
+        image: np.ndarray,
+        regions: np.ndarray | None = None,
+        known: np.ndarray | None = None,
+    ) -> DetectionResult:
         """Find and locate every diagonal marker in ``image``.
 
         Args:
@@ -167,6 +174,10 @@ class Detector:
             regions: optional (K, 4) int windows (x0, y0, x1, y1), end-exclusive, to
                 search instead of the whole frame (tracking mode); no full-frame
                 pass is made then.
+            known: optional (M, 2) centres of markers already located on this frame
+                (tracking mode, by :meth:`locate`): screening candidates closer than
+                ``min_peak_separation_px`` to one are that marker's and are not
+                verified again (counted as ``skipped_known``).
 
         Returns:
             :class:`DetectionResult` (iterable of :class:`Detection`).
@@ -185,6 +196,14 @@ class Detector:
             )
         with timer("screening"):
             candidates = self._screen(gray, full_scale, result.counts, regions)
+            result.counts["skipped_known"] = 0
+            if known is not None and len(known) and len(candidates):
+                distance, _ = cKDTree(np.asarray(known, np.float64).reshape(-1, 2)).query(
+                    candidates.xy, distance_upper_bound=cfg.min_peak_separation_px
+                )
+                near = np.isfinite(distance)
+                result.counts["skipped_known"] = int(near.sum())
+                candidates = candidates.take(~near)
         with timer("prescreen"):
             result.counts["rejected_prescreen"] = 0
             if cfg.candidate_detector == "saddle":

@@ -324,7 +324,11 @@ class MarkerTracker:
             regions = np.vstack([windows, bands])
         parts = [located]
         if len(regions):
-            parts.append(self.detector.detect(gray, regions=regions))
+            # A marker the fit confirmed is not verified again where a band or window
+            # covers it (the bands reach as deep as the plates of markers come in).
+            parts.append(
+                self.detector.detect(gray, regions=regions, known=located.as_array()[:, :2])
+            )
         result = _combine(parts, self.detector.config.min_peak_separation_px / 2.0)
         found = result.as_array()
         owner = _associate(found[:, :2], corrected, inside, self.match_px)
