@@ -428,6 +428,9 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros)
             Parameter("input_timeout_s", value=1.0),
             Parameter("stats_window_s", value=60.0),
             Parameter("latency_warn_ms", value=60_000.0),
+            # Every flooded frame a full pass: tracking the same frame over and over
+            # keeps up with 50 Hz, and cam1 would drop nothing.
+            Parameter("detector.tracking", value=False),
             Parameter("qos_overrides./diag/cam2/image_raw.subscription.reliability",
                       value="best_effort"),
         ],
@@ -440,7 +443,7 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros)
         tester.listen("cam0/marker_points", PointCloud2)
         tester.listen("cam4/marker_points", PointCloud2)
         small = x_marker_64()
-        busy = scene(640, 480, 2, 1).image  # ~0.1 s of work, sent at 50 Hz
+        busy = scene(1280, 960, 4, 1).image  # ~0.1 s of work a full pass, sent at 50 Hz
         bad_encoding = tester.frame(np.zeros((48, 64), np.uint8))
         bad_encoding.encoding = "yuv422"
         truncated = tester.frame(small)
