@@ -59,7 +59,6 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.pipeline import Detection, DetectionResult, Detector
@@ -562,12 +561,18 @@ def _associate(
     Each point continues at most one track, the one predicted closest to it.
     """
     owner = np.full(len(predicted), -1, dtype=np.int64)
-    if not len(points):
+    if not len(points) or not len(predicted):
         return owner
-    distance, nearest = cKDTree(points).query(predicted, distance_upper_bound=gate_px)
+    # A frame's tracks and points are dozens: the full distance matrix is cheaper
+    # than building a k-d tree for them.
+    distances = np.hypot(*(points[None, :, :] - predicted[:, None, :]).transpose(2, 0, 1))
+    nearest = np.argmin(distances, axis=1)
+    distance = distances[np.arange(len(predicted)), nearest]
     taken = np.zeros(len(points), dtype=bool)
     for index in np.argsort(distance):
-        if searched[index] and np.isfinite(distance[index]) and not taken[nearest[index]]:
+        if distance[index] >= gate_px:
+            break
+        if searched[index] and not taken[nearest[index]]:
             owner[index] = nearest[index]
             taken[nearest[index]] = True
     return owner
@@ -582,6 +587,8 @@ def _merge_overlapping(windows: np.ndarray) -> np.ndarray:
             & (windows[:, None, 1] < windows[None, :, 3])
             & (windows[None, :, 1] < windows[:, None, 3])
         )
+        if overlap.sum() == len(windows):
+            break  # each overlaps only itself
         count, label = connected_components(overlap, directed=False)
         if count == len(windows):
             break
