@@ -317,6 +317,7 @@ def _gauss_newton_symmetry(
     centre = centre.copy()
     gain = np.zeros((n, 2))
     step_norm: np.ndarray = np.full(n, np.inf)
+    eye = np.eye(n_params)
     for iteration in range(iterations + 1):
         residual, weight, jacobian, samples = _symmetry_terms(
             image, centre, gain, offsets, taper, model_gain
@@ -328,16 +329,16 @@ def _gauss_newton_symmetry(
         if iteration == iterations or not active.any():
             break
         rhs = (weighted.transpose(0, 2, 1) @ residual[..., None])[..., 0]
-        scale = np.maximum(np.einsum("nii->ni", normal), 1e-12)
-        damped = normal + 1e-9 * scale[:, :, None] * np.eye(n_params)
+        scale = np.maximum(normal.diagonal(axis1=1, axis2=2), 1e-12)
+        damped = normal + 1e-9 * scale[:, :, None] * eye
         step = -np.linalg.solve(damped, rhs[..., None])[..., 0]
         # A Gauss-Newton step larger than a pixel is untrustworthy this far from the optimum.
-        step[:, :2] = np.clip(step[:, :2], -1.0, 1.0)
+        np.clip(step[:, :2], -1.0, 1.0, out=step[:, :2])
         step[~active] = 0.0
         centre += step[:, :2]
         if model_gain:
             gain += step[:, 2:]
-        step_norm = np.where(active, np.linalg.norm(step[:, :2], axis=1), step_norm)
+        step_norm = np.where(active, np.hypot(step[:, 0], step[:, 1]), step_norm)
         if not (step_norm > tolerance_px).any():
             # The residuals and Jacobian a last step below the tolerance away serve the
             # covariance as well as those at the end point: one evaluation fewer.
