@@ -160,12 +160,15 @@ class Detector:
         self.config = config or DetectorConfig()
         self._radius_range = (self.config.marker_radius_min_px, self.config.marker_radius_max_px)
         self._radii = verification.ring_radii(self._radius_range)
+        first_level = screening.saddle_levels(self._radius_range).start
+        self._seed_scale = screening.candidate_scale(first_level, self._radius_range)
 
     def detect(
         self,
         image: np.ndarray,
         regions: np.ndarray | None = None,
         known: np.ndarray | None = None,
+        seeds: np.ndarray | None = None,
     ) -> DetectionResult:
         """Find and locate every diagonal marker in ``image``.
 
@@ -178,6 +181,10 @@ class Detector:
                 (tracking mode, by :meth:`locate`): screening candidates closer than
                 ``min_peak_separation_px`` to one are that marker's and are not
                 verified again (counted as ``skipped_known``).
+            seeds: optional (S, 2) positions that join the screening candidates
+                (tracking mode: markers whose plate the frame border cuts, where the
+                fit alone cannot tell what a full pass would accept). They take every
+                later stage, from the prescreen on, at the first pyramid level's scale.
 
         Returns:
             :class:`DetectionResult` (iterable of :class:`Detection`).
@@ -190,9 +197,16 @@ class Detector:
         cfg = self.config
         with timer("input"):
             gray, full_scale = to_gray(image)
+        seeds = np.zeros((0, 2)) if seeds is None else np.asarray(seeds, np.float64).reshape(-1, 2)
         with timer("preprocessing"):
+            measured = regions
+            if regions is not None and len(seeds):
+                # The local means of Eq. (2) are looked up at each candidate's centre.
+                start = np.floor(seeds).astype(np.int64)
+                seed_boxes = np.hstack([start, start + 2])
+                measured = np.vstack([np.reshape(regions, (-1, 4)), seed_boxes])
             gamma = preprocessing.LocalGamma(
-                gray, full_scale, cfg.gamma_alpha, cfg.illumination_window_px, regions=regions
+                gray, full_scale, cfg.gamma_alpha, cfg.illumination_window_px, regions=measured
             )
         with timer("screening"):
             candidates = self._screen(gray, full_scale, result.counts, regions)
@@ -204,6 +218,11 @@ class Detector:
                 near = np.isfinite(distance)
                 result.counts["skipped_known"] = int(near.sum())
                 candidates = candidates.take(~near)
+            if len(seeds):
+                # Seeds win the centring's suppression against screened candidates.
+                strength = np.full(len(seeds), np.inf)
+                scale = np.full(len(seeds), self._seed_scale)
+                candidates = Candidates.concat([candidates, Candidates(seeds, strength, scale)])
         with timer("prescreen"):
             result.counts["rejected_prescreen"] = 0
             if cfg.candidate_detector == "saddle":

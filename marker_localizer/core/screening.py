@@ -171,6 +171,18 @@ def _level_window(
     return u0, v0, max(u1, u0), max(v1, v0)
 
 
+def candidate_scale(level: int, radius_range_px: tuple[float, float]) -> float:
+    """``scale_px`` of the candidates found at pyramid ``level``: 4 * 2**L px.
+
+    The first level searched also holds markers smaller than its typical radius,
+    down to the smallest expected: their centre checks must fit inside them.
+    """
+    scale = 4.0 * 2**level
+    if level == saddle_levels(radius_range_px).start:
+        scale = min(scale, max(radius_range_px[0], 4.0))
+    return scale
+
+
 def saddle_candidates(
     image: np.ndarray,
     radius_range_px: tuple[float, float],
@@ -235,11 +247,7 @@ def saddle_candidates(
         # INTER_AREA halving maps level coordinate u to full-resolution (u + 0.5) 2**L - 0.5.
         xy = (np.stack([cols + u0 + dx, rows + v0 + dy], axis=1) + 0.5) * 2**level - 0.5
         strength = np.sqrt(response[rows, cols].astype(np.float64)) / expected
-        # The first level also holds markers smaller than its typical radius, down to
-        # the smallest expected: their centre checks must fit inside them.
-        scale = 4.0 * 2**level
-        if level == levels.start:
-            scale = min(scale, max(radius_range_px[0], 4.0))
+        scale = candidate_scale(level, radius_range_px)
         parts.append(Candidates(xy, strength, np.full(len(rows), scale)))
     return Candidates.concat(parts)
 

@@ -310,7 +310,19 @@ class MarkerTracker:
         confirmed = _associate(located.as_array()[:, :2], corrected, fitted, self.match_px) >= 0
         # Then the detector in a window around each marker the fit did not confirm
         # (a prediction off by more than the fit's reach, or a marker changed).
-        retry = inside & ~confirmed
+        retry = inside & fitted & ~confirmed
+        # A marker whose plate the border cuts is not fitted: what a full pass accepts
+        # there depends on the cut. It takes the full pass's stages from the prescreen
+        # on, seeded at its prediction, unless a band screens it anyway.
+        x0, y0, x1, y1 = interior
+        seeded = (
+            inside
+            & leaving
+            & (corrected[:, 0] >= x0)
+            & (corrected[:, 0] < x1)
+            & (corrected[:, 1] >= y0)
+            & (corrected[:, 1] < y1)
+        )
         regions = bands
         if retry.any():
             half = self.match_px + _CANDIDATE_OFFSET_PX
@@ -322,11 +334,16 @@ class MarkerTracker:
             windows = windows[(windows[:, 2] > windows[:, 0]) & (windows[:, 3] > windows[:, 1])]
             regions = np.vstack([windows, bands])
         parts = [located]
-        if len(regions):
+        if len(regions) or seeded.any():
             # A marker the fit confirmed is not verified again where a band or window
             # covers it (the bands reach as deep as the plates of markers come in).
             parts.append(
-                self.detector.detect(gray, regions=regions, known=located.as_array()[:, :2])
+                self.detector.detect(
+                    gray,
+                    regions=regions,
+                    known=located.as_array()[:, :2],
+                    seeds=corrected[seeded],
+                )
             )
         result = _combine(parts, self.detector.config.min_peak_separation_px / 2.0)
         found = result.as_array()
