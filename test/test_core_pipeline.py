@@ -111,6 +111,21 @@ def test_markers_already_located_are_not_searched_again_but_the_others_are(clutt
     assert np.abs(np.sort(found, axis=0) - np.sort(others, axis=0)).max() < 1e-9
 
 
+def test_seeded_markers_take_the_full_passs_stages_and_end_at_its_centres(cluttered_frames):
+    """Tracking mode seeds markers the border cuts at their predicted centres."""
+    detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
+    image = cluttered_frames[1].image
+    full = detector.detect(image).as_array()[:, :2]
+    texture = np.array([[5.0, 5.0], [600.0, 20.0]])  # no marker there
+    seeds = np.vstack([full + [0.4, -0.3], texture])
+    result = detector.detect(image, regions=np.zeros((0, 4), np.int64), seeds=seeds)
+    found = result.as_array()[:, :2]
+    distance, index = cKDTree(found).query(full)
+    assert len(found) == len(full)
+    assert distance.max() < 0.005
+    assert len(np.unique(index)) == len(full)
+
+
 def test_an_image_without_markers_gives_an_empty_result_quickly():
     flat = np.full((960, 1280), 90, np.uint8)
     start = time.perf_counter()

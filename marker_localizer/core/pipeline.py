@@ -184,7 +184,7 @@ class Detector:
             seeds: optional (S, 2) positions that join the screening candidates
                 (tracking mode: markers whose plate the frame border cuts, where the
                 fit alone cannot tell what a full pass would accept). They take every
-                later stage, from the prescreen on, at the first pyramid level's scale.
+                stage after the prescreen, at the first pyramid level's scale.
 
         Returns:
             :class:`DetectionResult` (iterable of :class:`Detection`).
@@ -218,17 +218,19 @@ class Detector:
                 near = np.isfinite(distance)
                 result.counts["skipped_known"] = int(near.sum())
                 candidates = candidates.take(~near)
-            if len(seeds):
-                # Seeds win the centring's suppression against screened candidates.
-                strength = np.full(len(seeds), np.inf)
-                scale = np.full(len(seeds), self._seed_scale)
-                candidates = Candidates.concat([candidates, Candidates(seeds, strength, scale)])
         with timer("prescreen"):
             result.counts["rejected_prescreen"] = 0
             if cfg.candidate_detector == "saddle":
                 # Contour corners sit up to 2 px off the centre, too far for the
                 # prescreen's small rings; the paper's path goes straight to centring.
                 candidates = self._prescreen(gray, full_scale, candidates, result.counts)
+        if len(seeds):
+            # The prescreen rejects texture saddles; a seed is a tracked marker, perhaps
+            # a fraction of a pixel off, too far for those rings. Seeds win the
+            # centring's suppression against screened candidates.
+            strength = np.full(len(seeds), np.inf)
+            scale = np.full(len(seeds), self._seed_scale)
+            candidates = Candidates.concat([candidates, Candidates(seeds, strength, scale)])
         return self._confirm(gray, full_scale, gamma, candidates, result, timer)
 
     def locate(

@@ -17,6 +17,9 @@ confirm is searched for in a small window, only as large as the prediction's
 error (``match_px``) plus the few pixels a marker's screening candidate may lie
 off its centre; inside a window the detector runs exactly as on a full frame (it
 samples the whole image; a window only bounds where candidates are screened).
+Near the border, where a marker's plate is cut and what a full pass accepts
+depends on the cut, the fit alone does not confirm it: it is seeded at its
+prediction into the detector's centring, verification and fit.
 Markers come into view across the frame border, so the border is searched too,
 but only on the sides whose content moves inward and only as deep as a marker's
 plate plus that motion.
@@ -312,7 +315,7 @@ class MarkerTracker:
         # (a prediction off by more than the fit's reach, or a marker changed).
         retry = inside & fitted & ~confirmed
         # A marker whose plate the border cuts is not fitted: what a full pass accepts
-        # there depends on the cut. It takes the full pass's stages from the prescreen
+        # there depends on the cut. It takes the full pass's stages from the centring
         # on, seeded at its prediction, unless a band screens it anyway.
         x0, y0, x1, y1 = interior
         seeded = (
