@@ -81,6 +81,18 @@ def test_point_symmetry_refinement_absorbs_gamma_and_uneven_light_with_its_gain_
     assert np.linalg.norm(without.xy[0] - truth) > 2 * error
 
 
+def test_a_fit_started_at_its_own_result_reports_the_same_residual_and_sigma():
+    """Tracking starts the fit where the last frame's centre maps, often to 0.001 px."""
+    scene, image = _x_image(47.62, 48.13, gamma=0.6, light=0.5, noise=2.0, seed=4)
+    radius = np.array([18.0])
+    first = subpixel.refine_point_symmetry(image, np.round(scene.centres[0])[None], radius)
+    again = subpixel.refine_point_symmetry(image, first.xy, radius)
+    assert again.converged[0]
+    assert np.linalg.norm(again.xy[0] - first.xy[0]) < 1e-3
+    assert again.residual[0] == pytest.approx(first.residual[0], rel=0.01)
+    assert np.trace(again.covariance[0]) == pytest.approx(np.trace(first.covariance[0]), rel=0.02)
+
+
 def test_point_symmetry_covariance_grows_with_noise():
     _, clean = _x_image(47.5, 48.5, noise=1.0)
     _, noisy = _x_image(47.5, 48.5, noise=8.0)

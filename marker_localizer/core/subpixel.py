@@ -339,9 +339,10 @@ def _gauss_newton_symmetry(
         if model_gain:
             gain += step[:, 2:]
         step_norm = np.where(active, np.hypot(step[:, 0], step[:, 1]), step_norm)
-        if not (step_norm > tolerance_px).any():
+        if (iteration > 0 or not model_gain) and not (step_norm > tolerance_px).any():
             # The residuals and Jacobian a last step below the tolerance away serve the
-            # covariance as well as those at the end point: one evaluation fewer.
+            # covariance as well as those at the end point: one evaluation fewer. Not
+            # after the first step with a gain: that one moves the gain from zero.
             break
     # Sandwich covariance of the weighted fit; residuals sampled closer than a pixel
     # are correlated, so the effective count is that of pixels, not of samples.
