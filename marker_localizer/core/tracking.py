@@ -7,8 +7,8 @@ the motion in one go. When it does not (a jolt of the attitude moves the image
 by tens of pixels), a few anchor markers are found again by matching their grey
 patch from the last frame (normalised cross-correlation within ``max_motion_px``
 of the prediction). Markers lie on the ground, a plane, so the motion is a
-homography; fitted to the markers (a similarity or a shift from fewer than
-four anchors), it maps every track's last position into the frame. Each marker is then
+homography; fitted to the markers (a similarity or a shift from fewer than four
+anchors), it maps every track's last position into the frame. Each marker is then
 confirmed by the detector's sub-pixel fit alone (:meth:`Detector.locate`),
 started where the motion puts it, with the extent, line angles and verification
 evidence of its last detection: the same fit and gates as a full pass, so its
@@ -62,6 +62,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.pipeline import Detection, DetectionResult, Detector
@@ -201,8 +202,8 @@ class MarkerTracker:
         off (a jolt, a turn) and the anchors' patches measure the motion.
         """
         predicted = self._predict(stamp)
-        # Where a full pass would see the whole plate: nearer the border its rings
-        # leave the frame and it rejects the marker, which the windows reproduce.
+        # Where a full pass would see the whole plate: nearer the border what it
+        # accepts depends on the cut, which seeding the detector reproduces (_track).
         fitted = ~self._leaving(predicted, gray.shape)
         if fitted.sum() < 4:
             return None, None
@@ -583,15 +584,11 @@ def _associate(
     owner = np.full(len(predicted), -1, dtype=np.int64)
     if not len(points) or not len(predicted):
         return owner
-    # A frame's tracks and points are dozens: the full distance matrix is cheaper
-    # than building a k-d tree for them.
-    distances = np.hypot(*(points[None, :, :] - predicted[:, None, :]).transpose(2, 0, 1))
-    nearest = np.argmin(distances, axis=1)
-    distance = distances[np.arange(len(predicted)), nearest]
+    distance, nearest = cKDTree(points).query(predicted, distance_upper_bound=gate_px)
     taken = np.zeros(len(points), dtype=bool)
     for index in np.argsort(distance):
-        if distance[index] >= gate_px:
-            break
+        if not np.isfinite(distance[index]):
+            break  # the rest are farther than the gate too
         if searched[index] and not taken[nearest[index]]:
             owner[index] = nearest[index]
             taken[nearest[index]] = True
