@@ -56,7 +56,7 @@ class Candidates(NamedTuple):
         return int(self.strength.shape[0])
 
 
-def _parabolic_offset(minus: np.ndarray, centre: np.ndarray, plus: np.ndarray) -> np.ndarray:
+def parabolic_offset(minus: np.ndarray, centre: np.ndarray, plus: np.ndarray) -> np.ndarray:
     """Sub-sample vertex of a parabola through three samples, clipped to half a sample."""
     curvature = minus - 2.0 * centre + plus
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -238,10 +238,10 @@ def saddle_candidates(
         u0, v0, u1, v1 = _level_window(window, level, level_image.shape)
         response = saddle_response(level_image[v0:v1, u0:u1])
         rows, cols = _sparse_maxima(response, threshold**2)
-        dx = _parabolic_offset(
+        dx = parabolic_offset(
             response[rows, cols - 1], response[rows, cols], response[rows, cols + 1]
         )
-        dy = _parabolic_offset(
+        dy = parabolic_offset(
             response[rows - 1, cols], response[rows, cols], response[rows + 1, cols]
         )
         # INTER_AREA halving maps level coordinate u to full-resolution (u + 0.5) 2**L - 0.5.

@@ -66,7 +66,7 @@ from scipy.spatial import cKDTree
 
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.pipeline import Detection, DetectionResult, Detector
-from marker_localizer.core.screening import non_maximum_suppression
+from marker_localizer.core.screening import non_maximum_suppression, parabolic_offset
 
 #: Half-width of a marker's plate in marker radii (the plates of the renderer and of
 #: printed targets extend a quarter radius beyond the X).
@@ -277,10 +277,11 @@ class MarkerTracker:
         row, col = np.unravel_index(int(np.argmax(ncc)), ncc.shape)
         if not ncc[row, col] >= min_ncc:
             return None
-        if interior and not (0 < row < ncc.shape[0] - 1 and 0 < col < ncc.shape[1] - 1):
+        last_row, last_col = ncc.shape[0] - 1, ncc.shape[1] - 1
+        if interior and not (0 < row < last_row and 0 < col < last_col):
             return None
-        dx = _parabola_peak(ncc[row, col - 1 : col + 2]) if 0 < col < ncc.shape[1] - 1 else 0.0
-        dy = _parabola_peak(ncc[row - 1 : row + 2, col]) if 0 < row < ncc.shape[0] - 1 else 0.0
+        dx = float(parabolic_offset(*ncc[row, col - 1 : col + 2])) if 0 < col < last_col else 0.0
+        dy = float(parabolic_offset(*ncc[row - 1 : row + 2, col])) if 0 < row < last_row else 0.0
         return np.array([x0 + col + dx + half, y0 + row + dy + half])
 
     def _track(
@@ -640,14 +641,6 @@ def _combine(results: list[DetectionResult], separation_px: float) -> DetectionR
     combined.detections = [combined.detections[k] for k in order]
     combined.counts["accepted"] = len(combined.detections)
     return combined
-
-
-def _parabola_peak(values: np.ndarray) -> float:
-    """Sub-sample offset of the vertex of the parabola through three samples."""
-    curvature = values[0] - 2.0 * values[1] + values[2]
-    if not curvature < 0:
-        return 0.0
-    return float(np.clip(0.5 * (values[0] - values[2]) / curvature, -0.5, 0.5))
 
 
 def _frame_motion(source: np.ndarray, target: np.ndarray, tolerance_px: float) -> np.ndarray:
