@@ -6,7 +6,7 @@ refinement at ~0.03 px; this gathers the four neighbours in numpy instead.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -48,6 +48,26 @@ def interpolate(
     top = v00 + (v01 - v00) * fx
     bottom = v10 + (v11 - v10) * fx
     return top + (bottom - top) * fy
+
+
+def pad_patterns(patterns: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Stack (K_i, ...) sample patterns as one (P, K, ...) array, zero-padded to the longest.
+
+    Points whose patterns differ in size (one per marker radius) then take one set
+    of array operations: for a few dozen points the calls, not the samples, are
+    the cost.
+
+    Returns:
+        (stack, present): the padded float64 stack and the (P, K) mask of its real
+        entries.
+    """
+    length = max(len(pattern) for pattern in patterns)
+    stack = np.zeros((len(patterns), length) + np.shape(patterns[0])[1:])
+    present = np.zeros((len(patterns), length), dtype=bool)
+    for k, pattern in enumerate(patterns):
+        stack[k, : len(pattern)] = pattern
+        present[k, : len(pattern)] = True
+    return stack, present
 
 
 def _neighbours(

@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from marker_localizer.core.sampling import bilinear_with_gradient
+from marker_localizer.core.sampling import bilinear_with_gradient, pad_patterns
 
 
 def ncc_surface(
@@ -234,21 +234,15 @@ def refine_point_symmetry(
         )
     centre = xy.astype(np.float64)
     start = centre.copy()
-    # Points sharing a radius share an offset pattern; the patterns are padded to one
-    # length (with zero weight) so that all points are one set of array operations:
-    # per-call overheads, not samples, dominate for a few dozen markers.
+    # Points sharing a radius share an offset pattern; the padding carries zero weight.
     radius_key = np.round(np.asarray(radius_px, dtype=np.float64) * 2.0) / 2.0
     keys, pattern_of = np.unique(radius_key, return_inverse=True)
     patterns = [symmetric_offsets(float(radius), max_samples) for radius in keys]
-    length = max(len(taper) for _, taper in patterns)
-    offsets = np.zeros((len(keys), length, 2))
-    tapers = np.zeros((len(keys), length))
-    present = np.zeros((len(keys), length), dtype=bool)
-    spacing = np.ones(len(keys))
-    for k, (pattern, taper) in enumerate(patterns):
-        offsets[k, : len(taper)], tapers[k, : len(taper)] = pattern, taper
-        present[k, : len(taper)] = True
-        spacing[k] = np.min(np.abs(pattern[pattern != 0]), initial=1.0)
+    offsets, present = pad_patterns([pattern for pattern, _ in patterns])
+    tapers, _ = pad_patterns([taper for _, taper in patterns])
+    spacing = np.array(
+        [np.min(np.abs(pattern[pattern != 0]), initial=1.0) for pattern, _ in patterns]
+    )
     max_shift = np.broadcast_to(np.asarray(max_shift_px, dtype=np.float64), (n,))
     centre, covariance, residual_rms, contrast, converged = _gauss_newton_symmetry(
         image,

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from scipy.special import erf
 
-from marker_localizer.core.sampling import Normaliser, bilinear
+from marker_localizer.core.sampling import Normaliser, bilinear, pad_patterns
 
 _SUPERSAMPLING = 4  # template pixels are area-integrated from 4x4 sub-samples
 
@@ -217,17 +217,12 @@ def template_correlation(
     n = len(xy)
     if n == 0:
         return TemplateMatch(np.zeros(0), np.zeros(0))
-    # One disk pattern per rounded radius, padded to one length with absent samples,
-    # so that all points are one set of array operations (as in the symmetry fit).
+    # One disk pattern per rounded radius; the padding's samples are left out below.
     radius_key = np.round(np.asarray(radius_px, dtype=np.float64))
     keys, pattern_of = np.unique(radius_key, return_inverse=True)
-    patterns = [_disk_offsets(float(radius), max_samples) for radius in keys]
-    length = max(len(pattern) for pattern in patterns)
-    padded = np.zeros((len(keys), length, 2))
-    in_pattern = np.zeros((len(keys), length), dtype=bool)
-    for k, pattern in enumerate(patterns):
-        padded[k, : len(pattern)] = pattern
-        in_pattern[k, : len(pattern)] = True
+    padded, in_pattern = pad_patterns(
+        [_disk_offsets(float(radius), max_samples) for radius in keys]
+    )
     dx, dy = padded[pattern_of, :, 0], padded[pattern_of, :, 1]
     present = in_pattern[pattern_of]
     values, valid = bilinear(image, xy[:, 0, None] + dx, xy[:, 1, None] + dy)
