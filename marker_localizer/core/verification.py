@@ -84,6 +84,14 @@ class RingAnalysis(NamedTuple):
     four_sectors: np.ndarray
     line_angles: np.ndarray
 
+    def good(self, min_contrast: float, min_symmetry: float) -> np.ndarray:
+        """(N, J) True for the rings that show an X: four sectors, contrast, symmetry."""
+        return (
+            self.four_sectors
+            & (self.contrast >= min_contrast)
+            & (self.symmetry >= min_symmetry)
+        )
+
 
 def _smoothed_contrast_symmetry(profiles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The [1, 2, 1]-smoothed profiles, their contrast and their 180-degree self-correlation."""
@@ -212,10 +220,7 @@ def count_symmetric_rings(
             [ring[np.searchsorted(points, alive)] for points, ring in sampled], axis=1
         )
         rings = analyse_rings(profiles.astype(np.float64))
-        good = rings.four_sectors & (rings.contrast >= min_contrast) & (
-            rings.symmetry >= min_symmetry
-        )
-        passed[alive] = good.sum(axis=1)
+        passed[alive] = rings.good(min_contrast, min_symmetry).sum(axis=1)
     return passed
 
 
@@ -288,7 +293,7 @@ def centre_symmetry_check(
             np.zeros(0, bool), np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.zeros(0)
         )
     rings = analyse_rings(annular_profiles(image, xy, radii_px, normalise))
-    good = rings.four_sectors & (rings.contrast >= min_contrast) & (rings.symmetry >= min_symmetry)
+    good = rings.good(min_contrast, min_symmetry)
     first = np.argmax(good[:, :max_first_ring], axis=1)
     has_first = good[np.arange(n), first] & good[:, :max_first_ring].any(axis=1)
     reference = rings.line_angles[np.arange(n), first]  # (N, 2)
