@@ -25,8 +25,12 @@ from marker_localizer.core.screening import Candidates
 #: The prescreen's 180-degree self-correlation threshold: lenient, the candidate may
 #: sit a fraction of its scale off the centre.
 _PRESCREEN_SYMMETRY = 0.5
-#: Prescreen ring radii in units of the candidate's scale, the likeliest ring first.
-_PRESCREEN_RINGS = (0.5, 0.35, 0.7)
+#: Prescreen ring radii in units of the candidate's scale, the likeliest ring first. The
+#: outermost stays at 0.6: a level answers to markers whose major radius matches its
+#: scale, and a 60-degree tilt halves the minor one, so a ring at 0.7 left a tilted
+#: 14 px checker of family (d) (minor semi-axis 7.1 px, 1.15 px off at scale 16) and
+#: found the plate instead of the X.
+_PRESCREEN_RINGS = (0.5, 0.35, 0.6)
 #: Smallest prescreen ring radius, px. A nearest-pixel ring of 1.4 px (0.35 of the
 #: first level's 4 px scale) visits only the eight neighbours; around a candidate up to
 #: half a pixel off the centre (the level's parabolic peak) that misplaces each sector
