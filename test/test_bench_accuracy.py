@@ -117,7 +117,8 @@ def test_a_rendered_chessboard_frame_has_one_hundred_corners_in_the_frame():
 def test_family_evaluation_scores_ours_and_cornersubpix_on_the_same_frames():
     detectors = [peers.OurDetector(accuracy.REFERENCE_ROW, {}),
                  FixedDetector("nothing", np.empty((0, 2)))]
-    rows = accuracy.evaluate_family(small_family(), 2, 0, detectors)
+    result = accuracy.evaluate_family(small_family(), 2, 0, detectors)
+    rows = result.rows
     by_name = {r.name: r for r in rows}
     ours = by_name[accuracy.REFERENCE_ROW].tally
     assert ours.frames == 2
@@ -127,6 +128,22 @@ def test_family_evaluation_scores_ours_and_cornersubpix_on_the_same_frames():
     subpix = rows[2]
     assert subpix.refiner
     assert subpix.tally.n_truth == ours.n_truth
+
+
+def test_resolution_table_gives_each_detectors_recall_per_bin_of_marker_resolution():
+    detectors = [peers.OurDetector(accuracy.REFERENCE_ROW, {}),
+                 FixedDetector("nothing", np.empty((0, 2)))]
+    result = accuracy.evaluate_family(small_family(), 2, 0, detectors)
+    ours = result.rows[0].tally
+    assert len(result.resolution) == len(ours.found) == ours.n_truth
+    # SMALL: radii 8-16 px tilted at most 30 degrees, blur 0.8-1.0: resolution 6.9-20.
+    assert result.resolution.min() > 6.5
+    table = accuracy.resolution_table("t", result, (2.0, 7.0))
+    lines = table.splitlines()
+    assert "< 2 (0)" in lines[1] and f">= 7 ({ours.n_truth})" in lines[1]
+    assert lines[3].split()[-1] == f"{100 * ours.recall:.1f}%"
+    assert lines[4].split()[-1] == "0.0%"
+    assert len(lines) == 5  # the cornerSubPix refiner has no row: it is given the truth
 
 
 def test_family_table_prints_the_peer_to_ours_ratio():

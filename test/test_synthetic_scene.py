@@ -149,6 +149,13 @@ def test_truth_angles_are_the_image_directions_of_the_plane_axes():
         assert math.atan2(end[1] - truth.y, end[0] - truth.x) % math.pi == pytest.approx(angle)
 
 
+@pytest.mark.parametrize(("tilt_deg", "foreshortening"), [(0.0, 1.0), (60.0, 0.5)])
+def test_foreshortened_radius_is_the_radius_times_cos_tilt(tilt_deg, foreshortening):
+    scene = render_markers((80, 80), [MarkerPlacement(40.0, 40.0, 12.0, 0.3, tilt_deg, 1.1)], 0)
+    truth = scene.markers[0]
+    assert truth.foreshortened_radius_px == pytest.approx(12.0 * foreshortening, rel=0.02)
+
+
 def test_inverted_marker_swaps_dark_and_bright_paint():
     placements = [MarkerPlacement(20.0, 20.0, 12.0),
                   MarkerPlacement(60.0, 20.0, 12.0, inverted=True)]

@@ -22,6 +22,7 @@ A detection matches a truth point within :data:`metrics.DEFAULT_GATE_PX` (2 px).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import time
@@ -70,6 +71,8 @@ class Family:
         quick_frames: frames in a quick run.
         render: seed -> rendered frame with exact truth.
         board_pattern: (columns, rows) for chessboard families (board peers run), else None.
+        resolution_bins: inner edges of the recall-by-resolution table (resolution =
+            foreshortened radius over blur sigma, :func:`marker_resolution`); empty: none.
     """
 
     key: str
@@ -79,6 +82,7 @@ class Family:
     quick_frames: int
     render: Callable[[int], RenderedScene]
     board_pattern: tuple[int, int] | None = None
+    resolution_bins: tuple[float, ...] = ()
 
 
 def _scene(**fields: Any) -> Callable[[int], RenderedScene]:
@@ -121,13 +125,29 @@ def render_board_frame(seed: int) -> RenderedScene:
     raise ConfigError(f"no chessboard pose fits the frame for seed {seed}")
 
 
+#: Edges of family (b)'s recall-by-resolution table: a 2.5-5 px marker tilted up to
+#: 60 degrees under 0.5-1.5 px of blur spans resolutions of about 1 to 10.
+_TINY_RESOLUTION_BINS = (2.0, 3.0, 4.0)
+
+
+def marker_resolution(scene: RenderedScene) -> np.ndarray:
+    """(N,) each marker's foreshortened radius over the frame's blur sigma.
+
+    How many PSF widths the X spans in its narrowest direction: below about 3 the
+    blur merges the quadrants of a tilted tiny marker into a blob.
+    """
+    sigma = max(scene.imaging.blur_sigma_px, 1e-6)
+    return np.array([m.foreshortened_radius_px / sigma for m in scene.markers])
+
+
 def families() -> list[Family]:
     """The scenario families of issue 6, in table order."""
     return [
         Family("a", "(a) radius 6-40 px, blur 0.5-1.5, noise <= 4 DN, tilt <= 60 deg, 1280x960",
                (6.0, 40.0), 12, 2, _scene(**_BASE)),
         Family("b", "(b) tiny markers, radius 2.5-5 px (otherwise as (a)), 24 per frame",
-               (2.5, 5.0), 8, 1, _scene(**{**_BASE, "radius_px": (2.5, 5.0), "n_markers": 24})),
+               (2.5, 5.0), 8, 1, _scene(**{**_BASE, "radius_px": (2.5, 5.0), "n_markers": 24}),
+               resolution_bins=_TINY_RESOLUTION_BINS),
         Family("c", "(c) motion blur 0-4 px (otherwise as (a))",
                (6.0, 40.0), 8, 1, _scene(**_BASE, motion_blur_px=(0.0, 4.0))),
         Family("d", "(d) cluttered 1280x960: 110 hard negatives, strong light gradient, 4 shadows",
@@ -179,8 +199,23 @@ def subpix_starts(truth: np.ndarray, rng: np.random.Generator,
     return truth + np.column_stack([np.cos(angle), np.sin(angle)]) * length[:, None]
 
 
+@dataclass
+class FamilyResult:
+    """A family's rows and what is known about each truth point.
+
+    Attributes:
+        rows: one :class:`Row` per detector, then the cornerSubPix row, then the
+            board peers' rows for chessboard families.
+        resolution: per truth point, in the order of every tally's ``found``:
+            :func:`marker_resolution`.
+    """
+
+    rows: list[Row]
+    resolution: np.ndarray
+
+
 def evaluate_family(family: Family, n_frames: int, seed: int,
-                    detectors: Sequence[PointDetector]) -> list[Row]:
+                    detectors: Sequence[PointDetector]) -> FamilyResult:
     """Render ``n_frames`` of a family and score every detector and cornerSubPix on them.
 
     Args:
@@ -188,10 +223,6 @@ def evaluate_family(family: Family, n_frames: int, seed: int,
         n_frames: frames to render (seeds ``seed * 1000 + i``).
         seed: base seed.
         detectors: point detectors to score (ours and peers).
-
-    Returns:
-        One :class:`Row` per detector, then the cornerSubPix row, then the
-        board peers' rows for chessboard families.
     """
     board = peers.board_detectors(family.board_pattern) if family.board_pattern else []
     everyone = [*detectors, *board]
@@ -199,9 +230,11 @@ def evaluate_family(family: Family, n_frames: int, seed: int,
     refiner = peers.CornerSubPixRefiner(peers.subpix_half_window(family.radius_range))
     refiner_row = Row(f"{refiner.name} (start <= 1 px)", refiner=True)
     rng = np.random.default_rng(seed)
+    resolution = []
     for i in range(n_frames):
         scene = family.render(seed * 1000 + i)
         truth = scene.centres
+        resolution.append(marker_resolution(scene))
         for detector in everyone:
             points, seconds = _timed_detect(detector, scene.image, family.radius_range)
             rows[detector.name].tally.add(metrics.match_points(points, truth), _sigmas(detector),
@@ -211,7 +244,8 @@ def evaluate_family(family: Family, n_frames: int, seed: int,
         refiner_row.tally.add(metrics.match_points(refined, truth),
                               seconds=time.perf_counter() - start)
     ordered = [rows[d.name] for d in detectors]
-    return [*ordered, refiner_row, *(rows[d.name] for d in board)]
+    return FamilyResult([*ordered, refiner_row, *(rows[d.name] for d in board)],
+                        np.concatenate(resolution) if resolution else np.zeros(0))
 
 
 # --------------------------------------------------------------------------- real images
@@ -358,6 +392,24 @@ def family_table(title: str, rows: Sequence[Row]) -> str:
     return "\n".join(lines)
 
 
+def resolution_table(title: str, result: FamilyResult, edges: Sequence[float]) -> str:
+    """Format each detector's recall per bin of marker resolution (detectors, not refiners)."""
+    bins = np.digitize(result.resolution, edges)
+    names = [f"< {edges[0]:g}", *(f"{a:g}-{b:g}" for a, b in itertools.pairwise(edges)),
+             f">= {edges[-1]:g}"]
+    counts = np.bincount(bins, minlength=len(names))
+    columns = [f"{name} ({count})" for name, count in zip(names, counts, strict=True)]
+    header = f"{'detector':<34}" + "".join(f"{c:>14}" for c in columns)
+    lines = [title, header, "-" * len(header)]
+    for row in result.rows:
+        if row.refiner:
+            continue
+        found = np.asarray(row.tally.found, dtype=bool)
+        recall = [found[bins == k].mean() if counts[k] else math.nan for k in range(len(names))]
+        lines.append(f"{row.name:<34}" + "".join(f"{_pct(r):>14}" for r in recall))
+    return "\n".join(lines)
+
+
 def boards_table(title: str, rows: Sequence[Row]) -> str:
     """Format a real chessboard set's table (errors and residuals in px)."""
     header = (f"{'detector':<34}{'recall':>8}{'boards':>8}{'T1 max':>8}{'T1 mean':>8}"
@@ -443,13 +495,18 @@ def run_synthetic(options: Options, report: Callable[[str], None]) -> dict[str, 
     for family in families():
         if family.key not in options.families:
             continue
-        rows = evaluate_family(family, frames_for(family, options), options.seed, detectors)
+        result = evaluate_family(family, frames_for(family, options), options.seed, detectors)
+        rows = result.rows
         frames = rows[0].tally.frames
         title = (f"Family {family.title}; {frames} frames, {rows[0].tally.n_truth} markers, "
                  f"radius range given to ours {family.radius_range[0]:g}-"
                  f"{family.radius_range[1]:g} px")
         report(family_table(title, rows))
         results[family.title] = {r.name: row_record(r) for r in rows}
+        if family.resolution_bins:
+            report(resolution_table(
+                f"Family ({family.key}) recall by resolution: foreshortened radius over blur "
+                "sigma (markers per bin)", result, family.resolution_bins))
     return results
 
 

@@ -157,6 +157,7 @@ class DetectionTally:
         sigmas_px: reported 1-sigma of each matched pair, px (NaN where the
             detector reports none), aligned with ``errors_px``.
         seconds: wall time spent in the detector, s.
+        found: per truth point, in the order seen, whether it was matched.
     """
 
     frames: int = 0
@@ -166,6 +167,7 @@ class DetectionTally:
     errors_px: list[float] = field(default_factory=list)
     sigmas_px: list[float] = field(default_factory=list)
     seconds: float = 0.0
+    found: list[bool] = field(default_factory=list)
 
     def add(self, matching: Matching, sigmas_px: np.ndarray | None = None,
             seconds: float = 0.0) -> None:
@@ -175,6 +177,9 @@ class DetectionTally:
         self.n_matched += matching.n_matched
         self.n_false_positives += matching.n_false_positives
         self.errors_px.extend(matching.errors_px.tolist())
+        found = np.zeros(matching.n_truth, dtype=bool)
+        found[matching.truth_index] = True
+        self.found.extend(found.tolist())
         if sigmas_px is None:
             self.sigmas_px.extend([math.nan] * matching.n_matched)
         else:

@@ -383,6 +383,19 @@ class MarkerTruth:
         angles = (math.atan2(d_du[1], d_du[0]) % math.pi, math.atan2(d_dv[1], d_dv[0]) % math.pi)
         return cls(x, y, float(radius_px), kind, h, angles)
 
+    @property
+    def foreshortened_radius_px(self) -> float:
+        """The marker's radius along its most foreshortened direction, px.
+
+        ``radius_px`` times the ratio of the smaller to the larger singular value
+        of the plane -> image Jacobian at the centre: cos(tilt) for a marker of
+        :func:`marker_homography`, up to the perspective across it.
+        """
+        h = self.homography
+        jacobian = h[:2, :2] - np.outer([self.x, self.y], h[2, :2])
+        singular = np.linalg.svd(jacobian, compute_uv=False)
+        return float(self.radius_px * singular[1] / singular[0])
+
 
 @dataclass(frozen=True)
 class PlanarTarget:
