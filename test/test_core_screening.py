@@ -1,5 +1,6 @@
 """Section 3.2, first layers: candidates, density mean shift, grid entropy."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -36,6 +37,35 @@ def test_saddle_candidates_find_small_and_large_markers_within_a_pixel():
     # The small one answers at full resolution, the large one at a coarse level.
     for truth, tolerance in (([50.3, 60.7], 1.0), ([140.2, 90.4], 4.0)):
         assert np.linalg.norm(found.xy - truth, axis=1).min() < tolerance
+
+
+def test_split_peak_midpoints_join_equal_peaks_within_reach_only():
+    peaks = screening.Candidates(
+        np.array([[10.0, 10.0], [16.0, 12.0], [100.0, 100.0], [104.0, 100.0]]),
+        np.array([2.0, 2.5, 1.0, 3.0]),  # the far pair differs threefold in strength
+        np.full(4, 6.0),
+    )
+    midpoints = screening.split_peak_midpoints(peaks, max_distance_px=15.0)
+    np.testing.assert_allclose(midpoints.xy, [[13.0, 11.0]])
+    assert midpoints.strength.tolist() == [2.0]
+    assert midpoints.scale_px.tolist() == [6.0]
+    assert len(screening.split_peak_midpoints(peaks, max_distance_px=5.0)) == 0
+
+
+def test_a_tilted_marker_whose_saddle_peak_splits_gets_a_candidate_at_its_centre():
+    # A 6.2 px marker tilted 48 degrees, the smallest of a 6-40 px range, seen at the
+    # first level (half resolution): the 5x5 Sobel smoothing is wider than the
+    # marker, so its centre is no saddle there and the response peaks either side.
+    placement = MarkerPlacement(48.3, 47.6, 6.2, 0.0, 48.0, 2.36, kind="quarter_disks",
+                                inverted=True)
+    scene = render_markers((96, 96), [placement], 0, blur_sigma_px=0.7, noise_sigma_dn=1.2,
+                           background_level=0.35)
+    level = screening.saddle_levels((6.0, 40.0)).start
+    assert level == 1
+    half = cv2.resize(scene.image, (48, 48), interpolation=cv2.INTER_AREA)
+    assert screening.saddle_response(half)[24, 24] < 0  # (u, v) = (23.9, 23.55): no saddle
+    found = screening.saddle_candidates(scene.image, (6.0, 40.0), min_contrast=5.0)
+    assert np.linalg.norm(found.xy - [48.3, 47.6], axis=1).min() < 0.5
 
 
 def test_saddle_levels_start_at_full_resolution_only_for_small_markers():

@@ -75,6 +75,15 @@ _SADDLE_PER_CONTRAST = 1.0 / np.pi
 _EXPECTED_BLUR_PX = 1.5
 
 
+#: Farthest apart two saddle peaks of a split response may be, in units of the level's
+#: candidate scale: a 6 px marker tilted 48 degrees shows its peaks 10.6 px apart at
+#: scale 6; 2.5 scales keeps the like of it at every first level.
+_SPLIT_PEAK_DISTANCE = 2.5
+#: Largest strength ratio of such a pair: the two peaks of a point-symmetric response
+#: are equal but for noise.
+_SPLIT_PEAK_RATIO = 1.5
+
+
 #: Smallest half-width (level px) of a foreshortened marker at the first level searched:
 #: below ~1.5 px the 5x5 Sobel kernels' smoothing mixes the quadrants with the plate.
 MIN_LEVEL_RADIUS_PX = 1.5
@@ -123,6 +132,40 @@ def _sparse_maxima(response: np.ndarray, threshold: float) -> tuple[np.ndarray, 
         # Ties go to the first pixel in raster order, so a plateau yields one peak.
         is_max &= (centre > neighbour) | ((centre == neighbour) & (offset > 0))
     return rows[is_max], cols[is_max]
+
+
+def split_peak_midpoints(candidates: Candidates, max_distance_px: float,
+                         max_ratio: float = _SPLIT_PEAK_RATIO) -> Candidates:
+    """Midpoints of candidate pairs that may be the two halves of one split saddle peak.
+
+    A marker narrower than the Sobel kernels' smoothing (a tilted marker near the
+    smallest expected radius) gives no saddle at its centre: the response peaks
+    on either side of it instead. The response of a point-symmetric pattern is
+    point-symmetric too, so such peaks come in pairs of equal strength about the
+    centre, and their midpoint is a candidate there (the prescreen and the
+    centring that follow decide as for any other).
+
+    Args:
+        candidates: one level's candidates.
+        max_distance_px: farthest apart two peaks of a pair may be.
+        max_ratio: largest ratio of their strengths.
+
+    Returns:
+        One candidate per pair, with the weaker strength and the first's scale.
+    """
+    if len(candidates) < 2:
+        return Candidates.empty()
+    pairs = cKDTree(candidates.xy).query_pairs(max_distance_px, output_type="ndarray")
+    if len(pairs) == 0:
+        return Candidates.empty()
+    first, second = candidates.strength[pairs[:, 0]], candidates.strength[pairs[:, 1]]
+    alike = np.maximum(first, second) <= max_ratio * np.minimum(first, second)
+    i, j = pairs[alike, 0], pairs[alike, 1]
+    return Candidates(
+        0.5 * (candidates.xy[i] + candidates.xy[j]),
+        np.minimum(candidates.strength[i], candidates.strength[j]),
+        candidates.scale_px[i],
+    )
 
 
 def saddle_levels(radius_range_px: tuple[float, float]) -> range:
@@ -196,7 +239,9 @@ def saddle_candidates(
     A peak is kept when its response exceeds ``relative_threshold`` times what an
     X of contrast ``min_contrast`` blurred by 1.5 px would give at that level, so
     the threshold follows the user's contrast in grey levels. Peaks are refined to
-    sub-sample precision with a parabola per axis.
+    sub-sample precision with a parabola per axis. At the first level, the
+    midpoints of peak pairs that may be one split peak join them
+    (:func:`split_peak_midpoints`).
 
     Args:
         image: (H, W) grey image, native dtype (uint8, uint16 or float32).
@@ -248,7 +293,12 @@ def saddle_candidates(
         xy = (np.stack([cols + u0 + dx, rows + v0 + dy], axis=1) + 0.5) * 2**level - 0.5
         strength = np.sqrt(response[rows, cols].astype(np.float64)) / expected
         scale = candidate_scale(level, radius_range_px)
-        parts.append(Candidates(xy, strength, np.full(len(rows), scale)))
+        found = Candidates(xy, strength, np.full(len(rows), scale))
+        parts.append(found)
+        if level == levels.start:
+            # Markers below the level's typical radius live here, and only here can
+            # their peak split (coarser levels see larger markers).
+            parts.append(split_peak_midpoints(found, _SPLIT_PEAK_DISTANCE * scale))
     return Candidates.concat(parts)
 
 
