@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
+from marker_localizer.core import verification
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import SceneConfig, render_scene
 
@@ -58,6 +59,24 @@ def test_cluttered_frames_meet_the_core_targets(cluttered_frames):
     assert found / total >= 0.95
     assert np.mean(errors) <= 0.05
     assert false / len(cluttered_frames) <= 1.0
+
+
+def test_reported_line_directions_follow_the_markers_lines(cluttered_frames):
+    """Each detection's two angles are the images of the marker's axes, tilt and all."""
+    detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
+    worst = []
+    for scene in cluttered_frames:
+        found = detector.detect(scene.image)
+        distance, index = cKDTree(scene.centres).query(found.as_array()[:, :2])
+        for detection, d, i in zip(found, distance, index, strict=True):
+            if d > 1.5:
+                continue
+            truth = np.array([scene.markers[i].angles])
+            measured = np.array([[detection.angle1, detection.angle2]])
+            worst.append(float(verification.line_pair_difference(measured, truth)[0]))
+    assert len(worst) >= 30
+    assert np.median(worst) < np.deg2rad(3.0)
+    assert max(worst) < np.deg2rad(12.0)
 
 
 def test_the_papers_ncc_refinement_is_selectable_and_less_precise(cluttered_frames):

@@ -229,6 +229,32 @@ def _angle_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.abs(np.angle(np.exp(2j * (a - b)))) / 2.0
 
 
+def _pairing_differences(
+    angles: np.ndarray, reference: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Largest line-direction difference of two line pairs (..., 2), as given and swapped.
+
+    Two measurements of an X may list its lines in either order.
+    """
+    same = np.maximum(
+        _angle_difference(angles[..., 0], reference[..., 0]),
+        _angle_difference(angles[..., 1], reference[..., 1]),
+    )
+    swap = np.maximum(
+        _angle_difference(angles[..., 0], reference[..., 1]),
+        _angle_difference(angles[..., 1], reference[..., 0]),
+    )
+    return same, swap
+
+
+def line_pair_difference(angles: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(N,) largest angle between corresponding lines of two (N, 2) line pairs, radians.
+
+    The lines are paired whichever way fits better.
+    """
+    return np.minimum(*_pairing_differences(angles, reference))
+
+
 class SymmetryCheck(NamedTuple):
     """Result of :func:`centre_symmetry_check` for N candidates.
 
@@ -298,14 +324,7 @@ def centre_symmetry_check(
     has_first = good[np.arange(n), first] & good[:, :max_first_ring].any(axis=1)
     reference = rings.line_angles[np.arange(n), first]  # (N, 2)
     # Lines may come out in either order on different rings: compare both pairings.
-    drift_same = np.maximum(
-        _angle_difference(rings.line_angles[..., 0], reference[:, None, 0]),
-        _angle_difference(rings.line_angles[..., 1], reference[:, None, 1]),
-    )
-    drift_swap = np.maximum(
-        _angle_difference(rings.line_angles[..., 0], reference[:, None, 1]),
-        _angle_difference(rings.line_angles[..., 1], reference[:, None, 0]),
-    )
+    drift_same, drift_swap = _pairing_differences(rings.line_angles, reference[:, None, :])
     good &= np.minimum(drift_same, drift_swap) <= max_angle_drift_rad
     ring_index = np.arange(n_rings)[None, :]
     after_first = ring_index >= first[:, None]
