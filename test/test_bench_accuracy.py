@@ -138,7 +138,9 @@ def test_resolution_table_gives_each_detectors_recall_per_bin_of_marker_resoluti
     assert len(result.resolution) == len(ours.found) == ours.n_truth
     # SMALL: radii 8-16 px tilted at most 30 degrees, blur 0.8-1.0: resolution 6.9-20.
     assert result.resolution.min() > 6.5
-    table = accuracy.resolution_table("t", result, (2.0, 7.0))
+    split = accuracy.resolution_recall(result, (2.0, 7.0))
+    assert split.markers == [0, 0, ours.n_truth]
+    table = accuracy.resolution_table("t", split)
     lines = table.splitlines()
     assert "< 2 (0)" in lines[1] and f">= 7 ({ours.n_truth})" in lines[1]
     assert lines[3].split()[-1] == f"{100 * ours.recall:.1f}%"

@@ -392,21 +392,44 @@ def family_table(title: str, rows: Sequence[Row]) -> str:
     return "\n".join(lines)
 
 
-def resolution_table(title: str, result: FamilyResult, edges: Sequence[float]) -> str:
-    """Format each detector's recall per bin of marker resolution (detectors, not refiners)."""
-    bins = np.digitize(result.resolution, edges)
+@dataclass(frozen=True)
+class ResolutionRecall:
+    """Each detector's recall per bin of marker resolution (detectors, not refiners).
+
+    Attributes:
+        bins: bin labels, e.g. ``"2-3"``.
+        markers: truth points per bin.
+        recall: detector name -> recall per bin (NaN for an empty bin).
+    """
+
+    bins: list[str]
+    markers: list[int]
+    recall: dict[str, list[float]]
+
+
+def resolution_recall(result: FamilyResult, edges: Sequence[float]) -> ResolutionRecall:
+    """Split every detector's recall by :func:`marker_resolution`, at ``edges``."""
+    index = np.digitize(result.resolution, edges)
     names = [f"< {edges[0]:g}", *(f"{a:g}-{b:g}" for a, b in itertools.pairwise(edges)),
              f">= {edges[-1]:g}"]
-    counts = np.bincount(bins, minlength=len(names))
-    columns = [f"{name} ({count})" for name, count in zip(names, counts, strict=True)]
-    header = f"{'detector':<34}" + "".join(f"{c:>14}" for c in columns)
-    lines = [title, header, "-" * len(header)]
+    counts = np.bincount(index, minlength=len(names))
+    recall = {}
     for row in result.rows:
         if row.refiner:
             continue
         found = np.asarray(row.tally.found, dtype=bool)
-        recall = [found[bins == k].mean() if counts[k] else math.nan for k in range(len(names))]
-        lines.append(f"{row.name:<34}" + "".join(f"{_pct(r):>14}" for r in recall))
+        recall[row.name] = [float(found[index == k].mean()) if counts[k] else math.nan
+                            for k in range(len(names))]
+    return ResolutionRecall(names, counts.tolist(), recall)
+
+
+def resolution_table(title: str, split: ResolutionRecall) -> str:
+    """Format a :class:`ResolutionRecall`."""
+    columns = [f"{name} ({count})" for name, count in zip(split.bins, split.markers, strict=True)]
+    header = f"{'detector':<34}" + "".join(f"{c:>14}" for c in columns)
+    lines = [title, header, "-" * len(header)]
+    for name, recall in split.recall.items():
+        lines.append(f"{name:<34}" + "".join(f"{_pct(r):>14}" for r in recall))
     return "\n".join(lines)
 
 
@@ -504,9 +527,15 @@ def run_synthetic(options: Options, report: Callable[[str], None]) -> dict[str, 
         report(family_table(title, rows))
         results[family.title] = {r.name: row_record(r) for r in rows}
         if family.resolution_bins:
+            split = resolution_recall(result, family.resolution_bins)
             report(resolution_table(
                 f"Family ({family.key}) recall by resolution: foreshortened radius over blur "
-                "sigma (markers per bin)", result, family.resolution_bins))
+                "sigma (markers per bin)", split))
+            results[f"{family.title}: recall by resolution"] = {
+                name: {b: (r if math.isfinite(r) else None)
+                       for b, r in zip(split.bins, recall, strict=True)}
+                for name, recall in split.recall.items()
+            }
     return results
 
 

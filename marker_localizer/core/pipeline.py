@@ -26,10 +26,10 @@ from marker_localizer.core.screening import Candidates
 #: sit a fraction of its scale off the centre.
 _PRESCREEN_SYMMETRY = 0.5
 #: Prescreen ring radii in units of the candidate's scale, the likeliest ring first. The
-#: outermost stays at 0.6: a level answers to markers whose major radius matches its
-#: scale, and a 60-degree tilt halves the minor one, so a ring at 0.7 left a tilted
-#: 14 px checker of family (d) (minor semi-axis 7.1 px, 1.15 px off at scale 16) and
-#: found the plate instead of the X.
+#: outermost is 0.6, not 0.7: a level answers to markers whose major radius matches its
+#: scale, and a 60-degree tilt halves the minor one; a ring at 0.7 ran past the X of a
+#: tilted 14 px checker of family (d) (minor semi-axis 7.1 px, its candidate 1.15 px
+#: off at scale 16) onto its plate.
 _PRESCREEN_RINGS = (0.5, 0.35, 0.6)
 #: Smallest prescreen ring radius, px. A nearest-pixel ring of 1.4 px (0.35 of the
 #: first level's 4 px scale) visits only the eight neighbours; around a candidate up to
