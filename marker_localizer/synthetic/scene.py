@@ -376,11 +376,8 @@ class MarkerTruth:
         """Truth of a target whose plane origin is the marker centre."""
         h = np.asarray(homography, dtype=np.float64) / homography[2, 2]
         x, y = float(h[0, 2]), float(h[1, 2])
-        # Jacobian of the plane -> image map at the origin: its columns are the
-        # image directions of the u and v axes.
-        d_du = (h[0, 0] - x * h[2, 0], h[1, 0] - y * h[2, 0])
-        d_dv = (h[0, 1] - x * h[2, 1], h[1, 1] - y * h[2, 1])
-        angles = (math.atan2(d_du[1], d_du[0]) % math.pi, math.atan2(d_dv[1], d_dv[0]) % math.pi)
+        (du_x, dv_x), (du_y, dv_y) = _origin_jacobian(h)
+        angles = (math.atan2(du_y, du_x) % math.pi, math.atan2(dv_y, dv_x) % math.pi)
         return cls(x, y, float(radius_px), kind, h, angles)
 
     @property
@@ -391,10 +388,17 @@ class MarkerTruth:
         of the plane -> image Jacobian at the centre: cos(tilt) for a marker of
         :func:`marker_homography`, up to the perspective across it.
         """
-        h = self.homography
-        jacobian = h[:2, :2] - np.outer([self.x, self.y], h[2, :2])
-        singular = np.linalg.svd(jacobian, compute_uv=False)
+        singular = np.linalg.svd(_origin_jacobian(self.homography), compute_uv=False)
         return float(self.radius_px * singular[1] / singular[0])
+
+
+def _origin_jacobian(homography: np.ndarray) -> np.ndarray:
+    """(2, 2) Jacobian of the plane -> image map at the plane origin (H[2, 2] = 1).
+
+    Its columns are the image directions of the plane's u and v axes.
+    """
+    h = homography
+    return h[:2, :2] - np.outer(h[:2, 2], h[2, :2])
 
 
 @dataclass(frozen=True)
