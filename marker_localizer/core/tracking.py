@@ -157,11 +157,12 @@ class MarkerTracker:
         gray, _ = to_gray(image)
         # Measured on full passes too: it carries the tracks a pass misses.
         start = time.perf_counter()
-        motion, located = None, None
+        motion, located, predicted = None, None, None
         if self._tracks:
-            motion, located = self._motion_from_fit(gray, stamp)
+            predicted = self._predict(stamp)
+            motion, located = self._motion_from_fit(gray, predicted)
             if motion is None:
-                motion = self._register(gray, stamp)
+                motion = self._register(gray, predicted)
         registration_ms = (time.perf_counter() - start) * 1000.0
         if motion is not None and self._frames_since_full + 1 < self.full_frame_every:
             result = self._track(gray, stamp, motion, located)
@@ -173,7 +174,7 @@ class MarkerTracker:
         result = self.detector.detect(gray)
         result.counts["full_frame"] = 1
         result.counts["tracked"] = 0
-        self._adopt(gray, result, stamp, motion)
+        self._adopt(gray, result, stamp, motion, predicted)
         self._frames_since_full = 0
         self._cut_patches(gray)
         return result
@@ -190,9 +191,11 @@ class MarkerTracker:
         ).reshape(-1, 2)
 
     def _motion_from_fit(
-        self, gray: np.ndarray, stamp: float
+        self, gray: np.ndarray, predicted: np.ndarray
     ) -> tuple[np.ndarray | None, DetectionResult | None]:
         """(3, 3) image motion from the tracks' own fits, and those fits; (None, None) if unsure.
+
+        ``predicted``: the tracks' constant-velocity predictions (:meth:`_predict`).
 
         In a steady flight the constant-velocity prediction lies within the fit's
         reach of each marker, and the fitted centres measure the motion better than
@@ -201,7 +204,6 @@ class MarkerTracker:
         confirmed within ``match_px`` of their prediction; else the prediction is
         off (a jolt, a turn) and the anchors' patches measure the motion.
         """
-        predicted = self._predict(stamp)
         # Where a full pass would see the whole plate: nearer the border what it
         # accepts depends on the cut, which seeding the detector reproduces (_track).
         fitted = ~self._leaving(predicted, gray.shape)
@@ -229,9 +231,11 @@ class MarkerTracker:
             np.array([d.evidence for d in known]),
         )
 
-    def _register(self, gray: np.ndarray, stamp: float) -> np.ndarray | None:
-        """(3, 3) image motion from the last frame, measured on the anchors; None if none found."""
-        predicted = self._predict(stamp)
+    def _register(self, gray: np.ndarray, predicted: np.ndarray) -> np.ndarray | None:
+        """(3, 3) image motion from the last frame, measured on the anchors; None if none found.
+
+        ``predicted``: the tracks' constant-velocity predictions, where the search starts.
+        """
         sources, targets = [], []
         for track, prediction in zip(self._tracks, predicted, strict=True):
             if not track.anchor or track.patch is None:
@@ -354,7 +358,7 @@ class MarkerTracker:
         found = result.as_array()
         owner = _associate(found[:, :2], corrected, inside, self.match_px)
         missed = owner < 0
-        kept = self._kept(gray, corrected, missed)
+        kept = self._kept(gray, corrected, missed & fitted)
         excused = np.array([t.missed_by_full_pass for t in self._tracks])
         if (missed & ~leaving & ~kept & ~excused).any():
             return None  # a marker is lost
@@ -434,9 +438,9 @@ class MarkerTracker:
         """Grid that windows and bands are snapped to: that of the local-mean map.
 
         ``LocalGamma`` measures the local mean of Eq. (2) on the frame reduced by
-        ``illumination_window_px // 8`` and now aligns every region to that grid
-        itself, so the snapping no longer changes a score; it only rounds windows
-        and bands up to whole blocks of that map.
+        ``illumination_window_px // 8`` and aligns every region to that grid itself,
+        so the snapping changes no score; it rounds windows and bands up to whole
+        blocks of that map.
         """
         return max(1, self.detector.config.illumination_window_px // 8)
 
@@ -458,12 +462,17 @@ class MarkerTracker:
         result: DetectionResult,
         stamp: float,
         motion: np.ndarray | None,
+        velocity_predicted: np.ndarray | None,
     ) -> None:
-        """Replace the tracks by a full pass's detections, continuing those matching a track."""
+        """Replace the tracks by a full pass's detections, continuing those matching a track.
+
+        ``velocity_predicted``: the tracks' constant-velocity predictions, used where
+        no motion was measured (None without tracks).
+        """
         tracks = [_Track(np.array([d.x, d.y]), None, d, stamp) for d in result]
-        if self._tracks:
+        if velocity_predicted is not None:
             if motion is None:
-                predicted = self._predict(stamp)
+                predicted = velocity_predicted
             else:
                 predicted = _transform(motion, np.array([t.xy for t in self._tracks]))
             found = result.as_array()
@@ -481,17 +490,17 @@ class MarkerTracker:
                     tracks.append(_coasting(track, prediction, stamp, missed_by_full_pass=True))
         self._tracks = tracks
 
-    def _kept(self, gray: np.ndarray, predicted: np.ndarray, missed: np.ndarray) -> np.ndarray:
+    def _kept(self, gray: np.ndarray, predicted: np.ndarray, candidates: np.ndarray) -> np.ndarray:
         """(N,) True for the missed tracks to search again on the next frame.
 
-        A missed track is kept for up to ``max_missed_frames`` frames while its
-        prediction lies inside the frame, away from the border by its plate's
-        half-width, and a full pass has missed it too or its patch is found within
-        ``match_px`` of the prediction (a marker in view that the detector rejects).
+        ``candidates`` are the missed tracks whose prediction lies inside the frame,
+        away from the border by its plate's half-width. One is kept for up to
+        ``max_missed_frames`` frames while a full pass has missed it too or its patch
+        is found within ``match_px`` of the prediction (a marker in view that the
+        detector rejects).
         """
-        inside = ~self._leaving(predicted, gray.shape)
         kept = np.zeros(len(self._tracks), dtype=bool)
-        for k in np.flatnonzero(missed & inside):
+        for k in np.flatnonzero(candidates):
             track = self._tracks[k]
             kept[k] = track.missed < self.max_missed_frames and (
                 track.missed_by_full_pass
