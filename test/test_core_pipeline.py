@@ -1,6 +1,5 @@
 """The Detector end to end: analytic images, rendered frames, input handling."""
 
-import time
 
 import cv2
 import numpy as np
@@ -145,12 +144,10 @@ def test_seeded_markers_take_the_full_passs_stages_and_end_at_its_centres(clutte
     assert len(np.unique(index)) == len(full)
 
 
-def test_an_image_without_markers_gives_an_empty_result_quickly():
-    flat = np.full((960, 1280), 90, np.uint8)
-    start = time.perf_counter()
-    result = Detector().detect(flat)
+def test_an_image_without_markers_gives_no_candidate_and_an_empty_result():
+    result = Detector().detect(np.full((960, 1280), 90, np.uint8))
     assert len(result) == 0
-    assert time.perf_counter() - start < 2.0
+    assert result.counts["candidates"] == 0  # no point reaches the costly stages
 
 
 @pytest.mark.parametrize(

@@ -418,19 +418,36 @@ def test_diagnostics_report_ok_levels_values_and_node_status(localizer, tester):
 # --------------------------------------------------------------------------- diagnostics levels
 
 
+def holding(camera):
+    """A worker pool whose detector holds ``camera``'s frames until the event is set.
+
+    A stand-in for a detector too slow for its camera, whatever the speed of the
+    real one: while a worker holds one frame, every newer frame of that camera
+    replaces the one waiting in its mailbox.
+    """
+    release = threading.Event()
+
+    class HeldCameraProcessor(FrameProcessor):
+        def detections(self, frame_camera, pixels, stamp_s):
+            if frame_camera == camera:
+                release.wait(TIMEOUT_S)
+            return super().detections(frame_camera, pixels, stamp_s)
+
+    return HeldCameraProcessor, release
+
+
 def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros):
     """One node, five cameras in five states: steady, flooded, silent, bad encoding, truncated."""
+    processor_class, release = holding("cam1")
     node = MarkerLocalizerNode(
         "diag_localizer",
         namespace="/diag",
+        processor_class=processor_class,
         parameter_overrides=[
             Parameter("diagnostics_period_s", value=0.2),
             Parameter("input_timeout_s", value=1.0),
             Parameter("stats_window_s", value=60.0),
             Parameter("latency_warn_ms", value=60_000.0),
-            # Every flooded frame a full pass: tracking the same frame over and over
-            # keeps up with 50 Hz, and cam1 would drop nothing.
-            Parameter("detector.tracking", value=False),
             Parameter("qos_overrides./diag/cam2/image_raw.subscription.reliability",
                       value="best_effort"),
         ],
@@ -443,7 +460,6 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros)
         tester.listen("cam0/marker_points", PointCloud2)
         tester.listen("cam4/marker_points", PointCloud2)
         small = x_marker_64()
-        busy = scene(1280, 960, 4, 1).image  # ~0.1 s of work a full pass, sent at 50 Hz
         bad_encoding = tester.frame(np.zeros((48, 64), np.uint8))
         bad_encoding.encoding = "yuv422"
         truncated = tester.frame(small)
@@ -457,7 +473,7 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros)
                 if time.monotonic() >= next_steady:
                     tester.publish("cam0/image_raw", tester.frame(small))
                     next_steady = time.monotonic() + 0.2
-                tester.publish("cam1/image_raw", tester.frame(busy))
+                tester.publish("cam1/image_raw", tester.frame(small))  # held: replaced
                 stop.wait(0.02)
 
         feeder = threading.Thread(target=feed, daemon=True)
@@ -500,6 +516,7 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros)
         assert info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
     finally:
         stop.set()
+        release.set()
         tester.stop()
         spinner.stop()
 

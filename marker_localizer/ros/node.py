@@ -74,6 +74,8 @@ class MarkerLocalizerNode(Node):
 
     Args:
         node_name: name of the node (the parameter file's top-level key).
+        processor_class: the worker pool to feed; a subclass of
+            :class:`FrameProcessor` can stand in for the detector (tests).
         **kwargs: passed to :class:`rclpy.node.Node` (namespace, context,
             parameter_overrides, cli_args, ...).
 
@@ -81,7 +83,13 @@ class MarkerLocalizerNode(Node):
         ConfigError: a parameter's start value is invalid.
     """
 
-    def __init__(self, node_name: str = NODE_NAME, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        node_name: str = NODE_NAME,
+        *,
+        processor_class: type[FrameProcessor] = FrameProcessor,
+        **kwargs: Any,
+    ) -> None:
         super().__init__(node_name, **kwargs)
         self._live = LiveParameters(self, self._on_parameters)
         settings = self._live.node_config
@@ -96,7 +104,7 @@ class MarkerLocalizerNode(Node):
             c: self.create_publisher(Image, f"{c}/marker_overlay", _OUTPUT_DEPTH)
             for c in settings.cameras
         }
-        self.processor = FrameProcessor(
+        self.processor = processor_class(
             settings.cameras,
             self._live.detector_config,
             self._deliver,

@@ -41,11 +41,12 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numpy as np
 from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig
-from marker_localizer.core.pipeline import Detector
+from marker_localizer.core.pipeline import Detection, Detector
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.errors import ConfigError
 from marker_localizer.overlay import draw_detections
@@ -269,6 +270,24 @@ class FrameProcessor:
             self._trackers[camera] = tracker
         return tracker
 
+    def detections(self, camera: str, pixels: np.ndarray, stamp_s: float) -> list[Detection]:
+        """The markers of one frame: the camera's tracker, or a full pass without tracking.
+
+        Every frame meets the detector here, in a worker thread, so a subclass can
+        stand in for the detector (the tests hold a camera's frames in it to make
+        mailbox drops independent of how fast the detector is).
+
+        Args:
+            camera: the frame's camera.
+            pixels: the frame as the detector takes it (see
+                :func:`~marker_localizer.ros.conversions.image_to_detector_input`).
+            stamp_s: the frame's header stamp, s.
+        """
+        detector = self._detector  # read once: a reconfiguration applies from the next frame
+        if detector.config.tracking:
+            return self._tracker(camera, detector).update(pixels, stamp_s).detections
+        return detector.detect(pixels).detections
+
     def _idle(self) -> bool:
         return not self._busy and all(frame is None for frame in self._pending.values())
 
@@ -311,16 +330,10 @@ class FrameProcessor:
 
     def _process(self, frame: _Frame) -> None:
         stats = self._stats[frame.camera]
-        detector = self._detector
         header = frame.msg.header
         try:
             pixels = image_to_detector_input(frame.msg)
-            if detector.config.tracking:
-                detections = self._tracker(frame.camera, detector).update(
-                    pixels, stamp_to_ns(header) / _NS_PER_S
-                ).detections
-            else:
-                detections = detector.detect(pixels).detections
+            detections = self.detections(frame.camera, pixels, stamp_to_ns(header) / _NS_PER_S)
             cloud = detections_to_cloud(header, detections)
             overlay = (
                 array_to_image(draw_detections(pixels, detections), "bgr8", header)
