@@ -65,6 +65,16 @@ class DetectorConfig:
         1.5,
         1000.0,
     )
+    bit_depth: int = _param(
+        16,
+        "Significant bits of a 16-bit image's pixels: white is 2**bit_depth - 1, so the "
+        "grey-level thresholds mean the same for a 10-, 12- or 14-bit sensor in 16-bit "
+        "words, from frame to frame. 16 = the whole word (ROS mono16). 8-bit images are "
+        "white at 255 whatever this says.",
+        "bit",
+        8,
+        16,
+    )
 
     # Section 3.1: preprocessing.
     gdwgif_radius_px: int = _param(
