@@ -127,7 +127,10 @@ def run_detect(args: argparse.Namespace) -> int:
 
             out = Path(args.overlay) / f"{Path(path).stem}_markers.png"
             out.parent.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(out), draw_detections(image, result.detections))
+            cv2.imwrite(
+                str(out),
+                draw_detections(image, result.detections, bit_depth=detector.config.bit_depth),
+            )
     return 1 if failed else 0
 
 

@@ -26,20 +26,25 @@ def _fixed(point: np.ndarray) -> tuple[int, int]:
     return round(float(point[0]) * scale), round(float(point[1]) * scale)
 
 
-def to_bgr(pixels: np.ndarray) -> np.ndarray:
-    """An 8-bit BGR copy of a grey (uint8/uint16) or BGR(A) frame."""
+def to_bgr(pixels: np.ndarray, bit_depth: int = 16) -> np.ndarray:
+    """An 8-bit BGR copy of a grey (uint8/uint16 with ``bit_depth`` bits) or BGR(A) frame."""
     if pixels.ndim == 2:
         grey = (
             pixels
             if pixels.dtype == np.uint8
-            else cv2.convertScaleAbs(pixels, alpha=255.0 / bit_depth_scale(pixels))
+            else cv2.convertScaleAbs(
+                pixels, alpha=255.0 / bit_depth_scale(pixels.dtype, bit_depth)
+            )
         )
         return cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
     return np.ascontiguousarray(pixels[:, :, :3]).copy()
 
 
 def draw_detections(
-    pixels: np.ndarray, detections: Sequence[Detection], truth: np.ndarray | None = None
+    pixels: np.ndarray,
+    detections: Sequence[Detection],
+    truth: np.ndarray | None = None,
+    bit_depth: int = 16,
 ) -> np.ndarray:
     """Draw each marker's two lines and extent circle through its sub-pixel centre.
 
@@ -48,11 +53,12 @@ def draw_detections(
         detections: markers to draw (pixel coordinates, (0, 0) = centre of the
             top-left pixel).
         truth: optional (N, 2) true centres, drawn as small magenta crosses.
+        bit_depth: significant bits of uint16 pixels (white at 2**bit_depth - 1).
 
     Returns:
         (H, W, 3) uint8 BGR image.
     """
-    canvas = to_bgr(pixels)
+    canvas = to_bgr(pixels, bit_depth)
     for d in detections:
         centre = np.array([d.x, d.y])
         for angle in (d.angle1, d.angle2):

@@ -154,7 +154,7 @@ def test_an_image_without_markers_gives_no_candidate_and_an_empty_result():
     "convert",
     [
         lambda g: cv2.cvtColor(g, cv2.COLOR_GRAY2BGR),
-        lambda g: g.astype(np.uint16) * 16,  # a 12-bit sensor in 16-bit words
+        lambda g: g.astype(np.uint16) * 257,  # mono16: white at 65535
         lambda g: g.astype(np.float32) / 255.0,
     ],
     ids=["bgr8", "mono16", "float"],

@@ -277,7 +277,7 @@ def test_node_reads_colour_and_16_bit_frames(localizer, tester, encoding):
     tester.listen("cam3/marker_points", PointCloud2)
     grey = x_marker_64()
     pixels = {
-        "mono16": grey.astype(np.uint16) * 16,  # a 12-bit sensor
+        "mono16": grey.astype(np.uint16) * 257,  # white at 65535
         "bgr8": np.dstack([grey] * 3),
         "rgb8": np.dstack([grey] * 3),
     }[encoding]

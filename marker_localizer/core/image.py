@@ -10,20 +10,21 @@ from marker_localizer.errors import ImageError
 _CHANNEL_CONVERSIONS = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}
 
 
-def bit_depth_scale(image: np.ndarray) -> float:
-    """Full-scale value of an integer image.
+def bit_depth_scale(dtype: np.dtype, bit_depth: int = 16) -> float:
+    """Full-scale value (white) of an integer image, from its type and bit depth.
 
-    255 for uint8; for uint16 the smallest 2**b - 1 (b >= 8) that holds the data,
-    so 10-, 12- and 14-bit sensors packed in 16-bit words keep their contrast.
+    255 for uint8; 2**bit_depth - 1 for uint16 (a 12-bit sensor in 16-bit words:
+    4095). Never from the frame's content, so one camera's thresholds hold still
+    from frame to frame.
     """
-    if image.dtype == np.uint8:
+    if dtype == np.uint8:
         return 255.0
-    peak = int(image.max()) if image.size else 0
-    bits = max(8, int(peak).bit_length())
-    return float(2**bits - 1)
+    return float(2**bit_depth - 1)
 
 
-def to_gray(image: np.ndarray, *, rgb: bool = False) -> tuple[np.ndarray, float]:
+def to_gray(
+    image: np.ndarray, *, rgb: bool = False, bit_depth: int = 16
+) -> tuple[np.ndarray, float]:
     """Reduce a grey or colour image to one channel, keeping its dtype.
 
     The detector samples the frame in its native dtype (a 12-megapixel uint8
@@ -34,6 +35,7 @@ def to_gray(image: np.ndarray, *, rgb: bool = False) -> tuple[np.ndarray, float]
             float32 or float64. Colour is BGR(A) unless ``rgb``. Float images must
             be in [0, 1].
         rgb: the channels are RGB(A) instead of BGR(A).
+        bit_depth: significant bits of uint16 pixels (see :func:`bit_depth_scale`).
 
     Returns:
         (grey, full_scale): the (H, W) image and the value of white in it
@@ -64,7 +66,7 @@ def to_gray(image: np.ndarray, *, rgb: bool = False) -> tuple[np.ndarray, float]
         if not np.isfinite(image).all():
             raise ImageError("image contains NaN or infinite values")
         return np.ascontiguousarray(np.clip(image, 0.0, 1.0), dtype=np.float32), 1.0
-    return np.ascontiguousarray(image), bit_depth_scale(image)
+    return np.ascontiguousarray(image), bit_depth_scale(image.dtype, bit_depth)
 
 
 def to_gray_float(image: np.ndarray, *, rgb: bool = False) -> np.ndarray:

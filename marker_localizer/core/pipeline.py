@@ -204,7 +204,7 @@ class Detector:
         timer = _StageTimer(result.timings_ms)
         cfg = self.config
         with timer("input"):
-            gray, full_scale = to_gray(image)
+            gray, full_scale = to_gray(image, bit_depth=self.config.bit_depth)
         seeds = np.zeros((0, 2)) if seeds is None else np.asarray(seeds, np.float64).reshape(-1, 2)
         with timer("preprocessing"):
             measured = regions
@@ -272,7 +272,7 @@ class Detector:
         result = DetectionResult()
         timer = _StageTimer(result.timings_ms)
         with timer("input"):
-            gray, full_scale = to_gray(image)
+            gray, full_scale = to_gray(image, bit_depth=self.config.bit_depth)
         counts = result.counts
         counts["merged_duplicates"] = 0
         with timer("subpixel"):

@@ -336,7 +336,11 @@ class FrameProcessor:
             detections = self.detections(frame.camera, pixels, stamp_to_ns(header) / _NS_PER_S)
             cloud = detections_to_cloud(header, detections)
             overlay = (
-                array_to_image(draw_detections(pixels, detections), "bgr8", header)
+                array_to_image(
+                    draw_detections(pixels, detections, bit_depth=self.config.bit_depth),
+                    "bgr8",
+                    header,
+                )
                 if self.publish_overlay
                 else None
             )
