@@ -445,7 +445,8 @@ def double_line_check(
         if found is None or len(found) < 2:
             continue
         # Back to full-image coordinates: the resize maps pixel centres by (u + 0.5) / s - 0.5.
-        segments = (found[:, 0, :].astype(np.float64) + 0.5) / zoom - 0.5
+        # LSD gives (N, 1, 4) in OpenCV 4 and (N, 4) in OpenCV 5.
+        segments = (found.reshape(-1, 4).astype(np.float64) + 0.5) / zoom - 0.5
         segments += np.array([x0, y0, x0, y0], dtype=np.float64)
         direction = segments[:, 2:] - segments[:, :2]
         length = np.linalg.norm(direction, axis=1)
