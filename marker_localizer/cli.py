@@ -22,6 +22,7 @@ import numpy as np
 from marker_localizer import config as config_module
 from marker_localizer.core.pipeline import DetectionResult, Detector
 from marker_localizer.errors import ConfigError, ImageError, MarkerLocalizerError
+from marker_localizer.image_files import read_image_file
 
 PROG = "marker-localizer"
 
@@ -63,18 +64,6 @@ def build_config(params: Sequence[str], params_file: str | None) -> config_modul
     return config_module.from_mapping(values)
 
 
-def read_image(path: str) -> np.ndarray:
-    """Read an image file as stored (grey, colour or 16-bit); raise ImageError naming the file."""
-    if not Path(path).is_file():
-        raise ImageError(f"{path}: no such file")
-    image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise ImageError(f"{path}: not a readable image")
-    if image.size == 0:
-        raise ImageError(f"{path}: empty image")
-    return image
-
-
 def result_record(
     path: str, image: np.ndarray, result: DetectionResult, elapsed_ms: float
 ) -> dict[str, Any]:
@@ -109,9 +98,9 @@ def run_detect(args: argparse.Namespace) -> int:
     failed = 0
     for path in args.images:
         try:
-            image = read_image(path)
+            image = read_image_file(path, detector.config.max_pixels)
             start = time.perf_counter()
-            result = detector.detect(image)
+            result = _detect_file(detector, image, path)
             elapsed_ms = (time.perf_counter() - start) * 1000.0
         except ImageError as err:
             failed += 1
@@ -132,6 +121,16 @@ def run_detect(args: argparse.Namespace) -> int:
                 draw_detections(image, result.detections, bit_depth=detector.config.bit_depth),
             )
     return 1 if failed else 0
+
+
+def _detect_file(detector: Detector, image: np.ndarray, path: str) -> DetectionResult:
+    """Detect in one decoded file; its errors, OpenCV's included, name the file."""
+    try:
+        return detector.detect(image)
+    except ImageError as err:
+        raise ImageError(f"{path}: {err}") from err
+    except cv2.error as err:
+        raise ImageError(f"{path}: OpenCV failed on it ({err.err})") from err
 
 
 def run_demo(args: argparse.Namespace) -> int:

@@ -319,6 +319,16 @@ class DetectorConfig:
         1,
         10_000_000,
     )
+    max_pixels: int = _param(
+        50_000_000,
+        "CLI, node and replay: the largest image, width x height, accepted; the CLI reads "
+        "it from the file's header before decoding. 50 MP is 4x the rig's 12 MP cameras, "
+        "while a 0.9 MB PNG can claim 30000x30000 (900 MP, 12 GB to decode). OpenCV "
+        "refuses to decode more than 2^30 pixels whatever this says.",
+        "px",
+        1,
+        2**30,
+    )
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

@@ -2,8 +2,19 @@
 
 Every error a user can cause derives from :class:`MarkerLocalizerError`; the
 CLI turns these into one line and exit status 1, so only a bug shows a
-traceback.
+traceback. Values that come from outside (an encoding string, an exception's
+text) are quoted through :func:`shorten`, so a hostile 1 MB value never
+becomes a 1 MB log line or diagnostics message.
 """
+
+#: Longest text an error message quotes from outside, characters: more than any
+#: real encoding name, path or OpenCV message.
+QUOTE_LIMIT = 200
+
+
+def shorten(text: str, limit: int = QUOTE_LIMIT) -> str:
+    """``text`` cut to ``limit`` characters, saying how long it was when cut."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 class MarkerLocalizerError(Exception):

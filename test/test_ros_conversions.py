@@ -125,6 +125,24 @@ def test_image_to_array_raises_naming_the_problem(change, match):
         image_to_array(msg)
 
 
+def test_an_image_over_max_pixels_is_refused_from_its_width_and_height_alone():
+    msg = array_to_image(pixels_for("mono8"), "mono8", HEADER)
+    msg.height, msg.width, msg.step = 30000, 30000, 30000  # data is still 35 B
+    with pytest.raises(ImageError, match=r"image: 30000x30000 = 900000000 px exceeds max_pix"):
+        image_to_detector_input(msg, DetectorConfig().max_pixels)
+    assert image_to_detector_input(array_to_image(pixels_for("mono8"), "mono8"), 35).shape == (
+        5, 7)
+
+
+def test_a_hostile_encoding_string_is_quoted_short():
+    msg = array_to_image(pixels_for("mono8"), "mono8", HEADER)
+    msg.encoding = "x" * 1_000_000
+    with pytest.raises(ImageError) as raised:
+        image_to_array(msg)
+    assert len(str(raised.value)) < 400
+    assert "(1000002 characters)" in str(raised.value)
+
+
 def test_array_to_image_rejects_pixels_that_do_not_fit_the_encoding():
     with pytest.raises(ImageError, match=r"a bgr8 image needs 3 channel\(s\) of uint8"):
         array_to_image(np.zeros((4, 4), np.uint8), "bgr8")

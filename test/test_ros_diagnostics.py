@@ -95,6 +95,14 @@ def test_failed_frame_keeps_the_camera_at_error_for_one_window():
     assert stats.snapshot(now + 12 * S).errors == 1
 
 
+def test_a_long_error_text_is_kept_short_in_the_status():
+    stats, now = healthy_camera()
+    stats.frame_failed(now, "ImageError: " + "x" * 1_000_000)
+    status = camera_status("marker_localizer", stats.snapshot(now), LIMITS)
+    assert len(values_of(status)["last error"]) < 300
+    assert len(status.message) < 400
+
+
 def test_error_wins_over_warning_and_both_are_named():
     stats, now = healthy_camera(latency_ms=900.0)
     level, message = camera_level(stats.snapshot(now + 5 * S), LIMITS)

@@ -694,6 +694,20 @@ def test_failed_frame_is_counted_and_the_worker_goes_on():
     assert snap.last_error.startswith("ImageError: data holds 10 B")
 
 
+def test_frame_over_max_pixels_fails_and_the_next_smaller_one_is_served():
+    collect = Collector()
+    processor = FrameProcessor(["cam0"], DetectorConfig(max_pixels=64 * 64), collect, workers=1)
+    try:
+        processor.submit("cam0", stamped(1, np.zeros((64, 65), np.uint8)), block=True)
+        processor.submit("cam0", stamped(2), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert collect.results == [("cam0", 2, 1)]
+    snap = processor.snapshots()["cam0"]
+    assert snap.last_error == "ImageError: image: 65x64 = 4160 px exceeds max_pixels=4096"
+
+
 # --------------------------------------------------------------------------- benchmark
 
 

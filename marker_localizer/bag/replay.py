@@ -55,7 +55,7 @@ from marker_localizer.bag.io import (
 )
 from marker_localizer.bag.record import IMAGE_SUFFIX, PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
 from marker_localizer.config import DetectorConfig, from_mapping, load_params_file
-from marker_localizer.errors import BagError
+from marker_localizer.errors import BagError, shorten
 from marker_localizer.ros import diagnostics
 from marker_localizer.ros.conversions import ENCODINGS, cloud_to_array
 from marker_localizer.ros.node import NODE_NAME
@@ -413,7 +413,7 @@ class _Session:
             self._in_flight.pop(camera, None)
             stats = self.stats[camera]
             stats.failed += 1
-            stats.last_error = f"{type(err).__name__}: {err}"
+            stats.last_error = shorten(f"{type(err).__name__}: {err}")
             self._cond.notify_all()
 
     def _write_done(self) -> None:

@@ -32,7 +32,8 @@ from sensor_msgs.msg import Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from marker_localizer.core.pipeline import Detection
-from marker_localizer.errors import ImageError
+from marker_localizer.errors import ImageError, shorten
+from marker_localizer.image_files import check_pixel_count
 
 #: Encodings the node accepts: numpy dtype and channel count of each.
 ENCODINGS: dict[str, tuple[np.dtype, int]] = {
@@ -67,7 +68,7 @@ _POINT_FIELD_DTYPES: dict[int, np.dtype] = {
 _HOST_IS_BIGENDIAN = sys.byteorder == "big"
 
 
-def image_to_array(msg: Image) -> np.ndarray:
+def image_to_array(msg: Image, max_pixels: int | None = None) -> np.ndarray:
     """View the pixels of a sensor_msgs/Image as a numpy array.
 
     Row padding (``step`` larger than ``width`` times the pixel size) is honoured
@@ -75,6 +76,7 @@ def image_to_array(msg: Image) -> np.ndarray:
 
     Args:
         msg: Image with one of the :data:`ENCODINGS`.
+        max_pixels: refuse a larger width x height, px (None: no limit).
 
     Returns:
         (height, width) uint8/uint16 for mono encodings, (height, width, C)
@@ -82,17 +84,21 @@ def image_to_array(msg: Image) -> np.ndarray:
         shares memory with ``msg.data`` unless a byte swap was needed.
 
     Raises:
-        ImageError: unsupported encoding, empty image, ``step`` shorter than a
-            row, or ``data`` length different from ``height * step``.
+        ImageError: unsupported encoding, empty image, more than ``max_pixels``,
+            ``step`` shorter than a row, or ``data`` length different from
+            ``height * step``.
     """
     if msg.encoding not in ENCODINGS:
         raise ImageError(
-            f"unsupported encoding {msg.encoding!r} (expected one of {', '.join(ENCODINGS)})"
+            f"unsupported encoding {shorten(repr(msg.encoding))} "
+            f"(expected one of {', '.join(ENCODINGS)})"
         )
     dtype, channels = ENCODINGS[msg.encoding]
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height == 0 or width == 0:
         raise ImageError(f"empty image ({width}x{height})")
+    if max_pixels is not None:
+        check_pixel_count(width, height, max_pixels, "image")
     row_bytes = width * channels * dtype.itemsize
     if step < row_bytes:
         raise ImageError(
@@ -116,11 +122,12 @@ def image_to_array(msg: Image) -> np.ndarray:
     return pixels
 
 
-def image_to_detector_input(msg: Image) -> np.ndarray:
+def image_to_detector_input(msg: Image, max_pixels: int | None = None) -> np.ndarray:
     """Pixels of ``msg`` in the layout :meth:`Detector.detect` reads (grey or BGR(A)).
 
     Args:
         msg: Image with one of the :data:`ENCODINGS`.
+        max_pixels: refuse a larger width x height, px (None: no limit).
 
     Returns:
         (H, W) uint8/uint16 or (H, W, 3|4) uint8 BGR(A); RGB(A) input is reordered.
@@ -128,7 +135,7 @@ def image_to_detector_input(msg: Image) -> np.ndarray:
     Raises:
         ImageError: as :func:`image_to_array`.
     """
-    pixels = image_to_array(msg)
+    pixels = image_to_array(msg, max_pixels)
     order = _TO_BGR.get(msg.encoding)
     return pixels if order is None else pixels[:, :, order]
 

@@ -33,6 +33,8 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Header
 
+from marker_localizer.errors import shorten
+
 OK, WARN, ERROR = 0, 1, 2
 _LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
 _NS_PER_S = 1_000_000_000
@@ -168,10 +170,10 @@ class CameraStats:
                 self._results.popleft()
 
     def frame_failed(self, now_ns: int, message: str) -> None:
-        """Count a frame that could not be processed, keeping ``message`` as the last error."""
+        """Count a frame that could not be processed; ``message``, shortened, is the last error."""
         with self._lock:
             self._errors += 1
-            self._last_error = message
+            self._last_error = shorten(message)
             self._last_error_ns = now_ns
 
     def snapshot(self, now_ns: int) -> CameraSnapshot:

@@ -332,7 +332,7 @@ class FrameProcessor:
         stats = self._stats[frame.camera]
         header = frame.msg.header
         try:
-            pixels = image_to_detector_input(frame.msg)
+            pixels = image_to_detector_input(frame.msg, self.config.max_pixels)
             detections = self.detections(frame.camera, pixels, stamp_to_ns(header) / _NS_PER_S)
             cloud = detections_to_cloud(header, detections)
             overlay = (

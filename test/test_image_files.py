@@ -1,0 +1,162 @@
+"""Image files: the size is read from the header before decoding, every failure names the file."""
+
+import json
+import struct
+import subprocess
+import sys
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+
+from marker_localizer.cli import main
+from marker_localizer.config import DetectorConfig
+from marker_localizer.errors import ImageError
+from marker_localizer.image_files import decode_image, image_size, read_image_file
+
+#: Peak memory a decompression bomb may cost the CLI, KiB (ru_maxrss): the issue's 2 GB.
+BOMB_PEAK_LIMIT_KIB = 2 * 1024 * 1024
+
+
+def png_chunk(kind, body):
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+
+def png_header(width, height):
+    """The signature and IHDR of a grey 8-bit PNG: all that is read of a file too large."""
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + png_chunk(b"IHDR", ihdr)
+
+
+def png_of_zeros(width, height):
+    """A valid grey 8-bit PNG of zeros: tiny on disk, width x height bytes once decoded."""
+    deflate = zlib.compressobj(9)
+    rows = 1000
+    block = bytes((width + 1) * rows)  # each row: filter byte 0, then the pixels
+    idat = [deflate.compress(block) for _ in range(height // rows)]
+    idat += [deflate.compress(bytes((width + 1) * (height % rows))), deflate.flush()]
+    return png_header(width, height) + png_chunk(b"IDAT", b"".join(idat)) + png_chunk(b"IEND", b"")
+
+
+@pytest.fixture(scope="module")
+def bomb(tmp_path_factory):
+    """The issue's bomb: a 0.9 MB PNG that decodes to 30000x30000 (12 GB through detect)."""
+    path = tmp_path_factory.mktemp("bomb") / "bomb.png"
+    path.write_bytes(png_of_zeros(30000, 30000))
+    return path
+
+
+@pytest.fixture
+def good(tmp_path):
+    image = np.full((64, 64), 200, np.uint8)
+    image[:32, :32] = image[32:, 32:] = 30
+    path = tmp_path / "good.png"
+    cv2.imwrite(str(path), cv2.GaussianBlur(image, (0, 0), 1.0))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("suffix", "channels", "dtype", "params"),
+    [
+        ("png", 1, np.uint16, []),
+        ("jpg", 3, np.uint8, []),
+        ("jpg", 1, np.uint8, [cv2.IMWRITE_JPEG_PROGRESSIVE, 1]),
+        ("tiff", 1, np.float32, []),
+        ("bmp", 3, np.uint8, []),
+        ("pgm", 1, np.uint16, []),
+        ("ppm", 3, np.uint8, []),
+        ("pfm", 3, np.float32, []),
+        ("webp", 3, np.uint8, []),
+        ("webp", 4, np.uint8, [cv2.IMWRITE_WEBP_QUALITY, 101]),  # lossless
+    ],
+)
+def test_the_header_gives_the_size_of_every_parsed_format(tmp_path, suffix, channels, dtype,
+                                                          params):
+    path = tmp_path / f"image.{suffix}"
+    assert cv2.imwrite(str(path), np.zeros((37, 53, channels), dtype).squeeze(), params)
+    assert image_size(path.read_bytes()) == (53, 37)
+
+
+def test_a_cut_header_or_an_unknown_format_gives_no_size(tmp_path):
+    path = tmp_path / "image.png"
+    cv2.imwrite(str(path), np.zeros((37, 53), np.uint8))
+    assert image_size(path.read_bytes()[:20]) is None
+    assert image_size(b"#?RADIANCE\n") is None
+
+
+def test_the_bomb_is_refused_from_its_header_and_the_next_image_still_runs(bomb, good):
+    """In a fresh process, so that its peak memory is the command's own."""
+    script = (
+        "import resource, sys\n"
+        "from marker_localizer.cli import main\n"
+        "status = main(sys.argv[1:])\n"
+        "print('peak', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n"
+        "sys.exit(status)\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", script, "detect", str(bomb), str(good), "--json"],
+        capture_output=True, text=True, timeout=120, check=False,
+    )
+    errors = run.stderr.splitlines()
+    assert run.returncode == 1
+    assert errors[0] == (
+        f"marker-localizer: error: {bomb}: 30000x30000 = 900000000 px exceeds "
+        f"max_pixels={DetectorConfig().max_pixels}"
+    )
+    assert int(errors[1].split()[1]) < BOMB_PEAK_LIMIT_KIB
+    assert len(errors) == 2
+    (record,) = (json.loads(line) for line in run.stdout.splitlines())
+    assert record["image"] == str(good) and len(record["markers"]) == 1
+
+
+def test_an_image_over_opencvs_own_limit_is_one_line_and_the_rest_still_run(tmp_path, good,
+                                                                            capsys):
+    huge_png = tmp_path / "huge.png"
+    huge_png.write_bytes(png_header(40000, 40000))
+    # Radiance HDR: a format whose header is not parsed here, so OpenCV's own
+    # size check raises a cv2.error inside imdecode.
+    huge_hdr = tmp_path / "huge.hdr"
+    huge_hdr.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 40000 +X 40000\n" + bytes(64))
+    status = main(["detect", str(huge_png), str(huge_hdr), str(good), "--json",
+                   "--param", f"max_pixels={2**30}"])
+    captured = capsys.readouterr()
+    assert status == 1
+    assert captured.err.splitlines() == [
+        f"marker-localizer: error: {huge_png}: 40000x40000 = 1600000000 px exceeds "
+        f"max_pixels={2**30}",
+        f"marker-localizer: error: {huge_hdr}: OpenCV cannot decode it "
+        "(pixels <= CV_IO_MAX_IMAGE_PIXELS)",
+    ]
+    assert len(captured.out.splitlines()) == 1
+
+
+def test_a_float_image_with_nan_names_the_file(tmp_path, good, capsys):
+    pixels = np.full((64, 64), 0.5, np.float32)
+    pixels[10, 20] = np.nan
+    nan_file = tmp_path / "nan.tiff"
+    cv2.imwrite(str(nan_file), pixels)
+    assert main(["detect", str(nan_file), str(good), "--json"]) == 1
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [
+        f"marker-localizer: error: {nan_file}: image contains NaN or infinite values"
+    ]
+    assert len(captured.out.splitlines()) == 1
+
+
+def test_a_directory_and_an_empty_file_are_named_with_what_is_wrong(tmp_path):
+    empty = tmp_path / "empty.png"
+    empty.touch()
+    with pytest.raises(ImageError, match=r"empty\.png: empty file"):
+        read_image_file(empty, DetectorConfig().max_pixels)
+    with pytest.raises(ImageError, match=r"cannot read it \(Is a directory\)"):
+        read_image_file(tmp_path, DetectorConfig().max_pixels)
+
+
+def test_decoded_size_is_checked_for_formats_without_a_parsed_header():
+    pixels = np.zeros((20, 30, 3), np.float32)
+    ok, hdr = cv2.imencode(".hdr", pixels)
+    assert ok
+    assert decode_image(hdr.tobytes(), "small.hdr", 600).shape == (20, 30, 3)
+    with pytest.raises(ImageError, match=r"small\.hdr: 30x20 = 600 px exceeds max_pixels=599"):
+        decode_image(hdr.tobytes(), "small.hdr", 599)
