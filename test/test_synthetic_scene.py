@@ -5,6 +5,7 @@ Coordinates: x right, y down, (0, 0) at the centre of the top-left pixel.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import cv2
@@ -15,6 +16,7 @@ from marker_localizer.synthetic import (
     NEGATIVE_KINDS,
     PATTERNS,
     TEXTURE_NAMES,
+    CastShadow,
     ImagingConditions,
     MarkerPlacement,
     PlanarTarget,
@@ -283,7 +285,7 @@ def test_shot_noise_grows_with_the_signal_as_poisson_predicts():
     full_well = 2000.0
     for level in (0.2, 0.7):
         image = render_markers((200, 200), [], 1, background_level=level,
-                               full_well_e=full_well).image
+                               shot_noise_gain_dn=255 / full_well).image
         expected = 255 * math.sqrt(level / full_well)
         assert image.std() == pytest.approx(math.sqrt(expected ** 2 + 1 / 12), rel=0.04)
 
@@ -351,3 +353,76 @@ def test_texture_scene_keeps_truth_exact_on_clutter():
                            background="texture", reflectances=(DARK, BRIGHT))
     # Inside the plate the ground is hidden: still exactly point-symmetric.
     assert symmetry_residual(scene.image, (60.5, 60.0), 28.0) < 0.05
+
+
+# ----------------------------------------------------------------- field conditions
+
+
+@pytest.mark.parametrize("inverted", [False, True])
+def test_a_dull_quadrant_scales_one_bright_quadrant_and_nothing_else(inverted):
+    dark, bright = (BRIGHT, DARK) if inverted else (DARK, BRIGHT)
+    marker = MarkerPlacement(40.0, 40.0, 20.0, kind="checker", inverted=inverted,
+                             dull_factor=0.5, dull_quadrant=0)
+    image = render_markers((81, 81), [marker], 0, reflectances=(DARK, BRIGHT)).image
+    dull = (30, 50) if not inverted else (50, 50)     # (x, y) of quadrant 0: u < 0 < v
+    other = (50, 30) if not inverted else (30, 30)    # the other bright quadrant
+    lit = max(dark, bright)
+    assert image[dull[1], dull[0]] == round(255 * 0.5 * lit)
+    assert image[other[1], other[0]] == round(255 * lit)
+    # The plate outside the X keeps its paint.
+    assert image[40 + 23, 40 - 23] == round(255 * bright)
+
+
+def test_a_cast_shadow_darkens_its_half_plane_by_the_drawn_factor_within_its_reach():
+    shadow = CastShadow(50.0, 50.0, normal_rad=0.0, offset_px=3.0, darkening=0.5, reach_px=30.0)
+    image = render_markers((101, 101), [], 0, background_level=0.8,
+                           cast_shadows=[shadow]).image.astype(float)
+    lit = 255 * 0.8
+    assert image[50, 60] == pytest.approx(0.5 * lit, abs=0.6)   # x - 50 >= 3: shadow
+    assert image[50, 45] == pytest.approx(lit, abs=0.6)         # the sunlit side
+    assert image[50, 90] == pytest.approx(lit, abs=0.6)         # beyond its reach
+    # A hard edge: the light changes within about a pixel of x = 53.
+    assert image[50, 52] > 0.8 * lit and image[50, 54] < 0.6 * lit
+
+
+def test_cast_shadows_of_a_scene_cross_their_markers_within_the_drawn_distance():
+    config = SceneConfig(width=480, height=360, n_markers=4, radius_px=(8.0, 16.0),
+                         n_hard_negatives=0, shadow_probability=1.0)
+    scene = render_scene(config, 5)
+    assert len(scene.imaging.cast_shadows) == 4
+    for shadow, truth in zip(sorted(scene.imaging.cast_shadows, key=lambda s: s.x),
+                             sorted(scene.markers, key=lambda m: m.x), strict=True):
+        assert (shadow.x, shadow.y) == (truth.x, truth.y)
+        assert abs(shadow.offset_px) <= 0.6 * truth.foreshortened_radius_px
+        assert 0.4 <= shadow.darkening <= 0.65
+
+
+def test_jpeg_changes_the_frame_a_little_and_keeps_the_truth():
+    plain = render_scene(SMALL_SCENE, 3)
+    jpeg = render_scene(dataclasses.replace(SMALL_SCENE, jpeg_probability=1.0), 3)
+    assert 70 <= jpeg.imaging.jpeg_quality <= 95
+    difference = np.abs(plain.image.astype(float) - jpeg.image)
+    assert 0.1 < difference.mean() < 4.0
+    np.testing.assert_array_equal(plain.centres, jpeg.centres)
+
+
+def test_field_conditions_left_off_keep_a_seeds_frame():
+    config = dataclasses.replace(SMALL_SCENE, dull_factor=(0.5, 0.6), jpeg_quality=(80, 80))
+    np.testing.assert_array_equal(render_scene(SMALL_SCENE, 8).image,
+                                  render_scene(config, 8).image)
+
+
+def test_peak_level_and_contrast_set_the_output_levels():
+    scene = render_markers((60, 60), [MarkerPlacement(30.0, 30.0, 12.0, kind="checker")], 0,
+                           contrast=(0.4, 0.4), peak_level=0.7)
+    dark, bright = scene.image[26, 26], scene.image[26, 34]
+    assert (float(bright) - float(dark)) == pytest.approx(0.4 * 0.7 * 255, abs=1.0)
+
+
+def test_ground_at_quarter_scale_is_area_averaged_not_aliased_into_noise():
+    # Bilinear sampling alone keeps 1 texture pixel in 16: gravel's neighbouring
+    # pixels then correlate at 0.34; the area-averaged ground at 0.64.
+    ground = texture_background((240, 320), np.random.default_rng(1), names=("gravel",),
+                                scale_range=(0.25, 0.25))
+    neighbours = np.corrcoef(ground[:, :-1].ravel(), ground[:, 1:].ravel())[0, 1]
+    assert neighbours > 0.5

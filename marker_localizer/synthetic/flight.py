@@ -207,6 +207,8 @@ class FlightConfig:
             raise ConfigError(
                 f"frame_gain_range={self.frame_gain_range!r} must be 0 < min <= max <= 1"
             )
+        if self.full_well_e is not None and not self.full_well_e > 0:
+            raise ConfigError(f"full_well_e={self.full_well_e!r} must be positive or None")
         if self.speed_mps < 0 or self.exposure_s < 0 or self.attitude_jitter_deg < 0:
             raise ConfigError("speed_mps, exposure_s and attitude_jitter_deg must be >= 0")
         # The imaging fields are checked by the renderer's own rules.
@@ -216,8 +218,13 @@ class FlightConfig:
             n_shadows=self.n_shadows,
             vignetting=self.vignetting,
             noise_sigma_dn=self.noise_sigma_dn,
-            full_well_e=self.full_well_e,
+            shot_noise_gain_dn=self.shot_noise_gain_dn,
         )
+
+    @property
+    def shot_noise_gain_dn(self) -> float:
+        """Shot-noise variance per DN of signal of the full well, DN (0 without one)."""
+        return 0.0 if self.full_well_e is None else 255.0 / self.full_well_e
 
     @property
     def focal_px(self) -> float:
@@ -746,5 +753,5 @@ class FlightSimulator:
             motion_blur_angle_rad=angle_rad,
             vignetting=cfg.vignetting,
             noise_sigma_dn=cfg.noise_sigma_dn,
-            full_well_e=cfg.full_well_e,
+            shot_noise_gain_dn=cfg.shot_noise_gain_dn,
         )

@@ -22,13 +22,16 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
+from scipy.special import ndtr
 
 from marker_localizer.errors import ConfigError
+from marker_localizer.synthetic import crlb
 from marker_localizer.synthetic.textures import (
+    TEXTURE_SCALE_RANGE,
     flat_background,
     smooth_random_field,
     texture_background,
@@ -48,11 +51,34 @@ DEFAULT_FOCAL_PX = 1200.0
 #: Reflectance ranges of the dark and bright paint (matte black / white).
 DARK_REFLECTANCE_RANGE: tuple[float, float] = (0.05, 0.15)
 BRIGHT_REFLECTANCE_RANGE: tuple[float, float] = (0.75, 0.95)
+#: Largest bright - dark paint difference a contrast range may ask for: the
+#: darkest dark paint against the brightest bright one.
+MAX_CONTRAST = round(BRIGHT_REFLECTANCE_RANGE[1] - DARK_REFLECTANCE_RANGE[0], 9)
 #: Reflectance of the "flat" background: mid-grey, distinct from both paints.
 FLAT_BACKGROUND_LEVEL = 0.45
-#: Sensor full-well capacity used for shot noise in :func:`render_scene`, in
-#: electrons: typical of machine-vision CMOS sensors.
+#: Sensor full-well capacity used for shot noise, in electrons: typical of
+#: machine-vision CMOS sensors.
 DEFAULT_FULL_WELL_E = 20000.0
+#: Shot-noise variance per DN of signal of that sensor at full scale, DN
+#: (255 / full well): the default of :class:`SceneConfig`.
+DEFAULT_SHOT_NOISE_GAIN_DN = 255.0 / DEFAULT_FULL_WELL_E
+#: Variance of rounding to integer DN, DN^2 (a uniform error over one level).
+QUANTISATION_VARIANCE_DN2 = 1.0 / 12.0
+#: A cast shadow reaches this many bounding radii of the marker's plate about
+#: its centre: over the plate and the ground around it, like the shadow of a
+#: pole or a wire, and clear of the neighbouring markers (placement keeps them
+#: out of that reach).
+CAST_SHADOW_REACH = 1.5
+#: 10-90 % width of a cast shadow's edge, px: a hard shadow in sunlight.
+CAST_SHADOW_PENUMBRA_PX = 1.0
+#: A cast shadow's straight edge passes within this many foreshortened marker
+#: radii of the marker centre, so it crosses the X itself.
+CAST_SHADOW_MAX_OFFSET = 0.6
+#: Samples per pixel along each axis that integrate a cast shadow's edge over
+#: the pixel area (its penumbra is only about a pixel wide).
+_SHADOW_SUPERSAMPLING = 4
+#: Ratio of a normal CDF's 10-90 % width to its sigma: 2 * 1.2816.
+_NORMAL_10_90_WIDTH = 2.5631
 #: Largest tilt a placement may ask for, in degrees (beyond, the marker is a line).
 MAX_TILT_DEG = 80.0
 #: Free space kept between the bounding circles of two targets and between a
@@ -71,7 +97,7 @@ _FOOTPRINT_MARGIN = 1.1
 
 MARKER_KINDS: tuple[str, ...] = ("quarter_disks", "checker")
 NEGATIVE_KINDS: tuple[str, ...] = (
-    "l_corner", "quarter_disk", "t_junction", "bar", "triangle", "plus", "blob",
+    "l_corner", "quarter_disk", "t_junction", "bar", "triangle", "plus", "blob", "disc",
 )
 BACKGROUNDS: tuple[str, ...] = ("texture", "flat")
 
@@ -94,12 +120,16 @@ class Pattern:
             need one sample instead of S x S.
         half_extent: (half-width along u, half-height along v) of the plate;
             the dark region lies inside it.
+        x_extent: ``x_extent(u, v)`` -> bool array, True inside the X (the
+            quarter disks' circle, the checker's square) of a marker kind;
+            None for other patterns. Its boundary is part of ``edge_distance``.
     """
 
     name: str
     dark: _Field
     edge_distance: _Field
     half_extent: tuple[float, float] = (PLATE_HALF_SIDE, PLATE_HALF_SIDE)
+    x_extent: _Field | None = None
 
 
 def _lines_distance(*lines: _Line) -> _Field:
@@ -147,10 +177,19 @@ def _checker_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (u * v > 0) & (np.abs(u) <= 1.0) & (np.abs(v) <= 1.0)
 
 
+def _unit_disk(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return u * u + v * v <= 1.0
+
+
+def _unit_square(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return (np.abs(u) <= 1.0) & (np.abs(v) <= 1.0)
+
+
 _BAR_HALF_WIDTH = 0.2    # thick line: 0.4 marker radii wide
 _THIN_HALF_WIDTH = 0.06  # plus sign strokes: 0.12 marker radii wide
 _TRIANGLE = ((-1.0, -0.8), (1.0, -0.8), (0.0, 1.0))
 _BLOB_AXES = (0.55, 0.35)
+_DISC_RADIUS = 0.6
 
 
 def _l_corner_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -188,6 +227,10 @@ def _blob_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (u / _BLOB_AXES[0]) ** 2 + (v / _BLOB_AXES[1]) ** 2 <= 1.0
 
 
+def _disc_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return u * u + v * v <= _DISC_RADIUS ** 2
+
+
 def _blob_distance(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     # q = |(u/a, v/b)| changes by at most 1/b per unit distance, so b*|q - 1| is a lower bound.
     q = np.hypot(u / _BLOB_AXES[0], v / _BLOB_AXES[1])
@@ -199,9 +242,11 @@ _CENTRE_LINES: tuple[_Line, ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 #: Every built-in pattern by name: the marker kinds and the hard negatives.
 PATTERNS: dict[str, Pattern] = {
     "quarter_disks": Pattern("quarter_disks", _quarter_disks_dark,
-                             _with_circle(_lines_distance(*_CENTRE_LINES), 1.0)),
+                             _with_circle(_lines_distance(*_CENTRE_LINES), 1.0),
+                             x_extent=_unit_disk),
     "checker": Pattern("checker", _checker_dark,
-                       _lines_distance(*_CENTRE_LINES, *_axis_lines(1.0))),
+                       _lines_distance(*_CENTRE_LINES, *_axis_lines(1.0)),
+                       x_extent=_unit_square),
     "l_corner": Pattern("l_corner", _l_corner_dark,
                         _lines_distance(*_CENTRE_LINES, *_axis_lines(1.0))),
     "quarter_disk": Pattern("quarter_disk", _quarter_disk_dark,
@@ -213,6 +258,7 @@ PATTERNS: dict[str, Pattern] = {
         *(_line_through(_TRIANGLE[i], _TRIANGLE[(i + 1) % 3]) for i in range(3)))),
     "plus": Pattern("plus", _plus_dark, _lines_distance(*_axis_lines(_THIN_HALF_WIDTH, 1.0))),
     "blob": Pattern("blob", _blob_dark, _blob_distance),
+    "disc": Pattern("disc", _disc_dark, _with_circle(_lines_distance(), _DISC_RADIUS)),
 }
 
 
@@ -271,6 +317,10 @@ class MarkerPlacement:
         kind: A marker kind (:data:`MARKER_KINDS`) or a hard-negative kind
             (:data:`NEGATIVE_KINDS`).
         inverted: Swap dark and bright paint.
+        dull_factor: Brightness of one bright quadrant of the X relative to
+            the other, in (0, 1] (dirt, wear, sheen); 1: none. Marker kinds only.
+        dull_quadrant: Which of the two bright quadrants is dull, 0 or 1 (0:
+            the one at plane u < 0, v > 0; inverted markers: u > 0, v > 0).
     """
 
     x: float
@@ -281,6 +331,8 @@ class MarkerPlacement:
     tilt_axis_rad: float = 0.0
     kind: str = "quarter_disks"
     inverted: bool = False
+    dull_factor: float = 1.0
+    dull_quadrant: int = 0
 
     def __post_init__(self) -> None:
         if not self.radius_px > 0:
@@ -289,6 +341,22 @@ class MarkerPlacement:
             raise ConfigError(f"tilt_deg must be in [0, {MAX_TILT_DEG}], got {self.tilt_deg!r}")
         if self.kind not in PATTERNS:
             raise ConfigError(f"unknown kind {self.kind!r}; choose from {tuple(PATTERNS)}")
+        if not 0.0 < self.dull_factor <= 1.0:
+            raise ConfigError(f"dull_factor must be in (0, 1], got {self.dull_factor!r}")
+        if self.dull_factor < 1.0 and PATTERNS[self.kind].x_extent is None:
+            raise ConfigError(f"dull_factor needs a marker kind {MARKER_KINDS}, "
+                              f"got {self.kind!r}")
+        if self.dull_quadrant not in (0, 1):
+            raise ConfigError(f"dull_quadrant must be 0 or 1, got {self.dull_quadrant!r}")
+
+    @property
+    def dull_signs(self) -> tuple[int, int] | None:
+        """Signs (of u, of v) of the dull quadrant on the plane; None when none is dull."""
+        if self.dull_factor >= 1.0:
+            return None
+        # The bright quadrants are u * v < 0, or u * v > 0 when the paints are swapped.
+        signs = ((1, 1), (-1, -1)) if self.inverted else ((-1, 1), (1, -1))
+        return signs[self.dull_quadrant]
 
 
 def _rodrigues(axis: np.ndarray, angle_rad: float) -> np.ndarray:
@@ -361,6 +429,9 @@ class MarkerTruth:
         homography: (3, 3) plane -> image, with H @ [0, 0, 1] ~ [x, y, 1].
         angles: Image directions, radians in [0, pi), of the two lines through
             the centre: the images of the plane's u and v axes.
+        crlb_mean_abs_error_px: Expected Euclidean error of an efficient
+            unbiased estimator of the centre (Cramer-Rao bound over the X,
+            :mod:`~marker_localizer.synthetic.crlb`), px; NaN when not computed.
     """
 
     x: float
@@ -369,6 +440,7 @@ class MarkerTruth:
     kind: str
     homography: np.ndarray = field(compare=False)  # arrays cannot take part in ==/hash
     angles: tuple[float, float]
+    crlb_mean_abs_error_px: float = math.nan
 
     @classmethod
     def from_homography(cls, homography: np.ndarray, radius_px: float,
@@ -417,6 +489,9 @@ class PlanarTarget:
         on_plate: If True the pattern is painted on a bright plate that covers
             ``pattern.half_extent``; if False only the dark region covers the
             ground (a shape painted straight onto the ground).
+        dull_signs: Signs (of u, of v) of a quadrant of the X whose paint is
+            dulled by ``dull_factor`` (:attr:`MarkerPlacement.dull_signs`); None: none.
+        dull_factor: Reflectance factor of that quadrant, in (0, 1].
     """
 
     homography: np.ndarray
@@ -424,6 +499,71 @@ class PlanarTarget:
     dark_reflectance: float
     bright_reflectance: float
     on_plate: bool = True
+    dull_signs: tuple[int, int] | None = None
+    dull_factor: float = 1.0
+
+    def translated(self, dx: float, dy: float) -> PlanarTarget:
+        """The same target moved by (dx, dy) px in the image."""
+        shift = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
+        return replace(self, homography=shift @ _normalised(self.homography))
+
+
+@dataclass(frozen=True)
+class CastShadow:
+    """A hard cast shadow over one marker and the ground around it (image space).
+
+    The shadowed region is the half-plane ``cos(a) (x - x0) + sin(a) (y - y0)
+    >= offset_px`` within ``reach_px`` of (x0, y0); both borders have a normal
+    CDF profile of 10-90 % width ``penumbra_px``, integrated over the pixel area.
+
+    Attributes:
+        x: x0, image x of the point the shadow is placed about (a marker centre), px.
+        y: y0, px.
+        normal_rad: a, direction from the edge into the shadow, radians from +x to +y.
+        offset_px: Signed distance of the straight edge from (x0, y0), px.
+        darkening: Fraction of the light the shadow takes away, in (0, 1).
+        reach_px: Radius of the disk the shadow stays in, px.
+        penumbra_px: 10-90 % width of the shadow's borders, px.
+    """
+
+    x: float
+    y: float
+    normal_rad: float
+    offset_px: float
+    darkening: float
+    reach_px: float
+    penumbra_px: float = CAST_SHADOW_PENUMBRA_PX
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.darkening < 1.0:
+            raise ConfigError(f"darkening must be in (0, 1), got {self.darkening!r}")
+        if not self.reach_px > abs(self.offset_px):
+            raise ConfigError(f"reach_px={self.reach_px!r} must exceed |offset_px|="
+                              f"{abs(self.offset_px)!r}")
+        if not self.penumbra_px > 0:
+            raise ConfigError(f"penumbra_px must be > 0, got {self.penumbra_px!r}")
+
+    def apply(self, gain: np.ndarray) -> None:
+        """Multiply a (height, width) light gain image by this shadow, in place."""
+        height, width = gain.shape
+        r0, r1 = max(0, math.floor(self.y - self.reach_px) - 2), min(
+            height, math.ceil(self.y + self.reach_px) + 3)
+        c0, c1 = max(0, math.floor(self.x - self.reach_px) - 2), min(
+            width, math.ceil(self.x + self.reach_px) + 3)
+        if r0 >= r1 or c0 >= c1:
+            return
+        steps = (np.arange(_SHADOW_SUPERSAMPLING) + 0.5) / _SHADOW_SUPERSAMPLING - 0.5
+        y = (np.arange(r0, r1)[:, None] + steps[None, :]).ravel() - self.y
+        x = (np.arange(c0, c1)[:, None] + steps[None, :]).ravel() - self.x
+        sigma = self.penumbra_px / _NORMAL_10_90_WIDTH
+        across = (math.cos(self.normal_rad) * x[None, :] + math.sin(self.normal_rad) * y[:, None]
+                  - self.offset_px)
+        inside = self.reach_px - np.hypot(x[None, :], y[:, None])
+        shade = ndtr(across / sigma) * ndtr(inside / sigma)
+        n = _SHADOW_SUPERSAMPLING
+        # Mean of the n x n samples of each pixel.
+        shade = shade.reshape(r1 - r0, n, c1 - c0, n).mean(axis=(1, 3))
+        gain[r0:r1, c0:c1] *= (1.0 - self.darkening * shade).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -440,8 +580,13 @@ class ImagingConditions:
         vignetting: Fraction of light lost in the frame corners (0: none).
         gamma: Display gamma; the encoded signal is radiance ** (1 / gamma).
         noise_sigma_dn: Gaussian read-noise sigma in output DN (8-bit levels).
-        full_well_e: Full-well capacity in electrons for shot noise (variance
-            signal / full_well in [0, 1] units); None: no shot noise.
+        shot_noise_gain_dn: Shot-noise variance per DN of signal, DN (a
+            full well of F electrons at full scale gives 255 / F); 0: none.
+        peak_level: Output level of white (radiance 1) as a fraction of 255:
+            the exposure, in (0, 1].
+        cast_shadows: Hard cast shadows (applied with the light, before the optics).
+        jpeg_quality: JPEG quality (1-100) the camera writes the frame with,
+            applied last; None: the frame stays as quantised.
     """
 
     blur_sigma_px: float = 0.0
@@ -452,7 +597,10 @@ class ImagingConditions:
     vignetting: float = 0.0
     gamma: float = 1.0
     noise_sigma_dn: float = 0.0
-    full_well_e: float | None = None
+    shot_noise_gain_dn: float = 0.0
+    peak_level: float = 1.0
+    cast_shadows: tuple[CastShadow, ...] = ()
+    jpeg_quality: int | None = None
 
     def __post_init__(self) -> None:
         checks = {
@@ -463,11 +611,22 @@ class ImagingConditions:
             "vignetting": 0 <= self.vignetting < 1,
             "gamma": self.gamma > 0,
             "noise_sigma_dn": self.noise_sigma_dn >= 0,
-            "full_well_e": self.full_well_e is None or self.full_well_e > 0,
+            "shot_noise_gain_dn": self.shot_noise_gain_dn >= 0,
+            "peak_level": 0 < self.peak_level <= 1,
+            "jpeg_quality": self.jpeg_quality is None or 1 <= self.jpeg_quality <= 100,
         }
         for name, ok in checks.items():
             if not ok:
                 raise ConfigError(f"{name} out of range: {getattr(self, name)!r}")
+
+    def pixel_variance_dn2(self, signal_dn: np.ndarray) -> np.ndarray:
+        """Noise variance of each pixel of a noise-free signal, DN^2.
+
+        Read noise, shot noise and rounding to integer DN (JPEG left out):
+        ``noise_sigma_dn**2 + shot_noise_gain_dn * signal + 1/12``.
+        """
+        return (self.noise_sigma_dn ** 2 + QUANTISATION_VARIANCE_DN2
+                + self.shot_noise_gain_dn * np.maximum(signal_dn, 0.0))
 
 
 @dataclass(frozen=True)
@@ -492,6 +651,11 @@ class RenderedScene:
     def centres(self) -> np.ndarray:
         """(N, 2) float64 array of the marker centres (x, y), px."""
         return np.array([(m.x, m.y) for m in self.markers], dtype=np.float64).reshape(-1, 2)
+
+    @property
+    def crlb_px(self) -> np.ndarray:
+        """(N,) each marker's ``crlb_mean_abs_error_px`` (NaN where not computed), px."""
+        return np.array([m.crlb_mean_abs_error_px for m in self.markers], dtype=np.float64)
 
 
 # --------------------------------------------------------------------------- compositing core
@@ -551,23 +715,34 @@ def _footprint(g: np.ndarray, x: np.ndarray, y: np.ndarray, u: np.ndarray,
     return _PIXEL_HALF_DIAGONAL * _FOOTPRINT_MARGIN * np.sqrt(sigma_max_sq) / np.abs(w)
 
 
-def _masks(target: PlanarTarget, u: np.ndarray,
-           v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Which plane samples the target covers, and which of them are dark paint."""
+def _masks(target: PlanarTarget, u: np.ndarray, v: np.ndarray) -> list[np.ndarray]:
+    """Which plane samples the target covers, which are dark paint, and which are dulled.
+
+    Returns [covered, dark] and, with a dull quadrant, [bright dulled, dark dulled].
+    """
     dark = target.pattern.dark(u, v)
-    if not target.on_plate:
-        return dark, dark
-    eu, ev = target.pattern.half_extent
-    return (np.abs(u) <= eu) & (np.abs(v) <= ev), dark
+    if target.on_plate:
+        eu, ev = target.pattern.half_extent
+        covered = (np.abs(u) <= eu) & (np.abs(v) <= ev)
+    else:
+        covered = dark
+    if target.dull_signs is None or target.pattern.x_extent is None:
+        return [covered, dark]
+    su, sv = target.dull_signs
+    dull = (su * u > 0) & (sv * v > 0) & target.pattern.x_extent(u, v) & covered
+    return [covered, dark, dull & ~dark, dull & dark]
 
 
-def _paint(target: PlanarTarget, coverage: np.ndarray, dark_fraction: np.ndarray) -> np.ndarray:
-    """Mean of coverage * reflectance, from the covered and the dark fractions."""
-    if not target.on_plate:
-        return target.dark_reflectance * dark_fraction
+def _paint(target: PlanarTarget, fractions: np.ndarray) -> np.ndarray:
+    """Mean of coverage * reflectance, from the fractions of :func:`_masks`' samples."""
+    coverage, dark_fraction, *dull = fractions
+    bright, dark = target.bright_reflectance, target.dark_reflectance
     # The dark paint lies on the plate: bright everywhere covered, minus the dark part.
-    return (target.bright_reflectance * coverage
-            + (target.dark_reflectance - target.bright_reflectance) * dark_fraction)
+    paint = (dark * dark_fraction if not target.on_plate
+             else bright * coverage + (dark - bright) * dark_fraction)
+    if dull:
+        paint -= (1.0 - target.dull_factor) * (bright * dull[0] + dark * dull[1])
+    return paint
 
 
 def _plate_distance(target: PlanarTarget, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -583,8 +758,8 @@ def _sample_offsets(supersampling: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _supersample(target: PlanarTarget, g: np.ndarray, x: np.ndarray, y: np.ndarray,
-                 supersampling: int) -> tuple[np.ndarray, np.ndarray]:
-    """Covered and dark fractions of the S x S samples of each pixel centred at (x, y)."""
+                 supersampling: int, n_masks: int) -> np.ndarray:
+    """(n_masks, N) fractions of the S x S samples of each pixel in each of :func:`_masks`."""
     dx, dy = _sample_offsets(supersampling)
     # Homogeneous plane coordinates are linear in the image point, so a sample's
     # are its pixel centre's plus its offset's. Both are computed in float64;
@@ -592,18 +767,16 @@ def _supersample(target: PlanarTarget, g: np.ndarray, x: np.ndarray, y: np.ndarr
     # below any error that matters, at half the memory traffic.
     centre = (g @ np.stack([x, y, np.ones_like(x)])).astype(np.float32)
     offset = (g[:, :2] @ np.stack([dx, dy])).astype(np.float32)
-    coverage = np.empty(x.shape)
-    dark_fraction = np.empty(x.shape)
+    fractions = np.empty((n_masks, x.size))
     step = max(1, SAMPLE_CHUNK // dx.size)
     for start in range(0, x.size, step):
         rows = slice(start, start + step)
         w = centre[2, rows, None] + offset[2]
         u = (centre[0, rows, None] + offset[0]) / w
         v = (centre[1, rows, None] + offset[1]) / w
-        covered, dark = _masks(target, u, v)
-        coverage[rows] = np.count_nonzero(covered, axis=1) / dx.size
-        dark_fraction[rows] = np.count_nonzero(dark, axis=1) / dx.size
-    return coverage, dark_fraction
+        for k, mask in enumerate(_masks(target, u, v)):
+            fractions[k, rows] = np.count_nonzero(mask, axis=1) / dx.size
+    return fractions
 
 
 def composite_target(radiance: np.ndarray, target: PlanarTarget, supersampling: int = 16,
@@ -635,12 +808,11 @@ def composite_target(radiance: np.ndarray, target: PlanarTarget, supersampling: 
     if target.on_plate:
         distance = np.minimum(distance, _plate_distance(target, u, v))
     edge = np.full(u.shape, True) if exhaustive else distance <= _footprint(g, x, y, u, v)
-    covered, dark = _masks(target, u, v)
-    coverage, dark_fraction = covered.astype(np.float64), dark.astype(np.float64)
-    coverage[edge], dark_fraction[edge] = _supersample(target, g, x[edge], y[edge],
-                                                       supersampling)
+    fractions = np.array([m.astype(np.float64) for m in _masks(target, u, v)])
+    fractions[:, edge] = _supersample(target, g, x[edge], y[edge], supersampling,
+                                      len(fractions))
     window = radiance[r0:r1, c0:c1]
-    window[...] = (1.0 - coverage) * window + _paint(target, coverage, dark_fraction)
+    window[...] = (1.0 - fractions[0]) * window + _paint(target, fractions)
 
 
 # --------------------------------------------------------------------------- imaging chain
@@ -746,14 +918,110 @@ def vignetting_field(shape: tuple[int, int], vignetting: float) -> np.ndarray:
     return (1.0 - vignetting * 0.5 * (x[None, :] ** 2 + y[:, None] ** 2)).astype(np.float32)
 
 
+def light_gain(shape: tuple[int, int], imaging: ImagingConditions,
+               rng: np.random.Generator) -> np.ndarray | None:
+    """The frame's multiplicative light on the scene: illumination, soft and cast shadows.
+
+    Args:
+        shape: (height, width), px.
+        imaging: Light, optics and sensor (only the light is used).
+        rng: Source of randomness (the illumination field and the soft shadows).
+
+    Returns:
+        float32 gain of the given shape, or None for uniform light.
+    """
+    gain = None
+    if imaging.illumination_strength > 0:
+        gain = illumination_field(shape, imaging.illumination_strength, rng)
+    if imaging.n_shadows > 0:
+        shadows = shadow_field(shape, imaging.n_shadows, rng)
+        gain = shadows if gain is None else gain * shadows
+    if imaging.cast_shadows:
+        gain = np.ones(shape, np.float32) if gain is None else gain
+        for shadow in imaging.cast_shadows:
+            shadow.apply(gain)
+    return gain
+
+
+def optics_margin_px(imaging: ImagingConditions) -> int:
+    """How far the optics spread a point, px: a window grown by this renders exactly."""
+    return math.ceil(4.0 * imaging.blur_sigma_px + 0.5 * imaging.motion_blur_px) + 2
+
+
+def expose(radiance: np.ndarray, imaging: ImagingConditions, gain: np.ndarray | None,
+           vignette: np.ndarray | None) -> np.ndarray:
+    """Noise-free signal of a scene reflectance image (or a window of one), DN.
+
+    Order: light on the scene; optics (Gaussian PSF, motion blur, vignetting);
+    clipping to full scale; display gamma; the exposure's peak level.
+
+    Args:
+        radiance: (height, width) float32 reflectance in [0, 1]; overwritten.
+        imaging: Light, optics and sensor.
+        gain: Light gain of the same shape (:func:`light_gain`), or None.
+        vignette: Vignetting gain of the same shape (:func:`vignetting_field`), or None.
+
+    Returns:
+        float32 signal in [0, 255 * peak_level] DN.
+    """
+    if gain is not None:
+        radiance *= gain
+    if imaging.blur_sigma_px > 0:
+        radiance = cv2.GaussianBlur(radiance, (0, 0), imaging.blur_sigma_px)
+    if imaging.motion_blur_px > 0:
+        kernel = motion_blur_kernel(imaging.motion_blur_px, imaging.motion_blur_angle_rad)
+        radiance = cv2.filter2D(radiance, -1, kernel, borderType=cv2.BORDER_REFLECT_101)
+    if vignette is not None:
+        radiance *= vignette
+    np.clip(radiance, 0.0, 1.0, out=radiance)
+    if imaging.gamma != 1.0:
+        radiance = cv2.pow(radiance, 1.0 / imaging.gamma)
+    radiance *= np.float32(255.0 * imaging.peak_level)
+    return radiance
+
+
+def record(signal_dn: np.ndarray, imaging: ImagingConditions,
+           rng: np.random.Generator) -> np.ndarray:
+    """What the camera writes: Poisson-Gaussian noise, 8-bit rounding, optional JPEG.
+
+    Noise (normal approximation of Poisson-Gaussian, variance
+    :meth:`ImagingConditions.pixel_variance_dn2` less the rounding) is drawn on
+    the encoded signal, so the read-noise sigma is exact in output DN.
+
+    Args:
+        signal_dn: (height, width) float32 noise-free signal, DN; overwritten.
+        imaging: The sensor's noise and the JPEG quality.
+        rng: Source of randomness.
+
+    Returns:
+        (height, width) uint8 frame.
+    """
+    if imaging.shot_noise_gain_dn > 0:
+        # At > 100 electrons per pixel the Poisson law is indistinguishable from
+        # this normal approximation.
+        sigma = np.sqrt(np.float32(imaging.shot_noise_gain_dn) * np.maximum(signal_dn, 0)
+                        + np.float32(imaging.noise_sigma_dn ** 2))
+        signal_dn += sigma * rng.standard_normal(signal_dn.shape, dtype=np.float32)
+    elif imaging.noise_sigma_dn > 0:
+        signal_dn += np.float32(imaging.noise_sigma_dn) * rng.standard_normal(
+            signal_dn.shape, dtype=np.float32)
+    np.rint(signal_dn, out=signal_dn)
+    np.clip(signal_dn, 0, 255, out=signal_dn)
+    frame = signal_dn.astype(np.uint8)
+    if imaging.jpeg_quality is None:
+        return frame
+    ok, encoded = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, imaging.jpeg_quality])
+    decoded = cv2.imdecode(encoded, cv2.IMREAD_GRAYSCALE) if ok else None
+    if decoded is None:
+        raise ConfigError(f"JPEG round trip failed at quality {imaging.jpeg_quality!r}")
+    return decoded
+
+
 def apply_imaging(radiance: np.ndarray, imaging: ImagingConditions,
                   rng: np.random.Generator) -> np.ndarray:
     """Turn a scene reflectance image into an 8-bit camera frame.
 
-    Order: light (illumination field, shadows) on the scene; optics (Gaussian
-    PSF, motion blur, vignetting); display gamma; Poisson-Gaussian noise on the
-    encoded signal (so the read-noise sigma is exact in output DN); rounding
-    to 8 bits with clipping.
+    :func:`light_gain`, :func:`expose` and :func:`record` in turn.
 
     Args:
         radiance: (height, width) float32 reflectance in [0, 1]; overwritten.
@@ -763,44 +1031,16 @@ def apply_imaging(radiance: np.ndarray, imaging: ImagingConditions,
     Returns:
         (height, width) uint8 frame.
     """
-    shape = radiance.shape
-    if imaging.illumination_strength > 0:
-        radiance *= illumination_field(shape, imaging.illumination_strength, rng)
-    if imaging.n_shadows > 0:
-        radiance *= shadow_field(shape, imaging.n_shadows, rng)
-    if imaging.blur_sigma_px > 0:
-        radiance = cv2.GaussianBlur(radiance, (0, 0), imaging.blur_sigma_px)
-    if imaging.motion_blur_px > 0:
-        kernel = motion_blur_kernel(imaging.motion_blur_px, imaging.motion_blur_angle_rad)
-        radiance = cv2.filter2D(radiance, -1, kernel, borderType=cv2.BORDER_REFLECT_101)
-    if imaging.vignetting > 0:
-        radiance *= vignetting_field(shape, imaging.vignetting)
-    np.clip(radiance, 0.0, 1.0, out=radiance)
-    if imaging.gamma != 1.0:
-        radiance = cv2.pow(radiance, 1.0 / imaging.gamma)
-    return _add_noise_and_quantise(radiance, imaging, rng)
-
-
-def _add_noise_and_quantise(signal: np.ndarray, imaging: ImagingConditions,
-                            rng: np.random.Generator) -> np.ndarray:
-    """Poisson-Gaussian noise (normal approximation) and 8-bit rounding."""
-    read = imaging.noise_sigma_dn / 255.0
-    if imaging.full_well_e is not None:
-        # Shot-noise variance signal / full_well: at > 100 electrons per pixel
-        # the Poisson law is indistinguishable from this normal approximation.
-        sigma = np.sqrt(signal / np.float32(imaging.full_well_e) + np.float32(read * read))
-        signal = signal + sigma * rng.standard_normal(signal.shape, dtype=np.float32)
-    elif read > 0:
-        signal = signal + np.float32(read) * rng.standard_normal(signal.shape, dtype=np.float32)
-    signal *= np.float32(255.0)
-    np.rint(signal, out=signal)
-    np.clip(signal, 0, 255, out=signal)
-    return signal.astype(np.uint8)
+    gain = light_gain(radiance.shape, imaging, rng)
+    vignette = (vignetting_field(radiance.shape, imaging.vignetting)
+                if imaging.vignetting > 0 else None)
+    return record(expose(radiance, imaging, gain, vignette), imaging, rng)
 
 
 def make_background(shape: tuple[int, int], background: str | np.ndarray,
                     rng: np.random.Generator,
-                    level: float = FLAT_BACKGROUND_LEVEL) -> np.ndarray:
+                    level: float = FLAT_BACKGROUND_LEVEL,
+                    texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE) -> np.ndarray:
     """Ground reflectance image: ``"texture"``, ``"flat"`` or a given array.
 
     Args:
@@ -809,6 +1049,8 @@ def make_background(shape: tuple[int, int], background: str | np.ndarray,
             ``level``) or a (height, width) array of reflectances in [0, 1].
         rng: Source of randomness (texture only).
         level: Reflectance of the flat background.
+        texture_scale: (min, max) magnification of the photographs, frame px
+            per texture px (texture only).
 
     Returns:
         A new float32 (height, width) array.
@@ -818,7 +1060,7 @@ def make_background(shape: tuple[int, int], background: str | np.ndarray,
             raise ConfigError(f"background shape {background.shape} != frame shape {shape}")
         return background.astype(np.float32, copy=True)
     if background == "texture":
-        return texture_background(shape, rng)
+        return texture_background(shape, rng, scale_range=texture_scale)
     if background == "flat":
         return flat_background(shape, level)
     raise ConfigError(f"unknown background {background!r}; choose from {BACKGROUNDS}")
@@ -828,7 +1070,8 @@ def render_targets(shape: tuple[int, int], targets: Sequence[PlanarTarget],
                    rng: np.random.Generator, *, background: str | np.ndarray = "flat",
                    background_level: float = FLAT_BACKGROUND_LEVEL,
                    imaging: ImagingConditions | None = None,
-                   supersampling: int = 16) -> np.ndarray:
+                   supersampling: int = 16,
+                   texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE) -> np.ndarray:
     """Render planar targets over a background and through the imaging chain.
 
     The core every renderer of this package uses; it takes homographies (in
@@ -842,30 +1085,114 @@ def render_targets(shape: tuple[int, int], targets: Sequence[PlanarTarget],
         background_level: Reflectance of the flat background.
         imaging: Light, optics and sensor; default: none of them (exact frame).
         supersampling: S, samples per pixel along each axis (>= 1).
+        texture_scale: See :func:`make_background`.
 
     Returns:
         (height, width) uint8 frame.
     """
+    image, _ = _render(shape, targets, rng, background, background_level,
+                       imaging or ImagingConditions(), supersampling, texture_scale)
+    return image
+
+
+def _render(shape: tuple[int, int], targets: Sequence[PlanarTarget], rng: np.random.Generator,
+            background: str | np.ndarray, background_level: float, imaging: ImagingConditions,
+            supersampling: int, texture_scale: tuple[float, float],
+            crlb_of: Sequence[int] = ()) -> tuple[np.ndarray, list[float]]:
+    """:func:`render_targets`, and the Cramer-Rao bound of the targets ``crlb_of``, px."""
     if supersampling < 1:
         raise ConfigError(f"supersampling must be >= 1, got {supersampling!r}")
-    radiance = make_background(shape, background, rng, background_level)
+    radiance = make_background(shape, background, rng, background_level, texture_scale)
+    ground = radiance.copy() if crlb_of else radiance
     for target in targets:
         composite_target(radiance, target, supersampling)
-    return apply_imaging(radiance, imaging or ImagingConditions(), rng)
+    gain = light_gain(shape, imaging, rng)
+    vignette = vignetting_field(shape, imaging.vignetting) if imaging.vignetting > 0 else None
+    boxes = [_pixel_box(_normalised(t.homography), t, shape) for t in targets] if crlb_of else []
+    bounds = [_marker_crlb(ground, targets, boxes, i, imaging, gain, vignette, supersampling)
+              for i in crlb_of]
+    return record(expose(radiance, imaging, gain, vignette), imaging, rng), bounds
+
+
+#: Translation of a marker for the central differences of its Cramer-Rao bound, px,
+#: before it is rounded to whole steps of the supersampling lattice (1/S px): an
+#: edge along a pixel axis then moves across whole columns of samples, so its
+#: area changes exactly (0.1 px on a 1/16 px lattice over-read such an edge's
+#: derivative by 25 %). Small against the blur: the difference's error is about
+#: step^2 / (6 sigma^2) of the information. Measured on blur 0.5-0.6 px: bounds
+#: within 1 % (0.3 % on average) of those with a 0.025 px step and 4x finer
+#: supersampling.
+CRLB_STEP_PX = 0.1
+
+
+def _marker_crlb(ground: np.ndarray, targets: Sequence[PlanarTarget],
+                 boxes: Sequence[tuple[int, int, int, int] | None], index: int,
+                 imaging: ImagingConditions, gain: np.ndarray | None,
+                 vignette: np.ndarray | None, supersampling: int) -> float:
+    """Cramer-Rao bound of ``targets[index]``'s centre as the expected |error|, px.
+
+    The noise-free frame around the marker (its window grown by the optics'
+    reach, with the ground and every other target in it) is re-rendered with
+    the marker moved by about +-:data:`CRLB_STEP_PX` along x and y, through the
+    frame's light, optics, gamma and exposure but without noise or JPEG; the
+    central differences and :meth:`ImagingConditions.pixel_variance_dn2` of
+    the unmoved signal give the Fisher information over the pixels whose
+    centres lie inside the X (:func:`~marker_localizer.synthetic.crlb.fisher_information`).
+    """
+    target, box = targets[index], boxes[index]
+    x_extent = target.pattern.x_extent
+    if x_extent is None:
+        raise ConfigError(f"a Cramer-Rao bound needs a marker kind, got {target.pattern.name!r}")
+    if box is None:
+        return math.nan
+    margin = optics_margin_px(imaging) + math.ceil(CRLB_STEP_PX) + 1
+    height, width = ground.shape
+    r0, r1 = max(0, box[0] - margin), min(height, box[1] + margin)
+    c0, c1 = max(0, box[2] - margin), min(width, box[3] + margin)
+    base = ground[r0:r1, c0:c1].copy()
+    for other, other_box in zip(targets, boxes, strict=True):
+        if (other is target or other_box is None or other_box[0] >= r1 or other_box[1] <= r0
+                or other_box[2] >= c1 or other_box[3] <= c0):
+            continue
+        composite_target(base, other.translated(-c0, -r0), supersampling)
+    window = (slice(r0, r1), slice(c0, c1))
+
+    def signal(dx: float, dy: float) -> np.ndarray:
+        radiance = base.copy()
+        composite_target(radiance, target.translated(dx - c0, dy - r0), supersampling)
+        return expose(radiance, imaging, None if gain is None else gain[window],
+                      None if vignette is None else vignette[window]).astype(np.float64)
+
+    step = max(1, round(CRLB_STEP_PX * supersampling)) / supersampling
+    d_mu_dx = (signal(step, 0.0) - signal(-step, 0.0)) / (2.0 * step)
+    d_mu_dy = (signal(0.0, step) - signal(0.0, -step)) / (2.0 * step)
+    y, x = np.mgrid[r0:r1, c0:c1].astype(np.float64)
+    u, v = _to_plane(np.linalg.inv(_normalised(target.homography)), x, y)
+    information = crlb.fisher_information(d_mu_dx, d_mu_dy,
+                                          imaging.pixel_variance_dn2(signal(0.0, 0.0)),
+                                          x_extent(u, v))
+    return crlb.crlb_mean_abs_error(information)
 
 
 # --------------------------------------------------------------------------- placement
 
-def _random_paint(rng: np.random.Generator) -> tuple[float, float]:
-    return (float(rng.uniform(*DARK_REFLECTANCE_RANGE)),
-            float(rng.uniform(*BRIGHT_REFLECTANCE_RANGE)))
+def _random_paint(rng: np.random.Generator,
+                  contrast: tuple[float, float] | None = None) -> tuple[float, float]:
+    """(dark, bright) paint: from the paint ranges, or with a contrast drawn from ``contrast``."""
+    if contrast is None:
+        return (float(rng.uniform(*DARK_REFLECTANCE_RANGE)),
+                float(rng.uniform(*BRIGHT_REFLECTANCE_RANGE)))
+    difference = float(rng.uniform(*contrast))
+    low = DARK_REFLECTANCE_RANGE[0]
+    dark = float(rng.uniform(low, max(low, BRIGHT_REFLECTANCE_RANGE[1] - difference)))
+    return dark, dark + difference
 
 
 def _target(placement: MarkerPlacement, paint: tuple[float, float],
             on_plate: bool = True) -> PlanarTarget:
     dark, bright = paint[::-1] if placement.inverted else paint
     return PlanarTarget(marker_homography(placement), PATTERNS[placement.kind], dark, bright,
-                        on_plate)
+                        on_plate, placement.dull_signs, placement.dull_factor)
 
 
 def _find_spot(radius: float, shape: tuple[int, int], occupied: np.ndarray,
@@ -965,19 +1292,25 @@ def render_markers(shape: tuple[int, int], markers: Sequence[MarkerPlacement],
                    background: str | np.ndarray = "flat",
                    background_level: float = FLAT_BACKGROUND_LEVEL,
                    reflectances: tuple[float, float] | None = None,
+                   contrast: tuple[float, float] | None = None,
                    blur_sigma_px: float = 0.0,
                    motion_blur_px: float = 0.0,
                    motion_blur_angle_rad: float = 0.0,
                    illumination_strength: float = 0.0,
                    n_shadows: int = 0,
+                   cast_shadows: Sequence[CastShadow] = (),
                    vignetting: float = 0.0,
                    gamma: float = 1.0,
+                   peak_level: float = 1.0,
                    noise_sigma_dn: float = 0.0,
-                   full_well_e: float | None = None,
+                   shot_noise_gain_dn: float = 0.0,
+                   jpeg_quality: int | None = None,
                    n_hard_negatives: int = 0,
                    negative_radius_px: tuple[float, float] = (6.0, 40.0),
                    negative_max_tilt_deg: float = 60.0,
-                   supersampling: int = 16) -> RenderedScene:
+                   texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE,
+                   supersampling: int = 16,
+                   crlb: bool = False) -> RenderedScene:
     """Render markers at explicit placements; the defaults give an exact, clean frame.
 
     With the defaults (flat background, no blur, gamma 1, no noise, no
@@ -987,27 +1320,35 @@ def render_markers(shape: tuple[int, int], markers: Sequence[MarkerPlacement],
 
     Args:
         shape: (height, width) of the frame, px.
-        markers: Where to put each marker.
+        markers: Where to put each marker (with its dull quadrant, if any).
         rng: Seed or Generator for everything random (paint, texture, light,
             negatives, noise).
         background: ``"flat"``, ``"texture"`` or a reflectance array.
         background_level: Reflectance of the flat background, [0, 1].
         reflectances: (dark, bright) paint for every marker; None draws each
-            marker's from :data:`DARK_REFLECTANCE_RANGE` and
-            :data:`BRIGHT_REFLECTANCE_RANGE`.
+            marker's (see ``contrast``).
+        contrast: (min, max) bright - dark reflectance of the drawn paint;
+            None: dark from :data:`DARK_REFLECTANCE_RANGE`, bright from
+            :data:`BRIGHT_REFLECTANCE_RANGE`. Negatives are drawn the same way.
         blur_sigma_px: Gaussian PSF sigma, px.
         motion_blur_px: Length of the linear, centred motion blur, px.
         motion_blur_angle_rad: Its direction, radians from +x towards +y.
         illumination_strength: 0 (uniform) to 1 (gain 0.5 to 1.0).
         n_shadows: Number of soft shadow polygons.
+        cast_shadows: Hard cast shadows (:class:`CastShadow`).
         vignetting: Fraction of light lost in the frame corners.
         gamma: Display gamma (signal = radiance ** (1 / gamma)).
+        peak_level: Output level of white as a fraction of 255.
         noise_sigma_dn: Gaussian read-noise sigma, output DN.
-        full_well_e: Full well in electrons for shot noise; None: none.
+        shot_noise_gain_dn: Shot-noise variance per DN of signal, DN; 0: none.
+        jpeg_quality: JPEG quality the frame is written with; None: no JPEG.
         n_hard_negatives: Number of hard negatives to scatter, clear of markers.
         negative_radius_px: (min, max) radius of the negatives, px.
         negative_max_tilt_deg: Largest tilt of the negatives, degrees.
+        texture_scale: (min, max) magnification of the ground photographs.
         supersampling: S, samples per pixel along each axis.
+        crlb: Compute each marker's Cramer-Rao bound
+            (``MarkerTruth.crlb_mean_abs_error_px``); a few more renders per marker.
 
     Returns:
         The frame, one :class:`MarkerTruth` per placement (same order) and the
@@ -1016,24 +1357,41 @@ def render_markers(shape: tuple[int, int], markers: Sequence[MarkerPlacement],
     rng = np.random.default_rng(rng)
     imaging = ImagingConditions(blur_sigma_px, motion_blur_px, motion_blur_angle_rad,
                                 illumination_strength, n_shadows, vignetting, gamma,
-                                noise_sigma_dn, full_well_e)
-    targets = [_target(p, reflectances or _random_paint(rng)) for p in markers]
+                                noise_sigma_dn, shot_noise_gain_dn, peak_level,
+                                tuple(cast_shadows), jpeg_quality)
+    targets = [_target(p, reflectances or _random_paint(rng, contrast)) for p in markers]
     truths = [MarkerTruth.from_homography(t.homography, p.radius_px, p.kind)
               for t, p in zip(targets, markers, strict=True)]
     negatives = random_negatives(shape, n_hard_negatives, rng, markers,
                                  radius_px=negative_radius_px, max_tilt_deg=negative_max_tilt_deg)
-    targets += [_target(p, _random_paint(rng), on_plate) for p, on_plate in negatives]
-    image = render_targets(shape, targets, rng, background=background,
-                           background_level=background_level, imaging=imaging,
-                           supersampling=supersampling)
+    targets += [_target(p, _random_paint(rng, contrast), on_plate) for p, on_plate in negatives]
+    image, bounds = _render(shape, targets, rng, background, background_level, imaging,
+                            supersampling, texture_scale, range(len(truths)) if crlb else ())
+    if crlb:
+        truths = [replace(t, crlb_mean_abs_error_px=b) for t, b in zip(truths, bounds, strict=True)]
     return RenderedScene(image, truths, [(p.kind, p.x, p.y) for p, _ in negatives], imaging)
+
+
+#: Default range of the JPEG quality of :class:`SceneConfig`: what cameras write
+#: (70 for bandwidth-limited links, 95 for archival).
+JPEG_QUALITY_RANGE: tuple[int, int] = (70, 95)
+#: Default range of a dull quadrant's brightness relative to the other bright one:
+#: dirt, wear and sheen as the issue's field reports describe them.
+DULL_FACTOR_RANGE: tuple[float, float] = (0.45, 0.8)
+#: Default range of the light a cast shadow takes away: direct sunlight blocked,
+#: skylight still there.
+SHADOW_DARKENING_RANGE: tuple[float, float] = (0.4, 0.65)
 
 
 @dataclass(frozen=True)
 class SceneConfig:
     """Random scene to render with :func:`render_scene`; validated on construction.
 
-    Ranges are (min, max) and drawn uniformly, per marker or per frame.
+    Ranges are (min, max) and drawn uniformly, per marker or per frame. The
+    defaults render the frames this package rendered before its field
+    conditions existed; :func:`render_scene` draws the field conditions (contrast,
+    peak level, shot noise, JPEG, dull quadrants, cast shadows) from a child
+    generator, so a seed still gives the same frame while they are off.
 
     Attributes:
         width: Frame width, px.
@@ -1053,7 +1411,21 @@ class SceneConfig:
         supersampling: S, samples per pixel along each axis.
         inverted_fraction: Probability that a marker's polarity is swapped.
         vignetting: Fraction of light lost in the frame corners.
-        full_well_e: Full well for shot noise, electrons; None: no shot noise.
+        shot_noise_gain_dn: Shot-noise variance per DN of signal (per frame),
+            DN; default: a 20000-electron full well.
+        contrast: Bright - dark paint reflectance range (per marker and
+            negative); None: the paint ranges (0.6-0.9).
+        peak_level: Output level of white as a fraction of 255 (per frame).
+        texture_scale: Magnification range of the ground photographs, frame px
+            per texture px (per layer).
+        jpeg_probability: Share of frames written as JPEG.
+        jpeg_quality: JPEG quality range (per frame).
+        dull_probability: Probability that a marker has one dull bright quadrant.
+        dull_factor: That quadrant's brightness relative to the other (per marker).
+        shadow_probability: Probability that a hard cast shadow's edge crosses
+            a marker (within :data:`CAST_SHADOW_MAX_OFFSET` foreshortened radii
+            of its centre).
+        shadow_darkening: Light the cast shadow takes away (per marker).
     """
 
     width: int = 1280
@@ -1073,7 +1445,17 @@ class SceneConfig:
     supersampling: int = 16
     inverted_fraction: float = 0.5
     vignetting: float = 0.0
-    full_well_e: float | None = DEFAULT_FULL_WELL_E
+    shot_noise_gain_dn: tuple[float, float] = (DEFAULT_SHOT_NOISE_GAIN_DN,
+                                               DEFAULT_SHOT_NOISE_GAIN_DN)
+    contrast: tuple[float, float] | None = None
+    peak_level: tuple[float, float] = (1.0, 1.0)
+    texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE
+    jpeg_probability: float = 0.0
+    jpeg_quality: tuple[int, int] = JPEG_QUALITY_RANGE
+    dull_probability: float = 0.0
+    dull_factor: tuple[float, float] = DULL_FACTOR_RANGE
+    shadow_probability: float = 0.0
+    shadow_darkening: tuple[float, float] = SHADOW_DARKENING_RANGE
 
     def __post_init__(self) -> None:
         if self.width < 1 or self.height < 1:
@@ -1085,6 +1467,14 @@ class SceneConfig:
         _check_range("motion_blur_px", self.motion_blur_px, 0.0)
         _check_range("noise_sigma_dn", self.noise_sigma_dn, 0.0)
         _check_range("gamma", self.gamma, 0.05)
+        _check_range("shot_noise_gain_dn", self.shot_noise_gain_dn, 0.0)
+        if self.contrast is not None:
+            _check_range("contrast", self.contrast, 0.0, MAX_CONTRAST)
+        _check_range("peak_level", self.peak_level, 0.01, 1.0)
+        _check_range("texture_scale", self.texture_scale, 0.01)
+        _check_range("jpeg_quality", self.jpeg_quality, 1, 100)
+        _check_range("dull_factor", self.dull_factor, 0.01, 1.0)
+        _check_range("shadow_darkening", self.shadow_darkening, 0.01, 0.99)
         if not 0.0 <= self.max_tilt_deg <= MAX_TILT_DEG:
             raise ConfigError(f"max_tilt_deg must be in [0, {MAX_TILT_DEG}], "
                               f"got {self.max_tilt_deg!r}")
@@ -1097,25 +1487,62 @@ class SceneConfig:
                               f"got {self.background!r}")
         if self.supersampling < 1:
             raise ConfigError(f"supersampling must be >= 1, got {self.supersampling!r}")
-        if not 0.0 <= self.inverted_fraction <= 1.0:
-            raise ConfigError(f"inverted_fraction must be in [0, 1], "
-                              f"got {self.inverted_fraction!r}")
+        for name in ("inverted_fraction", "jpeg_probability", "dull_probability",
+                     "shadow_probability"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
         # Validates the remaining scalar ranges with the same rules as the renderer.
         ImagingConditions(illumination_strength=self.illumination_strength,
-                          vignetting=self.vignetting, full_well_e=self.full_well_e)
+                          vignetting=self.vignetting)
 
 
-def _place_markers(config: SceneConfig, rng: np.random.Generator) -> list[MarkerPlacement]:
-    """Random non-overlapping marker placements (largest first, which packs best)."""
+@dataclass(frozen=True)
+class _ShadowDraft:
+    """A cast shadow drawn for a marker before the marker has a position."""
+
+    normal_rad: float
+    offset_px: float
+    darkening: float
+    reach_px: float
+
+    def at(self, x: float, y: float) -> CastShadow:
+        return CastShadow(x, y, self.normal_rad, self.offset_px, self.darkening, self.reach_px)
+
+
+def _field_conditions(draft: MarkerPlacement, config: SceneConfig,
+                      rng: np.random.Generator) -> tuple[MarkerPlacement, _ShadowDraft | None]:
+    """A draft with its dull quadrant (if drawn), and its cast shadow (if drawn)."""
+    if rng.random() < config.dull_probability:
+        draft = replace(draft, dull_factor=float(rng.uniform(*config.dull_factor)),
+                        dull_quadrant=int(rng.integers(2)))
+    if not rng.random() < config.shadow_probability:
+        return draft, None
+    foreshortened = MarkerTruth.from_homography(marker_homography(draft), draft.radius_px,
+                                                draft.kind).foreshortened_radius_px
+    offset = rng.uniform(-CAST_SHADOW_MAX_OFFSET, CAST_SHADOW_MAX_OFFSET) * foreshortened
+    return draft, _ShadowDraft(float(rng.uniform(0.0, 2.0 * math.pi)), float(offset),
+                               float(rng.uniform(*config.shadow_darkening)),
+                               CAST_SHADOW_REACH * _bounding_radius(draft))
+
+
+def _place_markers(config: SceneConfig, rng: np.random.Generator,
+                   conditions_rng: np.random.Generator
+                   ) -> tuple[list[MarkerPlacement], list[CastShadow]]:
+    """Random non-overlapping marker placements (largest first, which packs best).
+
+    A marker with a cast shadow keeps the other markers out of the shadow's reach.
+    """
     shape = (config.height, config.width)
-    drafts = [_random_placement(rng, config.marker_kinds, config.radius_px,
-                                config.max_tilt_deg, config.inverted_fraction)
+    drafts = [_field_conditions(_random_placement(rng, config.marker_kinds, config.radius_px,
+                                                  config.max_tilt_deg, config.inverted_fraction),
+                                config, conditions_rng)
               for _ in range(config.n_markers)]
-    drafts.sort(key=_bounding_radius, reverse=True)
+    drafts.sort(key=lambda d: _bounding_radius(d[0]), reverse=True)
     occupied: np.ndarray = np.empty((0, 3))
     placed: list[MarkerPlacement] = []
-    for draft in drafts:
-        radius = _bounding_radius(draft)
+    shadows: list[CastShadow] = []
+    for draft, shadow in drafts:
+        radius = max(_bounding_radius(draft), shadow.reach_px if shadow else 0.0)
         spot = _find_spot(radius, shape, occupied, rng)
         if spot is None:
             raise ConfigError(
@@ -1123,19 +1550,21 @@ def _place_markers(config: SceneConfig, rng: np.random.Generator) -> list[Marker
                 f"(bounding radius {radius:.1f} px) in a {config.width}x{config.height} frame "
                 f"after {PLACEMENT_TRIES} tries without overlap; use fewer markers "
                 f"(n_markers={config.n_markers}) or smaller radius_px={config.radius_px}")
-        placed.append(MarkerPlacement(spot[0], spot[1], draft.radius_px, draft.rotation_rad,
-                                      draft.tilt_deg, draft.tilt_axis_rad, draft.kind,
-                                      draft.inverted))
+        placed.append(replace(draft, x=spot[0], y=spot[1]))
+        if shadow is not None:
+            shadows.append(shadow.at(*spot))
         occupied = np.vstack([occupied, (spot[0], spot[1], radius)])
-    return placed
+    return placed, shadows
 
 
-def render_scene(config: SceneConfig, seed: int | np.random.Generator) -> RenderedScene:
+def render_scene(config: SceneConfig, seed: int | np.random.Generator, *,
+                 crlb: bool = False) -> RenderedScene:
     """Render a random frame of markers and hard negatives on cluttered ground.
 
     Args:
         config: What to render.
         seed: Seed or Generator; the same seed gives the same frame.
+        crlb: Compute each marker's Cramer-Rao bound (see :func:`render_markers`).
 
     Returns:
         The frame and its exact truth.
@@ -1144,23 +1573,33 @@ def render_scene(config: SceneConfig, seed: int | np.random.Generator) -> Render
         ConfigError: (a ValueError) if the markers do not all fit in the frame.
     """
     rng = np.random.default_rng(seed)
-    placements = _place_markers(config, rng)
+    # A child stream (spawning leaves rng's own stream untouched) for the field conditions.
+    conditions = rng.spawn(1)[0]
+    placements, shadows = _place_markers(config, rng, conditions)
+    jpeg = (int(conditions.integers(config.jpeg_quality[0], config.jpeg_quality[1] + 1))
+            if conditions.random() < config.jpeg_probability else None)
     return render_markers(
         (config.height, config.width), placements, rng,
         background=config.background,
+        contrast=config.contrast,
         blur_sigma_px=float(rng.uniform(*config.blur_sigma_px)),
         motion_blur_px=float(rng.uniform(*config.motion_blur_px)),
         motion_blur_angle_rad=float(rng.uniform(0.0, math.pi)),
         illumination_strength=config.illumination_strength,
         n_shadows=config.n_shadows,
+        cast_shadows=shadows,
         vignetting=config.vignetting,
         gamma=float(rng.uniform(*config.gamma)),
+        peak_level=float(conditions.uniform(*config.peak_level)),
         noise_sigma_dn=float(rng.uniform(*config.noise_sigma_dn)),
-        full_well_e=config.full_well_e,
+        shot_noise_gain_dn=float(conditions.uniform(*config.shot_noise_gain_dn)),
+        jpeg_quality=jpeg,
         n_hard_negatives=config.n_hard_negatives,
         negative_radius_px=config.radius_px,
         negative_max_tilt_deg=config.max_tilt_deg,
-        supersampling=config.supersampling)
+        texture_scale=config.texture_scale,
+        supersampling=config.supersampling,
+        crlb=crlb)
 
 
 def render_checkerboard(shape: tuple[int, int] = (960, 1280),

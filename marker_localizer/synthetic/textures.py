@@ -29,8 +29,9 @@ TEXTURE_NAMES: tuple[str, ...] = (
 #: How often each of :data:`TEXTURE_NAMES` is drawn: ground twice as often as clutter.
 TEXTURE_WEIGHTS: tuple[float, ...] = (2.0, 2.0, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0)
 
-#: Range of the texture magnification, in frame pixels per texture pixel: below
-#: 0.6 the photographs alias into noise, above 2.5 they look blurred.
+#: Default range of the texture magnification, in frame pixels per texture pixel:
+#: above 2.5 the photographs look blurred. Smaller scales (down to the 0.25 of
+#: other renderers) are area-averaged first, so they shrink rather than alias.
 TEXTURE_SCALE_RANGE: tuple[float, float] = (0.6, 2.5)
 #: Range of the mean ground reflectance: dark soil to dry concrete.
 GROUND_MEAN_RANGE: tuple[float, float] = (0.25, 0.6)
@@ -105,19 +106,31 @@ def smooth_random_field(shape: tuple[int, int], rng: np.random.Generator,
     return field
 
 
-def warped_texture(name: str, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+def warped_texture(name: str, shape: tuple[int, int], rng: np.random.Generator,
+                   scale_range: tuple[float, float] = TEXTURE_SCALE_RANGE) -> np.ndarray:
     """One texture covering the frame at a random scale, rotation, flip and offset.
+
+    A scale below 1 first shrinks the tile by area averaging (each frame pixel
+    the mean of the texture it covers), then warps it at a scale near 1:
+    bilinear sampling alone would keep one texture pixel in 1/scale^2 and
+    alias the photograph into noise.
 
     Args:
         name: One of :data:`TEXTURE_NAMES`.
         shape: (height, width) of the output in pixels.
         rng: Source of randomness.
+        scale_range: (min, max) magnification, frame px per texture px.
 
     Returns:
-        float32 array of the given shape, roughly zero mean and unit std.
+        float32 array of the given shape, roughly zero mean and at most unit
+        std (area averaging removes the finest detail's share).
     """
     tile, mean, std = _periodic_tile(name)
-    scale = rng.uniform(*TEXTURE_SCALE_RANGE)
+    scale = rng.uniform(*scale_range)
+    if scale < 1.0:
+        size = (max(2, round(tile.shape[1] * scale)), max(2, round(tile.shape[0] * scale)))
+        scale /= size[0] / tile.shape[1]
+        tile = cv2.resize(tile, size, interpolation=cv2.INTER_AREA)
     angle = rng.uniform(0.0, 2.0 * math.pi)
     flip = rng.choice((-1.0, 1.0))
     period = np.array(tile.shape[::-1], dtype=np.float64)
@@ -142,7 +155,8 @@ def warped_texture(name: str, shape: tuple[int, int], rng: np.random.Generator) 
 
 
 def texture_background(shape: tuple[int, int], rng: np.random.Generator,
-                       names: tuple[str, ...] | None = None) -> np.ndarray:
+                       names: tuple[str, ...] | None = None,
+                       scale_range: tuple[float, float] = TEXTURE_SCALE_RANGE) -> np.ndarray:
     """Cluttered ground: two random textures blended through a smooth random mask.
 
     Args:
@@ -151,6 +165,7 @@ def texture_background(shape: tuple[int, int], rng: np.random.Generator,
         rng: Source of randomness.
         names: Textures to draw the two layers from (uniformly); default: all
             of :data:`TEXTURE_NAMES`, weighted by :data:`TEXTURE_WEIGHTS`.
+        scale_range: (min, max) magnification of each layer, frame px per texture px.
 
     Returns:
         float32 reflectance image of the given shape, values in
@@ -161,8 +176,8 @@ def texture_background(shape: tuple[int, int], rng: np.random.Generator,
     else:
         weights = np.full(len(names), 1.0 / len(names))
     first, second = rng.choice(len(names), size=2, p=weights)
-    layer_a = warped_texture(names[first], shape, rng)
-    layer_b = warped_texture(names[second], shape, rng)
+    layer_a = warped_texture(names[first], shape, rng, scale_range)
+    layer_b = warped_texture(names[second], shape, rng, scale_range)
     layer_a *= np.float32(rng.uniform(*GROUND_CONTRAST_RANGE))
     layer_b *= np.float32(rng.uniform(*GROUND_CONTRAST_RANGE))
     # A logistic of random steepness gives anything from gradual to crisp
