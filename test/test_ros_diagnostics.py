@@ -14,6 +14,7 @@ from marker_localizer.ros.diagnostics import (
     camera_level,
     camera_status,
     diagnostic_array,
+    drop_report,
     node_status,
 )
 
@@ -21,13 +22,14 @@ S = 1_000_000_000  # ns per s
 LIMITS = DiagnosticThresholds(latency_warn_ms=200.0, input_timeout_s=2.0, window_s=10.0)
 
 
-def healthy_camera(frames=10, period_s=0.5, latency_ms=50.0, markers=3):
+def healthy_camera(frames=10, period_s=0.5, latency_ms=50.0, markers=3, clock_offset_s=0.01):
     """A camera that sent ``frames`` frames at ``period_s``, each processed; the last one now."""
     stats = CameraStats("cam1", start_ns=0, window_s=LIMITS.window_s)
     for i in range(frames):
         t = int((i + 1) * period_s * S)
         stats.frame_received(t)
-        stats.frame_processed(t, latency_ms=latency_ms, in_node_ms=latency_ms / 2, markers=markers)
+        stats.frame_processed(t, latency_ms=latency_ms, clock_offset_s=clock_offset_s,
+                              markers=markers)
     return stats, int(frames * period_s * S)
 
 
@@ -116,8 +118,31 @@ def test_error_wins_over_warning_and_both_are_named():
     )
 
 
+@pytest.mark.parametrize("clock_offset_s", [1.7e9, -3600.0])
+def test_stamps_from_another_clock_show_as_the_clock_offset_and_change_no_level(clock_offset_s):
+    # An old bag played without /clock (stamps 54 years behind), a stamp an hour ahead.
+    stats, now = healthy_camera(clock_offset_s=clock_offset_s)
+    status = camera_status("loc", stats.snapshot(now), LIMITS)
+    assert (status.level, status.message) == (bytes([OK]), "ok")
+    assert values_of(status)["clock offset p50 (s)"] == f"{clock_offset_s:.3f}"
+
+
+def test_drop_report_names_each_reason_since_the_last_report():
+    stats, now = healthy_camera()
+    assert drop_report(stats.snapshot(now), (0, 0), 2.0) is None
+    for _ in range(3):
+        stats.frame_replaced(now)
+    stats.frame_too_old(now)
+    assert drop_report(stats.snapshot(now), (0, 0), 2.0) == (
+        "cam1: 4 frame(s) dropped: 3 replaced in the mailbox by a newer frame (workers busy); "
+        "1 waited longer than max_frame_age_s = 2 s"
+    )
+    assert drop_report(stats.snapshot(now), (3, 1), 2.0) is None
+
+
 def test_snapshot_without_results_has_nan_statistics():
     snap = CameraStats("cam0", 0, 10.0).snapshot(S)
+    assert math.isnan(snap.clock_offset_s)
     assert math.isnan(snap.latency_p95_ms)
     assert math.isnan(snap.markers_per_frame)
     assert not snap.any_frame

@@ -436,7 +436,51 @@ def holding(camera):
     return HeldCameraProcessor, release
 
 
-def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros):
+def test_dropped_frames_are_logged_with_their_reason(ros, capfd):
+    """Replaced in the mailbox (INFO), then waited too long (WARN), from one camera."""
+    processor_class, release = holding("cam0")
+    node = MarkerLocalizerNode(
+        "drop_localizer",
+        namespace="/drops",
+        processor_class=processor_class,
+        parameter_overrides=[
+            Parameter("cameras", value=["cam0"]),
+            Parameter("workers", value=1),
+            Parameter("max_frame_age_s", value=0.05),
+            Parameter("diagnostics_period_s", value=0.1),
+        ],
+    )
+    spinner = Spinner(node)
+    peer = Peer("drop_peer", "/drops")
+    logged = []
+
+    def logged_line(*words):
+        logged.extend(capfd.readouterr().err.splitlines())
+        return next((line for line in logged if all(w in line for w in words)), None)
+
+    try:
+        stats = node.processor.snapshots
+        for received in (1, 2, 3):  # the first is held, the third replaces the second
+            peer.publish("cam0/image_raw", peer.frame(x_marker_64()))
+            wait_until(lambda n=received: stats()["cam0"].received == n, f"frame {received}")
+        wait_until(lambda: stats()["cam0"].dropped_mailbox == 1, "the mailbox drop")
+        assert "INFO" in wait_until(
+            lambda: logged_line("cam0: 1 frame(s) dropped", "replaced in the mailbox"),
+            "the mailbox drop logged")
+        time.sleep(0.1)  # the waiting frame grows stale behind the held one
+        release.set()
+        wait_until(lambda: stats()["cam0"].dropped_age == 1, "the age drop")
+        assert "WARN" in wait_until(
+            lambda: logged_line("cam0: 1 frame(s) dropped: 1 waited longer than "
+                                "max_frame_age_s = 0.05 s"),
+            "the age drop logged, after the 5 s throttle")
+    finally:
+        release.set()
+        peer.stop()
+        spinner.stop()
+
+
+def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros, capfd):
     """One node, five cameras in five states: steady, flooded, silent, bad encoding, truncated."""
     processor_class, release = holding("cam1")
     node = MarkerLocalizerNode(
@@ -501,6 +545,14 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros)
         assert statuses["cam0"].message == "ok"
         assert "% of frames dropped" in statuses["cam1"].message
         assert int(values_of(statuses["cam1"])["dropped by mailbox"]) > 0
+        logged = []
+
+        def drops_logged():
+            logged.extend(capfd.readouterr().err.splitlines())
+            return any("cam1: " in line and "replaced in the mailbox by a newer frame" in line
+                       for line in logged)
+
+        wait_until(drops_logged, "the node logging cam1's drops with their reason")
         assert statuses["cam2"].message.startswith("no frame since start")
         assert "unsupported encoding 'yuv422'" in statuses["cam3"].message
         assert "data holds 2048 B" in values_of(statuses["cam4"])["last error"]
@@ -521,38 +573,59 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros)
         spinner.stop()
 
 
-def test_frame_age_is_measured_on_sim_time_when_use_sim_time_is_set(ros):
+@pytest.mark.parametrize("use_sim_time", [False, True])
+def test_frames_stamped_on_another_clock_are_processed_with_their_stamps_copied(
+    ros, use_sim_time
+):
+    """An old bag played without /clock, a camera's device clock, a stamp from the future."""
     node = MarkerLocalizerNode(
-        "sim_localizer",
-        namespace="/sim",
+        "clock_localizer",
+        namespace="/clocks",
         parameter_overrides=[
-            Parameter("use_sim_time", value=True),
+            Parameter("use_sim_time", value=use_sim_time),
             Parameter("cameras", value=["cam0"]),
             Parameter("max_frame_age_s", value=2.0),
+            Parameter("diagnostics_period_s", value=0.2),
         ],
     )
     spinner = Spinner(node)
-    peer = Peer("sim_peer", "/sim")
+    peer = Peer("clock_peer", "/clocks")
     clock_pub = peer.node.create_publisher(Clock, "/clock", 10)
     stop = threading.Event()
 
-    def tick():  # a simulator's clock standing at t = 1000 s
+    def tick():  # with use_sim_time: a simulator's clock from t = 1000 s on, at real rate
+        start = time.monotonic()
         while not stop.wait(0.02):
-            clock_pub.publish(Clock(clock=Time(sec=1000)))
+            clock_pub.publish(Clock(clock=Time(sec=1000 + int(time.monotonic() - start))))
 
     ticker = threading.Thread(target=tick, daemon=True)
     ticker.start()
     try:
-        wait_until(lambda: node.get_clock().now().nanoseconds == 1000 * 10**9, "sim time 1000 s")
+        if use_sim_time:
+            wait_until(lambda: node.get_clock().now().nanoseconds >= 1000 * 10**9, "sim time")
+        now_s = node.get_clock().now().nanoseconds // 10**9
         peer.listen("cam0/marker_points", PointCloud2)
-        fresh = peer.frame(x_marker_64(), stamp=Time(sec=999, nanosec=500_000_000))
-        stale = peer.frame(x_marker_64(), stamp=Time(sec=990))  # 10 s old in sim time
-        peer.publish("cam0/image_raw", fresh)
-        assert peer.result_for("cam0/marker_points", fresh.header).width == 1
-        peer.publish("cam0/image_raw", stale)
-        wait_until(lambda: node.processor.snapshots()["cam0"].dropped_age == 1, "the age drop")
-        assert all(m.header.stamp != stale.header.stamp
-                   for m in peer.messages("cam0/marker_points"))
+        peer.listen("/diagnostics", DiagnosticArray)
+        old, device, future = (
+            peer.frame(x_marker_64(), stamp=Time(sec=sec)) for sec in (1, 2, now_s + 3600)
+        )
+        for frame in (old, device, future):
+            peer.publish("cam0/image_raw", frame)
+            assert peer.result_for("cam0/marker_points", frame.header).header == frame.header
+        assert node.processor.snapshots()["cam0"].dropped_age == 0
+
+        def offsets():
+            for array_msg in reversed(peer.messages("/diagnostics")):
+                for status in array_msg.status:
+                    values = values_of(status)
+                    if status.hardware_id == "cam0" and values["frames processed"] == "3":
+                        return status, float(values["clock offset p50 (s)"])
+            return None
+
+        status, offset_s = wait_until(offsets, "diagnostics of the three frames")
+        # Median of (arrival - stamp): the device-clock frame's, about now - 2 s.
+        assert offset_s == pytest.approx(now_s - 2, abs=5.0)
+        assert level_of(status) == OK
     finally:
         stop.set()
         ticker.join(TIMEOUT_S)
@@ -625,18 +698,25 @@ def test_camera_waiting_longest_is_served_first_even_if_its_frame_was_replaced()
     assert [(c, s) for c, s, _ in collect.results] == [("a", 1), ("b", 5), ("c", 3), ("a", 4)]
 
 
-def test_frames_older_than_max_age_on_the_given_clock_are_dropped():
+def test_frames_that_waited_longer_than_max_age_in_the_node_are_dropped_whatever_their_stamp():
     collect = Collector()
-    processor = FrameProcessor(["cam0"], DetectorConfig(), collect, workers=1,
-                               max_frame_age_s=2.0, clock_ns=clock_at(100))
+    now = [100 * 10**9]
+    processor = FrameProcessor(["a", "b"], DetectorConfig(), collect, workers=1,
+                               max_frame_age_s=2.0, clock_ns=lambda: now[0])
     try:
-        processor.submit("cam0", stamped(97))  # 3 s old
-        processor.submit("cam0", stamped(99), block=True)  # 1 s old
+        collect.release.clear()
+        processor.submit("a", stamped(1))  # stamped 99 s before it arrives: taken at once
+        wait_until(collect.entered.is_set, "the worker to take a's frame")
+        processor.submit("b", stamped(500))  # from the future; waits behind a's frame
+        now[0] += 3 * 10**9  # the worker stays busy 3 s
+        collect.release.set()
+        assert processor.wait_idle(TIMEOUT_S)
+        processor.submit("b", stamped(501), block=True)  # arrives now, taken at once
         assert processor.wait_idle(TIMEOUT_S)
     finally:
         processor.shutdown()
-    assert collect.results == [("cam0", 99, 1)]
-    snap = processor.snapshots()["cam0"]
+    assert collect.results == [("a", 1, 1), ("b", 501, 1)]
+    snap = processor.snapshots()["b"]
     assert (snap.dropped_age, snap.processed) == (1, 1)
 
 

@@ -11,8 +11,15 @@ Levels of a camera:
   none ever arrived), or a frame failed (bad input or a processing exception)
   within the last ``window_s``.
 * WARN: more than ``drop_warn_fraction`` of the frames received in the last
-  ``window_s`` were dropped (replaced in the mailbox or too old), or the latency
-  p95 exceeds ``latency_warn_ms``.
+  ``window_s`` were dropped (replaced in the mailbox or waited too long), or the
+  latency p95 exceeds ``latency_warn_ms``.
+
+Latency is the time a frame spent in the node, from its arrival to the
+publication of its result. Header stamps are never judged: the clock offset
+(arrival on the node's clock minus the header stamp: transport delay plus the
+difference between the camera's clock and the node's) is reported, not
+checked, so that an old bag played without /clock or a camera's device clock
+shows up as what it is.
 * OK otherwise.
 
 All times come from one clock in nanoseconds (the node's ROS clock, so
@@ -48,7 +55,7 @@ class DiagnosticThresholds:
     """When a camera's status turns WARN or ERROR.
 
     Attributes:
-        latency_warn_ms: WARN when the latency p95 (header stamp to publish) is above, ms.
+        latency_warn_ms: WARN when the latency p95 (arrival to publish) is above, ms.
         input_timeout_s: ERROR when no frame arrived for this long, s.
         window_s: sliding window of rates, drop fraction and recent errors, s.
         drop_warn_fraction: WARN when more than this fraction of the frames
@@ -70,17 +77,17 @@ class CameraSnapshot:
         received: frames that entered the mailbox since start.
         processed: frames whose result was delivered since start.
         dropped_mailbox: frames replaced by a newer one before a worker took them.
-        dropped_age: frames older than the age limit when a worker took them.
+        dropped_age: frames that waited longer than the age limit in the node.
         errors: frames that failed (bad input or processing exception).
         received_in_window: frames received within the window.
         dropped_in_window: frames dropped (either reason) within the window.
         input_rate_hz: received frames per second over the window.
         processed_rate_hz: delivered results per second over the window.
-        latency_p50_ms: median header-stamp-to-publish latency in the window, ms
-            (NaN: no sample).
+        latency_p50_ms: median time from arrival in the mailbox to publish in
+            the window, ms (NaN: no sample).
         latency_p95_ms: 95th percentile of the same, ms (NaN: no sample).
-        in_node_mean_ms: mean time from arrival in the mailbox to publish in the
-            window, ms (NaN: no sample).
+        clock_offset_s: median of arrival time minus header stamp in the window,
+            s (NaN: no sample); negative for stamps in the future.
         markers_per_frame: mean markers per delivered frame in the window (NaN: none).
         since_last_frame_s: time since the last frame arrived, or since start
             if none did, s.
@@ -101,7 +108,7 @@ class CameraSnapshot:
     processed_rate_hz: float
     latency_p50_ms: float
     latency_p95_ms: float
-    in_node_mean_ms: float
+    clock_offset_s: float
     markers_per_frame: float
     since_last_frame_s: float
     any_frame: bool
@@ -130,7 +137,7 @@ class CameraStats:
         self._last_error_ns: int | None = None
         self._received_at: deque[int] = deque()
         self._dropped_at: deque[int] = deque()
-        # (delivery time ns, latency ms, time in node ms, markers) per delivered frame.
+        # (delivery time ns, latency ms, clock offset s, markers) per delivered frame.
         self._results: deque[tuple[int, float, float, int]] = deque()
 
     def frame_received(self, now_ns: int) -> None:
@@ -153,19 +160,19 @@ class CameraStats:
             self._dropped_at.append(now_ns)
 
     def frame_processed(
-        self, now_ns: int, latency_ms: float, in_node_ms: float, markers: int
+        self, now_ns: int, latency_ms: float, clock_offset_s: float, markers: int
     ) -> None:
         """Count a delivered result.
 
         Args:
             now_ns: clock time of delivery, ns.
-            latency_ms: header stamp to delivery, ms.
-            in_node_ms: arrival in the mailbox to delivery, ms.
+            latency_ms: arrival in the mailbox to delivery, ms.
+            clock_offset_s: arrival time minus the frame's header stamp, s.
             markers: markers found in the frame.
         """
         with self._lock:
             self._processed += 1
-            self._results.append((now_ns, latency_ms, in_node_ms, markers))
+            self._results.append((now_ns, latency_ms, clock_offset_s, markers))
             while len(self._results) > _LATENCY_SAMPLES:
                 self._results.popleft()
 
@@ -200,7 +207,7 @@ class CameraStats:
                 processed_rate_hz=len(recent) / span_s,
                 latency_p50_ms=_percentile(latency, 50),
                 latency_p95_ms=_percentile(latency, 95),
-                in_node_mean_ms=_mean([r[2] for r in recent]),
+                clock_offset_s=_percentile(np.array([r[2] for r in recent]), 50),
                 markers_per_frame=_mean([r[3] for r in recent]),
                 since_last_frame_s=max(now_ns - last_frame, 0) / _NS_PER_S,
                 any_frame=self._last_frame_ns is not None,
@@ -257,6 +264,31 @@ def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> 
     return OK, "ok"
 
 
+def drop_report(
+    snapshot: CameraSnapshot, reported: tuple[int, int], max_frame_age_s: float
+) -> str | None:
+    """One line naming the frames of a camera dropped since the last report, and why.
+
+    Args:
+        snapshot: the camera's statistics now.
+        reported: (dropped by mailbox, dropped by age) at the last report.
+        max_frame_age_s: the age limit in force, s (named in the line).
+
+    Returns:
+        The line, or None when nothing was dropped since.
+    """
+    replaced = snapshot.dropped_mailbox - reported[0]
+    waited = snapshot.dropped_age - reported[1]
+    reasons = []
+    if replaced > 0:
+        reasons.append(f"{replaced} replaced in the mailbox by a newer frame (workers busy)")
+    if waited > 0:
+        reasons.append(f"{waited} waited longer than max_frame_age_s = {max_frame_age_s:g} s")
+    if not reasons:
+        return None
+    return f"{snapshot.camera}: {replaced + waited} frame(s) dropped: {'; '.join(reasons)}"
+
+
 def camera_status(
     node_name: str,
     snapshot: CameraSnapshot,
@@ -290,7 +322,7 @@ def camera_status(
         "processed rate (Hz)": f"{snapshot.processed_rate_hz:.2f}",
         "latency p50 (ms)": f"{snapshot.latency_p50_ms:.1f}",
         "latency p95 (ms)": f"{snapshot.latency_p95_ms:.1f}",
-        "time in node mean (ms)": f"{snapshot.in_node_mean_ms:.1f}",
+        "clock offset p50 (s)": f"{snapshot.clock_offset_s:.3f}",
         "markers per frame": f"{snapshot.markers_per_frame:.2f}",
         "time since last frame (s)": f"{snapshot.since_last_frame_s:.2f}",
         "errors": str(snapshot.errors),

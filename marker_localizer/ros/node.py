@@ -31,7 +31,7 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from functools import partial
 from typing import Any
 
@@ -52,10 +52,10 @@ from marker_localizer.ros.parameters import LiveParameters, NodeConfig, changed_
 from marker_localizer.ros.processing import FrameProcessor
 
 NODE_NAME = "marker_localizer"
-#: Per camera, at most one log line about failing frames in this many seconds:
-#: a camera sending bad frames at 10 Hz must not flood the log, and the
-#: diagnostics carry the count and the last error anyway.
-_FAILURE_LOG_PERIOD_S = 5.0
+#: Per camera, at most one log line about failing frames, and one about dropped
+#: frames, in this many seconds: a camera sending bad frames at 10 Hz must not
+#: flood the log, and the diagnostics carry the counts and the last error anyway.
+_CAMERA_LOG_PERIOD_S = 5.0
 #: Longest wait for the frames in flight at shutdown, s: a 12 MP frame takes
 #: about 15 s on a 2-core computer.
 _SHUTDOWN_TIMEOUT_S = 60.0
@@ -96,6 +96,8 @@ class MarkerLocalizerNode(Node):
         self._thresholds = _thresholds(settings)
         self._camera_info: dict[str, CameraInfo] = {}
         self._last_failure_log: dict[str, float] = {}
+        # Per camera: when drops were last logged, and the drop counts logged then.
+        self._last_drop_log: dict[str, tuple[float, tuple[int, int]]] = {}
         self._points = {
             c: self.create_publisher(PointCloud2, f"{c}/marker_points", _OUTPUT_DEPTH)
             for c in settings.cameras
@@ -135,11 +137,13 @@ class MarkerLocalizerNode(Node):
     def publish_diagnostics(self) -> None:
         """Publish one DiagnosticArray: a status per camera and one for the node."""
         name = self.get_name()
+        snapshots = self.processor.snapshots()
+        self._log_drops(snapshots)
         statuses = [
             diagnostics.camera_status(
                 name, snapshot, self._thresholds, {"camera_info": self._info_text(camera)}
             )
-            for camera, snapshot in self.processor.snapshots().items()
+            for camera, snapshot in snapshots.items()
         ]
         config = self.processor.config
         node_values = {
@@ -154,6 +158,24 @@ class MarkerLocalizerNode(Node):
         self._diagnostics.publish(
             diagnostics.diagnostic_array(self.get_clock().now().to_msg(), statuses)
         )
+
+    def _log_drops(self, snapshots: Mapping[str, diagnostics.CameraSnapshot]) -> None:
+        """Log each camera's dropped frames with their reasons, throttled per camera."""
+        now = time.monotonic()
+        for camera, snapshot in snapshots.items():
+            logged_at, reported = self._last_drop_log.get(camera, (-_CAMERA_LOG_PERIOD_S, (0, 0)))
+            if now - logged_at < _CAMERA_LOG_PERIOD_S:
+                continue
+            line = diagnostics.drop_report(snapshot, reported, self.processor.max_frame_age_s)
+            if line is None:
+                continue
+            self._last_drop_log[camera] = (now, (snapshot.dropped_mailbox, snapshot.dropped_age))
+            # Replacing frames the workers have no time for is by design; stale ones are not.
+            # (Two call sites: rclpy refuses a severity change at one.)
+            if snapshot.dropped_age > reported[1]:
+                self.get_logger().warning(line)
+            else:
+                self.get_logger().info(line)
 
     def destroy_node(self) -> None:
         """Drain the worker pool (frames in flight are published), then destroy the node."""
@@ -182,8 +204,8 @@ class MarkerLocalizerNode(Node):
 
     def _frame_failed(self, camera: str, err: Exception) -> None:
         now = time.monotonic()
-        if now - self._last_failure_log.get(camera, -_FAILURE_LOG_PERIOD_S) < (
-            _FAILURE_LOG_PERIOD_S
+        if now - self._last_failure_log.get(camera, -_CAMERA_LOG_PERIOD_S) < (
+            _CAMERA_LOG_PERIOD_S
         ):
             return
         self._last_failure_log[camera] = now

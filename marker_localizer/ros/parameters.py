@@ -83,9 +83,10 @@ class NodeConfig:
     )
     max_frame_age_s: float = _node_param(
         2.0,
-        "A frame whose header stamp is older than this when a worker takes it is "
-        "dropped: two periods of a 1 Hz mapping camera, past which a fresher frame is "
-        "due and the old one is stale for navigation. 0 disables the check.",
+        "A frame that waited longer than this in the node (from its arrival to a worker "
+        "taking it) is dropped: two periods of a 1 Hz mapping camera, past which a fresher "
+        "frame is due and the old one is stale for navigation. Header stamps are not "
+        "judged (they may come from another clock). 0 disables the check.",
         "s",
         0.0,
         3600.0,
@@ -97,8 +98,9 @@ class NodeConfig:
     )
     latency_warn_ms: float = _node_param(
         1000.0,
-        "Diagnostics WARN when the latency p95 (header stamp to publish) exceeds this: "
-        "about the state buffer of a navigation filter that fuses delayed measurements.",
+        "Diagnostics WARN when the latency p95 (a frame's arrival to the publication of "
+        "its points) exceeds this: about the state buffer of a navigation filter that "
+        "fuses delayed measurements.",
         "ms",
         1.0,
         3_600_000.0,

@@ -20,9 +20,12 @@ Guarantees:
 
 * one bounded mailbox per camera holding only the newest frame; a frame that a
   newer one replaces is counted (``dropped by mailbox``);
-* a frame whose header stamp is older than ``max_frame_age_s`` when a worker
-  takes it is dropped and counted (``dropped by age``); the age is measured on
-  the clock passed in, so the node's ROS clock makes ``use_sim_time`` work;
+* a frame that waited longer than ``max_frame_age_s`` in the node (from its
+  arrival to a worker taking it) is dropped and counted (``dropped by age``).
+  Header stamps are copied onto the results, never judged: they may come from
+  another clock (a camera's device clock, an old bag played without /clock, a
+  stamp in the future), so freshness is measured from the frame's arrival, on
+  the clock passed in;
 * at most one frame per camera is processed at a time, so each camera's
   results are delivered in order; the camera that has waited longest is
   served first (replacing its frame does not reset its wait), so every camera
@@ -89,10 +92,10 @@ class FrameProcessor:
         on_result: called with (camera, input header, PointCloud2, overlay or
             None) for every processed frame, from a worker thread.
         workers: number of worker threads (>= 1).
-        max_frame_age_s: frames whose stamp is older than this when a worker
-            takes them are dropped, s; 0 disables the check (replay).
-        clock_ns: current time in nanoseconds, on the clock of the header
-            stamps (default: wall clock).
+        max_frame_age_s: frames that waited longer than this in the node when a
+            worker takes them are dropped, s; 0 disables the check (replay).
+        clock_ns: current time in nanoseconds (default: wall clock); arrivals,
+            waits and the statistics' windows are measured on it.
         publish_overlay: also render an overlay image (bgr8) per frame.
         on_error: called with (camera, exception) when a frame fails, from a
             worker thread.
@@ -159,7 +162,7 @@ class FrameProcessor:
 
     @property
     def max_frame_age_s(self) -> float:
-        """Age limit of a frame when a worker takes it, s (0: no limit)."""
+        """Longest wait of a frame in the node before a worker takes it, s (0: no limit)."""
         return self._max_frame_age_ns / _NS_PER_S
 
     @max_frame_age_s.setter
@@ -319,9 +322,7 @@ class FrameProcessor:
             self._pending[frame.camera] = None
             self._cond.notify_all()
             now_ns = self._clock_ns()
-            if self._max_frame_age_ns and (
-                now_ns - stamp_to_ns(frame.msg.header) > self._max_frame_age_ns
-            ):
+            if self._max_frame_age_ns and now_ns - frame.received_ns > self._max_frame_age_ns:
                 self._stats[frame.camera].frame_too_old(now_ns)
                 continue
             self._busy.add(frame.camera)
@@ -356,7 +357,7 @@ class FrameProcessor:
         now_ns = self._clock_ns()
         stats.frame_processed(
             now_ns,
-            latency_ms=(now_ns - stamp_to_ns(header)) / 1e6,
-            in_node_ms=(now_ns - frame.received_ns) / 1e6,
+            latency_ms=(now_ns - frame.received_ns) / 1e6,
+            clock_offset_s=(frame.received_ns - stamp_to_ns(header)) / _NS_PER_S,
             markers=len(detections),
         )
