@@ -28,6 +28,7 @@ import os
 import shutil
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,11 +41,15 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from marker_localizer.errors import BagError, MarkerLocalizerError
+from marker_localizer.bag.mcap_scan import ScanState, scan_messages
+from marker_localizer.errors import BagError, MarkerLocalizerError, shorten
 
 #: Storage formats a bag can be written in; MCAP is rosbag2's default since Iron.
 STORAGES: dict[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 DEFAULT_STORAGE = "mcap"
+#: Exit status of a command that finished but skipped, failed on or could not read
+#: part of its input, its summary saying what (1: an error, nothing done).
+EXIT_INCOMPLETE = 3
 #: rosbag2 metadata version written (Jazzy's).
 _BAG_VERSION: Literal[9] = 9
 
@@ -108,7 +113,13 @@ class BagMessage:
 class BagReader:
     """Read a rosbag2 (a bag directory, or a bare ``.mcap`` / ``.db3`` file).
 
-    Use as a context manager; every rosbags or storage error is turned into a
+    Use as a context manager. Damage is read around, not given up on: an MCAP
+    storage that rosbags cannot open through its index (a recording cut short
+    has none) or that fails part-way is read front to back
+    (:mod:`marker_localizer.bag.mcap_scan`), so every whole message is still
+    returned; so is a bag directory without ``metadata.yaml`` that holds MCAP
+    files (a recording that did not finish). What could not be read is listed
+    in :attr:`damage`, one line each. Every other rosbags or storage error is a
     :class:`BagError` naming the path.
 
     Args:
@@ -120,24 +131,50 @@ class BagReader:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        #: What could not be read, one line each (empty for an intact bag).
+        self.damage: list[str] = []
+        self._reader: Reader | None = None
+        self._open = False
+        # MCAP files read front to back instead of through rosbags' index.
+        self._scanned_files: list[Path] = []
+        self._scanned_topics: dict[str, str] = {}
+        self._scanned_counts: dict[str, int] = {}
         if not self.path.exists():
             raise BagError(f"{self.path}: no such bag")
         if self.path.is_dir() and not (self.path / "metadata.yaml").exists():
-            raise BagError(
-                f"{self.path}: not a rosbag2 directory (no metadata.yaml; an unfinished recording?)"
+            if not self._mcap_files():
+                raise BagError(
+                    f"{self.path}: not a rosbag2 directory (no metadata.yaml; "
+                    "an unfinished recording?)"
+                )
+            self.damage.append(
+                f"{self.path}: no metadata.yaml (a recording that did not finish); "
+                "its MCAP files read front to back"
             )
+            self._scanned_files = self._mcap_files()
+            return
         try:
             self._reader = Reader(self.path)
         except Exception as err:  # rosbags raises ReaderError or OSError
             raise BagError(f"{self.path}: not a rosbag2 ({err})") from err
-        self._open = False
 
     def __enter__(self) -> Self:
-        try:
-            self._reader.open()
-        except Exception as err:  # corrupt metadata, storage or index: any rosbags error
-            raise BagError(f"{self.path}: cannot open bag, corrupt or truncated ({err})") from err
-        self._open = True
+        if self._reader is not None:
+            try:
+                self._reader.open()
+                self._open = True
+            except Exception as err:  # corrupt metadata, storage or index: any rosbags error
+                if not self._mcap_files():
+                    raise BagError(
+                        f"{self.path}: cannot open bag, corrupt or truncated ({err})"
+                    ) from err
+                self.damage.append(
+                    f"{self.path}: cannot be opened through its index ({shorten(str(err))}); "
+                    "read front to back"
+                )
+                self._scanned_files = self._mcap_files()
+        if self._scanned_files:
+            self._index_by_scanning()
         return self
 
     def __exit__(
@@ -146,54 +183,126 @@ class BagReader:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
-        if self._open:
+        if self._open and self._reader is not None:
             self._open = False
             self._reader.close()
 
     @property
     def topics(self) -> dict[str, str]:
         """Topic name -> ROS type name, for every topic of the bag."""
-        return {c.topic: c.msgtype for c in self._reader.connections}
+        if self._scanned_files:
+            return dict(self._scanned_topics)
+        return {c.topic: c.msgtype for c in self._indexed().connections}
 
     @property
     def message_counts(self) -> dict[str, int]:
-        """Topic name -> number of messages, from the bag's metadata."""
+        """Topic name -> number of messages, from the bag's metadata (or the scan)."""
+        if self._scanned_files:
+            return dict(self._scanned_counts)
         counts: dict[str, int] = {}
-        for connection in self._reader.connections:
+        for connection in self._indexed().connections:
             counts[connection.topic] = counts.get(connection.topic, 0) + connection.msgcount
         return counts
 
-    @property
-    def time_range_ns(self) -> tuple[int, int]:
-        """(first, last) message time, ns since the epoch."""
-        return self._reader.start_time, self._reader.end_time
-
     def messages(self, topics: Collection[str] | None = None) -> Iterator[BagMessage]:
-        """Messages in bag-time order, optionally of some topics only.
+        """Messages in bag-time order (file order where read front to back).
 
         Args:
             topics: Topic names to read; None reads all.
 
         Yields:
-            :class:`BagMessage` per message.
-
-        Raises:
-            BagError: the storage is corrupt or truncated where it is read.
+            :class:`BagMessage` per message. Where the storage fails part-way,
+            an MCAP storage goes on front to back after the last message read,
+            another ends there; either way :attr:`damage` says so.
         """
-        connections = [c for c in self._reader.connections if topics is None or c.topic in topics]
+        if self._scanned_files:
+            yield from self._scan(topics)
+            return
+        reader = self._indexed()
+        connections = [c for c in reader.connections if topics is None or c.topic in topics]
         if not connections:
             return
-        stream = self._reader.messages(connections)
+        stream = reader.messages(connections)
+        # rosbags yields in time order: where it fails, every message older than the
+        # last one it gave was given, and of those as old, the topics noted here.
+        last_ns, topics_at_last = -1, set[str]()
+        unread = Counter[str]()
+        for connection in connections:
+            unread[connection.topic] += connection.msgcount
         while True:
             try:
                 connection, time_ns, raw = next(stream)
             except StopIteration:
+                # A damaged record length inside a chunk can make rosbags skip the
+                # rest of the chunk without an error: the counts tell.
+                missing = {topic: n for topic, n in unread.items() if n > 0}
+                if missing:
+                    listed = ", ".join(f"{topic} {n}" for topic, n in missing.items())
+                    self.damage.append(
+                        f"{self.path}: {sum(missing.values())} messages its index counts "
+                        f"were not found ({shorten(listed)})"
+                    )
                 return
             except Exception as err:  # rosbags, zstd, sqlite and struct errors alike
-                raise BagError(
-                    f"{self.path}: bag is corrupt or truncated ({type(err).__name__}: {err})"
-                ) from err
+                note = (
+                    f"{self.path}: storage unreadable after the message at {last_ns} ns "
+                    f"({type(err).__name__}: {shorten(str(err))})"
+                )
+                if not self._mcap_files():
+                    self.damage.append(f"{note}; the rest cannot be read")
+                    return
+                self.damage.append(f"{note}; the rest read front to back")
+                yield from self._scan(topics, after=(last_ns, topics_at_last))
+                return
+            if time_ns != last_ns:
+                last_ns, topics_at_last = time_ns, set()
+            topics_at_last.add(connection.topic)
+            unread[connection.topic] -= 1
             yield BagMessage(connection.topic, connection.msgtype, time_ns, bytes(raw))
+
+    def _indexed(self) -> Reader:
+        if self._reader is None or not self._open:
+            raise BagError(f"{self.path}: bag is not open (use BagReader as a context manager)")
+        return self._reader
+
+    def _mcap_files(self) -> list[Path]:
+        if self.path.is_dir():
+            return sorted(self.path.glob("*.mcap"))
+        return [self.path] if self.path.suffix == ".mcap" else []
+
+    def _index_by_scanning(self) -> None:
+        """Topics, counts and damage of the MCAP files, from one pass over their records."""
+        for path in self._scanned_files:
+            state = ScanState()
+            for topic, *_ in scan_messages(path, state, with_data=False):
+                self._scanned_counts[topic] = self._scanned_counts.get(topic, 0) + 1
+            self._scanned_topics |= dict(state.channels.values())
+            self.damage.extend(state.damage)
+
+    def _scan(
+        self, topics: Collection[str] | None, after: tuple[int, set[str]] | None = None
+    ) -> Iterator[BagMessage]:
+        """Messages of the MCAP files front to back, skipping those given before ``after``.
+
+        Args:
+            topics: Topic names to read; None reads all.
+            after: (time, topics given at that time) of the last message read
+                through the index before it failed; None: from the start (the
+                damage was noted when the files were indexed).
+        """
+        files = self._scanned_files or self._mcap_files()
+        for path in files:
+            state = ScanState()
+            for topic, msgtype, time_ns, raw in scan_messages(path, state):
+                if topics is not None and topic not in topics:
+                    continue
+                if after is not None and (
+                    time_ns < after[0] or (time_ns == after[0] and topic in after[1])
+                ):
+                    continue
+                yield BagMessage(topic, msgtype, time_ns, raw)
+            if after is not None:
+                self.damage.extend(state.damage)
 
 
 class BagWriter:

@@ -51,7 +51,13 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
-from marker_localizer.bag.io import BagReader, ProgressBar, message_class, run_command
+from marker_localizer.bag.io import (
+    EXIT_INCOMPLETE,
+    BagReader,
+    ProgressBar,
+    message_class,
+    run_command,
+)
 from marker_localizer.bag.record import stamp_msg
 from marker_localizer.errors import BagError, ConfigError
 
@@ -121,6 +127,8 @@ class PlayReport:
         unacknowledged: Times a wait for acknowledgements ran out (``ack_timeout_s``).
         wall_s: Wall time of the playback, s.
         bag_s: Bag time between the first and the last message played, s.
+        damage: What the reader could not read, one line each (see
+            :class:`~marker_localizer.bag.io.BagReader`).
     """
 
     published: dict[str, int] = field(default_factory=dict)
@@ -129,6 +137,7 @@ class PlayReport:
     unacknowledged: int = 0
     wall_s: float = 0.0
     bag_s: float = 0.0
+    damage: list[str] = field(default_factory=list)
 
 
 class _Player:
@@ -275,6 +284,7 @@ def play_bag(
             _play(reader, player, playable, report, progress)
         finally:
             player.destroy()
+        report.damage = list(reader.damage)
     return report
 
 
@@ -388,7 +398,7 @@ def play_main(argv: Sequence[str] | None = None) -> int:
             bar.close()
             rclpy.try_shutdown(context=context)
         sys.stdout.write(_summary(parsed.bag, report) + "\n")
-        return 0
+        return EXIT_INCOMPLETE if report.damage else 0
 
     return run_command("play", body)
 
@@ -406,6 +416,7 @@ def _summary(bag: Path, report: PlayReport) -> str:
         lines.append(f"no subscriber when playing started: {', '.join(report.without_subscribers)}")
     if report.unacknowledged:
         lines.append(f"{report.unacknowledged} messages not acknowledged in time")
+    lines += [f"damaged storage: {line}" for line in report.damage]
     return "\n".join(lines)
 
 

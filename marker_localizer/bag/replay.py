@@ -18,7 +18,17 @@ Input the replay will not process, each counted per camera and shown in the summ
   stream consumer (the node, a navigation filter) cannot go back in time
   either, so such frames are skipped, not re-sorted; duplicates of a stamp
   are skipped by the same rule;
-* a frame the processor rejects (bad step or data size) or fails on (``failed``).
+* a frame the processor rejects (bad step or data size, more than
+  ``max_pixels``) or fails on (``failed``);
+* a message whose bytes do not decode as its type (``undecodable``; counted per
+  topic for the truth topics too): a cut-short or bit-flipped recording.
+
+Damage to the storage itself is read around (:class:`~marker_localizer.bag.io.BagReader`):
+an MCAP file cut short or damaged part-way is read front to back, so every
+whole message still reaches the output, and the summary lists the damage.
+``replay_main`` exits 0 when every image message gave a result, 3 when the
+output was written but something was skipped, failed or unreadable (the
+summary says what), 1 when nothing could be processed.
 
 When the bag carries ``/<cam>/marker_points_truth`` (as ``simulate`` writes),
 the detections of each frame are matched one-to-one to the truth of the same
@@ -46,6 +56,7 @@ from std_msgs.msg import Header
 
 from marker_localizer.bag.io import (
     DEFAULT_STORAGE,
+    EXIT_INCOMPLETE,
     STORAGES,
     BagMessage,
     BagReader,
@@ -55,7 +66,7 @@ from marker_localizer.bag.io import (
 )
 from marker_localizer.bag.record import IMAGE_SUFFIX, PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
 from marker_localizer.config import DetectorConfig, from_mapping, load_params_file
-from marker_localizer.errors import BagError, shorten
+from marker_localizer.errors import BagError, ImageError, shorten
 from marker_localizer.ros import diagnostics
 from marker_localizer.ros.conversions import ENCODINGS, cloud_to_array
 from marker_localizer.ros.node import NODE_NAME
@@ -178,6 +189,7 @@ class CameraReplay:
         skipped_encoding: Frames with an encoding the node does not accept.
         skipped_out_of_order: Frames whose stamp was not newer than the last one.
         failed: Frames the processor rejected or failed on.
+        undecodable: Image messages whose bytes do not decode.
         last_error: Text of the newest failure.
         evaluation: Against the bag's truth; None without truth topics.
     """
@@ -189,8 +201,14 @@ class CameraReplay:
     skipped_encoding: int = 0
     skipped_out_of_order: int = 0
     failed: int = 0
+    undecodable: int = 0
     last_error: str = ""
     evaluation: Evaluation | None = None
+
+    @property
+    def skipped(self) -> int:
+        """Image messages that gave no result, for any reason."""
+        return self.skipped_encoding + self.skipped_out_of_order + self.failed + self.undecodable
 
     @property
     def markers_per_frame(self) -> float:
@@ -213,6 +231,9 @@ class ReplayReport:
         workers: Worker threads used.
         wall_s: Wall time from the first frame read to the last result written, s.
         cameras: Per camera, in topic order.
+        undecodable: Per topic other than the images (truth), messages whose
+            bytes do not decode.
+        damage: What the reader could not read, one line each.
     """
 
     bag: Path
@@ -220,6 +241,17 @@ class ReplayReport:
     workers: int
     wall_s: float
     cameras: dict[str, CameraReplay]
+    undecodable: dict[str, int] = field(default_factory=dict)
+    damage: list[str] = field(default_factory=list)
+
+    @property
+    def complete(self) -> bool:
+        """Every image message gave a result and the whole bag could be read."""
+        return not (
+            self.damage
+            or any(self.undecodable.values())
+            or any(c.skipped for c in self.cameras.values())
+        )
 
     @property
     def frames(self) -> int:
@@ -247,13 +279,8 @@ def format_report(
         f"replayed {report.bag} -> {report.out}: {report.frames} frames in "
         f"{report.wall_s:.2f} s ({report.frames_per_s:.2f} frames/s, {report.workers} workers)",
         f"{'camera':<12}{'frames':>8}{'markers/frame':>15}{'ms/frame':>10}"
-        f"{'skipped: encoding':>19}{'order':>7}{'failed':>8}",
+        f"{'skipped: encoding':>19}{'order':>7}{'failed':>8}{'undecodable':>13}",
     ]
-    for c in cams:
-        lines.append(
-            f"{c.camera:<12}{c.frames:>8}{c.markers_per_frame:>15.2f}{c.mean_ms:>10.1f}"
-            f"{c.skipped_encoding:>19}{c.skipped_out_of_order:>7}{c.failed:>8}"
-        )
     total = CameraReplay(
         "all",
         frames=report.frames,
@@ -262,14 +289,24 @@ def format_report(
         skipped_encoding=sum(c.skipped_encoding for c in cams),
         skipped_out_of_order=sum(c.skipped_out_of_order for c in cams),
         failed=sum(c.failed for c in cams),
+        undecodable=sum(c.undecodable for c in cams),
     )
-    lines.append(
-        f"{'all':<12}{total.frames:>8}{total.markers_per_frame:>15.2f}{total.mean_ms:>10.1f}"
-        f"{total.skipped_encoding:>19}{total.skipped_out_of_order:>7}{total.failed:>8}"
-    )
+    for c in [*cams, total]:
+        lines.append(
+            f"{c.camera:<12}{c.frames:>8}{c.markers_per_frame:>15.2f}{c.mean_ms:>10.1f}"
+            f"{c.skipped_encoding:>19}{c.skipped_out_of_order:>7}{c.failed:>8}{c.undecodable:>13}"
+        )
     for c in cams:
         if c.last_error:
             lines.append(f"{c.camera}: last failure: {c.last_error}")
+    lines += [f"undecodable {topic}: {n} skipped" for topic, n in report.undecodable.items()]
+    lines += [f"damaged storage: {line}" for line in report.damage]
+    if not report.complete:
+        lines.append(
+            f"incomplete: {total.skipped} image messages gave no result"
+            + (", the storage is damaged" if report.damage else "")
+            + f"; every frame read is in {report.out}"
+        )
     overall = report.evaluation
     if overall is None:
         return "\n".join(lines)
@@ -363,8 +400,13 @@ class _Session:
     def submit(self, camera: str, message: BagMessage) -> None:
         """Hand one image to the pool, or count why it is skipped."""
         stats = self.stats[camera]
-        image: Image = message.decode()
         self.now_ns = message.time_ns
+        try:
+            image: Image = message.decode()
+        except BagError as err:
+            stats.undecodable += 1
+            stats.last_error = shorten(str(err))
+            return
         stamp_ns = stamp_to_ns(image.header)
         if image.encoding not in ENCODINGS:
             stats.skipped_encoding += 1
@@ -497,6 +539,7 @@ def replay_bag(
         }
         cloud_kind = {t: (TRUTH_SUFFIX, c) for c, t in truth.items()}
         cloud_kind |= {t: (PARTIAL_SUFFIX, c) for c, t in partial.items()}
+        undecodable: dict[str, int] = {}
         with BagWriter(out, storage) as writer:
             for camera in cameras:
                 writer.add_topic(f"/{camera}/{POINTS_SUFFIX}", CLOUD_TYPE)
@@ -508,8 +551,11 @@ def replay_bag(
                 for message in reader.messages({*cameras.values(), *cloud_kind}):
                     if message.topic in cloud_kind:
                         kind, camera = cloud_kind[message.topic]
-                        cloud: PointCloud2 = message.decode()
-                        clouds[kind][(camera, stamp_to_ns(cloud.header))] = _xy(cloud)
+                        try:
+                            cloud: PointCloud2 = message.decode()
+                            clouds[kind][(camera, stamp_to_ns(cloud.header))] = _xy(cloud)
+                        except (BagError, ImageError):
+                            undecodable[message.topic] = undecodable.get(message.topic, 0) + 1
                         continue
                     session.submit(topic_camera[message.topic], message)
                     handled += 1
@@ -520,11 +566,14 @@ def replay_bag(
             finally:
                 session.processor.shutdown()
             wall_s = time.perf_counter() - started
+        damage = list(reader.damage)
     if truth:
         _evaluate(
             session, clouds[TRUTH_SUFFIX], clouds[PARTIAL_SUFFIX], list(truth), match_distance_px
         )
-    return ReplayReport(Path(bag), Path(out), workers, wall_s, session.stats)
+    return ReplayReport(
+        Path(bag), Path(out), workers, wall_s, session.stats, undecodable, damage
+    )
 
 
 def _require_results(bag: str | Path, stats: dict[str, CameraReplay]) -> None:
@@ -533,12 +582,14 @@ def _require_results(bag: str | Path, stats: dict[str, CameraReplay]) -> None:
         return
     skipped_encoding = sum(c.skipped_encoding for c in stats.values())
     skipped_order = sum(c.skipped_out_of_order for c in stats.values())
-    failed = [c for c in stats.values() if c.failed]
+    undecodable = sum(c.undecodable for c in stats.values())
+    failed = [c for c in stats.values() if c.last_error]
     reason = f"; last failure: {failed[-1].last_error}" if failed else ""
     raise BagError(
         f"{bag}: no frame could be processed ({skipped_encoding} with an unsupported "
-        f"encoding, {skipped_order} out of order, {sum(c.failed for c in failed)} failed; "
-        f"supported encodings: {', '.join(ENCODINGS)}){reason}"
+        f"encoding, {skipped_order} out of order, {sum(c.failed for c in stats.values())} "
+        f"failed, {undecodable} undecodable; supported encodings: {', '.join(ENCODINGS)})"
+        f"{reason}"
     )
 
 
@@ -635,7 +686,7 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
         finally:
             bar.close()
         sys.stdout.write(format_report(report, args.match_distance) + "\n")
-        return 0
+        return 0 if report.complete else EXIT_INCOMPLETE
 
     return run_command("replay", body)
 

@@ -1,0 +1,138 @@
+"""Fault injection into bags: cut short, bit-flipped, unfinished; replay keeps every good frame.
+
+Each test damages a copy of one simulated flight at a chosen byte and checks
+the output against an oracle taken from the intact bag: where each image's
+CDR bytes lie in the MCAP file. A frame is good when its bytes are untouched
+and lie before any cut; replay must write a result for every good frame, once,
+and say what it skipped.
+"""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from marker_localizer.bag.io import EXIT_INCOMPLETE, BagReader
+from marker_localizer.bag.record import simulate_main
+from marker_localizer.bag.replay import replay_bag, replay_main
+from marker_localizer.errors import BagError
+
+#: Bytes in front of a message's CDR in an MCAP file: record opcode and length
+#: (9), channel, sequence, log and publish time (22).
+MESSAGE_RECORD_HEAD = 9 + 22
+#: Bytes in front of an Image's frame_id length in its CDR: encapsulation (4), stamp (8).
+FRAME_ID_LENGTH_AT = 4 + 8
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    path = tmp_path_factory.mktemp("faults") / "flight"
+    argv = ["--out", str(path), "--frames", "3", "--width", "320", "--height", "240"]
+    assert simulate_main([*argv, "--seed", "2"]) == 0
+    return path
+
+
+@pytest.fixture(scope="module")
+def images(flight):
+    """(camera, bag time) -> (start, end) byte span of the image's CDR in the MCAP file."""
+    data = (flight / "flight.mcap").read_bytes()
+    spans = {}
+    with BagReader(flight) as bag:
+        for message in bag.messages():
+            if message.topic.endswith("/image_raw"):
+                start = data.index(message.raw)
+                camera = message.topic.strip("/").split("/")[0]
+                spans[(camera, message.time_ns)] = (start, start + len(message.raw))
+    assert len(spans) == 15
+    return spans
+
+
+def damaged_copy(flight, directory, change):
+    """A copy of ``flight`` whose MCAP bytes went through ``change``."""
+    copy = directory / "damaged"
+    shutil.copytree(flight, copy)
+    storage = copy / "flight.mcap"
+    storage.write_bytes(change(storage.read_bytes()))
+    return copy
+
+
+def results(out):
+    """(camera, bag time) of every marker cloud in a replay's output bag."""
+    with BagReader(out) as bag:
+        return [
+            (message.topic.strip("/").split("/")[0], message.time_ns)
+            for message in bag.messages()
+            if message.topic.endswith("/marker_points")
+        ]
+
+
+def flip(data, at, bit):
+    damaged = bytearray(data)
+    damaged[at] ^= 1 << bit
+    return bytes(damaged)
+
+
+def test_a_bag_cut_short_gives_every_frame_before_the_cut_and_exit_status_3(
+    flight, images, tmp_path, capsys
+):
+    cut = sorted(start for start, _ in images.values())[9] + 1000  # inside the 10th image
+    bag = damaged_copy(flight, tmp_path, lambda data: data[:cut])
+    out = tmp_path / "out"
+    assert replay_main([str(bag), "--out", str(out), "--workers", "1"]) == EXIT_INCOMPLETE
+    whole = {key for key, (_, end) in images.items() if end <= cut}
+    assert len(whole) == 9
+    written = results(out)
+    assert sorted(written) == sorted(whole)  # each good frame once, nothing else
+    summary = capsys.readouterr().out
+    assert "cannot be opened through its index" in summary
+    assert "incomplete: 0 image messages gave no result, the storage is damaged" in summary
+
+
+def test_a_flipped_bit_that_makes_a_frame_undecodable_costs_that_frame_only(
+    flight, images, tmp_path
+):
+    victim = sorted(images)[6]
+    start, _ = images[victim]
+    bag = damaged_copy(flight, tmp_path, lambda data: flip(data, start + FRAME_ID_LENGTH_AT + 3, 6))
+    report = replay_bag(bag, tmp_path / "out", workers=2)
+    assert sorted(results(tmp_path / "out")) == sorted(set(images) - {victim})
+    camera = report.cameras[victim[0]]
+    assert camera.undecodable == 1
+    assert "does not decode as sensor_msgs/msg/Image" in camera.last_error
+    assert not report.complete and not report.damage
+
+
+def test_a_flipped_bit_in_a_record_length_costs_that_message_only(flight, images, tmp_path):
+    victim = sorted(images)[4]
+    start, _ = images[victim]
+    length_at = start - MESSAGE_RECORD_HEAD + 1
+    bag = damaged_copy(flight, tmp_path, lambda data: flip(data, length_at + 4, 3))
+    report = replay_bag(bag, tmp_path / "out", workers=2)
+    assert sorted(results(tmp_path / "out")) == sorted(set(images) - {victim})
+    assert any("found by index" in line for line in report.damage), report.damage
+    assert any("1 indexed messages lost" in line for line in report.damage), report.damage
+
+
+def test_a_recording_that_did_not_finish_is_read_front_to_back(flight, images, tmp_path):
+    cut = sorted(end for _, end in images.values())[-3]  # right after the 13th image
+    bag = damaged_copy(flight, tmp_path, lambda data: data[:cut])
+    (bag / "metadata.yaml").unlink()
+    report = replay_bag(bag, tmp_path / "out", workers=2)
+    whole = {key for key, (_, end) in images.items() if end <= cut}
+    assert sorted(results(tmp_path / "out")) == sorted(whole)
+    assert report.damage[0].endswith("no metadata.yaml (a recording that did not finish); "
+                                     "its MCAP files read front to back")
+
+
+def test_a_cut_sqlite3_bag_is_one_error_naming_it(tmp_path, capsys):
+    bag = tmp_path / "flight_db"
+    argv = ["--out", str(bag), "--frames", "1", "--width", "64", "--height", "48"]
+    assert simulate_main([*argv, "--storage", "sqlite3", "--cameras", "1"]) == 0
+    storage = bag / "flight_db.db3"
+    storage.write_bytes(storage.read_bytes()[: storage.stat().st_size // 2])
+    with pytest.raises(BagError, match="flight_db: cannot open bag, corrupt or truncated"):
+        replay_bag(bag, tmp_path / "out")
+    assert replay_main([str(bag), "--out", str(tmp_path / "out")]) == 1
+    assert capsys.readouterr().err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flight_db"]
