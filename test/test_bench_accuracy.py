@@ -102,8 +102,9 @@ def test_every_issue_family_is_defined_with_its_true_radius_range():
     by_key: dict[str, list[accuracy.Family]] = {}
     for family in accuracy.families():
         by_key.setdefault(family.key, []).append(family)
-    assert sorted(by_key) == ["a", "b", "c", "d", "e"]
+    assert sorted(by_key) == ["a", "b", "c", "d", "e", "g"]
     assert by_key["b"][0].radius_range == (2.5, 5.0)
+    assert by_key["g"][0].radius_range == (5.0, 30.0)
     assert len(by_key["d"]) == 2
     assert by_key["e"][0].board_pattern == (10, 10)
 
@@ -155,6 +156,44 @@ def test_family_table_prints_the_peer_to_ours_ratio():
     peer.tally.add(metrics.match_points(np.array([[0.1, 0.0]]), np.zeros((1, 2))))
     table = accuracy.family_table("t", [ours, peer])
     assert "5.00" in table.splitlines()[-1]
+
+
+def test_family_table_prints_the_bound_and_the_error_over_it():
+    ours = accuracy.Row(accuracy.REFERENCE_ROW)
+    ours.tally.add(metrics.match_points(np.array([[0.03, 0.0], [5.0, 5.0]]), np.zeros((1, 2))),
+                   truth_crlb_px=np.array([0.01]))
+    line = accuracy.family_table("t", [ours]).splitlines()[-1].split()
+    assert line[-4:-1] == ["0.0100", "3.00", "-"]
+    assert ours.tally.fp_per_frame == 1.0
+
+
+def test_uneven_light_family_renders_dull_quadrants_shadows_and_every_markers_bound():
+    (family,) = [f for f in accuracy.families() if f.key == "g"]
+    scene = family.render(0)
+    assert len(scene.imaging.cast_shadows) >= 3
+    assert np.isfinite(scene.crlb_px).all() and (scene.crlb_px < 0.2).all()
+
+
+def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path, capsys):
+    out = tmp_path / "accuracy.json"
+    assert accuracy.main(["--families", "g", "--frames", "1", "--no-curvature",
+                          "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "Family (g) uneven light" in printed
+    assert "err/CRLB" in printed and "Summary, ours (symmetry)" in printed
+    saved = json.loads(out.read_text())
+    (table,) = saved["synthetic"].values()
+    assert table[accuracy.REFERENCE_ROW]["crlb_mean_px"] > 0
+    assert set(saved["summary"]) == {"rendered (g)"}
+
+
+def test_negatives_count_every_detection_per_frame_and_per_megapixel():
+    frames = [real_data.UasFrame(str(i), np.zeros((1000, 500), np.uint8)) for i in range(2)]
+    (row,) = accuracy.evaluate_negatives(frames, [FixedDetector("fixed", np.ones((3, 2)))],
+                                         (3.0, 30.0))
+    assert row.extra["fp_per_frame"] == 3.0
+    assert row.extra["fp_per_megapixel"] == pytest.approx(6.0)
+    assert "FP/MP" in accuracy.negatives_table("t", [row])
 
 
 def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
@@ -213,6 +252,29 @@ def test_validationboof_hand_clicks_agree_with_opencv_after_the_half_pixel_shift
     shifted = metrics.match_points(item.opencv, item.reference + 0.5)
     # The shift removes a systematic +0.5 px bias, so the errors must be smaller with it.
     assert matching.errors_px.mean() < shifted.errors_px.mean()
+
+
+@needs_data
+def test_independent_frames_load_with_their_truth_bound_and_radius_range():
+    frames = list(real_data.iter_independent(DATA, limit_per_family=1))
+    assert [f.family for f in frames] == list(accuracy.INDEPENDENT_FAMILIES)
+    tiny = next(f for f in frames if f.family == "b")
+    assert tiny.radius_range == (2.5, 5.0)
+    assert tiny.truth.shape == (len(tiny.crlb_px), 2) and len(tiny.crlb_px) > 10
+    assert (tiny.crlb_px > 0).all()
+    height, width = tiny.image.shape
+    assert ((tiny.truth >= 0) & (tiny.truth < (width, height))).all()
+
+
+@needs_data
+def test_independent_table_scores_every_detector_against_the_frames_bound():
+    frame = next(real_data.iter_independent(DATA, 1, ("a",)))
+    ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
+    rows = accuracy.evaluate_frames([accuracy.LabelledFrame.independent(frame)], 0, [ours]).rows
+    tally = rows[0].tally
+    found = np.asarray(tally.found)
+    assert tally.mean_crlb_px == pytest.approx(frame.crlb_px[found].mean())
+    assert rows[1].refiner and rows[1].tally.n_truth == len(frame.truth)
 
 
 @needs_data

@@ -1,20 +1,27 @@
 """Accuracy benchmark: this detector and its peers on rendered families and real images.
 
 ``marker-localizer bench accuracy`` (or ``python -m marker_localizer.bench.accuracy``)
-prints one table per scenario family of the renderer, then tables for the real
-sets in ``<repo>/../shared/data`` (skipped when absent):
+prints one table per scenario family of the renderer, then tables for the sets
+in ``<repo>/../shared/data`` (skipped when absent):
 
 * rendered families (exact truth): recall, false positives per frame, error
   mean / RMS / p95 / max / share within 0.1 px, share within 2 reported sigma,
-  and each peer's mean error over ours ("peer/ours", ours = the default
-  ``refinement="symmetry"`` variant). Our detector gets the family's true
-  radius range as ``marker_radius_min_px`` / ``marker_radius_max_px``;
+  the mean Cramer-Rao bound of the markers each detector found and its mean
+  error over that bound ("err/CRLB", 1 = efficient), and each peer's mean
+  error over ours ("peer/ours", ours = the default ``refinement="symmetry"``
+  variant). Every detector gets the family's true radius range;
   ``cv2.cornerSubPix`` starts from the truth moved by a random offset of up to
-  1 px (seeded) and measures refinement only.
+  1 px (seeded) and measures refinement only. The bound is the renderer's own
+  (:mod:`marker_localizer.synthetic.crlb`).
+* the independent renderer's frames (``independent/``, exact truth and bound
+  in its ``truth.json``): the same table per family, every detector given each
+  frame's ``radius_range_px``. A validation split: nothing is tuned on it.
 * real chessboards: recall of the reference corners, boards with every corner
   found, the paper's Table 1 deviation from OpenCV's refined corners, and the
   reference-free row/column residuals (straight line and projective spacing).
 * cirn_uas: both ground targets found per frame, false positives per frame.
+* aerial_negatives: real ground without any marker; false points per frame and
+  per megapixel.
 
 A detection matches a truth point within :data:`metrics.DEFAULT_GATE_PX` (2 px).
 """
@@ -26,7 +33,7 @@ import itertools
 import json
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -53,8 +60,20 @@ REAL_RADIUS_RANGES: dict[str, RadiusRange] = {
     "libcbdetect": (5.0, 40.0),
     "pycbd": (10.0, 80.0),
     "cirn_uas": (6.0, 24.0),
+    "aerial_negatives": (3.0, 30.0),
 }
-FAMILY_KEYS = ("a", "b", "c", "d", "e", "real")
+#: What ``--families`` can choose: the rendered families, the independent
+#: renderer's frames, the real sets with reference points, the real negatives.
+FAMILY_KEYS = ("a", "b", "c", "d", "e", "g", "independent", "real", "negatives")
+#: The independent renderer's families (its data README), in table order.
+INDEPENDENT_FAMILIES: dict[str, str] = {
+    "a": "radius 6-40 px, tilt up to 60 deg, no look-alikes",
+    "b": "tiny markers, radius 2.5-5 px, 30 per frame",
+    "c": "motion blur up to 4 px",
+    "d": "clutter: 60 look-alikes, radius 4-30 px, strong light gradient",
+    "g": "uneven light: one dull bright quadrant on every marker, a hard shadow edge "
+         "across half of them, 20 look-alikes",
+}
 
 
 # --------------------------------------------------------------------------- families
@@ -73,6 +92,7 @@ class Family:
         board_pattern: (columns, rows) for chessboard families (board peers run), else None.
         resolution_bins: inner edges of the recall-by-resolution table (resolution =
             foreshortened radius over blur sigma, :func:`marker_resolution`); empty: none.
+        variant: what tells it from another family of the same key, for the summary.
     """
 
     key: str
@@ -83,16 +103,36 @@ class Family:
     render: Callable[[int], RenderedScene]
     board_pattern: tuple[int, int] | None = None
     resolution_bins: tuple[float, ...] = ()
+    variant: str = ""
+
+    @property
+    def label(self) -> str:
+        """Short name in the summary table."""
+        return f"rendered ({self.key}){' ' + self.variant if self.variant else ''}"
 
 
 def _scene(**fields: Any) -> Callable[[int], RenderedScene]:
     config = SceneConfig(**fields)
-    return lambda seed: render_scene(config, seed)
+    return lambda seed: render_scene(config, seed, crlb=True)
 
 
-_BASE = {"radius_px": (6.0, 40.0), "blur_sigma_px": (0.5, 1.5), "noise_sigma_dn": (0.0, 4.0),
-         "max_tilt_deg": 60.0}
+#: What every rendered marker family draws from: at least the independent
+#: renderer's documented ranges (contrast 0.35-0.9 of full scale, white at
+#: 70-100 % of 255, read noise 0.5-4 DN plus shot noise up to 0.05 x signal,
+#: ground photographs at 0.25-2.5 px per texture px, gamma 0.8-1.25, the
+#: renderer's default), and half the frames written as JPEG at quality 70-95.
+_BASE = {"radius_px": (6.0, 40.0), "blur_sigma_px": (0.5, 1.5), "noise_sigma_dn": (0.5, 4.0),
+         "max_tilt_deg": 60.0, "contrast": (0.35, 0.9), "peak_level": (0.7, 1.0),
+         "shot_noise_gain_dn": (0.0, 0.05), "texture_scale": (0.25, 2.5),
+         "jpeg_probability": 0.5}
+#: One line for the tables: what the families share.
+BASE_CONDITIONS = ("rendered families: blur 0.5-1.5 px, read noise 0.5-4 DN + shot noise "
+                   "<= 0.05 x signal, contrast 0.35-0.9, white at 70-100 % of 255, gamma "
+                   "0.8-1.25, tilt <= 60 deg, ground photographs at 0.25-2.5 px per texture "
+                   "px, half the frames JPEG (quality 70-95)")
 _CLUTTER = {"illumination_strength": 1.0, "n_shadows": 4}
+#: Family (g): every marker has a dull bright quadrant, half a hard cast shadow.
+_UNEVEN_LIGHT = {"dull_probability": 1.0, "shadow_probability": 0.5}
 #: Square sides of the rendered chessboards before tilt, px.
 BOARD_SQUARE_PX = (24.0, 44.0)
 #: Largest out-of-plane tilt of the rendered chessboards, degrees.
@@ -141,9 +181,9 @@ def marker_resolution(scene: RenderedScene) -> np.ndarray:
 
 
 def families() -> list[Family]:
-    """The scenario families of issue 6, in table order."""
+    """The scenario families of issues 6 and 12, in table order."""
     return [
-        Family("a", "(a) radius 6-40 px, blur 0.5-1.5, noise <= 4 DN, tilt <= 60 deg, 1280x960",
+        Family("a", "(a) radius 6-40 px, 12 per 1280x960 frame, 20 look-alikes",
                (6.0, 40.0), 12, 2, _scene(**_BASE)),
         Family("b", "(b) tiny markers, radius 2.5-5 px (otherwise as (a)), 24 per frame",
                (2.5, 5.0), 8, 1, _scene(**{**_BASE, "radius_px": (2.5, 5.0), "n_markers": 24}),
@@ -155,8 +195,14 @@ def families() -> list[Family]:
         Family("d", "(d) cluttered 4096x3000: 400 hard negatives, strong light gradient, "
                "4 shadows, 24 markers",
                (6.0, 40.0), 3, 1, _scene(**_BASE, **_CLUTTER, width=4096, height=3000,
-                                         n_markers=24, n_hard_negatives=400)),
-        Family("e", "(e) chessboards 10x10 inner corners, squares 24-44 px, tilt <= 50 deg",
+                                         n_markers=24, n_hard_negatives=400),
+               variant="4096x3000"),
+        Family("g", "(g) uneven light: one bright quadrant 0.45-0.8 as bright as the other on "
+               "every marker, a hard shadow edge (40-65 % darker) within 0.6 radii of the centre "
+               "of half of them, radius 5-30 px, 20 look-alikes",
+               (5.0, 30.0), 8, 1, _scene(**{**_BASE, **_UNEVEN_LIGHT, "radius_px": (5.0, 30.0)})),
+        Family("e", "(e) chessboards 10x10 inner corners, squares 24-44 px, tilt <= 50 deg "
+               "(not the family conditions: blur 0.5-1.5, noise <= 4 DN, no bound computed)",
                BOARD_SQUARE_PX, 8, 1, render_board_frame, board_pattern=(10, 10)),
     ]
 
@@ -207,45 +253,90 @@ class FamilyResult:
         rows: one :class:`Row` per detector, then the cornerSubPix row, then the
             board peers' rows for chessboard families.
         resolution: per truth point, in the order of every tally's ``found``:
-            :func:`marker_resolution`.
+            :func:`marker_resolution` (NaN where the blur is unknown).
     """
 
     rows: list[Row]
     resolution: np.ndarray
 
 
-def evaluate_family(family: Family, n_frames: int, seed: int,
-                    detectors: Sequence[PointDetector]) -> FamilyResult:
-    """Render ``n_frames`` of a family and score every detector and cornerSubPix on them.
+@dataclass(frozen=True)
+class LabelledFrame:
+    """A frame with exact truth, from this package's renderer or another.
+
+    Attributes:
+        image: (H, W) uint8 frame.
+        truth: (N, 2) marker centres, px.
+        crlb_px: (N,) each marker's Cramer-Rao bound (expected |error|), px; NaN: unknown.
+        radius_range: (min, max) marker radius given to every detector, px.
+        resolution: (N,) :func:`marker_resolution`, NaN where unknown.
+    """
+
+    image: np.ndarray
+    truth: np.ndarray
+    crlb_px: np.ndarray
+    radius_range: RadiusRange
+    resolution: np.ndarray
+
+    @classmethod
+    def rendered(cls, scene: RenderedScene, radius_range: RadiusRange) -> LabelledFrame:
+        """A frame of this package's renderer."""
+        return cls(scene.image, scene.centres, scene.crlb_px, radius_range,
+                   marker_resolution(scene))
+
+    @classmethod
+    def independent(cls, frame: real_data.IndependentFrame) -> LabelledFrame:
+        """A frame of the independent renderer, with its own radius range and bound."""
+        return cls(frame.image, frame.truth, frame.crlb_px, frame.radius_range,
+                   np.full(len(frame.truth), np.nan))
+
+
+def evaluate_frames(frames: Iterable[LabelledFrame], seed: int,
+                    detectors: Sequence[PointDetector],
+                    board_pattern: tuple[int, int] | None = None) -> FamilyResult:
+    """Score every detector and cornerSubPix on frames with exact truth.
 
     Args:
-        family: what to render.
-        n_frames: frames to render (seeds ``seed * 1000 + i``).
-        seed: base seed.
+        frames: the frames, each with its radius range.
+        seed: seed of cornerSubPix's start offsets.
         detectors: point detectors to score (ours and peers).
+        board_pattern: (columns, rows) of a chessboard family: its board peers run too.
     """
-    board = peers.board_detectors(family.board_pattern) if family.board_pattern else []
+    board = peers.board_detectors(board_pattern) if board_pattern else []
     everyone = [*detectors, *board]
     rows = {d.name: Row(d.name) for d in everyone}
-    refiner = peers.CornerSubPixRefiner(peers.subpix_half_window(family.radius_range))
-    refiner_row = Row(f"{refiner.name} (start <= 1 px)", refiner=True)
+    refiner_row = Row(f"{peers.CornerSubPixRefiner.name} (start <= 1 px)", refiner=True)
     rng = np.random.default_rng(seed)
     resolution = []
-    for i in range(n_frames):
-        scene = family.render(seed * 1000 + i)
-        truth = scene.centres
-        resolution.append(marker_resolution(scene))
+    for frame in frames:
+        resolution.append(frame.resolution)
         for detector in everyone:
-            points, seconds = _timed_detect(detector, scene.image, family.radius_range)
-            rows[detector.name].tally.add(metrics.match_points(points, truth), _sigmas(detector),
-                                          seconds)
+            points, seconds = _timed_detect(detector, frame.image, frame.radius_range)
+            rows[detector.name].tally.add(metrics.match_points(points, frame.truth),
+                                          _sigmas(detector), seconds, frame.crlb_px)
+        refiner = peers.CornerSubPixRefiner(peers.subpix_half_window(frame.radius_range))
         start = time.perf_counter()
-        refined = refiner.refine(scene.image, subpix_starts(truth, rng))
-        refiner_row.tally.add(metrics.match_points(refined, truth),
-                              seconds=time.perf_counter() - start)
+        refined = refiner.refine(frame.image, subpix_starts(frame.truth, rng))
+        refiner_row.tally.add(metrics.match_points(refined, frame.truth),
+                              seconds=time.perf_counter() - start, truth_crlb_px=frame.crlb_px)
     ordered = [rows[d.name] for d in detectors]
     return FamilyResult([*ordered, refiner_row, *(rows[d.name] for d in board)],
                         np.concatenate(resolution) if resolution else np.zeros(0))
+
+
+def evaluate_family(family: Family, n_frames: int, seed: int,
+                    detectors: Sequence[PointDetector]) -> FamilyResult:
+    """Render ``n_frames`` of a family (seeds ``seed * 1000 + i``) and score them.
+
+    Args:
+        family: what to render.
+        n_frames: frames to render.
+        seed: base seed (rendering and cornerSubPix's start offsets).
+        detectors: point detectors to score (ours and peers).
+    """
+    frames = (LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range)
+              for i in range(n_frames))
+    return evaluate_frames(frames, seed, detectors, family.board_pattern)
 
 
 # --------------------------------------------------------------------------- real images
@@ -364,6 +455,30 @@ def evaluate_uas(frames: Sequence[real_data.UasFrame], detectors: Sequence[Point
     return rows
 
 
+def evaluate_negatives(frames: Sequence[real_data.UasFrame], detectors: Sequence[PointDetector],
+                       radius_range: RadiusRange) -> list[Row]:
+    """Score detectors on real frames without any marker: every detection is false.
+
+    ``Row.extra``: ``fp_per_frame``, ``fp_per_megapixel`` (over all the frames'
+    pixels), ``seconds`` (per frame).
+    """
+    megapixels = sum(f.image.size for f in frames) / 1e6
+    rows = []
+    for detector in detectors:
+        false_points, seconds = 0, 0.0
+        for frame in frames:
+            points, dt = _timed_detect(detector, frame.image, radius_range)
+            false_points += len(points)
+            seconds += dt
+        n = max(len(frames), 1)
+        rows.append(Row(detector.name, extra={
+            "fp_per_frame": false_points / n,
+            "fp_per_megapixel": false_points / megapixels if megapixels else math.nan,
+            "seconds": seconds / n,
+        }))
+    return rows
+
+
 # --------------------------------------------------------------------------- tables
 
 def _fmt(value: float, digits: int = 3) -> str:
@@ -375,10 +490,11 @@ def _pct(value: float) -> str:
 
 
 def family_table(title: str, rows: Sequence[Row]) -> str:
-    """Format a rendered family's table (errors in px)."""
+    """Format a family's table (errors and bounds in px)."""
     ours = next((r.tally.stats.mean for r in rows if r.name == REFERENCE_ROW), math.nan)
     header = (f"{'detector':<34}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'RMS':>8}{'p95':>8}"
-              f"{'max':>8}{'<=0.1':>8}{'in 2sig':>8}{'peer/ours':>10}{'s/frame':>9}")
+              f"{'max':>8}{'<=0.1':>8}{'in 2sig':>8}{'CRLB':>8}{'err/CRLB':>9}"
+              f"{'peer/ours':>10}{'s/frame':>9}")
     lines = [title, header, "-" * len(header)]
     for row in rows:
         t, s = row.tally, row.tally.stats
@@ -387,7 +503,8 @@ def family_table(title: str, rows: Sequence[Row]) -> str:
             f"{row.name:<34}{_pct(t.recall):>8}"
             f"{'-' if row.refiner else _fmt(t.fp_per_frame, 2):>8}"
             f"{_fmt(s.mean):>8}{_fmt(s.rms):>8}{_fmt(s.p95):>8}{_fmt(s.max):>8}"
-            f"{_pct(s.within_fine):>8}{_pct(t.within_two_sigma):>8}{_fmt(ratio, 2):>10}"
+            f"{_pct(s.within_fine):>8}{_pct(t.within_two_sigma):>8}"
+            f"{_fmt(t.mean_crlb_px, 4):>8}{_fmt(t.error_over_crlb, 2):>9}{_fmt(ratio, 2):>10}"
             f"{_fmt(t.seconds / max(t.frames, 1), 2):>9}")
     return "\n".join(lines)
 
@@ -465,6 +582,32 @@ def uas_table(title: str, rows: Sequence[Row]) -> str:
     return "\n".join(lines)
 
 
+def negatives_table(title: str, rows: Sequence[Row]) -> str:
+    """Format the table of real frames without markers (every detection is false)."""
+    header = f"{'detector':<34}{'FP/frame':>11}{'FP/MP':>10}{'s/frame':>9}"
+    lines = [title, header, "-" * len(header)]
+    for row in rows:
+        e = row.extra
+        lines.append(f"{row.name:<34}{_fmt(e['fp_per_frame'], 2):>11}"
+                     f"{_fmt(e['fp_per_megapixel'], 3):>10}{_fmt(e['seconds'], 2):>9}")
+    return "\n".join(lines)
+
+
+def summary_table(results: Sequence[tuple[str, Row]]) -> str:
+    """One line per family for the reference row: the figures issue 12's targets are about."""
+    header = (f"{'family':<44}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'CRLB':>8}"
+              f"{'err/CRLB':>9}")
+    lines = [f"Summary, {REFERENCE_ROW}: recall, false points per frame, mean error (px), "
+             "mean Cramer-Rao bound of the markers found (px), their ratio", header,
+             "-" * len(header)]
+    for label, row in results:
+        t = row.tally
+        lines.append(f"{label:<44}{_pct(t.recall):>8}{_fmt(t.fp_per_frame, 2):>8}"
+                     f"{_fmt(t.stats.mean):>8}{_fmt(t.mean_crlb_px, 4):>8}"
+                     f"{_fmt(t.error_over_crlb, 2):>9}")
+    return "\n".join(lines)
+
+
 def row_record(row: Row) -> dict[str, Any]:
     """JSON-ready figures of a row."""
     t, s = row.tally, row.tally.stats
@@ -473,6 +616,7 @@ def row_record(row: Row) -> dict[str, Any]:
         "recall": t.recall, "fp_per_frame": None if row.refiner else t.fp_per_frame,
         "mean_px": s.mean, "rms_px": s.rms, "p95_px": s.p95, "max_px": s.max,
         "within_0p1": s.within_fine, "within_2sigma": t.within_two_sigma,
+        "crlb_mean_px": t.mean_crlb_px, "error_over_crlb": t.error_over_crlb,
         "seconds_per_frame": t.seconds / t.frames if t.frames else None,
     }
     record.update(row.extra)
@@ -487,12 +631,12 @@ class Options:
     """What one run does (parsed from the command line, or built by tests).
 
     Attributes:
-        frames: frames per family (None: each family's default, or quick count).
+        frames: frames per rendered family (None: each family's default, or quick count).
         quick: small run (a couple of frames per family, a subset of real images).
         seed: base seed of the rendering and of cornerSubPix's start offsets.
-        families: keys of the families to run (``a``-``e`` and ``real``).
+        families: keys of what to run (:data:`FAMILY_KEYS`).
         curvature: include ``candidate_detector="curvature"``.
-        data_root: the real data folder (None: skip real images).
+        data_root: the shared data folder (None: skip the independent and real images).
     """
 
     frames: int | None = None
@@ -510,22 +654,35 @@ def frames_for(family: Family, options: Options) -> int:
     return family.quick_frames if options.quick else family.frames
 
 
-def run_synthetic(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
-    """Evaluate the rendered families; report each table as it is done."""
-    detectors: list[PointDetector] = [*peers.our_variants(options.curvature),
-                                      *peers.point_detectors()]
+def _detectors(options: Options) -> list[PointDetector]:
+    return [*peers.our_variants(options.curvature), *peers.point_detectors()]
+
+
+def _reference(rows: Sequence[Row]) -> Row:
+    return next(r for r in rows if r.name == REFERENCE_ROW)
+
+
+def run_synthetic(options: Options, report: Callable[[str], None],
+                  summary: list[tuple[str, Row]]) -> dict[str, Any]:
+    """Evaluate the rendered families; report each table as it is done.
+
+    Appends (family label, our reference row) to ``summary``.
+    """
+    detectors = _detectors(options)
     results: dict[str, Any] = {}
-    for family in families():
-        if family.key not in options.families:
-            continue
+    chosen = [f for f in families() if f.key in options.families]
+    if chosen:
+        report(f"Shared by the {BASE_CONDITIONS}")
+    for family in chosen:
         result = evaluate_family(family, frames_for(family, options), options.seed, detectors)
         rows = result.rows
         frames = rows[0].tally.frames
         title = (f"Family {family.title}; {frames} frames, {rows[0].tally.n_truth} markers, "
-                 f"radius range given to ours {family.radius_range[0]:g}-"
+                 f"radius range given to every detector {family.radius_range[0]:g}-"
                  f"{family.radius_range[1]:g} px")
         report(family_table(title, rows))
         results[family.title] = {r.name: row_record(r) for r in rows}
+        summary.append((family.label, _reference(rows)))
         if family.resolution_bins:
             split = resolution_recall(result, family.resolution_bins)
             report(resolution_table(
@@ -539,6 +696,54 @@ def run_synthetic(options: Options, report: Callable[[str], None]) -> dict[str, 
     return results
 
 
+def run_independent(options: Options, report: Callable[[str], None],
+                    summary: list[tuple[str, Row]]) -> dict[str, Any]:
+    """Evaluate the independent renderer's frames family by family; report each table.
+
+    Appends (family label, our reference row) to ``summary``.
+    """
+    root = options.data_root
+    if root is None or not (root / "independent" / "truth.json").is_file():
+        report("Independent renderer: ../shared/data/independent not found, skipped.")
+        return {}
+    detectors = _detectors(options)
+    results: dict[str, Any] = {}
+    for key, description in INDEPENDENT_FAMILIES.items():
+        frames = list(real_data.iter_independent(root, 1 if options.quick else None, (key,)))
+        if not frames:
+            continue
+        rows = evaluate_frames((LabelledFrame.independent(f) for f in frames), options.seed,
+                               detectors).rows
+        ranges = sorted({f.radius_range for f in frames})
+        title = (f"Independent renderer, family ({key}) {description}; {len(frames)} frames, "
+                 f"{rows[0].tally.n_truth} markers, radius range given to every detector "
+                 + ", ".join(f"{low:g}-{high:g}" for low, high in ranges)
+                 + " px (truth.json); CRLB: truth.json's")
+        report(family_table(title, rows))
+        results[f"({key}) {description}"] = {r.name: row_record(r) for r in rows}
+        summary.append((f"independent ({key})", _reference(rows)))
+    return results
+
+
+def run_negatives(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
+    """Evaluate the real frames without markers; report the table."""
+    root = options.data_root
+    if root is None or not (root / "aerial_negatives").is_dir():
+        report("Real aerial frames without markers: ../shared/data/aerial_negatives not "
+               "found, skipped.")
+        return {}
+    frames = list(real_data.iter_aerial_negatives(root, 1 if options.quick else None))
+    rows = evaluate_negatives(frames, _detectors(options), REAL_RADIUS_RANGES["aerial_negatives"])
+    megapixels = sum(f.image.size for f in frames) / 1e6
+    shapes = sorted({f"{f.image.shape[1]}x{f.image.shape[0]}" for f in frames})
+    report(negatives_table(
+        f"Real aerial frames without markers: aerial_negatives; {len(frames)} frames "
+        f"({', '.join(shapes)}, {megapixels:.1f} MP in all); every detection is a false point; "
+        f"radius range {_range_text('aerial_negatives')}", rows))
+    return {r.name: {k: (v if math.isfinite(v) else None) for k, v in r.extra.items()}
+            for r in rows}
+
+
 def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
     """Evaluate the real sets (chessboards, cirn_uas); report each table as it is done."""
     root = options.data_root
@@ -547,8 +752,7 @@ def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
         return {}
     results: dict[str, Any] = {}
     limit = 1 if options.quick else None
-    detectors: list[PointDetector] = [*peers.our_variants(options.curvature),
-                                      *peers.point_detectors()]
+    detectors = _detectors(options)
     board_sets = {
         "validationboof": list(real_data.iter_validationboof(root, limit)),
         "libcbdetect": list(real_data.iter_unlabelled_boards(root, "libcbdetect",
@@ -610,9 +814,17 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
     for line in peers.unavailable_peers():
         report(line)
     results: dict[str, Any] = {"seed": options.seed, "quick": options.quick}
-    results["synthetic"] = run_synthetic(options, report)
+    summary: list[tuple[str, Row]] = []
+    results["synthetic"] = run_synthetic(options, report, summary)
+    if "independent" in options.families:
+        results["independent"] = run_independent(options, report, summary)
     if "real" in options.families:
         results["real"] = run_real(options, report)
+    if "negatives" in options.families:
+        results["aerial_negatives"] = run_negatives(options, report)
+    if summary:
+        report(summary_table(summary))
+        results["summary"] = {label: row_record(row) for label, row in summary}
     return results
 
 

@@ -156,6 +156,9 @@ class DetectionTally:
         errors_px: errors of all matched pairs, px.
         sigmas_px: reported 1-sigma of each matched pair, px (NaN where the
             detector reports none), aligned with ``errors_px``.
+        crlb_px: Cramer-Rao bound (expected |error| of an efficient unbiased
+            estimator) of each matched truth point, px (NaN where unknown),
+            aligned with ``errors_px``.
         seconds: wall time spent in the detector, s.
         found: per truth point, in the order seen, whether it was matched.
     """
@@ -166,12 +169,20 @@ class DetectionTally:
     n_false_positives: int = 0
     errors_px: list[float] = field(default_factory=list)
     sigmas_px: list[float] = field(default_factory=list)
+    crlb_px: list[float] = field(default_factory=list)
     seconds: float = 0.0
     found: list[bool] = field(default_factory=list)
 
     def add(self, matching: Matching, sigmas_px: np.ndarray | None = None,
-            seconds: float = 0.0) -> None:
-        """Add one frame's matching (and the detector's per-detection sigmas, px)."""
+            seconds: float = 0.0, truth_crlb_px: np.ndarray | None = None) -> None:
+        """Add one frame's matching.
+
+        Args:
+            matching: the frame's :class:`Matching`.
+            sigmas_px: the detector's 1-sigma per detection, px; None: none reported.
+            seconds: time the detector took on the frame, s.
+            truth_crlb_px: the Cramer-Rao bound of every truth point, px; None: unknown.
+        """
         self.frames += 1
         self.n_truth += matching.n_truth
         self.n_matched += matching.n_matched
@@ -180,10 +191,8 @@ class DetectionTally:
         found = np.zeros(matching.n_truth, dtype=bool)
         found[matching.truth_index] = True
         self.found.extend(found.tolist())
-        if sigmas_px is None:
-            self.sigmas_px.extend([math.nan] * matching.n_matched)
-        else:
-            self.sigmas_px.extend(np.asarray(sigmas_px)[matching.detection_index].tolist())
+        self.sigmas_px.extend(_aligned(sigmas_px, matching.detection_index))
+        self.crlb_px.extend(_aligned(truth_crlb_px, matching.truth_index))
         self.seconds += seconds
 
     @property
@@ -202,9 +211,28 @@ class DetectionTally:
         return ErrorStats.from_errors(np.asarray(self.errors_px))
 
     @property
+    def mean_crlb_px(self) -> float:
+        """Mean Cramer-Rao bound of the truth points found, px (NaN if any is unknown)."""
+        bounds = np.asarray(self.crlb_px, dtype=np.float64)
+        return float(bounds.mean()) if len(bounds) else math.nan
+
+    @property
+    def error_over_crlb(self) -> float:
+        """Mean error over the mean Cramer-Rao bound of the same points: 1 is efficient."""
+        bound = self.mean_crlb_px
+        return self.stats.mean / bound if bound > 0 else math.nan
+
+    @property
     def within_two_sigma(self) -> float:
         """Share of matched errors within twice the reported sigma (NaN without sigmas)."""
         return share_within_sigma(np.asarray(self.errors_px), np.asarray(self.sigmas_px), 2.0)
+
+
+def _aligned(values: np.ndarray | None, index: np.ndarray) -> list[float]:
+    """``values[index]`` as a list, or NaN per index when there are no values."""
+    if values is None:
+        return [math.nan] * len(index)
+    return np.asarray(values, dtype=np.float64)[index].tolist()
 
 
 def share_within_sigma(errors_px: np.ndarray, sigmas_px: np.ndarray, k: float) -> float:

@@ -11,6 +11,7 @@ corner) are shifted by -0.5 px on load.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -192,7 +193,7 @@ def opencv_boards(image: np.ndarray, max_boards: int = _MAX_BOARDS) -> list[np.n
                                                    interpolation=cv2.INTER_AREA)
     search = search.copy()
     flags = cv2.CALIB_CB_LARGER | cv2.CALIB_CB_ACCURACY
-    boards = []
+    boards: list[np.ndarray] = []
     for _ in range(max_boards):
         found, corners, meta = cv2.findChessboardCornersSBWithMeta(search, (3, 3), flags)
         if not found:
@@ -257,7 +258,7 @@ def _paint_over(image: np.ndarray, grid: np.ndarray) -> None:
 
 @dataclass(frozen=True)
 class UasFrame:
-    """One cirn_uas video frame.
+    """One real aerial frame (cirn_uas, aerial_negatives).
 
     Attributes:
         name: file name.
@@ -271,4 +272,60 @@ class UasFrame:
 def iter_cirn_uas(root: Path, limit: int | None = None) -> Iterator[UasFrame]:
     """The cirn_uas frames (3840 x 2160 JPEG, two ground targets each)."""
     for path in sorted((root / "cirn_uas").glob("*.jpg"))[:limit]:
+        yield UasFrame(path.name, read_gray(path))
+
+
+@dataclass(frozen=True)
+class IndependentFrame:
+    """One frame of the independent renderer (``independent/``), with its exact truth.
+
+    Attributes:
+        name: file name.
+        family: the family key (``a``, ``b``, ``c``, ``d``, ``g``).
+        image: (H, W) uint8 grey image.
+        truth: (N, 2) marker centres, px (this project's convention).
+        crlb_px: (N,) each marker's Cramer-Rao bound as the expected |error|, px.
+        radius_range: (min, max) marker radius a user would give, px.
+    """
+
+    name: str
+    family: str
+    image: np.ndarray
+    truth: np.ndarray
+    crlb_px: np.ndarray
+    radius_range: tuple[float, float]
+
+
+def iter_independent(root: Path, limit_per_family: int | None = None,
+                     families: tuple[str, ...] | None = None) -> Iterator[IndependentFrame]:
+    """The independent renderer's frames in file-name order, as ``truth.json`` describes them.
+
+    Args:
+        root: the shared data folder.
+        limit_per_family: at most this many frames of each family; None: all.
+        families: family keys to read; None: every one.
+    """
+    folder = root / "independent"
+    truth = json.loads((folder / "truth.json").read_text())
+    taken: dict[str, int] = {}
+    for name in sorted(truth):
+        record = truth[name]
+        family = str(record["family"])
+        if families is not None and family not in families:
+            continue
+        if limit_per_family is not None and taken.get(family, 0) >= limit_per_family:
+            continue
+        taken[family] = taken.get(family, 0) + 1
+        markers = record["markers"]
+        low, high = record["radius_range_px"]
+        yield IndependentFrame(
+            name, family, read_gray(folder / name),
+            np.array([(m["x"], m["y"]) for m in markers], dtype=np.float64).reshape(-1, 2),
+            np.array([m["crlb_mean_abs_error_px"] for m in markers], dtype=np.float64),
+            (float(low), float(high)))
+
+
+def iter_aerial_negatives(root: Path, limit: int | None = None) -> Iterator[UasFrame]:
+    """The aerial frames without any marker (3264 x 2448 JPEG): every detection is false."""
+    for path in sorted((root / "aerial_negatives").glob("*.jpg"))[:limit]:
         yield UasFrame(path.name, read_gray(path))
