@@ -422,16 +422,27 @@ def load_params_file(path: str | Path, node_name: str = "*") -> dict[str, Any]:
         raise ConfigError(f"{path}: not valid YAML ({err})") from err
     if not isinstance(document, dict):
         raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
-    for key in (node_name, f"/{node_name}", "/**", "**"):
-        entry = document.get(key)
-        if isinstance(entry, dict) and "ros__parameters" in entry:
-            params = entry["ros__parameters"] or {}
-            detector = params.get(DETECTOR_NAMESPACE, {}) or {}
-            if not isinstance(detector, dict):
-                raise ConfigError(f"{path}: '{DETECTOR_NAMESPACE}' must be a mapping")
-            return dict(detector)
+    entries = [document.get(key) for key in (node_name, f"/{node_name}", "/**", "**")]
     if len(document) == 1:
-        (entry,) = document.values()
+        entries += list(document.values())
+    for entry in entries:
         if isinstance(entry, dict) and "ros__parameters" in entry:
-            return dict((entry["ros__parameters"] or {}).get(DETECTOR_NAMESPACE, {}) or {})
+            prefix = f"{DETECTOR_NAMESPACE}."
+            flat = _flatten(entry["ros__parameters"] or {}, path)
+            return {k[len(prefix) :]: v for k, v in flat.items() if k.startswith(prefix)}
     raise ConfigError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
+
+
+def _flatten(params: Any, path: str | Path, prefix: str = "") -> dict[str, Any]:
+    """Nested keys read as ROS reads them: ``{detector: {a: 1}}`` and ``detector.a: 1`` alike."""
+    if not isinstance(params, dict):
+        where = f"ros__parameters.{prefix.rstrip('.')}" if prefix else "ros__parameters"
+        raise ConfigError(f"{path}: {where} must be a mapping")
+    flat: dict[str, Any] = {}
+    for key, value in params.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            flat.update(_flatten(value, path, f"{name}."))
+        else:
+            flat[name] = value
+    return flat

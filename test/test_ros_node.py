@@ -39,8 +39,9 @@ from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.bench import throughput
+from marker_localizer.cli import main as cli_main
 from marker_localizer.config import DetectorConfig
-from marker_localizer.errors import ImageError
+from marker_localizer.errors import ConfigError, ImageError
 from marker_localizer.ros.conversions import array_to_image, cloud_to_array
 from marker_localizer.ros.diagnostics import ERROR, OK, WARN
 from marker_localizer.ros.node import MarkerLocalizerNode
@@ -334,6 +335,58 @@ def test_invalid_parameter_values_are_rejected_with_a_reason(
     assert not result.successful
     assert reason in result.reason
     assert tester.get_parameter("/inproc/marker_localizer", name) == before
+
+
+def test_an_integer_is_taken_for_a_double_as_the_cli_takes_it(localizer, tester):
+    name = "detector.marker_radius_max_px"
+    (result,) = tester.set_parameters("/inproc/marker_localizer", [(name, 30)])
+    try:
+        assert result.successful, result.reason
+        value = tester.get_parameter("/inproc/marker_localizer", name)
+        assert (value, type(value)) == (30.0, float)
+        assert localizer.processor.config.marker_radius_max_px == 30.0
+    finally:
+        tester.set_parameters("/inproc/marker_localizer", [(name, 40.0)])
+
+
+PARAMS_ANY_NODE = """\
+/**:
+  ros__parameters:
+    max_frame_age: 5.0
+    detector:
+      marker_radius_min_px: 5
+      marker_radius_max_px: 30
+"""
+
+
+def test_a_params_file_keyed_for_any_node_applies_under_a_namespace_and_another_name(
+    ros, tmp_path, capfd
+):
+    path = tmp_path / "params.yaml"
+    path.write_text(PARAMS_ANY_NODE)
+    node = MarkerLocalizerNode(
+        "renamed", namespace="/uav1", cli_args=["--ros-args", "--params-file", str(path)]
+    )
+    try:
+        config = node.processor.config
+        assert (config.marker_radius_min_px, config.marker_radius_max_px) == (5.0, 30.0)
+        assert node.get_parameter("detector.marker_radius_min_px").value == 5.0
+        # A key no parameter has is named, not silently dropped.
+        assert "ignoring unknown parameter(s): max_frame_age" in capfd.readouterr().err
+    finally:
+        node.destroy_node()
+    assert cli_main(["detect", str(REPO / "docs" / "detection.jpg"), "--params-file", str(path),
+                     "--json"]) == 0
+
+
+def test_node_and_cli_refuse_an_unknown_detector_key_and_name_it(ros, tmp_path, capsys):
+    path = tmp_path / "params.yaml"
+    path.write_text(PARAMS_ANY_NODE.replace("marker_radius_max_px", "marker_radius_maximum_px"))
+    with pytest.raises(ConfigError, match=r"unknown parameter\(s\): marker_radius_maximum_px"):
+        MarkerLocalizerNode("typo", cli_args=["--ros-args", "--params-file", str(path)])
+    assert cli_main(["detect", str(REPO / "docs" / "detection.jpg"), "--params-file",
+                     str(path)]) == 1
+    assert "unknown parameter(s): marker_radius_maximum_px" in capsys.readouterr().err
 
 
 def test_atomic_request_with_one_invalid_value_applies_nothing(localizer, tester):
@@ -824,7 +877,7 @@ def test_throughput_benchmark_measures_one_and_two_workers_on_small_frames(ros, 
 
 def test_parameter_file_lists_every_parameter_at_its_default():
     assert PARAMS_FILE.read_text() == params_yaml()
-    params = yaml.safe_load(PARAMS_FILE.read_text())["marker_localizer"]["ros__parameters"]
+    params = yaml.safe_load(PARAMS_FILE.read_text())["/**"]["ros__parameters"]
     assert DetectorConfig(**params["detector"]) == DetectorConfig()
 
 

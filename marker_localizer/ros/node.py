@@ -130,6 +130,10 @@ class MarkerLocalizerNode(Node):
             )
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", _OUTPUT_DEPTH)
         self.create_timer(settings.diagnostics_period_s, self.publish_diagnostics)
+        # Declared by now, QoS overrides included: what is left is a typo or another node's.
+        unknown = self._live.unknown(self)
+        if unknown:
+            self.get_logger().warning(f"ignoring unknown parameter(s): {', '.join(unknown)}")
         self.get_logger().info(
             f"serving cameras {', '.join(settings.cameras)} with {settings.workers} worker(s)"
         )

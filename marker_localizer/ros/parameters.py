@@ -189,13 +189,36 @@ def descriptor(
     return result
 
 
-def _declare(node: Node, name: str, f: dataclasses.Field[Any], default: Any) -> Any:
+def _overrides(node: Node) -> dict[str, Parameter]:
+    """The node's start values (``-p``, ``--params-file``, ``parameter_overrides``) by name.
+
+    rclpy keeps them in this attribute and has no public accessor; the node needs
+    them to name unknown keys and to take an integer for a double, as the CLI does.
+    """
+    return dict(getattr(node, "_parameter_overrides", {}))
+
+
+def _as_double(kind: str, value: Any) -> Any:
+    """An integer given for a double parameter, as a float (``4`` for ``4.0``)."""
+    if kind == "float" and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
+def _declare(
+    node: Node,
+    name: str,
+    f: dataclasses.Field[Any],
+    default: Any,
+    overrides: Mapping[str, Parameter],
+) -> Any:
     """Declare one field as parameter ``name``; return its start value (override or default)."""
     read_only = bool(f.metadata.get("read_only", False))
     described = descriptor(name, f.metadata["spec"], str(f.type), read_only=read_only)
+    start = _as_double(str(f.type), overrides[name].value) if name in overrides else default
     # rclpy infers STRING_ARRAY from a list, not from a tuple.
-    ros_default = list(default) if isinstance(default, tuple) else default
-    value = node.declare_parameter(name, ros_default, described).value
+    ros_start = list(start) if isinstance(start, tuple) else start
+    value = node.declare_parameter(name, ros_start, described, ignore_override=True).value
     return tuple(value) if isinstance(default, tuple) else value
 
 
@@ -210,8 +233,8 @@ class LiveParameters:
             parameter service.
 
     Raises:
-        ConfigError: a start value is out of range, of the wrong type, or
-            breaks a cross-field rule.
+        ConfigError: a start value is out of range, of the wrong type, breaks
+            a cross-field rule, or is a ``detector.*`` key no setting has.
     """
 
     def __init__(
@@ -219,21 +242,51 @@ class LiveParameters:
     ) -> None:
         self._on_change = on_change
         self._detector_names = {f"{DETECTOR_NAMESPACE}.{name}": name for name in param_specs()}
+        self._kinds = {name: str(f.type) for name, (f, _) in node_specs().items()}
+        self._kinds.update(
+            {full: str(param_specs()[name][0].type) for full, name in self._detector_names.items()}
+        )
+        overrides = _overrides(node)
+        unknown = sorted(
+            name[len(DETECTOR_NAMESPACE) + 1 :]
+            for name in overrides
+            if name.startswith(f"{DETECTOR_NAMESPACE}.") and name not in self._detector_names
+        )
+        if unknown:
+            # The same words as the CLI's from_mapping.
+            raise ConfigError(f"unknown parameter(s): {', '.join(unknown)}")
         defaults = DetectorConfig()
         try:
             node_values = {
-                name: _declare(node, name, f, f.default) for name, (f, _) in node_specs().items()
+                name: _declare(node, name, f, f.default, overrides)
+                for name, (f, _) in node_specs().items()
             }
             detector_values = {
-                name: _declare(node, full, param_specs()[name][0], getattr(defaults, name))
+                name: _declare(
+                    node, full, param_specs()[name][0], getattr(defaults, name), overrides
+                )
                 for full, name in self._detector_names.items()
             }
         except (InvalidParameterValueException, InvalidParameterTypeException) as err:
             raise ConfigError(str(err)) from err
         self.node_config = NodeConfig(**node_values)
         self.detector_config = from_mapping(detector_values)
+        node.add_pre_set_parameters_callback(self._coerce)
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._apply)
+
+    def unknown(self, node: Node) -> list[str]:
+        """Start values given for parameters the node never declared (typos, other nodes')."""
+        return sorted(name for name in _overrides(node) if not node.has_parameter(name))
+
+    def _coerce(self, parameters: list[Parameter]) -> list[Parameter]:
+        """Integers set on double parameters become doubles (``ros2 param set ... 4``)."""
+        return [
+            Parameter(p.name, value=_as_double(self._kinds.get(p.name, ""), p.value))
+            if p.name in self._kinds
+            else p
+            for p in parameters
+        ]
 
     def _merged(self, parameters: Sequence[Parameter]) -> tuple[NodeConfig, DetectorConfig]:
         """The configurations that ``parameters`` would give (raises ConfigError)."""
@@ -266,18 +319,20 @@ _YAML_HEADER = """\
 # Parameters of the marker_localizer node, every one at its default with its unit and
 # the reason for the default (the descriptors the node declares carry the same text).
 # Use: marker_localizer_node --ros-args --params-file config/marker_localizer.yaml
+# Keyed /** so that it applies whatever the node's name and namespace.
 # GENERATED from NodeConfig and DetectorConfig by
 #   python -m marker_localizer.ros.parameters > config/marker_localizer.yaml
-# (a test fails when it is stale). Doubles keep their decimal point: ROS rejects an
-# integer for a double parameter.
+# (a test fails when it is stale). Doubles keep their decimal point, though the node
+# (and the CLI) take an integer for a double as well.
 """
 
 
-def params_yaml(node_name: str = "marker_localizer") -> str:
+def params_yaml(node_name: str = "/**") -> str:
     """The node's parameter file: every parameter at its default, each with a comment.
 
     Args:
-        node_name: top-level key (the node's name).
+        node_name: top-level key: the node's name, or ``/**`` (default) for any
+            node under any namespace.
 
     Returns:
         YAML text in the ``<node>: ros__parameters:`` layout, the detector
