@@ -35,7 +35,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import Image, PointCloud2
+from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.bench import throughput
@@ -286,6 +286,43 @@ def test_node_reads_colour_and_16_bit_frames(localizer, tester, encoding):
     tester.publish("cam3/image_raw", frame)
     cloud = tester.result_for("cam3/marker_points", frame.header)
     np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=1e-3)
+
+
+def test_with_compressed_transport_each_camera_reads_jpeg_and_counts_undecodable_data(ros):
+    node = MarkerLocalizerNode(
+        "jpeg_localizer",
+        namespace="/jpeg",
+        parameter_overrides=[
+            Parameter("image_transport", value="compressed"),
+            Parameter("cameras", value=["cam0"]),
+        ],
+    )
+    spinner = Spinner(node)
+    peer = Peer("jpeg_peer", "/jpeg")
+    try:
+        peer.listen("cam0/marker_points", PointCloud2)
+        pub = peer.node.create_publisher(CompressedImage, "cam0/image_raw/compressed", IMAGE_QOS)
+        wait_until(lambda: pub.get_subscription_count() > 0, "the node subscribing")
+        ok, jpeg = cv2.imencode(".jpg", x_marker_64(), [cv2.IMWRITE_JPEG_QUALITY, 95])
+        assert ok
+
+        def publish(data, sec):
+            msg = CompressedImage(header=Header(stamp=Time(sec=sec), frame_id="cam0"),
+                                  format="mono8; jpeg compressed mono8", data=data)
+            pub.publish(msg)
+            return msg.header
+
+        publish(b"\xff\xd8 cut short", 1)
+        wait_until(lambda: node.processor.snapshots()["cam0"].errors == 1, "the error counted")
+        assert "not a readable image" in node.processor.snapshots()["cam0"].last_error
+        cloud = peer.result_for("cam0/marker_points", publish(jpeg.tobytes(), 2))
+        np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=0.05)
+        assert node.get_parameter(
+            "qos_overrides./jpeg/cam0/image_raw/compressed.subscription.reliability"
+        ).value == "reliable"
+    finally:
+        peer.stop()
+        spinner.stop()
 
 
 def test_accepted_parameter_change_takes_effect_on_the_next_frame(localizer, tester):

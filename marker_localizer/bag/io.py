@@ -1,4 +1,4 @@
-"""rosbag2 reading and writing shared by ``simulate``, ``replay`` and ``play``.
+"""Bag reading and writing shared by ``simulate``, ``replay`` and ``play``.
 
 rosbag2 itself is not installable here (no wheel), so bags go through
 ``rosbags`` (pure Python; MCAP and sqlite3 storage) for the container and
@@ -7,6 +7,10 @@ CDR that ROS 2 puts on the wire, and ``deserialize_message`` turns them into the
 same ``sensor_msgs.msg`` objects the node receives, so replay and the node share
 one conversion path. Message definitions and type hashes written into a bag
 come from rosbags' ROS 2 Jazzy typestore.
+
+ROS 1 bags (``.bag``, read by rosbags too) are read as well: each message is
+converted from ROS 1 serialisation to the CDR of the Jazzy type of the same name
+(the header loses its ``seq``), so everything downstream sees ROS 2 messages.
 
 Every failure a user can cause (a missing path, a file that is not a bag, a
 corrupt or truncated bag, an output that exists) becomes a
@@ -37,6 +41,7 @@ from typing import IO, Any, Literal, Self
 
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.interfaces import Qos
+from rosbags.rosbag1 import Reader as Ros1Reader
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
@@ -52,6 +57,8 @@ DEFAULT_STORAGE = "mcap"
 EXIT_INCOMPLETE = 3
 #: rosbag2 metadata version written (Jazzy's).
 _BAG_VERSION: Literal[9] = 9
+#: First bytes of a ROS 1 bag (format 2.0, the only one rosbags and ROS 1 since 2010 write).
+_ROS1_MAGIC = b"#ROSBAG V2.0\n"
 
 
 @functools.cache
@@ -110,8 +117,17 @@ class BagMessage:
             ) from err
 
 
+def is_ros1_bag(path: Path) -> bool:
+    """Whether ``path`` is a ROS 1 bag file (by its first bytes, not its name)."""
+    try:
+        with path.open("rb") as file:
+            return file.read(len(_ROS1_MAGIC)) == _ROS1_MAGIC
+    except OSError:  # a directory, or unreadable: not a ROS 1 bag
+        return False
+
+
 class BagReader:
-    """Read a rosbag2 (a bag directory, or a bare ``.mcap`` / ``.db3`` file).
+    """Read a rosbag2 (a bag directory, or a bare ``.mcap`` / ``.db3`` file) or a ROS 1 ``.bag``.
 
     Use as a context manager. Damage is read around, not given up on: an MCAP
     storage that rosbags cannot open through its index (a recording cut short
@@ -139,8 +155,12 @@ class BagReader:
         self._scanned_files: list[Path] = []
         self._scanned_topics: dict[str, str] = {}
         self._scanned_counts: dict[str, int] = {}
+        self._ros1: Ros1Reader | None = None
         if not self.path.exists():
             raise BagError(f"{self.path}: no such bag")
+        if self.path.is_file() and is_ros1_bag(self.path):
+            self._ros1 = Ros1Reader(self.path)
+            return
         if self.path.is_dir() and not (self.path / "metadata.yaml").exists():
             if not self._mcap_files():
                 raise BagError(
@@ -159,6 +179,13 @@ class BagReader:
             raise BagError(f"{self.path}: not a rosbag2 ({err})") from err
 
     def __enter__(self) -> Self:
+        if self._ros1 is not None:
+            try:
+                self._ros1.open()
+            except Exception as err:  # rosbags' ReaderError, or OSError
+                raise BagError(f"{self.path}: cannot open ROS 1 bag ({err})") from err
+            self._open = True
+            return self
         if self._reader is not None:
             try:
                 self._reader.open()
@@ -183,6 +210,9 @@ class BagReader:
         exc: BaseException | None,
         traceback: TracebackType | None,
     ) -> None:
+        if self._open and self._ros1 is not None:
+            self._open = False
+            self._ros1.close()
         if self._open and self._reader is not None:
             self._open = False
             self._reader.close()
@@ -217,6 +247,9 @@ class BagReader:
         """
         if self._scanned_files:
             yield from self._scan(topics)
+            return
+        if self._ros1 is not None:
+            yield from self._ros1_messages(topics)
             return
         reader = self._indexed()
         connections = [c for c in reader.connections if topics is None or c.topic in topics]
@@ -260,10 +293,31 @@ class BagReader:
             unread[connection.topic] -= 1
             yield BagMessage(connection.topic, connection.msgtype, time_ns, bytes(raw))
 
-    def _indexed(self) -> Reader:
-        if self._reader is None or not self._open:
+    def _indexed(self) -> Reader | Ros1Reader:
+        reader = self._ros1 if self._ros1 is not None else self._reader
+        if reader is None or not self._open:
             raise BagError(f"{self.path}: bag is not open (use BagReader as a context manager)")
-        return self._reader
+        return reader
+
+    def _ros1_messages(self, topics: Collection[str] | None) -> Iterator[BagMessage]:
+        """A ROS 1 bag's messages, each converted to the CDR of its Jazzy type."""
+        reader = self._indexed()
+        connections = [c for c in reader.connections if topics is None or c.topic in topics]
+        if not connections:
+            return
+        unconverted = Counter[str]()
+        for connection, time_ns, raw in reader.messages(connections):
+            try:
+                cdr = typestore().ros1_to_cdr(raw, connection.msgtype)
+            except Exception:  # a type Jazzy lacks, or bytes that do not fit it
+                unconverted[connection.topic] += 1
+                continue
+            yield BagMessage(connection.topic, connection.msgtype, time_ns, bytes(cdr))
+        for topic, count in unconverted.items():
+            self.damage.append(
+                f"{self.path}: {count} message(s) on {topic} ({reader.topics[topic].msgtype}) "
+                "could not be converted from ROS 1 to a ROS 2 Jazzy type"
+            )
 
     def _mcap_files(self) -> list[Path]:
         if self.path.is_dir():

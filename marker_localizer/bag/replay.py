@@ -1,6 +1,8 @@
 """``marker-localizer replay``: run a bag through the node's own frame processing, offline.
 
-Every ``/<cam>/image_raw`` (sensor_msgs/Image) frame of the input bag goes
+Every ``/<cam>/image_raw`` (sensor_msgs/Image) frame of the input bag, or
+``/<cam>/image_raw/compressed`` (sensor_msgs/CompressedImage, JPEG or PNG) where a
+camera has no raw topic, goes
 through :class:`marker_localizer.ros.processing.FrameProcessor`, the worker
 pool the node uses, in its blocking mode: the reader waits for a free worker
 instead of letting a newer frame replace a waiting one, so no frame is
@@ -51,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from sensor_msgs.msg import Image, PointCloud2
+from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.bag.io import (
@@ -64,16 +66,15 @@ from marker_localizer.bag.io import (
     ProgressBar,
     run_command,
 )
-from marker_localizer.bag.record import IMAGE_SUFFIX, PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
+from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
 from marker_localizer.config import DetectorConfig, from_mapping, load_params_file
 from marker_localizer.errors import BagError, ImageError, shorten
 from marker_localizer.ros import diagnostics
-from marker_localizer.ros.conversions import ENCODINGS, cloud_to_array
+from marker_localizer.ros.conversions import ENCODINGS, IMAGE_TRANSPORTS, cloud_to_array
 from marker_localizer.ros.node import NODE_NAME
 from marker_localizer.ros.parameters import NodeConfig
 from marker_localizer.ros.processing import FrameProcessor, stamp_to_ns
 
-IMAGE_TYPE = "sensor_msgs/msg/Image"
 CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
 POINTS_SUFFIX = "marker_points"
 DIAGNOSTICS_TOPIC = "/diagnostics"
@@ -330,17 +331,24 @@ def format_report(
 
 
 def image_cameras(topics: dict[str, str]) -> dict[str, str]:
-    """Cameras of a bag: ``<cam>/image_raw`` topics of type sensor_msgs/Image.
+    """Cameras of a bag and the image topic each is read from.
+
+    A camera is a namespace with ``<cam>/image_raw`` (sensor_msgs/Image) or
+    ``<cam>/image_raw/compressed`` (sensor_msgs/CompressedImage), the node's two
+    ``image_transport`` inputs; where a bag has both, the raw one is read.
 
     Returns:
         Camera name (the topic's namespace without the leading slash) -> image topic.
     """
-    suffix = f"/{IMAGE_SUFFIX}"
-    return {
-        topic.removesuffix(suffix).lstrip("/"): topic
-        for topic, msgtype in sorted(topics.items())
-        if msgtype == IMAGE_TYPE and topic.endswith(suffix) and topic != suffix
-    }
+    cameras: dict[str, str] = {}
+    # Raw last, so that it wins where a camera has both.
+    for suffix, message_type in reversed(IMAGE_TRANSPORTS.values()):
+        msgtype = f"sensor_msgs/msg/{message_type.__name__}"
+        for topic in sorted(t for t, m in topics.items() if m == msgtype):
+            camera = topic.removesuffix(f"/{suffix}").lstrip("/")
+            if topic.endswith(f"/{suffix}") and camera:
+                cameras[camera] = topic
+    return dict(sorted(cameras.items()))
 
 
 def _xy(cloud: PointCloud2) -> np.ndarray:
@@ -402,13 +410,13 @@ class _Session:
         stats = self.stats[camera]
         self.now_ns = message.time_ns
         try:
-            image: Image = message.decode()
+            image: Image | CompressedImage = message.decode()
         except BagError as err:
             stats.undecodable += 1
             stats.last_error = shorten(str(err))
             return
         stamp_ns = stamp_to_ns(image.header)
-        if image.encoding not in ENCODINGS:
+        if isinstance(image, Image) and image.encoding not in ENCODINGS:
             stats.skipped_encoding += 1
             return
         if stamp_ns <= self._last_stamp.get(camera, -1):
@@ -525,7 +533,8 @@ def replay_bag(
         if not cameras:
             listed = ", ".join(f"{t} ({m})" for t, m in sorted(topics.items())) or "none"
             raise BagError(
-                f"{bag}: no image topics (sensor_msgs/msg/Image on <cam>/{IMAGE_SUFFIX}); "
+                f"{bag}: no image topics (sensor_msgs/msg/Image on <cam>/image_raw or "
+                f"sensor_msgs/msg/CompressedImage on <cam>/image_raw/compressed); "
                 f"topics: {listed}"
             )
         truth = _cloud_topics(topics, cameras, TRUTH_SUFFIX)

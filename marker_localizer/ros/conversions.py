@@ -28,12 +28,12 @@ from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
-from sensor_msgs.msg import Image, PointCloud2, PointField
+from sensor_msgs.msg import CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from marker_localizer.core.pipeline import Detection
 from marker_localizer.errors import ImageError, shorten
-from marker_localizer.image_files import check_pixel_count
+from marker_localizer.image_files import check_pixel_count, decode_image
 
 #: Encodings the node accepts: numpy dtype and channel count of each.
 ENCODINGS: dict[str, tuple[np.dtype, int]] = {
@@ -43,6 +43,13 @@ ENCODINGS: dict[str, tuple[np.dtype, int]] = {
     "rgb8": (np.dtype(np.uint8), 3),
     "bgra8": (np.dtype(np.uint8), 4),
     "rgba8": (np.dtype(np.uint8), 4),
+}
+
+#: The node's ``image_transport`` choices: each camera's input topic (under ``<cam>/``)
+#: and message type, named as image_transport names them.
+IMAGE_TRANSPORTS: dict[str, tuple[str, type[Image] | type[CompressedImage]]] = {
+    "raw": ("image_raw", Image),
+    "compressed": ("image_raw/compressed", CompressedImage),
 }
 
 #: Channel order that turns an RGB(A) image into the BGR(A) order the core reads.
@@ -138,6 +145,36 @@ def image_to_detector_input(msg: Image, max_pixels: int | None = None) -> np.nda
     pixels = image_to_array(msg, max_pixels)
     order = _TO_BGR.get(msg.encoding)
     return pixels if order is None else pixels[:, :, order]
+
+
+def compressed_to_detector_input(msg: CompressedImage, max_pixels: int) -> np.ndarray:
+    """Decode a sensor_msgs/CompressedImage (JPEG or PNG) into the layout the detector reads.
+
+    image_transport's compressed plugin encodes colour as BGR and keeps 16-bit
+    grey in PNG, and OpenCV decodes to the same: grey, BGR or 16-bit grey.
+
+    Args:
+        msg: the message; ``format`` (``"bgr8; jpeg compressed bgr8"``) is only
+            named in errors, the data's own header says what it is.
+        max_pixels: refuse a larger width x height, px, before decoding.
+
+    Raises:
+        ImageError: the data is not an image OpenCV decodes, empty, or too large.
+    """
+    return decode_image(bytes(msg.data), f"compressed image ({shorten(repr(msg.format))})",
+                        max_pixels)
+
+
+def message_to_detector_input(msg: Image | CompressedImage, max_pixels: int) -> np.ndarray:
+    """Pixels of either input message, as :meth:`Detector.detect` reads them.
+
+    Raises:
+        ImageError: as :func:`image_to_detector_input` or
+            :func:`compressed_to_detector_input`.
+    """
+    if isinstance(msg, CompressedImage):
+        return compressed_to_detector_input(msg, max_pixels)
+    return image_to_detector_input(msg, max_pixels)
 
 
 def array_to_image(pixels: np.ndarray, encoding: str, header: Header | None = None) -> Image:

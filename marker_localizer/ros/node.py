@@ -3,11 +3,12 @@
 Topics, relative to the node's namespace and remappable as usual:
 
 * in ``<cam>/image_raw`` (sensor_msgs/Image: mono8, mono16, bgr8, rgb8, bgra8,
-  rgba8). QoS reliable, keep-last 1. Measured on this stack (two processes,
-  default Fast DDS): a best-effort subscription receives none of the 1.2 MB or
-  12 MB images a reliable publisher sends, while reliable keep-last 1 receives
-  them, with frames the node has no time for replaced by newer ones. Switch to
-  best effort through the parameter
+  rgba8), or with ``image_transport`` = ``compressed``, ``<cam>/image_raw/compressed``
+  (sensor_msgs/CompressedImage, JPEG or PNG). QoS reliable, keep-last 1.
+  Measured on this stack (two processes, default Fast DDS): a best-effort
+  subscription receives none of the 1.2 MB or 12 MB images a reliable publisher
+  sends, while reliable keep-last 1 receives them, with frames the node has no
+  time for replaced by newer ones. Switch to best effort through the parameter
   ``qos_overrides./<cam>/image_raw.subscription.reliability`` if your driver
   publishes best effort.
 * in ``<cam>/camera_info`` (sensor_msgs/CameraInfo), cached and reported in
@@ -42,12 +43,13 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.errors import MarkerLocalizerError
 from marker_localizer.ros import diagnostics
+from marker_localizer.ros.conversions import IMAGE_TRANSPORTS
 from marker_localizer.ros.parameters import LiveParameters, NodeConfig, changed_fields
 from marker_localizer.ros.processing import FrameProcessor
 
@@ -117,10 +119,11 @@ class MarkerLocalizerNode(Node):
             on_error=self._frame_failed,
             stats_window_s=settings.stats_window_s,
         )
+        suffix, image_type = IMAGE_TRANSPORTS[settings.image_transport]
         for camera in settings.cameras:
             self.create_subscription(
-                Image,
-                f"{camera}/image_raw",
+                image_type,
+                f"{camera}/{suffix}",
                 partial(self._on_image, camera),
                 _IMAGE_QOS,
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
@@ -189,7 +192,7 @@ class MarkerLocalizerNode(Node):
             )
         super().destroy_node()
 
-    def _on_image(self, camera: str, msg: Image) -> None:
+    def _on_image(self, camera: str, msg: Image | CompressedImage) -> None:
         self.processor.submit(camera, msg)
 
     def _on_camera_info(self, camera: str, msg: CameraInfo) -> None:

@@ -5,8 +5,9 @@ Two configurations back the node's parameters, neither written twice:
 * :class:`marker_localizer.config.DetectorConfig`, declared as ``detector.<field>``
   with descriptors generated from :func:`marker_localizer.config.param_specs`
   (description with unit, range, choices); all of them can change live.
-* :class:`NodeConfig`, the node's own parameters; ``cameras``, ``workers``,
-  ``diagnostics_period_s`` and ``stats_window_s`` are structural and read-only.
+* :class:`NodeConfig`, the node's own parameters; ``cameras``, ``image_transport``,
+  ``workers``, ``diagnostics_period_s`` and ``stats_window_s`` are structural and
+  read-only.
 
 :class:`LiveParameters` validates a change in the on-set callback by building
 the new configurations (any :class:`ConfigError` rejects the whole request with
@@ -45,6 +46,7 @@ from marker_localizer.config import (
     param_specs,
 )
 from marker_localizer.errors import ConfigError
+from marker_localizer.ros.conversions import IMAGE_TRANSPORTS
 
 _CAMERA_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
@@ -56,9 +58,10 @@ def _node_param(
     low: float | None = None,
     high: float | None = None,
     *,
+    choices: tuple[str, ...] = (),
     read_only: bool = False,
 ) -> Any:
-    spec = ParamSpec(description=description, unit=unit, low=low, high=high)
+    spec = ParamSpec(description=description, unit=unit, low=low, high=high, choices=choices)
     return field(default=default, metadata={"spec": spec, "read_only": read_only})
 
 
@@ -70,6 +73,16 @@ class NodeConfig:
         ("cam0", "cam1", "cam2", "cam3", "cam4"),
         "Camera names; the node subscribes <cam>/image_raw and <cam>/camera_info and "
         "publishes <cam>/marker_points. Default: the five cameras of the UAV rig.",
+        read_only=True,
+    )
+    image_transport: str = _node_param(
+        "raw",
+        "How each camera's images arrive: 'raw' reads <cam>/image_raw (sensor_msgs/Image), "
+        "'compressed' reads <cam>/image_raw/compressed (sensor_msgs/CompressedImage, JPEG or "
+        "PNG), the names image_transport uses. Default raw: drivers publish it, and decoding "
+        "costs a worker time per frame (a 4096x3000 grey frame, one core: JPEG ~40 ms, "
+        "PNG ~150 ms).",
+        choices=tuple(IMAGE_TRANSPORTS),
         read_only=True,
     )
     workers: int = _node_param(
@@ -142,6 +155,8 @@ class NodeConfig:
         for f in dataclasses.fields(self):
             spec: ParamSpec = f.metadata["spec"]
             value = getattr(self, f.name)
+            if spec.choices and value not in spec.choices:
+                raise ConfigError(f"{f.name}={value!r} must be one of {', '.join(spec.choices)}")
             if spec.low is not None and spec.high is not None and not (
                 spec.low <= value <= spec.high
             ):

@@ -45,7 +45,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from sensor_msgs.msg import Image, PointCloud2
+from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig
@@ -56,7 +56,7 @@ from marker_localizer.overlay import draw_detections
 from marker_localizer.ros.conversions import (
     array_to_image,
     detections_to_cloud,
-    image_to_detector_input,
+    message_to_detector_input,
 )
 from marker_localizer.ros.diagnostics import CameraSnapshot, CameraStats
 
@@ -71,7 +71,7 @@ _NS_PER_S = 1_000_000_000
 @dataclass(frozen=True)
 class _Frame:
     camera: str
-    msg: Image
+    msg: Image | CompressedImage
     received_ns: int
     #: Since when the camera's mailbox has been non-empty: a replacement keeps it,
     #: so a camera whose frames keep being replaced is not pushed back in the queue.
@@ -182,7 +182,12 @@ class FrameProcessor:
         self._detector = Detector(config)
 
     def submit(
-        self, camera: str, msg: Image, *, block: bool = False, timeout_s: float | None = None
+        self,
+        camera: str,
+        msg: Image | CompressedImage,
+        *,
+        block: bool = False,
+        timeout_s: float | None = None,
     ) -> bool:
         """Put a frame into the camera's mailbox; never waits unless ``block``.
 
@@ -333,7 +338,7 @@ class FrameProcessor:
         stats = self._stats[frame.camera]
         header = frame.msg.header
         try:
-            pixels = image_to_detector_input(frame.msg, self.config.max_pixels)
+            pixels = message_to_detector_input(frame.msg, self.config.max_pixels)
             detections = self.detections(frame.camera, pixels, stamp_to_ns(header) / _NS_PER_S)
             cloud = detections_to_cloud(header, detections)
             overlay = (

@@ -1,0 +1,153 @@
+"""The inputs flights come in: compressed images (JPEG, PNG) and ROS 1 bags, into replay.
+
+Bags are written into ``tmp_path`` here, rosbag2 through the package's own
+writer and ROS 1 through rosbags' (serialised with its ROS 1 Noetic typestore,
+as a ROS 1 recorder writes them). Every frame holds one rendered marker whose
+centre is known exactly.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from rosbags.rosbag1 import Writer as Ros1Writer
+from rosbags.typesys import Stores, get_typestore
+from sensor_msgs.msg import CompressedImage
+from std_msgs.msg import Header
+
+from marker_localizer.bag.io import BagReader, BagWriter
+from marker_localizer.bag.replay import image_cameras, replay_bag
+from marker_localizer.errors import ImageError
+from marker_localizer.ros.conversions import (
+    cloud_to_array,
+    compressed_to_detector_input,
+)
+from marker_localizer.synthetic import render_markers
+from marker_localizer.synthetic.scene import MarkerPlacement
+
+CENTRE = (40.3, 30.6)
+#: JPEG at quality 95 moves a 14 px marker's centre by a few hundredths of a pixel.
+TOLERANCE_PX = 0.1
+MAX_PIXELS = 10**8
+
+
+def marker_frame() -> np.ndarray:
+    """An 80 x 64 frame with one blurred marker of radius 14 px at CENTRE."""
+    placement = MarkerPlacement(*CENTRE, 14.0, rotation_rad=0.4)
+    return render_markers((64, 80), [placement], 1, reflectances=(0.1, 0.9),
+                          blur_sigma_px=0.8).image
+
+
+def encoded(kind: str, pixels: np.ndarray | None = None) -> bytes:
+    ok, data = cv2.imencode(".jpg" if kind == "jpeg" else ".png",
+                            marker_frame() if pixels is None else pixels,
+                            [cv2.IMWRITE_JPEG_QUALITY, 95] if kind == "jpeg" else [])
+    assert ok
+    return data.tobytes()
+
+
+def compressed(kind: str, sec: int, data: bytes | None = None) -> CompressedImage:
+    """What image_transport's compressed plugin publishes for a mono8 camera."""
+    return CompressedImage(header=Header(stamp=Time(sec=sec), frame_id="cam"),
+                           format=f"mono8; {kind} compressed mono8",
+                           data=encoded(kind) if data is None else data)
+
+
+def points(replay_out: Path, camera: str) -> list[np.ndarray]:
+    """The (N, 2) marker centres of each frame of ``camera`` in a replay's output."""
+    with BagReader(replay_out) as bag:
+        arrays = [cloud_to_array(m.decode()) for m in bag.messages({f"/{camera}/marker_points"})]
+    return [np.column_stack([a["x"], a["y"]]) for a in arrays]
+
+
+@pytest.mark.parametrize("kind", ["jpeg", "png"])
+def test_a_compressed_image_decodes_to_the_pixels_the_detector_reads(kind):
+    pixels = compressed_to_detector_input(compressed(kind, 1), MAX_PIXELS)
+    assert pixels.shape == (64, 80) and pixels.dtype == np.uint8
+    assert np.abs(pixels.astype(int) - marker_frame()).max() <= (0 if kind == "png" else 12)
+
+
+def test_a_16_bit_png_stays_16_bit():
+    deep = marker_frame().astype(np.uint16) * 257
+    msg = compressed("png", 1, encoded("png", deep))
+    np.testing.assert_array_equal(compressed_to_detector_input(msg, MAX_PIXELS), deep)
+
+
+def test_undecodable_data_is_an_image_error_naming_the_format():
+    with pytest.raises(ImageError, match=r"compressed image .*jpeg compressed.*not a readable"):
+        compressed_to_detector_input(compressed("jpeg", 1, b"\x00" * 64), MAX_PIXELS)
+
+
+def test_cameras_are_found_in_either_form_and_raw_wins_where_both_are_recorded():
+    topics = {
+        "/cam0/image_raw": "sensor_msgs/msg/Image",
+        "/cam0/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+        "/cam1/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+        "/cam2/image_raw/compressed": "sensor_msgs/msg/Image",  # wrong type: not a camera
+        "/image_raw/compressed": "sensor_msgs/msg/CompressedImage",  # no camera name
+    }
+    assert image_cameras(topics) == {
+        "cam0": "/cam0/image_raw",
+        "cam1": "/cam1/image_raw/compressed",
+    }
+
+
+def test_replay_reads_compressed_frames_and_counts_undecodable_ones_per_camera(tmp_path):
+    bag = tmp_path / "compressed"
+    with BagWriter(bag) as writer:
+        for camera in ("cam0", "cam1"):
+            writer.add_topic(f"/{camera}/image_raw/compressed", "sensor_msgs/msg/CompressedImage")
+        for sec, (camera, msg) in enumerate(
+            [("cam0", compressed("jpeg", 1)), ("cam1", compressed("png", 2)),
+             ("cam1", compressed("png", 3, b"not an image")), ("cam0", compressed("jpeg", 4))],
+            start=1,
+        ):
+            writer.write(f"/{camera}/image_raw/compressed", sec * 10**9, msg)
+    report = replay_bag(bag, tmp_path / "out", workers=1)
+    assert (report.cameras["cam0"].frames, report.cameras["cam0"].failed) == (2, 0)
+    assert (report.cameras["cam1"].frames, report.cameras["cam1"].failed) == (1, 1)
+    assert "not a readable image" in report.cameras["cam1"].last_error
+    for camera in ("cam0", "cam1"):
+        for found in points(tmp_path / "out", camera):
+            np.testing.assert_allclose(found, [CENTRE], atol=TOLERANCE_PX)
+
+
+def test_replay_reads_a_ros1_bag_raw_and_compressed(tmp_path):
+    noetic = get_typestore(Stores.ROS1_NOETIC)
+    types = noetic.types
+    header = types["std_msgs/msg/Header"]
+    stamp = types["builtin_interfaces/msg/Time"]
+    frame = marker_frame()
+    bag = tmp_path / "flight.bag"
+    with Ros1Writer(bag) as writer:
+        raw = writer.add_connection("/cam0/image_raw", "sensor_msgs/msg/Image", typestore=noetic)
+        jpeg = writer.add_connection("/cam1/image_raw/compressed",
+                                     "sensor_msgs/msg/CompressedImage", typestore=noetic)
+        for seq, sec in enumerate((5, 6)):
+            image = types["sensor_msgs/msg/Image"](
+                header=header(seq=seq, stamp=stamp(sec=sec, nanosec=0), frame_id="cam0_optical"),
+                height=64, width=80, encoding="mono8", is_bigendian=0, step=80,
+                data=frame.ravel())
+            writer.write(raw, sec * 10**9, noetic.serialize_ros1(image, "sensor_msgs/msg/Image"))
+            packed = types["sensor_msgs/msg/CompressedImage"](
+                header=header(seq=seq, stamp=stamp(sec=sec, nanosec=1), frame_id="cam1_optical"),
+                format="jpeg", data=np.frombuffer(encoded("jpeg"), np.uint8))
+            writer.write(jpeg, sec * 10**9 + 1,
+                         noetic.serialize_ros1(packed, "sensor_msgs/msg/CompressedImage"))
+    report = replay_bag(bag, tmp_path / "out", workers=1)
+    assert report.complete, report.cameras
+    assert {c: r.frames for c, r in report.cameras.items()} == {"cam0": 2, "cam1": 2}
+    with BagReader(tmp_path / "out") as out:
+        clouds = [m.decode() for m in out.messages({"/cam0/marker_points"})]
+    # The ROS 1 header's stamp and frame_id come through unchanged (its seq has no place).
+    assert [(c.header.stamp.sec, c.header.frame_id) for c in clouds] == [
+        (5, "cam0_optical"), (6, "cam0_optical")]
+    for camera in ("cam0", "cam1"):
+        found = points(tmp_path / "out", camera)
+        assert len(found) == 2
+        for xy in found:
+            np.testing.assert_allclose(xy, [CENTRE], atol=TOLERANCE_PX)
