@@ -419,7 +419,10 @@ def load_params_file(path: str | Path, node_name: str = "*") -> dict[str, Any]:
     except OSError as err:
         raise ConfigError(f"{path}: cannot read parameters file ({err.strerror})") from err
     except yaml.YAMLError as err:
-        raise ConfigError(f"{path}: not valid YAML ({err})") from err
+        mark = getattr(err, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        problem = getattr(err, "problem", None) or " ".join(str(err).split())
+        raise ConfigError(f"{path}: not valid YAML ({where}{problem})") from err
     if not isinstance(document, dict):
         raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
     entries = [document.get(key) for key in (node_name, f"/{node_name}", "/**", "**")]

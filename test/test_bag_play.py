@@ -8,6 +8,8 @@ traffic. Waits are polls with deadlines, never fixed sleeps.
 from __future__ import annotations
 
 import re
+import signal
+import subprocess
 import sys
 import threading
 from collections import defaultdict
@@ -224,6 +226,26 @@ def test_a_keep_last_1_subscriber_receives_every_frame_in_order_from_sqlite3(
     finally:
         player.destroy_node()
         spun.stop()
+
+
+def test_sigterm_while_playing_stops_the_player_cleanly_with_status_143(context, flight_bag):
+    """The player publishes /clock while it waits between frames: the signal comes then."""
+    listener = Listener(context, {"/clock": Clock})
+    spun = Spun(context, listener.node)
+    player = subprocess.Popen(
+        [sys.executable, "-m", "marker_localizer.cli", "play", str(flight_bag), "--rate", "0.01",
+         "--clock", "--wait-for-subscribers", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        wait_until(lambda: listener.messages("/clock"), "the player playing")
+        player.send_signal(signal.SIGTERM)
+        _, err = player.communicate(timeout=TIMEOUT_S)
+    finally:
+        player.kill()
+        spun.stop()
+    assert player.returncode == 128 + signal.SIGTERM
+    assert err == "marker-localizer play: interrupted by SIGTERM\n"
 
 
 # --------------------------------------------------------------------------- bad input

@@ -570,6 +570,34 @@ def test_dropped_frames_are_logged_with_their_reason(ros, capfd):
         spinner.stop()
 
 
+def test_shutdown_waits_at_most_shutdown_timeout_for_frames_in_flight_and_names_them(
+    ros, capfd
+):
+    processor_class, release = holding("cam0")
+    node = MarkerLocalizerNode(
+        "drain_localizer",
+        namespace="/drain",
+        processor_class=processor_class,
+        parameter_overrides=[
+            Parameter("cameras", value=["cam0", "cam1"]),
+            Parameter("shutdown_timeout_s", value=0.2),
+        ],
+    )
+    spinner = Spinner(node)
+    peer = Peer("drain_peer", "/drain")
+    try:
+        peer.publish("cam0/image_raw", peer.frame(x_marker_64()))
+        wait_until(lambda: node.processor.in_flight() == ["cam0"], "cam0's frame held")
+        spinner.stop()  # destroys the node: the drain gives up on the held frame
+        assert node.processor.in_flight() == ["cam0"]
+        err = capfd.readouterr().err
+        assert "stopping: waiting up to 0.2 s for the frames in flight (cam0)" in err
+        assert "stopping: frames still in flight after 0.2 s were abandoned (cam0)" in err
+    finally:
+        release.set()
+        peer.stop()
+
+
 def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros, capfd):
     """One node, five cameras in five states: steady, flooded, silent, bad encoding, truncated."""
     processor_class, release = holding("cam1")
@@ -964,3 +992,15 @@ def test_node_process_exits_with_status_1_on_invalid_configuration():
     assert result.returncode == 1
     assert "invalid configuration: marker_radius_min_px=50.0 is larger than" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_node_process_with_a_params_file_that_is_not_yaml_exits_1_in_one_line(tmp_path):
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("marker_localizer:\n  ros__parameters:\n    workers: [oops\n")
+    result = subprocess.run(
+        [*MODULE, "--ros-args", "--params-file", str(broken)],
+        capture_output=True, text=True, timeout=TIMEOUT_S, check=False,
+    )
+    assert result.returncode == 1
+    (line,) = result.stderr.splitlines()
+    assert "invalid ROS arguments: " in line and "Couldn't parse params file" in line

@@ -25,11 +25,17 @@ This module also holds the small terminal helpers the bag commands share
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib
+import logging
 import math
 import os
+import re
 import shutil
+import signal
+import socket
+import sqlite3
 import sys
 import time
 from collections import Counter
@@ -48,7 +54,9 @@ from rosbags.typesys.store import Typestore
 
 from marker_localizer.bag.mcap_scan import ScanState, scan_messages
 from marker_localizer.errors import BagError, MarkerLocalizerError, shorten
+from marker_localizer.stopping import on_stop_signal
 
+_LOG = logging.getLogger(__name__)
 #: Storage formats a bag can be written in; MCAP is rosbag2's default since Iron.
 STORAGES: dict[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 DEFAULT_STORAGE = "mcap"
@@ -362,10 +370,15 @@ class BagReader:
 class BagWriter:
     """Write a new rosbag2, made visible at ``path`` only once it is complete.
 
-    Use as a context manager. Messages go into ``.<name>.partial-<pid>/<name>``
+    Use as a context manager. Messages go into ``.<name>.partial-<host>-<pid>/<name>``
     beside ``path``; a clean exit closes the bag (writing its index and
-    ``metadata.yaml``) and renames it onto ``path``, an exception removes it.
-    Write from the thread that entered it: the sqlite3 storage refuses any other.
+    ``metadata.yaml``) and renames it onto ``path``, an exception (an
+    interruption included) removes it. A process killed outright (SIGKILL, a
+    second signal, power loss) cannot remove it, so entering a writer first
+    removes, beside ``path``, the staging directories of this host's processes
+    that are gone. Storage errors (disk full, file too large, sqlite) are one
+    :class:`BagError` naming the path. Write from the thread that entered it:
+    the sqlite3 storage refuses any other.
 
     Args:
         path: The bag directory to create; must not exist.
@@ -383,7 +396,7 @@ class BagWriter:
         if self.path.exists() or self.path.is_symlink():
             raise BagError(f"{self.path}: output path exists; remove it or choose another")
         self.storage = storage
-        self._staging = self.path.parent / f".{self.path.name}.partial-{os.getpid()}"
+        self._staging = self.path.parent / _staging_name(self.path.name, os.getpid())
         self._writer: Writer | None = None
         self._connections: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
@@ -391,6 +404,7 @@ class BagWriter:
     def __enter__(self) -> Self:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            sweep_staging(self.path.parent)
             if self._staging.exists():  # left by a killed run with the same pid
                 shutil.rmtree(self._staging)
             self._staging.mkdir()
@@ -415,14 +429,15 @@ class BagWriter:
         if writer is None:
             return
         if exc_type is not None:
-            writer.abort()
+            with contextlib.suppress(Exception):  # a full disk fails the abort too; it goes anyway
+                writer.abort()
             shutil.rmtree(self._staging, ignore_errors=True)
             return
         try:
             writer.close()
             (self._staging / self.path.name).rename(self.path)
         except Exception as err:
-            raise BagError(f"{self.path}: cannot finish bag ({err})") from err
+            raise BagError(f"{self.path}: cannot finish bag ({_storage_error(err)})") from err
         finally:
             shutil.rmtree(self._staging, ignore_errors=True)
 
@@ -441,13 +456,17 @@ class BagWriter:
         """
         if topic in self._connections:
             return
-        self._connections[topic] = self._open_writer().add_connection(
-            topic,
-            msgtype,
-            typestore=typestore(),
-            serialization_format="cdr",
-            offered_qos_profiles=list(qos),
-        )
+        writer = self._open_writer()
+        try:
+            self._connections[topic] = writer.add_connection(
+                topic,
+                msgtype,
+                typestore=typestore(),
+                serialization_format="cdr",
+                offered_qos_profiles=list(qos),
+            )
+        except (OSError, sqlite3.Error) as err:
+            raise BagError(f"{self.path}: cannot write ({_storage_error(err)})") from err
         self.counts[topic] = 0
 
     def write(self, topic: str, time_ns: int, msg: Any) -> None:
@@ -458,17 +477,69 @@ class BagWriter:
         """Write CDR bytes to a declared topic at bag time ``time_ns`` (ns).
 
         Raises:
-            BagError: the topic was not declared with :meth:`add_topic`.
+            BagError: the topic was not declared with :meth:`add_topic`, or the
+                storage failed (disk full, file too large, sqlite error).
         """
         if topic not in self._connections:
             raise BagError(f"{self.path}: topic {topic} was not declared")
-        self._open_writer().write(self._connections[topic], time_ns, raw)
+        writer = self._open_writer()
+        try:
+            writer.write(self._connections[topic], time_ns, raw)
+        except (OSError, sqlite3.Error) as err:
+            raise BagError(f"{self.path}: cannot write ({_storage_error(err)})") from err
         self.counts[topic] += 1
 
     def _open_writer(self) -> Writer:
         if self._writer is None:
             raise BagError(f"{self.path}: bag is not open (use BagWriter as a context manager)")
         return self._writer
+
+
+_STAGING = re.compile(r"^\.(?P<name>.+)\.partial-(?P<host>.+)-(?P<pid>\d+)$")
+
+
+def _staging_name(name: str, pid: int) -> str:
+    return f".{name}.partial-{socket.gethostname()}-{pid}"
+
+
+def sweep_staging(directory: Path) -> list[Path]:
+    """Remove the staging directories in ``directory`` of this host's processes that are gone.
+
+    Returns:
+        The directories removed (each also logged as a warning).
+    """
+    host = socket.gethostname()
+    removed = []
+    for entry in directory.iterdir():
+        match = _STAGING.match(entry.name)
+        if match is None or match["host"] != host or not entry.is_dir():
+            continue
+        if _process_alive(int(match["pid"])):
+            continue
+        shutil.rmtree(entry, ignore_errors=True)
+        removed.append(entry)
+        _LOG.warning("removed %s, left by process %s that is gone", entry, match["pid"])
+    return removed
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def _storage_error(err: BaseException) -> str:
+    """One line for a storage error: the OS's words for an OSError, the text otherwise."""
+    if isinstance(err, OSError) and err.strerror:
+        return err.strerror
+    cause = err.__cause__ or err.__context__
+    if isinstance(cause, OSError) and cause.strerror:
+        return cause.strerror
+    return shorten(" ".join(str(err).split()))
 
 
 # --------------------------------------------------------------------------- terminal helpers
@@ -526,21 +597,45 @@ class ProgressBar:
             self._stream.flush()
 
 
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived: unwind (writers remove their staging), then exit.
+
+    A KeyboardInterrupt, so that every ``except KeyboardInterrupt`` and
+    ``finally`` treats SIGTERM (what service managers and ``ros2 launch``
+    send) as it treats Ctrl-C.
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _interrupt(signum: int) -> None:
+    raise Interrupted(signum)
+
+
 def run_command(name: str, body: Callable[[], int]) -> int:
     """Run a command's body; a package error becomes one line on stderr and status 1.
+
+    SIGINT and SIGTERM interrupt the body alike: it unwinds (an unfinished
+    output bag is removed) and the status is 128 + the signal's number; a
+    second signal during the unwinding ends the process at once.
 
     Args:
         name: Command name for the message (``"replay"``).
         body: The command; returns its exit status.
 
     Returns:
-        ``body``'s status, 1 after a :class:`MarkerLocalizerError`, 130 after Ctrl-C.
+        ``body``'s status, 1 after a :class:`MarkerLocalizerError`, 130 after
+        SIGINT (Ctrl-C), 143 after SIGTERM.
     """
     try:
-        return body()
+        with on_stop_signal(_interrupt):
+            return body()
     except MarkerLocalizerError as err:
         sys.stderr.write(f"marker-localizer {name}: error: {err}\n")
         return 1
-    except KeyboardInterrupt:
-        sys.stderr.write(f"marker-localizer {name}: interrupted\n")
-        return 130
+    except KeyboardInterrupt as err:
+        signum = err.signum if isinstance(err, Interrupted) else signal.SIGINT
+        sys.stderr.write(f"marker-localizer {name}: interrupted by {signal.Signals(signum).name}\n")
+        return 128 + signum

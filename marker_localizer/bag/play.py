@@ -368,7 +368,7 @@ def build_play_parser(parser: argparse.ArgumentParser | None = None) -> argparse
 
 
 def play_main(argv: Sequence[str] | None = None) -> int:
-    """Run ``marker-localizer play``; returns the exit status (1: bad input, 130: Ctrl-C)."""
+    """Run ``marker-localizer play``; the exit status as :func:`run_command`, 3: a damaged bag."""
     args = [NODE_NAME, *(sys.argv[1:] if argv is None else argv)]
     parsed = build_play_parser().parse_args(rclpy.utilities.remove_ros_args(args)[1:])
 

@@ -318,7 +318,7 @@ def config_from_args(args: argparse.Namespace) -> FlightConfig:
 
 
 def simulate_main(argv: Sequence[str] | None = None) -> int:
-    """Run ``marker-localizer simulate``; returns the exit status (1: bad input)."""
+    """Run ``marker-localizer simulate``; returns the exit status (see :func:`run_command`)."""
     args = build_simulate_parser().parse_args(argv)
 
     def body() -> int:

@@ -487,7 +487,7 @@ class _Session:
         ]
         node_values = {
             "workers": str(self.processor.workers),
-            "frames in flight": str(self.processor.in_flight()),
+            "frames in flight": str(len(self.processor.in_flight())),
             "mode": "replay",
         }
         statuses.append(diagnostics.node_status(NODE_NAME, statuses, node_values))
@@ -667,7 +667,7 @@ def build_replay_parser(parser: argparse.ArgumentParser | None = None) -> argpar
 
 
 def replay_main(argv: Sequence[str] | None = None) -> int:
-    """Run ``marker-localizer replay``; returns the exit status (1: bad input)."""
+    """Run ``marker-localizer replay``; the exit status as :func:`run_command`, 3: incomplete."""
     args = build_replay_parser().parse_args(argv)
 
     def body() -> int:

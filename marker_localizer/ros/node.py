@@ -27,7 +27,6 @@ camera's mailbox; worker threads do the rest.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 import time
@@ -39,6 +38,7 @@ from typing import Any
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -52,15 +52,13 @@ from marker_localizer.ros import diagnostics
 from marker_localizer.ros.conversions import IMAGE_TRANSPORTS
 from marker_localizer.ros.parameters import LiveParameters, NodeConfig, changed_fields
 from marker_localizer.ros.processing import FrameProcessor
+from marker_localizer.stopping import on_stop_signal
 
 NODE_NAME = "marker_localizer"
 #: Per camera, at most one log line about failing frames, and one about dropped
 #: frames, in this many seconds: a camera sending bad frames at 10 Hz must not
 #: flood the log, and the diagnostics carry the counts and the last error anyway.
 _CAMERA_LOG_PERIOD_S = 5.0
-#: Longest wait for the frames in flight at shutdown, s: a 12 MP frame takes
-#: about 15 s on a 2-core computer.
-_SHUTDOWN_TIMEOUT_S = 60.0
 #: How often the main loop looks at the stop flag set by SIGINT/SIGTERM, s.
 _SPIN_PERIOD_S = 0.1
 
@@ -155,7 +153,7 @@ class MarkerLocalizerNode(Node):
         config = self.processor.config
         node_values = {
             "workers": str(self.processor.workers),
-            "frames in flight": str(self.processor.in_flight()),
+            "frames in flight": str(len(self.processor.in_flight())),
             "max frame age (s)": f"{self.processor.max_frame_age_s:g}",
             "marker radius range (px)": (
                 f"{config.marker_radius_min_px:g}..{config.marker_radius_max_px:g}"
@@ -185,10 +183,21 @@ class MarkerLocalizerNode(Node):
                 self.get_logger().info(line)
 
     def destroy_node(self) -> None:
-        """Drain the worker pool (frames in flight are published), then destroy the node."""
-        if not self.processor.shutdown(_SHUTDOWN_TIMEOUT_S):
+        """Drain the worker pool (frames in flight are published), then destroy the node.
+
+        The drain waits at most ``shutdown_timeout_s`` and says for which cameras.
+        """
+        timeout_s = self._live.node_config.shutdown_timeout_s
+        in_flight = self.processor.in_flight()
+        if in_flight:
+            self.get_logger().info(
+                f"stopping: waiting up to {timeout_s:g} s for the frames in flight "
+                f"({', '.join(in_flight)})"
+            )
+        if not self.processor.shutdown(timeout_s):
             self.get_logger().warning(
-                f"frames still in flight after {_SHUTDOWN_TIMEOUT_S:g} s were abandoned"
+                f"stopping: frames still in flight after {timeout_s:g} s were abandoned "
+                f"({', '.join(self.processor.in_flight())})"
             )
         super().destroy_node()
 
@@ -253,7 +262,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         Exit status: 0 after a clean shutdown, 1 on invalid configuration.
     """
     args = [sys.argv[0] if sys.argv else NODE_NAME, *(sys.argv[1:] if argv is None else argv)]
-    own_args = rclpy.utilities.remove_ros_args(args)[1:]
+    try:
+        own_args = rclpy.utilities.remove_ros_args(args)[1:]
+    except rclpy_implementation.RCLError as err:  # a params file that is not YAML, ...
+        rclpy.logging.get_logger(NODE_NAME).fatal(
+            f"invalid ROS arguments: {' '.join(str(err).split())}"
+        )
+        return 1
     argparse.ArgumentParser(
         prog="marker_localizer_node",
         description="ROS 2 node localising diagonal ground markers; configure it with "
@@ -263,8 +278,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     # ours only set a flag, so frames in flight are still published.
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda *_: stop.set())
+    with on_stop_signal(lambda _: stop.set()):
+        return _run(stop)
+
+
+def _run(stop: threading.Event) -> int:
+    """Serve until ``stop`` is set, then drain and shut down."""
     try:
         try:
             node = MarkerLocalizerNode()

@@ -143,6 +143,15 @@ class NodeConfig:
         3600.0,
         read_only=True,
     )
+    shutdown_timeout_s: float = _node_param(
+        4.0,
+        "Longest wait at shutdown (SIGINT, SIGTERM) for the frames in flight to be "
+        "published: a 12 MP frame takes 0.1-0.5 s, and ros2 launch sends SIGTERM 5 s "
+        "after SIGINT (a second signal ends the node at once) and SIGKILL 5 s later.",
+        "s",
+        0.0,
+        3600.0,
+    )
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "cameras", tuple(self.cameras))

@@ -235,10 +235,10 @@ class FrameProcessor:
         with self._cond:
             return self._cond.wait_for(self._idle, timeout_s)
 
-    def in_flight(self) -> int:
-        """Frames being processed now."""
+    def in_flight(self) -> list[str]:
+        """Cameras whose frame is being processed now, sorted."""
         with self._cond:
-            return len(self._busy)
+            return sorted(self._busy)
 
     def snapshots(self) -> dict[str, CameraSnapshot]:
         """Statistics of every camera, now."""
