@@ -1,7 +1,9 @@
 """Per-camera statistics and diagnostic levels, on a clock the tests drive."""
 
+import dataclasses
 import math
 
+import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 
@@ -15,6 +17,7 @@ from marker_localizer.ros.diagnostics import (
     camera_status,
     diagnostic_array,
     drop_report,
+    frames_lost_upstream,
     node_status,
 )
 
@@ -27,10 +30,14 @@ def healthy_camera(frames=10, period_s=0.5, latency_ms=50.0, markers=3, clock_of
     stats = CameraStats("cam1", start_ns=0, window_s=LIMITS.window_s)
     for i in range(frames):
         t = int((i + 1) * period_s * S)
-        stats.frame_received(t)
+        stats.frame_received(t, stamp_ns=t)
         stats.frame_processed(t, latency_ms=latency_ms, clock_offset_s=clock_offset_s,
                               markers=markers)
     return stats, int(frames * period_s * S)
+
+
+def level_of(status):
+    return status.level[0]
 
 
 def values_of(status):
@@ -62,7 +69,7 @@ def test_dropped_frames_leave_the_window_and_the_warning_clears():
     stats.frame_replaced(now)
     later = now + 11 * S
     for i in range(4):
-        stats.frame_received(later - i * S // 2)
+        stats.frame_received(later - i * S // 2, stamp_ns=later - i * S // 2)
     assert camera_level(stats.snapshot(later), LIMITS)[0] == OK
 
 
@@ -92,9 +99,51 @@ def test_failed_frame_keeps_the_camera_at_error_for_one_window():
     assert level == ERROR
     assert "unsupported encoding 'yuv422'" in message
     for i in range(25):  # frames keep coming, all good
-        stats.frame_received(now + (i + 1) * S // 2)
+        stats.frame_received(now + (i + 1) * S // 2, stamp_ns=now + (i + 1) * S // 2)
     assert camera_level(stats.snapshot(now + 12 * S), LIMITS)[0] == OK
     assert stats.snapshot(now + 12 * S).errors == 1
+
+
+def test_frames_lost_upstream_are_counted_from_the_gaps_between_stamps():
+    period_ns = S // 10
+    rng = np.random.default_rng(4)
+    sent = np.arange(1000) * period_ns + rng.normal(0, 0.05 * period_ns, 1000).astype(np.int64)
+    kept = np.sort(rng.choice(1000, 540, replace=False))  # 46 % lost, as measured on DDS
+    lost, rate_hz = frames_lost_upstream(sent[kept])
+    assert lost == kept[-1] - kept[0] + 1 - len(kept)
+    assert rate_hz == pytest.approx(10.0, rel=0.01)
+    assert frames_lost_upstream(sent) == (0, pytest.approx(10.0, rel=0.01))
+    assert frames_lost_upstream(sent[kept], rate_hz=10.0)[0] == lost
+    assert frames_lost_upstream(sent[:5])[0] == 0  # too few gaps to know the rate
+    assert frames_lost_upstream(sent[::-1])[0] == 0  # stamps going back count nothing
+
+
+def lossy_camera(keep):
+    """A 10 Hz camera of which the frames ``keep(k)`` arrive, stamped on another clock."""
+    stats = CameraStats("cam2", start_ns=0, window_s=LIMITS.window_s)
+    for k in range(100):
+        if keep(k):
+            stats.frame_received(k * S // 10, stamp_ns=k * S // 10 - 7 * S)
+    return stats.snapshot(99 * S // 10)
+
+
+def test_camera_warns_with_the_figure_when_frames_are_lost_before_the_node():
+    rng = np.random.default_rng(5)
+    arrived = lossy_camera(lambda k: k in (0, 99) or rng.random() > 0.46)
+    lost = 100 - arrived.received_in_window
+    status = camera_status("marker_localizer", arrived, LIMITS)
+    assert level_of(status) == WARN
+    assert status.message == (f"{lost} % of frames lost before the node ({lost} of 100 in 10 s, "
+                              "from stamp gaps at 10 Hz)")
+    assert values_of(status)["lost upstream in window"] == str(lost)
+
+
+def test_a_regular_loss_needs_the_expected_rate_to_be_seen():
+    every_other = lossy_camera(lambda k: k % 2 == 0 or k == 99)
+    assert camera_level(every_other, LIMITS) == (OK, "ok")  # looks like a 5 Hz camera
+    at_10_hz = dataclasses.replace(LIMITS, expected_rate_hz=10.0)
+    assert camera_level(every_other, at_10_hz) == (
+        WARN, "49 % of frames lost before the node (49 of 100 in 10 s, from stamp gaps at 10 Hz)")
 
 
 def test_a_long_error_text_is_kept_short_in_the_status():
@@ -109,7 +158,7 @@ def test_error_wins_over_warning_and_both_are_named():
     stats, now = healthy_camera(latency_ms=900.0)
     level, message = camera_level(stats.snapshot(now + 5 * S), LIMITS)
     assert (level, message) == (ERROR, "no frame for 5.0 s; latency p95 900 ms > 200 ms")
-    stats.frame_received(now + 5 * S)
+    stats.frame_received(now + 5 * S, stamp_ns=now + S // 2)  # the next frame, late
     stats.frame_failed(now + 5 * S, "RuntimeError: boom")
     level, message = camera_level(stats.snapshot(now + 5 * S), LIMITS)
     assert (level, message) == (

@@ -691,6 +691,53 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros,
         spinner.stop()
 
 
+def test_frames_lost_before_the_node_show_in_its_diagnostics_with_the_figure(ros):
+    """The camera's stamps step 0.1 s; 12 of the 40 frames it stamped never reach the node."""
+    node = MarkerLocalizerNode(
+        "loss_localizer",
+        namespace="/loss",
+        parameter_overrides=[
+            Parameter("cameras", value=["cam0"]),
+            Parameter("diagnostics_period_s", value=0.1),
+            Parameter("stats_window_s", value=600.0),
+            Parameter("input_timeout_s", value=600.0),
+        ],
+    )
+    spinner = Spinner(node)
+    peer = Peer("loss_peer", "/loss")
+    lost = {3, 4, 9, 13, 14, 15, 22, 27, 30, 31, 35, 37}
+    try:
+        peer.listen("/diagnostics", DiagnosticArray)
+        sent = 0
+        for k in range(40):
+            if k in lost:
+                continue
+            frame = peer.frame(x_marker_64(), stamp=Time(sec=100 + k // 10,
+                                                         nanosec=(k % 10) * 100_000_000))
+            peer.publish("cam0/image_raw", frame)
+            sent += 1
+            wait_until(lambda n=sent: node.processor.snapshots()["cam0"].received == n,
+                       f"frame {k} received")
+
+        def warned():
+            for array_msg in reversed(peer.messages("/diagnostics")):
+                for status in array_msg.status:
+                    if status.name == "loss_localizer: cam0" and (
+                        values_of(status)["frames received"] == str(sent)
+                    ):
+                        return status
+            return None
+
+        status = wait_until(warned, "the loss in the diagnostics")
+        assert level_of(status) == WARN
+        assert status.message == ("30 % of frames lost before the node (12 of 40 in 600 s, "
+                                  "from stamp gaps at 10 Hz)")
+        assert values_of(status)["lost upstream in window"] == "12"
+    finally:
+        peer.stop()
+        spinner.stop()
+
+
 @pytest.mark.parametrize("use_sim_time", [False, True])
 def test_frames_stamped_on_another_clock_are_processed_with_their_stamps_copied(
     ros, use_sim_time

@@ -72,7 +72,7 @@ from marker_localizer.errors import BagError, ImageError, shorten
 from marker_localizer.ros import diagnostics
 from marker_localizer.ros.conversions import ENCODINGS, IMAGE_TRANSPORTS, cloud_to_array
 from marker_localizer.ros.node import NODE_NAME
-from marker_localizer.ros.parameters import NodeConfig
+from marker_localizer.ros.parameters import NodeConfig, diagnostic_thresholds
 from marker_localizer.ros.processing import FrameProcessor, stamp_to_ns
 
 CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
@@ -387,11 +387,7 @@ class _Session:
         self._cond = threading.Condition()
         self.now_ns = 0
         settings = NodeConfig()
-        self._thresholds = diagnostics.DiagnosticThresholds(
-            latency_warn_ms=settings.latency_warn_ms,
-            input_timeout_s=settings.input_timeout_s,
-            window_s=settings.stats_window_s,
-        )
+        self._thresholds = diagnostic_thresholds(settings)
         self._diagnostics_period_ns = round(settings.diagnostics_period_s * 1e9)
         self._next_diagnostics_ns: int | None = None
         self.processor = FrameProcessor(

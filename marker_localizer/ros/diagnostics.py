@@ -11,16 +11,20 @@ Levels of a camera:
   none ever arrived), or a frame failed (bad input or a processing exception)
   within the last ``window_s``.
 * WARN: more than ``drop_warn_fraction`` of the frames received in the last
-  ``window_s`` were dropped (replaced in the mailbox or waited too long), or the
-  latency p95 exceeds ``latency_warn_ms``.
+  ``window_s`` were dropped (replaced in the mailbox or waited too long); or
+  more than that fraction of the frames the camera sent in the window never
+  arrived (lost upstream: in DDS, in the camera driver, on the network), as the
+  gaps between consecutive header stamps tell against the camera's own rate
+  (:func:`frames_lost_upstream`); or the latency p95 exceeds ``latency_warn_ms``.
+* OK otherwise.
 
 Latency is the time a frame spent in the node, from its arrival to the
 publication of its result. Header stamps are never judged: the clock offset
 (arrival on the node's clock minus the header stamp: transport delay plus the
 difference between the camera's clock and the node's) is reported, not
 checked, so that an old bag played without /clock or a camera's device clock
-shows up as what it is.
-* OK otherwise.
+shows up as what it is. Only the differences between one camera's stamps are
+used, to count the frames that never arrived.
 
 All times come from one clock in nanoseconds (the node's ROS clock, so
 ``use_sim_time`` applies); statistics are thread-safe because worker threads
@@ -48,6 +52,13 @@ _NS_PER_S = 1_000_000_000
 #: Results kept per camera for the windowed latency and marker statistics; the
 #: newest 200 within the window bound memory and the sort, and give a stable p95.
 _LATENCY_SAMPLES = 200
+#: Fewest stamp gaps from which a camera's frame period is estimated: a second
+#: of a 10 Hz camera; with fewer, nothing is counted as lost.
+_MIN_STAMP_GAPS = 8
+#: Gaps shorter than this multiple of the 10th-percentile gap are one frame
+#: period apart: stamps of a free-running camera jitter by far less than half a
+#: period, and the 10th percentile is still one period with up to 90 % lost.
+_SINGLE_PERIOD_GAP = 1.5
 
 
 @dataclass(frozen=True)
@@ -59,13 +70,16 @@ class DiagnosticThresholds:
         input_timeout_s: ERROR when no frame arrived for this long, s.
         window_s: sliding window of rates, drop fraction and recent errors, s.
         drop_warn_fraction: WARN when more than this fraction of the frames
-            received in the window was dropped.
+            received in the window was dropped, or of those sent was lost upstream.
+        expected_rate_hz: the cameras' frame rate, Hz, against which stamp gaps
+            count lost frames; 0 measures each camera's rate from its stamps.
     """
 
     latency_warn_ms: float
     input_timeout_s: float
     window_s: float
     drop_warn_fraction: float = 0.10
+    expected_rate_hz: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -89,6 +103,8 @@ class CameraSnapshot:
         clock_offset_s: median of arrival time minus header stamp in the window,
             s (NaN: no sample); negative for stamps in the future.
         markers_per_frame: mean markers per delivered frame in the window (NaN: none).
+        window_stamps_ns: header stamps of the frames received in the window,
+            in order of arrival, ns (their gaps tell the frames lost upstream).
         since_last_frame_s: time since the last frame arrived, or since start
             if none did, s.
         any_frame: whether a frame ever arrived.
@@ -110,6 +126,7 @@ class CameraSnapshot:
     latency_p95_ms: float
     clock_offset_s: float
     markers_per_frame: float
+    window_stamps_ns: np.ndarray
     since_last_frame_s: float
     any_frame: bool
     last_error: str
@@ -136,16 +153,18 @@ class CameraStats:
         self._last_error = ""
         self._last_error_ns: int | None = None
         self._received_at: deque[int] = deque()
+        self._stamps: deque[int] = deque()  # header stamp of each frame in _received_at
         self._dropped_at: deque[int] = deque()
         # (delivery time ns, latency ms, clock offset s, markers) per delivered frame.
         self._results: deque[tuple[int, float, float, int]] = deque()
 
-    def frame_received(self, now_ns: int) -> None:
-        """Count a frame put into the mailbox."""
+    def frame_received(self, now_ns: int, stamp_ns: int) -> None:
+        """Count a frame put into the mailbox; ``stamp_ns`` is its header stamp."""
         with self._lock:
             self._received += 1
             self._last_frame_ns = now_ns
             self._received_at.append(now_ns)
+            self._stamps.append(stamp_ns)
 
     def frame_replaced(self, now_ns: int) -> None:
         """Count a frame replaced in the mailbox by a newer one."""
@@ -187,9 +206,11 @@ class CameraStats:
         """Freeze the statistics at ``now_ns`` (clock time, ns)."""
         with self._lock:
             horizon = now_ns - self._window_ns
-            for times in (self._received_at, self._dropped_at):
-                while times and times[0] < horizon:
-                    times.popleft()
+            while self._received_at and self._received_at[0] < horizon:
+                self._received_at.popleft()
+                self._stamps.popleft()
+            while self._dropped_at and self._dropped_at[0] < horizon:
+                self._dropped_at.popleft()
             recent = [r for r in self._results if r[0] >= horizon]
             span_s = max(min(now_ns - self._start_ns, self._window_ns), 1) / _NS_PER_S
             latency = np.array([r[1] for r in recent])
@@ -209,6 +230,7 @@ class CameraStats:
                 latency_p95_ms=_percentile(latency, 95),
                 clock_offset_s=_percentile(np.array([r[2] for r in recent]), 50),
                 markers_per_frame=_mean([r[3] for r in recent]),
+                window_stamps_ns=np.array(self._stamps, dtype=np.int64),
                 since_last_frame_s=max(now_ns - last_frame, 0) / _NS_PER_S,
                 any_frame=self._last_frame_ns is not None,
                 last_error=self._last_error,
@@ -216,6 +238,36 @@ class CameraStats:
                 if self._last_error_ns is None
                 else max(now_ns - self._last_error_ns, 0) / _NS_PER_S,
             )
+
+
+def frames_lost_upstream(stamps_ns: np.ndarray, rate_hz: float = 0.0) -> tuple[int, float]:
+    """Frames a camera sent but the node never received, from the gaps between its stamps.
+
+    A gap of k frame periods (rounded) means k - 1 frames lost; gaps that are
+    not positive (a repeated or an older stamp) count nothing. The period is
+    ``1 / rate_hz`` when the rate is known; otherwise the median of the gaps one
+    period long (those under 1.5x the 10th-percentile gap), which sees random
+    loss (DDS losing samples) but takes a camera of which every other frame is
+    lost for one at half the rate.
+
+    Args:
+        stamps_ns: header stamps in order of arrival, ns.
+        rate_hz: the camera's frame rate, Hz; 0 measures it from the gaps.
+
+    Returns:
+        (frames lost, the rate used in Hz); (0, NaN) when measuring and there
+        are fewer than ``_MIN_STAMP_GAPS`` positive gaps.
+    """
+    gaps = np.diff(stamps_ns)
+    gaps = gaps[gaps > 0]
+    if rate_hz > 0:
+        period_ns = _NS_PER_S / rate_hz
+    elif gaps.size >= _MIN_STAMP_GAPS:
+        period_ns = float(np.median(gaps[gaps < _SINGLE_PERIOD_GAP * np.percentile(gaps, 10)]))
+    else:
+        return 0, math.nan
+    lost = int(np.maximum(np.rint(gaps / period_ns) - 1, 0).sum())
+    return lost, _NS_PER_S / period_ns
 
 
 def _percentile(values: np.ndarray, q: float) -> float:
@@ -253,6 +305,13 @@ def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> 
     ):
         share = 100.0 * snapshot.dropped_in_window / snapshot.received_in_window
         warnings.append(f"{share:.0f} % of frames dropped")
+    lost, rate_hz = frames_lost_upstream(snapshot.window_stamps_ns, thresholds.expected_rate_hz)
+    sent = snapshot.received_in_window + lost
+    if lost > thresholds.drop_warn_fraction * sent:
+        warnings.append(
+            f"{100.0 * lost / sent:.0f} % of frames lost before the node ({lost} of {sent} "
+            f"in {thresholds.window_s:g} s, from stamp gaps at {rate_hz:.3g} Hz)"
+        )
     if snapshot.latency_p95_ms > thresholds.latency_warn_ms:
         warnings.append(
             f"latency p95 {snapshot.latency_p95_ms:.0f} ms > {thresholds.latency_warn_ms:g} ms"
@@ -307,6 +366,7 @@ def camera_status(
         Status named ``"<node name>: <camera>"`` with ``hardware_id`` = camera.
     """
     level, message = camera_level(snapshot, thresholds)
+    lost, rate_hz = frames_lost_upstream(snapshot.window_stamps_ns, thresholds.expected_rate_hz)
     dropped_pct = (
         100.0 * snapshot.dropped_in_window / snapshot.received_in_window
         if snapshot.received_in_window
@@ -324,6 +384,8 @@ def camera_status(
         "latency p95 (ms)": f"{snapshot.latency_p95_ms:.1f}",
         "clock offset p50 (s)": f"{snapshot.clock_offset_s:.3f}",
         "markers per frame": f"{snapshot.markers_per_frame:.2f}",
+        "lost upstream in window": str(lost),
+        "camera rate from stamps (Hz)": f"{rate_hz:.3g}",
         "time since last frame (s)": f"{snapshot.since_last_frame_s:.2f}",
         "errors": str(snapshot.errors),
         "last error": snapshot.last_error,

@@ -50,7 +50,12 @@ from marker_localizer.config import DetectorConfig
 from marker_localizer.errors import MarkerLocalizerError
 from marker_localizer.ros import diagnostics
 from marker_localizer.ros.conversions import IMAGE_TRANSPORTS
-from marker_localizer.ros.parameters import LiveParameters, NodeConfig, changed_fields
+from marker_localizer.ros.parameters import (
+    LiveParameters,
+    NodeConfig,
+    changed_fields,
+    diagnostic_thresholds,
+)
 from marker_localizer.ros.processing import FrameProcessor
 from marker_localizer.stopping import on_stop_signal
 
@@ -93,7 +98,7 @@ class MarkerLocalizerNode(Node):
         super().__init__(node_name, **kwargs)
         self._live = LiveParameters(self, self._on_parameters)
         settings = self._live.node_config
-        self._thresholds = _thresholds(settings)
+        self._thresholds = diagnostic_thresholds(settings)
         self._camera_info: dict[str, CameraInfo] = {}
         self._last_failure_log: dict[str, float] = {}
         # Per camera: when drops were last logged, and the drop counts logged then.
@@ -234,7 +239,7 @@ class MarkerLocalizerNode(Node):
     def _on_parameters(self, settings: NodeConfig, config: DetectorConfig) -> None:
         self.processor.max_frame_age_s = settings.max_frame_age_s
         self.processor.publish_overlay = settings.publish_overlay
-        self._thresholds = _thresholds(settings)
+        self._thresholds = diagnostic_thresholds(settings)
         changes = changed_fields(self.processor.config, config)
         if changes:
             self.processor.set_config(config)
@@ -242,12 +247,6 @@ class MarkerLocalizerNode(Node):
             self.get_logger().info(f"detector reconfigured for the next frames: {listed}")
 
 
-def _thresholds(settings: NodeConfig) -> diagnostics.DiagnosticThresholds:
-    return diagnostics.DiagnosticThresholds(
-        latency_warn_ms=settings.latency_warn_ms,
-        input_timeout_s=settings.input_timeout_s,
-        window_s=settings.stats_window_s,
-    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

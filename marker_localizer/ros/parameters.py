@@ -47,6 +47,7 @@ from marker_localizer.config import (
 )
 from marker_localizer.errors import ConfigError
 from marker_localizer.ros.conversions import IMAGE_TRANSPORTS
+from marker_localizer.ros.diagnostics import DiagnosticThresholds
 
 _CAMERA_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
@@ -143,6 +144,16 @@ class NodeConfig:
         3600.0,
         read_only=True,
     )
+    expected_rate_hz: float = _node_param(
+        0.0,
+        "Frame rate the cameras send: diagnostics WARN when the gaps between a camera's "
+        "header stamps say more than 10 % of its frames never arrived (lost in DDS, the "
+        "driver or the network). 0 measures each camera's rate from its stamps, which sees "
+        "random loss but takes a camera that loses every other frame for one at half rate.",
+        "Hz",
+        0.0,
+        1000.0,
+    )
     shutdown_timeout_s: float = _node_param(
         4.0,
         "Longest wait at shutdown (SIGINT, SIGTERM) for the frames in flight to be "
@@ -172,6 +183,16 @@ class NodeConfig:
                 raise ConfigError(
                     f"{f.name}={value!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}"
                 )
+
+
+def diagnostic_thresholds(settings: NodeConfig) -> DiagnosticThresholds:
+    """The limits of the diagnostics' levels that the node's settings give."""
+    return DiagnosticThresholds(
+        latency_warn_ms=settings.latency_warn_ms,
+        input_timeout_s=settings.input_timeout_s,
+        window_s=settings.stats_window_s,
+        expected_rate_hz=settings.expected_rate_hz,
+    )
 
 
 def node_specs() -> dict[str, tuple[dataclasses.Field[Any], ParamSpec]]:

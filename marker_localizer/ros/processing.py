@@ -221,7 +221,7 @@ class FrameProcessor:
             since_ns = now_ns if waiting is None else waiting.waiting_since_ns
             self._pending[camera] = _Frame(camera, msg, now_ns, since_ns)
             self._cond.notify_all()
-        stats.frame_received(now_ns)
+        stats.frame_received(now_ns, stamp_to_ns(msg.header))
         if replaced:
             stats.frame_replaced(now_ns)
         return True
