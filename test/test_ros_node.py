@@ -34,6 +34,7 @@ from rcl_interfaces.srv import (
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
@@ -438,6 +439,32 @@ def test_atomic_request_with_one_invalid_value_applies_nothing(localizer, tester
     assert localizer.processor.config.marker_radius_max_px == 40.0
 
 
+def test_non_atomic_request_applies_each_parameter_on_its_own_in_order(localizer, tester):
+    """SetParameters validates and applies one parameter after the other (README)."""
+    node = "/inproc/marker_localizer"
+    try:
+        first, second = tester.set_parameters(
+            node, [("detector.marker_radius_max_px", 60.0), ("detector.marker_radius_min_px", 70.0)]
+        )
+        assert first.successful  # valid alone: applied before the second is looked at
+        assert not second.successful
+        assert "marker_radius_min_px=70.0 is larger than marker_radius_max_px=60.0" in (
+            second.reason)
+        assert tester.get_parameter(node, "detector.marker_radius_max_px") == 60.0
+        assert tester.get_parameter(node, "detector.marker_radius_min_px") == 4.0
+        assert localizer.processor.config.marker_radius_max_px == 60.0
+        # Values that are valid one after the other all apply.
+        results = tester.set_parameters(
+            node, [("detector.marker_radius_max_px", 80.0), ("detector.marker_radius_min_px", 70.0)]
+        )
+        assert [r.successful for r in results] == [True, True]
+        assert localizer.processor.config.marker_radius_min_px == 70.0
+    finally:
+        tester.set_parameters(node, [("detector.marker_radius_min_px", 4.0),
+                                     ("detector.marker_radius_max_px", 40.0)])
+    assert localizer.processor.config.marker_radius_max_px == 40.0
+
+
 def test_parameter_descriptors_state_unit_range_and_read_only(localizer, tester):
     names = ["detector.marker_radius_min_px", "detector.refinement", "workers", "max_frame_age_s"]
     request = DescribeParameters.Request(names=names)
@@ -688,6 +715,72 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros,
         stop.set()
         release.set()
         tester.stop()
+        spinner.stop()
+
+
+def test_a_flood_of_bad_frames_costs_no_good_frame_and_keeps_diagnostics_small(ros):
+    """cam1 floods hostile frames while every frame cam0 sends gets its result."""
+    node = MarkerLocalizerNode(
+        "flood_localizer",
+        namespace="/flood",
+        parameter_overrides=[
+            Parameter("cameras", value=["cam0", "cam1"]),
+            Parameter("diagnostics_period_s", value=0.1),
+            Parameter("input_timeout_s", value=600.0),
+            Parameter("max_frame_age_s", value=0.0),
+            Parameter("detector.max_pixels", value=1_000_000),
+        ],
+    )
+    spinner = Spinner(node)
+    peer = Peer("flood_peer", "/flood")
+    stop = threading.Event()
+    hostile = []
+    oversized = peer.frame(np.zeros((4, 4), np.uint8))
+    oversized.height, oversized.width, oversized.step = 30000, 30000, 30000  # 16 B of data
+    hostile.append(oversized)
+    long_encoding = peer.frame(np.zeros((4, 4), np.uint8))
+    long_encoding.encoding = "x" * 1_000_000
+    hostile.append(long_encoding)
+    truncated = peer.frame(x_marker_64())
+    truncated.data = truncated.data[:100]
+    hostile.append(truncated)
+
+    def flood():
+        k = 0
+        while not stop.is_set():
+            peer.publish("cam1/image_raw", hostile[k % len(hostile)])
+            k += 1
+
+    flooder = threading.Thread(target=flood, daemon=True)
+    try:
+        peer.listen("cam0/marker_points", PointCloud2)
+        peer.listen("/diagnostics", DiagnosticArray)
+        flooder.start()
+        wait_until(lambda: node.processor.snapshots()["cam1"].errors >= 30, "the flood")
+        for _ in range(5):
+            good = peer.frame(x_marker_64())
+            peer.publish("cam0/image_raw", good)
+            assert peer.result_for("cam0/marker_points", good.header).width == 1
+        snap = node.processor.snapshots()
+        assert (snap["cam0"].processed, snap["cam0"].errors) == (5, 0)
+        assert snap["cam1"].processed == 0
+
+        def flooded_status():
+            for array_msg in reversed(peer.messages("/diagnostics")[-3:]):
+                statuses = {s.hardware_id: s for s in array_msg.status}
+                if "cam1" in statuses and int(values_of(statuses["cam1"])["errors"]) >= 30:
+                    return array_msg
+            return None
+
+        array_msg = wait_until(flooded_status, "diagnostics of the flood")
+        size = len(serialize_message(array_msg))
+        assert size < 8_000, size  # a 1 MB encoding string made 3 MB every second
+        cam1 = next(s for s in array_msg.status if s.hardware_id == "cam1")
+        assert level_of(cam1) == ERROR
+    finally:
+        stop.set()
+        flooder.join(TIMEOUT_S)
+        peer.stop()
         spinner.stop()
 
 

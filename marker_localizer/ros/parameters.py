@@ -10,12 +10,14 @@ Two configurations back the node's parameters, neither written twice:
   read-only.
 
 :class:`LiveParameters` validates a change in the on-set callback by building
-the new configurations (any :class:`ConfigError` rejects the whole request with
-its text as the reason, so nothing is half-applied and cross-field rules such as
-``marker_radius_min_px <= marker_radius_max_px`` hold), and applies it in the
-post-set callback. rclpy itself checks types, ranges and read-only flags first.
-The ``SetParameters`` service applies parameters one by one; change dependent
-values (both radius bounds) together with ``SetParametersAtomically``.
+the new configurations (a :class:`ConfigError` rejects it with its text as the
+reason, so cross-field rules such as ``marker_radius_min_px <=
+marker_radius_max_px`` always hold), and applies it in the post-set callback.
+rclpy itself checks types, ranges and read-only flags first. What one callback
+sees is rclpy's choice: the whole request for ``SetParametersAtomically`` (all
+or nothing), one parameter at a time for ``SetParameters``, which applies each
+valid one before it looks at the next; change dependent values (both radius
+bounds) atomically.
 """
 
 from __future__ import annotations
