@@ -41,6 +41,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import rclpy
 from rclpy.context import Context
@@ -140,12 +141,27 @@ class PlayReport:
     damage: list[str] = field(default_factory=list)
 
 
+class Timekeeper(Protocol):
+    """Where the player reads the time and waits: the ``time`` module itself by default."""
+
+    def monotonic(self) -> float:
+        """Seconds on a clock that never goes back."""
+        ...
+
+    def sleep(self, seconds: float, /) -> None:
+        """Wait ``seconds``."""
+        ...
+
+
 class _Player:
     """Publishers for a bag's topics and the pacing between messages."""
 
-    def __init__(self, node: Node, topics: dict[str, str], options: PlayOptions) -> None:
+    def __init__(
+        self, node: Node, topics: dict[str, str], options: PlayOptions, timekeeper: Timekeeper
+    ) -> None:
         self.node = node
         self.options = options
+        self.time = timekeeper
         qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST,
             depth=options.qos_depth,
@@ -169,13 +185,13 @@ class _Player:
 
     def wait_for_subscribers(self, topics: Sequence[str]) -> list[str]:
         """Wait until each of ``topics`` has a subscriber; return those still without."""
-        deadline = time.monotonic() + self.options.wait_for_subscribers_s
+        deadline = self.time.monotonic() + self.options.wait_for_subscribers_s
         missing = list(topics)
         while True:
             missing = [t for t in missing if self.publishers[t].get_subscription_count() == 0]
-            if not missing or time.monotonic() >= deadline:
+            if not missing or self.time.monotonic() >= deadline:
                 return missing
-            time.sleep(_POLL_S)
+            self.time.sleep(_POLL_S)
 
     def publish_clock(self, time_ns: int) -> None:
         if self.clock is not None:
@@ -190,10 +206,10 @@ class _Player:
             start_s: Monotonic time the playback started, s.
         """
         period_s = 1.0 / self.options.clock_hz
-        while (remaining := due_s - time.monotonic()) > 0:
-            time.sleep(min(remaining, period_s) if self.clock is not None else remaining)
+        while (remaining := due_s - self.time.monotonic()) > 0:
+            self.time.sleep(min(remaining, period_s) if self.clock is not None else remaining)
             if self.clock is not None:
-                elapsed = min(time.monotonic(), due_s) - start_s
+                elapsed = min(self.time.monotonic(), due_s) - start_s
                 self.publish_clock(round(bag_ns_at + elapsed * self.options.rate * 1e9))
 
     def pace(self, topic: str) -> bool:
@@ -215,14 +231,14 @@ class _Player:
         acked = publisher.get_subscription_count() == 0 or publisher.wait_for_all_acked(
             Duration(seconds=self.options.ack_timeout_s)
         )
-        remaining = previous + self.options.min_topic_interval_s - time.monotonic()
+        remaining = previous + self.options.min_topic_interval_s - self.time.monotonic()
         if remaining > 0:
-            time.sleep(remaining)
+            self.time.sleep(remaining)
         return acked
 
     def publish(self, topic: str, raw: bytes) -> None:
         self.publishers[topic].publish(raw)
-        self._last_publish_s[topic] = time.monotonic()
+        self._last_publish_s[topic] = self.time.monotonic()
 
     def flush(self) -> int:
         """Wait until every publisher's messages were acknowledged; return those that were not."""
@@ -240,6 +256,7 @@ def play_bag(
     options: PlayOptions | None = None,
     *,
     progress: ProgressBar | None = None,
+    timekeeper: Timekeeper = time,
 ) -> PlayReport:
     """Publish the messages of ``bag`` on their topics through ``node``.
 
@@ -249,6 +266,8 @@ def play_bag(
             before returning. The node does not need spinning.
         options: Timing, clock and topic selection.
         progress: Updated with the number of messages published.
+        timekeeper: the clock the pacing reads and sleeps on (tests record the
+            waits it asks for).
 
     Returns:
         Counts per topic and what was skipped.
@@ -277,7 +296,7 @@ def play_bag(
         if progress is not None:
             counts = reader.message_counts
             progress.total = sum(counts.get(t, 0) for t in playable)
-        player = _Player(node, playable, options)
+        player = _Player(node, playable, options, timekeeper)
         try:
             awaited = [t for t, m in playable.items() if m == IMAGE_TYPE] or list(playable)
             report.without_subscribers = player.wait_for_subscribers(awaited)
@@ -296,7 +315,7 @@ def _play(
     progress: ProgressBar | None,
 ) -> None:
     options = player.options
-    start_s = time.monotonic()
+    start_s = player.time.monotonic()
     first_ns: int | None = None
     last_ns = 0
     for done, message in enumerate(reader.messages(topics), start=1):
@@ -316,7 +335,7 @@ def _play(
             progress.update(done)
     # Publishers are destroyed next: let the last messages reach their subscribers.
     report.unacknowledged += player.flush()
-    report.wall_s = time.monotonic() - start_s
+    report.wall_s = player.time.monotonic() - start_s
     report.bag_s = (last_ns - first_ns) / 1e9 if first_ns is not None else 0.0
 
 
