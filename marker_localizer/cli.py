@@ -95,6 +95,7 @@ def _write_table(record: dict[str, Any]) -> None:
 def run_detect(args: argparse.Namespace) -> int:
     """``detect``: one result per image; unreadable images are reported and skipped."""
     detector = Detector(build_config(args.param, args.params_file))
+    overlays = _overlay_paths(args.images, args.overlay) if args.overlay else {}
     failed = 0
     for path in args.images:
         try:
@@ -111,16 +112,45 @@ def run_detect(args: argparse.Namespace) -> int:
             print(json.dumps(record), flush=True)
         else:
             _write_table(record)
-        if args.overlay:
-            from marker_localizer.overlay import draw_detections  # noqa: PLC0415 - only on request
-
-            out = Path(args.overlay) / f"{Path(path).stem}_markers.png"
-            out.parent.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(
-                str(out),
-                draw_detections(image, result.detections, bit_depth=detector.config.bit_depth),
-            )
+        if path in overlays and not _write_overlay(overlays[path], image, result, detector):
+            failed += 1
+            print(f"{PROG}: error: {overlays[path]}: cannot write the overlay", file=sys.stderr)
     return 1 if failed else 0
+
+
+def _overlay_paths(images: Sequence[str], folder: str) -> dict[str, Path]:
+    """Each image's overlay file in ``folder``, created here; same-named images get _2, _3...
+
+    Raises:
+        ConfigError: ``folder`` cannot be created (a file of that name, no permission).
+    """
+    try:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ConfigError(f"--overlay {folder}: cannot create the folder ({err.strerror})") from err
+    paths: dict[str, Path] = {}
+    taken: set[str] = set()
+    for image in dict.fromkeys(images):
+        stem, n = Path(image).stem, 1
+        name = f"{stem}_markers.png"
+        while name in taken:
+            n += 1
+            name = f"{stem}_{n}_markers.png"
+        taken.add(name)
+        paths[image] = Path(folder) / name
+    return paths
+
+
+def _write_overlay(
+    out: Path, image: np.ndarray, result: DetectionResult, detector: Detector
+) -> bool:
+    from marker_localizer.overlay import draw_detections  # noqa: PLC0415 - only on request
+
+    drawn = draw_detections(image, result.detections, bit_depth=detector.config.bit_depth)
+    try:
+        return bool(cv2.imwrite(str(out), drawn))
+    except cv2.error:
+        return False
 
 
 def _detect_file(detector: Detector, image: np.ndarray, path: str) -> DetectionResult:
@@ -169,7 +199,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="YAML",
         help="the node's parameter file (its detector: section is used)",
     )
-    detect.add_argument("--overlay", metavar="DIR", help="write annotated PNGs into DIR")
+    detect.add_argument(
+        "--overlay",
+        metavar="DIR",
+        help="write annotated PNGs into DIR as <name>_markers.png (a name already used in "
+        "this run gets _2, _3, ... in command-line order)",
+    )
     detect.set_defaults(handler=run_detect)
 
     demo = sub.add_parser("demo", help="render frames, detect, print accuracy, write overlays")
@@ -180,7 +215,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     for name, (_, _, text) in _DELEGATED.items():
         sub.add_parser(name, help=text, add_help=False)
-    bench = sub.add_parser("bench", help="benchmarks: " + ", ".join(_BENCHMARKS), add_help=False)
+    bench = sub.add_parser(
+        "bench",
+        help="benchmarks: " + ", ".join(_BENCHMARKS),
+        description="Benchmarks; each takes its own options: bench WHICH --help.",
+    )
     bench.add_argument("which", choices=sorted(_BENCHMARKS))
     return parser
 

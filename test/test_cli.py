@@ -1,6 +1,7 @@
 """The marker-localizer command line: JSON-lines contract and error handling."""
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -88,3 +89,36 @@ def test_overlay_writes_an_annotated_png(x_image, tmp_path):
     assert main(["detect", str(path), "--overlay", str(tmp_path / "out")]) == 0
     drawn = cv2.imread(str(tmp_path / "out" / "x_markers.png"))
     assert drawn.shape == (64, 64, 3)
+
+
+def test_overlays_of_images_with_the_same_name_do_not_overwrite_each_other(x_image, tmp_path):
+    path, _ = x_image
+    other = tmp_path / "b" / "x.png"  # no marker: its overlay is the image itself
+    other.parent.mkdir()
+    cv2.imwrite(str(other), np.full((64, 64), 80, np.uint8))
+    out = tmp_path / "out"
+    assert main(["detect", str(path), str(other), "--overlay", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["x_2_markers.png", "x_markers.png"]
+    np.testing.assert_array_equal(cv2.imread(str(out / "x_2_markers.png")), 80)
+    assert (cv2.imread(str(out / "x_markers.png")) != cv2.imread(str(path))).any()  # drawn
+
+
+@pytest.mark.parametrize("make", ["file", "missing_parent_root"])
+def test_an_overlay_folder_that_cannot_be_made_is_one_line(x_image, tmp_path, capsys, make):
+    path, _ = x_image
+    folder = tmp_path / "taken"
+    if make == "file":
+        folder.write_text("a file where the folder should go")
+    else:
+        folder = Path("/proc/no_folder_here")
+    assert main(["detect", str(path), "--overlay", str(folder)]) == 1
+    captured = capsys.readouterr()
+    assert captured.err.startswith(f"marker-localizer: error: --overlay {folder}: cannot create")
+    assert len(captured.err.strip().splitlines()) == 1 and "Traceback" not in captured.err
+
+
+def test_bench_help_lists_the_benchmarks_and_exits_0(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["bench", "--help"])
+    assert exit_info.value.code == 0
+    assert "{accuracy,speed,throughput}" in capsys.readouterr().out
