@@ -18,7 +18,6 @@ setup(
             sorted(str(p) for pattern in ("*.yaml", "*.xml") for p in Path("config").glob(pattern)),
         ),
     ],
-    package_data={PACKAGE: ["config/*.yaml"]},
     python_requires=">=3.11",
     install_requires=[
         "numpy>=2.0",
@@ -28,9 +27,13 @@ setup(
         "rosbags>=0.10",
         "PyYAML>=6.0",
     ],
+    # colcon test runs pytest only for a package that declares it as its test extra.
+    extras_require={"test": ["pytest"]},
     zip_safe=True,
-    maintainer="marker_localizer maintainers",
-    maintainer_email="maintainers@example.com",
+    # No person or address has been named for this package yet; the .invalid domain
+    # (RFC 2606) says so rather than pass for a real address. package.xml says the same.
+    maintainer="not yet named",
+    maintainer_email="maintainer-not-yet-named@marker-localizer.invalid",
     description="Sub-pixel localisation of diagonal (X) ground markers for UAV navigation.",
     license="Apache-2.0",
     entry_points={

@@ -1086,8 +1086,16 @@ def test_parameter_file_lists_every_parameter_at_its_default():
     assert DetectorConfig(**params["detector"]) == DetectorConfig()
 
 
+def installed_script(name):
+    """A console script where pip (beside the interpreter) or colcon (<prefix>/lib/<pkg>) put it."""
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    places = [Path(sys.executable).with_name(name),
+              *(Path(p) / "lib" / "marker_localizer" / name for p in prefixes)]
+    return str(next((p for p in places if p.is_file()), places[0]))
+
+
 #: The two ways a user starts the node: the console script setup.py declares, and -m.
-CONSOLE_SCRIPT = [str(Path(sys.executable).with_name("marker_localizer_node"))]
+CONSOLE_SCRIPT = [installed_script("marker_localizer_node")]
 MODULE = [sys.executable, "-m", "marker_localizer.node"]
 
 
