@@ -74,10 +74,101 @@ def test_saddle_levels_start_at_full_resolution_only_for_small_markers():
     assert screening.saddle_levels((3.0, 40.0)).stop >= 4
 
 
-def test_curvature_candidates_put_a_point_near_the_centre_of_an_x():
+def _polygon(corners: list[tuple[float, float]], per_side: int = 12) -> np.ndarray:
+    """Points along a closed polygon, ``per_side`` per side, corners included."""
+    corners_ = np.array(corners, dtype=float)
+    ends = np.roll(corners_, -1, axis=0)
+    t = np.arange(per_side)[:, None] / per_side
+    return np.concatenate([a + t * (b - a) for a, b in zip(corners_, ends, strict=True)])
+
+
+def test_eq4_gives_one_minus_the_cosine_of_the_turn_at_every_corner_of_polygons():
+    triangle = _polygon([(0, 0), (30, 0), (15, 15 * np.sqrt(3))])  # turns of 120 degrees
+    square = _polygon([(0, 0), (20, 0), (20, 20), (0, 20)])  # 90 degrees
+    half_square = _polygon([(0, 0), (40, 0), (40, 40)])  # 135, 90 and 135 degrees
+    contours = screening.ContourSet.from_list([triangle, square, half_square])
+    kappa = screening.contour_curvature(contours, window_px=3)
+    offset = 0
+    for points, turns in ((triangle, [120] * 3), (square, [90] * 4), (half_square, [135, 90, 135])):
+        corner_kappa = kappa[offset : offset + len(points)][::12]
+        np.testing.assert_allclose(corner_kappa, 1.0 - np.cos(np.deg2rad(turns)), atol=1e-9)
+        mid_side = kappa[offset + 6 : offset + len(points) : 12]
+        np.testing.assert_allclose(mid_side, 0.0, atol=1e-9)
+        offset += len(points)
+
+
+def test_robust_mean_and_std_match_a_normal_bulk_and_ignore_its_heavy_tail():
+    rng = np.random.default_rng(3)
+    bulk = rng.normal(0.2, 0.05, 20000)
+    values = np.r_[bulk, rng.uniform(1.0, 2.0, 1500)]
+    mean, std = screening.robust_mean_std(values)
+    assert mean == pytest.approx(0.2, abs=0.01)
+    assert std == pytest.approx(0.05, abs=0.01)
+    assert values.mean() + 3 * values.std() > 1.0 > mean + 3 * std
+    # Weights: a sample of weight 3 counts as three samples of weight 1.
+    weighted = screening.robust_mean_std(np.array([1.0, 2.0, 9.0]), np.array([1.0, 3.0, 1.0]))
+    assert weighted == screening.robust_mean_std(np.array([1.0, 2.0, 2.0, 2.0, 9.0]))
+
+
+def test_sectors_that_touch_only_at_a_corner_are_traced_as_two_contours():
+    mask = np.zeros((20, 20), bool)
+    mask[2:10, 2:10] = mask[10:18, 10:18] = True
+    contours = screening.trace_contours(mask, min_points=4)
+    assert len(np.unique(contours.start)) == 2
+    assert np.unique(contours.start, return_counts=True)[1].max() < 8 * 4
+
+
+def test_the_local_level_is_the_x_midlevel_and_absent_on_flat_ground():
     image = _x_frame(80.4, 70.6, 20.0)
-    found = screening.curvature_candidates(image, structure_map(image), (6.0, 30.0))
-    assert np.linalg.norm(found.xy - [80.4, 70.6], axis=1).min() < 2.0
+    level = screening.local_threshold(image, screening.threshold_diameters((6.0, 30.0)), 0.1)
+    dark, bright = np.percentile(image[60:80, 70:90], [2, 98])
+    assert level[70, 80] == pytest.approx(0.5 * (dark + bright), abs=0.03)
+    flat = np.full((50, 50), 0.4, np.float32)
+    assert np.isnan(screening.local_threshold(flat, (13, 27), 0.1)).all()
+
+
+def test_the_connected_domain_check_drops_domains_below_the_area_floor():
+    mask = np.zeros((30, 30), bool)
+    mask[2:4, 2:4] = True  # 4 px
+    mask[10:20, 10:20] = True  # 100 px
+    kept = screening.connected_domain_check(mask, min_area_px=5.0)
+    assert not kept[2:4, 2:4].any() and kept[10:20, 10:20].all()
+
+
+def test_contour_pixels_land_on_the_level_line_of_a_blurred_edge():
+    x = np.arange(60, dtype=np.float32)
+    edge_x = 30.3 + 0.2 * np.arange(60)[:, None]  # a tilted edge: x = 30.3 + 0.2 y
+    image = (0.2 + 0.6 * 0.5 * (1 + np.tanh((x[None, :] - edge_x) / 1.2))).astype(np.float32)
+    level = np.full(image.shape, 0.5, np.float32)
+    contours = screening.trace_contours(image > level, min_points=4)
+    moved, strength = screening.onto_level_line(contours, image, level)
+    inside = (moved.points[:, 1] > 5) & (moved.points[:, 1] < 50) & (moved.points[:, 0] > 5)
+    inside &= moved.points[:, 0] < 55
+    residual = moved.points[inside, 0] - (30.3 + 0.2 * moved.points[inside, 1])
+    staircase = contours.points[inside, 0] - (30.3 + 0.2 * contours.points[inside, 1])
+    assert np.abs(staircase).max() > 0.4
+    assert np.abs(residual).max() < 0.15
+    assert strength[inside].min() > 0.1
+
+
+@pytest.mark.parametrize(("radius", "tilt"), [(7.0, 0.0), (20.0, 50.0)])
+def test_curvature_candidates_put_a_point_near_the_centre_of_an_x(radius, tilt):
+    scene = render_markers(
+        (160, 200), [MarkerPlacement(80.4, 70.6, radius, 0.4, tilt)], 0, blur_sigma_px=1.0
+    )
+    image = scene.image.astype(np.float32) / 255.0
+    found = screening.curvature_candidates(
+        image, structure_map(image), (6.0, 30.0), min_contrast=20 / 255
+    )
+    assert np.linalg.norm(found.xy - [80.4, 70.6], axis=1).min() < 1.5
+
+
+def test_a_point_suppresses_only_weaker_points_of_its_own_group():
+    xy = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    keep = screening.non_maximum_suppression(
+        xy, np.array([1.0, 2.0, 3.0]), radius_px=5.0, group=np.array([0, 0, 1])
+    )
+    assert keep.tolist() == [False, True, True]
 
 
 def test_non_maximum_suppression_keeps_the_strongest_of_close_points():
@@ -115,3 +206,39 @@ def test_grid_entropy_thinning_trims_crowded_cells_weakest_first_and_raises_entr
     assert len(thinned) == 7
     assert sorted(thinned.strength[:5]) == [45.0, 46.0, 47.0, 48.0, 49.0]
     assert screening.grid_entropy(thinned.xy, 64) > screening.grid_entropy(xy, 64)
+
+
+def _greedy_by_hand(candidates, cell_px, target):
+    """The paper's loop, step by step: remove the weakest point of the most crowded cell."""
+    keep = np.ones(len(candidates), bool)
+    cells = [tuple(c) for c in np.floor(candidates.xy / cell_px).astype(int)]
+    entropies = [screening.grid_entropy(candidates.xy, cell_px)]
+    while entropies[-1] < target:
+        alive = np.flatnonzero(keep)
+        names, counts = np.unique([cells[i] for i in alive], axis=0, return_counts=True)
+        crowded = tuple(names[np.argmax(counts)])
+        members = [i for i in alive if cells[i] == crowded]
+        trial = keep.copy()
+        trial[min(members, key=lambda i: candidates.strength[i])] = False
+        entropy = screening.grid_entropy(candidates.xy[trial], cell_px)
+        if entropy <= entropies[-1]:
+            break
+        keep = trial
+        entropies.append(entropy)
+    return keep, entropies
+
+
+def test_greedy_entropy_thinning_raises_the_entropy_at_every_step_up_to_the_threshold():
+    rng = np.random.default_rng(5)
+    xy = np.vstack([rng.uniform(0, 64, (40, 2)), rng.uniform(64, 128, (12, 2)),
+                    [[200.0, 10.0], [10.0, 200.0], [150.0, 150.0]]])
+    candidates = screening.Candidates(xy, rng.uniform(0, 1, len(xy)), np.ones(len(xy)))
+    n_cells = 5
+    for evenness in (0.6, 0.8, 0.9, 1.0):
+        target = evenness * np.log(n_cells)
+        by_hand, entropies = _greedy_by_hand(candidates, 64, target)
+        assert np.all(np.diff(entropies) > 0)
+        thinned = screening.greedy_entropy_thinning(candidates, 64, evenness)
+        assert sorted(map(tuple, thinned.xy)) == sorted(map(tuple, xy[by_hand]))
+        assert screening.grid_entropy(thinned.xy, 64) >= min(target, entropies[-1]) - 1e-12
+    assert len(screening.greedy_entropy_thinning(candidates, 64, 0.0)) == len(xy)

@@ -40,6 +40,18 @@ def test_quadratic_extremum_is_nan_for_a_degenerate_surface():
     assert np.isnan(subpixel.quadratic_extremum(flat)).all()
 
 
+def test_the_extremum_of_an_exact_quadratic_has_no_uncertainty_and_a_noisy_one_some():
+    grid = np.arange(-2, 3)
+    y, x = np.meshgrid(grid, grid, indexing="ij")
+    exact = (0.9 - 0.05 * (x - 0.2) ** 2 - 0.08 * (y + 0.3) ** 2)[None]
+    rng = np.random.default_rng(0)
+    noisy = exact + rng.normal(0, 0.005, exact.shape)
+    found = subpixel.ncc_subpixel(np.concatenate([exact, noisy]))
+    np.testing.assert_allclose(found.offset[0], [0.2, -0.3], atol=1e-9)
+    assert found.peak[0] == pytest.approx(exact.max())
+    assert found.sigma[0] < 1e-6 < 0.01 < found.sigma[1] < 0.5
+
+
 def _x_image(
     x: float,
     y: float,
@@ -141,3 +153,17 @@ def test_template_correlation_is_near_one_on_an_x_and_low_on_an_l_corner():
         l_image, np.array([[47.4, 48.6]]), np.array([[0.4, 0.4 + np.pi / 2]]), np.array([12.0])
     )
     assert match_l.ncc[0] < 0.8
+
+
+@pytest.mark.parametrize("kind", ["checker", "quarter_disks"])
+def test_the_papers_template_ncc_locates_a_blurred_tilted_x_to_a_few_hundredths(kind):
+    truth = np.array([[48.37, 47.71]])
+    scene = render_markers(
+        (96, 96), [MarkerPlacement(*truth[0], 20.0, 0.4, 30.0, 1.0, kind)], 0,
+        blur_sigma_px=1.0, noise_sigma_dn=1.0,
+    )
+    angles = np.array([scene.markers[0].angles])
+    start = truth + [[0.8, -0.6]]
+    found = subpixel.ncc_refine(scene.image, start, np.array([20.0]), angles)
+    assert np.linalg.norm(found.offset[0] - truth[0]) < 0.03
+    assert found.peak[0] > 0.9

@@ -74,3 +74,82 @@ def test_double_line_check_rejects_a_single_straight_edge():
     image[:, 64:] = 200
     lines = verification.double_line_check(image, CENTRE, np.array([20.0]))
     assert not lines.accepted[0]
+
+
+def _edge_check(image: np.ndarray, start: np.ndarray = CENTRE) -> verification.EdgePhaseCheck:
+    return verification.edge_phase_check(
+        image, start, verification.ring_radii((6.0, 40.0)), min_contrast=20 / 255
+    )
+
+
+@pytest.mark.parametrize("kind", ["quarter_disks", "checker"])
+@pytest.mark.parametrize("tilt", [0.0, 55.0])
+def test_the_papers_annular_check_accepts_an_x_and_moves_a_start_1_5_px_off_onto_it(kind, tilt):
+    image = _render(kind, tilt=tilt, blur=1.4)
+    check = _edge_check(image, CENTRE + [[1.2, -0.9]])
+    assert check.accepted[0]
+    assert np.linalg.norm(check.xy[0] - CENTRE[0]) < 0.5
+    assert check.radius_px[0] >= 8.0
+
+
+@pytest.mark.parametrize(
+    "kind", ["l_corner", "quarter_disk", "t_junction", "bar", "blob", "plus", "triangle"]
+)
+def test_the_papers_annular_check_rejects_look_alikes(kind):
+    assert not _edge_check(_render(kind)).accepted[0]
+
+
+def test_the_papers_annular_check_measures_the_line_angles():
+    rotation = 0.3
+    check = _edge_check(_render("checker", rotation=rotation, blur=0.8))
+    expected = np.sort(np.array([rotation, rotation + np.pi / 2]) % np.pi)
+    np.testing.assert_allclose(np.sort(check.line_angles[0]), expected, atol=np.deg2rad(1.5))
+
+
+def _sector_profile(levels: list[float], edges_deg: list[float]) -> np.ndarray:
+    """A ring of 36 samples (sample k at 10 k degrees): ``levels[i]`` from ``edges_deg[i]`` on."""
+    theta = np.arange(36) * 10.0
+    sector = np.searchsorted(np.array(edges_deg), theta) % len(edges_deg) - 1
+    return np.array(levels)[sector]
+
+
+def test_an_x_ring_has_a_line_of_each_sign_and_a_straight_edge_ring_has_none():
+    rings = np.stack([
+        _sector_profile([1.0, 0.1, 1.0, 0.1], [25, 115, 205, 295]),  # X
+        _sector_profile([1.0, 0.1], [25, 205]),  # a straight edge through the centre
+        _sector_profile([1.0, 0.1], [25, 115]),  # an L corner
+        _sector_profile([1.0, 0.1, 0.5], [25, 205, 295]),  # a T junction
+    ])[:, None, :]
+    found = verification.analyse_ring_edges(rings, min_contrast=0.1)
+    assert found.good[:, 0].tolist() == [True, False, False, False]
+    np.testing.assert_allclose(
+        np.sort(np.rad2deg(found.line_angles[0, 0])), [25.0, 115.0], atol=1.0
+    )
+
+
+def test_a_dull_bright_sector_and_a_shadow_edge_keep_the_edge_phases_not_the_grey_symmetry():
+    """Issue 13, item 4: what survives uneven light is the edges' phase and polarity."""
+    dull = _sector_profile([1.0, 0.1, 0.45, 0.1], [25, 115, 205, 295])
+    # A shadow edge crossing the ring inside the bright sector, 50 % darker beyond it.
+    shadowed = _sector_profile([1.0, 0.5, 0.05, 0.5, 0.05], [25, 65, 115, 205, 295])
+    rings = np.stack([dull, shadowed])[:, None, :]
+    assert verification.analyse_ring_edges(rings, min_contrast=0.1).good[:, 0].all()
+    assert (verification.analyse_rings(rings).symmetry[:, 0] < 0.8).all()
+
+
+def test_the_chords_of_an_xs_lines_cross_at_its_centre_seen_from_off_centre():
+    centre = np.array([10.0, 20.0])
+    ring_centre = centre + [0.8, -0.6]
+    radius = 6.0
+    ends = []
+    for angle in (0.4, 1.9):  # two lines through the true centre
+        direction = np.array([np.cos(angle), np.sin(angle)])
+        # where the line meets the ring around ring_centre: |centre + t d - ring_centre| = r
+        w = centre - ring_centre
+        b, c = w @ direction, w @ w - radius**2
+        t = np.array([-b + np.sqrt(b * b - c), -b - np.sqrt(b * b - c)])
+        points = centre + t[:, None] * direction - ring_centre
+        ends.append(np.arctan2(points[:, 1], points[:, 0]))
+    crossings = np.array(ends)[None, None]  # (1, 1, line, end)
+    found = verification.chord_crossing(ring_centre[None], np.array([radius]), crossings)
+    np.testing.assert_allclose(found[0, 0], centre, atol=1e-9)

@@ -13,7 +13,6 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -239,6 +238,8 @@ class Detector:
             strength = np.full(len(seeds), np.inf)
             scale = np.full(len(seeds), self._seed_scale)
             candidates = Candidates.concat([candidates, Candidates(seeds, strength, scale)])
+        if cfg.candidate_detector == "curvature":
+            return self._confirm_paper(gray, full_scale, gamma, candidates, result, timer)
         return self._confirm(gray, full_scale, gamma, candidates, result, timer)
 
     def locate(
@@ -318,6 +319,91 @@ class Detector:
         counts["accepted"] = len(result.detections)
         return result
 
+    def _confirm_paper(
+        self,
+        gray: np.ndarray,
+        full_scale: float,
+        gamma: preprocessing.LocalGamma,
+        candidates: Candidates,
+        result: DetectionResult,
+        timer: _StageTimer,
+    ) -> DetectionResult:
+        """The paper's checks and location (sections 3.2-3.3) for the curvature path.
+
+        The annular check by edge phase and polarity (which also moves each
+        candidate to where its lines cross), the LSD double line (its angles feed
+        the template where they agree with the rings'), then with
+        ``refinement="ncc"`` the adaptive template's NCC surface and its quadratic
+        extremum, accepted where the NCC peak reaches ``template_ncc_min``; with
+        ``refinement="symmetry"`` the default's fit and gates.
+        """
+        cfg = self.config
+        counts = result.counts
+        counts["rejected_centring"] = 0
+        with timer("verification"):
+            check = verification.edge_phase_check(
+                gray, candidates.xy, self._radii,
+                min_contrast=cfg.min_contrast_dn / 255.0, normalise=gamma,
+            )
+            keep = check.accepted & (
+                check.radius_px >= cfg.min_extent_fraction * cfg.marker_radius_min_px - 1e-9
+            )
+            counts["rejected_symmetry"] = int((~keep).sum())
+            xy, radius = check.xy[keep], check.radius_px[keep]
+            angles, score = check.line_angles[keep], check.score[keep]
+            unique = screening.non_maximum_suppression(xy, score, cfg.min_peak_separation_px / 2.0)
+            counts["merged_duplicates"] = int((~unique).sum())
+            xy, radius, angles, score = xy[unique], radius[unique], angles[unique], score[unique]
+            ncc = template.template_correlation(
+                gray, xy, angles, np.clip(0.6 * radius, 2.5, cfg.marker_radius_max_px),
+                normalise=gamma,
+            ).ncc
+            ok = template.template_evidence(score, ncc, cfg.template_ncc_min)
+            counts["rejected_template"] = int((~ok).sum())
+            xy, radius, angles = xy[ok], radius[ok], angles[ok]
+            score = score[ok] * ncc[ok]
+            if cfg.line_check and len(xy):
+                lines = verification.double_line_check(
+                    gray, xy, radius, extend_px=cfg.line_extend_px,
+                    max_distance_px=cfg.line_max_distance_px, full_scale=full_scale,
+                )
+                ok = lines.accepted
+                counts["rejected_lines"] = int((~ok).sum())
+                xy, radius, angles, score = xy[ok], radius[ok], angles[ok], score[ok]
+                agree = (
+                    verification.line_pair_difference(lines.line_angles[ok], angles)
+                    <= _LINE_ANGLE_AGREEMENT_RAD
+                )
+                angles = np.where(agree[:, None], lines.line_angles[ok], angles)
+            else:
+                counts["rejected_lines"] = 0
+        with timer("subpixel"):
+            if cfg.refinement != "ncc":
+                result.detections = self._locate(
+                    gray, xy, radius, angles, score, counts, full_scale
+                )
+                counts["accepted"] = len(result.detections)
+                return result
+            fit = subpixel.ncc_refine(
+                gray, xy, radius, angles,
+                offset_px=cfg.template_offset_px, search_px=cfg.ncc_search_px,
+            )
+            located = np.isfinite(fit.offset).all(axis=1) & np.isfinite(fit.sigma)
+            counts["rejected_refinement"] = int((~located).sum())
+            counts["rejected_score"] = 0
+            order = np.flatnonzero(located)
+            order = order[np.argsort(-score[order])]
+            result.detections = [
+                Detection(
+                    float(fit.offset[k, 0]), float(fit.offset[k, 1]), float(score[k]),
+                    float(fit.sigma[k]), float(angles[k, 0]), float(angles[k, 1]),
+                    float(radius[k]), float(score[k]),
+                )
+                for k in order
+            ]
+        counts["accepted"] = len(result.detections)
+        return result
+
     def _screen(
         self,
         gray: np.ndarray,
@@ -334,9 +420,13 @@ class Detector:
         counts["candidates"] = len(found)
         if cfg.candidate_detector == "curvature":
             found = screening.density_mean_shift(found, cfg.density_sigma_px, cfg.mean_shift_h_px)
-        thinned = screening.grid_entropy_thinning(
-            found, cfg.entropy_cell_px, cfg.max_candidates_per_cell
-        )
+            thinned = screening.greedy_entropy_thinning(
+                found, cfg.entropy_cell_px, cfg.entropy_threshold
+            )
+        else:
+            thinned = screening.grid_entropy_thinning(
+                found, cfg.entropy_cell_px, cfg.max_candidates_per_cell
+            )
         counts["after_suppression"] = len(thinned)
         if len(thinned) > cfg.max_candidates:
             strongest = np.argsort(-thinned.strength)[: cfg.max_candidates]
@@ -366,6 +456,7 @@ class Detector:
                 corrected,
                 structure,
                 self._radius_range,
+                cfg.min_contrast_dn / 255.0,
                 cfg.curvature_threshold_std,
                 cfg.min_peak_separation_px,
                 cfg.structure_keep_fraction,
@@ -587,7 +678,10 @@ class Detector:
         variance = fit.covariance[:, 0, 0] + fit.covariance[:, 1, 1]
         located = np.ones(len(xy), bool)
         if cfg.refinement == "ncc":
-            position = self._ncc_locate(gray, xy, radius, angles)
+            position = subpixel.ncc_refine(
+                gray, xy, radius, angles,
+                offset_px=cfg.template_offset_px, search_px=cfg.ncc_search_px,
+            ).offset
             located = np.isfinite(position).all(axis=1)
             discrepancy = np.where(located, np.sum((position - fit.xy) ** 2, axis=1), 0.0)
             variance = variance + discrepancy / _SIGMA_CALIBRATION**2
@@ -629,47 +723,6 @@ class Detector:
             )
             for k in keep
         ]
-
-    def _ncc_locate(
-        self, gray: np.ndarray, xy: np.ndarray, radius: np.ndarray, angles: np.ndarray
-    ) -> np.ndarray:
-        """The paper's sub-pixel path: adaptive template, NCC surface, quadratic extremum."""
-        cfg = self.config
-        search = cfg.ncc_search_px
-        half = int(np.clip(np.ceil(np.median(radius)), 3, 15))
-        centres = np.round(xy).astype(np.int64)
-        height, width = gray.shape
-        margin = half + search
-        inside = (
-            (centres[:, 0] >= margin)
-            & (centres[:, 0] < width - margin)
-            & (centres[:, 1] >= margin)
-            & (centres[:, 1] < height - margin)
-        )
-        located = np.full_like(xy, np.nan)
-        if not inside.any():
-            return located
-        c = centres[inside]
-        offset = np.minimum(cfg.template_offset_px, 0.6 * radius[inside])
-        levels = template.sample_grey_levels(gray, c.astype(np.float64), angles[inside], offset)
-        grad_mag = np.hypot(
-            cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1, scale=0.5),
-            cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=1, scale=0.5),
-        )
-        window = np.arange(-half, half + 1)
-        patch = gray[c[:, 1, None, None] + window[None, :, None], c[:, 0, None, None] + window]
-        peak_grad = (
-            grad_mag[c[:, 1, None, None] + window[None, :, None], c[:, 0, None, None] + window]
-            .reshape(len(c), -1)
-            .max(axis=1)
-        )
-        sigma_b = template.estimate_defocus_sigma(peak_grad, levels.positive - levels.negative)
-        templates = template.adaptive_template(angles[inside], levels, sigma_b, half)
-        templates = template.choose_polarity(patch, templates)
-        surface = subpixel.ncc_surface(gray, c, templates, search)
-        offset_xy, _ = subpixel.ncc_subpixel(surface)
-        located[inside] = c + offset_xy
-        return located
 
 
 def _noise_floor(gray: np.ndarray) -> float:

@@ -17,6 +17,9 @@ from marker_localizer.core.sampling import corners, interpolate
 
 FloatImage = np.ndarray  # (H, W) float32
 
+#: Standard deviation of a normal distribution per unit of median absolute deviation.
+MAD_TO_STD = 1.4826
+
 
 def box_mean(image: FloatImage, diameter: int) -> FloatImage:
     """Mean over a ``diameter`` x ``diameter`` window (replicated border)."""
@@ -28,6 +31,24 @@ def local_std(image: FloatImage, diameter: int) -> FloatImage:
     mean = box_mean(image, diameter)
     mean_sq = box_mean(image * image, diameter)
     return np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+
+
+def noise_sigma(image: np.ndarray) -> float:
+    """Standard deviation of the pixel noise, from the median absolute horizontal difference.
+
+    Differences of neighbouring pixels are the noise (times sqrt 2) wherever the
+    image is smooth, which is most of it; the median ignores the edges.
+    Measured on every other row and column (a quarter of the pixels suffice).
+
+    Args:
+        image: (H, W) image.
+
+    Returns:
+        sigma in the image's units.
+    """
+    sample = np.asarray(image[::2, ::2], dtype=np.float32)
+    difference = np.abs(sample[:, 1:] - sample[:, :-1])
+    return MAD_TO_STD * float(np.median(difference)) / np.sqrt(2.0)
 
 
 def gdwgif(image: FloatImage, radius_px: int = 2, regularisation: float = 0.01) -> FloatImage:

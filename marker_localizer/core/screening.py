@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from marker_localizer.core.preprocessing import box_mean
+from marker_localizer.core.preprocessing import MAD_TO_STD, noise_sigma
 
 
 class Candidates(NamedTuple):
@@ -83,6 +83,29 @@ _SPLIT_PEAK_DISTANCE = 2.5
 #: are equal but for noise.
 _SPLIT_PEAK_RATIO = 1.5
 
+
+#: r of Eq. (4), in contour points (~px): the displacement vectors span 3 points either
+#: side, short enough to stay on one edge of the smallest marker, long enough that
+#: the turn of the sub-pixel level line is measured over more than its noise.
+CURVATURE_WINDOW_PX = 3
+#: Longest Newton step of a contour pixel onto the level line, px: a pixel on the
+#: boundary is within a pixel of it, and near the X centre (no gradient) the step
+#: must not fly off.
+_LEVEL_STEP_PX = 0.75
+#: The dual threshold never asks for more than the curvature of a 60-degree turn: of
+#: the two sectors meeting at an X centre one turns by 90 degrees or more (a 60-degree
+#: tilt leaves 53-127 degree sectors), blurred apexes measure 0.5-1.0, and a frame
+#: holding little but markers has statistics made of their own corners and arcs.
+_MAX_CURVATURE_THRESHOLD = 1.0 - np.cos(np.deg2rad(60.0))
+#: epsilon of Eq. (4): keeps the ratio finite where a displacement vector vanishes.
+_CURVATURE_EPS = 1e-9
+#: The contours' contrast floor in units of the frame's noise sigma, when that is
+#: higher than the configured contrast: the noise-aware part of the connected-domain
+#: check (a noisy frame would otherwise fill the statistics of Eq. 4 with noise).
+_NOISE_CONTRAST_FACTOR = 6.0
+#: Connected domains smaller than this fraction of the smallest marker's quadrant
+#: (a quarter disk of radius r_min) are noise: a 60-degree tilt halves a quadrant.
+_MIN_DOMAIN_QUADRANT_FRACTION = 0.25
 
 #: Smallest half-width (level px) of a foreshortened marker at the first level searched:
 #: below ~1.5 px the 5x5 Sobel kernels' smoothing mixes the quadrants with the plate.
@@ -302,92 +325,308 @@ def saddle_candidates(
     return Candidates.concat(parts)
 
 
-def contour_curvature(contour: np.ndarray, window_px: int) -> np.ndarray:
-    """Curvature of every point of a closed contour, Eq. (4).
+class ContourSet(NamedTuple):
+    """Closed contours stored one after another, with each point's place on its contour.
+
+    Attributes:
+        points: (M, 2) float64 contour points (x, y), px, in tracing order.
+        start: (M,) int64 index in ``points`` of the first point of each point's contour.
+        length: (M,) int64 number of points of each point's contour.
+    """
+
+    points: np.ndarray
+    start: np.ndarray
+    length: np.ndarray
+
+    @classmethod
+    def from_list(cls, contours: list[np.ndarray]) -> ContourSet:
+        """Join (M_i, 2) closed contours into one set."""
+        if not contours:
+            return cls(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64))
+        lengths = np.array([len(c) for c in contours], dtype=np.int64)
+        first = np.cumsum(lengths) - lengths
+        return cls(
+            np.concatenate(contours).reshape(-1, 2).astype(np.float64),
+            np.repeat(first, lengths),
+            np.repeat(lengths, lengths),
+        )
+
+    @classmethod
+    def concat(cls, parts: list[ContourSet]) -> ContourSet:
+        """Join several contour sets into one."""
+        if not parts:
+            return cls.from_list([])
+        offsets = np.cumsum([0] + [len(p) for p in parts[:-1]])
+        return cls(
+            np.concatenate([p.points for p in parts]).reshape(-1, 2),
+            np.concatenate([p.start + o for p, o in zip(parts, offsets, strict=True)]),
+            np.concatenate([p.length for p in parts]).astype(np.int64),
+        )
+
+    def along(self, steps: int) -> np.ndarray:
+        """(M,) index of the point ``steps`` further along each point's closed contour."""
+        position = np.arange(len(self.points)) - self.start
+        return self.start + (position + steps) % np.maximum(self.length, 1)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+def contour_curvature(contours: ContourSet | np.ndarray, window_px: int) -> np.ndarray:
+    """Curvature of every point of closed contours, Eq. (4).
 
     kappa = 1 - <v_prev, v_next> / (|v_prev| |v_next| + eps), with
     v_prev = p_k - p_{k-r} and v_next = p_{k+r} - p_k: 0 on straight runs,
-    1 at a right angle, 2 at a spike.
+    1 at a right angle, 2 at a spike. All contours at once, by index arithmetic.
 
     Args:
-        contour: (M, 2) float points of a closed contour, in order.
+        contours: a :class:`ContourSet`, or the (M, 2) points of one closed contour.
         window_px: r, the index distance of the displacement vectors.
 
     Returns:
         (M,) float64 curvature.
     """
-    v_prev = contour - np.roll(contour, window_px, axis=0)
-    v_next = np.roll(contour, -window_px, axis=0) - contour
+    if not isinstance(contours, ContourSet):
+        contours = ContourSet.from_list([np.asarray(contours, np.float64)])
+    points = contours.points
+    v_prev = points - points[contours.along(-window_px)]
+    v_next = points[contours.along(window_px)] - points
     dot = np.einsum("ij,ij->i", v_prev, v_next)
     norms = np.linalg.norm(v_prev, axis=1) * np.linalg.norm(v_next, axis=1)
-    return 1.0 - dot / (norms + 1e-9)
+    return 1.0 - dot / (norms + _CURVATURE_EPS)
+
+
+def trace_contours(mask: np.ndarray, min_points: int) -> ContourSet:
+    """Every boundary of the 4-connected regions of ``mask`` with at least ``min_points`` points.
+
+    Regions that touch only at a pixel corner are traced apart (OpenCV traces
+    8-connected regions, so one pixel of each such diagonal pair is left out first):
+    the two sectors of an X that meet at its centre then each end in a sharp apex
+    there, where one 8-connected contour would only bend through a diagonal step.
+
+    Args:
+        mask: (H, W) bool image.
+        min_points: shorter contours are left out (Eq. 4 needs 2 r + 1 distinct points).
+
+    Returns:
+        :class:`ContourSet` of pixel-centre points.
+    """
+    region = np.array(mask, dtype=bool)
+    # 2 x 2 blocks set on one diagonal only: clear the top-left / top-right pixel.
+    top, bottom = region[:-1], region[1:]
+    falling = top[:, :-1] & bottom[:, 1:] & ~top[:, 1:] & ~bottom[:, :-1]
+    rising = top[:, 1:] & bottom[:, :-1] & ~top[:, :-1] & ~bottom[:, 1:]
+    top[:, :-1] &= ~falling
+    top[:, 1:] &= ~rising
+    found, _ = cv2.findContours(
+        region.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE
+    )
+    return ContourSet.from_list([c[:, 0, :] for c in found if len(c) >= min_points])
+
+
+def robust_mean_std(values: np.ndarray, weights: np.ndarray | None = None) -> tuple[float, float]:
+    """Mean and standard deviation of the bulk of ``values``: (weighted) median and 1.4826 x MAD.
+
+    Equal to the sample mean and std for normally distributed values, and not
+    dragged up by a heavy tail (here: the corners themselves).
+
+    Args:
+        values: (M,) samples.
+        weights: (M,) non-negative weights (None: all equal).
+
+    Returns:
+        (mean, std).
+    """
+    if len(values) == 0:
+        return 0.0, 0.0
+    if weights is None:
+        weights = np.ones(len(values))
+    median = _weighted_median(values, weights)
+    return median, MAD_TO_STD * _weighted_median(np.abs(values - median), weights)
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    order = np.argsort(values)
+    cumulative = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+
+
+def local_threshold(
+    image: np.ndarray, diameters_px: tuple[int, ...], min_contrast: float
+) -> np.ndarray:
+    """The contours' level at every pixel: the local mid-range of ``image`` (section 3.2).
+
+    The level is (max + min) / 2 over the smallest window of ``diameters_px``
+    (increasing) that spans at least ``min_contrast``: inside a marker that is the
+    level between its dark and bright sectors whatever the light around it, so the
+    level line runs through the X centre; deep inside a large sector a larger window
+    still sees the neighbouring sectors, so the sector stays one clean region. Where
+    no window finds that much contrast (flat or faint ground) the level is NaN, and
+    such pixels take part in no contour.
+
+    Args:
+        image: (H, W) float32 preprocessed image.
+        diameters_px: window sides (odd, increasing), from the smallest marker's diameter.
+        min_contrast: smallest max - min of a window whose pixels take part.
+
+    Returns:
+        (H, W) float32 level, NaN where there is none.
+    """
+    level = np.full(image.shape, np.nan, np.float32)
+    for diameter in diameters_px:
+        kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (diameter, diameter))
+        high = cv2.dilate(image, kernel)
+        low = cv2.erode(image, kernel)
+        settle = np.isnan(level) & ((high - low) >= min_contrast)
+        level[settle] = 0.5 * (high[settle] + low[settle])
+    return level
+
+
+def onto_level_line(
+    contours: ContourSet, image: np.ndarray, level: np.ndarray
+) -> tuple[ContourSet, np.ndarray]:
+    """Contour pixels moved onto the level line I = level by one Newton step along the gradient.
+
+    p <- p - (I(p) - level(p)) grad I / |grad I|^2, at most :data:`_LEVEL_STEP_PX`:
+    the pixel staircase becomes the sub-pixel level line, whose turns Eq. (4)
+    measures without the quantisation of pixel steps.
+
+    Returns:
+        (contours on the level line, (M,) gradient magnitude |grad I| at each point
+        in image units per px: the strength of the edge the contour runs along).
+    """
+    if len(contours) == 0:
+        return contours, np.zeros(0)
+    cols = contours.points[:, 0].astype(np.intp)
+    rows = contours.points[:, 1].astype(np.intp)
+    gx = cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)[rows, cols].astype(np.float64)
+    gy = cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)[rows, cols].astype(np.float64)
+    excess = image[rows, cols] - level[rows, cols]
+    step = -excess / (gx * gx + gy * gy + 1e-12)
+    shift = np.stack([gx * step, gy * step], axis=1)
+    length = np.linalg.norm(shift, axis=1, keepdims=True)
+    shift *= np.minimum(1.0, _LEVEL_STEP_PX / np.maximum(length, 1e-12))
+    moved = ContourSet(contours.points + np.nan_to_num(shift), contours.start, contours.length)
+    return moved, np.hypot(gx, gy)
+
+
+def connected_domain_check(mask: np.ndarray, min_area_px: float) -> np.ndarray:
+    """``mask`` without its 8-connected domains smaller than ``min_area_px`` (section 3.2).
+
+    Args:
+        mask: (H, W) bool.
+        min_area_px: smallest area of a domain kept, px.
+
+    Returns:
+        (H, W) bool.
+    """
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(
+        mask.astype(np.uint8), connectivity=8
+    )
+    keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
+    keep[0] = False  # the background label
+    return keep[labels]
+
+
+def threshold_diameters(radius_range_px: tuple[float, float]) -> tuple[int, ...]:
+    """Window sides of :func:`local_threshold_masks`: the smallest marker's diameter, doubling.
+
+    The last covers the largest marker's diameter, so that the middle of its
+    largest sector still sees a neighbouring one.
+    """
+    r_min, r_max = radius_range_px
+    diameters = [2 * int(round(r_min)) + 1]
+    while diameters[-1] < 2 * r_max:
+        diameters.append(2 * diameters[-1] + 1)
+    return tuple(diameters)
 
 
 def curvature_candidates(
     image: np.ndarray,
     structure: np.ndarray,
     radius_range_px: tuple[float, float],
+    min_contrast: float,
     threshold_std: float = 3.0,
     separation_px: float = 5.0,
     keep_fraction: float = 0.7,
 ) -> Candidates:
-    """The paper's primary screening: curvature peaks of binarised contours (section 3.2).
+    """The paper's primary screening: curvature peaks of contours (section 3.2, Eq. 4).
 
-    The image is binarised against its local mean (window 4 x the largest radius),
-    contours are traced, and contour points become candidates when (1) their
-    curvature (Eq. 4) exceeds mean + ``threshold_std`` std over all contour points
-    and is a local peak along the contour, (2) no stronger peak lies within
-    ``separation_px``, (3) the structure map there is in the top ``keep_fraction``,
-    and (4) their region is not an anomaly: regions smaller than a quarter of the
-    smallest marker's quadrant are noise.
+    Contours (the paper does not say how it extracts them) are the boundaries of
+    the sets above and below the local level of :func:`local_threshold`, both sets,
+    traced 4-connected (:func:`trace_contours`) and moved onto the sub-pixel level
+    line (:func:`onto_level_line`): at an X centre each sector of either set ends in
+    an apex. The noise-aware connected-domain check keeps only pixels whose window
+    spans ``min_contrast`` or six noise sigmas (:func:`preprocessing.noise_sigma`),
+    whichever is more, and only domains of at least a quarter of the smallest
+    marker's quadrant (:func:`connected_domain_check`). A contour point becomes a
+    candidate when (1) its curvature (Eq. 4) is a peak along the contour and exceeds
+    mean + ``threshold_std`` std of the curvature, the dual threshold's first part;
+    the statistics are those of the frame's edges, every contour point weighted by
+    its gradient magnitude and estimated from the bulk (:func:`robust_mean_std`):
+    unweighted, the wiggles of faint ground outnumber the edges, and the sample
+    moments of a heavy-tailed distribution put a right angle below mean + 3 std;
+    the threshold is capped at a 60-degree turn (:data:`_MAX_CURVATURE_THRESHOLD`);
+    (2) no stronger peak of the same contour lies within ``separation_px``, its
+    second part; (3) the structure map there is in the top ``keep_fraction``
+    (quantile over every other row and column).
 
     Args:
         image: (H, W) float32 preprocessed image in [0, 1].
         structure: (H, W) float32 structure map of Eq. (3).
         radius_range_px: (min, max) expected marker radius.
+        min_contrast: smallest marker contrast, in ``image`` units.
         threshold_std: the dual threshold's k in mean + k std.
-        separation_px: minimum spacing of peaks.
+        separation_px: minimum spacing of peaks of one contour.
         keep_fraction: top fraction of the structure map kept.
 
     Returns:
-        Candidates; ``scale_px`` is 2.5 times the smallest marker radius (at least 8 px):
-        contour corners sit up to a pixel off the centre, so the later stages look
-        around them at that scale.
+        Candidates at sub-pixel contour points (up to ~1.5 px from the X centre);
+        ``strength`` is the curvature, ``scale_px`` the smallest radius.
     """
-    r_min, r_max = radius_range_px
-    window = 2 * int(2 * r_max) + 1
-    binary = (image > box_mean(image, window)).astype(np.uint8)
-    contours, _ = cv2.findContours(binary, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
-    min_area = 0.25 * (np.pi / 4.0) * r_min**2
-    window_px = max(1, int(round(min(r_min, 3.0))))
-    kept = [
-        c[:, 0, :].astype(np.float64)
-        for c in contours
-        if len(c) > 2 * window_px + 2 and cv2.contourArea(c) >= min_area
-    ]
-    if not kept:
+    r_min = radius_range_px[0]
+    sigma = noise_sigma(image)
+    floor = max(min_contrast, _NOISE_CONTRAST_FACTOR * sigma)
+    min_area = _MIN_DOMAIN_QUADRANT_FRACTION * (np.pi / 4.0) * r_min**2
+    level = local_threshold(image, threshold_diameters(radius_range_px), floor)
+    with np.errstate(invalid="ignore"):
+        masks = (image > level, image < level)
+    contours = ContourSet.concat(
+        [trace_contours(connected_domain_check(m, min_area), 2 * CURVATURE_WINDOW_PX + 2)
+         for m in masks]
+    )
+    if len(contours) == 0:
         return Candidates.empty()
-    curvatures = [contour_curvature(c, window_px) for c in kept]
-    peaks = [(k >= np.roll(k, 1)) & (k >= np.roll(k, -1)) for k in curvatures]
-    points = np.concatenate(kept)
-    kappa = np.concatenate(curvatures)
-    is_peak = np.concatenate(peaks)
-    is_peak &= kappa > kappa.mean() + threshold_std * kappa.std()
-    points, kappa = points[is_peak], kappa[is_peak]
-    cols, rows = points[:, 0].astype(int), points[:, 1].astype(int)
-    s_threshold = np.quantile(structure, 1.0 - keep_fraction)
+    contours, edge_strength = onto_level_line(contours, image, level)
+    kappa = contour_curvature(contours, CURVATURE_WINDOW_PX)
+    # Peaks along the contour; a plateau yields its first point.
+    is_peak = (kappa >= kappa[contours.along(-1)]) & (kappa > kappa[contours.along(1)])
+    mean, std = robust_mean_std(kappa, edge_strength)
+    is_peak &= kappa > min(mean + threshold_std * std, _MAX_CURVATURE_THRESHOLD)
+    points, kappa, contour = contours.points[is_peak], kappa[is_peak], contours.start[is_peak]
+    cols, rows = points[:, 0].astype(np.intp), points[:, 1].astype(np.intp)
+    s_threshold = np.quantile(structure[::2, ::2], 1.0 - keep_fraction)
     in_structure = structure[rows, cols] >= s_threshold
-    points, kappa = points[in_structure], kappa[in_structure]
-    keep = non_maximum_suppression(points, kappa, separation_px)
-    return Candidates(points[keep], kappa[keep], np.full(int(keep.sum()), max(8.0, 2.5 * r_min)))
+    points, kappa, contour = points[in_structure], kappa[in_structure], contour[in_structure]
+    # Adjacent peaks of one contour: the X centre's turns on other contours (the other
+    # set, the other pass) stay, for the density mean shift to gather.
+    keep = non_maximum_suppression(points, kappa, separation_px, group=contour)
+    return Candidates(points[keep], kappa[keep], np.full(int(keep.sum()), float(r_min)))
 
 
-def non_maximum_suppression(xy: np.ndarray, strength: np.ndarray, radius_px: float) -> np.ndarray:
-    """Boolean mask keeping points with no stronger point within ``radius_px``."""
+def non_maximum_suppression(
+    xy: np.ndarray, strength: np.ndarray, radius_px: float, group: np.ndarray | None = None
+) -> np.ndarray:
+    """Boolean mask keeping points with no stronger point within ``radius_px``.
+
+    With ``group`` (N,) labels, a point only suppresses points of its own group.
+    """
     if len(xy) == 0:
         return np.zeros(0, dtype=bool)
     tree = cKDTree(xy)
     pairs = tree.query_pairs(radius_px, output_type="ndarray")
+    if group is not None and len(pairs):
+        pairs = pairs[group[pairs[:, 0]] == group[pairs[:, 1]]]
     keep = np.ones(len(xy), dtype=bool)
     if len(pairs):
         i, j = pairs[:, 0], pairs[:, 1]
@@ -470,6 +709,64 @@ def grid_entropy(xy: np.ndarray, cell_px: int) -> float:
     _, counts = np.unique(np.floor(xy / cell_px).astype(np.int64), axis=0, return_counts=True)
     p = counts / counts.sum()
     return float(-(p * np.log(p)).sum())
+
+
+def greedy_entropy_thinning(
+    candidates: Candidates, cell_px: int, evenness: float
+) -> Candidates:
+    """The paper's greedy thinning by spatial grid entropy, to an entropy threshold, Eq. (7).
+
+    Each step removes the point whose removal raises H = -sum P(n) ln P(n) the most:
+    the weakest point of the most crowded cell (ties: the cell first in raster
+    order). Steps go on until H reaches ``evenness`` x ln K, K the number of occupied
+    cells (ln K is the entropy of the same cells equally filled), or until no
+    removal raises H. H after k removals is ln(N - k) - (S - sum of the removals'
+    changes of S) / (N - k) with S = sum n ln n, so the whole greedy sequence is
+    evaluated at once.
+
+    Args:
+        candidates: points to thin; ``strength`` orders the removals within a cell.
+        cell_px: grid cell size, px.
+        evenness: the entropy threshold as a fraction of ln K, in [0, 1].
+
+    Returns:
+        The kept candidates (original order).
+    """
+    if len(candidates) < 2:
+        return candidates
+    cells = np.floor(candidates.xy / cell_px).astype(np.int64)
+    _, cell, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    cell = cell.ravel()
+    target = evenness * np.log(len(counts))
+    # Removal m of cell i takes it from counts[i] - m to counts[i] - m - 1 points; the
+    # greedy order is by the count before the removal, largest first, then by cell.
+    owner = np.repeat(np.arange(len(counts)), counts - 1)
+    if len(owner) == 0:
+        return candidates
+    first_removal = np.repeat(np.cumsum(counts - 1) - (counts - 1), counts - 1)
+    level = (counts[owner] - (np.arange(len(owner)) - first_removal)).astype(np.float64)
+    order = np.lexsort((owner, -level))
+    level, owner = level[order], owner[order]
+    total = len(candidates)
+    s = float(np.sum(counts * np.log(counts)))
+    # H = ln N - S / N; a removal at count n lowers S by n ln n - (n - 1) ln(n - 1).
+    change = level * np.log(level) - (level - 1) * np.log(np.maximum(level - 1, 1))
+    remaining = total - np.arange(1, len(level) + 1)
+    entropy = np.r_[
+        np.log(total) - s / total, np.log(remaining) - (s - np.cumsum(change)) / remaining
+    ]
+    # The greedy loop stops at the threshold, or where no removal raises H any more.
+    falling = np.flatnonzero(np.diff(entropy) <= 0)
+    last = falling[0] if len(falling) else len(level)
+    reached = np.flatnonzero(entropy[: last + 1] >= target)
+    removals = int(reached[0]) if len(reached) else last
+    removed_per_cell = np.bincount(owner[:removals], minlength=len(counts))
+    # Within a cell, the weakest points go first.
+    rank = np.empty(total, np.int64)
+    by_cell = np.lexsort((candidates.strength, cell))
+    first_of_cell = np.searchsorted(cell[by_cell], cell[by_cell])
+    rank[by_cell] = np.arange(total) - first_of_cell
+    return candidates.take(rank >= removed_per_cell[cell])
 
 
 def grid_entropy_thinning(candidates: Candidates, cell_px: int, max_per_cell: int) -> Candidates:

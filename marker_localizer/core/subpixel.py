@@ -20,10 +20,21 @@ from __future__ import annotations
 import functools
 from typing import NamedTuple
 
+import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from marker_localizer.core import template
 from marker_localizer.core.sampling import bilinear_with_gradient, pad_patterns
+
+#: Template half-size of :func:`ncc_refine`, px: the marker's radius, at least 3 (a
+#: 7 x 7 template still holds the four sectors of a 3 px marker) and at most 15 (the
+#: matrix product grows with the square; 31 x 31 pixels fix the centre well enough).
+_NCC_MIN_HALF_PX = 3
+_NCC_MAX_HALF_PX = 15
+#: The template's grey levels are read at most this fraction of the radius from the
+#: centre, inside the marker's sectors.
+_NCC_LEVEL_RADIUS_FRACTION = 0.6
 
 
 def ncc_surface(
@@ -108,16 +119,30 @@ def quadratic_extremum(coefficients: np.ndarray) -> np.ndarray:
     return np.where(singular[:, None], np.nan, np.stack([dx, dy], axis=1))
 
 
-def ncc_subpixel(surface: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-pixel peak of NCC surfaces: WLS quadratic on the 3x3 around the best shift.
+class NccPeak(NamedTuple):
+    """Sub-pixel peaks of NCC surfaces, from :func:`ncc_subpixel`.
+
+    Attributes:
+        offset: (N, 2) shift (dx, dy) of the peak from the window centre, px (NaN
+            where the fitted surface has no maximum within 1 px of the best shift).
+        peak: (N,) the best NCC value on the integer grid.
+        sigma: (N,) 1-sigma radial uncertainty of the offset, px, from the residuals
+            of the weighted least-squares fit (how far the surface is from a quadratic).
+    """
+
+    offset: np.ndarray
+    peak: np.ndarray
+    sigma: np.ndarray
+
+
+def ncc_subpixel(surface: np.ndarray) -> NccPeak:
+    """Sub-pixel NCC peaks: WLS quadratic on the 3x3 around the best shift, Eqs. (13)-(14).
 
     Args:
         surface: (N, 2S+1, 2S+1) from :func:`ncc_surface`.
 
     Returns:
-        (offset, peak): (N, 2) shift (dx, dy) of the peak from the window centre
-        (NaN where the fit has no maximum within 1 px of the best shift) and (N,) the
-        best NCC value.
+        :class:`NccPeak`.
     """
     n, k, _ = surface.shape
     flat = surface.reshape(n, -1)
@@ -137,7 +162,113 @@ def ncc_subpixel(surface: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     delta[~is_maximum | (np.abs(delta) > 1.0).any(axis=1)] = np.nan
     centre = k // 2
     offset = np.stack([bx - centre, by - centre], axis=1) + delta
-    return offset, flat[np.arange(n), best]
+    sigma = _extremum_sigma(patch, weights, coefficients)
+    return NccPeak(offset, flat[np.arange(n), best], sigma)
+
+
+def _extremum_sigma(
+    values: np.ndarray, weights: np.ndarray, coefficients: np.ndarray
+) -> np.ndarray:
+    """(N,) radial 1-sigma of the Eq. (14) extremum propagated from the WLS fit's covariance.
+
+    cov(beta) = s^2 (A^T W A)^-1 with s^2 the weighted residual variance (3 degrees of
+    freedom on a 3x3 patch); the extremum's Jacobian by central differences.
+    """
+    n, k, _ = values.shape
+    grid = np.arange(k) - k // 2
+    y, x = np.meshgrid(grid, grid, indexing="ij")
+    design = np.stack([x * x, y * y, x * y, x, y, np.ones_like(x)], axis=-1).reshape(-1, 6)
+    w = weights.reshape(n, -1)
+    residual = values.reshape(n, -1) - coefficients @ design.T
+    dof = design.shape[0] - design.shape[1]
+    scale = (w * residual**2).sum(axis=1) / dof
+    normal = np.einsum("nk,ki,kj->nij", w, design, design)
+    covariance = scale[:, None, None] * np.linalg.inv(normal + 1e-12 * np.eye(6))
+    jacobian = np.zeros((n, 2, 6))
+    for i in range(5):  # f does not move the extremum
+        step = 1e-6 * np.maximum(np.abs(coefficients[:, i]), 1e-3)
+        plus, minus = coefficients.copy(), coefficients.copy()
+        plus[:, i] += step
+        minus[:, i] -= step
+        jacobian[:, :, i] = (quadratic_extremum(plus) - quadratic_extremum(minus)) / (
+            2.0 * step[:, None]
+        )
+    propagated = jacobian @ covariance @ jacobian.transpose(0, 2, 1)
+    return np.sqrt(np.maximum(np.trace(propagated, axis1=1, axis2=2), 0.0))
+
+
+def ncc_refine(
+    image: np.ndarray,
+    xy: np.ndarray,
+    radius_px: np.ndarray,
+    line_angles: np.ndarray,
+    *,
+    offset_px: float = 5.0,
+    search_px: int = 2,
+) -> NccPeak:
+    """The paper's sub-pixel location (section 3.3): adaptive template, NCC surface, extremum.
+
+    Per marker: the grey levels of its sector pairs from 3x3 windows on the
+    bisectors (:func:`template.sample_grey_levels`, ``offset_px`` from the centre or
+    0.6 of the radius if less), the defocus sigma_b from the steepest gradient in
+    the window (:func:`template.estimate_defocus_sigma`), the X template with the
+    line angles phi1, phi2 (Eq. 10's two polarities, the closer in L1 kept), then
+    the NCC at every integer shift within ``search_px`` as one matrix product
+    (Eqs. 11-12) and the extremum of the WLS quadratic surface (Eqs. 13-14). The
+    template's half-size is the marker's radius (3-15 px), so markers of one size
+    share one matrix product.
+
+    Args:
+        image: (H, W) grey image.
+        xy: (N, 2) coarse centres (rounded to the pixel the surface is centred on).
+        radius_px: (N,) marker extents.
+        line_angles: (N, 2) directions of the two lines.
+        offset_px: distance of the grey-level windows along the bisectors.
+        search_px: S, half-size of the search window.
+
+    Returns:
+        :class:`NccPeak` with ``offset`` replaced by the located centres (x, y),
+        NaN where the window leaves the image or the surface has no maximum.
+    """
+    n = len(xy)
+    located = np.full((n, 2), np.nan)
+    peak = np.zeros(n)
+    sigma = np.full(n, np.nan)
+    if n == 0:
+        return NccPeak(located, peak, sigma)
+    half = np.clip(np.ceil(radius_px), _NCC_MIN_HALF_PX, _NCC_MAX_HALF_PX).astype(np.int64)
+    centres = np.round(xy).astype(np.int64)
+    height, width = image.shape
+    margin = half + search_px
+    inside = (
+        (centres[:, 0] >= margin)
+        & (centres[:, 0] < width - margin)
+        & (centres[:, 1] >= margin)
+        & (centres[:, 1] < height - margin)
+    )
+    gradient = np.hypot(
+        cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=1, scale=0.5),
+        cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=1, scale=0.5),
+    )
+    for size in np.unique(half[inside]):  # per template size, not per marker
+        group = np.flatnonzero(inside & (half == size))
+        c = centres[group]
+        window = np.arange(-size, size + 1)
+        rows = c[:, 1, None, None] + window[None, :, None]
+        cols = c[:, 0, None, None] + window
+        levels = template.sample_grey_levels(
+            image, c.astype(np.float64), line_angles[group],
+            np.minimum(offset_px, _NCC_LEVEL_RADIUS_FRACTION * radius_px[group]),
+        )
+        peak_gradient = gradient[rows, cols].reshape(len(group), -1).max(axis=1)
+        sigma_b = template.estimate_defocus_sigma(peak_gradient, levels.positive - levels.negative)
+        templates = template.adaptive_template(line_angles[group], levels, sigma_b, int(size))
+        templates = template.choose_polarity(image[rows, cols].astype(np.float64), templates)
+        found = ncc_subpixel(ncc_surface(image, c, templates, search_px))
+        located[group] = c + found.offset
+        peak[group] = found.peak
+        sigma[group] = found.sigma
+    return NccPeak(located, peak, sigma)
 
 
 class SymmetryFit(NamedTuple):

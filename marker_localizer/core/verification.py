@@ -12,12 +12,14 @@ ring (which rejects bars, blobs and plus signs that pass a single ring).
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import cv2
 import numpy as np
 
 from marker_localizer.core.sampling import Normaliser, bilinear
+from marker_localizer.core.screening import parabolic_offset
 
 N_ANGLES = 36  # the paper's 10-degree sampling of the annulus
 #: Smallest LSD window side, px: smaller windows are enlarged so that the edges of a
@@ -27,12 +29,39 @@ _LSD_MIN_WINDOW_PX = 24
 #: but not the plate's outline, whose segments would only add crossings to test.
 _LSD_WINDOW_RADII = 1.25
 _HALF_TURN = N_ANGLES // 2
+#: Paper's annular check: a derivative extremum is an edge from this fraction of the
+#: ring's strongest. A bright sector dulled to 0.45 of the other keeps edges of about
+#: 0.4 of the strongest; ground texture's wiggles mostly stay below a third.
+EDGE_FRACTION = 0.3
+#: Largest departure of an edge pair from 180 degrees: a candidate 1 px off the centre
+#: moves the crossings of a 6 px ring by ~10 degrees each.
+MAX_PHASE_ERROR_RAD = np.deg2rad(25.0)
+#: Smallest angle between an X's two lines (a marker tilted 60 degrees keeps ~53).
+MIN_LINE_ANGLE_RAD = np.deg2rad(25.0)
+#: Most significant edges on a good ring: an X's four and a shadow edge's two crossings.
+MAX_RING_EDGES = 6
+#: Largest move of a candidate to where the lines found on its rings cross, px: contour
+#: corners sit up to ~2 px from the X centre.
+RECENTRE_MAX_PX = 3.0
+#: ... and the largest departure from 180 degrees when the crossings are paired only to
+#: find where the lines cross (a line 1.5 px off the centre of a 3 px ring: 60 degrees).
+RECENTRE_PHASE_ERROR_RAD = np.deg2rad(60.0)
+#: Largest change of a line's angle between the rings of one run: on the renderer's
+#: families the first three rings of a marker's run agree within 6 degrees (99 %).
+MAX_LINE_DRIFT_RAD = np.deg2rad(8.0)
+#: Rings of a run see at least this fraction of the candidate's best ring contrast: a
+#: marker's rings keep 0.6 of it and more (99 %, blur and tilt included).
+RING_CONTRAST_FRACTION = 0.5
 # Indices of each angle's neighbours and opposite on the ring: a gather along the
 # last axis costs a fraction of np.roll's slicing and concatenation, which the small
 # per-call arrays of a few candidates make the cost.
 _PREVIOUS = np.roll(np.arange(N_ANGLES), 1)
 _NEXT = np.roll(np.arange(N_ANGLES), -1)
 _OPPOSITE = np.roll(np.arange(N_ANGLES), -_HALF_TURN)
+#: The annular check's angular Gaussian (binomial, sigma 1 sample) and, convolved with
+#: the central difference [1, 0, -1] / 2, its derivative filter.
+_SMOOTHING_KERNEL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
+_DERIVATIVE_KERNEL = np.convolve(_SMOOTHING_KERNEL, [0.5, 0.0, -0.5])[::-1]
 
 
 def annular_profiles(
@@ -351,6 +380,379 @@ def centre_symmetry_check(
     line_angles = np.where(accepted[:, None], (np.angle(mean_doubled) / 2.0) % np.pi, reference)
     contrast = rings.contrast[np.arange(n), first]
     return SymmetryCheck(accepted, score, radii_px[last], line_angles, contrast)
+
+
+class EdgePhaseRings(NamedTuple):
+    """Per-ring measurements of :func:`analyse_ring_edges`, each (N, J).
+
+    Attributes:
+        good: True where the ring shows an X: two lines through the centre, each a
+            pair of edges about 180 degrees apart with opposite image-gradient
+            polarity, the two lines of opposite sense, no clutter.
+        line_angles: (N, J, 2) directions in [0, pi) of the two lines.
+        strength: weakest of the four paired edges over the strongest edge on the
+            ring, in (0, 1] (0 where not good).
+        contrast: bright minus dark level of the smoothed ring, in image units.
+        edges: number of significant edges (derivative extrema) on the ring.
+        crossings: (N, J, 2, 2) phases in radians (angle from +x towards +y) of
+            where each line crosses the ring, both ends.
+    """
+
+    good: np.ndarray
+    line_angles: np.ndarray
+    strength: np.ndarray
+    contrast: np.ndarray
+    edges: np.ndarray
+    crossings: np.ndarray
+
+
+def ring_derivative(profiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ring profiles Gaussian-smoothed and differentiated along the angle.
+
+    The binomial [1, 4, 6, 4, 1] / 16 (sigma 1 sample, 10 degrees) and a central
+    difference: the paper's first-order differentiation with Gaussian filtering, so
+    that the edges are the extrema of the result and the zero crossings of its own
+    difference.
+
+    Args:
+        profiles: (..., 36) ring samples, no NaN.
+
+    Returns:
+        (smoothed, derivative), each (..., 36); derivative k is d/d(angle) at
+        sample k, per sample.
+    """
+    reach = len(_DERIVATIVE_KERNEL) // 2
+    wrapped = np.concatenate([profiles[..., -reach:], profiles, profiles[..., :reach]], axis=-1)
+    smoothed = sum(
+        w * wrapped[..., reach - 2 + i : reach - 2 + i + N_ANGLES]
+        for i, w in enumerate(_SMOOTHING_KERNEL)
+    )
+    derivative = sum(
+        w * wrapped[..., i : i + N_ANGLES] for i, w in enumerate(_DERIVATIVE_KERNEL) if w
+    )
+    return smoothed, derivative
+
+
+def analyse_ring_edges(
+    profiles: np.ndarray,
+    *,
+    min_contrast: float,
+    edge_fraction: float = EDGE_FRACTION,
+    max_phase_error_rad: float = MAX_PHASE_ERROR_RAD,
+    min_line_angle_rad: float = MIN_LINE_ANGLE_RAD,
+    max_edges: int = MAX_RING_EDGES,
+) -> EdgePhaseRings:
+    """The paper's annular check on each ring: edge phases and polarities (section 3.2, check 1).
+
+    Edges are the extrema of the ring's angular derivative (:func:`ring_derivative`),
+    at sub-sample phase (a parabola through the extremum and its neighbours), that
+    reach ``edge_fraction`` of the ring's strongest. A line through the centre
+    crosses the ring twice, 180 degrees apart, and an X's sectors alternate, so at
+    the two crossings the image gradient points in opposite directions: opposite
+    gradient polarity. The ring's tangent also turns by 180 degrees between them, so
+    in the angular derivative both crossings carry the same sign, where a straight
+    edge (a half-plane, an L or T corner's bar) gives opposite signs. An X has one
+    such line of each sign. A ring is good when it has both, ``min_line_angle_rad``
+    apart or more, at most ``max_edges`` significant edges (more is clutter: a plus
+    sign, texture) and at least ``min_contrast``.
+
+    Args:
+        profiles: (N, J, 36) from :func:`annular_profiles`; rings with NaN fail.
+        min_contrast: minimum bright-minus-dark level of the smoothed ring.
+        edge_fraction: an extremum is an edge from this fraction of the strongest.
+        max_phase_error_rad: largest departure of a crossing pair from 180 degrees.
+        min_line_angle_rad: smallest angle between the two lines.
+        max_edges: most significant edges a good ring may have.
+
+    Returns:
+        :class:`EdgePhaseRings`.
+    """
+    shape = profiles.shape[:-1]
+    flat = profiles.reshape(-1, N_ANGLES)
+    missing = np.isnan(flat).any(axis=-1)
+    smoothed, derivative = ring_derivative(np.where(np.isnan(flat), 0.0, flat))
+    contrast = np.where(missing, 0.0, smoothed.max(axis=-1) - smoothed.min(axis=-1))
+    magnitude = np.abs(derivative)
+    # Extrema of the derivative: zero crossings of its difference, ties to the first.
+    before, after = derivative[:, _PREVIOUS], derivative[:, _NEXT]
+    maximum = (derivative > 0) & (derivative >= before) & (derivative > after)
+    minimum = (derivative < 0) & (derivative <= before) & (derivative < after)
+    strongest = magnitude.max(axis=-1)
+    edge = (maximum | minimum) & (magnitude >= edge_fraction * strongest[:, None])
+    n_edges = edge.sum(axis=-1)
+    line_angles = np.zeros((len(flat), 2))
+    ends = np.zeros((len(flat), 2, 2))
+    weakest_line = np.zeros(len(flat))
+    # Only rings that can pass are paired (most texture rings fail here already).
+    viable = np.flatnonzero(
+        ~missing & (contrast >= min_contrast) & (n_edges >= 4) & (n_edges <= max_edges)
+    )
+    if len(viable):
+        lines = _pair_edges(
+            derivative[viable], magnitude[viable], edge[viable], max_edges, max_phase_error_rad
+        )
+        ends[viable], weakest_line[viable] = lines
+        line_angles[viable] = (np.angle(np.exp(2j * lines[0]).sum(axis=-1)) / 2.0) % np.pi
+    good = (
+        (weakest_line > 0)
+        & (_angle_difference(line_angles[:, 0], line_angles[:, 1]) >= min_line_angle_rad)
+    )
+    strength = np.where(good, weakest_line / np.maximum(strongest, 1e-12), 0.0)
+    return EdgePhaseRings(
+        good.reshape(shape),
+        line_angles.reshape(*shape, 2),
+        strength.reshape(shape),
+        contrast.reshape(shape),
+        n_edges.reshape(shape),
+        ends.reshape(*shape, 2, 2),
+    )
+
+
+def _pair_edges(
+    derivative: np.ndarray,
+    magnitude: np.ndarray,
+    edge: np.ndarray,
+    max_edges: int,
+    max_phase_error_rad: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each ring's strongest line of each sign: two same-sign edges about 180 degrees apart.
+
+    Args:
+        derivative: (R, 36) angular derivatives.
+        magnitude: (R, 36) their absolute values.
+        edge: (R, 36) True at the significant extrema, at most ``max_edges`` per ring.
+        max_edges: the most edges of a ring.
+        max_phase_error_rad: largest departure of a pair from 180 degrees.
+
+    Returns:
+        (ends, weakest): (R, 2, 2) phases of the (+, -) lines' two crossings, and (R,)
+        the weaker line's weaker edge (0 where a line is missing).
+    """
+    n_rings = len(edge)
+    offset = parabolic_offset(magnitude[:, _PREVIOUS], magnitude, magnitude[:, _NEXT])
+    # The edges of each ring side by side, padded with zero magnitude.
+    ring, sample = np.nonzero(edge)
+    slot = np.arange(len(ring)) - np.searchsorted(ring, ring)
+    phase = np.zeros((n_rings, max_edges))
+    sign = np.zeros((n_rings, max_edges))
+    size = np.zeros((n_rings, max_edges))
+    phase[ring, slot] = (sample + offset[ring, sample]) * (2.0 * np.pi / N_ANGLES)
+    sign[ring, slot] = np.sign(derivative[ring, sample])
+    size[ring, slot] = magnitude[ring, sample]
+    # All pairs (i, j) of a ring: same sign, 180 degrees apart within the tolerance.
+    error = np.abs((phase[:, None, :] - phase[:, :, None]) % (2.0 * np.pi) - np.pi)
+    partner = np.where(
+        (sign[:, None, :] == sign[:, :, None]) & (error <= max_phase_error_rad),
+        size[:, None, :],
+        0.0,
+    )
+    best = np.argmax(partner, axis=2)
+    rows = np.arange(n_rings)[:, None]
+    line_strength = np.minimum(size, partner[rows, np.arange(max_edges), best])
+    ends = np.zeros((n_rings, 2, 2))
+    weakest = []
+    for line, polarity in enumerate((1, -1)):
+        strength = np.where(sign == polarity, line_strength, 0.0)
+        k = np.argmax(strength, axis=1)
+        weakest.append(strength[rows[:, 0], k])
+        ends[:, line, 0] = phase[rows[:, 0], k]
+        ends[:, line, 1] = phase[rows[:, 0], best[rows[:, 0], k]]
+    return ends, np.minimum(*weakest)
+
+
+def chord_crossing(xy: np.ndarray, radii_px: np.ndarray, crossings: np.ndarray) -> np.ndarray:
+    """Where the two lines found on each ring cross: the X centre the ring saw.
+
+    Each line is the chord between its two crossings of the ring; off the centre, the
+    chords of an X's lines still cross at its centre.
+
+    Args:
+        xy: (N, 2) ring centres.
+        radii_px: (J,) ring radii.
+        crossings: (N, J, 2, 2) from :attr:`EdgePhaseRings.crossings`.
+
+    Returns:
+        (N, J, 2) crossing points (NaN where the chords are parallel).
+    """
+    ends = xy[:, None, None, None, :] + radii_px[None, :, None, None, None] * np.stack(
+        [np.cos(crossings), np.sin(crossings)], axis=-1
+    )  # (N, J, line, end, 2)
+    a, b = ends[..., 0, 0, :], ends[..., 0, 1, :]
+    c, d = ends[..., 1, 0, :], ends[..., 1, 1, :]
+    u, v, w = b - a, d - c, c - a
+    cross = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+    parallel = np.abs(cross) <= 1e-9
+    t = (w[..., 0] * v[..., 1] - w[..., 1] * v[..., 0]) / np.where(parallel, 1.0, cross)
+    return np.where(parallel[..., None], np.nan, a + t[..., None] * u)
+
+
+class EdgePhaseCheck(NamedTuple):
+    """Result of :func:`edge_phase_check` for N candidates.
+
+    Attributes:
+        accepted: (N,) bool.
+        xy: (N, 2) the centres the rings were finally read at (moved to where the
+            lines cross; the input where no ring found two lines).
+        score: (N,) mean ring strength over the run's three innermost rings (0 where
+            rejected).
+        radius_px: (N,) largest ring of the run: the marker's extent.
+        line_angles: (N, 2) directions in [0, pi) of the marker's two lines.
+        contrast: (N,) bright-minus-dark level on the run's first ring.
+    """
+
+    accepted: np.ndarray
+    xy: np.ndarray
+    score: np.ndarray
+    radius_px: np.ndarray
+    line_angles: np.ndarray
+    contrast: np.ndarray
+
+
+def edge_phase_check(
+    image: np.ndarray,
+    xy: np.ndarray,
+    radii_px: np.ndarray,
+    *,
+    min_contrast: float,
+    max_angle_drift_rad: float = MAX_LINE_DRIFT_RAD,
+    max_first_ring: int = 2,
+    max_phase_error_rad: float = MAX_PHASE_ERROR_RAD,
+    recentre_px: float = RECENTRE_MAX_PX,
+    normalise: Normaliser | None = None,
+) -> EdgePhaseCheck:
+    """The paper's annular centre-symmetry check by edge phase and polarity (section 3.2).
+
+    Rings every 10 degrees (:func:`annular_profiles`) at radii across the expected
+    marker sizes (the paper's adaptive radius: the largest ring that still shows the
+    X is the marker's extent), each analysed by :func:`analyse_ring_edges`. A
+    candidate off the centre sees the crossings of each line less than 180 degrees
+    apart; the rings are therefore read twice: once at the candidate, then where the
+    chords of the lines found there cross (:func:`chord_crossing`, the median over
+    the good rings, if within ``recentre_px``). The lines of an X pass through its
+    centre, so their angles must agree from ring to ring (a bar's two edges, which
+    also pair up on one ring, spread with the radius). A candidate passes when a run
+    of at least two consecutive good rings with consistent line angles starts at
+    one of the ``max_first_ring`` innermost rings.
+
+    Unlike :func:`centre_symmetry_check` it never compares grey levels across the
+    centre: one bright sector duller than the other leaves the edges' phases and
+    polarities as they are.
+
+    Args:
+        image: (H, W) image.
+        xy: (N, 2) candidate centres.
+        radii_px: (J,) ring radii, increasing (see :func:`ring_radii`).
+        min_contrast: minimum ring contrast in image units (after ``normalise``).
+        max_angle_drift_rad: largest change of a line angle from the run's first ring.
+        max_first_ring: the run must start at a ring index below this.
+        max_phase_error_rad: largest departure of a crossing pair from 180 degrees
+            (:func:`analyse_ring_edges`).
+        recentre_px: largest move to the lines' crossing.
+        normalise: applied to the ring samples (e.g. the dynamic gamma).
+
+    Returns:
+        :class:`EdgePhaseCheck`.
+    """
+    n, n_rings = len(xy), len(radii_px)
+    if n == 0:
+        return EdgePhaseCheck(
+            np.zeros(0, bool), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)),
+            np.zeros(0),
+        )
+
+    def scan(centres: np.ndarray, radii: np.ndarray, phase_error_rad: float) -> EdgePhaseRings:
+        profiles = annular_profiles(image, centres, radii, normalise)
+        return analyse_ring_edges(
+            profiles, min_contrast=min_contrast, max_phase_error_rad=phase_error_rad
+        )
+
+    # First the rings a run may start on, and the next, paired leniently: a line 1 px
+    # off the centre meets a ring of 3 px ~40 degrees from opposite. They only say
+    # where the lines cross, and which candidates can pass at all: a ring that fails
+    # the lenient pairing fails the strict one.
+    inner = radii_px[: max_first_ring + 1]
+    first_look = scan(xy, inner, RECENTRE_PHASE_ERROR_RAD)
+    crossing = np.where(
+        first_look.good[..., None], chord_crossing(xy, inner, first_look.crossings), np.nan
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no ring found lines
+        estimate = np.nanmedian(crossing, axis=1)
+    move = np.isfinite(estimate).all(axis=1) & (
+        np.linalg.norm(estimate - xy, axis=1) <= recentre_px
+    )
+    xy = np.where(move[:, None], estimate, xy)
+    hopeful = np.flatnonzero(first_look.good.any(axis=1))
+    strict = scan(xy[hopeful], radii_px, max_phase_error_rad)
+    rings = EdgePhaseRings(
+        *(
+            _scatter(np.zeros((n, *np.shape(part)[1:]), part.dtype), hopeful, part)
+            for part in strict
+        )
+    )
+    # An X crosses every ring with its full contrast; the tails of a bar's or blob's
+    # blurred edges give the rings inside it a fraction of what the outer ones see.
+    good = rings.good & (
+        rings.contrast
+        >= RING_CONTRAST_FRACTION * (rings.contrast * rings.good).max(axis=1, keepdims=True)
+    )
+    in_run, swapped = _longest_run(good, rings.line_angles, max_first_ring, max_angle_drift_rad)
+    first = np.argmax(in_run, axis=1)
+    accepted = in_run.sum(axis=1) >= 2
+    last = np.where(in_run.any(axis=1), n_rings - 1 - np.argmax(in_run[:, ::-1], axis=1), 0)
+    inner = in_run & (np.cumsum(in_run, axis=1) <= 3)
+    score = np.where(accepted, (rings.strength * inner).sum(1) / np.maximum(inner.sum(1), 1), 0.0)
+    aligned = np.where(swapped[..., None], rings.line_angles[..., ::-1], rings.line_angles)
+    mean_doubled = (in_run[..., None] * radii_px[None, :, None] * np.exp(2j * aligned)).sum(1)
+    line_angles = np.where(
+        accepted[:, None],
+        (np.angle(mean_doubled) / 2.0) % np.pi,
+        rings.line_angles[np.arange(n), first],
+    )
+    contrast = rings.contrast[np.arange(n), first]
+    return EdgePhaseCheck(accepted, xy, score, radii_px[last], line_angles, contrast)
+
+
+def _longest_run(
+    good: np.ndarray, line_angles: np.ndarray, max_first_ring: int, max_drift_rad: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The longest run of consecutive good rings whose lines stay within ``max_drift_rad``.
+
+    A run starts at one of the ``max_first_ring`` innermost rings and its first ring's
+    line angles are the reference (an innermost ring a few degrees off does not cut
+    a run that starts on the next one).
+
+    Args:
+        good: (N, J) good rings.
+        line_angles: (N, J, 2) their line angles.
+        max_first_ring: the run starts at a ring index below this.
+        max_drift_rad: largest difference from the run's first ring.
+
+    Returns:
+        (in_run, swapped): (N, J) bool, and (N, J) True where a ring lists the two
+        lines in the other order than the run's first ring.
+    """
+    n_rings = good.shape[1]
+    ring_index = np.arange(n_rings)[None, :]
+    best = np.zeros(good.shape, dtype=bool)
+    best_swap = np.zeros(good.shape, dtype=bool)
+    for first in range(min(max_first_ring, n_rings)):
+        reference = line_angles[:, first, None, :]
+        same, swap = _pairing_differences(line_angles, reference)
+        steady = good & (np.minimum(same, swap) <= max_drift_rad) & (ring_index >= first)
+        broken = np.cumsum(~steady & (ring_index >= first), axis=1) > 0
+        in_run = steady & ~broken & good[:, first, None]
+        longer = in_run.sum(axis=1) > best.sum(axis=1)
+        best[longer] = in_run[longer]
+        best_swap[longer] = (swap < same)[longer]
+    return best, best_swap
+
+
+def _scatter(full: np.ndarray, index: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """A copy of ``full`` with the rows ``index`` replaced by ``part``."""
+    out = full.copy()
+    out[index] = part
+    return out
 
 
 class LineCheck(NamedTuple):
