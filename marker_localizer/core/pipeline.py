@@ -298,7 +298,7 @@ class Detector:
         result: DetectionResult,
         timer: _StageTimer,
     ) -> DetectionResult:
-        """Centre, verify and locate the candidates (both screening paths end here)."""
+        """Centre, verify and locate the candidates of the saddle path."""
         counts = result.counts
         with timer("centring"):
             candidates = self._centre(gray, candidates, counts)
