@@ -56,6 +56,7 @@ from std_msgs.msg import Header
 from marker_localizer.bench import speed
 from marker_localizer.config import DetectorConfig
 from marker_localizer.ros.conversions import array_to_image
+from marker_localizer.ros.diagnostics import frames_lost_upstream
 from marker_localizer.ros.node import MarkerLocalizerNode
 from marker_localizer.ros.processing import stamp_to_ns
 from marker_localizer.synthetic import render_scene
@@ -85,6 +86,8 @@ class RunResult:
     processed: int
     dropped_mailbox: int
     dropped_age: int
+    #: What the node's diagnostics count as lost before the node, from stamp gaps.
+    lost_by_stamps: int
     frames_per_s: float
     latency_p50_ms: float
     latency_p95_ms: float
@@ -164,6 +167,8 @@ def run_once(
         parameter_overrides=[
             Parameter("workers", value=workers),
             Parameter("detector.tracking", value=tracking),
+            # The diagnostics' window over the whole run, to compare their loss count.
+            Parameter("stats_window_s", value=min(seconds + _CAMERA_START_TIMEOUT_S, 3600.0)),
             # The marker sizes of the scenes, as a user configures them.
             Parameter("detector.marker_radius_min_px", value=speed.RADIUS_RANGE[0]),
             Parameter("detector.marker_radius_max_px", value=speed.RADIUS_RANGE[1]),
@@ -222,6 +227,7 @@ def run_once(
         processed=len(arrivals),
         dropped_mailbox=sum(s.dropped_mailbox for s in snaps),
         dropped_age=sum(s.dropped_age for s in snaps),
+        lost_by_stamps=sum(frames_lost_upstream(s.window_stamps_ns)[0] for s in snaps),
         frames_per_s=len(arrivals) / span_s,
         latency_p50_ms=float(np.percentile(latency_ms, 50)) if arrivals else float("nan"),
         latency_p95_ms=float(np.percentile(latency_ms, 95)) if arrivals else float("nan"),
@@ -315,14 +321,15 @@ def format_table(results: Sequence[RunResult]) -> str:
     """The results as a fixed-width text table, one row per worker count."""
     header = (
         f"{'workers':>7} {'frames/s':>9} {'processed':>9} {'published':>9} "
-        f"{'drop DDS':>8} {'drop mbox':>9} {'drop age':>8} {'lat p50 ms':>10} "
+        f"{'drop DDS':>8} {'diag lost':>9} {'drop mbox':>9} {'drop age':>8} {'lat p50 ms':>10} "
         f"{'lat p95 ms':>10} {'CPU %':>6} {'cameras %':>9} {'others %':>8} {'peak MB':>8}"
     )
     rows = [header, "-" * len(header)]
     for r in results:
         rows.append(
             f"{r.workers:>7} {r.frames_per_s:>9.3f} {r.processed:>9} {r.published:>9} "
-            f"{r.dropped_in_transport:>8} {r.dropped_mailbox:>9} {r.dropped_age:>8} "
+            f"{r.dropped_in_transport:>8} {r.lost_by_stamps:>9} {r.dropped_mailbox:>9} "
+            f"{r.dropped_age:>8} "
             f"{r.latency_p50_ms:>10.0f} {r.latency_p95_ms:>10.0f} {r.cpu_percent:>6.0f} "
             f"{r.camera_cpu_percent:>9.0f} {r.others_cpu_percent:>8.0f} {r.peak_rss_mb:>8.0f}"
         )
