@@ -9,6 +9,19 @@ off the network. Subprocesses started by tests inherit both.
 import os
 import random
 
+import pytest
+
 # 1..101: domain ids whose DDS ports do not collide with ephemeral ports on Linux.
 os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 101))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+
+@pytest.fixture(scope="session")
+def small_flight(tmp_path_factory):
+    """A simulated 3-frame, five-camera, 320x240 flight (MCAP), written once per session."""
+    from marker_localizer.bag.record import simulate_main  # noqa: PLC0415 - after the DDS set-up
+
+    path = tmp_path_factory.mktemp("small_flight") / "flight"
+    argv = ["--out", str(path), "--frames", "3", "--width", "320", "--height", "240"]
+    assert simulate_main([*argv, "--seed", "2"]) == 0
+    return path

@@ -26,19 +26,11 @@ FRAME_ID_LENGTH_AT = 4 + 8
 
 
 @pytest.fixture(scope="module")
-def flight(tmp_path_factory):
-    path = tmp_path_factory.mktemp("faults") / "flight"
-    argv = ["--out", str(path), "--frames", "3", "--width", "320", "--height", "240"]
-    assert simulate_main([*argv, "--seed", "2"]) == 0
-    return path
-
-
-@pytest.fixture(scope="module")
-def images(flight):
+def images(small_flight):
     """(camera, bag time) -> (start, end) byte span of the image's CDR in the MCAP file."""
-    data = (flight / "flight.mcap").read_bytes()
+    data = (small_flight / "flight.mcap").read_bytes()
     spans = {}
-    with BagReader(flight) as bag:
+    with BagReader(small_flight) as bag:
         for message in bag.messages():
             if message.topic.endswith("/image_raw"):
                 start = data.index(message.raw)
@@ -74,10 +66,10 @@ def flip(data, at, bit):
 
 
 def test_a_bag_cut_short_gives_every_frame_before_the_cut_and_exit_status_3(
-    flight, images, tmp_path, capsys
+    small_flight, images, tmp_path, capsys
 ):
     cut = sorted(start for start, _ in images.values())[9] + 1000  # inside the 10th image
-    bag = damaged_copy(flight, tmp_path, lambda data: data[:cut])
+    bag = damaged_copy(small_flight, tmp_path, lambda data: data[:cut])
     out = tmp_path / "out"
     assert replay_main([str(bag), "--out", str(out), "--workers", "1"]) == EXIT_INCOMPLETE
     whole = {key for key, (_, end) in images.items() if end <= cut}
@@ -90,11 +82,12 @@ def test_a_bag_cut_short_gives_every_frame_before_the_cut_and_exit_status_3(
 
 
 def test_a_flipped_bit_that_makes_a_frame_undecodable_costs_that_frame_only(
-    flight, images, tmp_path
+    small_flight, images, tmp_path
 ):
     victim = sorted(images)[6]
     start, _ = images[victim]
-    bag = damaged_copy(flight, tmp_path, lambda data: flip(data, start + FRAME_ID_LENGTH_AT + 3, 6))
+    high_byte = start + FRAME_ID_LENGTH_AT + 3  # of the frame_id length
+    bag = damaged_copy(small_flight, tmp_path, lambda data: flip(data, high_byte, 6))
     report = replay_bag(bag, tmp_path / "out", workers=2)
     assert sorted(results(tmp_path / "out")) == sorted(set(images) - {victim})
     camera = report.cameras[victim[0]]
@@ -103,20 +96,20 @@ def test_a_flipped_bit_that_makes_a_frame_undecodable_costs_that_frame_only(
     assert not report.complete and not report.damage
 
 
-def test_a_flipped_bit_in_a_record_length_costs_that_message_only(flight, images, tmp_path):
+def test_a_flipped_bit_in_a_record_length_costs_that_message_only(small_flight, images, tmp_path):
     victim = sorted(images)[4]
     start, _ = images[victim]
     length_at = start - MESSAGE_RECORD_HEAD + 1
-    bag = damaged_copy(flight, tmp_path, lambda data: flip(data, length_at + 4, 3))
+    bag = damaged_copy(small_flight, tmp_path, lambda data: flip(data, length_at + 4, 3))
     report = replay_bag(bag, tmp_path / "out", workers=2)
     assert sorted(results(tmp_path / "out")) == sorted(set(images) - {victim})
     assert any("found by index" in line for line in report.damage), report.damage
     assert any("1 indexed messages lost" in line for line in report.damage), report.damage
 
 
-def test_a_recording_that_did_not_finish_is_read_front_to_back(flight, images, tmp_path):
+def test_a_recording_that_did_not_finish_is_read_front_to_back(small_flight, images, tmp_path):
     cut = sorted(end for _, end in images.values())[-3]  # right after the 13th image
-    bag = damaged_copy(flight, tmp_path, lambda data: data[:cut])
+    bag = damaged_copy(small_flight, tmp_path, lambda data: data[:cut])
     (bag / "metadata.yaml").unlink()
     report = replay_bag(bag, tmp_path / "out", workers=2)
     whole = {key for key, (_, end) in images.items() if end <= cut}

@@ -126,14 +126,6 @@ def context():
 
 
 @pytest.fixture(scope="module")
-def flight_bag(tmp_path_factory):
-    path = tmp_path_factory.mktemp("play") / "flight"
-    argv = ["--out", str(path), "--frames", "3", "--width", "320", "--height", "240"]
-    assert simulate_main([*argv, "--seed", "1"]) == 0
-    return path
-
-
-@pytest.fixture(scope="module")
 def tiny_sqlite_bag(tmp_path_factory):
     path = tmp_path_factory.mktemp("play_sqlite") / "tiny"
     argv = ["--out", str(path), "--frames", "4", "--width", "64", "--height", "48"]
@@ -162,9 +154,9 @@ def bag_truth(path) -> tuple[dict, dict, dict]:
 
 
 def test_playing_into_the_running_node_gives_points_at_the_truth_on_sim_time(
-    context, flight_bag, capsys
+    context, small_flight, capsys
 ):
-    truth, partial, stamps = bag_truth(flight_bag)
+    truth, partial, stamps = bag_truth(small_flight)
     localizer = MarkerLocalizerNode(
         context=context, parameter_overrides=[Parameter("use_sim_time", value=True)]
     )
@@ -172,7 +164,7 @@ def test_playing_into_the_running_node_gives_points_at_the_truth_on_sim_time(
     listener = Listener(context, {**points, "/clock": Clock})
     spun = Spun(context, localizer, listener.node)
     try:
-        status = play_main([str(flight_bag), "--as-fast-as-possible", "--clock"])
+        status = play_main([str(small_flight), "--as-fast-as-possible", "--clock"])
         assert status == 0
         summary = capsys.readouterr().out
         assert re.search(r"played 60 messages on 20 topics", summary), summary
@@ -244,12 +236,12 @@ def test_a_keep_last_1_subscriber_receives_every_frame_in_order_from_sqlite3(
         spun.stop()
 
 
-def test_sigterm_while_playing_stops_the_player_cleanly_with_status_143(context, flight_bag):
+def test_sigterm_while_playing_stops_the_player_cleanly_with_status_143(context, small_flight):
     """The player publishes /clock while it waits between frames: the signal comes then."""
     listener = Listener(context, {"/clock": Clock})
     spun = Spun(context, listener.node)
     player = subprocess.Popen(
-        [sys.executable, "-m", "marker_localizer.cli", "play", str(flight_bag), "--rate", "0.01",
+        [sys.executable, "-m", "marker_localizer.cli", "play", str(small_flight), "--rate", "0.01",
          "--clock", "--wait-for-subscribers", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )

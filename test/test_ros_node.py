@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 from collections import defaultdict
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -553,48 +554,54 @@ def holding(camera):
     return HeldCameraProcessor, release
 
 
+@contextmanager
+def serving(name, overrides, processor_class=FrameProcessor):
+    """A node ``<name>_localizer`` in namespace ``/<name>``, spun, and a peer beside it."""
+    node = MarkerLocalizerNode(
+        f"{name}_localizer",
+        namespace=f"/{name}",
+        processor_class=processor_class,
+        parameter_overrides=[Parameter(key, value=value) for key, value in overrides.items()],
+    )
+    spinner = Spinner(node)
+    peer = Peer(f"{name}_peer", f"/{name}")
+    try:
+        yield node, peer
+    finally:
+        peer.stop()
+        spinner.stop()
+
+
 def test_dropped_frames_are_logged_with_their_reason(ros, capfd):
     """Replaced in the mailbox (INFO), then waited too long (WARN), from one camera."""
     processor_class, release = holding("cam0")
-    node = MarkerLocalizerNode(
-        "drop_localizer",
-        namespace="/drops",
-        processor_class=processor_class,
-        parameter_overrides=[
-            Parameter("cameras", value=["cam0"]),
-            Parameter("workers", value=1),
-            Parameter("max_frame_age_s", value=0.05),
-            Parameter("diagnostics_period_s", value=0.1),
-        ],
-    )
-    spinner = Spinner(node)
-    peer = Peer("drop_peer", "/drops")
+    settings = {"cameras": ["cam0"], "workers": 1, "max_frame_age_s": 0.05,
+                "diagnostics_period_s": 0.1}
     logged = []
 
     def logged_line(*words):
         logged.extend(capfd.readouterr().err.splitlines())
         return next((line for line in logged if all(w in line for w in words)), None)
 
-    try:
-        stats = node.processor.snapshots
-        for received in (1, 2, 3):  # the first is held, the third replaces the second
-            peer.publish("cam0/image_raw", peer.frame(x_marker_64()))
-            wait_until(lambda n=received: stats()["cam0"].received == n, f"frame {received}")
-        wait_until(lambda: stats()["cam0"].dropped_mailbox == 1, "the mailbox drop")
-        assert "INFO" in wait_until(
-            lambda: logged_line("cam0: 1 frame(s) dropped", "replaced in the mailbox"),
-            "the mailbox drop logged")
-        time.sleep(0.1)  # the waiting frame grows stale behind the held one
-        release.set()
-        wait_until(lambda: stats()["cam0"].dropped_age == 1, "the age drop")
-        assert "WARN" in wait_until(
-            lambda: logged_line("cam0: 1 frame(s) dropped: 1 waited longer than "
-                                "max_frame_age_s = 0.05 s"),
-            "the age drop logged, after the 5 s throttle")
-    finally:
-        release.set()
-        peer.stop()
-        spinner.stop()
+    with serving("drop", settings, processor_class) as (node, peer):
+        try:
+            stats = node.processor.snapshots
+            for received in (1, 2, 3):  # the first is held, the third replaces the second
+                peer.publish("cam0/image_raw", peer.frame(x_marker_64()))
+                wait_until(lambda n=received: stats()["cam0"].received == n, f"frame {received}")
+            wait_until(lambda: stats()["cam0"].dropped_mailbox == 1, "the mailbox drop")
+            assert "INFO" in wait_until(
+                lambda: logged_line("cam0: 1 frame(s) dropped", "replaced in the mailbox"),
+                "the mailbox drop logged")
+            time.sleep(0.1)  # the waiting frame grows stale behind the held one
+            release.set()
+            wait_until(lambda: stats()["cam0"].dropped_age == 1, "the age drop")
+            assert "WARN" in wait_until(
+                lambda: logged_line("cam0: 1 frame(s) dropped: 1 waited longer than "
+                                    "max_frame_age_s = 0.05 s"),
+                "the age drop logged, after the 5 s throttle")
+        finally:
+            release.set()
 
 
 def test_shutdown_waits_at_most_shutdown_timeout_for_frames_in_flight_and_names_them(
@@ -720,86 +727,62 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros,
 
 def test_a_flood_of_bad_frames_costs_no_good_frame_and_keeps_diagnostics_small(ros):
     """cam1 floods hostile frames while every frame cam0 sends gets its result."""
-    node = MarkerLocalizerNode(
-        "flood_localizer",
-        namespace="/flood",
-        parameter_overrides=[
-            Parameter("cameras", value=["cam0", "cam1"]),
-            Parameter("diagnostics_period_s", value=0.1),
-            Parameter("input_timeout_s", value=600.0),
-            Parameter("max_frame_age_s", value=0.0),
-            Parameter("detector.max_pixels", value=1_000_000),
-        ],
-    )
-    spinner = Spinner(node)
-    peer = Peer("flood_peer", "/flood")
-    stop = threading.Event()
-    hostile = []
-    oversized = peer.frame(np.zeros((4, 4), np.uint8))
+    settings = {"cameras": ["cam0", "cam1"], "diagnostics_period_s": 0.1,
+                "input_timeout_s": 600.0, "max_frame_age_s": 0.0,
+                "detector.max_pixels": 1_000_000}
+    oversized = stamped(1, np.zeros((4, 4), np.uint8))
     oversized.height, oversized.width, oversized.step = 30000, 30000, 30000  # 16 B of data
-    hostile.append(oversized)
-    long_encoding = peer.frame(np.zeros((4, 4), np.uint8))
+    long_encoding = stamped(2, np.zeros((4, 4), np.uint8))
     long_encoding.encoding = "x" * 1_000_000
-    hostile.append(long_encoding)
-    truncated = peer.frame(x_marker_64())
+    truncated = stamped(3)
     truncated.data = truncated.data[:100]
-    hostile.append(truncated)
+    hostile = [oversized, long_encoding, truncated]
+    stop = threading.Event()
 
-    def flood():
-        k = 0
-        while not stop.is_set():
-            peer.publish("cam1/image_raw", hostile[k % len(hostile)])
-            k += 1
+    with serving("flood", settings) as (node, peer):
+        def flood():
+            k = 0
+            while not stop.is_set():
+                peer.publish("cam1/image_raw", hostile[k % len(hostile)])
+                k += 1
 
-    flooder = threading.Thread(target=flood, daemon=True)
-    try:
-        peer.listen("cam0/marker_points", PointCloud2)
-        peer.listen("/diagnostics", DiagnosticArray)
-        flooder.start()
-        wait_until(lambda: node.processor.snapshots()["cam1"].errors >= 30, "the flood")
-        for _ in range(5):
-            good = peer.frame(x_marker_64())
-            peer.publish("cam0/image_raw", good)
-            assert peer.result_for("cam0/marker_points", good.header).width == 1
-        snap = node.processor.snapshots()
-        assert (snap["cam0"].processed, snap["cam0"].errors) == (5, 0)
-        assert snap["cam1"].processed == 0
+        flooder = threading.Thread(target=flood, daemon=True)
+        try:
+            peer.listen("cam0/marker_points", PointCloud2)
+            peer.listen("/diagnostics", DiagnosticArray)
+            flooder.start()
+            wait_until(lambda: node.processor.snapshots()["cam1"].errors >= 30, "the flood")
+            for _ in range(5):
+                good = peer.frame(x_marker_64())
+                peer.publish("cam0/image_raw", good)
+                assert peer.result_for("cam0/marker_points", good.header).width == 1
+            snap = node.processor.snapshots()
+            assert (snap["cam0"].processed, snap["cam0"].errors) == (5, 0)
+            assert snap["cam1"].processed == 0
 
-        def flooded_status():
-            for array_msg in reversed(peer.messages("/diagnostics")[-3:]):
-                statuses = {s.hardware_id: s for s in array_msg.status}
-                if "cam1" in statuses and int(values_of(statuses["cam1"])["errors"]) >= 30:
-                    return array_msg
-            return None
+            def flooded_status():
+                for array_msg in reversed(peer.messages("/diagnostics")[-3:]):
+                    statuses = {s.hardware_id: s for s in array_msg.status}
+                    if "cam1" in statuses and int(values_of(statuses["cam1"])["errors"]) >= 30:
+                        return array_msg
+                return None
 
-        array_msg = wait_until(flooded_status, "diagnostics of the flood")
-        size = len(serialize_message(array_msg))
-        assert size < 8_000, size  # a 1 MB encoding string made 3 MB every second
-        cam1 = next(s for s in array_msg.status if s.hardware_id == "cam1")
-        assert level_of(cam1) == ERROR
-    finally:
-        stop.set()
-        flooder.join(TIMEOUT_S)
-        peer.stop()
-        spinner.stop()
+            array_msg = wait_until(flooded_status, "diagnostics of the flood")
+            size = len(serialize_message(array_msg))
+            assert size < 8_000, size  # a 1 MB encoding string made 3 MB every second
+            cam1 = next(s for s in array_msg.status if s.hardware_id == "cam1")
+            assert level_of(cam1) == ERROR
+        finally:
+            stop.set()
+            flooder.join(TIMEOUT_S)
 
 
 def test_frames_lost_before_the_node_show_in_its_diagnostics_with_the_figure(ros):
     """The camera's stamps step 0.1 s; 12 of the 40 frames it stamped never reach the node."""
-    node = MarkerLocalizerNode(
-        "loss_localizer",
-        namespace="/loss",
-        parameter_overrides=[
-            Parameter("cameras", value=["cam0"]),
-            Parameter("diagnostics_period_s", value=0.1),
-            Parameter("stats_window_s", value=600.0),
-            Parameter("input_timeout_s", value=600.0),
-        ],
-    )
-    spinner = Spinner(node)
-    peer = Peer("loss_peer", "/loss")
+    settings = {"cameras": ["cam0"], "diagnostics_period_s": 0.1, "stats_window_s": 600.0,
+                "input_timeout_s": 600.0}
     lost = {3, 4, 9, 13, 14, 15, 22, 27, 30, 31, 35, 37}
-    try:
+    with serving("loss", settings) as (node, peer):
         peer.listen("/diagnostics", DiagnosticArray)
         sent = 0
         for k in range(40):
@@ -826,9 +809,6 @@ def test_frames_lost_before_the_node_show_in_its_diagnostics_with_the_figure(ros
         assert status.message == ("30 % of frames lost before the node (12 of 40 in 600 s, "
                                   "from stamp gaps at 10 Hz)")
         assert values_of(status)["lost upstream in window"] == "12"
-    finally:
-        peer.stop()
-        spinner.stop()
 
 
 @pytest.mark.parametrize("use_sim_time", [False, True])

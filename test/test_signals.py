@@ -38,14 +38,6 @@ def entries(directory):
     return sorted(p.name for p in directory.iterdir())
 
 
-@pytest.fixture(scope="module")
-def flight(tmp_path_factory):
-    path = tmp_path_factory.mktemp("signals") / "flight"
-    argv = ["--out", str(path), "--frames", "4", "--width", "160", "--height", "120"]
-    assert simulate_main([*argv, "--seed", "3"]) == 0
-    return path
-
-
 SIMULATE_SIGNALLING_ITSELF = """
     import os, signal, sys
     from marker_localizer.bag.io import run_command
@@ -77,7 +69,7 @@ def test_a_signal_during_simulate_removes_the_unfinished_bag_and_exits_128_plus_
     assert entries(tmp_path) == []
 
 
-def test_sigterm_during_replay_removes_the_unfinished_output(flight, tmp_path):
+def test_sigterm_during_replay_removes_the_unfinished_output(small_flight, tmp_path):
     script = """
         import os, signal, sys
         from marker_localizer.bag.io import run_command
@@ -90,7 +82,7 @@ def test_sigterm_during_replay_removes_the_unfinished_output(flight, tmp_path):
         sys.exit(run_command("replay", lambda: replay_bag(sys.argv[1], sys.argv[2],
                                                           progress=progress)))
     """
-    result = run_python(script, flight, tmp_path / "out")
+    result = run_python(script, small_flight, tmp_path / "out")
     assert result.returncode == 128 + signal.SIGTERM
     assert result.stderr == "marker-localizer replay: interrupted by SIGTERM\n"
     assert entries(tmp_path) == []
