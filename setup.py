@@ -19,13 +19,14 @@ setup(
         ),
     ],
     python_requires=">=3.11",
+    # Lower bounds: requirements-lowest.txt, tested by ./run test (as are the newest).
     install_requires=[
-        "numpy>=2.0",
-        "scipy>=1.11",
-        "opencv-python-headless>=4.8",
-        "scikit-image>=0.22",
-        "rosbags>=0.10",
-        "PyYAML>=6.0",
+        "numpy>=1.26.4",
+        "scipy>=1.11.4",
+        "opencv-python-headless>=4.6.0.66",
+        "scikit-image>=0.22.0",
+        "rosbags>=0.11.6",
+        "PyYAML>=6.0.1",
     ],
     # colcon test runs pytest only for a package that declares it as its test extra.
     extras_require={"test": ["pytest"]},
