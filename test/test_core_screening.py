@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from marker_localizer.core import screening
-from marker_localizer.core.preprocessing import structure_map
+from marker_localizer.core.preprocessing import StructureComponents
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 
 
@@ -158,7 +158,7 @@ def test_curvature_candidates_put_a_point_near_the_centre_of_an_x(radius, tilt):
     )
     image = scene.image.astype(np.float32) / 255.0
     found = screening.curvature_candidates(
-        image, structure_map(image), (6.0, 30.0), min_contrast=20 / 255
+        image, StructureComponents(image), (6.0, 30.0), min_contrast=20 / 255
     )
     assert np.linalg.norm(found.xy - [80.4, 70.6], axis=1).min() < 1.5
 

@@ -331,11 +331,12 @@ class Detector:
         """The paper's checks and location (sections 3.2-3.3) for the curvature path.
 
         The annular check by edge phase and polarity (which also moves each
-        candidate to where its lines cross), the LSD double line (its angles feed
-        the template where they agree with the rings'), then with
+        candidate to where its lines cross), the template's NCC with the annular
+        score (:func:`template.template_evidence`), the LSD double line (its angles
+        feed the template where they agree with the rings'), then with
         ``refinement="ncc"`` the adaptive template's NCC surface and its quadratic
-        extremum, accepted where the NCC peak reaches ``template_ncc_min``; with
-        ``refinement="symmetry"`` the default's fit and gates.
+        extremum, accepted where the surface peaks at :data:`subpixel.NCC_PEAK_MIN`
+        or more; with ``refinement="symmetry"`` the default's fit and gates.
         """
         cfg = self.config
         counts = result.counts
@@ -390,8 +391,9 @@ class Detector:
             )
             located = np.isfinite(fit.offset).all(axis=1) & np.isfinite(fit.sigma)
             counts["rejected_refinement"] = int((~located).sum())
-            counts["rejected_score"] = 0
-            order = np.flatnonzero(located)
+            matched = located & (fit.peak >= subpixel.NCC_PEAK_MIN)
+            counts["rejected_score"] = int((located & ~matched).sum())
+            order = np.flatnonzero(matched)
             order = order[np.argsort(-score[order])]
             result.detections = [
                 Detection(
@@ -419,7 +421,6 @@ class Detector:
             found = self._find_in_regions(gray, full_scale, np.asarray(regions, np.int64))
         counts["candidates"] = len(found)
         if cfg.candidate_detector == "curvature":
-            found = screening.density_mean_shift(found, cfg.density_sigma_px, cfg.mean_shift_h_px)
             thinned = screening.greedy_entropy_thinning(
                 found, cfg.entropy_cell_px, cfg.entropy_threshold
             )
@@ -443,13 +444,13 @@ class Detector:
         """Screening candidates; ``window`` (x0, y0, x1, y1) bounds where they are wanted."""
         cfg = self.config
         if cfg.candidate_detector == "curvature":
-            # The paper's path: GDWGIF, dynamic gamma and structure map on the whole frame.
+            # The paper's path: GDWGIF and dynamic gamma on the whole frame, Eq. (3) where used.
             frame = gray.astype(np.float32) / np.float32(full_scale)
             denoised = preprocessing.gdwgif(frame, cfg.gdwgif_radius_px, cfg.gdwgif_lambda)
             corrected = preprocessing.dynamic_gamma(
                 denoised, cfg.gamma_alpha, cfg.illumination_window_px
             )
-            structure = preprocessing.structure_map(
+            structure = preprocessing.StructureComponents(
                 corrected, xi=cfg.structure_xi, t=cfg.structure_t
             )
             return screening.curvature_candidates(
@@ -460,6 +461,8 @@ class Detector:
                 cfg.curvature_threshold_std,
                 cfg.min_peak_separation_px,
                 cfg.structure_keep_fraction,
+                cfg.density_sigma_px,
+                cfg.mean_shift_h_px,
             )
         # The Hessian's own 5x5 smoothing replaces GDWGIF, and the threshold in grey
         # levels replaces the structure percentile: no full-frame float passes (those

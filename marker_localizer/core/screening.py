@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from marker_localizer.core.preprocessing import MAD_TO_STD, noise_sigma
+from marker_localizer.core.preprocessing import MAD_TO_STD, StructureComponents, noise_sigma
 
 
 class Candidates(NamedTuple):
@@ -88,6 +88,8 @@ _SPLIT_PEAK_RATIO = 1.5
 #: side, short enough to stay on one edge of the smallest marker, long enough that
 #: the turn of the sub-pixel level line is measured over more than its noise.
 CURVATURE_WINDOW_PX = 3
+#: Contour points the dual threshold's statistics read at most (a regular sample).
+_STATISTICS_SAMPLE = 250_000
 #: Longest Newton step of a contour pixel onto the level line, px: a pixel on the
 #: boundary is within a pixel of it, and near the X centre (no gradient) the step
 #: must not fly off.
@@ -457,29 +459,51 @@ def local_threshold(
     """The contours' level at every pixel: the local mid-range of ``image`` (section 3.2).
 
     The level is (max + min) / 2 over the smallest window of ``diameters_px``
-    (increasing) that spans at least ``min_contrast``: inside a marker that is the
-    level between its dark and bright sectors whatever the light around it, so the
-    level line runs through the X centre; deep inside a large sector a larger window
-    still sees the neighbouring sectors, so the sector stays one clean region. Where
-    no window finds that much contrast (flat or faint ground) the level is NaN, and
-    such pixels take part in no contour.
+    (each about twice the last) that spans at least ``min_contrast``: inside a
+    marker that is the level between its dark and bright sectors whatever the light
+    around it, so the level line runs through the X centre; deep inside a large
+    sector a larger window still sees the neighbouring sectors, so the sector stays
+    one clean region. Where no window finds that much contrast (flat or faint
+    ground) the level is NaN, and such pixels take part in no contour. The first
+    window is exact; the k-th reads the image max- and min-pooled over 2^k x 2^k
+    blocks (a window of its size, aligned to the blocks), at a 4^k-th of the cost.
 
     Args:
         image: (H, W) float32 preprocessed image.
-        diameters_px: window sides (odd, increasing), from the smallest marker's diameter.
+        diameters_px: window sides (odd), from the smallest marker's diameter, each
+            about twice the previous (:func:`threshold_diameters`).
         min_contrast: smallest max - min of a window whose pixels take part.
 
     Returns:
         (H, W) float32 level, NaN where there is none.
     """
+    first = diameters_px[0]
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (first, first))
+    height, width = image.shape
     level = np.full(image.shape, np.nan, np.float32)
-    for diameter in diameters_px:
-        kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (diameter, diameter))
-        high = cv2.dilate(image, kernel)
-        low = cv2.erode(image, kernel)
-        settle = np.isnan(level) & ((high - low) >= min_contrast)
-        level[settle] = 0.5 * (high[settle] + low[settle])
+    pooled_high, pooled_low = image, image
+    for k in range(len(diameters_px)):
+        if k:
+            pooled_high, pooled_low = _pool(pooled_high, np.maximum), _pool(pooled_low, np.minimum)
+            if min(pooled_high.shape) < 2:
+                break
+        high, low = cv2.dilate(pooled_high, kernel), cv2.erode(pooled_low, kernel)
+        coarse = np.where(high - low >= min_contrast, 0.5 * (high + low), np.nan)
+        # Back to full resolution: each coarse pixel covers a 2^k x 2^k block.
+        block = 2**k
+        full = np.repeat(np.repeat(coarse, block, axis=0), block, axis=1)[:height, :width]
+        np.copyto(level, full, where=np.isnan(level))
     return level
+
+
+def _pool(image: np.ndarray, reduce: np.ufunc) -> np.ndarray:
+    """``image`` reduced by ``reduce`` over 2 x 2 blocks (an odd last row / column is kept)."""
+    height, width = image.shape
+    padded = np.pad(image, ((0, height % 2), (0, width % 2)), mode="edge")
+    return reduce(
+        reduce(padded[0::2, 0::2], padded[1::2, 0::2]),
+        reduce(padded[0::2, 1::2], padded[1::2, 1::2]),
+    )
 
 
 def onto_level_line(
@@ -529,7 +553,7 @@ def connected_domain_check(mask: np.ndarray, min_area_px: float) -> np.ndarray:
 
 
 def threshold_diameters(radius_range_px: tuple[float, float]) -> tuple[int, ...]:
-    """Window sides of :func:`local_threshold_masks`: the smallest marker's diameter, doubling.
+    """Window sides of :func:`local_threshold`: the smallest marker's diameter, doubling.
 
     The last covers the largest marker's diameter, so that the middle of its
     largest sector still sees a neighbouring one.
@@ -543,12 +567,14 @@ def threshold_diameters(radius_range_px: tuple[float, float]) -> tuple[int, ...]
 
 def curvature_candidates(
     image: np.ndarray,
-    structure: np.ndarray,
+    structure: StructureComponents,
     radius_range_px: tuple[float, float],
     min_contrast: float,
     threshold_std: float = 3.0,
     separation_px: float = 5.0,
     keep_fraction: float = 0.7,
+    density_sigma_px: float = 2.0,
+    mean_shift_h_px: float = 2.0,
 ) -> Candidates:
     """The paper's primary screening: curvature peaks of contours (section 3.2, Eq. 4).
 
@@ -568,21 +594,28 @@ def curvature_candidates(
     moments of a heavy-tailed distribution put a right angle below mean + 3 std;
     the threshold is capped at a 60-degree turn (:data:`_MAX_CURVATURE_THRESHOLD`);
     (2) no stronger peak of the same contour lies within ``separation_px``, its
-    second part; (3) the structure map there is in the top ``keep_fraction``
-    (quantile over every other row and column).
+    second part; (3) the structure s_k (Eq. 3) there is in the frame's top
+    ``keep_fraction``. The peaks of all contours then gather by the
+    curvature-density mean shift (Eqs. 5-6, :func:`density_mean_shift`): an X
+    centre is where the apexes of its four sectors meet.
 
     Args:
         image: (H, W) float32 preprocessed image in [0, 1].
-        structure: (H, W) float32 structure map of Eq. (3).
+        structure: the structural components of ``image``, Eq. (3).
         radius_range_px: (min, max) expected marker radius.
         min_contrast: smallest marker contrast, in ``image`` units.
         threshold_std: the dual threshold's k in mean + k std.
         separation_px: minimum spacing of peaks of one contour.
         keep_fraction: top fraction of the structure map kept.
+        density_sigma_px: sigma of Eq. (5).
+        mean_shift_h_px: h of Eq. (6).
 
     Returns:
-        Candidates at sub-pixel contour points (up to ~1.5 px from the X centre);
-        ``strength`` is the curvature, ``scale_px`` the smallest radius.
+        Candidates (up to ~1.5 px from the X centre); ``strength`` is the largest
+        local standard deviation of Eq. (3), sigma_{d,k}, at the candidate (the
+        structure before its saturating map, so that strong edges still rank:
+        markers' printed contrast ranks them in the top fifth of the candidates),
+        ``scale_px`` the smallest radius.
     """
     r_min = radius_range_px[0]
     sigma = noise_sigma(image)
@@ -601,17 +634,23 @@ def curvature_candidates(
     kappa = contour_curvature(contours, CURVATURE_WINDOW_PX)
     # Peaks along the contour; a plateau yields its first point.
     is_peak = (kappa >= kappa[contours.along(-1)]) & (kappa > kappa[contours.along(1)])
-    mean, std = robust_mean_std(kappa, edge_strength)
+    # The statistics of a regular sample of the contour points (all of them on small
+    # frames): a quarter of a million fix a median to well under a percent.
+    stride = max(1, len(kappa) // _STATISTICS_SAMPLE)
+    mean, std = robust_mean_std(kappa[::stride], edge_strength[::stride])
     is_peak &= kappa > min(mean + threshold_std * std, _MAX_CURVATURE_THRESHOLD)
     points, kappa, contour = contours.points[is_peak], kappa[is_peak], contours.start[is_peak]
-    cols, rows = points[:, 0].astype(np.intp), points[:, 1].astype(np.intp)
-    s_threshold = np.quantile(structure[::2, ::2], 1.0 - keep_fraction)
-    in_structure = structure[rows, cols] >= s_threshold
+    in_structure = structure.at(points) >= structure.quantile(1.0 - keep_fraction)
     points, kappa, contour = points[in_structure], kappa[in_structure], contour[in_structure]
-    # Adjacent peaks of one contour: the X centre's turns on other contours (the other
-    # set, the other pass) stay, for the density mean shift to gather.
+    # Adjacent peaks of one contour: the X centre's apexes on other contours (the
+    # other sectors, the other set) stay, for the density mean shift to gather.
     keep = non_maximum_suppression(points, kappa, separation_px, group=contour)
-    return Candidates(points[keep], kappa[keep], np.full(int(keep.sum()), float(r_min)))
+    peaks = Candidates(points[keep], kappa[keep], np.full(int(keep.sum()), float(r_min)))
+    merged = density_mean_shift(peaks, density_sigma_px, mean_shift_h_px)
+    pixel = np.round(merged.xy).astype(np.intp)
+    height, width = image.shape
+    rows, cols = np.clip(pixel[:, 1], 0, height - 1), np.clip(pixel[:, 0], 0, width - 1)
+    return Candidates(merged.xy, structure.sigma_at(rows, cols), merged.scale_px)
 
 
 def non_maximum_suppression(

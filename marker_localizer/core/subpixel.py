@@ -32,6 +32,14 @@ from marker_localizer.core.sampling import bilinear_with_gradient, pad_patterns
 #: matrix product grows with the square; 31 x 31 pixels fix the centre well enough).
 _NCC_MIN_HALF_PX = 3
 _NCC_MAX_HALF_PX = 15
+#: Paper path: smallest NCC (Eq. 12) at the peak of the adaptive template's surface for
+#: a marker. Markers of the renderer's families and of the independent frames peak at
+#: 0.93 and more (99 %), the ground-texture saddles that pass every check before it
+#: mostly below (median 0.82-0.89).
+NCC_PEAK_MIN = 0.93
+#: ... and within that range 0.7 of the radius: the square template's corners then stay
+#: inside the X (a quarter-disk marker is plate beyond its radius, not X).
+_NCC_HALF_RADIUS_FRACTION = 0.7
 #: The template's grey levels are read at most this fraction of the radius from the
 #: centre, inside the marker's sectors.
 _NCC_LEVEL_RADIUS_FRACTION = 0.6
@@ -236,7 +244,9 @@ def ncc_refine(
     sigma = np.full(n, np.nan)
     if n == 0:
         return NccPeak(located, peak, sigma)
-    half = np.clip(np.ceil(radius_px), _NCC_MIN_HALF_PX, _NCC_MAX_HALF_PX).astype(np.int64)
+    half = np.clip(
+        np.round(_NCC_HALF_RADIUS_FRACTION * radius_px), _NCC_MIN_HALF_PX, _NCC_MAX_HALF_PX
+    ).astype(np.int64)
     centres = np.round(xy).astype(np.int64)
     height, width = image.shape
     margin = half + search_px
