@@ -46,6 +46,7 @@ _DELEGATED: dict[str, tuple[str, str, str]] = {
 }
 _BENCHMARKS: dict[str, str] = {
     "accuracy": "marker_localizer.bench.accuracy",
+    "paper": "marker_localizer.bench.paper",
     "speed": "marker_localizer.bench.speed",
     "throughput": "marker_localizer.bench.throughput",
 }

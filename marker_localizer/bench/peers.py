@@ -152,14 +152,26 @@ class OurDetector:
         return table[:, :2]
 
 
+#: The paper's pipeline as published: its screening and checks, its sub-pixel location.
+PAPER_PIPELINE: dict[str, object] = {"candidate_detector": "curvature", "refinement": "ncc"}
+#: Its row in the benchmarks' tables.
+PAPER_ROW = "ours (paper: curvature+ncc)"
+
+
 def our_variants(include_curvature: bool = True) -> list[OurDetector]:
-    """The detector variants the benchmarks compare: both refinements, the paper's screening."""
+    """The detector variants the benchmarks compare.
+
+    Both refinements on the default screening, and with ``include_curvature`` the
+    paper's screening and checks with the default fit, and the paper's pipeline end
+    to end (:data:`PAPER_PIPELINE`).
+    """
     variants = [
         OurDetector("ours (symmetry)", {"refinement": "symmetry"}),
         OurDetector("ours (ncc, paper)", {"refinement": "ncc"}),
     ]
     if include_curvature:
         variants.append(OurDetector("ours (curvature)", {"candidate_detector": "curvature"}))
+        variants.append(OurDetector(PAPER_ROW, dict(PAPER_PIPELINE)))
     return variants
 
 

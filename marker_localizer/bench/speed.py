@@ -44,10 +44,12 @@ from typing import Any
 import numpy as np
 
 #: Subjects in table order, by the short key ``--subjects`` takes; "ours (symmetry)"
-#: is the row every ratio divides by.
+#: is the row every ratio divides by. "paper" (the paper's pipeline end to end, seconds
+#: per frame) runs only when asked for.
 SUBJECTS = {
     "symmetry": "ours (symmetry)",
     "ncc": "ours (ncc, paper)",
+    "paper": "ours (paper: curvature+ncc)",
     "tracking": "ours (tracking)",
     "hessian": "OpenCV Hessian+cornerSubPix",
     "chess": "chess-corners chess",
