@@ -364,10 +364,11 @@ def stages_table(results: Sequence[WorkerResult]) -> str:
     if not ours:
         return ""
     stages = list(stage_medians(ours[0].stages_ms))
-    header = f"{'stage (median ms)':<20}" + "".join(f"{r.name:>22}" for r in ours)
+    width = max(22, *(len(r.name) + 2 for r in ours))
+    header = f"{'stage (median ms)':<20}" + "".join(f"{r.name:>{width}}" for r in ours)
     lines = [header, "-" * len(header)]
     for stage in stages:
-        cells = "".join(f"{stage_medians(r.stages_ms).get(stage, float('nan')):>22.1f}"
+        cells = "".join(f"{stage_medians(r.stages_ms).get(stage, float('nan')):>{width}.1f}"
                         for r in ours)
         lines.append(f"{stage:<20}{cells}")
     return "\n".join(lines)
