@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import math
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -43,6 +42,7 @@ import numpy as np
 from marker_localizer.bench import metrics, peers, real_data
 from marker_localizer.bench.metrics import DetectionTally
 from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
+from marker_localizer.bench.runner import run_and_save
 from marker_localizer.errors import ConfigError
 from marker_localizer.synthetic import RenderedScene, SceneConfig, render_checkerboard, render_scene
 
@@ -855,18 +855,7 @@ def parse_args(argv: list[str] | None) -> tuple[Options, Path | None]:
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     options, json_path = parse_args(argv)
-    start = time.perf_counter()
-
-    def report(text: str) -> None:
-        print(f"\n{text}", flush=True)
-
-    results = run(options, report)
-    elapsed = time.perf_counter() - start
-    print(f"\naccuracy benchmark finished in {elapsed:.0f} s", flush=True)
-    if json_path is not None:
-        results["elapsed_s"] = elapsed
-        json_path.write_text(json.dumps(results, indent=2))
-    return 0
+    return run_and_save("accuracy benchmark", lambda report: run(options, report), json_path)
 
 
 if __name__ == "__main__":

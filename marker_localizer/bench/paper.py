@@ -30,9 +30,7 @@ check accepts, per frame.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +40,7 @@ import numpy as np
 
 from marker_localizer.bench import accuracy, peers, real_data
 from marker_localizer.bench.accuracy import LabelledFrame, Row
+from marker_localizer.bench.runner import run_and_save
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import preprocessing, screening, verification
 
@@ -260,15 +259,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="base seed of the rendering")
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
     args = parser.parse_args(argv)
-    start = time.perf_counter()
-    results = run(args.quick, args.seed, real_data.data_root(),
-                  lambda text: print(f"\n{text}", flush=True))
-    elapsed = time.perf_counter() - start
-    print(f"\npaper reproduction finished in {elapsed:.0f} s", flush=True)
-    if args.json is not None:
-        results["elapsed_s"] = elapsed
-        args.json.write_text(json.dumps(results, indent=2))
-    return 0
+    return run_and_save(
+        "paper reproduction",
+        lambda report: run(args.quick, args.seed, real_data.data_root(), report),
+        args.json,
+    )
 
 
 if __name__ == "__main__":

@@ -43,6 +43,8 @@ from typing import Any
 
 import numpy as np
 
+from marker_localizer.bench.runner import run_and_save
+
 #: Subjects in table order, by the short key ``--subjects`` takes; "ours (symmetry)"
 #: is the row every ratio divides by. "paper" (the paper's pipeline end to end, seconds
 #: per frame) runs only when asked for.
@@ -492,14 +494,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     if args.worker is not None:
         return worker_main(args.worker, args.frames_file, args.repeats or 1)
-    start = time.perf_counter()
-    results = run(options_from(args), lambda text: print(f"\n{text}", flush=True))
-    elapsed = time.perf_counter() - start
-    print(f"\nspeed benchmark finished in {elapsed:.0f} s", flush=True)
-    if args.json is not None:
-        results["elapsed_s"] = elapsed
-        args.json.write_text(json.dumps(results, indent=2))
-    return 0
+    return run_and_save("speed benchmark", lambda report: run(options_from(args), report),
+                        args.json)
 
 
 if __name__ == "__main__":
