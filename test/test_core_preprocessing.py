@@ -53,3 +53,23 @@ def test_structure_map_follows_eq_3_for_a_known_local_std():
 def test_structure_map_is_zero_on_flat_ground():
     s = preprocessing.structure_map(np.full((20, 20), 0.4, np.float32))
     assert s.max() == pytest.approx(0.0, abs=1e-3)
+
+
+def test_structure_components_at_points_equal_the_structure_map_of_eq_3():
+    rng = np.random.default_rng(2)
+    image = rng.random((60, 80)).astype(np.float32)
+    image[20:40, 30:50] += 0.5
+    full = preprocessing.structure_map(image, xi=0.05, t=1.3)
+    sampled = preprocessing.StructureComponents(image, xi=0.05, t=1.3)
+    rows, cols = np.mgrid[5:55, 5:75]
+    xy = np.stack([cols.ravel(), rows.ravel()], axis=1).astype(float)
+    np.testing.assert_allclose(sampled.at(xy), full[rows.ravel(), cols.ravel()], atol=1e-5)
+    assert sampled.quantile(0.3) == pytest.approx(np.quantile(full[2::4, 2::4], 0.3), abs=0.02)
+
+
+def test_noise_sigma_reads_the_pixel_noise_not_the_edges():
+    rng = np.random.default_rng(4)
+    image = np.zeros((200, 200), np.float32)
+    image[:, 100:] = 1.0  # one strong edge
+    image += rng.normal(0.0, 0.02, image.shape).astype(np.float32)
+    assert preprocessing.noise_sigma(image) == pytest.approx(0.02, rel=0.1)

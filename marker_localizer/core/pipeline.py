@@ -362,7 +362,10 @@ class Detector:
             ok = template.template_evidence(score, ncc, cfg.template_ncc_min)
             counts["rejected_template"] = int((~ok).sum())
             xy, radius, angles = xy[ok], radius[ok], angles[ok]
-            score = score[ok] * ncc[ok]
+            # The default fit's score floors were set on its ring symmetry x NCC; the
+            # annular score of edge phases runs lower on markers, so the fit takes the
+            # template NCC alone as the checks' evidence.
+            score = (score[ok] if cfg.refinement == "ncc" else 1.0) * ncc[ok]
             if cfg.line_check and len(xy):
                 lines = verification.double_line_check(
                     gray, xy, radius, extend_px=cfg.line_extend_px,
