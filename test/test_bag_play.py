@@ -29,8 +29,8 @@ from sensor_msgs.msg import Image, PointCloud2
 from marker_localizer.bag.io import BagReader
 from marker_localizer.bag.play import PlayOptions, play_bag, play_main
 from marker_localizer.bag.record import simulate_main
-from marker_localizer.bag.replay import Evaluation
 from marker_localizer.errors import BagError, ConfigError
+from marker_localizer.evaluation import DetectionTally, match_points
 from marker_localizer.ros.conversions import cloud_to_array
 from marker_localizer.ros.node import MarkerLocalizerNode
 
@@ -179,22 +179,22 @@ def test_playing_into_the_running_node_gives_points_at_the_truth_on_sim_time(
                 ),
                 f"the {camera} result of the last frame",
             )
-        evaluation = Evaluation()
+        evaluation = DetectionTally()
         for camera in CAMERAS:
             for cloud in listener.messages(f"/{camera}/marker_points"):
                 assert cloud.header.frame_id == f"{camera}_optical"
                 key = (camera, stamp_ns(cloud.header))
-                evaluation.add(xy(cloud), truth[key], partial[key])
-        mean_px = evaluation.error_stats()["mean"]
+                evaluation.add(match_points(xy(cloud), truth[key], excused=partial[key]))
+        mean_px = evaluation.stats.mean
         sys.stdout.write(
             f"\nplay -> node: {evaluation.frames} of 15 frames processed, recall "
-            f"{evaluation.recall:.3f} of {evaluation.truth}, mean error {mean_px:.4f} px, "
-            f"FP/frame {evaluation.false_positives_per_frame:.2f}\n"
+            f"{evaluation.recall:.3f} of {evaluation.n_truth}, mean error {mean_px:.4f} px, "
+            f"FP/frame {evaluation.fp_per_frame:.2f}\n"
         )
         assert evaluation.frames >= len(CAMERAS)
         assert evaluation.recall >= 0.9, evaluation
         assert mean_px <= 0.1
-        assert evaluation.false_positives_per_frame <= 0.5
+        assert evaluation.fp_per_frame <= 0.5
         clock = [time_ns(m.clock) for m in listener.messages("/clock")]
         assert clock and clock == sorted(clock)
         # The node ran on the bag's time (use_sim_time), so no frame was too old for it.

@@ -12,7 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-from marker_localizer.bench import accuracy, metrics, peers, real_data, speed
+from marker_localizer import evaluation
+from marker_localizer.bench import accuracy, peers, real_data, speed
 from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
 
 SMALL = SceneConfig(width=480, height=360, n_markers=4, radius_px=(8.0, 16.0),
@@ -67,7 +68,7 @@ def test_hessian_saddle_peer_finds_the_exact_x_and_nothing_else():
 @pytest.mark.parametrize("method", ["chess", "radon"])
 def test_chess_corners_points_use_the_pixel_centre_convention(method):
     found = peers.ChessCornersDetector(method).detect(exact_x(), (8.0, 20.0))
-    distance = metrics.nearest_distances(np.array([[31.5, 31.5]]), found)
+    distance = evaluation.nearest_distances(np.array([[31.5, 31.5]]), found)
     assert distance[0] < 0.05
 
 
@@ -75,7 +76,7 @@ def test_chess_corners_points_use_the_pixel_centre_convention(method):
 def test_mrgingham_points_use_the_pixel_centre_convention():
     scene = render_checkerboard((480, 640), (10, 10), 26.0, background="flat", seed=0)
     found = peers.Mrgingham(10).detect(scene.image, (10.0, 30.0))
-    matching = metrics.match_points(found, scene.centres)
+    matching = evaluation.match_points(found, scene.centres)
     assert matching.n_matched == 100
     offset = found[matching.detection_index] - scene.centres[matching.truth_index]
     assert np.abs(offset.mean(axis=0)).max() < 0.05
@@ -84,7 +85,7 @@ def test_mrgingham_points_use_the_pixel_centre_convention():
 def test_opencv_board_peer_finds_every_corner_of_a_rendered_board():
     scene = render_checkerboard((480, 640), (6, 5), 30.0, tilt_deg=20.0, seed=2)
     found = peers.OpenCVChessboard((6, 5)).detect(scene.image, (10.0, 30.0))
-    assert metrics.match_points(found, scene.centres).n_matched == 30
+    assert evaluation.match_points(found, scene.centres).n_matched == 30
 
 
 # --------------------------------------------------------------------------- rendered families
@@ -151,16 +152,16 @@ def test_resolution_table_gives_each_detectors_recall_per_bin_of_marker_resoluti
 
 def test_family_table_prints_the_peer_to_ours_ratio():
     ours = accuracy.Row(accuracy.REFERENCE_ROW)
-    ours.tally.add(metrics.match_points(np.array([[0.02, 0.0]]), np.zeros((1, 2))))
+    ours.tally.add(evaluation.match_points(np.array([[0.02, 0.0]]), np.zeros((1, 2))))
     peer = accuracy.Row("peer")
-    peer.tally.add(metrics.match_points(np.array([[0.1, 0.0]]), np.zeros((1, 2))))
+    peer.tally.add(evaluation.match_points(np.array([[0.1, 0.0]]), np.zeros((1, 2))))
     table = accuracy.family_table("t", [ours, peer])
     assert "5.00" in table.splitlines()[-1]
 
 
 def test_family_table_prints_the_bound_and_the_error_over_it():
     ours = accuracy.Row(accuracy.REFERENCE_ROW)
-    ours.tally.add(metrics.match_points(np.array([[0.03, 0.0], [5.0, 5.0]]), np.zeros((1, 2))),
+    ours.tally.add(evaluation.match_points(np.array([[0.03, 0.0], [5.0, 5.0]]), np.zeros((1, 2))),
                    truth_crlb_px=np.array([0.01]))
     line = accuracy.family_table("t", [ours]).splitlines()[-1].split()
     assert line[-4:-1] == ["0.0100", "3.00", "-"]
@@ -247,9 +248,9 @@ needs_data = pytest.mark.skipif(DATA is None, reason="../shared/data is absent")
 def test_validationboof_hand_clicks_agree_with_opencv_after_the_half_pixel_shift():
     item = next(real_data.iter_validationboof(DATA, limit_per_folder=1))
     assert item.boards[0].shape == (6, 4, 2)
-    matching = metrics.match_points(item.opencv, item.reference)
+    matching = evaluation.match_points(item.opencv, item.reference)
     assert matching.n_matched == 24
-    shifted = metrics.match_points(item.opencv, item.reference + 0.5)
+    shifted = evaluation.match_points(item.opencv, item.reference + 0.5)
     # The shift removes a systematic +0.5 px bias, so the errors must be smaller with it.
     assert matching.errors_px.mean() < shifted.errors_px.mean()
 
@@ -282,7 +283,7 @@ def test_our_detector_finds_the_inner_corners_of_a_real_board():
     item = next(real_data.iter_validationboof(DATA, limit_per_folder=1))
     ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
     found = ours.detect(item.image, accuracy.REAL_RADIUS_RANGES["validationboof"])
-    assert metrics.match_points(found, item.reference).n_matched >= 22
+    assert evaluation.match_points(found, item.reference).n_matched >= 22
 
 
 # --------------------------------------------------------------------------- speed helpers

@@ -1,4 +1,4 @@
-"""Specification of the benchmark metrics (marker_localizer.bench.metrics) and peer helpers."""
+"""Specification of the grid metrics (marker_localizer.bench.metrics) and peer helpers."""
 
 from __future__ import annotations
 
@@ -17,98 +17,6 @@ def projective_grid(rows: int, cols: int) -> np.ndarray:
     v, u = np.mgrid[:rows, :cols].astype(np.float64)
     mapped = np.stack([u, v, np.ones_like(u)], axis=-1) @ h.T
     return mapped[..., :2] / mapped[..., 2:]
-
-
-# --------------------------------------------------------------------------- matching
-
-def test_a_detection_0p3_px_off_has_error_0p3():
-    matching = metrics.match_points(np.array([[10.3, 20.0]]), np.array([[10.0, 20.0]]))
-    assert matching.n_matched == 1
-    assert matching.errors_px[0] == pytest.approx(0.3)
-
-
-def test_a_detection_beyond_the_gate_is_a_false_positive_and_the_truth_is_missed():
-    matching = metrics.match_points(np.array([[50.0, 50.0]]), np.array([[10.0, 10.0]]), 2.0)
-    assert matching.n_matched == 0
-    assert matching.n_false_positives == 1
-    assert matching.unmatched_detections.tolist() == [0]
-
-
-def test_a_second_detection_on_the_same_marker_is_a_false_positive():
-    truth = np.array([[10.0, 10.0]])
-    detections = np.array([[10.5, 10.0], [10.1, 10.0]])
-    matching = metrics.match_points(detections, truth)
-    assert matching.n_matched == 1
-    assert matching.detection_index.tolist() == [1]
-    assert matching.n_false_positives == 1
-
-
-def test_matching_is_one_to_one_and_minimises_the_total_distance():
-    truth = np.array([[0.0, 0.0], [1.5, 0.0]])
-    detections = np.array([[1.0, 0.0], [2.2, 0.0]])
-    matching = metrics.match_points(detections, truth)
-    pairs = dict(zip(matching.truth_index.tolist(), matching.detection_index.tolist(),
-                     strict=True))
-    assert pairs == {0: 0, 1: 1}
-
-
-def test_nan_detections_never_match():
-    matching = metrics.match_points(np.array([[np.nan, np.nan]]), np.array([[0.0, 0.0]]))
-    assert matching.n_matched == 0
-    assert matching.n_false_positives == 1
-
-
-def test_matching_with_no_detections_reports_every_truth_missed():
-    matching = metrics.match_points(np.empty((0, 2)), np.array([[1.0, 1.0], [5.0, 5.0]]))
-    assert (matching.n_matched, matching.n_truth, matching.n_false_positives) == (0, 2, 0)
-
-
-def test_nearest_distances_measures_to_the_closest_target():
-    d = metrics.nearest_distances(np.array([[0.0, 0.0], [10.0, 0.0]]),
-                                  np.array([[3.0, 4.0], [10.0, 1.0]]))
-    np.testing.assert_allclose(d, [5.0, 1.0])
-
-
-# --------------------------------------------------------------------------- statistics
-
-def test_error_stats_of_known_errors():
-    stats = metrics.ErrorStats.from_errors([0.05, 0.1, 0.2, 0.4])
-    assert stats.count == 4
-    assert stats.mean == pytest.approx(0.1875)
-    assert stats.rms == pytest.approx(math.sqrt((0.0025 + 0.01 + 0.04 + 0.16) / 4))
-    assert stats.max == pytest.approx(0.4)
-    assert stats.within_fine == pytest.approx(0.5)
-    assert stats.p95 == pytest.approx(np.percentile([0.05, 0.1, 0.2, 0.4], 95))
-
-
-def test_error_stats_of_nothing_are_nan():
-    stats = metrics.ErrorStats.from_errors([])
-    assert stats.count == 0
-    assert math.isnan(stats.mean)
-
-
-def test_tally_counts_recall_and_false_positives_per_frame():
-    tally = metrics.DetectionTally()
-    truth = np.array([[0.0, 0.0], [10.0, 0.0]])
-    tally.add(metrics.match_points(np.array([[0.1, 0.0], [40.0, 40.0]]), truth))
-    tally.add(metrics.match_points(np.array([[0.0, 0.2], [10.0, 0.1], [80.0, 0.0]]), truth))
-    assert tally.recall == pytest.approx(3 / 4)
-    assert tally.fp_per_frame == pytest.approx(1.0)
-    assert tally.stats.mean == pytest.approx((0.1 + 0.2 + 0.1) / 3)
-
-
-def test_share_within_two_sigma_counts_errors_against_their_own_sigma():
-    errors = np.array([0.01, 0.05, 0.2])
-    sigmas = np.array([0.01, 0.01, 0.2])
-    assert metrics.share_within_sigma(errors, sigmas, 2.0) == pytest.approx(2 / 3)
-
-
-def test_tally_keeps_the_sigma_of_the_matched_detection():
-    tally = metrics.DetectionTally()
-    matching = metrics.match_points(np.array([[90.0, 0.0], [0.03, 0.0]]), np.array([[0.0, 0.0]]))
-    tally.add(matching, sigmas_px=np.array([5.0, 0.01]))
-    assert tally.sigmas_px == [0.01]
-    assert tally.within_two_sigma == 0.0
 
 
 # --------------------------------------------------------------------------- grid geometry

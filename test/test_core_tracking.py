@@ -5,8 +5,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
-from marker_localizer.bench.metrics import match_points
 from marker_localizer.core.tracking import MarkerTracker
+from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
 

@@ -883,10 +883,10 @@ class Collector:
         self.release.set()
         self.entered = threading.Event()
 
-    def __call__(self, camera, header, cloud, overlay):
+    def __call__(self, camera, cloud, overlay):
         self.entered.set()
         self.release.wait(TIMEOUT_S)
-        self.results.append((camera, header.stamp.sec, cloud.width))
+        self.results.append((camera, cloud.header.stamp.sec, cloud.width))
 
 
 def stamped(sec, pixels=None):

@@ -52,9 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2
-from std_msgs.msg import Header
 
 from marker_localizer.bag.io import (
     DEFAULT_STORAGE,
@@ -69,7 +67,7 @@ from marker_localizer.bag.io import (
 from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
 from marker_localizer.config import DetectorConfig, from_mapping, load_params_file
 from marker_localizer.errors import BagError, ImageError, shorten
-from marker_localizer.ros import diagnostics
+from marker_localizer.evaluation import DEFAULT_GATE_PX, DetectionTally, match_points
 from marker_localizer.ros.conversions import ENCODINGS, IMAGE_TRANSPORTS, cloud_to_array
 from marker_localizer.ros.node import NODE_NAME
 from marker_localizer.ros.parameters import NodeConfig, diagnostic_thresholds
@@ -78,100 +76,6 @@ from marker_localizer.ros.processing import FrameProcessor, stamp_to_ns
 CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
 POINTS_SUFFIX = "marker_points"
 DIAGNOSTICS_TOPIC = "/diagnostics"
-#: Largest distance between a detection and the truth it is matched to, px: a
-#: fraction of the smallest marker radius (3 px), far above the sub-pixel error.
-DEFAULT_MATCH_DISTANCE_PX = 2.0
-
-
-# --------------------------------------------------------------------------- evaluation
-
-
-@dataclass
-class Evaluation:
-    """Detections matched against truth, accumulated over frames.
-
-    Attributes:
-        frames: Frames evaluated.
-        truth: Truth markers in them.
-        matched: Truth markers with a detection within the match distance.
-        false_positives: Detections matched to no truth and no partial marker.
-        errors_px: Distance of each matched detection from its truth, px.
-    """
-
-    frames: int = 0
-    truth: int = 0
-    matched: int = 0
-    false_positives: int = 0
-    errors_px: list[float] = field(default_factory=list)
-
-    def add(
-        self,
-        found_xy: np.ndarray,
-        truth_xy: np.ndarray,
-        partial_xy: np.ndarray | None = None,
-        match_distance_px: float = DEFAULT_MATCH_DISTANCE_PX,
-    ) -> None:
-        """Match one frame's detections to its truth and accumulate.
-
-        Args:
-            found_xy: (N, 2) detected centres (x, y), px.
-            truth_xy: (M, 2) true centres, px.
-            partial_xy: (K, 2) centres of markers cut by the frame border, px:
-                detections near them are not false positives.
-            match_distance_px: Largest distance of a match, px.
-        """
-        found_xy = np.asarray(found_xy, dtype=np.float64).reshape(-1, 2)
-        truth_xy = np.asarray(truth_xy, dtype=np.float64).reshape(-1, 2)
-        self.frames += 1
-        self.truth += len(truth_xy)
-        distance = np.linalg.norm(found_xy[:, None, :] - truth_xy[None, :, :], axis=2)
-        # One-to-one: minimum total distance, pairs beyond the limit made prohibitive.
-        cost = np.where(distance <= match_distance_px, distance, 1e9)
-        rows, cols = linear_sum_assignment(cost)
-        good = distance[rows, cols] <= match_distance_px
-        self.matched += int(good.sum())
-        self.errors_px.extend(distance[rows[good], cols[good]].tolist())
-        unmatched = np.setdiff1d(np.arange(len(found_xy)), rows[good])
-        if partial_xy is not None and len(partial_xy) and len(unmatched):
-            near = np.linalg.norm(
-                found_xy[unmatched, None, :] - np.asarray(partial_xy)[None, :, :], axis=2
-            )
-            unmatched = unmatched[near.min(axis=1) > match_distance_px]
-        self.false_positives += len(unmatched)
-
-    @classmethod
-    def merged(cls, parts: Sequence[Evaluation]) -> Evaluation:
-        """Sum of several evaluations."""
-        total = cls()
-        for part in parts:
-            total.frames += part.frames
-            total.truth += part.truth
-            total.matched += part.matched
-            total.false_positives += part.false_positives
-            total.errors_px.extend(part.errors_px)
-        return total
-
-    @property
-    def recall(self) -> float:
-        """Matched / truth (NaN without truth)."""
-        return self.matched / self.truth if self.truth else math.nan
-
-    @property
-    def false_positives_per_frame(self) -> float:
-        """False positives per evaluated frame (NaN without frames)."""
-        return self.false_positives / self.frames if self.frames else math.nan
-
-    def error_stats(self) -> dict[str, float]:
-        """Mean, RMS, 95th percentile and maximum of the match errors, px (NaN if none)."""
-        errors = np.asarray(self.errors_px)
-        if not errors.size:
-            return dict.fromkeys(("mean", "rms", "p95", "max"), math.nan)
-        return {
-            "mean": float(errors.mean()),
-            "rms": float(np.sqrt(np.mean(errors**2))),
-            "p95": float(np.percentile(errors, 95)),
-            "max": float(errors.max()),
-        }
 
 
 # --------------------------------------------------------------------------- report
@@ -204,7 +108,7 @@ class CameraReplay:
     failed: int = 0
     undecodable: int = 0
     last_error: str = ""
-    evaluation: Evaluation | None = None
+    evaluation: DetectionTally | None = None
 
     @property
     def skipped(self) -> int:
@@ -265,14 +169,14 @@ class ReplayReport:
         return self.frames / self.wall_s if self.wall_s > 0 else math.nan
 
     @property
-    def evaluation(self) -> Evaluation | None:
+    def evaluation(self) -> DetectionTally | None:
         """All cameras' evaluations merged (None without truth)."""
         parts = [c.evaluation for c in self.cameras.values() if c.evaluation is not None]
-        return Evaluation.merged(parts) if parts else None
+        return DetectionTally.merged(parts) if parts else None
 
 
 def format_report(
-    report: ReplayReport, match_distance_px: float = DEFAULT_MATCH_DISTANCE_PX
+    report: ReplayReport, match_distance_px: float = DEFAULT_GATE_PX
 ) -> str:
     """The summary tables replay prints: throughput per camera, then accuracy if truth exists."""
     cams = list(report.cameras.values())
@@ -318,11 +222,11 @@ def format_report(
     ]
     rows = [(c.camera, c.evaluation) for c in cams if c.evaluation is not None]
     for name, evaluation in [*rows, ("all", overall)]:
-        stats = evaluation.error_stats()
+        stats = evaluation.stats
         lines.append(
-            f"{name:<12}{evaluation.truth:>7}{evaluation.recall:>8.3f}"
-            f"{evaluation.false_positives_per_frame:>10.2f}{stats['mean']:>9.4f}"
-            f"{stats['rms']:>9.4f}{stats['p95']:>9.4f}{stats['max']:>9.4f}"
+            f"{name:<12}{evaluation.n_truth:>7}{evaluation.recall:>8.3f}"
+            f"{evaluation.fp_per_frame:>10.2f}{stats.mean:>9.4f}"
+            f"{stats.rms:>9.4f}{stats.p95:>9.4f}{stats.max:>9.4f}"
         )
     return "\n".join(lines)
 
@@ -440,9 +344,7 @@ class _Session:
         if self._next_diagnostics_ns is not None:
             self._write_diagnostics(self.now_ns)
 
-    def _on_result(
-        self, camera: str, header: Header, cloud: PointCloud2, overlay: Image | None
-    ) -> None:
+    def _on_result(self, camera: str, cloud: PointCloud2, overlay: Image | None) -> None:
         delivered_s = time.perf_counter()
         with self._cond:
             flight = self._in_flight.pop(camera)
@@ -477,18 +379,12 @@ class _Session:
 
     def _write_diagnostics(self, time_ns: int) -> None:
         """The node's /diagnostics content, stamped and written at bag time ``time_ns``."""
-        statuses = [
-            diagnostics.camera_status(NODE_NAME, snapshot, self._thresholds)
-            for snapshot in self.processor.snapshots().values()
-        ]
-        node_values = {
-            "workers": str(self.processor.workers),
-            "frames in flight": str(len(self.processor.in_flight())),
-            "mode": "replay",
-        }
-        statuses.append(diagnostics.node_status(NODE_NAME, statuses, node_values))
         self.writer.write(
-            DIAGNOSTICS_TOPIC, time_ns, diagnostics.diagnostic_array(stamp_msg(time_ns), statuses)
+            DIAGNOSTICS_TOPIC,
+            time_ns,
+            self.processor.diagnostics(
+                NODE_NAME, stamp_msg(time_ns), self._thresholds, node_values={"mode": "replay"}
+            ),
         )
 
 
@@ -499,7 +395,7 @@ def replay_bag(
     config: DetectorConfig | None = None,
     workers: int | None = None,
     storage: str = DEFAULT_STORAGE,
-    match_distance_px: float = DEFAULT_MATCH_DISTANCE_PX,
+    match_distance_px: float = DEFAULT_GATE_PX,
     progress: Callable[[int, int], None] | None = None,
 ) -> ReplayReport:
     """Process every image of ``bag`` with the node's frame processor; write the results.
@@ -615,10 +511,10 @@ def _evaluate(
 ) -> None:
     """Match every processed frame of ``cameras`` that has truth; others are not evaluated."""
     for camera in cameras:
-        evaluation = session.stats[camera].evaluation = Evaluation()
+        evaluation = session.stats[camera].evaluation = DetectionTally()
         for key, found in session.found.items():
             if key[0] == camera and key in truth:
-                evaluation.add(found, truth[key], partial.get(key), match_distance_px)
+                evaluation.add(match_points(found, truth[key], match_distance_px, partial.get(key)))
 
 
 # --------------------------------------------------------------------------- command
@@ -655,7 +551,7 @@ def build_replay_parser(parser: argparse.ArgumentParser | None = None) -> argpar
     parser.add_argument(
         "--match-distance",
         type=float,
-        default=DEFAULT_MATCH_DISTANCE_PX,
+        default=DEFAULT_GATE_PX,
         metavar="PX",
         help="largest detection-to-truth distance of a match, px (default: %(default)s)",
     )

@@ -23,7 +23,7 @@ in ``<repo>/../shared/data`` (skipped when absent):
 * aerial_negatives: real ground without any marker; false points per frame and
   per megapixel.
 
-A detection matches a truth point within :data:`metrics.DEFAULT_GATE_PX` (2 px).
+A detection matches a truth point within :data:`evaluation.DEFAULT_GATE_PX` (2 px).
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from marker_localizer import evaluation
 from marker_localizer.bench import metrics, peers, real_data
 from marker_localizer.bench.metrics import DetectionTally
 from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
@@ -312,12 +313,12 @@ def evaluate_frames(frames: Iterable[LabelledFrame], seed: int,
         resolution.append(frame.resolution)
         for detector in everyone:
             points, seconds = _timed_detect(detector, frame.image, frame.radius_range)
-            rows[detector.name].tally.add(metrics.match_points(points, frame.truth),
+            rows[detector.name].tally.add(evaluation.match_points(points, frame.truth),
                                           _sigmas(detector), seconds, frame.crlb_px)
         refiner = peers.CornerSubPixRefiner(peers.subpix_half_window(frame.radius_range))
         start = time.perf_counter()
         refined = refiner.refine(frame.image, subpix_starts(frame.truth, rng))
-        refiner_row.tally.add(metrics.match_points(refined, frame.truth),
+        refiner_row.tally.add(evaluation.match_points(refined, frame.truth),
                               seconds=time.perf_counter() - start, truth_crlb_px=frame.crlb_px)
     ordered = [rows[d.name] for d in detectors]
     return FamilyResult([*ordered, refiner_row, *(rows[d.name] for d in board)],
@@ -376,14 +377,14 @@ def _score_boards(images: Sequence[real_data.BoardImage], detector: PointDetecto
     complete, t1_errors, grids = 0, [], []
     for item in images:
         points, seconds = _timed_detect(detector, item.image, radius_range)
-        row.tally.add(metrics.match_points(points, item.reference), seconds=seconds)
-        t1_errors.append(metrics.match_points(points, item.opencv).errors_px)
+        row.tally.add(evaluation.match_points(points, item.reference), seconds=seconds)
+        t1_errors.append(evaluation.match_points(points, item.opencv).errors_px)
         for grid in item.boards:
             placed = metrics.grid_positions(grid, points)
             valid = np.isfinite(grid).all(axis=2)
             complete += int(np.isfinite(placed).all(axis=2)[valid].all())
             grids.append(placed)
-    t1 = metrics.ErrorStats.from_errors(np.concatenate(t1_errors) if t1_errors else [])
+    t1 = evaluation.ErrorStats.from_errors(np.concatenate(t1_errors) if t1_errors else [])
     own = metrics.pool_line_residuals([metrics.line_residuals(g) for g in grids])
     row.extra = {
         "boards_complete": complete / len(grids) if grids else math.nan,
@@ -440,10 +441,10 @@ def evaluate_uas(frames: Sequence[real_data.UasFrame], detectors: Sequence[Point
         for i, frame in enumerate(frames):
             points, dt = _timed_detect(detector, frame.image, radius_range)
             seconds += dt
-            to_target = metrics.nearest_distances(real_data.CIRN_TARGETS, points)
+            to_target = evaluation.nearest_distances(real_data.CIRN_TARGETS, points)
             found[i] = to_target <= real_data.CIRN_FOUND_PX
             false_positives += int(
-                (metrics.nearest_distances(points, real_data.CIRN_TARGETS)
+                (evaluation.nearest_distances(points, real_data.CIRN_TARGETS)
                  > real_data.CIRN_FALSE_PX).sum())
         n = max(len(frames), 1)
         rows.append(Row(detector.name, extra={

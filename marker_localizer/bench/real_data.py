@@ -19,13 +19,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from marker_localizer.bench.metrics import (
-    DEFAULT_GATE_PX,
-    line_residuals,
-    nearest_distances,
-    order_grid,
-)
+from marker_localizer.bench.metrics import line_residuals, order_grid
 from marker_localizer.bench.peers import corner_subpix
+from marker_localizer.evaluation import DEFAULT_GATE_PX, nearest_distances
 
 #: ValidationBoof boards: 5 x 7 squares, so 4 x 6 inner corners (columns, rows).
 VALIDATIONBOOF_PATTERN = (4, 6)

@@ -68,12 +68,3 @@ def to_gray(
         return np.ascontiguousarray(np.clip(image, 0.0, 1.0), dtype=np.float32), 1.0
     return np.ascontiguousarray(image), bit_depth_scale(image.dtype, bit_depth)
 
-
-def to_gray_float(image: np.ndarray, *, rgb: bool = False) -> np.ndarray:
-    """Convert a uint8/uint16/float image, grey or colour, to (H, W) float32 in [0, 1].
-
-    Raises:
-        ImageError: as :func:`to_gray`.
-    """
-    gray, full_scale = to_gray(image, rgb=rgb)
-    return gray.astype(np.float32) / np.float32(full_scale)

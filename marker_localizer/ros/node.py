@@ -44,7 +44,6 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
-from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.errors import MarkerLocalizerError
@@ -149,24 +148,14 @@ class MarkerLocalizerNode(Node):
         name = self.get_name()
         snapshots = self.processor.snapshots()
         self._log_drops(snapshots)
-        statuses = [
-            diagnostics.camera_status(
-                name, snapshot, self._thresholds, {"camera_info": self._info_text(camera)}
-            )
-            for camera, snapshot in snapshots.items()
-        ]
-        config = self.processor.config
-        node_values = {
-            "workers": str(self.processor.workers),
-            "frames in flight": str(len(self.processor.in_flight())),
-            "max frame age (s)": f"{self.processor.max_frame_age_s:g}",
-            "marker radius range (px)": (
-                f"{config.marker_radius_min_px:g}..{config.marker_radius_max_px:g}"
-            ),
-        }
-        statuses.append(diagnostics.node_status(name, statuses, node_values))
         self._diagnostics.publish(
-            diagnostics.diagnostic_array(self.get_clock().now().to_msg(), statuses)
+            self.processor.diagnostics(
+                name,
+                self.get_clock().now().to_msg(),
+                self._thresholds,
+                snapshots=snapshots,
+                camera_values={c: {"camera_info": self._info_text(c)} for c in snapshots},
+            )
         )
 
     def _log_drops(self, snapshots: Mapping[str, diagnostics.CameraSnapshot]) -> None:
@@ -216,9 +205,7 @@ class MarkerLocalizerNode(Node):
         info = self._camera_info.get(camera)
         return "none received" if info is None else f"{info.width}x{info.height}"
 
-    def _deliver(
-        self, camera: str, header: Header, cloud: PointCloud2, overlay: Image | None
-    ) -> None:
+    def _deliver(self, camera: str, cloud: PointCloud2, overlay: Image | None) -> None:
         self._points[camera].publish(cloud)
         if overlay is not None:
             self._overlays[camera].publish(overlay)

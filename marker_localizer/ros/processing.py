@@ -41,10 +41,12 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
@@ -58,10 +60,17 @@ from marker_localizer.ros.conversions import (
     detections_to_cloud,
     message_to_detector_input,
 )
-from marker_localizer.ros.diagnostics import CameraSnapshot, CameraStats
+from marker_localizer.ros.diagnostics import (
+    CameraSnapshot,
+    CameraStats,
+    DiagnosticThresholds,
+    camera_status,
+    diagnostic_array,
+    node_status,
+)
 
-#: Receives (camera, input header, marker cloud, overlay image or None).
-ResultCallback = Callable[[str, Header, PointCloud2, Image | None], None]
+#: Receives (camera, marker cloud, overlay image or None); both carry the input's header.
+ResultCallback = Callable[[str, PointCloud2, Image | None], None]
 #: Receives (camera, the exception a frame failed with).
 ErrorCallback = Callable[[str, Exception], None]
 
@@ -89,8 +98,8 @@ class FrameProcessor:
     Args:
         cameras: camera names; :meth:`submit` accepts only these.
         config: detector configuration of the first frames.
-        on_result: called with (camera, input header, PointCloud2, overlay or
-            None) for every processed frame, from a worker thread.
+        on_result: called with (camera, PointCloud2, overlay or None) for every
+            processed frame, from a worker thread; both messages carry the input's header.
         workers: number of worker threads (>= 1).
         max_frame_age_s: frames that waited longer than this in the node when a
             worker takes them are dropped, s; 0 disables the check (replay).
@@ -245,9 +254,47 @@ class FrameProcessor:
         now_ns = self._clock_ns()
         return {camera: stats.snapshot(now_ns) for camera, stats in self._stats.items()}
 
-    def record_error(self, camera: str, message: str) -> None:
-        """Count a failure seen outside the pool (e.g. by the node) against ``camera``."""
-        self._stats[camera].frame_failed(self._clock_ns(), message)
+    def diagnostics(
+        self,
+        node_name: str,
+        stamp: Time,
+        thresholds: DiagnosticThresholds,
+        *,
+        snapshots: Mapping[str, CameraSnapshot] | None = None,
+        camera_values: Mapping[str, Mapping[str, str]] | None = None,
+        node_values: Mapping[str, str] | None = None,
+    ) -> DiagnosticArray:
+        """The /diagnostics content of this pool: a status per camera and one for the node.
+
+        The node publishes it and replay writes it into its output bag, so both
+        report the same figures under the same keys.
+
+        Args:
+            node_name: node name without namespace (the statuses' prefix).
+            stamp: the array's header stamp.
+            thresholds: limits that decide each camera's level.
+            snapshots: the cameras' statistics (default: :meth:`snapshots`, now).
+            camera_values: per camera, further key/value pairs of its status.
+            node_values: further key/value pairs of the node's status.
+        """
+        snapshots = self.snapshots() if snapshots is None else snapshots
+        extra = camera_values or {}
+        statuses = [
+            camera_status(node_name, snapshot, thresholds, extra.get(camera))
+            for camera, snapshot in snapshots.items()
+        ]
+        config = self.config
+        values = {
+            "workers": str(self.workers),
+            "frames in flight": str(len(self.in_flight())),
+            "max frame age (s)": f"{self.max_frame_age_s:g}",
+            "marker radius range (px)": (
+                f"{config.marker_radius_min_px:g}..{config.marker_radius_max_px:g}"
+            ),
+            **(node_values or {}),
+        }
+        statuses.append(node_status(node_name, statuses, values))
+        return diagnostic_array(stamp, statuses)
 
     def shutdown(self, timeout_s: float | None = None) -> bool:
         """Stop: discard waiting frames, finish and deliver the frames in flight.
@@ -353,7 +400,7 @@ class FrameProcessor:
             with self._deliver_lock:
                 if not self._gate_open:
                     return
-                self._on_result(frame.camera, header, cloud, overlay)
+                self._on_result(frame.camera, cloud, overlay)
         except Exception as err:  # one bad frame must not stop the worker
             stats.frame_failed(self._clock_ns(), f"{type(err).__name__}: {err}")
             if self._on_error is not None:

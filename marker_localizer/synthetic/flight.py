@@ -85,9 +85,6 @@ _LIGHT_FIELD_PX = 512
 #: repeats it with twice this period).
 _MOSAIC_MIN_PX = 1024
 _MOSAIC_MAX_PX = 4096
-#: OpenCV's warpPerspective stores source coordinates as int16: keep them well
-#: inside +-32767 by shifting the mosaic origin by whole mirror periods.
-_INT16_SAFE = 16384
 _NS_PER_S = 1_000_000_000
 
 

@@ -1,0 +1,287 @@
+"""Detections scored against truth: one-to-one matching, recall, false positives, errors.
+
+One module for every place that scores detections: ``bench accuracy`` (our
+detector and its peers), ``replay`` and the tests (a bag's truth topics). Plain
+numpy geometry with no knowledge of any detector. Coordinates: (N, 2) float64
+arrays of (x, y) pixels, (0, 0) at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+#: Default largest distance between a detection and the truth it may claim, px.
+#: Two pixels: well above any refinement error worth the name, well below the
+#: spacing of distinct markers (or of chessboard corners in the rendered families).
+DEFAULT_GATE_PX = 2.0
+#: Error level whose share the tables report (the paper's Table 1 uses 0.1 px).
+FINE_ERROR_PX = 0.1
+
+
+@dataclass(frozen=True)
+class Matching:
+    """One-to-one pairing of detections with truth points inside a distance gate.
+
+    Attributes:
+        truth_index: (K,) index into the truth of every matched pair.
+        detection_index: (K,) index into the detections of every matched pair.
+        errors_px: (K,) Euclidean distance of every pair, px.
+        n_truth: number of truth points.
+        n_detections: number of detections.
+        excused_index: indices of the unmatched detections within the gate of an
+            excused point (a marker cut by the frame border): neither found nor false.
+    """
+
+    truth_index: np.ndarray
+    detection_index: np.ndarray
+    errors_px: np.ndarray
+    n_truth: int
+    n_detections: int
+    excused_index: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
+
+    @property
+    def n_matched(self) -> int:
+        """Number of matched pairs (true positives)."""
+        return len(self.errors_px)
+
+    @property
+    def n_false_positives(self) -> int:
+        """Detections that claimed no truth point and are not excused."""
+        return len(self.unmatched_detections)
+
+    @property
+    def unmatched_detections(self) -> np.ndarray:
+        """Indices of the detections that claimed no truth point and are not excused."""
+        claimed = np.concatenate([self.detection_index, self.excused_index])
+        return np.setdiff1d(np.arange(self.n_detections), claimed)
+
+
+def match_points(
+    detections: np.ndarray,
+    truth: np.ndarray,
+    gate_px: float = DEFAULT_GATE_PX,
+    excused: np.ndarray | None = None,
+) -> Matching:
+    """Pair detections with truth points one-to-one, minimising the summed distance.
+
+    A pair farther apart than ``gate_px`` is never made, so a second detection
+    on the same marker, or one on clutter, stays unmatched (a false positive).
+
+    Args:
+        detections: (N, 2) detected points, px; rows with NaN never match.
+        truth: (M, 2) true points, px.
+        gate_px: largest distance of a valid pair, px.
+        excused: (K, 2) points that count neither way, px: an unmatched
+            detection within ``gate_px`` of one is no false positive (a marker
+            cut by the frame border, whose truth is not required to be found).
+
+    Returns:
+        The :class:`Matching`.
+    """
+    det = np.asarray(detections, dtype=np.float64).reshape(-1, 2)
+    ref = np.asarray(truth, dtype=np.float64).reshape(-1, 2)
+    rows: np.ndarray = np.empty(0, dtype=np.int64)
+    cols: np.ndarray = rows
+    distance: np.ndarray = np.empty((len(ref), len(det)))
+    if len(det) and len(ref):
+        distance = np.linalg.norm(ref[:, None, :] - det[None, :, :], axis=2)
+        distance = np.where(np.isfinite(distance), distance, np.inf)
+        # Pairs beyond the gate get a cost no valid assignment can prefer.
+        cost = np.where(distance <= gate_px, distance, 1e6)
+        rows, cols = linear_sum_assignment(cost)
+        valid = distance[rows, cols] <= gate_px
+        rows, cols = rows[valid], cols[valid]
+    unmatched = np.setdiff1d(np.arange(len(det)), cols)
+    excused_index: np.ndarray = np.empty(0, dtype=np.int64)
+    if excused is not None:
+        excused_index = unmatched[nearest_distances(det[unmatched], excused) <= gate_px]
+    return Matching(rows, cols, distance[rows, cols], len(ref), len(det), excused_index)
+
+
+def nearest_distances(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Distance from every point to its nearest target, px (inf without targets).
+
+    Args:
+        points: (N, 2) points, px.
+        targets: (M, 2) points, px.
+
+    Returns:
+        (N,) distances, px.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    ref = np.asarray(targets, dtype=np.float64).reshape(-1, 2)
+    if len(ref) == 0:
+        return np.full(len(pts), np.inf)
+    return np.linalg.norm(pts[:, None, :] - ref[None, :, :], axis=2).min(axis=1, initial=np.inf)
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Summary of localisation errors, px (NaN everywhere when there are none).
+
+    Attributes:
+        count: number of errors summarised.
+        mean: mean error, px.
+        rms: root mean square error, px.
+        p95: 95th percentile, px.
+        max: largest error, px.
+        within_fine: share of errors within :data:`FINE_ERROR_PX` (0.1 px), in [0, 1].
+    """
+
+    count: int
+    mean: float
+    rms: float
+    p95: float
+    max: float
+    within_fine: float
+
+    @classmethod
+    def from_errors(cls, errors_px: Sequence[float] | np.ndarray) -> ErrorStats:
+        """Summarise a set of Euclidean errors, px (NaN entries are ignored)."""
+        e = np.asarray(errors_px, dtype=np.float64).ravel()
+        e = e[np.isfinite(e)]
+        if len(e) == 0:
+            nan = math.nan
+            return cls(0, nan, nan, nan, nan, nan)
+        return cls(
+            count=len(e),
+            mean=float(e.mean()),
+            rms=float(np.sqrt(np.mean(e**2))),
+            p95=float(np.percentile(e, 95)),
+            max=float(e.max()),
+            within_fine=float(np.mean(e <= FINE_ERROR_PX)),
+        )
+
+
+@dataclass
+class DetectionTally:
+    """Running totals of one detector on a set of frames (a family, a camera of a bag).
+
+    Attributes:
+        frames: frames scored.
+        n_truth: truth points seen.
+        n_matched: truth points found.
+        n_false_positives: detections that claimed no truth point.
+        errors_px: errors of all matched pairs, px.
+        sigmas_px: reported 1-sigma of each matched pair, px (NaN where the
+            detector reports none), aligned with ``errors_px``.
+        crlb_px: Cramer-Rao bound (expected |error| of an efficient unbiased
+            estimator) of each matched truth point, px (NaN where unknown),
+            aligned with ``errors_px``.
+        seconds: wall time spent in the detector, s.
+        found: per truth point, in the order seen, whether it was matched.
+    """
+
+    frames: int = 0
+    n_truth: int = 0
+    n_matched: int = 0
+    n_false_positives: int = 0
+    errors_px: list[float] = field(default_factory=list)
+    sigmas_px: list[float] = field(default_factory=list)
+    crlb_px: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+    found: list[bool] = field(default_factory=list)
+
+    def add(self, matching: Matching, sigmas_px: np.ndarray | None = None,
+            seconds: float = 0.0, truth_crlb_px: np.ndarray | None = None) -> None:
+        """Add one frame's matching.
+
+        Args:
+            matching: the frame's :class:`Matching`.
+            sigmas_px: the detector's 1-sigma per detection, px; None: none reported.
+            seconds: time the detector took on the frame, s.
+            truth_crlb_px: the Cramer-Rao bound of every truth point, px; None: unknown.
+        """
+        self.frames += 1
+        self.n_truth += matching.n_truth
+        self.n_matched += matching.n_matched
+        self.n_false_positives += matching.n_false_positives
+        self.errors_px.extend(matching.errors_px.tolist())
+        found = np.zeros(matching.n_truth, dtype=bool)
+        found[matching.truth_index] = True
+        self.found.extend(found.tolist())
+        self.sigmas_px.extend(_aligned(sigmas_px, matching.detection_index))
+        self.crlb_px.extend(_aligned(truth_crlb_px, matching.truth_index))
+        self.seconds += seconds
+
+    @classmethod
+    def merged(cls, parts: Sequence[DetectionTally]) -> DetectionTally:
+        """The totals of several tallies (of cameras, of families) as one."""
+        total = cls()
+        for part in parts:
+            total.frames += part.frames
+            total.n_truth += part.n_truth
+            total.n_matched += part.n_matched
+            total.n_false_positives += part.n_false_positives
+            total.errors_px.extend(part.errors_px)
+            total.sigmas_px.extend(part.sigmas_px)
+            total.crlb_px.extend(part.crlb_px)
+            total.seconds += part.seconds
+            total.found.extend(part.found)
+        return total
+
+    @property
+    def recall(self) -> float:
+        """Share of truth points found, in [0, 1] (NaN without truth)."""
+        return self.n_matched / self.n_truth if self.n_truth else math.nan
+
+    @property
+    def fp_per_frame(self) -> float:
+        """False positives per frame (NaN without frames)."""
+        return self.n_false_positives / self.frames if self.frames else math.nan
+
+    @property
+    def stats(self) -> ErrorStats:
+        """Error statistics of the matched pairs."""
+        return ErrorStats.from_errors(np.asarray(self.errors_px))
+
+    @property
+    def mean_crlb_px(self) -> float:
+        """Mean Cramer-Rao bound of the truth points found, px (NaN if any is unknown)."""
+        bounds = np.asarray(self.crlb_px, dtype=np.float64)
+        return float(bounds.mean()) if len(bounds) else math.nan
+
+    @property
+    def error_over_crlb(self) -> float:
+        """Mean error over the mean Cramer-Rao bound of the same points: 1 is efficient."""
+        bound = self.mean_crlb_px
+        return self.stats.mean / bound if bound > 0 else math.nan
+
+    @property
+    def within_two_sigma(self) -> float:
+        """Share of matched errors within twice the reported sigma (NaN without sigmas)."""
+        return share_within_sigma(np.asarray(self.errors_px), np.asarray(self.sigmas_px), 2.0)
+
+
+def _aligned(values: np.ndarray | None, index: np.ndarray) -> list[float]:
+    """``values[index]`` as a list, or NaN per index when there are no values."""
+    if values is None:
+        return [math.nan] * len(index)
+    return np.asarray(values, dtype=np.float64)[index].tolist()
+
+
+def share_within_sigma(errors_px: np.ndarray, sigmas_px: np.ndarray, k: float) -> float:
+    """Share of errors no larger than ``k`` times their reported sigma.
+
+    An honest 2-D radial sigma (sqrt(var_x + var_y)) of isotropic Gaussian errors
+    puts 1 - exp(-k**2) of the errors within k sigma: 98.2 % for k = 2.
+
+    Args:
+        errors_px: (N,) Euclidean errors, px.
+        sigmas_px: (N,) reported 1-sigma radial uncertainties, px; NaN rows are ignored.
+        k: multiple of sigma.
+
+    Returns:
+        The share in [0, 1], NaN when no row has a sigma.
+    """
+    errors = np.asarray(errors_px, dtype=np.float64)
+    sigmas = np.asarray(sigmas_px, dtype=np.float64)
+    ok = np.isfinite(errors) & np.isfinite(sigmas)
+    if not ok.any():
+        return math.nan
+    return float(np.mean(errors[ok] <= k * sigmas[ok]))

@@ -1,0 +1,122 @@
+"""Specification of scoring detections against truth (marker_localizer.evaluation)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from marker_localizer import evaluation
+
+# --------------------------------------------------------------------------- matching
+
+def test_a_detection_0p3_px_off_has_error_0p3():
+    matching = evaluation.match_points(np.array([[10.3, 20.0]]), np.array([[10.0, 20.0]]))
+    assert matching.n_matched == 1
+    assert matching.errors_px[0] == pytest.approx(0.3)
+
+
+def test_a_detection_beyond_the_gate_is_a_false_positive_and_the_truth_is_missed():
+    matching = evaluation.match_points(np.array([[50.0, 50.0]]), np.array([[10.0, 10.0]]), 2.0)
+    assert matching.n_matched == 0
+    assert matching.n_false_positives == 1
+    assert matching.unmatched_detections.tolist() == [0]
+
+
+def test_a_second_detection_on_the_same_marker_is_a_false_positive():
+    truth = np.array([[10.0, 10.0]])
+    detections = np.array([[10.5, 10.0], [10.1, 10.0]])
+    matching = evaluation.match_points(detections, truth)
+    assert matching.n_matched == 1
+    assert matching.detection_index.tolist() == [1]
+    assert matching.n_false_positives == 1
+
+
+def test_matching_is_one_to_one_and_minimises_the_total_distance():
+    truth = np.array([[0.0, 0.0], [1.5, 0.0]])
+    detections = np.array([[1.0, 0.0], [2.2, 0.0]])
+    matching = evaluation.match_points(detections, truth)
+    pairs = dict(zip(matching.truth_index.tolist(), matching.detection_index.tolist(),
+                     strict=True))
+    assert pairs == {0: 0, 1: 1}
+
+
+def test_nan_detections_never_match():
+    matching = evaluation.match_points(np.array([[np.nan, np.nan]]), np.array([[0.0, 0.0]]))
+    assert matching.n_matched == 0
+    assert matching.n_false_positives == 1
+
+
+def test_matching_with_no_detections_reports_every_truth_missed():
+    matching = evaluation.match_points(np.empty((0, 2)), np.array([[1.0, 1.0], [5.0, 5.0]]))
+    assert (matching.n_matched, matching.n_truth, matching.n_false_positives) == (0, 2, 0)
+
+
+def test_nearest_distances_measures_to_the_closest_target():
+    d = evaluation.nearest_distances(np.array([[0.0, 0.0], [10.0, 0.0]]),
+                                  np.array([[3.0, 4.0], [10.0, 1.0]]))
+    np.testing.assert_allclose(d, [5.0, 1.0])
+
+
+# --------------------------------------------------------------------------- statistics
+
+def test_error_stats_of_known_errors():
+    stats = evaluation.ErrorStats.from_errors([0.05, 0.1, 0.2, 0.4])
+    assert stats.count == 4
+    assert stats.mean == pytest.approx(0.1875)
+    assert stats.rms == pytest.approx(math.sqrt((0.0025 + 0.01 + 0.04 + 0.16) / 4))
+    assert stats.max == pytest.approx(0.4)
+    assert stats.within_fine == pytest.approx(0.5)
+    assert stats.p95 == pytest.approx(np.percentile([0.05, 0.1, 0.2, 0.4], 95))
+
+
+def test_error_stats_of_nothing_are_nan():
+    stats = evaluation.ErrorStats.from_errors([])
+    assert stats.count == 0
+    assert math.isnan(stats.mean)
+
+
+def test_tally_counts_recall_and_false_positives_per_frame():
+    tally = evaluation.DetectionTally()
+    truth = np.array([[0.0, 0.0], [10.0, 0.0]])
+    tally.add(evaluation.match_points(np.array([[0.1, 0.0], [40.0, 40.0]]), truth))
+    tally.add(evaluation.match_points(np.array([[0.0, 0.2], [10.0, 0.1], [80.0, 0.0]]), truth))
+    assert tally.recall == pytest.approx(3 / 4)
+    assert tally.fp_per_frame == pytest.approx(1.0)
+    assert tally.stats.mean == pytest.approx((0.1 + 0.2 + 0.1) / 3)
+
+
+def test_share_within_two_sigma_counts_errors_against_their_own_sigma():
+    errors = np.array([0.01, 0.05, 0.2])
+    sigmas = np.array([0.01, 0.01, 0.2])
+    assert evaluation.share_within_sigma(errors, sigmas, 2.0) == pytest.approx(2 / 3)
+
+
+def test_tally_keeps_the_sigma_of_the_matched_detection():
+    tally = evaluation.DetectionTally()
+    matching = evaluation.match_points(np.array([[90.0, 0.0], [0.03, 0.0]]), np.array([[0.0, 0.0]]))
+    tally.add(matching, sigmas_px=np.array([5.0, 0.01]))
+    assert tally.sigmas_px == [0.01]
+    assert tally.within_two_sigma == 0.0
+
+
+def test_a_detection_on_an_excused_marker_counts_neither_way():
+    truth = np.array([[10.0, 10.0], [30.0, 10.0]])
+    found = np.array([[10.05, 10.0], [10.5, 10.0], [60.0, 60.0], [90.0, 5.0]])
+    matching = evaluation.match_points(found, truth, 2.0, excused=np.array([[90.5, 5.0]]))
+    assert (matching.n_truth, matching.n_matched) == (2, 1)
+    assert matching.errors_px == pytest.approx([0.05])
+    assert matching.excused_index.tolist() == [3]
+    assert matching.unmatched_detections.tolist() == [1, 2]  # a duplicate, and nothing
+
+
+def test_merged_tallies_sum_their_counts_and_keep_every_error():
+    truth = np.array([[0.0, 0.0]])
+    one, two = evaluation.DetectionTally(), evaluation.DetectionTally()
+    one.add(evaluation.match_points(np.array([[0.1, 0.0]]), truth))
+    two.add(evaluation.match_points(np.array([[5.0, 5.0]]), truth))
+    both = evaluation.DetectionTally.merged([one, two])
+    assert (both.frames, both.n_truth, both.n_matched, both.n_false_positives) == (2, 2, 1, 1)
+    assert both.errors_px == pytest.approx([0.1])
+    assert both.found == [True, False]
