@@ -19,9 +19,9 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 @pytest.fixture(scope="session")
 def small_flight(tmp_path_factory):
     """A simulated 3-frame, five-camera, 320x240 flight (MCAP), written once per session."""
-    from marker_localizer.bag.record import simulate_main  # noqa: PLC0415 - after the DDS set-up
+    from marker_localizer.cli import main as cli  # noqa: PLC0415 - after the DDS set-up
 
     path = tmp_path_factory.mktemp("small_flight") / "flight"
     argv = ["--out", str(path), "--frames", "3", "--width", "320", "--height", "240"]
-    assert simulate_main([*argv, "--seed", "2"]) == 0
+    assert cli(["simulate", *argv, "--seed", "2"]) == 0
     return path

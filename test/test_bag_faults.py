@@ -13,9 +13,10 @@ import shutil
 
 import pytest
 
-from marker_localizer.bag.io import EXIT_INCOMPLETE, BagReader
-from marker_localizer.bag.record import simulate_main
-from marker_localizer.bag.replay import replay_bag, replay_main
+from marker_localizer.bag.io import BagReader
+from marker_localizer.bag.replay import replay_bag
+from marker_localizer.cli import main as cli
+from marker_localizer.cli.exits import EXIT_INCOMPLETE
 from marker_localizer.errors import BagError
 
 #: Bytes in front of a message's CDR in an MCAP file: record opcode and length
@@ -71,7 +72,7 @@ def test_a_bag_cut_short_gives_every_frame_before_the_cut_and_exit_status_3(
     cut = sorted(start for start, _ in images.values())[9] + 1000  # inside the 10th image
     bag = damaged_copy(small_flight, tmp_path, lambda data: data[:cut])
     out = tmp_path / "out"
-    assert replay_main([str(bag), "--out", str(out), "--workers", "1"]) == EXIT_INCOMPLETE
+    assert cli(["replay", str(bag), "--out", str(out), "--workers", "1"]) == EXIT_INCOMPLETE
     whole = {key for key, (_, end) in images.items() if end <= cut}
     assert len(whole) == 9
     written = results(out)
@@ -121,11 +122,11 @@ def test_a_recording_that_did_not_finish_is_read_front_to_back(small_flight, ima
 def test_a_cut_sqlite3_bag_is_one_error_naming_it(tmp_path, capsys):
     bag = tmp_path / "flight_db"
     argv = ["--out", str(bag), "--frames", "1", "--width", "64", "--height", "48"]
-    assert simulate_main([*argv, "--storage", "sqlite3", "--cameras", "1"]) == 0
+    assert cli(["simulate", *argv, "--storage", "sqlite3", "--cameras", "1"]) == 0
     storage = bag / "flight_db.db3"
     storage.write_bytes(storage.read_bytes()[: storage.stat().st_size // 2])
     with pytest.raises(BagError, match="flight_db: cannot open bag, corrupt or truncated"):
         replay_bag(bag, tmp_path / "out")
-    assert replay_main([str(bag), "--out", str(tmp_path / "out")]) == 1
+    assert cli(["replay", str(bag), "--out", str(tmp_path / "out")]) == 1
     assert capsys.readouterr().err.count("\n") == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flight_db"]

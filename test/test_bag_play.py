@@ -27,8 +27,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image, PointCloud2
 
 from marker_localizer.bag.io import BagReader
-from marker_localizer.bag.play import PlayOptions, play_bag, play_main
-from marker_localizer.bag.record import simulate_main
+from marker_localizer.bag.play import PlayOptions, play_bag
+from marker_localizer.cli import main as cli
 from marker_localizer.errors import BagError, ConfigError
 from marker_localizer.evaluation import DetectionTally, match_points
 from marker_localizer.ros.conversions import cloud_to_array
@@ -129,7 +129,7 @@ def context():
 def tiny_sqlite_bag(tmp_path_factory):
     path = tmp_path_factory.mktemp("play_sqlite") / "tiny"
     argv = ["--out", str(path), "--frames", "4", "--width", "64", "--height", "48"]
-    assert simulate_main([*argv, "--storage", "sqlite3", "--cameras", "2"]) == 0
+    assert cli(["simulate", *argv, "--storage", "sqlite3", "--cameras", "2"]) == 0
     return path
 
 
@@ -164,7 +164,7 @@ def test_playing_into_the_running_node_gives_points_at_the_truth_on_sim_time(
     listener = Listener(context, {**points, "/clock": Clock})
     spun = Spun(context, localizer, listener.node)
     try:
-        status = play_main([str(small_flight), "--as-fast-as-possible", "--clock"])
+        status = cli(["play", str(small_flight), "--as-fast-as-possible", "--clock"])
         assert status == 0
         summary = capsys.readouterr().out
         assert re.search(r"played 60 messages on 20 topics", summary), summary
@@ -260,7 +260,7 @@ def test_sigterm_while_playing_stops_the_player_cleanly_with_status_143(context,
 
 
 def test_play_of_a_missing_bag_exits_1_with_one_line(tmp_path, capsys):
-    assert play_main([str(tmp_path / "gone")]) == 1
+    assert cli(["play", str(tmp_path / "gone")]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "gone: no such bag" in err
 
@@ -272,7 +272,7 @@ def test_play_with_nothing_to_play_raises_bag_error(context, tiny_sqlite_bag, ca
             play_bag(tiny_sqlite_bag, player, PlayOptions(topics=("/nope",)))
     finally:
         player.destroy_node()
-    assert play_main([str(tiny_sqlite_bag), "--topics", "/tf_static"]) == 1
+    assert cli(["play", str(tiny_sqlite_bag), "--topics", "/tf_static"]) == 1
     assert "not installed: /tf_static" in capsys.readouterr().err
 
 
@@ -281,4 +281,4 @@ def test_play_options_are_validated(tiny_sqlite_bag):
         PlayOptions(rate=0.0)
     with pytest.raises(ConfigError, match="qos_depth"):
         PlayOptions(qos_depth=0)
-    assert play_main([str(tiny_sqlite_bag), "--rate", "-1"]) == 1
+    assert cli(["play", str(tiny_sqlite_bag), "--rate", "-1"]) == 1

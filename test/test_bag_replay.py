@@ -19,9 +19,10 @@ from builtin_interfaces.msg import Time
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
-from marker_localizer.bag.io import BagReader, BagWriter, ProgressBar, typestore
-from marker_localizer.bag.record import simulate_main
-from marker_localizer.bag.replay import replay_bag, replay_main
+from marker_localizer.bag.io import BagReader, BagWriter, typestore
+from marker_localizer.bag.replay import replay_bag
+from marker_localizer.cli import main as cli
+from marker_localizer.cli.progress import ProgressBar
 from marker_localizer.errors import BagError
 from marker_localizer.ros.conversions import CLOUD_FIELDS, array_to_image, cloud_to_array
 from marker_localizer.synthetic import render_markers
@@ -44,7 +45,7 @@ MAX_MEAN_ERROR_PX = 0.1
 def flight_bag(tmp_path_factory):
     path = tmp_path_factory.mktemp("flight") / "flight"
     argv = ["--out", str(path), "--frames", str(FRAMES), "--width", "320", "--height", "240"]
-    assert simulate_main([*argv, "--seed", "0"]) == 0
+    assert cli(["simulate", *argv, "--seed", "0"]) == 0
     return path
 
 
@@ -179,11 +180,12 @@ def test_replay_main_reads_sqlite3_with_the_node_params_file_and_prints_both_tab
 ):
     bag = tmp_path / "flight_sqlite"
     argv = ["--out", str(bag), "--frames", "1", "--width", "320", "--height", "240"]
-    assert simulate_main([*argv, "--storage", "sqlite3", "--seed", "4"]) == 0
+    assert cli(["simulate", *argv, "--storage", "sqlite3", "--seed", "4"]) == 0
     assert (bag / "flight_sqlite.db3").exists()
     out = tmp_path / "replayed_sqlite"
-    status = replay_main(
+    status = cli(
         [
+            "replay",
             str(bag),
             "--out",
             str(out),
@@ -209,10 +211,10 @@ def test_simulate_refuses_an_existing_output_and_a_bad_configuration(tmp_path, c
     taken = tmp_path / "taken"
     taken.mkdir()
     assert (
-        simulate_main(["--out", str(taken), "--frames", "1", "--width", "64", "--height", "48"])
+        cli(["simulate", "--out", str(taken), "--frames", "1", "--width", "64", "--height", "48"])
         == 1
     )
-    assert simulate_main(["--out", str(tmp_path / "new"), "--frames", "0"]) == 1
+    assert cli(["simulate", "--out", str(tmp_path / "new"), "--frames", "0"]) == 1
     err = capsys.readouterr().err.splitlines()
     assert "taken: output path exists" in err[0]
     assert "n_frames=0 must be positive" in err[1]
@@ -226,7 +228,7 @@ def test_missing_bag_raises_bag_error_naming_it_and_main_exits_1(tmp_path, capsy
     missing = tmp_path / "nothing_here"
     with pytest.raises(BagError, match=re.escape(f"{missing}: no such bag")):
         replay_bag(missing, tmp_path / "out")
-    assert replay_main([str(missing), "--out", str(tmp_path / "out")]) == 1
+    assert cli(["replay", str(missing), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no such bag" in err
     assert leftovers(tmp_path) == []
@@ -254,7 +256,7 @@ def test_bag_without_image_topics_raises_bag_error_listing_its_topics(tmp_path):
         writer.add_topic("/cam0/marker_points", "sensor_msgs/msg/PointCloud2")
     with pytest.raises(BagError, match=r"no image topics .*/cam0/marker_points"):
         replay_bag(bag, tmp_path / "out")
-    assert replay_main([str(bag), "--out", str(tmp_path / "out")]) == 1
+    assert cli(["replay", str(bag), "--out", str(tmp_path / "out")]) == 1
 
 
 def test_existing_output_is_refused_and_left_untouched(flight_bag, tmp_path, capsys):
@@ -263,7 +265,7 @@ def test_existing_output_is_refused_and_left_untouched(flight_bag, tmp_path, cap
     (out / "keep.txt").write_text("mine")
     with pytest.raises(BagError, match="taken: output path exists"):
         replay_bag(flight_bag, out)
-    assert replay_main([str(flight_bag), "--out", str(out)]) == 1
+    assert cli(["replay", str(flight_bag), "--out", str(out)]) == 1
     assert "output path exists" in capsys.readouterr().err
     assert leftovers(out) == ["keep.txt"]
     assert leftovers(tmp_path) == ["taken"]

@@ -19,7 +19,7 @@ import textwrap
 import pytest
 
 from marker_localizer.bag.io import BagWriter, sweep_staging
-from marker_localizer.bag.record import simulate_main
+from marker_localizer.cli import main as cli
 
 TIMEOUT_S = 120
 #: A file-size limit that a small flight passes in its first frames, B.
@@ -40,7 +40,7 @@ def entries(directory):
 
 SIMULATE_SIGNALLING_ITSELF = """
     import os, signal, sys
-    from marker_localizer.bag.io import run_command
+    from marker_localizer.cli.exits import run_command
     from marker_localizer.bag.record import record_flight
     from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
 
@@ -55,7 +55,7 @@ SIMULATE_SIGNALLING_ITSELF = """
         record_flight(simulator, out, progress=progress)
         return 0
 
-    sys.exit(run_command("simulate", body))
+    sys.exit(run_command("marker-localizer simulate", body))
 """
 
 
@@ -72,15 +72,15 @@ def test_a_signal_during_simulate_removes_the_unfinished_bag_and_exits_128_plus_
 def test_sigterm_during_replay_removes_the_unfinished_output(small_flight, tmp_path):
     script = """
         import os, signal, sys
-        from marker_localizer.bag.io import run_command
+        from marker_localizer.cli.exits import run_command
         from marker_localizer.bag.replay import replay_bag
 
         def progress(done, total):
             if done == 3:
                 os.kill(os.getpid(), signal.SIGTERM)
 
-        sys.exit(run_command("replay", lambda: replay_bag(sys.argv[1], sys.argv[2],
-                                                          progress=progress)))
+        sys.exit(run_command("marker-localizer replay",
+                             lambda: replay_bag(sys.argv[1], sys.argv[2], progress=progress)))
     """
     result = run_python(script, small_flight, tmp_path / "out")
     assert result.returncode == 128 + signal.SIGTERM
@@ -91,7 +91,7 @@ def test_sigterm_during_replay_removes_the_unfinished_output(small_flight, tmp_p
 def test_a_second_signal_during_the_cleanup_ends_the_process_at_once():
     script = """
         import os, signal, sys, time
-        from marker_localizer.bag.io import run_command
+        from marker_localizer.cli.exits import run_command
 
         def body():
             try:
@@ -103,7 +103,7 @@ def test_a_second_signal_during_the_cleanup_ends_the_process_at_once():
                 time.sleep(60)
                 print("cleaned up", flush=True)
 
-        sys.exit(run_command("simulate", body))
+        sys.exit(run_command("marker-localizer simulate", body))
     """
     result = run_python(script)
     assert result.returncode == -signal.SIGTERM
@@ -138,7 +138,7 @@ def test_staging_of_a_killed_run_is_swept_by_the_next_one(tmp_path):
     elsewhere = tmp_path / ".other.partial-another-host-1"
     live.mkdir()
     elsewhere.mkdir()
-    assert simulate_main(["--out", str(tmp_path / "next"), "--frames", "1", "--width", "64",
+    assert cli(["simulate", "--out", str(tmp_path / "next"), "--frames", "1", "--width", "64",
                           "--height", "48", "--cameras", "1"]) == 0
     assert entries(tmp_path) == sorted([live.name, elsewhere.name, "next"])
     assert sweep_staging(tmp_path) == []

@@ -18,9 +18,6 @@ corrupt or truncated bag, an output that exists) becomes a
 :class:`BagWriter` writes into a hidden sibling directory and renames it onto
 the requested path only when the bag was closed cleanly, so an interrupted
 command never leaves a bag that looks complete.
-
-This module also holds the small terminal helpers the bag commands share
-(:class:`ProgressBar`, :func:`run_command`).
 """
 
 from __future__ import annotations
@@ -29,21 +26,17 @@ import contextlib
 import functools
 import importlib
 import logging
-import math
 import os
 import re
 import shutil
-import signal
 import socket
 import sqlite3
-import sys
-import time
 from collections import Counter
-from collections.abc import Callable, Collection, Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, Literal, Self
+from typing import Any, Literal, Self
 
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.interfaces import Qos
@@ -53,16 +46,12 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from marker_localizer.bag.mcap_scan import ScanState, scan_messages
-from marker_localizer.errors import BagError, MarkerLocalizerError, shorten
-from marker_localizer.stopping import on_stop_signal
+from marker_localizer.errors import BagError, shorten
 
 _LOG = logging.getLogger(__name__)
 #: Storage formats a bag can be written in; MCAP is rosbag2's default since Iron.
 STORAGES: dict[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 DEFAULT_STORAGE = "mcap"
-#: Exit status of a command that finished but skipped, failed on or could not read
-#: part of its input, its summary saying what (1: an error, nothing done).
-EXIT_INCOMPLETE = 3
 #: rosbag2 metadata version written (Jazzy's).
 _BAG_VERSION: Literal[9] = 9
 #: First bytes of a ROS 1 bag (format 2.0, the only one rosbags and ROS 1 since 2010 write).
@@ -540,102 +529,3 @@ def _storage_error(err: BaseException) -> str:
     if isinstance(cause, OSError) and cause.strerror:
         return cause.strerror
     return shorten(" ".join(str(err).split()))
-
-
-# --------------------------------------------------------------------------- terminal helpers
-
-
-class ProgressBar:
-    """A one-line progress bar on a terminal, silent when the stream is not a TTY.
-
-    Args:
-        total: Number of steps (0: unknown, only the count is shown).
-        label: Text before the bar.
-        stream: Where to draw (default: ``sys.stderr``).
-        min_interval_s: Least time between two redraws, s.
-    """
-
-    _WIDTH = 30
-
-    def __init__(
-        self,
-        total: int,
-        label: str,
-        stream: IO[str] | None = None,
-        min_interval_s: float = 0.1,
-    ) -> None:
-        self.total = total
-        self.label = label
-        self._stream = stream if stream is not None else sys.stderr
-        self._enabled = bool(getattr(self._stream, "isatty", lambda: False)())
-        self._min_interval_s = min_interval_s
-        self._start = time.monotonic()
-        self._last_draw = -math.inf  # the first update always draws
-
-    def update(self, done: int) -> None:
-        """Show ``done`` steps completed."""
-        now = time.monotonic()
-        too_soon = now - self._last_draw < self._min_interval_s and done < self.total
-        if not self._enabled or too_soon:
-            return
-        self._last_draw = now
-        elapsed = now - self._start
-        rate = done / elapsed if elapsed > 0 else 0.0
-        if self.total > 0:
-            filled = round(self._WIDTH * min(done / self.total, 1.0))
-            bar = "#" * filled + "." * (self._WIDTH - filled)
-            text = f"{self.label} [{bar}] {done}/{self.total} {rate:.1f}/s"
-        else:
-            text = f"{self.label} {done} {rate:.1f}/s"
-        self._stream.write(f"\r{text}\x1b[K")
-        self._stream.flush()
-
-    def close(self) -> None:
-        """End the bar's line."""
-        if self._enabled:
-            self._stream.write("\n")
-            self._stream.flush()
-
-
-class Interrupted(KeyboardInterrupt):
-    """SIGINT or SIGTERM arrived: unwind (writers remove their staging), then exit.
-
-    A KeyboardInterrupt, so that every ``except KeyboardInterrupt`` and
-    ``finally`` treats SIGTERM (what service managers and ``ros2 launch``
-    send) as it treats Ctrl-C.
-    """
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-def _interrupt(signum: int) -> None:
-    raise Interrupted(signum)
-
-
-def run_command(name: str, body: Callable[[], int]) -> int:
-    """Run a command's body; a package error becomes one line on stderr and status 1.
-
-    SIGINT and SIGTERM interrupt the body alike: it unwinds (an unfinished
-    output bag is removed) and the status is 128 + the signal's number; a
-    second signal during the unwinding ends the process at once.
-
-    Args:
-        name: Command name for the message (``"replay"``).
-        body: The command; returns its exit status.
-
-    Returns:
-        ``body``'s status, 1 after a :class:`MarkerLocalizerError`, 130 after
-        SIGINT (Ctrl-C), 143 after SIGTERM.
-    """
-    try:
-        with on_stop_signal(_interrupt):
-            return body()
-    except MarkerLocalizerError as err:
-        sys.stderr.write(f"marker-localizer {name}: error: {err}\n")
-        return 1
-    except KeyboardInterrupt as err:
-        signum = err.signum if isinstance(err, Interrupted) else signal.SIGINT
-        sys.stderr.write(f"marker-localizer {name}: interrupted by {signal.Signals(signum).name}\n")
-        return 128 + signum

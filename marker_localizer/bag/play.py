@@ -35,30 +35,19 @@ With ``clock``, ``/clock`` (rosgraph_msgs/Clock, best effort, keep-last 1 as
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
-import rclpy
-from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
-from marker_localizer.bag.io import (
-    EXIT_INCOMPLETE,
-    BagReader,
-    ProgressBar,
-    message_class,
-    run_command,
-)
+from marker_localizer.bag.io import BagReader, message_class
 from marker_localizer.bag.record import stamp_msg
 from marker_localizer.errors import BagError, ConfigError
 
@@ -255,7 +244,7 @@ def play_bag(
     node: Node,
     options: PlayOptions | None = None,
     *,
-    progress: ProgressBar | None = None,
+    progress: Callable[[int, int], None] | None = None,
     timekeeper: Timekeeper = time,
 ) -> PlayReport:
     """Publish the messages of ``bag`` on their topics through ``node``.
@@ -265,7 +254,7 @@ def play_bag(
         node: An rclpy node to create the publishers on; they are destroyed
             before returning. The node does not need spinning.
         options: Timing, clock and topic selection.
-        progress: Updated with the number of messages published.
+        progress: Called with (messages published, messages to publish).
         timekeeper: the clock the pacing reads and sleeps on (tests record the
             waits it asks for).
 
@@ -293,14 +282,13 @@ def play_bag(
                 f"asked for: {', '.join(options.topics or ()) or 'all'}; "
                 f"not installed: {', '.join(report.skipped_topics) or 'none'})"
             )
-        if progress is not None:
-            counts = reader.message_counts
-            progress.total = sum(counts.get(t, 0) for t in playable)
+        counts = reader.message_counts
+        total = sum(counts.get(t, 0) for t in playable)
         player = _Player(node, playable, options, timekeeper)
         try:
             awaited = [t for t, m in playable.items() if m == IMAGE_TYPE] or list(playable)
             report.without_subscribers = player.wait_for_subscribers(awaited)
-            _play(reader, player, playable, report, progress)
+            _play(reader, player, playable, report, progress, total)
         finally:
             player.destroy()
         report.damage = list(reader.damage)
@@ -312,7 +300,8 @@ def _play(
     player: _Player,
     topics: dict[str, str],
     report: PlayReport,
-    progress: ProgressBar | None,
+    progress: Callable[[int, int], None] | None,
+    total: int,
 ) -> None:
     options = player.options
     start_s = player.time.monotonic()
@@ -332,112 +321,8 @@ def _play(
         report.published[message.topic] = report.published.get(message.topic, 0) + 1
         last_ns = max(last_ns, message.time_ns)
         if progress is not None:
-            progress.update(done)
+            progress(done, total)
     # Publishers are destroyed next: let the last messages reach their subscribers.
     report.unacknowledged += player.flush()
     report.wall_s = player.time.monotonic() - start_s
     report.bag_s = (last_ns - first_ns) / 1e9 if first_ns is not None else 0.0
-
-
-# --------------------------------------------------------------------------- command
-
-
-def build_play_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    """Arguments of ``marker-localizer play`` (added to ``parser`` if given)."""
-    parser = parser or argparse.ArgumentParser(
-        prog="marker-localizer play",
-        description="Publish a rosbag2's messages on their ROS 2 topics, like 'ros2 bag play'. "
-        "ROS arguments follow --ros-args.",
-    )
-    defaults = PlayOptions()
-    parser.add_argument("bag", type=Path, help="rosbag2 to play (directory, .mcap or .db3)")
-    timing = parser.add_mutually_exclusive_group()
-    timing.add_argument(
-        "--rate",
-        type=float,
-        default=defaults.rate,
-        help="playback speed relative to the recording (default: %(default)s)",
-    )
-    timing.add_argument(
-        "--as-fast-as-possible",
-        action="store_true",
-        help="publish each message once the previous one on its topic was "
-        "acknowledged by every subscriber",
-    )
-    parser.add_argument(
-        "--clock", action="store_true", help="publish the bag time on /clock (for use_sim_time)"
-    )
-    parser.add_argument(
-        "--clock-hz",
-        type=float,
-        default=defaults.clock_hz,
-        help="/clock rate between messages, Hz (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--topics", nargs="+", default=None, metavar="TOPIC", help="play only these topics"
-    )
-    parser.add_argument(
-        "--wait-for-subscribers",
-        type=float,
-        default=defaults.wait_for_subscribers_s,
-        metavar="S",
-        help="longest wait for the image topics' subscribers, s (default: %(default)s)",
-    )
-    return parser
-
-
-def play_main(argv: Sequence[str] | None = None) -> int:
-    """Run ``marker-localizer play``; the exit status as :func:`run_command`, 3: a damaged bag."""
-    args = [NODE_NAME, *(sys.argv[1:] if argv is None else argv)]
-    parsed = build_play_parser().parse_args(rclpy.utilities.remove_ros_args(args)[1:])
-
-    def body() -> int:
-        options = PlayOptions(
-            rate=parsed.rate,
-            as_fast_as_possible=parsed.as_fast_as_possible,
-            clock=parsed.clock,
-            clock_hz=parsed.clock_hz,
-            topics=tuple(parsed.topics) if parsed.topics else None,
-            wait_for_subscribers_s=parsed.wait_for_subscribers,
-        )
-        BagReader(parsed.bag)  # a missing or foreign path fails before DDS starts
-        # Our own context: the player can run beside other rclpy users in one
-        # process, and Ctrl-C stays a KeyboardInterrupt (rclpy's handler would
-        # shut the context down under the publishers).
-        context = Context()
-        rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
-        bar = ProgressBar(0, "play")
-        try:
-            node = rclpy.create_node(NODE_NAME, context=context)
-            try:
-                report = play_bag(parsed.bag, node, options, progress=bar)
-            finally:
-                node.destroy_node()
-        finally:
-            bar.close()
-            rclpy.try_shutdown(context=context)
-        sys.stdout.write(_summary(parsed.bag, report) + "\n")
-        return EXIT_INCOMPLETE if report.damage else 0
-
-    return run_command("play", body)
-
-
-def _summary(bag: Path, report: PlayReport) -> str:
-    total = sum(report.published.values())
-    lines = [
-        f"played {total} messages on {len(report.published)} topics of {bag} in "
-        f"{report.wall_s:.2f} s (bag time {report.bag_s:.2f} s)"
-    ]
-    if report.skipped_topics:
-        skipped = ", ".join(f"{t} ({m})" for t, m in sorted(report.skipped_topics.items()))
-        lines.append(f"skipped, message package not installed: {skipped}")
-    if report.without_subscribers:
-        lines.append(f"no subscriber when playing started: {', '.join(report.without_subscribers)}")
-    if report.unacknowledged:
-        lines.append(f"{report.unacknowledged} messages not acknowledged in time")
-    lines += [f"damaged storage: {line}" for line in report.damage]
-    return "\n".join(lines)
-
-
-#: Entry point under the name the CLI dispatcher looks up.
-main = play_main

@@ -23,10 +23,8 @@ instead of rclpy; the flight configuration and seed are stored in the bag's
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,17 +44,10 @@ from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
-from marker_localizer.bag.io import (
-    DEFAULT_STORAGE,
-    STORAGES,
-    BagWriter,
-    ProgressBar,
-    run_command,
-    typestore,
-)
+from marker_localizer.bag.io import DEFAULT_STORAGE, BagWriter, typestore
 from marker_localizer.core.pipeline import Detection
 from marker_localizer.ros.conversions import array_to_image, detections_to_cloud
-from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator, PinholeCamera
+from marker_localizer.synthetic.flight import FlightSimulator, PinholeCamera
 from marker_localizer.synthetic.scene import MarkerTruth
 
 #: Suffixes of the per-camera topics.
@@ -222,123 +213,3 @@ def record_flight(
                 progress(done)
         messages = sum(bag.counts.values())
     return RecordSummary(Path(out), len(simulator), names, truth_markers, messages)
-
-
-# --------------------------------------------------------------------------- command
-
-
-def build_simulate_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    """Arguments of ``marker-localizer simulate`` (added to ``parser`` if given)."""
-    parser = parser or argparse.ArgumentParser(
-        prog="marker-localizer simulate",
-        description="Fly the five-camera UAV simulator over a marked ground and record a "
-        "rosbag2 with images, camera_info, /tf_static and the exact marker truth.",
-    )
-    defaults = FlightConfig()
-    parser.add_argument("--out", required=True, type=Path, help="bag directory to create")
-    parser.add_argument(
-        "--frames",
-        type=int,
-        default=defaults.n_frames,
-        help="frame sets to record (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--width", type=int, default=defaults.width, help="image width, px (default: %(default)s)"
-    )
-    parser.add_argument(
-        "--height",
-        type=int,
-        default=defaults.height,
-        help="image height, px (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--cameras",
-        type=int,
-        default=defaults.n_cameras,
-        help="cameras: nadir, forward, backward, left, right, in this order (default: %(default)s)",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the world and the noise")
-    parser.add_argument(
-        "--storage",
-        choices=tuple(STORAGES),
-        default=DEFAULT_STORAGE,
-        help="rosbag2 storage format (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--altitude",
-        type=float,
-        default=None,
-        metavar="M",
-        help="flying height, m (default: markers of "
-        f"{defaults.nadir_marker_radius_px:g} px radius at nadir)",
-    )
-    parser.add_argument(
-        "--marker-radius",
-        type=float,
-        default=defaults.marker_radius_m,
-        metavar="M",
-        help="marker radius, m (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--fps",
-        type=float,
-        default=defaults.frame_rate_hz,
-        help="frame sets per second, Hz (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--speed",
-        type=float,
-        default=defaults.speed_mps,
-        metavar="M/S",
-        help="ground speed, m/s (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--tilt",
-        type=float,
-        default=defaults.tilt_deg,
-        metavar="DEG",
-        help="tilt of the oblique cameras, degrees (default: %(default)s)",
-    )
-    return parser
-
-
-def config_from_args(args: argparse.Namespace) -> FlightConfig:
-    """The :class:`FlightConfig` a parsed ``simulate`` command line asks for."""
-    return FlightConfig(
-        width=args.width,
-        height=args.height,
-        n_frames=args.frames,
-        n_cameras=args.cameras,
-        frame_rate_hz=args.fps,
-        tilt_deg=args.tilt,
-        marker_radius_m=args.marker_radius,
-        altitude_m=args.altitude,
-        speed_mps=args.speed,
-    )
-
-
-def simulate_main(argv: Sequence[str] | None = None) -> int:
-    """Run ``marker-localizer simulate``; returns the exit status (see :func:`run_command`)."""
-    args = build_simulate_parser().parse_args(argv)
-
-    def body() -> int:
-        config = config_from_args(args)
-        simulator = FlightSimulator(config, seed=args.seed)
-        bar = ProgressBar(config.n_frames, "simulate")
-        try:
-            summary = record_flight(simulator, args.out, storage=args.storage, progress=bar.update)
-        finally:
-            bar.close()
-        sys.stdout.write(
-            f"wrote {summary.path} ({args.storage}): {summary.frames} frame sets x "
-            f"{len(summary.cameras)} cameras at {config.width}x{config.height} px, "
-            f"{summary.truth_markers} markers in the truth, {summary.messages} messages; "
-            f"altitude {config.flight_altitude_m:.1f} m, focal length {config.focal_px:.1f} px\n"
-        )
-        return 0
-
-    return run_command("simulate", body)
-
-
-#: Entry point under the name the CLI dispatcher looks up.
-main = simulate_main

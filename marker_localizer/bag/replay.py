@@ -28,7 +28,7 @@ Input the replay will not process, each counted per camera and shown in the summ
 Damage to the storage itself is read around (:class:`~marker_localizer.bag.io.BagReader`):
 an MCAP file cut short or damaged part-way is read front to back, so every
 whole message still reaches the output, and the summary lists the damage.
-``replay_main`` exits 0 when every image message gave a result, 3 when the
+``marker-localizer replay`` exits 0 when every image message gave a result, 3 when the
 output was written but something was skipped, failed or unreadable (the
 summary says what), 1 when nothing could be processed.
 
@@ -42,9 +42,7 @@ count neither way.
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
 import threading
 import time
 from collections.abc import Callable, Collection, Sequence
@@ -54,18 +52,9 @@ from pathlib import Path
 import numpy as np
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 
-from marker_localizer.bag.io import (
-    DEFAULT_STORAGE,
-    EXIT_INCOMPLETE,
-    STORAGES,
-    BagMessage,
-    BagReader,
-    BagWriter,
-    ProgressBar,
-    run_command,
-)
+from marker_localizer.bag.io import DEFAULT_STORAGE, BagMessage, BagReader, BagWriter
 from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
-from marker_localizer.config import DetectorConfig, from_mapping, load_params_file
+from marker_localizer.config import DetectorConfig
 from marker_localizer.errors import BagError, ImageError, shorten
 from marker_localizer.evaluation import DEFAULT_GATE_PX, DetectionTally, match_points
 from marker_localizer.ros.conversions import ENCODINGS, IMAGE_TRANSPORTS, cloud_to_array
@@ -515,82 +504,3 @@ def _evaluate(
         for key, found in session.found.items():
             if key[0] == camera and key in truth:
                 evaluation.add(match_points(found, truth[key], match_distance_px, partial.get(key)))
-
-
-# --------------------------------------------------------------------------- command
-
-
-def build_replay_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    """Arguments of ``marker-localizer replay`` (added to ``parser`` if given)."""
-    parser = parser or argparse.ArgumentParser(
-        prog="marker-localizer replay",
-        description="Run every <cam>/image_raw frame of a rosbag2 through the node's "
-        "processing (no frame dropped) and write <cam>/marker_points and /diagnostics to a "
-        "new bag; prints per-camera throughput and, when the bag has truth, accuracy.",
-    )
-    parser.add_argument("bag", type=Path, help="input rosbag2 (directory, .mcap or .db3)")
-    parser.add_argument("--out", required=True, type=Path, help="output bag directory to create")
-    parser.add_argument(
-        "--params-file",
-        type=Path,
-        default=None,
-        help="the node's parameter YAML; its detector.* values are used",
-    )
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=NodeConfig().workers,
-        help="worker threads (default: %(default)s, as the node)",
-    )
-    parser.add_argument(
-        "--storage",
-        choices=tuple(STORAGES),
-        default=DEFAULT_STORAGE,
-        help="storage of the output bag (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--match-distance",
-        type=float,
-        default=DEFAULT_GATE_PX,
-        metavar="PX",
-        help="largest detection-to-truth distance of a match, px (default: %(default)s)",
-    )
-    return parser
-
-
-def replay_main(argv: Sequence[str] | None = None) -> int:
-    """Run ``marker-localizer replay``; the exit status as :func:`run_command`, 3: incomplete."""
-    args = build_replay_parser().parse_args(argv)
-
-    def body() -> int:
-        config = (
-            from_mapping(load_params_file(args.params_file))
-            if args.params_file is not None
-            else DetectorConfig()
-        )
-        bar = ProgressBar(0, "replay")
-
-        def progress(done: int, total: int) -> None:
-            bar.total = total
-            bar.update(done)
-
-        try:
-            report = replay_bag(
-                args.bag,
-                args.out,
-                config=config,
-                workers=args.workers,
-                storage=args.storage,
-                match_distance_px=args.match_distance,
-                progress=progress,
-            )
-        finally:
-            bar.close()
-        sys.stdout.write(format_report(report, args.match_distance) + "\n")
-        return 0 if report.complete else EXIT_INCOMPLETE
-
-    return run_command("replay", body)
-
-
-#: Entry point under the name the CLI dispatcher looks up.
-main = replay_main

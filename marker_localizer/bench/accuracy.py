@@ -41,10 +41,10 @@ import numpy as np
 
 from marker_localizer import evaluation
 from marker_localizer.bench import metrics, peers, real_data
-from marker_localizer.bench.metrics import DetectionTally
 from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
 from marker_localizer.bench.runner import run_and_save
 from marker_localizer.errors import ConfigError
+from marker_localizer.evaluation import DetectionTally
 from marker_localizer.synthetic import RenderedScene, SceneConfig, render_checkerboard, render_scene
 
 #: The row every peer is compared with ("peer/ours" = peer mean error / this row's).

@@ -185,7 +185,9 @@ def compare_checks(frames: Sequence[LabelledFrame], seed: int) -> dict[str, Chec
                                                   min_contrast=contrast,
                                                   min_symmetry=config.symmetry_min,
                                                   normalise=gamma)
-        for tally, check in zip(tallies.values(), (edge, grey), strict=True):
+        checks: tuple[verification.EdgePhaseCheck | verification.SymmetryCheck, ...] = (
+            edge, grey)
+        for tally, check in zip(tallies.values(), checks, strict=True):
             passed = check.accepted & (check.radius_px >= min_extent)
             tally.frames += 1
             tally.markers += n

@@ -1,18 +1,12 @@
-"""Command line: ``marker-localizer detect|demo|simulate|replay|play|bench``.
-
-Thin by design: argument parsing and output formatting live here, the work in
-the library. Known errors (:class:`~marker_localizer.errors.MarkerLocalizerError`)
-become one line on stderr and exit status 1; only a bug shows a traceback.
-"""
+"""``marker-localizer detect``: markers in image files, as a table or JSON lines."""
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,36 +14,10 @@ import cv2
 import numpy as np
 
 from marker_localizer import config as config_module
+from marker_localizer.cli.exits import EXIT_ERROR, PROG
 from marker_localizer.core.pipeline import DetectionResult, Detector
-from marker_localizer.errors import ConfigError, ImageError, MarkerLocalizerError
+from marker_localizer.errors import ConfigError, ImageError
 from marker_localizer.image_files import read_image_file
-
-PROG = "marker-localizer"
-
-#: Sub-commands implemented in other modules: name -> (module, function, help).
-_DELEGATED: dict[str, tuple[str, str, str]] = {
-    "simulate": (
-        "marker_localizer.bag.record",
-        "main",
-        "render a five-camera flight and record it as a rosbag2",
-    ),
-    "replay": (
-        "marker_localizer.bag.replay",
-        "main",
-        "run a recorded bag through the node's processing, write the results to a bag",
-    ),
-    "play": (
-        "marker_localizer.bag.play",
-        "main",
-        "publish a bag's messages on their ROS topics (like 'ros2 bag play')",
-    ),
-}
-_BENCHMARKS: dict[str, str] = {
-    "accuracy": "marker_localizer.bench.accuracy",
-    "paper": "marker_localizer.bench.paper",
-    "speed": "marker_localizer.bench.speed",
-    "throughput": "marker_localizer.bench.throughput",
-}
 
 
 def build_config(params: Sequence[str], params_file: str | None) -> config_module.DetectorConfig:
@@ -93,8 +61,41 @@ def _write_table(record: dict[str, Any]) -> None:
         )
 
 
-def run_detect(args: argparse.Namespace) -> int:
-    """``detect``: one result per image; unreadable images are reported and skipped."""
+def build_parser() -> argparse.ArgumentParser:
+    """Arguments of ``marker-localizer detect``."""
+    parser = argparse.ArgumentParser(
+        prog=f"{PROG} detect", description="Detect markers in image files."
+    )
+    parser.add_argument("images", nargs="+", metavar="IMAGE")
+    parser.add_argument("--json", action="store_true", help="one JSON object per image per line")
+    parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a detector parameter (repeatable), e.g. marker_radius_min_px=4",
+    )
+    parser.add_argument(
+        "--params-file",
+        metavar="YAML",
+        help="the node's parameter file (its detector: section is used)",
+    )
+    parser.add_argument(
+        "--overlay",
+        metavar="DIR",
+        help="write annotated PNGs into DIR as <name>_markers.png (a name already used in "
+        "this run gets _2, _3, ... in command-line order)",
+    )
+    return parser
+
+
+def main(argv: Sequence[str]) -> int:
+    """``detect``: one result per image; unreadable images are reported and skipped.
+
+    Returns:
+        0, or :data:`EXIT_ERROR` when an image could not be read or its overlay written.
+    """
+    args = build_parser().parse_args(argv)
     detector = Detector(build_config(args.param, args.params_file))
     overlays = _overlay_paths(args.images, args.overlay) if args.overlay else {}
     failed = 0
@@ -116,7 +117,7 @@ def run_detect(args: argparse.Namespace) -> int:
         if path in overlays and not _write_overlay(overlays[path], image, result, detector):
             failed += 1
             print(f"{PROG}: error: {overlays[path]}: cannot write the overlay", file=sys.stderr)
-    return 1 if failed else 0
+    return EXIT_ERROR if failed else 0
 
 
 def _overlay_paths(images: Sequence[str], folder: str) -> dict[str, Path]:
@@ -162,87 +163,3 @@ def _detect_file(detector: Detector, image: np.ndarray, path: str) -> DetectionR
         raise ImageError(f"{path}: {err}") from err
     except cv2.error as err:
         raise ImageError(f"{path}: OpenCV failed on it ({err.err})") from err
-
-
-def run_demo(args: argparse.Namespace) -> int:
-    """``demo``: the README's main job."""
-    from marker_localizer.demo import run  # noqa: PLC0415 - keeps `detect` start-up light
-
-    return run(Path(args.out), frames=args.frames, seed=args.seed)
-
-
-def _delegate(module: str, function: str) -> Callable[[list[str]], int]:
-    def call(argv: list[str]) -> int:
-        return int(getattr(importlib.import_module(module), function)(argv))
-
-    return call
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``marker-localizer`` (delegated commands take their own)."""
-    parser = argparse.ArgumentParser(
-        prog=PROG, description="Sub-pixel localisation of diagonal (X) ground markers."
-    )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    detect = sub.add_parser("detect", help="detect markers in image files")
-    detect.add_argument("images", nargs="+", metavar="IMAGE")
-    detect.add_argument("--json", action="store_true", help="one JSON object per image per line")
-    detect.add_argument(
-        "--param",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a detector parameter (repeatable), e.g. marker_radius_min_px=4",
-    )
-    detect.add_argument(
-        "--params-file",
-        metavar="YAML",
-        help="the node's parameter file (its detector: section is used)",
-    )
-    detect.add_argument(
-        "--overlay",
-        metavar="DIR",
-        help="write annotated PNGs into DIR as <name>_markers.png (a name already used in "
-        "this run gets _2, _3, ... in command-line order)",
-    )
-    detect.set_defaults(handler=run_detect)
-
-    demo = sub.add_parser("demo", help="render frames, detect, print accuracy, write overlays")
-    demo.add_argument("--out", default="out/demo", help="folder for the annotated frames")
-    demo.add_argument("--frames", type=int, default=4, help="frames per camera")
-    demo.add_argument("--seed", type=int, default=7)
-    demo.set_defaults(handler=run_demo)
-
-    for name, (_, _, text) in _DELEGATED.items():
-        sub.add_parser(name, help=text, add_help=False)
-    bench = sub.add_parser(
-        "bench",
-        help="benchmarks: " + ", ".join(_BENCHMARKS),
-        description="Benchmarks; each takes its own options: bench WHICH --help.",
-    )
-    bench.add_argument("which", choices=sorted(_BENCHMARKS))
-    return parser
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``marker-localizer`` console script."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
-    try:
-        if argv and argv[0] in _DELEGATED:
-            module, function, _ = _DELEGATED[argv[0]]
-            return _delegate(module, function)(argv[1:])
-        if argv[:1] == ["bench"] and len(argv) > 1 and argv[1] in _BENCHMARKS:
-            return _delegate(_BENCHMARKS[argv[1]], "main")(argv[2:])
-        args = parser.parse_args(argv)
-        return int(args.handler(args))
-    except MarkerLocalizerError as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        return 130
-
-
-if __name__ == "__main__":
-    sys.exit(main())

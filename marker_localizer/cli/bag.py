@@ -1,0 +1,318 @@
+"""``marker-localizer simulate|replay|play``: the bag commands' arguments and summaries.
+
+The work is the library's (:mod:`marker_localizer.bag`); each command here
+parses its arguments, shows a progress bar, prints the summary and returns its
+exit status: :data:`~marker_localizer.cli.exits.EXIT_INCOMPLETE` when ``replay``
+or ``play`` skipped or could not read part of the bag. Errors and signals are
+mapped by :func:`~marker_localizer.cli.exits.run_command`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import rclpy
+from rclpy.context import Context
+from rclpy.signals import SignalHandlerOptions
+
+from marker_localizer.bag.io import DEFAULT_STORAGE, STORAGES, BagReader
+from marker_localizer.bag.play import NODE_NAME as PLAYER_NODE_NAME
+from marker_localizer.bag.play import PlayOptions, PlayReport, play_bag
+from marker_localizer.bag.record import record_flight
+from marker_localizer.bag.replay import format_report, replay_bag
+from marker_localizer.cli.exits import EXIT_INCOMPLETE, PROG
+from marker_localizer.cli.progress import ProgressBar
+from marker_localizer.config import DetectorConfig, from_mapping, load_params_file
+from marker_localizer.evaluation import DEFAULT_GATE_PX
+from marker_localizer.ros.parameters import NodeConfig
+from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
+
+# --------------------------------------------------------------------------- simulate
+
+
+def build_simulate_parser() -> argparse.ArgumentParser:
+    """Arguments of ``marker-localizer simulate``."""
+    parser = argparse.ArgumentParser(
+        prog=f"{PROG} simulate",
+        description="Fly the five-camera UAV simulator over a marked ground and record a "
+        "rosbag2 with images, camera_info, /tf_static and the exact marker truth.",
+    )
+    defaults = FlightConfig()
+    parser.add_argument("--out", required=True, type=Path, help="bag directory to create")
+    parser.add_argument(
+        "--frames",
+        type=int,
+        default=defaults.n_frames,
+        help="frame sets to record (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--width", type=int, default=defaults.width, help="image width, px (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--height",
+        type=int,
+        default=defaults.height,
+        help="image height, px (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--cameras",
+        type=int,
+        default=defaults.n_cameras,
+        help="cameras: nadir, forward, backward, left, right, in this order (default: %(default)s)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the world and the noise")
+    parser.add_argument(
+        "--storage",
+        choices=tuple(STORAGES),
+        default=DEFAULT_STORAGE,
+        help="rosbag2 storage format (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--altitude",
+        type=float,
+        default=None,
+        metavar="M",
+        help="flying height, m (default: markers of "
+        f"{defaults.nadir_marker_radius_px:g} px radius at nadir)",
+    )
+    parser.add_argument(
+        "--marker-radius",
+        type=float,
+        default=defaults.marker_radius_m,
+        metavar="M",
+        help="marker radius, m (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--fps",
+        type=float,
+        default=defaults.frame_rate_hz,
+        help="frame sets per second, Hz (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--speed",
+        type=float,
+        default=defaults.speed_mps,
+        metavar="M/S",
+        help="ground speed, m/s (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--tilt",
+        type=float,
+        default=defaults.tilt_deg,
+        metavar="DEG",
+        help="tilt of the oblique cameras, degrees (default: %(default)s)",
+    )
+    return parser
+
+
+def config_from_args(args: argparse.Namespace) -> FlightConfig:
+    """The :class:`FlightConfig` a parsed ``simulate`` command line asks for."""
+    return FlightConfig(
+        width=args.width,
+        height=args.height,
+        n_frames=args.frames,
+        n_cameras=args.cameras,
+        frame_rate_hz=args.fps,
+        tilt_deg=args.tilt,
+        marker_radius_m=args.marker_radius,
+        altitude_m=args.altitude,
+        speed_mps=args.speed,
+    )
+
+
+def simulate(argv: Sequence[str]) -> int:
+    """Run ``marker-localizer simulate``; returns the exit status."""
+    args = build_simulate_parser().parse_args(argv)
+    config = config_from_args(args)
+    simulator = FlightSimulator(config, seed=args.seed)
+    bar = ProgressBar(config.n_frames, "simulate")
+    try:
+        summary = record_flight(simulator, args.out, storage=args.storage, progress=bar.update)
+    finally:
+        bar.close()
+    sys.stdout.write(
+        f"wrote {summary.path} ({args.storage}): {summary.frames} frame sets x "
+        f"{len(summary.cameras)} cameras at {config.width}x{config.height} px, "
+        f"{summary.truth_markers} markers in the truth, {summary.messages} messages; "
+        f"altitude {config.flight_altitude_m:.1f} m, focal length {config.focal_px:.1f} px\n"
+    )
+    return 0
+
+
+# --------------------------------------------------------------------------- replay
+
+
+def build_replay_parser() -> argparse.ArgumentParser:
+    """Arguments of ``marker-localizer replay``."""
+    parser = argparse.ArgumentParser(
+        prog=f"{PROG} replay",
+        description="Run every <cam>/image_raw frame of a rosbag2 through the node's "
+        "processing (no frame dropped) and write <cam>/marker_points and /diagnostics to a "
+        "new bag; prints per-camera throughput and, when the bag has truth, accuracy.",
+    )
+    parser.add_argument("bag", type=Path, help="input rosbag2 (directory, .mcap or .db3)")
+    parser.add_argument("--out", required=True, type=Path, help="output bag directory to create")
+    parser.add_argument(
+        "--params-file",
+        type=Path,
+        default=None,
+        help="the node's parameter YAML; its detector.* values are used",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=NodeConfig().workers,
+        help="worker threads (default: %(default)s, as the node)",
+    )
+    parser.add_argument(
+        "--storage",
+        choices=tuple(STORAGES),
+        default=DEFAULT_STORAGE,
+        help="storage of the output bag (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--match-distance",
+        type=float,
+        default=DEFAULT_GATE_PX,
+        metavar="PX",
+        help="largest detection-to-truth distance of a match, px (default: %(default)s)",
+    )
+    return parser
+
+
+def replay(argv: Sequence[str]) -> int:
+    """Run ``marker-localizer replay``; 0, or EXIT_INCOMPLETE when a frame gave no result."""
+    args = build_replay_parser().parse_args(argv)
+    config = (
+        from_mapping(load_params_file(args.params_file))
+        if args.params_file is not None
+        else DetectorConfig()
+    )
+    bar = ProgressBar(0, "replay")
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done)
+
+    try:
+        report = replay_bag(
+            args.bag,
+            args.out,
+            config=config,
+            workers=args.workers,
+            storage=args.storage,
+            match_distance_px=args.match_distance,
+            progress=progress,
+        )
+    finally:
+        bar.close()
+    sys.stdout.write(format_report(report, args.match_distance) + "\n")
+    return 0 if report.complete else EXIT_INCOMPLETE
+
+
+# --------------------------------------------------------------------------- play
+
+
+def build_play_parser() -> argparse.ArgumentParser:
+    """Arguments of ``marker-localizer play``."""
+    parser = argparse.ArgumentParser(
+        prog=f"{PROG} play",
+        description="Publish a rosbag2's messages on their ROS 2 topics, like 'ros2 bag play'. "
+        "ROS arguments follow --ros-args.",
+    )
+    defaults = PlayOptions()
+    parser.add_argument("bag", type=Path, help="rosbag2 to play (directory, .mcap or .db3)")
+    timing = parser.add_mutually_exclusive_group()
+    timing.add_argument(
+        "--rate",
+        type=float,
+        default=defaults.rate,
+        help="playback speed relative to the recording (default: %(default)s)",
+    )
+    timing.add_argument(
+        "--as-fast-as-possible",
+        action="store_true",
+        help="publish each message once the previous one on its topic was "
+        "acknowledged by every subscriber",
+    )
+    parser.add_argument(
+        "--clock", action="store_true", help="publish the bag time on /clock (for use_sim_time)"
+    )
+    parser.add_argument(
+        "--clock-hz",
+        type=float,
+        default=defaults.clock_hz,
+        help="/clock rate between messages, Hz (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--topics", nargs="+", default=None, metavar="TOPIC", help="play only these topics"
+    )
+    parser.add_argument(
+        "--wait-for-subscribers",
+        type=float,
+        default=defaults.wait_for_subscribers_s,
+        metavar="S",
+        help="longest wait for the image topics' subscribers, s (default: %(default)s)",
+    )
+    return parser
+
+
+def play(argv: Sequence[str]) -> int:
+    """Run ``marker-localizer play``; 0, or EXIT_INCOMPLETE when the bag is damaged.
+
+    ROS arguments (``--ros-args ...``) go to rclpy, the rest to the parser.
+    """
+    ros_argv = [PLAYER_NODE_NAME, *argv]
+    args = build_play_parser().parse_args(rclpy.utilities.remove_ros_args(ros_argv)[1:])
+    options = PlayOptions(
+        rate=args.rate,
+        as_fast_as_possible=args.as_fast_as_possible,
+        clock=args.clock,
+        clock_hz=args.clock_hz,
+        topics=tuple(args.topics) if args.topics else None,
+        wait_for_subscribers_s=args.wait_for_subscribers,
+    )
+    BagReader(args.bag)  # a missing or foreign path fails before DDS starts
+    # Our own context: the player can run beside other rclpy users in one
+    # process, and Ctrl-C stays a KeyboardInterrupt (rclpy's handler would
+    # shut the context down under the publishers).
+    context = Context()
+    rclpy.init(args=ros_argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    bar = ProgressBar(0, "play")
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done)
+
+    try:
+        node = rclpy.create_node(PLAYER_NODE_NAME, context=context)
+        try:
+            report = play_bag(args.bag, node, options, progress=progress)
+        finally:
+            node.destroy_node()
+    finally:
+        bar.close()
+        rclpy.try_shutdown(context=context)
+    sys.stdout.write(format_play_report(args.bag, report) + "\n")
+    return EXIT_INCOMPLETE if report.damage else 0
+
+
+def format_play_report(bag: Path, report: PlayReport) -> str:
+    """The summary ``play`` prints: what was published, skipped and damaged."""
+    total = sum(report.published.values())
+    lines = [
+        f"played {total} messages on {len(report.published)} topics of {bag} in "
+        f"{report.wall_s:.2f} s (bag time {report.bag_s:.2f} s)"
+    ]
+    if report.skipped_topics:
+        skipped = ", ".join(f"{t} ({m})" for t, m in sorted(report.skipped_topics.items()))
+        lines.append(f"skipped, message package not installed: {skipped}")
+    if report.without_subscribers:
+        lines.append(f"no subscriber when playing started: {', '.join(report.without_subscribers)}")
+    if report.unacknowledged:
+        lines.append(f"{report.unacknowledged} messages not acknowledged in time")
+    lines += [f"damaged storage: {line}" for line in report.damage]
+    return "\n".join(lines)

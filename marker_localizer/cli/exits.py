@@ -1,0 +1,72 @@
+"""Exit statuses of ``marker-localizer``, set in one place: :func:`run_command`.
+
+Every command runs through :func:`run_command`, which turns what can end a
+command into its status:
+
+* 0: done; a command that skipped part of its input returns :data:`EXIT_INCOMPLETE`;
+* 1 (:data:`EXIT_ERROR`): a :class:`~marker_localizer.errors.MarkerLocalizerError`
+  (a bad value, a missing or damaged file), one line on stderr; only a bug shows
+  a traceback;
+* 2: a command line argparse refuses (argparse's own status);
+* 128 + the signal's number (130, 143): SIGINT or SIGTERM. Both interrupt
+  the command alike: it unwinds (an unfinished output bag is removed) and one
+  line names the signal; a second signal during the unwinding ends the process
+  at once (:mod:`marker_localizer.stopping`).
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from collections.abc import Callable
+
+from marker_localizer.errors import MarkerLocalizerError
+from marker_localizer.stopping import on_stop_signal
+
+#: The console script's name, the first word of every message.
+PROG = "marker-localizer"
+#: A package error: one line on stderr, nothing (or nothing complete) written.
+EXIT_ERROR = 1
+#: A command that finished but skipped, failed on or could not read part of its
+#: input, its summary saying what.
+EXIT_INCOMPLETE = 3
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived: unwind (writers remove their staging), then exit.
+
+    A KeyboardInterrupt, so that every ``except KeyboardInterrupt`` and
+    ``finally`` treats SIGTERM (what service managers and ``ros2 launch``
+    send) as it treats Ctrl-C.
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _interrupt(signum: int) -> None:
+    raise Interrupted(signum)
+
+
+def run_command(label: str, body: Callable[[], int]) -> int:
+    """Run a command's body and return its exit status (see the module docstring).
+
+    Args:
+        label: What starts its messages: ``"marker-localizer replay"``.
+        body: The command; returns its exit status.
+
+    Returns:
+        ``body``'s status, :data:`EXIT_ERROR` after a :class:`MarkerLocalizerError`,
+        130 after SIGINT (Ctrl-C), 143 after SIGTERM.
+    """
+    try:
+        with on_stop_signal(_interrupt):
+            return body()
+    except MarkerLocalizerError as err:
+        sys.stderr.write(f"{label}: error: {err}\n")
+        return EXIT_ERROR
+    except KeyboardInterrupt as err:
+        signum = err.signum if isinstance(err, Interrupted) else signal.SIGINT
+        sys.stderr.write(f"{label}: interrupted by {signal.Signals(signum).name}\n")
+        return 128 + signum
