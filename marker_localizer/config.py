@@ -292,8 +292,23 @@ class DetectorConfig:
         "symmetry",
         "'ncc' is the paper's adaptive template + NCC + quadratic surface "
         "(Eqs. 10-14); 'symmetry' continues from it with a least-squares "
-        "point-symmetry fit over the whole marker, unbiased by blur and gamma.",
-        choices=("symmetry", "ncc"),
+        "point-symmetry fit over the whole marker, unbiased by blur and gamma; "
+        "'template' fits the blurred X with per-quadrant levels, its two lines and a "
+        "shadow edge (Eq. 10 made a model) and replaces the prescreen, checks and gates "
+        "by the sector order and one decision calibrated to false_points_per_mp: it "
+        "keeps markers with a dull quadrant or a shadow edge, at several times the time.",
+        choices=("symmetry", "ncc", "template"),
+    )
+    false_points_per_mp: float = _param(
+        0.025,
+        "refinement='template': the decision's threshold gives this many false points "
+        "per megapixel on real ground without markers (measured on "
+        "../shared/data/aerial_negatives by 'marker-localizer bench calibrate'). 0.025 "
+        "is 0.2 per 8 MP aerial frame, the false-point budget of a pose estimator's "
+        "outlier rejection.",
+        "1/MP",
+        0.0001,
+        10.0,
     )
     template_offset_px: float = _param(
         5.0,

@@ -121,4 +121,4 @@ def test_bench_help_lists_the_benchmarks_and_exits_0(capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["bench", "--help"])
     assert exit_info.value.code == 0
-    assert "{accuracy,paper,speed,throughput}" in capsys.readouterr().out
+    assert "{accuracy,calibrate,paper,speed,throughput}" in capsys.readouterr().out

@@ -7,7 +7,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
-from marker_localizer.core import verification
+from marker_localizer.bench.accuracy import families
+from marker_localizer.core import decision, verification
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
 
@@ -208,3 +209,85 @@ def test_colour_16_bit_and_float_images_are_converted_not_rejected(convert):
 def test_bad_images_raise_a_clear_image_error(image, message):
     with pytest.raises(ImageError, match=message):
         Detector().detect(image)
+
+
+# refinement="template": the template fit and the one calibrated decision.
+
+TEMPLATE = {"refinement": "template", "min_extent_fraction": 0.6}
+
+
+@pytest.fixture(scope="module")
+def uneven_light_frames():
+    family = next(f for f in families() if f.key == "g")
+    return family.radius_range, [family.render(seed) for seed in (1, 2)]
+
+
+def _recall_and_false(config: DetectorConfig, frames) -> tuple[float, float]:
+    detector = Detector(config)
+    found = false = total = 0
+    for scene in frames:
+        hits, misses, _ = _score(detector.detect(scene.image).as_array(), scene.centres)
+        found, false, total = found + hits, false + misses, total + len(scene.centres)
+    return found / total, false / len(frames)
+
+
+def test_the_template_decision_keeps_markers_with_a_dull_quadrant_or_a_shadow_edge(
+    uneven_light_frames,
+):
+    """Grey-level symmetry loses most of them; the sector order and the fit do not."""
+    (low, high), frames = uneven_light_frames
+    radius = {"marker_radius_min_px": low, "marker_radius_max_px": high}
+    symmetry, _ = _recall_and_false(DetectorConfig(**radius), frames)
+    template_recall, false = _recall_and_false(DetectorConfig(**radius, **TEMPLATE), frames)
+    assert template_recall >= symmetry + 0.2
+    assert false <= 0.5
+
+
+def test_the_template_decision_gives_every_candidate_it_saw_one_verdict(cluttered_frames):
+    config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0, **TEMPLATE)
+    result = Detector(config).detect(cluttered_frames[0].image)
+    verdicts = result.verdicts
+    assert verdicts is not None
+    rejected = sum(result.counts[f"rejected_{reason}"] for reason in decision.REASONS)
+    assert rejected + int(verdicts.decision.accepted.sum()) == len(verdicts.xy)
+    assert result.counts["accepted"] + result.counts["merged_duplicates"] == int(
+        verdicts.decision.accepted.sum()
+    )
+    hits, misses, errors = _score(result.as_array(), cluttered_frames[0].centres)
+    assert hits >= 0.9 * len(cluttered_frames[0].centres)
+    assert misses <= 1
+    assert np.mean(errors) <= 0.05
+
+
+def test_a_lower_false_alarm_rate_raises_the_threshold_and_keeps_a_subset(cluttered_frames):
+    assert decision.threshold_for_rate(0.01) > decision.threshold_for_rate(0.1)
+    image = cluttered_frames[1].image
+    radius = {"marker_radius_min_px": 6.0, "marker_radius_max_px": 40.0}
+    lenient = Detector(DetectorConfig(**radius, **TEMPLATE, false_points_per_mp=1.0))
+    strict = Detector(DetectorConfig(**radius, **TEMPLATE, false_points_per_mp=0.001))
+    kept = lenient.detect(image).as_array()[:, :2]
+    stricter = strict.detect(image).as_array()[:, :2]
+    assert len(stricter) <= len(kept)
+    assert len(stricter) == 0 or cKDTree(kept).query(stricter)[0].max() < 1e-6
+
+
+def test_tracking_confirms_markers_half_a_pixel_off_by_the_template_decision(cluttered_frames):
+    config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0, **TEMPLATE)
+    detector = Detector(config)
+    scene = cluttered_frames[2]
+    detected = detector.detect(scene.image)
+    on_marker = cKDTree(scene.centres).query(detected.as_array()[:, :2])[0] < 0.1
+    full = [d for d, hit in zip(detected, on_marker, strict=True) if hit]
+    assert len(full) >= 0.9 * len(scene.centres)
+    located = detector.locate(
+        scene.image,
+        np.array([[d.x + 0.4, d.y - 0.3] for d in full]),
+        np.array([d.radius_px for d in full]),
+        np.array([[d.angle1, d.angle2] for d in full]),
+        np.array([d.evidence for d in full]),
+    )
+    assert len(located) == len(full)
+    distance, _ = cKDTree([(d.x, d.y) for d in full]).query(located.as_array()[:, :2])
+    # Not to the fit's tolerance: its pixels reach as far as the extent measured from
+    # each start, and a few pixels more or less move the optimum by hundredths.
+    assert distance.max() < 0.03

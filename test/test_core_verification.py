@@ -153,3 +153,50 @@ def test_the_chords_of_an_xs_lines_cross_at_its_centre_seen_from_off_centre():
     crossings = np.array(ends)[None, None]  # (1, 1, line, end)
     found = verification.chord_crossing(ring_centre[None], np.array([radius]), crossings)
     np.testing.assert_allclose(found[0, 0], centre, atol=1e-9)
+
+
+def _ring(levels: list[float], edges_deg: list[float]) -> np.ndarray:
+    """A 36-sample ring profile: ``levels[k]`` from edge k to edge k + 1 (degrees)."""
+    angles = np.arange(36) * 10.0 + 5.0
+    profile = np.full(36, levels[-1])
+    for level, start, end in zip(levels, edges_deg, edges_deg[1:] + [360.0], strict=True):
+        profile[(angles >= start) & (angles < end)] = level
+    return profile
+
+
+def test_sector_order_sees_an_x_with_a_dull_bright_quadrant_and_names_its_two_lines():
+    # Bright, dark, dull bright (0.45 of the other), dark: rising at 0/180, falling at 70/250.
+    ring = _ring([200.0, 20.0, 90.0, 20.0], [0.0, 70.0, 180.0, 250.0])
+    order = verification.sector_order(ring[None])
+    assert order.strength[0] > 10.0
+    # Within a sample (10 degrees) of the true directions.
+    assert order.rising[0] in (0, 17) and order.falling[0] in (6, 7)
+
+
+def test_sector_order_keeps_an_x_that_a_shadow_edge_crosses():
+    # The X of the dull test, darkened by half from 120 to 160 degrees.
+    ring = _ring([200.0, 20.0, 10.0, 90.0, 20.0], [0.0, 70.0, 120.0, 180.0, 250.0])
+    ring[(np.arange(36) * 10 + 5 >= 120) & (np.arange(36) * 10 + 5 < 180)] *= 0.5
+    assert verification.sector_order(ring[None]).strength[0] > 5.0
+
+
+@pytest.mark.parametrize(
+    "levels, edges",
+    [
+        ([200.0, 20.0], [0.0, 90.0]),  # an L corner: one dark quadrant
+        ([200.0, 20.0], [0.0, 180.0]),  # a straight edge
+        ([200.0, 20.0, 200.0, 20.0], [0.0, 30.0, 180.0, 270.0]),  # edges not antipodal
+    ],
+)
+def test_sector_order_rejects_what_is_not_an_x(levels, edges):
+    assert verification.sector_order(_ring(levels, edges)[None]).strength[0] <= 0.0
+
+
+def test_the_prescreen_passes_an_x_on_three_rings_and_names_its_line_directions():
+    image = _render("quarter_disks", rotation=0.3) * 255.0
+    passed, angles = verification.prescreen_sector_order(
+        image, CENTRE, np.array([[5.0, 3.5, 6.0]]), np.array([5.0])
+    )
+    assert passed[0]
+    lines = np.sort(angles[0] % np.pi)
+    np.testing.assert_allclose(lines, np.sort([0.3, 0.3 + np.pi / 2]), atol=np.deg2rad(10.0))

@@ -477,7 +477,7 @@ def test_parameter_descriptors_state_unit_range_and_read_only(localizer, tester)
     assert (radius.floating_point_range[0].from_value, radius.floating_point_range[0].to_value) == (
         1.5, 1000.0)
     assert not radius.read_only
-    assert refinement.additional_constraints == "one of: symmetry, ncc"
+    assert refinement.additional_constraints == "one of: symmetry, ncc, template"
     assert workers.read_only
     assert workers.integer_range[0].from_value == 1
     assert age.description.endswith("[s]")

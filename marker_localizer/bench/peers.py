@@ -156,18 +156,27 @@ class OurDetector:
 PAPER_PIPELINE: dict[str, object] = {"candidate_detector": "curvature", "refinement": "ncc"}
 #: Its row in the benchmarks' tables.
 PAPER_ROW = "ours (paper: curvature+ncc)"
+#: The template fit with the calibrated decision. Its line extents end where the
+#: edges fade (:func:`template.line_extents`), short of the annular scan's last ring:
+#: at the default fraction 0.7 it loses small tilted markers the scan keeps.
+TEMPLATE_DECISION: dict[str, object] = {"refinement": "template", "min_extent_fraction": 0.6}
+#: Its row in the benchmarks' tables.
+TEMPLATE_ROW = "ours (template decision)"
 
 
 def our_variants(include_curvature: bool = True) -> list[OurDetector]:
     """The detector variants the benchmarks compare.
 
-    Both refinements on the default screening, and with ``include_curvature`` the
+    The three refinements on the default screening (``template`` with the extent
+    fraction its line extents were measured with, :data:`TEMPLATE_DECISION`), and
+    with ``include_curvature`` the
     paper's screening and checks with the default fit, and the paper's pipeline end
     to end (:data:`PAPER_PIPELINE`).
     """
     variants = [
         OurDetector("ours (symmetry)", {"refinement": "symmetry"}),
         OurDetector("ours (ncc, paper)", {"refinement": "ncc"}),
+        OurDetector(TEMPLATE_ROW, dict(TEMPLATE_DECISION)),
     ]
     if include_curvature:
         variants.append(OurDetector("ours (curvature)", {"candidate_detector": "curvature"}))

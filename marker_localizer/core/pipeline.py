@@ -17,8 +17,16 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from marker_localizer.config import DetectorConfig
-from marker_localizer.core import preprocessing, screening, subpixel, template, verification
+from marker_localizer.core import (
+    decision,
+    preprocessing,
+    screening,
+    subpixel,
+    template,
+    verification,
+)
 from marker_localizer.core.image import to_gray
+from marker_localizer.core.noise import NoiseModel, estimate_noise
 from marker_localizer.core.screening import Candidates
 
 #: The prescreen's 180-degree self-correlation threshold: lenient, the candidate may
@@ -78,6 +86,31 @@ _LINE_ANGLE_AGREEMENT_RAD = np.deg2rad(5.0)
 _MODULATION_MIN_OFFSET_PX = 2.5
 #: ... and from this distance on they are clear of it for any expected blur.
 _MODULATION_FREE_OFFSET_PX = 3.0
+#: ``refinement="template"``: a sector-order prescreen ring's edge pairs must exceed
+#: the noise of its slope this many times: lenient (the decision comes later); the
+#: prescreen only spares the fit most texture.
+_ORDER_NOISE_SIGMAS = 3.0
+#: ... and this share of ``min_contrast_dn``: an X's edge of that contrast, blurred,
+#: rises by about a tenth of it per 10 degrees of even the smallest ring.
+_ORDER_CONTRAST_SHARE = 0.1
+#: First region of the template fit, in units of the candidate's scale (at least
+#: :data:`_FIT_MIN_START_PX`, whose 29 pixels pin the template's 12 parameters):
+#: inside the X of any marker the level answers to.
+_FIT_START_SCALE = 0.5
+_FIT_MIN_START_PX = 3.0
+#: Blur the fit starts from, px: the middle of what optics give.
+_FIT_START_BLUR_PX = 1.0
+#: A fit may end this share of its first region (plus :data:`_FIT_SHIFT_PX`) from
+#: where it started and still be the candidate's own X.
+_FIT_SHIFT_SCALE = 0.5
+_FIT_SHIFT_PX = 1.0
+#: Pixels each decision fit reads at most (a lattice of them on large markers): the
+#: decision needs the X's shape, not its last hundredth of a pixel; the markers it
+#: accepts are fitted again on every pixel.
+_DECISION_PIXELS = 300
+#: Levenberg-Marquardt iterations of the final fit on every pixel, from the
+#: decision's fit.
+_FINAL_ITERATIONS = 20
 
 
 @dataclass(frozen=True)
@@ -87,7 +120,9 @@ class Detection:
     Attributes:
         x: column position in pixels, (0, 0) = centre of the top-left pixel.
         y: row position in pixels.
-        score: confidence in [0, 1] (centre symmetry times fit quality).
+        score: confidence in [0, 1] (centre symmetry times fit quality; with
+            ``refinement="template"`` :func:`decision.confidence` of the decision's
+            score, 0.5 at the threshold).
         sigma: 1-sigma radial position uncertainty in pixels, from the fit's
             covariance: sqrt(var_x + var_y).
         angle1: direction of the first line through the centre, radians in [0, pi).
@@ -96,6 +131,8 @@ class Detection:
         evidence: the verification's part of the score (ring symmetry x template
             NCC); ``score`` is ``evidence`` x (1 - relative symmetry residual of the
             fit). :meth:`Detector.locate` takes it back to confirm a tracked marker.
+            With ``refinement="template"`` it equals ``score``: that decision reads
+            every frame's evidence afresh.
     """
 
     x: float
@@ -122,13 +159,19 @@ class DetectionResult:
             ``rejected_centring``,
             ``rejected_symmetry``, ``rejected_template``, ``rejected_lines``,
             ``rejected_refinement``, ``rejected_score``,
-            ``merged_duplicates``, ``accepted``).
+            ``merged_duplicates``, ``accepted``; with ``refinement="template"``,
+            ``rejected_<reason>`` for each of :data:`decision.REASONS` instead of
+            the centring, symmetry, template, refinement and score counts).
         timings_ms: wall time per stage in milliseconds.
+        verdicts: with ``refinement="template"``, every candidate the decision saw:
+            where its fit ended, whether it was accepted and why not, its score and
+            evidence; None otherwise.
     """
 
     detections: list[Detection] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
+    verdicts: decision.Verdicts | None = None
 
     def __iter__(self) -> Iterator[Detection]:
         return iter(self.detections)
@@ -167,6 +210,7 @@ class Detector:
         self.config = config or DetectorConfig()
         self._radius_range = (self.config.marker_radius_min_px, self.config.marker_radius_max_px)
         self._radii = verification.ring_radii(self._radius_range)
+        self._threshold = decision.threshold_for_rate(self.config.false_points_per_mp)
         first_level = screening.saddle_levels(self._radius_range).start
         self._seed_scale = screening.candidate_scale(first_level, self._radius_range)
 
@@ -204,7 +248,12 @@ class Detector:
         cfg = self.config
         with timer("input"):
             gray, full_scale = to_gray(image, bit_depth=self.config.bit_depth)
+        noise = None
+        if cfg.refinement == "template":
+            with timer("noise"):
+                noise = estimate_noise(gray, full_scale)
         seeds = np.zeros((0, 2)) if seeds is None else np.asarray(seeds, np.float64).reshape(-1, 2)
+        gamma = None
         with timer("preprocessing"):
             measured = regions
             if regions is not None and len(seeds):
@@ -212,9 +261,11 @@ class Detector:
                 start = np.floor(seeds).astype(np.int64)
                 seed_boxes = np.hstack([start, start + 2])
                 measured = np.vstack([np.reshape(regions, (-1, 4)), seed_boxes])
-            gamma = preprocessing.LocalGamma(
-                gray, full_scale, cfg.gamma_alpha, cfg.illumination_window_px, regions=measured
-            )
+            if noise is None or cfg.candidate_detector == "curvature":
+                gamma = preprocessing.LocalGamma(
+                    gray, full_scale, cfg.gamma_alpha, cfg.illumination_window_px,
+                    regions=measured,
+                )
         with timer("screening"):
             candidates = self._screen(gray, full_scale, result.counts, regions)
             result.counts["skipped_known"] = 0
@@ -227,10 +278,25 @@ class Detector:
                 candidates = candidates.take(~near)
         with timer("prescreen"):
             result.counts["rejected_prescreen"] = 0
-            if cfg.candidate_detector == "saddle":
+            if noise is not None and cfg.candidate_detector == "saddle":
+                candidates, angles = self._order_prescreen(
+                    gray, full_scale, noise, candidates, result.counts
+                )
+            elif cfg.candidate_detector == "saddle":
                 # Contour corners sit up to 2 px off the centre, too far for the
                 # prescreen's small rings; the paper's path goes straight to centring.
                 candidates = self._prescreen(gray, full_scale, candidates, result.counts)
+        if noise is not None and cfg.candidate_detector == "saddle":
+            if len(seeds):
+                # A seed is a tracked marker, perhaps a fraction of a pixel off: it
+                # skips the prescreen's test and takes its line directions only.
+                scale = np.full(len(seeds), self._seed_scale)
+                seeded = Candidates(seeds, np.full(len(seeds), np.inf), scale)
+                candidates = Candidates.concat([candidates, seeded])
+                angles = np.vstack([angles, self._line_directions(gray, seeded)])
+            start = self._fit_start(candidates.scale_px)
+            self._fit_and_decide(gray, noise, candidates.xy, angles, start, result, timer)
+            return result
         if len(seeds):
             # The prescreen rejects texture saddles; a seed is a tracked marker, perhaps
             # a fraction of a pixel off, too far for those rings. Seeds win the
@@ -238,8 +304,9 @@ class Detector:
             strength = np.full(len(seeds), np.inf)
             scale = np.full(len(seeds), self._seed_scale)
             candidates = Candidates.concat([candidates, Candidates(seeds, strength, scale)])
+        assert gamma is not None
         if cfg.candidate_detector == "curvature":
-            return self._confirm_paper(gray, full_scale, gamma, candidates, result, timer)
+            return self._confirm_paper(gray, full_scale, gamma, noise, candidates, result, timer)
         return self._confirm(gray, full_scale, gamma, candidates, result, timer)
 
     def locate(
@@ -274,6 +341,19 @@ class Detector:
         timer = _StageTimer(result.timings_ms)
         with timer("input"):
             gray, full_scale = to_gray(image, bit_depth=self.config.bit_depth)
+        if self.config.refinement == "template":
+            with timer("noise"):
+                noise = estimate_noise(gray, full_scale)
+            self._fit_and_decide(
+                gray,
+                noise,
+                np.asarray(xy, np.float64).reshape(-1, 2),
+                np.asarray(line_angles, np.float64).reshape(-1, 2),
+                self._fit_start(np.asarray(radius_px, np.float64)),
+                result,
+                timer,
+            )
+            return result
         counts = result.counts
         counts["merged_duplicates"] = 0
         with timer("subpixel"):
@@ -324,6 +404,7 @@ class Detector:
         gray: np.ndarray,
         full_scale: float,
         gamma: preprocessing.LocalGamma,
+        noise: NoiseModel | None,
         candidates: Candidates,
         result: DetectionResult,
         timer: _StageTimer,
@@ -336,7 +417,8 @@ class Detector:
         feed the template where they agree with the rings'), then with
         ``refinement="ncc"`` the adaptive template's NCC surface and its quadratic
         extremum, accepted where the surface peaks at :data:`subpixel.NCC_PEAK_MIN`
-        or more; with ``refinement="symmetry"`` the default's fit and gates.
+        or more; with ``refinement="symmetry"`` the default's fit and gates, with
+        ``refinement="template"`` the template fit and the calibrated decision.
         """
         cfg = self.config
         counts = result.counts
@@ -381,6 +463,10 @@ class Detector:
                 angles = np.where(agree[:, None], lines.line_angles[ok], angles)
             else:
                 counts["rejected_lines"] = 0
+        if noise is not None:
+            start = self._fit_start(radius)
+            self._fit_and_decide(gray, noise, xy, angles, start, result, timer)
+            return result
         with timer("subpixel"):
             if cfg.refinement != "ncc":
                 result.detections = self._locate(
@@ -520,14 +606,10 @@ class Detector:
         three), it removes ~95 % of the texture saddles for the price of at most
         108 nearest-pixel samples each (the cascade stops at the first bad ring).
         """
-        floor_px = min(
-            _PRESCREEN_MIN_RING_PX,
-            _PRESCREEN_MIN_RING_FRACTION * self.config.marker_radius_min_px,
-        )
         good = verification.count_symmetric_rings(
             gray,
             candidates.xy,
-            np.maximum(candidates.scale_px[:, None] * np.array(_PRESCREEN_RINGS), floor_px),
+            self._prescreen_radii(candidates),
             min_contrast=self._raw_contrast_floor(full_scale),
             min_symmetry=_PRESCREEN_SYMMETRY,
             min_good=_PRESCREEN_GOOD_RINGS,
@@ -535,6 +617,161 @@ class Detector:
         keep = good >= _PRESCREEN_GOOD_RINGS
         counts["rejected_prescreen"] = int((~keep).sum())
         return candidates.take(keep)
+
+    def _order_prescreen(
+        self,
+        gray: np.ndarray,
+        full_scale: float,
+        noise: NoiseModel,
+        candidates: Candidates,
+        counts: dict[str, int],
+    ) -> tuple[Candidates, np.ndarray]:
+        """``refinement="template"``: the order of the sectors on the prescreen's rings.
+
+        Lenient per ring (edges a few noise widths strong, or a tenth of the
+        configured contrast) but strict over the rings (all three, their edge
+        directions agreeing), it spares the fit most texture saddles. Unlike the
+        grey-level symmetry of :meth:`_prescreen`, a dull quadrant or a shadow edge
+        across the marker leave the sector order standing
+        (:func:`verification.sector_order`).
+
+        Returns:
+            The candidates that pass and (N, 2) their line directions.
+        """
+        level = gray[
+            np.clip(np.round(candidates.xy[:, 1]).astype(np.intp), 0, gray.shape[0] - 1),
+            np.clip(np.round(candidates.xy[:, 0]).astype(np.intp), 0, gray.shape[1] - 1),
+        ]
+        min_strength = np.maximum(
+            _ORDER_NOISE_SIGMAS * verification.ring_edge_noise(noise.std(level)),
+            _ORDER_CONTRAST_SHARE * self.config.min_contrast_dn / 255.0 * full_scale,
+        )
+        passed, angles = verification.prescreen_sector_order(
+            gray, candidates.xy, self._prescreen_radii(candidates), min_strength
+        )
+        counts["rejected_prescreen"] = int((~passed).sum())
+        return candidates.take(passed), angles[passed]
+
+    def _prescreen_radii(self, candidates: Candidates) -> np.ndarray:
+        """(N, 3) the prescreen's ring radii for each candidate, px."""
+        floor_px = min(
+            _PRESCREEN_MIN_RING_PX,
+            _PRESCREEN_MIN_RING_FRACTION * self.config.marker_radius_min_px,
+        )
+        return np.maximum(candidates.scale_px[:, None] * np.array(_PRESCREEN_RINGS), floor_px)
+
+    def _line_directions(self, gray: np.ndarray, candidates: Candidates) -> np.ndarray:
+        """(N, 2) the directions of the edge pairs on each candidate's first prescreen ring."""
+        radii = self._prescreen_radii(candidates)[:, :1]
+        _, angles = verification.prescreen_sector_order(
+            gray, candidates.xy, radii, np.full(len(candidates), -np.inf)
+        )
+        return angles
+
+    def _fit_start(self, scale_px: np.ndarray) -> np.ndarray:
+        """The template fit's first region radius for candidates of this scale, px."""
+        return np.clip(
+            _FIT_START_SCALE * scale_px, _FIT_MIN_START_PX, self.config.marker_radius_max_px
+        )
+
+    def _fit_and_decide(
+        self,
+        gray: np.ndarray,
+        noise: NoiseModel,
+        xy: np.ndarray,
+        angles: np.ndarray,
+        start_radius: np.ndarray,
+        result: DetectionResult,
+        timer: _StageTimer,
+    ) -> None:
+        """``refinement="template"``: grown template fits, the decision, the markers.
+
+        Fills ``result``'s detections, counts and verdicts. Each candidate's
+        template grows from inside its X out to where the lines end
+        (:func:`subpixel.fit_growing_template`); :func:`decision.decide` reads the
+        evidence and accepts at the threshold of ``false_points_per_mp``; the
+        accepted are fitted again on every pixel of their X for their position.
+        """
+        cfg = self.config
+        counts = result.counts
+        with timer("subpixel"):
+            shape = template.TemplateShape.start(xy, angles, _FIT_START_BLUR_PX)
+            level = gray[
+                np.clip(np.round(xy[:, 1]).astype(np.intp), 0, gray.shape[0] - 1),
+                np.clip(np.round(xy[:, 0]).astype(np.intp), 0, gray.shape[1] - 1),
+            ]
+            grown = subpixel.fit_growing_template(
+                gray,
+                shape,
+                start_radius,
+                cfg.marker_radius_max_px,
+                max_pixels=_DECISION_PIXELS,
+                noise_std=noise.std(level.astype(np.float64)),
+                keep=decision.worth_growing,
+            )
+        with timer("decision"):
+            evidence = decision.gather_evidence(
+                gray, grown, xy, _FIT_SHIFT_SCALE * start_radius + _FIT_SHIFT_PX, noise
+            )
+            verdict = decision.decide(
+                evidence,
+                min_radius_px=cfg.marker_radius_min_px,
+                min_extent_fraction=cfg.min_extent_fraction,
+                threshold=self._threshold,
+            )
+            for index, reason in enumerate(decision.REASONS):
+                counts[f"rejected_{reason}"] = int((verdict.reason == index).sum())
+            result.verdicts = decision.Verdicts(grown.fit.shape.xy, verdict, evidence)
+        with timer("subpixel"):
+            accepted = verdict.accepted
+            fit = self._final_fit(gray, grown, accepted)
+            position = fit.shape.xy
+            sigma = np.sqrt(np.maximum(fit.covariance[:, 0, 0] + fit.covariance[:, 1, 1], 0.0))
+            keep = np.flatnonzero(accepted)
+            unique = screening.non_maximum_suppression(
+                position[keep], verdict.score[keep], cfg.min_peak_separation_px / 2.0
+            )
+            counts["merged_duplicates"] = counts.get("merged_duplicates", 0) + int(
+                (~unique).sum()
+            )
+            keep = keep[unique]
+            keep = keep[np.argsort(-verdict.score[keep])]
+            counts["accepted"] = len(keep)
+            confidence = decision.confidence(verdict.score)
+            line_angles = fit.shape.line_angles
+            result.detections = [
+                Detection(
+                    float(position[k, 0]),
+                    float(position[k, 1]),
+                    float(confidence[k]),
+                    float(sigma[k]),
+                    float(line_angles[k, 0]),
+                    float(line_angles[k, 1]),
+                    float(evidence.extent_px[k]),
+                    float(confidence[k]),
+                )
+                for k in keep
+            ]
+
+    def _final_fit(
+        self, gray: np.ndarray, grown: subpixel.GrownFit, accepted: np.ndarray
+    ) -> subpixel.TemplateFit:
+        """The accepted markers' fits again, on every pixel of their X.
+
+        The decision's fits read a lattice of at most :data:`_DECISION_PIXELS`; the
+        others are returned as they are.
+        """
+        fit = grown.fit
+        if not accepted.any():
+            return fit
+        chosen = fit.shape.take(accepted)
+        regions = template.template_region(
+            chosen,
+            grown.extents[accepted],
+            np.full(int(accepted.sum()), self.config.marker_radius_max_px),
+        )
+        final = subpixel.fit_template(gray, chosen, regions, iterations=_FINAL_ITERATIONS)
+        return fit.with_rows(accepted, final)
 
     def _raw_contrast_floor(self, full_scale: float) -> float:
         """Half the configured contrast in raw (not gamma-corrected) grey units.

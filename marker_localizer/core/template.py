@@ -272,3 +272,371 @@ def template_evidence(annular_score: np.ndarray, ncc: np.ndarray, ncc_min: float
         (N,) bool.
     """
     return (ncc >= ncc_min) & (annular_score + NCC_EVIDENCE_WEIGHT * (ncc - ncc_min) >= 1.0)
+
+
+#: Quadrants of the template, in the order of :func:`quadrant_weights`: the sides of
+#: line 1 and line 2 (signs of the signed distances s1, s2) each one covers.
+QUADRANT_SIDES = ((1, 1), (-1, 1), (-1, -1), (1, -1))
+#: The four edges between neighbouring quadrants, as index pairs into
+#: :data:`QUADRANT_SIDES`: an X alternates dark and bright across each of them.
+QUADRANT_EDGES = ((0, 1), (1, 2), (2, 3), (3, 0))
+#: Pixel integration adds the variance of a unit box, 1/12 px^2, to the optics' blur.
+PIXEL_VARIANCE_PX2 = 1.0 / 12.0
+_SQRT_2PI = np.sqrt(2.0 * np.pi)
+#: Quadrant index by (side of line 1, side of line 2), 0 = negative, 1 = positive.
+_QUADRANT_OF = np.array([[2, 1], [3, 0]])
+
+
+class TemplateShape(NamedTuple):
+    """The geometric parameters of the continuous adaptive template, each (N, ...).
+
+    Attributes:
+        xy: (N, 2) centre, where the two lines cross.
+        line_angles: (N, 2) line directions phi1, phi2, radians.
+        blur_px: (N, 2) Gaussian blur across line 1 and across line 2, px (an
+            anisotropic PSF or motion blur widens the two edges differently).
+        gain: (N, 2) relative illumination gradient g: the template is multiplied
+            by 1 + g . d at offset d from the centre.
+        shadow: (N, 4) a cast shadow's straight edge across the marker: the
+            direction of its normal (radians, pointing into the shadow), its signed
+            distance from the centre (px), the share of the light it takes (0: no
+            shadow) and its penumbra's width (px). The template is multiplied by
+            1 - depth * Phi((n . d - offset) / width).
+    """
+
+    xy: np.ndarray
+    line_angles: np.ndarray
+    blur_px: np.ndarray
+    gain: np.ndarray
+    shadow: np.ndarray
+
+    @classmethod
+    def start(cls, xy: np.ndarray, line_angles: np.ndarray, blur_px: float) -> TemplateShape:
+        """A starting shape: blur ``blur_px`` across both lines, even light, no shadow."""
+        n = len(xy)
+        shadow = np.zeros((n, 4))
+        shadow[:, 3] = 1.0
+        return cls(xy, line_angles, np.full((n, 2), blur_px), np.zeros((n, 2)), shadow)
+
+    def take(self, index: np.ndarray) -> TemplateShape:
+        """The shapes selected by a boolean mask or an index array."""
+        return TemplateShape(*(part[index] for part in self))
+
+
+class TemplateTerms(NamedTuple):
+    """The closed-form template's terms at N x K pixel offsets.
+
+    Its weights and its derivatives share them.
+
+    Attributes:
+        dx, dy: (N, K) offsets d of the pixels from the centre.
+        s1, s2: (N, K) signed distances from line 1 and line 2.
+        width1, width2: (N, 1) blur across each line including the pixel's area, px.
+        side1, side2: (N, K) Phi(s1 / width1), Phi(s2 / width2): how much of a pixel
+            lies on the positive side of each line.
+        light: (N, K) the illumination gradient's factor 1 + g . d.
+        shadow_z: (N, K) distance into the shadow in penumbra widths.
+        shade: (N, K) the shadow's factor 1 - depth Phi(shadow_z).
+    """
+
+    dx: np.ndarray
+    dy: np.ndarray
+    s1: np.ndarray
+    s2: np.ndarray
+    width1: np.ndarray
+    width2: np.ndarray
+    side1: np.ndarray
+    side2: np.ndarray
+    light: np.ndarray
+    shadow_z: np.ndarray
+    shade: np.ndarray
+
+    @property
+    def gain(self) -> np.ndarray:
+        """(N, K) everything the light does to the paint: gradient times shadow."""
+        return self.light * self.shade
+
+
+def _phi(z: np.ndarray) -> np.ndarray:
+    """The standard normal's distribution function."""
+    return 0.5 * (1.0 + erf(z / np.sqrt(2.0)))
+
+
+def _density(z: np.ndarray) -> np.ndarray:
+    """The standard normal's density."""
+    return np.exp(-0.5 * z**2) / _SQRT_2PI
+
+
+def template_terms(offsets: np.ndarray, shape: TemplateShape) -> TemplateTerms:
+    """Evaluate the template's terms at offsets d (N, K, 2) from ``shape.xy``."""
+    a1, a2 = shape.line_angles[:, 0:1], shape.line_angles[:, 1:2]
+    dx, dy = offsets[..., 0], offsets[..., 1]
+    s1 = np.sin(a1) * dx - np.cos(a1) * dy
+    s2 = np.sin(a2) * dx - np.cos(a2) * dy
+    blur2 = shape.blur_px**2
+    width1 = np.sqrt(blur2[:, 0:1] + PIXEL_VARIANCE_PX2)
+    width2 = np.sqrt(blur2[:, 1:2] + PIXEL_VARIANCE_PX2)
+    light = 1.0 + shape.gain[:, 0:1] * dx + shape.gain[:, 1:2] * dy
+    normal, offset, depth, width = (shape.shadow[:, k : k + 1] for k in range(4))
+    shadow_z = (np.cos(normal) * dx + np.sin(normal) * dy - offset) / width
+    shade = 1.0 - depth * _phi(shadow_z)
+    return TemplateTerms(
+        dx, dy, s1, s2, width1, width2, _phi(s1 / width1), _phi(s2 / width2), light, shadow_z, shade
+    )
+
+
+def quadrant_weights(terms: TemplateTerms) -> np.ndarray:
+    """The adaptive template of section 3.3.1 in closed form, one grey level per quadrant.
+
+    The paper's template is an X with the measured line angles phi1, phi2, its grey
+    levels sampled from the image and blurred by the defocus sigma_b (Eq. 10). In
+    closed form, quadrant q (the sides (e1, e2) of the two lines it lies on, see
+    :data:`QUADRANT_SIDES`) is w_q(d) = Phi(e1 s1 / b1) Phi(e2 s2 / b2) L(d), with
+    s_i the signed distance of the offset d from line i through the centre,
+    b_i^2 = sigma_i^2 + 1/12 (the optics' blur and the pixel's area) and L(d) the
+    light: an illumination gradient times a cast shadow's edge, if any. The weights
+    of the four quadrants sum to the light, so the template sum_q l_q w_q(d) is
+    exact for perpendicular lines under a Gaussian PSF and close otherwise. Each
+    quadrant keeps its own level l_q: a dull quadrant, worn or dirty paint, does
+    not bend it; nor does a shadow, which the light takes.
+
+    Args:
+        terms: from :func:`template_terms`.
+
+    Returns:
+        (N, K, 4) w_q(d).
+    """
+    p1, p2 = terms.side1, terms.side2
+    unlit = np.stack([p1 * p2, (1.0 - p1) * p2, (1.0 - p1) * (1.0 - p2), p1 * (1.0 - p2)], -1)
+    return unlit * terms.gain[..., None]
+
+
+#: Parameters of the template's geometry, in the order of :func:`template_jacobian`:
+#: centre (2), line angles (2), ln blurs (2), gain (2), shadow edge (4).
+SHAPE_PARAMETERS = 12
+
+
+def shape_parameters(shape: TemplateShape) -> np.ndarray:
+    """(N, 12) the parameter vector :func:`template_jacobian` differentiates by."""
+    shadow = shape.shadow.copy()
+    shadow[:, 3] = np.log(shadow[:, 3])
+    return np.hstack([shape.xy, shape.line_angles, np.log(shape.blur_px), shape.gain, shadow])
+
+
+def shape_from_parameters(params: np.ndarray) -> TemplateShape:
+    """The inverse of :func:`shape_parameters`."""
+    shadow = params[:, 8:12].copy()
+    shadow[:, 3] = np.exp(shadow[:, 3])
+    return TemplateShape(
+        params[:, :2], params[:, 2:4], np.exp(params[:, 4:6]), params[:, 6:8], shadow
+    )
+
+
+def template_jacobian(
+    terms: TemplateTerms, shape: TemplateShape, levels: np.ndarray
+) -> np.ndarray:
+    """Derivatives of the template sum_q l_q w_q(d) with respect to its geometry.
+
+    Args:
+        terms: from :func:`template_terms` at ``shape``.
+        shape: the geometry.
+        levels: (N, 4) the quadrant levels l_q.
+
+    Returns:
+        (N, K, 12) derivatives with respect to :func:`shape_parameters` (x, y, phi1,
+        phi2, ln sigma1, ln sigma2, g_x, g_y, and the shadow's normal, offset,
+        depth, ln width), the pixels staying where they are.
+    """
+    p1, p2 = terms.side1, terms.side2
+    l0, l1, l2, l3 = (levels[:, q : q + 1] for q in range(4))
+    paint = l0 * p1 * p2 + l1 * (1.0 - p1) * p2 + l2 * (1.0 - p1) * (1.0 - p2)
+    paint += l3 * p1 * (1.0 - p2)
+    gain = terms.gain
+    # d(paint)/d(side_i) times each side's density in s_i, times the light.
+    d_s1 = ((l0 - l1) * p2 + (l3 - l2) * (1.0 - p2)) * _density(terms.s1 / terms.width1)
+    d_s1 *= gain / terms.width1
+    d_s2 = ((l0 - l3) * p1 + (l1 - l2) * (1.0 - p1)) * _density(terms.s2 / terms.width2)
+    d_s2 *= gain / terms.width2
+    a1, a2 = shape.line_angles[:, 0:1], shape.line_angles[:, 1:2]
+    g = shape.gain
+    blur2 = shape.blur_px**2
+    normal, _, depth, width = (shape.shadow[:, k : k + 1] for k in range(4))
+    # d(shade)/d(shadow_z) times paint and gradient: the shadow's own terms.
+    d_shadow = -depth * _density(terms.shadow_z) * paint * terms.light
+    jacobian = np.empty(terms.s1.shape + (SHAPE_PARAMETERS,))
+    # Every offset d = p - c moves by -dc when the centre moves by +dc.
+    jacobian[..., 0] = -(d_s1 * np.sin(a1) + d_s2 * np.sin(a2))
+    jacobian[..., 0] -= paint * terms.shade * g[:, 0:1] + d_shadow * np.cos(normal) / width
+    jacobian[..., 1] = d_s1 * np.cos(a1) + d_s2 * np.cos(a2)
+    jacobian[..., 1] -= paint * terms.shade * g[:, 1:2] + d_shadow * np.sin(normal) / width
+    jacobian[..., 2] = d_s1 * (np.cos(a1) * terms.dx + np.sin(a1) * terms.dy)
+    jacobian[..., 3] = d_s2 * (np.cos(a2) * terms.dx + np.sin(a2) * terms.dy)
+    # d width_i / d ln sigma_i = sigma_i^2 / width_i, and d Phi(s/w) / d w = -density s / w^2.
+    jacobian[..., 4] = -d_s1 * terms.s1 * blur2[:, 0:1] / terms.width1**2
+    jacobian[..., 5] = -d_s2 * terms.s2 * blur2[:, 1:2] / terms.width2**2
+    jacobian[..., 6] = paint * terms.shade * terms.dx
+    jacobian[..., 7] = paint * terms.shade * terms.dy
+    jacobian[..., 8] = d_shadow * (np.cos(normal) * terms.dy - np.sin(normal) * terms.dx) / width
+    jacobian[..., 9] = -d_shadow / width
+    jacobian[..., 10] = -_phi(terms.shadow_z) * paint * terms.light
+    jacobian[..., 11] = -d_shadow * terms.shadow_z
+    return jacobian
+
+
+#: Spacing of the samples along each line of :func:`line_extents`, px.
+_EXTENT_STEP_PX = 0.5
+#: The X ends where the step across a line falls below this share of its
+#: expected height: halfway down a blurred end of the paint.
+_EXTENT_FADE = 0.5
+#: Samples beside a line sit this many blur widths from it (plus
+#: :data:`_EXTENT_SIDE_PX`), clear of its blurred edge.
+_EXTENT_SIDE_BLURS = 1.5
+_EXTENT_SIDE_PX = 0.75
+#: Smallest sum of the two sides a modulation divides by, as a share of the fitted
+#: levels' sum: keeps black ground on both sides from dividing by its noise.
+_EXTENT_MIN_SUM = 0.05
+#: Farthest the samples reach, in largest expected marker radii: a plate's end and a
+#: little beyond.
+_EXTENT_REACH = 1.3
+#: The region fitted keeps this many blur widths (plus :data:`_REGION_MARGIN_PX`)
+#: inside the measured ends of the X, where the paint's outline blurs in.
+_REGION_MARGIN_BLURS = 1.5
+_REGION_MARGIN_PX = 0.5
+#: Smallest conjugate semi-diameter of a region, px.
+_REGION_MIN_PX = 1.5
+
+
+def half_line_quadrants(line_angles: np.ndarray) -> np.ndarray:
+    """(N, 4, 2) the quadrants on the positive and negative side of each half-line.
+
+    Half-lines in the order +e1, +e2, -e1, -e2 (e_i the direction of line i); the
+    positive side of line i is where its signed distance s_i is positive.
+    """
+    a1, a2 = line_angles[:, 0], line_angles[:, 1]
+    # Along +e1 the signed distance from line 2 is sin(a2 - a1) t, and vice versa.
+    other = np.stack([np.sin(a2 - a1), np.sin(a1 - a2)], axis=1)
+    other_side = np.where(other >= 0, 1, 0)  # (N, 2): 1 = positive side
+    # _QUADRANT_OF[side of line 1][side of line 2], sides as 0 (negative) / 1 (positive).
+    out = np.empty((len(line_angles), 4, 2), dtype=np.intp)
+    for k, (line, direction) in enumerate(((0, 1), (1, 1), (0, -1), (1, -1))):
+        across = other_side[:, line] if direction > 0 else 1 - other_side[:, line]
+        for column, side in enumerate((1, 0)):
+            if line == 0:
+                out[:, k, column] = _QUADRANT_OF[side, across]
+            else:
+                out[:, k, column] = _QUADRANT_OF[across, side]
+    return out
+
+
+def line_extents(
+    image: np.ndarray,
+    shape: TemplateShape,
+    levels: np.ndarray,
+    max_radius_px: float,
+) -> np.ndarray:
+    """How far each of the four half-lines of the X reaches from its centre, px.
+
+    Along each half-line the image is sampled on both sides of it; the X goes on
+    while the modulation of the two sides, (a - b) / (a + b), keeps the one the
+    fitted quadrant levels predict, and ends where it fades to half of it (the end
+    of the quarter disks or squares: a white plate or the ground on both sides).
+    This is the adaptive radius of the paper's annular check, measured on the
+    lines. It survives a dull quadrant (its levels predict its smaller step) and a
+    shadow across the marker or any other change of the light (a modulation does
+    not see a factor on both sides). For an X seen under any affine view the two
+    halves of a line reach equally far.
+
+    Args:
+        image: (H, W) grey image.
+        shape: fitted geometry, N points.
+        levels: (N, 4) fitted quadrant levels.
+        max_radius_px: the largest expected marker radius.
+
+    Returns:
+        (N, 4) reach of the half-lines +e1, +e2, -e1, -e2 (at least the first sample
+        clear of the crossing; at most :data:`_EXTENT_REACH` x ``max_radius_px``).
+    """
+    n = len(shape.xy)
+    distance = np.arange(_EXTENT_STEP_PX, _EXTENT_REACH * max_radius_px + 1.0, _EXTENT_STEP_PX)
+    extents = np.empty((n, 4))
+    if n == 0:
+        return extents
+    sides = half_line_quadrants(shape.line_angles)
+    rows = np.arange(n)
+    sine = np.abs(np.sin(shape.line_angles[:, 0] - shape.line_angles[:, 1]))
+    for k, (line, direction) in enumerate(((0, 1), (1, 1), (0, -1), (1, -1))):
+        angle = shape.line_angles[:, line]
+        along = direction * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        normal = np.stack([np.sin(angle), -np.cos(angle)], axis=1)
+        side = _EXTENT_SIDE_BLURS * np.sqrt(shape.blur_px[:, line] ** 2 + PIXEL_VARIANCE_PX2)
+        side = side + _EXTENT_SIDE_PX
+        # Samples beside the line cross the other line until this distance.
+        first = side * (np.sqrt(np.maximum(1.0 - sine**2, 0.0)) / np.maximum(sine, 0.2) + 1.0)
+        on_line = shape.xy[:, None, :] + distance[None, :, None] * along[:, None, :]
+        beside = side[:, None, None] * normal[:, None, :]
+        plus, valid_plus = bilinear(image, *np.moveaxis(on_line + beside, -1, 0))
+        minus, valid_minus = bilinear(image, *np.moveaxis(on_line - beside, -1, 0))
+        high, low = levels[rows, sides[:, k, 0]], levels[rows, sides[:, k, 1]]
+        total = np.abs(high + low)[:, None]
+        expected = (high - low)[:, None] / np.maximum(total, 1e-12)
+        modulation = (plus - minus) / np.maximum(np.abs(plus + minus), _EXTENT_MIN_SUM * total)
+        ratio = np.where(
+            valid_plus & valid_minus,
+            modulation / np.where(expected == 0, 1e-12, expected),
+            0.0,
+        )
+        smooth = ratio.copy()
+        smooth[:, 1:-1] = (ratio[:, :-2] + ratio[:, 1:-1] + ratio[:, 2:]) / 3.0
+        faded = (smooth < _EXTENT_FADE) & (distance[None, :] >= first[:, None])
+        end = np.where(faded.any(axis=1), np.argmax(faded, axis=1), len(distance) - 1)
+        extents[:, k] = distance[end]
+    return extents
+
+
+def template_region(
+    shape: TemplateShape,
+    extents: np.ndarray,
+    cap_px: np.ndarray,
+    max_pixels: int | None = None,
+) -> list[np.ndarray]:
+    """Pixels inside the X: the ellipse on the two lines' reaches, clear of its ends.
+
+    Under an affine view the ends of the X lie on an ellipse whose conjugate
+    semi-diameters run along the two lines (the images of the marker's axes), so
+    the shorter half of each line (``extents``) and the two directions fix it. The
+    ellipse is shrunk by the blur so that the blurred outline of the paint stays
+    out, and capped at ``cap_px`` (a region grows step by step).
+
+    Args:
+        shape: fitted geometry, N points.
+        extents: (N, 4) from :func:`line_extents`.
+        cap_px: (N,) largest semi-diameter allowed.
+        max_pixels: thin a larger region to every s-th row and column of the pixels
+            (s the smallest stride that fits), a lattice symmetric about the
+            centre; None keeps every pixel.
+
+    Returns:
+        Per point, (K_i, 2) integer offsets from ``round(shape.xy)`` (possibly empty).
+    """
+    reach = np.minimum(np.minimum(extents[:, :2], extents[:, 2:]), cap_px[:, None])
+    margin = _REGION_MARGIN_BLURS * np.sqrt(shape.blur_px.max(axis=1) ** 2 + PIXEL_VARIANCE_PX2)
+    semi = np.maximum(reach - (margin + _REGION_MARGIN_PX)[:, None], _REGION_MIN_PX)
+    regions = []
+    for k in range(len(shape.xy)):  # per point (not per pixel): each has its own ellipse
+        a1, a2 = shape.line_angles[k]
+        axes = np.array([[np.cos(a1), np.cos(a2)], [np.sin(a1), np.sin(a2)]]) * semi[k]
+        det = np.linalg.det(axes)
+        if abs(det) < 1e-9:
+            regions.append(np.zeros((0, 2)))
+            continue
+        half = int(np.ceil(semi[k].max())) + 1
+        grid = np.arange(-half, half + 1, dtype=np.float64)
+        gx, gy = np.meshgrid(grid, grid)
+        offsets = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        uv = (offsets + np.round(shape.xy[k]) - shape.xy[k]) @ np.linalg.inv(axes).T
+        inside = offsets[(uv**2).sum(axis=1) <= 1.0]
+        if max_pixels is not None and len(inside) > max_pixels:
+            stride = int(np.ceil(np.sqrt(len(inside) / max_pixels)))
+            inside = inside[(inside % stride == 0).all(axis=1)]
+        regions.append(inside)
+    return regions

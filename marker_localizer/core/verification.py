@@ -91,6 +91,20 @@ def annular_profiles(
     return np.where(valid, values, np.nan)
 
 
+def annular_profiles_at(image: np.ndarray, xy: np.ndarray, radius_px: np.ndarray) -> np.ndarray:
+    """(N, 36) grey levels on one ring per point, each of its own radius (N,); NaN outside."""
+    theta = np.deg2rad(np.arange(N_ANGLES) * 360.0 / N_ANGLES)
+    x = xy[:, 0, None] + radius_px[:, None] * np.cos(theta)
+    y = xy[:, 1, None] + radius_px[:, None] * np.sin(theta)
+    values, valid = bilinear(image, x, y)
+    return np.where(valid, values, np.nan)
+
+
+def ring_symmetry(profiles: np.ndarray) -> np.ndarray:
+    """(...,) 180-degree self-correlation of [1, 2, 1]-smoothed ring profiles (-1 outside)."""
+    return _smoothed_contrast_symmetry(profiles)[2]
+
+
 def _circular_smooth(profile: np.ndarray) -> np.ndarray:
     """Smooth along the angle axis with a [1, 2, 1] / 4 kernel (the paper's DoG pre-filter)."""
     return 0.25 * (profile[..., _PREVIOUS] + 2.0 * profile + profile[..., _NEXT])
@@ -879,3 +893,167 @@ def _on_segment(points: np.ndarray, segments: np.ndarray, slack_px: float = 0.5)
     t = np.einsum("ij,ij->i", points - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
     slack = slack_px / np.maximum(np.linalg.norm(d, axis=1), 1e-12)
     return (t >= -slack) & (t <= 1.0 + slack)
+
+
+class SectorOrder(NamedTuple):
+    """Result of :func:`sector_order` for N rings, each (N,).
+
+    Attributes:
+        strength: edge strength of the weaker of the two antipodal edge pairs
+            (image units per 10 degrees); below 0 where the ring leaves the image.
+        rising: index k (0-17) of the pair of rising edges (dark to bright going
+            round), at 10 k and 10 k + 180 degrees.
+        falling: index of the pair of falling edges.
+    """
+
+    strength: np.ndarray
+    rising: np.ndarray
+    falling: np.ndarray
+
+
+def sector_order(profiles: np.ndarray) -> SectorOrder:
+    """The order of dark and bright sectors on rings, from their edges alone.
+
+    Going round an X, the grey level rises into each bright quadrant and falls
+    out of it, and the edges come in antipodal pairs: the two lines through the
+    centre cross every ring twice, 180 degrees apart, and both crossings of one
+    line rise (or both fall). This reads the edges from the profile's derivative
+    (the paper's annular scan turns extrema into zero crossings the same way) and
+    scores the weaker edge of the best rising pair and of the best falling pair,
+    within one sample of antipodal. It needs neither equal grey levels on the two
+    bright quadrants (a dull one keeps its edges, only weaker) nor their absence
+    elsewhere (a shadow edge across the ring adds edges, it removes none), which a
+    grey-level self-correlation does: that is what makes it robust to uneven light.
+
+    Args:
+        profiles: (..., 36) ring samples, NaN where the ring leaves the image.
+
+    Returns:
+        :class:`SectorOrder` over the leading axes.
+    """
+    missing = np.isnan(profiles).any(axis=-1)
+    f = _circular_smooth(np.where(np.isnan(profiles), 0.0, profiles))
+    slope = 0.5 * (f[..., _NEXT] - f[..., _PREVIOUS])
+    opposite = slope[..., _OPPOSITE]
+    # Antipodal within one sample (10 degrees) either way.
+    opposite_high = np.maximum(opposite, np.maximum(opposite[..., _NEXT], opposite[..., _PREVIOUS]))
+    opposite_low = np.minimum(opposite, np.minimum(opposite[..., _NEXT], opposite[..., _PREVIOUS]))
+    rising = np.minimum(slope, opposite_high)[..., :_HALF_TURN]
+    falling = np.minimum(-slope, -opposite_low)[..., :_HALF_TURN]
+    strength = np.minimum(rising.max(axis=-1), falling.max(axis=-1))
+    return SectorOrder(
+        np.where(missing, -1.0, strength), rising.argmax(axis=-1), falling.argmax(axis=-1)
+    )
+
+
+def ring_edge_noise(noise_std: np.ndarray | float) -> np.ndarray | float:
+    """Std of :func:`sector_order`'s slope for ring samples of noise std ``noise_std``.
+
+    The slope (f[k+2] + 2 f[k+1] - 2 f[k-1] - f[k-2]) / 8 of the [1, 2, 1]-smoothed
+    profile has std sqrt(10) / 8 of the samples' when they are independent.
+    """
+    return np.sqrt(10.0) / 8.0 * noise_std
+
+
+def prescreen_sector_order(
+    image: np.ndarray,
+    xy: np.ndarray,
+    radii_px: np.ndarray,
+    min_strength: np.ndarray,
+    max_angle_drift: int = 2,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cascaded sector-order test on nearest-pixel rings, for many candidates.
+
+    A candidate passes when every ring (of its own radii) shows the X's edge pairs
+    stronger than ``min_strength`` at directions that agree from ring to ring
+    within ``max_angle_drift`` samples (the lines through the centre are straight),
+    and its two dark sectors agree (:func:`dark_paint_agrees`); rings are read one
+    radius at a time, only for the candidates still alive.
+
+    Args:
+        image: (H, W) grey image, native dtype.
+        xy: (N, 2) candidates.
+        radii_px: (N, J) each candidate's ring radii.
+        min_strength: (N,) smallest edge strength (image units per 10 degrees).
+        max_angle_drift: largest change of an edge pair's direction between rings,
+            in samples of 10 degrees.
+
+    Returns:
+        (passed, line_angles): (N,) bool, and (N, 2) the directions (radians) of the
+        rising and the falling edge pair on the first ring: the two lines.
+    """
+    n = len(xy)
+    alive = np.arange(n)
+    first: SectorOrder | None = None
+    for j in range(radii_px.shape[1]):
+        ring = _nearest_ring(image, xy[alive], radii_px[alive, j]).astype(np.float64)
+        order = sector_order(ring)
+        keep = (order.strength >= min_strength[alive]) & dark_paint_agrees(ring, order)
+        if first is None:
+            first = order
+            first_rising, first_falling = order.rising, order.falling
+        else:
+            keep &= (_index_gap(order.rising, first_rising) <= max_angle_drift) & (
+                _index_gap(order.falling, first_falling) <= max_angle_drift
+            )
+        alive, first_rising, first_falling = alive[keep], first_rising[keep], first_falling[keep]
+    passed = np.zeros(n, dtype=bool)
+    passed[alive] = True
+    angles: np.ndarray = np.zeros((n, 2))
+    if first is not None:
+        angles = np.stack([first.rising, first.falling], axis=1) * (2.0 * np.pi / N_ANGLES)
+    return passed, angles
+
+
+#: The two dark sectors of a ring may differ by at most this share of its contrast:
+#: black paint stays black (a dull, worn or wet quadrant is a bright one; a shadow
+#: darkens black paint by a fraction of little), while the dark gaps between stones
+#: or leaves differ as much as the stones do.
+_DARK_PAIR_TOLERANCE = 0.3
+#: The duller bright sector must stand above the darker pair by at least this share
+#: of the ring's contrast: a bright quadrant 0.45 as bright as the other does, in a
+#: shadow too.
+_BRIGHT_MARGIN = 0.05
+
+
+def dark_paint_agrees(profiles: np.ndarray, order: SectorOrder) -> np.ndarray:
+    """(N,) whether a ring's two dark sectors match and both bright ones stand above them.
+
+    The sectors lie between the edges :func:`sector_order` found (rising at k and
+    k + 18, falling at the other pair); each sector's level is the mean of its
+    samples. Of the two pairs of opposite sectors the darker pair is the dark paint.
+
+    Args:
+        profiles: (N, 36) ring samples.
+        order: their sector order.
+
+    Returns:
+        (N,) bool.
+    """
+    edges = np.sort(
+        np.stack([order.rising, order.falling, order.rising + _HALF_TURN,
+                  order.falling + _HALF_TURN], axis=1) % N_ANGLES,
+        axis=1,
+    )
+    # Sector s runs from edge s to edge s + 1 (the samples before the first edge close
+    # the last sector round the ring).
+    sector = (np.arange(N_ANGLES)[None, :, None] >= edges[:, None, :]).sum(axis=2) % 4
+    members = sector[..., None] == np.arange(4)  # (N, 36, 4)
+    count = members.sum(axis=1)
+    level = np.einsum("nk,nks->ns", np.nan_to_num(profiles), members) / np.maximum(count, 1)
+    first, second = level[:, [0, 2]], level[:, [1, 3]]
+    first_dark = first.mean(axis=1) < second.mean(axis=1)
+    dark = np.where(first_dark[:, None], first, second)
+    bright = np.where(first_dark[:, None], second, first)
+    contrast = bright.max(axis=1) - dark.mean(axis=1)
+    return (
+        (np.abs(dark[:, 0] - dark[:, 1]) <= _DARK_PAIR_TOLERANCE * contrast)
+        & (bright.min(axis=1) - dark.max(axis=1) >= _BRIGHT_MARGIN * contrast)
+        & (count > 0).all(axis=1)
+    )
+
+
+def _index_gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance of two half-turn sample indices (0-17), modulo a half turn."""
+    gap = np.abs(a - b) % _HALF_TURN
+    return np.minimum(gap, _HALF_TURN - gap)

@@ -1,0 +1,124 @@
+"""The continuous adaptive template (section 3.3.1 in closed form) and its least-squares fit."""
+
+import numpy as np
+import pytest
+
+from marker_localizer.core import subpixel, template
+from marker_localizer.synthetic import MarkerPlacement, render_markers
+from marker_localizer.synthetic.scene import CastShadow
+
+
+def _shape(**changes: np.ndarray) -> template.TemplateShape:
+    shape = template.TemplateShape(
+        np.array([[0.3, -0.2]]),
+        np.array([[0.4, 1.9]]),
+        np.array([[0.8, 1.3]]),
+        np.array([[0.01, -0.02]]),
+        np.array([[2.1, 0.7, 0.5, 1.2]]),
+    )
+    return shape._replace(**changes)
+
+
+def _model(shape: template.TemplateShape, pixels: np.ndarray, levels: np.ndarray) -> np.ndarray:
+    terms = template.template_terms(pixels - shape.xy[:, None, :], shape)
+    return (template.quadrant_weights(terms) @ levels[..., None])[..., 0]
+
+
+def test_the_template_jacobian_matches_finite_differences_of_every_parameter():
+    pixels = np.random.default_rng(0).uniform(-5, 5, (1, 80, 2))
+    levels = np.array([[200.0, 30.0, 150.0, 40.0]])
+    shape = _shape()
+    terms = template.template_terms(pixels - shape.xy[:, None, :], shape)
+    jacobian = template.template_jacobian(terms, shape, levels)
+    params = template.shape_parameters(shape)[0]
+    for k in range(template.SHAPE_PARAMETERS):
+        step = np.zeros_like(params)
+        step[k] = 1e-6
+        plus = _model(template.shape_from_parameters((params + step)[None]), pixels, levels)
+        minus = _model(template.shape_from_parameters((params - step)[None]), pixels, levels)
+        np.testing.assert_allclose(jacobian[..., k], (plus - minus) / 2e-6, atol=2e-6)
+
+
+def test_the_quadrant_weights_sum_to_the_light_everywhere():
+    pixels = np.random.default_rng(1).uniform(-6, 6, (1, 50, 2))
+    shape = _shape()
+    terms = template.template_terms(pixels - shape.xy[:, None, :], shape)
+    np.testing.assert_allclose(template.quadrant_weights(terms).sum(axis=-1), terms.gain)
+
+
+def test_each_half_line_lies_between_the_quadrants_its_sides_name():
+    # Line 1 along +x (s1 = -y), line 2 along +y (s2 = x).
+    sides = template.half_line_quadrants(np.array([[0.0, np.pi / 2]]))[0]
+    for k, direction in enumerate([(1, 0), (0, 1), (-1, 0), (0, -1)]):
+        line = k % 2
+        normal = np.array([(0.0, -1.0), (1.0, 0.0)][line])
+        for column, sign in enumerate((1, -1)):
+            point = 5.0 * np.array(direction) + sign * 0.5 * normal
+            s = (-point[1], point[0])
+            quadrant = template.QUADRANT_SIDES[sides[k, column]]
+            assert (np.sign(s[0]), np.sign(s[1])) == quadrant
+
+
+def _rendered(placement: MarkerPlacement, **kwargs: object) -> np.ndarray:
+    return render_markers((80, 80), [placement], 0, reflectances=(0.1, 0.85),
+                          blur_sigma_px=0.9, **kwargs).image
+
+
+def _fit(image: np.ndarray, xy: np.ndarray, angles: np.ndarray, radius: float = 12.0,
+         noise: float | None = None) -> subpixel.GrownFit:
+    start = template.TemplateShape.start(xy[None], angles[None], 1.0)
+    return subpixel.fit_growing_template(
+        image, start, np.array([4.0]), radius,
+        noise_std=None if noise is None else np.array([noise]),
+    )
+
+
+def test_the_fit_finds_an_untilted_marker_to_a_hundredth_of_a_pixel_from_a_pixel_off():
+    placement = MarkerPlacement(40.3, 39.6, 12.0, rotation_rad=0.3)
+    image = _rendered(placement)
+    grown = _fit(image, np.array([41.0, 39.0]), np.array([0.2, 1.9]))
+    assert np.hypot(*(grown.fit.shape.xy[0] - (40.3, 39.6))) < 0.01
+    # The lines are the images of the plate's axes: rotated by 0.3 rad.
+    found = np.sort(grown.fit.shape.line_angles[0])
+    np.testing.assert_allclose(found, np.sort([0.3, 0.3 + np.pi / 2]), atol=0.01)
+    # The X reaches its radius along every half-line (to the blur and the sampling).
+    np.testing.assert_allclose(grown.extents[0], 12.0, atol=1.5)
+
+
+def test_a_dull_quadrant_keeps_its_own_level_and_moves_the_centre_by_nothing():
+    sharp = MarkerPlacement(40.3, 39.6, 12.0, rotation_rad=0.3)
+    dull = MarkerPlacement(40.3, 39.6, 12.0, rotation_rad=0.3, dull_factor=0.5)
+    levels = []
+    for placement in (sharp, dull):
+        grown = _fit(_rendered(placement), np.array([41.0, 39.0]), np.array([0.2, 1.9]))
+        assert np.hypot(*(grown.fit.shape.xy[0] - (40.3, 39.6))) < 0.01
+        levels.append(np.sort(grown.fit.levels[0]))
+    # The sharp marker's two bright quadrants are alike; the dull one's is half as bright.
+    assert levels[0][3] == pytest.approx(levels[0][2], rel=0.02)
+    assert levels[1][2] == pytest.approx(0.5 * levels[1][3], rel=0.03)
+
+
+def test_a_cast_shadow_across_the_marker_is_found_and_leaves_the_centre_unbiased():
+    placement = MarkerPlacement(40.3, 39.6, 12.0, rotation_rad=0.3)
+    shadow = CastShadow(40.3, 39.6, normal_rad=2.0, offset_px=3.0, darkening=0.55,
+                        reach_px=30.0)
+    image = _rendered(placement, cast_shadows=[shadow])
+    plain = _fit(image, np.array([41.0, 39.0]), np.array([0.2, 1.9]))
+    shaded = _fit(image, np.array([41.0, 39.0]), np.array([0.2, 1.9]), noise=1.0)
+    error_plain = np.hypot(*(plain.fit.shape.xy[0] - (40.3, 39.6)))
+    error_shaded = np.hypot(*(shaded.fit.shape.xy[0] - (40.3, 39.6)))
+    assert error_shaded < 0.02 < error_plain
+    normal, offset, depth, _ = shaded.fit.shape.shadow[0]
+    assert np.cos(normal - 2.0) > 0.99
+    assert offset == pytest.approx(3.0, abs=0.3)
+    assert depth == pytest.approx(0.55, abs=0.05)
+
+
+def test_a_tilted_marker_s_lines_reach_equally_far_on_both_sides_of_its_centre():
+    placement = MarkerPlacement(40.3, 39.6, 14.0, rotation_rad=0.2, tilt_deg=50.0,
+                                tilt_axis_rad=0.9)
+    image = _rendered(placement)
+    grown = _fit(image, np.array([40.0, 40.0]), np.array([0.3, 1.6]), radius=16.0)
+    extents = grown.extents[0]
+    np.testing.assert_allclose(extents[:2], extents[2:], atol=1.0)
+    assert np.hypot(*(grown.fit.shape.xy[0] - (40.3, 39.6))) < 0.02
