@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench.accuracy import families
-from marker_localizer.core import decision, verification
+from marker_localizer.core import decision, pipeline, verification
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
 
@@ -291,3 +291,29 @@ def test_tracking_confirms_markers_half_a_pixel_off_by_the_template_decision(clu
     # Not to the fit's tolerance: its pixels reach as far as the extent measured from
     # each start, and a few pixels more or less move the optimum by hundredths.
     assert distance.max() < 0.03
+
+
+def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_counts_the_rest(
+    monkeypatch,
+):
+    """A frame with more X's than the cap: the cap's worth are verified, the rest counted."""
+    board = render_checkerboard(
+        (480, 640), (9, 7), 32.0, rotation_rad=0.2, blur_sigma_px=1.0, noise_sigma_dn=2.0,
+        seed=2,
+    )
+    detector = Detector(DetectorConfig(marker_radius_min_px=12.0, marker_radius_max_px=32.0))
+    everything = detector.detect(board.image)
+    assert len(everything) == 63
+    monkeypatch.setattr(pipeline, "_MAX_VERIFIED", 10)
+    monkeypatch.setattr(pipeline, "_PRESCREEN_BATCH", 4)
+    capped = detector.detect(board.image)
+    counts = capped.counts
+    assert len(capped) == 10
+    assert counts["dropped_over_verification_cap"] > 53
+    after_screening = counts["after_suppression"] - counts["dropped_over_cap"]
+    assert after_screening == (
+        counts["rejected_prescreen"] + counts["dropped_over_verification_cap"] + 10
+    )
+    # The ten are corners the full pass found, at the same positions.
+    distance, _ = cKDTree(everything.as_array()[:, :2]).query(capped.as_array()[:, :2])
+    assert np.all(distance < 1e-6)

@@ -242,3 +242,93 @@ def test_greedy_entropy_thinning_raises_the_entropy_at_every_step_up_to_the_thre
         assert sorted(map(tuple, thinned.xy)) == sorted(map(tuple, xy[by_hand]))
         assert screening.grid_entropy(thinned.xy, 64) >= min(target, entropies[-1]) - 1e-12
     assert len(screening.greedy_entropy_thinning(candidates, 64, 0.0)) == len(xy)
+
+
+def _maxima_by_hand(response, threshold):
+    """Above the threshold, no larger neighbour, ties to the first pixel in raster order."""
+    height, width = response.shape
+    found = []
+    for row in range(1, height - 1):
+        for col in range(1, width - 1):
+            value = response[row, col]
+            neighbours = [
+                (d_row, d_col, response[row + d_row, col + d_col])
+                for d_row in (-1, 0, 1)
+                for d_col in (-1, 0, 1)
+                if (d_row, d_col) != (0, 0)
+            ]
+            if value > threshold and all(
+                n < value or (n == value and (d_row, d_col) > (0, 0))
+                for d_row, d_col, n in neighbours
+            ):
+                found.append(row * width + col)
+    return found
+
+
+@pytest.mark.parametrize("threshold", [0.5, 18.5], ids=["busy", "quiet"])
+def test_local_maxima_are_the_3x3_maxima_with_ties_to_the_first_pixel_on_busy_and_quiet_ground(
+    threshold,
+):
+    # Integer levels make plateaus: each must give exactly one peak.
+    response = np.random.default_rng(3).integers(0, 20, (40, 50)).astype(np.float32)
+    share_above = np.mean(response > threshold)
+    # The busy response takes the dilation, the quiet one the neighbour look-ups.
+    assert (share_above > screening._DENSE_MAXIMA_SHARE) == (threshold < 1)
+    assert list(screening._local_maxima(response, threshold)) == _maxima_by_hand(
+        response, threshold
+    )
+
+
+def test_sort_keys_order_points_by_cell_then_strongest_first_whatever_the_sign():
+    cell = np.array([1, 0, 1, 0, 1, 0])
+    strength = np.array([-2.0, 0.0, 3.5, -1.0, 0.0, 7.0])
+    order = np.argsort(screening.strongest_first_in_cell(cell, strength))
+    assert list(order) == [5, 1, 3, 2, 4, 0]
+
+
+def test_the_strongest_candidates_keep_their_order():
+    candidates = screening.Candidates(
+        np.arange(10.0).reshape(5, 2), np.array([1.0, 5.0, 3.0, 5.0, 2.0]), np.ones(5)
+    )
+    assert list(candidates.strongest(3).strength) == [5.0, 3.0, 5.0]
+    assert candidates.strongest(9) is candidates
+
+
+def test_the_cell_cap_bounds_busy_ground_per_level_and_keeps_what_the_frames_cap_keeps():
+    """Sensor noise fills every level with peaks: capped per level, the frame's cap keeps
+    (nearly) the same points, and a marker in the noise stays a candidate."""
+    marker = _x_frame(120.3, 80.6, 8.0, shape=(256, 320)) * 180 + 40
+    noisy = marker + np.random.default_rng(5).normal(0, 40, marker.shape)
+    image = np.clip(noisy, 0, 255).astype(np.uint8)
+    uncapped = screening.saddle_candidates(image, (3.0, 30.0), 20.0)
+    capped = screening.saddle_candidates(
+        image, (3.0, 30.0), 20.0, cell_cap=screening.CellCap(64, 48)
+    )
+    levels = len(screening.saddle_levels((3.0, 30.0)))
+    cells = (256 // 64) * (320 // 64)
+    # Each level's peaks are capped, plus the first level's split-peak midpoints.
+    assert len(capped) <= 2 * levels * cells * 48 < len(uncapped) / 10
+    kept_uncapped = screening.grid_entropy_thinning(uncapped, 64, 48)
+    kept_capped = screening.grid_entropy_thinning(capped, 64, 48)
+    common = {tuple(p) for p in kept_uncapped.xy.round(9)} & {
+        tuple(p) for p in kept_capped.xy.round(9)
+    }
+    assert len(common) >= 0.95 * len(kept_uncapped)
+    assert np.linalg.norm(capped.xy - [120.3, 80.6], axis=1).min() < 1.0
+
+
+def test_a_window_caps_its_cells_on_the_frames_grid():
+    """A window's candidates are capped in the frame's cells, as a full pass caps them."""
+    image = np.clip(np.random.default_rng(6).normal(128, 40, (192, 256)), 0, 255).astype(
+        np.uint8
+    )
+    cap = screening.CellCap(64, 8)
+    full = screening.saddle_candidates(image, (6.0, 30.0), 20.0, cell_cap=cap)
+    x0, y0 = 32, 64  # the crop starts mid-cell in x
+    part = screening.saddle_candidates(
+        image[y0:, x0:], (6.0, 30.0), 20.0, cell_cap=cap._replace(origin_px=(x0, y0))
+    )
+    inside = (full.xy[:, 0] >= x0 + 16) & (full.xy[:, 1] >= y0 + 16)
+    wanted = {tuple(p) for p in full.xy[inside].round(6)}
+    got = {tuple(p) for p in (part.xy + [x0, y0]).round(6)}
+    assert wanted and wanted <= got
