@@ -235,3 +235,14 @@ def test_diagnostic_array_carries_the_stamp_and_every_status():
     array = diagnostic_array(Time(sec=12, nanosec=5), statuses)
     assert array.header.stamp == Time(sec=12, nanosec=5)
     assert [s.name for s in array.status] == ["loc: cam1"]
+
+
+def test_candidates_the_detectors_caps_cut_are_counted_and_shown_per_camera():
+    stats, now = healthy_camera(frames=3)
+    stats.frame_processed(now, latency_ms=50.0, clock_offset_s=0.01, markers=2, capped=1200)
+    stats.frame_processed(now, latency_ms=50.0, clock_offset_s=0.01, markers=2, capped=30)
+    snap = stats.snapshot(now)
+    assert (snap.frames_capped, snap.candidates_capped) == (2, 1230)
+    values = values_of(camera_status("marker_localizer", snap, LIMITS))
+    assert values["frames capped"] == "2"
+    assert values["candidates capped"] == "1230"

@@ -546,10 +546,10 @@ def holding(camera):
     release = threading.Event()
 
     class HeldCameraProcessor(FrameProcessor):
-        def detections(self, frame_camera, pixels, stamp_s):
+        def detect(self, frame_camera, pixels, stamp_s):
             if frame_camera == camera:
                 release.wait(TIMEOUT_S)
-            return super().detections(frame_camera, pixels, stamp_s)
+            return super().detect(frame_camera, pixels, stamp_s)
 
     return HeldCameraProcessor, release
 
@@ -971,6 +971,23 @@ def test_blocking_submit_processes_every_frame_in_order_per_camera():
     for camera in ("a", "b"):
         assert [s for c, s, _ in collect.results if c == camera] == list(range(1, 9))
     assert all(s.dropped_mailbox == s.dropped_age == 0 for s in processor.snapshots().values())
+
+
+def test_candidates_the_detectors_caps_cut_reach_the_cameras_diagnostics():
+    collect = Collector()
+    noise = np.random.default_rng(1).integers(0, 256, (64, 64), dtype=np.uint8)
+    # The X gives 3 candidates, noise dozens: a cap of 3 cuts the noise's only.
+    config = DetectorConfig(max_candidates=3, tracking=False)
+    processor = FrameProcessor(["cam0"], config, collect, workers=1)
+    try:
+        assert processor.submit("cam0", stamped(1), block=True)
+        assert processor.submit("cam0", stamped(2, noise), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    snap = processor.snapshots()["cam0"]
+    assert snap.frames_capped == 1
+    assert snap.candidates_capped > 10
 
 
 def test_shutdown_delivers_the_frame_in_flight_and_discards_waiting_ones():

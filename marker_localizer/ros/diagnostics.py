@@ -93,6 +93,10 @@ class CameraSnapshot:
         dropped_mailbox: frames replaced by a newer one before a worker took them.
         dropped_age: frames that waited longer than the age limit in the node.
         errors: frames that failed (bad input or processing exception).
+        frames_capped: processed frames of which the detector's caps (its bounded
+            worst case: ``max_candidates``, and the candidates it verifies) cut
+            candidates, since start.
+        candidates_capped: candidates those caps cut, since start.
         received_in_window: frames received within the window.
         dropped_in_window: frames dropped (either reason) within the window.
         input_rate_hz: received frames per second over the window.
@@ -118,6 +122,8 @@ class CameraSnapshot:
     dropped_mailbox: int
     dropped_age: int
     errors: int
+    frames_capped: int
+    candidates_capped: int
     received_in_window: int
     dropped_in_window: int
     input_rate_hz: float
@@ -149,6 +155,7 @@ class CameraStats:
         self._window_ns = int(window_s * _NS_PER_S)
         self._received = self._processed = 0
         self._dropped_mailbox = self._dropped_age = self._errors = 0
+        self._frames_capped = self._candidates_capped = 0
         self._last_frame_ns: int | None = None
         self._last_error = ""
         self._last_error_ns: int | None = None
@@ -179,7 +186,12 @@ class CameraStats:
             self._dropped_at.append(now_ns)
 
     def frame_processed(
-        self, now_ns: int, latency_ms: float, clock_offset_s: float, markers: int
+        self,
+        now_ns: int,
+        latency_ms: float,
+        clock_offset_s: float,
+        markers: int,
+        capped: int = 0,
     ) -> None:
         """Count a delivered result.
 
@@ -188,9 +200,12 @@ class CameraStats:
             latency_ms: arrival in the mailbox to delivery, ms.
             clock_offset_s: arrival time minus the frame's header stamp, s.
             markers: markers found in the frame.
+            capped: candidates the detector's caps cut in the frame.
         """
         with self._lock:
             self._processed += 1
+            self._frames_capped += capped > 0
+            self._candidates_capped += capped
             self._results.append((now_ns, latency_ms, clock_offset_s, markers))
             while len(self._results) > _LATENCY_SAMPLES:
                 self._results.popleft()
@@ -222,6 +237,8 @@ class CameraStats:
                 dropped_mailbox=self._dropped_mailbox,
                 dropped_age=self._dropped_age,
                 errors=self._errors,
+                frames_capped=self._frames_capped,
+                candidates_capped=self._candidates_capped,
                 received_in_window=len(self._received_at),
                 dropped_in_window=len(self._dropped_at),
                 input_rate_hz=len(self._received_at) / span_s,
@@ -388,6 +405,8 @@ def camera_status(
         "camera rate from stamps (Hz)": f"{rate_hz:.3g}",
         "time since last frame (s)": f"{snapshot.since_last_frame_s:.2f}",
         "errors": str(snapshot.errors),
+        "frames capped": str(snapshot.frames_capped),
+        "candidates capped": str(snapshot.candidates_capped),
         "last error": snapshot.last_error,
         "window (s)": f"{thresholds.window_s:g}",
         **(extra or {}),

@@ -51,7 +51,7 @@ from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig
-from marker_localizer.core.pipeline import Detection, Detector
+from marker_localizer.core.pipeline import CAP_COUNTS, DetectionResult, Detector
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.errors import ConfigError
 from marker_localizer.overlay import draw_detections
@@ -325,8 +325,8 @@ class FrameProcessor:
             self._trackers[camera] = tracker
         return tracker
 
-    def detections(self, camera: str, pixels: np.ndarray, stamp_s: float) -> list[Detection]:
-        """The markers of one frame: the camera's tracker, or a full pass without tracking.
+    def detect(self, camera: str, pixels: np.ndarray, stamp_s: float) -> DetectionResult:
+        """The result of one frame: the camera's tracker, or a full pass without tracking.
 
         Every frame meets the detector here, in a worker thread, so a subclass can
         stand in for the detector (the tests hold a camera's frames in it to make
@@ -340,8 +340,8 @@ class FrameProcessor:
         """
         detector = self._detector  # read once: a reconfiguration applies from the next frame
         if detector.config.tracking:
-            return self._tracker(camera, detector).update(pixels, stamp_s).detections
-        return detector.detect(pixels).detections
+            return self._tracker(camera, detector).update(pixels, stamp_s)
+        return detector.detect(pixels)
 
     def _idle(self) -> bool:
         return not self._busy and all(frame is None for frame in self._pending.values())
@@ -386,7 +386,8 @@ class FrameProcessor:
         header = frame.msg.header
         try:
             pixels = message_to_detector_input(frame.msg, self.config.max_pixels)
-            detections = self.detections(frame.camera, pixels, stamp_to_ns(header) / _NS_PER_S)
+            result = self.detect(frame.camera, pixels, stamp_to_ns(header) / _NS_PER_S)
+            detections = result.detections
             cloud = detections_to_cloud(header, detections)
             overlay = (
                 array_to_image(
@@ -412,4 +413,5 @@ class FrameProcessor:
             latency_ms=(now_ns - frame.received_ns) / 1e6,
             clock_offset_s=(frame.received_ns - stamp_to_ns(header)) / _NS_PER_S,
             markers=len(detections),
+            capped=sum(result.counts.get(key, 0) for key in CAP_COUNTS),
         )
