@@ -55,12 +55,12 @@ _PRESCREEN_MIN_RING_FRACTION = 0.5
 #: texture saddles rarely keep the X over a factor of two in radius.
 _PRESCREEN_GOOD_RINGS = 3
 #: The most prescreened candidates of a frame that go on to the centring, verification
-#: and fit (~0.25 ms each on one core), the strongest: this bounds a 12 MP frame of
-#: busy ground or noise to well under 1 s, where 20 000 texture saddles passing the
-#: prescreen took 5 s. Markers ranked at most 180th among the prescreened candidates
-#: of the renderer's and the independent frames (at most 1300 per 1.2 MP frame,
-#: 2000 per 12 MP) and in the top two on cirn_uas at radius 3-30 px.
-_MAX_VERIFIED = 1000
+#: and fit (0.15-0.5 ms each on one core, more for wider radius ranges), the
+#: strongest: a 12 MP frame whose 20 000 candidates all pass the prescreen (a tiling of
+#: X's) took 12.6 s. No marker or real board corner is cut: libcbdetect's e5 (many
+#: boards in clutter) has 1571 prescreened candidates for its 503 corners, the
+#: renderer's 12 MP family (d) up to 1990, in which its markers rank at most 140th.
+_MAX_VERIFIED = 2000
 #: The counts of :class:`DetectionResult` that say what the caps cut, the price of a
 #: bounded worst case (``max_candidates`` after screening, :data:`_MAX_VERIFIED` after
 #: the prescreen): the node's diagnostics show their sum.
