@@ -13,6 +13,10 @@ family (d)), then runs every subject in a fresh subprocess on those same frames:
   4096 x 3000 views panning over a ground of the same clutter with 20 markers
   (the issue's target is for 10-20 markers in view).
 
+A second table times this detector and the peers on real ground, the flight
+simulator's and two worst cases, at radius 3-30 and 6-40 px
+(:mod:`marker_localizer.bench.ground`).
+
 Each subprocess runs with ``OMP_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS`` /
 ``MKL_NUM_THREADS`` = 1 set before numpy loads and ``cv2.setNumThreads(1)``: the
 "one core" figure. Times are the median and 95th percentile over every
@@ -403,17 +407,19 @@ class Options:
         repeats: timed passes over the frames per subject.
         seed: rendering seed.
         subjects: subjects to run (None: every available one).
+        ground: also time the real-ground table (ours and the peers among the subjects).
     """
 
     frames: int = 3
     repeats: int = 3
     seed: int = 0
     subjects: tuple[str, ...] | None = None
+    ground: bool = True
 
 
 def run(options: Options, report: Callable[[str], None] = print) -> dict[str, Any]:
     """Render once, measure every subject in its own subprocess, report the tables."""
-    from marker_localizer.bench import peers  # noqa: PLC0415
+    from marker_localizer.bench import ground, peers  # noqa: PLC0415
 
     for line in peers.unavailable_peers():
         report(line)
@@ -427,9 +433,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
             arrays["tracking_base"] = render_tracking_base(options.seed)
         np.savez(frames_path, **arrays)
         results = [run_subject(name, frames_path, options.repeats) for name in names]
-    # Other processes on the machine inflate every time: the load tells how much.
-    report(f"load average (1 min) before / after the measurements: {load_before:.1f} / "
-           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    report_load(load_before, report)
     report(f"Full-frame detection, {options.frames} rendered {FRAME_WIDTH}x{FRAME_HEIGHT} "
            f"cluttered frames x {options.repeats} repeats, one core (cv2.setNumThreads(1), "
            f"OMP/OPENBLAS/MKL threads = 1), radius range {RADIUS_RANGE[0]:g}-"
@@ -445,11 +449,26 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
                    f"full-frame pass (panning over {TRACKING_MARKERS} markers, "
                    f"{TRACKING_STEP_PX} px per frame)")
     report(verdict(results))
+    on_ground: dict[str, Any] = {}
+    if options.ground:
+        others = [n for n in names if not n.startswith("ours")]
+        load_before = os.getloadavg()[0]
+        with tempfile.TemporaryDirectory() as folder:
+            on_ground = ground.run([REFERENCE_SUBJECT, *others], options.seed, Path(folder),
+                                   report)
+        report_load(load_before, report)
     return {"frames": options.frames, "repeats": options.repeats, "seed": options.seed,
+            "ground": on_ground,
             "subjects": {r.name: {"median_ms": _median(r.times_ms), "p95_ms": _p95(r.times_ms),
                                   "times_ms": r.times_ms, "rss_growth_mb": r.rss_growth_mb,
                                   "stages_median_ms": stage_medians(r.stages_ms),
                                   "error": r.error} for r in results}}
+
+
+def report_load(before: float, report: Callable[[str], None]) -> None:
+    """Report the load average: other processes on the machine inflate every time."""
+    report(f"load average (1 min) before / after the measurements: {before:.1f} / "
+           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -461,7 +480,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--repeats", type=int, default=None,
                         help="timed passes over the frames (default 3; 1 with --quick)")
     parser.add_argument("--quick", action="store_true",
-                        help="one timed pass, no ncc variant (< 2 minutes)")
+                        help="one timed pass, no ncc variant, no real-ground table (< 2 minutes)")
+    parser.add_argument("--no-ground", action="store_true",
+                        help="leave out the real-ground table (several minutes)")
     parser.add_argument("--seed", type=int, default=0, help="rendering seed")
     parser.add_argument("--families", default=None,
                         help="accepted for symmetry with the accuracy benchmark; "
@@ -486,7 +507,8 @@ def options_from(args: argparse.Namespace) -> Options:
         subjects = tuple(SUBJECTS[key] for key in keys)
     elif args.quick:
         subjects = tuple(available_subjects(include_ncc=False))
-    return Options(frames=args.frames, repeats=repeats, seed=args.seed, subjects=subjects)
+    return Options(frames=args.frames, repeats=repeats, seed=args.seed, subjects=subjects,
+                   ground=not (args.quick or args.no_ground))
 
 
 def main(argv: list[str] | None = None) -> int:
