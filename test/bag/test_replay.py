@@ -28,7 +28,7 @@ from marker_localizer.ros.conversions import CLOUD_FIELDS, array_to_image, cloud
 from marker_localizer.synthetic import render_markers
 from marker_localizer.synthetic.scene import MarkerPlacement
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PARAMS_FILE = REPO / "config" / "marker_localizer.yaml"
 CAMERAS = ("cam0", "cam1", "cam2", "cam3", "cam4")
 FRAMES = 3

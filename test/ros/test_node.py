@@ -51,7 +51,7 @@ from marker_localizer.ros.parameters import params_yaml
 from marker_localizer.ros.processing import FrameProcessor
 from marker_localizer.synthetic import SceneConfig, render_scene
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PARAMS_FILE = REPO / "config" / "marker_localizer.yaml"
 CAMERAS = ("cam0", "cam1", "cam2", "cam3", "cam4")
 TIMEOUT_S = 30.0
