@@ -16,6 +16,16 @@ os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 101))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 
+@pytest.fixture(scope="module")
+def ros():
+    """rclpy initialised for the module's nodes, shut down after it."""
+    import rclpy  # noqa: PLC0415 - after the DDS set-up; the core tests run without ROS
+
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()
+
+
 @pytest.fixture(scope="session")
 def small_flight(tmp_path_factory):
     """A simulated 3-frame, five-camera, 320x240 flight (MCAP), written once per session."""

@@ -1,0 +1,35 @@
+"""bench throughput: the panning cameras, and one short run with 1 and 2 workers."""
+
+import numpy as np
+
+from marker_localizer.bench import throughput
+
+# --------------------------------------------------------------------------- benchmark
+
+
+def test_benchmark_cameras_pan_at_a_constant_step_and_turn_back_at_the_end_of_their_ground():
+    dx, dy = throughput.PAN_STEP_PX
+    frames = throughput.PAN_FRAMES
+    ground = np.arange(50 + frames * dy)[:, None] * 1000 + np.arange(60 + frames * dx)
+    views = [throughput.camera_view(ground, k) for k in range(2 * frames + 2)]
+    assert {v.shape for v in views} == {(50, 60)}
+    origins = [(int(v[0, 0]) % 1000, int(v[0, 0]) // 1000) for v in views]
+    assert origins[:3] == [(0, 0), (dx, dy), (2 * dx, 2 * dy)]
+    assert origins[frames] == (frames * dx, frames * dy)  # the far end of the ground
+    assert origins[frames + 1] == ((frames - 1) * dx, (frames - 1) * dy)  # turned back
+    assert origins[2 * frames] == (0, 0)
+
+
+def test_throughput_benchmark_measures_one_and_two_workers_on_small_frames(ros, tmp_path):
+    grounds = throughput.render_grounds(320, 240, directory=tmp_path, markers=1)
+    results = [throughput.run_once(grounds, n, seconds=1.0, rate_hz=10.0) for n in (1, 2)]
+    for result in results:
+        assert result.processed > 0
+        assert result.frames_per_s > 0
+        assert result.published == 5 * 10
+        assert result.dropped_mailbox + result.dropped_age + result.processed <= result.received
+        assert result.latency_p95_ms >= result.latency_p50_ms > 0
+    table = throughput.format_table(results)
+    assert table.splitlines()[0].split()[:2] == ["workers", "frames/s"]
+    assert "cameras %" in table.splitlines()[0]  # the camera process's CPU apart
+    assert len(table.splitlines()) == 4

@@ -1,0 +1,196 @@
+"""The node's parameters: live changes, validation, descriptors, the params file."""
+
+import pytest
+import yaml
+from node_testing import (
+    PARAMS_FILE,
+    REPO,
+    x_marker_64,
+)
+from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.srv import (
+    DescribeParameters,
+)
+from sensor_msgs.msg import PointCloud2
+
+from marker_localizer.cli import main as cli_main
+from marker_localizer.config import DetectorConfig
+from marker_localizer.errors import ConfigError
+from marker_localizer.ros.node import MarkerLocalizerNode
+from marker_localizer.ros.parameters import params_yaml
+
+# --------------------------------------------------------------------------- parameters
+
+
+def test_accepted_parameter_change_takes_effect_on_the_next_frame(localizer, tester):
+    tester.listen("cam1/marker_points", PointCloud2)
+    image = x_marker_64()
+
+    def markers_in_next_frame():
+        frame = tester.frame(image)
+        tester.publish("cam1/image_raw", frame)
+        return tester.result_for("cam1/marker_points", frame.header).width
+
+    assert markers_in_next_frame() == 1
+    (result,) = tester.set_parameters(
+        "/inproc/marker_localizer", [("detector.min_contrast_dn", 255.0)]
+    )
+    assert result.successful, result.reason
+    assert tester.get_parameter("/inproc/marker_localizer", "detector.min_contrast_dn") == 255.0
+    assert markers_in_next_frame() == 0  # no marker has 255 DN between its quadrants
+    (result,) = tester.set_parameters(
+        "/inproc/marker_localizer",
+        [("detector.min_contrast_dn", DetectorConfig().min_contrast_dn)],
+        atomically=True,
+    )
+    assert result.successful, result.reason
+    assert markers_in_next_frame() == 1
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "reason"),
+    [
+        ("detector.marker_radius_min_px", 0.5, "out of range"),
+        (
+            "detector.marker_radius_min_px",
+            50.0,
+            "marker_radius_min_px=50.0 is larger than marker_radius_max_px=40.0",
+        ),
+        ("detector.refinement", "magic", "refinement='magic' must be one of symmetry, ncc"),
+        ("detector.marker_radius_max_px", "big", "Wrong parameter type"),
+        ("detector.ncc_search_px", 2.5, "Wrong parameter type"),
+        ("max_frame_age_s", -1.0, "out of range"),
+        ("workers", 4, "read-only"),
+        ("cameras", ["cam0"], "read-only"),
+    ],
+)
+def test_invalid_parameter_values_are_rejected_with_a_reason(
+    localizer, tester, name, value, reason
+):
+    before = tester.get_parameter("/inproc/marker_localizer", name)
+    (result,) = tester.set_parameters("/inproc/marker_localizer", [(name, value)])
+    assert not result.successful
+    assert reason in result.reason
+    assert tester.get_parameter("/inproc/marker_localizer", name) == before
+
+
+def test_an_integer_is_taken_for_a_double_as_the_cli_takes_it(localizer, tester):
+    name = "detector.marker_radius_max_px"
+    (result,) = tester.set_parameters("/inproc/marker_localizer", [(name, 30)])
+    try:
+        assert result.successful, result.reason
+        value = tester.get_parameter("/inproc/marker_localizer", name)
+        assert (value, type(value)) == (30.0, float)
+        assert localizer.processor.config.marker_radius_max_px == 30.0
+    finally:
+        tester.set_parameters("/inproc/marker_localizer", [(name, 40.0)])
+
+
+PARAMS_ANY_NODE = """\
+/**:
+  ros__parameters:
+    max_frame_age: 5.0
+    detector:
+      marker_radius_min_px: 5
+      marker_radius_max_px: 30
+"""
+
+
+def test_a_params_file_keyed_for_any_node_applies_under_a_namespace_and_another_name(
+    ros, tmp_path, capfd
+):
+    path = tmp_path / "params.yaml"
+    path.write_text(PARAMS_ANY_NODE)
+    node = MarkerLocalizerNode(
+        "renamed", namespace="/uav1", cli_args=["--ros-args", "--params-file", str(path)]
+    )
+    try:
+        config = node.processor.config
+        assert (config.marker_radius_min_px, config.marker_radius_max_px) == (5.0, 30.0)
+        assert node.get_parameter("detector.marker_radius_min_px").value == 5.0
+        # A key no parameter has is named, not silently dropped.
+        assert "ignoring unknown parameter(s): max_frame_age" in capfd.readouterr().err
+    finally:
+        node.destroy_node()
+    assert (
+        cli_main(
+            ["detect", str(REPO / "docs" / "detection.jpg"), "--params-file", str(path), "--json"]
+        )
+        == 0
+    )
+
+
+def test_node_and_cli_refuse_an_unknown_detector_key_and_name_it(ros, tmp_path, capsys):
+    path = tmp_path / "params.yaml"
+    path.write_text(PARAMS_ANY_NODE.replace("marker_radius_max_px", "marker_radius_maximum_px"))
+    with pytest.raises(ConfigError, match=r"unknown parameter\(s\): marker_radius_maximum_px"):
+        MarkerLocalizerNode("typo", cli_args=["--ros-args", "--params-file", str(path)])
+    assert (
+        cli_main(["detect", str(REPO / "docs" / "detection.jpg"), "--params-file", str(path)]) == 1
+    )
+    assert "unknown parameter(s): marker_radius_maximum_px" in capsys.readouterr().err
+
+
+def test_atomic_request_with_one_invalid_value_applies_nothing(localizer, tester):
+    (result,) = tester.set_parameters(
+        "/inproc/marker_localizer",
+        [("detector.marker_radius_max_px", 60.0), ("detector.marker_radius_min_px", 70.0)],
+        atomically=True,
+    )
+    assert not result.successful
+    assert "marker_radius_min_px=70.0 is larger than marker_radius_max_px=60.0" in result.reason
+    assert tester.get_parameter("/inproc/marker_localizer", "detector.marker_radius_max_px") == 40.0
+    assert localizer.processor.config.marker_radius_max_px == 40.0
+
+
+def test_non_atomic_request_applies_each_parameter_on_its_own_in_order(localizer, tester):
+    """SetParameters validates and applies one parameter after the other (README)."""
+    node = "/inproc/marker_localizer"
+    try:
+        first, second = tester.set_parameters(
+            node, [("detector.marker_radius_max_px", 60.0), ("detector.marker_radius_min_px", 70.0)]
+        )
+        assert first.successful  # valid alone: applied before the second is looked at
+        assert not second.successful
+        assert "marker_radius_min_px=70.0 is larger than marker_radius_max_px=60.0" in (
+            second.reason
+        )
+        assert tester.get_parameter(node, "detector.marker_radius_max_px") == 60.0
+        assert tester.get_parameter(node, "detector.marker_radius_min_px") == 4.0
+        assert localizer.processor.config.marker_radius_max_px == 60.0
+        # Values that are valid one after the other all apply.
+        results = tester.set_parameters(
+            node, [("detector.marker_radius_max_px", 80.0), ("detector.marker_radius_min_px", 70.0)]
+        )
+        assert [r.successful for r in results] == [True, True]
+        assert localizer.processor.config.marker_radius_min_px == 70.0
+    finally:
+        tester.set_parameters(
+            node, [("detector.marker_radius_min_px", 4.0), ("detector.marker_radius_max_px", 40.0)]
+        )
+    assert localizer.processor.config.marker_radius_max_px == 40.0
+
+
+def test_parameter_descriptors_state_unit_range_and_read_only(localizer, tester):
+    names = ["detector.marker_radius_min_px", "detector.refinement", "workers", "max_frame_age_s"]
+    request = DescribeParameters.Request(names=names)
+    radius, refinement, workers, age = tester.call(
+        DescribeParameters, "/inproc/marker_localizer/describe_parameters", request
+    ).descriptors
+    assert radius.description.endswith("[px]")
+    assert radius.type == ParameterType.PARAMETER_DOUBLE
+    assert (radius.floating_point_range[0].from_value, radius.floating_point_range[0].to_value) == (
+        1.5,
+        1000.0,
+    )
+    assert not radius.read_only
+    assert refinement.additional_constraints == "one of: symmetry, ncc, template"
+    assert workers.read_only
+    assert workers.integer_range[0].from_value == 1
+    assert age.description.endswith("[s]")
+
+
+def test_parameter_file_lists_every_parameter_at_its_default():
+    assert PARAMS_FILE.read_text() == params_yaml()
+    params = yaml.safe_load(PARAMS_FILE.read_text())["/**"]["ros__parameters"]
+    assert DetectorConfig(**params["detector"]) == DetectorConfig()

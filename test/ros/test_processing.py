@@ -1,0 +1,177 @@
+"""FrameProcessor, the node's and replay's worker pool: mailboxes, order, age, failures, stop."""
+
+import array
+import threading
+
+import numpy as np
+from node_testing import (
+    TIMEOUT_S,
+    Collector,
+    clock_at,
+    stamped,
+    wait_until,
+)
+
+from marker_localizer.config import DetectorConfig
+from marker_localizer.errors import ImageError
+from marker_localizer.ros.processing import FrameProcessor
+
+# --------------------------------------------------------------------------- FrameProcessor
+
+
+def test_mailbox_keeps_only_the_newest_frame_and_counts_the_replaced_ones():
+    collect = Collector()
+    processor = FrameProcessor(
+        ["cam0"], DetectorConfig(), collect, workers=1, clock_ns=clock_at(10)
+    )
+    try:
+        collect.release.clear()
+        processor.submit("cam0", stamped(1))
+        wait_until(collect.entered.is_set, "the worker to take frame 1")
+        processor.submit("cam0", stamped(2))
+        processor.submit("cam0", stamped(3))  # replaces frame 2
+        collect.release.set()
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert collect.results == [("cam0", 1, 1), ("cam0", 3, 1)]
+    snap = processor.snapshots()["cam0"]
+    assert (snap.received, snap.processed, snap.dropped_mailbox) == (3, 2, 1)
+
+
+def test_camera_waiting_longest_is_served_first_even_if_its_frame_was_replaced():
+    collect = Collector()
+    now = [0]
+    processor = FrameProcessor(
+        ["a", "b", "c"], DetectorConfig(), collect, workers=1, clock_ns=lambda: now[0]
+    )
+    try:
+        collect.release.clear()
+        processor.submit("a", stamped(1))
+        wait_until(collect.entered.is_set, "the worker to take a's frame")
+        for camera, sec in [("b", 2), ("c", 3), ("a", 4), ("b", 5)]:  # b's frame 2 replaced
+            now[0] += 1
+            processor.submit(camera, stamped(sec))
+        collect.release.set()
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert [(c, s) for c, s, _ in collect.results] == [("a", 1), ("b", 5), ("c", 3), ("a", 4)]
+
+
+def test_frames_that_waited_longer_than_max_age_in_the_node_are_dropped_whatever_their_stamp():
+    collect = Collector()
+    now = [100 * 10**9]
+    processor = FrameProcessor(
+        ["a", "b"],
+        DetectorConfig(),
+        collect,
+        workers=1,
+        max_frame_age_s=2.0,
+        clock_ns=lambda: now[0],
+    )
+    try:
+        collect.release.clear()
+        processor.submit("a", stamped(1))  # stamped 99 s before it arrives: taken at once
+        wait_until(collect.entered.is_set, "the worker to take a's frame")
+        processor.submit("b", stamped(500))  # from the future; waits behind a's frame
+        now[0] += 3 * 10**9  # the worker stays busy 3 s
+        collect.release.set()
+        assert processor.wait_idle(TIMEOUT_S)
+        processor.submit("b", stamped(501), block=True)  # arrives now, taken at once
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert collect.results == [("a", 1, 1), ("b", 501, 1)]
+    snap = processor.snapshots()["b"]
+    assert (snap.dropped_age, snap.processed) == (1, 1)
+
+
+def test_blocking_submit_processes_every_frame_in_order_per_camera():
+    collect = Collector()
+    processor = FrameProcessor(["a", "b"], DetectorConfig(), collect, workers=2)
+    try:
+        for sec in range(1, 9):
+            for camera in ("a", "b"):
+                assert processor.submit(camera, stamped(sec), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    for camera in ("a", "b"):
+        assert [s for c, s, _ in collect.results if c == camera] == list(range(1, 9))
+    assert all(s.dropped_mailbox == s.dropped_age == 0 for s in processor.snapshots().values())
+
+
+def test_candidates_the_detectors_caps_cut_reach_the_cameras_diagnostics():
+    collect = Collector()
+    noise = np.random.default_rng(1).integers(0, 256, (64, 64), dtype=np.uint8)
+    # The X gives 3 candidates, noise dozens: a cap of 3 cuts the noise's only.
+    config = DetectorConfig(max_candidates=3, tracking=False)
+    processor = FrameProcessor(["cam0"], config, collect, workers=1)
+    try:
+        assert processor.submit("cam0", stamped(1), block=True)
+        assert processor.submit("cam0", stamped(2, noise), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    snap = processor.snapshots()["cam0"]
+    assert snap.frames_capped == 1
+    assert snap.candidates_capped > 10
+
+
+def test_shutdown_delivers_the_frame_in_flight_and_discards_waiting_ones():
+    collect = Collector()
+    processor = FrameProcessor(["cam0"], DetectorConfig(), collect, workers=1)
+    collect.release.clear()
+    processor.submit("cam0", stamped(1))
+    wait_until(collect.entered.is_set, "the worker to take frame 1")
+    processor.submit("cam0", stamped(2))  # still waiting in the mailbox at shutdown
+    finished = []
+    stopper = threading.Thread(target=lambda: finished.append(processor.shutdown()))
+    stopper.start()
+    wait_until(lambda: not processor.submit("cam0", stamped(3)), "the processor to refuse frames")
+    collect.release.set()
+    stopper.join(TIMEOUT_S)
+    assert finished == [True]  # every worker ended
+    assert collect.results == [("cam0", 1, 1)]
+
+
+def test_failed_frame_is_counted_and_the_worker_goes_on():
+    collect = Collector()
+    failures = []
+    processor = FrameProcessor(
+        ["cam0"],
+        DetectorConfig(),
+        collect,
+        workers=1,
+        on_error=lambda camera, err: failures.append((camera, err)),
+    )
+    bad = stamped(1)
+    bad.data = array.array("B", bytes(10))
+    try:
+        processor.submit("cam0", bad, block=True)
+        processor.submit("cam0", stamped(2), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert collect.results == [("cam0", 2, 1)]
+    ((camera, err),) = failures
+    assert camera == "cam0"
+    assert isinstance(err, ImageError)
+    snap = processor.snapshots()["cam0"]
+    assert snap.errors == 1
+    assert snap.last_error.startswith("ImageError: data holds 10 B")
+
+
+def test_frame_over_max_pixels_fails_and_the_next_smaller_one_is_served():
+    collect = Collector()
+    processor = FrameProcessor(["cam0"], DetectorConfig(max_pixels=64 * 64), collect, workers=1)
+    try:
+        processor.submit("cam0", stamped(1, np.zeros((64, 65), np.uint8)), block=True)
+        processor.submit("cam0", stamped(2), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert collect.results == [("cam0", 2, 1)]
+    snap = processor.snapshots()["cam0"]
+    assert snap.last_error == "ImageError: image: 65x64 = 4160 px exceeds max_pixels=4096"
