@@ -1,4 +1,4 @@
-"""The marker-localizer command line: JSON-lines contract and error handling."""
+"""``marker-localizer detect``: the JSON-lines contract, overlays and error handling."""
 
 import json
 from pathlib import Path
@@ -115,10 +115,3 @@ def test_an_overlay_folder_that_cannot_be_made_is_one_line(x_image, tmp_path, ca
     captured = capsys.readouterr()
     assert captured.err.startswith(f"marker-localizer: error: --overlay {folder}: cannot create")
     assert len(captured.err.strip().splitlines()) == 1 and "Traceback" not in captured.err
-
-
-def test_bench_help_lists_the_benchmarks_and_exits_0(capsys):
-    with pytest.raises(SystemExit) as exit_info:
-        main(["bench", "--help"])
-    assert exit_info.value.code == 0
-    assert "{accuracy,calibrate,paper,speed,throughput}" in capsys.readouterr().out

@@ -1,4 +1,4 @@
-"""Input normalisation: the full scale of a 16-bit image comes from its bit depth."""
+"""Input normalisation (core/image.py): one channel in its own dtype, white from the bit depth."""
 
 import cv2
 import numpy as np
@@ -6,6 +6,7 @@ import pytest
 
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.core.image import bit_depth_scale, to_gray
+from marker_localizer.errors import ImageError
 
 
 def _x_marker_12_bit() -> np.ndarray:
@@ -41,3 +42,48 @@ def test_a_12_bit_sensor_is_detected_when_the_detector_is_told_its_bit_depth():
     assert len(told.detect(glint)) == 1
     # Read as 16-bit words, its 170-DN-of-255 contrast is 10 DN: under min_contrast_dn.
     assert len(Detector(DetectorConfig(bit_depth=16)).detect(image)) == 0
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])
+def test_a_grey_image_keeps_its_pixels_and_its_dtype_only_float64_becomes_float32(dtype):
+    image = np.arange(12, dtype=dtype).reshape(3, 4) / (1 if np.dtype(dtype).kind == "u" else 20)
+    image = image.astype(dtype)
+    grey, full_scale = to_gray(image)
+    assert grey.dtype == (np.float32 if np.dtype(dtype).kind == "f" else dtype)
+    np.testing.assert_array_equal(grey, image.astype(grey.dtype))
+    assert full_scale == {np.uint8: 255.0, np.uint16: 65535.0}.get(dtype, 1.0)
+
+
+def test_colour_is_reduced_with_the_bt601_weights_and_rgb_swaps_the_channels():
+    blue_first = np.zeros((2, 2, 3), np.uint8)
+    blue_first[..., 0] = 200  # blue in BGR
+    grey_bgr, _ = to_gray(blue_first)
+    grey_rgb, _ = to_gray(blue_first, rgb=True)  # the same bytes read as red
+    assert grey_bgr[0, 0] == round(0.114 * 200)
+    assert grey_rgb[0, 0] == round(0.299 * 200)
+
+
+def test_a_single_channel_axis_and_an_alpha_channel_are_accepted():
+    assert to_gray(np.full((2, 3, 1), 7, np.uint8))[0].shape == (2, 3)
+    bgra = np.zeros((2, 3, 4), np.uint8)
+    bgra[..., 1] = 100  # green
+    assert to_gray(bgra)[0][0, 0] == round(0.587 * 100)
+
+
+def test_float_images_are_clipped_to_0_1():
+    grey, full_scale = to_gray(np.array([[-0.5, 0.25], [1.0, 3.0]]))
+    np.testing.assert_array_equal(grey, np.array([[0.0, 0.25], [1.0, 1.0]], np.float32))
+    assert full_scale == 1.0
+
+
+@pytest.mark.parametrize(("image", "message"), [
+    ([[1, 2], [3, 4]], "expected a numpy array, got list"),
+    (np.zeros((0, 4), np.uint8), r"empty image \(shape \(0, 4\)\)"),
+    (np.zeros((4, 4), np.int32), "unsupported dtype int32"),
+    (np.zeros((4, 4, 2), np.uint8), "unsupported channel count 2"),
+    (np.zeros((2, 2, 2, 2), np.uint8), "expected a 2-D grey or 3-D colour image"),
+    (np.array([[0.0, np.nan]]), "NaN or infinite"),
+])
+def test_bad_input_is_one_error_naming_what_is_wrong(image, message):
+    with pytest.raises(ImageError, match=message):
+        to_gray(image)

@@ -1,0 +1,66 @@
+"""The marker-localizer dispatcher: the commands it lists, and how their errors end."""
+
+import importlib
+import subprocess
+import sys
+
+import pytest
+
+from marker_localizer.cli import BENCHMARKS, COMMANDS, main
+
+
+def test_bench_help_lists_the_benchmarks_and_exits_0(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["bench", "--help"])
+    assert exit_info.value.code == 0
+    assert "{accuracy,calibrate,paper,speed,throughput}" in capsys.readouterr().out
+
+
+def test_help_lists_every_command_and_an_unknown_one_exits_2(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    listed = capsys.readouterr().out
+    assert all(name in listed for name in [*COMMANDS, "bench"])
+    with pytest.raises(SystemExit) as exit_info:
+        main(["survey"])
+    assert exit_info.value.code == 2
+    assert "invalid choice: 'survey'" in capsys.readouterr().err
+
+
+ENTRIES = [(c.module, c.function) for c in COMMANDS.values()]
+ENTRIES += [(module, "main") for module in BENCHMARKS.values()]
+
+
+@pytest.mark.parametrize(("module", "function"), ENTRIES, ids=[m for m, _ in ENTRIES])
+def test_every_registered_command_and_benchmark_names_a_function_that_exists(module, function):
+    if module.endswith((".bag", ".demo", ".throughput")):  # the ones that need ROS
+        pytest.importorskip("rclpy")
+    assert callable(getattr(importlib.import_module(module), function))
+
+
+def test_a_package_error_is_one_line_and_status_1(capsys):
+    assert main(["detect", "any.png", "--param", "marker_radius_min_px"]) == 1
+    err = capsys.readouterr().err
+    assert err == "marker-localizer: error: --param expects key=value, got 'marker_radius_min_px'\n"
+
+
+def test_a_command_line_argparse_refuses_exits_2_naming_the_command(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["detect"])
+    assert exit_info.value.code == 2
+    assert "marker-localizer detect: error: the following arguments are required: IMAGE" in (
+        capsys.readouterr().err
+    )
+
+
+def test_python_m_runs_the_same_command_line():
+    result = subprocess.run(
+        [sys.executable, "-m", "marker_localizer.cli", "detect", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 0
+    assert result.stdout.startswith("usage: marker-localizer detect")
