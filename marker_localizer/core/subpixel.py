@@ -627,6 +627,43 @@ def fit_template(
         empty = template.TemplateShape.start(np.zeros((0, 2)), np.zeros((0, 2)), 1.0)
         return TemplateFit(empty, np.zeros((0, 4)), np.zeros((0, 4, 4)), np.zeros((0, 2, 2)),
                            np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0, bool))
+    reach = np.broadcast_to(np.asarray(max_shift_px, dtype=np.float64), (n,))
+    # Every point of a batch pays for the largest region in it (the padding of
+    # pad_patterns): points are fitted in batches of regions within a factor
+    # _BATCH_SIZE_RATIO in size, so that a large marker does not make texture costly.
+    size_class = np.floor(
+        np.log(np.maximum([len(region) for region in regions], 1)) / np.log(_BATCH_SIZE_RATIO)
+    )
+    classes = np.unique(size_class)
+    if len(classes) == 1:
+        return _fit_template_batch(image, start, regions, iterations, tolerance_px, reach)
+    order = np.concatenate([np.flatnonzero(size_class == size) for size in classes])
+    parts = [
+        _fit_template_batch(
+            image, start.take(rows), [regions[k] for k in rows], iterations, tolerance_px,
+            reach[rows],
+        )
+        for rows in (np.flatnonzero(size_class == size) for size in classes)
+    ]
+    shape = template.TemplateShape(
+        *(np.concatenate(field) for field in zip(*(part.shape for part in parts), strict=True))
+    )
+    joined = TemplateFit(
+        shape, *(np.concatenate(field) for field in zip(*(part[1:] for part in parts), strict=True))
+    )
+    return joined.take(np.argsort(order))
+
+
+def _fit_template_batch(
+    image: np.ndarray,
+    start: template.TemplateShape,
+    regions: list[np.ndarray],
+    iterations: int,
+    tolerance_px: float,
+    reach: np.ndarray,
+) -> TemplateFit:
+    """:func:`fit_template` on points whose regions differ little in size."""
+    n = len(start.xy)
     offsets, present = pad_patterns(regions)
     pixels = np.round(start.xy)[:, None, :] + offsets
     height, width = image.shape
@@ -643,7 +680,6 @@ def fit_template(
     free = np.ones((n, template.SHAPE_PARAMETERS), dtype=bool)
     free[:, _SHADOW] = (start.shadow[:, 2] > 0)[:, None]
     state = _template_residuals(values, weight, pixels, params, free)
-    reach = np.broadcast_to(np.asarray(max_shift_px, dtype=np.float64), (n,))
     last_move = np.full(n, np.inf)
     damping = np.full(n, _LM_START)
     active = np.ones(n, dtype=bool)
@@ -696,6 +732,8 @@ def fit_template(
                        converged & np.isfinite(params).all(axis=1))
 
 
+#: Points whose regions' pixel counts lie within this factor are fitted as one batch.
+_BATCH_SIZE_RATIO = 2.0
 #: Columns of the shadow edge's parameters in :func:`template.shape_parameters`.
 _SHADOW = slice(8, 12)
 

@@ -122,3 +122,18 @@ def test_a_tilted_marker_s_lines_reach_equally_far_on_both_sides_of_its_centre()
     extents = grown.extents[0]
     np.testing.assert_allclose(extents[:2], extents[2:], atol=1.0)
     assert np.hypot(*(grown.fit.shape.xy[0] - (40.3, 39.6))) < 0.02
+
+
+def test_a_point_s_fit_does_not_depend_on_the_sizes_of_the_regions_fitted_beside_it():
+    """Points are fitted in batches of like region sizes; the batching changes nothing."""
+    placement = MarkerPlacement(40.3, 39.6, 12.0, rotation_rad=0.3)
+    image = _rendered(placement)
+    start = template.TemplateShape.start(
+        np.array([[41.0, 39.0], [40.0, 40.0]]), np.array([[0.2, 1.9], [0.4, 1.8]]), 1.0
+    )
+    small, large = subpixel.disk_region(3.0), subpixel.disk_region(10.0)
+    together = subpixel.fit_template(image, start, [small, large])
+    for row, region in enumerate((small, large)):
+        alone = subpixel.fit_template(image, start.take(np.array([row])), [region])
+        np.testing.assert_allclose(together.shape.xy[row], alone.shape.xy[0], atol=1e-12)
+        np.testing.assert_allclose(together.levels[row], alone.levels[0], atol=1e-9)
