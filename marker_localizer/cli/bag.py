@@ -192,11 +192,6 @@ def replay(argv: Sequence[str]) -> int:
         else DetectorConfig()
     )
     bar = ProgressBar(0, "replay")
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done)
-
     try:
         report = replay_bag(
             args.bag,
@@ -205,7 +200,7 @@ def replay(argv: Sequence[str]) -> int:
             workers=args.workers,
             storage=args.storage,
             match_distance_px=args.match_distance,
-            progress=progress,
+            progress=bar.update,
         )
     finally:
         bar.close()
@@ -282,15 +277,10 @@ def play(argv: Sequence[str]) -> int:
     context = Context()
     rclpy.init(args=ros_argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
     bar = ProgressBar(0, "play")
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done)
-
     try:
         node = rclpy.create_node(PLAYER_NODE_NAME, context=context)
         try:
-            report = play_bag(args.bag, node, options, progress=progress)
+            report = play_bag(args.bag, node, options, progress=bar.update)
         finally:
             node.destroy_node()
     finally:

@@ -35,8 +35,10 @@ class ProgressBar:
         self._start = time.monotonic()
         self._last_draw = -math.inf  # the first update always draws
 
-    def update(self, done: int) -> None:
-        """Show ``done`` steps completed."""
+    def update(self, done: int, total: int | None = None) -> None:
+        """Show ``done`` steps completed (of ``total``, once known)."""
+        if total is not None:
+            self.total = total
         now = time.monotonic()
         too_soon = now - self._last_draw < self._min_interval_s and done < self.total
         if not self._enabled or too_soon:

@@ -7,7 +7,6 @@ simulator keeps markers at 4 to 20 px radius at any frame size).
 
 from __future__ import annotations
 
-import io
 import os
 import re
 import sys
@@ -22,7 +21,6 @@ from std_msgs.msg import Header
 from marker_localizer.bag.io import BagReader, BagWriter, typestore
 from marker_localizer.bag.replay import replay_bag
 from marker_localizer.cli import main as cli
-from marker_localizer.cli.progress import ProgressBar
 from marker_localizer.errors import BagError
 from marker_localizer.ros.conversions import CLOUD_FIELDS, array_to_image, cloud_to_array
 from marker_localizer.synthetic import render_markers
@@ -329,22 +327,6 @@ def test_interrupted_replay_leaves_no_output_bag(flight_bag, tmp_path):
     with pytest.raises(KeyboardInterrupt):
         replay_bag(flight_bag, tmp_path / "out", progress=interrupt)
     assert leftovers(tmp_path) == []
-
-
-def test_progress_bar_draws_only_on_a_terminal():
-    class Terminal(io.StringIO):
-        def isatty(self):
-            return True
-
-    terminal, pipe = Terminal(), io.StringIO()
-    for stream in (terminal, pipe):
-        bar = ProgressBar(4, "replay", stream=stream, min_interval_s=0.0)
-        for done in range(1, 5):
-            bar.update(done)
-        bar.close()
-    assert pipe.getvalue() == ""
-    assert "\r" in terminal.getvalue() and "4/4" in terminal.getvalue()
-    assert terminal.getvalue().endswith("\n")
 
 
 def test_writer_in_a_missing_parent_creates_it_and_renames_only_on_success(tmp_path):
