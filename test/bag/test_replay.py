@@ -171,6 +171,12 @@ def test_replay_writes_points_with_the_input_header_at_the_input_bag_time(flight
     assert {f"marker_localizer: {c}" for c in CAMERAS} <= names
     final = {s.name: {kv.key: kv.value for kv in s.values} for s in diagnostics[-1].status}
     assert final["marker_localizer: cam0"]["frames processed"] == str(FRAMES)
+    # The node's own status content (FrameProcessor.diagnostics), marked as a replay.
+    node = final["marker_localizer: node"]
+    assert node["mode"] == "replay"
+    assert {"workers", "frames in flight", "max frame age (s)", "marker radius range (px)"} <= (
+        set(node)
+    )
 
 
 def test_replay_main_reads_sqlite3_with_the_node_params_file_and_prints_both_tables(
