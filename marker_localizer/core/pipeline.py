@@ -586,7 +586,9 @@ class Detector:
             cfg.min_contrast_dn / 255.0 * full_scale,
             relative_threshold=cfg.saddle_threshold,
             window=window,
-            cell_cap=screening.CellCap(cfg.entropy_cell_px, cfg.max_candidates_per_cell, origin_px),
+            cell_cap=screening.CellCap(
+                cfg.entropy_cell_px, cfg.max_candidates_per_cell, cfg.max_candidates, origin_px
+            ),
         )
 
     def _find_in_regions(

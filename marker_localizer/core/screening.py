@@ -286,12 +286,15 @@ class CellCap(NamedTuple):
     Attributes:
         cell_px: grid cell size, px.
         max_per_cell: the most points a cell keeps, the strongest.
+        max_total: the cap that follows on all cells' points together, the
+            strongest (``max_candidates``); None: none.
         origin_px: (x, y) position in the frame of the image's pixel (0, 0) (a
             window's corner), so that the cells are the frame's.
     """
 
     cell_px: float
     max_per_cell: int
+    max_total: int | None = None
     origin_px: tuple[float, float] = (0.0, 0.0)
 
     def keep(self, xy: np.ndarray, strength: np.ndarray) -> np.ndarray:
@@ -299,6 +302,22 @@ class CellCap(NamedTuple):
         return cell_cap_mask(
             xy + np.asarray(self.origin_px), strength, self.cell_px, self.max_per_cell
         )
+
+    def floor(self, candidates: Candidates) -> float:
+        """A strength below which no point passes both caps, from some of the points.
+
+        When the cell cap keeps more than ``max_total`` of ``candidates``, the
+        weakest of its ``max_total`` strongest is such a floor for any set that
+        holds them: each cell of that set keeps at least as many points as strong
+        (Eq. 7's cap keeps a cell's strongest), so at least ``max_total`` points
+        that strong reach the second cap. 0 when it keeps no more.
+        """
+        if self.max_total is None:
+            return 0.0
+        kept = candidates.strength[self.keep(candidates.xy, candidates.strength)]
+        if len(kept) <= self.max_total:
+            return 0.0
+        return float(np.partition(kept, len(kept) - self.max_total)[len(kept) - self.max_total])
 
 
 def saddle_candidates(
@@ -340,6 +359,9 @@ def saddle_candidates(
             benchmarks' frames), while busy ground no longer costs seconds: the
             first level of a 12 MP frame of noise holds 1.4 million peaks, whose
             pairs ran to 17 million candidates (30 s and 1.7 GB at radius 3-30 px).
+            With its ``max_total``, candidates weaker than its :meth:`CellCap.floor`
+            are left out as soon as a level sets one: the two caps that follow
+            keep the same points.
 
     Returns:
         Candidates in full-resolution coordinates; ``scale_px`` is 4 * 2**L and
@@ -347,6 +369,7 @@ def saddle_candidates(
     """
     levels = saddle_levels(radius_range_px)
     parts = []
+    floor = 0.0
     level_image = image
     for level in range(levels.stop):
         if level > 0:
@@ -385,12 +408,18 @@ def saddle_candidates(
         strength = np.sqrt(centre.astype(np.float64)) / expected
         scale = candidate_scale(level, radius_range_px)
         found = Candidates(xy, strength, np.full(len(peak), scale))
+        if cell_cap is not None:
+            # On busy ground the first level alone fills the frame's cap: what is
+            # weaker cannot pass it, nor the midpoints of pairs it belongs to.
+            floor = max(floor, cell_cap.floor(found))
+            found = found.take(found.strength >= floor)
         parts.append(found)
         if level == levels.start:
             # Markers below the level's typical radius live here, and only here can
             # their peak split (coarser levels see larger markers).
             parts.append(split_peak_midpoints(found, _SPLIT_PEAK_DISTANCE * scale))
-    return Candidates.concat(parts)
+    found = Candidates.concat(parts)
+    return found.take(found.strength >= floor)
 
 
 class ContourSet(NamedTuple):

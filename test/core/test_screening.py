@@ -332,3 +332,19 @@ def test_a_window_caps_its_cells_on_the_frames_grid():
     wanted = {tuple(p) for p in full.xy[inside].round(6)}
     got = {tuple(p) for p in (part.xy + [x0, y0]).round(6)}
     assert wanted and wanted <= got
+
+
+def test_the_floor_of_the_frames_cap_leaves_what_both_caps_keep_unchanged():
+    image = np.clip(np.random.default_rng(7).normal(128, 40, (256, 320)), 0, 255).astype(
+        np.uint8
+    )
+    cells = screening.CellCap(64, 48)
+    both = cells._replace(max_total=300)
+    without = screening.saddle_candidates(image, (3.0, 30.0), 20.0, cell_cap=cells)
+    floored = screening.saddle_candidates(image, (3.0, 30.0), 20.0, cell_cap=both)
+    assert len(floored) < len(without) / 5
+    kept = [
+        {tuple(p) for p in screening.grid_entropy_thinning(c, 64, 48).strongest(300).xy}
+        for c in (without, floored)
+    ]
+    assert kept[0] == kept[1]
