@@ -8,6 +8,9 @@ can keep up with, for ``--seconds``. The cameras pan over their ground at
 :data:`PAN_STEP_PX` per frame and turn back at the end of their ground, so
 tracking mode (the node's default, ``detector.tracking``) meets moving markers,
 markers entering and leaving the view and changes of direction, as in flight.
+The ground is the speed benchmark's clutter (radius 6-40 px), or with
+``--ground flight`` the flight simulator's five cameras (give ``--radius-range
+3 30``: its oblique views hold markers of 4 to 20 px).
 The cameras run in their own process, as camera drivers do: the 12 MB
 messages they build and serialise do not take this process's cores.
 
@@ -130,6 +133,31 @@ def render_grounds(width: int, height: int, directory: Path, markers: int = 24) 
     return path
 
 
+def render_flight_grounds(width: int, height: int, directory: Path, seed: int = 0) -> Path:
+    """Each camera's ground from the flight simulator: its five cameras' view of one frame set.
+
+    Rendered larger than the published frames by the pan, with the simulator's
+    default rig (markers of 0.5 m: about 15 px at nadir, 4 to 20 px in the oblique
+    views, as the frame size does not change the markers' size in pixels).
+
+    Returns:
+        Path of a (cameras, H, W) uint8 ``.npy`` file, read by the camera process.
+    """
+    from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator  # noqa: PLC0415
+
+    dx, dy = PAN_STEP_PX
+    config = FlightConfig(width=width + PAN_FRAMES * dx, height=height + PAN_FRAMES * dy,
+                          n_frames=1, n_cameras=len(CAMERAS))
+    frame_set = FlightSimulator(config, seed=seed).render(0)
+    path = Path(directory) / "grounds.npy"
+    np.save(path, np.stack([camera.image for camera in frame_set.cameras]))
+    return path
+
+
+#: What ``--ground`` chooses: the speed benchmark's clutter, or the flight simulator's.
+GROUNDS = {"cluttered": render_grounds, "flight": render_flight_grounds}
+
+
 def camera_view(ground: np.ndarray, frame: int) -> np.ndarray:
     """Frame ``frame`` of a camera panning over ``ground`` and turning back every PAN_FRAMES."""
     dx, dy = PAN_STEP_PX
@@ -147,6 +175,7 @@ def run_once(
     rate_hz: float,
     *,
     tracking: bool = True,
+    radius_range: tuple[float, float] = speed.RADIUS_RANGE,
 ) -> RunResult:
     """Start a node with ``workers`` workers, feed it from a camera process, finish, measure.
 
@@ -156,6 +185,7 @@ def run_once(
         seconds: how long to publish, s.
         rate_hz: frames per second and camera.
         tracking: the node's ``detector.tracking`` parameter.
+        radius_range: the node's marker radius range, px.
 
     Returns:
         The run's figures.
@@ -170,8 +200,8 @@ def run_once(
             # The diagnostics' window over the whole run, to compare their loss count.
             Parameter("stats_window_s", value=min(seconds + _CAMERA_START_TIMEOUT_S, 3600.0)),
             # The marker sizes of the scenes, as a user configures them.
-            Parameter("detector.marker_radius_min_px", value=speed.RADIUS_RANGE[0]),
-            Parameter("detector.marker_radius_max_px", value=speed.RADIUS_RANGE[1]),
+            Parameter("detector.marker_radius_min_px", value=float(radius_range[0])),
+            Parameter("detector.marker_radius_max_px", value=float(radius_range[1])),
         ],
     )
     peer = Node("bench_results", namespace=namespace)
@@ -357,6 +387,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--workers", type=int, nargs="+", default=[1, 2], help="worker counts to run"
     )
     parser.add_argument(
+        "--ground", choices=sorted(GROUNDS), default="cluttered",
+        help="what the cameras see: the speed benchmark's clutter (default) or the flight "
+        "simulator's five cameras",
+    )
+    parser.add_argument(
+        "--radius-range", type=float, nargs=2, default=list(speed.RADIUS_RANGE),
+        metavar=("MIN", "MAX"), help="the node's marker radius range, px (default 6 40)",
+    )
+    parser.add_argument(
         "--full-frame",
         action="store_true",
         help="a full-frame detection per frame (detector.tracking off) instead of the "
@@ -377,14 +416,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="marker_bench_") as directory:
         print(f"rendering {len(CAMERAS)} grounds for {args.width}x{args.height} frames ...",
               flush=True)
-        grounds = render_grounds(args.width, args.height, Path(directory))
+        grounds = GROUNDS[args.ground](args.width, args.height, Path(directory))
         rclpy.init()
         try:
             results = []
             for workers in args.workers:
                 print(f"running {workers} worker(s) for {args.seconds:g} s ...", flush=True)
                 results.append(
-                    run_once(grounds, workers, args.seconds, args.rate_hz, tracking=tracking)
+                    run_once(grounds, workers, args.seconds, args.rate_hz, tracking=tracking,
+                             radius_range=tuple(args.radius_range))
                 )
         finally:
             rclpy.try_shutdown()
@@ -396,7 +436,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(
         f"\n{len(CAMERAS)} cameras, {args.width}x{args.height} mono8 panning "
         f"{PAN_STEP_PX} px per frame, {args.rate_hz:g} Hz each, {args.seconds:g} s per run, "
-        f"{mode}, {os.cpu_count()} CPUs, DDS profile: {transport}"
+        f"{mode}, {args.ground} ground, radius {args.radius_range[0]:g}-"
+        f"{args.radius_range[1]:g} px, {os.cpu_count()} CPUs, DDS profile: {transport}"
     )
     print(format_table(results))
     by_workers = {r.workers: r for r in results}

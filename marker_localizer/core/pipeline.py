@@ -55,19 +55,17 @@ _PRESCREEN_MIN_RING_FRACTION = 0.5
 #: texture saddles rarely keep the X over a factor of two in radius.
 _PRESCREEN_GOOD_RINGS = 3
 #: The most prescreened candidates of a frame that go on to the centring, verification
-#: and fit (0.15-0.5 ms each on one core, more for wider radius ranges), the
-#: strongest: a 12 MP frame whose 20 000 candidates all pass the prescreen (a tiling of
-#: X's) took 12.6 s. No marker or real board corner is cut: libcbdetect's e5 (many
-#: boards in clutter) has 1571 prescreened candidates for its 503 corners, the
-#: renderer's 12 MP family (d) up to 1990, in which its markers rank at most 140th.
-_MAX_VERIFIED = 2000
+#: and fit (0.25-0.5 ms each on one core), spread over the frame as Eq. (7) spreads
+#: them: a safety net above every real frame measured, which bounds pathological ones
+#: (a 12 MP tiling of X's, whose 20 000 candidates all pass the prescreen, took 12.6 s).
+#: The busiest real ground, aerial_negatives' sand (8 MP), leaves up to 3193, 4216 and
+#: 2354 at radius 3-30, 4-40 and 6-40 px; libcbdetect's e5 1571 for its 503 corners.
+#: A cap of 2000 lost one of 233 markers planted on aerial_negatives and cirn_uas.
+_MAX_VERIFIED = 5000
 #: The counts of :class:`DetectionResult` that say what the caps cut, the price of a
 #: bounded worst case (``max_candidates`` after screening, :data:`_MAX_VERIFIED` after
 #: the prescreen): the node's diagnostics show their sum.
 CAP_COUNTS = ("dropped_over_cap", "dropped_over_verification_cap")
-#: Candidates prescreened at once, strongest first, until :data:`_MAX_VERIFIED` pass:
-#: on ground where most pass, the rest are not tested at all.
-_PRESCREEN_BATCH = 4096
 #: Gauss-Newton iterations of the coarse centring (a few tenths of a pixel suffice there).
 _COARSE_ITERATIONS = 3
 #: Samples per candidate in the coarse centring: enough for a few tenths of a pixel.
@@ -633,33 +631,24 @@ class Detector:
         centre; raw grey levels, half the contrast) but strict over the rings (all
         three), it removes ~95 % of the texture saddles for the price of at most
         108 nearest-pixel samples each (the cascade stops at the first bad ring).
-        The candidates go through it strongest first, in batches, until
-        :data:`_MAX_VERIFIED` have passed; the rest are cut (and counted) as the
-        weakest, whether they would have passed or not.
+        At most :data:`_MAX_VERIFIED` of those that pass go on, spread over the
+        frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`); the
+        rest are cut and counted.
         """
-        radii = self._prescreen_radii(candidates)
-        order = np.argsort(-candidates.strength, kind="stable")
-        passed: list[np.ndarray] = []
-        tested = 0
-        while tested < len(order) and sum(len(p) for p in passed) < _MAX_VERIFIED:
-            batch = order[tested : tested + _PRESCREEN_BATCH]
-            tested += len(batch)
-            good = verification.count_symmetric_rings(
-                gray,
-                candidates.xy[batch],
-                radii[batch],
-                min_contrast=self._raw_contrast_floor(full_scale),
-                min_symmetry=_PRESCREEN_SYMMETRY,
-                min_good=_PRESCREEN_GOOD_RINGS,
-            )
-            passed.append(batch[good >= _PRESCREEN_GOOD_RINGS])
-        kept = np.concatenate([np.zeros(0, np.intp), *passed])
-        counts["rejected_prescreen"] = tested - len(kept)
-        kept = kept[:_MAX_VERIFIED]
-        counts["dropped_over_verification_cap"] = (
-            len(candidates) - counts["rejected_prescreen"] - len(kept)
+        good = verification.count_symmetric_rings(
+            gray,
+            candidates.xy,
+            self._prescreen_radii(candidates),
+            min_contrast=self._raw_contrast_floor(full_scale),
+            min_symmetry=_PRESCREEN_SYMMETRY,
+            min_good=_PRESCREEN_GOOD_RINGS,
         )
-        return candidates.take(np.sort(kept))
+        keep = good >= _PRESCREEN_GOOD_RINGS
+        counts["rejected_prescreen"] = int((~keep).sum())
+        passed = candidates.take(keep)
+        capped = screening.even_cap(passed, _MAX_VERIFIED, self.config.entropy_cell_px)
+        counts["dropped_over_verification_cap"] = len(passed) - len(capped)
+        return capped
 
     def _order_prescreen(
         self,

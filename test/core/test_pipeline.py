@@ -305,7 +305,6 @@ def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_cou
     everything = detector.detect(board.image)
     assert len(everything) == 63
     monkeypatch.setattr(pipeline, "_MAX_VERIFIED", 10)
-    monkeypatch.setattr(pipeline, "_PRESCREEN_BATCH", 4)
     capped = detector.detect(board.image)
     counts = capped.counts
     assert len(capped) == 10

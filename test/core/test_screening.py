@@ -348,3 +348,15 @@ def test_the_floor_of_the_frames_cap_leaves_what_both_caps_keep_unchanged():
         for c in (without, floored)
     ]
     assert kept[0] == kept[1]
+
+
+def test_the_even_cap_keeps_every_cells_strongest_before_a_crowded_cells_next():
+    rng = np.random.default_rng(2)
+    crowded = rng.uniform(0, 60, (40, 2))  # one cell of strong texture
+    lone = np.array([[100.0, 100.0], [300.0, 20.0], [20.0, 300.0]])  # weak, alone
+    candidates = screening.Candidates(
+        np.vstack([crowded, lone]), np.r_[np.arange(51.0, 91.0), 1.0, 2.0, 3.0], np.ones(43)
+    )
+    kept = screening.even_cap(candidates, 6, cell_px=64)
+    assert sorted(kept.strength) == [1.0, 2.0, 3.0, 88.0, 89.0, 90.0]
+    assert screening.even_cap(candidates, 43, cell_px=64) is candidates
