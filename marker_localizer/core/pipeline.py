@@ -177,6 +177,10 @@ class DetectionResult:
             ``merged_duplicates``, ``accepted``; with ``refinement="template"``,
             ``rejected_<reason>`` for each of :data:`decision.REASONS` instead of
             the centring, symmetry, template, refinement and score counts).
+            ``dropped_over_cap`` counts every candidate that ``max_candidates``
+            cut, including those the screening left out early as too weak to
+            pass it (:meth:`screening.CellCap.floor`); :data:`CAP_COUNTS` are the
+            caps' cuts.
         timings_ms: wall time per stage in milliseconds.
         verdicts: with ``refinement="template"``, every candidate the decision saw:
             where its fit ended, whether it was accepted and why not, its score and
@@ -524,11 +528,13 @@ class Detector:
     ) -> Candidates:
         """Section 3.2, first layers: candidates, suppression, grid-entropy thinning, cap."""
         cfg = self.config
+        # Cut inside the screening by the same caps as below, before any work per point.
+        cut = {"cut_in_cells": 0, "cut_below_floor": 0}
         if regions is None:
-            found = self._find_candidates(gray, full_scale)
+            found = self._find_candidates(gray, full_scale, cut=cut)
         else:
-            found = self._find_in_regions(gray, full_scale, np.asarray(regions, np.int64))
-        counts["candidates"] = len(found)
+            found = self._find_in_regions(gray, full_scale, np.asarray(regions, np.int64), cut)
+        counts["candidates"] = len(found) + cut["cut_in_cells"] + cut["cut_below_floor"]
         if cfg.candidate_detector == "curvature":
             thinned = screening.greedy_entropy_thinning(
                 found, cfg.entropy_cell_px, cfg.entropy_threshold
@@ -537,9 +543,9 @@ class Detector:
             thinned = screening.grid_entropy_thinning(
                 found, cfg.entropy_cell_px, cfg.max_candidates_per_cell
             )
-        counts["after_suppression"] = len(thinned)
+        counts["after_suppression"] = len(thinned) + cut["cut_below_floor"]
         capped = thinned.strongest(cfg.max_candidates)
-        counts["dropped_over_cap"] = len(thinned) - len(capped)
+        counts["dropped_over_cap"] = counts["after_suppression"] - len(capped)
         return capped
 
     def _find_candidates(
@@ -548,10 +554,12 @@ class Detector:
         full_scale: float,
         window: tuple[int, int, int, int] | None = None,
         origin_px: tuple[int, int] = (0, 0),
+        cut: dict[str, int] | None = None,
     ) -> Candidates:
         """Screening candidates; ``window`` (x0, y0, x1, y1) bounds where they are wanted.
 
-        ``origin_px`` is where ``gray``'s pixel (0, 0) lies in the frame.
+        ``origin_px`` is where ``gray``'s pixel (0, 0) lies in the frame; ``cut``
+        counts what the saddle screening's caps cut (:func:`screening.saddle_candidates`).
         """
         cfg = self.config
         if cfg.candidate_detector == "curvature":
@@ -587,12 +595,16 @@ class Detector:
             cell_cap=screening.CellCap(
                 cfg.entropy_cell_px, cfg.max_candidates_per_cell, cfg.max_candidates, origin_px
             ),
+            tally=cut,
         )
 
     def _find_in_regions(
-        self, gray: np.ndarray, full_scale: float, regions: np.ndarray
+        self, gray: np.ndarray, full_scale: float, regions: np.ndarray, cut: dict[str, int]
     ) -> Candidates:
-        """Candidates inside each window, found on the window plus a margin for the filters."""
+        """Candidates inside each window, found on the window plus a margin for the filters.
+
+        ``cut`` counts what the screening's caps cut, as :meth:`_find_candidates`.
+        """
         height, width = gray.shape
         # The filters of the coarsest pyramid level reach 2 level pixels (5x5 Sobel)
         # plus the halving alignment: that much context around a window suffices.
@@ -612,6 +624,7 @@ class Detector:
                 full_scale,
                 (int(x0) - cx0, int(y0) - cy0, int(x1) - cx0, int(y1) - cy0),
                 (cx0, cy0),
+                cut,
             )
             xy = found.xy + [cx0, cy0]
             inside = (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)

@@ -328,6 +328,7 @@ def saddle_candidates(
     relative_threshold: float = 1.5,
     window: tuple[int, int, int, int] | None = None,
     cell_cap: CellCap | None = None,
+    tally: dict[str, int] | None = None,
 ) -> Candidates:
     """Saddle points over an image pyramid covering the expected marker radii.
 
@@ -362,6 +363,10 @@ def saddle_candidates(
             With its ``max_total``, candidates weaker than its :meth:`CellCap.floor`
             are left out as soon as a level sets one: the two caps that follow
             keep the same points.
+        tally: where the caps' cuts are counted, if given: ``"cut_in_cells"``
+            (peaks beyond a cell's ``max_per_cell`` at their level) and
+            ``"cut_below_floor"`` (candidates below the floor) are added to.
+            Split-peak midpoints are formed from the peaks kept only.
 
     Returns:
         Candidates in full-resolution coordinates; ``scale_px`` is 4 * 2**L and
@@ -370,6 +375,7 @@ def saddle_candidates(
     levels = saddle_levels(radius_range_px)
     parts = []
     floor = 0.0
+    cut_in_cells = cut_below_floor = 0
     level_image = image
     for level in range(levels.stop):
         if level > 0:
@@ -398,7 +404,9 @@ def saddle_candidates(
             # Before any arithmetic per peak, the cells of the peaks' pixels.
             rows, cols = np.divmod(peak, width)
             pixel_xy = (np.stack([cols + u0, rows + v0], axis=1) + 0.5) * 2**level - 0.5
-            peak = peak[cell_cap.keep(pixel_xy, flat[peak])]
+            kept = cell_cap.keep(pixel_xy, flat[peak])
+            cut_in_cells += len(peak) - int(kept.sum())
+            peak = peak[kept]
         rows, cols = np.divmod(peak, width)
         centre = flat[peak]
         dx = parabolic_offset(flat[peak - 1], centre, flat[peak + 1])
@@ -412,14 +420,22 @@ def saddle_candidates(
             # On busy ground the first level alone fills the frame's cap: what is
             # weaker cannot pass it, nor the midpoints of pairs it belongs to.
             floor = max(floor, cell_cap.floor(found))
-            found = found.take(found.strength >= floor)
+            strong = found.strength >= floor
+            cut_below_floor += len(found) - int(strong.sum())
+            found = found.take(strong)
         parts.append(found)
         if level == levels.start:
             # Markers below the level's typical radius live here, and only here can
             # their peak split (coarser levels see larger markers).
             parts.append(split_peak_midpoints(found, _SPLIT_PEAK_DISTANCE * scale))
     found = Candidates.concat(parts)
-    return found.take(found.strength >= floor)
+    strong = found.strength >= floor
+    if tally is not None:
+        tally["cut_in_cells"] = tally.get("cut_in_cells", 0) + cut_in_cells
+        tally["cut_below_floor"] = (
+            tally.get("cut_below_floor", 0) + cut_below_floor + len(found) - int(strong.sum())
+        )
+    return found.take(strong)
 
 
 class ContourSet(NamedTuple):

@@ -148,6 +148,25 @@ def test_every_stage_reports_its_count_and_time(cluttered_frames):
     assert set(result.timings_ms) >= {"preprocessing", "screening", "verification", "subpixel"}
 
 
+@pytest.mark.parametrize("max_candidates", [50, 1_000_000])
+def test_every_candidate_the_screenings_caps_cut_is_counted_whenever_it_is_cut(max_candidates):
+    """Cut early (busy ground sets the frame cap's floor in the screening) or late alike."""
+    noise = np.random.default_rng(4).normal(128, 40, (256, 320))
+    image = np.clip(noise, 0, 255).astype(np.uint8)
+    config = DetectorConfig(marker_radius_min_px=3.0, marker_radius_max_px=30.0,
+                            max_candidates=max_candidates)
+    counts = Detector(config).detect(image).counts
+    prescreened = counts["rejected_prescreen"] + counts["dropped_over_verification_cap"]
+    passed = counts["after_suppression"] - counts["dropped_over_cap"]
+    assert passed == min(max_candidates, counts["after_suppression"])
+    assert prescreened <= passed <= counts["after_suppression"] <= counts["candidates"]
+    # The frame's cap as a floor: everything over 50 is cut, and counted.
+    assert counts["dropped_over_cap"] == (
+        counts["after_suppression"] - 50 if max_candidates == 50 else 0
+    )
+    assert counts["candidates"] > 10_000
+
+
 def test_markers_already_located_are_not_searched_again_but_the_others_are(cluttered_frames):
     """Tracking mode passes the markers the fit confirmed as ``known``."""
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
