@@ -187,8 +187,13 @@ class DetectionTally:
     seconds: float = 0.0
     found: list[bool] = field(default_factory=list)
 
-    def add(self, matching: Matching, sigmas_px: np.ndarray | None = None,
-            seconds: float = 0.0, truth_crlb_px: np.ndarray | None = None) -> None:
+    def add(
+        self,
+        matching: Matching,
+        sigmas_px: np.ndarray | None = None,
+        seconds: float = 0.0,
+        truth_crlb_px: np.ndarray | None = None,
+    ) -> None:
         """Add one frame's matching.
 
         Args:

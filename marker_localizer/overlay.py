@@ -32,9 +32,7 @@ def to_bgr(pixels: np.ndarray, bit_depth: int = 16) -> np.ndarray:
         grey = (
             pixels
             if pixels.dtype == np.uint8
-            else cv2.convertScaleAbs(
-                pixels, alpha=255.0 / bit_depth_scale(pixels.dtype, bit_depth)
-            )
+            else cv2.convertScaleAbs(pixels, alpha=255.0 / bit_depth_scale(pixels.dtype, bit_depth))
         )
         return cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
     return np.ascontiguousarray(pixels[:, :, :3]).copy()

@@ -11,6 +11,7 @@ from marker_localizer import evaluation
 
 # --------------------------------------------------------------------------- matching
 
+
 def test_a_detection_0p3_px_off_has_error_0p3():
     matching = evaluation.match_points(np.array([[10.3, 20.0]]), np.array([[10.0, 20.0]]))
     assert matching.n_matched == 1
@@ -37,8 +38,7 @@ def test_matching_is_one_to_one_and_minimises_the_total_distance():
     truth = np.array([[0.0, 0.0], [1.5, 0.0]])
     detections = np.array([[1.0, 0.0], [2.2, 0.0]])
     matching = evaluation.match_points(detections, truth)
-    pairs = dict(zip(matching.truth_index.tolist(), matching.detection_index.tolist(),
-                     strict=True))
+    pairs = dict(zip(matching.truth_index.tolist(), matching.detection_index.tolist(), strict=True))
     assert pairs == {0: 0, 1: 1}
 
 
@@ -54,12 +54,14 @@ def test_matching_with_no_detections_reports_every_truth_missed():
 
 
 def test_nearest_distances_measures_to_the_closest_target():
-    d = evaluation.nearest_distances(np.array([[0.0, 0.0], [10.0, 0.0]]),
-                                  np.array([[3.0, 4.0], [10.0, 1.0]]))
+    d = evaluation.nearest_distances(
+        np.array([[0.0, 0.0], [10.0, 0.0]]), np.array([[3.0, 4.0], [10.0, 1.0]])
+    )
     np.testing.assert_allclose(d, [5.0, 1.0])
 
 
 # --------------------------------------------------------------------------- statistics
+
 
 def test_error_stats_of_known_errors():
     stats = evaluation.ErrorStats.from_errors([0.05, 0.1, 0.2, 0.4])

@@ -71,8 +71,9 @@ def good(tmp_path):
         ("webp", 4, np.uint8, [cv2.IMWRITE_WEBP_QUALITY, 101]),  # lossless
     ],
 )
-def test_the_header_gives_the_size_of_every_parsed_format(tmp_path, suffix, channels, dtype,
-                                                          params):
+def test_the_header_gives_the_size_of_every_parsed_format(
+    tmp_path, suffix, channels, dtype, params
+):
     path = tmp_path / f"image.{suffix}"
     assert cv2.imwrite(str(path), np.zeros((37, 53, channels), dtype).squeeze(), params)
     assert image_size(path.read_bytes()) == (53, 37)
@@ -96,7 +97,10 @@ def test_the_bomb_is_refused_from_its_header_and_the_next_image_still_runs(bomb,
     )
     run = subprocess.run(
         [sys.executable, "-c", script, "detect", str(bomb), str(good), "--json"],
-        capture_output=True, text=True, timeout=120, check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
     )
     errors = run.stderr.splitlines()
     assert run.returncode == 1
@@ -110,16 +114,24 @@ def test_the_bomb_is_refused_from_its_header_and_the_next_image_still_runs(bomb,
     assert record["image"] == str(good) and len(record["markers"]) == 1
 
 
-def test_an_image_over_opencvs_own_limit_is_one_line_and_the_rest_still_run(tmp_path, good,
-                                                                            capsys):
+def test_an_image_over_opencvs_own_limit_is_one_line_and_the_rest_still_run(tmp_path, good, capsys):
     huge_png = tmp_path / "huge.png"
     huge_png.write_bytes(png_header(40000, 40000))
     # Radiance HDR: a format whose header is not parsed here, so OpenCV's own
     # size check raises a cv2.error inside imdecode.
     huge_hdr = tmp_path / "huge.hdr"
     huge_hdr.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 40000 +X 40000\n" + bytes(64))
-    status = main(["detect", str(huge_png), str(huge_hdr), str(good), "--json",
-                   "--param", f"max_pixels={2**30}"])
+    status = main(
+        [
+            "detect",
+            str(huge_png),
+            str(huge_hdr),
+            str(good),
+            "--json",
+            "--param",
+            f"max_pixels={2**30}",
+        ]
+    )
     captured = capsys.readouterr()
     assert status == 1
     assert captured.err.splitlines() == [

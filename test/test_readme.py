@@ -11,8 +11,7 @@ README = (REPO / "README.md").read_text()
 def test_readme_lists_every_detector_parameter_with_its_default():
     defaults = DetectorConfig()
     for name in param_specs():
-        row = next((line for line in README.splitlines() if line.startswith(f"| `{name}` |")),
-                   None)
+        row = next((line for line in README.splitlines() if line.startswith(f"| `{name}` |")), None)
         assert row is not None, f"{name} missing from the README's parameter table"
         assert f"| {getattr(defaults, name)} |" in row, f"{name}: README default is stale"
 

@@ -28,7 +28,13 @@ from rosbags.rosbag2.storage_mcap import decompress
 
 MAGIC = b"\x89MCAP0\r\n"
 _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _MESSAGE_INDEX, _DATA_END = (
-    0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x0F
+    0x02,
+    0x03,
+    0x04,
+    0x05,
+    0x06,
+    0x07,
+    0x0F,
 )
 #: Opcode and length in front of every record, bytes.
 _RECORD_HEAD = 9

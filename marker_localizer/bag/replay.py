@@ -164,9 +164,7 @@ class ReplayReport:
         return DetectionTally.merged(parts) if parts else None
 
 
-def format_report(
-    report: ReplayReport, match_distance_px: float = DEFAULT_GATE_PX
-) -> str:
+def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_PX) -> str:
     """The summary tables replay prints: throughput per camera, then accuracy if truth exists."""
     cams = list(report.cameras.values())
     lines = [
@@ -461,9 +459,7 @@ def replay_bag(
         _evaluate(
             session, clouds[TRUTH_SUFFIX], clouds[PARTIAL_SUFFIX], list(truth), match_distance_px
         )
-    return ReplayReport(
-        Path(bag), Path(out), workers, wall_s, session.stats, undecodable, damage
-    )
+    return ReplayReport(Path(bag), Path(out), workers, wall_s, session.stats, undecodable, damage)
 
 
 def _require_results(bag: str | Path, stats: dict[str, CameraReplay]) -> None:

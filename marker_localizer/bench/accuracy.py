@@ -73,11 +73,12 @@ INDEPENDENT_FAMILIES: dict[str, str] = {
     "c": "motion blur up to 4 px",
     "d": "clutter: 60 look-alikes, radius 4-30 px, strong light gradient",
     "g": "uneven light: one dull bright quadrant on every marker, a hard shadow edge "
-         "across half of them, 20 look-alikes",
+    "across half of them, 20 look-alikes",
 }
 
 
 # --------------------------------------------------------------------------- families
+
 
 @dataclass(frozen=True)
 class Family:
@@ -122,15 +123,24 @@ def _scene(**fields: Any) -> Callable[[int], RenderedScene]:
 #: 70-100 % of 255, read noise 0.5-4 DN plus shot noise up to 0.05 x signal,
 #: ground photographs at 0.25-2.5 px per texture px, gamma 0.8-1.25, the
 #: renderer's default), and half the frames written as JPEG at quality 70-95.
-_BASE = {"radius_px": (6.0, 40.0), "blur_sigma_px": (0.5, 1.5), "noise_sigma_dn": (0.5, 4.0),
-         "max_tilt_deg": 60.0, "contrast": (0.35, 0.9), "peak_level": (0.7, 1.0),
-         "shot_noise_gain_dn": (0.0, 0.05), "texture_scale": (0.25, 2.5),
-         "jpeg_probability": 0.5}
+_BASE = {
+    "radius_px": (6.0, 40.0),
+    "blur_sigma_px": (0.5, 1.5),
+    "noise_sigma_dn": (0.5, 4.0),
+    "max_tilt_deg": 60.0,
+    "contrast": (0.35, 0.9),
+    "peak_level": (0.7, 1.0),
+    "shot_noise_gain_dn": (0.0, 0.05),
+    "texture_scale": (0.25, 2.5),
+    "jpeg_probability": 0.5,
+}
 #: One line for the tables: what the families share.
-BASE_CONDITIONS = ("rendered families: blur 0.5-1.5 px, read noise 0.5-4 DN + shot noise "
-                   "<= 0.05 x signal, contrast 0.35-0.9, white at 70-100 % of 255, gamma "
-                   "0.8-1.25, tilt <= 60 deg, ground photographs at 0.25-2.5 px per texture "
-                   "px, half the frames JPEG (quality 70-95)")
+BASE_CONDITIONS = (
+    "rendered families: blur 0.5-1.5 px, read noise 0.5-4 DN + shot noise "
+    "<= 0.05 x signal, contrast 0.35-0.9, white at 70-100 % of 255, gamma "
+    "0.8-1.25, tilt <= 60 deg, ground photographs at 0.25-2.5 px per texture "
+    "px, half the frames JPEG (quality 70-95)"
+)
 _CLUTTER = {"illumination_strength": 1.0, "n_shadows": 4}
 #: Family (g): every marker has a dull bright quadrant, half a hard cast shadow.
 _UNEVEN_LIGHT = {"dull_probability": 1.0, "shadow_probability": 0.5}
@@ -151,7 +161,9 @@ def render_board_frame(seed: int) -> RenderedScene:
         square = float(rng.uniform(*BOARD_SQUARE_PX))
         try:
             return render_checkerboard(
-                (960, 1280), (10, 10), square,
+                (960, 1280),
+                (10, 10),
+                square,
                 centre=(float(rng.uniform(560, 720)), float(rng.uniform(400, 560))),
                 rotation_rad=float(rng.uniform(0, np.pi)),
                 tilt_deg=float(rng.uniform(0, BOARD_MAX_TILT_DEG)),
@@ -184,31 +196,76 @@ def marker_resolution(scene: RenderedScene) -> np.ndarray:
 def families() -> list[Family]:
     """The scenario families of issues 6 and 12, in table order."""
     return [
-        Family("a", "(a) radius 6-40 px, 12 per 1280x960 frame, 20 look-alikes",
-               (6.0, 40.0), 12, 2, _scene(**_BASE)),
-        Family("b", "(b) tiny markers, radius 2.5-5 px (otherwise as (a)), 24 per frame",
-               (2.5, 5.0), 8, 1, _scene(**{**_BASE, "radius_px": (2.5, 5.0), "n_markers": 24}),
-               resolution_bins=_TINY_RESOLUTION_BINS),
-        Family("c", "(c) motion blur 0-4 px (otherwise as (a))",
-               (6.0, 40.0), 8, 1, _scene(**_BASE, motion_blur_px=(0.0, 4.0))),
-        Family("d", "(d) cluttered 1280x960: 110 hard negatives, strong light gradient, 4 shadows",
-               (6.0, 40.0), 8, 1, _scene(**_BASE, **_CLUTTER, n_hard_negatives=110)),
-        Family("d", "(d) cluttered 4096x3000: 400 hard negatives, strong light gradient, "
-               "4 shadows, 24 markers",
-               (6.0, 40.0), 3, 1, _scene(**_BASE, **_CLUTTER, width=4096, height=3000,
-                                         n_markers=24, n_hard_negatives=400),
-               variant="4096x3000"),
-        Family("g", "(g) uneven light: one bright quadrant 0.45-0.8 as bright as the other on "
-               "every marker, a hard shadow edge (40-65 % darker) within 0.6 radii of the centre "
-               "of half of them, radius 5-30 px, 20 look-alikes",
-               (5.0, 30.0), 8, 1, _scene(**{**_BASE, **_UNEVEN_LIGHT, "radius_px": (5.0, 30.0)})),
-        Family("e", "(e) chessboards 10x10 inner corners, squares 24-44 px, tilt <= 50 deg "
-               "(not the family conditions: blur 0.5-1.5, noise <= 4 DN, no bound computed)",
-               BOARD_SQUARE_PX, 8, 1, render_board_frame, board_pattern=(10, 10)),
+        Family(
+            "a",
+            "(a) radius 6-40 px, 12 per 1280x960 frame, 20 look-alikes",
+            (6.0, 40.0),
+            12,
+            2,
+            _scene(**_BASE),
+        ),
+        Family(
+            "b",
+            "(b) tiny markers, radius 2.5-5 px (otherwise as (a)), 24 per frame",
+            (2.5, 5.0),
+            8,
+            1,
+            _scene(**{**_BASE, "radius_px": (2.5, 5.0), "n_markers": 24}),
+            resolution_bins=_TINY_RESOLUTION_BINS,
+        ),
+        Family(
+            "c",
+            "(c) motion blur 0-4 px (otherwise as (a))",
+            (6.0, 40.0),
+            8,
+            1,
+            _scene(**_BASE, motion_blur_px=(0.0, 4.0)),
+        ),
+        Family(
+            "d",
+            "(d) cluttered 1280x960: 110 hard negatives, strong light gradient, 4 shadows",
+            (6.0, 40.0),
+            8,
+            1,
+            _scene(**_BASE, **_CLUTTER, n_hard_negatives=110),
+        ),
+        Family(
+            "d",
+            "(d) cluttered 4096x3000: 400 hard negatives, strong light gradient, "
+            "4 shadows, 24 markers",
+            (6.0, 40.0),
+            3,
+            1,
+            _scene(
+                **_BASE, **_CLUTTER, width=4096, height=3000, n_markers=24, n_hard_negatives=400
+            ),
+            variant="4096x3000",
+        ),
+        Family(
+            "g",
+            "(g) uneven light: one bright quadrant 0.45-0.8 as bright as the other on "
+            "every marker, a hard shadow edge (40-65 % darker) within 0.6 radii of the centre "
+            "of half of them, radius 5-30 px, 20 look-alikes",
+            (5.0, 30.0),
+            8,
+            1,
+            _scene(**{**_BASE, **_UNEVEN_LIGHT, "radius_px": (5.0, 30.0)}),
+        ),
+        Family(
+            "e",
+            "(e) chessboards 10x10 inner corners, squares 24-44 px, tilt <= 50 deg "
+            "(not the family conditions: blur 0.5-1.5, noise <= 4 DN, no bound computed)",
+            BOARD_SQUARE_PX,
+            8,
+            1,
+            render_board_frame,
+            board_pattern=(10, 10),
+        ),
     ]
 
 
 # --------------------------------------------------------------------------- evaluation
+
 
 @dataclass
 class Row:
@@ -227,8 +284,9 @@ class Row:
     extra: dict[str, float] = field(default_factory=dict)
 
 
-def _timed_detect(detector: PointDetector, image: np.ndarray,
-                  radius_range: RadiusRange) -> tuple[np.ndarray, float]:
+def _timed_detect(
+    detector: PointDetector, image: np.ndarray, radius_range: RadiusRange
+) -> tuple[np.ndarray, float]:
     start = time.perf_counter()
     points = detector.detect(image, radius_range)
     return points, time.perf_counter() - start
@@ -238,8 +296,9 @@ def _sigmas(detector: PointDetector) -> np.ndarray | None:
     return detector.last_sigmas if isinstance(detector, OurDetector) else None
 
 
-def subpix_starts(truth: np.ndarray, rng: np.random.Generator,
-                  max_offset_px: float = SUBPIX_START_PX) -> np.ndarray:
+def subpix_starts(
+    truth: np.ndarray, rng: np.random.Generator, max_offset_px: float = SUBPIX_START_PX
+) -> np.ndarray:
     """Truth moved by a random offset: direction uniform, length uniform in [0, max] px."""
     angle = rng.uniform(0.0, 2.0 * np.pi, len(truth))
     length = rng.uniform(0.0, max_offset_px, len(truth))
@@ -282,19 +341,28 @@ class LabelledFrame:
     @classmethod
     def rendered(cls, scene: RenderedScene, radius_range: RadiusRange) -> LabelledFrame:
         """A frame of this package's renderer."""
-        return cls(scene.image, scene.centres, scene.crlb_px, radius_range,
-                   marker_resolution(scene))
+        return cls(
+            scene.image, scene.centres, scene.crlb_px, radius_range, marker_resolution(scene)
+        )
 
     @classmethod
     def independent(cls, frame: real_data.IndependentFrame) -> LabelledFrame:
         """A frame of the independent renderer, with its own radius range and bound."""
-        return cls(frame.image, frame.truth, frame.crlb_px, frame.radius_range,
-                   np.full(len(frame.truth), np.nan))
+        return cls(
+            frame.image,
+            frame.truth,
+            frame.crlb_px,
+            frame.radius_range,
+            np.full(len(frame.truth), np.nan),
+        )
 
 
-def evaluate_frames(frames: Iterable[LabelledFrame], seed: int,
-                    detectors: Sequence[PointDetector],
-                    board_pattern: tuple[int, int] | None = None) -> FamilyResult:
+def evaluate_frames(
+    frames: Iterable[LabelledFrame],
+    seed: int,
+    detectors: Sequence[PointDetector],
+    board_pattern: tuple[int, int] | None = None,
+) -> FamilyResult:
     """Score every detector and cornerSubPix on frames with exact truth.
 
     Args:
@@ -313,20 +381,30 @@ def evaluate_frames(frames: Iterable[LabelledFrame], seed: int,
         resolution.append(frame.resolution)
         for detector in everyone:
             points, seconds = _timed_detect(detector, frame.image, frame.radius_range)
-            rows[detector.name].tally.add(evaluation.match_points(points, frame.truth),
-                                          _sigmas(detector), seconds, frame.crlb_px)
+            rows[detector.name].tally.add(
+                evaluation.match_points(points, frame.truth),
+                _sigmas(detector),
+                seconds,
+                frame.crlb_px,
+            )
         refiner = peers.CornerSubPixRefiner(peers.subpix_half_window(frame.radius_range))
         start = time.perf_counter()
         refined = refiner.refine(frame.image, subpix_starts(frame.truth, rng))
-        refiner_row.tally.add(evaluation.match_points(refined, frame.truth),
-                              seconds=time.perf_counter() - start, truth_crlb_px=frame.crlb_px)
+        refiner_row.tally.add(
+            evaluation.match_points(refined, frame.truth),
+            seconds=time.perf_counter() - start,
+            truth_crlb_px=frame.crlb_px,
+        )
     ordered = [rows[d.name] for d in detectors]
-    return FamilyResult([*ordered, refiner_row, *(rows[d.name] for d in board)],
-                        np.concatenate(resolution) if resolution else np.zeros(0))
+    return FamilyResult(
+        [*ordered, refiner_row, *(rows[d.name] for d in board)],
+        np.concatenate(resolution) if resolution else np.zeros(0),
+    )
 
 
-def evaluate_family(family: Family, n_frames: int, seed: int,
-                    detectors: Sequence[PointDetector]) -> FamilyResult:
+def evaluate_family(
+    family: Family, n_frames: int, seed: int, detectors: Sequence[PointDetector]
+) -> FamilyResult:
     """Render ``n_frames`` of a family (seeds ``seed * 1000 + i``) and score them.
 
     Args:
@@ -335,15 +413,21 @@ def evaluate_family(family: Family, n_frames: int, seed: int,
         seed: base seed (rendering and cornerSubPix's start offsets).
         detectors: point detectors to score (ours and peers).
     """
-    frames = (LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range)
-              for i in range(n_frames))
+    frames = (
+        LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range)
+        for i in range(n_frames)
+    )
     return evaluate_frames(frames, seed, detectors, family.board_pattern)
 
 
 # --------------------------------------------------------------------------- real images
 
-def evaluate_boards(images: Sequence[real_data.BoardImage], detectors: Sequence[PointDetector],
-                    radius_range: RadiusRange) -> list[Row]:
+
+def evaluate_boards(
+    images: Sequence[real_data.BoardImage],
+    detectors: Sequence[PointDetector],
+    radius_range: RadiusRange,
+) -> list[Row]:
     """Score detectors on real chessboards against their reference corners.
 
     Figures per detector (``Row.extra``): ``boards_complete`` (share of boards
@@ -370,8 +454,9 @@ def evaluate_boards(images: Sequence[real_data.BoardImage], detectors: Sequence[
 COMMON_MIN_RECALL = 0.5
 
 
-def _score_boards(images: Sequence[real_data.BoardImage], detector: PointDetector,
-                  radius_range: RadiusRange) -> tuple[Row, list[np.ndarray]]:
+def _score_boards(
+    images: Sequence[real_data.BoardImage], detector: PointDetector, radius_range: RadiusRange
+) -> tuple[Row, list[np.ndarray]]:
     """One detector on every board: its row and its corners placed in each reference grid."""
     row = Row(detector.name)
     complete, t1_errors, grids = 0, [], []
@@ -388,8 +473,11 @@ def _score_boards(images: Sequence[real_data.BoardImage], detector: PointDetecto
     own = metrics.pool_line_residuals([metrics.line_residuals(g) for g in grids])
     row.extra = {
         "boards_complete": complete / len(grids) if grids else math.nan,
-        "t1_max": t1.max, "t1_mean": t1.mean, "t1_fine": t1.within_fine,
-        "line_rms": own.straight_rms_px, "spacing_rms": own.spacing_rms_px,
+        "t1_max": t1.max,
+        "t1_mean": t1.mean,
+        "t1_fine": t1.within_fine,
+        "line_rms": own.straight_rms_px,
+        "spacing_rms": own.spacing_rms_px,
         "line_points": float(own.n_points),
     }
     return row, grids
@@ -399,35 +487,49 @@ def _add_common_residuals(rows: Sequence[Row], placed: dict[str, list[np.ndarray
     """Residuals of every qualifying detector on the corners all of them found."""
     members = [r for r in rows if r.tally.recall >= COMMON_MIN_RECALL]
     for row in rows:
-        row.extra.update(common_line_rms=math.nan, common_spacing_rms=math.nan,
-                         common_points=0.0)
+        row.extra.update(common_line_rms=math.nan, common_spacing_rms=math.nan, common_points=0.0)
     if not members:
         return
     n_boards = len(placed[members[0].name])
-    masks = [np.logical_and.reduce([np.isfinite(placed[r.name][b]).all(axis=2)
-                                    for r in members]) for b in range(n_boards)]
+    masks = [
+        np.logical_and.reduce([np.isfinite(placed[r.name][b]).all(axis=2) for r in members])
+        for b in range(n_boards)
+    ]
     for row in members:
-        grids = [np.where(mask[..., None], g, np.nan)
-                 for mask, g in zip(masks, placed[row.name], strict=True)]
+        grids = [
+            np.where(mask[..., None], g, np.nan)
+            for mask, g in zip(masks, placed[row.name], strict=True)
+        ]
         common = metrics.pool_line_residuals([metrics.line_residuals(g) for g in grids])
-        row.extra.update(common_line_rms=common.straight_rms_px,
-                         common_spacing_rms=common.spacing_rms_px,
-                         common_points=float(common.n_points))
+        row.extra.update(
+            common_line_rms=common.straight_rms_px,
+            common_spacing_rms=common.spacing_rms_px,
+            common_points=float(common.n_points),
+        )
 
 
 def reference_residual_row(images: Sequence[real_data.BoardImage], label: str) -> Row:
     """Row/column residuals of the reference grids themselves (hand clicks or OpenCV)."""
     row = Row(label)
-    pooled = metrics.pool_line_residuals([metrics.line_residuals(g) for item in images
-                                          for g in item.boards])
-    row.extra = {"line_rms": pooled.straight_rms_px, "spacing_rms": pooled.spacing_rms_px,
-                 "line_points": float(pooled.n_points), "common_line_rms": math.nan,
-                 "common_spacing_rms": math.nan, "common_points": 0.0}
+    pooled = metrics.pool_line_residuals(
+        [metrics.line_residuals(g) for item in images for g in item.boards]
+    )
+    row.extra = {
+        "line_rms": pooled.straight_rms_px,
+        "spacing_rms": pooled.spacing_rms_px,
+        "line_points": float(pooled.n_points),
+        "common_line_rms": math.nan,
+        "common_spacing_rms": math.nan,
+        "common_points": 0.0,
+    }
     return row
 
 
-def evaluate_uas(frames: Sequence[real_data.UasFrame], detectors: Sequence[PointDetector],
-                 radius_range: RadiusRange) -> list[Row]:
+def evaluate_uas(
+    frames: Sequence[real_data.UasFrame],
+    detectors: Sequence[PointDetector],
+    radius_range: RadiusRange,
+) -> list[Row]:
     """Score detectors on the cirn_uas frames: both targets found, false positives.
 
     ``Row.extra``: ``both_found`` (share of frames with both targets within
@@ -444,20 +546,32 @@ def evaluate_uas(frames: Sequence[real_data.UasFrame], detectors: Sequence[Point
             to_target = evaluation.nearest_distances(real_data.CIRN_TARGETS, points)
             found[i] = to_target <= real_data.CIRN_FOUND_PX
             false_positives += int(
-                (evaluation.nearest_distances(points, real_data.CIRN_TARGETS)
-                 > real_data.CIRN_FALSE_PX).sum())
+                (
+                    evaluation.nearest_distances(points, real_data.CIRN_TARGETS)
+                    > real_data.CIRN_FALSE_PX
+                ).sum()
+            )
         n = max(len(frames), 1)
-        rows.append(Row(detector.name, extra={
-            "both_found": float(found.all(axis=1).mean()) if len(frames) else math.nan,
-            "found_1": float(found[:, 0].mean()) if len(frames) else math.nan,
-            "found_2": float(found[:, 1].mean()) if len(frames) else math.nan,
-            "fp_per_frame": false_positives / n, "seconds": seconds / n,
-        }))
+        rows.append(
+            Row(
+                detector.name,
+                extra={
+                    "both_found": float(found.all(axis=1).mean()) if len(frames) else math.nan,
+                    "found_1": float(found[:, 0].mean()) if len(frames) else math.nan,
+                    "found_2": float(found[:, 1].mean()) if len(frames) else math.nan,
+                    "fp_per_frame": false_positives / n,
+                    "seconds": seconds / n,
+                },
+            )
+        )
     return rows
 
 
-def evaluate_negatives(frames: Sequence[real_data.UasFrame], detectors: Sequence[PointDetector],
-                       radius_range: RadiusRange) -> list[Row]:
+def evaluate_negatives(
+    frames: Sequence[real_data.UasFrame],
+    detectors: Sequence[PointDetector],
+    radius_range: RadiusRange,
+) -> list[Row]:
     """Score detectors on real frames without any marker: every detection is false.
 
     ``Row.extra``: ``fp_per_frame``, ``fp_per_megapixel`` (over all the frames'
@@ -472,15 +586,21 @@ def evaluate_negatives(frames: Sequence[real_data.UasFrame], detectors: Sequence
             false_points += len(points)
             seconds += dt
         n = max(len(frames), 1)
-        rows.append(Row(detector.name, extra={
-            "fp_per_frame": false_points / n,
-            "fp_per_megapixel": false_points / megapixels if megapixels else math.nan,
-            "seconds": seconds / n,
-        }))
+        rows.append(
+            Row(
+                detector.name,
+                extra={
+                    "fp_per_frame": false_points / n,
+                    "fp_per_megapixel": false_points / megapixels if megapixels else math.nan,
+                    "seconds": seconds / n,
+                },
+            )
+        )
     return rows
 
 
 # --------------------------------------------------------------------------- tables
+
 
 def _fmt(value: float, digits: int = 3) -> str:
     return "-" if value is None or not np.isfinite(value) else f"{value:.{digits}f}"
@@ -493,9 +613,11 @@ def _pct(value: float) -> str:
 def family_table(title: str, rows: Sequence[Row]) -> str:
     """Format a family's table (errors and bounds in px)."""
     ours = next((r.tally.stats.mean for r in rows if r.name == REFERENCE_ROW), math.nan)
-    header = (f"{'detector':<34}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'RMS':>8}{'p95':>8}"
-              f"{'max':>8}{'<=0.1':>8}{'in 2sig':>8}{'CRLB':>8}{'err/CRLB':>9}"
-              f"{'peer/ours':>10}{'s/frame':>9}")
+    header = (
+        f"{'detector':<34}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'RMS':>8}{'p95':>8}"
+        f"{'max':>8}{'<=0.1':>8}{'in 2sig':>8}{'CRLB':>8}{'err/CRLB':>9}"
+        f"{'peer/ours':>10}{'s/frame':>9}"
+    )
     lines = [title, header, "-" * len(header)]
     for row in rows:
         t, s = row.tally, row.tally.stats
@@ -506,7 +628,8 @@ def family_table(title: str, rows: Sequence[Row]) -> str:
             f"{_fmt(s.mean):>8}{_fmt(s.rms):>8}{_fmt(s.p95):>8}{_fmt(s.max):>8}"
             f"{_pct(s.within_fine):>8}{_pct(t.within_two_sigma):>8}"
             f"{_fmt(t.mean_crlb_px, 4):>8}{_fmt(t.error_over_crlb, 2):>9}{_fmt(ratio, 2):>10}"
-            f"{_fmt(t.seconds / max(t.frames, 1), 2):>9}")
+            f"{_fmt(t.seconds / max(t.frames, 1), 2):>9}"
+        )
     return "\n".join(lines)
 
 
@@ -528,16 +651,20 @@ class ResolutionRecall:
 def resolution_recall(result: FamilyResult, edges: Sequence[float]) -> ResolutionRecall:
     """Split every detector's recall by :func:`marker_resolution`, at ``edges``."""
     index = np.digitize(result.resolution, edges)
-    names = [f"< {edges[0]:g}", *(f"{a:g}-{b:g}" for a, b in itertools.pairwise(edges)),
-             f">= {edges[-1]:g}"]
+    names = [
+        f"< {edges[0]:g}",
+        *(f"{a:g}-{b:g}" for a, b in itertools.pairwise(edges)),
+        f">= {edges[-1]:g}",
+    ]
     counts = np.bincount(index, minlength=len(names))
     recall = {}
     for row in result.rows:
         if row.refiner:
             continue
         found = np.asarray(row.tally.found, dtype=bool)
-        recall[row.name] = [float(found[index == k].mean()) if counts[k] else math.nan
-                            for k in range(len(names))]
+        recall[row.name] = [
+            float(found[index == k].mean()) if counts[k] else math.nan for k in range(len(names))
+        ]
     return ResolutionRecall(names, counts.tolist(), recall)
 
 
@@ -553,9 +680,11 @@ def resolution_table(title: str, split: ResolutionRecall) -> str:
 
 def boards_table(title: str, rows: Sequence[Row]) -> str:
     """Format a real chessboard set's table (errors and residuals in px)."""
-    header = (f"{'detector':<34}{'recall':>8}{'boards':>8}{'T1 max':>8}{'T1 mean':>8}"
-              f"{'T1<=0.1':>8}{'line':>7}{'spacing':>8}{'pts':>6}{'line=':>7}{'spac=':>7}"
-              f"{'pts=':>6}{'s/img':>7}")
+    header = (
+        f"{'detector':<34}{'recall':>8}{'boards':>8}{'T1 max':>8}{'T1 mean':>8}"
+        f"{'T1<=0.1':>8}{'line':>7}{'spacing':>8}{'pts':>6}{'line=':>7}{'spac=':>7}"
+        f"{'pts=':>6}{'s/img':>7}"
+    )
     lines = [title, header, "-" * len(header)]
     for row in rows:
         e, t = row.extra, row.tally
@@ -566,20 +695,24 @@ def boards_table(title: str, rows: Sequence[Row]) -> str:
             f"{_fmt(e['spacing_rms']):>8}{int(e['line_points']):>6}"
             f"{_fmt(e['common_line_rms']):>7}{_fmt(e['common_spacing_rms']):>7}"
             f"{int(e['common_points']):>6}"
-            f"{_fmt(t.seconds / t.frames if t.frames else math.nan, 2):>7}")
+            f"{_fmt(t.seconds / t.frames if t.frames else math.nan, 2):>7}"
+        )
     return "\n".join(lines)
 
 
 def uas_table(title: str, rows: Sequence[Row]) -> str:
     """Format the cirn_uas table."""
-    header = (f"{'detector':<34}{'both':>8}{'target1':>9}{'target2':>9}{'FP/frame':>10}"
-              f"{'s/frame':>9}")
+    header = (
+        f"{'detector':<34}{'both':>8}{'target1':>9}{'target2':>9}{'FP/frame':>10}{'s/frame':>9}"
+    )
     lines = [title, header, "-" * len(header)]
     for row in rows:
         e = row.extra
-        lines.append(f"{row.name:<34}{_pct(e['both_found']):>8}{_pct(e['found_1']):>9}"
-                     f"{_pct(e['found_2']):>9}{_fmt(e['fp_per_frame'], 2):>10}"
-                     f"{_fmt(e['seconds'], 2):>9}")
+        lines.append(
+            f"{row.name:<34}{_pct(e['both_found']):>8}{_pct(e['found_1']):>9}"
+            f"{_pct(e['found_2']):>9}{_fmt(e['fp_per_frame'], 2):>10}"
+            f"{_fmt(e['seconds'], 2):>9}"
+        )
     return "\n".join(lines)
 
 
@@ -589,23 +722,29 @@ def negatives_table(title: str, rows: Sequence[Row]) -> str:
     lines = [title, header, "-" * len(header)]
     for row in rows:
         e = row.extra
-        lines.append(f"{row.name:<34}{_fmt(e['fp_per_frame'], 2):>11}"
-                     f"{_fmt(e['fp_per_megapixel'], 3):>10}{_fmt(e['seconds'], 2):>9}")
+        lines.append(
+            f"{row.name:<34}{_fmt(e['fp_per_frame'], 2):>11}"
+            f"{_fmt(e['fp_per_megapixel'], 3):>10}{_fmt(e['seconds'], 2):>9}"
+        )
     return "\n".join(lines)
 
 
 def summary_table(results: Sequence[tuple[str, Row]]) -> str:
     """One line per family for the reference row: the figures issue 12's targets are about."""
-    header = (f"{'family':<44}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'CRLB':>8}"
-              f"{'err/CRLB':>9}")
-    lines = [f"Summary, {REFERENCE_ROW}: recall, false points per frame, mean error (px), "
-             "mean Cramer-Rao bound of the markers found (px), their ratio", header,
-             "-" * len(header)]
+    header = f"{'family':<44}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'CRLB':>8}{'err/CRLB':>9}"
+    lines = [
+        f"Summary, {REFERENCE_ROW}: recall, false points per frame, mean error (px), "
+        "mean Cramer-Rao bound of the markers found (px), their ratio",
+        header,
+        "-" * len(header),
+    ]
     for label, row in results:
         t = row.tally
-        lines.append(f"{label:<44}{_pct(t.recall):>8}{_fmt(t.fp_per_frame, 2):>8}"
-                     f"{_fmt(t.stats.mean):>8}{_fmt(t.mean_crlb_px, 4):>8}"
-                     f"{_fmt(t.error_over_crlb, 2):>9}")
+        lines.append(
+            f"{label:<44}{_pct(t.recall):>8}{_fmt(t.fp_per_frame, 2):>8}"
+            f"{_fmt(t.stats.mean):>8}{_fmt(t.mean_crlb_px, 4):>8}"
+            f"{_fmt(t.error_over_crlb, 2):>9}"
+        )
     return "\n".join(lines)
 
 
@@ -613,19 +752,29 @@ def row_record(row: Row) -> dict[str, Any]:
     """JSON-ready figures of a row."""
     t, s = row.tally, row.tally.stats
     record: dict[str, Any] = {
-        "frames": t.frames, "truth": t.n_truth, "found": t.n_matched,
-        "recall": t.recall, "fp_per_frame": None if row.refiner else t.fp_per_frame,
-        "mean_px": s.mean, "rms_px": s.rms, "p95_px": s.p95, "max_px": s.max,
-        "within_0p1": s.within_fine, "within_2sigma": t.within_two_sigma,
-        "crlb_mean_px": t.mean_crlb_px, "error_over_crlb": t.error_over_crlb,
+        "frames": t.frames,
+        "truth": t.n_truth,
+        "found": t.n_matched,
+        "recall": t.recall,
+        "fp_per_frame": None if row.refiner else t.fp_per_frame,
+        "mean_px": s.mean,
+        "rms_px": s.rms,
+        "p95_px": s.p95,
+        "max_px": s.max,
+        "within_0p1": s.within_fine,
+        "within_2sigma": t.within_two_sigma,
+        "crlb_mean_px": t.mean_crlb_px,
+        "error_over_crlb": t.error_over_crlb,
         "seconds_per_frame": t.seconds / t.frames if t.frames else None,
     }
     record.update(row.extra)
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-            for k, v in record.items()}
+    return {
+        k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in record.items()
+    }
 
 
 # --------------------------------------------------------------------------- driver
+
 
 @dataclass(frozen=True)
 class Options:
@@ -663,8 +812,9 @@ def _reference(rows: Sequence[Row]) -> Row:
     return next(r for r in rows if r.name == REFERENCE_ROW)
 
 
-def run_synthetic(options: Options, report: Callable[[str], None],
-                  summary: list[tuple[str, Row]]) -> dict[str, Any]:
+def run_synthetic(
+    options: Options, report: Callable[[str], None], summary: list[tuple[str, Row]]
+) -> dict[str, Any]:
     """Evaluate the rendered families; report each table as it is done.
 
     Appends (family label, our reference row) to ``summary``.
@@ -678,27 +828,36 @@ def run_synthetic(options: Options, report: Callable[[str], None],
         result = evaluate_family(family, frames_for(family, options), options.seed, detectors)
         rows = result.rows
         frames = rows[0].tally.frames
-        title = (f"Family {family.title}; {frames} frames, {rows[0].tally.n_truth} markers, "
-                 f"radius range given to every detector {family.radius_range[0]:g}-"
-                 f"{family.radius_range[1]:g} px")
+        title = (
+            f"Family {family.title}; {frames} frames, {rows[0].tally.n_truth} markers, "
+            f"radius range given to every detector {family.radius_range[0]:g}-"
+            f"{family.radius_range[1]:g} px"
+        )
         report(family_table(title, rows))
         results[family.title] = {r.name: row_record(r) for r in rows}
         summary.append((family.label, _reference(rows)))
         if family.resolution_bins:
             split = resolution_recall(result, family.resolution_bins)
-            report(resolution_table(
-                f"Family ({family.key}) recall by resolution: foreshortened radius over blur "
-                "sigma (markers per bin)", split))
+            report(
+                resolution_table(
+                    f"Family ({family.key}) recall by resolution: foreshortened radius over blur "
+                    "sigma (markers per bin)",
+                    split,
+                )
+            )
             results[f"{family.title}: recall by resolution"] = {
-                name: {b: (r if math.isfinite(r) else None)
-                       for b, r in zip(split.bins, recall, strict=True)}
+                name: {
+                    b: (r if math.isfinite(r) else None)
+                    for b, r in zip(split.bins, recall, strict=True)
+                }
                 for name, recall in split.recall.items()
             }
     return results
 
 
-def run_independent(options: Options, report: Callable[[str], None],
-                    summary: list[tuple[str, Row]]) -> dict[str, Any]:
+def run_independent(
+    options: Options, report: Callable[[str], None], summary: list[tuple[str, Row]]
+) -> dict[str, Any]:
     """Evaluate the independent renderer's frames family by family; report each table.
 
     Appends (family label, our reference row) to ``summary``.
@@ -713,13 +872,16 @@ def run_independent(options: Options, report: Callable[[str], None],
         frames = list(real_data.iter_independent(root, 1 if options.quick else None, (key,)))
         if not frames:
             continue
-        rows = evaluate_frames((LabelledFrame.independent(f) for f in frames), options.seed,
-                               detectors).rows
+        rows = evaluate_frames(
+            (LabelledFrame.independent(f) for f in frames), options.seed, detectors
+        ).rows
         ranges = sorted({f.radius_range for f in frames})
-        title = (f"Independent renderer, family ({key}) {description}; {len(frames)} frames, "
-                 f"{rows[0].tally.n_truth} markers, radius range given to every detector "
-                 + ", ".join(f"{low:g}-{high:g}" for low, high in ranges)
-                 + " px (truth.json); CRLB: truth.json's")
+        title = (
+            f"Independent renderer, family ({key}) {description}; {len(frames)} frames, "
+            f"{rows[0].tally.n_truth} markers, radius range given to every detector "
+            + ", ".join(f"{low:g}-{high:g}" for low, high in ranges)
+            + " px (truth.json); CRLB: truth.json's"
+        )
         report(family_table(title, rows))
         results[f"({key}) {description}"] = {r.name: row_record(r) for r in rows}
         summary.append((f"independent ({key})", _reference(rows)))
@@ -730,19 +892,26 @@ def run_negatives(options: Options, report: Callable[[str], None]) -> dict[str, 
     """Evaluate the real frames without markers; report the table."""
     root = options.data_root
     if root is None or not (root / "aerial_negatives").is_dir():
-        report("Real aerial frames without markers: ../shared/data/aerial_negatives not "
-               "found, skipped.")
+        report(
+            "Real aerial frames without markers: ../shared/data/aerial_negatives not "
+            "found, skipped."
+        )
         return {}
     frames = list(real_data.iter_aerial_negatives(root, 1 if options.quick else None))
     rows = evaluate_negatives(frames, _detectors(options), REAL_RADIUS_RANGES["aerial_negatives"])
     megapixels = sum(f.image.size for f in frames) / 1e6
     shapes = sorted({f"{f.image.shape[1]}x{f.image.shape[0]}" for f in frames})
-    report(negatives_table(
-        f"Real aerial frames without markers: aerial_negatives; {len(frames)} frames "
-        f"({', '.join(shapes)}, {megapixels:.1f} MP in all); every detection is a false point; "
-        f"radius range {_range_text('aerial_negatives')}", rows))
-    return {r.name: {k: (v if math.isfinite(v) else None) for k, v in r.extra.items()}
-            for r in rows}
+    report(
+        negatives_table(
+            f"Real aerial frames without markers: aerial_negatives; {len(frames)} frames "
+            f"({', '.join(shapes)}, {megapixels:.1f} MP in all); every detection is a false point; "
+            f"radius range {_range_text('aerial_negatives')}",
+            rows,
+        )
+    )
+    return {
+        r.name: {k: (v if math.isfinite(v) else None) for k, v in r.extra.items()} for r in rows
+    }
 
 
 def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
@@ -756,28 +925,45 @@ def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
     detectors = _detectors(options)
     board_sets = {
         "validationboof": list(real_data.iter_validationboof(root, limit)),
-        "libcbdetect": list(real_data.iter_unlabelled_boards(root, "libcbdetect",
-                                                             2 if options.quick else None)),
+        "libcbdetect": list(
+            real_data.iter_unlabelled_boards(root, "libcbdetect", 2 if options.quick else None)
+        ),
         "pycbd": list(real_data.iter_unlabelled_boards(root, "pycbd", limit)),
     }
     for name, images in board_sets.items():
-        rows = evaluate_boards(images, [*detectors, *_real_board_peers(name)],
-                               REAL_RADIUS_RANGES[name])
-        rows.append(reference_residual_row(
-            images, "hand clicks (reference)" if name == "validationboof"
-            else "OpenCV SB boards (reference)"))
+        rows = evaluate_boards(
+            images, [*detectors, *_real_board_peers(name)], REAL_RADIUS_RANGES[name]
+        )
+        rows.append(
+            reference_residual_row(
+                images,
+                "hand clicks (reference)"
+                if name == "validationboof"
+                else "OpenCV SB boards (reference)",
+            )
+        )
         n_corners = sum(len(i.reference) for i in images)
         n_boards = sum(len(i.boards) for i in images)
-        report(boards_table(f"Real chessboards: {name}; {len(images)} images, {n_boards} "
-                            f"boards, {n_corners} reference corners; {_real_note(name)}\n"
-                            f"{_BOARD_LEGEND}", rows))
+        report(
+            boards_table(
+                f"Real chessboards: {name}; {len(images)} images, {n_boards} "
+                f"boards, {n_corners} reference corners; {_real_note(name)}\n"
+                f"{_BOARD_LEGEND}",
+                rows,
+            )
+        )
         results[name] = {r.name: row_record(r) for r in rows}
     frames = list(real_data.iter_cirn_uas(root, limit))
     rows = evaluate_uas(frames, detectors, REAL_RADIUS_RANGES["cirn_uas"])
-    report(uas_table(f"Real UAV frames: cirn_uas; {len(frames)} frames (3840x2160); targets "
-                     f"found within {real_data.CIRN_FOUND_PX:g} px, FP = farther than "
-                     f"{real_data.CIRN_FALSE_PX:g} px from both; radius range "
-                     f"{_range_text('cirn_uas')}", rows))
+    report(
+        uas_table(
+            f"Real UAV frames: cirn_uas; {len(frames)} frames (3840x2160); targets "
+            f"found within {real_data.CIRN_FOUND_PX:g} px, FP = farther than "
+            f"{real_data.CIRN_FALSE_PX:g} px from both; radius range "
+            f"{_range_text('cirn_uas')}",
+            rows,
+        )
+    )
     results["cirn_uas"] = {r.name: row_record(r) for r in rows}
     return results
 
@@ -787,7 +973,8 @@ _BOARD_LEGEND = (
     "T1: deviation from OpenCV's refined corners (paper's Table 1), px;\n"
     "line / spacing: RMS straight-line / projective-spacing residual of the board rows and "
     "columns, px, over own corners (pts); line= / spac= / pts=: on the corners found by every "
-    f"detector with recall >= {COMMON_MIN_RECALL:.0%}")
+    f"detector with recall >= {COMMON_MIN_RECALL:.0%}"
+)
 
 
 def _real_board_peers(set_name: str) -> list[PointDetector]:
@@ -804,10 +991,14 @@ def _range_text(set_name: str) -> str:
 
 def _real_note(set_name: str) -> str:
     if set_name == "validationboof":
-        return (f"reference = hand clicks - 0.5 px; radius range {_range_text(set_name)}; "
-                "mrgingham n/a (square grids only)")
-    return (f"reference = OpenCV findChessboardCornersSB boards (partial: only what it finds); "
-            f"radius range {_range_text(set_name)}")
+        return (
+            f"reference = hand clicks - 0.5 px; radius range {_range_text(set_name)}; "
+            "mrgingham n/a (square grids only)"
+        )
+    return (
+        f"reference = OpenCV findChessboardCornersSB boards (partial: only what it finds); "
+        f"radius range {_range_text(set_name)}"
+    )
 
 
 def run(options: Options, report: Callable[[str], None] = print) -> dict[str, Any]:
@@ -833,23 +1024,37 @@ def parse_args(argv: list[str] | None) -> tuple[Options, Path | None]:
     """Parse the command line into :class:`Options` and the JSON output path."""
     parser = argparse.ArgumentParser(
         prog="marker-localizer bench accuracy",
-        description="Accuracy of this detector and its peers on rendered and real images.")
-    parser.add_argument("--frames", type=int, default=None,
-                        help="frames per rendered family (default: per family)")
+        description="Accuracy of this detector and its peers on rendered and real images.",
+    )
+    parser.add_argument(
+        "--frames", type=int, default=None, help="frames per rendered family (default: per family)"
+    )
     parser.add_argument("--quick", action="store_true", help="small run (< 2 minutes)")
     parser.add_argument("--seed", type=int, default=0, help="base seed")
-    parser.add_argument("--families", default=",".join(FAMILY_KEYS),
-                        help=f"comma-separated subset of {','.join(FAMILY_KEYS)}")
-    parser.add_argument("--no-curvature", action="store_true",
-                        help="leave out the paper's curvature screening variant")
+    parser.add_argument(
+        "--families",
+        default=",".join(FAMILY_KEYS),
+        help=f"comma-separated subset of {','.join(FAMILY_KEYS)}",
+    )
+    parser.add_argument(
+        "--no-curvature",
+        action="store_true",
+        help="leave out the paper's curvature screening variant",
+    )
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
     args = parser.parse_args(argv)
     chosen = tuple(k.strip() for k in args.families.split(",") if k.strip())
     unknown = sorted(set(chosen) - set(FAMILY_KEYS))
     if unknown:
         parser.error(f"unknown families {unknown}; choose from {','.join(FAMILY_KEYS)}")
-    options = Options(frames=args.frames, quick=args.quick, seed=args.seed, families=chosen,
-                      curvature=not args.no_curvature, data_root=real_data.data_root())
+    options = Options(
+        frames=args.frames,
+        quick=args.quick,
+        seed=args.seed,
+        families=chosen,
+        curvature=not args.no_curvature,
+        data_root=real_data.data_root(),
+    )
     return options, args.json
 
 

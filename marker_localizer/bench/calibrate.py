@@ -81,8 +81,11 @@ def _rendered(quick: bool) -> Iterator[tuple[np.ndarray, tuple[float, float], np
             yield scene.image, family.radius_range, scene.centres
 
 
-def collect(verdicts: decision.Verdicts, min_radius_px: float, truth: np.ndarray,
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def collect(
+    verdicts: decision.Verdicts,
+    min_radius_px: float,
+    truth: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(features, label, eligible) of every candidate: 1 marker, 0 texture, -1 neither.
 
     ``eligible`` marks the candidates every test of the decision but the score passes.
@@ -107,8 +110,9 @@ def fit_logistic(features: np.ndarray, label: np.ndarray) -> tuple[np.ndarray, f
     def loss(w: np.ndarray) -> tuple[float, np.ndarray]:
         logit = z @ w[1:] + w[0]
         p = 1.0 / (1.0 + np.exp(-np.clip(logit, -50, 50)))
-        value = np.sum(weight * (np.logaddexp(0.0, -logit) * label
-                                 + np.logaddexp(0.0, logit) * (1 - label)))
+        value = np.sum(
+            weight * (np.logaddexp(0.0, -logit) * label + np.logaddexp(0.0, logit) * (1 - label))
+        )
         residual = weight * (p - label)
         grad = np.concatenate([[residual.sum()], z.T @ residual])
         value += _L2 * np.sum(w[1:] ** 2)
@@ -130,17 +134,26 @@ def run(quick: bool, root: Path | None, report: Report) -> dict[str, Any]:
     if root is not None:
         for frame in real_data.iter_aerial_negatives(root, 1 if quick else None):
             megapixels += frame.image.size / 1e6
-            negatives.append(collect(_verdicts(frame.image, CALIBRATION_RADIUS_PX),
-                                     CALIBRATION_RADIUS_PX[0], np.zeros((0, 2))))
+            negatives.append(
+                collect(
+                    _verdicts(frame.image, CALIBRATION_RADIUS_PX),
+                    CALIBRATION_RADIUS_PX[0],
+                    np.zeros((0, 2)),
+                )
+            )
     features = np.concatenate([p[0] for p in parts + negatives])
     label = np.concatenate([p[1] for p in parts + negatives])
     eligible = np.concatenate([p[2] for p in parts + negatives])
     train = eligible & (label >= 0)
     coefficients, bias = fit_logistic(features[train], label[train])
-    report(f"markers {int((label[train] == 1).sum())}, texture {int((label[train] == 0).sum())} "
-           f"(of which real aerial {sum(int(p[2].sum()) for p in negatives)})")
-    report("SCORE_WEIGHTS = (" + ", ".join(f"{c:.3f}" for c in coefficients) + ")\n"
-           f"SCORE_BIAS = {bias:.3f}")
+    report(
+        f"markers {int((label[train] == 1).sum())}, texture {int((label[train] == 0).sum())} "
+        f"(of which real aerial {sum(int(p[2].sum()) for p in negatives)})"
+    )
+    report(
+        "SCORE_WEIGHTS = (" + ", ".join(f"{c:.3f}" for c in coefficients) + ")\n"
+        f"SCORE_BIAS = {bias:.3f}"
+    )
     table: list[tuple[float, float]] = []
     tail: tuple[float, float, float] | None = None
     if negatives:
@@ -153,16 +166,19 @@ def run(quick: bool, root: Path | None, report: Report) -> dict[str, Any]:
             if count == 0:
                 break
             table.append((float(threshold), count / megapixels))
-        report(f"false points per megapixel on {megapixels:.1f} MP of real marker-free ground, "
-               f"radius {CALIBRATION_RADIUS_PX[0]:g}-{CALIBRATION_RADIUS_PX[1]:g} px, "
-               "at or above each score: "
-               + ", ".join(f"{t:.1f}: {r:.3g}" for t, r in table))
+        report(
+            f"false points per megapixel on {megapixels:.1f} MP of real marker-free ground, "
+            f"radius {CALIBRATION_RADIUS_PX[0]:g}-{CALIBRATION_RADIUS_PX[1]:g} px, "
+            "at or above each score: " + ", ".join(f"{t:.1f}: {r:.3g}" for t, r in table)
+        )
         if len(scores) > TAIL_POINTS:
             tail = exponential_tail(scores, megapixels)
             report("FALSE_ALARM_TAIL = ({:.3f}, {:.4f}, {:.3f})".format(*tail))
     marker_scores = features[train & (label == 1)] @ coefficients + bias
-    report("markers' scores, quantiles 2 / 10 / 50 %: "
-           + " / ".join(f"{q:.2f}" for q in np.quantile(marker_scores, [0.02, 0.1, 0.5])))
+    report(
+        "markers' scores, quantiles 2 / 10 / 50 %: "
+        + " / ".join(f"{q:.2f}" for q in np.quantile(marker_scores, [0.02, 0.1, 0.5]))
+    )
     return {"weights": coefficients.tolist(), "bias": bias, "false_alarms": table, "tail": tail}
 
 
@@ -183,10 +199,12 @@ def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = argparse.ArgumentParser(
         prog="marker-localizer bench calibrate",
-        description="The decision's score weights and false-alarm rate, from data.")
+        description="The decision's score weights and false-alarm rate, from data.",
+    )
     parser.add_argument("--quick", action="store_true", help="one frame per set")
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
     args = parser.parse_args(argv)
     run_report: Callable[[Report], dict[str, Any]] = lambda report: run(  # noqa: E731
-        args.quick, real_data.data_root(), report)
+        args.quick, real_data.data_root(), report
+    )
     return run_and_save("calibration", run_report, args.json)

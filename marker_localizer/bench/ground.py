@@ -113,24 +113,28 @@ def grounds(root: Path | None, seed: int, report: Callable[[str], None]) -> list
     """Every ground of the table; the real ones only where ``root`` (shared data) exists."""
     found: list[Ground] = []
     if root is None:
-        report("real ground: ../shared/data is absent; only the simulated and worst-case "
-               "grounds are timed")
+        report(
+            "real ground: ../shared/data is absent; only the simulated and worst-case "
+            "grounds are timed"
+        )
     else:
-        found.append(Ground("aerial_negatives",
-                            [f.image for f in real_data.iter_aerial_negatives(root)]))
+        found.append(
+            Ground("aerial_negatives", [f.image for f in real_data.iter_aerial_negatives(root)])
+        )
         found.append(Ground("cirn_uas", [f.image for f in real_data.iter_cirn_uas(root)]))
         flare = root / "pycbd" / "flare.jpg"
         if flare.is_file():
             found.append(Ground("pycbd flare", [real_data.read_gray(flare)]))
     found.append(Ground("flight simulator", flight_frames(seed)))
-    found.append(Ground(f"sensor noise {NOISE_SIGMA_DN:g} DN", [sensor_noise_frame(seed)],
-                        worst_case=True))
-    found.append(Ground(f"X tiling {TILING_SQUARE_PX} px", [x_tiling_frame(seed)],
-                        worst_case=True))
+    found.append(
+        Ground(f"sensor noise {NOISE_SIGMA_DN:g} DN", [sensor_noise_frame(seed)], worst_case=True)
+    )
+    found.append(Ground(f"X tiling {TILING_SQUARE_PX} px", [x_tiling_frame(seed)], worst_case=True))
     return [g for g in found if g.frames]
 
 
 # --------------------------------------------------------------------------- worker side
+
 
 @dataclass
 class GroundTiming:
@@ -194,14 +198,17 @@ def worker_main(name: str, frames_path: Path) -> int:
     cv2.setNumThreads(1)
     with np.load(frames_path) as archive:
         count = int(archive["ground_count"])
-        ground_frames = [[archive[key] for key in sorted(archive.files)
-                          if key.startswith(f"ground{g:02d}_")] for g in range(count)]
+        ground_frames = [
+            [archive[key] for key in sorted(archive.files) if key.startswith(f"ground{g:02d}_")]
+            for g in range(count)
+        ]
     timings = measure(name, ground_frames)
     print(json.dumps([[t.__dict__ for t in per_range] for per_range in timings]))
     return 0
 
 
 # --------------------------------------------------------------------------- driver side
+
 
 @dataclass
 class SubjectTimings:
@@ -214,10 +221,23 @@ class SubjectTimings:
 
 def run_subject(name: str, frames_path: Path) -> SubjectTimings:
     """Measure one subject in a fresh single-threaded subprocess."""
-    command = [sys.executable, "-m", "marker_localizer.bench.ground", "--worker", name,
-               "--frames-file", str(frames_path)]
-    done = subprocess.run(command, capture_output=True, text=True, env=single_thread_env(),
-                          check=False, timeout=_WORKER_TIMEOUT_S)
+    command = [
+        sys.executable,
+        "-m",
+        "marker_localizer.bench.ground",
+        "--worker",
+        name,
+        "--frames-file",
+        str(frames_path),
+    ]
+    done = subprocess.run(
+        command,
+        capture_output=True,
+        text=True,
+        env=single_thread_env(),
+        check=False,
+        timeout=_WORKER_TIMEOUT_S,
+    )
     if done.returncode != 0:
         tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
         return SubjectTimings(name, error=f"worker failed: {tail}")
@@ -242,13 +262,20 @@ def ground_table(found: Sequence[Ground], results: Sequence[SubjectTimings]) -> 
     """Median and slowest frame per ground and range, ms; ours over each peer's median."""
     ours = next((r for r in results if r.name == REFERENCE_SUBJECT and not r.error), None)
     peers_run = [r for r in results if r.name != REFERENCE_SUBJECT and not r.error]
-    header = (f"{'ground':<30}{'frames':>7}{'radius px':>11}{'median ms':>11}{'worst ms':>10}"
-              f"{'peak MiB':>10}{'pts/frame':>10}")
-    header += "".join(f"{f'peer{i} median':>14}{'pts/frame':>10}{'ours/peer':>11}"
-                      for i in range(1, len(peers_run) + 1))
-    lines = [f"ours = {REFERENCE_SUBJECT}"
-             + "".join(f"; peer{i} = {p.name}" for i, p in enumerate(peers_run, 1)),
-             header, "-" * len(header)]
+    header = (
+        f"{'ground':<30}{'frames':>7}{'radius px':>11}{'median ms':>11}{'worst ms':>10}"
+        f"{'peak MiB':>10}{'pts/frame':>10}"
+    )
+    header += "".join(
+        f"{f'peer{i} median':>14}{'pts/frame':>10}{'ours/peer':>11}"
+        for i in range(1, len(peers_run) + 1)
+    )
+    lines = [
+        f"ours = {REFERENCE_SUBJECT}"
+        + "".join(f"; peer{i} = {p.name}" for i, p in enumerate(peers_run, 1)),
+        header,
+        "-" * len(header),
+    ]
     for g, ground in enumerate(found):
         for k, radius_range in enumerate(RANGES):
             row = f"{ground.label:<30}{len(ground.frames):>7}{_range_text(radius_range):>11}"
@@ -256,14 +283,21 @@ def ground_table(found: Sequence[Ground], results: Sequence[SubjectTimings]) -> 
                 row += f"{'not run':>11}"
             else:
                 mine = ours.timings[g][k]
-                row += (f"{np.median(mine.times_ms):>11.0f}{max(mine.times_ms):>10.0f}"
-                        f"{mine.peak_mb:>10.0f}{np.mean(mine.points):>10.1f}")
+                row += (
+                    f"{np.median(mine.times_ms):>11.0f}{max(mine.times_ms):>10.0f}"
+                    f"{mine.peak_mb:>10.0f}{np.mean(mine.points):>10.1f}"
+                )
             for peer in peers_run:
                 theirs = peer.timings[g][k]
-                ratio = (np.median(ours.timings[g][k].times_ms) / np.median(theirs.times_ms)
-                         if ours is not None else float("nan"))
-                row += (f"{np.median(theirs.times_ms):>14.0f}{np.mean(theirs.points):>10.1f}"
-                        f"{ratio:>11.2f}")
+                ratio = (
+                    np.median(ours.timings[g][k].times_ms) / np.median(theirs.times_ms)
+                    if ours is not None
+                    else float("nan")
+                )
+                row += (
+                    f"{np.median(theirs.times_ms):>14.0f}{np.mean(theirs.points):>10.1f}"
+                    f"{ratio:>11.2f}"
+                )
             lines.append(row)
     for r in results:
         if r.error:
@@ -281,40 +315,66 @@ def verdict(found: Sequence[Ground], results: Sequence[SubjectTimings]) -> str:
     if ours is None:
         return "real-ground targets: not measured (ours did not run)"
     k = RANGES.index((3.0, 30.0))
-    real = [t for g, ground in enumerate(found) if ground.name in REAL_8MP
-            for t in ours.timings[g][k].times_ms]
+    real = [
+        t
+        for g, ground in enumerate(found)
+        if ground.name in REAL_8MP
+        for t in ours.timings[g][k].times_ms
+    ]
     lines = []
     if real:
         median, worst = float(np.median(real)), max(real)
-        lines.append(f"real 8 MP frames at 3-30 px ({len(real)}): median {median:.0f} ms "
-                     f"{_judged(median, TARGET_REAL_MEDIAN_MS)}, slowest {worst:.0f} ms "
-                     f"{_judged(worst, TARGET_REAL_WORST_MS)}")
-    bound = [(ground, ours.timings[g][j]) for g, ground in enumerate(found)
-             for j in range(len(RANGES)) if ground.frames[0].size >= 12_000_000]
+        lines.append(
+            f"real 8 MP frames at 3-30 px ({len(real)}): median {median:.0f} ms "
+            f"{_judged(median, TARGET_REAL_MEDIAN_MS)}, slowest {worst:.0f} ms "
+            f"{_judged(worst, TARGET_REAL_WORST_MS)}"
+        )
+    bound = [
+        (ground, ours.timings[g][j])
+        for g, ground in enumerate(found)
+        for j in range(len(RANGES))
+        if ground.frames[0].size >= 12_000_000
+    ]
     if bound:
         worst_ms = max(max(t.times_ms) for _, t in bound)
         worst_mb = max(t.peak_mb for _, t in bound)
-        lines.append(f"every 12 MP frame, both ranges: slowest {worst_ms:.0f} ms "
-                     f"{_judged(worst_ms, TARGET_BOUND_MS)}, peak memory growth "
-                     f"{worst_mb:.0f} MiB {_judged(worst_mb, TARGET_BOUND_MB)}")
+        lines.append(
+            f"every 12 MP frame, both ranges: slowest {worst_ms:.0f} ms "
+            f"{_judged(worst_ms, TARGET_BOUND_MS)}, peak memory growth "
+            f"{worst_mb:.0f} MiB {_judged(worst_mb, TARGET_BOUND_MB)}"
+        )
     return "\n".join(lines)
 
 
-def run(subjects: Sequence[str], seed: int, folder: Path,
-        report: Callable[[str], None]) -> dict[str, Any]:
+def run(
+    subjects: Sequence[str], seed: int, folder: Path, report: Callable[[str], None]
+) -> dict[str, Any]:
     """Time the subjects on every ground; report the table and the targets; return figures."""
     found = grounds(real_data.data_root(), seed, report)
     frames_path = folder / "grounds.npz"
     save_grounds(found, frames_path)
     results = [run_subject(name, frames_path) for name in subjects]
-    report("Real ground: time per frame on one core, one detection per frame after a warm-up "
-           "per ground and range;\nworst = slowest frame; peak MiB = the warm-up detection's "
-           "peak of allocated arrays (tracemalloc); pts/frame = points returned")
+    report(
+        "Real ground: time per frame on one core, one detection per frame after a warm-up "
+        "per ground and range;\nworst = slowest frame; peak MiB = the warm-up detection's "
+        "peak of allocated arrays (tracemalloc); pts/frame = points returned"
+    )
     report(ground_table(found, results))
     report(verdict(found, results))
-    return {r.name: {"error": r.error, "grounds": {
-        ground.label: {_range_text(rr): r.timings[g][k].__dict__ for k, rr in enumerate(RANGES)}
-        for g, ground in enumerate(found)} if not r.error else {}} for r in results}
+    return {
+        r.name: {
+            "error": r.error,
+            "grounds": {
+                ground.label: {
+                    _range_text(rr): r.timings[g][k].__dict__ for k, rr in enumerate(RANGES)
+                }
+                for g, ground in enumerate(found)
+            }
+            if not r.error
+            else {},
+        }
+        for r in results
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

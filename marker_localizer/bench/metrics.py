@@ -135,8 +135,9 @@ def pool_line_residuals(parts: Sequence[LineResiduals]) -> LineResiduals:
     )
 
 
-def grid_positions(reference_grid: np.ndarray, detections: np.ndarray,
-                   gate_px: float = DEFAULT_GATE_PX) -> np.ndarray:
+def grid_positions(
+    reference_grid: np.ndarray, detections: np.ndarray, gate_px: float = DEFAULT_GATE_PX
+) -> np.ndarray:
     """Place detections into a reference grid by matching them to its corners.
 
     Args:
@@ -154,8 +155,9 @@ def grid_positions(reference_grid: np.ndarray, detections: np.ndarray,
     return placed.reshape(reference_grid.shape)
 
 
-def order_grid(points: np.ndarray, pattern: tuple[int, int],
-               tolerance: float = 0.3) -> np.ndarray | None:
+def order_grid(
+    points: np.ndarray, pattern: tuple[int, int], tolerance: float = 0.3
+) -> np.ndarray | None:
     """Arrange an unordered set of grid corners into rows and columns.
 
     The four extreme corners of the points' convex hull are mapped to the

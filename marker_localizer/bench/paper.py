@@ -82,40 +82,57 @@ def reproduction_sets(quick: bool, seed: int, data_root: Path | None) -> list[Re
     """The sets of the table; the independent one only where ``data_root`` holds it."""
     families = {(f.key, f.variant): f for f in accuracy.families()}
     sets = []
-    for key, variant, kind in (("a", "", "markers"), ("e", "", "boards"),
-                               ("d", "4096x3000", "markers")):
+    for key, variant, kind in (
+        ("a", "", "markers"),
+        ("e", "", "boards"),
+        ("d", "4096x3000", "markers"),
+    ):
         family = families[(key, variant)]
         count = family.quick_frames if quick else family.frames
-        frames = [LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range)
-                  for i in range(count)]
+        frames = [
+            LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range)
+            for i in range(count)
+        ]
         sets.append(ReproductionSet(family.label, frames, kind))
     if data_root is not None and (data_root / "independent" / "truth.json").is_file():
         independent = real_data.iter_independent(data_root, 1 if quick else None, ("a",))
-        sets.append(ReproductionSet("independent renderer (a)",
-                                    [LabelledFrame.independent(f) for f in independent],
-                                    "markers"))
+        sets.append(
+            ReproductionSet(
+                "independent renderer (a)",
+                [LabelledFrame.independent(f) for f in independent],
+                "markers",
+            )
+        )
     return sets
 
 
 def evaluate(sets: Sequence[ReproductionSet], seed: int) -> dict[str, list[Row]]:
     """Both pipelines' rows on every set (the default first)."""
-    return {s.label: accuracy.evaluate_frames(s.frames, seed, PIPELINES).rows[: len(PIPELINES)]
-            for s in sets}
+    return {
+        s.label: accuracy.evaluate_frames(s.frames, seed, PIPELINES).rows[: len(PIPELINES)]
+        for s in sets
+    }
 
 
 def reproduction_table(rows: dict[str, list[Row]]) -> str:
     """One line per set and pipeline."""
-    header = (f"{'set':<34}{'pipeline':<30}{'recall':>8}{'FP/fr':>8}{'mean':>8}"
-              f"{'<=0.1':>8}{'s/frame':>9}")
-    lines = ["Paper reproduction: the paper's pipeline (curvature + ncc) beside the default on "
-             "the same frames; mean error and <=0.1 px share over the markers found",
-             header, "-" * len(header)]
+    header = (
+        f"{'set':<34}{'pipeline':<30}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'<=0.1':>8}{'s/frame':>9}"
+    )
+    lines = [
+        "Paper reproduction: the paper's pipeline (curvature + ncc) beside the default on "
+        "the same frames; mean error and <=0.1 px share over the markers found",
+        header,
+        "-" * len(header),
+    ]
     for label, set_rows in rows.items():
         for row in set_rows:
             t = row.tally
-            lines.append(f"{label:<34}{row.name:<30}{_pct(t.recall):>8}"
-                         f"{t.fp_per_frame:>8.2f}{t.stats.mean:>8.3f}"
-                         f"{_pct(t.stats.within_fine):>8}{t.seconds / t.frames:>9.2f}")
+            lines.append(
+                f"{label:<34}{row.name:<30}{_pct(t.recall):>8}"
+                f"{t.fp_per_frame:>8.2f}{t.stats.mean:>8.3f}"
+                f"{_pct(t.stats.within_fine):>8}{t.seconds / t.frames:>9.2f}"
+            )
     return "\n".join(lines)
 
 
@@ -125,10 +142,15 @@ def targets(sets: Sequence[ReproductionSet], rows: dict[str, list[Row]]) -> list
     for s in sets:
         t = rows[s.label][-1].tally
         if s.kind == "boards":
-            met = (t.recall >= MIN_RECALL_BOARDS and t.stats.mean <= MAX_MEAN_ERROR_BOARDS_PX
-                   and t.stats.within_fine >= MIN_WITHIN_FINE_BOARDS)
-            goal = (f"recall >= {MIN_RECALL_BOARDS:.0%}, mean <= {MAX_MEAN_ERROR_BOARDS_PX} px, "
-                    f">= {MIN_WITHIN_FINE_BOARDS:.0%} within 0.1 px")
+            met = (
+                t.recall >= MIN_RECALL_BOARDS
+                and t.stats.mean <= MAX_MEAN_ERROR_BOARDS_PX
+                and t.stats.within_fine >= MIN_WITHIN_FINE_BOARDS
+            )
+            goal = (
+                f"recall >= {MIN_RECALL_BOARDS:.0%}, mean <= {MAX_MEAN_ERROR_BOARDS_PX} px, "
+                f">= {MIN_WITHIN_FINE_BOARDS:.0%} within 0.1 px"
+            )
         elif "(a)" in s.label:
             met = t.recall >= MIN_RECALL_A and t.fp_per_frame <= MAX_FP_PER_FRAME_A
             goal = f"recall >= {MIN_RECALL_A:.0%}, <= {MAX_FP_PER_FRAME_A} false points per frame"
@@ -158,35 +180,47 @@ def compare_checks(frames: Sequence[LabelledFrame], seed: int) -> dict[str, Chec
     ``min_extent_fraction`` of the smallest radius, as both pipelines require.
     """
     rng = np.random.default_rng(seed)
-    tallies = {"paper: edge phase + polarity": CheckTally(),
-               "default: grey 180-degree symmetry": CheckTally()}
+    tallies = {
+        "paper: edge phase + polarity": CheckTally(),
+        "default: grey 180-degree symmetry": CheckTally(),
+    }
     for frame in frames:
-        config = DetectorConfig(marker_radius_min_px=frame.radius_range[0],
-                                marker_radius_max_px=frame.radius_range[1])
-        gamma = preprocessing.LocalGamma(frame.image, 255.0, config.gamma_alpha,
-                                         config.illumination_window_px)
+        config = DetectorConfig(
+            marker_radius_min_px=frame.radius_range[0], marker_radius_max_px=frame.radius_range[1]
+        )
+        gamma = preprocessing.LocalGamma(
+            frame.image, 255.0, config.gamma_alpha, config.illumination_window_px
+        )
         radii = verification.ring_radii(frame.radius_range)
         angle = rng.uniform(0.0, 2.0 * np.pi, len(frame.truth))
         shifted = frame.truth + CHECK_OFFSET_PX * np.column_stack([np.cos(angle), np.sin(angle)])
-        found = screening.saddle_candidates(frame.image, frame.radius_range,
-                                            config.min_contrast_dn)
+        found = screening.saddle_candidates(frame.image, frame.radius_range, config.min_contrast_dn)
         # One point per place: the pyramid levels find a saddle several times.
-        saddles = found.xy[screening.non_maximum_suppression(
-            found.xy, found.strength, CHECK_NEGATIVE_DISTANCE_PX)]
-        far = np.min(np.linalg.norm(saddles[:, None] - frame.truth[None], axis=2), axis=1,
-                     initial=np.inf) > CHECK_NEGATIVE_DISTANCE_PX
+        saddles = found.xy[
+            screening.non_maximum_suppression(found.xy, found.strength, CHECK_NEGATIVE_DISTANCE_PX)
+        ]
+        far = (
+            np.min(
+                np.linalg.norm(saddles[:, None] - frame.truth[None], axis=2), axis=1, initial=np.inf
+            )
+            > CHECK_NEGATIVE_DISTANCE_PX
+        )
         points = np.vstack([frame.truth, shifted, saddles[far]])
         n = len(frame.truth)
         min_extent = config.min_extent_fraction * config.marker_radius_min_px - 1e-9
         contrast = config.min_contrast_dn / 255.0
-        edge = verification.edge_phase_check(frame.image, points, radii,
-                                             min_contrast=contrast, normalise=gamma)
-        grey = verification.centre_symmetry_check(frame.image, points, radii,
-                                                  min_contrast=contrast,
-                                                  min_symmetry=config.symmetry_min,
-                                                  normalise=gamma)
-        checks: tuple[verification.EdgePhaseCheck | verification.SymmetryCheck, ...] = (
-            edge, grey)
+        edge = verification.edge_phase_check(
+            frame.image, points, radii, min_contrast=contrast, normalise=gamma
+        )
+        grey = verification.centre_symmetry_check(
+            frame.image,
+            points,
+            radii,
+            min_contrast=contrast,
+            min_symmetry=config.symmetry_min,
+            normalise=gamma,
+        )
+        checks: tuple[verification.EdgePhaseCheck | verification.SymmetryCheck, ...] = (edge, grey)
         for tally, check in zip(tallies.values(), checks, strict=True):
             passed = check.accepted & (check.radius_px >= min_extent)
             tally.frames += 1
@@ -206,27 +240,35 @@ def check_sets(quick: bool, seed: int, data_root: Path | None) -> dict[str, list
         count = family.quick_frames if quick else family.frames
         sets[family.label] = [
             LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range)
-            for i in range(count)]
+            for i in range(count)
+        ]
     if data_root is not None and (data_root / "independent" / "truth.json").is_file():
         for key in ("g", "a"):
             sets[f"independent renderer ({key})"] = [
                 LabelledFrame.independent(f)
-                for f in real_data.iter_independent(data_root, 1 if quick else None, (key,))]
+                for f in real_data.iter_independent(data_root, 1 if quick else None, (key,))
+            ]
     return sets
 
 
 def check_table(results: dict[str, dict[str, CheckTally]]) -> str:
     """One line per set and check."""
-    header = (f"{'set':<30}{'check':<36}{'recall':>8}{'at 1 px':>9}{'FP/fr':>8}")
-    lines = ["Annular checks alone: recall from the true centre and from 1 px off it (the "
-             "default's check expects a centred point: its pipeline centres first); FP/fr: "
-             f"distinct saddle candidates farther than {CHECK_NEGATIVE_DISTANCE_PX:g} px from "
-             "every marker that the check accepts, per frame (the later gates of either "
-             "pipeline remove almost all)", header, "-" * len(header)]
+    header = f"{'set':<30}{'check':<36}{'recall':>8}{'at 1 px':>9}{'FP/fr':>8}"
+    lines = [
+        "Annular checks alone: recall from the true centre and from 1 px off it (the "
+        "default's check expects a centred point: its pipeline centres first); FP/fr: "
+        f"distinct saddle candidates farther than {CHECK_NEGATIVE_DISTANCE_PX:g} px from "
+        "every marker that the check accepts, per frame (the later gates of either "
+        "pipeline remove almost all)",
+        header,
+        "-" * len(header),
+    ]
     for label, tallies in results.items():
         for name, t in tallies.items():
-            lines.append(f"{label:<30}{name:<36}{_pct(t.at_centre / t.markers):>8}"
-                         f"{_pct(t.off_centre / t.markers):>9}{t.false_points / t.frames:>8.1f}")
+            lines.append(
+                f"{label:<30}{name:<36}{_pct(t.at_centre / t.markers):>8}"
+                f"{_pct(t.off_centre / t.markers):>9}{t.false_points / t.frames:>8.1f}"
+            )
     return "\n".join(lines)
 
 
@@ -234,29 +276,44 @@ def _pct(value: float) -> str:
     return f"{100 * value:.1f}%" if math.isfinite(value) else "-"
 
 
-def run(quick: bool = False, seed: int = 0, data_root: Path | None = None,
-        report: Callable[[str], None] = print) -> dict[str, Any]:
+def run(
+    quick: bool = False,
+    seed: int = 0,
+    data_root: Path | None = None,
+    report: Callable[[str], None] = print,
+) -> dict[str, Any]:
     """Run the comparison; the table goes to ``report``; returns the figures for JSON."""
     sets = reproduction_sets(quick, seed, data_root)
     rows = evaluate(sets, seed)
     report(reproduction_table(rows))
     verdicts = targets(sets, rows)
     report("Targets of the paper's pipeline:\n" + "\n".join(verdicts))
-    checks = {label: compare_checks(frames, seed)
-              for label, frames in check_sets(quick, seed, data_root).items()}
+    checks = {
+        label: compare_checks(frames, seed)
+        for label, frames in check_sets(quick, seed, data_root).items()
+    }
     report(check_table(checks))
-    return {"seed": seed, "quick": quick, "targets": verdicts,
-            "sets": {label: {r.name: accuracy.row_record(r) for r in set_rows}
-                     for label, set_rows in rows.items()},
-            "checks": {label: {name: vars(t) for name, t in tallies.items()}
-                       for label, tallies in checks.items()}}
+    return {
+        "seed": seed,
+        "quick": quick,
+        "targets": verdicts,
+        "sets": {
+            label: {r.name: accuracy.row_record(r) for r in set_rows}
+            for label, set_rows in rows.items()
+        },
+        "checks": {
+            label: {name: vars(t) for name, t in tallies.items()}
+            for label, tallies in checks.items()
+        },
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = argparse.ArgumentParser(
         prog="marker-localizer bench paper",
-        description="The paper's pipeline beside the default on the same frames.")
+        description="The paper's pipeline beside the default on the same frames.",
+    )
     parser.add_argument("--quick", action="store_true", help="a frame or two per set")
     parser.add_argument("--seed", type=int, default=0, help="base seed of the rendering")
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")

@@ -65,16 +65,22 @@ def corner_subpix(image_u8: np.ndarray, starts: np.ndarray, half_window: int) ->
     height, width = image_u8.shape[:2]
     margin = half_window + 1
     inside = (
-        (pts[:, 0, 0] >= margin) & (pts[:, 0, 0] < width - 1 - margin)
-        & (pts[:, 0, 1] >= margin) & (pts[:, 0, 1] < height - 1 - margin)
+        (pts[:, 0, 0] >= margin)
+        & (pts[:, 0, 0] < width - 1 - margin)
+        & (pts[:, 0, 1] >= margin)
+        & (pts[:, 0, 1] < height - 1 - margin)
     )
     out = np.full((len(pts), 2), np.nan)
     if not inside.any():
         return out
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER, _SUBPIX_MAX_ITER,
-                _SUBPIX_EPS_PX)
-    refined = cv2.cornerSubPix(image_u8, pts[inside].copy(), (half_window, half_window),
-                               (-1, -1), criteria)
+    criteria = (
+        cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_MAX_ITER,
+        _SUBPIX_MAX_ITER,
+        _SUBPIX_EPS_PX,
+    )
+    refined = cv2.cornerSubPix(
+        image_u8, pts[inside].copy(), (half_window, half_window), (-1, -1), criteria
+    )
     out[inside] = refined.reshape(-1, 2)
     return out
 
@@ -347,7 +353,10 @@ class Mrgingham:
             cv2.imwrite(str(path), image_u8)
             output = subprocess.run(
                 ["mrgingham", "--gridn", str(self.gridn), str(path)],
-                capture_output=True, text=True, check=False, timeout=300,
+                capture_output=True,
+                text=True,
+                check=False,
+                timeout=300,
             ).stdout
         return parse_mrgingham(output)
 

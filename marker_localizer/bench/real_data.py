@@ -104,7 +104,8 @@ def _stack(grids: list[np.ndarray]) -> np.ndarray:
 def load_hand_points(path: Path) -> np.ndarray:
     """Read a ValidationBoof ``.txt`` of hand clicks, converted to the project's convention."""
     return np.loadtxt(path, comments="#", dtype=np.float64).reshape(-1, 2) + (
-        VALIDATIONBOOF_OFFSET_PX)
+        VALIDATIONBOOF_OFFSET_PX
+    )
 
 
 def iter_validationboof(root: Path, limit_per_folder: int | None = None) -> Iterator[BoardImage]:
@@ -123,15 +124,24 @@ def iter_validationboof(root: Path, limit_per_folder: int | None = None) -> Iter
             if grid is None or not image_path.exists():
                 continue
             image = read_gray(image_path)
-            yield BoardImage("validationboof", f"{folder.name}/{image_path.name}", image,
-                             [grid], opencv_pattern_corners(image, VALIDATIONBOOF_PATTERN))
+            yield BoardImage(
+                "validationboof",
+                f"{folder.name}/{image_path.name}",
+                image,
+                [grid],
+                opencv_pattern_corners(image, VALIDATIONBOOF_PATTERN),
+            )
 
 
-def iter_unlabelled_boards(root: Path, set_name: str,
-                           limit: int | None = None) -> Iterator[BoardImage]:
+def iter_unlabelled_boards(
+    root: Path, set_name: str, limit: int | None = None
+) -> Iterator[BoardImage]:
     """Images of the libcbdetect or pycbd set, with OpenCV's boards as the reference."""
-    paths = sorted(p for p in (root / set_name).iterdir()
-                   if p.suffix.lower() in (".png", ".jpg") and p.name not in SKIPPED_IMAGES)
+    paths = sorted(
+        p
+        for p in (root / set_name).iterdir()
+        if p.suffix.lower() in (".png", ".jpg") and p.name not in SKIPPED_IMAGES
+    )
     for path in paths[:limit]:
         image = read_gray(path)
         boards = opencv_boards(image)
@@ -185,8 +195,11 @@ def opencv_boards(image: np.ndarray, max_boards: int = _MAX_BOARDS) -> list[np.n
         (rows, cols, 2) grids, px; empty when OpenCV finds none.
     """
     scale = min(1.0, _SEARCH_MAX_SIDE_PX / max(image.shape))
-    search = image if scale == 1.0 else cv2.resize(image, None, fx=scale, fy=scale,
-                                                   interpolation=cv2.INTER_AREA)
+    search = (
+        image
+        if scale == 1.0
+        else cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    )
     search = search.copy()
     flags = cv2.CALIB_CB_LARGER | cv2.CALIB_CB_ACCURACY
     boards: list[np.ndarray] = []
@@ -231,10 +244,12 @@ def _is_planar_grid(grid: np.ndarray) -> bool:
 
 def _median_spacing(grid: np.ndarray) -> float:
     """Median distance between neighbouring corners of a grid, px."""
-    steps = np.concatenate([
-        np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel(),
-        np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
-    ])
+    steps = np.concatenate(
+        [
+            np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel(),
+            np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
+        ]
+    )
     return float(np.nanmedian(steps))
 
 
@@ -292,8 +307,9 @@ class IndependentFrame:
     radius_range: tuple[float, float]
 
 
-def iter_independent(root: Path, limit_per_family: int | None = None,
-                     families: tuple[str, ...] | None = None) -> Iterator[IndependentFrame]:
+def iter_independent(
+    root: Path, limit_per_family: int | None = None, families: tuple[str, ...] | None = None
+) -> Iterator[IndependentFrame]:
     """The independent renderer's frames in file-name order, as ``truth.json`` describes them.
 
     Args:
@@ -315,10 +331,13 @@ def iter_independent(root: Path, limit_per_family: int | None = None,
         markers = record["markers"]
         low, high = record["radius_range_px"]
         yield IndependentFrame(
-            name, family, read_gray(folder / name),
+            name,
+            family,
+            read_gray(folder / name),
             np.array([(m["x"], m["y"]) for m in markers], dtype=np.float64).reshape(-1, 2),
             np.array([m["crlb_mean_abs_error_px"] for m in markers], dtype=np.float64),
-            (float(low), float(high)))
+            (float(low), float(high)),
+        )
 
 
 def iter_aerial_negatives(root: Path, limit: int | None = None) -> Iterator[UasFrame]:

@@ -16,8 +16,7 @@ def print_report(text: str) -> None:
     print(f"\n{text}", flush=True)
 
 
-def run_and_save(name: str, run: Callable[[Report], dict[str, Any]],
-                 json_path: Path | None) -> int:
+def run_and_save(name: str, run: Callable[[Report], dict[str, Any]], json_path: Path | None) -> int:
     """Run a benchmark, print its tables and its duration, save its figures as JSON.
 
     Args:

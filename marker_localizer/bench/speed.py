@@ -69,8 +69,12 @@ TARGET_TRACKING_MS = 20.0
 #: Marker radius range given to our detector and the peers, px (family (d)).
 RADIUS_RANGE = (6.0, 40.0)
 FRAME_WIDTH, FRAME_HEIGHT = 4096, 3000
-_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                     "NUMEXPR_NUM_THREADS")
+_THREAD_VARIABLES = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "NUMEXPR_NUM_THREADS",
+)
 _WORKER_TIMEOUT_S = 1800
 
 
@@ -78,10 +82,18 @@ def cluttered_scene(width: int = FRAME_WIDTH, height: int = FRAME_HEIGHT) -> Any
     """The SceneConfig of the timed frames: the accuracy benchmark's family (d)."""
     from marker_localizer.synthetic import SceneConfig  # noqa: PLC0415
 
-    return SceneConfig(width=width, height=height, n_markers=24,
-                       radius_px=RADIUS_RANGE, blur_sigma_px=(0.5, 1.5),
-                       noise_sigma_dn=(0.0, 4.0), max_tilt_deg=60.0,
-                       n_hard_negatives=400, illumination_strength=1.0, n_shadows=4)
+    return SceneConfig(
+        width=width,
+        height=height,
+        n_markers=24,
+        radius_px=RADIUS_RANGE,
+        blur_sigma_px=(0.5, 1.5),
+        noise_sigma_dn=(0.0, 4.0),
+        max_tilt_deg=60.0,
+        n_hard_negatives=400,
+        illumination_strength=1.0,
+        n_shadows=4,
+    )
 
 
 def render_frames(n_frames: int, seed: int) -> list[np.ndarray]:
@@ -93,6 +105,7 @@ def render_frames(n_frames: int, seed: int) -> list[np.ndarray]:
 
 
 # --------------------------------------------------------------------------- worker side
+
 
 def _as_given(frame: np.ndarray) -> np.ndarray:
     return frame
@@ -147,9 +160,12 @@ def render_tracking_base(seed: int) -> np.ndarray:
     from marker_localizer.synthetic import render_scene  # noqa: PLC0415
 
     dx, dy = TRACKING_STEP_PX
-    scene = replace(cluttered_scene(FRAME_WIDTH + TRACKING_SEQUENCE * dx,
-                                    FRAME_HEIGHT + TRACKING_SEQUENCE * dy),
-                    n_markers=TRACKING_MARKERS)
+    scene = replace(
+        cluttered_scene(
+            FRAME_WIDTH + TRACKING_SEQUENCE * dx, FRAME_HEIGHT + TRACKING_SEQUENCE * dy
+        ),
+        n_markers=TRACKING_MARKERS,
+    )
     return render_scene(scene, seed * 1000 + 999).image
 
 
@@ -162,8 +178,10 @@ def tracking_view(base: np.ndarray, step: int) -> np.ndarray:
     dx, dy = TRACKING_STEP_PX
     height, width = base.shape[:2]
     k = step % TRACKING_SEQUENCE
-    return base[k * dy: height - TRACKING_SEQUENCE * dy + k * dy,
-                k * dx: width - TRACKING_SEQUENCE * dx + k * dx]
+    return base[
+        k * dy : height - TRACKING_SEQUENCE * dy + k * dy,
+        k * dx : width - TRACKING_SEQUENCE * dx + k * dx,
+    ]
 
 
 def _make_tracking_subject() -> Subject:
@@ -182,8 +200,9 @@ def _make_tracking_subject() -> Subject:
     from marker_localizer.core.pipeline import Detector  # noqa: PLC0415
     from marker_localizer.core.tracking import MarkerTracker  # noqa: PLC0415
 
-    config = DetectorConfig(marker_radius_min_px=RADIUS_RANGE[0],
-                            marker_radius_max_px=RADIUS_RANGE[1])
+    config = DetectorConfig(
+        marker_radius_min_px=RADIUS_RANGE[0], marker_radius_max_px=RADIUS_RANGE[1]
+    )
     detector = Detector(config)
     state: dict[str, Any] = {"base": None, "step": 0, "tracker": None}
 
@@ -300,6 +319,7 @@ def worker_main(name: str, frames_path: Path, repeats: int) -> int:
 
 # --------------------------------------------------------------------------- driver side
 
+
 def single_thread_env() -> dict[str, str]:
     """This process's environment with every BLAS/OpenMP pool limited to one thread."""
     env = dict(os.environ)
@@ -309,10 +329,25 @@ def single_thread_env() -> dict[str, str]:
 
 def run_subject(name: str, frames_path: Path, repeats: int) -> WorkerResult:
     """Measure one subject in a fresh single-threaded subprocess."""
-    command = [sys.executable, "-m", "marker_localizer.bench.speed", "--worker", name,
-               "--frames-file", str(frames_path), "--repeats", str(repeats)]
-    done = subprocess.run(command, capture_output=True, text=True, env=single_thread_env(),
-                          check=False, timeout=_WORKER_TIMEOUT_S)
+    command = [
+        sys.executable,
+        "-m",
+        "marker_localizer.bench.speed",
+        "--worker",
+        name,
+        "--frames-file",
+        str(frames_path),
+        "--repeats",
+        str(repeats),
+    ]
+    done = subprocess.run(
+        command,
+        capture_output=True,
+        text=True,
+        env=single_thread_env(),
+        check=False,
+        timeout=_WORKER_TIMEOUT_S,
+    )
     if done.returncode != 0:
         tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
         return WorkerResult(name, error=f"worker failed: {tail}")
@@ -346,10 +381,11 @@ def stage_medians(stages: Sequence[dict[str, float]]) -> dict[str, float]:
 
 def speed_table(results: Sequence[WorkerResult]) -> str:
     """Format the timing table (ms, MiB) with ratios ours / peer."""
-    ours = next((_median(r.times_ms) for r in results if r.name == REFERENCE_SUBJECT),
-                float("nan"))
-    header = (f"{'subject':<32}{'median ms':>11}{'p95 ms':>10}{'runs':>6}{'RSS +MiB':>10}"
-              f"{'ours/peer':>11}")
+    ours = next((_median(r.times_ms) for r in results if r.name == REFERENCE_SUBJECT), float("nan"))
+    header = (
+        f"{'subject':<32}{'median ms':>11}{'p95 ms':>10}{'runs':>6}{'RSS +MiB':>10}"
+        f"{'ours/peer':>11}"
+    )
     lines = [header, "-" * len(header)]
     for r in results:
         if r.error:
@@ -358,9 +394,11 @@ def speed_table(results: Sequence[WorkerResult]) -> str:
         median = _median(r.times_ms)
         # Ratios compare ours with peers; our own variants get none.
         ratio = ours / median if not r.name.startswith("ours") and median > 0 else float("nan")
-        lines.append(f"{r.name:<32}{median:>11.1f}{_p95(r.times_ms):>10.1f}"
-                     f"{len(r.times_ms):>6}{r.rss_growth_mb:>10.1f}"
-                     f"{'-' if not np.isfinite(ratio) else f'{ratio:.2f}':>11}")
+        lines.append(
+            f"{r.name:<32}{median:>11.1f}{_p95(r.times_ms):>10.1f}"
+            f"{len(r.times_ms):>6}{r.rss_growth_mb:>10.1f}"
+            f"{'-' if not np.isfinite(ratio) else f'{ratio:.2f}':>11}"
+        )
     return "\n".join(lines)
 
 
@@ -374,8 +412,9 @@ def stages_table(results: Sequence[WorkerResult]) -> str:
     header = f"{'stage (median ms)':<20}" + "".join(f"{r.name:>{width}}" for r in ours)
     lines = [header, "-" * len(header)]
     for stage in stages:
-        cells = "".join(f"{stage_medians(r.stages_ms).get(stage, float('nan')):>{width}.1f}"
-                        for r in ours)
+        cells = "".join(
+            f"{stage_medians(r.stages_ms).get(stage, float('nan')):>{width}.1f}" for r in ours
+        )
         lines.append(f"{stage:<20}{cells}")
     return "\n".join(lines)
 
@@ -387,14 +426,18 @@ def verdict(results: Sequence[WorkerResult]) -> str:
     hessian = by_name.get("OpenCV Hessian+cornerSubPix", float("nan"))
     if not (np.isfinite(ours) and np.isfinite(hessian)):
         return "targets: not measured (ours or the Hessian peer did not run)"
-    line = (f"targets: median {ours:.0f} ms (target <= {TARGET_MEDIAN_MS:.0f} ms: "
-            f"{'met' if ours <= TARGET_MEDIAN_MS else 'missed'}); ours/Hessian "
-            f"{ours / hessian:.2f} (target <= {TARGET_RATIO_TO_HESSIAN}: "
-            f"{'met' if ours / hessian <= TARGET_RATIO_TO_HESSIAN else 'missed'})")
+    line = (
+        f"targets: median {ours:.0f} ms (target <= {TARGET_MEDIAN_MS:.0f} ms: "
+        f"{'met' if ours <= TARGET_MEDIAN_MS else 'missed'}); ours/Hessian "
+        f"{ours / hessian:.2f} (target <= {TARGET_RATIO_TO_HESSIAN}: "
+        f"{'met' if ours / hessian <= TARGET_RATIO_TO_HESSIAN else 'missed'})"
+    )
     tracking = by_name.get(SUBJECTS["tracking"])
     if tracking is not None:
-        line += (f"; tracking median {tracking:.0f} ms (target <= {TARGET_TRACKING_MS:.0f} ms: "
-                 f"{'met' if tracking <= TARGET_TRACKING_MS else 'missed'})")
+        line += (
+            f"; tracking median {tracking:.0f} ms (target <= {TARGET_TRACKING_MS:.0f} ms: "
+            f"{'met' if tracking <= TARGET_TRACKING_MS else 'missed'})"
+        )
     return line
 
 
@@ -434,10 +477,12 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         np.savez(frames_path, **arrays)
         results = [run_subject(name, frames_path, options.repeats) for name in names]
     report_load(load_before, report)
-    report(f"Full-frame detection, {options.frames} rendered {FRAME_WIDTH}x{FRAME_HEIGHT} "
-           f"cluttered frames x {options.repeats} repeats, one core (cv2.setNumThreads(1), "
-           f"OMP/OPENBLAS/MKL threads = 1), radius range {RADIUS_RANGE[0]:g}-"
-           f"{RADIUS_RANGE[1]:g} px; RSS + = peak RSS growth (VmHWM) in a fresh subprocess")
+    report(
+        f"Full-frame detection, {options.frames} rendered {FRAME_WIDTH}x{FRAME_HEIGHT} "
+        f"cluttered frames x {options.repeats} repeats, one core (cv2.setNumThreads(1), "
+        f"OMP/OPENBLAS/MKL threads = 1), radius range {RADIUS_RANGE[0]:g}-"
+        f"{RADIUS_RANGE[1]:g} px; RSS + = peak RSS growth (VmHWM) in a fresh subprocess"
+    )
     report(speed_table(results))
     stages = stages_table(results)
     if stages:
@@ -445,50 +490,77 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
     for r in results:
         if r.name == SUBJECTS["tracking"] and r.stages_ms:
             full = sum(s.get("full_frame_passes", 0.0) for s in r.stages_ms)
-            report(f"ours (tracking): {full:.0f} of {len(r.stages_ms)} timed frames needed a "
-                   f"full-frame pass (panning over {TRACKING_MARKERS} markers, "
-                   f"{TRACKING_STEP_PX} px per frame)")
+            report(
+                f"ours (tracking): {full:.0f} of {len(r.stages_ms)} timed frames needed a "
+                f"full-frame pass (panning over {TRACKING_MARKERS} markers, "
+                f"{TRACKING_STEP_PX} px per frame)"
+            )
     report(verdict(results))
     on_ground: dict[str, Any] = {}
     if options.ground:
         others = [n for n in names if not n.startswith("ours")]
         load_before = os.getloadavg()[0]
         with tempfile.TemporaryDirectory() as folder:
-            on_ground = ground.run([REFERENCE_SUBJECT, *others], options.seed, Path(folder),
-                                   report)
+            on_ground = ground.run([REFERENCE_SUBJECT, *others], options.seed, Path(folder), report)
         report_load(load_before, report)
-    return {"frames": options.frames, "repeats": options.repeats, "seed": options.seed,
-            "ground": on_ground,
-            "subjects": {r.name: {"median_ms": _median(r.times_ms), "p95_ms": _p95(r.times_ms),
-                                  "times_ms": r.times_ms, "rss_growth_mb": r.rss_growth_mb,
-                                  "stages_median_ms": stage_medians(r.stages_ms),
-                                  "error": r.error} for r in results}}
+    return {
+        "frames": options.frames,
+        "repeats": options.repeats,
+        "seed": options.seed,
+        "ground": on_ground,
+        "subjects": {
+            r.name: {
+                "median_ms": _median(r.times_ms),
+                "p95_ms": _p95(r.times_ms),
+                "times_ms": r.times_ms,
+                "rss_growth_mb": r.rss_growth_mb,
+                "stages_median_ms": stage_medians(r.stages_ms),
+                "error": r.error,
+            }
+            for r in results
+        },
+    }
 
 
 def report_load(before: float, report: Callable[[str], None]) -> None:
     """Report the load average: other processes on the machine inflate every time."""
-    report(f"load average (1 min) before / after the measurements: {before:.1f} / "
-           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    report(
+        f"load average (1 min) before / after the measurements: {before:.1f} / "
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
+    )
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """Parse the command line (the driver's options and the hidden worker ones)."""
     parser = argparse.ArgumentParser(
         prog="marker-localizer bench speed",
-        description="Full-frame detection time on one core: ours against peers.")
+        description="Full-frame detection time on one core: ours against peers.",
+    )
     parser.add_argument("--frames", type=int, default=3, help="rendered frames (default 3)")
-    parser.add_argument("--repeats", type=int, default=None,
-                        help="timed passes over the frames (default 3; 1 with --quick)")
-    parser.add_argument("--quick", action="store_true",
-                        help="one timed pass, no ncc variant, no real-ground table (< 2 minutes)")
-    parser.add_argument("--no-ground", action="store_true",
-                        help="leave out the real-ground table (several minutes)")
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=None,
+        help="timed passes over the frames (default 3; 1 with --quick)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="one timed pass, no ncc variant, no real-ground table (< 2 minutes)",
+    )
+    parser.add_argument(
+        "--no-ground", action="store_true", help="leave out the real-ground table (several minutes)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="rendering seed")
-    parser.add_argument("--families", default=None,
-                        help="accepted for symmetry with the accuracy benchmark; "
-                             "speed always uses family (d) 4096x3000")
-    parser.add_argument("--subjects", default=None,
-                        help=f"comma-separated subset of {','.join(SUBJECTS)}")
+    parser.add_argument(
+        "--families",
+        default=None,
+        help="accepted for symmetry with the accuracy benchmark; "
+        "speed always uses family (d) 4096x3000",
+    )
+    parser.add_argument(
+        "--subjects", default=None, help=f"comma-separated subset of {','.join(SUBJECTS)}"
+    )
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--frames-file", type=Path, default=None, help=argparse.SUPPRESS)
@@ -507,8 +579,13 @@ def options_from(args: argparse.Namespace) -> Options:
         subjects = tuple(SUBJECTS[key] for key in keys)
     elif args.quick:
         subjects = tuple(available_subjects(include_ncc=False))
-    return Options(frames=args.frames, repeats=repeats, seed=args.seed, subjects=subjects,
-                   ground=not (args.quick or args.no_ground))
+    return Options(
+        frames=args.frames,
+        repeats=repeats,
+        seed=args.seed,
+        subjects=subjects,
+        ground=not (args.quick or args.no_ground),
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -516,8 +593,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     if args.worker is not None:
         return worker_main(args.worker, args.frames_file, args.repeats or 1)
-    return run_and_save("speed benchmark", lambda report: run(options_from(args), report),
-                        args.json)
+    return run_and_save(
+        "speed benchmark", lambda report: run(options_from(args), report), args.json
+    )
 
 
 if __name__ == "__main__":

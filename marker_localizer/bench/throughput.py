@@ -146,8 +146,12 @@ def render_flight_grounds(width: int, height: int, directory: Path, seed: int = 
     from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator  # noqa: PLC0415
 
     dx, dy = PAN_STEP_PX
-    config = FlightConfig(width=width + PAN_FRAMES * dx, height=height + PAN_FRAMES * dy,
-                          n_frames=1, n_cameras=len(CAMERAS))
+    config = FlightConfig(
+        width=width + PAN_FRAMES * dx,
+        height=height + PAN_FRAMES * dy,
+        n_frames=1,
+        n_cameras=len(CAMERAS),
+    )
     frame_set = FlightSimulator(config, seed=seed).render(0)
     path = Path(directory) / "grounds.npy"
     np.save(path, np.stack([camera.image for camera in frame_set.cameras]))
@@ -227,8 +231,11 @@ def run_once(
     spinner.start()
     cameras.start()
     try:
-        _wait(lambda: started.is_set() or not cameras.is_alive(), "the camera process",
-              _CAMERA_START_TIMEOUT_S)
+        _wait(
+            lambda: started.is_set() or not cameras.is_alive(),
+            "the camera process",
+            _CAMERA_START_TIMEOUT_S,
+        )
         if not started.is_set():
             raise RuntimeError(f"the camera process exited with code {cameras.exitcode}")
         cpu_start, machine_start, start_ns = _cpu_s(), _machine_busy_s(), time.time_ns()
@@ -308,9 +315,7 @@ def _camera_process(
                 publishers, messages, pixels, ground, strict=True
             ):
                 buffer[:] = camera_view(view, tick)
-                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
-                    time.time_ns(), _NS_PER_S
-                )
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(time.time_ns(), _NS_PER_S)
                 publisher.publish(msg)
             time.sleep(max(start + (tick + 1) / rate_hz - time.monotonic(), 0.0))
         report.put((ticks * len(CAMERAS), _cpu_s() - cpu_start))
@@ -387,13 +392,19 @@ def build_parser() -> argparse.ArgumentParser:
         "--workers", type=int, nargs="+", default=[1, 2], help="worker counts to run"
     )
     parser.add_argument(
-        "--ground", choices=sorted(GROUNDS), default="cluttered",
+        "--ground",
+        choices=sorted(GROUNDS),
+        default="cluttered",
         help="what the cameras see: the speed benchmark's clutter (default) or the flight "
         "simulator's five cameras",
     )
     parser.add_argument(
-        "--radius-range", type=float, nargs=2, default=list(speed.RADIUS_RANGE),
-        metavar=("MIN", "MAX"), help="the node's marker radius range, px (default 6 40)",
+        "--radius-range",
+        type=float,
+        nargs=2,
+        default=list(speed.RADIUS_RANGE),
+        metavar=("MIN", "MAX"),
+        help="the node's marker radius range, px (default 6 40)",
     )
     parser.add_argument(
         "--full-frame",
@@ -414,8 +425,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.environ[_PROFILE_VARIABLE] = str(FASTDDS_PROFILE)
     transport = os.environ.get(_PROFILE_VARIABLE, "Fast DDS defaults")
     with tempfile.TemporaryDirectory(prefix="marker_bench_") as directory:
-        print(f"rendering {len(CAMERAS)} grounds for {args.width}x{args.height} frames ...",
-              flush=True)
+        print(
+            f"rendering {len(CAMERAS)} grounds for {args.width}x{args.height} frames ...",
+            flush=True,
+        )
         grounds = GROUNDS[args.ground](args.width, args.height, Path(directory))
         rclpy.init()
         try:
@@ -423,8 +436,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             for workers in args.workers:
                 print(f"running {workers} worker(s) for {args.seconds:g} s ...", flush=True)
                 results.append(
-                    run_once(grounds, workers, args.seconds, args.rate_hz, tracking=tracking,
-                             radius_range=tuple(args.radius_range))
+                    run_once(
+                        grounds,
+                        workers,
+                        args.seconds,
+                        args.rate_hz,
+                        tracking=tracking,
+                        radius_range=tuple(args.radius_range),
+                    )
                 )
         finally:
             rclpy.try_shutdown()

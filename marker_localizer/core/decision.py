@@ -68,8 +68,15 @@ MIN_EDGE_T = 3.0
 _MIN_LOG_ARGUMENT = 0.05
 #: What :func:`marker_score` weighs, in the order of :func:`score_features`.
 SCORE_FEATURES = (
-    "ln edge_t", "extent_balance", "ln blur_px", "light_change", "ln fit_ratio",
-    "step_ratio", "shadow_depth", "ln extent / min radius", "point_symmetry",
+    "ln edge_t",
+    "extent_balance",
+    "ln blur_px",
+    "light_change",
+    "ln fit_ratio",
+    "step_ratio",
+    "shadow_depth",
+    "ln extent / min radius",
+    "point_symmetry",
 )
 #: The logistic weights of :data:`SCORE_FEATURES` and the bias: the first fit, on the
 #: package's rendered families and the real aerial frames at radius 6-40 px.
@@ -224,10 +231,13 @@ def _ring_symmetry(image: np.ndarray, xy: np.ndarray, reach_px: np.ndarray) -> n
     if not len(xy):
         return np.zeros(0)
     radii = np.maximum(reach_px[:, None] * np.array(_SYMMETRY_RINGS), 1.0)
-    symmetry = np.stack([
-        verification.ring_symmetry(verification.annular_profiles_at(image, xy, radii[:, j]))
-        for j in range(radii.shape[1])
-    ], axis=1)
+    symmetry = np.stack(
+        [
+            verification.ring_symmetry(verification.annular_profiles_at(image, xy, radii[:, j]))
+            for j in range(radii.shape[1])
+        ],
+        axis=1,
+    )
     return symmetry.mean(axis=1)
 
 

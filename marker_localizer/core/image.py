@@ -67,4 +67,3 @@ def to_gray(
             raise ImageError("image contains NaN or infinite values")
         return np.ascontiguousarray(np.clip(image, 0.0, 1.0), dtype=np.float32), 1.0
     return np.ascontiguousarray(image), bit_depth_scale(image.dtype, bit_depth)
-

@@ -282,7 +282,10 @@ class Detector:
                 measured = np.vstack([np.reshape(regions, (-1, 4)), seed_boxes])
             if noise is None or cfg.candidate_detector == "curvature":
                 gamma = preprocessing.LocalGamma(
-                    gray, full_scale, cfg.gamma_alpha, cfg.illumination_window_px,
+                    gray,
+                    full_scale,
+                    cfg.gamma_alpha,
+                    cfg.illumination_window_px,
                     regions=measured,
                 )
         with timer("screening"):
@@ -449,8 +452,11 @@ class Detector:
         counts["rejected_centring"] = 0
         with timer("verification"):
             check = verification.edge_phase_check(
-                gray, candidates.xy, self._radii,
-                min_contrast=cfg.min_contrast_dn / 255.0, normalise=gamma,
+                gray,
+                candidates.xy,
+                self._radii,
+                min_contrast=cfg.min_contrast_dn / 255.0,
+                normalise=gamma,
             )
             keep = check.accepted & (
                 check.radius_px >= cfg.min_extent_fraction * cfg.marker_radius_min_px - 1e-9
@@ -462,7 +468,10 @@ class Detector:
             counts["merged_duplicates"] = int((~unique).sum())
             xy, radius, angles, score = xy[unique], radius[unique], angles[unique], score[unique]
             ncc = template.template_correlation(
-                gray, xy, angles, np.clip(0.6 * radius, 2.5, cfg.marker_radius_max_px),
+                gray,
+                xy,
+                angles,
+                np.clip(0.6 * radius, 2.5, cfg.marker_radius_max_px),
                 normalise=gamma,
             ).ncc
             ok = template.template_evidence(score, ncc, cfg.template_ncc_min)
@@ -474,8 +483,12 @@ class Detector:
             score = (score[ok] if cfg.refinement == "ncc" else 1.0) * ncc[ok]
             if cfg.line_check and len(xy):
                 lines = verification.double_line_check(
-                    gray, xy, radius, extend_px=cfg.line_extend_px,
-                    max_distance_px=cfg.line_max_distance_px, full_scale=full_scale,
+                    gray,
+                    xy,
+                    radius,
+                    extend_px=cfg.line_extend_px,
+                    max_distance_px=cfg.line_max_distance_px,
+                    full_scale=full_scale,
                 )
                 ok = lines.accepted
                 counts["rejected_lines"] = int((~ok).sum())
@@ -499,8 +512,12 @@ class Detector:
                 counts["accepted"] = len(result.detections)
                 return result
             fit = subpixel.ncc_refine(
-                gray, xy, radius, angles,
-                offset_px=cfg.template_offset_px, search_px=cfg.ncc_search_px,
+                gray,
+                xy,
+                radius,
+                angles,
+                offset_px=cfg.template_offset_px,
+                search_px=cfg.ncc_search_px,
             )
             located = np.isfinite(fit.offset).all(axis=1) & np.isfinite(fit.sigma)
             counts["rejected_refinement"] = int((~located).sum())
@@ -510,9 +527,14 @@ class Detector:
             order = order[np.argsort(-score[order])]
             result.detections = [
                 Detection(
-                    float(fit.offset[k, 0]), float(fit.offset[k, 1]), float(score[k]),
-                    float(fit.sigma[k]), float(angles[k, 0]), float(angles[k, 1]),
-                    float(radius[k]), float(score[k]),
+                    float(fit.offset[k, 0]),
+                    float(fit.offset[k, 1]),
+                    float(score[k]),
+                    float(fit.sigma[k]),
+                    float(angles[k, 0]),
+                    float(angles[k, 1]),
+                    float(radius[k]),
+                    float(score[k]),
                 )
                 for k in order
             ]
@@ -803,9 +825,7 @@ class Detector:
             unique = screening.non_maximum_suppression(
                 position[keep], verdict.score[keep], cfg.min_peak_separation_px / 2.0
             )
-            counts["merged_duplicates"] = counts.get("merged_duplicates", 0) + int(
-                (~unique).sum()
-            )
+            counts["merged_duplicates"] = counts.get("merged_duplicates", 0) + int((~unique).sum())
             keep = keep[unique]
             keep = keep[np.argsort(-verdict.score[keep])]
             counts["accepted"] = len(keep)
@@ -923,9 +943,11 @@ class Detector:
         # saddles do (a small marker in a frame of small markers is not suspect).
         # Larger X's than texture makes are not tested: dim real boards (black level,
         # haze) modulate as little as 0.18.
-        measurable = (offset >= _MODULATION_MIN_OFFSET_PX) & (
-            (radius < cfg.marker_radius_min_px) | (offset >= _MODULATION_FREE_OFFSET_PX)
-        ) & (radius < _TEXTURE_EXTENT_PX)
+        measurable = (
+            (offset >= _MODULATION_MIN_OFFSET_PX)
+            & ((radius < cfg.marker_radius_min_px) | (offset >= _MODULATION_FREE_OFFSET_PX))
+            & (radius < _TEXTURE_EXTENT_PX)
+        )
         keep = (ncc >= cfg.template_ncc_min) & (~measurable | (modulation >= cfg.min_modulation))
         counts["rejected_template"] = int((~keep).sum())
         candidates, radius, angles, score = (
@@ -994,8 +1016,12 @@ class Detector:
         located = np.ones(len(xy), bool)
         if cfg.refinement == "ncc":
             position = subpixel.ncc_refine(
-                gray, xy, radius, angles,
-                offset_px=cfg.template_offset_px, search_px=cfg.ncc_search_px,
+                gray,
+                xy,
+                radius,
+                angles,
+                offset_px=cfg.template_offset_px,
+                search_px=cfg.ncc_search_px,
             ).offset
             located = np.isfinite(position).all(axis=1)
             discrepancy = np.where(located, np.sum((position - fit.xy) ** 2, axis=1), 0.0)

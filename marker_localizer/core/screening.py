@@ -188,8 +188,9 @@ def _local_maxima(response: np.ndarray, threshold: float) -> np.ndarray:
     return flat_index[is_max]
 
 
-def split_peak_midpoints(candidates: Candidates, max_distance_px: float,
-                         max_ratio: float = _SPLIT_PEAK_RATIO) -> Candidates:
+def split_peak_midpoints(
+    candidates: Candidates, max_distance_px: float, max_ratio: float = _SPLIT_PEAK_RATIO
+) -> Candidates:
     """Midpoints of candidate pairs that may be the two halves of one split saddle peak.
 
     A marker narrower than the Sobel kernels' smoothing (a tilted marker near the
@@ -531,9 +532,7 @@ def trace_contours(mask: np.ndarray, min_points: int) -> ContourSet:
     rising = top[:, 1:] & bottom[:, :-1] & ~top[:, :-1] & ~bottom[:, 1:]
     top[:, :-1] &= ~falling
     top[:, 1:] &= ~rising
-    found, _ = cv2.findContours(
-        region.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE
-    )
+    found, _ = cv2.findContours(region.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     return ContourSet.from_list([c[:, 0, :] for c in found if len(c) >= min_points])
 
 
@@ -655,9 +654,7 @@ def connected_domain_check(mask: np.ndarray, min_area_px: float) -> np.ndarray:
     Returns:
         (H, W) bool.
     """
-    _, labels, stats, _ = cv2.connectedComponentsWithStats(
-        mask.astype(np.uint8), connectivity=8
-    )
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
     keep[0] = False  # the background label
     return keep[labels]
@@ -736,8 +733,10 @@ def curvature_candidates(
     with np.errstate(invalid="ignore"):
         masks = (image > level, image < level)
     contours = ContourSet.concat(
-        [trace_contours(connected_domain_check(m, min_area), 2 * CURVATURE_WINDOW_PX + 2)
-         for m in masks]
+        [
+            trace_contours(connected_domain_check(m, min_area), 2 * CURVATURE_WINDOW_PX + 2)
+            for m in masks
+        ]
     )
     if len(contours) == 0:
         return Candidates.empty()
@@ -861,9 +860,7 @@ def grid_entropy(xy: np.ndarray, cell_px: int) -> float:
     return float(-(p * np.log(p)).sum())
 
 
-def greedy_entropy_thinning(
-    candidates: Candidates, cell_px: int, evenness: float
-) -> Candidates:
+def greedy_entropy_thinning(candidates: Candidates, cell_px: int, evenness: float) -> Candidates:
     """The paper's greedy thinning by spatial grid entropy, to an entropy threshold, Eq. (7).
 
     Each step removes the point whose removal raises H = -sum P(n) ln P(n) the most:

@@ -274,7 +274,9 @@ def ncc_refine(
         rows = c[:, 1, None, None] + window[None, :, None]
         cols = c[:, 0, None, None] + window
         levels = template.sample_grey_levels(
-            image, c.astype(np.float64), line_angles[group],
+            image,
+            c.astype(np.float64),
+            line_angles[group],
             np.minimum(offset_px, _NCC_LEVEL_RADIUS_FRACTION * radius_px[group]),
         )
         peak_gradient = gradient[rows, cols].reshape(len(group), -1).max(axis=1)
@@ -573,12 +575,16 @@ class TemplateFit(NamedTuple):
 
     def with_rows(self, rows: np.ndarray, part: TemplateFit) -> TemplateFit:
         """A copy with the fits of ``rows`` (indices or a mask) replaced by ``part``'s."""
-        shape = template.TemplateShape(*(
-            _with_rows(whole, rows, new) for whole, new in zip(self.shape, part.shape, strict=True)
-        ))
-        return TemplateFit(shape, *(
-            _with_rows(whole, rows, new) for whole, new in zip(self[1:], part[1:], strict=True)
-        ))
+        shape = template.TemplateShape(
+            *(
+                _with_rows(whole, rows, new)
+                for whole, new in zip(self.shape, part.shape, strict=True)
+            )
+        )
+        return TemplateFit(
+            shape,
+            *(_with_rows(whole, rows, new) for whole, new in zip(self[1:], part[1:], strict=True)),
+        )
 
 
 def _with_rows(whole: np.ndarray, rows: np.ndarray, part: np.ndarray) -> np.ndarray:
@@ -625,8 +631,16 @@ def fit_template(
     n = len(start.xy)
     if n == 0:
         empty = template.TemplateShape.start(np.zeros((0, 2)), np.zeros((0, 2)), 1.0)
-        return TemplateFit(empty, np.zeros((0, 4)), np.zeros((0, 4, 4)), np.zeros((0, 2, 2)),
-                           np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0, bool))
+        return TemplateFit(
+            empty,
+            np.zeros((0, 4)),
+            np.zeros((0, 4, 4)),
+            np.zeros((0, 2, 2)),
+            np.zeros((0, 2)),
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros(0, bool),
+        )
     reach = np.broadcast_to(np.asarray(max_shift_px, dtype=np.float64), (n,))
     # Every point of a batch pays for the largest region in it (the padding of
     # pad_patterns): points are fitted in batches of regions within a factor
@@ -640,7 +654,11 @@ def fit_template(
     order = np.concatenate([np.flatnonzero(size_class == size) for size in classes])
     parts = [
         _fit_template_batch(
-            image, start.take(rows), [regions[k] for k in rows], iterations, tolerance_px,
+            image,
+            start.take(rows),
+            [regions[k] for k in rows],
+            iterations,
+            tolerance_px,
             reach[rows],
         )
         for rows in (np.flatnonzero(size_class == size) for size in classes)
@@ -668,8 +686,10 @@ def _fit_template_batch(
     pixels = np.round(start.xy)[:, None, :] + offsets
     height, width = image.shape
     inside = (
-        (pixels[..., 0] >= 0) & (pixels[..., 1] >= 0)
-        & (pixels[..., 0] < width) & (pixels[..., 1] < height)
+        (pixels[..., 0] >= 0)
+        & (pixels[..., 1] >= 0)
+        & (pixels[..., 0] < width)
+        & (pixels[..., 1] < height)
     )
     weight = (present & inside).astype(np.float64)
     cols = np.clip(pixels[..., 0], 0, width - 1).astype(np.intp)
@@ -727,9 +747,16 @@ def _fit_template_batch(
     shape = template.shape_from_parameters(params)
     shape = shape._replace(line_angles=shape.line_angles % np.pi)
     angle_variance = parameter_covariance[:, [2, 3], [2, 3]]
-    return TemplateFit(shape, state.levels, level_covariance, parameter_covariance[:, :2, :2],
-                       np.sqrt(np.maximum(angle_variance, 0.0)), np.sqrt(variance), n_pixels,
-                       converged & np.isfinite(params).all(axis=1))
+    return TemplateFit(
+        shape,
+        state.levels,
+        level_covariance,
+        parameter_covariance[:, :2, :2],
+        np.sqrt(np.maximum(angle_variance, 0.0)),
+        np.sqrt(variance),
+        n_pixels,
+        converged & np.isfinite(params).all(axis=1),
+    )
 
 
 #: Points whose regions' pixel counts lie within this factor are fitted as one batch.
@@ -873,8 +900,13 @@ def fit_growing_template(
     """
     keys = np.round(np.asarray(start_radius_px, dtype=np.float64) * 2.0) / 2.0
     disks = [disk_region(float(k)) for k in keys]
-    fit = fit_template(image, start, disks, iterations=iterations,
-                       max_shift_px=_FIRST_SHIFT * keys + _FIRST_SHIFT_PX)
+    fit = fit_template(
+        image,
+        start,
+        disks,
+        iterations=iterations,
+        max_shift_px=_FIRST_SHIFT * keys + _FIRST_SHIFT_PX,
+    )
     cap = keys.copy()
     extents = template.line_extents(image, fit.shape, fit.levels, max_radius_px)
     alive = np.arange(len(keys))
@@ -883,14 +915,20 @@ def fit_growing_template(
         if keep is not None:
             alive = alive[keep(fit.take(alive), extents[alive])]
         cap[alive] = np.minimum(_GROWTH_FACTOR * cap[alive], max_radius_px)
-        grown = template.template_region(fit.shape.take(alive), extents[alive], cap[alive],
-                                         max_pixels)
+        grown = template.template_region(
+            fit.shape.take(alive), extents[alive], cap[alive], max_pixels
+        )
         for k, region in zip(alive, grown, strict=True):
             # A region never shrinks below the first disk: an X that ends sooner is
             # too small (the decision says so), and fewer pixels would not pin it.
             regions[k] = region if len(region) >= len(disks[k]) else disks[k]
-        part = fit_template(image, fit.shape.take(alive), [regions[k] for k in alive],
-                            iterations=iterations, max_shift_px=_GROWTH_SHIFT * cap[alive])
+        part = fit_template(
+            image,
+            fit.shape.take(alive),
+            [regions[k] for k in alive],
+            iterations=iterations,
+            max_shift_px=_GROWTH_SHIFT * cap[alive],
+        )
         fit = fit.with_rows(alive, part)
         extents[alive] = template.line_extents(image, part.shape, part.levels, max_radius_px)
     if noise_std is not None and steps > 0:
@@ -970,15 +1008,18 @@ def find_shadow_edges(
     pixels = np.round(fit.shape.xy)[:, None, :] + offsets
     height, width = image.shape
     present &= (
-        (pixels[..., 0] >= 0) & (pixels[..., 1] >= 0)
-        & (pixels[..., 0] < width) & (pixels[..., 1] < height)
+        (pixels[..., 0] >= 0)
+        & (pixels[..., 1] >= 0)
+        & (pixels[..., 0] < width)
+        & (pixels[..., 1] < height)
     )
     cols = np.clip(pixels[..., 0], 0, width - 1).astype(np.intp)
     rows = np.clip(pixels[..., 1], 0, height - 1).astype(np.intp)
     values = image[rows, cols].astype(np.float64)
     d = pixels - fit.shape.xy[:, None, :]
-    model = (template.quadrant_weights(template.template_terms(d, fit.shape))
-             @ fit.levels[..., None])[..., 0]
+    model = (
+        template.quadrant_weights(template.template_terms(d, fit.shape)) @ fit.levels[..., None]
+    )[..., 0]
     ratio = np.where(present, values / np.maximum(model, 1e-9 + 1e-3 * np.abs(model).max()), 0.0)
     count = present.sum(axis=1)
     best = np.full(n, -np.inf)

@@ -432,9 +432,7 @@ def shape_from_parameters(params: np.ndarray) -> TemplateShape:
     )
 
 
-def template_jacobian(
-    terms: TemplateTerms, shape: TemplateShape, levels: np.ndarray
-) -> np.ndarray:
+def template_jacobian(terms: TemplateTerms, shape: TemplateShape, levels: np.ndarray) -> np.ndarray:
     """Derivatives of the template sum_q l_q w_q(d) with respect to its geometry.
 
     Args:

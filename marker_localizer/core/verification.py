@@ -129,11 +129,7 @@ class RingAnalysis(NamedTuple):
 
     def good(self, min_contrast: float, min_symmetry: float) -> np.ndarray:
         """(N, J) True for the rings that show an X: four sectors, contrast, symmetry."""
-        return (
-            self.four_sectors
-            & (self.contrast >= min_contrast)
-            & (self.symmetry >= min_symmetry)
-        )
+        return self.four_sectors & (self.contrast >= min_contrast) & (self.symmetry >= min_symmetry)
 
 
 def _smoothed_contrast_symmetry(profiles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -507,9 +503,8 @@ def analyse_ring_edges(
         )
         ends[viable], weakest_line[viable] = lines
         line_angles[viable] = (np.angle(np.exp(2j * lines[0]).sum(axis=-1)) / 2.0) % np.pi
-    good = (
-        (weakest_line > 0)
-        & (_angle_difference(line_angles[:, 0], line_angles[:, 1]) >= min_line_angle_rad)
+    good = (weakest_line > 0) & (
+        _angle_difference(line_angles[:, 0], line_angles[:, 1]) >= min_line_angle_rad
     )
     strength = np.where(good, weakest_line / np.maximum(strongest, 1e-12), 0.0)
     return EdgePhaseRings(
@@ -670,7 +665,11 @@ def edge_phase_check(
     n, n_rings = len(xy), len(radii_px)
     if n == 0:
         return EdgePhaseCheck(
-            np.zeros(0, bool), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)),
+            np.zeros(0, bool),
+            np.zeros((0, 2)),
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros((0, 2)),
             np.zeros(0),
         )
 
@@ -1031,8 +1030,11 @@ def dark_paint_agrees(profiles: np.ndarray, order: SectorOrder) -> np.ndarray:
         (N,) bool.
     """
     edges = np.sort(
-        np.stack([order.rising, order.falling, order.rising + _HALF_TURN,
-                  order.falling + _HALF_TURN], axis=1) % N_ANGLES,
+        np.stack(
+            [order.rising, order.falling, order.rising + _HALF_TURN, order.falling + _HALF_TURN],
+            axis=1,
+        )
+        % N_ANGLES,
         axis=1,
     )
     # Sector s runs from edge s to edge s + 1 (the samples before the first edge close

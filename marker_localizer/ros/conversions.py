@@ -114,8 +114,7 @@ def image_to_array(msg: Image, max_pixels: int | None = None) -> np.ndarray:
         )
     if len(msg.data) != height * step:
         raise ImageError(
-            f"data holds {len(msg.data)} B but height {height} x step {step} = "
-            f"{height * step} B"
+            f"data holds {len(msg.data)} B but height {height} x step {step} = {height * step} B"
         )
     if msg.encoding == "mono16" and bool(msg.is_bigendian) != _HOST_IS_BIGENDIAN:
         dtype = dtype.newbyteorder()
@@ -161,8 +160,9 @@ def compressed_to_detector_input(msg: CompressedImage, max_pixels: int) -> np.nd
     Raises:
         ImageError: the data is not an image OpenCV decodes, empty, or too large.
     """
-    return decode_image(bytes(msg.data), f"compressed image ({shorten(repr(msg.format))})",
-                        max_pixels)
+    return decode_image(
+        bytes(msg.data), f"compressed image ({shorten(repr(msg.format))})", max_pixels
+    )
 
 
 def message_to_detector_input(msg: Image | CompressedImage, max_pixels: int) -> np.ndarray:

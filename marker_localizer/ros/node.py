@@ -212,9 +212,7 @@ class MarkerLocalizerNode(Node):
 
     def _frame_failed(self, camera: str, err: Exception) -> None:
         now = time.monotonic()
-        if now - self._last_failure_log.get(camera, -_CAMERA_LOG_PERIOD_S) < (
-            _CAMERA_LOG_PERIOD_S
-        ):
+        if now - self._last_failure_log.get(camera, -_CAMERA_LOG_PERIOD_S) < (_CAMERA_LOG_PERIOD_S):
             return
         self._last_failure_log[camera] = now
         if isinstance(err, MarkerLocalizerError):
@@ -232,8 +230,6 @@ class MarkerLocalizerNode(Node):
             self.processor.set_config(config)
             listed = ", ".join(f"{k}={v!r}" for k, v in changes.items())
             self.get_logger().info(f"detector reconfigured for the next frames: {listed}")
-
-
 
 
 def main(argv: Sequence[str] | None = None) -> int:

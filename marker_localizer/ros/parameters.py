@@ -179,8 +179,10 @@ class NodeConfig:
             value = getattr(self, f.name)
             if spec.choices and value not in spec.choices:
                 raise ConfigError(f"{f.name}={value!r} must be one of {', '.join(spec.choices)}")
-            if spec.low is not None and spec.high is not None and not (
-                spec.low <= value <= spec.high
+            if (
+                spec.low is not None
+                and spec.high is not None
+                and not (spec.low <= value <= spec.high)
             ):
                 raise ConfigError(
                     f"{f.name}={value!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}"
@@ -284,9 +286,7 @@ class LiveParameters:
             a cross-field rule, or is a ``detector.*`` key no setting has.
     """
 
-    def __init__(
-        self, node: Node, on_change: Callable[[NodeConfig, DetectorConfig], None]
-    ) -> None:
+    def __init__(self, node: Node, on_change: Callable[[NodeConfig, DetectorConfig], None]) -> None:
         self._on_change = on_change
         self._detector_names = {f"{DETECTOR_NAMESPACE}.{name}": name for name in param_specs()}
         self._kinds = {name: str(f.type) for name, (f, _) in node_specs().items()}

@@ -365,9 +365,7 @@ class FrameProcessor:
     def _take(self) -> _Frame | None:
         """Under the lock: claim the frame of the idle camera waiting longest (None: none)."""
         while not self._stopping:
-            waiting = [
-                f for c, f in self._pending.items() if f is not None and c not in self._busy
-            ]
+            waiting = [f for c, f in self._pending.items() if f is not None and c not in self._busy]
             if not waiting:
                 return None
             frame = min(waiting, key=lambda f: f.waiting_since_ns)

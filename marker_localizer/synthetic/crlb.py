@@ -33,8 +33,9 @@ from scipy.special import ellipe
 _SINGULAR_RATIO = 1e-12
 
 
-def fisher_information(d_mu_dx: np.ndarray, d_mu_dy: np.ndarray, variance: np.ndarray,
-                       mask: np.ndarray) -> np.ndarray:
+def fisher_information(
+    d_mu_dx: np.ndarray, d_mu_dy: np.ndarray, variance: np.ndarray, mask: np.ndarray
+) -> np.ndarray:
     """Fisher information of a position (x, y) from the pixels in ``mask``.
 
     Args:

@@ -97,7 +97,14 @@ _FOOTPRINT_MARGIN = 1.1
 
 MARKER_KINDS: tuple[str, ...] = ("quarter_disks", "checker")
 NEGATIVE_KINDS: tuple[str, ...] = (
-    "l_corner", "quarter_disk", "t_junction", "bar", "triangle", "plus", "blob", "disc",
+    "l_corner",
+    "quarter_disk",
+    "t_junction",
+    "bar",
+    "triangle",
+    "plus",
+    "blob",
+    "disc",
 )
 BACKGROUNDS: tuple[str, ...] = ("texture", "flat")
 
@@ -185,7 +192,7 @@ def _unit_square(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (np.abs(u) <= 1.0) & (np.abs(v) <= 1.0)
 
 
-_BAR_HALF_WIDTH = 0.2    # thick line: 0.4 marker radii wide
+_BAR_HALF_WIDTH = 0.2  # thick line: 0.4 marker radii wide
 _THIN_HALF_WIDTH = 0.06  # plus sign strokes: 0.12 marker radii wide
 _TRIANGLE = ((-1.0, -0.8), (1.0, -0.8), (0.0, 1.0))
 _BLOB_AXES = (0.55, 0.35)
@@ -228,7 +235,7 @@ def _blob_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def _disc_dark(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return u * u + v * v <= _DISC_RADIUS ** 2
+    return u * u + v * v <= _DISC_RADIUS**2
 
 
 def _blob_distance(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -241,21 +248,35 @@ _CENTRE_LINES: tuple[_Line, ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 
 #: Every built-in pattern by name: the marker kinds and the hard negatives.
 PATTERNS: dict[str, Pattern] = {
-    "quarter_disks": Pattern("quarter_disks", _quarter_disks_dark,
-                             _with_circle(_lines_distance(*_CENTRE_LINES), 1.0),
-                             x_extent=_unit_disk),
-    "checker": Pattern("checker", _checker_dark,
-                       _lines_distance(*_CENTRE_LINES, *_axis_lines(1.0)),
-                       x_extent=_unit_square),
-    "l_corner": Pattern("l_corner", _l_corner_dark,
-                        _lines_distance(*_CENTRE_LINES, *_axis_lines(1.0))),
-    "quarter_disk": Pattern("quarter_disk", _quarter_disk_dark,
-                            _with_circle(_lines_distance(*_CENTRE_LINES), 1.0)),
-    "t_junction": Pattern("t_junction", _t_junction_dark,
-                          _lines_distance(*_CENTRE_LINES, *_axis_lines(_BAR_HALF_WIDTH, 1.0))),
+    "quarter_disks": Pattern(
+        "quarter_disks",
+        _quarter_disks_dark,
+        _with_circle(_lines_distance(*_CENTRE_LINES), 1.0),
+        x_extent=_unit_disk,
+    ),
+    "checker": Pattern(
+        "checker",
+        _checker_dark,
+        _lines_distance(*_CENTRE_LINES, *_axis_lines(1.0)),
+        x_extent=_unit_square,
+    ),
+    "l_corner": Pattern(
+        "l_corner", _l_corner_dark, _lines_distance(*_CENTRE_LINES, *_axis_lines(1.0))
+    ),
+    "quarter_disk": Pattern(
+        "quarter_disk", _quarter_disk_dark, _with_circle(_lines_distance(*_CENTRE_LINES), 1.0)
+    ),
+    "t_junction": Pattern(
+        "t_junction",
+        _t_junction_dark,
+        _lines_distance(*_CENTRE_LINES, *_axis_lines(_BAR_HALF_WIDTH, 1.0)),
+    ),
     "bar": Pattern("bar", _bar_dark, _lines_distance(*_axis_lines(_BAR_HALF_WIDTH, 1.0))),
-    "triangle": Pattern("triangle", _triangle_dark, _lines_distance(
-        *(_line_through(_TRIANGLE[i], _TRIANGLE[(i + 1) % 3]) for i in range(3)))),
+    "triangle": Pattern(
+        "triangle",
+        _triangle_dark,
+        _lines_distance(*(_line_through(_TRIANGLE[i], _TRIANGLE[(i + 1) % 3]) for i in range(3))),
+    ),
     "plus": Pattern("plus", _plus_dark, _lines_distance(*_axis_lines(_THIN_HALF_WIDTH, 1.0))),
     "blob": Pattern("blob", _blob_dark, _blob_distance),
     "disc": Pattern("disc", _disc_dark, _with_circle(_lines_distance(), _DISC_RADIUS)),
@@ -285,19 +306,24 @@ def checkerboard_pattern(inner_corners: tuple[int, int]) -> Pattern:
     def edge_distance(u: np.ndarray, v: np.ndarray) -> np.ndarray:
         # Distance to the nearest grid line of the board (lines at integer offsets).
         s, t = u + half_u, v + half_v
-        return np.minimum(np.abs(s - np.clip(np.round(s), 0, n_u + 1)),
-                          np.abs(t - np.clip(np.round(t), 0, n_v + 1)))
+        return np.minimum(
+            np.abs(s - np.clip(np.round(s), 0, n_u + 1)),
+            np.abs(t - np.clip(np.round(t), 0, n_v + 1)),
+        )
 
     return Pattern("checkerboard", dark, edge_distance, (half_u + 1.0, half_v + 1.0))
 
 
 # --------------------------------------------------------------------------- placements
 
-def _check_range(name: str, bounds: tuple[float, float], low: float,
-                 high: float = math.inf) -> None:
+
+def _check_range(
+    name: str, bounds: tuple[float, float], low: float, high: float = math.inf
+) -> None:
     if len(bounds) != 2 or not low <= bounds[0] <= bounds[1] <= high:
-        raise ConfigError(f"{name} must be (min, max) with {low} <= min <= max <= {high}, "
-                          f"got {bounds!r}")
+        raise ConfigError(
+            f"{name} must be (min, max) with {low} <= min <= max <= {high}, got {bounds!r}"
+        )
 
 
 @dataclass(frozen=True)
@@ -344,8 +370,7 @@ class MarkerPlacement:
         if not 0.0 < self.dull_factor <= 1.0:
             raise ConfigError(f"dull_factor must be in (0, 1], got {self.dull_factor!r}")
         if self.dull_factor < 1.0 and PATTERNS[self.kind].x_extent is None:
-            raise ConfigError(f"dull_factor needs a marker kind {MARKER_KINDS}, "
-                              f"got {self.kind!r}")
+            raise ConfigError(f"dull_factor needs a marker kind {MARKER_KINDS}, got {self.kind!r}")
         if self.dull_quadrant not in (0, 1):
             raise ConfigError(f"dull_quadrant must be 0 or 1, got {self.dull_quadrant!r}")
 
@@ -361,14 +386,17 @@ class MarkerPlacement:
 
 def _rodrigues(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     """Rotation matrix about a unit ``axis`` by ``angle_rad``."""
-    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
-                      [-axis[1], axis[0], 0.0]])
-    return (math.cos(angle_rad) * np.eye(3) + math.sin(angle_rad) * cross
-            + (1.0 - math.cos(angle_rad)) * np.outer(axis, axis))
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return (
+        math.cos(angle_rad) * np.eye(3)
+        + math.sin(angle_rad) * cross
+        + (1.0 - math.cos(angle_rad)) * np.outer(axis, axis)
+    )
 
 
-def marker_homography(placement: MarkerPlacement, *,
-                      focal_px: float = DEFAULT_FOCAL_PX) -> np.ndarray:
+def marker_homography(
+    placement: MarkerPlacement, *, focal_px: float = DEFAULT_FOCAL_PX
+) -> np.ndarray:
     """Plane -> image homography of a placed marker, seen by a pinhole camera.
 
     The marker plane (units: marker radius) is rotated in-plane, tilted about
@@ -394,8 +422,7 @@ def marker_homography(placement: MarkerPlacement, *,
     in_plane = np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]])
     # Plane point (u, v) -> camera point scale * (tilt @ [u, v, 0]) + [0, 0, 1].
     plane_to_camera = np.column_stack([scale * tilt[:, 0], scale * tilt[:, 1], [0.0, 0.0, 1.0]])
-    camera = np.array([[focal_px, 0.0, placement.x], [0.0, focal_px, placement.y],
-                       [0.0, 0.0, 1.0]])
+    camera = np.array([[focal_px, 0.0, placement.x], [0.0, focal_px, placement.y], [0.0, 0.0, 1.0]])
     # The third column is camera @ [0, 0, 1] = (x, y, 1) exactly: the truth is exact.
     return camera @ plane_to_camera @ in_plane
 
@@ -416,6 +443,7 @@ def project(homography: np.ndarray, points_uv: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- truth records
+
 
 @dataclass(frozen=True)
 class MarkerTruth:
@@ -443,8 +471,7 @@ class MarkerTruth:
     crlb_mean_abs_error_px: float = math.nan
 
     @classmethod
-    def from_homography(cls, homography: np.ndarray, radius_px: float,
-                        kind: str) -> MarkerTruth:
+    def from_homography(cls, homography: np.ndarray, radius_px: float, kind: str) -> MarkerTruth:
         """Truth of a target whose plane origin is the marker centre."""
         h = np.asarray(homography, dtype=np.float64) / homography[2, 2]
         x, y = float(h[0, 2]), float(h[1, 2])
@@ -538,26 +565,34 @@ class CastShadow:
         if not 0.0 < self.darkening < 1.0:
             raise ConfigError(f"darkening must be in (0, 1), got {self.darkening!r}")
         if not self.reach_px > abs(self.offset_px):
-            raise ConfigError(f"reach_px={self.reach_px!r} must exceed |offset_px|="
-                              f"{abs(self.offset_px)!r}")
+            raise ConfigError(
+                f"reach_px={self.reach_px!r} must exceed |offset_px|={abs(self.offset_px)!r}"
+            )
         if not self.penumbra_px > 0:
             raise ConfigError(f"penumbra_px must be > 0, got {self.penumbra_px!r}")
 
     def apply(self, gain: np.ndarray) -> None:
         """Multiply a (height, width) light gain image by this shadow, in place."""
         height, width = gain.shape
-        r0, r1 = max(0, math.floor(self.y - self.reach_px) - 2), min(
-            height, math.ceil(self.y + self.reach_px) + 3)
-        c0, c1 = max(0, math.floor(self.x - self.reach_px) - 2), min(
-            width, math.ceil(self.x + self.reach_px) + 3)
+        r0, r1 = (
+            max(0, math.floor(self.y - self.reach_px) - 2),
+            min(height, math.ceil(self.y + self.reach_px) + 3),
+        )
+        c0, c1 = (
+            max(0, math.floor(self.x - self.reach_px) - 2),
+            min(width, math.ceil(self.x + self.reach_px) + 3),
+        )
         if r0 >= r1 or c0 >= c1:
             return
         steps = (np.arange(_SHADOW_SUPERSAMPLING) + 0.5) / _SHADOW_SUPERSAMPLING - 0.5
         y = (np.arange(r0, r1)[:, None] + steps[None, :]).ravel() - self.y
         x = (np.arange(c0, c1)[:, None] + steps[None, :]).ravel() - self.x
         sigma = self.penumbra_px / _NORMAL_10_90_WIDTH
-        across = (math.cos(self.normal_rad) * x[None, :] + math.sin(self.normal_rad) * y[:, None]
-                  - self.offset_px)
+        across = (
+            math.cos(self.normal_rad) * x[None, :]
+            + math.sin(self.normal_rad) * y[:, None]
+            - self.offset_px
+        )
         inside = self.reach_px - np.hypot(x[None, :], y[:, None])
         shade = ndtr(across / sigma) * ndtr(inside / sigma)
         n = _SHADOW_SUPERSAMPLING
@@ -625,8 +660,11 @@ class ImagingConditions:
         Read noise, shot noise and rounding to integer DN (JPEG left out):
         ``noise_sigma_dn**2 + shot_noise_gain_dn * signal + 1/12``.
         """
-        return (self.noise_sigma_dn ** 2 + QUANTISATION_VARIANCE_DN2
-                + self.shot_noise_gain_dn * np.maximum(signal_dn, 0.0))
+        return (
+            self.noise_sigma_dn**2
+            + QUANTISATION_VARIANCE_DN2
+            + self.shot_noise_gain_dn * np.maximum(signal_dn, 0.0)
+        )
 
 
 @dataclass(frozen=True)
@@ -660,6 +698,7 @@ class RenderedScene:
 
 # --------------------------------------------------------------------------- compositing core
 
+
 def _normalised(homography: np.ndarray) -> np.ndarray:
     h = np.asarray(homography, dtype=np.float64)
     if h.shape != (3, 3) or h[2, 2] == 0:
@@ -679,8 +718,9 @@ def target_bounding_radius(target: PlanarTarget) -> float:
     return float(np.max(np.hypot(corners[:, 0] - h[0, 2], corners[:, 1] - h[1, 2])))
 
 
-def _pixel_box(h: np.ndarray, target: PlanarTarget,
-               shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+def _pixel_box(
+    h: np.ndarray, target: PlanarTarget, shape: tuple[int, int]
+) -> tuple[int, int, int, int] | None:
     """Rows [r0, r1) and columns [c0, c1) that can touch the target's plate."""
     corners = _plate_corners(target)
     w = corners @ h[2, :2] + h[2, 2]
@@ -701,8 +741,9 @@ def _to_plane(g: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, 
     return (g[0, 0] * x + g[0, 1] * y + g[0, 2]) / w, (g[1, 0] * x + g[1, 1] * y + g[1, 2]) / w
 
 
-def _footprint(g: np.ndarray, x: np.ndarray, y: np.ndarray, u: np.ndarray,
-               v: np.ndarray) -> np.ndarray:
+def _footprint(
+    g: np.ndarray, x: np.ndarray, y: np.ndarray, u: np.ndarray, v: np.ndarray
+) -> np.ndarray:
     """Upper bound of the plane distance from a pixel centre to any of its samples."""
     w = g[2, 0] * x + g[2, 1] * y + g[2, 2]
     # Jacobian of the image -> plane map (times w); its largest singular value
@@ -711,7 +752,7 @@ def _footprint(g: np.ndarray, x: np.ndarray, y: np.ndarray, u: np.ndarray,
     j10, j11 = g[1, 0] - v * g[2, 0], g[1, 1] - v * g[2, 1]
     frobenius_sq = j00 * j00 + j01 * j01 + j10 * j10 + j11 * j11
     det = j00 * j11 - j01 * j10
-    sigma_max_sq = 0.5 * (frobenius_sq + np.sqrt(np.maximum(frobenius_sq ** 2 - 4 * det ** 2, 0)))
+    sigma_max_sq = 0.5 * (frobenius_sq + np.sqrt(np.maximum(frobenius_sq**2 - 4 * det**2, 0)))
     return _PIXEL_HALF_DIAGONAL * _FOOTPRINT_MARGIN * np.sqrt(sigma_max_sq) / np.abs(w)
 
 
@@ -738,8 +779,11 @@ def _paint(target: PlanarTarget, fractions: np.ndarray) -> np.ndarray:
     coverage, dark_fraction, *dull = fractions
     bright, dark = target.bright_reflectance, target.dark_reflectance
     # The dark paint lies on the plate: bright everywhere covered, minus the dark part.
-    paint = (dark * dark_fraction if not target.on_plate
-             else bright * coverage + (dark - bright) * dark_fraction)
+    paint = (
+        dark * dark_fraction
+        if not target.on_plate
+        else bright * coverage + (dark - bright) * dark_fraction
+    )
     if dull:
         paint -= (1.0 - target.dull_factor) * (bright * dull[0] + dark * dull[1])
     return paint
@@ -757,8 +801,14 @@ def _sample_offsets(supersampling: int) -> tuple[np.ndarray, np.ndarray]:
     return dx.ravel(), dy.ravel()
 
 
-def _supersample(target: PlanarTarget, g: np.ndarray, x: np.ndarray, y: np.ndarray,
-                 supersampling: int, n_masks: int) -> np.ndarray:
+def _supersample(
+    target: PlanarTarget,
+    g: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    supersampling: int,
+    n_masks: int,
+) -> np.ndarray:
     """(n_masks, N) fractions of the S x S samples of each pixel in each of :func:`_masks`."""
     dx, dy = _sample_offsets(supersampling)
     # Homogeneous plane coordinates are linear in the image point, so a sample's
@@ -779,8 +829,9 @@ def _supersample(target: PlanarTarget, g: np.ndarray, x: np.ndarray, y: np.ndarr
     return fractions
 
 
-def composite_target(radiance: np.ndarray, target: PlanarTarget, supersampling: int = 16,
-                     *, exhaustive: bool = False) -> None:
+def composite_target(
+    radiance: np.ndarray, target: PlanarTarget, supersampling: int = 16, *, exhaustive: bool = False
+) -> None:
     """Paint one target into a reflectance image, integrating over pixel areas.
 
     Each pixel becomes coverage * paint + (1 - coverage) * ground, averaged over
@@ -809,13 +860,13 @@ def composite_target(radiance: np.ndarray, target: PlanarTarget, supersampling: 
         distance = np.minimum(distance, _plate_distance(target, u, v))
     edge = np.full(u.shape, True) if exhaustive else distance <= _footprint(g, x, y, u, v)
     fractions = np.array([m.astype(np.float64) for m in _masks(target, u, v)])
-    fractions[:, edge] = _supersample(target, g, x[edge], y[edge], supersampling,
-                                      len(fractions))
+    fractions[:, edge] = _supersample(target, g, x[edge], y[edge], supersampling, len(fractions))
     window = radiance[r0:r1, c0:c1]
     window[...] = (1.0 - fractions[0]) * window + _paint(target, fractions)
 
 
 # --------------------------------------------------------------------------- imaging chain
+
 
 def motion_blur_kernel(length_px: float, angle_rad: float) -> np.ndarray:
     """Centrally symmetric linear motion-blur kernel.
@@ -840,16 +891,21 @@ def motion_blur_kernel(length_px: float, angle_rad: float) -> np.ndarray:
     x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
     fx, fy = x - x0, y - y0
     kernel: np.ndarray = np.zeros((size, size))
-    for dy, dx, weight in ((0, 0, (1 - fx) * (1 - fy)), (0, 1, fx * (1 - fy)),
-                           (1, 0, (1 - fx) * fy), (1, 1, fx * fy)):
+    for dy, dx, weight in (
+        (0, 0, (1 - fx) * (1 - fy)),
+        (0, 1, fx * (1 - fy)),
+        (1, 0, (1 - fx) * fy),
+        (1, 1, fx * fy),
+    ):
         np.add.at(kernel, (y0 + dy, x0 + dx), weight)
     # Symmetrise away rounding so the kernel cannot shift the image.
     kernel = 0.5 * (kernel + kernel[::-1, ::-1])
     return (kernel / kernel.sum()).astype(np.float32)
 
 
-def illumination_field(shape: tuple[int, int], strength: float,
-                       rng: np.random.Generator) -> np.ndarray:
+def illumination_field(
+    shape: tuple[int, int], strength: float, rng: np.random.Generator
+) -> np.ndarray:
     """Smooth multiplicative light gain: a linear gradient plus random bumps.
 
     Args:
@@ -918,8 +974,9 @@ def vignetting_field(shape: tuple[int, int], vignetting: float) -> np.ndarray:
     return (1.0 - vignetting * 0.5 * (x[None, :] ** 2 + y[:, None] ** 2)).astype(np.float32)
 
 
-def light_gain(shape: tuple[int, int], imaging: ImagingConditions,
-               rng: np.random.Generator) -> np.ndarray | None:
+def light_gain(
+    shape: tuple[int, int], imaging: ImagingConditions, rng: np.random.Generator
+) -> np.ndarray | None:
     """The frame's multiplicative light on the scene: illumination, soft and cast shadows.
 
     Args:
@@ -948,8 +1005,12 @@ def optics_margin_px(imaging: ImagingConditions) -> int:
     return math.ceil(4.0 * imaging.blur_sigma_px + 0.5 * imaging.motion_blur_px) + 2
 
 
-def expose(radiance: np.ndarray, imaging: ImagingConditions, gain: np.ndarray | None,
-           vignette: np.ndarray | None) -> np.ndarray:
+def expose(
+    radiance: np.ndarray,
+    imaging: ImagingConditions,
+    gain: np.ndarray | None,
+    vignette: np.ndarray | None,
+) -> np.ndarray:
     """Noise-free signal of a scene reflectance image (or a window of one), DN.
 
     Order: light on the scene; optics (Gaussian PSF, motion blur, vignetting);
@@ -980,8 +1041,9 @@ def expose(radiance: np.ndarray, imaging: ImagingConditions, gain: np.ndarray | 
     return radiance
 
 
-def record(signal_dn: np.ndarray, imaging: ImagingConditions,
-           rng: np.random.Generator) -> np.ndarray:
+def record(
+    signal_dn: np.ndarray, imaging: ImagingConditions, rng: np.random.Generator
+) -> np.ndarray:
     """What the camera writes: Poisson-Gaussian noise, 8-bit rounding, optional JPEG.
 
     Noise (normal approximation of Poisson-Gaussian, variance
@@ -999,12 +1061,15 @@ def record(signal_dn: np.ndarray, imaging: ImagingConditions,
     if imaging.shot_noise_gain_dn > 0:
         # At > 100 electrons per pixel the Poisson law is indistinguishable from
         # this normal approximation.
-        sigma = np.sqrt(np.float32(imaging.shot_noise_gain_dn) * np.maximum(signal_dn, 0)
-                        + np.float32(imaging.noise_sigma_dn ** 2))
+        sigma = np.sqrt(
+            np.float32(imaging.shot_noise_gain_dn) * np.maximum(signal_dn, 0)
+            + np.float32(imaging.noise_sigma_dn**2)
+        )
         signal_dn += sigma * rng.standard_normal(signal_dn.shape, dtype=np.float32)
     elif imaging.noise_sigma_dn > 0:
         signal_dn += np.float32(imaging.noise_sigma_dn) * rng.standard_normal(
-            signal_dn.shape, dtype=np.float32)
+            signal_dn.shape, dtype=np.float32
+        )
     np.rint(signal_dn, out=signal_dn)
     np.clip(signal_dn, 0, 255, out=signal_dn)
     frame = signal_dn.astype(np.uint8)
@@ -1017,8 +1082,9 @@ def record(signal_dn: np.ndarray, imaging: ImagingConditions,
     return decoded
 
 
-def apply_imaging(radiance: np.ndarray, imaging: ImagingConditions,
-                  rng: np.random.Generator) -> np.ndarray:
+def apply_imaging(
+    radiance: np.ndarray, imaging: ImagingConditions, rng: np.random.Generator
+) -> np.ndarray:
     """Turn a scene reflectance image into an 8-bit camera frame.
 
     :func:`light_gain`, :func:`expose` and :func:`record` in turn.
@@ -1032,15 +1098,19 @@ def apply_imaging(radiance: np.ndarray, imaging: ImagingConditions,
         (height, width) uint8 frame.
     """
     gain = light_gain(radiance.shape, imaging, rng)
-    vignette = (vignetting_field(radiance.shape, imaging.vignetting)
-                if imaging.vignetting > 0 else None)
+    vignette = (
+        vignetting_field(radiance.shape, imaging.vignetting) if imaging.vignetting > 0 else None
+    )
     return record(expose(radiance, imaging, gain, vignette), imaging, rng)
 
 
-def make_background(shape: tuple[int, int], background: str | np.ndarray,
-                    rng: np.random.Generator,
-                    level: float = FLAT_BACKGROUND_LEVEL,
-                    texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE) -> np.ndarray:
+def make_background(
+    shape: tuple[int, int],
+    background: str | np.ndarray,
+    rng: np.random.Generator,
+    level: float = FLAT_BACKGROUND_LEVEL,
+    texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE,
+) -> np.ndarray:
     """Ground reflectance image: ``"texture"``, ``"flat"`` or a given array.
 
     Args:
@@ -1066,12 +1136,17 @@ def make_background(shape: tuple[int, int], background: str | np.ndarray,
     raise ConfigError(f"unknown background {background!r}; choose from {BACKGROUNDS}")
 
 
-def render_targets(shape: tuple[int, int], targets: Sequence[PlanarTarget],
-                   rng: np.random.Generator, *, background: str | np.ndarray = "flat",
-                   background_level: float = FLAT_BACKGROUND_LEVEL,
-                   imaging: ImagingConditions | None = None,
-                   supersampling: int = 16,
-                   texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE) -> np.ndarray:
+def render_targets(
+    shape: tuple[int, int],
+    targets: Sequence[PlanarTarget],
+    rng: np.random.Generator,
+    *,
+    background: str | np.ndarray = "flat",
+    background_level: float = FLAT_BACKGROUND_LEVEL,
+    imaging: ImagingConditions | None = None,
+    supersampling: int = 16,
+    texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE,
+) -> np.ndarray:
     """Render planar targets over a background and through the imaging chain.
 
     The core every renderer of this package uses; it takes homographies (in
@@ -1090,15 +1165,30 @@ def render_targets(shape: tuple[int, int], targets: Sequence[PlanarTarget],
     Returns:
         (height, width) uint8 frame.
     """
-    image, _ = _render(shape, targets, rng, background, background_level,
-                       imaging or ImagingConditions(), supersampling, texture_scale)
+    image, _ = _render(
+        shape,
+        targets,
+        rng,
+        background,
+        background_level,
+        imaging or ImagingConditions(),
+        supersampling,
+        texture_scale,
+    )
     return image
 
 
-def _render(shape: tuple[int, int], targets: Sequence[PlanarTarget], rng: np.random.Generator,
-            background: str | np.ndarray, background_level: float, imaging: ImagingConditions,
-            supersampling: int, texture_scale: tuple[float, float],
-            crlb_of: Sequence[int] = ()) -> tuple[np.ndarray, list[float]]:
+def _render(
+    shape: tuple[int, int],
+    targets: Sequence[PlanarTarget],
+    rng: np.random.Generator,
+    background: str | np.ndarray,
+    background_level: float,
+    imaging: ImagingConditions,
+    supersampling: int,
+    texture_scale: tuple[float, float],
+    crlb_of: Sequence[int] = (),
+) -> tuple[np.ndarray, list[float]]:
     """:func:`render_targets`, and the Cramer-Rao bound of the targets ``crlb_of``, px."""
     if supersampling < 1:
         raise ConfigError(f"supersampling must be >= 1, got {supersampling!r}")
@@ -1109,8 +1199,10 @@ def _render(shape: tuple[int, int], targets: Sequence[PlanarTarget], rng: np.ran
     gain = light_gain(shape, imaging, rng)
     vignette = vignetting_field(shape, imaging.vignetting) if imaging.vignetting > 0 else None
     boxes = [_pixel_box(_normalised(t.homography), t, shape) for t in targets] if crlb_of else []
-    bounds = [_marker_crlb(ground, targets, boxes, i, imaging, gain, vignette, supersampling)
-              for i in crlb_of]
+    bounds = [
+        _marker_crlb(ground, targets, boxes, i, imaging, gain, vignette, supersampling)
+        for i in crlb_of
+    ]
     return record(expose(radiance, imaging, gain, vignette), imaging, rng), bounds
 
 
@@ -1125,10 +1217,16 @@ def _render(shape: tuple[int, int], targets: Sequence[PlanarTarget], rng: np.ran
 CRLB_STEP_PX = 0.1
 
 
-def _marker_crlb(ground: np.ndarray, targets: Sequence[PlanarTarget],
-                 boxes: Sequence[tuple[int, int, int, int] | None], index: int,
-                 imaging: ImagingConditions, gain: np.ndarray | None,
-                 vignette: np.ndarray | None, supersampling: int) -> float:
+def _marker_crlb(
+    ground: np.ndarray,
+    targets: Sequence[PlanarTarget],
+    boxes: Sequence[tuple[int, int, int, int] | None],
+    index: int,
+    imaging: ImagingConditions,
+    gain: np.ndarray | None,
+    vignette: np.ndarray | None,
+    supersampling: int,
+) -> float:
     """Cramer-Rao bound of ``targets[index]``'s centre as the expected |error|, px.
 
     The noise-free frame around the marker (its window grown by the optics'
@@ -1151,8 +1249,14 @@ def _marker_crlb(ground: np.ndarray, targets: Sequence[PlanarTarget],
     c0, c1 = max(0, box[2] - margin), min(width, box[3] + margin)
     base = ground[r0:r1, c0:c1].copy()
     for other, other_box in zip(targets, boxes, strict=True):
-        if (other is target or other_box is None or other_box[0] >= r1 or other_box[1] <= r0
-                or other_box[2] >= c1 or other_box[3] <= c0):
+        if (
+            other is target
+            or other_box is None
+            or other_box[0] >= r1
+            or other_box[1] <= r0
+            or other_box[2] >= c1
+            or other_box[3] <= c0
+        ):
             continue
         composite_target(base, other.translated(-c0, -r0), supersampling)
     window = (slice(r0, r1), slice(c0, c1))
@@ -1160,43 +1264,60 @@ def _marker_crlb(ground: np.ndarray, targets: Sequence[PlanarTarget],
     def signal(dx: float, dy: float) -> np.ndarray:
         radiance = base.copy()
         composite_target(radiance, target.translated(dx - c0, dy - r0), supersampling)
-        return expose(radiance, imaging, None if gain is None else gain[window],
-                      None if vignette is None else vignette[window]).astype(np.float64)
+        return expose(
+            radiance,
+            imaging,
+            None if gain is None else gain[window],
+            None if vignette is None else vignette[window],
+        ).astype(np.float64)
 
     step = max(1, round(CRLB_STEP_PX * supersampling)) / supersampling
     d_mu_dx = (signal(step, 0.0) - signal(-step, 0.0)) / (2.0 * step)
     d_mu_dy = (signal(0.0, step) - signal(0.0, -step)) / (2.0 * step)
     y, x = np.mgrid[r0:r1, c0:c1].astype(np.float64)
     u, v = _to_plane(np.linalg.inv(_normalised(target.homography)), x, y)
-    information = crlb.fisher_information(d_mu_dx, d_mu_dy,
-                                          imaging.pixel_variance_dn2(signal(0.0, 0.0)),
-                                          x_extent(u, v))
+    information = crlb.fisher_information(
+        d_mu_dx, d_mu_dy, imaging.pixel_variance_dn2(signal(0.0, 0.0)), x_extent(u, v)
+    )
     return crlb.crlb_mean_abs_error(information)
 
 
 # --------------------------------------------------------------------------- placement
 
-def _random_paint(rng: np.random.Generator,
-                  contrast: tuple[float, float] | None = None) -> tuple[float, float]:
+
+def _random_paint(
+    rng: np.random.Generator, contrast: tuple[float, float] | None = None
+) -> tuple[float, float]:
     """(dark, bright) paint: from the paint ranges, or with a contrast drawn from ``contrast``."""
     if contrast is None:
-        return (float(rng.uniform(*DARK_REFLECTANCE_RANGE)),
-                float(rng.uniform(*BRIGHT_REFLECTANCE_RANGE)))
+        return (
+            float(rng.uniform(*DARK_REFLECTANCE_RANGE)),
+            float(rng.uniform(*BRIGHT_REFLECTANCE_RANGE)),
+        )
     difference = float(rng.uniform(*contrast))
     low = DARK_REFLECTANCE_RANGE[0]
     dark = float(rng.uniform(low, max(low, BRIGHT_REFLECTANCE_RANGE[1] - difference)))
     return dark, dark + difference
 
 
-def _target(placement: MarkerPlacement, paint: tuple[float, float],
-            on_plate: bool = True) -> PlanarTarget:
+def _target(
+    placement: MarkerPlacement, paint: tuple[float, float], on_plate: bool = True
+) -> PlanarTarget:
     dark, bright = paint[::-1] if placement.inverted else paint
-    return PlanarTarget(marker_homography(placement), PATTERNS[placement.kind], dark, bright,
-                        on_plate, placement.dull_signs, placement.dull_factor)
+    return PlanarTarget(
+        marker_homography(placement),
+        PATTERNS[placement.kind],
+        dark,
+        bright,
+        on_plate,
+        placement.dull_signs,
+        placement.dull_factor,
+    )
 
 
-def _find_spot(radius: float, shape: tuple[int, int], occupied: np.ndarray,
-               rng: np.random.Generator) -> tuple[float, float] | None:
+def _find_spot(
+    radius: float, shape: tuple[int, int], occupied: np.ndarray, rng: np.random.Generator
+) -> tuple[float, float] | None:
     """A random centre whose circle of ``radius`` keeps clear of the border and others.
 
     Args:
@@ -1216,8 +1337,10 @@ def _find_spot(radius: float, shape: tuple[int, int], occupied: np.ndarray,
     # Small batches: in a sparse frame the first batch nearly always succeeds.
     for _ in range(PLACEMENT_TRIES // _PLACEMENT_BATCH):
         candidates = rng.uniform(low, high, size=(_PLACEMENT_BATCH, 2))
-        gaps = np.hypot(candidates[:, None, 0] - occupied[None, :, 0],
-                        candidates[:, None, 1] - occupied[None, :, 1])
+        gaps = np.hypot(
+            candidates[:, None, 0] - occupied[None, :, 0],
+            candidates[:, None, 1] - occupied[None, :, 1],
+        )
         clear = np.flatnonzero(np.all(gaps >= occupied[None, :, 2] + reach, axis=1))
         if clear.size:
             return float(candidates[clear[0], 0]), float(candidates[clear[0], 1])
@@ -1233,10 +1356,15 @@ def _occupied(placements: Sequence[MarkerPlacement]) -> np.ndarray:
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
 
-def random_negatives(shape: tuple[int, int], n_negatives: int, rng: np.random.Generator,
-                     avoid: Sequence[MarkerPlacement] = (), *,
-                     radius_px: tuple[float, float] = (6.0, 40.0),
-                     max_tilt_deg: float = 60.0) -> list[tuple[MarkerPlacement, bool]]:
+def random_negatives(
+    shape: tuple[int, int],
+    n_negatives: int,
+    rng: np.random.Generator,
+    avoid: Sequence[MarkerPlacement] = (),
+    *,
+    radius_px: tuple[float, float] = (6.0, 40.0),
+    max_tilt_deg: float = 60.0,
+) -> list[tuple[MarkerPlacement, bool]]:
     """Random hard negatives that overlap neither ``avoid`` nor each other.
 
     Kinds are drawn from :data:`NEGATIVE_KINDS`; half are painted on a bright
@@ -1261,56 +1389,80 @@ def random_negatives(shape: tuple[int, int], n_negatives: int, rng: np.random.Ge
         spot = _find_spot(_bounding_radius(shape_only), shape, occupied, rng)
         if spot is None:
             continue
-        negative = MarkerPlacement(spot[0], spot[1], shape_only.radius_px,
-                                   shape_only.rotation_rad, shape_only.tilt_deg,
-                                   shape_only.tilt_axis_rad, shape_only.kind, shape_only.inverted)
+        negative = MarkerPlacement(
+            spot[0],
+            spot[1],
+            shape_only.radius_px,
+            shape_only.rotation_rad,
+            shape_only.tilt_deg,
+            shape_only.tilt_axis_rad,
+            shape_only.kind,
+            shape_only.inverted,
+        )
         occupied = np.vstack([occupied, (spot[0], spot[1], _bounding_radius(negative))])
         placed.append((negative, bool(rng.random() < 0.5)))
     if len(placed) < n_negatives:
-        _LOG.warning("placed only %d of %d hard negatives in a %dx%d frame",
-                     len(placed), n_negatives, shape[1], shape[0])
+        _LOG.warning(
+            "placed only %d of %d hard negatives in a %dx%d frame",
+            len(placed),
+            n_negatives,
+            shape[1],
+            shape[0],
+        )
     return placed
 
 
-def _random_placement(rng: np.random.Generator, kinds: Sequence[str],
-                      radius_px: tuple[float, float], max_tilt_deg: float,
-                      inverted_fraction: float) -> MarkerPlacement:
+def _random_placement(
+    rng: np.random.Generator,
+    kinds: Sequence[str],
+    radius_px: tuple[float, float],
+    max_tilt_deg: float,
+    inverted_fraction: float,
+) -> MarkerPlacement:
     """A placement at (0, 0) with random size, rotation, tilt, kind and polarity."""
     return MarkerPlacement(
-        0.0, 0.0, float(rng.uniform(*radius_px)),
+        0.0,
+        0.0,
+        float(rng.uniform(*radius_px)),
         rotation_rad=float(rng.uniform(0.0, 2.0 * math.pi)),
         tilt_deg=float(rng.uniform(0.0, max_tilt_deg)),
         tilt_axis_rad=float(rng.uniform(0.0, math.pi)),
         kind=str(kinds[int(rng.integers(len(kinds)))]),
-        inverted=bool(rng.random() < inverted_fraction))
+        inverted=bool(rng.random() < inverted_fraction),
+    )
 
 
 # --------------------------------------------------------------------------- public renderers
 
-def render_markers(shape: tuple[int, int], markers: Sequence[MarkerPlacement],
-                   rng: int | np.random.Generator | None = None, *,
-                   background: str | np.ndarray = "flat",
-                   background_level: float = FLAT_BACKGROUND_LEVEL,
-                   reflectances: tuple[float, float] | None = None,
-                   contrast: tuple[float, float] | None = None,
-                   blur_sigma_px: float = 0.0,
-                   motion_blur_px: float = 0.0,
-                   motion_blur_angle_rad: float = 0.0,
-                   illumination_strength: float = 0.0,
-                   n_shadows: int = 0,
-                   cast_shadows: Sequence[CastShadow] = (),
-                   vignetting: float = 0.0,
-                   gamma: float = 1.0,
-                   peak_level: float = 1.0,
-                   noise_sigma_dn: float = 0.0,
-                   shot_noise_gain_dn: float = 0.0,
-                   jpeg_quality: int | None = None,
-                   n_hard_negatives: int = 0,
-                   negative_radius_px: tuple[float, float] = (6.0, 40.0),
-                   negative_max_tilt_deg: float = 60.0,
-                   texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE,
-                   supersampling: int = 16,
-                   crlb: bool = False) -> RenderedScene:
+
+def render_markers(
+    shape: tuple[int, int],
+    markers: Sequence[MarkerPlacement],
+    rng: int | np.random.Generator | None = None,
+    *,
+    background: str | np.ndarray = "flat",
+    background_level: float = FLAT_BACKGROUND_LEVEL,
+    reflectances: tuple[float, float] | None = None,
+    contrast: tuple[float, float] | None = None,
+    blur_sigma_px: float = 0.0,
+    motion_blur_px: float = 0.0,
+    motion_blur_angle_rad: float = 0.0,
+    illumination_strength: float = 0.0,
+    n_shadows: int = 0,
+    cast_shadows: Sequence[CastShadow] = (),
+    vignetting: float = 0.0,
+    gamma: float = 1.0,
+    peak_level: float = 1.0,
+    noise_sigma_dn: float = 0.0,
+    shot_noise_gain_dn: float = 0.0,
+    jpeg_quality: int | None = None,
+    n_hard_negatives: int = 0,
+    negative_radius_px: tuple[float, float] = (6.0, 40.0),
+    negative_max_tilt_deg: float = 60.0,
+    texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE,
+    supersampling: int = 16,
+    crlb: bool = False,
+) -> RenderedScene:
     """Render markers at explicit placements; the defaults give an exact, clean frame.
 
     With the defaults (flat background, no blur, gamma 1, no noise, no
@@ -1355,18 +1507,45 @@ def render_markers(shape: tuple[int, int], markers: Sequence[MarkerPlacement],
         negatives actually drawn.
     """
     rng = np.random.default_rng(rng)
-    imaging = ImagingConditions(blur_sigma_px, motion_blur_px, motion_blur_angle_rad,
-                                illumination_strength, n_shadows, vignetting, gamma,
-                                noise_sigma_dn, shot_noise_gain_dn, peak_level,
-                                tuple(cast_shadows), jpeg_quality)
+    imaging = ImagingConditions(
+        blur_sigma_px,
+        motion_blur_px,
+        motion_blur_angle_rad,
+        illumination_strength,
+        n_shadows,
+        vignetting,
+        gamma,
+        noise_sigma_dn,
+        shot_noise_gain_dn,
+        peak_level,
+        tuple(cast_shadows),
+        jpeg_quality,
+    )
     targets = [_target(p, reflectances or _random_paint(rng, contrast)) for p in markers]
-    truths = [MarkerTruth.from_homography(t.homography, p.radius_px, p.kind)
-              for t, p in zip(targets, markers, strict=True)]
-    negatives = random_negatives(shape, n_hard_negatives, rng, markers,
-                                 radius_px=negative_radius_px, max_tilt_deg=negative_max_tilt_deg)
+    truths = [
+        MarkerTruth.from_homography(t.homography, p.radius_px, p.kind)
+        for t, p in zip(targets, markers, strict=True)
+    ]
+    negatives = random_negatives(
+        shape,
+        n_hard_negatives,
+        rng,
+        markers,
+        radius_px=negative_radius_px,
+        max_tilt_deg=negative_max_tilt_deg,
+    )
     targets += [_target(p, _random_paint(rng, contrast), on_plate) for p, on_plate in negatives]
-    image, bounds = _render(shape, targets, rng, background, background_level, imaging,
-                            supersampling, texture_scale, range(len(truths)) if crlb else ())
+    image, bounds = _render(
+        shape,
+        targets,
+        rng,
+        background,
+        background_level,
+        imaging,
+        supersampling,
+        texture_scale,
+        range(len(truths)) if crlb else (),
+    )
     if crlb:
         truths = [replace(t, crlb_mean_abs_error_px=b) for t, b in zip(truths, bounds, strict=True)]
     return RenderedScene(image, truths, [(p.kind, p.x, p.y) for p, _ in negatives], imaging)
@@ -1445,8 +1624,10 @@ class SceneConfig:
     supersampling: int = 16
     inverted_fraction: float = 0.5
     vignetting: float = 0.0
-    shot_noise_gain_dn: tuple[float, float] = (DEFAULT_SHOT_NOISE_GAIN_DN,
-                                               DEFAULT_SHOT_NOISE_GAIN_DN)
+    shot_noise_gain_dn: tuple[float, float] = (
+        DEFAULT_SHOT_NOISE_GAIN_DN,
+        DEFAULT_SHOT_NOISE_GAIN_DN,
+    )
     contrast: tuple[float, float] | None = None
     peak_level: tuple[float, float] = (1.0, 1.0)
     texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE
@@ -1476,24 +1657,31 @@ class SceneConfig:
         _check_range("dull_factor", self.dull_factor, 0.01, 1.0)
         _check_range("shadow_darkening", self.shadow_darkening, 0.01, 0.99)
         if not 0.0 <= self.max_tilt_deg <= MAX_TILT_DEG:
-            raise ConfigError(f"max_tilt_deg must be in [0, {MAX_TILT_DEG}], "
-                              f"got {self.max_tilt_deg!r}")
+            raise ConfigError(
+                f"max_tilt_deg must be in [0, {MAX_TILT_DEG}], got {self.max_tilt_deg!r}"
+            )
         unknown = set(self.marker_kinds) - set(MARKER_KINDS)
         if not self.marker_kinds or unknown:
-            raise ConfigError(f"marker_kinds must be a non-empty subset of {MARKER_KINDS}, "
-                              f"got {self.marker_kinds!r}")
+            raise ConfigError(
+                f"marker_kinds must be a non-empty subset of {MARKER_KINDS}, "
+                f"got {self.marker_kinds!r}"
+            )
         if self.background not in BACKGROUNDS:
-            raise ConfigError(f"background must be one of {BACKGROUNDS}, "
-                              f"got {self.background!r}")
+            raise ConfigError(f"background must be one of {BACKGROUNDS}, got {self.background!r}")
         if self.supersampling < 1:
             raise ConfigError(f"supersampling must be >= 1, got {self.supersampling!r}")
-        for name in ("inverted_fraction", "jpeg_probability", "dull_probability",
-                     "shadow_probability"):
+        for name in (
+            "inverted_fraction",
+            "jpeg_probability",
+            "dull_probability",
+            "shadow_probability",
+        ):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
         # Validates the remaining scalar ranges with the same rules as the renderer.
-        ImagingConditions(illumination_strength=self.illumination_strength,
-                          vignetting=self.vignetting)
+        ImagingConditions(
+            illumination_strength=self.illumination_strength, vignetting=self.vignetting
+        )
 
 
 @dataclass(frozen=True)
@@ -1509,34 +1697,52 @@ class _ShadowDraft:
         return CastShadow(x, y, self.normal_rad, self.offset_px, self.darkening, self.reach_px)
 
 
-def _field_conditions(draft: MarkerPlacement, config: SceneConfig,
-                      rng: np.random.Generator) -> tuple[MarkerPlacement, _ShadowDraft | None]:
+def _field_conditions(
+    draft: MarkerPlacement, config: SceneConfig, rng: np.random.Generator
+) -> tuple[MarkerPlacement, _ShadowDraft | None]:
     """A draft with its dull quadrant (if drawn), and its cast shadow (if drawn)."""
     if rng.random() < config.dull_probability:
-        draft = replace(draft, dull_factor=float(rng.uniform(*config.dull_factor)),
-                        dull_quadrant=int(rng.integers(2)))
+        draft = replace(
+            draft,
+            dull_factor=float(rng.uniform(*config.dull_factor)),
+            dull_quadrant=int(rng.integers(2)),
+        )
     if not rng.random() < config.shadow_probability:
         return draft, None
-    foreshortened = MarkerTruth.from_homography(marker_homography(draft), draft.radius_px,
-                                                draft.kind).foreshortened_radius_px
+    foreshortened = MarkerTruth.from_homography(
+        marker_homography(draft), draft.radius_px, draft.kind
+    ).foreshortened_radius_px
     offset = rng.uniform(-CAST_SHADOW_MAX_OFFSET, CAST_SHADOW_MAX_OFFSET) * foreshortened
-    return draft, _ShadowDraft(float(rng.uniform(0.0, 2.0 * math.pi)), float(offset),
-                               float(rng.uniform(*config.shadow_darkening)),
-                               CAST_SHADOW_REACH * _bounding_radius(draft))
+    return draft, _ShadowDraft(
+        float(rng.uniform(0.0, 2.0 * math.pi)),
+        float(offset),
+        float(rng.uniform(*config.shadow_darkening)),
+        CAST_SHADOW_REACH * _bounding_radius(draft),
+    )
 
 
-def _place_markers(config: SceneConfig, rng: np.random.Generator,
-                   conditions_rng: np.random.Generator
-                   ) -> tuple[list[MarkerPlacement], list[CastShadow]]:
+def _place_markers(
+    config: SceneConfig, rng: np.random.Generator, conditions_rng: np.random.Generator
+) -> tuple[list[MarkerPlacement], list[CastShadow]]:
     """Random non-overlapping marker placements (largest first, which packs best).
 
     A marker with a cast shadow keeps the other markers out of the shadow's reach.
     """
     shape = (config.height, config.width)
-    drafts = [_field_conditions(_random_placement(rng, config.marker_kinds, config.radius_px,
-                                                  config.max_tilt_deg, config.inverted_fraction),
-                                config, conditions_rng)
-              for _ in range(config.n_markers)]
+    drafts = [
+        _field_conditions(
+            _random_placement(
+                rng,
+                config.marker_kinds,
+                config.radius_px,
+                config.max_tilt_deg,
+                config.inverted_fraction,
+            ),
+            config,
+            conditions_rng,
+        )
+        for _ in range(config.n_markers)
+    ]
     drafts.sort(key=lambda d: _bounding_radius(d[0]), reverse=True)
     occupied: np.ndarray = np.empty((0, 3))
     placed: list[MarkerPlacement] = []
@@ -1549,7 +1755,8 @@ def _place_markers(config: SceneConfig, rng: np.random.Generator,
                 f"could not place marker {len(placed) + 1} of {config.n_markers} "
                 f"(bounding radius {radius:.1f} px) in a {config.width}x{config.height} frame "
                 f"after {PLACEMENT_TRIES} tries without overlap; use fewer markers "
-                f"(n_markers={config.n_markers}) or smaller radius_px={config.radius_px}")
+                f"(n_markers={config.n_markers}) or smaller radius_px={config.radius_px}"
+            )
         placed.append(replace(draft, x=spot[0], y=spot[1]))
         if shadow is not None:
             shadows.append(shadow.at(*spot))
@@ -1557,8 +1764,9 @@ def _place_markers(config: SceneConfig, rng: np.random.Generator,
     return placed, shadows
 
 
-def render_scene(config: SceneConfig, seed: int | np.random.Generator, *,
-                 crlb: bool = False) -> RenderedScene:
+def render_scene(
+    config: SceneConfig, seed: int | np.random.Generator, *, crlb: bool = False
+) -> RenderedScene:
     """Render a random frame of markers and hard negatives on cluttered ground.
 
     Args:
@@ -1576,10 +1784,15 @@ def render_scene(config: SceneConfig, seed: int | np.random.Generator, *,
     # A child stream (spawning leaves rng's own stream untouched) for the field conditions.
     conditions = rng.spawn(1)[0]
     placements, shadows = _place_markers(config, rng, conditions)
-    jpeg = (int(conditions.integers(config.jpeg_quality[0], config.jpeg_quality[1] + 1))
-            if conditions.random() < config.jpeg_probability else None)
+    jpeg = (
+        int(conditions.integers(config.jpeg_quality[0], config.jpeg_quality[1] + 1))
+        if conditions.random() < config.jpeg_probability
+        else None
+    )
     return render_markers(
-        (config.height, config.width), placements, rng,
+        (config.height, config.width),
+        placements,
+        rng,
         background=config.background,
         contrast=config.contrast,
         blur_sigma_px=float(rng.uniform(*config.blur_sigma_px)),
@@ -1599,24 +1812,28 @@ def render_scene(config: SceneConfig, seed: int | np.random.Generator, *,
         negative_max_tilt_deg=config.max_tilt_deg,
         texture_scale=config.texture_scale,
         supersampling=config.supersampling,
-        crlb=crlb)
+        crlb=crlb,
+    )
 
 
-def render_checkerboard(shape: tuple[int, int] = (960, 1280),
-                        inner_corners: tuple[int, int] = (10, 10),
-                        square_px: float = 40.0, *,
-                        centre: tuple[float, float] | None = None,
-                        rotation_rad: float = 0.0,
-                        tilt_deg: float = 0.0,
-                        tilt_axis_rad: float = 0.0,
-                        homography: np.ndarray | None = None,
-                        background: str | np.ndarray = "texture",
-                        reflectances: tuple[float, float] = (0.08, 0.85),
-                        blur_sigma_px: float = 0.8,
-                        noise_sigma_dn: float = 2.0,
-                        gamma: float = 1.0,
-                        seed: int | np.random.Generator | None = 0,
-                        supersampling: int = 16) -> RenderedScene:
+def render_checkerboard(
+    shape: tuple[int, int] = (960, 1280),
+    inner_corners: tuple[int, int] = (10, 10),
+    square_px: float = 40.0,
+    *,
+    centre: tuple[float, float] | None = None,
+    rotation_rad: float = 0.0,
+    tilt_deg: float = 0.0,
+    tilt_axis_rad: float = 0.0,
+    homography: np.ndarray | None = None,
+    background: str | np.ndarray = "texture",
+    reflectances: tuple[float, float] = (0.08, 0.85),
+    blur_sigma_px: float = 0.8,
+    noise_sigma_dn: float = 2.0,
+    gamma: float = 1.0,
+    seed: int | np.random.Generator | None = 0,
+    supersampling: int = 16,
+) -> RenderedScene:
     """Render a chessboard under perspective; its inner corners are the truth.
 
     Args:
@@ -1649,24 +1866,34 @@ def render_checkerboard(shape: tuple[int, int] = (960, 1280),
     rng = np.random.default_rng(seed)
     if homography is None:
         x, y = centre if centre is not None else ((shape[1] - 1) / 2, (shape[0] - 1) / 2)
-        homography = marker_homography(MarkerPlacement(x, y, square_px, rotation_rad, tilt_deg,
-                                                       tilt_axis_rad, "checker"))
-    board = PlanarTarget(_normalised(homography), checkerboard_pattern(inner_corners),
-                         *reflectances)
+        homography = marker_homography(
+            MarkerPlacement(x, y, square_px, rotation_rad, tilt_deg, tilt_axis_rad, "checker")
+        )
+    board = PlanarTarget(
+        _normalised(homography), checkerboard_pattern(inner_corners), *reflectances
+    )
     outline = project(board.homography, _plate_corners(board))
     if outline.min() < -0.5 or np.any(outline.max(axis=0) > (shape[1] - 0.5, shape[0] - 0.5)):
-        raise ConfigError(f"a board of {inner_corners} inner corners with {square_px} px "
-                          f"squares does not fit in a {shape[1]}x{shape[0]} frame")
+        raise ConfigError(
+            f"a board of {inner_corners} inner corners with {square_px} px "
+            f"squares does not fit in a {shape[1]}x{shape[0]} frame"
+        )
     n_u, n_v = inner_corners
     truths = []
     for m in range(n_v):
         for k in range(n_u):
-            to_corner = np.array([[1.0, 0.0, k - (n_u - 1) / 2],
-                                  [0.0, 1.0, m - (n_v - 1) / 2], [0.0, 0.0, 1.0]])
-            truths.append(MarkerTruth.from_homography(board.homography @ to_corner, square_px,
-                                                      "checkerboard_corner"))
-    imaging = ImagingConditions(blur_sigma_px=blur_sigma_px, gamma=gamma,
-                                noise_sigma_dn=noise_sigma_dn)
-    image = render_targets(shape, [board], rng, background=background, imaging=imaging,
-                           supersampling=supersampling)
+            to_corner = np.array(
+                [[1.0, 0.0, k - (n_u - 1) / 2], [0.0, 1.0, m - (n_v - 1) / 2], [0.0, 0.0, 1.0]]
+            )
+            truths.append(
+                MarkerTruth.from_homography(
+                    board.homography @ to_corner, square_px, "checkerboard_corner"
+                )
+            )
+    imaging = ImagingConditions(
+        blur_sigma_px=blur_sigma_px, gamma=gamma, noise_sigma_dn=noise_sigma_dn
+    )
+    image = render_targets(
+        shape, [board], rng, background=background, imaging=imaging, supersampling=supersampling
+    )
     return RenderedScene(image, truths, [], imaging)

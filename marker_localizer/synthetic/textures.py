@@ -24,7 +24,14 @@ from marker_localizer.errors import ConfigError
 #: left out). The first four look like ground; the rest add man-made clutter
 #: (straight edges, corners, a lattice of crossing struts) a detector must reject.
 TEXTURE_NAMES: tuple[str, ...] = (
-    "grass", "gravel", "brick", "moon", "camera", "coins", "rocket", "coffee",
+    "grass",
+    "gravel",
+    "brick",
+    "moon",
+    "camera",
+    "coins",
+    "rocket",
+    "coffee",
 )
 #: How often each of :data:`TEXTURE_NAMES` is drawn: ground twice as often as clutter.
 TEXTURE_WEIGHTS: tuple[float, ...] = (2.0, 2.0, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0)
@@ -77,8 +84,9 @@ def _periodic_tile(name: str) -> tuple[np.ndarray, float, float]:
     return tile, float(tile.mean()), max(float(tile.std()), 1e-6)
 
 
-def smooth_random_field(shape: tuple[int, int], rng: np.random.Generator,
-                        cell_px: float) -> np.ndarray:
+def smooth_random_field(
+    shape: tuple[int, int], rng: np.random.Generator, cell_px: float
+) -> np.ndarray:
     """Smooth random field of features about ``cell_px`` wide, rescaled to [0, 1].
 
     A coarse grid of uniform random values is upsampled bicubically, which
@@ -106,8 +114,12 @@ def smooth_random_field(shape: tuple[int, int], rng: np.random.Generator,
     return field
 
 
-def warped_texture(name: str, shape: tuple[int, int], rng: np.random.Generator,
-                   scale_range: tuple[float, float] = TEXTURE_SCALE_RANGE) -> np.ndarray:
+def warped_texture(
+    name: str,
+    shape: tuple[int, int],
+    rng: np.random.Generator,
+    scale_range: tuple[float, float] = TEXTURE_SCALE_RANGE,
+) -> np.ndarray:
     """One texture covering the frame at a random scale, rotation, flip and offset.
 
     A scale below 1 first shrinks the tile by area averaging (each frame pixel
@@ -140,23 +152,35 @@ def warped_texture(name: str, shape: tuple[int, int], rng: np.random.Generator,
     inverse[:, 2] = rng.uniform(0.0, 1.0, size=2) * period
     # Repeat the tile over the frame's footprint so every source pixel is in range:
     # OpenCV's fast path, several times quicker than BORDER_WRAP at 4096 x 3000.
-    corners = np.array([[0, 0, 1], [shape[1], 0, 1], [0, shape[0], 1], [shape[1], shape[0], 1]],
-                       dtype=np.float64) @ inverse.T
+    corners = (
+        np.array(
+            [[0, 0, 1], [shape[1], 0, 1], [0, shape[0], 1], [shape[1], shape[0], 1]],
+            dtype=np.float64,
+        )
+        @ inverse.T
+    )
     inverse[:, 2] -= np.floor(corners.min(axis=0) / period) * period
     reps = np.ceil((corners.max(axis=0) - corners.min(axis=0)) / period).astype(int) + 2
     canvas = np.tile(tile, (reps[1], reps[0]))
-    warped = cv2.warpAffine(canvas, inverse, (shape[1], shape[0]),
-                            flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                            borderMode=cv2.BORDER_REFLECT)
+    warped = cv2.warpAffine(
+        canvas,
+        inverse,
+        (shape[1], shape[0]),
+        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_REFLECT,
+    )
     result = warped.astype(np.float32)
     result -= np.float32(mean)
     result *= np.float32(1.0 / std)
     return result
 
 
-def texture_background(shape: tuple[int, int], rng: np.random.Generator,
-                       names: tuple[str, ...] | None = None,
-                       scale_range: tuple[float, float] = TEXTURE_SCALE_RANGE) -> np.ndarray:
+def texture_background(
+    shape: tuple[int, int],
+    rng: np.random.Generator,
+    names: tuple[str, ...] | None = None,
+    scale_range: tuple[float, float] = TEXTURE_SCALE_RANGE,
+) -> np.ndarray:
     """Cluttered ground: two random textures blended through a smooth random mask.
 
     Args:
@@ -185,8 +209,7 @@ def texture_background(shape: tuple[int, int], rng: np.random.Generator,
     coarse = (max(2, shape[0] // 8), max(2, shape[1] // 8))
     mask = smooth_random_field(coarse, rng, BLEND_CELL_FRACTION * max(coarse))
     mask = 1.0 / (1.0 + np.exp(rng.uniform(4.0, 20.0) * (0.5 - mask)))
-    mask = cv2.resize(mask.astype(np.float32), (shape[1], shape[0]),
-                      interpolation=cv2.INTER_LINEAR)
+    mask = cv2.resize(mask.astype(np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
     # background = mean + mask * a + (1 - mask) * b, computed in place: frames are large.
     layer_a -= layer_b
     layer_a *= mask

@@ -115,8 +115,9 @@ def test_a_recording_that_did_not_finish_is_read_front_to_back(small_flight, ima
     report = replay_bag(bag, tmp_path / "out", workers=2)
     whole = {key for key, (_, end) in images.items() if end <= cut}
     assert sorted(results(tmp_path / "out")) == sorted(whole)
-    assert report.damage[0].endswith("no metadata.yaml (a recording that did not finish); "
-                                     "its MCAP files read front to back")
+    assert report.damage[0].endswith(
+        "no metadata.yaml (a recording that did not finish); its MCAP files read front to back"
+    )
 
 
 def test_a_cut_sqlite3_bag_is_one_error_naming_it(tmp_path, capsys):

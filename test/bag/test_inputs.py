@@ -38,23 +38,28 @@ MAX_PIXELS = 10**8
 def marker_frame() -> np.ndarray:
     """An 80 x 64 frame with one blurred marker of radius 14 px at CENTRE."""
     placement = MarkerPlacement(*CENTRE, 14.0, rotation_rad=0.4)
-    return render_markers((64, 80), [placement], 1, reflectances=(0.1, 0.9),
-                          blur_sigma_px=0.8).image
+    return render_markers(
+        (64, 80), [placement], 1, reflectances=(0.1, 0.9), blur_sigma_px=0.8
+    ).image
 
 
 def encoded(kind: str, pixels: np.ndarray | None = None) -> bytes:
-    ok, data = cv2.imencode(".jpg" if kind == "jpeg" else ".png",
-                            marker_frame() if pixels is None else pixels,
-                            [cv2.IMWRITE_JPEG_QUALITY, 95] if kind == "jpeg" else [])
+    ok, data = cv2.imencode(
+        ".jpg" if kind == "jpeg" else ".png",
+        marker_frame() if pixels is None else pixels,
+        [cv2.IMWRITE_JPEG_QUALITY, 95] if kind == "jpeg" else [],
+    )
     assert ok
     return data.tobytes()
 
 
 def compressed(kind: str, sec: int, data: bytes | None = None) -> CompressedImage:
     """What image_transport's compressed plugin publishes for a mono8 camera."""
-    return CompressedImage(header=Header(stamp=Time(sec=sec), frame_id="cam"),
-                           format=f"mono8; {kind} compressed mono8",
-                           data=encoded(kind) if data is None else data)
+    return CompressedImage(
+        header=Header(stamp=Time(sec=sec), frame_id="cam"),
+        format=f"mono8; {kind} compressed mono8",
+        data=encoded(kind) if data is None else data,
+    )
 
 
 def points(replay_out: Path, camera: str) -> list[np.ndarray]:
@@ -102,8 +107,12 @@ def test_replay_reads_compressed_frames_and_counts_undecodable_ones_per_camera(t
         for camera in ("cam0", "cam1"):
             writer.add_topic(f"/{camera}/image_raw/compressed", "sensor_msgs/msg/CompressedImage")
         for sec, (camera, msg) in enumerate(
-            [("cam0", compressed("jpeg", 1)), ("cam1", compressed("png", 2)),
-             ("cam1", compressed("png", 3, b"not an image")), ("cam0", compressed("jpeg", 4))],
+            [
+                ("cam0", compressed("jpeg", 1)),
+                ("cam1", compressed("png", 2)),
+                ("cam1", compressed("png", 3, b"not an image")),
+                ("cam0", compressed("jpeg", 4)),
+            ],
             start=1,
         ):
             writer.write(f"/{camera}/image_raw/compressed", sec * 10**9, msg)
@@ -125,19 +134,30 @@ def test_replay_reads_a_ros1_bag_raw_and_compressed(tmp_path):
     bag = tmp_path / "flight.bag"
     with Ros1Writer(bag) as writer:
         raw = writer.add_connection("/cam0/image_raw", "sensor_msgs/msg/Image", typestore=noetic)
-        jpeg = writer.add_connection("/cam1/image_raw/compressed",
-                                     "sensor_msgs/msg/CompressedImage", typestore=noetic)
+        jpeg = writer.add_connection(
+            "/cam1/image_raw/compressed", "sensor_msgs/msg/CompressedImage", typestore=noetic
+        )
         for seq, sec in enumerate((5, 6)):
             image = types["sensor_msgs/msg/Image"](
                 header=header(seq=seq, stamp=stamp(sec=sec, nanosec=0), frame_id="cam0_optical"),
-                height=64, width=80, encoding="mono8", is_bigendian=0, step=80,
-                data=frame.ravel())
+                height=64,
+                width=80,
+                encoding="mono8",
+                is_bigendian=0,
+                step=80,
+                data=frame.ravel(),
+            )
             writer.write(raw, sec * 10**9, noetic.serialize_ros1(image, "sensor_msgs/msg/Image"))
             packed = types["sensor_msgs/msg/CompressedImage"](
                 header=header(seq=seq, stamp=stamp(sec=sec, nanosec=1), frame_id="cam1_optical"),
-                format="jpeg", data=np.frombuffer(encoded("jpeg"), np.uint8))
-            writer.write(jpeg, sec * 10**9 + 1,
-                         noetic.serialize_ros1(packed, "sensor_msgs/msg/CompressedImage"))
+                format="jpeg",
+                data=np.frombuffer(encoded("jpeg"), np.uint8),
+            )
+            writer.write(
+                jpeg,
+                sec * 10**9 + 1,
+                noetic.serialize_ros1(packed, "sensor_msgs/msg/CompressedImage"),
+            )
     report = replay_bag(bag, tmp_path / "out", workers=1)
     assert report.complete, report.cameras
     assert {c: r.frames for c, r in report.cameras.items()} == {"cam0": 2, "cam1": 2}
@@ -145,7 +165,9 @@ def test_replay_reads_a_ros1_bag_raw_and_compressed(tmp_path):
         clouds = [m.decode() for m in out.messages({"/cam0/marker_points"})]
     # The ROS 1 header's stamp and frame_id come through unchanged (its seq has no place).
     assert [(c.header.stamp.sec, c.header.frame_id) for c in clouds] == [
-        (5, "cam0_optical"), (6, "cam0_optical")]
+        (5, "cam0_optical"),
+        (6, "cam0_optical"),
+    ]
     for camera in ("cam0", "cam1"):
         found = points(tmp_path / "out", camera)
         assert len(found) == 2

@@ -42,7 +42,6 @@ KEEP_LAST_1 = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 CLOCK_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
-
 def wait_until(predicate, what, timeout_s=TIMEOUT_S):
     """Poll ``predicate`` for up to this module's timeout."""
     return waiting.wait_until(predicate, what, timeout_s)
@@ -241,9 +240,21 @@ def test_sigterm_while_playing_stops_the_player_cleanly_with_status_143(context,
     listener = Listener(context, {"/clock": Clock})
     spun = Spun(context, listener.node)
     player = subprocess.Popen(
-        [sys.executable, "-m", "marker_localizer.cli", "play", str(small_flight), "--rate", "0.01",
-         "--clock", "--wait-for-subscribers", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "marker_localizer.cli",
+            "play",
+            str(small_flight),
+            "--rate",
+            "0.01",
+            "--clock",
+            "--wait-for-subscribers",
+            "0",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         wait_until(lambda: listener.messages("/clock"), "the player playing")

@@ -16,9 +16,16 @@ from marker_localizer import evaluation
 from marker_localizer.bench import accuracy, peers, real_data, speed
 from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
 
-SMALL = SceneConfig(width=480, height=360, n_markers=4, radius_px=(8.0, 16.0),
-                    blur_sigma_px=(0.8, 1.0), noise_sigma_dn=(1.0, 2.0), max_tilt_deg=30.0,
-                    n_hard_negatives=4)
+SMALL = SceneConfig(
+    width=480,
+    height=360,
+    n_markers=4,
+    radius_px=(8.0, 16.0),
+    blur_sigma_px=(0.8, 1.0),
+    noise_sigma_dn=(1.0, 2.0),
+    max_tilt_deg=30.0,
+    n_hard_negatives=4,
+)
 
 
 def exact_x(size: int = 64) -> np.ndarray:
@@ -31,8 +38,9 @@ def exact_x(size: int = 64) -> np.ndarray:
 
 
 def small_family(frames: int = 2) -> accuracy.Family:
-    return accuracy.Family("t", "test", (8.0, 16.0), frames, 1,
-                           lambda seed: render_scene(SMALL, seed))
+    return accuracy.Family(
+        "t", "test", (8.0, 16.0), frames, 1, lambda seed: render_scene(SMALL, seed)
+    )
 
 
 class FixedDetector:
@@ -47,6 +55,7 @@ class FixedDetector:
 
 
 # --------------------------------------------------------------------------- peers
+
 
 def test_cornersubpix_refines_a_start_1_px_off_onto_the_exact_centre():
     refined = peers.corner_subpix(exact_x(), np.array([[30.8, 32.1]]), 5)
@@ -90,6 +99,7 @@ def test_opencv_board_peer_finds_every_corner_of_a_rendered_board():
 
 # --------------------------------------------------------------------------- rendered families
 
+
 def test_subpix_starts_lie_within_one_pixel_and_repeat_with_the_seed():
     truth = np.zeros((500, 2))
     a = accuracy.subpix_starts(truth, np.random.default_rng(3))
@@ -117,8 +127,10 @@ def test_a_rendered_chessboard_frame_has_one_hundred_corners_in_the_frame():
 
 
 def test_family_evaluation_scores_ours_and_cornersubpix_on_the_same_frames():
-    detectors = [peers.OurDetector(accuracy.REFERENCE_ROW, {}),
-                 FixedDetector("nothing", np.empty((0, 2)))]
+    detectors = [
+        peers.OurDetector(accuracy.REFERENCE_ROW, {}),
+        FixedDetector("nothing", np.empty((0, 2))),
+    ]
     result = accuracy.evaluate_family(small_family(), 2, 0, detectors)
     rows = result.rows
     by_name = {r.name: r for r in rows}
@@ -133,8 +145,10 @@ def test_family_evaluation_scores_ours_and_cornersubpix_on_the_same_frames():
 
 
 def test_resolution_table_gives_each_detectors_recall_per_bin_of_marker_resolution():
-    detectors = [peers.OurDetector(accuracy.REFERENCE_ROW, {}),
-                 FixedDetector("nothing", np.empty((0, 2)))]
+    detectors = [
+        peers.OurDetector(accuracy.REFERENCE_ROW, {}),
+        FixedDetector("nothing", np.empty((0, 2))),
+    ]
     result = accuracy.evaluate_family(small_family(), 2, 0, detectors)
     ours = result.rows[0].tally
     assert len(result.resolution) == len(ours.found) == ours.n_truth
@@ -161,8 +175,10 @@ def test_family_table_prints_the_peer_to_ours_ratio():
 
 def test_family_table_prints_the_bound_and_the_error_over_it():
     ours = accuracy.Row(accuracy.REFERENCE_ROW)
-    ours.tally.add(evaluation.match_points(np.array([[0.03, 0.0], [5.0, 5.0]]), np.zeros((1, 2))),
-                   truth_crlb_px=np.array([0.01]))
+    ours.tally.add(
+        evaluation.match_points(np.array([[0.03, 0.0], [5.0, 5.0]]), np.zeros((1, 2))),
+        truth_crlb_px=np.array([0.01]),
+    )
     line = accuracy.family_table("t", [ours]).splitlines()[-1].split()
     assert line[-4:-1] == ["0.0100", "3.00", "-"]
     assert ours.tally.fp_per_frame == 1.0
@@ -177,8 +193,10 @@ def test_uneven_light_family_renders_dull_quadrants_shadows_and_every_markers_bo
 
 def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path, capsys):
     out = tmp_path / "accuracy.json"
-    assert accuracy.main(["--families", "g", "--frames", "1", "--no-curvature",
-                          "--json", str(out)]) == 0
+    assert (
+        accuracy.main(["--families", "g", "--frames", "1", "--no-curvature", "--json", str(out)])
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "Family (g) uneven light" in printed
     assert "err/CRLB" in printed and "Summary, ours (symmetry)" in printed
@@ -190,8 +208,9 @@ def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path,
 
 def test_negatives_count_every_detection_per_frame_and_per_megapixel():
     frames = [real_data.UasFrame(str(i), np.zeros((1000, 500), np.uint8)) for i in range(2)]
-    (row,) = accuracy.evaluate_negatives(frames, [FixedDetector("fixed", np.ones((3, 2)))],
-                                         (3.0, 30.0))
+    (row,) = accuracy.evaluate_negatives(
+        frames, [FixedDetector("fixed", np.ones((3, 2)))], (3.0, 30.0)
+    )
     assert row.extra["fp_per_frame"] == 3.0
     assert row.extra["fp_per_megapixel"] == pytest.approx(6.0)
     assert "FP/MP" in accuracy.negatives_table("t", [row])
@@ -199,8 +218,9 @@ def test_negatives_count_every_detection_per_frame_and_per_megapixel():
 
 def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
     out = tmp_path / "accuracy.json"
-    status = accuracy.main(["--families", "e", "--frames", "1", "--no-curvature",
-                            "--json", str(out)])
+    status = accuracy.main(
+        ["--families", "e", "--frames", "1", "--no-curvature", "--json", str(out)]
+    )
     assert status == 0
     printed = capsys.readouterr().out
     assert "Family (e)" in printed
@@ -212,6 +232,7 @@ def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
 
 # --------------------------------------------------------------------------- real data
 
+
 def test_uas_scoring_counts_both_targets_and_far_detections():
     frame = real_data.UasFrame("blank", np.zeros((8, 8), np.uint8))
     points = np.vstack([real_data.CIRN_TARGETS + 2.0, [[100.0, 100.0]]])
@@ -222,8 +243,9 @@ def test_uas_scoring_counts_both_targets_and_far_detections():
 
 def test_board_scoring_counts_complete_boards_and_residuals():
     grid = np.stack(np.meshgrid(np.arange(4) * 20.0 + 50, np.arange(3) * 20.0 + 40), axis=-1)
-    item = real_data.BoardImage("set", "img", np.zeros((8, 8), np.uint8), [grid],
-                                grid.reshape(-1, 2))
+    item = real_data.BoardImage(
+        "set", "img", np.zeros((8, 8), np.uint8), [grid], grid.reshape(-1, 2)
+    )
     full = FixedDetector("all", grid.reshape(-1, 2) + 0.05)
     partial = FixedDetector("some", grid.reshape(-1, 2)[:5])
     rows = accuracy.evaluate_boards([item], [full, partial], (5.0, 40.0))
@@ -287,6 +309,7 @@ def test_our_detector_finds_the_inner_corners_of_a_real_board():
 
 
 # --------------------------------------------------------------------------- speed helpers
+
 
 def test_peak_growth_sees_a_large_temporary_allocation():
     grown = speed.peak_growth_mb(lambda: np.ones(64 * 1024 * 1024 // 8).sum())

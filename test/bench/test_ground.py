@@ -44,14 +44,15 @@ def test_the_worker_times_every_frame_of_every_ground_at_every_range():
 
 
 def _timings(ms, points=1, peak_mb=100.0):
-    return [[ground.GroundTiming(list(ms), [points] * len(ms), peak_mb)
-             for _ in ground.RANGES]]
+    return [[ground.GroundTiming(list(ms), [points] * len(ms), peak_mb) for _ in ground.RANGES]]
 
 
 def test_the_table_gives_each_grounds_median_and_worst_and_ours_over_the_peer():
     found = [ground.Ground("cirn_uas", [np.zeros((2160, 3840), np.uint8)] * 3)]
-    results = [ground.SubjectTimings(speed.REFERENCE_SUBJECT, _timings([100, 140, 300])),
-               ground.SubjectTimings("peer", _timings([400, 500, 600], points=40))]
+    results = [
+        ground.SubjectTimings(speed.REFERENCE_SUBJECT, _timings([100, 140, 300])),
+        ground.SubjectTimings("peer", _timings([400, 500, 600], points=40)),
+    ]
     table = ground.ground_table(found, results)
     row = next(line for line in table.splitlines() if line.startswith("cirn_uas 3840x2160"))
     assert row.split()[2:] == ["3", "3-30", "140", "300", "100", "1.0", "500", "40.0", "0.28"]
@@ -64,4 +65,5 @@ def test_the_bound_is_judged_on_every_12_mp_frame_by_its_slowest_time_and_memory
     results = [ground.SubjectTimings(speed.REFERENCE_SUBJECT, _timings([900, 1200], peak_mb=300))]
     assert ground.verdict(found, results) == (
         "every 12 MP frame, both ranges: slowest 1200 ms (target <= 1000: missed), "
-        "peak memory growth 300 MiB (target <= 500: met)")
+        "peak memory growth 300 MiB (target <= 500: met)"
+    )

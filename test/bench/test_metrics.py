@@ -21,6 +21,7 @@ def projective_grid(rows: int, cols: int) -> np.ndarray:
 
 # --------------------------------------------------------------------------- grid geometry
 
+
 def test_line_residual_of_exactly_collinear_points_is_zero():
     points = np.array([[0.0, 1.0], [1.0, 3.0], [2.5, 6.0], [4.0, 9.0]])
     np.testing.assert_allclose(metrics.straight_line_residuals(points), 0.0, atol=1e-12)
@@ -85,6 +86,7 @@ def test_order_grid_refuses_points_of_another_pattern():
 
 
 # --------------------------------------------------------------------------- peer helpers
+
 
 def test_mrgingham_output_is_parsed_and_failures_give_no_points():
     text = "# filename x y level\nimg.png 10.5 20.25 0\nimg.png 11 21 1\nother.png - - -\n"

@@ -30,7 +30,11 @@ def run_python(script, *args, **kwargs):
     """Run ``script`` in a fresh interpreter; return the CompletedProcess."""
     return subprocess.run(
         [sys.executable, "-c", textwrap.dedent(script), *map(str, args)],
-        capture_output=True, text=True, timeout=TIMEOUT_S, check=False, **kwargs,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+        check=False,
+        **kwargs,
     )
 
 
@@ -138,8 +142,24 @@ def test_staging_of_a_killed_run_is_swept_by_the_next_one(tmp_path):
     elsewhere = tmp_path / ".other.partial-another-host-1"
     live.mkdir()
     elsewhere.mkdir()
-    assert cli(["simulate", "--out", str(tmp_path / "next"), "--frames", "1", "--width", "64",
-                          "--height", "48", "--cameras", "1"]) == 0
+    assert (
+        cli(
+            [
+                "simulate",
+                "--out",
+                str(tmp_path / "next"),
+                "--frames",
+                "1",
+                "--width",
+                "64",
+                "--height",
+                "48",
+                "--cameras",
+                "1",
+            ]
+        )
+        == 0
+    )
     assert entries(tmp_path) == sorted([live.name, elsewhere.name, "next"])
     assert sweep_staging(tmp_path) == []
 
@@ -154,16 +174,34 @@ def test_a_storage_error_during_simulate_is_one_line_and_leaves_nothing(tmp_path
 
     out = tmp_path / "flight"
     result = subprocess.run(
-        [sys.executable, "-m", "marker_localizer.cli", "simulate", "--out", str(out),
-         "--frames", "8", "--width", "320", "--height", "240", "--storage", storage],
-        capture_output=True, text=True, timeout=TIMEOUT_S, check=False,
+        [
+            sys.executable,
+            "-m",
+            "marker_localizer.cli",
+            "simulate",
+            "--out",
+            str(out),
+            "--frames",
+            "8",
+            "--width",
+            "320",
+            "--height",
+            "240",
+            "--storage",
+            storage,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+        check=False,
         preexec_fn=limit_file_size,
     )
     assert result.returncode == 1
     # mcap: the OS's words; sqlite: its own (at a write or at the final commit).
     error = r"cannot (write|finish bag) \((File too large|disk I/O error)\)"
-    assert re.fullmatch(f"marker-localizer simulate: error: {re.escape(str(out))}: {error}\n",
-                        result.stderr), result.stderr
+    assert re.fullmatch(
+        f"marker-localizer simulate: error: {re.escape(str(out))}: {error}\n", result.stderr
+    ), result.stderr
     assert entries(tmp_path) == []
 
 

@@ -16,10 +16,16 @@ def _x_marker_12_bit() -> np.ndarray:
     return (cv2.GaussianBlur(image, (0, 0), 1.0) * 16).round().astype(np.uint16)
 
 
-@pytest.mark.parametrize(("dtype", "bits", "white"), [
-    (np.uint8, 16, 255.0), (np.uint8, 12, 255.0), (np.uint16, 16, 65535.0),
-    (np.uint16, 12, 4095.0), (np.uint16, 10, 1023.0),
-])
+@pytest.mark.parametrize(
+    ("dtype", "bits", "white"),
+    [
+        (np.uint8, 16, 255.0),
+        (np.uint8, 12, 255.0),
+        (np.uint16, 16, 65535.0),
+        (np.uint16, 12, 4095.0),
+        (np.uint16, 10, 1023.0),
+    ],
+)
 def test_white_is_set_by_the_type_and_the_bit_depth(dtype, bits, white):
     assert bit_depth_scale(np.dtype(dtype), bits) == white
 
@@ -76,14 +82,17 @@ def test_float_images_are_clipped_to_0_1():
     assert full_scale == 1.0
 
 
-@pytest.mark.parametrize(("image", "message"), [
-    ([[1, 2], [3, 4]], "expected a numpy array, got list"),
-    (np.zeros((0, 4), np.uint8), r"empty image \(shape \(0, 4\)\)"),
-    (np.zeros((4, 4), np.int32), "unsupported dtype int32"),
-    (np.zeros((4, 4, 2), np.uint8), "unsupported channel count 2"),
-    (np.zeros((2, 2, 2, 2), np.uint8), "expected a 2-D grey or 3-D colour image"),
-    (np.array([[0.0, np.nan]]), "NaN or infinite"),
-])
+@pytest.mark.parametrize(
+    ("image", "message"),
+    [
+        ([[1, 2], [3, 4]], "expected a numpy array, got list"),
+        (np.zeros((0, 4), np.uint8), r"empty image \(shape \(0, 4\)\)"),
+        (np.zeros((4, 4), np.int32), "unsupported dtype int32"),
+        (np.zeros((4, 4, 2), np.uint8), "unsupported channel count 2"),
+        (np.zeros((2, 2, 2, 2), np.uint8), "expected a 2-D grey or 3-D colour image"),
+        (np.array([[0.0, np.nan]]), "NaN or infinite"),
+    ],
+)
 def test_bad_input_is_one_error_naming_what_is_wrong(image, message):
     with pytest.raises(ImageError, match=message):
         to_gray(image)

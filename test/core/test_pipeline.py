@@ -1,6 +1,5 @@
 """The Detector end to end: analytic images, rendered frames, input handling."""
 
-
 import cv2
 import numpy as np
 import pytest
@@ -118,8 +117,16 @@ def test_the_papers_pipeline_finds_the_markers_of_rendered_frames(cluttered_fram
 def test_the_papers_pipeline_locates_chessboard_corners_as_its_table_1_claims():
     """Table 1: mean deviation under 0.03 px, over 97 % of the corners within 0.1 px."""
     board = render_checkerboard(
-        (480, 640), (7, 5), 40.0, rotation_rad=0.3, tilt_deg=35.0, tilt_axis_rad=1.0,
-        blur_sigma_px=1.0, noise_sigma_dn=2.0, gamma=1.1, seed=4,
+        (480, 640),
+        (7, 5),
+        40.0,
+        rotation_rad=0.3,
+        tilt_deg=35.0,
+        tilt_axis_rad=1.0,
+        blur_sigma_px=1.0,
+        noise_sigma_dn=2.0,
+        gamma=1.1,
+        seed=4,
     )
     detector = Detector(
         DetectorConfig(marker_radius_min_px=25.0, marker_radius_max_px=40.0, **_PAPER)
@@ -153,8 +160,9 @@ def test_every_candidate_the_screenings_caps_cut_is_counted_whenever_it_is_cut(m
     """Cut early (busy ground sets the frame cap's floor in the screening) or late alike."""
     noise = np.random.default_rng(4).normal(128, 40, (256, 320))
     image = np.clip(noise, 0, 255).astype(np.uint8)
-    config = DetectorConfig(marker_radius_min_px=3.0, marker_radius_max_px=30.0,
-                            max_candidates=max_candidates)
+    config = DetectorConfig(
+        marker_radius_min_px=3.0, marker_radius_max_px=30.0, max_candidates=max_candidates
+    )
     counts = Detector(config).detect(image).counts
     prescreened = counts["rejected_prescreen"] + counts["dropped_over_verification_cap"]
     passed = counts["after_suppression"] - counts["dropped_over_cap"]
@@ -317,7 +325,12 @@ def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_cou
 ):
     """A frame with more X's than the cap: the cap's worth are verified, the rest counted."""
     board = render_checkerboard(
-        (480, 640), (9, 7), 32.0, rotation_rad=0.2, blur_sigma_px=1.0, noise_sigma_dn=2.0,
+        (480, 640),
+        (9, 7),
+        32.0,
+        rotation_rad=0.2,
+        blur_sigma_px=1.0,
+        noise_sigma_dn=2.0,
         seed=2,
     )
     detector = Detector(DetectorConfig(marker_radius_min_px=12.0, marker_radius_max_px=32.0))

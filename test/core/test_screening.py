@@ -56,10 +56,12 @@ def test_a_tilted_marker_whose_saddle_peak_splits_gets_a_candidate_at_its_centre
     # A 6.2 px marker tilted 48 degrees, the smallest of a 6-40 px range, seen at the
     # first level (half resolution): the 5x5 Sobel smoothing is wider than the
     # marker, so its centre is no saddle there and the response peaks either side.
-    placement = MarkerPlacement(48.3, 47.6, 6.2, 0.0, 48.0, 2.36, kind="quarter_disks",
-                                inverted=True)
-    scene = render_markers((96, 96), [placement], 0, blur_sigma_px=0.7, noise_sigma_dn=1.2,
-                           background_level=0.35)
+    placement = MarkerPlacement(
+        48.3, 47.6, 6.2, 0.0, 48.0, 2.36, kind="quarter_disks", inverted=True
+    )
+    scene = render_markers(
+        (96, 96), [placement], 0, blur_sigma_px=0.7, noise_sigma_dn=1.2, background_level=0.35
+    )
     level = screening.saddle_levels((6.0, 40.0)).start
     assert level == 1
     half = cv2.resize(scene.image, (48, 48), interpolation=cv2.INTER_AREA)
@@ -230,8 +232,13 @@ def _greedy_by_hand(candidates, cell_px, target):
 
 def test_greedy_entropy_thinning_raises_the_entropy_at_every_step_up_to_the_threshold():
     rng = np.random.default_rng(5)
-    xy = np.vstack([rng.uniform(0, 64, (40, 2)), rng.uniform(64, 128, (12, 2)),
-                    [[200.0, 10.0], [10.0, 200.0], [150.0, 150.0]]])
+    xy = np.vstack(
+        [
+            rng.uniform(0, 64, (40, 2)),
+            rng.uniform(64, 128, (12, 2)),
+            [[200.0, 10.0], [10.0, 200.0], [150.0, 150.0]],
+        ]
+    )
     candidates = screening.Candidates(xy, rng.uniform(0, 1, len(xy)), np.ones(len(xy)))
     n_cells = 5
     for evenness in (0.6, 0.8, 0.9, 1.0):
@@ -319,9 +326,7 @@ def test_the_cell_cap_bounds_busy_ground_per_level_and_keeps_what_the_frames_cap
 
 def test_a_window_caps_its_cells_on_the_frames_grid():
     """A window's candidates are capped in the frame's cells, as a full pass caps them."""
-    image = np.clip(np.random.default_rng(6).normal(128, 40, (192, 256)), 0, 255).astype(
-        np.uint8
-    )
+    image = np.clip(np.random.default_rng(6).normal(128, 40, (192, 256)), 0, 255).astype(np.uint8)
     cap = screening.CellCap(64, 8)
     full = screening.saddle_candidates(image, (6.0, 30.0), 20.0, cell_cap=cap)
     x0, y0 = 32, 64  # the crop starts mid-cell in x
@@ -335,9 +340,7 @@ def test_a_window_caps_its_cells_on_the_frames_grid():
 
 
 def test_the_floor_of_the_frames_cap_leaves_what_both_caps_keep_unchanged():
-    image = np.clip(np.random.default_rng(7).normal(128, 40, (256, 320)), 0, 255).astype(
-        np.uint8
-    )
+    image = np.clip(np.random.default_rng(7).normal(128, 40, (256, 320)), 0, 255).astype(np.uint8)
     cells = screening.CellCap(64, 48)
     both = cells._replace(max_total=300)
     without = screening.saddle_candidates(image, (3.0, 30.0), 20.0, cell_cap=cells)

@@ -159,8 +159,11 @@ def test_template_correlation_is_near_one_on_an_x_and_low_on_an_l_corner():
 def test_the_papers_template_ncc_locates_a_blurred_tilted_x_to_a_few_hundredths(kind):
     truth = np.array([[48.37, 47.71]])
     scene = render_markers(
-        (96, 96), [MarkerPlacement(*truth[0], 20.0, 0.4, 30.0, 1.0, kind)], 0,
-        blur_sigma_px=1.0, noise_sigma_dn=1.0,
+        (96, 96),
+        [MarkerPlacement(*truth[0], 20.0, 0.4, 30.0, 1.0, kind)],
+        0,
+        blur_sigma_px=1.0,
+        noise_sigma_dn=1.0,
     )
     angles = np.array([scene.markers[0].angles])
     start = truth + [[0.8, -0.6]]

@@ -60,15 +60,24 @@ def test_each_half_line_lies_between_the_quadrants_its_sides_name():
 
 
 def _rendered(placement: MarkerPlacement, **kwargs: object) -> np.ndarray:
-    return render_markers((80, 80), [placement], 0, reflectances=(0.1, 0.85),
-                          blur_sigma_px=0.9, **kwargs).image
+    return render_markers(
+        (80, 80), [placement], 0, reflectances=(0.1, 0.85), blur_sigma_px=0.9, **kwargs
+    ).image
 
 
-def _fit(image: np.ndarray, xy: np.ndarray, angles: np.ndarray, radius: float = 12.0,
-         noise: float | None = None) -> subpixel.GrownFit:
+def _fit(
+    image: np.ndarray,
+    xy: np.ndarray,
+    angles: np.ndarray,
+    radius: float = 12.0,
+    noise: float | None = None,
+) -> subpixel.GrownFit:
     start = template.TemplateShape.start(xy[None], angles[None], 1.0)
     return subpixel.fit_growing_template(
-        image, start, np.array([4.0]), radius,
+        image,
+        start,
+        np.array([4.0]),
+        radius,
         noise_std=None if noise is None else np.array([noise]),
     )
 
@@ -100,8 +109,7 @@ def test_a_dull_quadrant_keeps_its_own_level_and_moves_the_centre_by_nothing():
 
 def test_a_cast_shadow_across_the_marker_is_found_and_leaves_the_centre_unbiased():
     placement = MarkerPlacement(40.3, 39.6, 12.0, rotation_rad=0.3)
-    shadow = CastShadow(40.3, 39.6, normal_rad=2.0, offset_px=3.0, darkening=0.55,
-                        reach_px=30.0)
+    shadow = CastShadow(40.3, 39.6, normal_rad=2.0, offset_px=3.0, darkening=0.55, reach_px=30.0)
     image = _rendered(placement, cast_shadows=[shadow])
     plain = _fit(image, np.array([41.0, 39.0]), np.array([0.2, 1.9]))
     shaded = _fit(image, np.array([41.0, 39.0]), np.array([0.2, 1.9]), noise=1.0)
@@ -115,8 +123,9 @@ def test_a_cast_shadow_across_the_marker_is_found_and_leaves_the_centre_unbiased
 
 
 def test_a_tilted_marker_s_lines_reach_equally_far_on_both_sides_of_its_centre():
-    placement = MarkerPlacement(40.3, 39.6, 14.0, rotation_rad=0.2, tilt_deg=50.0,
-                                tilt_axis_rad=0.9)
+    placement = MarkerPlacement(
+        40.3, 39.6, 14.0, rotation_rad=0.2, tilt_deg=50.0, tilt_axis_rad=0.9
+    )
     image = _rendered(placement)
     grown = _fit(image, np.array([40.0, 40.0]), np.array([0.3, 1.6]), radius=16.0)
     extents = grown.extents[0]

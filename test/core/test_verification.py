@@ -114,12 +114,14 @@ def _sector_profile(levels: list[float], edges_deg: list[float]) -> np.ndarray:
 
 
 def test_an_x_ring_has_a_line_of_each_sign_and_a_straight_edge_ring_has_none():
-    rings = np.stack([
-        _sector_profile([1.0, 0.1, 1.0, 0.1], [25, 115, 205, 295]),  # X
-        _sector_profile([1.0, 0.1], [25, 205]),  # a straight edge through the centre
-        _sector_profile([1.0, 0.1], [25, 115]),  # an L corner
-        _sector_profile([1.0, 0.1, 0.5], [25, 205, 295]),  # a T junction
-    ])[:, None, :]
+    rings = np.stack(
+        [
+            _sector_profile([1.0, 0.1, 1.0, 0.1], [25, 115, 205, 295]),  # X
+            _sector_profile([1.0, 0.1], [25, 205]),  # a straight edge through the centre
+            _sector_profile([1.0, 0.1], [25, 115]),  # an L corner
+            _sector_profile([1.0, 0.1, 0.5], [25, 205, 295]),  # a T junction
+        ]
+    )[:, None, :]
     found = verification.analyse_ring_edges(rings, min_contrast=0.1)
     assert found.good[:, 0].tolist() == [True, False, False, False]
     np.testing.assert_allclose(

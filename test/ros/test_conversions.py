@@ -130,8 +130,7 @@ def test_an_image_over_max_pixels_is_refused_from_its_width_and_height_alone():
     msg.height, msg.width, msg.step = 30000, 30000, 30000  # data is still 35 B
     with pytest.raises(ImageError, match=r"image: 30000x30000 = 900000000 px exceeds max_pix"):
         image_to_detector_input(msg, DetectorConfig().max_pixels)
-    assert image_to_detector_input(array_to_image(pixels_for("mono8"), "mono8"), 35).shape == (
-        5, 7)
+    assert image_to_detector_input(array_to_image(pixels_for("mono8"), "mono8"), 35).shape == (5, 7)
 
 
 def test_a_hostile_encoding_string_is_quoted_short():
@@ -153,7 +152,12 @@ def test_array_to_image_rejects_pixels_that_do_not_fit_the_encoding():
 def make_detections(n):
     return [
         Detection(
-            x=10.25 + i, y=20.5 - i, score=0.9, sigma=0.01 * (i + 1), angle1=0.1, angle2=1.7,
+            x=10.25 + i,
+            y=20.5 - i,
+            score=0.9,
+            sigma=0.01 * (i + 1),
+            angle1=0.1,
+            angle2=1.7,
             radius_px=12.0,
         )
         for i in range(n)
@@ -195,8 +199,9 @@ def test_cloud_to_array_reads_a_foreign_padded_big_endian_cloud():
         PointField(name="u", offset=0, datatype=PointField.FLOAT32, count=1),
         PointField(name="v", offset=8, datatype=PointField.FLOAT64, count=1),
     ]
-    packed = np.zeros(2, dtype={"names": ["u", "v"], "formats": [">f4", ">f8"],
-                                "offsets": [0, 8], "itemsize": 16})
+    packed = np.zeros(
+        2, dtype={"names": ["u", "v"], "formats": [">f4", ">f8"], "offsets": [0, 8], "itemsize": 16}
+    )
     packed["u"], packed["v"] = points["u"], points["v"]
     cloud.data = array.array("B", packed.tobytes())
     result = cloud_to_array(cloud)

@@ -31,8 +31,9 @@ def healthy_camera(frames=10, period_s=0.5, latency_ms=50.0, markers=3, clock_of
     for i in range(frames):
         t = int((i + 1) * period_s * S)
         stats.frame_received(t, stamp_ns=t)
-        stats.frame_processed(t, latency_ms=latency_ms, clock_offset_s=clock_offset_s,
-                              markers=markers)
+        stats.frame_processed(
+            t, latency_ms=latency_ms, clock_offset_s=clock_offset_s, markers=markers
+        )
     return stats, int(frames * period_s * S)
 
 
@@ -133,8 +134,9 @@ def test_camera_warns_with_the_figure_when_frames_are_lost_before_the_node():
     lost = 100 - arrived.received_in_window
     status = camera_status("marker_localizer", arrived, LIMITS)
     assert level_of(status) == WARN
-    assert status.message == (f"{lost} % of frames lost before the node ({lost} of 100 in 10 s, "
-                              "from stamp gaps at 10 Hz)")
+    assert status.message == (
+        f"{lost} % of frames lost before the node ({lost} of 100 in 10 s, from stamp gaps at 10 Hz)"
+    )
     assert values_of(status)["lost upstream in window"] == str(lost)
 
 
@@ -143,7 +145,9 @@ def test_a_regular_loss_needs_the_expected_rate_to_be_seen():
     assert camera_level(every_other, LIMITS) == (OK, "ok")  # looks like a 5 Hz camera
     at_10_hz = dataclasses.replace(LIMITS, expected_rate_hz=10.0)
     assert camera_level(every_other, at_10_hz) == (
-        WARN, "49 % of frames lost before the node (49 of 100 in 10 s, from stamp gaps at 10 Hz)")
+        WARN,
+        "49 % of frames lost before the node (49 of 100 in 10 s, from stamp gaps at 10 Hz)",
+    )
 
 
 def test_a_long_error_text_is_kept_short_in_the_status():

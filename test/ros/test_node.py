@@ -1,7 +1,5 @@
 """The node in this process with real rclpy and DDS: rendered frames in, sub-pixel points out."""
 
-
-
 import cv2
 import numpy as np
 import pytest
@@ -94,8 +92,11 @@ def test_with_compressed_transport_each_camera_reads_jpeg_and_counts_undecodable
         assert ok
 
         def publish(data, sec):
-            msg = CompressedImage(header=Header(stamp=Time(sec=sec), frame_id="cam0"),
-                                  format="mono8; jpeg compressed mono8", data=data)
+            msg = CompressedImage(
+                header=Header(stamp=Time(sec=sec), frame_id="cam0"),
+                format="mono8; jpeg compressed mono8",
+                data=data,
+            )
             pub.publish(msg)
             return msg.header
 
@@ -104,9 +105,12 @@ def test_with_compressed_transport_each_camera_reads_jpeg_and_counts_undecodable
         assert "not a readable image" in node.processor.snapshots()["cam0"].last_error
         cloud = peer.result_for("cam0/marker_points", publish(jpeg.tobytes(), 2))
         np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=0.05)
-        assert node.get_parameter(
-            "qos_overrides./jpeg/cam0/image_raw/compressed.subscription.reliability"
-        ).value == "reliable"
+        assert (
+            node.get_parameter(
+                "qos_overrides./jpeg/cam0/image_raw/compressed.subscription.reliability"
+            ).value
+            == "reliable"
+        )
     finally:
         peer.stop()
         spinner.stop()

@@ -22,7 +22,7 @@ def edge_information_per_row(blur_px: float, edge_x: float, columns: np.ndarray)
     """Sum over pixels of (d mu / d edge_x)^2 for a unit step blurred by a Gaussian and
     integrated over each pixel's width: exact, per row, per unit contrast^2."""
     derivative = ndtr((columns + 0.5 - edge_x) / blur_px) - ndtr((columns - 0.5 - edge_x) / blur_px)
-    return float(np.sum(derivative ** 2))
+    return float(np.sum(derivative**2))
 
 
 def test_expected_radial_error_is_rayleighs_mean_for_isotropic_and_half_normals_for_a_line():
@@ -45,23 +45,34 @@ def test_fisher_information_of_a_blurred_straight_edge_is_its_analytic_value():
     edge_x = 30.3
     profile = ndtr((columns + 0.5 - edge_x) / blur) - ndtr((columns - 0.5 - edge_x) / blur)
     d_mu_dx = np.tile(-contrast * profile, (rows, 1))
-    information = fisher_information(d_mu_dx, np.zeros_like(d_mu_dx),
-                                     np.full(d_mu_dx.shape, variance),
-                                     np.ones(d_mu_dx.shape, bool))
-    expected = rows * contrast ** 2 / variance * edge_information_per_row(blur, edge_x, columns)
+    information = fisher_information(
+        d_mu_dx,
+        np.zeros_like(d_mu_dx),
+        np.full(d_mu_dx.shape, variance),
+        np.ones(d_mu_dx.shape, bool),
+    )
+    expected = rows * contrast**2 / variance * edge_information_per_row(blur, edge_x, columns)
     # Continuous limit: J = 1 / (2 sqrt(pi) sigma) per unit length, sigma^2 = blur^2 + 1/12.
-    continuous = rows * contrast ** 2 / variance / (2 * math.sqrt(math.pi * (blur ** 2 + 1 / 12)))
+    continuous = rows * contrast**2 / variance / (2 * math.sqrt(math.pi * (blur**2 + 1 / 12)))
     assert information[0, 0] == pytest.approx(expected, rel=1e-12)
     assert information[0, 0] == pytest.approx(continuous, rel=0.01)
     assert information[1, 1] == 0.0
     assert crlb_mean_abs_error(information) == math.inf
 
 
-def crlb_of(radius: float = 30.0, noise: float = 2.0, centre: float = 50.0,
-            size: int = 101) -> float:
+def crlb_of(
+    radius: float = 30.0, noise: float = 2.0, centre: float = 50.0, size: int = 101
+) -> float:
     marker = MarkerPlacement(centre, centre, radius, kind="checker")
-    scene = render_markers((size, size), [marker], 0, reflectances=(DARK, BRIGHT),
-                           blur_sigma_px=1.0, noise_sigma_dn=noise, crlb=True)
+    scene = render_markers(
+        (size, size),
+        [marker],
+        0,
+        reflectances=(DARK, BRIGHT),
+        blur_sigma_px=1.0,
+        noise_sigma_dn=noise,
+        crlb=True,
+    )
     return scene.markers[0].crlb_mean_abs_error_px
 
 
@@ -74,11 +85,11 @@ def test_bound_of_an_upright_checker_is_that_of_its_straight_edges():
     radius, noise = 30.0, 2.0
     contrast = 255 * (BRIGHT - DARK)
     offsets = np.arange(-6.0, 7.0)
-    gaussian = np.exp(-0.5 * offsets ** 2)
+    gaussian = np.exp(-0.5 * offsets**2)
     gaussian /= gaussian.sum()
-    whole = float(np.sum(gaussian ** 2))
+    whole = float(np.sum(gaussian**2))
     up_to_edge = float(np.sum(gaussian[offsets <= 0] ** 2))
-    information = contrast ** 2 / (noise ** 2 + 1 / 12) * 2 * radius * (whole + up_to_edge)
+    information = contrast**2 / (noise**2 + 1 / 12) * 2 * radius * (whole + up_to_edge)
     # Near the centre crossing and the squares' corners the edges fade: ~ blur / radius.
     assert crlb_of(radius, noise) == pytest.approx(math.sqrt(math.pi / 2 / information), rel=0.05)
 
@@ -86,6 +97,6 @@ def test_bound_of_an_upright_checker_is_that_of_its_straight_edges():
 def test_bound_scales_with_the_noise_sigma_and_one_over_root_edge_length():
     base = crlb_of(20.0, 2.0, centre=60.5, size=121)
     assert crlb_of(20.0, 4.0, centre=60.5, size=121) == pytest.approx(
-        base * math.sqrt((16 + 1 / 12) / (4 + 1 / 12)), rel=1e-6)
-    assert crlb_of(40.0, 2.0, centre=60.5, size=121) == pytest.approx(base / math.sqrt(2),
-                                                                       rel=0.03)
+        base * math.sqrt((16 + 1 / 12) / (4 + 1 / 12)), rel=1e-6
+    )
+    assert crlb_of(40.0, 2.0, centre=60.5, size=121) == pytest.approx(base / math.sqrt(2), rel=0.03)

@@ -35,18 +35,23 @@ from marker_localizer.synthetic import (
 from marker_localizer.synthetic.scene import illumination_field, shadow_field
 
 DARK, BRIGHT = 0.1, 0.9
-SMALL_SCENE = SceneConfig(width=320, height=240, n_markers=3, radius_px=(6.0, 20.0),
-                          n_hard_negatives=5)
+SMALL_SCENE = SceneConfig(
+    width=320, height=240, n_markers=3, radius_px=(6.0, 20.0), n_hard_negatives=5
+)
 
 
-def symmetry_residual(image: np.ndarray, centre: tuple[float, float], radius: float,
-                      interpolation: int = cv2.INTER_LINEAR) -> float:
+def symmetry_residual(
+    image: np.ndarray,
+    centre: tuple[float, float],
+    radius: float,
+    interpolation: int = cv2.INTER_LINEAR,
+) -> float:
     """Mean |I - I rotated 180 degrees about centre| over a disk, in DN."""
     cx, cy = centre
     rotation = np.array([[-1.0, 0.0, 2 * cx], [0.0, -1.0, 2 * cy]])
     image = image.astype(np.float32)
     rotated = cv2.warpAffine(image, rotation, image.shape[::-1], flags=interpolation)
-    rows, cols = np.mgrid[:image.shape[0], :image.shape[1]]
+    rows, cols = np.mgrid[: image.shape[0], : image.shape[1]]
     disk = np.hypot(cols - cx, rows - cy) <= radius
     return float(np.abs(image - rotated)[disk].mean())
 
@@ -64,8 +69,12 @@ def plate_radius(truth) -> float:
 def test_sharp_marker_at_half_integer_centre_is_exactly_point_symmetric_about_truth(kind):
     # 2 * centre is integral, so the 180-degree rotation permutes pixels: no interpolation.
     centre = (40.5, 41.0)
-    scene = render_markers((83, 81), [MarkerPlacement(*centre, 20.0, rotation_rad=0.3, kind=kind)],
-                           0, reflectances=(DARK, BRIGHT))
+    scene = render_markers(
+        (83, 81),
+        [MarkerPlacement(*centre, 20.0, rotation_rad=0.3, kind=kind)],
+        0,
+        reflectances=(DARK, BRIGHT),
+    )
     assert symmetry_residual(scene.image, centre, 22.0) < 0.05
     assert symmetry_residual(scene.image, (40.75, 41.0), 22.0) > 3.0
     assert symmetry_residual(scene.image, (40.5, 41.25), 22.0) > 3.0
@@ -74,8 +83,13 @@ def test_sharp_marker_at_half_integer_centre_is_exactly_point_symmetric_about_tr
 @pytest.mark.parametrize("centre", [(40.25, 40.75), (40.5, 40.25), (39.8, 40.3)])
 def test_marker_at_quarter_position_is_point_symmetric_about_truth_not_a_quarter_pixel_off(centre):
     # A little blur makes cubic interpolation of the rotated image accurate.
-    scene = render_markers((81, 81), [MarkerPlacement(*centre, 20.0, rotation_rad=0.3)], 0,
-                           reflectances=(DARK, BRIGHT), blur_sigma_px=1.0)
+    scene = render_markers(
+        (81, 81),
+        [MarkerPlacement(*centre, 20.0, rotation_rad=0.3)],
+        0,
+        reflectances=(DARK, BRIGHT),
+        blur_sigma_px=1.0,
+    )
     at_truth = symmetry_residual(scene.image, centre, 22.0, cv2.INTER_CUBIC)
     assert at_truth < 1.0
     for dx, dy in [(0.25, 0.0), (0.0, 0.25), (-0.25, 0.0), (0.0, -0.25)]:
@@ -88,8 +102,13 @@ def test_pixel_straddling_a_straight_edge_holds_the_exact_area_fraction(edge_x):
     # Untilted quarter disks: the u = 0 edge is the vertical line x = edge_x. Row 40
     # lies above the centre (v < 0): dark to the left (quadrant 3), bright to the right.
     supersampling = 16
-    scene = render_markers((101, 101), [MarkerPlacement(edge_x, 50.7, 30.0)], 0,
-                           reflectances=(DARK, BRIGHT), supersampling=supersampling)
+    scene = render_markers(
+        (101, 101),
+        [MarkerPlacement(edge_x, 50.7, 30.0)],
+        0,
+        reflectances=(DARK, BRIGHT),
+        supersampling=supersampling,
+    )
     column = round(edge_x)
     dark_area = min(max(edge_x - (column - 0.5), 0.0), 1.0)
     measured = (BRIGHT - scene.image[40, column] / 255.0) / (BRIGHT - DARK)
@@ -103,9 +122,15 @@ def test_pixel_straddling_a_straight_edge_holds_the_exact_area_fraction(edge_x):
 def test_uniform_pixels_shortcut_equals_full_supersampling_for_every_pattern():
     rng = np.random.default_rng(3)
     for i, (name, pattern) in enumerate(PATTERNS.items()):
-        placement = MarkerPlacement(30 + rng.uniform(-1, 1), 30 + rng.uniform(-1, 1),
-                                    rng.uniform(4, 18), rng.uniform(0, 6), rng.uniform(0, 70),
-                                    rng.uniform(0, 3), name)
+        placement = MarkerPlacement(
+            30 + rng.uniform(-1, 1),
+            30 + rng.uniform(-1, 1),
+            rng.uniform(4, 18),
+            rng.uniform(0, 6),
+            rng.uniform(0, 70),
+            rng.uniform(0, 3),
+            name,
+        )
         target = PlanarTarget(marker_homography(placement), pattern, DARK, BRIGHT, i % 2 == 0)
         fast = np.full((61, 61), 0.45, np.float32)
         exhaustive = fast.copy()
@@ -125,11 +150,12 @@ def test_truth_centre_is_the_homography_image_of_the_plane_origin():
 
 
 def test_tilted_marker_homography_has_true_perspective_and_exact_centre():
-    placement = MarkerPlacement(123.456, 78.9, 40.0, rotation_rad=0.2, tilt_deg=60.0,
-                                tilt_axis_rad=0.7)
+    placement = MarkerPlacement(
+        123.456, 78.9, 40.0, rotation_rad=0.2, tilt_deg=60.0, tilt_axis_rad=0.7
+    )
     h = marker_homography(placement)
     assert tuple(h @ [0.0, 0.0, 1.0]) == (123.456, 78.9, 1.0)
-    assert np.hypot(h[2, 0], h[2, 1]) > 1e-3      # not affine
+    assert np.hypot(h[2, 0], h[2, 1]) > 1e-3  # not affine
     # Foreshortening: the image direction across the tilt axis shrinks to ~cos(60) = 0.5.
     # The plane directions that land along / across it are rotated back by the in-plane 0.2.
     axis = np.array([math.cos(0.7 - 0.2), math.sin(0.7 - 0.2)])
@@ -159,8 +185,10 @@ def test_foreshortened_radius_is_the_radius_times_cos_tilt(tilt_deg, foreshorten
 
 
 def test_inverted_marker_swaps_dark_and_bright_paint():
-    placements = [MarkerPlacement(20.0, 20.0, 12.0),
-                  MarkerPlacement(60.0, 20.0, 12.0, inverted=True)]
+    placements = [
+        MarkerPlacement(20.0, 20.0, 12.0),
+        MarkerPlacement(60.0, 20.0, 12.0, inverted=True),
+    ]
     image = render_markers((40, 80), placements, 0, reflectances=(DARK, BRIGHT)).image
     # Quadrant 1 (u > 0, v > 0) is down-right of the centre; the plate border is at 1.1 radii.
     assert image[25, 25] == round(255 * DARK) and image[25, 65] == round(255 * BRIGHT)
@@ -172,23 +200,36 @@ def test_inverted_marker_swaps_dark_and_bright_paint():
 
 def test_checkerboard_truth_has_100_corners_that_are_point_symmetric_centres():
     square = 24.0
-    scene = render_checkerboard((400, 440), (10, 10), square, rotation_rad=0.15,
-                                background="flat", blur_sigma_px=1.0, noise_sigma_dn=0.0, seed=1)
+    scene = render_checkerboard(
+        (400, 440),
+        (10, 10),
+        square,
+        rotation_rad=0.15,
+        background="flat",
+        blur_sigma_px=1.0,
+        noise_sigma_dn=0.0,
+        seed=1,
+    )
     assert len(scene.markers) == 100
     corners = scene.centres
     spacing = np.linalg.norm(np.diff(corners[:10], axis=0), axis=1)
     np.testing.assert_allclose(spacing, square, rtol=1e-9)
-    residuals = [symmetry_residual(scene.image, (x, y), 0.8 * square, cv2.INTER_CUBIC)
-                 for x, y in corners[::7]]
-    shifted = [symmetry_residual(scene.image, (x + 0.25, y), 0.8 * square, cv2.INTER_CUBIC)
-               for x, y in corners[::7]]
+    residuals = [
+        symmetry_residual(scene.image, (x, y), 0.8 * square, cv2.INTER_CUBIC)
+        for x, y in corners[::7]
+    ]
+    shifted = [
+        symmetry_residual(scene.image, (x + 0.25, y), 0.8 * square, cv2.INTER_CUBIC)
+        for x, y in corners[::7]
+    ]
     assert max(residuals) < 1.0
     assert min(shifted) > 4 * max(residuals)
 
 
 def test_checkerboard_under_perspective_keeps_corners_on_the_board_homography():
-    scene = render_checkerboard((480, 640), (10, 10), 20.0, tilt_deg=40.0, tilt_axis_rad=0.3,
-                                seed=2)
+    scene = render_checkerboard(
+        (480, 640), (10, 10), 20.0, tilt_deg=40.0, tilt_axis_rad=0.3, seed=2
+    )
     board = scene.markers[0].homography @ np.array([[1, 0, 4.5], [0, 1, 4.5], [0, 0, 1.0]])
     grid = np.array([(k - 4.5, m - 4.5) for m in range(10) for k in range(10)])
     np.testing.assert_allclose(scene.centres, project(board, grid), atol=1e-9)
@@ -204,8 +245,10 @@ def test_checkerboard_too_big_for_the_frame_raises():
 
 
 def test_render_scene_returns_uint8_frame_of_the_requested_shape():
-    scene = render_scene(SceneConfig(width=333, height=211, n_markers=2, radius_px=(6.0, 15.0),
-                                     n_hard_negatives=3), 0)
+    scene = render_scene(
+        SceneConfig(width=333, height=211, n_markers=2, radius_px=(6.0, 15.0), n_hard_negatives=3),
+        0,
+    )
     assert scene.image.dtype == np.uint8
     assert scene.image.shape == (211, 333)
 
@@ -220,8 +263,14 @@ def test_rendering_is_deterministic_for_a_seed():
 
 
 def test_markers_overlap_neither_each_other_nor_the_frame_border():
-    config = SceneConfig(width=480, height=360, n_markers=25, radius_px=(6.0, 25.0),
-                         n_hard_negatives=0, background="flat")
+    config = SceneConfig(
+        width=480,
+        height=360,
+        n_markers=25,
+        radius_px=(6.0, 25.0),
+        n_hard_negatives=0,
+        background="flat",
+    )
     scene = render_scene(config, 5)
     radii = np.array([plate_radius(m) for m in scene.markers])
     centres = scene.centres
@@ -235,8 +284,9 @@ def test_markers_overlap_neither_each_other_nor_the_frame_border():
 
 def test_hard_negatives_are_drawn_clear_of_the_markers():
     marker = MarkerPlacement(100.0, 100.0, 20.0)
-    scene = render_markers((200, 300), [marker], 0, n_hard_negatives=8,
-                           negative_radius_px=(6.0, 15.0))
+    scene = render_markers(
+        (200, 300), [marker], 0, n_hard_negatives=8, negative_radius_px=(6.0, 15.0)
+    )
     assert len(scene.negatives) == 8
     assert {kind for kind, _, _ in scene.negatives} <= set(NEGATIVE_KINDS)
     marker_reach = plate_radius(scene.markers[0])
@@ -248,8 +298,9 @@ def test_hard_negatives_are_drawn_clear_of_the_markers():
 
 
 def test_default_scene_holds_many_kinds_of_hard_negatives():
-    config = SceneConfig(width=640, height=480, n_markers=4, radius_px=(6.0, 20.0),
-                         n_hard_negatives=20)
+    config = SceneConfig(
+        width=640, height=480, n_markers=4, radius_px=(6.0, 20.0), n_hard_negatives=20
+    )
     scene = render_scene(config, 3)
     assert len(scene.negatives) == 20
     assert len({kind for kind, _, _ in scene.negatives}) >= 5
@@ -261,10 +312,17 @@ def test_more_markers_than_fit_raise_a_clear_value_error():
         render_scene(config, 0)
 
 
-@pytest.mark.parametrize("bad", [
-    {"radius_px": (40.0, 6.0)}, {"max_tilt_deg": 85.0}, {"marker_kinds": ("circle",)},
-    {"background": "sky"}, {"n_markers": -1}, {"illumination_strength": 2.0},
-])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"radius_px": (40.0, 6.0)},
+        {"max_tilt_deg": 85.0},
+        {"marker_kinds": ("circle",)},
+        {"background": "sky"},
+        {"n_markers": -1},
+        {"illumination_strength": 2.0},
+    ],
+)
 def test_bad_configuration_values_raise_value_error_naming_the_field(bad):
     name = next(iter(bad))
     with pytest.raises(ValueError, match=name):
@@ -284,15 +342,17 @@ def test_read_noise_std_in_a_flat_region_matches_the_requested_sigma():
 def test_shot_noise_grows_with_the_signal_as_poisson_predicts():
     full_well = 2000.0
     for level in (0.2, 0.7):
-        image = render_markers((200, 200), [], 1, background_level=level,
-                               shot_noise_gain_dn=255 / full_well).image
+        image = render_markers(
+            (200, 200), [], 1, background_level=level, shot_noise_gain_dn=255 / full_well
+        ).image
         expected = 255 * math.sqrt(level / full_well)
-        assert image.std() == pytest.approx(math.sqrt(expected ** 2 + 1 / 12), rel=0.04)
+        assert image.std() == pytest.approx(math.sqrt(expected**2 + 1 / 12), rel=0.04)
 
 
 def test_gamma_encodes_radiance_as_radiance_to_the_power_one_over_gamma():
-    frame = apply_imaging(np.full((4, 4), 0.25, np.float32), ImagingConditions(gamma=2.0),
-                          np.random.default_rng(0))
+    frame = apply_imaging(
+        np.full((4, 4), 0.25, np.float32), ImagingConditions(gamma=2.0), np.random.default_rng(0)
+    )
     assert np.all(frame == round(255 * 0.5))
 
 
@@ -308,8 +368,8 @@ def test_motion_blur_kernel_is_normalised_centred_and_as_long_as_asked(length, a
     along = dx * math.cos(angle) + dy * math.sin(angle)
     # A uniform segment of length L has variance L^2 / 12; bilinear splatting adds
     # f * (1 - f) <= 1/4 for a sample at fractional offset f.
-    variance = float((kernel * along ** 2).sum())
-    assert length ** 2 / 12 <= variance + 1e-6 <= length ** 2 / 12 + 1 / 4
+    variance = float((kernel * along**2).sum())
+    assert length**2 / 12 <= variance + 1e-6 <= length**2 / 12 + 1 / 4
 
 
 def test_light_fields_are_smooth_gains_in_their_documented_ranges():
@@ -319,13 +379,18 @@ def test_light_fields_are_smooth_gains_in_their_documented_ranges():
     assert light.max() - light.min() > 0.2
     assert np.abs(np.diff(light, axis=1)).max() < 0.05
     shadows = shadow_field((240, 320), 3, rng)
-    assert shadows.min() >= 0.4 ** 3 - 1e-6 and shadows.max() <= 1.0 + 1e-6
+    assert shadows.min() >= 0.4**3 - 1e-6 and shadows.max() <= 1.0 + 1e-6
     assert shadows.min() < 0.75
 
 
 def test_uniform_light_leaves_the_scene_untouched():
-    scene = render_markers((50, 50), [MarkerPlacement(25.0, 25.0, 10.0)], 0,
-                           reflectances=(DARK, BRIGHT), illumination_strength=0.0)
+    scene = render_markers(
+        (50, 50),
+        [MarkerPlacement(25.0, 25.0, 10.0)],
+        0,
+        reflectances=(DARK, BRIGHT),
+        illumination_strength=0.0,
+    )
     assert scene.image[25 + 4, 25 + 4] == round(255 * DARK)
 
 
@@ -345,12 +410,17 @@ def test_texture_background_is_cluttered_reflectance_of_any_size():
         assert ground.shape == shape and ground.dtype == np.float32
         assert ground.min() > 0.0 and ground.max() < 1.0
     assert ground.std() > 0.02
-    assert np.abs(np.diff(ground, axis=1)).mean() > 0.005   # texture, not a smooth ramp
+    assert np.abs(np.diff(ground, axis=1)).mean() > 0.005  # texture, not a smooth ramp
 
 
 def test_texture_scene_keeps_truth_exact_on_clutter():
-    scene = render_markers((120, 120), [MarkerPlacement(60.5, 60.0, 25.0, rotation_rad=0.5)], 2,
-                           background="texture", reflectances=(DARK, BRIGHT))
+    scene = render_markers(
+        (120, 120),
+        [MarkerPlacement(60.5, 60.0, 25.0, rotation_rad=0.5)],
+        2,
+        background="texture",
+        reflectances=(DARK, BRIGHT),
+    )
     # Inside the plate the ground is hidden: still exactly point-symmetric.
     assert symmetry_residual(scene.image, (60.5, 60.0), 28.0) < 0.05
 
@@ -361,11 +431,12 @@ def test_texture_scene_keeps_truth_exact_on_clutter():
 @pytest.mark.parametrize("inverted", [False, True])
 def test_a_dull_quadrant_scales_one_bright_quadrant_and_nothing_else(inverted):
     dark, bright = (BRIGHT, DARK) if inverted else (DARK, BRIGHT)
-    marker = MarkerPlacement(40.0, 40.0, 20.0, kind="checker", inverted=inverted,
-                             dull_factor=0.5, dull_quadrant=0)
+    marker = MarkerPlacement(
+        40.0, 40.0, 20.0, kind="checker", inverted=inverted, dull_factor=0.5, dull_quadrant=0
+    )
     image = render_markers((81, 81), [marker], 0, reflectances=(DARK, BRIGHT)).image
-    dull = (30, 50) if not inverted else (50, 50)     # (x, y) of quadrant 0: u < 0 < v
-    other = (50, 30) if not inverted else (30, 30)    # the other bright quadrant
+    dull = (30, 50) if not inverted else (50, 50)  # (x, y) of quadrant 0: u < 0 < v
+    other = (50, 30) if not inverted else (30, 30)  # the other bright quadrant
     lit = max(dark, bright)
     assert image[dull[1], dull[0]] == round(255 * 0.5 * lit)
     assert image[other[1], other[0]] == round(255 * lit)
@@ -375,23 +446,33 @@ def test_a_dull_quadrant_scales_one_bright_quadrant_and_nothing_else(inverted):
 
 def test_a_cast_shadow_darkens_its_half_plane_by_the_drawn_factor_within_its_reach():
     shadow = CastShadow(50.0, 50.0, normal_rad=0.0, offset_px=3.0, darkening=0.5, reach_px=30.0)
-    image = render_markers((101, 101), [], 0, background_level=0.8,
-                           cast_shadows=[shadow]).image.astype(float)
+    image = render_markers(
+        (101, 101), [], 0, background_level=0.8, cast_shadows=[shadow]
+    ).image.astype(float)
     lit = 255 * 0.8
-    assert image[50, 60] == pytest.approx(0.5 * lit, abs=0.6)   # x - 50 >= 3: shadow
-    assert image[50, 45] == pytest.approx(lit, abs=0.6)         # the sunlit side
-    assert image[50, 90] == pytest.approx(lit, abs=0.6)         # beyond its reach
+    assert image[50, 60] == pytest.approx(0.5 * lit, abs=0.6)  # x - 50 >= 3: shadow
+    assert image[50, 45] == pytest.approx(lit, abs=0.6)  # the sunlit side
+    assert image[50, 90] == pytest.approx(lit, abs=0.6)  # beyond its reach
     # A hard edge: the light changes within about a pixel of x = 53.
     assert image[50, 52] > 0.8 * lit and image[50, 54] < 0.6 * lit
 
 
 def test_cast_shadows_of_a_scene_cross_their_markers_within_the_drawn_distance():
-    config = SceneConfig(width=480, height=360, n_markers=4, radius_px=(8.0, 16.0),
-                         n_hard_negatives=0, shadow_probability=1.0)
+    config = SceneConfig(
+        width=480,
+        height=360,
+        n_markers=4,
+        radius_px=(8.0, 16.0),
+        n_hard_negatives=0,
+        shadow_probability=1.0,
+    )
     scene = render_scene(config, 5)
     assert len(scene.imaging.cast_shadows) == 4
-    for shadow, truth in zip(sorted(scene.imaging.cast_shadows, key=lambda s: s.x),
-                             sorted(scene.markers, key=lambda m: m.x), strict=True):
+    for shadow, truth in zip(
+        sorted(scene.imaging.cast_shadows, key=lambda s: s.x),
+        sorted(scene.markers, key=lambda m: m.x),
+        strict=True,
+    ):
         assert (shadow.x, shadow.y) == (truth.x, truth.y)
         assert abs(shadow.offset_px) <= 0.6 * truth.foreshortened_radius_px
         assert 0.4 <= shadow.darkening <= 0.65
@@ -408,13 +489,17 @@ def test_jpeg_changes_the_frame_a_little_and_keeps_the_truth():
 
 def test_field_conditions_left_off_keep_a_seeds_frame():
     config = dataclasses.replace(SMALL_SCENE, dull_factor=(0.5, 0.6), jpeg_quality=(80, 80))
-    np.testing.assert_array_equal(render_scene(SMALL_SCENE, 8).image,
-                                  render_scene(config, 8).image)
+    np.testing.assert_array_equal(render_scene(SMALL_SCENE, 8).image, render_scene(config, 8).image)
 
 
 def test_peak_level_and_contrast_set_the_output_levels():
-    scene = render_markers((60, 60), [MarkerPlacement(30.0, 30.0, 12.0, kind="checker")], 0,
-                           contrast=(0.4, 0.4), peak_level=0.7)
+    scene = render_markers(
+        (60, 60),
+        [MarkerPlacement(30.0, 30.0, 12.0, kind="checker")],
+        0,
+        contrast=(0.4, 0.4),
+        peak_level=0.7,
+    )
     dark, bright = scene.image[26, 26], scene.image[26, 34]
     assert (float(bright) - float(dark)) == pytest.approx(0.4 * 0.7 * 255, abs=1.0)
 
@@ -422,7 +507,8 @@ def test_peak_level_and_contrast_set_the_output_levels():
 def test_ground_at_quarter_scale_is_area_averaged_not_aliased_into_noise():
     # Bilinear sampling alone keeps 1 texture pixel in 16: gravel's neighbouring
     # pixels then correlate at 0.34; the area-averaged ground at 0.64.
-    ground = texture_background((240, 320), np.random.default_rng(1), names=("gravel",),
-                                scale_range=(0.25, 0.25))
+    ground = texture_background(
+        (240, 320), np.random.default_rng(1), names=("gravel",), scale_range=(0.25, 0.25)
+    )
     neighbours = np.corrcoef(ground[:, :-1].ravel(), ground[:, 1:].ravel())[0, 1]
     assert neighbours > 0.5
