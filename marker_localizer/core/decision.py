@@ -24,9 +24,10 @@ the calibration in :data:`FALSE_ALARM_TAIL`.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
+from numpy.typing import NDArray
 
 from marker_localizer.core import template, verification
 from marker_localizer.core.noise import NoiseModel
@@ -119,26 +120,26 @@ class Evidence(NamedTuple):
             the X (1 for even paint).
     """
 
-    converged: np.ndarray
-    line_angle_rad: np.ndarray
-    edge_t: np.ndarray
-    extent_px: np.ndarray
-    extent_balance: np.ndarray
-    fit_ratio: np.ndarray
-    contrast: np.ndarray
-    blur_px: np.ndarray
-    light_change: np.ndarray
-    step_ratio: np.ndarray
-    shadow_depth: np.ndarray
-    point_symmetry: np.ndarray
+    converged: NDArray[np.bool_]
+    line_angle_rad: NDArray[np.float64]
+    edge_t: NDArray[np.float64]
+    extent_px: NDArray[np.float64]
+    extent_balance: NDArray[np.float64]
+    fit_ratio: NDArray[np.float64]
+    contrast: NDArray[np.float64]
+    blur_px: NDArray[np.float64]
+    light_change: NDArray[np.float64]
+    step_ratio: NDArray[np.float64]
+    shadow_depth: NDArray[np.float64]
+    point_symmetry: NDArray[np.float64]
 
 
-def _edge_steps(levels: np.ndarray) -> np.ndarray:
+def _edge_steps(levels: NDArray[np.float64]) -> NDArray[np.float64]:
     """(N, 4) the level steps across the four edges, in the order of ``QUADRANT_EDGES``."""
     return levels[:, list(_EDGE_FIRST)] - levels[:, list(_EDGE_SECOND)]
 
 
-def weakest_edge_t(fit: TemplateFit) -> np.ndarray:
+def weakest_edge_t(fit: TemplateFit) -> NDArray[np.float64]:
     """(N,) the weakest edge's step in standard errors, negative where the X's order breaks.
 
     An X alternates across its four edges: their steps have signs s, -s, s, -s going
@@ -150,10 +151,10 @@ def weakest_edge_t(fit: TemplateFit) -> np.ndarray:
     variance = cov[:, first, first] + cov[:, second, second] - 2.0 * cov[:, first, second]
     t = step / np.sqrt(np.maximum(variance, 1e-12))
     alternation = np.sign(step[:, :1]) * np.array([1.0, -1.0, 1.0, -1.0])
-    return (t * alternation).min(axis=1)
+    return cast("NDArray[np.float64]", (t * alternation).min(axis=1))
 
 
-def worth_growing(fit: TemplateFit, extents: np.ndarray) -> np.ndarray:
+def worth_growing(fit: TemplateFit, extents: NDArray[np.float64]) -> NDArray[np.float64]:
     """(N,) which candidates grow on: those whose fit on a small region is still an X.
 
     The tests of :func:`decide` that a small region can already answer, leniently
@@ -163,18 +164,19 @@ def worth_growing(fit: TemplateFit, extents: np.ndarray) -> np.ndarray:
     :data:`_GROW_SLACK`).
     """
     reach = np.maximum(extents.mean(axis=1), 1.0)
-    return (
+    return cast(
+        "NDArray[np.float64]",
         (weakest_edge_t(fit) >= _GROW_MIN_EDGE_T)
         & (fit.shape.blur_px.max(axis=1) <= _GROW_SLACK * MAX_BLUR_PX)
-        & (np.linalg.norm(fit.shape.gain, axis=1) * reach <= _GROW_SLACK * MAX_LIGHT_CHANGE)
+        & (np.linalg.norm(fit.shape.gain, axis=1) * reach <= _GROW_SLACK * MAX_LIGHT_CHANGE),
     )
 
 
 def gather_evidence(
-    image: np.ndarray,
+    image: NDArray[Any],
     grown: GrownFit,
-    start_xy: np.ndarray,
-    max_shift_px: np.ndarray,
+    start_xy: NDArray[np.float64],
+    max_shift_px: NDArray[np.float64],
     noise: NoiseModel,
 ) -> Evidence:
     """Read the decision's evidence off a grown template fit.
@@ -222,7 +224,9 @@ def gather_evidence(
 _SYMMETRY_RINGS = (0.35, 0.55, 0.75)
 
 
-def _ring_symmetry(image: np.ndarray, xy: np.ndarray, reach_px: np.ndarray) -> np.ndarray:
+def _ring_symmetry(
+    image: NDArray[Any], xy: NDArray[np.float64], reach_px: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """(N,) the grey levels' 180-degree self-correlation on rings inside the X, averaged.
 
     Even paint makes an X's rings point-symmetric (1), a dull quadrant or a shadow
@@ -238,7 +242,7 @@ def _ring_symmetry(image: np.ndarray, xy: np.ndarray, reach_px: np.ndarray) -> n
         ],
         axis=1,
     )
-    return symmetry.mean(axis=1)
+    return cast("NDArray[np.float64]", symmetry.mean(axis=1))
 
 
 class Decision(NamedTuple):
@@ -251,9 +255,9 @@ class Decision(NamedTuple):
         score: (N,) the ranking score (larger is more marker-like).
     """
 
-    accepted: np.ndarray
-    reason: np.ndarray
-    score: np.ndarray
+    accepted: NDArray[np.bool_]
+    reason: NDArray[np.integer[Any]]
+    score: NDArray[np.float64]
 
 
 class Verdicts(NamedTuple):
@@ -267,7 +271,7 @@ class Verdicts(NamedTuple):
         evidence: the :class:`Evidence` it was taken on.
     """
 
-    xy: np.ndarray
+    xy: NDArray[np.float64]
     decision: Decision
     evidence: Evidence
 
@@ -276,7 +280,7 @@ class Verdicts(NamedTuple):
         return ["accepted" if r < 0 else REASONS[r] for r in self.decision.reason]
 
 
-def marker_score(evidence: Evidence, min_radius_px: float) -> np.ndarray:
+def marker_score(evidence: Evidence, min_radius_px: float) -> NDArray[np.float64]:
     """The decision's score: a marker's log-odds against ground texture.
 
     A logistic model, linear in features that each say, on its own, how much a
@@ -296,10 +300,13 @@ def marker_score(evidence: Evidence, min_radius_px: float) -> np.ndarray:
     Returns:
         (N,) log-odds; :func:`threshold_for_rate` says where to cut.
     """
-    return score_features(evidence, min_radius_px) @ np.array(SCORE_WEIGHTS) + SCORE_BIAS
+    return cast(
+        "NDArray[np.float64]",
+        score_features(evidence, min_radius_px) @ np.array(SCORE_WEIGHTS) + SCORE_BIAS,
+    )
 
 
-def score_features(evidence: Evidence, min_radius_px: float) -> np.ndarray:
+def score_features(evidence: Evidence, min_radius_px: float) -> NDArray[np.float64]:
     """(N, 8) the features :func:`marker_score` weighs, in the order of :data:`SCORE_FEATURES`."""
     return np.stack(
         [
@@ -317,7 +324,7 @@ def score_features(evidence: Evidence, min_radius_px: float) -> np.ndarray:
     )
 
 
-def confidence(score: np.ndarray) -> np.ndarray:
+def confidence(score: NDArray[np.float64]) -> NDArray[np.float64]:
     """The score as a probability-like number in (0, 1): the logistic of the log-odds."""
     return 1.0 / (1.0 + np.exp(-np.clip(score, -50.0, 50.0)))
 

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from marker_localizer.errors import ImageError
 
 _CHANNEL_CONVERSIONS = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}
 
 
-def bit_depth_scale(dtype: np.dtype, bit_depth: int = 16) -> float:
+def bit_depth_scale(dtype: np.dtype[Any], bit_depth: int = 16) -> float:
     """Full-scale value (white) of an integer image, from its type and bit depth.
 
     255 for uint8; 2**bit_depth - 1 for uint16 (a 12-bit sensor in 16-bit words:
@@ -23,8 +26,8 @@ def bit_depth_scale(dtype: np.dtype, bit_depth: int = 16) -> float:
 
 
 def to_gray(
-    image: np.ndarray, *, rgb: bool = False, bit_depth: int = 16
-) -> tuple[np.ndarray, float]:
+    image: NDArray[Any], *, rgb: bool = False, bit_depth: int = 16
+) -> tuple[NDArray[np.float64], float]:
     """Reduce a grey or colour image to one channel, keeping its dtype.
 
     The detector samples the frame in its native dtype (a 12-megapixel uint8

@@ -21,9 +21,10 @@ References:
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
 #: Pixels of the sparse lattice the noise is measured on: enough for a 1 % estimate
 #: per brightness bin, a fixed cost on any frame size.
@@ -61,13 +62,14 @@ class NoiseModel(NamedTuple):
     gain: float
     floor_std: float
 
-    def std(self, level: np.ndarray | float) -> np.ndarray:
+    def std(self, level: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Noise std at grey ``level`` (any shape), image units."""
         variance = self.read_variance + self.gain * np.maximum(level, 0.0)
-        return np.maximum(np.sqrt(np.maximum(variance, 0.0)), self.floor_std)
+        std: NDArray[np.float64] = np.maximum(np.sqrt(np.maximum(variance, 0.0)), self.floor_std)
+        return std
 
 
-def estimate_noise(image: np.ndarray, full_scale: float) -> NoiseModel:
+def estimate_noise(image: NDArray[Any], full_scale: float) -> NoiseModel:
     """Estimate the frame's Poisson-Gaussian noise sigma^2 = read^2 + gain * I.
 
     Args:
@@ -87,8 +89,9 @@ def estimate_noise(image: np.ndarray, full_scale: float) -> NoiseModel:
     centre = (rows[:, None] * width + cols[None, :]).ravel()
     flat = image.reshape(-1)
 
-    def at(dy: int, dx: int) -> np.ndarray:
-        return flat[centre + dy * width + dx].astype(np.float64)
+    def at(dy: int, dx: int) -> NDArray[np.float64]:
+        samples: NDArray[np.float64] = flat[centre + dy * width + dx].astype(np.float64)
+        return samples
 
     north, south, west, east = at(-1, 0), at(1, 0), at(0, -1), at(0, 1)
     corners = at(-1, -1) + at(-1, 1) + at(1, -1) + at(1, 1)

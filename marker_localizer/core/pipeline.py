@@ -12,8 +12,10 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from marker_localizer.config import DetectorConfig
@@ -201,7 +203,7 @@ class DetectionResult:
     def __getitem__(self, index: int) -> Detection:
         return self.detections[index]
 
-    def as_array(self) -> np.ndarray:
+    def as_array(self) -> NDArray[np.float64]:
         """(N, 7) float64: x, y, score, sigma, angle1, angle2, radius_px."""
         return np.array(
             [
@@ -235,10 +237,10 @@ class Detector:
 
     def detect(
         self,
-        image: np.ndarray,
-        regions: np.ndarray | None = None,
-        known: np.ndarray | None = None,
-        seeds: np.ndarray | None = None,
+        image: NDArray[Any],
+        regions: NDArray[np.integer[Any]] | None = None,
+        known: NDArray[np.float64] | None = None,
+        seeds: NDArray[np.float64] | None = None,
     ) -> DetectionResult:
         """Find and locate every diagonal marker in ``image``.
 
@@ -277,8 +279,8 @@ class Detector:
             measured = regions
             if regions is not None and len(seeds):
                 # The local means of Eq. (2) are looked up at each candidate's centre.
-                start = np.floor(seeds).astype(np.int64)
-                seed_boxes = np.hstack([start, start + 2])
+                corner = np.floor(seeds).astype(np.int64)
+                seed_boxes = np.hstack([corner, corner + 2])
                 measured = np.vstack([np.reshape(regions, (-1, 4)), seed_boxes])
             if noise is None or cfg.candidate_detector == "curvature":
                 gamma = preprocessing.LocalGamma(
@@ -338,11 +340,11 @@ class Detector:
 
     def locate(
         self,
-        image: np.ndarray,
-        xy: np.ndarray,
-        radius_px: np.ndarray,
-        line_angles: np.ndarray,
-        evidence: np.ndarray,
+        image: NDArray[Any],
+        xy: NDArray[np.float64],
+        radius_px: NDArray[np.float64],
+        line_angles: NDArray[np.float64],
+        evidence: NDArray[np.float64],
     ) -> DetectionResult:
         """Section 3.3 alone: sub-pixel centres and final gates of markers known to be there.
 
@@ -398,7 +400,7 @@ class Detector:
 
     def _confirm(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         full_scale: float,
         gamma: preprocessing.LocalGamma,
         candidates: Candidates,
@@ -428,7 +430,7 @@ class Detector:
 
     def _confirm_paper(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         full_scale: float,
         gamma: preprocessing.LocalGamma,
         noise: NoiseModel | None,
@@ -543,10 +545,10 @@ class Detector:
 
     def _screen(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         full_scale: float,
         counts: dict[str, int],
-        regions: np.ndarray | None = None,
+        regions: NDArray[np.integer[Any]] | None = None,
     ) -> Candidates:
         """Section 3.2, first layers: candidates, suppression, grid-entropy thinning, cap."""
         cfg = self.config
@@ -572,7 +574,7 @@ class Detector:
 
     def _find_candidates(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         full_scale: float,
         window: tuple[int, int, int, int] | None = None,
         origin_px: tuple[int, int] = (0, 0),
@@ -621,7 +623,11 @@ class Detector:
         )
 
     def _find_in_regions(
-        self, gray: np.ndarray, full_scale: float, regions: np.ndarray, cut: dict[str, int]
+        self,
+        gray: NDArray[Any],
+        full_scale: float,
+        regions: NDArray[np.float64],
+        cut: dict[str, int],
     ) -> Candidates:
         """Candidates inside each window, found on the window plus a margin for the filters.
 
@@ -655,7 +661,7 @@ class Detector:
 
     def _prescreen(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         full_scale: float,
         candidates: Candidates,
         counts: dict[str, int],
@@ -687,12 +693,12 @@ class Detector:
 
     def _order_prescreen(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         full_scale: float,
         noise: NoiseModel,
         candidates: Candidates,
         counts: dict[str, int],
-    ) -> tuple[Candidates, np.ndarray]:
+    ) -> tuple[Candidates, NDArray[np.float64]]:
         """``refinement="template"``: the order of the sectors on the prescreen's rings.
 
         Lenient per ring (edges a few noise widths strong, or a tenth of the
@@ -721,12 +727,12 @@ class Detector:
 
     def _straight_edges(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         full_scale: float,
         candidates: Candidates,
-        angles: np.ndarray,
+        angles: NDArray[np.float64],
         counts: dict[str, int],
-    ) -> tuple[Candidates, np.ndarray]:
+    ) -> tuple[Candidates, NDArray[np.float64]]:
         """``refinement="template"``: the double-line check (Eq. 9) before any fit.
 
         Straight edges crossing at the candidate are geometry, which a dull
@@ -746,15 +752,18 @@ class Detector:
         counts["rejected_lines"] = int((~lines.accepted).sum())
         return candidates.take(lines.accepted), angles[lines.accepted]
 
-    def _prescreen_radii(self, candidates: Candidates) -> np.ndarray:
+    def _prescreen_radii(self, candidates: Candidates) -> NDArray[np.float64]:
         """(N, 3) the prescreen's ring radii for each candidate, px."""
         floor_px = min(
             _PRESCREEN_MIN_RING_PX,
             _PRESCREEN_MIN_RING_FRACTION * self.config.marker_radius_min_px,
         )
-        return np.maximum(candidates.scale_px[:, None] * np.array(_PRESCREEN_RINGS), floor_px)
+        return cast(
+            "NDArray[np.float64]",
+            np.maximum(candidates.scale_px[:, None] * np.array(_PRESCREEN_RINGS), floor_px),
+        )
 
-    def _line_directions(self, gray: np.ndarray, candidates: Candidates) -> np.ndarray:
+    def _line_directions(self, gray: NDArray[Any], candidates: Candidates) -> NDArray[np.float64]:
         """(N, 2) the directions of the edge pairs on each candidate's first prescreen ring."""
         radii = self._prescreen_radii(candidates)[:, :1]
         _, angles = verification.prescreen_sector_order(
@@ -762,7 +771,7 @@ class Detector:
         )
         return angles
 
-    def _fit_start(self, scale_px: np.ndarray) -> np.ndarray:
+    def _fit_start(self, scale_px: NDArray[np.float64]) -> NDArray[np.float64]:
         """The template fit's first region radius for candidates of this scale, px."""
         return np.clip(
             _FIT_START_SCALE * scale_px, _FIT_MIN_START_PX, self.config.marker_radius_max_px
@@ -770,11 +779,11 @@ class Detector:
 
     def _fit_and_decide(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         noise: NoiseModel,
-        xy: np.ndarray,
-        angles: np.ndarray,
-        start_radius: np.ndarray,
+        xy: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        start_radius: NDArray[np.float64],
         result: DetectionResult,
         timer: _StageTimer,
     ) -> None:
@@ -846,7 +855,7 @@ class Detector:
             ]
 
     def _final_fit(
-        self, gray: np.ndarray, grown: subpixel.GrownFit, accepted: np.ndarray
+        self, gray: NDArray[Any], grown: subpixel.GrownFit, accepted: NDArray[np.bool_]
     ) -> subpixel.TemplateFit:
         """The accepted markers' fits again, on every pixel of their X.
 
@@ -873,7 +882,7 @@ class Detector:
         return 0.5 * self.config.min_contrast_dn / 255.0 * full_scale
 
     def _centre(
-        self, gray: np.ndarray, candidates: Candidates, counts: dict[str, int]
+        self, gray: NDArray[Any], candidates: Candidates, counts: dict[str, int]
     ) -> Candidates:
         """Move each candidate to its local centre of point symmetry (coarse, 2 parameters)."""
         cfg = self.config
@@ -900,12 +909,12 @@ class Detector:
 
     def _verify(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         full_scale: float,
         candidates: Candidates,
         gamma: preprocessing.LocalGamma,
         counts: dict[str, int],
-    ) -> tuple[Candidates, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[Candidates, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Section 3.2, geometric checks, and the adaptive-template NCC of section 3.3.1."""
         cfg = self.config
         symmetry = verification.centre_symmetry_check(
@@ -982,11 +991,11 @@ class Detector:
 
     def _locate(
         self,
-        gray: np.ndarray,
-        xy: np.ndarray,
-        radius: np.ndarray,
-        angles: np.ndarray,
-        score: np.ndarray,
+        gray: NDArray[Any],
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        score: NDArray[np.float64],
         counts: dict[str, int],
         full_scale: float,
     ) -> list[Detection]:
@@ -1013,7 +1022,7 @@ class Detector:
         )
         position = fit.xy
         variance = fit.covariance[:, 0, 0] + fit.covariance[:, 1, 1]
-        located = np.ones(len(xy), bool)
+        located: NDArray[np.bool_] = np.ones(len(xy), bool)
         if cfg.refinement == "ncc":
             position = subpixel.ncc_refine(
                 gray,
@@ -1023,7 +1032,7 @@ class Detector:
                 offset_px=cfg.template_offset_px,
                 search_px=cfg.ncc_search_px,
             ).offset
-            located = np.isfinite(position).all(axis=1)
+            located = cast("NDArray[np.bool_]", np.isfinite(position).all(axis=1))
             discrepancy = np.where(located, np.sum((position - fit.xy) ** 2, axis=1), 0.0)
             variance = variance + discrepancy / _SIGMA_CALIBRATION**2
         sigma = _SIGMA_CALIBRATION * np.sqrt(np.maximum(variance, 0.0))
@@ -1066,7 +1075,7 @@ class Detector:
         ]
 
 
-def _noise_floor(gray: np.ndarray) -> float:
+def _noise_floor(gray: NDArray[Any]) -> float:
     """Smallest residual std of the fit: the quantisation of a difference of two DN samples."""
     return float(np.sqrt(2.0 / 12.0)) if gray.dtype.kind in "ui" else 0.0
 

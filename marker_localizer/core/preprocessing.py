@@ -10,12 +10,17 @@ References:
 
 from __future__ import annotations
 
+from typing import Any, TypeVar, cast
+
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from marker_localizer.core.sampling import corners, interpolate
 
-FloatImage = np.ndarray  # (H, W) float32
+FloatImage = NDArray[np.float32]  # (H, W)
+#: float32 or float64: Eq. (2) keeps the precision it is given.
+_Float = TypeVar("_Float", np.float32, np.float64)
 
 #: Standard deviation of a normal distribution per unit of median absolute deviation.
 MAD_TO_STD = 1.4826
@@ -26,17 +31,21 @@ STRUCTURE_SAMPLE_STEP_PX = 4
 
 def box_mean(image: FloatImage, diameter: int) -> FloatImage:
     """Mean over a ``diameter`` x ``diameter`` window (replicated border)."""
-    return cv2.boxFilter(image, cv2.CV_32F, (diameter, diameter), borderType=cv2.BORDER_REFLECT)
+    return cast(
+        FloatImage,
+        cv2.boxFilter(image, cv2.CV_32F, (diameter, diameter), borderType=cv2.BORDER_REFLECT),
+    )
 
 
 def local_std(image: FloatImage, diameter: int) -> FloatImage:
     """Standard deviation over a ``diameter`` x ``diameter`` window, sigma_{d,k} of Eq. (3)."""
     mean = box_mean(image, diameter)
     mean_sq = box_mean(image * image, diameter)
-    return np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+    std: FloatImage = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+    return std
 
 
-def noise_sigma(image: np.ndarray) -> float:
+def noise_sigma(image: NDArray[Any]) -> float:
     """Standard deviation of the pixel noise, from the median absolute horizontal difference.
 
     Differences of neighbouring pixels are the noise (times sqrt 2) wherever the
@@ -51,7 +60,7 @@ def noise_sigma(image: np.ndarray) -> float:
     """
     sample = np.asarray(image[::2, ::2], dtype=np.float32)
     difference = np.abs(sample[:, 1:] - sample[:, :-1])
-    return MAD_TO_STD * float(np.median(difference)) / np.sqrt(2.0)
+    return MAD_TO_STD * float(np.median(difference)) / float(np.sqrt(2.0))
 
 
 def gdwgif(image: FloatImage, radius_px: int = 2, regularisation: float = 0.01) -> FloatImage:
@@ -112,10 +121,15 @@ def dynamic_gamma(
 
 
 def apply_gamma(
-    luminance: np.ndarray, mean: np.ndarray, alpha: float, gamma_limits: tuple[float, float]
-) -> np.ndarray:
+    luminance: NDArray[_Float],
+    mean: NDArray[_Float],
+    alpha: float,
+    gamma_limits: tuple[float, float],
+) -> NDArray[_Float]:
     """Eq. (2) itself: L ** clip(alpha * mu) for intensities in [0, 1] (broadcasting)."""
-    return np.power(np.maximum(luminance, 1e-6), np.clip(alpha * mean, *gamma_limits))
+    return cast(
+        NDArray[_Float], np.power(np.maximum(luminance, 1e-6), np.clip(alpha * mean, *gamma_limits))
+    )
 
 
 def structure_map(
@@ -136,7 +150,10 @@ def structure_map(
         (H, W) float32 in [0, 1).
     """
     sigma = np.maximum.reduce([local_std(image, d) for d in diameters_px])
-    return (1.0 - np.exp(-np.power(sigma / np.float32(xi), np.float32(t)))).astype(np.float32)
+    structure: FloatImage = (1.0 - np.exp(-np.power(sigma / np.float32(xi), np.float32(t)))).astype(
+        np.float32
+    )
+    return structure
 
 
 class StructureComponents:
@@ -162,12 +179,15 @@ class StructureComponents:
         xi: float = 0.04,
         t: float = 1.5,
     ) -> None:
-        self._sum, self._square_sum = cv2.integral2(image, sdepth=cv2.CV_64F)
+        sums = cv2.integral2(image, sdepth=cv2.CV_64F)
+        self._sum, self._square_sum = cast(tuple[NDArray[np.float64], NDArray[np.float64]], sums)
         self._shape = image.shape
         self._diameters = diameters_px
         self._xi, self._t = xi, t
 
-    def sigma_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    def sigma_at(
+        self, rows: NDArray[np.integer[Any]], cols: NDArray[np.integer[Any]]
+    ) -> NDArray[np.float64]:
         """Largest sigma_{d,k} over the diameters at integer pixels (rows, cols)."""
         height, width = self._shape
         best = np.zeros(np.shape(rows))
@@ -177,15 +197,18 @@ class StructureComponents:
             c0, c1 = np.clip(cols - half, 0, width), np.clip(cols + half + 1, 0, width)
             area = (r1 - r0) * (c1 - c0)
 
-            def window(table: np.ndarray) -> np.ndarray:
-                return table[r1, c1] - table[r0, c1] - table[r1, c0] + table[r0, c0]  # noqa: B023
+            def window(table: NDArray[np.float64]) -> NDArray[np.float64]:
+                total: NDArray[np.float64] = (
+                    table[r1, c1] - table[r0, c1] - table[r1, c0] + table[r0, c0]  # noqa: B023
+                )
+                return total
 
             mean = window(self._sum) / area
             variance = np.maximum(window(self._square_sum) / area - mean * mean, 0.0)
             np.maximum(best, np.sqrt(variance), out=best)
         return best
 
-    def at(self, xy: np.ndarray) -> np.ndarray:
+    def at(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """s_k of Eq. (3) at (N, 2) points (their nearest pixels)."""
         pixel = np.round(xy).astype(np.intp)
         height, width = self._shape
@@ -193,9 +216,10 @@ class StructureComponents:
         sigma = self.sigma_at(np.clip(rows, 0, height - 1), np.clip(cols, 0, width - 1))
         return self.from_sigma(sigma)
 
-    def from_sigma(self, sigma: np.ndarray) -> np.ndarray:
+    def from_sigma(self, sigma: NDArray[np.float64]) -> NDArray[np.float64]:
         """Eq. (3): s = 1 - exp(-(sigma / xi) ** t)."""
-        return 1.0 - np.exp(-np.power(sigma / self._xi, self._t))
+        structure: NDArray[np.float64] = 1.0 - np.exp(-np.power(sigma / self._xi, self._t))
+        return structure
 
     def quantile(self, q: float) -> float:
         """The ``q`` quantile of s_k over the frame (every few pixels)."""
@@ -228,12 +252,12 @@ class LocalGamma:
 
     def __init__(
         self,
-        image: np.ndarray,
+        image: NDArray[Any],
         full_scale: float,
         alpha: float = 2.0,
         window_px: int = 65,
         gamma_limits: tuple[float, float] = (0.25, 4.0),
-        regions: np.ndarray | None = None,
+        regions: NDArray[np.integer[Any]] | None = None,
     ) -> None:
         self._reduction = max(1, window_px // 8)
         self._diameter = max(1, round(window_px / self._reduction)) | 1
@@ -269,7 +293,7 @@ class LocalGamma:
         self._map_starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
         self._maps = np.concatenate([m.ravel() for m in maps])
 
-    def _mean_map(self, crop: np.ndarray) -> np.ndarray:
+    def _mean_map(self, crop: NDArray[Any]) -> FloatImage:
         height, width = crop.shape
         small = cv2.resize(
             crop,
@@ -278,7 +302,7 @@ class LocalGamma:
         ).astype(np.float32) / np.float32(self._full_scale)
         return box_mean(small, self._diameter)
 
-    def mean_at(self, xy: np.ndarray) -> np.ndarray:
+    def mean_at(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """Local mean luminance mu(k) in [0, 1] at (N, 2) points (0.5 outside every region)."""
         boxes = self._boxes
         inside = (
@@ -299,7 +323,7 @@ class LocalGamma:
         mean = interpolate(*corners(self._maps, base, cols), x - x0, y - y0)
         return np.where(inside.any(axis=1), mean, 0.5)
 
-    def __call__(self, values: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    def __call__(self, values: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """Apply Eq. (2) to raw samples ``values`` (N, ...) taken around the points ``xy``."""
         mean = self.mean_at(xy).reshape((-1,) + (1,) * (values.ndim - 1))
         return apply_gamma(values / self._full_scale, mean, self._alpha, self._limits)

@@ -7,17 +7,19 @@ refinement at ~0.03 px; this gathers the four neighbours in numpy instead.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 #: Maps raw samples (N, ...) taken around points (N, 2) to normalised intensities,
 #: e.g. :class:`~marker_localizer.core.preprocessing.LocalGamma`.
-Normaliser = Callable[[np.ndarray, np.ndarray], np.ndarray]
+Normaliser = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
 
 
 def corners(
-    flat: np.ndarray, base: np.ndarray, stride: np.ndarray | int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    flat: NDArray[Any], base: NDArray[np.integer[Any]], stride: NDArray[np.integer[Any]] | int
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The four pixels (top-left, top-right, bottom-left, bottom-right) from ``base``.
 
     Args:
@@ -37,20 +39,22 @@ def corners(
 
 
 def interpolate(
-    v00: np.ndarray,
-    v01: np.ndarray,
-    v10: np.ndarray,
-    v11: np.ndarray,
-    fx: np.ndarray,
-    fy: np.ndarray,
-) -> np.ndarray:
+    v00: NDArray[np.float64],
+    v01: NDArray[np.float64],
+    v10: NDArray[np.float64],
+    v11: NDArray[np.float64],
+    fx: NDArray[np.float64],
+    fy: NDArray[np.float64],
+) -> NDArray[np.float64]:
     """Bilinear interpolation between four corner values at fractions (fx, fy)."""
     top = v00 + (v01 - v00) * fx
     bottom = v10 + (v11 - v10) * fx
     return top + (bottom - top) * fy
 
 
-def pad_patterns(patterns: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+def pad_patterns(
+    patterns: Sequence[NDArray[np.float64]],
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Stack (K_i, ...) sample patterns as one (P, K, ...) array, zero-padded to the longest.
 
     Points whose patterns differ in size (one per marker radius) then take one set
@@ -71,8 +75,16 @@ def pad_patterns(patterns: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray
 
 
 def _neighbours(
-    image: np.ndarray, x: np.ndarray, y: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    image: NDArray[Any], x: NDArray[np.float64], y: NDArray[np.float64]
+) -> tuple[
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+]:
     """The four pixels around each (x, y) as float64, the fractions, and validity."""
     height, width = image.shape
     x0 = np.floor(x)
@@ -84,7 +96,9 @@ def _neighbours(
     return v00, v01, v10, v11, x - x0, y - y0, valid
 
 
-def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def bilinear(
+    image: NDArray[Any], x: NDArray[np.float64], y: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Sample ``image`` at (x, y) with bilinear interpolation.
 
     Args:
@@ -102,8 +116,8 @@ def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarra
 
 
 def bilinear_with_gradient(
-    image: np.ndarray, x: np.ndarray, y: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    image: NDArray[Any], x: NDArray[np.float64], y: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """Bilinear samples and the exact derivatives of the bilinear interpolant.
 
     Using the interpolant's own derivative (not a finite-difference image sampled

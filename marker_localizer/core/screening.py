@@ -14,10 +14,12 @@ top-left pixel.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections.abc import Sequence
+from typing import Any, NamedTuple, cast
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from marker_localizer.core.preprocessing import MAD_TO_STD, StructureComponents, noise_sigma
@@ -32,9 +34,9 @@ class Candidates(NamedTuple):
         scale_px: (N,) float64 characteristic radius at which the point responded.
     """
 
-    xy: np.ndarray
-    strength: np.ndarray
-    scale_px: np.ndarray
+    xy: NDArray[np.float64]
+    strength: NDArray[np.float64]
+    scale_px: NDArray[np.float64]
 
     @classmethod
     def empty(cls) -> Candidates:
@@ -48,7 +50,7 @@ class Candidates(NamedTuple):
             return cls.empty()
         return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in cls._fields))
 
-    def take(self, index: np.ndarray) -> Candidates:
+    def take(self, index: NDArray[np.integer[Any] | np.bool_]) -> Candidates:
         """Return the candidates selected by a boolean mask or index array."""
         return Candidates(self.xy[index], self.strength[index], self.scale_px[index])
 
@@ -62,7 +64,11 @@ class Candidates(NamedTuple):
         return int(self.strength.shape[0])
 
 
-def parabolic_offset(minus: np.ndarray, centre: np.ndarray, plus: np.ndarray) -> np.ndarray:
+def parabolic_offset(
+    minus: NDArray[np.floating[Any]],
+    centre: NDArray[np.floating[Any]],
+    plus: NDArray[np.floating[Any]],
+) -> NDArray[np.floating[Any]]:
     """Sub-sample vertex of a parabola through three samples, clipped to half a sample."""
     curvature = minus - 2.0 * centre + plus
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -120,7 +126,7 @@ _MIN_DOMAIN_QUADRANT_FRACTION = 0.25
 MIN_LEVEL_RADIUS_PX = 1.5
 
 
-def saddle_response(image: np.ndarray) -> np.ndarray:
+def saddle_response(image: NDArray[Any]) -> NDArray[np.float32]:
     """Squared saddle strength f_xy^2 - f_xx f_yy (= -det H) from 5x5 Sobel derivatives.
 
     The 5x5 Sobel kernels smooth with a binomial of variance 1 px^2, so no
@@ -141,7 +147,7 @@ def saddle_response(image: np.ndarray) -> np.ndarray:
     cv2.multiply(dxx, dyy, dst=dxx)
     cv2.multiply(dxy, dxy, dst=dxy)
     cv2.subtract(dxy, dxx, dst=dxy)
-    return dxy
+    return cast("NDArray[np.float32]", dxy)
 
 
 #: Share of a level's pixels above the threshold from which its 3x3 maxima are found
@@ -157,7 +163,7 @@ _FOLLOWING_NEIGHBOURS: tuple[tuple[int, int], ...] = ((0, 1), (1, -1), (1, 0), (
 _MAXIMUM_KERNEL = np.ones((3, 3), np.uint8)
 
 
-def _local_maxima(response: np.ndarray, threshold: float) -> np.ndarray:
+def _local_maxima(response: NDArray[np.floating[Any]], threshold: float) -> NDArray[np.intp]:
     """Flat indices of the 3x3 local maxima above ``threshold``, away from the border.
 
     Ties go to the first pixel in raster order, so a plateau yields one peak. When
@@ -185,7 +191,7 @@ def _local_maxima(response: np.ndarray, threshold: float) -> np.ndarray:
         offset = d_row * width + d_col
         neighbour = flat[flat_index + offset]
         is_max &= (centre > neighbour) | ((centre == neighbour) & (offset > 0))
-    return flat_index[is_max]
+    return cast("NDArray[np.intp]", flat_index[is_max])
 
 
 def split_peak_midpoints(
@@ -278,7 +284,7 @@ def candidate_scale(level: int, radius_range_px: tuple[float, float]) -> float:
     scale = 4.0 * 2**level
     if level == saddle_levels(radius_range_px).start:
         scale = min(scale, max(radius_range_px[0], 4.0))
-    return scale
+    return cast("float", scale)
 
 
 class CellCap(NamedTuple):
@@ -298,7 +304,9 @@ class CellCap(NamedTuple):
     max_total: int | None = None
     origin_px: tuple[float, float] = (0.0, 0.0)
 
-    def keep(self, xy: np.ndarray, strength: np.ndarray) -> np.ndarray:
+    def keep(
+        self, xy: NDArray[np.float64], strength: NDArray[np.floating[Any]]
+    ) -> NDArray[np.bool_]:
         """(N,) bool: the points at ``xy`` (N, 2) of ``strength`` (N,) the cap keeps."""
         return cell_cap_mask(
             xy + np.asarray(self.origin_px), strength, self.cell_px, self.max_per_cell
@@ -322,7 +330,7 @@ class CellCap(NamedTuple):
 
 
 def saddle_candidates(
-    image: np.ndarray,
+    image: NDArray[Any],
     radius_range_px: tuple[float, float],
     min_contrast: float,
     *,
@@ -448,12 +456,12 @@ class ContourSet(NamedTuple):
         length: (M,) int64 number of points of each point's contour.
     """
 
-    points: np.ndarray
-    start: np.ndarray
-    length: np.ndarray
+    points: NDArray[np.float64]
+    start: NDArray[np.int64]
+    length: NDArray[np.int64]
 
     @classmethod
-    def from_list(cls, contours: list[np.ndarray]) -> ContourSet:
+    def from_list(cls, contours: Sequence[NDArray[Any]]) -> ContourSet:
         """Join (M_i, 2) closed contours into one set."""
         if not contours:
             return cls(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64))
@@ -477,16 +485,20 @@ class ContourSet(NamedTuple):
             np.concatenate([p.length for p in parts]).astype(np.int64),
         )
 
-    def along(self, steps: int) -> np.ndarray:
+    def along(self, steps: int) -> NDArray[np.float64]:
         """(M,) index of the point ``steps`` further along each point's closed contour."""
         position = np.arange(len(self.points)) - self.start
-        return self.start + (position + steps) % np.maximum(self.length, 1)
+        return cast(
+            "NDArray[np.float64]", self.start + (position + steps) % np.maximum(self.length, 1)
+        )
 
     def __len__(self) -> int:
         return len(self.points)
 
 
-def contour_curvature(contours: ContourSet | np.ndarray, window_px: int) -> np.ndarray:
+def contour_curvature(
+    contours: ContourSet | NDArray[np.float64], window_px: int
+) -> NDArray[np.float64]:
     """Curvature of every point of closed contours, Eq. (4).
 
     kappa = 1 - <v_prev, v_next> / (|v_prev| |v_next| + eps), with
@@ -507,10 +519,10 @@ def contour_curvature(contours: ContourSet | np.ndarray, window_px: int) -> np.n
     v_next = points[contours.along(window_px)] - points
     dot = np.einsum("ij,ij->i", v_prev, v_next)
     norms = np.linalg.norm(v_prev, axis=1) * np.linalg.norm(v_next, axis=1)
-    return 1.0 - dot / (norms + _CURVATURE_EPS)
+    return cast("NDArray[np.float64]", 1.0 - dot / (norms + _CURVATURE_EPS))
 
 
-def trace_contours(mask: np.ndarray, min_points: int) -> ContourSet:
+def trace_contours(mask: NDArray[np.bool_], min_points: int) -> ContourSet:
     """Every boundary of the 4-connected regions of ``mask`` with at least ``min_points`` points.
 
     Regions that touch only at a pixel corner are traced apart (OpenCV traces
@@ -536,7 +548,9 @@ def trace_contours(mask: np.ndarray, min_points: int) -> ContourSet:
     return ContourSet.from_list([c[:, 0, :] for c in found if len(c) >= min_points])
 
 
-def robust_mean_std(values: np.ndarray, weights: np.ndarray | None = None) -> tuple[float, float]:
+def robust_mean_std(
+    values: NDArray[np.float64], weights: NDArray[np.float64] | None = None
+) -> tuple[float, float]:
     """Mean and standard deviation of the bulk of ``values``: (weighted) median and 1.4826 x MAD.
 
     Equal to the sample mean and std for normally distributed values, and not
@@ -557,15 +571,15 @@ def robust_mean_std(values: np.ndarray, weights: np.ndarray | None = None) -> tu
     return median, MAD_TO_STD * _weighted_median(np.abs(values - median), weights)
 
 
-def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+def _weighted_median(values: NDArray[np.float64], weights: NDArray[np.float64]) -> float:
     order = np.argsort(values)
     cumulative = np.cumsum(weights[order])
     return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
 def local_threshold(
-    image: np.ndarray, diameters_px: tuple[int, ...], min_contrast: float
-) -> np.ndarray:
+    image: NDArray[Any], diameters_px: tuple[int, ...], min_contrast: float
+) -> NDArray[np.float32]:
     """The contours' level at every pixel: the local mid-range of ``image`` (section 3.2).
 
     The level is (max + min) / 2 over the smallest window of ``diameters_px``
@@ -606,19 +620,22 @@ def local_threshold(
     return level
 
 
-def _pool(image: np.ndarray, reduce: np.ufunc) -> np.ndarray:
+def _pool(image: NDArray[Any], reduce: np.ufunc) -> NDArray[np.float64]:
     """``image`` reduced by ``reduce`` over 2 x 2 blocks (an odd last row / column is kept)."""
     height, width = image.shape
     padded = np.pad(image, ((0, height % 2), (0, width % 2)), mode="edge")
-    return reduce(
-        reduce(padded[0::2, 0::2], padded[1::2, 0::2]),
-        reduce(padded[0::2, 1::2], padded[1::2, 1::2]),
+    return cast(
+        "NDArray[np.float64]",
+        reduce(
+            reduce(padded[0::2, 0::2], padded[1::2, 0::2]),
+            reduce(padded[0::2, 1::2], padded[1::2, 1::2]),
+        ),
     )
 
 
 def onto_level_line(
-    contours: ContourSet, image: np.ndarray, level: np.ndarray
-) -> tuple[ContourSet, np.ndarray]:
+    contours: ContourSet, image: NDArray[Any], level: NDArray[np.float32]
+) -> tuple[ContourSet, NDArray[np.float64]]:
     """Contour pixels moved onto the level line I = level by one Newton step along the gradient.
 
     p <- p - (I(p) - level(p)) grad I / |grad I|^2, at most :data:`_LEVEL_STEP_PX`:
@@ -644,7 +661,7 @@ def onto_level_line(
     return moved, np.hypot(gx, gy)
 
 
-def connected_domain_check(mask: np.ndarray, min_area_px: float) -> np.ndarray:
+def connected_domain_check(mask: NDArray[np.bool_], min_area_px: float) -> NDArray[np.bool_]:
     """``mask`` without its 8-connected domains smaller than ``min_area_px`` (section 3.2).
 
     Args:
@@ -657,7 +674,7 @@ def connected_domain_check(mask: np.ndarray, min_area_px: float) -> np.ndarray:
     _, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
     keep[0] = False  # the background label
-    return keep[labels]
+    return cast("NDArray[np.bool_]", keep[labels])
 
 
 def threshold_diameters(radius_range_px: tuple[float, float]) -> tuple[int, ...]:
@@ -674,7 +691,7 @@ def threshold_diameters(radius_range_px: tuple[float, float]) -> tuple[int, ...]
 
 
 def curvature_candidates(
-    image: np.ndarray,
+    image: NDArray[Any],
     structure: StructureComponents,
     radius_range_px: tuple[float, float],
     min_contrast: float,
@@ -764,8 +781,11 @@ def curvature_candidates(
 
 
 def non_maximum_suppression(
-    xy: np.ndarray, strength: np.ndarray, radius_px: float, group: np.ndarray | None = None
-) -> np.ndarray:
+    xy: NDArray[np.float64],
+    strength: NDArray[np.float64],
+    radius_px: float,
+    group: NDArray[np.integer[Any]] | None = None,
+) -> NDArray[np.bool_]:
     """Boolean mask keeping points with no stronger point within ``radius_px``.
 
     With ``group`` (N,) labels, a point only suppresses points of its own group.
@@ -786,7 +806,9 @@ def non_maximum_suppression(
     return keep
 
 
-def curvature_density(xy: np.ndarray, weight: np.ndarray, sigma_px: float) -> np.ndarray:
+def curvature_density(
+    xy: NDArray[np.float64], weight: NDArray[np.float64], sigma_px: float
+) -> NDArray[np.float64]:
     """Curvature-weighted spatial density rho(p_i), Eq. (5), over neighbours within 3 sigma."""
     tree = cKDTree(xy)
     distances = tree.sparse_distance_matrix(tree, 3.0 * sigma_px, output_type="coo_matrix")
@@ -851,7 +873,7 @@ def density_mean_shift(
     return Candidates(xy[kept_index], candidates.strength[kept_index], scale)
 
 
-def grid_entropy(xy: np.ndarray, cell_px: int) -> float:
+def grid_entropy(xy: NDArray[np.float64], cell_px: int) -> float:
     """Spatial grid entropy H = -sum P(n) ln P(n) of the points, Eq. (7)."""
     if len(xy) == 0:
         return 0.0
@@ -964,8 +986,11 @@ def even_cap(candidates: Candidates, limit: int, cell_px: float) -> Candidates:
 
 
 def cell_cap_mask(
-    xy: np.ndarray, strength: np.ndarray, cell_px: float, max_per_cell: int
-) -> np.ndarray:
+    xy: NDArray[np.float64],
+    strength: NDArray[np.floating[Any]],
+    cell_px: float,
+    max_per_cell: int,
+) -> NDArray[np.bool_]:
     """(N,) bool: the ``max_per_cell`` strongest points of every ``cell_px`` grid cell."""
     keep = np.ones(len(xy), dtype=bool)
     if len(xy) == 0:
@@ -980,7 +1005,7 @@ def cell_cap_mask(
     return keep
 
 
-def grid_cells(xy: np.ndarray, cell_px: float) -> np.ndarray:
+def grid_cells(xy: NDArray[np.float64], cell_px: float) -> NDArray[np.int64]:
     """(N,) int64 index of each point's ``cell_px`` grid cell, dense from 0, row by row."""
     # Column by column: reductions over an (N, 2) array's first axis cost several times more.
     column = np.floor(xy[:, 0] / cell_px).astype(np.int64)
@@ -990,7 +1015,9 @@ def grid_cells(xy: np.ndarray, cell_px: float) -> np.ndarray:
     return row * (int(column.max()) + 1) + column
 
 
-def strongest_first_in_cell(cell: np.ndarray, strength: np.ndarray) -> np.ndarray:
+def strongest_first_in_cell(
+    cell: NDArray[np.int64], strength: NDArray[np.floating[Any]]
+) -> NDArray[np.int64]:
     """(N,) int64 keys that sort points by cell, then by strength, strongest first.
 
     One integer sort instead of a two-key lexsort (a ninth of its time on the half
@@ -1003,4 +1030,4 @@ def strongest_first_in_cell(cell: np.ndarray, strength: np.ndarray) -> np.ndarra
     """
     bits = strength.astype(np.float32).view(np.int32).astype(np.int64)
     ascending = np.where(bits >= 0, bits, bits ^ 0x7FFFFFFF)
-    return (cell << 32) | (0x7FFFFFFF - ascending)
+    return cast("NDArray[np.int64]", (cell << 32) | (0x7FFFFFFF - ascending))

@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple, cast
 
 import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
+from numpy.typing import NDArray
 
 from marker_localizer.core import template
 from marker_localizer.core.sampling import bilinear_with_gradient, pad_patterns
@@ -52,8 +53,11 @@ _NCC_LEVEL_RADIUS_FRACTION = 0.6
 
 
 def ncc_surface(
-    image: np.ndarray, centres: np.ndarray, template: np.ndarray, search_px: int
-) -> np.ndarray:
+    image: NDArray[Any],
+    centres: NDArray[np.integer[Any]],
+    template: NDArray[np.float64],
+    search_px: int,
+) -> NDArray[np.float64]:
     """NCC of a template at every integer shift around each centre, Eqs. (11)-(12).
 
     The image around each centre is expanded im2col-style into a matrix whose
@@ -87,11 +91,13 @@ def ncc_surface(
     flat_template = flat_template - flat_template.mean(axis=1, keepdims=True)
     flat_template /= np.linalg.norm(flat_template, axis=1, keepdims=True) + 1e-12
     # Eq. (12): R = F~_tar . F~_ref / (|F~_tar| |F~_ref|), as one batched product.
-    surface = np.matmul(expanded, flat_template[:, :, None])[..., 0]
+    surface: NDArray[np.float64] = np.matmul(expanded, flat_template[:, :, None])[..., 0]
     return surface.reshape(n, 2 * search_px + 1, 2 * search_px + 1)
 
 
-def fit_quadratic_surface(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+def fit_quadratic_surface(
+    values: NDArray[np.float64], weights: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Weighted least-squares fit of c(x, y) = a x^2 + b y^2 + c xy + d x + e y + f, Eq. (13).
 
     Args:
@@ -111,7 +117,7 @@ def fit_quadratic_surface(values: np.ndarray, weights: np.ndarray) -> np.ndarray
     return np.linalg.solve(normal + 1e-12 * np.eye(6), rhs[..., None])[..., 0]
 
 
-def quadratic_extremum(coefficients: np.ndarray) -> np.ndarray:
+def quadratic_extremum(coefficients: NDArray[np.float64]) -> NDArray[np.float64]:
     """Stationary point of the fitted quadratic surface, Eq. (14).
 
     Setting the gradient to zero gives
@@ -144,12 +150,12 @@ class NccPeak(NamedTuple):
             of the weighted least-squares fit (how far the surface is from a quadratic).
     """
 
-    offset: np.ndarray
-    peak: np.ndarray
-    sigma: np.ndarray
+    offset: NDArray[np.float64]
+    peak: NDArray[np.float64]
+    sigma: NDArray[np.float64]
 
 
-def ncc_subpixel(surface: np.ndarray) -> NccPeak:
+def ncc_subpixel(surface: NDArray[np.float64]) -> NccPeak:
     """Sub-pixel NCC peaks: WLS quadratic on the 3x3 around the best shift, Eqs. (13)-(14).
 
     Args:
@@ -181,8 +187,8 @@ def ncc_subpixel(surface: np.ndarray) -> NccPeak:
 
 
 def _extremum_sigma(
-    values: np.ndarray, weights: np.ndarray, coefficients: np.ndarray
-) -> np.ndarray:
+    values: NDArray[np.float64], weights: NDArray[np.float64], coefficients: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """(N,) radial 1-sigma of the Eq. (14) extremum propagated from the WLS fit's covariance.
 
     cov(beta) = s^2 (A^T W A)^-1 with s^2 the weighted residual variance (3 degrees of
@@ -208,14 +214,16 @@ def _extremum_sigma(
             2.0 * step[:, None]
         )
     propagated = jacobian @ covariance @ jacobian.transpose(0, 2, 1)
-    return np.sqrt(np.maximum(np.trace(propagated, axis1=1, axis2=2), 0.0))
+    return cast(
+        "NDArray[np.float64]", np.sqrt(np.maximum(np.trace(propagated, axis1=1, axis2=2), 0.0))
+    )
 
 
 def ncc_refine(
-    image: np.ndarray,
-    xy: np.ndarray,
-    radius_px: np.ndarray,
-    line_angles: np.ndarray,
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
     *,
     offset_px: float = 5.0,
     search_px: int = 2,
@@ -302,15 +310,17 @@ class SymmetryFit(NamedTuple):
             point stayed within ``max_shift_px`` of its start.
     """
 
-    xy: np.ndarray
-    covariance: np.ndarray
-    residual: np.ndarray
-    contrast: np.ndarray
-    converged: np.ndarray
+    xy: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    residual: NDArray[np.float64]
+    contrast: NDArray[np.float64]
+    converged: NDArray[np.bool_]
 
 
 @functools.lru_cache(maxsize=256)
-def symmetric_offsets(radius_px: float, max_samples: int = 400) -> tuple[np.ndarray, np.ndarray]:
+def symmetric_offsets(
+    radius_px: float, max_samples: int = 400
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Half-disk sample offsets d (one of each +d/-d pair) and taper weights.
 
     The grid spacing is a multiple of 0.5 px, so c + d and c - d always share the
@@ -339,13 +349,13 @@ def symmetric_offsets(radius_px: float, max_samples: int = 400) -> tuple[np.ndar
 
 
 def refine_point_symmetry(
-    image: np.ndarray,
-    xy: np.ndarray,
-    radius_px: np.ndarray,
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
     *,
     iterations: int = 10,
     tolerance_px: float = 1e-3,
-    max_shift_px: np.ndarray | float = 2.0,
+    max_shift_px: NDArray[np.float64] | float = 2.0,
     model_gain: bool = True,
     max_samples: int = 400,
     noise_floor: float = 0.0,
@@ -413,13 +423,13 @@ def refine_point_symmetry(
 
 
 def _symmetry_terms(
-    image: np.ndarray,
-    centre: np.ndarray,
-    gain: np.ndarray,
-    offsets: np.ndarray,
-    taper: np.ndarray,
+    image: NDArray[Any],
+    centre: NDArray[np.float64],
+    gain: NDArray[np.float64],
+    offsets: NDArray[np.float64],
+    taper: NDArray[np.float64],
     model_gain: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Residuals r(d), weights, Jacobian (N, K, P) and the samples I(c +- d) at ``centre``.
 
     ``offsets`` is (N, K, 2) and ``taper`` (N, K): each point's own pattern.
@@ -444,23 +454,29 @@ def _symmetry_terms(
 
 
 def _gauss_newton_symmetry(
-    image: np.ndarray,
-    centre: np.ndarray,
-    offsets: np.ndarray,
-    taper: np.ndarray,
-    present: np.ndarray,
-    spacing: np.ndarray,
+    image: NDArray[Any],
+    centre: NDArray[np.float64],
+    offsets: NDArray[np.float64],
+    taper: NDArray[np.float64],
+    present: NDArray[np.bool_],
+    spacing: NDArray[np.float64],
     iterations: int,
     tolerance_px: float,
     model_gain: bool,
     noise_floor: float,
     uncertainty: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+]:
     n_params = 4 if model_gain else 2
     n = len(centre)
     centre = centre.copy()
     gain = np.zeros((n, 2))
-    step_norm: np.ndarray = np.full(n, np.inf)
+    step_norm: NDArray[np.float64] = np.full(n, np.inf)
     eye = np.eye(n_params)
     for iteration in range(iterations + 1):
         residual, weight, jacobian, samples = _symmetry_terms(
@@ -506,7 +522,7 @@ def _gauss_newton_symmetry(
     return centre, covariance, residual_rms, contrast, converged
 
 
-def _row_spread(values: np.ndarray, present: np.ndarray) -> np.ndarray:
+def _row_spread(values: NDArray[np.float64], present: NDArray[np.bool_]) -> NDArray[np.float64]:
     """Per-row 90th minus 10th percentile over the ``present`` entries, from one sort.
 
     Each percentile follows ``np.percentile``'s linear rule.
@@ -520,7 +536,7 @@ def _row_spread(values: np.ndarray, present: np.ndarray) -> np.ndarray:
     below = np.take_along_axis(ordered, low.T, axis=1).T
     above = np.take_along_axis(ordered, high.T, axis=1).T
     value = below + (np.where(fraction > 0, above, below) - below) * fraction
-    return value[0] - value[1]
+    return cast("NDArray[np.float64]", value[0] - value[1])
 
 
 #: Levenberg-Marquardt damping: start, and factor per rejected / accepted step.
@@ -561,19 +577,21 @@ class TemplateFit(NamedTuple):
     """
 
     shape: template.TemplateShape
-    levels: np.ndarray
-    level_covariance: np.ndarray
-    covariance: np.ndarray
-    line_angle_std: np.ndarray
-    residual_rms: np.ndarray
-    n_pixels: np.ndarray
-    converged: np.ndarray
+    levels: NDArray[np.float64]
+    level_covariance: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    line_angle_std: NDArray[np.float64]
+    residual_rms: NDArray[np.float64]
+    n_pixels: NDArray[np.float64]
+    converged: NDArray[np.bool_]
 
-    def take(self, rows: np.ndarray) -> TemplateFit:
+    def take(self, rows: NDArray[np.integer[Any] | np.bool_]) -> TemplateFit:
         """The fits of ``rows`` (indices or a mask) only."""
         return TemplateFit(self.shape.take(rows), *(part[rows] for part in self[1:]))
 
-    def with_rows(self, rows: np.ndarray, part: TemplateFit) -> TemplateFit:
+    def with_rows(
+        self, rows: NDArray[np.integer[Any] | np.bool_], part: TemplateFit
+    ) -> TemplateFit:
         """A copy with the fits of ``rows`` (indices or a mask) replaced by ``part``'s."""
         shape = template.TemplateShape(
             *(
@@ -587,7 +605,9 @@ class TemplateFit(NamedTuple):
         )
 
 
-def _with_rows(whole: np.ndarray, rows: np.ndarray, part: np.ndarray) -> np.ndarray:
+def _with_rows(
+    whole: NDArray[Any], rows: NDArray[np.integer[Any] | np.bool_], part: NDArray[Any]
+) -> NDArray[Any]:
     """A copy of ``whole`` with ``rows`` replaced by ``part``."""
     out = whole.copy()
     out[rows] = part
@@ -595,13 +615,13 @@ def _with_rows(whole: np.ndarray, rows: np.ndarray, part: np.ndarray) -> np.ndar
 
 
 def fit_template(
-    image: np.ndarray,
+    image: NDArray[Any],
     start: template.TemplateShape,
-    regions: list[np.ndarray],
+    regions: list[NDArray[np.float64]],
     *,
     iterations: int = 20,
     tolerance_px: float = 1e-4,
-    max_shift_px: np.ndarray | float = np.inf,
+    max_shift_px: NDArray[np.float64] | float = np.inf,
 ) -> TemplateFit:
     """Least-squares fit of the adaptive template to the pixels of each marker.
 
@@ -673,12 +693,12 @@ def fit_template(
 
 
 def _fit_template_batch(
-    image: np.ndarray,
+    image: NDArray[Any],
     start: template.TemplateShape,
-    regions: list[np.ndarray],
+    regions: list[NDArray[np.float64]],
     iterations: int,
     tolerance_px: float,
-    reach: np.ndarray,
+    reach: NDArray[np.float64],
 ) -> TemplateFit:
     """:func:`fit_template` on points whose regions differ little in size."""
     n = len(start.xy)
@@ -765,7 +785,7 @@ _BATCH_SIZE_RATIO = 2.0
 _SHADOW = slice(8, 12)
 
 
-def _clip_parameters(params: np.ndarray) -> np.ndarray:
+def _clip_parameters(params: NDArray[np.float64]) -> NDArray[np.float64]:
     """Keep a trial step's blur, gain and shadow inside what is physical (in place)."""
     params[:, 4:6] = np.clip(params[:, 4:6], np.log(_MIN_BLUR_PX), np.log(_MAX_BLUR_PX))
     params[:, 6:8] = np.clip(params[:, 6:8], -_MAX_GAIN_PER_PX, _MAX_GAIN_PER_PX)
@@ -775,26 +795,26 @@ def _clip_parameters(params: np.ndarray) -> np.ndarray:
 
 
 class _TemplateState(NamedTuple):
-    residual: np.ndarray  # (N, K)
-    jacobian: np.ndarray  # (N, K, 12): of the model at the solved levels
-    levels: np.ndarray  # (N, 4)
-    level_normal: np.ndarray  # (N, 4, 4)
-    cost: np.ndarray  # (N,)
+    residual: NDArray[np.float64]  # (N, K)
+    jacobian: NDArray[np.float64]  # (N, K, 12): of the model at the solved levels
+    levels: NDArray[np.float64]  # (N, 4)
+    level_normal: NDArray[np.float64]  # (N, 4, 4)
+    cost: NDArray[np.float64]  # (N,)
 
 
 def _template_residuals(
-    values: np.ndarray,
-    weight: np.ndarray,
-    pixels: np.ndarray,
-    params: np.ndarray,
-    free: np.ndarray,
+    values: NDArray[np.float64],
+    weight: NDArray[np.float64],
+    pixels: NDArray[np.float64],
+    params: NDArray[np.float64],
+    free: NDArray[np.bool_],
 ) -> _TemplateState:
     """Residuals of the template at ``params`` with its levels solved by least squares.
 
     The Jacobian's columns of the parameters not ``free`` are zero.
     """
     shape = template.shape_from_parameters(params)
-    finite = np.isfinite(params).all(axis=1)
+    finite = cast("NDArray[np.bool_]", np.isfinite(params).all(axis=1))
     terms = template.template_terms(pixels - shape.xy[:, None, :], shape)
     basis = np.where(finite[:, None, None], template.quadrant_weights(terms), 0.0)
     weighted = basis * weight[..., None]
@@ -847,29 +867,29 @@ class GrownFit(NamedTuple):
     """
 
     fit: TemplateFit
-    extents: np.ndarray
-    grown: np.ndarray
+    extents: NDArray[np.float64]
+    grown: NDArray[np.float64]
 
 
-def disk_region(radius_px: float) -> np.ndarray:
+def disk_region(radius_px: float) -> NDArray[np.float64]:
     """(K, 2) integer offsets within ``radius_px`` of the origin."""
     half = int(np.floor(radius_px))
     grid = np.arange(-half, half + 1, dtype=np.float64)
     gx, gy = np.meshgrid(grid, grid)
     offsets = np.stack([gx.ravel(), gy.ravel()], axis=1)
-    return offsets[(offsets**2).sum(axis=1) <= radius_px**2]
+    return cast("NDArray[np.float64]", offsets[(offsets**2).sum(axis=1) <= radius_px**2])
 
 
 def fit_growing_template(
-    image: np.ndarray,
+    image: NDArray[Any],
     start: template.TemplateShape,
-    start_radius_px: np.ndarray,
+    start_radius_px: NDArray[np.float64],
     max_radius_px: float,
     *,
     steps: int = _GROWTH_STEPS,
     max_pixels: int | None = None,
-    noise_std: np.ndarray | None = None,
-    keep: Callable[[TemplateFit, np.ndarray], np.ndarray] | None = None,
+    noise_std: NDArray[np.float64] | None = None,
+    keep: Callable[[TemplateFit, NDArray[np.float64]], NDArray[np.float64]] | None = None,
     iterations: int = _GROWTH_ITERATIONS,
 ) -> GrownFit:
     """Fit the adaptive template over a region that grows to the whole X.
@@ -910,7 +930,7 @@ def fit_growing_template(
     cap = keys.copy()
     extents = template.line_extents(image, fit.shape, fit.levels, max_radius_px)
     alive = np.arange(len(keys))
-    regions: list[np.ndarray] = list(disks)
+    regions: list[NDArray[np.float64]] = list(disks)
     for _ in range(steps):
         if keep is not None:
             alive = alive[keep(fit.take(alive), extents[alive])]
@@ -945,12 +965,12 @@ _SHADOW_MIN_GAIN = 0.2
 
 
 def _with_shadow_edges(
-    image: np.ndarray,
+    image: NDArray[Any],
     fit: TemplateFit,
-    regions: list[np.ndarray],
-    noise_std: np.ndarray,
-    max_shift_px: np.ndarray,
-    among: np.ndarray,
+    regions: list[NDArray[np.float64]],
+    noise_std: NDArray[np.float64],
+    max_shift_px: NDArray[np.float64],
+    among: NDArray[np.integer[Any]],
 ) -> TemplateFit:
     """``fit``, with a cast shadow's edge where one explains enough of what it leaves.
 
@@ -982,7 +1002,7 @@ _SHADOW_START_WIDTH_PX = 1.0
 
 
 def find_shadow_edges(
-    image: np.ndarray, fit: TemplateFit, regions: list[np.ndarray]
+    image: NDArray[Any], fit: TemplateFit, regions: list[NDArray[np.float64]]
 ) -> template.TemplateShape:
     """Where a cast shadow's straight edge would best explain what the template leaves.
 

@@ -11,10 +11,11 @@ polarities the one closer to the image patch in L1 is kept (Eq. 10).
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 from scipy.special import erf
 
 from marker_localizer.core.sampling import Normaliser, bilinear, pad_patterns
@@ -28,7 +29,9 @@ _SUPERSAMPLING = 4  # template pixels are area-integrated from 4x4 sub-samples
 NCC_EVIDENCE_WEIGHT = 8.0
 
 
-def sector_sign(x: np.ndarray, y: np.ndarray, line_angles: np.ndarray) -> np.ndarray:
+def sector_sign(
+    x: NDArray[np.float64], y: NDArray[np.float64], line_angles: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """+1 / -1 for the two pairs of opposite sectors between two lines through the origin.
 
     Args:
@@ -54,12 +57,15 @@ class GreyLevels(NamedTuple):
         negative: mean level of the two sectors where it is -1.
     """
 
-    positive: np.ndarray
-    negative: np.ndarray
+    positive: NDArray[np.float64]
+    negative: NDArray[np.float64]
 
 
 def sample_grey_levels(
-    image: np.ndarray, xy: np.ndarray, line_angles: np.ndarray, offset_px: np.ndarray
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    offset_px: NDArray[np.float64],
 ) -> GreyLevels:
     """Grey level of each sector pair from 3x3 windows on the bisectors (section 3.3.1).
 
@@ -97,7 +103,9 @@ def sample_grey_levels(
     return GreyLevels(positive, negative)
 
 
-def estimate_defocus_sigma(gradient_magnitude_peak: np.ndarray, contrast: np.ndarray) -> np.ndarray:
+def estimate_defocus_sigma(
+    gradient_magnitude_peak: NDArray[np.float64], contrast: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Gaussian blur sigma_b of an edge from its contrast and steepest slope.
 
     A step of height C blurred by a Gaussian of sigma has slope C / (sqrt(2 pi) sigma)
@@ -112,12 +120,16 @@ def estimate_defocus_sigma(gradient_magnitude_peak: np.ndarray, contrast: np.nda
     """
     with np.errstate(divide="ignore", invalid="ignore"):
         sigma = np.abs(contrast) / (np.sqrt(2.0 * np.pi) * gradient_magnitude_peak)
-    return np.clip(np.nan_to_num(sigma, nan=1.0, posinf=5.0), 0.3, 5.0)
+    clipped: NDArray[np.float64] = np.clip(np.nan_to_num(sigma, nan=1.0, posinf=5.0), 0.3, 5.0)
+    return clipped
 
 
 def adaptive_template(
-    line_angles: np.ndarray, levels: GreyLevels, sigma_b: np.ndarray, half_size: int
-) -> np.ndarray:
+    line_angles: NDArray[np.float64],
+    levels: GreyLevels,
+    sigma_b: NDArray[np.float64],
+    half_size: int,
+) -> NDArray[np.float64]:
     """Render one X template per marker (section 3.3.1).
 
     Args:
@@ -136,7 +148,7 @@ def adaptive_template(
     sign = sector_sign(sx.ravel()[None, :], sy.ravel()[None, :], line_angles)
     fine = np.where(sign > 0, levels.positive[:, None], levels.negative[:, None])
     fine = fine.reshape(-1, size, _SUPERSAMPLING, size, _SUPERSAMPLING).mean(axis=(2, 4))
-    templates = np.empty_like(fine)
+    templates: NDArray[np.float64] = np.empty_like(fine)
     for k in range(len(fine)):  # per marker (not per pixel): each has its own blur
         templates[k] = cv2.GaussianBlur(
             fine[k], (0, 0), float(sigma_b[k]), borderType=cv2.BORDER_REFLECT
@@ -144,7 +156,9 @@ def adaptive_template(
     return templates
 
 
-def choose_polarity(patch: np.ndarray, templates: np.ndarray) -> np.ndarray:
+def choose_polarity(
+    patch: NDArray[np.float64], templates: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Pick, per marker, the template polarity closer to the image patch in L1, Eq. (10).
 
     Args:
@@ -169,12 +183,12 @@ class TemplateMatch(NamedTuple):
         sigma_b: the defocus sigma achieving it, px.
     """
 
-    ncc: np.ndarray
-    sigma_b: np.ndarray
+    ncc: NDArray[np.float64]
+    sigma_b: NDArray[np.float64]
 
 
 @functools.lru_cache(maxsize=256)
-def _disk_offsets(radius_px: float, max_samples: int) -> np.ndarray:
+def _disk_offsets(radius_px: float, max_samples: int) -> NDArray[np.float64]:
     """(K, 2) offsets of a square grid inside the disk, at most ~``max_samples`` of them.
 
     Cached and shared between calls: read-only.
@@ -189,10 +203,10 @@ def _disk_offsets(radius_px: float, max_samples: int) -> np.ndarray:
 
 
 def template_correlation(
-    image: np.ndarray,
-    xy: np.ndarray,
-    line_angles: np.ndarray,
-    radius_px: np.ndarray,
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
     sigmas_px: tuple[float, ...] = (0.6, 1.0, 1.6, 2.5),
     max_samples: int = 300,
     normalise: Normaliser | None = None,
@@ -255,7 +269,9 @@ def template_correlation(
     return TemplateMatch(ncc, best_sigma)
 
 
-def template_evidence(annular_score: np.ndarray, ncc: np.ndarray, ncc_min: float) -> np.ndarray:
+def template_evidence(
+    annular_score: NDArray[np.float64], ncc: NDArray[np.float64], ncc_min: float
+) -> NDArray[np.bool_]:
     """The paper path's decision: the template fits, and with the annular check it adds up.
 
     A candidate is accepted when its template NCC (:func:`template_correlation`)
@@ -304,21 +320,23 @@ class TemplateShape(NamedTuple):
             1 - depth * Phi((n . d - offset) / width).
     """
 
-    xy: np.ndarray
-    line_angles: np.ndarray
-    blur_px: np.ndarray
-    gain: np.ndarray
-    shadow: np.ndarray
+    xy: NDArray[np.float64]
+    line_angles: NDArray[np.float64]
+    blur_px: NDArray[np.float64]
+    gain: NDArray[np.float64]
+    shadow: NDArray[np.float64]
 
     @classmethod
-    def start(cls, xy: np.ndarray, line_angles: np.ndarray, blur_px: float) -> TemplateShape:
+    def start(
+        cls, xy: NDArray[np.float64], line_angles: NDArray[np.float64], blur_px: float
+    ) -> TemplateShape:
         """A starting shape: blur ``blur_px`` across both lines, even light, no shadow."""
         n = len(xy)
         shadow = np.zeros((n, 4))
         shadow[:, 3] = 1.0
         return cls(xy, line_angles, np.full((n, 2), blur_px), np.zeros((n, 2)), shadow)
 
-    def take(self, index: np.ndarray) -> TemplateShape:
+    def take(self, index: NDArray[np.integer[Any] | np.bool_]) -> TemplateShape:
         """The shapes selected by a boolean mask or an index array."""
         return TemplateShape(*(part[index] for part in self))
 
@@ -339,35 +357,37 @@ class TemplateTerms(NamedTuple):
         shade: (N, K) the shadow's factor 1 - depth Phi(shadow_z).
     """
 
-    dx: np.ndarray
-    dy: np.ndarray
-    s1: np.ndarray
-    s2: np.ndarray
-    width1: np.ndarray
-    width2: np.ndarray
-    side1: np.ndarray
-    side2: np.ndarray
-    light: np.ndarray
-    shadow_z: np.ndarray
-    shade: np.ndarray
+    dx: NDArray[np.float64]
+    dy: NDArray[np.float64]
+    s1: NDArray[np.float64]
+    s2: NDArray[np.float64]
+    width1: NDArray[np.float64]
+    width2: NDArray[np.float64]
+    side1: NDArray[np.float64]
+    side2: NDArray[np.float64]
+    light: NDArray[np.float64]
+    shadow_z: NDArray[np.float64]
+    shade: NDArray[np.float64]
 
     @property
-    def gain(self) -> np.ndarray:
+    def gain(self) -> NDArray[np.float64]:
         """(N, K) everything the light does to the paint: gradient times shadow."""
         return self.light * self.shade
 
 
-def _phi(z: np.ndarray) -> np.ndarray:
+def _phi(z: NDArray[np.float64]) -> NDArray[np.float64]:
     """The standard normal's distribution function."""
-    return 0.5 * (1.0 + erf(z / np.sqrt(2.0)))
+    phi: NDArray[np.float64] = 0.5 * (1.0 + erf(z / np.sqrt(2.0)))
+    return phi
 
 
-def _density(z: np.ndarray) -> np.ndarray:
+def _density(z: NDArray[np.float64]) -> NDArray[np.float64]:
     """The standard normal's density."""
-    return np.exp(-0.5 * z**2) / _SQRT_2PI
+    density: NDArray[np.float64] = np.exp(-0.5 * z**2) / _SQRT_2PI
+    return density
 
 
-def template_terms(offsets: np.ndarray, shape: TemplateShape) -> TemplateTerms:
+def template_terms(offsets: NDArray[np.float64], shape: TemplateShape) -> TemplateTerms:
     """Evaluate the template's terms at offsets d (N, K, 2) from ``shape.xy``."""
     a1, a2 = shape.line_angles[:, 0:1], shape.line_angles[:, 1:2]
     dx, dy = offsets[..., 0], offsets[..., 1]
@@ -385,7 +405,7 @@ def template_terms(offsets: np.ndarray, shape: TemplateShape) -> TemplateTerms:
     )
 
 
-def quadrant_weights(terms: TemplateTerms) -> np.ndarray:
+def quadrant_weights(terms: TemplateTerms) -> NDArray[np.float64]:
     """The adaptive template of section 3.3.1 in closed form, one grey level per quadrant.
 
     The paper's template is an X with the measured line angles phi1, phi2, its grey
@@ -416,14 +436,14 @@ def quadrant_weights(terms: TemplateTerms) -> np.ndarray:
 SHAPE_PARAMETERS = 12
 
 
-def shape_parameters(shape: TemplateShape) -> np.ndarray:
+def shape_parameters(shape: TemplateShape) -> NDArray[np.float64]:
     """(N, 12) the parameter vector :func:`template_jacobian` differentiates by."""
     shadow = shape.shadow.copy()
     shadow[:, 3] = np.log(shadow[:, 3])
     return np.hstack([shape.xy, shape.line_angles, np.log(shape.blur_px), shape.gain, shadow])
 
 
-def shape_from_parameters(params: np.ndarray) -> TemplateShape:
+def shape_from_parameters(params: NDArray[np.float64]) -> TemplateShape:
     """The inverse of :func:`shape_parameters`."""
     shadow = params[:, 8:12].copy()
     shadow[:, 3] = np.exp(shadow[:, 3])
@@ -432,7 +452,9 @@ def shape_from_parameters(params: np.ndarray) -> TemplateShape:
     )
 
 
-def template_jacobian(terms: TemplateTerms, shape: TemplateShape, levels: np.ndarray) -> np.ndarray:
+def template_jacobian(
+    terms: TemplateTerms, shape: TemplateShape, levels: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Derivatives of the template sum_q l_q w_q(d) with respect to its geometry.
 
     Args:
@@ -504,7 +526,7 @@ _REGION_MARGIN_PX = 0.5
 _REGION_MIN_PX = 1.5
 
 
-def half_line_quadrants(line_angles: np.ndarray) -> np.ndarray:
+def half_line_quadrants(line_angles: NDArray[np.float64]) -> NDArray[np.intp]:
     """(N, 4, 2) the quadrants on the positive and negative side of each half-line.
 
     Half-lines in the order +e1, +e2, -e1, -e2 (e_i the direction of line i); the
@@ -527,11 +549,11 @@ def half_line_quadrants(line_angles: np.ndarray) -> np.ndarray:
 
 
 def line_extents(
-    image: np.ndarray,
+    image: NDArray[Any],
     shape: TemplateShape,
-    levels: np.ndarray,
+    levels: NDArray[np.float64],
     max_radius_px: float,
-) -> np.ndarray:
+) -> NDArray[np.float64]:
     """How far each of the four half-lines of the X reaches from its centre, px.
 
     Along each half-line the image is sampled on both sides of it; the X goes on
@@ -593,10 +615,10 @@ def line_extents(
 
 def template_region(
     shape: TemplateShape,
-    extents: np.ndarray,
-    cap_px: np.ndarray,
+    extents: NDArray[np.float64],
+    cap_px: NDArray[np.float64],
     max_pixels: int | None = None,
-) -> list[np.ndarray]:
+) -> list[NDArray[np.float64]]:
     """Pixels inside the X: the ellipse on the two lines' reaches, clear of its ends.
 
     Under an affine view the ends of the X lie on an ellipse whose conjugate
@@ -619,7 +641,7 @@ def template_region(
     reach = np.minimum(np.minimum(extents[:, :2], extents[:, 2:]), cap_px[:, None])
     margin = _REGION_MARGIN_BLURS * np.sqrt(shape.blur_px.max(axis=1) ** 2 + PIXEL_VARIANCE_PX2)
     semi = np.maximum(reach - (margin + _REGION_MARGIN_PX)[:, None], _REGION_MIN_PX)
-    regions = []
+    regions: list[NDArray[np.float64]] = []
     for k in range(len(shape.xy)):  # per point (not per pixel): each has its own ellipse
         a1, a2 = shape.line_angles[k]
         axes = np.array([[np.cos(a1), np.cos(a2)], [np.sin(a1), np.sin(a2)]]) * semi[k]

@@ -58,9 +58,11 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
@@ -94,12 +96,16 @@ _CANDIDATE_OFFSET_PX = 2.0
 
 @dataclass
 class _Track:
-    xy: np.ndarray  # (2,) position on the last frame (detected, or predicted if missed), px
-    velocity: np.ndarray | None  # (2,) px per second; None until confirmed twice
+    xy: NDArray[
+        np.float64
+    ]  # (2,) position on the last frame (detected, or predicted if missed), px
+    velocity: NDArray[np.float64] | None  # (2,) px per second; None until confirmed twice
     detection: Detection  # the last detection: extent, line angles, evidence
     stamp_s: float  # time of the last frame
     missed: int = 0  # consecutive frames searched without a confirmation
-    patch: np.ndarray | None = None  # grey patch centred on round(xy) at the last confirmation
+    patch: NDArray[np.float64] | None = (
+        None  # grey patch centred on round(xy) at the last confirmation
+    )
     anchor: bool = False  # its patch measures the next frame's motion
     missed_by_full_pass: bool = False  # since its last confirmation
 
@@ -136,7 +142,7 @@ class MarkerTracker:
         self._tracks = []
         self._frames_since_full = 0
 
-    def update(self, image: np.ndarray, stamp_s: float | None = None) -> DetectionResult:
+    def update(self, image: NDArray[Any], stamp_s: float | None = None) -> DetectionResult:
         """Detect the markers of the next frame of this camera.
 
         Args:
@@ -179,7 +185,7 @@ class MarkerTracker:
         self._cut_patches(gray)
         return result
 
-    def _predict(self, stamp: float) -> np.ndarray:
+    def _predict(self, stamp: float) -> NDArray[np.float64]:
         """(N, 2) constant-velocity predictions; a track without velocity moves with the rest."""
         known = [t.velocity for t in self._tracks if t.velocity is not None]
         common = np.median(known, axis=0) if known else np.zeros(2)
@@ -191,8 +197,8 @@ class MarkerTracker:
         ).reshape(-1, 2)
 
     def _motion_from_fit(
-        self, gray: np.ndarray, predicted: np.ndarray
-    ) -> tuple[np.ndarray | None, DetectionResult | None]:
+        self, gray: NDArray[Any], predicted: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64] | None, DetectionResult | None]:
         """(3, 3) image motion from the tracks' own fits, and those fits; (None, None) if unsure.
 
         ``predicted``: the tracks' constant-velocity predictions (:meth:`_predict`).
@@ -219,7 +225,7 @@ class MarkerTracker:
         return _frame_motion(sources, targets, self.match_px), located
 
     def _locate_tracks(
-        self, gray: np.ndarray, predicted: np.ndarray, fitted: np.ndarray
+        self, gray: NDArray[Any], predicted: NDArray[np.float64], fitted: NDArray[np.bool_]
     ) -> DetectionResult:
         """The fit alone, started at the ``fitted`` tracks' predictions, with their last extent."""
         known = [t.detection for t, seen in zip(self._tracks, fitted, strict=True) if seen]
@@ -231,7 +237,9 @@ class MarkerTracker:
             np.array([d.evidence for d in known]),
         )
 
-    def _register(self, gray: np.ndarray, predicted: np.ndarray) -> np.ndarray | None:
+    def _register(
+        self, gray: NDArray[Any], predicted: NDArray[np.float64]
+    ) -> NDArray[np.float64] | None:
         """(3, 3) image motion from the last frame, measured on the anchors; None if none found.
 
         ``predicted``: the tracks' constant-velocity predictions, where the search starts.
@@ -255,13 +263,13 @@ class MarkerTracker:
 
     @staticmethod
     def _match_patch(
-        gray: np.ndarray,
-        patch: np.ndarray,
-        prediction: np.ndarray,
+        gray: NDArray[Any],
+        patch: NDArray[np.float64],
+        prediction: NDArray[np.float64],
         search_px: float,
         min_ncc: float = _MIN_PATCH_NCC,
         interior: bool = False,
-    ) -> np.ndarray | None:
+    ) -> NDArray[np.float64] | None:
         """Centre of the best match of ``patch`` within ``search_px`` of ``prediction``.
 
         None when its correlation is below ``min_ncc`` or, with ``interior``, when it
@@ -290,9 +298,9 @@ class MarkerTracker:
 
     def _track(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         stamp: float,
-        motion: np.ndarray,
+        motion: NDArray[np.float64],
         located: DetectionResult | None = None,
     ) -> DetectionResult | None:
         """Confirm the tracks where the motion puts them, search the border bands.
@@ -335,8 +343,8 @@ class MarkerTracker:
         regions = bands
         if retry.any():
             half = self.match_px + _CANDIDATE_OFFSET_PX
-            windows = np.hstack([corrected[retry] - half, corrected[retry] + half + 1])
-            windows = _merge_overlapping(self._snap(windows, shape))
+            around = np.hstack([corrected[retry] - half, corrected[retry] + half + 1])
+            windows = _merge_overlapping(self._snap(around, shape))
             # Band and window areas are searched once: windows are cut to the interior.
             windows[:, :2] = np.maximum(windows[:, :2], interior[:2])
             windows[:, 2:] = np.minimum(windows[:, 2:], interior[2:])
@@ -382,8 +390,8 @@ class MarkerTracker:
         return result
 
     def _border_bands(
-        self, shape: tuple[int, ...], motion: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
+        self, shape: tuple[int, ...], motion: NDArray[np.float64]
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """Bands along the frame border through which markers can have come into view.
 
         A marker whose plate was cut by the border on the last frame and is whole now
@@ -444,7 +452,7 @@ class MarkerTracker:
         """
         return max(1, self.detector.config.illumination_window_px // 8)
 
-    def _snap(self, windows: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    def _snap(self, windows: NDArray[np.float64], shape: tuple[int, ...]) -> NDArray[np.int64]:
         """(K, 4) float windows grown to the lattice and clipped to the frame, int64."""
         height, width = shape[:2]
         lattice = self._lattice_px()
@@ -458,11 +466,11 @@ class MarkerTracker:
 
     def _adopt(
         self,
-        gray: np.ndarray,
+        gray: NDArray[Any],
         result: DetectionResult,
         stamp: float,
-        motion: np.ndarray | None,
-        velocity_predicted: np.ndarray | None,
+        motion: NDArray[np.float64] | None,
+        velocity_predicted: NDArray[np.float64] | None,
     ) -> None:
         """Replace the tracks by a full pass's detections, continuing those matching a track.
 
@@ -490,7 +498,9 @@ class MarkerTracker:
                     tracks.append(_coasting(track, prediction, stamp, missed_by_full_pass=True))
         self._tracks = tracks
 
-    def _kept(self, gray: np.ndarray, predicted: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    def _kept(
+        self, gray: NDArray[Any], predicted: NDArray[np.float64], candidates: NDArray[np.bool_]
+    ) -> NDArray[np.bool_]:
         """(N,) True for the missed tracks to search again on the next frame.
 
         ``candidates`` are the missed tracks whose prediction lies inside the frame,
@@ -512,7 +522,7 @@ class MarkerTracker:
             )
         return kept
 
-    def _leaving(self, predicted: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    def _leaving(self, predicted: NDArray[np.float64], shape: tuple[int, ...]) -> NDArray[np.bool_]:
         """(N,) True where a track's predicted centre is within its plate of the border or out."""
         height, width = shape[:2]
         border_distance = np.minimum(
@@ -520,9 +530,9 @@ class MarkerTracker:
             np.minimum(predicted[:, 1], height - 1 - predicted[:, 1]),
         )
         radius = np.array([t.detection.radius_px for t in self._tracks])
-        return border_distance < PLATE_HALF_WIDTH * radius
+        return cast("NDArray[np.bool_]", border_distance < PLATE_HALF_WIDTH * radius)
 
-    def _cut_patches(self, gray: np.ndarray) -> None:
+    def _cut_patches(self, gray: NDArray[Any]) -> None:
         """Cut the patch of every marker confirmed on this frame; mark a few as anchors.
 
         The anchors are large markers (the most distinct patches) far apart (the
@@ -570,7 +580,7 @@ def _confirmed(track: _Track, detection: Detection, stamp: float) -> _Track:
 
 
 def _coasting(
-    track: _Track, prediction: np.ndarray, stamp: float, missed_by_full_pass: bool
+    track: _Track, prediction: NDArray[np.float64], stamp: float, missed_by_full_pass: bool
 ) -> _Track:
     """The track carried to ``stamp`` at its predicted position, one more frame missed."""
     return _Track(
@@ -585,8 +595,11 @@ def _coasting(
 
 
 def _associate(
-    points: np.ndarray, predicted: np.ndarray, searched: np.ndarray, gate_px: float
-) -> np.ndarray:
+    points: NDArray[np.float64],
+    predicted: NDArray[np.float64],
+    searched: NDArray[np.bool_],
+    gate_px: float,
+) -> NDArray[np.int64]:
     """(N,) index of the point continuing each searched prediction, -1 for none.
 
     Each point continues at most one track, the one predicted closest to it.
@@ -605,7 +618,7 @@ def _associate(
     return owner
 
 
-def _merge_overlapping(windows: np.ndarray) -> np.ndarray:
+def _merge_overlapping(windows: NDArray[np.int64]) -> NDArray[np.int64]:
     """Replace overlapping windows by their bounding box until none overlap."""
     while len(windows) > 1:
         overlap = (
@@ -652,7 +665,9 @@ def _combine(results: list[DetectionResult], separation_px: float) -> DetectionR
     return combined
 
 
-def _frame_motion(source: np.ndarray, target: np.ndarray, tolerance_px: float) -> np.ndarray:
+def _frame_motion(
+    source: NDArray[np.float64], target: NDArray[np.float64], tolerance_px: float
+) -> NDArray[np.float64]:
     """(3, 3) map taking the (N, 2) source points to the targets.
 
     A homography from four pairs or more (the ground plane seen from two poses),
@@ -675,6 +690,9 @@ def _frame_motion(source: np.ndarray, target: np.ndarray, tolerance_px: float) -
     return np.array([[a.real, -a.imag, b.real], [a.imag, a.real, b.imag], [0.0, 0.0, 1.0]])
 
 
-def _transform(motion: np.ndarray, points: np.ndarray) -> np.ndarray:
+def _transform(motion: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
     """(N, 2) points mapped by the (3, 3) projective ``motion``."""
-    return cv2.perspectiveTransform(points.reshape(-1, 1, 2), motion).reshape(-1, 2)
+    return cast(
+        "NDArray[np.float64]",
+        cv2.perspectiveTransform(points.reshape(-1, 1, 2), motion).reshape(-1, 2),
+    )

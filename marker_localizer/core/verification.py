@@ -13,10 +13,11 @@ ring (which rejects bars, blobs and plus signs that pass a single ring).
 from __future__ import annotations
 
 import warnings
-from typing import NamedTuple
+from typing import Any, NamedTuple, cast
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from marker_localizer.core.sampling import Normaliser, bilinear
 from marker_localizer.core.screening import parabolic_offset
@@ -65,11 +66,11 @@ _DERIVATIVE_KERNEL = np.convolve(_SMOOTHING_KERNEL, [0.5, 0.0, -0.5])[::-1]
 
 
 def annular_profiles(
-    image: np.ndarray,
-    xy: np.ndarray,
-    radii_px: np.ndarray,
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radii_px: NDArray[np.float64],
     normalise: Normaliser | None = None,
-) -> np.ndarray:
+) -> NDArray[np.float64]:
     """Grey levels on rings around each point, every 10 degrees.
 
     Args:
@@ -91,7 +92,9 @@ def annular_profiles(
     return np.where(valid, values, np.nan)
 
 
-def annular_profiles_at(image: np.ndarray, xy: np.ndarray, radius_px: np.ndarray) -> np.ndarray:
+def annular_profiles_at(
+    image: NDArray[Any], xy: NDArray[np.float64], radius_px: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """(N, 36) grey levels on one ring per point, each of its own radius (N,); NaN outside."""
     theta = np.deg2rad(np.arange(N_ANGLES) * 360.0 / N_ANGLES)
     x = xy[:, 0, None] + radius_px[:, None] * np.cos(theta)
@@ -100,12 +103,12 @@ def annular_profiles_at(image: np.ndarray, xy: np.ndarray, radius_px: np.ndarray
     return np.where(valid, values, np.nan)
 
 
-def ring_symmetry(profiles: np.ndarray) -> np.ndarray:
+def ring_symmetry(profiles: NDArray[np.float64]) -> NDArray[np.float64]:
     """(...,) 180-degree self-correlation of [1, 2, 1]-smoothed ring profiles (-1 outside)."""
     return _smoothed_contrast_symmetry(profiles)[2]
 
 
-def _circular_smooth(profile: np.ndarray) -> np.ndarray:
+def _circular_smooth(profile: NDArray[np.float64]) -> NDArray[np.float64]:
     """Smooth along the angle axis with a [1, 2, 1] / 4 kernel (the paper's DoG pre-filter)."""
     return 0.25 * (profile[..., _PREVIOUS] + 2.0 * profile + profile[..., _NEXT])
 
@@ -122,17 +125,19 @@ class RingAnalysis(NamedTuple):
             centre, from the sector boundaries.
     """
 
-    contrast: np.ndarray
-    symmetry: np.ndarray
-    four_sectors: np.ndarray
-    line_angles: np.ndarray
+    contrast: NDArray[np.float64]
+    symmetry: NDArray[np.float64]
+    four_sectors: NDArray[np.bool_]
+    line_angles: NDArray[np.float64]
 
-    def good(self, min_contrast: float, min_symmetry: float) -> np.ndarray:
+    def good(self, min_contrast: float, min_symmetry: float) -> NDArray[np.bool_]:
         """(N, J) True for the rings that show an X: four sectors, contrast, symmetry."""
         return self.four_sectors & (self.contrast >= min_contrast) & (self.symmetry >= min_symmetry)
 
 
-def _smoothed_contrast_symmetry(profiles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _smoothed_contrast_symmetry(
+    profiles: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The [1, 2, 1]-smoothed profiles, their contrast and their 180-degree self-correlation."""
     nan = np.isnan(profiles)
     missing = nan.any(axis=-1)
@@ -145,7 +150,7 @@ def _smoothed_contrast_symmetry(profiles: np.ndarray) -> tuple[np.ndarray, np.nd
     return f, contrast, symmetry
 
 
-def analyse_rings(profiles: np.ndarray) -> RingAnalysis:
+def analyse_rings(profiles: NDArray[np.float64]) -> RingAnalysis:
     """Measure the centre-symmetry invariants of annular profiles (section 3.2, check 1).
 
     Args:
@@ -178,7 +183,9 @@ def analyse_rings(profiles: np.ndarray) -> RingAnalysis:
     return RingAnalysis(contrast, symmetry, four, line_angles)
 
 
-def _nearest_ring(image: np.ndarray, xy: np.ndarray, radius_px: np.ndarray) -> np.ndarray:
+def _nearest_ring(
+    image: NDArray[Any], xy: NDArray[np.float64], radius_px: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """(N, 36) float32 nearest-pixel samples, each point's ring of its own radius (N,).
 
     Rows whose ring leaves the image are NaN.
@@ -198,10 +205,12 @@ def _nearest_ring(image: np.ndarray, xy: np.ndarray, radius_px: np.ndarray) -> n
     row = (centre[:, 1, None] + radius_px[:, None] * np.sin(theta)).astype(np.intp)
     values = image.reshape(-1)[row * width + col].astype(np.float32)
     values[~inside] = np.nan
-    return values
+    return cast("NDArray[np.float64]", values)
 
 
-def _ring_passes(ring: np.ndarray, min_contrast: float, min_symmetry: float) -> np.ndarray:
+def _ring_passes(
+    ring: NDArray[np.float64], min_contrast: float, min_symmetry: float
+) -> NDArray[np.bool_]:
     """(N,) bool: contrast and 180-degree self-correlation of (N, 36) rings.
 
     :func:`analyse_rings` without its sector analysis: what a first look over
@@ -212,14 +221,14 @@ def _ring_passes(ring: np.ndarray, min_contrast: float, min_symmetry: float) -> 
 
 
 def count_symmetric_rings(
-    image: np.ndarray,
-    xy: np.ndarray,
-    radii_px: np.ndarray,
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radii_px: NDArray[np.float64],
     *,
     min_contrast: float,
     min_symmetry: float,
     min_good: int,
-) -> np.ndarray:
+) -> NDArray[np.int64]:
     """Rings (of ``radii_px``, per point) with contrast, 180-degree symmetry and four sectors.
 
     A cascade for many candidates: nearest-pixel rings of the raw image are
@@ -263,14 +272,14 @@ def count_symmetric_rings(
     return passed
 
 
-def _angle_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _angle_difference(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Absolute difference of line directions modulo pi."""
-    return np.abs(np.angle(np.exp(2j * (a - b)))) / 2.0
+    return cast("NDArray[np.float64]", np.abs(np.angle(np.exp(2j * (a - b)))) / 2.0)
 
 
 def _pairing_differences(
-    angles: np.ndarray, reference: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+    angles: NDArray[np.float64], reference: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Largest line-direction difference of two line pairs (..., 2), as given and swapped.
 
     Two measurements of an X may list its lines in either order.
@@ -286,7 +295,9 @@ def _pairing_differences(
     return same, swap
 
 
-def line_pair_difference(angles: np.ndarray, reference: np.ndarray) -> np.ndarray:
+def line_pair_difference(
+    angles: NDArray[np.float64], reference: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """(N,) largest angle between corresponding lines of two (N, 2) line pairs, radians.
 
     The lines are paired whichever way fits better.
@@ -305,25 +316,25 @@ class SymmetryCheck(NamedTuple):
         contrast: (N,) bright-minus-dark level on the innermost accepted ring.
     """
 
-    accepted: np.ndarray
-    score: np.ndarray
-    radius_px: np.ndarray
-    line_angles: np.ndarray
-    contrast: np.ndarray
+    accepted: NDArray[np.bool_]
+    score: NDArray[np.float64]
+    radius_px: NDArray[np.float64]
+    line_angles: NDArray[np.float64]
+    contrast: NDArray[np.float64]
 
 
-def ring_radii(radius_range_px: tuple[float, float]) -> np.ndarray:
+def ring_radii(radius_range_px: tuple[float, float]) -> NDArray[np.float64]:
     """Ring radii of the annular scan: a sqrt(2) progression across the expected radii."""
     r_min, r_max = radius_range_px
     start = max(1.5, 0.5 * r_min)
     count = int(np.floor(np.log(max(r_max, start) / start) / np.log(np.sqrt(2.0)))) + 1
-    return start * np.sqrt(2.0) ** np.arange(count)
+    return cast("NDArray[np.float64]", start * np.sqrt(2.0) ** np.arange(count))
 
 
 def centre_symmetry_check(
-    image: np.ndarray,
-    xy: np.ndarray,
-    radii_px: np.ndarray,
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radii_px: NDArray[np.float64],
     *,
     min_contrast: float,
     min_symmetry: float,
@@ -408,15 +419,17 @@ class EdgePhaseRings(NamedTuple):
             where each line crosses the ring, both ends.
     """
 
-    good: np.ndarray
-    line_angles: np.ndarray
-    strength: np.ndarray
-    contrast: np.ndarray
-    edges: np.ndarray
-    crossings: np.ndarray
+    good: NDArray[np.bool_]
+    line_angles: NDArray[np.float64]
+    strength: NDArray[np.float64]
+    contrast: NDArray[np.float64]
+    edges: NDArray[np.float64]
+    crossings: NDArray[np.float64]
 
 
-def ring_derivative(profiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def ring_derivative(
+    profiles: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The ring profiles Gaussian-smoothed and differentiated along the angle.
 
     The binomial [1, 4, 6, 4, 1] / 16 (sigma 1 sample, 10 degrees) and a central
@@ -444,7 +457,7 @@ def ring_derivative(profiles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def analyse_ring_edges(
-    profiles: np.ndarray,
+    profiles: NDArray[np.float64],
     *,
     min_contrast: float,
     edge_fraction: float = EDGE_FRACTION,
@@ -518,12 +531,12 @@ def analyse_ring_edges(
 
 
 def _pair_edges(
-    derivative: np.ndarray,
-    magnitude: np.ndarray,
-    edge: np.ndarray,
+    derivative: NDArray[np.float64],
+    magnitude: NDArray[np.float64],
+    edge: NDArray[np.float64],
     max_edges: int,
     max_phase_error_rad: float,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Each ring's strongest line of each sign: two same-sign edges about 180 degrees apart.
 
     Args:
@@ -569,7 +582,9 @@ def _pair_edges(
     return ends, np.minimum(*weakest)
 
 
-def chord_crossing(xy: np.ndarray, radii_px: np.ndarray, crossings: np.ndarray) -> np.ndarray:
+def chord_crossing(
+    xy: NDArray[np.float64], radii_px: NDArray[np.float64], crossings: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Where the two lines found on each ring cross: the X centre the ring saw.
 
     Each line is the chord between its two crossings of the ring; off the centre, the
@@ -609,18 +624,18 @@ class EdgePhaseCheck(NamedTuple):
         contrast: (N,) bright-minus-dark level on the run's first ring.
     """
 
-    accepted: np.ndarray
-    xy: np.ndarray
-    score: np.ndarray
-    radius_px: np.ndarray
-    line_angles: np.ndarray
-    contrast: np.ndarray
+    accepted: NDArray[np.bool_]
+    xy: NDArray[np.float64]
+    score: NDArray[np.float64]
+    radius_px: NDArray[np.float64]
+    line_angles: NDArray[np.float64]
+    contrast: NDArray[np.float64]
 
 
 def edge_phase_check(
-    image: np.ndarray,
-    xy: np.ndarray,
-    radii_px: np.ndarray,
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radii_px: NDArray[np.float64],
     *,
     min_contrast: float,
     max_angle_drift_rad: float = MAX_LINE_DRIFT_RAD,
@@ -673,7 +688,9 @@ def edge_phase_check(
             np.zeros(0),
         )
 
-    def scan(centres: np.ndarray, radii: np.ndarray, phase_error_rad: float) -> EdgePhaseRings:
+    def scan(
+        centres: NDArray[np.float64], radii: NDArray[np.float64], phase_error_rad: float
+    ) -> EdgePhaseRings:
         profiles = annular_profiles(image, centres, radii, normalise)
         return analyse_ring_edges(
             profiles, min_contrast=min_contrast, max_phase_error_rad=phase_error_rad
@@ -683,10 +700,10 @@ def edge_phase_check(
     # off the centre meets a ring of 3 px ~40 degrees from opposite. They only say
     # where the lines cross, and which candidates can pass at all: a ring that fails
     # the lenient pairing fails the strict one.
-    inner = radii_px[: max_first_ring + 1]
-    first_look = scan(xy, inner, RECENTRE_PHASE_ERROR_RAD)
+    inner_radii = radii_px[: max_first_ring + 1]
+    first_look = scan(xy, inner_radii, RECENTRE_PHASE_ERROR_RAD)
     crossing = np.where(
-        first_look.good[..., None], chord_crossing(xy, inner, first_look.crossings), np.nan
+        first_look.good[..., None], chord_crossing(xy, inner_radii, first_look.crossings), np.nan
     )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no ring found lines
@@ -727,8 +744,11 @@ def edge_phase_check(
 
 
 def _longest_run(
-    good: np.ndarray, line_angles: np.ndarray, max_first_ring: int, max_drift_rad: float
-) -> tuple[np.ndarray, np.ndarray]:
+    good: NDArray[np.bool_],
+    line_angles: NDArray[np.float64],
+    max_first_ring: int,
+    max_drift_rad: float,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """The longest run of consecutive good rings whose lines stay within ``max_drift_rad``.
 
     A run starts at one of the ``max_first_ring`` innermost rings and its first ring's
@@ -761,7 +781,9 @@ def _longest_run(
     return best, best_swap
 
 
-def _scatter(full: np.ndarray, index: np.ndarray, part: np.ndarray) -> np.ndarray:
+def _scatter(
+    full: NDArray[Any], index: NDArray[np.integer[Any]], part: NDArray[Any]
+) -> NDArray[Any]:
     """A copy of ``full`` with the rows ``index`` replaced by ``part``."""
     out = full.copy()
     out[index] = part
@@ -778,12 +800,14 @@ class LineCheck(NamedTuple):
         distance_px: (N,) distance of the crossing from the candidate (inf if none).
     """
 
-    accepted: np.ndarray
-    line_angles: np.ndarray
-    distance_px: np.ndarray
+    accepted: NDArray[np.bool_]
+    line_angles: NDArray[np.float64]
+    distance_px: NDArray[np.float64]
 
 
-def _segment_intersections(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _segment_intersections(
+    segments: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """All pairwise intersections of infinite lines through segments (x1, y1, x2, y2).
 
     Returns:
@@ -801,9 +825,9 @@ def _segment_intersections(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def double_line_check(
-    image: np.ndarray,
-    xy: np.ndarray,
-    radius_px: np.ndarray,
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
     *,
     extend_px: float = 5.0,
     max_distance_px: float = 1.5,
@@ -885,13 +909,15 @@ def double_line_check(
     return LineCheck(accepted, angles, distance)
 
 
-def _on_segment(points: np.ndarray, segments: np.ndarray, slack_px: float = 0.5) -> np.ndarray:
+def _on_segment(
+    points: NDArray[np.float64], segments: NDArray[np.float64], slack_px: float = 0.5
+) -> NDArray[np.bool_]:
     """True where each point projects inside its segment (with a little slack)."""
     a, b = segments[:, :2], segments[:, 2:]
     d = b - a
     t = np.einsum("ij,ij->i", points - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
     slack = slack_px / np.maximum(np.linalg.norm(d, axis=1), 1e-12)
-    return (t >= -slack) & (t <= 1.0 + slack)
+    return cast("NDArray[np.bool_]", (t >= -slack) & (t <= 1.0 + slack))
 
 
 class SectorOrder(NamedTuple):
@@ -905,12 +931,12 @@ class SectorOrder(NamedTuple):
         falling: index of the pair of falling edges.
     """
 
-    strength: np.ndarray
-    rising: np.ndarray
-    falling: np.ndarray
+    strength: NDArray[np.float64]
+    rising: NDArray[np.float64]
+    falling: NDArray[np.float64]
 
 
-def sector_order(profiles: np.ndarray) -> SectorOrder:
+def sector_order(profiles: NDArray[np.float64]) -> SectorOrder:
     """The order of dark and bright sectors on rings, from their edges alone.
 
     Going round an X, the grey level rises into each bright quadrant and falls
@@ -945,22 +971,22 @@ def sector_order(profiles: np.ndarray) -> SectorOrder:
     )
 
 
-def ring_edge_noise(noise_std: np.ndarray | float) -> np.ndarray | float:
+def ring_edge_noise(noise_std: NDArray[np.float64] | float) -> NDArray[np.float64] | float:
     """Std of :func:`sector_order`'s slope for ring samples of noise std ``noise_std``.
 
     The slope (f[k+2] + 2 f[k+1] - 2 f[k-1] - f[k-2]) / 8 of the [1, 2, 1]-smoothed
     profile has std sqrt(10) / 8 of the samples' when they are independent.
     """
-    return np.sqrt(10.0) / 8.0 * noise_std
+    return cast("NDArray[np.float64] | float", np.sqrt(10.0) / 8.0 * noise_std)
 
 
 def prescreen_sector_order(
-    image: np.ndarray,
-    xy: np.ndarray,
-    radii_px: np.ndarray,
-    min_strength: np.ndarray,
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radii_px: NDArray[np.float64],
+    min_strength: NDArray[np.float64],
     max_angle_drift: int = 2,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
     """Cascaded sector-order test on nearest-pixel rings, for many candidates.
 
     A candidate passes when every ring (of its own radii) shows the X's edge pairs
@@ -998,7 +1024,7 @@ def prescreen_sector_order(
         alive, first_rising, first_falling = alive[keep], first_rising[keep], first_falling[keep]
     passed = np.zeros(n, dtype=bool)
     passed[alive] = True
-    angles: np.ndarray = np.zeros((n, 2))
+    angles: NDArray[np.float64] = np.zeros((n, 2))
     if first is not None:
         angles = np.stack([first.rising, first.falling], axis=1) * (2.0 * np.pi / N_ANGLES)
     return passed, angles
@@ -1015,7 +1041,7 @@ _DARK_PAIR_TOLERANCE = 0.3
 _BRIGHT_MARGIN = 0.05
 
 
-def dark_paint_agrees(profiles: np.ndarray, order: SectorOrder) -> np.ndarray:
+def dark_paint_agrees(profiles: NDArray[np.float64], order: SectorOrder) -> NDArray[np.float64]:
     """(N,) whether a ring's two dark sectors match and both bright ones stand above them.
 
     The sectors lie between the edges :func:`sector_order` found (rising at k and
@@ -1048,14 +1074,15 @@ def dark_paint_agrees(profiles: np.ndarray, order: SectorOrder) -> np.ndarray:
     dark = np.where(first_dark[:, None], first, second)
     bright = np.where(first_dark[:, None], second, first)
     contrast = bright.max(axis=1) - dark.mean(axis=1)
-    return (
+    return cast(
+        "NDArray[np.float64]",
         (np.abs(dark[:, 0] - dark[:, 1]) <= _DARK_PAIR_TOLERANCE * contrast)
         & (bright.min(axis=1) - dark.max(axis=1) >= _BRIGHT_MARGIN * contrast)
-        & (count > 0).all(axis=1)
+        & (count > 0).all(axis=1),
     )
 
 
-def _index_gap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _index_gap(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Distance of two half-turn sample indices (0-17), modulo a half turn."""
     gap = np.abs(a - b) % _HALF_TURN
-    return np.minimum(gap, _HALF_TURN - gap)
+    return cast("NDArray[np.float64]", np.minimum(gap, _HALF_TURN - gap))
