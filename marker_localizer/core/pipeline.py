@@ -929,6 +929,14 @@ class Detector:
             symmetry.radius_px >= cfg.min_extent_fraction * cfg.marker_radius_min_px - 1e-9
         )
         counts["rejected_symmetry"] = int((~keep).sum())
+        # A detection's score is this ring symmetry times factors of at most 1 (the
+        # template's NCC, the fit's 1 - relative residual): a candidate already below
+        # its floor stays below it, and is spared the costly checks and the fit.
+        floor = self._score_floor(symmetry.radius_px)
+        weak = keep & (symmetry.score < floor)
+        counts["rejected_score"] = int(weak.sum())
+        keep &= ~weak
+        floor = floor[keep]
         radius = symmetry.radius_px[keep]
         angles = symmetry.line_angles[keep]
         score = symmetry.score[keep]
@@ -959,6 +967,9 @@ class Detector:
         )
         keep = (ncc >= cfg.template_ncc_min) & (~measurable | (modulation >= cfg.min_modulation))
         counts["rejected_template"] = int((~keep).sum())
+        weak = keep & (score * ncc < floor)
+        counts["rejected_score"] += int(weak.sum())
+        keep &= ~weak
         candidates, radius, angles, score = (
             candidates.take(keep),
             radius[keep],
@@ -989,6 +1000,22 @@ class Detector:
             counts["rejected_lines"] = 0
         return candidates, radius, angles, score
 
+    def _score_floor(self, radius: np.ndarray) -> np.ndarray:
+        """(N,) the lowest score a detection of extent ``radius`` (px) may have.
+
+        ``min_score``, raised to the texture floors of :data:`_TEXTURE_SCORE_FLOORS`
+        below their extents, and ``min_score_small`` where the X is no larger than the
+        smallest expected marker and texture-sized.
+        """
+        cfg = self.config
+        threshold = np.full(len(radius), cfg.min_score)
+        for extent, floor in reversed(_TEXTURE_SCORE_FLOORS):
+            threshold[radius < extent] = max(cfg.min_score, floor)
+        small = (radius < _SMALL_EXTENT_FACTOR * cfg.marker_radius_min_px) & (
+            radius < _TEXTURE_EXTENT_PX
+        )
+        return np.where(small, cfg.min_score_small, threshold)
+
     def _locate(
         self,
         gray: NDArray[Any],
@@ -1008,7 +1035,8 @@ class Detector:
         """
         cfg = self.config
         if len(xy) == 0:
-            counts["rejected_refinement"] = counts["rejected_score"] = 0
+            counts["rejected_refinement"] = 0
+            counts.setdefault("rejected_score", 0)
             return []
         fit = subpixel.refine_point_symmetry(
             gray,
@@ -1045,14 +1073,8 @@ class Detector:
         ok = located & fit.converged & (relative_residual <= cfg.max_symmetry_residual) & ~faint
         ok &= np.isfinite(sigma)
         counts["rejected_refinement"] = int((~ok).sum())
-        threshold = np.full(len(radius), cfg.min_score)
-        for extent, floor in reversed(_TEXTURE_SCORE_FLOORS):
-            threshold[radius < extent] = max(cfg.min_score, floor)
-        small = (radius < _SMALL_EXTENT_FACTOR * cfg.marker_radius_min_px) & (
-            radius < _TEXTURE_EXTENT_PX
-        )
-        weak = ok & (final_score < np.where(small, cfg.min_score_small, threshold))
-        counts["rejected_score"] = int(weak.sum())
+        weak = ok & (final_score < self._score_floor(radius))
+        counts["rejected_score"] = counts.get("rejected_score", 0) + int(weak.sum())
         keep = np.flatnonzero(ok & ~weak)
         unique = screening.non_maximum_suppression(
             position[keep], final_score[keep], cfg.min_peak_separation_px / 2.0
