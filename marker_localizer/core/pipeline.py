@@ -1000,7 +1000,7 @@ class Detector:
             counts["rejected_lines"] = 0
         return candidates, radius, angles, score
 
-    def _score_floor(self, radius: np.ndarray) -> np.ndarray:
+    def _score_floor(self, radius: NDArray[np.float64]) -> NDArray[np.float64]:
         """(N,) the lowest score a detection of extent ``radius`` (px) may have.
 
         ``min_score``, raised to the texture floors of :data:`_TEXTURE_SCORE_FLOORS`
