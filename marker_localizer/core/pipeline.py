@@ -68,38 +68,23 @@ _MAX_VERIFIED = 5000
 #: bounded worst case (``max_candidates`` after screening, :data:`_MAX_VERIFIED` after
 #: the prescreen): the node's diagnostics show their sum.
 CAP_COUNTS = ("dropped_over_cap", "dropped_over_verification_cap")
-#: Gauss-Newton iterations of the coarse centring (a few tenths of a pixel suffice there).
-_COARSE_ITERATIONS = 3
-#: Samples per candidate in the coarse centring: enough for a few tenths of a pixel.
-_COARSE_SAMPLES = 40
-#: Ratio of the observed to the fit-predicted error on the renderer's family (a) frames:
-#: neighbouring bilinear samples share pixels, so the fit's covariance counts more
-#: independent residuals than there are. Measured with ``marker-localizer bench accuracy``:
-#: with it, 96 % of the errors on family (a) fall within 2 sigma.
-_SIGMA_CALIBRATION = 2.0
-#: Detections whose X extends no further than the smallest expected radius (times this,
-#: for the ring ladder's rounding), and less than ``_TEXTURE_EXTENT_PX``, need
-#: ``min_score_small``: ground texture produces saddles of that size, rarely larger.
-_SMALL_EXTENT_FACTOR = 1.05
-#: Ground texture makes saddles that pass the geometric checks up to this extent
-#: (px; at most 8.5 px on the renderer's families (b) and (d)). Below it the
-#: modulation gate applies, a detection needs the score floor of its extent from
-#: ``_TEXTURE_SCORE_FLOORS`` and, where it is also no larger than the smallest
-#: expected marker, ``min_score_small``.
-_TEXTURE_EXTENT_PX = 9.0
-#: (extent below, px; lowest score): texture saddles score up to 0.93 below 6 px
-#: and up to 0.87 at 6-9 px; markers of those extents score 0.92 and more on the
-#: simulated flights (where 0.88 let 1 texture point per frame through) and the
-#: renderer's families, but for 8 % of the tiny ones of family (b).
-_TEXTURE_SCORE_FLOORS = ((6.0, 0.92), (_TEXTURE_EXTENT_PX, 0.88))
-#: The LSD pair's line directions replace the rings' where both agree this closely. On
-#: family (a) the rings' angles err by 1.8 degrees (median) and at most 10; LSD's by
-#: 1.1 when right. 5 degrees keeps the median at 1.1 and the worst at the rings' 10.
-_LINE_ANGLE_AGREEMENT_RAD = np.deg2rad(5.0)
-#: Sector levels sampled closer than this to the centre are mixed by the blur.
-_MODULATION_MIN_OFFSET_PX = 2.5
-#: ... and from this distance on they are clear of it for any expected blur.
-_MODULATION_FREE_OFFSET_PX = 3.0
+#: ``min_contrast_dn`` is in 8-bit grey levels, of which white is this: the thresholds
+#: in grey levels are its share of white times the image's white (``full_scale``).
+_WHITE_DN = 255.0
+#: The prescreen's rings, and every detection's fit, need this share of
+#: ``min_contrast_dn`` in raw (not gamma-corrected) grey levels: lenient, as the rings
+#: may sit off the centre and gamma stretches dark ground.
+_RAW_CONTRAST_SHARE = 0.5
+#: Candidates centred closer than this to a stronger one have found its X, px.
+_CENTRED_DUPLICATE_PX = 1.5
+#: Context screened around a search region: the filters of the coarsest pyramid level
+#: reach 2 level pixels (5x5 Sobel), plus the halving alignment; this many of that
+#: level's pixels, plus :data:`_REGION_MARGIN_PX` full-resolution ones, suffice.
+_REGION_MARGIN_LEVEL_PX = 4
+_REGION_MARGIN_PX = 4
+#: A search region with its context narrower than this holds no candidate, px: the
+#: screening's 5x5 filters need that much image.
+_REGION_MIN_PX = 8
 #: ``refinement="template"``: a sector-order prescreen ring's edge pairs must exceed
 #: the noise of its slope this many times: lenient (the decision comes later); the
 #: prescreen only spares the fit most texture.
@@ -232,6 +217,8 @@ class Detector:
         self._radius_range = (self.config.marker_radius_min_px, self.config.marker_radius_max_px)
         self._radii = verification.ring_radii(self._radius_range)
         self._threshold = decision.threshold_for_rate(self.config.false_points_per_mp)
+        #: ``min_contrast_dn`` as a share of white.
+        self._min_contrast = self.config.min_contrast_dn / _WHITE_DN
         first_level = screening.saddle_levels(self._radius_range).start
         self._seed_scale = screening.candidate_scale(first_level, self._radius_range)
 
@@ -454,14 +441,10 @@ class Detector:
         counts["rejected_centring"] = 0
         with timer("verification"):
             check = verification.edge_phase_check(
-                gray,
-                candidates.xy,
-                self._radii,
-                min_contrast=cfg.min_contrast_dn / 255.0,
-                normalise=gamma,
+                gray, candidates.xy, self._radii, min_contrast=self._min_contrast, normalise=gamma
             )
-            keep = check.accepted & (
-                check.radius_px >= cfg.min_extent_fraction * cfg.marker_radius_min_px - 1e-9
+            keep = check.accepted & verification.reaches_extent(
+                check.radius_px, cfg.min_extent_fraction, cfg.marker_radius_min_px
             )
             counts["rejected_symmetry"] = int((~keep).sum())
             xy, radius = check.xy[keep], check.radius_px[keep]
@@ -473,7 +456,7 @@ class Detector:
                 gray,
                 xy,
                 angles,
-                np.clip(0.6 * radius, 2.5, cfg.marker_radius_max_px),
+                verification.template_radius(radius, cfg.marker_radius_max_px),
                 normalise=gamma,
             ).ncc
             ok = template.template_evidence(score, ncc, cfg.template_ncc_min)
@@ -495,11 +478,7 @@ class Detector:
                 ok = lines.accepted
                 counts["rejected_lines"] = int((~ok).sum())
                 xy, radius, angles, score = xy[ok], radius[ok], angles[ok], score[ok]
-                agree = (
-                    verification.line_pair_difference(lines.line_angles[ok], angles)
-                    <= _LINE_ANGLE_AGREEMENT_RAD
-                )
-                angles = np.where(agree[:, None], lines.line_angles[ok], angles)
+                angles = verification.agreed_line_angles(lines.line_angles[ok], angles)
             else:
                 counts["rejected_lines"] = 0
         if noise is not None:
@@ -521,9 +500,8 @@ class Detector:
                 offset_px=cfg.template_offset_px,
                 search_px=cfg.ncc_search_px,
             )
-            located = np.isfinite(fit.offset).all(axis=1) & np.isfinite(fit.sigma)
+            located, matched = subpixel.ncc_gates(fit)
             counts["rejected_refinement"] = int((~located).sum())
-            matched = located & (fit.peak >= subpixel.NCC_PEAK_MIN)
             counts["rejected_score"] = int((located & ~matched).sum())
             order = np.flatnonzero(matched)
             order = order[np.argsort(-score[order])]
@@ -600,7 +578,7 @@ class Detector:
                 corrected,
                 structure,
                 self._radius_range,
-                cfg.min_contrast_dn / 255.0,
+                self._min_contrast,
                 cfg.curvature_threshold_std,
                 cfg.min_peak_separation_px,
                 cfg.structure_keep_fraction,
@@ -613,7 +591,7 @@ class Detector:
         return screening.saddle_candidates(
             gray,
             self._radius_range,
-            cfg.min_contrast_dn / 255.0 * full_scale,
+            self._min_contrast * full_scale,
             relative_threshold=cfg.saddle_threshold,
             window=window,
             cell_cap=screening.CellCap(
@@ -634,10 +612,8 @@ class Detector:
         ``cut`` counts what the screening's caps cut, as :meth:`_find_candidates`.
         """
         height, width = gray.shape
-        # The filters of the coarsest pyramid level reach 2 level pixels (5x5 Sobel)
-        # plus the halving alignment: that much context around a window suffices.
         coarsest = 2 ** (screening.saddle_levels(self._radius_range).stop - 1)
-        margin = 4 * coarsest + 4
+        margin = _REGION_MARGIN_LEVEL_PX * coarsest + _REGION_MARGIN_PX
         parts = []
         for x0, y0, x1, y1 in regions:
             # Windows start on the coarsest level's pixel grid, so every level sees the
@@ -645,7 +621,7 @@ class Detector:
             cx0, cy0 = max(int(x0) - margin, 0), max(int(y0) - margin, 0)
             cx0, cy0 = cx0 - cx0 % coarsest, cy0 - cy0 % coarsest
             cx1, cy1 = min(int(x1) + margin, width), min(int(y1) + margin, height)
-            if cx1 - cx0 < 8 or cy1 - cy0 < 8:
+            if cx1 - cx0 < _REGION_MIN_PX or cy1 - cy0 < _REGION_MIN_PX:
                 continue
             found = self._find_candidates(
                 gray[cy0:cy1, cx0:cx1],
@@ -717,7 +693,7 @@ class Detector:
         ]
         min_strength = np.maximum(
             _ORDER_NOISE_SIGMAS * verification.ring_edge_noise(noise.std(level)),
-            _ORDER_CONTRAST_SHARE * self.config.min_contrast_dn / 255.0 * full_scale,
+            _ORDER_CONTRAST_SHARE * self.config.min_contrast_dn / _WHITE_DN * full_scale,
         )
         passed, angles = verification.prescreen_sector_order(
             gray, candidates.xy, self._prescreen_radii(candidates), min_strength
@@ -875,35 +851,22 @@ class Detector:
         return fit.with_rows(accepted, final)
 
     def _raw_contrast_floor(self, full_scale: float) -> float:
-        """Half the configured contrast in raw (not gamma-corrected) grey units.
+        """:data:`_RAW_CONTRAST_SHARE` of the configured contrast in raw grey units.
 
         The prescreen's ring floor, which every detection's fit also meets.
         """
-        return 0.5 * self.config.min_contrast_dn / 255.0 * full_scale
+        return _RAW_CONTRAST_SHARE * self._min_contrast * full_scale
 
     def _centre(
         self, gray: NDArray[Any], candidates: Candidates, counts: dict[str, int]
     ) -> Candidates:
-        """Move each candidate to its local centre of point symmetry (coarse, 2 parameters)."""
-        cfg = self.config
-        radius = np.clip(candidates.scale_px, 2.0, cfg.marker_radius_max_px)
-        fit = subpixel.refine_point_symmetry(
-            gray,
-            candidates.xy,
-            radius,
-            iterations=_COARSE_ITERATIONS,
-            tolerance_px=0.05,
-            max_shift_px=0.5 * radius + 1.0,
-            model_gain=False,
-            max_samples=_COARSE_SAMPLES,
-            uncertainty=False,
-        )
-        inside = np.isfinite(fit.xy).all(axis=1) & (
-            np.linalg.norm(fit.xy - candidates.xy, axis=1) <= 0.5 * radius + 1.0
+        """Each candidate at its local centre of point symmetry (:func:`subpixel.coarse_centre`)."""
+        xy, inside = subpixel.coarse_centre(
+            gray, candidates.xy, candidates.scale_px, self.config.marker_radius_max_px
         )
         counts["rejected_centring"] = int((~inside).sum())
-        moved = Candidates(fit.xy, candidates.strength, candidates.scale_px).take(inside)
-        keep = screening.non_maximum_suppression(moved.xy, moved.strength, 1.5)
+        moved = Candidates(xy, candidates.strength, candidates.scale_px).take(inside)
+        keep = screening.non_maximum_suppression(moved.xy, moved.strength, _CENTRED_DUPLICATE_PX)
         counts["merged_duplicates"] = int((~keep).sum())
         return moved.take(keep)
 
@@ -921,12 +884,12 @@ class Detector:
             gray,
             candidates.xy,
             self._radii,
-            min_contrast=cfg.min_contrast_dn / 255.0,
+            min_contrast=self._min_contrast,
             min_symmetry=cfg.symmetry_min,
             normalise=gamma,
         )
-        keep = symmetry.accepted & (
-            symmetry.radius_px >= cfg.min_extent_fraction * cfg.marker_radius_min_px - 1e-9
+        keep = symmetry.accepted & verification.reaches_extent(
+            symmetry.radius_px, cfg.min_extent_fraction, cfg.marker_radius_min_px
         )
         counts["rejected_symmetry"] = int((~keep).sum())
         # A detection's score is this ring symmetry times factors of at most 1 (the
@@ -945,27 +908,20 @@ class Detector:
             gray,
             candidates.xy,
             angles,
-            np.clip(0.6 * radius, 2.5, cfg.marker_radius_max_px),
+            verification.template_radius(radius, cfg.marker_radius_max_px),
             normalise=gamma,
         )
         ncc = match.ncc
-        offset = np.minimum(cfg.template_offset_px, 0.6 * radius)
-        levels = template.sample_grey_levels(gray, candidates.xy, angles, offset)
-        bright = np.maximum(levels.positive, levels.negative)
-        dark = np.minimum(levels.positive, levels.negative)
-        modulation = (bright - dark) / np.maximum(bright + dark, 1e-12)
-        # Closer than 2.5 px to the centre the blur mixes the sectors, so the levels
-        # of markers with an extent under ~4 px say little about their paint: they are
-        # tested only when they also fall short of the expected radius, as texture
-        # saddles do (a small marker in a frame of small markers is not suspect).
-        # Larger X's than texture makes are not tested: dim real boards (black level,
-        # haze) modulate as little as 0.18.
-        measurable = (
-            (offset >= _MODULATION_MIN_OFFSET_PX)
-            & ((radius < cfg.marker_radius_min_px) | (offset >= _MODULATION_FREE_OFFSET_PX))
-            & (radius < _TEXTURE_EXTENT_PX)
+        modulated = verification.modulation_gate(
+            gray,
+            candidates.xy,
+            angles,
+            radius,
+            np.minimum(cfg.template_offset_px, verification.TEMPLATE_RADIUS_FRACTION * radius),
+            cfg.marker_radius_min_px,
+            cfg.min_modulation,
         )
-        keep = (ncc >= cfg.template_ncc_min) & (~measurable | (modulation >= cfg.min_modulation))
+        keep = (ncc >= cfg.template_ncc_min) & modulated
         counts["rejected_template"] = int((~keep).sum())
         weak = keep & (score * ncc < floor)
         counts["rejected_score"] += int(weak.sum())
@@ -988,14 +944,7 @@ class Detector:
             counts["rejected_lines"] = int((~lines.accepted).sum())
             ok = lines.accepted
             candidates, radius, score = candidates.take(ok), radius[ok], score[ok]
-            # The LSD pair refines the ring angles where it agrees with them; the pair
-            # crossing nearest the centre is at times a plate edge (up to 53 degrees
-            # off on family (a)), and the rings' angles stand then.
-            agree = (
-                verification.line_pair_difference(lines.line_angles[ok], angles[ok])
-                <= _LINE_ANGLE_AGREEMENT_RAD
-            )
-            angles = np.where(agree[:, None], lines.line_angles[ok], angles[ok])
+            angles = verification.agreed_line_angles(lines.line_angles[ok], angles[ok])
         else:
             counts["rejected_lines"] = 0
         return candidates, radius, angles, score
@@ -1003,18 +952,13 @@ class Detector:
     def _score_floor(self, radius: NDArray[np.float64]) -> NDArray[np.float64]:
         """(N,) the lowest score a detection of extent ``radius`` (px) may have.
 
-        ``min_score``, raised to the texture floors of :data:`_TEXTURE_SCORE_FLOORS`
-        below their extents, and ``min_score_small`` where the X is no larger than the
-        smallest expected marker and texture-sized.
+        :func:`verification.minimum_score`: ``min_score``, raised to the texture
+        floors below their extents, and ``min_score_small`` for small markers.
         """
         cfg = self.config
-        threshold = np.full(len(radius), cfg.min_score)
-        for extent, floor in reversed(_TEXTURE_SCORE_FLOORS):
-            threshold[radius < extent] = max(cfg.min_score, floor)
-        small = (radius < _SMALL_EXTENT_FACTOR * cfg.marker_radius_min_px) & (
-            radius < _TEXTURE_EXTENT_PX
+        return verification.minimum_score(
+            radius, cfg.min_score, cfg.min_score_small, cfg.marker_radius_min_px
         )
-        return np.where(small, cfg.min_score_small, threshold)
 
     def _locate(
         self,
@@ -1026,68 +970,49 @@ class Detector:
         counts: dict[str, int],
         full_scale: float,
     ) -> list[Detection]:
-        """Section 3.3: sub-pixel centres, the final gates, and each point's sigma.
+        """Section 3.3: sub-pixel centres and final gates (:func:`subpixel.locate_markers`).
 
-        The point-symmetry fit runs in both modes: it is the default position, and
-        its residual gates and scores every point. With ``refinement="ncc"`` the
-        reported position is the paper's NCC extremum, and its distance from the
-        symmetry centre is added to sigma, as a direct estimate of its error.
+        Then the score each extent needs (:meth:`_score_floor`) and the last
+        suppression of duplicates, strongest first.
         """
         cfg = self.config
         if len(xy) == 0:
             counts["rejected_refinement"] = 0
             counts.setdefault("rejected_score", 0)
             return []
-        fit = subpixel.refine_point_symmetry(
+        # The prescreen's contrast floor holds for every detection; it matters for a
+        # tracked marker confirmed by the fit alone (see :meth:`locate`), which no ring
+        # has measured on this frame.
+        fit = subpixel.locate_markers(
             gray,
             xy,
-            np.clip(0.9 * radius, 2.0, cfg.marker_radius_max_px),
+            radius,
+            angles,
+            score,
+            max_radius_px=cfg.marker_radius_max_px,
             iterations=cfg.refinement_max_iterations,
-            tolerance_px=1e-3,
-            max_shift_px=1.5,
-            model_gain=True,
-            noise_floor=_noise_floor(gray),
+            min_contrast=self._raw_contrast_floor(full_scale),
+            max_symmetry_residual=cfg.max_symmetry_residual,
+            ncc_offset_px=cfg.template_offset_px if cfg.refinement == "ncc" else None,
+            ncc_search_px=cfg.ncc_search_px,
         )
-        position = fit.xy
-        variance = fit.covariance[:, 0, 0] + fit.covariance[:, 1, 1]
-        located: NDArray[np.bool_] = np.ones(len(xy), bool)
-        if cfg.refinement == "ncc":
-            position = subpixel.ncc_refine(
-                gray,
-                xy,
-                radius,
-                angles,
-                offset_px=cfg.template_offset_px,
-                search_px=cfg.ncc_search_px,
-            ).offset
-            located = cast("NDArray[np.bool_]", np.isfinite(position).all(axis=1))
-            discrepancy = np.where(located, np.sum((position - fit.xy) ** 2, axis=1), 0.0)
-            variance = variance + discrepancy / _SIGMA_CALIBRATION**2
-        sigma = _SIGMA_CALIBRATION * np.sqrt(np.maximum(variance, 0.0))
-        relative_residual = fit.residual / np.maximum(fit.contrast, 1e-6)
-        final_score = score * np.clip(1.0 - relative_residual, 0.0, 1.0)
-        # The prescreen's contrast floor (raw grey levels, half the configured contrast)
-        # holds for every detection; it matters for a tracked marker confirmed by the
-        # fit alone (see :meth:`locate`), which no ring has measured on this frame.
-        faint = fit.contrast < self._raw_contrast_floor(full_scale)
-        ok = located & fit.converged & (relative_residual <= cfg.max_symmetry_residual) & ~faint
-        ok &= np.isfinite(sigma)
+        ok = fit.accepted
         counts["rejected_refinement"] = int((~ok).sum())
-        weak = ok & (final_score < self._score_floor(radius))
+        weak = ok & (fit.score < self._score_floor(radius))
         counts["rejected_score"] = counts.get("rejected_score", 0) + int(weak.sum())
         keep = np.flatnonzero(ok & ~weak)
         unique = screening.non_maximum_suppression(
-            position[keep], final_score[keep], cfg.min_peak_separation_px / 2.0
+            fit.xy[keep], fit.score[keep], cfg.min_peak_separation_px / 2.0
         )
         counts["merged_duplicates"] += int((~unique).sum())
         keep = keep[unique]
-        keep = keep[np.argsort(-final_score[keep])]
+        keep = keep[np.argsort(-fit.score[keep])]
         return [
             Detection(
-                float(position[k, 0]),
-                float(position[k, 1]),
-                float(final_score[k]),
-                float(sigma[k]),
+                float(fit.xy[k, 0]),
+                float(fit.xy[k, 1]),
+                float(fit.score[k]),
+                float(fit.sigma[k]),
                 float(angles[k, 0]),
                 float(angles[k, 1]),
                 float(radius[k]),
@@ -1095,11 +1020,6 @@ class Detector:
             )
             for k in keep
         ]
-
-
-def _noise_floor(gray: NDArray[Any]) -> float:
-    """Smallest residual std of the fit: the quantisation of a difference of two DN samples."""
-    return float(np.sqrt(2.0 / 12.0)) if gray.dtype.kind in "ui" else 0.0
 
 
 class _StageTimer:

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from marker_localizer.core import template
 from marker_localizer.core.sampling import Normaliser, bilinear
 from marker_localizer.core.screening import parabolic_offset
 
@@ -53,6 +54,38 @@ MAX_LINE_DRIFT_RAD = np.deg2rad(8.0)
 #: Rings of a run see at least this fraction of the candidate's best ring contrast: a
 #: marker's rings keep 0.6 of it and more (99 %, blur and tilt included).
 RING_CONTRAST_FRACTION = 0.5
+#: Slack of the extent test, px: the ring ladder's radii are products of floats, and a
+#: ring exactly at the required extent passes.
+_EXTENT_SLACK_PX = 1e-9
+#: The adaptive template's NCC and its grey levels are read within this fraction of the
+#: X's extent from the centre: inside the four sectors, clear of the plate's outline.
+TEMPLATE_RADIUS_FRACTION = 0.6
+#: ... over a disk of at least this radius, px: a smaller one holds too few samples of
+#: each sector for the NCC to tell an X.
+TEMPLATE_MIN_RADIUS_PX = 2.5
+#: The LSD pair's line directions replace the rings' where both agree this closely. On
+#: family (a) the rings' angles err by 1.8 degrees (median) and at most 10; LSD's by
+#: 1.1 when right. 5 degrees keeps the median at 1.1 and the worst at the rings' 10.
+LINE_ANGLE_AGREEMENT_RAD = np.deg2rad(5.0)
+#: Sector levels sampled closer than this to the centre are mixed by the blur, px.
+MODULATION_MIN_OFFSET_PX = 2.5
+#: ... and from this distance on they are clear of it for any expected blur, px.
+MODULATION_FREE_OFFSET_PX = 3.0
+#: Ground texture makes saddles that pass the geometric checks up to this extent
+#: (px; at most 8.5 px on the renderer's families (b) and (d)). Below it the
+#: modulation gate applies, a detection needs the score floor of its extent from
+#: :data:`TEXTURE_SCORE_FLOORS` and, where it is also no larger than the smallest
+#: expected marker, ``min_score_small`` (:func:`minimum_score`).
+TEXTURE_EXTENT_PX = 9.0
+#: (extent below, px; lowest score): texture saddles score up to 0.93 below 6 px
+#: and up to 0.87 at 6-9 px; markers of those extents score 0.92 and more on the
+#: simulated flights (where 0.88 let 1 texture point per frame through) and the
+#: renderer's families, but for 8 % of the tiny ones of family (b).
+TEXTURE_SCORE_FLOORS = ((6.0, 0.92), (TEXTURE_EXTENT_PX, 0.88))
+#: Detections whose X extends no further than the smallest expected radius (times this,
+#: for the ring ladder's rounding), and less than :data:`TEXTURE_EXTENT_PX`, are small
+#: markers: ground texture produces saddles of that size, rarely larger.
+SMALL_EXTENT_FACTOR = 1.05
 # Indices of each angle's neighbours and opposite on the ring: a gather along the
 # last axis costs a fraction of np.roll's slicing and concatenation, which the small
 # per-call arrays of a few candidates make the cost.
@@ -1086,3 +1119,132 @@ def _index_gap(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.flo
     """Distance of two half-turn sample indices (0-17), modulo a half turn."""
     gap = np.abs(a - b) % _HALF_TURN
     return cast("NDArray[np.float64]", np.minimum(gap, _HALF_TURN - gap))
+
+
+def reaches_extent(
+    radius_px: NDArray[np.float64], min_extent_fraction: float, min_radius_px: float
+) -> NDArray[np.bool_]:
+    """(N,) True where the X extends to ``min_extent_fraction`` of the smallest marker radius.
+
+    Small texture saddles stop short; a marker tilted by 60 degrees still reaches
+    0.7 of its radius.
+
+    Args:
+        radius_px: (N,) extents of the X found by the annular scan, px.
+        min_extent_fraction: the share of ``min_radius_px`` the X must reach.
+        min_radius_px: the smallest expected marker radius, px.
+    """
+    return radius_px >= min_extent_fraction * min_radius_px - _EXTENT_SLACK_PX
+
+
+def template_radius(radius_px: NDArray[np.float64], max_radius_px: float) -> NDArray[np.float64]:
+    """(N,) radius of the disk over which the adaptive template's NCC is read, px.
+
+    :data:`TEMPLATE_RADIUS_FRACTION` of the X's extent, at least
+    :data:`TEMPLATE_MIN_RADIUS_PX` and at most the largest expected marker radius.
+    """
+    return np.clip(TEMPLATE_RADIUS_FRACTION * radius_px, TEMPLATE_MIN_RADIUS_PX, max_radius_px)
+
+
+def agreed_line_angles(
+    line_angles: NDArray[np.float64], ring_angles: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """(N, 2) the LSD pair's line directions where they agree with the rings', else the rings'.
+
+    The LSD pair's angles are the more precise (Eq. 9's straight lines), but the pair
+    crossing nearest the centre is at times a plate edge (up to 53 degrees off on
+    family (a)): the rings' angles stand then.
+
+    Args:
+        line_angles: (N, 2) directions of the LSD pair, radians.
+        ring_angles: (N, 2) directions from the annular scan, radians.
+    """
+    agree = line_pair_difference(line_angles, ring_angles) <= LINE_ANGLE_AGREEMENT_RAD
+    return np.where(agree[:, None], line_angles, ring_angles)
+
+
+def modulation_gate(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    offset_px: NDArray[np.float64],
+    min_radius_px: float,
+    min_modulation: float,
+) -> NDArray[np.bool_]:
+    """(N,) True where the sectors' raw grey levels modulate enough, or say nothing.
+
+    The modulation (bright - dark) / (bright + dark) of the sector pairs' grey levels
+    (:func:`template.sample_grey_levels`, 3x3 windows on the bisectors ``offset_px``
+    from the centre) does not change with illumination: printed black and white keep
+    it high, ground-texture saddles (gravel gaps) low. Levels closer than
+    :data:`MODULATION_MIN_OFFSET_PX` to the centre are mixed by the blur, so the
+    levels of markers with an extent under ~4 px say little about their paint: they
+    are tested only when they also fall short of the expected radius, as texture
+    saddles do (a small marker in a frame of small markers is not suspect). X's
+    larger than texture makes (:data:`TEXTURE_EXTENT_PX`) are not tested: dim real
+    boards (black level, haze) modulate as little as 0.18.
+
+    Args:
+        image: (H, W) grey image, raw levels.
+        xy: (N, 2) centres.
+        line_angles: (N, 2) line directions, radians.
+        radius_px: (N,) extents of the X, px.
+        offset_px: (N,) distance of the level windows from the centre, px.
+        min_radius_px: the smallest expected marker radius, px.
+        min_modulation: the lowest modulation of a measurable marker.
+    """
+    levels = template.sample_grey_levels(image, xy, line_angles, offset_px)
+    bright = np.maximum(levels.positive, levels.negative)
+    dark = np.minimum(levels.positive, levels.negative)
+    modulation = (bright - dark) / np.maximum(bright + dark, 1e-12)
+    measurable = (
+        (offset_px >= MODULATION_MIN_OFFSET_PX)
+        & ((radius_px < min_radius_px) | (offset_px >= MODULATION_FREE_OFFSET_PX))
+        & (radius_px < TEXTURE_EXTENT_PX)
+    )
+    return cast("NDArray[np.bool_]", ~measurable | (modulation >= min_modulation))
+
+
+def texture_score_floor(radius_px: NDArray[np.float64], min_score: float) -> NDArray[np.float64]:
+    """(N,) the lowest score of a detection of each extent, by ground texture's saddles.
+
+    ``min_score``, raised below :data:`TEXTURE_EXTENT_PX` to the floor of
+    :data:`TEXTURE_SCORE_FLOORS` for its extent.
+
+    Args:
+        radius_px: (N,) extents of the X, px.
+        min_score: the configured lowest score of a marker wider than texture's saddles.
+    """
+    threshold = np.full(len(radius_px), min_score)
+    for extent, floor in reversed(TEXTURE_SCORE_FLOORS):
+        threshold[radius_px < extent] = max(min_score, floor)
+    return threshold
+
+
+def small_marker(radius_px: NDArray[np.float64], min_radius_px: float) -> NDArray[np.bool_]:
+    """(N,) True for X's no larger than the smallest expected marker, and texture-sized.
+
+    Such detections are in the regime of ground texture's saddles (stones meeting),
+    and need ``min_score_small`` (:func:`minimum_score`).
+
+    Args:
+        radius_px: (N,) extents of the X, px.
+        min_radius_px: the smallest expected marker radius, px.
+    """
+    return (radius_px < SMALL_EXTENT_FACTOR * min_radius_px) & (radius_px < TEXTURE_EXTENT_PX)
+
+
+def minimum_score(
+    radius_px: NDArray[np.float64], min_score: float, min_score_small: float, min_radius_px: float
+) -> NDArray[np.float64]:
+    """(N,) the score a detection of each extent needs to be accepted.
+
+    ``min_score_small`` for a :func:`small_marker`, else its
+    :func:`texture_score_floor`.
+    """
+    return np.where(
+        small_marker(radius_px, min_radius_px),
+        min_score_small,
+        texture_score_floor(radius_px, min_score),
+    )

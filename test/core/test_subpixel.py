@@ -170,3 +170,79 @@ def test_the_papers_template_ncc_locates_a_blurred_tilted_x_to_a_few_hundredths(
     found = subpixel.ncc_refine(scene.image, start, np.array([20.0]), angles)
     assert np.linalg.norm(found.offset[0] - truth[0]) < 0.03
     assert found.peak[0] > 0.9
+
+
+def test_sigma_is_the_calibrated_radial_deviation_of_the_covariance():
+    covariance = np.array([[[0.01, 0.002], [0.002, 0.03]], [[-1.0, 0.0], [0.0, 0.0]]])
+    np.testing.assert_allclose(
+        subpixel.calibrated_sigma(covariance), [subpixel.SIGMA_CALIBRATION * 0.2, 0.0]
+    )
+    # Another estimate's distance from the fit adds in quadrature, uncalibrated.
+    with_ncc = subpixel.calibrated_sigma(covariance[:1], np.array([0.09]))
+    np.testing.assert_allclose(with_ncc, np.hypot(subpixel.SIGMA_CALIBRATION * 0.2, 0.3))
+
+
+def test_ncc_gates_locate_finite_extrema_and_match_peaks_from_the_threshold():
+    peak = subpixel.NccPeak(
+        offset=np.array([[0.1, 0.2], [np.nan, 0.0], [0.1, 0.1], [0.0, 0.0]]),
+        peak=np.array([0.99, 0.99, subpixel.NCC_PEAK_MIN - 1e-6, subpixel.NCC_PEAK_MIN]),
+        sigma=np.array([0.01, 0.01, 0.01, 0.01]),
+    )
+    located, matched = subpixel.ncc_gates(peak)
+    assert located.tolist() == [True, False, True, True]
+    assert matched.tolist() == [True, False, False, True]
+
+
+def _blurred_x(centre: tuple[float, float], radius: float = 12.0) -> np.ndarray:
+    scene = render_markers(
+        (96, 96),
+        [MarkerPlacement(*centre, radius, 0.4, 0.0, 0.7)],
+        2,
+        blur_sigma_px=1.0,
+        noise_sigma_dn=1.0,
+    )
+    return scene.image
+
+
+def test_the_coarse_centring_moves_a_candidate_onto_its_x_within_reach_only():
+    image = _blurred_x((48.3, 47.6))
+    start = np.array([[49.0, 47.0], [60.0, 60.0]])
+    centres, inside = subpixel.coarse_centre(image, start, np.array([8.0, 2.0]), 40.0)
+    assert inside.tolist() == [True, False]
+    assert np.linalg.norm(centres[0] - [48.3, 47.6]) < 0.3
+
+
+def test_located_markers_sit_on_the_centre_with_a_score_below_their_evidence():
+    image = _blurred_x((48.3, 47.6))
+    angles = np.array([[0.4, 0.4 + np.pi / 2]])
+    location = subpixel.locate_markers(
+        image,
+        np.array([[48.5, 47.4]]),
+        np.array([12.0]),
+        angles,
+        np.array([0.9]),
+        max_radius_px=40.0,
+        iterations=12,
+        min_contrast=10.0,
+        max_symmetry_residual=0.1,
+    )
+    assert location.accepted.tolist() == [True]
+    assert np.linalg.norm(location.xy[0] - [48.3, 47.6]) < 0.05
+    assert 0.8 < location.score[0] < 0.9
+    assert 0.0 < location.sigma[0] < 0.05
+
+
+def test_a_marker_fainter_than_the_contrast_floor_is_not_accepted():
+    image = _blurred_x((48.3, 47.6))
+    location = subpixel.locate_markers(
+        image,
+        np.array([[48.5, 47.4]]),
+        np.array([12.0]),
+        np.array([[0.4, 0.4 + np.pi / 2]]),
+        np.array([0.9]),
+        max_radius_px=40.0,
+        iterations=12,
+        min_contrast=255.0,
+        max_symmetry_residual=0.1,
+    )
+    assert location.accepted.tolist() == [False]

@@ -202,3 +202,83 @@ def test_the_prescreen_passes_an_x_on_three_rings_and_names_its_line_directions(
     assert passed[0]
     lines = np.sort(angles[0] % np.pi)
     np.testing.assert_allclose(lines, np.sort([0.3, 0.3 + np.pi / 2]), atol=np.deg2rad(10.0))
+
+
+def test_an_x_reaches_the_required_extent_only_from_that_share_of_the_smallest_radius():
+    reached = verification.reaches_extent(np.array([2.7, 2.8, 2.8 - 1e-6]), 0.7, 4.0)
+    assert reached.tolist() == [False, True, False]
+
+
+def test_the_template_disk_is_a_share_of_the_extent_within_its_bounds():
+    radius = verification.template_radius(np.array([1.0, 10.0, 100.0]), max_radius_px=40.0)
+    np.testing.assert_array_equal(
+        radius,
+        [verification.TEMPLATE_MIN_RADIUS_PX, verification.TEMPLATE_RADIUS_FRACTION * 10, 40],
+    )
+
+
+def test_the_lsd_lines_replace_the_rings_only_where_both_agree():
+    rings = np.array([[0.3, 1.9], [0.3, 1.9]])
+    close = rings[0] + np.deg2rad(4.0)
+    far = rings[1] + np.deg2rad([6.0, 0.0])
+    agreed = verification.agreed_line_angles(np.array([close, far]), rings)
+    np.testing.assert_array_equal(agreed, [close, rings[1]])
+
+
+def test_the_modulation_gate_rejects_a_dim_small_x_and_never_tests_a_large_one():
+    dim = 0.4 + 0.2 * _render("quarter_disks", radius=6.0)  # modulation ~0.2 at most
+    angles = _check(_render("quarter_disks", radius=6.0)).line_angles
+    gate = {
+        (contrast, radius): verification.modulation_gate(
+            image, CENTRE, angles, np.array([radius]), np.array([3.0]), 4.0, 0.3
+        )[0]
+        for contrast, image in (("full", _render("quarter_disks", radius=6.0)), ("dim", dim))
+        for radius in (6.0, verification.TEXTURE_EXTENT_PX)
+    }
+    assert gate == {
+        ("full", 6.0): True,
+        ("dim", 6.0): False,
+        ("full", verification.TEXTURE_EXTENT_PX): True,
+        ("dim", verification.TEXTURE_EXTENT_PX): True,
+    }
+
+
+def test_the_modulation_gate_does_not_test_levels_the_blur_mixes():
+    dim = 0.4 + 0.2 * _render("quarter_disks", radius=6.0)
+    angles = _check(_render("quarter_disks", radius=6.0)).line_angles
+    # Nearer the centre than MODULATION_MIN_OFFSET_PX, or (a marker of the expected
+    # size) than MODULATION_FREE_OFFSET_PX, the levels are not judged.
+    for offset, radius in ((2.4, 3.0), (2.8, 6.0)):
+        assert verification.modulation_gate(
+            dim, CENTRE, angles, np.array([radius]), np.array([offset]), 4.0, 0.3
+        ).all()
+
+
+def test_texture_sized_detections_need_the_floor_of_their_extent():
+    radius = np.array([5.9, 6.0, 8.9, verification.TEXTURE_EXTENT_PX, 20.0])
+    floors = verification.texture_score_floor(radius, min_score=0.8)
+    np.testing.assert_array_equal(floors, [0.92, 0.88, 0.88, 0.8, 0.8])
+    # A configured score above a floor wins.
+    assert verification.texture_score_floor(radius, min_score=0.9).tolist() == [
+        0.92,
+        0.9,
+        0.9,
+        0.9,
+        0.9,
+    ]
+
+
+def test_a_small_marker_is_no_larger_than_the_smallest_expected_and_texture_sized():
+    small = verification.small_marker(np.array([4.1, 4.3, 12.0]), min_radius_px=4.0)
+    assert small.tolist() == [True, False, False]
+    # With large expected markers the texture extent bounds what counts as small.
+    assert verification.small_marker(np.array([8.9, 9.0]), min_radius_px=20.0).tolist() == [
+        True,
+        False,
+    ]
+
+
+def test_the_minimum_score_is_min_score_small_for_small_markers_else_the_texture_floor():
+    radius = np.array([4.1, 5.0, 20.0])
+    needed = verification.minimum_score(radius, 0.8, 0.945, min_radius_px=4.0)
+    np.testing.assert_array_equal(needed, [0.945, 0.92, 0.8])
