@@ -840,21 +840,75 @@ class LineCheck(NamedTuple):
 
 def _segment_intersections(
     segments: NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """All pairwise intersections of infinite lines through segments (x1, y1, x2, y2).
+) -> tuple[NDArray[np.float64], NDArray[np.intp], NDArray[np.intp], NDArray[np.bool_]]:
+    """Pairwise intersections of infinite lines through segments (x1, y1, x2, y2).
+
+    Args:
+        segments: (G, M, 4) M segments for each of G candidates.
 
     Returns:
-        (points (M, 2), i (M,), j (M,)) for pairs i < j that are not parallel.
+        (points (G, P, 2), i (P,), j (P,), crossing (G, P)) for the P pairs i < j;
+        ``crossing`` is False for parallel pairs, whose point is meaningless.
     """
-    p = segments[:, :2]
-    d = segments[:, 2:] - segments[:, :2]
-    i, j = np.triu_indices(len(segments), 1)
-    cross = d[i, 0] * d[j, 1] - d[i, 1] * d[j, 0]
-    ok = np.abs(cross) > 1e-9
-    i, j, cross = i[ok], j[ok], cross[ok]
-    w = p[j] - p[i]
-    t = (w[:, 0] * d[j, 1] - w[:, 1] * d[j, 0]) / cross
-    return p[i] + t[:, None] * d[i], i, j
+    p = segments[..., :2]
+    d = segments[..., 2:] - segments[..., :2]
+    i, j = np.triu_indices(segments.shape[1], 1)
+    cross = d[:, i, 0] * d[:, j, 1] - d[:, i, 1] * d[:, j, 0]
+    crossing = np.abs(cross) > 1e-9
+    w = p[:, j] - p[:, i]
+    t = (w[..., 0] * d[:, j, 1] - w[..., 1] * d[:, j, 0]) / np.where(crossing, cross, 1.0)
+    return p[:, i] + t[..., None] * d[:, i], i, j, crossing
+
+
+def _nearest_crossings(
+    segments: list[NDArray[np.float64]],
+    xy: NDArray[np.float64],
+    extend_px: float,
+    min_angle_rad: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Eq. (9) for every candidate: the crossing of two extended segments nearest to it.
+
+    Candidates with as many segments are batched: the loop runs over the few
+    distinct counts, not over the candidates.
+
+    Args:
+        segments: per candidate, its (M_k, 4) LSD segments in image coordinates.
+        xy: (N, 2) candidate centres.
+        extend_px: Delta s of Eq. (9).
+        min_angle_rad: smallest angle between the two segments' directions.
+
+    Returns:
+        (distance, line_angles): (N,) distance of that crossing from the candidate
+        (inf if none) and (N, 2) the two segments' directions in [0, pi) (NaN if none).
+    """
+    n = len(xy)
+    distance = np.full(n, np.inf)
+    angles = np.full((n, 2), np.nan)
+    count = np.array([len(found) for found in segments], dtype=np.intp)
+    for m in np.unique(count[count >= 2]):
+        members = np.flatnonzero(count == m)
+        batch = np.stack([segments[k] for k in members])
+        direction = batch[..., 2:] - batch[..., :2]
+        length = np.linalg.norm(direction, axis=-1)
+        unit = direction / np.maximum(length, 1e-9)[..., None]
+        extended = np.concatenate(
+            [batch[..., :2] - extend_px * unit, batch[..., 2:] + extend_px * unit], axis=-1
+        )
+        points, i, j, crossing = _segment_intersections(extended)
+        seg_angle = np.arctan2(direction[..., 1], direction[..., 0]) % np.pi
+        apart = _angle_difference(seg_angle[:, i], seg_angle[:, j]) >= min_angle_rad
+        within = _on_segment(points, extended[:, i]) & _on_segment(points, extended[:, j])
+        dist = np.linalg.norm(points - xy[members, None, :], axis=-1)
+        usable = crossing & apart & within
+        best = np.argmin(np.where(usable, dist, np.inf), axis=1)
+        found = usable.any(axis=1)
+        rows = np.arange(len(members))[found]
+        best = best[found]
+        distance[members[found]] = dist[rows, best]
+        angles[members[found]] = np.stack(
+            [seg_angle[rows, i[best]], seg_angle[rows, j[best]]], axis=1
+        )
+    return distance, angles
 
 
 def double_line_check(
@@ -896,9 +950,7 @@ def double_line_check(
         :class:`LineCheck`.
     """
     n = len(xy)
-    accepted = np.zeros(n, dtype=bool)
-    angles = np.full((n, 2), np.nan)
-    distance = np.full(n, np.inf)
+    segments: list[NDArray[np.float64]] = [np.zeros((0, 4))] * n
     lsd = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD)
     height, width = image.shape
     # A loop over candidates (not pixels): each runs LSD on its own small window.
@@ -918,38 +970,27 @@ def double_line_check(
             continue
         # Back to full-image coordinates: the resize maps pixel centres by (u + 0.5) / s - 0.5.
         # LSD gives (N, 1, 4) in OpenCV 4 and (N, 4) in OpenCV 5.
-        segments = (found.reshape(-1, 4).astype(np.float64) + 0.5) / zoom - 0.5
-        segments += np.array([x0, y0, x0, y0], dtype=np.float64)
-        direction = segments[:, 2:] - segments[:, :2]
-        length = np.linalg.norm(direction, axis=1)
-        unit = direction / np.maximum(length, 1e-9)[:, None]
-        extended = np.hstack(
-            [segments[:, :2] - extend_px * unit, segments[:, 2:] + extend_px * unit]
+        segments[k] = (
+            (found.reshape(-1, 4).astype(np.float64) + 0.5) / zoom
+            - 0.5
+            + np.array([x0, y0, x0, y0], dtype=np.float64)
         )
-        points, i, j = _segment_intersections(extended)
-        seg_angle = np.arctan2(direction[:, 1], direction[:, 0]) % np.pi
-        apart = _angle_difference(seg_angle[i], seg_angle[j]) >= min_angle_rad
-        within = _on_segment(points, extended[i]) & _on_segment(points, extended[j])
-        dist = np.linalg.norm(points - xy[k], axis=1)
-        usable = apart & within
-        if not usable.any():
-            continue
-        best = np.flatnonzero(usable)[np.argmin(dist[usable])]
-        distance[k] = dist[best]
-        if dist[best] <= max_distance_px:
-            accepted[k] = True
-            angles[k] = seg_angle[i[best]], seg_angle[j[best]]
+    distance, angles = _nearest_crossings(segments, xy, extend_px, min_angle_rad)
+    accepted = distance <= max_distance_px
+    angles[~accepted] = np.nan
     return LineCheck(accepted, angles, distance)
 
 
 def _on_segment(
     points: NDArray[np.float64], segments: NDArray[np.float64], slack_px: float = 0.5
 ) -> NDArray[np.bool_]:
-    """True where each point projects inside its segment (with a little slack)."""
-    a, b = segments[:, :2], segments[:, 2:]
+    """True where each point (..., 2) projects inside its segment (..., 4), with a little slack."""
+    a, b = segments[..., :2], segments[..., 2:]
     d = b - a
-    t = np.einsum("ij,ij->i", points - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
-    slack = slack_px / np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+    t = np.einsum("...j,...j->...", points - a, d) / np.maximum(
+        np.einsum("...j,...j->...", d, d), 1e-12
+    )
+    slack = slack_px / np.maximum(np.linalg.norm(d, axis=-1), 1e-12)
     return cast("NDArray[np.bool_]", (t >= -slack) & (t <= 1.0 + slack))
 
 
