@@ -665,27 +665,40 @@ def _gauss_newton_symmetry(
     gain = np.zeros((n, 2))
     step_norm: NDArray[np.float64] = np.full(n, np.inf)
     eye = np.eye(n_params)
+    # The points whose centre the last step moved: only their terms change. A point
+    # whose step fell below the tolerance is evaluated once more, where it stopped.
+    todo: NDArray[np.intp] = np.arange(n)
     for iteration in range(iterations + 1):
-        residual, weight, jacobian, samples = _symmetry_terms(
-            image, centre, gain, offsets, taper, model_gain
+        terms = _symmetry_terms(
+            image, centre[todo], gain[todo], offsets[todo], taper[todo], model_gain
         )
-        weighted = jacobian * weight[..., None]
+        moved_weighted = terms[2] * terms[1][..., None]
         # Batched matrix products: three-operand einsum has no BLAS path and cost 5x.
-        normal = weighted.transpose(0, 2, 1) @ jacobian
-        active = step_norm > tolerance_px
-        if iteration == iterations or not active.any():
+        moved_normal = moved_weighted.transpose(0, 2, 1) @ terms[2]
+        if iteration == 0:
+            residual, weight, jacobian, samples = terms
+            weighted, normal = moved_weighted, moved_normal
+        else:
+            for full, part in zip(
+                (residual, weight, jacobian, samples, weighted, normal),
+                (*terms, moved_weighted, moved_normal),
+                strict=True,
+            ):
+                full[todo] = part
+        active = np.flatnonzero(step_norm > tolerance_px)
+        if iteration == iterations or not len(active):
             break
-        rhs = (weighted.transpose(0, 2, 1) @ residual[..., None])[..., 0]
-        scale = np.maximum(normal.diagonal(axis1=1, axis2=2), 1e-12)
-        damped = normal + 1e-9 * scale[:, :, None] * eye
+        rhs = (weighted[active].transpose(0, 2, 1) @ residual[active, :, None])[..., 0]
+        scale = np.maximum(normal[active].diagonal(axis1=1, axis2=2), 1e-12)
+        damped = normal[active] + 1e-9 * scale[:, :, None] * eye
         step = -np.linalg.solve(damped, rhs[..., None])[..., 0]
         # A Gauss-Newton step larger than a pixel is untrustworthy this far from the optimum.
         np.clip(step[:, :2], -1.0, 1.0, out=step[:, :2])
-        step[~active] = 0.0
-        centre += step[:, :2]
+        centre[active] += step[:, :2]
         if model_gain:
-            gain += step[:, 2:]
-        step_norm = np.where(active, np.hypot(step[:, 0], step[:, 1]), step_norm)
+            gain[active] += step[:, 2:]
+        step_norm[active] = np.hypot(step[:, 0], step[:, 1])
+        todo = active
         if (iteration > 0 or not model_gain) and not (step_norm > tolerance_px).any():
             # The residuals and Jacobian a last step below the tolerance away serve the
             # covariance as well as those at the end point: one evaluation fewer. Not
