@@ -11,7 +11,7 @@ import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar, overload
 
 from marker_localizer.errors import ConfigError
 
@@ -324,21 +324,6 @@ class DetectorConfig:
     refinement_max_iterations: int = _param(
         12, "Gauss-Newton iterations of the symmetry fit; it converges in 3-5.", "", 1, 100
     )
-    tracking: bool = _param(
-        True,
-        "Node and replay: between full-frame passes, confirm the markers of the previous "
-        "frames by the sub-pixel fit where the measured image motion puts them, and "
-        "search the frame border for new ones (MarkerTracker). A lost marker triggers a "
-        "full-frame pass on the same frame.",
-    )
-    tracking_full_frame_every: int = _param(
-        10,
-        "With tracking, a full-frame pass at least every this many frames of a camera: "
-        "5 s at the rig's 2 Hz, short enough to pick up markers that appear inside the "
-        "frame (e.g. uncovered), not only across its border.",
-        low=1,
-        high=10000,
-    )
     max_candidates: int = _param(
         20000,
         "Cap on candidates per frame after screening; the weakest are cut "
@@ -372,9 +357,72 @@ class DetectorConfig:
         return from_mapping(changes, base=self)
 
 
-def param_specs() -> dict[str, tuple[dataclasses.Field[Any], ParamSpec]]:
-    """Return every configuration field with its :class:`ParamSpec`, in declaration order."""
-    return {f.name: (f, f.metadata["spec"]) for f in dataclasses.fields(DetectorConfig)}
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Tracking-mode settings (:class:`~marker_localizer.core.tracking.MarkerTracker`).
+
+    Validated on construction (raises :class:`ConfigError`). The node and replay
+    declare them as ``tracker.*`` parameters.
+    """
+
+    enabled: bool = _param(
+        True,
+        "Node and replay: between full-frame passes, confirm the markers of the previous "
+        "frames by the sub-pixel fit where the measured image motion puts them, and "
+        "search the frame border for new ones (MarkerTracker). A lost marker triggers a "
+        "full-frame pass on the same frame.",
+    )
+    full_frame_every: int = _param(
+        10,
+        "A full-frame pass at least every this many frames of a camera: 5 s at the rig's "
+        "2 Hz, short enough to pick up markers that appear inside the frame (e.g. "
+        "uncovered), not only across its border.",
+        low=1,
+        high=10000,
+    )
+    max_motion_px: float = _param(
+        64.0,
+        "Largest error of a constant-velocity prediction (the image motion between two "
+        "frames that the velocity does not foresee): how far an anchor's patch is searched "
+        "for, and how far a full pass's detection may lie from a track it continues. 64 px "
+        "is a jolt of ~1 degree of attitude on the rig's 12 MP cameras.",
+        "px",
+        1.0,
+        1000.0,
+    )
+    match_px: float = _param(
+        1.5,
+        "Largest error of a position mapped by the measured motion: a marker is confirmed "
+        "by a detection this close to it, and the border is searched on the sides whose "
+        "content may have moved inward by this much. The markers' homography maps them to "
+        "a few tenths of a pixel; 1.5 px leaves room for a marker's own fit.",
+        "px",
+        0.1,
+        50.0,
+    )
+    max_missed_frames: int = _param(
+        2,
+        "Consecutive frames a track whose marker is in view but rejected by the detector "
+        "(one at the acceptance threshold) is still searched for before it is dropped: a "
+        "marker that flickers at the threshold is found again when it comes back.",
+        low=0,
+        high=1000,
+    )
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            _check_field(f, getattr(self, f.name))
+
+    def replace(self, **changes: Any) -> TrackerConfig:
+        """Return a validated copy with ``changes`` applied (unknown keys raise)."""
+        return from_mapping(changes, base=self)
+
+
+def param_specs(
+    kind: type[DetectorConfig] | type[TrackerConfig] = DetectorConfig,
+) -> dict[str, tuple[dataclasses.Field[Any], ParamSpec]]:
+    """Return every field of ``kind`` with its :class:`ParamSpec`, in declaration order."""
+    return {f.name: (f, f.metadata["spec"]) for f in dataclasses.fields(kind)}
 
 
 def _field_type(f: dataclasses.Field[Any]) -> type:
@@ -414,9 +462,18 @@ def parse_value(name: str, text: str) -> Any:
         raise ConfigError(f"{name}={text!r} is not a valid {kind.__name__}") from err
 
 
-def from_mapping(values: Mapping[str, Any], base: DetectorConfig | None = None) -> DetectorConfig:
-    """Build a validated config from ``values`` over ``base`` (defaults if None)."""
-    specs = param_specs()
+_Config = TypeVar("_Config", DetectorConfig, TrackerConfig)
+
+
+@overload
+def from_mapping(values: Mapping[str, Any], base: None = None) -> DetectorConfig: ...
+@overload
+def from_mapping(values: Mapping[str, Any], base: _Config) -> _Config: ...
+def from_mapping(
+    values: Mapping[str, Any], base: DetectorConfig | TrackerConfig | None = None
+) -> DetectorConfig | TrackerConfig:
+    """Build a validated config from ``values`` over ``base`` (detector defaults if None)."""
+    specs = param_specs(DetectorConfig if base is None else type(base))
     unknown = sorted(set(values) - set(specs))
     if unknown:
         raise ConfigError(f"unknown parameter(s): {', '.join(unknown)}")
@@ -432,6 +489,7 @@ def from_mapping(values: Mapping[str, Any], base: DetectorConfig | None = None) 
 
 
 DETECTOR_NAMESPACE = "detector"
+TRACKER_NAMESPACE = "tracker"
 
 
 def load_params_file(path: str | Path, node_name: str = "*") -> dict[str, Any]:

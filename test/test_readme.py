@@ -2,15 +2,18 @@
 
 from pathlib import Path
 
-from marker_localizer.config import DetectorConfig, param_specs
+import pytest
+
+from marker_localizer.config import DetectorConfig, TrackerConfig, param_specs
 
 REPO = Path(__file__).resolve().parents[1]
 README = (REPO / "README.md").read_text()
 
 
-def test_readme_lists_every_detector_parameter_with_its_default():
-    defaults = DetectorConfig()
-    for name in param_specs():
+@pytest.mark.parametrize("kind", [DetectorConfig, TrackerConfig])
+def test_readme_lists_every_detector_and_tracker_parameter_with_its_default(kind):
+    defaults = kind()
+    for name in param_specs(kind):
         row = next((line for line in README.splitlines() if line.startswith(f"| `{name}` |")), None)
         assert row is not None, f"{name} missing from the README's parameter table"
         assert f"| {getattr(defaults, name)} |" in row, f"{name}: README default is stale"

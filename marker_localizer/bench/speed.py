@@ -193,7 +193,7 @@ def _make_tracking_subject() -> Subject:
     tracked with a time stamp of k + 1 seconds. The warm-up calls let every track
     get a velocity, so the timed calls are the tracker's steady state (the fit
     confirming the tracked markers, and the border bands), with its full-frame
-    passes (every ``tracking_full_frame_every`` frames, or when a marker is not
+    passes (every ``tracker.full_frame_every`` frames, or when a marker is not
     confirmed) amortised in.
     """
     from marker_localizer.config import DetectorConfig  # noqa: PLC0415
@@ -209,7 +209,7 @@ def _make_tracking_subject() -> Subject:
     def next_view(frame: np.ndarray) -> np.ndarray:
         if state["step"] % TRACKING_SEQUENCE == 0:
             state["base"] = frame if state["base"] is None else state["base"]
-            state["tracker"] = MarkerTracker(detector, config.tracking_full_frame_every)
+            state["tracker"] = MarkerTracker(detector)
         view = np.ascontiguousarray(tracking_view(state["base"], state["step"]))
         state["step"] += 1
         return view

@@ -6,7 +6,7 @@ renders one ground frame per camera once, then for each worker count starts a
 publishes the five cameras over DDS at ``--rate-hz`` each, faster than the node
 can keep up with, for ``--seconds``. The cameras pan over their ground at
 :data:`PAN_STEP_PX` per frame and turn back at the end of their ground, so
-tracking mode (the node's default, ``detector.tracking``) meets moving markers,
+tracking mode (the node's default, ``tracker.enabled``) meets moving markers,
 markers entering and leaving the view and changes of direction, as in flight.
 The ground is the speed benchmark's clutter (radius 6-40 px), or with
 ``--ground flight`` the flight simulator's five cameras (give ``--radius-range
@@ -57,7 +57,7 @@ from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.bench import speed
-from marker_localizer.config import DetectorConfig
+from marker_localizer.config import TrackerConfig
 from marker_localizer.ros.conversions import array_to_image
 from marker_localizer.ros.diagnostics import frames_lost_upstream
 from marker_localizer.ros.node import MarkerLocalizerNode
@@ -188,7 +188,7 @@ def run_once(
         workers: the node's ``workers`` parameter.
         seconds: how long to publish, s.
         rate_hz: frames per second and camera.
-        tracking: the node's ``detector.tracking`` parameter.
+        tracking: the node's ``tracker.enabled`` parameter.
         radius_range: the node's marker radius range, px.
 
     Returns:
@@ -200,7 +200,7 @@ def run_once(
         namespace=namespace,
         parameter_overrides=[
             Parameter("workers", value=workers),
-            Parameter("detector.tracking", value=tracking),
+            Parameter("tracker.enabled", value=tracking),
             # The diagnostics' window over the whole run, to compare their loss count.
             Parameter("stats_window_s", value=min(seconds + _CAMERA_START_TIMEOUT_S, 3600.0)),
             # The marker sizes of the scenes, as a user configures them.
@@ -409,7 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--full-frame",
         action="store_true",
-        help="a full-frame detection per frame (detector.tracking off) instead of the "
+        help="a full-frame detection per frame (tracker.enabled off) instead of the "
         "node's default tracking mode",
     )
     return parser
@@ -448,7 +448,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         finally:
             rclpy.try_shutdown()
     mode = (
-        f"tracking (full frame every {DetectorConfig().tracking_full_frame_every} frames)"
+        f"tracking (full frame every {TrackerConfig().full_frame_every} frames)"
         if tracking
         else "full-frame detection"
     )

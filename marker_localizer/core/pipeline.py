@@ -199,6 +199,41 @@ class DetectionResult:
         ).reshape(-1, 7)
 
 
+@dataclass(frozen=True)
+class SearchPlan:
+    """Where :meth:`Detector.detect` searches on one frame: tracking mode's seam.
+
+    Arrays are copied and validated on construction.
+
+    Attributes:
+        regions: (K, 4) int windows (x0, y0, x1, y1), end-exclusive, to search
+            instead of the whole frame; the detector samples the whole image, a
+            window only bounds where candidates are screened. Snapped to
+            :attr:`Detector.region_lattice_px` they read the same local means as a
+            full-frame pass.
+        known: (M, 2) centres of markers already located on this frame (by
+            :meth:`Detector.locate`): screening candidates closer than
+            ``min_peak_separation_px`` to one are that marker's and are not verified
+            again (counted as ``skipped_known``).
+        seeds: (S, 2) positions that join the screening candidates (markers whose
+            plate the frame border cuts, where the fit alone cannot tell what a full
+            pass would accept). They take every stage after the prescreen, at the
+            first pyramid level's scale.
+    """
+
+    regions: NDArray[np.int64] = field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    known: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
+    seeds: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
+
+    def __post_init__(self) -> None:
+        for name, columns in (("regions", 4), ("known", 2), ("seeds", 2)):
+            value = np.asarray(getattr(self, name))
+            if value.size % columns:
+                raise ValueError(f"SearchPlan.{name} of shape {value.shape} is not (N, {columns})")
+            dtype = np.int64 if name == "regions" else np.float64
+            object.__setattr__(self, name, value.astype(dtype).reshape(-1, columns))
+
+
 class Detector:
     """Diagonal-marker detector; build once, call :meth:`detect` per frame.
 
@@ -222,28 +257,41 @@ class Detector:
         first_level = screening.saddle_levels(self._radius_range).start
         self._seed_scale = screening.candidate_scale(first_level, self._radius_range)
 
-    def detect(
-        self,
-        image: NDArray[Any],
-        regions: NDArray[np.integer[Any]] | None = None,
-        known: NDArray[np.float64] | None = None,
-        seeds: NDArray[np.float64] | None = None,
-    ) -> DetectionResult:
+    @property
+    def merge_radius_px(self) -> float:
+        """Detections closer than this to a stronger one are its duplicates, px.
+
+        Half of ``min_peak_separation_px``: the last suppression of every pass.
+        """
+        return self.config.min_peak_separation_px / 2.0
+
+    @property
+    def region_lattice_px(self) -> int:
+        """Grid of :class:`SearchPlan` regions that changes no score, px.
+
+        That of the local-mean map of Eq. (2)
+        (:func:`preprocessing.local_mean_lattice_px`): regions snapped to it read the
+        same local means as a full-frame pass.
+        """
+        return preprocessing.local_mean_lattice_px(self.config.illumination_window_px)
+
+    @property
+    def support_radii(self) -> float:
+        """How far around a marker its acceptance reads the image, in marker radii.
+
+        The double-line check's window (:data:`verification.LSD_WINDOW_RADII`), the
+        widest of the checks: where the frame border cuts less than this from a
+        marker's centre, what a full pass accepts depends on the cut.
+        """
+        return verification.LSD_WINDOW_RADII
+
+    def detect(self, image: NDArray[Any], plan: SearchPlan | None = None) -> DetectionResult:
         """Find and locate every diagonal marker in ``image``.
 
         Args:
             image: (H, W) uint8/uint16/float grey image, or BGR(A) colour.
-            regions: optional (K, 4) int windows (x0, y0, x1, y1), end-exclusive, to
-                search instead of the whole frame (tracking mode); no full-frame
-                pass is made then.
-            known: optional (M, 2) centres of markers already located on this frame
-                (tracking mode, by :meth:`locate`): screening candidates closer than
-                ``min_peak_separation_px`` to one are that marker's and are not
-                verified again (counted as ``skipped_known``).
-            seeds: optional (S, 2) positions that join the screening candidates
-                (tracking mode: markers whose plate the frame border cuts, where the
-                fit alone cannot tell what a full pass would accept). They take every
-                stage after the prescreen, at the first pyramid level's scale.
+            plan: where to search (tracking mode, :class:`SearchPlan`); None: the
+                whole frame.
 
         Returns:
             :class:`DetectionResult` (iterable of :class:`Detection`).
@@ -260,7 +308,8 @@ class Detector:
         if cfg.refinement == "template":
             with timer("noise"):
                 noise = estimate_noise(gray, full_scale)
-        seeds = np.zeros((0, 2)) if seeds is None else np.asarray(seeds, np.float64).reshape(-1, 2)
+        regions = None if plan is None else plan.regions
+        seeds = np.zeros((0, 2)) if plan is None else plan.seeds
         gamma = None
         with timer("preprocessing"):
             measured = regions
@@ -280,8 +329,8 @@ class Detector:
         with timer("screening"):
             candidates = self._screen(gray, full_scale, result.counts, regions)
             result.counts["skipped_known"] = 0
-            if known is not None and len(known) and len(candidates):
-                distance, _ = cKDTree(np.asarray(known, np.float64).reshape(-1, 2)).query(
+            if plan is not None and len(plan.known) and len(candidates):
+                distance, _ = cKDTree(plan.known).query(
                     candidates.xy, distance_upper_bound=cfg.min_peak_separation_px
                 )
                 near = np.isfinite(distance)
@@ -449,7 +498,7 @@ class Detector:
             counts["rejected_symmetry"] = int((~keep).sum())
             xy, radius = check.xy[keep], check.radius_px[keep]
             angles, score = check.line_angles[keep], check.score[keep]
-            unique = screening.non_maximum_suppression(xy, score, cfg.min_peak_separation_px / 2.0)
+            unique = screening.non_maximum_suppression(xy, score, self.merge_radius_px)
             counts["merged_duplicates"] = int((~unique).sum())
             xy, radius, angles, score = xy[unique], radius[unique], angles[unique], score[unique]
             ncc = template.template_correlation(
@@ -808,7 +857,7 @@ class Detector:
             sigma = np.sqrt(np.maximum(fit.covariance[:, 0, 0] + fit.covariance[:, 1, 1], 0.0))
             keep = np.flatnonzero(accepted)
             unique = screening.non_maximum_suppression(
-                position[keep], verdict.score[keep], cfg.min_peak_separation_px / 2.0
+                position[keep], verdict.score[keep], self.merge_radius_px
             )
             counts["merged_duplicates"] = counts.get("merged_duplicates", 0) + int((~unique).sum())
             keep = keep[unique]
@@ -1002,7 +1051,7 @@ class Detector:
         counts["rejected_score"] = counts.get("rejected_score", 0) + int(weak.sum())
         keep = np.flatnonzero(ok & ~weak)
         unique = screening.non_maximum_suppression(
-            fit.xy[keep], fit.score[keep], cfg.min_peak_separation_px / 2.0
+            fit.xy[keep], fit.score[keep], self.merge_radius_px
         )
         counts["merged_duplicates"] += int((~unique).sum())
         keep = keep[unique]

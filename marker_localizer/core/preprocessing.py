@@ -22,6 +22,9 @@ FloatImage = NDArray[np.float32]  # (H, W)
 #: float32 or float64: Eq. (2) keeps the precision it is given.
 _Float = TypeVar("_Float", np.float32, np.float64)
 
+#: The local mean of Eq. (2) is measured on the frame reduced by this fraction of the
+#: window's side: the mean over a window is smooth at that scale.
+_LOCAL_MEAN_REDUCTION = 8
 #: Standard deviation of a normal distribution per unit of median absolute deviation.
 MAD_TO_STD = 1.4826
 #: :meth:`StructureComponents.quantile` reads every this-many-th pixel in each direction:
@@ -229,6 +232,15 @@ class StructureComponents:
         return float(np.quantile(self.from_sigma(self.sigma_at(rows, cols)), q))
 
 
+def local_mean_lattice_px(window_px: int) -> int:
+    """Grid of the local-mean map of Eq. (2), px: the frame reduced by an eighth of the window.
+
+    :class:`LocalGamma` measures the local mean on that reduced frame and aligns
+    every region to its grid, so regions snapped to it change no score.
+    """
+    return max(1, window_px // _LOCAL_MEAN_REDUCTION)
+
+
 class LocalGamma:
     """Eq. (2) evaluated only where the detector samples the image.
 
@@ -259,7 +271,7 @@ class LocalGamma:
         gamma_limits: tuple[float, float] = (0.25, 4.0),
         regions: NDArray[np.integer[Any]] | None = None,
     ) -> None:
-        self._reduction = max(1, window_px // 8)
+        self._reduction = local_mean_lattice_px(window_px)
         self._diameter = max(1, round(window_px / self._reduction)) | 1
         self._alpha = alpha
         self._limits = gamma_limits

@@ -66,13 +66,11 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from marker_localizer.config import TrackerConfig
 from marker_localizer.core.image import to_gray
-from marker_localizer.core.pipeline import Detection, DetectionResult, Detector
+from marker_localizer.core.pipeline import Detection, DetectionResult, Detector, SearchPlan
 from marker_localizer.core.screening import non_maximum_suppression, parabolic_offset
 
-#: Half-width of a marker's plate in marker radii (the plates of the renderer and of
-#: printed targets extend a quarter radius beyond the X).
-PLATE_HALF_WIDTH = 1.25
 #: Anchors whose patches measure the image motion: four fix a homography, the
 #: fifth lets RANSAC leave out a patch matched on the wrong spot.
 _ANCHORS = 5
@@ -116,26 +114,16 @@ class MarkerTracker:
 
     Attributes:
         detector: the detector whose settings apply to both kinds of pass.
-        full_frame_every: a full-frame pass every this many frames (1 = always).
-        max_motion_px: the largest error of a constant-velocity prediction (the
-            image motion between two frames that the velocity does not foresee):
-            how far an anchor's patch is searched for, and how far a detection of
-            a full pass may lie from a track it continues.
-        match_px: the largest error of a position mapped by the measured motion: a
-            marker is confirmed by a detection this close to it, and the border is
-            searched on the sides whose content may have moved inward by this much.
-        max_missed_frames: consecutive frames a track whose marker is in view but
-            rejected by the detector is still searched for (see the module's rule).
+        config: the tracking settings (:class:`~marker_localizer.config.TrackerConfig`:
+            ``full_frame_every``, ``max_motion_px``, ``match_px``,
+            ``max_missed_frames``; see the module's rule).
     """
 
     detector: Detector
-    full_frame_every: int = 10
-    max_motion_px: float = 64.0
-    match_px: float = 1.5
-    max_missed_frames: int = 2
-    _tracks: list[_Track] = field(default_factory=list)
-    _frames_since_full: int = 0
-    _last_stamp_s: float = 0.0
+    config: TrackerConfig = field(default_factory=TrackerConfig)
+    _tracks: list[_Track] = field(default_factory=list, init=False)
+    _frames_since_full: int = field(default=0, init=False)
+    _last_stamp_s: float = field(default=0.0, init=False)
 
     def reset(self) -> None:
         """Forget every track (after a jump in time or a parameter change)."""
@@ -170,7 +158,7 @@ class MarkerTracker:
             if motion is None:
                 motion = self._register(gray, predicted)
         registration_ms = (time.perf_counter() - start) * 1000.0
-        if motion is not None and self._frames_since_full + 1 < self.full_frame_every:
+        if motion is not None and self._frames_since_full + 1 < self.config.full_frame_every:
             result = self._track(gray, stamp, motion, located)
             if result is not None:
                 result.timings_ms["registration"] = registration_ms
@@ -216,13 +204,13 @@ class MarkerTracker:
         if fitted.sum() < 4:
             return None, None
         located = self._locate_tracks(gray, predicted, fitted)
-        owner = _associate(located.as_array()[:, :2], predicted, fitted, self.match_px)
+        owner = _associate(located.as_array()[:, :2], predicted, fitted, self.config.match_px)
         confirmed = owner >= 0
         if confirmed.sum() < max(4, fitted.sum() / 2):
             return None, None
         sources = np.array([t.xy for t in self._tracks])[confirmed]
         targets = located.as_array()[owner[confirmed], :2]
-        return _frame_motion(sources, targets, self.match_px), located
+        return _frame_motion(sources, targets, self.config.match_px), located
 
     def _locate_tracks(
         self, gray: NDArray[Any], predicted: NDArray[np.float64], fitted: NDArray[np.bool_]
@@ -252,14 +240,14 @@ class MarkerTracker:
                 gray, track.patch, prediction, _NEAR_SEARCH_PX, _NEAR_MIN_PATCH_NCC, interior=True
             )
             if found is None:
-                found = self._match_patch(gray, track.patch, prediction, self.max_motion_px)
+                found = self._match_patch(gray, track.patch, prediction, self.config.max_motion_px)
             if found is not None:
                 # The patch was cut at the rounded centre: restore the fraction.
                 sources.append(track.xy)
                 targets.append(found + track.xy - np.round(track.xy))
         if not sources:
             return None
-        return _frame_motion(np.array(sources), np.array(targets), self.match_px)
+        return _frame_motion(np.array(sources), np.array(targets), self.config.match_px)
 
     @staticmethod
     def _match_patch(
@@ -324,7 +312,9 @@ class MarkerTracker:
         fitted = ~leaving
         if located is None:
             located = self._locate_tracks(gray, corrected, fitted)
-        confirmed = _associate(located.as_array()[:, :2], corrected, fitted, self.match_px) >= 0
+        confirmed = (
+            _associate(located.as_array()[:, :2], corrected, fitted, self.config.match_px) >= 0
+        )
         # Then the detector in a window around each marker the fit did not confirm
         # (a prediction off by more than the fit's reach, or a marker changed).
         retry = inside & fitted & ~confirmed
@@ -342,7 +332,7 @@ class MarkerTracker:
         )
         regions = bands
         if retry.any():
-            half = self.match_px + _CANDIDATE_OFFSET_PX
+            half = self.config.match_px + _CANDIDATE_OFFSET_PX
             around = np.hstack([corrected[retry] - half, corrected[retry] + half + 1])
             windows = _merge_overlapping(self._snap(around, shape))
             # Band and window areas are searched once: windows are cut to the interior.
@@ -357,14 +347,12 @@ class MarkerTracker:
             parts.append(
                 self.detector.detect(
                     gray,
-                    regions=regions,
-                    known=located.as_array()[:, :2],
-                    seeds=corrected[seeded],
+                    SearchPlan(regions, located.as_array()[:, :2], corrected[seeded]),
                 )
             )
-        result = _combine(parts, self.detector.config.min_peak_separation_px / 2.0)
+        result = _combine(parts, self.detector.merge_radius_px)
         found = result.as_array()
-        owner = _associate(found[:, :2], corrected, inside, self.match_px)
+        owner = _associate(found[:, :2], corrected, inside, self.config.match_px)
         missed = owner < 0
         kept = self._kept(gray, corrected, missed & fitted)
         excused = np.array([t.missed_by_full_pass for t in self._tracks])
@@ -408,7 +396,7 @@ class MarkerTracker:
             searched border without overlap, and the (4,) rectangle they leave free.
         """
         height, width = shape[:2]
-        reach = PLATE_HALF_WIDTH * self.detector.config.marker_radius_max_px
+        reach = self.detector.support_radii * self.detector.config.marker_radius_max_px
         # The last frame's border, three points a side, moved by the motion: the
         # content's inward displacement at the top, bottom, left and right sides.
         t = np.array([0.0, 0.5, 1.0])
@@ -421,11 +409,11 @@ class MarkerTracker:
         # The whole measured motion, not only max_motion_px: that bounds the error of
         # the constant-velocity prediction, and a fast flight moves the image further.
         depth = np.where(
-            inward + self.match_px > 0,
-            np.minimum(reach + np.maximum(inward, 0.0) + self.match_px, max(height, width)),
+            inward + self.config.match_px > 0,
+            np.minimum(reach + np.maximum(inward, 0.0) + self.config.match_px, max(height, width)),
             0.0,
         )
-        lattice = self._lattice_px()
+        lattice = self.detector.region_lattice_px
         top, left = (np.ceil(depth[[0, 2]] / lattice) * lattice).astype(np.int64)
         bottom = int(np.floor((height - depth[1]) / lattice) * lattice) if depth[1] else height
         right = int(np.floor((width - depth[3]) / lattice) * lattice) if depth[3] else width
@@ -442,20 +430,10 @@ class MarkerTracker:
         bands = bands[(bands[:, 2] > bands[:, 0]) & (bands[:, 3] > bands[:, 1])]
         return bands, np.array([left, top, right, bottom])
 
-    def _lattice_px(self) -> int:
-        """Grid that windows and bands are snapped to: that of the local-mean map.
-
-        ``LocalGamma`` measures the local mean of Eq. (2) on the frame reduced by
-        ``illumination_window_px // 8`` and aligns every region to that grid itself,
-        so the snapping changes no score; it rounds windows and bands up to whole
-        blocks of that map.
-        """
-        return max(1, self.detector.config.illumination_window_px // 8)
-
     def _snap(self, windows: NDArray[np.float64], shape: tuple[int, ...]) -> NDArray[np.int64]:
         """(K, 4) float windows grown to the lattice and clipped to the frame, int64."""
         height, width = shape[:2]
-        lattice = self._lattice_px()
+        lattice = self.detector.region_lattice_px
         snapped = (
             np.hstack(
                 [np.floor(windows[:, :2] / lattice), np.ceil(windows[:, 2:] / lattice)]
@@ -485,7 +463,7 @@ class MarkerTracker:
                 predicted = _transform(motion, np.array([t.xy for t in self._tracks]))
             found = result.as_array()
             owner = _associate(
-                found[:, :2], predicted, np.ones(len(predicted), bool), self.max_motion_px
+                found[:, :2], predicted, np.ones(len(predicted), bool), self.config.max_motion_px
             )
             # Without a measured motion, a missed track's position is a guess: it ends.
             inside = ~self._leaving(predicted, gray.shape) & (motion is not None)
@@ -494,7 +472,7 @@ class MarkerTracker:
             ):
                 if index >= 0 and stamp > track.stamp_s:
                     tracks[index] = _confirmed(track, result.detections[index], stamp)
-                elif index < 0 and keep and track.missed < self.max_missed_frames:
+                elif index < 0 and keep and track.missed < self.config.max_missed_frames:
                     tracks.append(_coasting(track, prediction, stamp, missed_by_full_pass=True))
         self._tracks = tracks
 
@@ -512,11 +490,11 @@ class MarkerTracker:
         kept = np.zeros(len(self._tracks), dtype=bool)
         for k in np.flatnonzero(candidates):
             track = self._tracks[k]
-            kept[k] = track.missed < self.max_missed_frames and (
+            kept[k] = track.missed < self.config.max_missed_frames and (
                 track.missed_by_full_pass
                 or (
                     track.patch is not None
-                    and self._match_patch(gray, track.patch, predicted[k], self.match_px)
+                    and self._match_patch(gray, track.patch, predicted[k], self.config.match_px)
                     is not None
                 )
             )
@@ -530,7 +508,7 @@ class MarkerTracker:
             np.minimum(predicted[:, 1], height - 1 - predicted[:, 1]),
         )
         radius = np.array([t.detection.radius_px for t in self._tracks])
-        return cast("NDArray[np.bool_]", border_distance < PLATE_HALF_WIDTH * radius)
+        return cast("NDArray[np.bool_]", border_distance < self.detector.support_radii * radius)
 
     def _cut_patches(self, gray: NDArray[Any]) -> None:
         """Cut the patch of every marker confirmed on this frame; mark a few as anchors.
@@ -545,7 +523,7 @@ class MarkerTracker:
             track.anchor = False
             if track.missed:
                 continue  # its patch is the one from its last confirmation
-            plate = PLATE_HALF_WIDTH * track.detection.radius_px
+            plate = self.detector.support_radii * track.detection.radius_px
             # Python scalars: numpy's per-call cost on scalars is a millisecond a frame.
             half = min(max(math.ceil(plate), _PATCH_HALF_PX[0]), _PATCH_HALF_PX[1])
             cx, cy = round(float(track.xy[0])), round(float(track.xy[1]))
@@ -554,7 +532,7 @@ class MarkerTracker:
                 patch = gray[cy - half : cy + half + 1, cx - half : cx + half + 1]
                 # matchTemplate takes 8-bit or float32 images only.
                 track.patch = patch.copy() if patch.dtype == np.uint8 else patch.astype(np.float32)
-            margin = half + int(np.ceil(self.max_motion_px))
+            margin = half + int(np.ceil(self.config.max_motion_px))
             if margin <= cx < width - margin and margin <= cy < height - margin:
                 candidates.append((track, cx, cy))
         if not candidates:

@@ -29,7 +29,7 @@ N_ANGLES = 36  # the paper's 10-degree sampling of the annulus
 _LSD_MIN_WINDOW_PX = 24
 #: LSD window half-width in marker radii: the X and a margin for its blurred edges,
 #: but not the plate's outline, whose segments would only add crossings to test.
-_LSD_WINDOW_RADII = 1.25
+LSD_WINDOW_RADII = 1.25
 _HALF_TURN = N_ANGLES // 2
 #: Paper's annular check: a derivative extremum is an edge from this fraction of the
 #: ring's strongest. A bright sector dulled to 0.45 of the other keeps edges of about
@@ -955,7 +955,7 @@ def double_line_check(
     height, width = image.shape
     # A loop over candidates (not pixels): each runs LSD on its own small window.
     for k in range(n):
-        half = int(np.ceil(max(_LSD_WINDOW_RADII * radius_px[k], 6.0)))
+        half = int(np.ceil(max(LSD_WINDOW_RADII * radius_px[k], 6.0)))
         cx, cy = int(round(xy[k, 0])), int(round(xy[k, 1]))
         x0, y0 = max(cx - half, 0), max(cy - half, 0)
         x1, y1 = min(cx + half + 1, width), min(cy + half + 1, height)

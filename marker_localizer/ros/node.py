@@ -45,7 +45,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
-from marker_localizer.config import DetectorConfig
+from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import MarkerLocalizerError
 from marker_localizer.ros import diagnostics
 from marker_localizer.ros.conversions import IMAGE_TRANSPORTS
@@ -120,6 +120,7 @@ class MarkerLocalizerNode(Node):
             publish_overlay=settings.publish_overlay,
             on_error=self._frame_failed,
             stats_window_s=settings.stats_window_s,
+            tracker_config=self._live.tracker_config,
         )
         suffix, image_type = IMAGE_TRANSPORTS[settings.image_transport]
         for camera in settings.cameras:
@@ -221,7 +222,9 @@ class MarkerLocalizerNode(Node):
             text = "".join(traceback.format_exception(err)).rstrip()
             self.get_logger().error(f"{camera}: frame failed:\n{text}")
 
-    def _on_parameters(self, settings: NodeConfig, config: DetectorConfig) -> None:
+    def _on_parameters(
+        self, settings: NodeConfig, config: DetectorConfig, tracking: TrackerConfig
+    ) -> None:
         self.processor.max_frame_age_s = settings.max_frame_age_s
         self.processor.publish_overlay = settings.publish_overlay
         self._thresholds = diagnostic_thresholds(settings)
@@ -230,6 +233,11 @@ class MarkerLocalizerNode(Node):
             self.processor.set_config(config)
             listed = ", ".join(f"{k}={v!r}" for k, v in changes.items())
             self.get_logger().info(f"detector reconfigured for the next frames: {listed}")
+        tracker_changes = changed_fields(self.processor.tracker_config, tracking)
+        if tracker_changes:
+            self.processor.set_tracker_config(tracking)
+            listed = ", ".join(f"{k}={v!r}" for k, v in tracker_changes.items())
+            self.get_logger().info(f"tracker reconfigured for the next frames: {listed}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,10 +1,12 @@
 """ROS parameters generated from the typed configurations, validated before they apply.
 
-Two configurations back the node's parameters, neither written twice:
+Three configurations back the node's parameters, none written twice:
 
 * :class:`marker_localizer.config.DetectorConfig`, declared as ``detector.<field>``
   with descriptors generated from :func:`marker_localizer.config.param_specs`
   (description with unit, range, choices); all of them can change live.
+* :class:`marker_localizer.config.TrackerConfig`, declared as ``tracker.<field>``
+  in the same way; all of them can change live (the cameras' tracks start over).
 * :class:`NodeConfig`, the node's own parameters; ``cameras``, ``image_transport``,
   ``workers``, ``diagnostics_period_s`` and ``stats_window_s`` are structural and
   read-only.
@@ -42,8 +44,10 @@ from rclpy.parameter import Parameter
 
 from marker_localizer.config import (
     DETECTOR_NAMESPACE,
+    TRACKER_NAMESPACE,
     DetectorConfig,
     ParamSpec,
+    TrackerConfig,
     from_mapping,
     param_specs,
 )
@@ -52,6 +56,11 @@ from marker_localizer.ros.conversions import IMAGE_TRANSPORTS
 from marker_localizer.ros.diagnostics import DiagnosticThresholds
 
 _CAMERA_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+#: The typed configurations declared as namespaced parameters, and their namespaces.
+_NAMESPACES: dict[type[DetectorConfig] | type[TrackerConfig], str] = {
+    DetectorConfig: DETECTOR_NAMESPACE,
+    TrackerConfig: TRACKER_NAMESPACE,
+}
 
 
 def _node_param(
@@ -277,47 +286,60 @@ class LiveParameters:
     Args:
         node: the node to declare on; its overrides (``-p``, ``--params-file``)
             give the start values.
-        on_change: called with (node config, detector config) after an
-            accepted change, from the executor thread that serves the
+        on_change: called with (node config, detector config, tracker config)
+            after an accepted change, from the executor thread that serves the
             parameter service.
 
     Raises:
         ConfigError: a start value is out of range, of the wrong type, breaks
-            a cross-field rule, or is a ``detector.*`` key no setting has.
+            a cross-field rule, or is a ``detector.*`` or ``tracker.*`` key no
+            setting has.
     """
 
-    def __init__(self, node: Node, on_change: Callable[[NodeConfig, DetectorConfig], None]) -> None:
+    def __init__(
+        self,
+        node: Node,
+        on_change: Callable[[NodeConfig, DetectorConfig, TrackerConfig], None],
+    ) -> None:
         self._on_change = on_change
-        self._detector_names = {f"{DETECTOR_NAMESPACE}.{name}": name for name in param_specs()}
+        self._names = {
+            kind: {f"{namespace}.{name}": name for name in param_specs(kind)}
+            for kind, namespace in _NAMESPACES.items()
+        }
         self._kinds = {name: str(f.type) for name, (f, _) in node_specs().items()}
-        self._kinds.update(
-            {full: str(param_specs()[name][0].type) for full, name in self._detector_names.items()}
-        )
+        for kind, names in self._names.items():
+            self._kinds.update(
+                {full: str(param_specs(kind)[name][0].type) for full, name in names.items()}
+            )
         overrides = _overrides(node)
         unknown = sorted(
-            name[len(DETECTOR_NAMESPACE) + 1 :]
+            name.split(".", 1)[1]
             for name in overrides
-            if name.startswith(f"{DETECTOR_NAMESPACE}.") and name not in self._detector_names
+            for kind, namespace in _NAMESPACES.items()
+            if name.startswith(f"{namespace}.") and name not in self._names[kind]
         )
         if unknown:
             # The same words as the CLI's from_mapping.
             raise ConfigError(f"unknown parameter(s): {', '.join(unknown)}")
-        defaults = DetectorConfig()
         try:
             node_values = {
                 name: _declare(node, name, f, f.default, overrides)
                 for name, (f, _) in node_specs().items()
             }
-            detector_values = {
-                name: _declare(
-                    node, full, param_specs()[name][0], getattr(defaults, name), overrides
-                )
-                for full, name in self._detector_names.items()
+            values = {
+                kind: {
+                    name: _declare(
+                        node, full, param_specs(kind)[name][0], getattr(kind(), name), overrides
+                    )
+                    for full, name in names.items()
+                }
+                for kind, names in self._names.items()
             }
         except (InvalidParameterValueException, InvalidParameterTypeException) as err:
             raise ConfigError(str(err)) from err
         self.node_config = NodeConfig(**node_values)
-        self.detector_config = from_mapping(detector_values)
+        self.detector_config = from_mapping(values[DetectorConfig])
+        self.tracker_config = from_mapping(values[TrackerConfig], base=TrackerConfig())
         node.add_pre_set_parameters_callback(self._coerce)
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._apply)
@@ -335,18 +357,22 @@ class LiveParameters:
             for p in parameters
         ]
 
-    def _merged(self, parameters: Sequence[Parameter]) -> tuple[NodeConfig, DetectorConfig]:
+    def _merged(
+        self, parameters: Sequence[Parameter]
+    ) -> tuple[NodeConfig, DetectorConfig, TrackerConfig]:
         """The configurations that ``parameters`` would give (raises ConfigError)."""
         node_changes: dict[str, Any] = {}
-        detector_changes: dict[str, Any] = {}
+        changes: dict[type, dict[str, Any]] = {kind: {} for kind in self._names}
         for p in parameters:
-            if p.name in self._detector_names:
-                detector_changes[self._detector_names[p.name]] = p.value
-            elif p.name in node_specs():
+            for kind, names in self._names.items():
+                if p.name in names:
+                    changes[kind][names[p.name]] = p.value
+            if p.name in node_specs():
                 node_changes[p.name] = p.value
         return (
             dataclasses.replace(self.node_config, **node_changes),
-            from_mapping(detector_changes, base=self.detector_config),
+            from_mapping(changes[DetectorConfig], base=self.detector_config),
+            from_mapping(changes[TrackerConfig], base=self.tracker_config),
         )
 
     def _validate(self, parameters: list[Parameter]) -> SetParametersResult:
@@ -357,8 +383,8 @@ class LiveParameters:
         return SetParametersResult(successful=True)
 
     def _apply(self, parameters: list[Parameter]) -> None:
-        self.node_config, self.detector_config = self._merged(parameters)
-        self._on_change(self.node_config, self.detector_config)
+        self.node_config, self.detector_config, self.tracker_config = self._merged(parameters)
+        self._on_change(self.node_config, self.detector_config, self.tracker_config)
 
 
 _YAML_WIDTH = 96
@@ -367,7 +393,7 @@ _YAML_HEADER = """\
 # the reason for the default (the descriptors the node declares carry the same text).
 # Use: marker_localizer_node --ros-args --params-file config/marker_localizer.yaml
 # Keyed /** so that it applies whatever the node's name and namespace.
-# GENERATED from NodeConfig and DetectorConfig by
+# GENERATED from NodeConfig, DetectorConfig and TrackerConfig by
 #   python -m marker_localizer.ros.parameters > config/marker_localizer.yaml
 # (a test fails when it is stale). Doubles keep their decimal point, though the node
 # (and the CLI) take an integer for a double as well.
@@ -383,18 +409,20 @@ def params_yaml(node_name: str = "/**") -> str:
 
     Returns:
         YAML text in the ``<node>: ros__parameters:`` layout, the detector
-        settings under ``detector:``.
+        settings under ``detector:``, the tracking settings under ``tracker:``.
     """
     lines = [_YAML_HEADER.rstrip("\n"), f"{node_name}:", "  ros__parameters:"]
     for name, (f, spec) in node_specs().items():
         lines += _yaml_entry(4, name, spec, f.default, bool(f.metadata.get("read_only")))
-    lines += [
-        "    # Detector settings (marker_localizer.config.DetectorConfig), all live-tunable.",
-        f"    {DETECTOR_NAMESPACE}:",
-    ]
-    defaults = DetectorConfig()
-    for name, (_, spec) in param_specs().items():
-        lines += _yaml_entry(6, name, spec, getattr(defaults, name), False)
+    for kind, namespace in _NAMESPACES.items():
+        what = "Detector" if kind is DetectorConfig else "Tracking"
+        lines += [
+            f"    # {what} settings (marker_localizer.config.{kind.__name__}), all live-tunable.",
+            f"    {namespace}:",
+        ]
+        defaults = kind()
+        for name, (_, spec) in param_specs(kind).items():
+            lines += _yaml_entry(6, name, spec, getattr(defaults, name), False)
     return "\n".join(lines) + "\n"
 
 

@@ -50,7 +50,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
-from marker_localizer.config import DetectorConfig
+from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.core.pipeline import CAP_COUNTS, DetectionResult, Detector
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.errors import ConfigError
@@ -109,6 +109,7 @@ class FrameProcessor:
         on_error: called with (camera, exception) when a frame fails, from a
             worker thread.
         stats_window_s: sliding window of the per-camera statistics, s.
+        tracker_config: tracking-mode settings of the first frames.
 
     Raises:
         ConfigError: no cameras, duplicate names, workers < 1, negative age
@@ -127,6 +128,7 @@ class FrameProcessor:
         publish_overlay: bool = False,
         on_error: ErrorCallback | None = None,
         stats_window_s: float = 10.0,
+        tracker_config: TrackerConfig | None = None,
     ) -> None:
         if not cameras or len(set(cameras)) != len(cameras):
             raise ConfigError(f"cameras must be non-empty and unique, got {list(cameras)!r}")
@@ -137,6 +139,7 @@ class FrameProcessor:
         self.max_frame_age_s = max_frame_age_s
         self.publish_overlay = publish_overlay
         self._detector = Detector(config)
+        self._tracker_config = tracker_config or TrackerConfig()
         # One tracker per camera (a camera is processed by one worker at a time), built
         # for the detector in use and rebuilt when the configuration changes.
         self._trackers: dict[str, MarkerTracker] = {}
@@ -189,6 +192,15 @@ class FrameProcessor:
         """Use ``config`` from the next frame a worker takes; frames in flight finish unchanged."""
         # Rebinding one attribute is atomic: a worker reads it once per frame.
         self._detector = Detector(config)
+
+    @property
+    def tracker_config(self) -> TrackerConfig:
+        """Tracking settings the next frame will use."""
+        return self._tracker_config
+
+    def set_tracker_config(self, config: TrackerConfig) -> None:
+        """Use ``config`` from the next frame a worker takes; the cameras' tracks start over."""
+        self._tracker_config = config
 
     def submit(
         self,
@@ -317,11 +329,11 @@ class FrameProcessor:
             self._gate_open = False
         return not any(thread.is_alive() for thread in self._threads)
 
-    def _tracker(self, camera: str, detector: Detector) -> MarkerTracker:
+    def _tracker(self, camera: str, detector: Detector, config: TrackerConfig) -> MarkerTracker:
         """The camera's tracker around ``detector`` (a new one after a configuration change)."""
         tracker = self._trackers.get(camera)
-        if tracker is None or tracker.detector is not detector:
-            tracker = MarkerTracker(detector, detector.config.tracking_full_frame_every)
+        if tracker is None or tracker.detector is not detector or tracker.config is not config:
+            tracker = MarkerTracker(detector, config)
             self._trackers[camera] = tracker
         return tracker
 
@@ -338,9 +350,10 @@ class FrameProcessor:
                 :func:`~marker_localizer.ros.conversions.image_to_detector_input`).
             stamp_s: the frame's header stamp, s.
         """
-        detector = self._detector  # read once: a reconfiguration applies from the next frame
-        if detector.config.tracking:
-            return self._tracker(camera, detector).update(pixels, stamp_s)
+        # Read once: a reconfiguration applies from the next frame.
+        detector, tracking = self._detector, self._tracker_config
+        if tracking.enabled:
+            return self._tracker(camera, detector, tracking).update(pixels, stamp_s)
         return detector.detect(pixels)
 
     def _idle(self) -> bool:

@@ -182,7 +182,8 @@ def test_markers_already_located_are_not_searched_again_but_the_others_are(clutt
     full = detector.detect(image).as_array()[:, :2]
     known, others = full[::2], full[1::2]
     height, width = image.shape[:2]
-    result = detector.detect(image, regions=np.array([[0, 0, width, height]]), known=known)
+    plan = pipeline.SearchPlan(regions=np.array([[0, 0, width, height]]), known=known)
+    result = detector.detect(image, plan)
     found = result.as_array()[:, :2]
     assert result.counts["skipped_known"] >= len(known)
     assert len(found) == len(others)
@@ -196,7 +197,7 @@ def test_seeded_markers_take_the_full_passs_stages_and_end_at_its_centres(clutte
     full = detector.detect(image).as_array()[:, :2]
     texture = np.array([[5.0, 5.0], [600.0, 20.0]])  # no marker there
     seeds = np.vstack([full + [0.4, -0.3], texture])
-    result = detector.detect(image, regions=np.zeros((0, 4), np.int64), seeds=seeds)
+    result = detector.detect(image, pipeline.SearchPlan(seeds=seeds))
     found = result.as_array()[:, :2]
     distance, index = cKDTree(found).query(full)
     assert len(found) == len(full)
@@ -348,3 +349,18 @@ def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_cou
     # The ten are corners the full pass found, at the same positions.
     distance, _ = cKDTree(everything.as_array()[:, :2]).query(capped.as_array()[:, :2])
     assert np.all(distance < 1e-6)
+
+
+def test_a_search_plan_of_the_wrong_shape_is_refused_with_its_name():
+
+    with pytest.raises(ValueError, match=r"SearchPlan.regions of shape \(3,\) is not \(N, 4\)"):
+        pipeline.SearchPlan(regions=np.array([0, 0, 8]))
+
+
+def test_an_empty_search_plan_searches_nowhere():
+
+    image = np.full((64, 64), 200, np.uint8)
+    image[:32, :32] = image[32:, 32:] = 30
+    image = cv2.GaussianBlur(image, (0, 0), 1.0)
+    assert len(Detector(DetectorConfig()).detect(image)) == 1
+    assert len(Detector(DetectorConfig()).detect(image, pipeline.SearchPlan())) == 0

@@ -5,6 +5,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
+from marker_localizer.config import TrackerConfig
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import MarkerPlacement, render_markers
@@ -61,7 +62,7 @@ def moving_frames():
 
 def test_tracking_finds_what_full_frame_detection_finds_at_the_same_positions(moving_frames):
     detector = _detector()
-    tracker = MarkerTracker(detector, full_frame_every=10)
+    tracker = MarkerTracker(detector, TrackerConfig(full_frame_every=10))
     full_passes = []
     for k, (image, truth) in enumerate(moving_frames):
         result = tracker.update(image, stamp_s=0.1 * k)
@@ -75,7 +76,7 @@ def test_tracking_finds_what_full_frame_detection_finds_at_the_same_positions(mo
 
 
 def test_a_full_frame_pass_runs_every_full_frame_every_frames(moving_frames):
-    tracker = MarkerTracker(_detector(), full_frame_every=3)
+    tracker = MarkerTracker(_detector(), TrackerConfig(full_frame_every=3))
     passes = [
         tracker.update(image, stamp_s=0.1 * k).counts["full_frame"]
         for k, (image, _) in enumerate(moving_frames)
@@ -107,7 +108,7 @@ def test_a_marker_in_view_but_rejected_on_one_frame_costs_no_full_pass_and_is_fo
     # Below the detector's contrast threshold, but the same pattern.
     frames[3] = (_faded(image, truth[1], 24, 0.05), truth)
     detector = _detector()
-    tracker = MarkerTracker(detector, full_frame_every=10, max_missed_frames=2)
+    tracker = MarkerTracker(detector, TrackerConfig(full_frame_every=10, max_missed_frames=2))
     results = [tracker.update(image, stamp_s=0.5 * k) for k, (image, _) in enumerate(frames)]
     assert len(detector.detect(frames[3][0])) == 3  # a full pass would not find it either
     assert [r.counts["full_frame"] for r in results] == [1, 0, 0, 0, 0, 0]
@@ -122,7 +123,7 @@ def test_a_marker_that_disappears_is_lost_and_gets_a_full_pass_on_the_same_frame
         _frame(offset, k, np.delete(CENTRES, 1, axis=0) if k >= 2 else CENTRES)
         for k, offset in enumerate(offsets)
     ]
-    tracker = MarkerTracker(_detector(), full_frame_every=10)
+    tracker = MarkerTracker(_detector(), TrackerConfig(full_frame_every=10))
     passes = [
         tracker.update(image, stamp_s=0.5 * k).counts["full_frame"]
         for k, (image, _) in enumerate(frames)
@@ -136,7 +137,7 @@ def test_markers_entering_and_leaving_across_the_border_are_tracked_as_full_fram
     centres = np.vstack([CENTRES[:3], [[-40.0, 250.0], [560.0, 330.0]]])
     frames = [_frame(offset, k, centres) for k, offset in enumerate(_offsets(12, (10.0, -2.0), 9))]
     detector = _detector()
-    tracker = MarkerTracker(detector, full_frame_every=100)
+    tracker = MarkerTracker(detector, TrackerConfig(full_frame_every=100))
     counts = []
     for k, (image, truth) in enumerate(frames):
         result = tracker.update(image, stamp_s=0.5 * k)

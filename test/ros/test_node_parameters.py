@@ -14,7 +14,7 @@ from rcl_interfaces.srv import (
 from sensor_msgs.msg import PointCloud2
 
 from marker_localizer.cli import main as cli_main
-from marker_localizer.config import DetectorConfig
+from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ConfigError
 from marker_localizer.ros.node import MarkerLocalizerNode
 from marker_localizer.ros.parameters import params_yaml
@@ -60,6 +60,8 @@ def test_accepted_parameter_change_takes_effect_on_the_next_frame(localizer, tes
         ("detector.marker_radius_max_px", "big", "Wrong parameter type"),
         ("detector.ncc_search_px", 2.5, "Wrong parameter type"),
         ("max_frame_age_s", -1.0, "out of range"),
+        ("tracker.match_px", 0.0, "out of range"),
+        ("tracker.full_frame_every", 2.5, "Wrong parameter type"),
         ("workers", 4, "read-only"),
         ("cameras", ["cam0"], "read-only"),
     ],
@@ -190,7 +192,21 @@ def test_parameter_descriptors_state_unit_range_and_read_only(localizer, tester)
     assert age.description.endswith("[s]")
 
 
+def test_the_tracker_settings_are_live_parameters_with_unit_and_range(localizer, tester):
+    request = DescribeParameters.Request(names=["tracker.max_motion_px", "tracker.enabled"])
+    motion, enabled = tester.call(
+        DescribeParameters, "/inproc/marker_localizer/describe_parameters", request
+    ).descriptors
+    assert motion.description.endswith("[px]")
+    assert motion.floating_point_range[0].to_value == 1000.0
+    assert enabled.type == ParameterType.PARAMETER_BOOL and not enabled.read_only
+    (result,) = tester.set_parameters("/inproc/marker_localizer", [("tracker.match_px", 2.5)])
+    assert result.successful
+    assert localizer.processor.tracker_config.match_px == 2.5
+
+
 def test_parameter_file_lists_every_parameter_at_its_default():
     assert PARAMS_FILE.read_text() == params_yaml()
     params = yaml.safe_load(PARAMS_FILE.read_text())["/**"]["ros__parameters"]
     assert DetectorConfig(**params["detector"]) == DetectorConfig()
+    assert TrackerConfig(**params["tracker"]) == TrackerConfig()

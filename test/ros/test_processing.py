@@ -12,7 +12,7 @@ from node_testing import (
     wait_until,
 )
 
-from marker_localizer.config import DetectorConfig
+from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ImageError
 from marker_localizer.ros.processing import FrameProcessor
 
@@ -106,8 +106,10 @@ def test_candidates_the_detectors_caps_cut_reach_the_cameras_diagnostics():
     collect = Collector()
     noise = np.random.default_rng(1).integers(0, 256, (64, 64), dtype=np.uint8)
     # The X gives 3 candidates, noise dozens: a cap of 3 cuts the noise's only.
-    config = DetectorConfig(max_candidates=3, tracking=False)
-    processor = FrameProcessor(["cam0"], config, collect, workers=1)
+    config = DetectorConfig(max_candidates=3)
+    processor = FrameProcessor(
+        ["cam0"], config, collect, workers=1, tracker_config=TrackerConfig(enabled=False)
+    )
     try:
         assert processor.submit("cam0", stamped(1), block=True)
         assert processor.submit("cam0", stamped(2, noise), block=True)
