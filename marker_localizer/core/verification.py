@@ -143,7 +143,9 @@ def ring_symmetry(profiles: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _circular_smooth(profile: NDArray[np.float64]) -> NDArray[np.float64]:
     """Smooth along the angle axis with a [1, 2, 1] / 4 kernel (the paper's DoG pre-filter)."""
-    return 0.25 * (profile[..., _PREVIOUS] + 2.0 * profile + profile[..., _NEXT])
+    # Slices of the profile with its two ends wrapped round: views, not gathers.
+    wrapped: NDArray[np.float64] = np.concatenate([profile[..., -1:], profile, profile[..., :1]], axis=-1)
+    return 0.25 * (wrapped[..., :-2] + 2.0 * profile + wrapped[..., 2:])
 
 
 class RingAnalysis(NamedTuple):
@@ -170,17 +172,23 @@ class RingAnalysis(NamedTuple):
 
 def _smoothed_contrast_symmetry(
     profiles: NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """The [1, 2, 1]-smoothed profiles, their contrast and their 180-degree self-correlation."""
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The [1, 2, 1]-smoothed profiles, their contrast, 180-degree self-correlation, mid level.
+
+    The mid level is halfway between the smoothed profile's extremes.
+    """
     nan = np.isnan(profiles)
     missing = nan.any(axis=-1)
-    f = _circular_smooth(np.where(nan, 0.0, profiles))
-    contrast = np.where(missing, 0.0, f.max(axis=-1) - f.min(axis=-1))
+    f = _circular_smooth(np.where(nan, 0.0, profiles) if missing.any() else profiles)
+    high, low = f.max(axis=-1), f.min(axis=-1)
+    contrast = np.where(missing, 0.0, high - low)
     centred = f - f.mean(axis=-1, keepdims=True)
-    turned = centred[..., _OPPOSITE]
-    norm = np.sqrt((centred**2).sum(-1) * (turned**2).sum(-1)) + 1e-12
-    symmetry = np.where(missing, -1.0, (centred * turned).sum(-1) / norm)
-    return f, contrast, symmetry
+    # The profile turned by 180 degrees holds the same samples: the same norm, and each
+    # product of opposite samples twice.
+    energy = (centred**2).sum(-1)
+    products = 2.0 * (centred[..., :_HALF_TURN] * centred[..., _HALF_TURN:]).sum(-1)
+    symmetry = np.where(missing, -1.0, products / (energy + 1e-12))
+    return f, contrast, symmetry, 0.5 * (high + low)
 
 
 def analyse_rings(profiles: NDArray[np.float64]) -> RingAnalysis:
@@ -190,29 +198,28 @@ def analyse_rings(profiles: NDArray[np.float64]) -> RingAnalysis:
         profiles: (N, J, 36) from :func:`annular_profiles`.
 
     Returns:
-        :class:`RingAnalysis`; rings with NaN samples get symmetry -1 and contrast 0.
+        :class:`RingAnalysis`; rings with NaN samples get symmetry -1 and contrast 0;
+        line angles are those of rings with four sector boundaries (0 elsewhere).
     """
-    f, contrast, symmetry = _smoothed_contrast_symmetry(profiles)
-    high, low = f.max(axis=-1), f.min(axis=-1)
+    f, contrast, symmetry, level = _smoothed_contrast_symmetry(profiles)
     # Sector boundaries: crossings of the mid level between samples k and k+1.
-    level = 0.5 * (high + low)[..., None]
-    above = f > level
-    crossing = above != above[..., _NEXT]
-    n_cross = crossing.sum(axis=-1)
-    four = (n_cross == 4) & (contrast > 0)
-    # Sub-sample crossing angle by linear interpolation, for rings with four crossings.
-    nxt = f[..., _NEXT]
+    above = f > level[..., None]
+    crossing = above != np.roll(above, -1, axis=-1)
+    four = (crossing.sum(axis=-1) == 4) & (contrast > 0)
+    # The sub-sample crossing angles (linear interpolation), of the rings with four only.
+    *ring_index, k = np.nonzero(crossing & four[..., None])
+    ring = tuple(ring_index)
+    start, end = f[(*ring, k)], f[(*ring, (k + 1) % N_ANGLES)]
     with np.errstate(divide="ignore", invalid="ignore"):
-        frac = np.clip((level - f) / (nxt - f), 0.0, 1.0)
-    position = np.arange(N_ANGLES) + np.where(np.isnan(frac), 0.0, frac)
-    order = np.argsort(~crossing, axis=-1, kind="stable")[..., :4]
-    first4 = np.take_along_axis(position, order, axis=-1) * (2 * np.pi / N_ANGLES)
+        frac = np.clip((level[ring] - start) / (end - start), 0.0, 1.0)
+    first4 = (k + np.where(np.isnan(frac), 0.0, frac)).reshape(-1, 4) * (2 * np.pi / N_ANGLES)
     # Boundaries i and i+2 must be opposite (180 deg apart) on a centrally symmetric X.
-    gap = np.abs(np.angle(np.exp(1j * (first4[..., 2:] - first4[..., :2] - np.pi))))
-    four &= (gap < np.deg2rad(30.0)).all(axis=-1)
+    gap = np.abs(np.angle(np.exp(1j * (first4[:, 2:] - first4[:, :2] - np.pi))))
     # Each line's direction: circular mean of a boundary and its opposite twin (mod pi).
     doubled = np.exp(2j * first4)
-    line_angles = (np.angle(doubled[..., :2] + doubled[..., 2:]) / 2.0) % np.pi
+    line_angles = np.zeros((*four.shape, 2))
+    line_angles[four] = (np.angle(doubled[:, :2] + doubled[:, 2:]) / 2.0) % np.pi
+    four[four] = (gap < np.deg2rad(30.0)).all(axis=-1)
     return RingAnalysis(contrast, symmetry, four, line_angles)
 
 
@@ -249,7 +256,7 @@ def _ring_passes(
     :func:`analyse_rings` without its sector analysis: what a first look over
     ~10^4 candidates affords.
     """
-    _, contrast, symmetry = _smoothed_contrast_symmetry(ring)
+    _, contrast, symmetry, _ = _smoothed_contrast_symmetry(ring)
     return (contrast >= min_contrast) & (symmetry >= min_symmetry)
 
 
