@@ -64,9 +64,19 @@ _PRESCREEN_GOOD_RINGS = 3
 #: 2354 at radius 3-30, 4-40 and 6-40 px; libcbdetect's e5 1571 for its 503 corners.
 #: A cap of 2000 lost one of 233 markers planted on aerial_negatives and cirn_uas.
 _MAX_VERIFIED = 5000
+#: The most candidates of a frame that pass the ring checks and their score floor and go
+#: on to the template, the double-line check and the fit (~0.4 ms each on one core),
+#: spread over the frame as :data:`_MAX_VERIFIED` spreads them, the best ring symmetry
+#: first within a cell. The floor stops nearly every texture saddle before this point:
+#: at most 619 came here (531 of them to the double-line check: libcbdetect's e5, 503
+#: corners) on the real boards, the rendered families, the independent frames and
+#: cirn_uas and aerial_negatives at 3-30 and 6-40 px. A 12 MP tiling of X's brings all
+#: 5000 (2.5 s per frame on one core without this cap).
+_MAX_CONFIRMED = 1000
 #: The counts of :class:`DetectionResult` that say what the caps cut, the price of a
 #: bounded worst case (``max_candidates`` after screening, :data:`_MAX_VERIFIED` after
-#: the prescreen): the node's diagnostics show their sum.
+#: the prescreen, :data:`_MAX_CONFIRMED` after the ring checks): the node's
+#: diagnostics show their sum.
 CAP_COUNTS = ("dropped_over_cap", "dropped_over_verification_cap")
 #: ``min_contrast_dn`` is in 8-bit grey levels, of which white is this: the thresholds
 #: in grey levels are its share of white times the image's white (``full_scale``).
@@ -166,8 +176,10 @@ class DetectionResult:
             the centring, symmetry, template, refinement and score counts).
             ``dropped_over_cap`` counts every candidate that ``max_candidates``
             cut, including those the screening left out early as too weak to
-            pass it (:meth:`screening.CellCap.floor`); :data:`CAP_COUNTS` are the
-            caps' cuts.
+            pass it (:meth:`screening.CellCap.floor`);
+            ``dropped_over_verification_cap`` those over :data:`_MAX_VERIFIED` after
+            the prescreen and over :data:`_MAX_CONFIRMED` after the ring checks;
+            :data:`CAP_COUNTS` are the caps' cuts.
         timings_ms: wall time per stage in milliseconds.
         verdicts: with ``refinement="template"``, every candidate the decision saw:
             where its fit ended, whether it was accepted and why not, its score and
@@ -947,12 +959,20 @@ class Detector:
         floor = self._score_floor(symmetry.radius_px)
         weak = keep & (symmetry.score < floor)
         counts["rejected_score"] = int(weak.sum())
-        keep &= ~weak
-        floor = floor[keep]
-        radius = symmetry.radius_px[keep]
-        angles = symmetry.line_angles[keep]
-        score = symmetry.score[keep]
-        candidates = candidates.take(keep)
+        passed = np.flatnonzero(keep & ~weak)
+        chosen = passed[
+            screening.even_cap_index(
+                candidates.xy[passed], symmetry.score[passed], _MAX_CONFIRMED, cfg.entropy_cell_px
+            )
+        ]
+        counts["dropped_over_verification_cap"] = (
+            counts.get("dropped_over_verification_cap", 0) + len(passed) - len(chosen)
+        )
+        floor = floor[chosen]
+        radius = symmetry.radius_px[chosen]
+        angles = symmetry.line_angles[chosen]
+        score = symmetry.score[chosen]
+        candidates = candidates.take(chosen)
         match = template.template_correlation(
             gray,
             candidates.xy,

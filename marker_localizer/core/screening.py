@@ -976,13 +976,28 @@ def even_cap(candidates: Candidates, limit: int, cell_px: float) -> Candidates:
     """
     if len(candidates) <= limit:
         return candidates
-    cell = grid_cells(candidates.xy, cell_px)
+    return candidates.take(even_cap_index(candidates.xy, candidates.strength, limit, cell_px))
+
+
+def even_cap_index(
+    xy: NDArray[np.float64], strength: NDArray[np.float64], limit: int, cell_px: float
+) -> NDArray[np.intp]:
+    """Indices (ascending) of the ``limit`` points :func:`even_cap` keeps, by ``strength``.
+
+    Args:
+        xy: (N, 2) points, px.
+        strength: (N,) what ranks the points within a cell (larger first).
+        limit: the most points kept.
+        cell_px: grid cell size, px.
+    """
+    if len(xy) <= limit:
+        return np.arange(len(xy))
+    cell = grid_cells(xy, cell_px)
     per_cell = np.bincount(cell)
-    order = np.argsort(strongest_first_in_cell(cell, candidates.strength))
+    order = np.argsort(strongest_first_in_cell(cell, strength))
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order)) - (np.cumsum(per_cell) - per_cell)[cell[order]]
-    chosen = np.lexsort((-candidates.strength, rank))[:limit]
-    return candidates.take(np.sort(chosen))
+    return np.sort(np.lexsort((-strength, rank))[:limit])
 
 
 def cell_cap_mask(

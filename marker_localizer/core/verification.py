@@ -144,7 +144,9 @@ def ring_symmetry(profiles: NDArray[np.float64]) -> NDArray[np.float64]:
 def _circular_smooth(profile: NDArray[np.float64]) -> NDArray[np.float64]:
     """Smooth along the angle axis with a [1, 2, 1] / 4 kernel (the paper's DoG pre-filter)."""
     # Slices of the profile with its two ends wrapped round: views, not gathers.
-    wrapped: NDArray[np.float64] = np.concatenate([profile[..., -1:], profile, profile[..., :1]], axis=-1)
+    wrapped: NDArray[np.float64] = np.concatenate(
+        [profile[..., -1:], profile, profile[..., :1]], axis=-1
+    )
     return 0.25 * (wrapped[..., :-2] + 2.0 * profile + wrapped[..., 2:])
 
 

@@ -7,6 +7,7 @@ from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench.accuracy import families
+from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.core import decision, pipeline, verification
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
@@ -173,6 +174,19 @@ def test_every_candidate_the_screenings_caps_cut_is_counted_whenever_it_is_cut(m
         counts["after_suppression"] - 50 if max_candidates == 50 else 0
     )
     assert counts["candidates"] > 10_000
+
+
+def test_more_xs_than_the_costly_checks_take_are_cut_over_the_frame_and_counted():
+    """A tiling of X's passes every check: the cap after the ring checks bounds the work."""
+    image = x_tiling_frame(seed=1, shape=(400, 900))
+    detector = Detector(DetectorConfig(marker_radius_min_px=3.0, marker_radius_max_px=30.0))
+    result = detector.detect(image)
+    found = result.as_array()
+    assert len(found) == pipeline._MAX_CONFIRMED
+    assert result.counts["dropped_over_verification_cap"] > 1000
+    # Spread over the frame: every 100 px column band keeps its share.
+    per_band = np.bincount((found[:, 0] // 100).astype(int), minlength=9)
+    assert per_band.min() >= 0.5 * len(found) / 9
 
 
 def test_markers_already_located_are_not_searched_again_but_the_others_are(cluttered_frames):
