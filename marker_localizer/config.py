@@ -256,7 +256,8 @@ class DetectorConfig:
     min_score_small: float = _param(
         0.945,
         "Minimum score of a detection whose X extends no further than "
-        "marker_radius_min_px and less than 9 px: the regime of ground-texture saddles "
+        "marker_radius_min_px, nor than 4 px (texture's size, so that a tighter range "
+        "never asks more of a marker): the regime of ground-texture saddles "
         "(stones meeting). "
         "On the simulated flights those scored up to 0.944 and markers of that extent "
         "0.946 and more (a thin margin: see the README).",

@@ -83,9 +83,16 @@ TEXTURE_EXTENT_PX = 9.0
 #: renderer's families, but for 8 % of the tiny ones of family (b).
 TEXTURE_SCORE_FLOORS = ((6.0, 0.92), (TEXTURE_EXTENT_PX, 0.88))
 #: Detections whose X extends no further than the smallest expected radius (times this,
-#: for the ring ladder's rounding), and less than :data:`TEXTURE_EXTENT_PX`, are small
-#: markers: ground texture produces saddles of that size, rarely larger.
+#: for the ring ladder's rounding), or than :data:`SMALL_EXTENT_MAX_RADIUS_PX` where that
+#: is smaller, are small markers.
 SMALL_EXTENT_FACTOR = 1.05
+#: px: ground texture makes saddles of this extent and less that score up to 0.944
+#: (the simulated flights, ``min_score_small``), rarely larger ones. The rule follows
+#: the ground here, not the radius range: were it to follow a larger
+#: ``marker_radius_min_px``, a tighter, correct range would demand more of the same
+#: marker (on the renderer's (a) and (d), 6-40 px found 3 fewer than 4-40 px, each a
+#: tilted 6 px marker under the floor).
+SMALL_EXTENT_MAX_RADIUS_PX = 4.0
 # Indices of each angle's neighbours and opposite on the ring: a gather along the
 # last axis costs a fraction of np.roll's slicing and concatenation, which the small
 # per-call arrays of a few candidates make the cost.
@@ -1276,13 +1283,14 @@ def small_marker(radius_px: NDArray[np.float64], min_radius_px: float) -> NDArra
     """(N,) True for X's no larger than the smallest expected marker, and texture-sized.
 
     Such detections are in the regime of ground texture's saddles (stones meeting),
-    and need ``min_score_small`` (:func:`minimum_score`).
+    and need ``min_score_small`` (:func:`minimum_score`). Texture's size bounds the
+    rule, so a larger ``min_radius_px`` never asks more of the same marker.
 
     Args:
         radius_px: (N,) extents of the X, px.
         min_radius_px: the smallest expected marker radius, px.
     """
-    return (radius_px < SMALL_EXTENT_FACTOR * min_radius_px) & (radius_px < TEXTURE_EXTENT_PX)
+    return radius_px < SMALL_EXTENT_FACTOR * min(min_radius_px, SMALL_EXTENT_MAX_RADIUS_PX)
 
 
 def minimum_score(

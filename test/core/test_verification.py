@@ -268,14 +268,14 @@ def test_texture_sized_detections_need_the_floor_of_their_extent():
     ]
 
 
-def test_a_small_marker_is_no_larger_than_the_smallest_expected_and_texture_sized():
-    small = verification.small_marker(np.array([4.1, 4.3, 12.0]), min_radius_px=4.0)
-    assert small.tolist() == [True, False, False]
-    # With large expected markers the texture extent bounds what counts as small.
-    assert verification.small_marker(np.array([8.9, 9.0]), min_radius_px=20.0).tolist() == [
-        True,
-        False,
-    ]
+def test_a_small_marker_is_no_larger_than_the_smallest_expected_nor_than_texture_makes():
+    extents = np.array([2.0, 2.83, 4.0, 4.24, 5.66, 6.0, 12.0])
+    small = verification.small_marker(extents, min_radius_px=4.0)
+    assert small.tolist() == [True, True, True, False, False, False, False]
+    assert verification.small_marker(extents, min_radius_px=2.5).sum() == 1
+    # Texture's extent bounds the rule: larger expected markers ask no more of one.
+    for min_radius_px in (6.0, 10.0, 20.0):
+        np.testing.assert_array_equal(verification.small_marker(extents, min_radius_px), small)
 
 
 def test_the_minimum_score_is_min_score_small_for_small_markers_else_the_texture_floor():
