@@ -424,36 +424,38 @@ def centre_symmetry_check(
         return SymmetryCheck(
             np.zeros(0, bool), np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.zeros(0)
         )
-    options = (min_contrast, min_symmetry, max_angle_drift_rad, max_first_ring, normalise)
+    options = (min_contrast, min_symmetry, max_angle_drift_rad, max_first_ring)
     # A run that ends before the last ring read is final: the outer rings cannot join
     # it. Texture's runs end within the first rings, so the outer rings are read only
     # for the candidates whose run goes on to the last of those.
     first_read = min(n_rings, max_first_ring + _RINGS_READ_BEYOND_START)
-    check, going_on = _ring_runs(image, xy, radii_px[:first_read], *options)
+    inner = analyse_rings(annular_profiles(image, xy, radii_px[:first_read], normalise))
+    check, going_on = _ring_runs(inner, radii_px[:first_read], *options)
     if first_read == n_rings or not going_on.any():
         return check
     further = np.flatnonzero(going_on)
-    outer, _ = _ring_runs(image, xy[further], radii_px, *options)
-    return SymmetryCheck(*(_scatter(a, further, b) for a, b in zip(check, outer, strict=True)))
+    outer = analyse_rings(annular_profiles(image, xy[further], radii_px[first_read:], normalise))
+    rings = RingAnalysis(
+        *(np.concatenate([a[further], b], axis=1) for a, b in zip(inner, outer, strict=True))
+    )
+    full, _ = _ring_runs(rings, radii_px, *options)
+    return SymmetryCheck(*(_scatter(a, further, b) for a, b in zip(check, full, strict=True)))
 
 
 def _ring_runs(
-    image: NDArray[Any],
-    xy: NDArray[np.float64],
+    rings: RingAnalysis,
     radii_px: NDArray[np.float64],
     min_contrast: float,
     min_symmetry: float,
     max_angle_drift_rad: float,
     max_first_ring: int,
-    normalise: Normaliser | None,
 ) -> tuple[SymmetryCheck, NDArray[np.bool_]]:
-    """:func:`centre_symmetry_check` on the rings ``radii_px`` alone.
+    """:func:`centre_symmetry_check` from the analysis of the rings ``radii_px`` alone.
 
     Returns:
         The check, and (N,) True where a candidate's run goes on to the last ring.
     """
-    n, n_rings = len(xy), len(radii_px)
-    rings = analyse_rings(annular_profiles(image, xy, radii_px, normalise))
+    n, n_rings = rings.contrast.shape
     good = rings.good(min_contrast, min_symmetry)
     first = np.argmax(good[:, :max_first_ring], axis=1)
     has_first = good[np.arange(n), first] & good[:, :max_first_ring].any(axis=1)
