@@ -493,8 +493,10 @@ DETECTOR_NAMESPACE = "detector"
 TRACKER_NAMESPACE = "tracker"
 
 
-def load_params_file(path: str | Path, node_name: str = "*") -> dict[str, Any]:
-    """Read the ``detector.*`` parameters of a ROS 2 parameter YAML file.
+def load_params_file(
+    path: str | Path, node_name: str = "*", namespace: str = DETECTOR_NAMESPACE
+) -> dict[str, Any]:
+    """Read the ``<namespace>.*`` parameters (``detector.*`` by default) of a ROS 2 YAML file.
 
     The file has the node's layout (``node_name: ros__parameters: detector: {...}``);
     the entry for ``node_name`` or the wildcard ``/**`` is used.
@@ -517,7 +519,7 @@ def load_params_file(path: str | Path, node_name: str = "*") -> dict[str, Any]:
         entries += list(document.values())
     for entry in entries:
         if isinstance(entry, dict) and "ros__parameters" in entry:
-            prefix = f"{DETECTOR_NAMESPACE}."
+            prefix = f"{namespace}."
             flat = _flatten(entry["ros__parameters"] or {}, path)
             return {k[len(prefix) :]: v for k, v in flat.items() if k.startswith(prefix)}
     raise ConfigError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")

@@ -3,7 +3,9 @@
 import pytest
 
 from marker_localizer.config import (
+    TRACKER_NAMESPACE,
     DetectorConfig,
+    TrackerConfig,
     from_mapping,
     load_params_file,
     param_specs,
@@ -78,6 +80,25 @@ def test_load_params_file_reads_the_detector_section_of_a_node_yaml(tmp_path):
         "marker_radius_min_px": 4.0,
         "line_check": False,
     }
+
+
+def test_load_params_file_reads_the_tracker_section_as_the_node_declares_it(tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text(
+        "/**:\n  ros__parameters:\n    detector:\n      line_check: false\n"
+        "    tracker.match_px: 2.0\n    tracker:\n      enabled: false\n"
+    )
+    values = load_params_file(path, namespace=TRACKER_NAMESPACE)
+    assert values == {"match_px": 2.0, "enabled": False}
+    tracking = from_mapping(values, base=TrackerConfig())
+    assert (tracking.enabled, tracking.match_px, tracking.max_missed_frames) == (False, 2.0, 2)
+
+
+def test_a_tracker_setting_out_of_its_range_is_refused_with_its_name():
+    with pytest.raises(ConfigError, match=r"match_px=0.0 is outside \[0.1, 50\] px"):
+        TrackerConfig(match_px=0.0)
+    with pytest.raises(ConfigError, match="unknown parameter"):
+        TrackerConfig().replace(plate_px=3.0)
 
 
 @pytest.mark.parametrize(

@@ -54,7 +54,7 @@ from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 
 from marker_localizer.bag.io import DEFAULT_STORAGE, BagMessage, BagReader, BagWriter
 from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
-from marker_localizer.config import DetectorConfig
+from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import BagError, ImageError, shorten
 from marker_localizer.evaluation import DEFAULT_GATE_PX, DetectionTally, match_points
 from marker_localizer.ros.conversions import ENCODINGS, IMAGE_TRANSPORTS, cloud_to_array
@@ -265,6 +265,7 @@ class _Session:
         self,
         cameras: Sequence[str],
         config: DetectorConfig,
+        tracker_config: TrackerConfig,
         writer: BagWriter,
         workers: int,
     ) -> None:
@@ -290,6 +291,7 @@ class _Session:
             clock_ns=lambda: self.now_ns,
             on_error=self._on_error,
             stats_window_s=settings.stats_window_s,
+            tracker_config=tracker_config,
         )
 
     def submit(self, camera: str, message: BagMessage) -> None:
@@ -380,6 +382,7 @@ def replay_bag(
     out: str | Path,
     *,
     config: DetectorConfig | None = None,
+    tracker_config: TrackerConfig | None = None,
     workers: int | None = None,
     storage: str = DEFAULT_STORAGE,
     match_distance_px: float = DEFAULT_GATE_PX,
@@ -392,6 +395,7 @@ def replay_bag(
         out: Output bag directory to create; must not exist. It appears only
             when the replay finished.
         config: Detector configuration (default: the defaults).
+        tracker_config: Tracking settings (default: the defaults, as the node's).
         workers: Worker threads (default: the node's default).
         storage: Storage of the output, ``"mcap"`` or ``"sqlite3"``.
         match_distance_px: Largest detection-to-truth distance of a match, px.
@@ -432,7 +436,13 @@ def replay_bag(
             for camera in cameras:
                 writer.add_topic(f"/{camera}/{POINTS_SUFFIX}", CLOUD_TYPE)
             writer.add_topic(DIAGNOSTICS_TOPIC, "diagnostic_msgs/msg/DiagnosticArray")
-            session = _Session(list(cameras), config or DetectorConfig(), writer, workers)
+            session = _Session(
+                list(cameras),
+                config or DetectorConfig(),
+                tracker_config or TrackerConfig(),
+                writer,
+                workers,
+            )
             started = time.perf_counter()
             handled = 0
             try:

@@ -25,7 +25,13 @@ from marker_localizer.bag.record import record_flight
 from marker_localizer.bag.replay import format_report, replay_bag
 from marker_localizer.cli.exits import EXIT_INCOMPLETE, PROG
 from marker_localizer.cli.progress import ProgressBar
-from marker_localizer.config import DetectorConfig, from_mapping, load_params_file
+from marker_localizer.config import (
+    TRACKER_NAMESPACE,
+    DetectorConfig,
+    TrackerConfig,
+    from_mapping,
+    load_params_file,
+)
 from marker_localizer.evaluation import DEFAULT_GATE_PX
 from marker_localizer.ros.parameters import NodeConfig
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
@@ -159,7 +165,7 @@ def build_replay_parser() -> argparse.ArgumentParser:
         "--params-file",
         type=Path,
         default=None,
-        help="the node's parameter YAML; its detector.* values are used",
+        help="the node's parameter YAML; its detector.* and tracker.* values are used",
     )
     parser.add_argument(
         "--workers",
@@ -186,17 +192,19 @@ def build_replay_parser() -> argparse.ArgumentParser:
 def replay(argv: Sequence[str]) -> int:
     """Run ``marker-localizer replay``; 0, or EXIT_INCOMPLETE when a frame gave no result."""
     args = build_replay_parser().parse_args(argv)
-    config = (
-        from_mapping(load_params_file(args.params_file))
-        if args.params_file is not None
-        else DetectorConfig()
-    )
+    config, tracking = DetectorConfig(), TrackerConfig()
+    if args.params_file is not None:
+        config = from_mapping(load_params_file(args.params_file))
+        tracking = from_mapping(
+            load_params_file(args.params_file, namespace=TRACKER_NAMESPACE), base=tracking
+        )
     bar = ProgressBar(0, "replay")
     try:
         report = replay_bag(
             args.bag,
             args.out,
             config=config,
+            tracker_config=tracking,
             workers=args.workers,
             storage=args.storage,
             match_distance_px=args.match_distance,

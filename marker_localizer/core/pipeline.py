@@ -12,7 +12,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,33 +29,9 @@ from marker_localizer.core import (
 )
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.noise import NoiseModel, estimate_noise
+from marker_localizer.core.sampling import nearest_pixels
 from marker_localizer.core.screening import Candidates
 
-#: The prescreen's 180-degree self-correlation threshold: lenient, the candidate may
-#: sit a fraction of its scale off the centre.
-_PRESCREEN_SYMMETRY = 0.5
-#: Prescreen ring radii in units of the candidate's scale, the likeliest ring first. The
-#: outermost is 0.6, not 0.7: a level answers to markers whose major radius matches its
-#: scale, and a 60-degree tilt halves the minor one; a ring at 0.7 ran past the X of a
-#: tilted 14 px checker of family (d) (minor semi-axis 7.1 px, its candidate 1.15 px
-#: off at scale 16) onto its plate.
-_PRESCREEN_RINGS = (0.5, 0.35, 0.6)
-#: Smallest prescreen ring radius, px. A nearest-pixel ring of 1.4 px (0.35 of the
-#: first level's 4 px scale) visits only the eight neighbours; around a candidate up to
-#: half a pixel off the centre (the level's parabolic peak) that misplaces each sector
-#: boundary by ~20 degrees and fails the four-sector test on sharp, aliased chessboard
-#: corners (two of ValidationBoof's image 38). Rings of 1.7-2.0 px keep them with the
-#: same recall elsewhere (1.75 lost two libcbdetect corners: rings this small are
-#: sensitive to the exact radius, so the floor is not set any closer).
-_PRESCREEN_MIN_RING_PX = 1.8
-#: ... but never beyond this fraction of the smallest expected radius: in frames of
-#: 2.5-5 px markers (family (b)) the 1.4 px ring lies well inside the smallest marker,
-#: and raising it there let one more texture saddle through per 8 frames.
-_PRESCREEN_MIN_RING_FRACTION = 0.5
-#: Prescreen rings (of three) that must show the X: all of them. Each marker has a
-#: candidate close enough to its centre at some level for all three to pass, while
-#: texture saddles rarely keep the X over a factor of two in radius.
-_PRESCREEN_GOOD_RINGS = 3
 #: The most prescreened candidates of a frame that go on to the centring, verification
 #: and fit (0.25-0.5 ms each on one core), spread over the frame as Eq. (7) spreads
 #: them: a safety net above every real frame measured, which bounds pathological ones
@@ -117,9 +93,6 @@ _FIT_SHIFT_PX = 1.0
 #: decision needs the X's shape, not its last hundredth of a pixel; the markers it
 #: accepts are fitted again on every pixel.
 _DECISION_PIXELS = 300
-#: Levenberg-Marquardt iterations of the final fit on every pixel, from the
-#: decision's fit.
-_FINAL_ITERATIONS = 20
 #: Smallest half-size of the double-line check's window, px: LSD needs segments a
 #: few pixels long (the check upsamples small windows).
 _LINE_WINDOW_MIN_PX = 3.0
@@ -713,15 +686,12 @@ class Detector:
         frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`); the
         rest are cut and counted.
         """
-        good = verification.count_symmetric_rings(
+        keep = verification.prescreen_symmetry(
             gray,
             candidates.xy,
             self._prescreen_radii(candidates),
-            min_contrast=self._raw_contrast_floor(full_scale),
-            min_symmetry=_PRESCREEN_SYMMETRY,
-            min_good=_PRESCREEN_GOOD_RINGS,
+            self._raw_contrast_floor(full_scale),
         )
-        keep = good >= _PRESCREEN_GOOD_RINGS
         counts["rejected_prescreen"] = int((~keep).sum())
         passed = candidates.take(keep)
         capped = screening.even_cap(passed, _MAX_VERIFIED, self.config.entropy_cell_px)
@@ -748,10 +718,7 @@ class Detector:
         Returns:
             The candidates that pass and (N, 2) their line directions.
         """
-        level = gray[
-            np.clip(np.round(candidates.xy[:, 1]).astype(np.intp), 0, gray.shape[0] - 1),
-            np.clip(np.round(candidates.xy[:, 0]).astype(np.intp), 0, gray.shape[1] - 1),
-        ]
+        level = nearest_pixels(gray, candidates.xy)
         min_strength = np.maximum(
             _ORDER_NOISE_SIGMAS * verification.ring_edge_noise(noise.std(level)),
             _ORDER_CONTRAST_SHARE * self.config.min_contrast_dn / _WHITE_DN * full_scale,
@@ -791,13 +758,8 @@ class Detector:
 
     def _prescreen_radii(self, candidates: Candidates) -> NDArray[np.float64]:
         """(N, 3) the prescreen's ring radii for each candidate, px."""
-        floor_px = min(
-            _PRESCREEN_MIN_RING_PX,
-            _PRESCREEN_MIN_RING_FRACTION * self.config.marker_radius_min_px,
-        )
-        return cast(
-            "NDArray[np.float64]",
-            np.maximum(candidates.scale_px[:, None] * np.array(_PRESCREEN_RINGS), floor_px),
+        return verification.prescreen_ring_radii(
+            candidates.scale_px, self.config.marker_radius_min_px
         )
 
     def _line_directions(self, gray: NDArray[Any], candidates: Candidates) -> NDArray[np.float64]:
@@ -836,10 +798,7 @@ class Detector:
         counts = result.counts
         with timer("subpixel"):
             shape = template.TemplateShape.start(xy, angles, _FIT_START_BLUR_PX)
-            level = gray[
-                np.clip(np.round(xy[:, 1]).astype(np.intp), 0, gray.shape[0] - 1),
-                np.clip(np.round(xy[:, 0]).astype(np.intp), 0, gray.shape[1] - 1),
-            ]
+            level = nearest_pixels(gray, xy)
             grown = subpixel.fit_growing_template(
                 gray,
                 shape,
@@ -864,7 +823,7 @@ class Detector:
             result.verdicts = decision.Verdicts(grown.fit.shape.xy, verdict, evidence)
         with timer("subpixel"):
             accepted = verdict.accepted
-            fit = self._final_fit(gray, grown, accepted)
+            fit = subpixel.refit_on_every_pixel(gray, grown, accepted, cfg.marker_radius_max_px)
             position = fit.shape.xy
             sigma = np.sqrt(np.maximum(fit.covariance[:, 0, 0] + fit.covariance[:, 1, 1], 0.0))
             keep = np.flatnonzero(accepted)
@@ -890,26 +849,6 @@ class Detector:
                 )
                 for k in keep
             ]
-
-    def _final_fit(
-        self, gray: NDArray[Any], grown: subpixel.GrownFit, accepted: NDArray[np.bool_]
-    ) -> subpixel.TemplateFit:
-        """The accepted markers' fits again, on every pixel of their X.
-
-        The decision's fits read a lattice of at most :data:`_DECISION_PIXELS`; the
-        others are returned as they are.
-        """
-        fit = grown.fit
-        if not accepted.any():
-            return fit
-        chosen = fit.shape.take(accepted)
-        regions = template.template_region(
-            chosen,
-            grown.extents[accepted],
-            np.full(int(accepted.sum()), self.config.marker_radius_max_px),
-        )
-        final = subpixel.fit_template(gray, chosen, regions, iterations=_FINAL_ITERATIONS)
-        return fit.with_rows(accepted, final)
 
     def _raw_contrast_floor(self, full_scale: float) -> float:
         """:data:`_RAW_CONTRAST_SHARE` of the configured contrast in raw grey units.

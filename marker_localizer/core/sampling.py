@@ -96,6 +96,15 @@ def _neighbours(
     return v00, v01, v10, v11, x - x0, y - y0, valid
 
 
+def nearest_pixels(image: NDArray[Any], xy: NDArray[np.float64]) -> NDArray[Any]:
+    """(N,) the pixels nearest to (N, 2) points (x, y), clamped to the image, native dtype."""
+    height, width = image.shape[:2]
+    return image[
+        np.clip(np.round(xy[:, 1]).astype(np.intp), 0, height - 1),
+        np.clip(np.round(xy[:, 0]).astype(np.intp), 0, width - 1),
+    ]
+
+
 def bilinear(
     image: NDArray[Any], x: NDArray[np.float64], y: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:

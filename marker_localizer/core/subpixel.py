@@ -82,6 +82,9 @@ _FINAL_MAX_SHIFT_PX = 1.5
 _QUANTISATION_DIFFERENCE_STD = float(np.sqrt(2.0 / 12.0))
 #: Smallest contrast the relative residual divides by, grey levels.
 _MIN_CONTRAST = 1e-6
+#: Levenberg-Marquardt iterations of :func:`refit_on_every_pixel`, from the
+#: decision's fit.
+_REFIT_ITERATIONS = 20
 
 
 def ncc_surface(
@@ -1068,7 +1071,7 @@ class GrownFit(NamedTuple):
 
     fit: TemplateFit
     extents: NDArray[np.float64]
-    grown: NDArray[np.float64]
+    grown: NDArray[np.bool_]
 
 
 def disk_region(radius_px: float) -> NDArray[np.float64]:
@@ -1277,3 +1280,29 @@ def find_shadow_edges(
         start[better, 2] = depth[better]
     start[~np.isfinite(best), 2] = 0.0
     return fit.shape._replace(shadow=start)
+
+
+def refit_on_every_pixel(
+    image: NDArray[Any], grown: GrownFit, accepted: NDArray[np.bool_], max_radius_px: float
+) -> TemplateFit:
+    """The ``accepted`` markers' template fits again, on every pixel of their X.
+
+    The decision's fits read a lattice of pixels (``max_pixels`` of
+    :func:`fit_growing_template`): enough for the X's shape, not for its last
+    hundredth of a pixel. The others are returned as they are.
+
+    Args:
+        image: (H, W) grey image, raw levels.
+        grown: the grown fits, N points.
+        accepted: (N,) the points to fit again.
+        max_radius_px: the largest expected marker radius, px.
+    """
+    fit = grown.fit
+    if not accepted.any():
+        return fit
+    chosen = fit.shape.take(accepted)
+    regions = template.template_region(
+        chosen, grown.extents[accepted], np.full(int(accepted.sum()), max_radius_px)
+    )
+    final = fit_template(image, chosen, regions, iterations=_REFIT_ITERATIONS)
+    return fit.with_rows(accepted, final)

@@ -19,7 +19,9 @@ off its centre; inside a window the detector runs exactly as on a full frame (it
 samples the whole image; a window only bounds where candidates are screened).
 Near the border, where a marker's plate is cut and what a full pass accepts
 depends on the cut, the fit alone does not confirm it: it is seeded at its
-prediction into the detector's centring, verification and fit.
+prediction into the detector's centring, verification and fit (a
+:class:`SearchPlan`'s seeds). A marker's plate, here, is what the detector's
+checks read around it: :attr:`Detector.support_radii` of its radius.
 Markers come into view across the frame border, so the border is searched too,
 but only on the sides whose content moves inward and only as deep as a marker's
 plate plus that motion.

@@ -3,7 +3,12 @@
 import numpy as np
 import pytest
 
-from marker_localizer.core.sampling import bilinear, bilinear_with_gradient, pad_patterns
+from marker_localizer.core.sampling import (
+    bilinear,
+    bilinear_with_gradient,
+    nearest_pixels,
+    pad_patterns,
+)
 
 #: Step of the central differences, px: far below a pixel, so both sides lie in
 #: one bilinear cell (where the interpolant is smooth), far above float64 rounding.
@@ -98,3 +103,11 @@ def test_patterns_of_different_lengths_are_zero_padded_with_a_mask_of_the_real_e
     np.testing.assert_array_equal(present, [[True, True, False], [True, True, True]])
     np.testing.assert_array_equal(stack[0, 2], [0.0, 0.0])
     np.testing.assert_array_equal(stack[1], np.full((3, 2), 2.0))
+
+
+def test_the_nearest_pixel_is_the_rounded_position_clamped_to_the_image():
+    image = np.arange(12, dtype=np.uint16).reshape(3, 4)
+    xy = np.array([[1.4, 0.6], [2.6, 1.2], [-3.0, 9.0]])
+    np.testing.assert_array_equal(
+        nearest_pixels(image, xy), [image[1, 1], image[1, 3], image[2, 0]]
+    )

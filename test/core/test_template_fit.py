@@ -146,3 +146,15 @@ def test_a_point_s_fit_does_not_depend_on_the_sizes_of_the_regions_fitted_beside
         alone = subpixel.fit_template(image, start.take(np.array([row])), [region])
         np.testing.assert_allclose(together.shape.xy[row], alone.shape.xy[0], atol=1e-12)
         np.testing.assert_allclose(together.levels[row], alone.levels[0], atol=1e-9)
+
+
+def test_a_refit_on_every_pixel_changes_only_the_accepted_markers():
+    image = _rendered(MarkerPlacement(40.3, 39.6, 12.0, rotation_rad=0.3))
+    start = template.TemplateShape.start(
+        np.array([[41.0, 39.0], [41.0, 39.0]]), np.array([[0.2, 1.9], [0.2, 1.9]]), 1.0
+    )
+    grown = subpixel.fit_growing_template(image, start, np.array([4.0, 4.0]), 12.0, max_pixels=30)
+    refit = subpixel.refit_on_every_pixel(image, grown, np.array([True, False]), 12.0)
+    np.testing.assert_array_equal(refit.shape.xy[1], grown.fit.shape.xy[1])
+    assert np.hypot(*(refit.shape.xy[0] - (40.3, 39.6))) < 0.01
+    assert not np.array_equal(refit.shape.xy[0], grown.fit.shape.xy[0])

@@ -282,3 +282,22 @@ def test_the_minimum_score_is_min_score_small_for_small_markers_else_the_texture
     radius = np.array([4.1, 5.0, 20.0])
     needed = verification.minimum_score(radius, 0.8, 0.945, min_radius_px=4.0)
     np.testing.assert_array_equal(needed, [0.945, 0.92, 0.8])
+
+
+def test_the_prescreen_rings_scale_with_the_candidate_above_a_floor():
+    radii = verification.prescreen_ring_radii(np.array([4.0, 16.0]), min_radius_px=6.0)
+    np.testing.assert_allclose(radii[1], 16.0 * np.array(verification.PRESCREEN_RINGS))
+    assert radii[0].min() == verification.PRESCREEN_MIN_RING_PX
+    # Below twice the floor's radius the smallest expected marker bounds it.
+    small = verification.prescreen_ring_radii(np.array([1.0]), min_radius_px=2.5)
+    assert small.min() == verification.PRESCREEN_MIN_RING_FRACTION * 2.5
+
+
+@pytest.mark.parametrize(
+    "kind", ["quarter_disks", "checker", "l_corner", "quarter_disk", "t_junction", "plus"]
+)
+def test_the_symmetry_prescreen_passes_an_x_and_no_shape_without_its_symmetry(kind):
+    image = _render(kind)
+    radii = verification.prescreen_ring_radii(np.array([16.0]), min_radius_px=4.0)
+    passed = verification.prescreen_symmetry(image, CENTRE, radii, min_contrast=10 / 255)
+    assert passed.tolist() == [kind in ("quarter_disks", "checker")]
