@@ -13,6 +13,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar, overload
 
+from marker_localizer.core.verification import (
+    SMALL_EXTENT_MAX_RADIUS_PX,
+    TEMPLATE_MIN_RADIUS_PX,
+    TEMPLATE_RADIUS_FRACTION,
+    TEXTURE_EXTENT_PX,
+    TEXTURE_SCORE_FLOORS,
+)
 from marker_localizer.errors import ConfigError
 
 
@@ -224,7 +231,8 @@ class DetectorConfig:
         "levels, which illumination does not change. Printed black and white give "
         "0.7-0.8, partly shadowed markers on the renderer kept 0.31 and more, "
         "ground-texture saddles (gravel gaps) stayed below 0.38 and mostly below 0.3. "
-        "Tested on X's under 9 px only (texture's scale): dim real boards give 0.18.",
+        f"Tested on X's under {TEXTURE_EXTENT_PX:g} px only (texture's scale): dim real "
+        "boards give 0.18.",
         low=0.0,
         high=1.0,
     )
@@ -239,24 +247,27 @@ class DetectorConfig:
     template_ncc_min: float = _param(
         0.95,
         "Minimum NCC between the image and the adaptive template (the blurred X with the "
-        "measured line angles) over 0.8 of the marker radius.",
+        f"measured line angles) over a disk of {TEMPLATE_RADIUS_FRACTION:g} of the X's extent "
+        f"(at least {TEMPLATE_MIN_RADIUS_PX:g} px).",
         low=0.0,
         high=1.0,
     )
     min_score: float = _param(
         0.80,
         "Minimum detection score (ring symmetry x template NCC x (1 - relative symmetry "
-        "residual)) of a marker wider than ground texture's saddles (extent 9 px and "
-        "more); smaller ones need at least 0.88 (under 6 px: 0.92), where the best "
-        "texture saddles score 0.87-0.93. Real chessboard corners under lens blur score "
-        "0.80-1.0.",
+        "residual)) of a marker wider than ground texture's saddles (extent "
+        f"{TEXTURE_EXTENT_PX:g} px and more); smaller ones need at least "
+        f"{TEXTURE_SCORE_FLOORS[1][1]:g} (under {TEXTURE_SCORE_FLOORS[0][0]:g} px: "
+        f"{TEXTURE_SCORE_FLOORS[0][1]:g}), where the best texture saddles score 0.87-0.93. "
+        "Real chessboard corners under lens blur score 0.80-1.0.",
         low=0.0,
         high=1.0,
     )
     min_score_small: float = _param(
         0.945,
         "Minimum score of a detection whose X extends no further than "
-        "marker_radius_min_px, nor than 4 px (texture's size, so that a tighter range "
+        f"marker_radius_min_px, nor than {SMALL_EXTENT_MAX_RADIUS_PX:g} px (texture's size, "
+        "so that a tighter range "
         "never asks more of a marker): the regime of ground-texture saddles "
         "(stones meeting). "
         "On the simulated flights those scored up to 0.944 and markers of that extent "
