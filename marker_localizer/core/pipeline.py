@@ -40,18 +40,20 @@ from marker_localizer.core.screening import Candidates
 #: 2354 at radius 3-30, 4-40 and 6-40 px; libcbdetect's e5 1571 for its 503 corners.
 #: A cap of 2000 lost one of 233 markers planted on aerial_negatives and cirn_uas.
 _MAX_VERIFIED = 5000
-#: The most candidates of a frame that pass the ring checks and their score floor and go
-#: on to the template, the double-line check and the fit (~0.4 ms each on one core),
-#: spread over the frame as :data:`_MAX_VERIFIED` spreads them, the best ring symmetry
-#: first within a cell. The floor stops nearly every texture saddle before this point:
-#: at most 619 came here (531 of them to the double-line check: libcbdetect's e5, 503
-#: corners) on the real boards, the rendered families, the independent frames and
-#: cirn_uas and aerial_negatives at 3-30 and 6-40 px. A 12 MP tiling of X's brings all
-#: 5000 (2.5 s per frame on one core without this cap).
-_MAX_CONFIRMED = 1000
+#: The most candidates of a frame that pass the ring checks, the template NCC, the
+#: modulation gate and their score floor and go on to the double-line check and the fit
+#: (0.3-0.5 ms each on one core); the template is matched cell by cell, the best ring
+#: symmetry first, only until this many have passed (:meth:`Detector._match_templates`).
+#: Real ground never reaches it: at most 531 passed on the 50 real board images
+#: (libcbdetect's e5, 503 corners), the rendered families, the independent frames,
+#: cirn_uas and aerial_negatives (up to 266 on sand at radius 2-30 px); a 12 MP tiling
+#: of X's passes all 5000 of the prescreen's cap (2.5 s per frame without this cap).
+_MAX_CONFIRMED = 800
+#: Fewest candidates matched at once while the cap is not reached: fewer calls.
+_MIN_TEMPLATE_BATCH = 256
 #: The counts of :class:`DetectionResult` that say what the caps cut, the price of a
 #: bounded worst case (``max_candidates`` after screening, :data:`_MAX_VERIFIED` after
-#: the prescreen, :data:`_MAX_CONFIRMED` after the ring checks): the node's
+#: the prescreen, :data:`_MAX_CONFIRMED` after the template): the node's
 #: diagnostics show their sum.
 CAP_COUNTS = ("dropped_over_cap", "dropped_over_verification_cap")
 #: ``min_contrast_dn`` is in 8-bit grey levels, of which white is this: the thresholds
@@ -151,7 +153,7 @@ class DetectionResult:
             cut, including those the screening left out early as too weak to
             pass it (:meth:`screening.CellCap.floor`);
             ``dropped_over_verification_cap`` those over :data:`_MAX_VERIFIED` after
-            the prescreen and over :data:`_MAX_CONFIRMED` after the ring checks;
+            the prescreen and over :data:`_MAX_CONFIRMED` after the template;
             :data:`CAP_COUNTS` are the caps' cuts.
         timings_ms: wall time per stage in milliseconds.
         verdicts: with ``refinement="template"``, every candidate the decision saw:
@@ -898,47 +900,14 @@ class Detector:
         floor = self._score_floor(symmetry.radius_px)
         weak = keep & (symmetry.score < floor)
         counts["rejected_score"] = int(weak.sum())
-        passed = np.flatnonzero(keep & ~weak)
-        chosen = passed[
-            screening.even_cap_index(
-                candidates.xy[passed], symmetry.score[passed], _MAX_CONFIRMED, cfg.entropy_cell_px
-            )
-        ]
-        counts["dropped_over_verification_cap"] = (
-            counts.get("dropped_over_verification_cap", 0) + len(passed) - len(chosen)
+        chosen, ncc = self._match_templates(
+            gray, candidates.xy, symmetry, floor, np.flatnonzero(keep & ~weak), gamma, counts
         )
-        floor = floor[chosen]
-        radius = symmetry.radius_px[chosen]
-        angles = symmetry.line_angles[chosen]
-        score = symmetry.score[chosen]
-        candidates = candidates.take(chosen)
-        match = template.template_correlation(
-            gray,
-            candidates.xy,
-            angles,
-            verification.template_radius(radius, cfg.marker_radius_max_px),
-            normalise=gamma,
-        )
-        ncc = match.ncc
-        modulated = verification.modulation_gate(
-            gray,
-            candidates.xy,
-            angles,
-            radius,
-            np.minimum(cfg.template_offset_px, verification.TEMPLATE_RADIUS_FRACTION * radius),
-            cfg.marker_radius_min_px,
-            cfg.min_modulation,
-        )
-        keep = (ncc >= cfg.template_ncc_min) & modulated
-        counts["rejected_template"] = int((~keep).sum())
-        weak = keep & (score * ncc < floor)
-        counts["rejected_score"] += int(weak.sum())
-        keep &= ~weak
         candidates, radius, angles, score = (
-            candidates.take(keep),
-            radius[keep],
-            angles[keep],
-            score[keep] * ncc[keep],
+            candidates.take(chosen),
+            symmetry.radius_px[chosen],
+            symmetry.line_angles[chosen],
+            symmetry.score[chosen] * ncc,
         )
         if cfg.line_check and len(candidates):
             lines = verification.double_line_check(
@@ -956,6 +925,76 @@ class Detector:
         else:
             counts["rejected_lines"] = 0
         return candidates, radius, angles, score
+
+    def _match_templates(
+        self,
+        gray: NDArray[Any],
+        xy: NDArray[np.float64],
+        symmetry: verification.SymmetryCheck,
+        floor: NDArray[np.float64],
+        passed: NDArray[np.intp],
+        gamma: preprocessing.LocalGamma,
+        counts: dict[str, int],
+    ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        """The template NCC and modulation gates, and the score floor, up to the cap.
+
+        The candidates ``passed`` (indices into ``xy``) are matched in the order
+        :func:`screening.even_order` gives them (cell by cell, the best ring symmetry
+        first), a batch at a time, until :data:`_MAX_CONFIRMED` have passed: where
+        fewer pass, as on all real ground measured, every candidate is matched;
+        where all pass (a tiling of X's) only the first are. The rest are counted
+        in ``dropped_over_verification_cap``.
+
+        Returns:
+            The indices (ascending) of the candidates that pass, and their NCC.
+        """
+        cfg = self.config
+        order = passed[
+            screening.even_order(xy[passed], symmetry.score[passed], cfg.entropy_cell_px)
+        ]
+        matched: list[NDArray[np.intp]] = []
+        matched_ncc: list[NDArray[np.float64]] = []
+        found = start = 0
+        counts.setdefault("rejected_template", 0)
+        while start < len(order) and found < _MAX_CONFIRMED:
+            batch = order[start : start + max(_MAX_CONFIRMED - found, _MIN_TEMPLATE_BATCH)]
+            start += len(batch)
+            radius, angles = symmetry.radius_px[batch], symmetry.line_angles[batch]
+            ncc = template.template_correlation(
+                gray,
+                xy[batch],
+                angles,
+                verification.template_radius(radius, cfg.marker_radius_max_px),
+                normalise=gamma,
+            ).ncc
+            modulated = verification.modulation_gate(
+                gray,
+                xy[batch],
+                angles,
+                radius,
+                np.minimum(cfg.template_offset_px, verification.TEMPLATE_RADIUS_FRACTION * radius),
+                cfg.marker_radius_min_px,
+                cfg.min_modulation,
+            )
+            fits = (ncc >= cfg.template_ncc_min) & modulated
+            counts["rejected_template"] += int((~fits).sum())
+            weak = fits & (symmetry.score[batch] * ncc < floor[batch])
+            counts["rejected_score"] += int(weak.sum())
+            fits &= ~weak
+            matched.append(batch[fits])
+            matched_ncc.append(ncc[fits])
+            found += int(fits.sum())
+        chosen = np.concatenate([np.zeros(0, np.intp), *matched])[:_MAX_CONFIRMED]
+        ncc = np.concatenate([np.zeros(0), *matched_ncc])[:_MAX_CONFIRMED]
+        counts["dropped_over_verification_cap"] = (
+            counts.get("dropped_over_verification_cap", 0)
+            + len(order)
+            - start
+            + found
+            - len(chosen)
+        )
+        ascending = np.argsort(chosen)
+        return chosen[ascending], ncc[ascending]
 
     def _score_floor(self, radius: NDArray[np.float64]) -> NDArray[np.float64]:
         """(N,) the lowest score a detection of extent ``radius`` (px) may have.

@@ -992,12 +992,30 @@ def even_cap_index(
     """
     if len(xy) <= limit:
         return np.arange(len(xy))
+    return np.sort(even_order(xy, strength, cell_px)[:limit])
+
+
+def even_order(
+    xy: NDArray[np.float64], strength: NDArray[np.float64], cell_px: float
+) -> NDArray[np.intp]:
+    """(N,) the points in the order :func:`even_cap` keeps them: a cap to K keeps the first K.
+
+    Round by round (every cell's strongest, then every cell's second strongest, ...),
+    the strongest first within a round.
+
+    Args:
+        xy: (N, 2) points, px.
+        strength: (N,) what ranks the points within a cell (larger first).
+        cell_px: grid cell size, px.
+    """
+    if len(xy) == 0:
+        return np.zeros(0, np.intp)
     cell = grid_cells(xy, cell_px)
     per_cell = np.bincount(cell)
     order = np.argsort(strongest_first_in_cell(cell, strength))
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order)) - (np.cumsum(per_cell) - per_cell)[cell[order]]
-    return np.sort(np.lexsort((-strength, rank))[:limit])
+    return cast("NDArray[np.intp]", np.lexsort((-strength, rank)))
 
 
 def cell_cap_mask(
