@@ -363,3 +363,16 @@ def test_the_even_cap_keeps_every_cells_strongest_before_a_crowded_cells_next():
     kept = screening.even_cap(candidates, 6, cell_px=64)
     assert sorted(kept.strength) == [1.0, 2.0, 3.0, 88.0, 89.0, 90.0]
     assert screening.even_cap(candidates, 43, cell_px=64) is candidates
+
+
+def test_the_even_order_lists_points_as_the_even_cap_keeps_them_so_any_cap_keeps_a_prefix():
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0, 256, (200, 2))
+    strength = rng.uniform(0, 1, 200)
+    order = screening.even_order(xy, strength, cell_px=64)
+    assert sorted(order) == list(range(200))
+    for limit in (1, 16, 17, 90):
+        assert list(screening.even_cap_index(xy, strength, limit, 64)) == sorted(order[:limit])
+    # Round by round: the first 16 are the 16 cells' strongest.
+    cells = screening.grid_cells(xy, 64)
+    assert len(set(cells[order[:16]])) == 16
