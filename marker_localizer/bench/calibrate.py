@@ -11,7 +11,9 @@ come from:
   them, on the package's rendered families (ground photographs, look-alikes) and
   on the real marker-free aerial frames. The two classes weigh equally.
 * ``FALSE_ALARM_TAIL``, for the score as :mod:`~marker_localizer.core.decision`
-  now weighs it: on the real marker-free aerial frames, at the smallest
+  now weighs it: on real ground without markers (the marker-free aerial frames,
+  and the real boards' backgrounds: ValidationBoof's photographs outside each
+  board's area, :func:`real_data.board_mask`), at the smallest
   radius range the package is asked for (3-30 px), the false points per megapixel
   that pass every other test of the decision, as a function of the score: the
   :data:`TAIL_POINTS` highest scores' excess over the next one is exponential
@@ -85,10 +87,12 @@ def collect(
     verdicts: decision.Verdicts,
     min_radius_px: float,
     truth: np.ndarray,
+    excluded: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(features, label, eligible) of every candidate: 1 marker, 0 texture, -1 neither.
 
     ``eligible`` marks the candidates every test of the decision but the score passes.
+    ``excluded``: (H, W) bool, an area whose candidates are neither (a board's).
     """
     features = decision.score_features(verdicts.evidence, min_radius_px)
     if len(truth):
@@ -96,6 +100,12 @@ def collect(
     else:
         distance = np.full(len(verdicts.xy), np.inf)
     label = np.where(distance <= MATCH_PX, 1, np.where(distance > CLEAR_PX, 0, -1))
+    if excluded is not None:
+        col, row = np.round(verdicts.xy).astype(np.intp).T
+        inside = excluded[
+            np.clip(row, 0, excluded.shape[0] - 1), np.clip(col, 0, excluded.shape[1] - 1)
+        ]
+        label[inside] = -1
     reason = verdicts.decision.reason
     eligible = (reason < 0) | (reason == decision.REASONS.index("score"))
     return features, label, eligible
@@ -124,23 +134,36 @@ def fit_logistic(features: np.ndarray, label: np.ndarray) -> tuple[np.ndarray, f
     return coefficients, float(w[0] - np.sum(w[1:] * mean / std))
 
 
+def _real_ground(
+    root: Path, quick: bool
+) -> dict[str, tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray]], float]]:
+    """Each kind of real ground without markers: its candidates (:func:`collect`) and megapixels."""
+    aerial: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    aerial_mp = 0.0
+    for frame in real_data.iter_aerial_negatives(root, 1 if quick else None):
+        aerial_mp += frame.image.size / 1e6
+        verdicts = _verdicts(frame.image, CALIBRATION_RADIUS_PX)
+        aerial.append(collect(verdicts, CALIBRATION_RADIUS_PX[0], np.zeros((0, 2))))
+    backgrounds: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    backgrounds_mp = 0.0
+    for board in real_data.iter_validationboof(root, 1 if quick else None):
+        area = np.any([real_data.board_mask(board.image.shape, g) for g in board.boards], axis=0)
+        backgrounds_mp += (~area).sum() / 1e6
+        verdicts = _verdicts(board.image, CALIBRATION_RADIUS_PX)
+        backgrounds.append(collect(verdicts, CALIBRATION_RADIUS_PX[0], np.zeros((0, 2)), area))
+    return {
+        "real aerial frames": (aerial, aerial_mp),
+        "real boards' backgrounds": (backgrounds, backgrounds_mp),
+    }
+
+
 def run(quick: bool, root: Path | None, report: Report) -> dict[str, Any]:
     """Collect, fit, tabulate; report the constants. Returns the figures."""
     parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for image, radius_range, truth in _rendered(quick):
         parts.append(collect(_verdicts(image, radius_range), radius_range[0], truth))
-    negatives: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-    megapixels = 0.0
-    if root is not None:
-        for frame in real_data.iter_aerial_negatives(root, 1 if quick else None):
-            megapixels += frame.image.size / 1e6
-            negatives.append(
-                collect(
-                    _verdicts(frame.image, CALIBRATION_RADIUS_PX),
-                    CALIBRATION_RADIUS_PX[0],
-                    np.zeros((0, 2)),
-                )
-            )
+    grounds = _real_ground(root, quick) if root is not None else {}
+    negatives = [p for kind, _ in grounds.values() for p in kind]
     features = np.concatenate([p[0] for p in parts + negatives])
     label = np.concatenate([p[1] for p in parts + negatives])
     eligible = np.concatenate([p[2] for p in parts + negatives])
@@ -148,38 +171,58 @@ def run(quick: bool, root: Path | None, report: Report) -> dict[str, Any]:
     coefficients, bias = fit_logistic(features[train], label[train])
     report(
         f"markers {int((label[train] == 1).sum())}, texture {int((label[train] == 0).sum())} "
-        f"(of which real aerial {sum(int(p[2].sum()) for p in negatives)})"
+        f"(of which real ground {sum(int((p[2] & (p[1] == 0)).sum()) for p in negatives)})"
     )
     report(
         "SCORE_WEIGHTS = (" + ", ".join(f"{c:.3f}" for c in coefficients) + ")\n"
         f"SCORE_BIAS = {bias:.3f}"
     )
-    table: list[tuple[float, float]] = []
-    tail: tuple[float, float, float] | None = None
-    if negatives:
+    tables: dict[str, list[tuple[float, float]]] = {}
+    tails: dict[str, tuple[float, float, float]] = {}
+    default_rate = DetectorConfig().false_points_per_mp
+    for name, (kind, megapixels) in grounds.items():
         # The tail of the score the package uses now: refitted weights change the
         # score, and their tail is measured after they are pasted in.
         weights = np.asarray(decision.SCORE_WEIGHTS)
-        scores = np.concatenate([p[0][p[2]] @ weights + decision.SCORE_BIAS for p in negatives])
+        scores = np.concatenate(
+            [p[0][p[2] & (p[1] == 0)] @ weights + decision.SCORE_BIAS for p in kind]
+        )
+        table = tables[name] = []
         for threshold in _SCORE_GRID:
             count = int((scores >= threshold).sum())
             if count == 0:
                 break
             table.append((float(threshold), count / megapixels))
         report(
-            f"false points per megapixel on {megapixels:.1f} MP of real marker-free ground, "
-            f"radius {CALIBRATION_RADIUS_PX[0]:g}-{CALIBRATION_RADIUS_PX[1]:g} px, "
-            "at or above each score: " + ", ".join(f"{t:.1f}: {r:.3g}" for t, r in table)
+            f"{name}, {megapixels:.1f} MP, radius {CALIBRATION_RADIUS_PX[0]:g}-"
+            f"{CALIBRATION_RADIUS_PX[1]:g} px: false points per megapixel at or above each "
+            "score: " + ", ".join(f"{t:.1f}: {r:.3g}" for t, r in table)
         )
         if len(scores) > TAIL_POINTS:
-            tail = exponential_tail(scores, megapixels)
-            report("FALSE_ALARM_TAIL = ({:.3f}, {:.4f}, {:.3f})".format(*tail))
+            tail = tails[name] = exponential_tail(scores, megapixels)
+            at_default = decision.threshold_for_rate(default_rate, tail)
+            report(
+                "  tail ({:.3f}, {:.4f}, {:.3f})".format(*tail)
+                + f": threshold at {default_rate:g} / MP {at_default:.2f}"
+            )
+    chosen: tuple[float, float, float] | None = None
+    if tails:
+        # The stated rate must hold on every kind of ground: the strictest tail sets it.
+        name = max(tails, key=lambda k: decision.threshold_for_rate(default_rate, tails[k]))
+        chosen = tails[name]
+        report(f"FALSE_ALARM_TAIL = ({chosen[0]:.3f}, {chosen[1]:.4f}, {chosen[2]:.3f})  # {name}")
     marker_scores = features[train & (label == 1)] @ coefficients + bias
     report(
         "markers' scores, quantiles 2 / 10 / 50 %: "
         + " / ".join(f"{q:.2f}" for q in np.quantile(marker_scores, [0.02, 0.1, 0.5]))
     )
-    return {"weights": coefficients.tolist(), "bias": bias, "false_alarms": table, "tail": tail}
+    return {
+        "weights": coefficients.tolist(),
+        "bias": bias,
+        "false_alarms": tables,
+        "tails": tails,
+        "tail": chosen,
+    }
 
 
 def exponential_tail(scores: np.ndarray, megapixels: float) -> tuple[float, float, float]:

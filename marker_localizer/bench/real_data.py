@@ -267,6 +267,31 @@ def _paint_over(image: np.ndarray, grid: np.ndarray) -> None:
     image[mask > 0] = int(image[mask > 0].mean()) if (mask > 0).any() else 128
 
 
+#: A board's area reaches this many squares beyond its outer corners: its outer
+#: squares (one) and its white margin.
+BOARD_MARGIN_SQUARES = 1.5
+#: Vertices of the polygon that stands for the circle of the area's growth: its
+#: chords stay within 2 % of the margin.
+_MARGIN_VERTICES = 16
+
+
+def board_mask(shape: tuple[int, ...], grid: np.ndarray) -> np.ndarray:
+    """(H, W) bool: a board's area, its corners' hull grown by :data:`BOARD_MARGIN_SQUARES`.
+
+    The growth is the same distance in every direction (the hull's Minkowski sum
+    with a disc), so the outer squares are inside along every side.
+    """
+    pts = grid.reshape(-1, 2)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    margin = BOARD_MARGIN_SQUARES * _median_spacing(grid)
+    turn = np.linspace(0.0, 2.0 * np.pi, _MARGIN_VERTICES, endpoint=False)
+    disc = margin * np.stack([np.cos(turn), np.sin(turn)], axis=1)
+    grown = cv2.convexHull((pts[:, None, :] + disc[None]).reshape(-1, 2).astype(np.float32))
+    mask = np.zeros(shape[:2], np.uint8)
+    cv2.fillConvexPoly(mask, np.round(grown.reshape(-1, 2)).astype(np.int32), 255)
+    return mask > 0
+
+
 @dataclass(frozen=True)
 class UasFrame:
     """One real aerial frame (cirn_uas, aerial_negatives).

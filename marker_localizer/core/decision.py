@@ -89,10 +89,12 @@ SCORE_FEATURES = (
 SCORE_WEIGHTS = (1.795, 4.074, -1.564, -2.291, -0.968, 2.328, -1.567, 2.506, 4.015)
 SCORE_BIAS = -14.775
 #: The tail of ground texture's scores under these weights, from
-#: ``marker-localizer bench calibrate`` (2026-11-24: 692 candidates on 24 MP) on
-#: real aerial frames of sand, kerbs and shadows at a radius range of 3-30 px (the
-#: smallest the package is asked to find): (score s0, false points per megapixel at
-#: or above it, scale beta); above s0 the rate falls as exp(-(s - s0) / beta).
+#: ``marker-localizer bench calibrate`` at a radius range of 3-30 px (the smallest
+#: the package is asked to find): (score s0, false points per megapixel at or
+#: above it, scale beta); above s0 the rate falls as exp(-(s - s0) / beta).
+#: Measured on each kind of real ground without markers, the strictest kept
+#: (2026-11-24): real aerial frames of sand, kerbs and shadows (24 MP, threshold
+#: 2.22 at 0.025 / MP), this one; the real boards' backgrounds (11 MP, 2.18).
 FALSE_ALARM_TAIL = (0.038, 1.0429, 0.586)
 
 
@@ -329,14 +331,17 @@ def confidence(score: NDArray[np.float64]) -> NDArray[np.float64]:
     return 1.0 / (1.0 + np.exp(-np.clip(score, -50.0, 50.0)))
 
 
-def threshold_for_rate(false_points_per_mp: float) -> float:
+def threshold_for_rate(
+    false_points_per_mp: float, tail: tuple[float, float, float] = FALSE_ALARM_TAIL
+) -> float:
     """The score above which ground texture gives ``false_points_per_mp`` false points.
 
-    The exponential tail of :data:`FALSE_ALARM_TAIL` solved for the score: real
-    ground's few highest texture scores fix the rate far beyond what a count of
-    them could (peaks over threshold).
+    The exponential ``tail`` (score, rate per MP at it, scale; by default
+    :data:`FALSE_ALARM_TAIL`) solved for the score: real ground's few highest
+    texture scores fix the rate far beyond what a count of them could (peaks over
+    threshold).
     """
-    start, rate, scale = FALSE_ALARM_TAIL
+    start, rate, scale = tail
     return float(start + scale * np.log(rate / false_points_per_mp))
 
 
