@@ -1054,18 +1054,28 @@ class Detector:
         counts["merged_duplicates"] += int((~unique).sum())
         keep = keep[unique]
         keep = keep[np.argsort(-fit.score[keep])]
+        position, sigma = fit.xy[keep], fit.sigma[keep]
+        if cfg.refinement == "symmetry":
+            position, sigma = subpixel.refine_along_lines(
+                gray,
+                position,
+                sigma,
+                radius[keep],
+                angles[keep],
+                max_radius_px=cfg.marker_radius_max_px,
+            )
         return [
             Detection(
-                float(fit.xy[k, 0]),
-                float(fit.xy[k, 1]),
+                float(position[j, 0]),
+                float(position[j, 1]),
                 float(fit.score[k]),
-                float(fit.sigma[k]),
+                float(sigma[j]),
                 float(angles[k, 0]),
                 float(angles[k, 1]),
                 float(radius[k]),
                 float(score[k]),
             )
-            for k in keep
+            for j, k in enumerate(keep)
         ]
 
 

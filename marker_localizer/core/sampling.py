@@ -74,6 +74,16 @@ def pad_patterns(
     return stack, present
 
 
+def size_batches(lengths: Sequence[int], ratio: float) -> list[NDArray[np.intp]]:
+    """Indices of the patterns in batches whose lengths lie within ``ratio`` of each other.
+
+    Every point of a :func:`pad_patterns` stack pays for its longest pattern: in
+    such batches a large marker does not make the small ones costly.
+    """
+    size_class = np.floor(np.log(np.maximum(lengths, 1)) / np.log(ratio))
+    return [np.flatnonzero(size_class == size) for size in np.unique(size_class)]
+
+
 def _neighbours(
     image: NDArray[Any], x: NDArray[np.float64], y: NDArray[np.float64]
 ) -> tuple[

@@ -29,6 +29,24 @@ _SUPERSAMPLING = 4  # template pixels are area-integrated from 4x4 sub-samples
 NCC_EVIDENCE_WEIGHT = 8.0
 
 
+def line_distances(
+    x: NDArray[np.float64], y: NDArray[np.float64], line_angles: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Signed distances (s1, s2) of positions from two lines through the origin, px.
+
+    Args:
+        x: (..., K) positions relative to the centre.
+        y: same shape as ``x``.
+        line_angles: (..., 2) line directions in radians, broadcast against x[..., :1].
+
+    Returns:
+        Two arrays of the shape of ``x``; s_i is positive left of line i's direction
+        (image coordinates, y down).
+    """
+    a1, a2 = line_angles[..., 0:1], line_angles[..., 1:2]
+    return np.sin(a1) * x - np.cos(a1) * y, np.sin(a2) * x - np.cos(a2) * y
+
+
 def sector_sign(
     x: NDArray[np.float64], y: NDArray[np.float64], line_angles: NDArray[np.float64]
 ) -> NDArray[np.float64]:
@@ -43,9 +61,7 @@ def sector_sign(
         float array of the shape of ``x``: the product of the signed distances to
         both lines, as a sign. Sectors facing each other across the centre share a sign.
     """
-    a1, a2 = line_angles[..., 0:1], line_angles[..., 1:2]
-    side1 = np.sin(a1) * x - np.cos(a1) * y
-    side2 = np.sin(a2) * x - np.cos(a2) * y
+    side1, side2 = line_distances(x, y, line_angles)
     return np.sign(side1 * side2)
 
 
@@ -249,9 +265,7 @@ def template_correlation(
     if normalise is not None:
         values = normalise(values, xy)
     count = present.sum(axis=1, keepdims=True)
-    a1, a2 = line_angles[:, 0:1], line_angles[:, 1:2]
-    s1 = np.sin(a1) * dx - np.cos(a1) * dy
-    s2 = np.sin(a2) * dx - np.cos(a2) * dy
+    s1, s2 = line_distances(dx, dy, line_angles)
     centred = (values - (values * present).sum(axis=1, keepdims=True) / count) * (valid & present)
     norm_i = np.linalg.norm(centred, axis=1) + 1e-12
     ncc = np.zeros(n)
@@ -389,10 +403,8 @@ def _density(z: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def template_terms(offsets: NDArray[np.float64], shape: TemplateShape) -> TemplateTerms:
     """Evaluate the template's terms at offsets d (N, K, 2) from ``shape.xy``."""
-    a1, a2 = shape.line_angles[:, 0:1], shape.line_angles[:, 1:2]
     dx, dy = offsets[..., 0], offsets[..., 1]
-    s1 = np.sin(a1) * dx - np.cos(a1) * dy
-    s2 = np.sin(a2) * dx - np.cos(a2) * dy
+    s1, s2 = line_distances(dx, dy, shape.line_angles)
     blur2 = shape.blur_px**2
     width1 = np.sqrt(blur2[:, 0:1] + PIXEL_VARIANCE_PX2)
     width2 = np.sqrt(blur2[:, 1:2] + PIXEL_VARIANCE_PX2)
