@@ -172,25 +172,25 @@ def _local_maxima(response: NDArray[np.floating[Any]], threshold: float) -> NDAr
     finds the pixels no neighbour exceeds, and only the ties with the neighbours
     before them are looked up. Both give the same peaks.
     """
-    height, width = response.shape
+    width = response.shape[1]
     above = response > threshold
+    # Border pixels lack neighbours: none is a peak.
+    above[0] = above[-1] = False
+    above[:, 0] = above[:, -1] = False
     dense = np.count_nonzero(above) > _DENSE_MAXIMA_SHARE * response.size
-    neighbours = _PRECEDING_NEIGHBOURS
     if dense:
         above &= response >= cv2.dilate(response, _MAXIMUM_KERNEL)
-    else:
-        neighbours = _PRECEDING_NEIGHBOURS + _FOLLOWING_NEIGHBOURS
     flat_index = np.flatnonzero(above)
-    rows, cols = np.divmod(flat_index, width)
-    inner = (rows > 0) & (rows < height - 1) & (cols > 0) & (cols < width - 1)
-    flat_index, rows, cols = flat_index[inner], rows[inner], cols[inner]
     flat = response.reshape(-1)
     centre = flat[flat_index]
+    # No neighbour before the pixel equals it (those after it may not exceed it).
     is_max = np.ones(len(flat_index), dtype=bool)
-    for d_row, d_col in neighbours:
-        offset = d_row * width + d_col
-        neighbour = flat[flat_index + offset]
-        is_max &= (centre > neighbour) | ((centre == neighbour) & (offset > 0))
+    for d_row, d_col in _PRECEDING_NEIGHBOURS:
+        neighbour = flat[flat_index + (d_row * width + d_col)]
+        is_max &= centre > neighbour
+    if not dense:
+        for d_row, d_col in _FOLLOWING_NEIGHBOURS:
+            is_max &= centre >= flat[flat_index + (d_row * width + d_col)]
     return cast("NDArray[np.intp]", flat_index[is_max])
 
 
@@ -312,6 +312,29 @@ class CellCap(NamedTuple):
             xy + np.asarray(self.origin_px), strength, self.cell_px, self.max_per_cell
         )
 
+    def kept_count(
+        self,
+        grid_xy: tuple[NDArray[np.float64], NDArray[np.float64]],
+        cols: NDArray[np.intp],
+        rows: NDArray[np.intp],
+    ) -> int:
+        """How many points of a pixel grid the cap keeps, whatever their strengths.
+
+        Args:
+            grid_xy: (W,) x of the grid's columns and (H,) y of its rows, px.
+            cols: (N,) the points' columns.
+            rows: (N,) the points' rows.
+        """
+        if len(cols) == 0:
+            return 0
+        column, row = (
+            _grid_coordinate(position + origin, self.cell_px)
+            for position, origin in zip(grid_xy, self.origin_px, strict=True)
+        )
+        cell = row[rows] * (int(column.max()) + 1) + column[cols]
+        per_cell = np.bincount(cell)
+        return int(np.minimum(per_cell, self.max_per_cell).sum())
+
     def floor(self, candidates: Candidates) -> float:
         """A strength below which no point passes both caps, from some of the points.
 
@@ -323,10 +346,135 @@ class CellCap(NamedTuple):
         """
         if self.max_total is None:
             return 0.0
-        kept = candidates.strength[self.keep(candidates.xy, candidates.strength)]
+        kept = self.kept_strengths(candidates)
         if len(kept) <= self.max_total:
             return 0.0
         return float(np.partition(kept, len(kept) - self.max_total)[len(kept) - self.max_total])
+
+    def kept_strengths(self, candidates: Candidates) -> NDArray[np.float64]:
+        """(M,) the strengths of the ``candidates`` the cell cap keeps."""
+        return candidates.strength[self.keep(candidates.xy, candidates.strength)]
+
+
+#: How many of a busy level's strongest peaks, in units of the frame's cap
+#: (``max_total``), are capped and refined first to find its floor: on real sand and
+#: beach the floor lies at the 1.1-1.25 ``max_total``-th strongest peak of the first
+#: level, so the few hundred thousand weaker ones cost one comparison each. When these
+#: do not reach the floor, all peaks are taken, with the same result.
+_FLOOR_SEARCH_SHARE = 2.0
+#: Relative margin of the floor turned into a bound on the squared response, below
+#: float rounding: the bound may take a few more peaks, never fewer.
+_FLOOR_BOUND_MARGIN = 1e-6
+
+
+class _LevelPeaks(NamedTuple):
+    """The 3x3 maxima of one pyramid level's saddle response, before they are refined.
+
+    Attributes:
+        response: (h, w) float32 response of the level (or of its window).
+        flat_index: (N,) flat indices of the peaks in ``response``, ascending.
+        level: pyramid level L.
+        offset: (u0, v0) level pixel of ``response``'s pixel (0, 0).
+        expected: the response's square root for an X of the smallest contrast.
+        scale_px: ``scale_px`` of the level's candidates.
+    """
+
+    response: NDArray[np.float32]
+    flat_index: NDArray[np.intp]
+    level: int
+    offset: tuple[int, int]
+    expected: float
+    scale_px: float
+
+    def capped_count(self, cap: CellCap) -> int:
+        """How many of the peaks ``cap`` keeps in the cells of their pixels."""
+        height, width = self.response.shape
+        grid_xy = self._to_frame(np.arange(max(height, width)), np.arange(max(height, width)))
+        rows, cols = np.divmod(self.flat_index, width)
+        return cap.kept_count((grid_xy[:width, 0], grid_xy[:height, 1]), cols, rows)
+
+    def pixel_xy(self, which: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
+        """(N, 2) full-resolution position of the peaks' pixels (``which`` of them)."""
+        index = self.flat_index if which is None else self.flat_index[which]
+        rows, cols = np.divmod(index, self.response.shape[1])
+        return self._to_frame(cols, rows)
+
+    def _to_frame(
+        self,
+        cols: NDArray[np.intp],
+        rows: NDArray[np.intp],
+        dx: NDArray[np.floating[Any]] | float = 0.0,
+        dy: NDArray[np.floating[Any]] | float = 0.0,
+    ) -> NDArray[np.float64]:
+        """(N, 2) full-resolution (x, y) of level pixels (``cols``, ``rows``) + (``dx``, ``dy``)."""
+        # INTER_AREA halving maps level coordinate u to full-resolution (u + 0.5) 2**L - 0.5.
+        u0, v0 = self.offset
+        return cast(
+            "NDArray[np.float64]",
+            (np.stack([cols + u0 + dx, rows + v0 + dy], axis=1) + 0.5) * 2**self.level - 0.5,
+        )
+
+    def refined(self, index: NDArray[np.intp] | None) -> Candidates:
+        """Candidates at the peaks ``index`` (all: None), refined by a parabola per axis."""
+        peak = self.flat_index if index is None else index
+        flat = self.response.reshape(-1)
+        width = self.response.shape[1]
+        rows, cols = np.divmod(peak, width)
+        centre = flat[peak]
+        dx = parabolic_offset(flat[peak - 1], centre, flat[peak + 1])
+        dy = parabolic_offset(flat[peak - width], centre, flat[peak + width])
+        xy = self._to_frame(cols, rows, dx, dy)
+        strength = np.sqrt(centre.astype(np.float64)) / self.expected
+        return Candidates(xy, strength, np.full(len(peak), self.scale_px))
+
+    def over_floor(self, cap: CellCap, floor: float) -> tuple[Candidates, float]:
+        """The peaks ``cap`` keeps in their cells, refined, at or above the floor.
+
+        The floor rises to :meth:`CellCap.floor` of this level's capped peaks.
+        Both are found from the strongest peaks alone where they suffice: the cell
+        cap keeps a cell's strongest, so on the peaks above any response bound it
+        keeps exactly the capped peaks above that bound, and when more than
+        ``max_total`` of those are kept again in the cells of their refined
+        positions, the ``max_total``-th strongest is the level's floor. So the
+        result is that of capping, refining and flooring every peak.
+
+        Args:
+            cap: the cell cap and the frame's cap.
+            floor: the floor the previous levels set (0: none).
+
+        Returns:
+            (the candidates, the new floor).
+        """
+        values = self.response.reshape(-1)[self.flat_index]
+        total = cap.max_total
+        bounds = []
+        if total is not None:
+            known = floor * self.expected
+            lowest = known * known * (1.0 - _FLOOR_BOUND_MARGIN)
+            search = int(_FLOOR_SEARCH_SHARE * total)
+            if 0 < search < len(values):
+                strongest = float(np.partition(values, len(values) - search)[len(values) - search])
+                if strongest > lowest:
+                    bounds.append(strongest)
+            if floor > 0:
+                bounds.append(lowest)
+        for bound in bounds:
+            above = values >= bound
+            found = self.refined(
+                self.flat_index[above][cap.keep(self.pixel_xy(above), values[above])]
+            )
+            kept = cap.kept_strengths(found)
+            if len(kept) > cast("int", total):
+                rank = len(kept) - cast("int", total)
+                floor = max(floor, float(np.partition(kept, rank)[rank]))
+            elif bound > lowest or len(kept) == total:
+                # The floor may lie below the bound; or it is this weakest kept one,
+                # unless the cap keeps no more than these: only all peaks tell.
+                continue
+            return found.take(found.strength >= floor), floor
+        found = self.refined(self.flat_index[cap.keep(self.pixel_xy(), values)])
+        floor = max(floor, cap.floor(found))
+        return found.take(found.strength >= floor), floor
 
 
 def saddle_candidates(
@@ -406,37 +554,29 @@ def saddle_candidates(
         threshold = relative_threshold * expected
         u0, v0, u1, v1 = _level_window(window, level, level_image.shape)
         response = saddle_response(level_image[v0:v1, u0:u1])
-        flat = response.reshape(-1)
-        width = response.shape[1]
-        peak = _local_maxima(response, threshold**2)
-        if cell_cap is not None:
+        peaks = _LevelPeaks(
+            response,
+            _local_maxima(response, threshold**2),
+            level,
+            (u0, v0),
+            expected,
+            candidate_scale(level, radius_range_px),
+        )
+        if cell_cap is None:
+            found = peaks.refined(None)
+        else:
             # Before any arithmetic per peak, the cells of the peaks' pixels.
-            rows, cols = np.divmod(peak, width)
-            pixel_xy = (np.stack([cols + u0, rows + v0], axis=1) + 0.5) * 2**level - 0.5
-            kept = cell_cap.keep(pixel_xy, flat[peak])
-            cut_in_cells += len(peak) - int(kept.sum())
-            peak = peak[kept]
-        rows, cols = np.divmod(peak, width)
-        centre = flat[peak]
-        dx = parabolic_offset(flat[peak - 1], centre, flat[peak + 1])
-        dy = parabolic_offset(flat[peak - width], centre, flat[peak + width])
-        # INTER_AREA halving maps level coordinate u to full-resolution (u + 0.5) 2**L - 0.5.
-        xy = (np.stack([cols + u0 + dx, rows + v0 + dy], axis=1) + 0.5) * 2**level - 0.5
-        strength = np.sqrt(centre.astype(np.float64)) / expected
-        scale = candidate_scale(level, radius_range_px)
-        found = Candidates(xy, strength, np.full(len(peak), scale))
-        if cell_cap is not None:
+            capped = peaks.capped_count(cell_cap)
+            cut_in_cells += len(peaks.flat_index) - capped
             # On busy ground the first level alone fills the frame's cap: what is
             # weaker cannot pass it, nor the midpoints of pairs it belongs to.
-            floor = max(floor, cell_cap.floor(found))
-            strong = found.strength >= floor
-            cut_below_floor += len(found) - int(strong.sum())
-            found = found.take(strong)
+            found, floor = peaks.over_floor(cell_cap, floor)
+            cut_below_floor += capped - len(found)
         parts.append(found)
         if level == levels.start:
             # Markers below the level's typical radius live here, and only here can
             # their peak split (coarser levels see larger markers).
-            parts.append(split_peak_midpoints(found, _SPLIT_PEAK_DISTANCE * scale))
+            parts.append(split_peak_midpoints(found, _SPLIT_PEAK_DISTANCE * peaks.scale_px))
     found = Candidates.concat(parts)
     strong = found.strength >= floor
     if tally is not None:
@@ -1024,7 +1164,11 @@ def cell_cap_mask(
     cell_px: float,
     max_per_cell: int,
 ) -> NDArray[np.bool_]:
-    """(N,) bool: the ``max_per_cell`` strongest points of every ``cell_px`` grid cell."""
+    """(N,) bool: the ``max_per_cell`` strongest points of every ``cell_px`` grid cell.
+
+    Of equally strong points the first keeps its place, so that the cap keeps the
+    same points of a set and of any part of it that holds the strongest.
+    """
     keep = np.ones(len(xy), dtype=bool)
     if len(xy) == 0:
         return keep
@@ -1032,7 +1176,7 @@ def cell_cap_mask(
     per_cell = np.bincount(cell)
     if per_cell.max() <= max_per_cell:
         return keep
-    order = np.argsort(strongest_first_in_cell(cell, strength))
+    order = np.argsort(strongest_first_in_cell(cell, strength), kind="stable")
     rank = np.arange(len(order)) - (np.cumsum(per_cell) - per_cell)[cell[order]]
     keep[order[rank >= max_per_cell]] = False
     return keep
@@ -1041,11 +1185,16 @@ def cell_cap_mask(
 def grid_cells(xy: NDArray[np.float64], cell_px: float) -> NDArray[np.int64]:
     """(N,) int64 index of each point's ``cell_px`` grid cell, dense from 0, row by row."""
     # Column by column: reductions over an (N, 2) array's first axis cost several times more.
-    column = np.floor(xy[:, 0] / cell_px).astype(np.int64)
-    row = np.floor(xy[:, 1] / cell_px).astype(np.int64)
-    column -= column.min()
-    row -= row.min()
+    column = _grid_coordinate(xy[:, 0], cell_px)
+    row = _grid_coordinate(xy[:, 1], cell_px)
     return row * (int(column.max()) + 1) + column
+
+
+def _grid_coordinate(position: NDArray[np.float64], cell_px: float) -> NDArray[np.int64]:
+    """(N,) int64 grid column (or row) of each ``position``, px, counted from the first used."""
+    cell = np.floor(position / cell_px).astype(np.int64)
+    cell -= cell.min()
+    return cell
 
 
 def strongest_first_in_cell(

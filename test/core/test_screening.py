@@ -353,6 +353,30 @@ def test_the_floor_of_the_frames_cap_leaves_what_both_caps_keep_unchanged():
     assert kept[0] == kept[1]
 
 
+@pytest.mark.parametrize("max_total", [150, 600, 2500, None])
+@pytest.mark.parametrize("earlier_floor", [0.0, 1.6, 4.0])
+def test_a_levels_floor_found_from_its_strongest_peaks_is_that_of_capping_all_of_them(
+    max_total, earlier_floor
+):
+    """The search among the strongest peaks first gives what capping, refining and
+    flooring every peak gives, whether the floor lies among them, above the earlier
+    levels' floor or nowhere."""
+    image = np.clip(np.random.default_rng(8).normal(128, 40, (256, 320)), 0, 255)
+    response = screening.saddle_response(image.astype(np.uint8))
+    expected = 20.0
+    peaks = screening._LevelPeaks(
+        response, screening._local_maxima(response, 40.0**2), 0, (3, 5), expected, 3.0
+    )
+    cap = screening.CellCap(64, 48, max_total, (16.0, 0.0))
+    values = response.reshape(-1)[peaks.flat_index]
+    every = peaks.refined(peaks.flat_index[cap.keep(peaks.pixel_xy(), values)])
+    floor = max(earlier_floor, cap.floor(every))
+    found, new_floor = peaks.over_floor(cap, earlier_floor)
+    assert new_floor == floor
+    np.testing.assert_array_equal(found.xy, every.take(every.strength >= floor).xy)
+    assert peaks.capped_count(cap) == len(every)
+
+
 def test_the_even_cap_keeps_every_cells_strongest_before_a_crowded_cells_next():
     rng = np.random.default_rng(2)
     crowded = rng.uniform(0, 60, (40, 2))  # one cell of strong texture
