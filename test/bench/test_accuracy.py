@@ -11,21 +11,11 @@ import json
 import cv2
 import numpy as np
 import pytest
+from scenes import SMALL_SCENE
 
 from marker_localizer import evaluation
 from marker_localizer.bench import accuracy, peers, real_data, speed
-from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
-
-SMALL = SceneConfig(
-    width=480,
-    height=360,
-    n_markers=4,
-    radius_px=(8.0, 16.0),
-    blur_sigma_px=(0.8, 1.0),
-    noise_sigma_dn=(1.0, 2.0),
-    max_tilt_deg=30.0,
-    n_hard_negatives=4,
-)
+from marker_localizer.synthetic import render_checkerboard, render_scene
 
 
 def exact_x(size: int = 64) -> np.ndarray:
@@ -39,7 +29,7 @@ def exact_x(size: int = 64) -> np.ndarray:
 
 def small_family(frames: int = 2) -> accuracy.Family:
     return accuracy.Family(
-        "t", "test", (8.0, 16.0), frames, 1, lambda seed: render_scene(SMALL, seed)
+        "t", "test", (8.0, 16.0), frames, 1, lambda seed: render_scene(SMALL_SCENE, seed)
     )
 
 
@@ -152,7 +142,7 @@ def test_resolution_table_gives_each_detectors_recall_per_bin_of_marker_resoluti
     result = accuracy.evaluate_family(small_family(), 2, 0, detectors)
     ours = result.rows[0].tally
     assert len(result.resolution) == len(ours.found) == ours.n_truth
-    # SMALL: radii 8-16 px tilted at most 30 degrees, blur 0.8-1.0: resolution 6.9-20.
+    # SMALL_SCENE: radii 8-16 px tilted at most 30 degrees, blur 0.8-1.0: resolution 6.9-20.
     assert result.resolution.min() > 6.5
     split = accuracy.resolution_recall(result, (2.0, 7.0))
     assert split.markers == [0, 0, ours.n_truth]

@@ -2,24 +2,16 @@
 
 from __future__ import annotations
 
-from marker_localizer.bench import accuracy, paper, peers
-from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
+from scenes import SMALL_SCENE
 
-SMALL = SceneConfig(
-    width=480,
-    height=360,
-    n_markers=4,
-    radius_px=(8.0, 16.0),
-    blur_sigma_px=(0.8, 1.0),
-    noise_sigma_dn=(1.0, 2.0),
-    max_tilt_deg=30.0,
-    n_hard_negatives=4,
-)
+from marker_localizer.bench import accuracy, paper, peers
+from marker_localizer.synthetic import render_checkerboard, render_scene
 
 
 def test_both_pipelines_run_on_the_same_frames_and_the_targets_are_judged():
     markers = [
-        accuracy.LabelledFrame.rendered(render_scene(SMALL, seed), (8.0, 16.0)) for seed in (1, 2)
+        accuracy.LabelledFrame.rendered(render_scene(SMALL_SCENE, seed), (8.0, 16.0))
+        for seed in (1, 2)
     ]
     board = render_checkerboard((360, 480), (5, 4), 36.0, tilt_deg=20.0, seed=3)
     sets = [
