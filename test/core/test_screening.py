@@ -286,6 +286,21 @@ def test_local_maxima_are_the_3x3_maxima_with_ties_to_the_first_pixel_on_busy_an
     )
 
 
+@pytest.mark.parametrize("height", [257, 300])
+@pytest.mark.parametrize("threshold", [40.0**2, 400.0**2], ids=["busy", "quiet"])
+def test_the_response_and_peaks_found_strip_by_strip_are_those_of_the_whole_image(
+    height, threshold
+):
+    noise = np.random.default_rng(4).normal(128, 40, (height + 7, 101))
+    # A crop, as a window is: no strip edge may act as the image's border.
+    image = np.clip(noise, 0, 255).astype(np.uint8)[3 : height + 3, 5:]
+    response, peaks = screening.saddle_peaks(image, threshold)
+    whole = screening.saddle_response(image)
+    np.testing.assert_array_equal(response, whole)
+    np.testing.assert_array_equal(peaks, screening._local_maxima(whole, threshold))
+    assert len(peaks) > 0
+
+
 def test_sort_keys_order_points_by_cell_then_strongest_first_whatever_the_sign():
     cell = np.array([1, 0, 1, 0, 1, 0])
     strength = np.array([-2.0, 0.0, 3.5, -1.0, 0.0, 7.0])
