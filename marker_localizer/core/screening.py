@@ -437,10 +437,9 @@ class _LevelPeaks(NamedTuple):
         rows, cols = np.divmod(self.flat_index, width)
         return cap.kept_count((grid_xy[:width, 0], grid_xy[:height, 1]), cols, rows)
 
-    def pixel_xy(self, which: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
-        """(N, 2) full-resolution position of the peaks' pixels (``which`` of them)."""
-        index = self.flat_index if which is None else self.flat_index[which]
-        rows, cols = np.divmod(index, self.response.shape[1])
+    def pixel_xy(self, index: NDArray[np.intp] | None = None) -> NDArray[np.float64]:
+        """(N, 2) full-resolution position of the pixels of the peaks ``index`` (all: None)."""
+        rows, cols = np.divmod(self.flat_index if index is None else index, self.response.shape[1])
         return self._to_frame(cols, rows)
 
     def _to_frame(
@@ -507,10 +506,9 @@ class _LevelPeaks(NamedTuple):
             if floor > 0:
                 bounds.append(lowest)
         for bound in bounds:
-            above = values >= bound
-            found = self.refined(
-                self.flat_index[above][cap.keep(self.pixel_xy(above), values[above])]
-            )
+            above = np.flatnonzero(values >= bound)
+            peak = self.flat_index[above]
+            found = self.refined(peak[cap.keep(self.pixel_xy(peak), values[above])])
             kept = cap.kept_strengths(found)
             if len(kept) > cast("int", total):
                 rank = len(kept) - cast("int", total)
