@@ -55,10 +55,20 @@ class Candidates(NamedTuple):
         return Candidates(self.xy[index], self.strength[index], self.scale_px[index])
 
     def strongest(self, limit: int) -> Candidates:
-        """The ``limit`` strongest candidates (all when there are no more), in their order."""
+        """The ``limit`` strongest candidates (all when there are no more), in their order.
+
+        Of equally strong candidates at the limit, the first are kept.
+        """
         if len(self) <= limit:
             return self
-        return self.take(np.sort(np.argsort(-self.strength, kind="stable")[:limit]))
+        if np.isnan(self.strength).any():
+            return self.take(np.sort(np.argsort(-self.strength, kind="stable")[:limit]))
+        # One selection instead of a sort of all (a tenth of its time on 45 000).
+        rank = len(self) - limit
+        weakest = np.partition(self.strength, rank)[rank]
+        keep = self.strength > weakest
+        keep[np.flatnonzero(self.strength == weakest)[: limit - np.count_nonzero(keep)]] = True
+        return self.take(keep)
 
     def __len__(self) -> int:
         return int(self.strength.shape[0])

@@ -314,6 +314,12 @@ def test_the_strongest_candidates_keep_their_order():
     )
     assert list(candidates.strongest(3).strength) == [5.0, 3.0, 5.0]
     assert candidates.strongest(9) is candidates
+    # Of equal strengths at the limit the first go on, NaN or not among the rest.
+    for weak in (2.0, np.nan):
+        tied = screening.Candidates(
+            np.arange(12.0).reshape(6, 2), np.array([2.0, 5.0, 2.0, 5.0, 2.0, weak]), np.ones(6)
+        )
+        assert list(tied.strongest(3).xy[:, 0]) == [0.0, 2.0, 6.0]
 
 
 def test_the_cell_cap_bounds_busy_ground_per_level_and_keeps_what_the_frames_cap_keeps():
