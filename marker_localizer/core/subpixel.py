@@ -603,7 +603,7 @@ def refine_along_lines(
     line (:data:`LINE_BAND_PX`): the edges carry the centre, the quadrants' insides
     only noise. On the renderer's families (a), (c), (d) and the independent
     renderer's it takes the mean error over the Cramer-Rao bound from 2.9-3.6 to
-    2.2-3.0.
+    2.3-3.0.
 
     Args:
         image: (H, W) grey image, raw levels.
