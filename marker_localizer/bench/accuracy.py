@@ -21,7 +21,8 @@ in ``<repo>/../shared/data`` (skipped when absent):
   reference-free row/column residuals (straight line and projective spacing).
 * cirn_uas: both ground targets found per frame, false positives per frame.
 * aerial_negatives: real ground without any marker; false points per frame and
-  per megapixel.
+  per megapixel. Beside it, a rendered lattice of bright discs (the ``coins``
+  photograph at a quarter of its size), the ground whose saddles pass for X's.
 
 A detection matches a truth point within :data:`evaluation.DEFAULT_GATE_PX` (2 px).
 """
@@ -46,6 +47,7 @@ from marker_localizer.bench.runner import run_and_save
 from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import DetectionTally
 from marker_localizer.synthetic import RenderedScene, SceneConfig, render_checkerboard, render_scene
+from marker_localizer.synthetic.textures import warped_texture
 
 #: The row every peer is compared with ("peer/ours" = peer mean error / this row's).
 REFERENCE_ROW = "ours (symmetry)"
@@ -914,6 +916,51 @@ def run_negatives(options: Options, report: Callable[[str], None]) -> dict[str, 
     }
 
 
+#: The disc lattice: the ``coins`` photograph (coins in rows on a dark cloth) shrunk
+#: to this many frame px per photograph px, where its coins become a lattice of bright
+#: discs ~10 px apart; the smallest scale the families draw their ground at.
+DISC_LATTICE_SCALE = 0.25
+#: Its grey levels (dark cloth, bright coins) and read noise, DN.
+DISC_LATTICE_LEVELS = (40.0, 220.0)
+DISC_LATTICE_NOISE_DN = 2.0
+#: Frames of it in a run, and the radius range the detectors are given (family (a)'s).
+DISC_LATTICE_FRAMES = 3
+DISC_LATTICE_RADIUS_RANGE: RadiusRange = (6.0, 40.0)
+
+
+def disc_lattice_frame(seed: int, shape: tuple[int, int] = (960, 1280)) -> real_data.UasFrame:
+    """A frame of the disc lattice (:data:`DISC_LATTICE_SCALE`): ground only, no marker."""
+    rng = np.random.default_rng(seed)
+    ground = warped_texture("coins", shape, rng, (DISC_LATTICE_SCALE, DISC_LATTICE_SCALE))
+    dark, bright = DISC_LATTICE_LEVELS
+    level = dark + (bright - dark) * (ground - ground.min()) / max(float(np.ptp(ground)), 1e-9)
+    level += rng.normal(0.0, DISC_LATTICE_NOISE_DN, shape)
+    return real_data.UasFrame(
+        f"disc lattice {seed}", np.clip(np.round(level), 0, 255).astype(np.uint8)
+    )
+
+
+def run_disc_lattice(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
+    """Evaluate the rendered disc lattice without markers; report the table."""
+    frames = [
+        disc_lattice_frame(options.seed + k)
+        for k in range(1 if options.quick else DISC_LATTICE_FRAMES)
+    ]
+    rows = evaluate_negatives(frames, _detectors(options), DISC_LATTICE_RADIUS_RANGE)
+    low, high = DISC_LATTICE_RADIUS_RANGE
+    report(
+        negatives_table(
+            f"Rendered ground without markers: a lattice of bright discs (the coins photograph "
+            f"at {DISC_LATTICE_SCALE:g} px per photograph px), {len(frames)} frames "
+            f"(1280x960); every detection is a false point; radius range {low:g}-{high:g} px",
+            rows,
+        )
+    )
+    return {
+        r.name: {k: (v if math.isfinite(v) else None) for k, v in r.extra.items()} for r in rows
+    }
+
+
 def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
     """Evaluate the real sets (chessboards, cirn_uas); report each table as it is done."""
     root = options.data_root
@@ -1014,6 +1061,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         results["real"] = run_real(options, report)
     if "negatives" in options.families:
         results["aerial_negatives"] = run_negatives(options, report)
+        results["disc_lattice"] = run_disc_lattice(options, report)
     if summary:
         report(summary_table(summary))
         results["summary"] = {label: row_record(row) for label, row in summary}

@@ -206,6 +206,16 @@ def test_negatives_count_every_detection_per_frame_and_per_megapixel():
     assert "FP/MP" in accuracy.negatives_table("t", [row])
 
 
+def test_the_disc_lattice_is_ground_alone_between_its_two_levels_with_a_lattice_of_saddles():
+    frame = accuracy.disc_lattice_frame(0)
+    assert frame.image.shape == (960, 1280) and frame.image.dtype == np.uint8
+    dark, bright = accuracy.DISC_LATTICE_LEVELS
+    assert frame.image.min() < dark + 10 and frame.image.max() > bright - 10
+    # Its discs make saddles everywhere: the Hessian peer finds hundreds in a frame.
+    (hessian,) = [d for d in peers.point_detectors() if "Hessian" in d.name]
+    assert len(hessian.detect(frame.image, accuracy.DISC_LATTICE_RADIUS_RANGE)) > 100
+
+
 def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
     out = tmp_path / "accuracy.json"
     status = accuracy.main(
