@@ -900,17 +900,29 @@ def run_negatives(options: Options, report: Callable[[str], None]) -> dict[str, 
         )
         return {}
     frames = list(real_data.iter_aerial_negatives(root, 1 if options.quick else None))
-    rows = evaluate_negatives(frames, _detectors(options), REAL_RADIUS_RANGES["aerial_negatives"])
     megapixels = sum(f.image.size for f in frames) / 1e6
     shapes = sorted({f"{f.image.shape[1]}x{f.image.shape[0]}" for f in frames})
-    report(
-        negatives_table(
-            f"Real aerial frames without markers: aerial_negatives; {len(frames)} frames "
-            f"({', '.join(shapes)}, {megapixels:.1f} MP in all); every detection is a false point; "
-            f"radius range {_range_text('aerial_negatives')}",
-            rows,
-        )
+    return _run_frames_without_markers(
+        f"Real aerial frames without markers: aerial_negatives; {len(frames)} frames "
+        f"({', '.join(shapes)}, {megapixels:.1f} MP in all); every detection is a false point; "
+        f"radius range {_range_text('aerial_negatives')}",
+        frames,
+        REAL_RADIUS_RANGES["aerial_negatives"],
+        options,
+        report,
     )
+
+
+def _run_frames_without_markers(
+    title: str,
+    frames: Sequence[real_data.UasFrame],
+    radius_range: RadiusRange,
+    options: Options,
+    report: Callable[[str], None],
+) -> dict[str, Any]:
+    """Every detector on ``frames`` (no marker in them): the table reported, its figures."""
+    rows = evaluate_negatives(frames, _detectors(options), radius_range)
+    report(negatives_table(title, rows))
     return {
         r.name: {k: (v if math.isfinite(v) else None) for k, v in r.extra.items()} for r in rows
     }
@@ -946,19 +958,16 @@ def run_disc_lattice(options: Options, report: Callable[[str], None]) -> dict[st
         disc_lattice_frame(options.seed + k)
         for k in range(1 if options.quick else DISC_LATTICE_FRAMES)
     ]
-    rows = evaluate_negatives(frames, _detectors(options), DISC_LATTICE_RADIUS_RANGE)
     low, high = DISC_LATTICE_RADIUS_RANGE
-    report(
-        negatives_table(
-            f"Rendered ground without markers: a lattice of bright discs (the coins photograph "
-            f"at {DISC_LATTICE_SCALE:g} px per photograph px), {len(frames)} frames "
-            f"(1280x960); every detection is a false point; radius range {low:g}-{high:g} px",
-            rows,
-        )
+    return _run_frames_without_markers(
+        f"Rendered ground without markers: a lattice of bright discs (the coins photograph "
+        f"at {DISC_LATTICE_SCALE:g} px per photograph px), {len(frames)} frames "
+        f"(1280x960); every detection is a false point; radius range {low:g}-{high:g} px",
+        frames,
+        DISC_LATTICE_RADIUS_RANGE,
+        options,
+        report,
     )
-    return {
-        r.name: {k: (v if math.isfinite(v) else None) for k, v in r.extra.items()} for r in rows
-    }
 
 
 def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
