@@ -211,18 +211,32 @@ def _smoothed_contrast_symmetry(
 
     The mid level is halfway between the smoothed profile's extremes.
     """
+    f, contrast, level, missing = _smoothed_extremes(profiles)
+    return f, contrast, _self_correlation(f, missing), level
+
+
+def _smoothed_extremes(
+    profiles: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """The [1, 2, 1]-smoothed profiles (NaN as 0), contrast, mid level, and the rings with NaN.
+
+    The contrast is 0 on a ring with NaN samples.
+    """
     nan = np.isnan(profiles)
     missing = nan.any(axis=-1)
     f = _circular_smooth(np.where(nan, 0.0, profiles) if missing.any() else profiles)
     high, low = f.max(axis=-1), f.min(axis=-1)
-    contrast = np.where(missing, 0.0, high - low)
+    return f, np.where(missing, 0.0, high - low), 0.5 * (high + low), missing
+
+
+def _self_correlation(f: NDArray[np.float64], missing: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """180-degree self-correlation of smoothed profiles; -1 on the rings ``missing`` samples."""
     centred = f - f.mean(axis=-1, keepdims=True)
     # The profile turned by 180 degrees holds the same samples: the same norm, and each
     # product of opposite samples twice.
     energy = (centred**2).sum(-1)
     products = 2.0 * (centred[..., :_HALF_TURN] * centred[..., _HALF_TURN:]).sum(-1)
-    symmetry = np.where(missing, -1.0, products / (energy + 1e-12))
-    return f, contrast, symmetry, 0.5 * (high + low)
+    return cast("NDArray[np.float64]", np.where(missing, -1.0, products / (energy + 1e-12)))
 
 
 def analyse_rings(profiles: NDArray[np.float64]) -> RingAnalysis:
@@ -235,7 +249,16 @@ def analyse_rings(profiles: NDArray[np.float64]) -> RingAnalysis:
         :class:`RingAnalysis`; rings with NaN samples get symmetry -1 and contrast 0;
         line angles are those of rings with four sector boundaries (0 elsewhere).
     """
-    f, contrast, symmetry, level = _smoothed_contrast_symmetry(profiles)
+    return _sector_analysis(*_smoothed_contrast_symmetry(profiles))
+
+
+def _sector_analysis(
+    f: NDArray[np.float64],
+    contrast: NDArray[np.float64],
+    symmetry: NDArray[np.float64],
+    level: NDArray[np.float64],
+) -> RingAnalysis:
+    """:func:`analyse_rings` from the smoothed profiles, their contrast, symmetry and mid level."""
     # Sector boundaries: crossings of the mid level between samples k and k+1.
     above = f > level[..., None]
     crossing = above != np.roll(above, -1, axis=-1)
@@ -282,18 +305,6 @@ def _nearest_ring(
     return cast("NDArray[np.float64]", values)
 
 
-def _ring_passes(
-    ring: NDArray[np.float64], min_contrast: float, min_symmetry: float
-) -> NDArray[np.bool_]:
-    """(N,) bool: contrast and 180-degree self-correlation of (N, 36) rings.
-
-    :func:`analyse_rings` without its sector analysis: what a first look over
-    ~10^4 candidates affords.
-    """
-    _, contrast, symmetry, _ = _smoothed_contrast_symmetry(ring)
-    return (contrast >= min_contrast) & (symmetry >= min_symmetry)
-
-
 def count_symmetric_rings(
     image: NDArray[Any],
     xy: NDArray[np.float64],
@@ -327,21 +338,35 @@ def count_symmetric_rings(
     radii = np.broadcast_to(np.asarray(radii_px, dtype=np.float64), (len(xy), n_rings))
     passed = np.zeros(len(xy), dtype=np.int64)
     alive = np.arange(len(xy))
-    sampled = []  # (points, their ring j) per radius, for the survivors' sector analysis
+    # The smoothing weighs four samples below 2^16 into a sum below 2^24: on 8- and
+    # 16-bit images the float32 smoothed rings, their extremes and mid levels are those
+    # of float64, and the sector analysis takes them rather than smoothing again.
+    exact = np.issubdtype(image.dtype, np.integer) and image.dtype.itemsize <= 2
+    sampled = []  # (points, their ring j's measures) per radius, for the survivors
     for j in range(n_rings):
         ring = _nearest_ring(image, xy[alive], radii[alive, j])
-        sampled.append((alive, ring))
-        passed[alive] += _ring_passes(ring, min_contrast, min_symmetry)
+        f, contrast, level, missing = _smoothed_extremes(ring)
+        symmetry = _self_correlation(f, missing)
+        passed[alive] += (contrast >= min_contrast) & (symmetry >= min_symmetry)
+        sampled.append((alive, (f, contrast, level, missing) if exact else (ring,)))
         failed = j + 1 - passed[alive]
         alive = alive[failed <= n_rings - min_good]
     # Points that dropped out have failed too many rings; their partial count says so.
     np.minimum(passed, min_good - 1, out=passed)
     if len(alive):
         # The survivors are a sorted subset of every earlier round's points.
-        profiles = np.stack(
-            [ring[np.searchsorted(points, alive)] for points, ring in sampled], axis=1
-        )
-        rings = analyse_rings(profiles.astype(np.float64))
+        stacked = [
+            np.stack(
+                [measures[m][np.searchsorted(points, alive)] for points, measures in sampled],
+                axis=1,
+            )
+            for m in range(len(sampled[0][1]))
+        ]
+        if exact:
+            f, contrast, level = (a.astype(np.float64) for a in stacked[:3])
+            rings = _sector_analysis(f, contrast, _self_correlation(f, stacked[3]), level)
+        else:
+            rings = analyse_rings(stacked[0].astype(np.float64))
         passed[alive] = rings.good(min_contrast, min_symmetry).sum(axis=1)
     return passed
 
