@@ -222,10 +222,15 @@ def _smoothed_extremes(
 
     The contrast is 0 on a ring with NaN samples.
     """
-    nan = np.isnan(profiles)
-    missing = nan.any(axis=-1)
-    f = _circular_smooth(np.where(nan, 0.0, profiles) if missing.any() else profiles)
+    f = _circular_smooth(profiles)
     high, low = f.max(axis=-1), f.min(axis=-1)
+    # The maximum propagates NaN: it finds the few rings with NaN samples without a
+    # look at every sample, and only they are smoothed again with those samples as 0.
+    missing = np.isnan(high)
+    if missing.any():
+        partial = profiles[missing]
+        f[missing] = _circular_smooth(np.where(np.isnan(partial), 0.0, partial))
+        high[missing], low[missing] = f[missing].max(axis=-1), f[missing].min(axis=-1)
     return f, np.where(missing, 0.0, high - low), 0.5 * (high + low), missing
 
 
@@ -264,11 +269,12 @@ def _sector_analysis(
     crossing = above != np.roll(above, -1, axis=-1)
     four = (crossing.sum(axis=-1) == 4) & (contrast > 0)
     # The sub-sample crossing angles (linear interpolation), of the rings with four only.
-    *ring_index, k = np.nonzero(crossing & four[..., None])
-    ring = tuple(ring_index)
-    start, end = f[(*ring, k)], f[(*ring, (k + 1) % N_ANGLES)]
+    crossed = np.flatnonzero(crossing & four[..., None])
+    ring, k = np.divmod(crossed, N_ANGLES)
+    samples = f.reshape(-1)
+    start, end = samples[crossed], samples[crossed - k + (k + 1) % N_ANGLES]
     with np.errstate(divide="ignore", invalid="ignore"):
-        frac = np.clip((level[ring] - start) / (end - start), 0.0, 1.0)
+        frac = np.clip((level.reshape(-1)[ring] - start) / (end - start), 0.0, 1.0)
     first4 = (k + np.where(np.isnan(frac), 0.0, frac)).reshape(-1, 4) * (2 * np.pi / N_ANGLES)
     # Boundaries i and i+2 must be opposite (180 deg apart) on a centrally symmetric X.
     gap = np.abs(np.angle(np.exp(1j * (first4[:, 2:] - first4[:, :2] - np.pi))))
