@@ -370,7 +370,8 @@ def count_symmetric_rings(
         ]
         if exact:
             f, contrast, level = (a.astype(np.float64) for a in stacked[:3])
-            rings = _sector_analysis(f, contrast, _self_correlation(f, stacked[3]), level)
+            missing = cast("NDArray[np.bool_]", stacked[3])
+            rings = _sector_analysis(f, contrast, _self_correlation(f, missing), level)
         else:
             rings = analyse_rings(stacked[0].astype(np.float64))
         passed[alive] = rings.good(min_contrast, min_symmetry).sum(axis=1)
