@@ -7,7 +7,7 @@ refinement at ~0.03 px; this gathers the four neighbours in numpy instead.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, TypeVar, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,6 +15,8 @@ from numpy.typing import NDArray
 #: Maps raw samples (N, ...) taken around points (N, 2) to normalised intensities,
 #: e.g. :class:`~marker_localizer.core.preprocessing.LocalGamma`.
 Normaliser = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
+
+_Result = TypeVar("_Result")
 
 
 def corners(
@@ -82,6 +84,33 @@ def size_batches(lengths: Sequence[int], ratio: float) -> list[NDArray[np.intp]]
     """
     size_class = np.floor(np.log(np.maximum(lengths, 1)) / np.log(ratio))
     return [np.flatnonzero(size_class == size) for size in np.unique(size_class)]
+
+
+def in_blocks(function: Callable[..., _Result], block: int, *per_point: NDArray[Any]) -> _Result:
+    """``function`` over consecutive blocks of ``block`` points, its outputs concatenated.
+
+    For work whose result for a point depends on that point alone: a few hundred
+    points' (points, samples) temporaries stay in the processor's cache across
+    numpy's passes, where those of 10^4 points go out to memory on every pass.
+
+    Args:
+        function: takes the ``per_point`` arrays (their first axis the points) and
+            returns an array or a tuple (or NamedTuple) of arrays, each with the
+            points along its first axis.
+        block: points per call.
+        per_point: arrays sliced along their first axis.
+    """
+    count = len(per_point[0])
+    if count <= block:
+        return function(*per_point)
+    parts = [
+        function(*(array[start : start + block] for array in per_point))
+        for start in range(0, count, block)
+    ]
+    if isinstance(parts[0], np.ndarray):
+        return cast("_Result", np.concatenate(cast("list[NDArray[Any]]", parts)))
+    fields = [np.concatenate(field) for field in zip(*parts, strict=True)]
+    return cast("_Result", getattr(type(parts[0]), "_make", tuple)(fields))
 
 
 def _neighbours(
