@@ -352,11 +352,7 @@ def count_symmetric_rings(
     n_rings = np.shape(radii_px)[-1]
     radii = np.broadcast_to(np.asarray(radii_px, dtype=np.float64), (len(xy), n_rings))
     cascade = functools.partial(
-        _count_symmetric_rings,
-        image,
-        min_contrast=min_contrast,
-        min_symmetry=min_symmetry,
-        min_good=min_good,
+        _count_symmetric_rings, image, limits=(min_contrast, min_symmetry, min_good)
     )
     return in_blocks(cascade, _CASCADE_BLOCK, xy, radii)
 
@@ -366,11 +362,13 @@ def _count_symmetric_rings(
     xy: NDArray[np.float64],
     radii: NDArray[np.float64],
     *,
-    min_contrast: float,
-    min_symmetry: float,
-    min_good: int,
+    limits: tuple[float, float, int],
 ) -> NDArray[np.int64]:
-    """:func:`count_symmetric_rings` of the points ``xy`` with their (N, J) ring radii."""
+    """:func:`count_symmetric_rings` of the points ``xy`` with their (N, J) ring radii.
+
+    ``limits`` are its ``min_contrast``, ``min_symmetry`` and ``min_good``.
+    """
+    min_contrast, min_symmetry, min_good = limits
     n_rings = radii.shape[1]
     passed = np.zeros(len(xy), dtype=np.int64)
     alive = np.arange(len(xy))
