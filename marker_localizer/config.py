@@ -220,7 +220,10 @@ class DetectorConfig:
         20.0,
         "Minimum grey-level difference between the bright and the dark quadrants "
         "(after gamma). Printed black/white markers keep 30 DN even in shadow; ground "
-        "texture saddles mostly stay below 20 DN.",
+        "texture saddles mostly stay below 20 DN. The raw-level floors (screening, "
+        "prescreen, fit, line detection) follow the light down where the local mean is "
+        "too dark for a marker of min_modulation to reach it (under 33 DN at the "
+        "defaults), at most 4-fold.",
         unit="DN",
         low=0.0,
         high=255.0,

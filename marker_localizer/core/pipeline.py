@@ -63,6 +63,11 @@ _WHITE_DN = 255.0
 #: ``min_contrast_dn`` in raw (not gamma-corrected) grey levels: lenient, as the rings
 #: may sit off the centre and gamma stretches dark ground.
 _RAW_CONTRAST_SHARE = 0.5
+#: Most a raw contrast floor is lowered under dark surroundings
+#: (:meth:`Detector._shadow_gain`): 4 takes the default 20 DN to 5 DN for the screening
+#: and 2.5 DN for the rings and the fit, above an 8-bit camera's quantisation and JPEG
+#: noise (1-2 DN); darker still, ground 6 DN dark, is beyond what is sought.
+_MAX_SHADOW_GAIN = 4.0
 #: Candidates centred closer than this to a stronger one have found its X, px.
 _CENTRED_DUPLICATE_PX = 1.5
 #: Context screened around a search region: the filters of the coarsest pyramid level
@@ -314,7 +319,7 @@ class Detector:
                     regions=measured,
                 )
         with timer("screening"):
-            candidates = self._screen(gray, full_scale, result.counts, regions)
+            candidates = self._screen(gray, full_scale, result.counts, regions, gamma)
             result.counts["skipped_known"] = 0
             if plan is not None and len(plan.known) and len(candidates):
                 distance, _ = cKDTree(plan.known).query(
@@ -332,7 +337,8 @@ class Detector:
             elif cfg.candidate_detector == "saddle":
                 # Contour corners sit up to 2 px off the centre, too far for the
                 # prescreen's small rings; the paper's path goes straight to centring.
-                candidates = self._prescreen(gray, full_scale, candidates, result.counts)
+                assert gamma is not None
+                candidates = self._prescreen(gray, full_scale, gamma, candidates, result.counts)
         if noise is not None and cfg.candidate_detector == "saddle":
             if cfg.line_check:
                 with timer("verification"):
@@ -408,15 +414,27 @@ class Detector:
             return result
         counts = result.counts
         counts["merged_duplicates"] = 0
+        points = np.asarray(xy, np.float64).reshape(-1, 2)
+        with timer("preprocessing"):
+            # The local means of Eq. (2) at the markers alone, for the fit's contrast floor.
+            corner = np.floor(points).astype(np.int64)
+            gamma = preprocessing.LocalGamma(
+                gray,
+                full_scale,
+                self.config.gamma_alpha,
+                self.config.illumination_window_px,
+                regions=np.hstack([corner, corner + 2]),
+            )
         with timer("subpixel"):
             result.detections = self._locate(
                 gray,
-                np.asarray(xy, np.float64).reshape(-1, 2),
+                points,
                 np.asarray(radius_px, np.float64),
                 np.asarray(line_angles, np.float64).reshape(-1, 2),
                 np.asarray(evidence, np.float64),
                 counts,
                 full_scale,
+                gamma,
             )
         counts["accepted"] = len(result.detections)
         return result
@@ -447,6 +465,7 @@ class Detector:
                 score,
                 counts,
                 full_scale,
+                gamma,
             )
         counts["accepted"] = len(result.detections)
         return result
@@ -524,7 +543,7 @@ class Detector:
         with timer("subpixel"):
             if cfg.refinement != "ncc":
                 result.detections = self._locate(
-                    gray, xy, radius, angles, score, counts, full_scale
+                    gray, xy, radius, angles, score, counts, full_scale, gamma
                 )
                 counts["accepted"] = len(result.detections)
                 return result
@@ -563,15 +582,22 @@ class Detector:
         full_scale: float,
         counts: dict[str, int],
         regions: NDArray[np.integer[Any]] | None = None,
+        gamma: preprocessing.LocalGamma | None = None,
     ) -> Candidates:
-        """Section 3.2, first layers: candidates, suppression, grid-entropy thinning, cap."""
+        """Section 3.2, first layers: candidates, suppression, grid-entropy thinning, cap.
+
+        With ``gamma``, the saddle screening's threshold is lowered in shadow
+        (:meth:`_shadow_gain`).
+        """
         cfg = self.config
         # Cut inside the screening by the same caps as below, before any work per point.
         cut = {"cut_in_cells": 0, "cut_below_floor": 0}
         if regions is None:
-            found = self._find_candidates(gray, full_scale, cut=cut)
+            found = self._find_candidates(gray, full_scale, cut=cut, gamma=gamma)
         else:
-            found = self._find_in_regions(gray, full_scale, np.asarray(regions, np.int64), cut)
+            found = self._find_in_regions(
+                gray, full_scale, np.asarray(regions, np.int64), cut, gamma
+            )
         counts["candidates"] = len(found) + cut["cut_in_cells"] + cut["cut_below_floor"]
         if cfg.candidate_detector == "curvature":
             thinned = screening.greedy_entropy_thinning(
@@ -593,11 +619,13 @@ class Detector:
         window: tuple[int, int, int, int] | None = None,
         origin_px: tuple[int, int] = (0, 0),
         cut: dict[str, int] | None = None,
+        gamma: preprocessing.LocalGamma | None = None,
     ) -> Candidates:
         """Screening candidates; ``window`` (x0, y0, x1, y1) bounds where they are wanted.
 
         ``origin_px`` is where ``gray``'s pixel (0, 0) lies in the frame; ``cut``
-        counts what the saddle screening's caps cut (:func:`screening.saddle_candidates`).
+        counts what the saddle screening's caps cut (:func:`screening.saddle_candidates`);
+        ``gamma``, if given, lowers its threshold in shadow.
         """
         cfg = self.config
         if cfg.candidate_detector == "curvature":
@@ -634,6 +662,7 @@ class Detector:
                 cfg.entropy_cell_px, cfg.max_candidates_per_cell, cfg.max_candidates, origin_px
             ),
             tally=cut,
+            shadow=None if gamma is None else self._screening_shadow(gamma, origin_px),
         )
 
     def _find_in_regions(
@@ -642,10 +671,11 @@ class Detector:
         full_scale: float,
         regions: NDArray[np.float64],
         cut: dict[str, int],
+        gamma: preprocessing.LocalGamma | None,
     ) -> Candidates:
         """Candidates inside each window, found on the window plus a margin for the filters.
 
-        ``cut`` counts what the screening's caps cut, as :meth:`_find_candidates`.
+        ``cut`` and ``gamma`` as for :meth:`_find_candidates`.
         """
         height, width = gray.shape
         coarsest = 2 ** (screening.saddle_levels(self._radius_range).stop - 1)
@@ -665,6 +695,7 @@ class Detector:
                 (int(x0) - cx0, int(y0) - cy0, int(x1) - cx0, int(y1) - cy0),
                 (cx0, cy0),
                 cut,
+                gamma,
             )
             xy = found.xy + [cx0, cy0]
             inside = (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
@@ -675,6 +706,7 @@ class Detector:
         self,
         gray: NDArray[Any],
         full_scale: float,
+        gamma: preprocessing.LocalGamma,
         candidates: Candidates,
         counts: dict[str, int],
     ) -> Candidates:
@@ -692,7 +724,7 @@ class Detector:
             gray,
             candidates.xy,
             self._prescreen_radii(candidates),
-            self._raw_contrast_floor(full_scale),
+            self._raw_contrast_floor(full_scale, gamma, candidates.xy),
         )
         counts["rejected_prescreen"] = int((~keep).sum())
         passed = candidates.take(keep)
@@ -852,12 +884,52 @@ class Detector:
                 for k in keep
             ]
 
-    def _raw_contrast_floor(self, full_scale: float) -> float:
-        """:data:`_RAW_CONTRAST_SHARE` of the configured contrast in raw grey units.
+    def _raw_contrast_floor(
+        self, full_scale: float, gamma: preprocessing.LocalGamma, xy: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """(N,) :data:`_RAW_CONTRAST_SHARE` of the configured contrast in raw grey units at ``xy``.
 
-        The prescreen's ring floor, which every detection's fit also meets.
+        The prescreen's ring floor, which every detection's fit also meets; lowered
+        in shadow (:meth:`_shadow_gain`) as the screening's threshold is.
         """
-        return _RAW_CONTRAST_SHARE * self._min_contrast * full_scale
+        floor = _RAW_CONTRAST_SHARE * self._min_contrast * full_scale
+        gain = self._shadow_gain_at(gamma, xy)
+        return np.full(len(xy), floor) if gain is None else floor / gain
+
+    def _shadow_gain_at(
+        self, gamma: preprocessing.LocalGamma, xy: NDArray[np.float64]
+    ) -> NDArray[np.float64] | None:
+        """(N,) :meth:`_shadow_gain` at ``xy``; None where no surroundings are that dark."""
+        if self._shadow_gain(gamma.darkest_mean) == 1.0:
+            return None
+        return self._shadow_gain(gamma.mean_at(xy))
+
+    def _shadow_gain(self, mean: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        """How far the raw contrast floors are lowered where the local mean is ``mean``.
+
+        A print's contrast scales with the light on it (Weber): a marker of
+        modulation m (``min_modulation``, which the checks ask of it) under a mean
+        level L has contrast 2 m L. Where that falls below ``min_contrast_dn`` (a
+        mean under 33 DN at the defaults) the floors follow it down, at most
+        :data:`_MAX_SHADOW_GAIN`-fold; elsewhere they stay (gain 1), and with them
+        the time on ordinary ground. After Eq. (2) such a marker keeps its contrast,
+        which the symmetry check measures; in raw grey levels, which the screening,
+        the prescreen and the fit's floor read, it does not.
+        """
+        weber = 2.0 * self.config.min_modulation * np.asarray(mean, np.float64)
+        with np.errstate(divide="ignore"):
+            gain = self._min_contrast / weber
+        return np.clip(gain, 1.0, _MAX_SHADOW_GAIN)
+
+    def _screening_shadow(
+        self, gamma: preprocessing.LocalGamma, origin_px: tuple[int, int]
+    ) -> screening.ShadowGain:
+        """:meth:`_shadow_gain` for screening an image whose pixel (0, 0) is ``origin_px``."""
+        origin = np.asarray(origin_px, np.float64)
+        return screening.ShadowGain(
+            lambda xy: self._shadow_gain(gamma.mean_at(xy + origin)),
+            lambda y: self._shadow_gain(gamma.darkest_mean_on_rows(y + origin[1])),
+        )
 
     def _centre(
         self, gray: NDArray[Any], candidates: Candidates, counts: dict[str, int]
@@ -917,6 +989,7 @@ class Detector:
                 extend_px=cfg.line_extend_px,
                 max_distance_px=max(cfg.line_max_distance_px, 0.0),
                 full_scale=full_scale,
+                stretch=self._shadow_gain_at(gamma, candidates.xy),
             )
             counts["rejected_lines"] = int((~lines.accepted).sum())
             ok = lines.accepted
@@ -1016,6 +1089,7 @@ class Detector:
         score: NDArray[np.float64],
         counts: dict[str, int],
         full_scale: float,
+        gamma: preprocessing.LocalGamma,
     ) -> list[Detection]:
         """Section 3.3: sub-pixel centres and final gates (:func:`subpixel.locate_markers`).
 
@@ -1038,7 +1112,7 @@ class Detector:
             score,
             max_radius_px=cfg.marker_radius_max_px,
             iterations=cfg.refinement_max_iterations,
-            min_contrast=self._raw_contrast_floor(full_scale),
+            min_contrast=self._raw_contrast_floor(full_scale, gamma, xy),
             max_symmetry_residual=cfg.max_symmetry_residual,
             ncc_offset_px=cfg.template_offset_px if cfg.refinement == "ncc" else None,
             ncc_search_px=cfg.ncc_search_px,

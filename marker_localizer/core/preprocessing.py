@@ -304,6 +304,10 @@ class LocalGamma:
         sizes = self._map_shapes.prod(axis=1)
         self._map_starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
         self._maps = np.concatenate([m.ravel() for m in maps])
+        # Each map row's lowest mean, for the darkest mean along an image row.
+        self._darkest_in_row = np.concatenate([m.min(axis=1) for m in maps])
+        #: The lowest local mean luminance in the measured area, in [0, 1].
+        self.darkest_mean = float(self._darkest_in_row.min())
 
     def _mean_map(self, crop: NDArray[Any]) -> FloatImage:
         height, width = crop.shape
@@ -313,6 +317,21 @@ class LocalGamma:
             interpolation=cv2.INTER_AREA,
         ).astype(np.float32) / np.float32(self._full_scale)
         return box_mean(small, self._diameter)
+
+    def darkest_mean_on_rows(self, y: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(N,) the lowest local mean mu(k) in [0, 1] along each of the image rows ``y``.
+
+        A bound on :meth:`mean_at` at any point of the row: the lower of the two map
+        rows it interpolates between, the lowest over all regions where several
+        are measured (0.5 where none is).
+        """
+        if len(self._boxes) > 1:
+            return np.full(len(y), self.darkest_mean)
+        (y0, y1), rows = self._boxes[0, 1::2], int(self._map_shapes[0, 0])
+        local = np.clip((y - y0 + 0.5) / self._reduction - 0.5, 0.0, rows - 1.001)
+        first = np.floor(local).astype(np.int64)
+        darkest = np.minimum(self._darkest_in_row[first], self._darkest_in_row[first + 1])
+        return np.where((y >= y0) & (y < y1), darkest, 0.5)
 
     def mean_at(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """Local mean luminance mu(k) in [0, 1] at (N, 2) points (0.5 outside every region)."""

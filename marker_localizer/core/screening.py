@@ -14,7 +14,7 @@ top-left pixel.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple, cast
 
 import cv2
@@ -173,8 +173,12 @@ _FOLLOWING_NEIGHBOURS: tuple[tuple[int, int], ...] = ((0, 1), (1, -1), (1, 0), (
 _MAXIMUM_KERNEL = np.ones((3, 3), np.uint8)
 
 
-def _local_maxima(response: NDArray[np.floating[Any]], threshold: float) -> NDArray[np.intp]:
+def _local_maxima(
+    response: NDArray[np.floating[Any]], threshold: float | NDArray[np.floating[Any]]
+) -> NDArray[np.intp]:
     """Flat indices of the 3x3 local maxima above ``threshold``, away from the border.
+
+    ``threshold`` is one value, or an (H, 1) column of one per row.
 
     Ties go to the first pixel in raster order, so a plateau yields one peak. When
     few pixels are above the threshold (a friendly frame) only they are compared
@@ -216,7 +220,7 @@ _STRIP_HALO_ROWS = 3
 
 
 def saddle_peaks(
-    image: NDArray[Any], threshold: float
+    image: NDArray[Any], threshold: float | NDArray[np.float32]
 ) -> tuple[NDArray[np.float32], NDArray[np.intp]]:
     """The saddle response of ``image`` and its 3x3 maxima above ``threshold``.
 
@@ -226,13 +230,15 @@ def saddle_peaks(
 
     Args:
         image: (H, W) uint8, uint16 or float32 image.
-        threshold: the smallest squared saddle strength of a peak, exclusive.
+        threshold: the smallest squared saddle strength of a peak, exclusive; or
+            (H,) one per row.
 
     Returns:
         ((H, W) float32 response, (N,) ascending flat indices of its peaks).
     """
     height, width = image.shape
     response = np.empty((height, width), np.float32)
+    per_row = None if np.ndim(threshold) == 0 else np.reshape(threshold, (-1, 1)).astype(np.float32)
     peaks = []
     for start in range(0, height, _STRIP_ROWS):
         stop = min(start + _STRIP_ROWS, height)
@@ -241,7 +247,12 @@ def saddle_peaks(
         response[start:stop] = strip[start - first : stop - first]
         # The strip's response with one row either side (none at the image's edges).
         above, below = max(start - 1, 0), min(stop + 1, height)
-        local = _local_maxima(strip[above - first : below - first], threshold)
+        limit: float | NDArray[np.float32] = cast(float, threshold)
+        if per_row is not None:
+            rows = per_row[above:below]
+            # A strip of one bound (in the open, or evenly dark) compares with a scalar.
+            limit = float(rows[0, 0]) if rows.min() == rows.max() else rows
+        local = _local_maxima(strip[above - first : below - first], limit)
         peaks.append(local + above * width)
     return response, cast("NDArray[np.intp]", np.concatenate([np.zeros(0, np.intp), *peaks]))
 
@@ -421,6 +432,18 @@ _FLOOR_SAMPLE_STRIDE = 4
 _FLOOR_BOUND_MARGIN = 1e-6
 
 
+class ShadowGain(NamedTuple):
+    """How far the screening's threshold is lowered under dark surroundings.
+
+    Attributes:
+        at: (N,) the factor, at least 1, at (N, 2) points of the screened image.
+        on_rows: (N,) its largest value on each of the (N,) rows y of the image.
+    """
+
+    at: Callable[[NDArray[np.float64]], NDArray[np.float64]]
+    on_rows: Callable[[NDArray[np.float64]], NDArray[np.float64]]
+
+
 class _LevelPeaks(NamedTuple):
     """The 3x3 maxima of one pyramid level's saddle response, before they are refined.
 
@@ -439,6 +462,29 @@ class _LevelPeaks(NamedTuple):
     offset: tuple[int, int]
     expected: float
     scale_px: float
+
+    def lit_or_in_shadow(
+        self, threshold: float, shadow: ShadowGain, dark_rows: NDArray[np.bool_]
+    ) -> _LevelPeaks:
+        """The peaks above ``threshold``, and the weaker ones above it over the shadow gain.
+
+        Found with a lower threshold on the ``dark_rows`` of the response, whose
+        peaks alone are looked at: their runs of rows are runs of the ascending
+        flat indices.
+        """
+        width = self.response.shape[1]
+        bounds = np.flatnonzero(np.diff(dark_rows, prepend=False, append=False)) * width
+        first, end = np.searchsorted(self.flat_index, bounds).reshape(-1, 2).T
+        runs = np.zeros(len(self.flat_index) + 1, np.int64)
+        np.add.at(runs, first, 1)
+        np.add.at(runs, end, -1)
+        in_dark = np.flatnonzero(np.cumsum(runs[:-1]) > 0)
+        values = self.response.reshape(-1)[self.flat_index[in_dark]]
+        weak = in_dark[values <= threshold * threshold]
+        gain = shadow.at(self.pixel_xy(self.flat_index[weak]))
+        keep = np.ones(len(self.flat_index), dtype=bool)
+        keep[weak] = self.response.reshape(-1)[self.flat_index[weak]] > (threshold / gain) ** 2
+        return self._replace(flat_index=self.flat_index[keep])
 
     def capped_count(self, cap: CellCap) -> int:
         """How many of the peaks ``cap`` keeps in the cells of their pixels."""
@@ -542,6 +588,7 @@ def saddle_candidates(
     window: tuple[int, int, int, int] | None = None,
     cell_cap: CellCap | None = None,
     tally: dict[str, int] | None = None,
+    shadow: ShadowGain | None = None,
 ) -> Candidates:
     """Saddle points over an image pyramid covering the expected marker radii.
 
@@ -580,6 +627,10 @@ def saddle_candidates(
             (peaks beyond a cell's ``max_per_cell`` at their level) and
             ``"cut_below_floor"`` (candidates below the floor) are added to.
             Split-peak midpoints are formed from the peaks kept only.
+        shadow: if given, under dark surroundings the threshold is divided by
+            this gain, so that ``min_contrast`` holds after Eq. (2) as in the
+            checks that follow; the candidates' ``strength`` stays that of the raw
+            response.
 
     Returns:
         Candidates in full-resolution coordinates; ``scale_px`` is 4 * 2**L and
@@ -609,7 +660,16 @@ def saddle_candidates(
         expected = _SOBEL5_GAIN * _SADDLE_PER_CONTRAST * min_contrast / (1.0 + blur_sq)
         threshold = relative_threshold * expected
         u0, v0, u1, v1 = _level_window(window, level, level_image.shape)
-        response, peak_index = saddle_peaks(level_image[v0:v1, u0:u1], threshold**2)
+        squared: float | NDArray[np.float32] = threshold**2
+        dark_rows = None
+        if shadow is not None:
+            # Rows of the level (window) at full resolution, as _LevelPeaks maps them.
+            gain = shadow.on_rows((np.arange(v0, v1) + 0.5) * 2**level - 0.5)
+            dark_rows = gain > 1.0
+            if dark_rows.any():
+                # float32 as the response: lit rows keep exactly the scalar's bound.
+                squared = np.float32(threshold**2) / (gain * gain).astype(np.float32)
+        response, peak_index = saddle_peaks(level_image[v0:v1, u0:u1], squared)
         peaks = _LevelPeaks(
             response,
             peak_index,
@@ -618,6 +678,8 @@ def saddle_candidates(
             expected,
             candidate_scale(level, radius_range_px),
         )
+        if shadow is not None and dark_rows is not None and dark_rows.any():
+            peaks = peaks.lit_or_in_shadow(threshold, shadow, dark_rows)
         if cell_cap is None:
             found = peaks.refined(None)
         else:

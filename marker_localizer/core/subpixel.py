@@ -690,7 +690,7 @@ def locate_markers(
     *,
     max_radius_px: float,
     iterations: int,
-    min_contrast: float,
+    min_contrast: float | NDArray[np.float64],
     max_symmetry_residual: float,
     ncc_offset_px: float | None = None,
     ncc_search_px: int = 2,
@@ -712,7 +712,8 @@ def locate_markers(
         evidence: (N,) the verification's score, in [0, 1].
         max_radius_px: the largest expected marker radius, px.
         iterations: Gauss-Newton iterations at most.
-        min_contrast: lowest contrast of the fitted X, raw grey levels.
+        min_contrast: lowest contrast of the fitted X, raw grey levels; or (N,) one
+            per point.
         max_symmetry_residual: largest RMS symmetry residual, share of the contrast.
         ncc_offset_px: the NCC template's level offset, px; None: no NCC location.
         ncc_search_px: the NCC surface's half-size, px.

@@ -200,7 +200,9 @@ class RingAnalysis(NamedTuple):
     four_sectors: NDArray[np.bool_]
     line_angles: NDArray[np.float64]
 
-    def good(self, min_contrast: float, min_symmetry: float) -> NDArray[np.bool_]:
+    def good(
+        self, min_contrast: float | NDArray[np.float64], min_symmetry: float
+    ) -> NDArray[np.bool_]:
         """(N, J) True for the rings that show an X: four sectors, contrast, symmetry."""
         return self.four_sectors & (self.contrast >= min_contrast) & (self.symmetry >= min_symmetry)
 
@@ -325,7 +327,7 @@ def count_symmetric_rings(
     xy: NDArray[np.float64],
     radii_px: NDArray[np.float64],
     *,
-    min_contrast: float,
+    min_contrast: float | NDArray[np.float64],
     min_symmetry: float,
     min_good: int,
 ) -> NDArray[np.int64]:
@@ -342,7 +344,8 @@ def count_symmetric_rings(
         xy: (N, 2) points.
         radii_px: (J,) ring radii, or (N, J): each point's own (one cascade for
             candidates of every scale).
-        min_contrast: smallest bright-minus-dark level of a good ring, image units.
+        min_contrast: smallest bright-minus-dark level of a good ring, image units;
+            or (N,) one per point.
         min_symmetry: smallest 180-degree self-correlation of a good ring.
         min_good: the count the caller will require.
 
@@ -351,24 +354,25 @@ def count_symmetric_rings(
     """
     n_rings = np.shape(radii_px)[-1]
     radii = np.broadcast_to(np.asarray(radii_px, dtype=np.float64), (len(xy), n_rings))
-    cascade = functools.partial(
-        _count_symmetric_rings, image, limits=(min_contrast, min_symmetry, min_good)
-    )
-    return in_blocks(cascade, _CASCADE_BLOCK, xy, radii)
+    floor = np.broadcast_to(np.asarray(min_contrast, dtype=np.float64), (len(xy),))
+    cascade = functools.partial(_count_symmetric_rings, image, limits=(min_symmetry, min_good))
+    return in_blocks(cascade, _CASCADE_BLOCK, xy, radii, floor)
 
 
 def _count_symmetric_rings(
     image: NDArray[Any],
     xy: NDArray[np.float64],
     radii: NDArray[np.float64],
+    min_contrast: NDArray[np.float64],
     *,
-    limits: tuple[float, float, int],
+    limits: tuple[float, int],
 ) -> NDArray[np.int64]:
     """:func:`count_symmetric_rings` of the points ``xy`` with their (N, J) ring radii.
 
-    ``limits`` are its ``min_contrast``, ``min_symmetry`` and ``min_good``.
+    ``min_contrast`` is (N,), one floor per point; ``limits`` are ``min_symmetry``
+    and ``min_good``.
     """
-    min_contrast, min_symmetry, min_good = limits
+    min_symmetry, min_good = limits
     n_rings = radii.shape[1]
     passed = np.zeros(len(xy), dtype=np.int64)
     alive = np.arange(len(xy))
@@ -381,7 +385,7 @@ def _count_symmetric_rings(
         ring = _nearest_ring(image, xy[alive], radii[alive, j])
         f, contrast, level, missing = _smoothed_extremes(ring)
         symmetry = _self_correlation(f, missing)
-        passed[alive] += (contrast >= min_contrast) & (symmetry >= min_symmetry)
+        passed[alive] += (contrast >= min_contrast[alive]) & (symmetry >= min_symmetry)
         sampled.append((alive, (f, contrast, level, missing) if exact else (ring,)))
         failed = j + 1 - passed[alive]
         alive = alive[failed <= n_rings - min_good]
@@ -402,7 +406,7 @@ def _count_symmetric_rings(
             rings = _sector_analysis(f, contrast, _self_correlation(f, missing), level)
         else:
             rings = analyse_rings(stacked[0].astype(np.float64))
-        passed[alive] = rings.good(min_contrast, min_symmetry).sum(axis=1)
+        passed[alive] = rings.good(min_contrast[alive, None], min_symmetry).sum(axis=1)
     return passed
 
 
@@ -1083,6 +1087,7 @@ def double_line_check(
     max_distance_px: float = 1.5,
     min_angle_rad: float = np.deg2rad(20.0),
     full_scale: float = 255.0,
+    stretch: NDArray[np.float64] | None = None,
 ) -> LineCheck:
     """LSD double-line intersection check, Eq. (9) (section 3.2, invariant 2).
 
@@ -1108,6 +1113,10 @@ def double_line_check(
         max_distance_px: largest distance of the crossing from the candidate.
         min_angle_rad: smallest angle between the two lines.
         full_scale: the value of white in ``image``; LSD reads 8-bit windows.
+        stretch: (N,) factor each window's grey levels are multiplied by before
+            LSD, or None: LSD's gradient threshold is in grey levels, so a marker
+            in deep shadow needs its levels brought up as the pipeline's other raw
+            floors come down (the shadow gain).
 
     Returns:
         :class:`LineCheck`.
@@ -1123,8 +1132,10 @@ def double_line_check(
         x0, y0 = max(cx - half, 0), max(cy - half, 0)
         x1, y1 = min(cx + half + 1, width), min(cy + half + 1, height)
         window = image[y0:y1, x0:x1]
-        if window.dtype != np.uint8:
-            window = np.clip(window * (255.0 / full_scale) + 0.5, 0, 255).astype(np.uint8)
+        gain = 1.0 if stretch is None else float(stretch[k])
+        if window.dtype != np.uint8 or gain != 1.0:
+            levels = window * (gain * 255.0 / full_scale) + 0.5
+            window = np.clip(levels, 0, 255).astype(np.uint8)
         zoom = max(1, int(np.ceil(_LSD_MIN_WINDOW_PX / max(min(window.shape), 1))))
         if zoom > 1:
             window = cv2.resize(window, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
@@ -1476,7 +1487,10 @@ def prescreen_ring_radii(
 
 
 def prescreen_symmetry(
-    image: NDArray[Any], xy: NDArray[np.float64], radii_px: NDArray[np.float64], min_contrast: float
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radii_px: NDArray[np.float64],
+    min_contrast: float | NDArray[np.float64],
 ) -> NDArray[np.bool_]:
     """(N,) True where all :data:`PRESCREEN_GOOD_RINGS` rings show the X.
 
@@ -1488,7 +1502,8 @@ def prescreen_symmetry(
         image: (H, W) grey image, raw levels.
         xy: (N, 2) candidate positions.
         radii_px: (N, 3) ring radii (:func:`prescreen_ring_radii`), px.
-        min_contrast: smallest bright-minus-dark level of a good ring, raw grey levels.
+        min_contrast: smallest bright-minus-dark level of a good ring, raw grey levels;
+            or (N,) one per candidate.
     """
     good = count_symmetric_rings(
         image,

@@ -73,3 +73,15 @@ def test_noise_sigma_reads_the_pixel_noise_not_the_edges():
     image[:, 100:] = 1.0  # one strong edge
     image += rng.normal(0.0, 0.02, image.shape).astype(np.float32)
     assert preprocessing.noise_sigma(image) == pytest.approx(0.02, rel=0.1)
+
+
+def test_the_darkest_mean_along_a_row_bounds_the_local_mean_at_every_point_of_it():
+    rng = np.random.default_rng(3)
+    ramp = np.linspace(10, 240, 640)[None, :] * np.linspace(0.2, 1.0, 480)[:, None]
+    image = np.clip(ramp + rng.normal(0, 8, (480, 640)), 0, 255).astype(np.uint8)
+    gamma = preprocessing.LocalGamma(image, 255.0)
+    xy = rng.uniform([0, 0], [640, 480], (2000, 2))
+    bound = gamma.darkest_mean_on_rows(xy[:, 1])
+    assert np.all(gamma.mean_at(xy) >= bound - 1e-6)
+    # Tight: the darkest point of a row is near its bound.
+    assert gamma.darkest_mean == pytest.approx(bound.min(), abs=0.02)

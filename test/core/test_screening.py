@@ -421,3 +421,36 @@ def test_the_even_order_lists_points_as_the_even_cap_keeps_them_so_any_cap_keeps
     # Round by round: the first 16 are the 16 cells' strongest.
     cells = screening.grid_cells(xy, 64)
     assert len(set(cells[order[:16]])) == 16
+
+
+def _shadow(gain: float) -> screening.ShadowGain:
+    return screening.ShadowGain(lambda xy: np.full(len(xy), gain), lambda y: np.full(len(y), gain))
+
+
+def test_a_marker_in_deep_shadow_is_screened_with_the_shadow_gain_and_only_then():
+    # An X of 12 grey levels on ground 5 levels bright: 20 levels of contrast in the open.
+    dark = (5 + 12 * _x_frame(80.4, 70.6, 12.0)).astype(np.float32) / 255.0
+    alone = screening.saddle_candidates(dark, (6.0, 20.0), min_contrast=20 / 255)
+    shaded = screening.saddle_candidates(
+        dark, (6.0, 20.0), min_contrast=20 / 255, shadow=_shadow(4.0)
+    )
+    assert len(alone) == 0
+    assert np.linalg.norm(shaded.xy - [80.4, 70.6], axis=1).min() < 1.0
+
+
+def test_rows_in_the_open_keep_the_configured_threshold():
+    frame = np.clip(_x_frame(50.3, 60.7, 10.0) + _x_frame(140.2, 100.4, 10.0) - 0.45, 0, 1)
+    image = frame.astype(np.float32)
+    plain = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255)
+    lit = screening.saddle_candidates(
+        image, (6.0, 20.0), min_contrast=20 / 255, shadow=_shadow(1.0)
+    )
+    assert np.array_equal(plain.xy, lit.xy) and np.array_equal(plain.strength, lit.strength)
+    # Shadow over the lower rows only: the upper rows' candidates stay exactly as they were.
+    lower = screening.ShadowGain(
+        lambda xy: np.where(xy[:, 1] >= 80, 4.0, 1.0), lambda y: np.where(y >= 80, 4.0, 1.0)
+    )
+    shaded = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255, shadow=lower)
+    upper = plain.xy[:, 1] < 70
+    assert np.array_equal(plain.xy[upper], shaded.xy[shaded.xy[:, 1] < 70])
+    assert len(shaded) >= len(plain)
