@@ -9,10 +9,13 @@ from marker_localizer.core.image import bit_depth_scale, to_gray
 from marker_localizer.errors import ImageError
 
 
-def _x_marker_12_bit() -> np.ndarray:
-    """The Detector docstring's X (centre (31.5, 31.5)) as a 12-bit sensor writes it."""
-    image = np.full((64, 64), 200.0, np.float32)
-    image[:32, :32] = image[32:, 32:] = 30.0
+def _x_marker_12_bit(dark: float = 30.0, bright: float = 200.0) -> np.ndarray:
+    """The Detector docstring's X (centre (31.5, 31.5)) as a 12-bit sensor writes it.
+
+    ``dark`` and ``bright`` are its quadrants' levels in 8-bit grey levels.
+    """
+    image = np.full((64, 64), bright, np.float32)
+    image[:32, :32] = image[32:, 32:] = dark
     return (cv2.GaussianBlur(image, (0, 0), 1.0) * 16).round().astype(np.uint16)
 
 
@@ -38,7 +41,7 @@ def test_the_full_scale_of_one_camera_does_not_move_with_the_frame_content():
 
 
 def test_a_12_bit_sensor_is_detected_when_the_detector_is_told_its_bit_depth():
-    image = _x_marker_12_bit()
+    image = _x_marker_12_bit(dark=100.0, bright=140.0)
     told = Detector(DetectorConfig(bit_depth=12))
     (found,) = told.detect(image)
     assert (found.x, found.y) == (pytest.approx(31.5, abs=1e-3), pytest.approx(31.5, abs=1e-3))
@@ -46,7 +49,8 @@ def test_a_12_bit_sensor_is_detected_when_the_detector_is_told_its_bit_depth():
     glint = image.copy()
     glint[2, 60] = 65535
     assert len(told.detect(glint)) == 1
-    # Read as 16-bit words, its 170-DN-of-255 contrast is 10 DN: under min_contrast_dn.
+    # Read as 16-bit words, its 40-DN-of-255 contrast is 2.5 DN at a mean of 7.5 DN:
+    # under min_contrast_dn even lowered as far as the shadow gain goes (4-fold).
     assert len(Detector(DetectorConfig(bit_depth=16)).detect(image)) == 0
 
 
