@@ -175,8 +175,8 @@ _MAXIMUM_KERNEL = np.ones((3, 3), np.uint8)
 
 def _local_maxima(
     response: NDArray[np.floating[Any]], threshold: float | NDArray[np.floating[Any]]
-) -> NDArray[np.intp]:
-    """Flat indices of the 3x3 local maxima above ``threshold``, away from the border.
+) -> tuple[NDArray[np.intp], NDArray[np.floating[Any]]]:
+    """Flat indices and values of the 3x3 local maxima above ``threshold``, off the border.
 
     ``threshold`` is one value, or an (H, 1) column of one per row.
 
@@ -205,7 +205,7 @@ def _local_maxima(
     if not dense:
         for d_row, d_col in _FOLLOWING_NEIGHBOURS:
             is_max &= centre >= flat[flat_index + (d_row * width + d_col)]
-    return cast("NDArray[np.intp]", flat_index[is_max])
+    return cast("NDArray[np.intp]", flat_index[is_max]), centre[is_max]
 
 
 #: Image rows whose saddle response and maxima are found at a time: a strip's
@@ -221,7 +221,7 @@ _STRIP_HALO_ROWS = 3
 
 def saddle_peaks(
     image: NDArray[Any], threshold: float | NDArray[np.float32]
-) -> tuple[NDArray[np.float32], NDArray[np.intp]]:
+) -> tuple[NDArray[np.float32], NDArray[np.intp], NDArray[np.float32]]:
     """The saddle response of ``image`` and its 3x3 maxima above ``threshold``.
 
     Equal to :func:`saddle_response` and :func:`_local_maxima` over the whole
@@ -234,12 +234,13 @@ def saddle_peaks(
             (H,) one per row.
 
     Returns:
-        ((H, W) float32 response, (N,) ascending flat indices of its peaks).
+        ((H, W) float32 response, (N,) ascending flat indices of its peaks, (N,)
+        their responses: the peaks' values are read while the strip is at hand).
     """
     height, width = image.shape
     response = np.empty((height, width), np.float32)
     per_row = None if np.ndim(threshold) == 0 else np.reshape(threshold, (-1, 1)).astype(np.float32)
-    peaks = []
+    peaks, values = [], []
     for start in range(0, height, _STRIP_ROWS):
         stop = min(start + _STRIP_ROWS, height)
         first, last = max(start - _STRIP_HALO_ROWS, 0), min(stop + _STRIP_HALO_ROWS, height)
@@ -252,9 +253,14 @@ def saddle_peaks(
             rows = per_row[above:below]
             # A strip of one bound (in the open, or evenly dark) compares with a scalar.
             limit = float(rows[0, 0]) if rows.min() == rows.max() else rows
-        local = _local_maxima(strip[above - first : below - first], limit)
+        local, value = _local_maxima(strip[above - first : below - first], limit)
         peaks.append(local + above * width)
-    return response, cast("NDArray[np.intp]", np.concatenate([np.zeros(0, np.intp), *peaks]))
+        values.append(value)
+    return (
+        response,
+        cast("NDArray[np.intp]", np.concatenate([np.zeros(0, np.intp), *peaks])),
+        cast("NDArray[np.float32]", np.concatenate([np.zeros(0, np.float32), *values])),
+    )
 
 
 def split_peak_midpoints(
@@ -450,6 +456,7 @@ class _LevelPeaks(NamedTuple):
     Attributes:
         response: (h, w) float32 response of the level (or of its window).
         flat_index: (N,) flat indices of the peaks in ``response``, ascending.
+        values: (N,) their responses.
         level: pyramid level L.
         offset: (u0, v0) level pixel of ``response``'s pixel (0, 0).
         expected: the response's square root for an X of the smallest contrast.
@@ -458,6 +465,7 @@ class _LevelPeaks(NamedTuple):
 
     response: NDArray[np.float32]
     flat_index: NDArray[np.intp]
+    values: NDArray[np.float32]
     level: int
     offset: tuple[int, int]
     expected: float
@@ -479,12 +487,11 @@ class _LevelPeaks(NamedTuple):
         np.add.at(runs, first, 1)
         np.add.at(runs, end, -1)
         in_dark = np.flatnonzero(np.cumsum(runs[:-1]) > 0)
-        values = self.response.reshape(-1)[self.flat_index[in_dark]]
-        weak = in_dark[values <= threshold * threshold]
+        weak = in_dark[self.values[in_dark] <= threshold * threshold]
         gain = shadow.at(self.pixel_xy(self.flat_index[weak]))
         keep = np.ones(len(self.flat_index), dtype=bool)
-        keep[weak] = self.response.reshape(-1)[self.flat_index[weak]] > (threshold / gain) ** 2
-        return self._replace(flat_index=self.flat_index[keep])
+        keep[weak] = self.values[weak] > (threshold / gain) ** 2
+        return self._replace(flat_index=self.flat_index[keep], values=self.values[keep])
 
     def capped_count(self, cap: CellCap) -> int:
         """How many of the peaks ``cap`` keeps in the cells of their pixels."""
@@ -544,7 +551,7 @@ class _LevelPeaks(NamedTuple):
         Returns:
             (the candidates, the new floor).
         """
-        values = self.response.reshape(-1)[self.flat_index]
+        values = self.values
         total = cap.max_total
         bounds = []
         if total is not None:
@@ -669,10 +676,8 @@ def saddle_candidates(
             if dark_rows.any():
                 # float32 as the response: lit rows keep exactly the scalar's bound.
                 squared = np.float32(threshold**2) / (gain * gain).astype(np.float32)
-        response, peak_index = saddle_peaks(level_image[v0:v1, u0:u1], squared)
         peaks = _LevelPeaks(
-            response,
-            peak_index,
+            *saddle_peaks(level_image[v0:v1, u0:u1], squared),
             level,
             (u0, v0),
             expected,

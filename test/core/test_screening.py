@@ -281,9 +281,9 @@ def test_local_maxima_are_the_3x3_maxima_with_ties_to_the_first_pixel_on_busy_an
     share_above = np.mean(response > threshold)
     # The busy response takes the dilation, the quiet one the neighbour look-ups.
     assert (share_above > screening._DENSE_MAXIMA_SHARE) == (threshold < 1)
-    assert list(screening._local_maxima(response, threshold)) == _maxima_by_hand(
-        response, threshold
-    )
+    peaks, values = screening._local_maxima(response, threshold)
+    assert list(peaks) == _maxima_by_hand(response, threshold)
+    np.testing.assert_array_equal(values, response.reshape(-1)[peaks])
 
 
 @pytest.mark.parametrize("height", [257, 300])
@@ -294,10 +294,12 @@ def test_the_response_and_peaks_found_strip_by_strip_are_those_of_the_whole_imag
     noise = np.random.default_rng(4).normal(128, 40, (height + 7, 101))
     # A crop, as a window is: no strip edge may act as the image's border.
     image = np.clip(noise, 0, 255).astype(np.uint8)[3 : height + 3, 5:]
-    response, peaks = screening.saddle_peaks(image, threshold)
+    response, peaks, values = screening.saddle_peaks(image, threshold)
     whole = screening.saddle_response(image)
     np.testing.assert_array_equal(response, whole)
-    np.testing.assert_array_equal(peaks, screening._local_maxima(whole, threshold))
+    whole_peaks, whole_values = screening._local_maxima(whole, threshold)
+    np.testing.assert_array_equal(peaks, whole_peaks)
+    np.testing.assert_array_equal(values, whole_values)
     assert len(peaks) > 0
 
 
@@ -386,10 +388,10 @@ def test_a_levels_floor_found_from_its_strongest_peaks_is_that_of_capping_all_of
     response = screening.saddle_response(image.astype(np.uint8))
     expected = 20.0
     peaks = screening._LevelPeaks(
-        response, screening._local_maxima(response, 40.0**2), 0, (3, 5), expected, 3.0
+        response, *screening._local_maxima(response, 40.0**2), 0, (3, 5), expected, 3.0
     )
     cap = screening.CellCap(64, 48, max_total, (16.0, 0.0))
-    values = response.reshape(-1)[peaks.flat_index]
+    values = peaks.values
     every = peaks.refined(peaks.flat_index[cap.keep(peaks.pixel_xy(), values)])
     floor = max(earlier_floor, cap.floor(every))
     found, new_floor = peaks.over_floor(cap, earlier_floor)
