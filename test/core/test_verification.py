@@ -1,5 +1,6 @@
 """Section 3.2, geometric checks: annular centre symmetry and LSD double line."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -301,3 +302,15 @@ def test_the_symmetry_prescreen_passes_an_x_and_no_shape_without_its_symmetry(ki
     radii = verification.prescreen_ring_radii(np.array([16.0]), min_radius_px=4.0)
     passed = verification.prescreen_symmetry(image, CENTRE, radii, min_contrast=10 / 255)
     assert passed.tolist() == [kind in ("quarter_disks", "checker")]
+
+
+def test_windows_enlarged_together_are_those_enlarged_one_by_one():
+    rng = np.random.default_rng(5)
+    shapes = [(13, 13), (13, 13), (9, 13), (13, 13), (5, 7), (9, 13), (25, 25), (6, 9), (6, 9)]
+    windows = [rng.integers(0, 256, shape, dtype=np.uint8) for shape in shapes]
+    zooms = [2, 2, 3, 2, 5, 3, 1, 4, 4]
+    for window, zoom, together in zip(
+        windows, zooms, verification.upsampled(windows, zooms), strict=True
+    ):
+        alone = cv2.resize(window, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
+        np.testing.assert_array_equal(together, alone if zoom > 1 else window)
