@@ -1,8 +1,11 @@
 """The Detector end to end: analytic images, rendered frames, input handling."""
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
+from scenes import SMALL_SCENE
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
@@ -419,16 +422,8 @@ def test_markers_in_deep_shadow_are_found_as_in_the_open(white_share):
     under the 20 the screening asks for in the open; a marker of that modulation
     is still one, and Eq. (2) restores its contrast for the checks.
     """
-    scene_config = SceneConfig(
-        width=480,
-        height=360,
-        n_markers=4,
-        radius_px=(8.0, 16.0),
-        blur_sigma_px=(0.8, 1.0),
-        noise_sigma_dn=(0.5, 1.0),
-        max_tilt_deg=30.0,
-        n_hard_negatives=4,
-        peak_level=(white_share, white_share),
+    scene_config = dataclasses.replace(
+        SMALL_SCENE, noise_sigma_dn=(0.5, 1.0), peak_level=(white_share, white_share)
     )
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=20.0))
     found = false = total = 0
