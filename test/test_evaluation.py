@@ -122,3 +122,20 @@ def test_merged_tallies_sum_their_counts_and_keep_every_error():
     assert (both.frames, both.n_truth, both.n_matched, both.n_false_positives) == (2, 2, 1, 1)
     assert both.errors_px == pytest.approx([0.1])
     assert both.found == [True, False]
+
+
+def test_a_missed_marker_is_lost_at_the_first_test_that_leaves_no_candidate_near_it():
+    survivors = [
+        ("screening", np.array([[10.0, 10.0], [50.0, 50.0], [90.0, 90.0]])),
+        ("prescreen", np.array([[10.5, 10.0], [51.0, 50.0]])),
+        ("symmetry", np.array([[10.0, 10.2]])),
+        ("fit", np.array([[10.0, 10.1]])),
+    ]
+    missed = np.array([[10.0, 10.0], [50.0, 50.0], [90.0, 90.0], [200.0, 5.0]])
+    lost = evaluation.tests_that_lost(survivors, missed)
+    assert lost == [evaluation.ASTRAY, "symmetry", "prescreen", "screening"]
+
+
+def test_a_candidate_further_than_the_loss_radius_is_not_the_markers():
+    survivors = [("screening", np.array([[10.0 + evaluation.LOSS_RADIUS_PX + 0.1, 10.0]]))]
+    assert evaluation.tests_that_lost(survivors, np.array([[10.0, 10.0]])) == ["screening"]

@@ -33,6 +33,7 @@ import argparse
 import itertools
 import math
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,6 +45,7 @@ from marker_localizer import evaluation
 from marker_localizer.bench import metrics, peers, real_data
 from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
 from marker_localizer.bench.runner import run_and_save
+from marker_localizer.core import pipeline
 from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import DetectionTally
 from marker_localizer.synthetic import RenderedScene, SceneConfig, render_checkerboard, render_scene
@@ -278,12 +280,15 @@ class Row:
         tally: recall / FP / error totals.
         refiner: True for a refinement-only peer (no FP figure).
         extra: further figures of real-data tables, by column name.
+        lost_at: for this package's detector, how many of the markers it missed
+            each test lost (:func:`evaluation.tests_that_lost`).
     """
 
     name: str
     tally: DetectionTally = field(default_factory=DetectionTally)
     refiner: bool = False
     extra: dict[str, float] = field(default_factory=dict)
+    lost_at: Counter[str] = field(default_factory=Counter)
 
 
 def _timed_detect(
@@ -296,6 +301,15 @@ def _timed_detect(
 
 def _sigmas(detector: PointDetector) -> np.ndarray | None:
     return detector.last_sigmas if isinstance(detector, OurDetector) else None
+
+
+def _count_losses(
+    row: Row, detector: PointDetector, matching: evaluation.Matching, truth: np.ndarray
+) -> None:
+    """Add to ``row.lost_at`` the tests that lost the markers ``detector`` missed."""
+    if isinstance(detector, OurDetector):
+        missed = np.setdiff1d(np.arange(len(truth)), matching.truth_index)
+        row.lost_at.update(evaluation.tests_that_lost(detector.last_survivors, truth[missed]))
 
 
 def subpix_starts(
@@ -383,12 +397,10 @@ def evaluate_frames(
         resolution.append(frame.resolution)
         for detector in everyone:
             points, seconds = _timed_detect(detector, frame.image, frame.radius_range)
-            rows[detector.name].tally.add(
-                evaluation.match_points(points, frame.truth),
-                _sigmas(detector),
-                seconds,
-                frame.crlb_px,
-            )
+            matching = evaluation.match_points(points, frame.truth)
+            row = rows[detector.name]
+            row.tally.add(matching, _sigmas(detector), seconds, frame.crlb_px)
+            _count_losses(row, detector, matching, frame.truth)
         refiner = peers.CornerSubPixRefiner(peers.subpix_half_window(frame.radius_range))
         start = time.perf_counter()
         refined = refiner.refine(frame.image, subpix_starts(frame.truth, rng))
@@ -750,6 +762,28 @@ def summary_table(results: Sequence[tuple[str, Row]]) -> str:
     return "\n".join(lines)
 
 
+def losses_table(results: Sequence[tuple[str, Row]]) -> str:
+    """One line per family: how many markers the reference row missed, by the test that lost them.
+
+    The tests in the order they run (:data:`~marker_localizer.core.pipeline.SURVIVOR_TESTS`;
+    ``floor`` is the score floor wherever it is applied), then those that passed
+    every test but ended off their marker (:data:`evaluation.ASTRAY`).
+    """
+    tests = list(dict.fromkeys([*pipeline.SURVIVOR_TESTS, evaluation.ASTRAY]))
+    shown = [t for t in tests if any(row.lost_at[t] for _, row in results)]
+    header = f"{'family':<44}{'missed':>7}" + "".join(f"{t:>11}" for t in shown)
+    lines = [
+        f"Markers {REFERENCE_ROW} missed, by the test after which no candidate was left "
+        f"within {evaluation.LOSS_RADIUS_PX:g} px of them",
+        header,
+        "-" * len(header),
+    ]
+    for label, row in results:
+        missed = row.tally.n_truth - row.tally.n_matched
+        lines.append(f"{label:<44}{missed:>7}" + "".join(f"{row.lost_at[t]:>11}" for t in shown))
+    return "\n".join(lines)
+
+
 def row_record(row: Row) -> dict[str, Any]:
     """JSON-ready figures of a row."""
     t, s = row.tally, row.tally.stats
@@ -770,6 +804,8 @@ def row_record(row: Row) -> dict[str, Any]:
         "seconds_per_frame": t.seconds / t.frames if t.frames else None,
     }
     record.update(row.extra)
+    if row.lost_at:
+        record["lost_at"] = dict(row.lost_at)
     return {
         k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in record.items()
     }
@@ -1073,6 +1109,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         results["disc_lattice"] = run_disc_lattice(options, report)
     if summary:
         report(summary_table(summary))
+        report(losses_table(summary))
         results["summary"] = {label: row_record(row) for label, row in summary}
     return results
 

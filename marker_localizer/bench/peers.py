@@ -138,6 +138,7 @@ class OurDetector:
         self._cache: dict[RadiusRange, Detector] = {}
         self.last_sigmas: np.ndarray = np.empty(0)
         self.last_timings_ms: dict[str, float] = {}
+        self.last_survivors: list[tuple[str, np.ndarray]] = []
 
     def detector(self, radius_range: RadiusRange) -> Detector:
         """The :class:`Detector` for this radius range (built once, then reused)."""
@@ -150,11 +151,12 @@ class OurDetector:
         return self._cache[radius_range]
 
     def detect(self, image_u8: np.ndarray, radius_range: RadiusRange) -> np.ndarray:
-        """Detect; keeps the per-point sigmas (px) and stage timings of the last call."""
+        """Detect; keeps the per-point sigmas (px), stage timings and survivors of the last call."""
         result = self.detector(radius_range).detect(image_u8)
         table = result.as_array()
         self.last_sigmas = table[:, 3]
         self.last_timings_ms = dict(result.timings_ms)
+        self.last_survivors = result.survivors
         return table[:, :2]
 
 

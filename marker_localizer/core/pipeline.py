@@ -68,6 +68,25 @@ _RAW_CONTRAST_SHARE = 0.5
 #: and 2.5 DN for the rings and the fit, above an 8-bit camera's quantisation and JPEG
 #: noise (1-2 DN); darker still, ground 6 DN dark, is beyond what is sought.
 _MAX_SHADOW_GAIN = 4.0
+#: The tests of the default path in the order :attr:`DetectionResult.survivors` lists
+#: them (``floor``, the score floor, runs on the ring symmetry, on it times the
+#: template's NCC, and on the fitted score; ``cap`` is a cap on the candidates).
+SURVIVOR_TESTS = (
+    "screening",
+    "prescreen",
+    "cap",
+    "centring",
+    "symmetry",
+    "floor",
+    "template",
+    "modulation",
+    "floor",
+    "cap",
+    "lines",
+    "fit",
+    "floor",
+    "merging",
+)
 #: Candidates centred closer than this to a stronger one have found its X, px.
 _CENTRED_DUPLICATE_PX = 1.5
 #: Context screened around a search region: the filters of the coarsest pyramid level
@@ -164,12 +183,19 @@ class DetectionResult:
         verdicts: with ``refinement="template"``, every candidate the decision saw:
             where its fit ended, whether it was accepted and why not, its score and
             evidence; None otherwise.
+        survivors: (test, (K, 2) positions of the candidates that passed it), in
+            the order the tests ran: where a marker was lost is the first test
+            after which no candidate is left near it. The default path records
+            every test (:data:`SURVIVOR_TESTS`); the paper's and the template path
+            the screening and the prescreen. References to arrays the stages
+            make anyway: no copies.
     """
 
     detections: list[Detection] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, float] = field(default_factory=dict)
     verdicts: decision.Verdicts | None = None
+    survivors: list[tuple[str, NDArray[np.float64]]] = field(default_factory=list)
 
     def __iter__(self) -> Iterator[Detection]:
         return iter(self.detections)
@@ -328,17 +354,19 @@ class Detector:
                 near = np.isfinite(distance)
                 result.counts["skipped_known"] = int(near.sum())
                 candidates = candidates.take(~near)
+            result.survivors.append(("screening", candidates.xy))
         with timer("prescreen"):
             result.counts["rejected_prescreen"] = result.counts["dropped_over_verification_cap"] = 0
             if noise is not None and cfg.candidate_detector == "saddle":
                 candidates, angles = self._order_prescreen(
                     gray, full_scale, noise, candidates, result.counts
                 )
+                result.survivors.append(("prescreen", candidates.xy))
             elif cfg.candidate_detector == "saddle":
                 # Contour corners sit up to 2 px off the centre, too far for the
                 # prescreen's small rings; the paper's path goes straight to centring.
                 assert gamma is not None
-                candidates = self._prescreen(gray, full_scale, gamma, candidates, result.counts)
+                candidates = self._prescreen(gray, full_scale, gamma, candidates, result)
         if noise is not None and cfg.candidate_detector == "saddle":
             if cfg.line_check:
                 with timer("verification"):
@@ -432,7 +460,7 @@ class Detector:
                 np.asarray(radius_px, np.float64),
                 np.asarray(line_angles, np.float64).reshape(-1, 2),
                 np.asarray(evidence, np.float64),
-                counts,
+                result,
                 full_scale,
                 gamma,
             )
@@ -451,10 +479,10 @@ class Detector:
         """Centre, verify and locate the candidates of the saddle path."""
         counts = result.counts
         with timer("centring"):
-            candidates = self._centre(gray, candidates, counts)
+            candidates = self._centre(gray, candidates, result)
         with timer("verification"):
             candidates, radius, angles, score = self._verify(
-                gray, full_scale, candidates, gamma, counts
+                gray, full_scale, candidates, gamma, result
             )
         with timer("subpixel"):
             result.detections = self._locate(
@@ -463,7 +491,7 @@ class Detector:
                 radius,
                 angles,
                 score,
-                counts,
+                result,
                 full_scale,
                 gamma,
             )
@@ -543,7 +571,7 @@ class Detector:
         with timer("subpixel"):
             if cfg.refinement != "ncc":
                 result.detections = self._locate(
-                    gray, xy, radius, angles, score, counts, full_scale, gamma
+                    gray, xy, radius, angles, score, result, full_scale, gamma
                 )
                 counts["accepted"] = len(result.detections)
                 return result
@@ -708,7 +736,7 @@ class Detector:
         full_scale: float,
         gamma: preprocessing.LocalGamma,
         candidates: Candidates,
-        counts: dict[str, int],
+        result: DetectionResult,
     ) -> Candidates:
         """A three-ring centre-symmetry test at each candidate's own scale, before any fit.
 
@@ -726,10 +754,11 @@ class Detector:
             self._prescreen_radii(candidates),
             self._raw_contrast_floor(full_scale, gamma, candidates.xy),
         )
-        counts["rejected_prescreen"] = int((~keep).sum())
+        result.counts["rejected_prescreen"] = int((~keep).sum())
         passed = candidates.take(keep)
         capped = screening.even_cap(passed, _MAX_VERIFIED, self.config.entropy_cell_px)
-        counts["dropped_over_verification_cap"] = len(passed) - len(capped)
+        result.counts["dropped_over_verification_cap"] = len(passed) - len(capped)
+        result.survivors += [("prescreen", passed.xy), ("cap", capped.xy)]
         return capped
 
     def _order_prescreen(
@@ -932,17 +961,19 @@ class Detector:
         )
 
     def _centre(
-        self, gray: NDArray[Any], candidates: Candidates, counts: dict[str, int]
+        self, gray: NDArray[Any], candidates: Candidates, result: DetectionResult
     ) -> Candidates:
         """Each candidate at its local centre of point symmetry (:func:`subpixel.coarse_centre`)."""
         xy, inside = subpixel.coarse_centre(
             gray, candidates.xy, candidates.scale_px, self.config.marker_radius_max_px
         )
-        counts["rejected_centring"] = int((~inside).sum())
+        result.counts["rejected_centring"] = int((~inside).sum())
         moved = Candidates(xy, candidates.strength, candidates.scale_px).take(inside)
         keep = screening.non_maximum_suppression(moved.xy, moved.strength, _CENTRED_DUPLICATE_PX)
-        counts["merged_duplicates"] = int((~keep).sum())
-        return moved.take(keep)
+        result.counts["merged_duplicates"] = int((~keep).sum())
+        centred = moved.take(keep)
+        result.survivors.append(("centring", centred.xy))
+        return centred
 
     def _verify(
         self,
@@ -950,10 +981,11 @@ class Detector:
         full_scale: float,
         candidates: Candidates,
         gamma: preprocessing.LocalGamma,
-        counts: dict[str, int],
+        result: DetectionResult,
     ) -> tuple[Candidates, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Section 3.2, geometric checks, and the adaptive-template NCC of section 3.3.1."""
         cfg = self.config
+        counts = result.counts
         symmetry = verification.centre_symmetry_check(
             gray,
             candidates.xy,
@@ -972,8 +1004,12 @@ class Detector:
         floor = self._score_floor(symmetry.radius_px)
         weak = keep & (symmetry.score < floor)
         counts["rejected_score"] = int(weak.sum())
+        result.survivors += [
+            ("symmetry", candidates.xy[keep]),
+            ("floor", candidates.xy[keep & ~weak]),
+        ]
         chosen, ncc = self._match_templates(
-            gray, candidates.xy, symmetry, floor, np.flatnonzero(keep & ~weak), gamma, counts
+            gray, candidates.xy, symmetry, floor, np.flatnonzero(keep & ~weak), gamma, result
         )
         candidates, radius, angles, score = (
             candidates.take(chosen),
@@ -997,6 +1033,7 @@ class Detector:
             angles = verification.agreed_line_angles(lines.line_angles[ok], angles[ok])
         else:
             counts["rejected_lines"] = 0
+        result.survivors.append(("lines", candidates.xy))
         return candidates, radius, angles, score
 
     def _match_templates(
@@ -1007,7 +1044,7 @@ class Detector:
         floor: NDArray[np.float64],
         passed: NDArray[np.intp],
         gamma: preprocessing.LocalGamma,
-        counts: dict[str, int],
+        result: DetectionResult,
     ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         """The template NCC and modulation gates, and the score floor, up to the cap.
 
@@ -1022,11 +1059,15 @@ class Detector:
             The indices (ascending) of the candidates that pass, and their NCC.
         """
         cfg = self.config
+        counts = result.counts
         order = passed[
             screening.even_order(xy[passed], symmetry.score[passed], cfg.entropy_cell_px)
         ]
         matched: list[NDArray[np.intp]] = []
         matched_ncc: list[NDArray[np.float64]] = []
+        # Indices passing the NCC, and the modulation gate too, for the survivors.
+        correlated: list[NDArray[np.intp]] = []
+        modulated_too: list[NDArray[np.intp]] = []
         found = start = 0
         counts.setdefault("rejected_template", 0)
         while start < len(order) and found < _MAX_CONFIRMED:
@@ -1050,6 +1091,8 @@ class Detector:
                 cfg.min_modulation,
             )
             fits = (ncc >= cfg.template_ncc_min) & modulated
+            correlated.append(batch[ncc >= cfg.template_ncc_min])
+            modulated_too.append(batch[fits])
             counts["rejected_template"] += int((~fits).sum())
             weak = fits & (symmetry.score[batch] * ncc < floor[batch])
             counts["rejected_score"] += int(weak.sum())
@@ -1066,6 +1109,13 @@ class Detector:
             + found
             - len(chosen)
         )
+        for test, kept in (
+            ("template", correlated),
+            ("modulation", modulated_too),
+            ("floor", matched),
+        ):
+            result.survivors.append((test, xy[np.concatenate([np.zeros(0, np.intp), *kept])]))
+        result.survivors.append(("cap", xy[chosen]))
         ascending = np.argsort(chosen)
         return chosen[ascending], ncc[ascending]
 
@@ -1087,7 +1137,7 @@ class Detector:
         radius: NDArray[np.float64],
         angles: NDArray[np.float64],
         score: NDArray[np.float64],
-        counts: dict[str, int],
+        result: DetectionResult,
         full_scale: float,
         gamma: preprocessing.LocalGamma,
     ) -> list[Detection]:
@@ -1097,6 +1147,7 @@ class Detector:
         suppression of duplicates, strongest first.
         """
         cfg = self.config
+        counts = result.counts
         if len(xy) == 0:
             counts["rejected_refinement"] = 0
             counts.setdefault("rejected_score", 0)
@@ -1127,6 +1178,11 @@ class Detector:
         )
         counts["merged_duplicates"] += int((~unique).sum())
         keep = keep[unique]
+        result.survivors += [
+            ("fit", fit.xy[ok]),
+            ("floor", fit.xy[ok & ~weak]),
+            ("merging", fit.xy[keep]),
+        ]
         keep = keep[np.argsort(-fit.score[keep])]
         position, sigma = fit.xy[keep], fit.sigma[keep]
         if cfg.refinement == "symmetry":

@@ -181,6 +181,20 @@ def test_uneven_light_family_renders_dull_quadrants_shadows_and_every_markers_bo
     assert np.isfinite(scene.crlb_px).all() and (scene.crlb_px < 0.2).all()
 
 
+def test_a_marker_missed_on_flat_ground_is_counted_as_lost_at_the_screening():
+    frame = render_scene(SMALL_SCENE, 5)
+    # A truth point where the frame holds no marker: nothing is screened there.
+    flat = np.full_like(frame.image, 128)
+    labelled = accuracy.LabelledFrame(
+        flat, np.array([[240.0, 180.0]]), np.array([np.nan]), (8.0, 16.0), np.array([np.nan])
+    )
+    ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
+    (row, _) = accuracy.evaluate_frames([labelled], 0, [ours]).rows
+    assert row.lost_at == {"screening": 1}
+    table = accuracy.losses_table([("flat", row)])
+    assert "screening" in table and "prescreen" not in table
+
+
 def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path, capsys):
     out = tmp_path / "accuracy.json"
     assert (
@@ -190,6 +204,7 @@ def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path,
     printed = capsys.readouterr().out
     assert "Family (g) uneven light" in printed
     assert "err/CRLB" in printed and "Summary, ours (symmetry)" in printed
+    assert "Markers ours (symmetry) missed, by the test" in printed
     saved = json.loads(out.read_text())
     (table,) = saved["synthetic"].values()
     assert table[accuracy.REFERENCE_ROW]["crlb_mean_px"] > 0

@@ -1,6 +1,7 @@
 """The Detector end to end: analytic images, rendered frames, input handling."""
 
 import dataclasses
+import itertools
 
 import cv2
 import numpy as np
@@ -443,3 +444,19 @@ def test_markers_in_deep_shadow_are_found_as_in_the_open(white_share):
         assert len(tracked) == len(result)
     assert found / total >= 0.85
     assert false == 0
+
+
+def test_the_survivors_narrow_test_by_test_down_to_the_detections():
+    scene = render_scene(SMALL_SCENE, 2)
+    result = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=20.0)).detect(
+        scene.image
+    )
+    tests = [test for test, _ in result.survivors]
+    sizes = [len(xy) for _, xy in result.survivors]
+    assert tuple(tests) == pipeline.SURVIVOR_TESTS
+    # Each test keeps a subset of what reached it (the centring moves candidates and
+    # merges duplicates, so it keeps no more than it was given).
+    assert all(later <= earlier for earlier, later in itertools.pairwise(sizes))
+    assert sizes[-1] == len(result) > 0
+    merged = dict(result.survivors)["merging"]
+    assert np.allclose(np.sort(merged, axis=0), np.sort(result.as_array()[:, :2], axis=0), atol=0.5)
