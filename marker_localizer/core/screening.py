@@ -14,6 +14,7 @@ top-left pixel.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple, cast
 
@@ -219,47 +220,200 @@ _STRIP_ROWS = 64
 _STRIP_HALO_ROWS = 3
 
 
+def _limit(threshold: float | NDArray[np.float32], bound: float) -> float | NDArray[np.float32]:
+    """What a response must exceed to pass ``threshold`` and reach ``bound`` (0: none).
+
+    ``threshold`` is one value or a column of one per row.
+    """
+    if np.ndim(threshold) and threshold.min() == threshold.max():  # type: ignore[union-attr]
+        # Rows of one bound (in the open, or evenly dark) compare with a scalar.
+        threshold = float(threshold[0, 0])  # type: ignore[index]
+    if bound <= 0:
+        return threshold
+    # At least the bound is more than the float32 just below it.
+    below = float(np.nextafter(np.float32(bound), np.float32(0)))
+    return (
+        np.maximum(threshold, below) if np.ndim(threshold) else max(cast(float, threshold), below)
+    )
+
+
+def _unexamined(
+    response: NDArray[np.float32], threshold: float | NDArray[np.float32], bound: float
+) -> int:
+    """Pixels of ``response`` above ``threshold`` (per row) but below ``bound``."""
+    if bound <= 0:
+        return 0
+    return int(
+        np.count_nonzero(response > threshold)
+        - np.count_nonzero(response > _limit(threshold, bound))
+    )
+
+
+class _Strip(NamedTuple):
+    """The peaks of one strip of a level's saddle response (:func:`_strip_peaks`).
+
+    Attributes:
+        flat_index: (N,) ascending flat indices in the level of the peaks of at
+            least the bound.
+        values: (N,) their responses.
+        neighbours: (N, 4) float32 responses of the pixels left, right, above and
+            below each.
+        unexamined: the strip's pixels above the threshold but below the bound.
+        response: the strip's own rows of response, where kept (a sampled strip's,
+            to count them again); None: dropped, so that the next strip reuses the
+            memory while it is in the cache.
+    """
+
+    flat_index: NDArray[np.intp]
+    values: NDArray[np.float32]
+    neighbours: NDArray[np.float32]
+    unexamined: int
+    response: NDArray[np.float32] | None
+
+    def above(self, bound: float, threshold: float | NDArray[np.float32]) -> _Strip:
+        """These peaks of at least ``bound`` (the response kept); ``threshold`` the strip's."""
+        strong = self.values >= bound
+        return _Strip(
+            self.flat_index[strong],
+            self.values[strong],
+            self.neighbours[strong],
+            _unexamined(cast("NDArray[np.float32]", self.response), threshold, bound),
+            None,
+        )
+
+
+def _strip_peaks(
+    image: NDArray[Any],
+    start: int,
+    threshold: float | NDArray[np.float32],
+    bound: float,
+    keep_response: bool = False,
+) -> _Strip:
+    """The saddle response of a strip of ``image`` from row ``start``, and its peaks.
+
+    Args:
+        image: (H, W) image.
+        start: the strip's first row.
+        threshold: the squared saddle strength a peak exceeds; or an (H, 1) column.
+        bound: only the peaks of at least this response are wanted (0: all).
+        keep_response: keep the strip's response in the result.
+    """
+    height, width = image.shape
+    stop = min(start + _STRIP_ROWS, height)
+    first, last = max(start - _STRIP_HALO_ROWS, 0), min(stop + _STRIP_HALO_ROWS, height)
+    strip = saddle_response(image[first:last])
+    # The strip's response with one row either side (none at the image's edges).
+    above, below = max(start - 1, 0), min(stop + 1, height)
+    rows = threshold if np.ndim(threshold) == 0 else threshold[above:below]  # type: ignore[index]
+    local, value = _local_maxima(strip[above - first : below - first], _limit(rows, bound))
+    # The neighbours the peaks' sub-pixel refinement reads, while the strip is at hand.
+    flat = strip[above - first :].reshape(-1)
+    neighbours = np.stack(
+        [flat[local - 1], flat[local + 1], flat[local - width], flat[local + width]], axis=1
+    )
+    own = threshold if np.ndim(threshold) == 0 else threshold[start:stop]  # type: ignore[index]
+    response = strip[start - first : stop - first]
+    return _Strip(
+        local + above * width,
+        value,
+        neighbours,
+        _unexamined(response, own, bound),
+        response.copy() if keep_response else None,
+    )
+
+
+#: Every how many-th strip of a level is searched for all its peaks first when only
+#: its strongest are wanted (:func:`saddle_peaks`): their responses set the bound.
+_SAMPLE_STRIP_STRIDE = 8
+#: The bound is the response of the peak this many times the wanted share down the
+#: sample's ranks: a sample richer in strong peaks than the level still leaves
+#: enough above it.
+_SAMPLE_RANK_MARGIN = 1.5
+
+
+class SaddlePeaks(NamedTuple):
+    """What :func:`saddle_peaks` finds on one image.
+
+    Attributes:
+        shape: (H, W) of the image.
+        flat_index: (N,) ascending flat indices of the peaks listed.
+        values: (N,) their responses.
+        neighbours: (N, 4) float32 responses of the pixels left, right, above and
+            below each.
+        bound: every peak of at least this response is listed (0: every peak).
+        unexamined: pixels above the threshold but below the bound, never
+            compared with their neighbours.
+    """
+
+    shape: tuple[int, int]
+    flat_index: NDArray[np.intp]
+    values: NDArray[np.float32]
+    neighbours: NDArray[np.float32]
+    bound: float
+    unexamined: int
+
+
 def saddle_peaks(
-    image: NDArray[Any], threshold: float | NDArray[np.float32]
-) -> tuple[NDArray[np.float32], NDArray[np.intp], NDArray[np.float32]]:
+    image: NDArray[Any],
+    threshold: float | NDArray[np.float32],
+    *,
+    strongest: int | None = None,
+    at_least: float = 0.0,
+) -> SaddlePeaks:
     """The saddle response of ``image`` and its 3x3 maxima above ``threshold``.
 
     Equal to :func:`saddle_response` and :func:`_local_maxima` over the whole
     image, found strip by strip: each strip is filtered with the rows its
     kernels reach beyond it, so no strip edge is treated as an image border.
 
+    Where only the strongest peaks are wanted, every eighth strip is searched
+    first; the response of the peak ranked 1.5 ``strongest`` / 8 among theirs
+    becomes the bound, and the other strips are searched above it alone: a pixel
+    below it is not compared with its neighbours (on busy ground most pixels
+    above the threshold are). Every peak of at least the bound is listed, so the
+    strongest are among them however the sample ranks them.
+
     Args:
         image: (H, W) uint8, uint16 or float32 image.
         threshold: the smallest squared saddle strength of a peak, exclusive; or
             (H,) one per row.
+        strongest: how many of the strongest peaks are wanted (about 1.5 times as
+            many are listed); None: all.
+        at_least: only peaks of at least this response are wanted.
 
     Returns:
-        ((H, W) float32 response, (N,) ascending flat indices of its peaks, (N,)
-        their responses: the peaks' values are read while the strip is at hand).
+        :class:`SaddlePeaks` (the response itself is not kept: the refinement of
+        the peaks reads their neighbours alone, and a level's worth of it costs
+        a write of 32 MiB on 8 MP).
     """
     height, width = image.shape
-    response = np.empty((height, width), np.float32)
-    per_row = None if np.ndim(threshold) == 0 else np.reshape(threshold, (-1, 1)).astype(np.float32)
-    peaks, values = [], []
-    for start in range(0, height, _STRIP_ROWS):
-        stop = min(start + _STRIP_ROWS, height)
-        first, last = max(start - _STRIP_HALO_ROWS, 0), min(stop + _STRIP_HALO_ROWS, height)
-        strip = saddle_response(image[first:last])
-        response[start:stop] = strip[start - first : stop - first]
-        # The strip's response with one row either side (none at the image's edges).
-        above, below = max(start - 1, 0), min(stop + 1, height)
-        limit: float | NDArray[np.float32] = cast(float, threshold)
-        if per_row is not None:
-            rows = per_row[above:below]
-            # A strip of one bound (in the open, or evenly dark) compares with a scalar.
-            limit = float(rows[0, 0]) if rows.min() == rows.max() else rows
-        local, value = _local_maxima(strip[above - first : below - first], limit)
-        peaks.append(local + above * width)
-        values.append(value)
-    return (
-        response,
-        cast("NDArray[np.intp]", np.concatenate([np.zeros(0, np.intp), *peaks])),
-        cast("NDArray[np.float32]", np.concatenate([np.zeros(0, np.float32), *values])),
+    if np.ndim(threshold):
+        threshold = np.reshape(threshold, (-1, 1)).astype(np.float32)
+    starts = range(0, height, _STRIP_ROWS)
+    found = {}
+    bound = at_least
+    if strongest is not None:
+        sampled = starts[::_SAMPLE_STRIP_STRIDE]
+        found = {start: _strip_peaks(image, start, threshold, bound, True) for start in sampled}
+        values = np.concatenate([np.zeros(0, np.float32), *(found[s].values for s in sampled)])
+        rank = int(_SAMPLE_RANK_MARGIN * strongest * len(sampled) / len(starts))
+        if len(values) > rank:
+            bound = max(bound, float(np.partition(values, len(values) - rank)[len(values) - rank]))
+            for start in sampled:
+                rows = slice(start, min(start + _STRIP_ROWS, height))
+                own = threshold if np.ndim(threshold) == 0 else threshold[rows]  # type: ignore[index]
+                found[start] = found[start].above(bound, own)
+    strips = [
+        found[start] if start in found else _strip_peaks(image, start, threshold, bound)
+        for start in starts
+    ]
+    return SaddlePeaks(
+        (height, width),
+        np.concatenate([np.zeros(0, np.intp), *(strip.flat_index for strip in strips)]),
+        np.concatenate([np.zeros(0, np.float32), *(strip.values for strip in strips)]),
+        np.concatenate([np.zeros((0, 4), np.float32), *(strip.neighbours for strip in strips)]),
+        bound,
+        sum(strip.unexamined for strip in strips),
     )
 
 
@@ -454,18 +608,22 @@ class _LevelPeaks(NamedTuple):
     """The 3x3 maxima of one pyramid level's saddle response, before they are refined.
 
     Attributes:
-        response: (h, w) float32 response of the level (or of its window).
-        flat_index: (N,) flat indices of the peaks in ``response``, ascending.
+        shape: (h, w) of the level (or of its window).
+        flat_index: (N,) flat indices of the peaks listed, ascending.
         values: (N,) their responses.
+        neighbours: (N, 4) float32 responses left, right, above and below each.
+        bound: every peak of at least this response is listed (0: every peak).
         level: pyramid level L.
         offset: (u0, v0) level pixel of ``response``'s pixel (0, 0).
         expected: the response's square root for an X of the smallest contrast.
         scale_px: ``scale_px`` of the level's candidates.
     """
 
-    response: NDArray[np.float32]
+    shape: tuple[int, int]
     flat_index: NDArray[np.intp]
     values: NDArray[np.float32]
+    neighbours: NDArray[np.float32]
+    bound: float
     level: int
     offset: tuple[int, int]
     expected: float
@@ -480,7 +638,7 @@ class _LevelPeaks(NamedTuple):
         peaks alone are looked at: their runs of rows are runs of the ascending
         flat indices.
         """
-        width = self.response.shape[1]
+        width = self.shape[1]
         bounds = np.flatnonzero(np.diff(dark_rows, prepend=False, append=False)) * width
         first, end = np.searchsorted(self.flat_index, bounds).reshape(-1, 2).T
         runs = np.zeros(len(self.flat_index) + 1, np.int64)
@@ -491,18 +649,22 @@ class _LevelPeaks(NamedTuple):
         gain = shadow.at(self.pixel_xy(self.flat_index[weak]))
         keep = np.ones(len(self.flat_index), dtype=bool)
         keep[weak] = self.values[weak] > (threshold / gain) ** 2
-        return self._replace(flat_index=self.flat_index[keep], values=self.values[keep])
+        return self._replace(
+            flat_index=self.flat_index[keep],
+            values=self.values[keep],
+            neighbours=self.neighbours[keep],
+        )
 
     def capped_count(self, cap: CellCap) -> int:
         """How many of the peaks ``cap`` keeps in the cells of their pixels."""
-        height, width = self.response.shape
+        height, width = self.shape
         grid_xy = self._to_frame(np.arange(max(height, width)), np.arange(max(height, width)))
         rows, cols = np.divmod(self.flat_index, width)
         return cap.kept_count((grid_xy[:width, 0], grid_xy[:height, 1]), cols, rows)
 
     def pixel_xy(self, index: NDArray[np.intp] | None = None) -> NDArray[np.float64]:
         """(N, 2) full-resolution position of the pixels of the peaks ``index`` (all: None)."""
-        rows, cols = np.divmod(self.flat_index if index is None else index, self.response.shape[1])
+        rows, cols = np.divmod(self.flat_index if index is None else index, self.shape[1])
         return self._to_frame(cols, rows)
 
     def _to_frame(
@@ -520,20 +682,20 @@ class _LevelPeaks(NamedTuple):
             (np.stack([cols + u0 + dx, rows + v0 + dy], axis=1) + 0.5) * 2**self.level - 0.5,
         )
 
-    def refined(self, index: NDArray[np.intp] | None) -> Candidates:
-        """Candidates at the peaks ``index`` (all: None), refined by a parabola per axis."""
-        peak = self.flat_index if index is None else index
-        flat = self.response.reshape(-1)
-        width = self.response.shape[1]
-        rows, cols = np.divmod(peak, width)
-        centre = flat[peak]
-        dx = parabolic_offset(flat[peak - 1], centre, flat[peak + 1])
-        dy = parabolic_offset(flat[peak - width], centre, flat[peak + width])
+    def refined(self, chosen: NDArray[np.intp] | None) -> Candidates:
+        """Candidates at the listed peaks ``chosen`` (all: None), refined by parabolas."""
+        every = slice(None)
+        peak = self.flat_index[every if chosen is None else chosen]
+        centre = self.values[every if chosen is None else chosen]
+        left, right, up, down = self.neighbours[every if chosen is None else chosen].T
+        rows, cols = np.divmod(peak, self.shape[1])
+        dx = parabolic_offset(left, centre, right)
+        dy = parabolic_offset(up, centre, down)
         xy = self._to_frame(cols, rows, dx, dy)
         strength = np.sqrt(centre.astype(np.float64)) / self.expected
         return Candidates(xy, strength, np.full(len(peak), self.scale_px))
 
-    def over_floor(self, cap: CellCap, floor: float) -> tuple[Candidates, float]:
+    def over_floor(self, cap: CellCap, floor: float) -> tuple[Candidates, float] | None:
         """The peaks ``cap`` keeps in their cells, refined, at or above the floor.
 
         The floor rises to :meth:`CellCap.floor` of this level's capped peaks.
@@ -549,29 +711,33 @@ class _LevelPeaks(NamedTuple):
             floor: the floor the previous levels set (0: none).
 
         Returns:
-            (the candidates, the new floor).
+            (the candidates, the new floor); None where peaks weaker than those
+            listed decide (the cell cap cut most of the strongest).
         """
         values = self.values
         total = cap.max_total
         bounds = []
         if total is not None:
-            known = floor * self.expected
-            lowest = known * known * (1.0 - _FLOOR_BOUND_MARGIN)
-            search = int(_FLOOR_SEARCH_SHARE * total)
+            lowest = _floor_bound(floor, self.expected)
+            search = _floor_search(total)
             if 0 < search < np.count_nonzero(values >= lowest):
-                # Any bound will do (all peaks decide where it is too high): that of a
-                # regular sample of the peaks costs a fraction of an exact rank.
+                # Any bound at which every peak is listed will do (all peaks decide
+                # where it is too high): that of a regular sample of the peaks costs a
+                # fraction of an exact rank.
                 sample = values[::_FLOOR_SAMPLE_STRIDE]
                 rank = max(len(sample) - search // _FLOOR_SAMPLE_STRIDE, 0)
-                strongest = float(np.partition(sample, rank)[rank])
+                strongest = max(float(np.partition(sample, rank)[rank]), self.bound)
                 if strongest > lowest:
                     bounds.append(strongest)
             if floor > 0:
                 bounds.append(lowest)
         for bound in bounds:
+            if bound < self.bound:
+                return None
             above = np.flatnonzero(values >= bound)
-            peak = self.flat_index[above]
-            found = self.refined(peak[cap.keep(self.pixel_xy(peak), values[above])])
+            found = self.refined(
+                above[cap.keep(self.pixel_xy(self.flat_index[above]), values[above])]
+            )
             kept = cap.kept_strengths(found)
             if len(kept) > cast("int", total):
                 rank = len(kept) - cast("int", total)
@@ -581,9 +747,55 @@ class _LevelPeaks(NamedTuple):
                 # unless the cap keeps no more than these: only all peaks tell.
                 continue
             return found.take(found.strength >= floor), floor
-        found = self.refined(self.flat_index[cap.keep(self.pixel_xy(), values)])
+        if self.bound > 0:
+            return None
+        found = self.refined(np.flatnonzero(cap.keep(self.pixel_xy(), values)))
         floor = max(floor, cap.floor(found))
         return found.take(found.strength >= floor), floor
+
+
+def _floor_bound(floor: float, expected: float) -> float:
+    """The squared response of a peak of relative strength ``floor``, less the margin."""
+    known = floor * expected
+    return known * known * (1.0 - _FLOOR_BOUND_MARGIN)
+
+
+def _floor_search(max_total: int) -> int:
+    """How many of a level's strongest peaks its floor is sought among first."""
+    return int(_FLOOR_SEARCH_SHARE * max_total)
+
+
+def _level_peaks(
+    image: NDArray[Any],
+    threshold: float | NDArray[np.float32],
+    level: _LevelPeaks,
+    in_shadow: tuple[float, ShadowGain, NDArray[np.bool_]] | None,
+    strongest: int | None,
+    at_least: float,
+) -> tuple[_LevelPeaks, int]:
+    """A level's peaks (:func:`saddle_peaks`) and its pixels left unexamined.
+
+    Args:
+        image: the level's image (or its window).
+        threshold: the squared response a peak exceeds, or (h,) one per row.
+        level: the level's description, its peaks to be filled in.
+        in_shadow: (the threshold in the open, the shadow gain, (h,) the rows
+            where it is lowered), or None: none is.
+        strongest: how many of the strongest peaks are wanted (None: all).
+        at_least: only peaks of at least this response are wanted.
+    """
+    found = saddle_peaks(image, threshold, strongest=strongest, at_least=at_least)
+    peaks = level._replace(
+        shape=found.shape,
+        flat_index=found.flat_index,
+        values=found.values,
+        neighbours=found.neighbours,
+        bound=found.bound,
+    )
+    if in_shadow is not None and found.bound <= in_shadow[0] ** 2:
+        # Peaks listed above the unlowered threshold need no look at their shadow.
+        peaks = peaks.lit_or_in_shadow(*in_shadow)
+    return peaks, found.unexamined
 
 
 def saddle_candidates(
@@ -631,8 +843,10 @@ def saddle_candidates(
             are left out as soon as a level sets one: the two caps that follow
             keep the same points.
         tally: where the caps' cuts are counted, if given: ``"cut_in_cells"``
-            (peaks beyond a cell's ``max_per_cell`` at their level) and
-            ``"cut_below_floor"`` (candidates below the floor) are added to.
+            (peaks beyond a cell's ``max_per_cell`` at their level),
+            ``"cut_below_floor"`` (candidates below the floor) and
+            ``"unexamined"`` (pixels above the threshold that the floor's bound
+            spared the look for peaks, :func:`saddle_peaks`) are added to.
             Split-peak midpoints are formed from the peaks kept only.
         shadow: if given, under dark surroundings the threshold is divided by
             this gain, so that ``min_contrast`` holds after Eq. (2) as in the
@@ -646,7 +860,7 @@ def saddle_candidates(
     levels = saddle_levels(radius_range_px)
     parts = []
     floor = 0.0
-    cut_in_cells = cut_below_floor = 0
+    cut_in_cells = cut_below_floor = unexamined = 0
     level_image = image
     for level in range(levels.stop):
         if level > 0:
@@ -676,24 +890,43 @@ def saddle_candidates(
             if dark_rows.any():
                 # float32 as the response: lit rows keep exactly the scalar's bound.
                 squared = np.float32(threshold**2) / (gain * gain).astype(np.float32)
-        peaks = _LevelPeaks(
-            *saddle_peaks(level_image[v0:v1, u0:u1], squared),
-            level,
-            (u0, v0),
-            expected,
-            candidate_scale(level, radius_range_px),
+        level_peaks = functools.partial(
+            _level_peaks,
+            level_image[v0:v1, u0:u1],
+            squared,
+            _LevelPeaks(
+                (0, 0),
+                np.zeros(0, np.intp),
+                np.zeros(0, np.float32),
+                np.zeros((0, 4), np.float32),
+                0.0,
+                level,
+                (u0, v0),
+                expected,
+                candidate_scale(level, radius_range_px),
+            ),
+            None
+            if shadow is None or dark_rows is None or not dark_rows.any()
+            else (threshold, shadow, dark_rows),
         )
-        if shadow is not None and dark_rows is not None and dark_rows.any():
-            peaks = peaks.lit_or_in_shadow(threshold, shadow, dark_rows)
         if cell_cap is None:
+            peaks, _ = level_peaks(None, 0.0)
             found = peaks.refined(None)
         else:
+            # Only the strongest peaks are looked for: on busy ground the first level
+            # alone fills the frame's cap, and what is weaker cannot pass it, nor the
+            # midpoints of pairs it belongs to.
+            wanted = None if cell_cap.max_total is None else _floor_search(cell_cap.max_total)
+            peaks, left = level_peaks(wanted, _floor_bound(floor, expected))
+            result = peaks.over_floor(cell_cap, floor)
+            if result is None:
+                peaks, left = level_peaks(None, 0.0)
+                result = cast("tuple[Candidates, float]", peaks.over_floor(cell_cap, floor))
+            unexamined += left
             # Before any arithmetic per peak, the cells of the peaks' pixels.
             capped = peaks.capped_count(cell_cap)
             cut_in_cells += len(peaks.flat_index) - capped
-            # On busy ground the first level alone fills the frame's cap: what is
-            # weaker cannot pass it, nor the midpoints of pairs it belongs to.
-            found, floor = peaks.over_floor(cell_cap, floor)
+            found, floor = result
             cut_below_floor += capped - len(found)
         parts.append(found)
         if level == levels.start:
@@ -704,6 +937,7 @@ def saddle_candidates(
     strong = found.strength >= floor
     if tally is not None:
         tally["cut_in_cells"] = tally.get("cut_in_cells", 0) + cut_in_cells
+        tally["unexamined"] = tally.get("unexamined", 0) + unexamined
         tally["cut_below_floor"] = (
             tally.get("cut_below_floor", 0) + cut_below_floor + len(found) - int(strong.sum())
         )

@@ -294,13 +294,36 @@ def test_the_response_and_peaks_found_strip_by_strip_are_those_of_the_whole_imag
     noise = np.random.default_rng(4).normal(128, 40, (height + 7, 101))
     # A crop, as a window is: no strip edge may act as the image's border.
     image = np.clip(noise, 0, 255).astype(np.uint8)[3 : height + 3, 5:]
-    response, peaks, values = screening.saddle_peaks(image, threshold)
+    found = screening.saddle_peaks(image, threshold)
     whole = screening.saddle_response(image)
-    np.testing.assert_array_equal(response, whole)
     whole_peaks, whole_values = screening._local_maxima(whole, threshold)
-    np.testing.assert_array_equal(peaks, whole_peaks)
-    np.testing.assert_array_equal(values, whole_values)
-    assert len(peaks) > 0
+    np.testing.assert_array_equal(found.flat_index, whole_peaks)
+    np.testing.assert_array_equal(found.values, whole_values)
+    np.testing.assert_array_equal(found.neighbours, _neighbours(whole, whole_peaks))
+    assert len(whole_peaks) > 0 and found.bound == 0 and found.unexamined == 0
+
+
+def _neighbours(response, peaks):
+    """(N, 4) the responses left, right, above and below each peak."""
+    flat, width = response.reshape(-1), response.shape[1]
+    return np.stack([flat[peaks + step] for step in (-1, 1, -width, width)], axis=1)
+
+
+@pytest.mark.parametrize("at_least", [0.0, 300.0**2])
+def test_the_strongest_peaks_are_every_peak_of_at_least_the_bound_the_rest_counted_as_pixels(
+    at_least,
+):
+    image = np.clip(np.random.default_rng(6).normal(128, 40, (700, 300)), 0, 255).astype(np.uint8)
+    threshold = 40.0**2
+    found = screening.saddle_peaks(image, threshold, strongest=500, at_least=at_least)
+    whole = screening.saddle_response(image)
+    every, values = screening._local_maxima(whole, threshold)
+    strong = values >= found.bound
+    assert found.bound >= at_least and 500 <= len(found.flat_index) < 0.5 * len(every)
+    np.testing.assert_array_equal(found.flat_index, every[strong])
+    np.testing.assert_array_equal(found.values, values[strong])
+    np.testing.assert_array_equal(found.neighbours, _neighbours(whole, every[strong]))
+    assert found.unexamined == np.count_nonzero((whole > threshold) & (whole < found.bound))
 
 
 def test_sort_keys_order_points_by_cell_then_strongest_first_whatever_the_sign():
@@ -383,21 +406,35 @@ def test_a_levels_floor_found_from_its_strongest_peaks_is_that_of_capping_all_of
 ):
     """The search among the strongest peaks first gives what capping, refining and
     flooring every peak gives, whether the floor lies among them, above the earlier
-    levels' floor or nowhere."""
+    levels' floor or nowhere; where peaks weaker than those listed would decide, it
+    says so."""
     image = np.clip(np.random.default_rng(8).normal(128, 40, (256, 320)), 0, 255)
     response = screening.saddle_response(image.astype(np.uint8))
     expected = 20.0
+    level = (0, (3, 5), expected, 3.0)
+    index, values = screening._local_maxima(response, 40.0**2)
     peaks = screening._LevelPeaks(
-        response, *screening._local_maxima(response, 40.0**2), 0, (3, 5), expected, 3.0
+        response.shape, index, values, _neighbours(response, index), 0.0, *level
     )
     cap = screening.CellCap(64, 48, max_total, (16.0, 0.0))
-    values = peaks.values
-    every = peaks.refined(peaks.flat_index[cap.keep(peaks.pixel_xy(), values)])
+    every = peaks.refined(np.flatnonzero(cap.keep(peaks.pixel_xy(), peaks.values)))
     floor = max(earlier_floor, cap.floor(every))
     found, new_floor = peaks.over_floor(cap, earlier_floor)
     assert new_floor == floor
     np.testing.assert_array_equal(found.xy, every.take(every.strength >= floor).xy)
     assert peaks.capped_count(cap) == len(every)
+    if max_total is not None:
+        search = screening._floor_search(max_total)
+        listed = screening.saddle_peaks(
+            image.astype(np.uint8),
+            40.0**2,
+            strongest=search,
+            at_least=screening._floor_bound(earlier_floor, expected),
+        )
+        strongest = screening._LevelPeaks(*listed[:5], *level).over_floor(cap, earlier_floor)
+        if strongest is not None:
+            np.testing.assert_array_equal(strongest[0].xy, found.xy)
+            assert strongest[1] == new_floor
 
 
 def test_the_even_cap_keeps_every_cells_strongest_before_a_crowded_cells_next():
