@@ -608,22 +608,14 @@ class _LevelPeaks(NamedTuple):
     """The 3x3 maxima of one pyramid level's saddle response, before they are refined.
 
     Attributes:
-        shape: (h, w) of the level (or of its window).
-        flat_index: (N,) flat indices of the peaks listed, ascending.
-        values: (N,) their responses.
-        neighbours: (N, 4) float32 responses left, right, above and below each.
-        bound: every peak of at least this response is listed (0: every peak).
+        peaks: the peaks listed on the level (or on its window).
         level: pyramid level L.
-        offset: (u0, v0) level pixel of ``response``'s pixel (0, 0).
+        offset: (u0, v0) level pixel of the window's pixel (0, 0).
         expected: the response's square root for an X of the smallest contrast.
         scale_px: ``scale_px`` of the level's candidates.
     """
 
-    shape: tuple[int, int]
-    flat_index: NDArray[np.intp]
-    values: NDArray[np.float32]
-    neighbours: NDArray[np.float32]
-    bound: float
+    peaks: SaddlePeaks
     level: int
     offset: tuple[int, int]
     expected: float
@@ -638,33 +630,38 @@ class _LevelPeaks(NamedTuple):
         peaks alone are looked at: their runs of rows are runs of the ascending
         flat indices.
         """
-        width = self.shape[1]
+        width = self.peaks.shape[1]
         bounds = np.flatnonzero(np.diff(dark_rows, prepend=False, append=False)) * width
-        first, end = np.searchsorted(self.flat_index, bounds).reshape(-1, 2).T
-        runs = np.zeros(len(self.flat_index) + 1, np.int64)
+        first, end = np.searchsorted(self.peaks.flat_index, bounds).reshape(-1, 2).T
+        runs = np.zeros(len(self.peaks.flat_index) + 1, np.int64)
         np.add.at(runs, first, 1)
         np.add.at(runs, end, -1)
         in_dark = np.flatnonzero(np.cumsum(runs[:-1]) > 0)
-        weak = in_dark[self.values[in_dark] <= threshold * threshold]
-        gain = shadow.at(self.pixel_xy(self.flat_index[weak]))
-        keep = np.ones(len(self.flat_index), dtype=bool)
-        keep[weak] = self.values[weak] > (threshold / gain) ** 2
+        weak = in_dark[self.peaks.values[in_dark] <= threshold * threshold]
+        gain = shadow.at(self.pixel_xy(self.peaks.flat_index[weak]))
+        keep = np.ones(len(self.peaks.flat_index), dtype=bool)
+        keep[weak] = self.peaks.values[weak] > (threshold / gain) ** 2
+        peaks = self.peaks
         return self._replace(
-            flat_index=self.flat_index[keep],
-            values=self.values[keep],
-            neighbours=self.neighbours[keep],
+            peaks=peaks._replace(
+                flat_index=peaks.flat_index[keep],
+                values=peaks.values[keep],
+                neighbours=peaks.neighbours[keep],
+            )
         )
 
     def capped_count(self, cap: CellCap) -> int:
         """How many of the peaks ``cap`` keeps in the cells of their pixels."""
-        height, width = self.shape
+        height, width = self.peaks.shape
         grid_xy = self._to_frame(np.arange(max(height, width)), np.arange(max(height, width)))
-        rows, cols = np.divmod(self.flat_index, width)
+        rows, cols = np.divmod(self.peaks.flat_index, width)
         return cap.kept_count((grid_xy[:width, 0], grid_xy[:height, 1]), cols, rows)
 
     def pixel_xy(self, index: NDArray[np.intp] | None = None) -> NDArray[np.float64]:
         """(N, 2) full-resolution position of the pixels of the peaks ``index`` (all: None)."""
-        rows, cols = np.divmod(self.flat_index if index is None else index, self.shape[1])
+        rows, cols = np.divmod(
+            self.peaks.flat_index if index is None else index, self.peaks.shape[1]
+        )
         return self._to_frame(cols, rows)
 
     def _to_frame(
@@ -685,10 +682,10 @@ class _LevelPeaks(NamedTuple):
     def refined(self, chosen: NDArray[np.intp] | None) -> Candidates:
         """Candidates at the listed peaks ``chosen`` (all: None), refined by parabolas."""
         every = slice(None)
-        peak = self.flat_index[every if chosen is None else chosen]
-        centre = self.values[every if chosen is None else chosen]
-        left, right, up, down = self.neighbours[every if chosen is None else chosen].T
-        rows, cols = np.divmod(peak, self.shape[1])
+        peak = self.peaks.flat_index[every if chosen is None else chosen]
+        centre = self.peaks.values[every if chosen is None else chosen]
+        left, right, up, down = self.peaks.neighbours[every if chosen is None else chosen].T
+        rows, cols = np.divmod(peak, self.peaks.shape[1])
         dx = parabolic_offset(left, centre, right)
         dy = parabolic_offset(up, centre, down)
         xy = self._to_frame(cols, rows, dx, dy)
@@ -714,7 +711,7 @@ class _LevelPeaks(NamedTuple):
             (the candidates, the new floor); None where peaks weaker than those
             listed decide (the cell cap cut most of the strongest).
         """
-        values = self.values
+        values = self.peaks.values
         total = cap.max_total
         bounds = []
         if total is not None:
@@ -726,17 +723,17 @@ class _LevelPeaks(NamedTuple):
                 # fraction of an exact rank.
                 sample = values[::_FLOOR_SAMPLE_STRIDE]
                 rank = max(len(sample) - search // _FLOOR_SAMPLE_STRIDE, 0)
-                strongest = max(float(np.partition(sample, rank)[rank]), self.bound)
+                strongest = max(float(np.partition(sample, rank)[rank]), self.peaks.bound)
                 if strongest > lowest:
                     bounds.append(strongest)
             if floor > 0:
                 bounds.append(lowest)
         for bound in bounds:
-            if bound < self.bound:
+            if bound < self.peaks.bound:
                 return None
             above = np.flatnonzero(values >= bound)
             found = self.refined(
-                above[cap.keep(self.pixel_xy(self.flat_index[above]), values[above])]
+                above[cap.keep(self.pixel_xy(self.peaks.flat_index[above]), values[above])]
             )
             kept = cap.kept_strengths(found)
             if len(kept) > cast("int", total):
@@ -747,7 +744,7 @@ class _LevelPeaks(NamedTuple):
                 # unless the cap keeps no more than these: only all peaks tell.
                 continue
             return found.take(found.strength >= floor), floor
-        if self.bound > 0:
+        if self.peaks.bound > 0:
             return None
         found = self.refined(np.flatnonzero(cap.keep(self.pixel_xy(), values)))
         floor = max(floor, cap.floor(found))
@@ -768,7 +765,7 @@ def _floor_search(max_total: int) -> int:
 def _level_peaks(
     image: NDArray[Any],
     threshold: float | NDArray[np.float32],
-    level: _LevelPeaks,
+    place: tuple[int, tuple[int, int], float, float],
     in_shadow: tuple[float, ShadowGain, NDArray[np.bool_]] | None,
     strongest: int | None,
     at_least: float,
@@ -778,20 +775,15 @@ def _level_peaks(
     Args:
         image: the level's image (or its window).
         threshold: the squared response a peak exceeds, or (h,) one per row.
-        level: the level's description, its peaks to be filled in.
+        place: the level's ``level``, ``offset``, ``expected`` and ``scale_px``
+            (:class:`_LevelPeaks`).
         in_shadow: (the threshold in the open, the shadow gain, (h,) the rows
             where it is lowered), or None: none is.
         strongest: how many of the strongest peaks are wanted (None: all).
         at_least: only peaks of at least this response are wanted.
     """
     found = saddle_peaks(image, threshold, strongest=strongest, at_least=at_least)
-    peaks = level._replace(
-        shape=found.shape,
-        flat_index=found.flat_index,
-        values=found.values,
-        neighbours=found.neighbours,
-        bound=found.bound,
-    )
+    peaks = _LevelPeaks(found, *place)
     if in_shadow is not None and found.bound <= in_shadow[0] ** 2:
         # Peaks listed above the unlowered threshold need no look at their shadow.
         peaks = peaks.lit_or_in_shadow(*in_shadow)
@@ -894,17 +886,7 @@ def saddle_candidates(
             _level_peaks,
             level_image[v0:v1, u0:u1],
             squared,
-            _LevelPeaks(
-                (0, 0),
-                np.zeros(0, np.intp),
-                np.zeros(0, np.float32),
-                np.zeros((0, 4), np.float32),
-                0.0,
-                level,
-                (u0, v0),
-                expected,
-                candidate_scale(level, radius_range_px),
-            ),
+            (level, (u0, v0), expected, candidate_scale(level, radius_range_px)),
             None
             if shadow is None or dark_rows is None or not dark_rows.any()
             else (threshold, shadow, dark_rows),
@@ -923,9 +905,9 @@ def saddle_candidates(
                 peaks, left = level_peaks(None, 0.0)
                 result = cast("tuple[Candidates, float]", peaks.over_floor(cell_cap, floor))
             unexamined += left
-            # Before any arithmetic per peak, the cells of the peaks' pixels.
+            # The listed peaks the cell cap keeps, by the cells of their pixels.
             capped = peaks.capped_count(cell_cap)
-            cut_in_cells += len(peaks.flat_index) - capped
+            cut_in_cells += len(peaks.peaks.flat_index) - capped
             found, floor = result
             cut_below_floor += capped - len(found)
         parts.append(found)

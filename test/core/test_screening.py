@@ -413,11 +413,12 @@ def test_a_levels_floor_found_from_its_strongest_peaks_is_that_of_capping_all_of
     expected = 20.0
     level = (0, (3, 5), expected, 3.0)
     index, values = screening._local_maxima(response, 40.0**2)
-    peaks = screening._LevelPeaks(
-        response.shape, index, values, _neighbours(response, index), 0.0, *level
+    every_peak = screening.SaddlePeaks(
+        response.shape, index, values, _neighbours(response, index), 0.0, 0
     )
+    peaks = screening._LevelPeaks(every_peak, *level)
     cap = screening.CellCap(64, 48, max_total, (16.0, 0.0))
-    every = peaks.refined(np.flatnonzero(cap.keep(peaks.pixel_xy(), peaks.values)))
+    every = peaks.refined(np.flatnonzero(cap.keep(peaks.pixel_xy(), values)))
     floor = max(earlier_floor, cap.floor(every))
     found, new_floor = peaks.over_floor(cap, earlier_floor)
     assert new_floor == floor
@@ -431,7 +432,7 @@ def test_a_levels_floor_found_from_its_strongest_peaks_is_that_of_capping_all_of
             strongest=search,
             at_least=screening._floor_bound(earlier_floor, expected),
         )
-        strongest = screening._LevelPeaks(*listed[:5], *level).over_floor(cap, earlier_floor)
+        strongest = screening._LevelPeaks(listed, *level).over_floor(cap, earlier_floor)
         if strongest is not None:
             np.testing.assert_array_equal(strongest[0].xy, found.xy)
             assert strongest[1] == new_floor
