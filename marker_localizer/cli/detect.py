@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from marker_localizer import config as config_module
+from marker_localizer import evaluation
 from marker_localizer.cli.exits import EXIT_ERROR, PROG
 from marker_localizer.core.pipeline import DetectionResult, Detector
 from marker_localizer.errors import ConfigError, ImageError
@@ -49,6 +50,31 @@ def result_record(
     }
 
 
+def why_record(result: DetectionResult, points: np.ndarray) -> list[dict[str, Any]]:
+    """For each point where a marker is expected: found, or the test that lost it.
+
+    A point is found where a detection lies within the benchmark's matching gate
+    (:data:`evaluation.DEFAULT_GATE_PX`); otherwise ``lost_at`` names the first test
+    after which no candidate was left near it (:func:`evaluation.tests_that_lost`).
+    """
+    found = evaluation.nearest_distances(points, result.as_array()[:, :2])
+    found = found <= evaluation.DEFAULT_GATE_PX
+    lost = iter(evaluation.tests_that_lost(result.survivors, points[~found]))
+    return [
+        {"x": float(x), "y": float(y), "found": bool(hit), "lost_at": None if hit else next(lost)}
+        for (x, y), hit in zip(points, found, strict=True)
+    ]
+
+
+def _point(text: str) -> tuple[float, float]:
+    """``X,Y`` in pixels, for ``--why``."""
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y in pixels, got {text!r}") from None
+    return x, y
+
+
 def _write_table(record: dict[str, Any]) -> None:
     print(
         f"{record['image']}: {len(record['markers'])} marker(s), "
@@ -59,6 +85,17 @@ def _write_table(record: dict[str, Any]) -> None:
             f"  x={m['x']:10.4f}  y={m['y']:10.4f}  sigma={m['sigma']:.4f} px  "
             f"score={m['score']:.3f}"
         )
+    for w in record.get("why", []):
+        if w["found"]:
+            verdict = "found"
+        elif w["lost_at"] == evaluation.ASTRAY:
+            verdict = (
+                "every test kept a candidate near it, but the detection is over "
+                f"{evaluation.DEFAULT_GATE_PX:g} px away"
+            )
+        else:
+            verdict = f"lost at the {w['lost_at']} test"
+        print(f"  expected at ({w['x']:g}, {w['y']:g}): {verdict}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -86,6 +123,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="write annotated PNGs into DIR as <name>_markers.png (a name already used in "
         "this run gets _2, _3, ... in command-line order)",
     )
+    parser.add_argument(
+        "--why",
+        action="append",
+        default=[],
+        type=_point,
+        metavar="X,Y",
+        help="a marker expected at X,Y (px): found, or the first test after which no "
+        f"candidate was left within {evaluation.LOSS_RADIUS_PX:g} px of it (repeatable; "
+        "every test on the default path, the screening and prescreen on the others)",
+    )
     return parser
 
 
@@ -110,6 +157,8 @@ def main(argv: Sequence[str]) -> int:
             print(f"{PROG}: error: {err}", file=sys.stderr)
             continue
         record = result_record(path, image, result, elapsed_ms)
+        if args.why:
+            record["why"] = why_record(result, np.array(args.why, dtype=np.float64))
         if args.json:
             print(json.dumps(record), flush=True)
         else:

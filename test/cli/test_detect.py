@@ -115,3 +115,24 @@ def test_an_overlay_folder_that_cannot_be_made_is_one_line(x_image, tmp_path, ca
     captured = capsys.readouterr()
     assert captured.err.startswith(f"marker-localizer: error: --overlay {folder}: cannot create")
     assert len(captured.err.strip().splitlines()) == 1 and "Traceback" not in captured.err
+
+
+def test_why_says_a_marker_was_found_or_which_test_lost_it(x_image, capsys):
+    path, _ = x_image
+    args = ["detect", str(path), "--why", "31.5,31.5", "--why", "5,58", "--json"]
+    assert main(args) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["why"] == [
+        {"x": 31.5, "y": 31.5, "found": True, "lost_at": None},
+        {"x": 5.0, "y": 58.0, "found": False, "lost_at": "screening"},
+    ]
+    assert main(["detect", str(path), "--why", "5,58"]) == 0
+    assert "expected at (5, 58): lost at the screening test" in capsys.readouterr().out
+
+
+def test_why_with_a_malformed_point_is_a_usage_error(x_image, capsys):
+    path, _ = x_image
+    with pytest.raises(SystemExit) as exit_info:
+        main(["detect", str(path), "--why", "1,2,3"])
+    assert exit_info.value.code == 2
+    assert "--why: expected X,Y in pixels, got '1,2,3'" in capsys.readouterr().err
