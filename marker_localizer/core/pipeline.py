@@ -82,9 +82,9 @@ SURVIVOR_TESTS = (
     "modulation",
     "floor",
     "cap",
-    "lines",
     "fit",
     "floor",
+    "lines",
     "merging",
 )
 #: Candidates centred closer than this to a stronger one have found its X, px.
@@ -499,6 +499,7 @@ class Detector:
                 result,
                 full_scale,
                 gamma,
+                check_lines=self.config.refinement == "symmetry",
             )
         counts["accepted"] = len(result.detections)
         return result
@@ -1030,24 +1031,54 @@ class Detector:
             symmetry.line_angles[chosen],
             symmetry.score[chosen] * ncc,
         )
-        if cfg.line_check and len(candidates):
+        if cfg.refinement != "symmetry":
+            # The NCC location reads the line directions the double-line check refines;
+            # the point-symmetry fit does not, and checks its own survivors (_locate).
+            ok, angles = self._double_lines(
+                gray, full_scale, gamma, candidates.xy, radius, angles, result
+            )
+            candidates, radius, angles, score = (
+                candidates.take(ok),
+                radius[ok],
+                angles[ok],
+                score[ok],
+            )
+        return candidates, radius, angles, score
+
+    def _double_lines(
+        self,
+        gray: NDArray[Any],
+        full_scale: float,
+        gamma: preprocessing.LocalGamma,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        result: DetectionResult,
+    ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+        """The double-line check (Eq. 9) where ``line_check`` asks for it.
+
+        Returns:
+            (N,) which points pass, and (N, 2) their line directions, refined by the
+            lines' where both agree (:func:`verification.agreed_line_angles`).
+        """
+        cfg = self.config
+        ok: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
+        if cfg.line_check and len(xy):
             lines = verification.double_line_check(
                 gray,
-                candidates.xy,
+                xy,
                 radius,
                 extend_px=cfg.line_extend_px,
                 max_distance_px=max(cfg.line_max_distance_px, 0.0),
                 full_scale=full_scale,
-                stretch=self._shadow_gain_at(gamma, candidates.xy),
+                stretch=self._shadow_gain_at(gamma, xy),
             )
-            counts["rejected_lines"] = int((~lines.accepted).sum())
             ok = lines.accepted
-            candidates, radius, score = candidates.take(ok), radius[ok], score[ok]
-            angles = verification.agreed_line_angles(lines.line_angles[ok], angles[ok])
-        else:
-            counts["rejected_lines"] = 0
-        result.survivors.append(("lines", candidates.xy))
-        return candidates, radius, angles, score
+            angles = angles.copy()
+            angles[ok] = verification.agreed_line_angles(lines.line_angles[ok], angles[ok])
+        result.counts["rejected_lines"] = int((~ok).sum())
+        result.survivors.append(("lines", xy[ok]))
+        return ok, angles
 
     def _match_templates(
         self,
@@ -1153,11 +1184,14 @@ class Detector:
         result: DetectionResult,
         full_scale: float,
         gamma: preprocessing.LocalGamma,
+        check_lines: bool = False,
     ) -> list[Detection]:
         """Section 3.3: sub-pixel centres and final gates (:func:`subpixel.locate_markers`).
 
-        Then the score each extent needs (:meth:`_score_floor`) and the last
-        suppression of duplicates, strongest first.
+        Then the score each extent needs (:meth:`_score_floor`), with ``check_lines``
+        the double-line check (:meth:`_double_lines`: LSD, ~0.15 ms a candidate, so
+        on the few the fit and the floor leave), and the last suppression of
+        duplicates, strongest first.
         """
         cfg = self.config
         counts = result.counts
@@ -1186,16 +1220,21 @@ class Detector:
         weak = ok & (fit.score < self._score_floor(radius))
         counts["rejected_score"] = counts.get("rejected_score", 0) + int(weak.sum())
         keep = np.flatnonzero(ok & ~weak)
+        result.survivors += [("fit", fit.xy[ok]), ("floor", fit.xy[keep])]
+        if check_lines:
+            # At the verified centres, where the checks before the fit looked.
+            straight, lined = self._double_lines(
+                gray, full_scale, gamma, xy[keep], radius[keep], angles[keep], result
+            )
+            angles = angles.copy()
+            angles[keep] = lined
+            keep = keep[straight]
         unique = screening.non_maximum_suppression(
             fit.xy[keep], fit.score[keep], self.merge_radius_px
         )
         counts["merged_duplicates"] += int((~unique).sum())
         keep = keep[unique]
-        result.survivors += [
-            ("fit", fit.xy[ok]),
-            ("floor", fit.xy[ok & ~weak]),
-            ("merging", fit.xy[keep]),
-        ]
+        result.survivors.append(("merging", fit.xy[keep]))
         keep = keep[np.argsort(-fit.score[keep])]
         position, sigma = fit.xy[keep], fit.sigma[keep]
         if cfg.refinement == "symmetry":
