@@ -57,8 +57,8 @@ def why_record(result: DetectionResult, points: np.ndarray) -> list[dict[str, An
     (:data:`evaluation.DEFAULT_GATE_PX`); otherwise ``lost_at`` names the first test
     after which no candidate was left near it (:func:`evaluation.tests_that_lost`).
     """
-    found = evaluation.nearest_distances(points, result.as_array()[:, :2])
-    found = found <= evaluation.DEFAULT_GATE_PX
+    distance = evaluation.nearest_distances(points, result.as_array()[:, :2])
+    found = distance <= evaluation.DEFAULT_GATE_PX
     lost = iter(evaluation.tests_that_lost(result.survivors, points[~found]))
     return [
         {"x": float(x), "y": float(y), "found": bool(hit), "lost_at": None if hit else next(lost)}

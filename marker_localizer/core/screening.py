@@ -627,16 +627,9 @@ class _LevelPeaks(NamedTuple):
         """The peaks above ``threshold``, and the weaker ones above it over the shadow gain.
 
         Found with a lower threshold on the ``dark_rows`` of the response, whose
-        peaks alone are looked at: their runs of rows are runs of the ascending
-        flat indices.
+        peaks alone are looked at.
         """
-        width = self.peaks.shape[1]
-        bounds = np.flatnonzero(np.diff(dark_rows, prepend=False, append=False)) * width
-        first, end = np.searchsorted(self.peaks.flat_index, bounds).reshape(-1, 2).T
-        runs = np.zeros(len(self.peaks.flat_index) + 1, np.int64)
-        np.add.at(runs, first, 1)
-        np.add.at(runs, end, -1)
-        in_dark = np.flatnonzero(np.cumsum(runs[:-1]) > 0)
+        in_dark = np.flatnonzero(dark_rows[self.peaks.flat_index // self.peaks.shape[1]])
         weak = in_dark[self.peaks.values[in_dark] <= threshold * threshold]
         gain = shadow.at(self.pixel_xy(self.peaks.flat_index[weak]))
         keep = np.ones(len(self.peaks.flat_index), dtype=bool)
@@ -874,7 +867,7 @@ def saddle_candidates(
         threshold = relative_threshold * expected
         u0, v0, u1, v1 = _level_window(window, level, level_image.shape)
         squared: float | NDArray[np.float32] = threshold**2
-        dark_rows = None
+        in_shadow = None
         if shadow is not None:
             # Rows of the level (window) at full resolution, as _LevelPeaks maps them.
             gain = shadow.on_rows((np.arange(v0, v1) + 0.5) * 2**level - 0.5)
@@ -882,14 +875,13 @@ def saddle_candidates(
             if dark_rows.any():
                 # float32 as the response: lit rows keep exactly the scalar's bound.
                 squared = np.float32(threshold**2) / (gain * gain).astype(np.float32)
+                in_shadow = (threshold, shadow, dark_rows)
         level_peaks = functools.partial(
             _level_peaks,
             level_image[v0:v1, u0:u1],
             squared,
             (level, (u0, v0), expected, candidate_scale(level, radius_range_px)),
-            None
-            if shadow is None or dark_rows is None or not dark_rows.any()
-            else (threshold, shadow, dark_rows),
+            in_shadow,
         )
         if cell_cap is None:
             peaks, _ = level_peaks(None, 0.0)
