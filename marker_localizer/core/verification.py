@@ -204,7 +204,18 @@ class RingAnalysis(NamedTuple):
         self, min_contrast: float | NDArray[np.float64], min_symmetry: float
     ) -> NDArray[np.bool_]:
         """(N, J) True for the rings that show an X: four sectors, contrast, symmetry."""
-        return self.four_sectors & (self.contrast >= min_contrast) & (self.symmetry >= min_symmetry)
+        return _shows_x(self.four_sectors, self.contrast, self.symmetry, min_contrast, min_symmetry)
+
+
+def _shows_x(
+    four_sectors: NDArray[np.bool_],
+    contrast: NDArray[np.float64],
+    symmetry: NDArray[np.float64],
+    min_contrast: float | NDArray[np.float64],
+    min_symmetry: float,
+) -> NDArray[np.bool_]:
+    """:meth:`RingAnalysis.good` from the rings' four-sector test, contrast and symmetry."""
+    return four_sectors & (contrast >= min_contrast) & (symmetry >= min_symmetry)
 
 
 def _smoothed_contrast_symmetry(
@@ -267,26 +278,66 @@ def _sector_analysis(
     level: NDArray[np.float64],
 ) -> RingAnalysis:
     """:func:`analyse_rings` from the smoothed profiles, their contrast, symmetry and mid level."""
-    # Sector boundaries: crossings of the mid level between samples k and k+1.
+    four, boundaries = _four_crossings(f, contrast, level)
+    # Each line's direction: circular mean of a boundary and its opposite twin (mod pi),
+    # the doubled angles' unit vectors summed.
+    cos2, sin2 = np.cos(2.0 * boundaries), np.sin(2.0 * boundaries)
+    line_angles = np.zeros((*four.shape, 2))
+    line_angles[four] = (
+        np.arctan2(sin2[:, :2] + sin2[:, 2:], cos2[:, :2] + cos2[:, 2:]) / 2.0
+    ) % np.pi
+    four[four] = _opposite_pairs(boundaries)
+    return RingAnalysis(contrast, symmetry, four, line_angles)
+
+
+def _four_sectors(
+    f: NDArray[np.float64], contrast: NDArray[np.float64], level: NDArray[np.float64]
+) -> NDArray[np.bool_]:
+    """:attr:`RingAnalysis.four_sectors` alone, without the line angles."""
+    four, boundaries = _four_crossings(f, contrast, level)
+    four[four] = _opposite_pairs(boundaries)
+    return four
+
+
+def _four_crossings(
+    f: NDArray[np.float64], contrast: NDArray[np.float64], level: NDArray[np.float64]
+) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """The rings whose smoothed profile crosses its mid level four times, and where.
+
+    Returns:
+        (N, J) True for those rings, and (M, 4) the sub-sample angles of their
+        crossings (sector boundaries), radians, the M rings in order.
+    """
     above = f > level[..., None]
     crossing = above != np.roll(above, -1, axis=-1)
     four = (crossing.sum(axis=-1) == 4) & (contrast > 0)
-    # The sub-sample crossing angles (linear interpolation), of the rings with four only.
+    # The crossings lie between samples k and k+1 (linear interpolation).
     crossed = np.flatnonzero(crossing & four[..., None])
     ring, k = np.divmod(crossed, N_ANGLES)
     samples = f.reshape(-1)
     start, end = samples[crossed], samples[crossed - k + (k + 1) % N_ANGLES]
     with np.errstate(divide="ignore", invalid="ignore"):
         frac = np.clip((level.reshape(-1)[ring] - start) / (end - start), 0.0, 1.0)
-    first4 = (k + np.where(np.isnan(frac), 0.0, frac)).reshape(-1, 4) * (2 * np.pi / N_ANGLES)
-    # Boundaries i and i+2 must be opposite (180 deg apart) on a centrally symmetric X.
-    gap = np.abs(np.angle(np.exp(1j * (first4[:, 2:] - first4[:, :2] - np.pi))))
-    # Each line's direction: circular mean of a boundary and its opposite twin (mod pi).
-    doubled = np.exp(2j * first4)
-    line_angles = np.zeros((*four.shape, 2))
-    line_angles[four] = (np.angle(doubled[:, :2] + doubled[:, 2:]) / 2.0) % np.pi
-    four[four] = (gap < np.deg2rad(30.0)).all(axis=-1)
-    return RingAnalysis(contrast, symmetry, four, line_angles)
+    boundaries = (k + np.where(np.isnan(frac), 0.0, frac)).reshape(-1, 4) * (2 * np.pi / N_ANGLES)
+    return four, boundaries
+
+
+def _opposite_pairs(boundaries: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """(M,) True where boundaries i and i+2 of (M, 4) are 180 +- 30 degrees apart.
+
+    They are on a centrally symmetric X.
+    """
+    gap = np.abs(_wrapped(boundaries[:, 2:] - boundaries[:, :2] - np.pi))
+    return cast("NDArray[np.bool_]", (gap < np.deg2rad(30.0)).all(axis=-1))
+
+
+def _wrapped(angle: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Angles, radians, wrapped to [-pi, pi].
+
+    The argument of exp(i angle), with real functions: a complex exponential of
+    the same samples costs half as much again.
+    """
+    return cast("NDArray[np.float64]", np.arctan2(np.sin(angle), np.cos(angle)))
 
 
 def _nearest_ring(
@@ -403,16 +454,23 @@ def _count_symmetric_rings(
         if exact:
             f, contrast, level = (a.astype(np.float64) for a in stacked[:3])
             missing = cast("NDArray[np.bool_]", stacked[3])
-            rings = _sector_analysis(f, contrast, _self_correlation(f, missing), level)
         else:
-            rings = analyse_rings(stacked[0].astype(np.float64))
-        passed[alive] = rings.good(min_contrast[alive, None], min_symmetry).sum(axis=1)
+            f, contrast, level, missing = _smoothed_extremes(stacked[0].astype(np.float64))
+        # Only how many rings show the X counts here: their line angles are not needed.
+        good = _shows_x(
+            _four_sectors(f, contrast, level),
+            contrast,
+            _self_correlation(f, missing),
+            min_contrast[alive, None],
+            min_symmetry,
+        )
+        passed[alive] = good.sum(axis=1)
     return passed
 
 
 def _angle_difference(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Absolute difference of line directions modulo pi."""
-    return cast("NDArray[np.float64]", np.abs(np.angle(np.exp(2j * (a - b)))) / 2.0)
+    return cast("NDArray[np.float64]", np.abs(_wrapped(2.0 * (a - b))) / 2.0)
 
 
 def _pairing_differences(
@@ -597,8 +655,11 @@ def _ring_runs(
     aligned = np.where(
         (drift_same <= drift_swap)[..., None], rings.line_angles, rings.line_angles[..., ::-1]
     )
-    mean_doubled = (weight[..., None] * np.exp(2j * aligned)).sum(axis=1)
-    line_angles = np.where(accepted[:, None], (np.angle(mean_doubled) / 2.0) % np.pi, reference)
+    mean_cos = (weight[..., None] * np.cos(2.0 * aligned)).sum(axis=1)
+    mean_sin = (weight[..., None] * np.sin(2.0 * aligned)).sum(axis=1)
+    line_angles = np.where(
+        accepted[:, None], (np.arctan2(mean_sin, mean_cos) / 2.0) % np.pi, reference
+    )
     contrast = rings.contrast[np.arange(n), first]
     return SymmetryCheck(accepted, score, radii_px[last], line_angles, contrast), in_run[:, -1]
 
