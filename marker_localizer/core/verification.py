@@ -358,9 +358,16 @@ def _nearest_ring(
     )
     centre = np.where(inside[:, None], xy, reach[:, None]) + 0.5
     # Coordinates are positive here, so truncation after +0.5 rounds to the nearest pixel.
-    col = (centre[:, 0, None] + radius_px[:, None] * np.cos(theta)).astype(np.intp)
-    row = (centre[:, 1, None] + radius_px[:, None] * np.sin(theta)).astype(np.intp)
-    values = image.reshape(-1)[row * width + col].astype(np.float32)
+    # The flat index is formed in place in float64 (exact below 2^53): one conversion
+    # to integers instead of three integer passes.
+    col = radius_px[:, None] * np.cos(theta)
+    col += centre[:, 0, None]
+    index = radius_px[:, None] * np.sin(theta)
+    index += centre[:, 1, None]
+    np.trunc(index, out=index)
+    index *= width
+    index += np.trunc(col, out=col)
+    values = image.reshape(-1)[index.astype(np.intp)].astype(np.float32)
     values[~inside] = np.nan
     return cast("NDArray[np.float64]", values)
 
