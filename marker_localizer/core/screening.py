@@ -90,6 +90,8 @@ def parabolic_offset(
 #: Gain of OpenCV's 5x5 Sobel second-derivative kernels (f_xx, f_yy, f_xy alike):
 #: [1 0 -2 0 1] (4 f'') times the [1 4 6 4 1] smoothing (16).
 _SOBEL5_GAIN = 64.0
+#: The smoothing that turns OpenCV's 3x3 Sobel kernels into its 5x5 ones (per axis).
+_BINOMIAL_3 = np.array([1.0, 2.0, 1.0], np.float32)
 #: Saddle strength of a blurred X per unit contrast: f_xy = C / (pi sigma_t^2) at
 #: its centre, sigma_t^2 = 1 px^2 (the 5x5 kernel's smoothing) + sigma_b^2 (the blur).
 _SADDLE_PER_CONTRAST = 1.0 / np.pi
@@ -151,9 +153,16 @@ def saddle_response(image: NDArray[Any]) -> NDArray[np.float32]:
     Returns:
         (H, W) float32 response, positive at saddles (squared grey units).
     """
-    minus_dxx = cv2.Sobel(image, cv2.CV_32F, 2, 0, ksize=5, scale=-1.0)
-    dyy = cv2.Sobel(image, cv2.CV_32F, 0, 2, ksize=5)
-    dxy = cv2.Sobel(image, cv2.CV_32F, 1, 1, ksize=5)
+    size = 5
+    if image.dtype.kind in "ui" and image.dtype.itemsize <= 2:
+        # Each 5x5 kernel is the 3x3 one after a [1 2 1] x [1 2 1] binomial, which the
+        # three then share. Integer images keep every sum an integer below 2^24, exact
+        # in float32, so the derivatives are those of the 5x5 kernels bit for bit.
+        image = cv2.sepFilter2D(image, cv2.CV_32F, _BINOMIAL_3, _BINOMIAL_3)
+        size = 3
+    minus_dxx = cv2.Sobel(image, cv2.CV_32F, 2, 0, ksize=size, scale=-1.0)
+    dyy = cv2.Sobel(image, cv2.CV_32F, 0, 2, ksize=size)
+    dxy = cv2.Sobel(image, cv2.CV_32F, 1, 1, ksize=size)
     # In place with OpenCV: numpy temporaries would double the passes over 12 MP, and
     # adding the product of -f_xx and f_yy saves the subtraction's pass.
     cv2.multiply(dxy, dxy, dst=dxy)

@@ -70,6 +70,20 @@ def test_a_tilted_marker_whose_saddle_peak_splits_gets_a_candidate_at_its_centre
     assert np.linalg.norm(found.xy - [48.3, 47.6], axis=1).min() < 0.5
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("shape", [(4, 9), (5, 5), (70, 131)])
+def test_integer_images_give_the_response_of_their_float_copy_bit_for_bit(dtype, shape):
+    # The float copy takes the 5x5 Sobel kernels themselves; an integer image their
+    # 3x3 factors after one shared binomial.
+    high = np.iinfo(dtype).max
+    image = np.random.default_rng(7).integers(0, high, shape, endpoint=True).astype(dtype)
+    image[0, :2] = high  # the extremes, next to corners the borders reflect
+    image[-1, -2:] = 0
+    np.testing.assert_array_equal(
+        screening.saddle_response(image), screening.saddle_response(image.astype(np.float32))
+    )
+
+
 def test_saddle_levels_start_at_full_resolution_only_for_small_markers():
     assert screening.saddle_levels((3.0, 40.0)).start == 0
     assert screening.saddle_levels((20.0, 80.0)).start == 2
