@@ -768,11 +768,12 @@ def _symmetry_terms(
         np.concatenate([centre[:, 1, None] + dy, centre[:, 1, None] - dy], axis=1),
     )
     plus, minus = both[:, :k], both[:, k:]
-    total = plus + minus
-    residual = plus - minus - (gain[:, 0, None] * dx + gain[:, 1, None] * dy) * total
+    residual = plus - minus
     weight = taper * (valid[:, :k] & valid[:, k:])
     jac = [gx[:, :k] - gx[:, k:], gy[:, :k] - gy[:, k:]]
     if model_gain:
+        total = plus + minus
+        residual -= (gain[:, 0, None] * dx + gain[:, 1, None] * dy) * total
         jac += [-dx * total, -dy * total]
     return residual, weight, np.stack(jac, axis=-1), both
 
