@@ -53,7 +53,13 @@ class Candidates(NamedTuple):
 
     def take(self, index: NDArray[np.integer[Any] | np.bool_]) -> Candidates:
         """Return the candidates selected by a boolean mask or index array."""
-        return Candidates(self.xy[index], self.strength[index], self.scale_px[index])
+        if index.dtype == np.bool_:
+            # One scan of the mask for the three arrays, and gathers that do not
+            # branch on it (a third of boolean indexing's time on 10^5 points).
+            index = np.flatnonzero(index)
+        return Candidates(
+            self.xy.take(index, axis=0), self.strength.take(index), self.scale_px.take(index)
+        )
 
     def strongest(self, limit: int) -> Candidates:
         """The ``limit`` strongest candidates (all when there are no more), in their order.
@@ -1520,12 +1526,27 @@ def cell_cap_mask(
     # ground); a stable sort of a subset keeps its points' order.
     crowded_count = np.where(per_cell > max_per_cell, per_cell, 0)
     crowded = np.flatnonzero(crowded_count[cell])
-    order = crowded[
-        np.argsort(strongest_first_in_cell(cell[crowded], strength[crowded]), kind="stable")
-    ]
+    order = crowded[stable_order(strongest_first_in_cell(cell[crowded], strength[crowded]))]
     rank = np.arange(len(order)) - (np.cumsum(crowded_count) - crowded_count)[cell[order]]
     keep[order[rank >= max_per_cell]] = False
     return keep
+
+
+def stable_order(keys: NDArray[np.int64]) -> NDArray[np.intp]:
+    """``np.argsort(keys, kind="stable")`` of non-negative keys, from one plain sort.
+
+    Each key carries its index in the bits below it, where they fit, so that all
+    keys differ and a plain sort of the values (vectorised; a fifth to a tenth of
+    the stable argsort's time on 20 000-40 000 keys of a level, many tied: integer
+    responses) puts equal keys in index order, as the stable sort does.
+    """
+    bits = max(len(keys) - 1, 1).bit_length()
+    if len(keys) == 0 or int(keys.max()) >= 1 << (63 - bits):
+        return cast("NDArray[np.intp]", np.argsort(keys, kind="stable"))
+    tagged = keys << bits
+    tagged |= np.arange(len(keys))
+    tagged.sort()
+    return cast("NDArray[np.intp]", tagged & ((1 << bits) - 1))
 
 
 def grid_cells(xy: NDArray[np.float64], cell_px: float) -> NDArray[np.int64]:

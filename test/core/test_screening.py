@@ -340,6 +340,12 @@ def test_the_strongest_peaks_are_every_peak_of_at_least_the_bound_the_rest_count
     assert found.unexamined == np.count_nonzero((whole > threshold) & (whole < found.bound))
 
 
+@pytest.mark.parametrize("high", [3, 2**40, 2**62], ids=["ties", "spread", "no room"])
+def test_stable_order_is_the_stable_argsort_ties_in_index_order(high):
+    keys = np.random.default_rng(8).integers(0, high, 5000).astype(np.int64)
+    np.testing.assert_array_equal(screening.stable_order(keys), np.argsort(keys, kind="stable"))
+
+
 def test_sort_keys_order_points_by_cell_then_strongest_first_whatever_the_sign():
     cell = np.array([1, 0, 1, 0, 1, 0])
     strength = np.array([-2.0, 0.0, 3.5, -1.0, 0.0, 7.0])
