@@ -180,7 +180,12 @@ def _circular_smooth(profile: NDArray[np.float64]) -> NDArray[np.float64]:
     wrapped: NDArray[np.float64] = np.concatenate(
         [profile[..., -1:], profile, profile[..., :1]], axis=-1
     )
-    return 0.25 * (wrapped[..., :-2] + 2.0 * profile + wrapped[..., 2:])
+    # 0.25 (previous + 2 profile + next), summed in that order in one array.
+    smooth = 2.0 * profile
+    smooth += wrapped[..., :-2]
+    smooth += wrapped[..., 2:]
+    smooth *= 0.25
+    return smooth
 
 
 class RingAnalysis(NamedTuple):
@@ -253,8 +258,8 @@ def _self_correlation(f: NDArray[np.float64], missing: NDArray[np.bool_]) -> NDA
     centred = f - f.mean(axis=-1, keepdims=True)
     # The profile turned by 180 degrees holds the same samples: the same norm, and each
     # product of opposite samples twice.
-    energy = (centred**2).sum(-1)
     products = 2.0 * (centred[..., :_HALF_TURN] * centred[..., _HALF_TURN:]).sum(-1)
+    energy = np.square(centred, out=centred).sum(-1)
     return cast("NDArray[np.float64]", np.where(missing, -1.0, products / (energy + 1e-12)))
 
 
