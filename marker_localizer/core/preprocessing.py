@@ -128,11 +128,14 @@ def apply_gamma(
     mean: NDArray[_Float],
     alpha: float,
     gamma_limits: tuple[float, float],
+    out: NDArray[_Float] | None = None,
 ) -> NDArray[_Float]:
-    """Eq. (2) itself: L ** clip(alpha * mu) for intensities in [0, 1] (broadcasting)."""
-    return cast(
-        NDArray[_Float], np.power(np.maximum(luminance, 1e-6), np.clip(alpha * mean, *gamma_limits))
-    )
+    """Eq. (2) itself: L ** clip(alpha * mu) for intensities in [0, 1] (broadcasting).
+
+    ``out``: where to write the result (``luminance`` itself may be given).
+    """
+    floored = np.maximum(luminance, 1e-6, out=out)
+    return cast(NDArray[_Float], np.power(floored, np.clip(alpha * mean, *gamma_limits), out=out))
 
 
 def structure_map(
@@ -357,4 +360,5 @@ class LocalGamma:
     def __call__(self, values: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """Apply Eq. (2) to raw samples ``values`` (N, ...) taken around the points ``xy``."""
         mean = self.mean_at(xy).reshape((-1,) + (1,) * (values.ndim - 1))
-        return apply_gamma(values / self._full_scale, mean, self._alpha, self._limits)
+        luminance = values / self._full_scale
+        return apply_gamma(luminance, mean, self._alpha, self._limits, out=luminance)

@@ -155,7 +155,8 @@ def annular_profiles(
     values, valid = bilinear(image, x, y)
     if normalise is not None:
         values = normalise(values, xy)
-    return np.where(valid, values, np.nan)
+    values[~valid] = np.nan
+    return values
 
 
 def annular_profiles_at(
