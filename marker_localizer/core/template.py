@@ -256,24 +256,24 @@ def template_correlation(
     # One disk pattern per rounded radius; the padding's samples are left out below.
     radius_key = np.round(np.asarray(radius_px, dtype=np.float64))
     keys, pattern_of = np.unique(radius_key, return_inverse=True)
-    padded, in_pattern = pad_patterns(
-        [_disk_offsets(float(radius), max_samples) for radius in keys]
-    )
-    dx, dy = padded[pattern_of, :, 0], padded[pattern_of, :, 1]
+    patterns = [_disk_offsets(float(radius), max_samples) for radius in keys]
+    padded, in_pattern = pad_patterns(patterns)
     present = in_pattern[pattern_of]
-    values, valid = bilinear(image, xy[:, 0, None] + dx, xy[:, 1, None] + dy)
-    if normalise is not None:
-        values = normalise(values, xy)
+    values, valid, s1, s2 = _disk_reads(image, xy, line_angles, patterns, pattern_of, normalise)
     count = present.sum(axis=1, keepdims=True)
-    s1, s2 = line_distances(dx, dy, line_angles)
     centred = (values - (values * present).sum(axis=1, keepdims=True) / count) * (valid & present)
     norm_i = np.linalg.norm(centred, axis=1) + 1e-12
     ncc = np.zeros(n)
     best_sigma = np.full(n, np.nan)
+    # The model's padding is its value at the centre, as the padding's zero offsets read:
+    # that of the last entry, padding wherever a point has any.
+    s1_read, s2_read = s1[present], s2[present]
     for sigma in sigmas_px:
         # Pixel integration adds 1/12 px^2 to the Gaussian PSF variance.
         scale = 1.0 / np.sqrt(2.0 * (sigma**2 + 1.0 / 12.0))
-        model = erf(s1 * scale) * erf(s2 * scale)
+        model = erf(s1[:, -1:] * scale) * erf(s2[:, -1:] * scale)
+        model = np.repeat(model, padded.shape[1], axis=1)
+        model[present] = erf(s1_read * scale) * erf(s2_read * scale)
         model_centred = (model - (model * present).sum(axis=1, keepdims=True) / count) * present
         model_norm2 = (model_centred**2).sum(axis=1) + 1e-12
         corr = np.abs((centred * model_centred).sum(axis=1)) / (norm_i * np.sqrt(model_norm2))
@@ -281,6 +281,42 @@ def template_correlation(
         ncc[better] = corr[better]
         best_sigma[better] = sigma
     return TemplateMatch(ncc, best_sigma)
+
+
+def _disk_reads(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    patterns: list[NDArray[np.float64]],
+    pattern_of: NDArray[np.intp],
+    normalise: Normaliser | None,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
+    """Samples, their validity and line distances at each point's pattern, padded.
+
+    The (N, K) stack of :func:`~marker_localizer.core.sampling.pad_patterns`, point
+    i at offsets ``patterns[pattern_of[i]]``: each pattern's points are read at
+    their own offsets, and a shorter pattern's padding holds what its zero offsets
+    would read, the sample and the distances at the centre. So sums over the stack
+    are those of the padded offsets, without a read and a gamma per padded entry
+    (most of them where the candidates' extents differ).
+    """
+    n, width = len(xy), max(len(pattern) for pattern in patterns)
+    zero = np.zeros((n, 1))
+    centre, centre_valid = bilinear(image, xy[:, 0, None] + zero, xy[:, 1, None] + zero)
+    if normalise is not None:
+        centre = normalise(centre, xy)
+    values, valid = np.repeat(centre, width, axis=1), np.repeat(centre_valid, width, axis=1)
+    s1, s2 = (np.repeat(s, width, axis=1) for s in line_distances(zero, zero, line_angles))
+    for index, pattern in enumerate(patterns):
+        rows = np.flatnonzero(pattern_of == index)
+        dx, dy = (np.broadcast_to(offset, (len(rows), len(pattern))) for offset in pattern.T)
+        read, inside = bilinear(image, xy[rows, 0, None] + dx, xy[rows, 1, None] + dy)
+        if normalise is not None:
+            read = normalise(read, xy[rows])
+        values[rows, : len(pattern)], valid[rows, : len(pattern)] = read, inside
+        distances = line_distances(dx, dy, line_angles[rows])
+        s1[rows, : len(pattern)], s2[rows, : len(pattern)] = distances
+    return values, valid, s1, s2
 
 
 def template_evidence(
