@@ -53,12 +53,11 @@ class Candidates(NamedTuple):
 
     def take(self, index: NDArray[np.integer[Any] | np.bool_]) -> Candidates:
         """Return the candidates selected by a boolean mask or index array."""
-        if index.dtype == np.bool_:
-            # One scan of the mask for the three arrays, and gathers that do not
-            # branch on it (a third of boolean indexing's time on 10^5 points).
-            index = np.flatnonzero(index)
+        # One scan of a mask for the three arrays, and gathers that do not branch on
+        # it (a third of boolean indexing's time on 10^5 points).
+        rows = cast("NDArray[np.intp]", np.flatnonzero(index) if index.dtype == np.bool_ else index)
         return Candidates(
-            self.xy.take(index, axis=0), self.strength.take(index), self.scale_px.take(index)
+            self.xy.take(rows, axis=0), self.strength.take(rows), self.scale_px.take(rows)
         )
 
     def strongest(self, limit: int) -> Candidates:
