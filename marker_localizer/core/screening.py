@@ -1546,7 +1546,7 @@ def stable_order(keys: NDArray[np.int64]) -> NDArray[np.intp]:
     """
     bits = max(len(keys) - 1, 1).bit_length()
     if len(keys) == 0 or int(keys.max()) >= 1 << (63 - bits):
-        return cast("NDArray[np.intp]", np.argsort(keys, kind="stable"))
+        return np.argsort(keys, kind="stable")
     tagged = keys << bits
     tagged |= np.arange(len(keys))
     tagged.sort()

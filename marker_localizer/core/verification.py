@@ -483,7 +483,7 @@ def _count_symmetric_rings(
 
 def _angle_difference(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Absolute difference of line directions modulo pi."""
-    return cast("NDArray[np.float64]", np.abs(_wrapped(2.0 * (a - b))) / 2.0)
+    return np.abs(_wrapped(2.0 * (a - b))) / 2.0
 
 
 def _pairing_differences(
