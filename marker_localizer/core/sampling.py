@@ -184,9 +184,8 @@ def bilinear_with_gradient(
     bottom = bottom_step * fx
     bottom += v10
     d_dy = bottom - top
-    top_step *= 1.0 - fy
-    bottom_step *= fy
-    top_step += bottom_step
-    d_dy_fy = d_dy * fy
-    d_dy_fy += top
-    return d_dy_fy, top_step, d_dy, valid
+    d_dx = np.multiply(top_step, 1.0 - fy, out=top_step)
+    d_dx += np.multiply(bottom_step, fy, out=bottom_step)
+    value = d_dy * fy
+    value += top
+    return value, d_dx, d_dy, valid
