@@ -195,7 +195,8 @@ class TemplateMatch(NamedTuple):
     """Result of :func:`template_correlation` for N points, each (N,).
 
     Attributes:
-        ncc: the largest |NCC| over the candidate blurs (1 = a perfect X).
+        ncc: the largest correlation over the candidate blurs (1 = a perfect X),
+            the bright quadrants a level each (the NCC where they are equal).
         sigma_b: the defocus sigma achieving it, px.
     """
 
@@ -237,6 +238,19 @@ def template_correlation(
     match (the edge-spread estimate of the paper), and the sign of the NCC is the
     polarity choice of Eq. (10).
 
+    The paper's template has two grey levels; a dull bright quadrant (wear, dirt,
+    sheen: 0.45-0.8 as bright as its opposite) makes three, and its NCC falls to
+    0.85-0.93 on a perfect X. So the two bright quadrants get a level each, as the
+    paper samples one per quadrant: the match is the multiple correlation of the
+    patch with the template and the bright pair's difference (its lobes, + on one
+    quadrant and - on the other), the square root of the share of the patch's
+    variance the two explain; with equal bright quadrants it is the NCC. The dark
+    pair keeps one level: black paint stays black, while the dark gaps of a texture
+    saddle differ as its stones do. Measured at the default path's gates
+    (``bench accuracy``): rendered (g) 14 -> 18 of 96 markers, independent (g)
+    3 -> 5 of 48, every other family and the real frames as before, and no false
+    point more on any of them.
+
     Args:
         image: (H, W) image (any numeric dtype).
         xy: (N, 2) centres (sub-pixel).
@@ -262,25 +276,49 @@ def template_correlation(
     values, valid, s1, s2 = _disk_reads(image, xy, line_angles, patterns, pattern_of, normalise)
     count = present.sum(axis=1, keepdims=True)
     centred = (values - (values * present).sum(axis=1, keepdims=True) / count) * (valid & present)
-    norm_i = np.linalg.norm(centred, axis=1) + 1e-12
+    norm_i2 = (centred**2).sum(axis=1) + 1e-12
     ncc = np.zeros(n)
     best_sigma = np.full(n, np.nan)
+    best = np.zeros((3, *s1.shape))  # the best blur's model, centred model, and its norm
+    along = np.zeros(n)
     # The model's padding is its value at the centre, as the padding's zero offsets read:
     # that of the last entry, padding wherever a point has any.
     s1_read, s2_read = s1[present], s2[present]
     for sigma in sigmas_px:
-        # Pixel integration adds 1/12 px^2 to the Gaussian PSF variance.
-        scale = 1.0 / np.sqrt(2.0 * (sigma**2 + 1.0 / 12.0))
+        scale = 1.0 / np.sqrt(2.0 * (sigma**2 + PIXEL_VARIANCE_PX2))
         model = erf(s1[:, -1:] * scale) * erf(s2[:, -1:] * scale)
         model = np.repeat(model, padded.shape[1], axis=1)
         model[present] = erf(s1_read * scale) * erf(s2_read * scale)
-        model_centred = (model - (model * present).sum(axis=1, keepdims=True) / count) * present
+        model_centred = _centred(model, present, count)
         model_norm2 = (model_centred**2).sum(axis=1) + 1e-12
-        corr = np.abs((centred * model_centred).sum(axis=1)) / (norm_i * np.sqrt(model_norm2))
+        product = (centred * model_centred).sum(axis=1)
+        corr = np.abs(product) / np.sqrt(norm_i2 * model_norm2)
         better = corr > ncc
         ncc[better] = corr[better]
         best_sigma[better] = sigma
+        along[better] = product[better]
+        best[0, better], best[1, better] = model[better], model_centred[better]
+        best[2, better, 0] = model_norm2[better]
+    model, model_centred, model_norm2 = best[0], best[1], best[2, :, 0]
+    # The bright pair's own difference at the chosen blur: the model's lobes on the
+    # polarity's bright side, + on one quadrant and - on its opposite (s1 changes sign
+    # between them, and the lobes vanish on the lines, where it does).
+    bright = (model > 0.0) == (along > 0.0)[:, None]
+    difference = _centred(np.where(bright, model * np.sign(s1), 0.0), present, count)
+    difference -= ((difference * model_centred).sum(axis=1) / model_norm2)[:, None] * model_centred
+    extra = (centred * difference).sum(axis=1) ** 2 / ((difference**2).sum(axis=1) + 1e-12)
+    ncc = np.sqrt(np.minimum(ncc**2 + extra / norm_i2, 1.0))
     return TemplateMatch(ncc, best_sigma)
+
+
+def _centred(
+    model: NDArray[np.float64], present: NDArray[np.bool_], count: NDArray[np.int64]
+) -> NDArray[np.float64]:
+    """Each row of ``model`` less its mean over the ``present`` samples (0 elsewhere)."""
+    centred: NDArray[np.float64] = (
+        model - (model * present).sum(axis=1, keepdims=True) / count
+    ) * present
+    return centred
 
 
 def _disk_reads(

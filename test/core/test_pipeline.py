@@ -315,12 +315,16 @@ def _recall_and_false(config: DetectorConfig, frames) -> tuple[float, float]:
 def test_the_template_decision_keeps_markers_with_a_dull_quadrant_or_a_shadow_edge(
     uneven_light_frames,
 ):
-    """Grey-level symmetry loses most of them; the sector order and the fit do not."""
+    """Grey-level symmetry loses most of them; the sector order and the fit fewer.
+
+    (The default's template match gives each bright quadrant its level, which keeps
+    some dull ones: 13 -> 21 % of these frames' markers; the template decision 33 %.)
+    """
     (low, high), frames = uneven_light_frames
     radius = {"marker_radius_min_px": low, "marker_radius_max_px": high}
     symmetry, _ = _recall_and_false(DetectorConfig(**radius), frames)
     template_recall, false = _recall_and_false(DetectorConfig(**radius, **TEMPLATE), frames)
-    assert template_recall >= symmetry + 0.2
+    assert template_recall >= symmetry + 0.1
     assert false <= 0.5
 
 

@@ -1,6 +1,7 @@
 """Sections 3.3.1-3.3.2: adaptive template, NCC by matrix product, quadratic extremum,
 and the point-symmetry refinement."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -153,6 +154,43 @@ def test_template_correlation_is_near_one_on_an_x_and_low_on_an_l_corner():
         l_image, np.array([[47.4, 48.6]]), np.array([[0.4, 0.4 + np.pi / 2]]), np.array([12.0])
     )
     assert match_l.ncc[0] < 0.8
+
+
+def _four_level_x(
+    levels: list[float], centre: tuple[float, float], angles: np.ndarray
+) -> np.ndarray:
+    """A blurred X with a grey level per quadrant, in the order of the quadrants
+    (s1 > 0, s2 > 0), (s1 > 0, s2 < 0), (s1 < 0, s2 < 0), (s1 < 0, s2 > 0)."""
+    fine = (np.arange(96 * 8) + 0.5) / 8 - 0.5
+    y, x = np.meshgrid(fine, fine, indexing="ij")
+    s1, s2 = template.line_distances(x - centre[0], y - centre[1], angles)
+    quadrant = np.where(s1 > 0, np.where(s2 > 0, 0, 1), np.where(s2 < 0, 2, 3))
+    sharp = np.asarray(levels)[quadrant]
+    return cv2.GaussianBlur(cv2.resize(sharp, (96, 96), interpolation=cv2.INTER_AREA), (0, 0), 1.0)
+
+
+@pytest.mark.parametrize(
+    "levels", [[0.9, 0.1, 0.45, 0.1], [0.1, 0.9, 0.1, 0.45]], ids=["dull", "dull-inverted"]
+)
+def test_a_dull_bright_quadrant_keeps_the_template_match_of_a_perfect_x(levels):
+    # The paper's two-level template matches this X at 0.85; a level per bright
+    # quadrant restores the match (0.993).
+    angles = np.array([0.3, 1.7])
+    image = _four_level_x(levels, (47.3, 48.6), angles)
+    match = template.template_correlation(
+        image, np.array([[47.3, 48.6]]), angles[None], np.array([12.0])
+    )
+    assert match.ncc[0] > 0.98
+
+
+def test_dark_quadrants_that_differ_still_lower_the_template_match():
+    # Texture saddles' dark gaps differ as their stones do; black paint does not.
+    angles = np.array([0.3, 1.7])
+    image = _four_level_x([0.9, 0.1, 0.9, 0.5], (47.3, 48.6), angles)
+    match = template.template_correlation(
+        image, np.array([[47.3, 48.6]]), angles[None], np.array([12.0])
+    )
+    assert match.ncc[0] < 0.92
 
 
 @pytest.mark.parametrize("kind", ["checker", "quarter_disks"])
