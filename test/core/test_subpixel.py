@@ -333,3 +333,52 @@ def test_a_line_weighted_refit_that_slips_from_the_gating_centre_keeps_it():
     )
     np.testing.assert_array_equal(xy, start)
     np.testing.assert_array_equal(kept, sigma)
+
+
+def _dull_x(seed: int, dull_factor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    placement = MarkerPlacement(
+        48 + rng.random(),
+        48 + rng.random(),
+        16.0,
+        rng.uniform(0, np.pi),
+        20.0,
+        0.3,
+        "quarter_disks",
+        dull_factor=dull_factor,
+    )
+    scene = render_markers((96, 96), [placement], seed, blur_sigma_px=1.0, noise_sigma_dn=1.0)
+    return scene.image, scene.centres[0], np.array([scene.markers[0].angles])
+
+
+@pytest.mark.parametrize("dull_factor", [0.5, 0.7])
+def test_the_line_weighted_refit_gives_a_dull_quadrant_its_own_level(dull_factor):
+    # Grey-level symmetry pulls the centre towards the brighter side; the quadrants'
+    # own levels, fitted where they differ, put it back.
+    gating_error, refit_error = [], []
+    for seed in range(6):
+        image, truth, angles = _dull_x(seed, dull_factor)
+        gating = subpixel.refine_point_symmetry(image, truth[None] + [0.3, -0.2], np.array([12.0]))
+        refit, _ = subpixel.refine_along_lines(
+            image, gating.xy, np.array([0.1]), np.array([13.0]), angles, max_radius_px=30.0
+        )
+        gating_error.append(np.linalg.norm(gating.xy[0] - truth))
+        refit_error.append(np.linalg.norm(refit[0] - truth))
+    assert np.mean(gating_error) > 0.15
+    assert np.mean(refit_error) < 0.03
+
+
+def test_the_quadrant_level_statistic_follows_the_noise_where_the_quadrants_match():
+    # Near a chi-square of 2 degrees of freedom on an even X (2-19 here: the model's
+    # own errors add to the noise's), far above the threshold on a dull one.
+    def statistic(image, centre, angles):
+        disk, _ = subpixel.symmetric_offsets(12.0, 10_100)
+        s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], angles)
+        steps = subpixel._edge_steps(s1, s2, subpixel.EDGE_STEP_BLUR_PX)
+        weight = np.ones((1, len(disk)))
+        return subpixel._edge_step_chi2(image, centre[None], disk[None], weight, steps, 0.25)[0]
+
+    even = [statistic(*_dull_x(seed, 1.0)) for seed in range(12)]
+    dull = [statistic(*_dull_x(seed, 0.7)) for seed in range(12)]
+    assert max(even) < subpixel.EDGE_STEP_MIN_CHI2 / 4
+    assert min(dull) > subpixel.EDGE_STEP_MIN_CHI2
