@@ -528,7 +528,7 @@ def refine_point_symmetry(
     )
     # Without the uncertainty a point's fit reads nothing of the others' (with it, the
     # last evaluation waits for the slowest point), so it may run in blocks.
-    centre, covariance, residual_rms, contrast, converged = (
+    centre, covariance, residual_rms, contrast, converged, _ = (
         fit(*per_point) if uncertainty else in_blocks(fit, _COARSE_BLOCK, *per_point)
     )
     moved = np.linalg.norm(centre - start, axis=1)
@@ -681,51 +681,35 @@ def refine_along_lines(
     covariance = np.zeros((len(xy), 2, 2))
     converged = np.zeros(len(xy), bool)
     reach = np.full(len(xy), _LINE_FIT_MAX_SHIFT_PX)
+    fit = functools.partial(
+        _gauss_newton_symmetry,
+        image,
+        iterations=_LINE_FIT_ITERATIONS,
+        tolerance_px=_FINAL_TOLERANCE_PX,
+        model_gain=True,
+        noise_floor=_QUANTISATION_DIFFERENCE_STD if image.dtype.kind in "ui" else 0.0,
+        uncertainty=True,
+    )
     for key in np.unique(radius):
         rows = np.flatnonzero(radius == key)
-        disk, _ = symmetric_offsets(float(key), _LINE_FIT_MAX_SAMPLES)
-        s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], line_angles[rows])
-        near = np.minimum(np.abs(s1), np.abs(s2)) / LINE_BAND_PX
-        if len(disk) > _LINE_FIT_MAX_PAIRS:
-            nearest = np.argpartition(near, _LINE_FIT_MAX_PAIRS - 1, axis=1)
-            nearest = nearest[:, :_LINE_FIT_MAX_PAIRS]
-        else:
-            nearest = np.broadcast_to(np.arange(len(disk)), near.shape)
-        distance = np.take_along_axis(near, nearest, axis=1)
-        present = distance <= _LINE_BAND_REACH
-        weight = np.where(present, np.exp(-0.5 * distance**2), 0.0)
-        spacing = np.min(np.abs(disk[disk != 0]), initial=1.0)
-        fit = functools.partial(
-            _gauss_newton_symmetry,
-            image,
-            iterations=_LINE_FIT_ITERATIONS,
-            tolerance_px=_FINAL_TOLERANCE_PX,
-            model_gain=True,
-            noise_floor=_QUANTISATION_DIFFERENCE_STD if image.dtype.kind in "ui" else 0.0,
-            uncertainty=True,
+        band = _line_band(float(key), line_angles[rows])
+        symmetric = fit(centre[rows], *band[:4], test_steps=band.steps)
+        centre[rows], covariance[rows], converged[rows] = (
+            symmetric.centre,
+            symmetric.covariance,
+            symmetric.converged,
         )
-        offsets = disk[nearest]
-        spacings = np.full(len(rows), spacing)
-        centre[rows], covariance[rows], _, _, converged[rows] = fit(
-            centre[rows], offsets, weight, present, spacings
-        )
-        steps = _edge_steps(
-            np.take_along_axis(np.broadcast_to(s1, near.shape), nearest, axis=1),
-            np.take_along_axis(np.broadcast_to(s2, near.shape), nearest, axis=1),
-            EDGE_STEP_BLUR_PX,
-        )
-        chi2 = _edge_step_chi2(image, centre[rows], offsets, weight, steps, min(spacing, 1.0) ** 2)
-        uneven = np.flatnonzero(converged[rows] & (chi2 > EDGE_STEP_MIN_CHI2))
+        uneven = np.flatnonzero(symmetric.converged & (symmetric.step_chi2 > EDGE_STEP_MIN_CHI2))
         if len(uneven):
             at = rows[uneven]
             reach[at] = EDGE_STEP_MAX_SHIFT_PX
-            centre[at], covariance[at], _, _, converged[at] = fit(
+            centre[at], covariance[at], _, _, converged[at], _ = fit(
                 centre[at],
-                offsets[uneven],
-                weight[uneven],
-                present[uneven],
-                spacings[uneven],
-                edge_steps=steps[uneven],
+                band.offsets[uneven],
+                band.weight[uneven],
+                band.present[uneven],
+                band.spacing[uneven],
+                edge_steps=band.steps[uneven],
             )
     refined = converged & (np.linalg.norm(centre - xy, axis=1) <= reach)
     variance = covariance[:, 0, 0] + covariance[:, 1, 1]
@@ -734,6 +718,51 @@ def refine_along_lines(
     return (
         np.where(refined[:, None], centre, xy),
         np.where(refined, line_sigma, sigma),
+    )
+
+
+class _LineBand(NamedTuple):
+    """The half-pixel pairs :func:`refine_along_lines` reads around N points' lines.
+
+    ``offsets`` (N, K, 2), ``weight`` and ``present`` (N, K) and ``spacing`` (N,)
+    in :func:`_gauss_newton_symmetry`'s order; ``steps`` (N, K, 2) are
+    :func:`_edge_steps` at the offsets.
+    """
+
+    offsets: NDArray[np.float64]
+    weight: NDArray[np.float64]
+    present: NDArray[np.bool_]
+    spacing: NDArray[np.float64]
+    steps: NDArray[np.float64]
+
+
+def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
+    """Each point's pairs of the half disk of ``radius_px`` nearest its lines (N, 2).
+
+    At most :data:`_LINE_FIT_MAX_PAIRS`, each weighed exp(-s^2 / 2) by its distance s
+    from the nearer line in :data:`LINE_BAND_PX`, none beyond :data:`_LINE_BAND_REACH`.
+    """
+    disk, _ = symmetric_offsets(radius_px, _LINE_FIT_MAX_SAMPLES)
+    s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], line_angles)
+    near = np.minimum(np.abs(s1), np.abs(s2)) / LINE_BAND_PX
+    if len(disk) > _LINE_FIT_MAX_PAIRS:
+        nearest = np.argpartition(near, _LINE_FIT_MAX_PAIRS - 1, axis=1)
+        nearest = nearest[:, :_LINE_FIT_MAX_PAIRS]
+    else:
+        nearest = np.broadcast_to(np.arange(len(disk)), near.shape)
+    distance = np.take_along_axis(near, nearest, axis=1)
+    present = distance <= _LINE_BAND_REACH
+    steps = _edge_steps(
+        np.take_along_axis(np.broadcast_to(s1, near.shape), nearest, axis=1),
+        np.take_along_axis(np.broadcast_to(s2, near.shape), nearest, axis=1),
+        EDGE_STEP_BLUR_PX,
+    )
+    return _LineBand(
+        disk[nearest],
+        np.where(present, np.exp(-0.5 * distance**2), 0.0),
+        present,
+        np.full(len(line_angles), np.min(np.abs(disk[disk != 0]), initial=1.0)),
+        steps,
     )
 
 
@@ -864,43 +893,52 @@ def _edge_steps(
 
 
 def _edge_step_chi2(
-    image: NDArray[Any],
-    centre: NDArray[np.float64],
-    offsets: NDArray[np.float64],
+    residual: NDArray[np.float64],
     weight: NDArray[np.float64],
+    jacobian: NDArray[np.float64],
+    normal: NDArray[np.float64],
     steps: NDArray[np.float64],
-    cell: float,
+    cell: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """(N,) score statistic of the quadrants' own levels at the symmetric fit's centres.
+    """(N,) score statistic of the quadrants' own levels where a symmetric fit ended.
 
     The drop in the weighted squared residual that fitting the levels of
     :func:`_edge_steps` too would give, to first order (the steps orthogonalised
-    against the centre's and the gain's columns, so the gain need not be known),
-    over the residual variance with them: chi-square with 2 degrees of freedom where
-    the quadrants match. ``cell`` is the area a sample stands for, px^2 (samples closer
-    than a pixel share their noise).
+    against the fit's columns), over the residual variance with them: chi-square
+    with 2 degrees of freedom where the quadrants match. ``residual``, ``weight``
+    (N, K), ``jacobian`` (N, K, P) and its ``normal`` matrix are the fit's at its
+    end; ``cell`` (N,) is the area a sample stands for, px^2 (samples closer than a
+    pixel share their noise).
     """
-    residual, valid, jacobian, _ = _symmetry_terms(
-        image, centre, np.zeros((len(centre), 4)), offsets, weight, True
-    )
-    weighted = jacobian * valid[..., None]
-    normal = weighted.transpose(0, 2, 1) @ jacobian
-    cross = weighted.transpose(0, 2, 1) @ steps
-    steps_weighted = steps * valid[..., None]
+    weighted_steps = steps * weight[..., None]
+    cross = (jacobian * weight[..., None]).transpose(0, 2, 1) @ steps
     projected = np.linalg.solve(normal + 1e-9 * np.eye(normal.shape[-1]), cross)
-    reduced = steps_weighted.transpose(0, 2, 1) @ steps - cross.transpose(0, 2, 1) @ projected
-    along_j = (weighted.transpose(0, 2, 1) @ residual[..., None])[..., 0]
-    along_e = (steps_weighted.transpose(0, 2, 1) @ residual[..., None])[..., 0]
-    score = along_e - (projected.transpose(0, 2, 1) @ along_j[..., None])[..., 0]
+    reduced = weighted_steps.transpose(0, 2, 1) @ steps - cross.transpose(0, 2, 1) @ projected
+    gradient = ((jacobian * weight[..., None]).transpose(0, 2, 1) @ residual[..., None])[..., 0]
+    score = (weighted_steps.transpose(0, 2, 1) @ residual[..., None])[..., 0]
+    score -= (projected.transpose(0, 2, 1) @ gradient[..., None])[..., 0]
     drop = (score[:, None, :] @ np.linalg.pinv(reduced) @ score[..., None])[:, 0, 0]
-    explained = (along_j[:, None, :] @ np.linalg.pinv(normal) @ along_j[..., None])[:, 0, 0]
-    total = (valid * residual**2).sum(axis=1)
     # The variance left with the levels fitted: the symmetric fit's own residual holds
     # the misfit of the levels it lacks.
-    dof = np.maximum(valid.sum(axis=1) - jacobian.shape[-1] - steps.shape[-1], 1.0)
-    variance = np.maximum(total - explained - drop, 1e-12) / dof
+    dof = np.maximum(weight.sum(axis=1) - jacobian.shape[-1] - steps.shape[-1], 1.0)
+    variance = np.maximum((weight * residual**2).sum(axis=1) - drop, 1e-12) / dof
     chi2: NDArray[np.float64] = drop / variance * cell
     return chi2
+
+
+class _SymmetrySolution(NamedTuple):
+    """What :func:`_gauss_newton_symmetry` ends with, each with the points first.
+
+    ``step_chi2`` is :func:`_edge_step_chi2` of the ``test_steps`` it was given
+    (NaN without them or without the uncertainty).
+    """
+
+    centre: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    residual_rms: NDArray[np.float64]
+    contrast: NDArray[np.float64]
+    converged: NDArray[np.bool_]
+    step_chi2: NDArray[np.float64]
 
 
 def _gauss_newton_symmetry(
@@ -916,13 +954,8 @@ def _gauss_newton_symmetry(
     noise_floor: float,
     uncertainty: bool,
     edge_steps: NDArray[np.float64] | None = None,
-) -> tuple[
-    NDArray[np.float64],
-    NDArray[np.float64],
-    NDArray[np.float64],
-    NDArray[np.float64],
-    NDArray[np.bool_],
-]:
+    test_steps: NDArray[np.float64] | None = None,
+) -> _SymmetrySolution:
     n_params = 2 + 2 * model_gain + 2 * (edge_steps is not None)
     n = len(centre)
     centre = centre.copy()
@@ -982,7 +1015,9 @@ def _gauss_newton_symmetry(
     converged = step_norm <= tolerance_px
     if not uncertainty:
         nan = np.full(n, np.nan)
-        return centre, np.full((n, 2, 2), np.nan), nan, nan.copy(), converged
+        return _SymmetrySolution(
+            centre, np.full((n, 2, 2), np.nan), nan, nan.copy(), converged, nan.copy()
+        )
     # Sandwich covariance of the weighted fit; residuals sampled closer than a pixel
     # are correlated, so the effective count is that of pixels, not of samples.
     w_sum = weight.sum(axis=1)
@@ -995,7 +1030,10 @@ def _gauss_newton_symmetry(
     covariance = (sigma2[:, None, None] * bread @ meat @ bread / cell)[:, :2, :2]
     both = np.concatenate([present, present], axis=1)
     contrast = _row_spread(samples, both)
-    return centre, covariance, residual_rms, contrast, converged
+    step_chi2: NDArray[np.float64] = np.full(n, np.nan)
+    if test_steps is not None:
+        step_chi2 = _edge_step_chi2(residual, weight, jacobian, normal, test_steps, cell[:, 0, 0])
+    return _SymmetrySolution(centre, covariance, residual_rms, contrast, converged, step_chi2)
 
 
 def _row_spread(values: NDArray[np.float64], present: NDArray[np.bool_]) -> NDArray[np.float64]:

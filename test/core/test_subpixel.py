@@ -372,11 +372,11 @@ def test_the_quadrant_level_statistic_follows_the_noise_where_the_quadrants_matc
     # Near a chi-square of 2 degrees of freedom on an even X (2-19 here: the model's
     # own errors add to the noise's), far above the threshold on a dull one.
     def statistic(image, centre, angles):
-        disk, _ = subpixel.symmetric_offsets(12.0, 10_100)
-        s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], angles)
-        steps = subpixel._edge_steps(s1, s2, subpixel.EDGE_STEP_BLUR_PX)
-        weight = np.ones((1, len(disk)))
-        return subpixel._edge_step_chi2(image, centre[None], disk[None], weight, steps, 0.25)[0]
+        band = subpixel._line_band(12.0, angles)
+        fit = subpixel._gauss_newton_symmetry(
+            image, centre[None], *band[:4], 10, 1e-3, True, 0.0, True, test_steps=band.steps
+        )
+        return fit.step_chi2[0]
 
     even = [statistic(*_dull_x(seed, 1.0)) for seed in range(12)]
     dull = [statistic(*_dull_x(seed, 0.7)) for seed in range(12)]
