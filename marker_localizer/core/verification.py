@@ -378,6 +378,46 @@ def _nearest_ring(
     return cast("NDArray[np.float64]", values)
 
 
+def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Ring profiles with the brighter bright sector scaled down to the duller one's level.
+
+    A marker whose bright quadrants differ (a dull one: wear, dirt, sheen) is
+    point-symmetric in its geometry but not in its grey levels; scaled about the
+    ring's dark level to match the duller sector, its ring reads as that of an X of
+    one paint. The duller level is the highest that two opposite samples both
+    reach; the brighter sector is the run of samples above halfway to it from the
+    dark level that holds the ring's maximum (on the [1, 2, 1]-smoothed profile).
+    A sector's shape is kept, only its contrast scaled: a texture saddle's bright
+    stones differ in shape as well as level, and stay asymmetric. Rings whose
+    maximum is not in such a run (no dark sample either side) are left as they are.
+
+    Args:
+        profiles: (..., 36) ring samples, NaN where the ring leaves the image.
+
+    Returns:
+        The equalised profiles, of the same shape and dtype.
+    """
+    shape = profiles.shape
+    rings = profiles.reshape(-1, N_ANGLES).astype(np.float64)
+    smooth = _circular_smooth(np.where(np.isnan(rings), 0.0, rings))
+    dark, peak = smooth.min(axis=1), smooth.max(axis=1)
+    duller = np.minimum(smooth[:, :_HALF_TURN], smooth[:, _HALF_TURN:]).max(axis=1)
+    # Each ring turned so that its maximum sits at the half turn.
+    angle = np.arange(N_ANGLES)
+    turned = (angle + smooth.argmax(axis=1)[:, None] - _HALF_TURN) % N_ANGLES
+    low = np.take_along_axis(smooth, turned, axis=1) <= (0.5 * (dark + duller))[:, None]
+    start = np.where(low[:, :_HALF_TURN], angle[:_HALF_TURN], -1).max(axis=1)
+    stop = np.where(low[:, _HALF_TURN + 1 :], angle[_HALF_TURN + 1 :], N_ANGLES).min(axis=1)
+    sector = (angle > start[:, None]) & (angle < stop[:, None])
+    scalable = (start >= 0) & (stop < N_ANGLES) & (duller > dark)
+    gain = np.where(scalable, (duller - dark) / np.maximum(peak - dark, 1e-12), 1.0)
+    samples = np.take_along_axis(rings, turned, axis=1)
+    samples = np.where(sector, dark[:, None] + (samples - dark[:, None]) * gain[:, None], samples)
+    equalised = np.empty_like(rings)
+    np.put_along_axis(equalised, turned, samples, axis=1)
+    return cast("NDArray[np.float64]", equalised.reshape(shape).astype(profiles.dtype))
+
+
 #: Candidates the prescreen's cascade takes at a time (:func:`~marker_localizer.core.
 #: sampling.in_blocks`): its (candidates, 36) float32 rings are smaller than the
 #: check's, and each block pays the cascade's calls. The 20 000 candidates of an
@@ -394,6 +434,7 @@ def count_symmetric_rings(
     min_contrast: float | NDArray[np.float64],
     min_symmetry: float,
     min_good: int,
+    equalise: bool = False,
 ) -> NDArray[np.int64]:
     """Rings (of ``radii_px``, per point) with contrast, 180-degree symmetry and four sectors.
 
@@ -412,6 +453,7 @@ def count_symmetric_rings(
             or (N,) one per point.
         min_symmetry: smallest 180-degree self-correlation of a good ring.
         min_good: the count the caller will require.
+        equalise: read each ring after :func:`equalise_bright_sectors`.
 
     Returns:
         (N,) int number of good rings.
@@ -419,7 +461,9 @@ def count_symmetric_rings(
     n_rings = np.shape(radii_px)[-1]
     radii = np.broadcast_to(np.asarray(radii_px, dtype=np.float64), (len(xy), n_rings))
     floor = np.broadcast_to(np.asarray(min_contrast, dtype=np.float64), (len(xy),))
-    cascade = functools.partial(_count_symmetric_rings, image, limits=(min_symmetry, min_good))
+    cascade = functools.partial(
+        _count_symmetric_rings, image, limits=(min_symmetry, min_good), equalise=equalise
+    )
     return in_blocks(cascade, _CASCADE_BLOCK, xy, radii, floor)
 
 
@@ -430,6 +474,7 @@ def _count_symmetric_rings(
     min_contrast: NDArray[np.float64],
     *,
     limits: tuple[float, int],
+    equalise: bool,
 ) -> NDArray[np.int64]:
     """:func:`count_symmetric_rings` of the points ``xy`` with their (N, J) ring radii.
 
@@ -443,10 +488,12 @@ def _count_symmetric_rings(
     # The smoothing weighs four samples below 2^16 into a sum below 2^24: on 8- and
     # 16-bit images the float32 smoothed rings, their extremes and mid levels are those
     # of float64, and the sector analysis takes them rather than smoothing again.
-    exact = np.issubdtype(image.dtype, np.integer) and image.dtype.itemsize <= 2
+    exact = np.issubdtype(image.dtype, np.integer) and image.dtype.itemsize <= 2 and not equalise
     sampled = []  # (points, their ring j's measures) per radius, for the survivors
     for j in range(n_rings):
         ring = _nearest_ring(image, xy[alive], radii[alive, j])
+        if equalise:
+            ring = equalise_bright_sectors(ring)
         f, contrast, level, missing = _smoothed_extremes(ring)
         symmetry = _self_correlation(f, missing)
         passed[alive] += (contrast >= min_contrast[alive]) & (symmetry >= min_symmetry)
@@ -531,6 +578,17 @@ class SymmetryCheck(NamedTuple):
     line_angles: NDArray[np.float64]
     contrast: NDArray[np.float64]
 
+    def with_rows(
+        self,
+        index: NDArray[np.integer[Any]],
+        other: SymmetryCheck,
+        rows: NDArray[np.integer[Any]] | NDArray[np.bool_] | slice = slice(None),
+    ) -> SymmetryCheck:
+        """A copy with the candidates ``index`` replaced by ``other``'s ``rows``."""
+        return SymmetryCheck(
+            *(_scatter(a, index, b[rows]) for a, b in zip(self, other, strict=True))
+        )
+
 
 def ring_radii(radius_range_px: tuple[float, float]) -> NDArray[np.float64]:
     """Ring radii of the annular scan: a sqrt(2) progression across the expected radii."""
@@ -562,6 +620,7 @@ def centre_symmetry_check(
     max_angle_drift_rad: float = np.deg2rad(15.0),
     max_first_ring: int = 2,
     normalise: Normaliser | None = None,
+    equalise: bool = False,
 ) -> SymmetryCheck:
     """Annular-scan centre-symmetry check (section 3.2, invariant 1).
 
@@ -580,6 +639,7 @@ def centre_symmetry_check(
         max_angle_drift_rad: largest change of a line angle between rings.
         max_first_ring: the run must start at a ring index below this.
         normalise: applied to the ring samples (contrast is measured after it).
+        equalise: read each ring after :func:`equalise_bright_sectors` too.
 
     Returns:
         :class:`SymmetryCheck`.
@@ -590,6 +650,7 @@ def centre_symmetry_check(
         radii_px=radii_px,
         options=(min_contrast, min_symmetry, max_angle_drift_rad, max_first_ring),
         normalise=normalise,
+        equalise=equalise,
     )
     return in_blocks(check, _CHECK_BLOCK, xy)
 
@@ -601,8 +662,14 @@ def _centre_symmetry_check(
     radii_px: NDArray[np.float64],
     options: tuple[float, float, float, int],
     normalise: Normaliser | None,
+    equalise: bool,
 ) -> SymmetryCheck:
     """:func:`centre_symmetry_check` of the points ``xy``; ``options`` are its four limits."""
+
+    def rings(points: NDArray[np.float64], radii: NDArray[np.float64]) -> RingAnalysis:
+        profiles = annular_profiles(image, points, radii, normalise)
+        return analyse_rings(equalise_bright_sectors(profiles) if equalise else profiles)
+
     max_first_ring = options[3]
     n, n_rings = len(xy), len(radii_px)
     if n == 0:
@@ -613,17 +680,17 @@ def _centre_symmetry_check(
     # it. Texture's runs end within the first rings, so the outer rings are read only
     # for the candidates whose run goes on to the last of those.
     first_read = min(n_rings, max_first_ring + _RINGS_READ_BEYOND_START)
-    inner = analyse_rings(annular_profiles(image, xy, radii_px[:first_read], normalise))
+    inner = rings(xy, radii_px[:first_read])
     check, going_on = _ring_runs(inner, radii_px[:first_read], *options)
     if first_read == n_rings or not going_on.any():
         return check
     further = np.flatnonzero(going_on)
-    outer = analyse_rings(annular_profiles(image, xy[further], radii_px[first_read:], normalise))
-    rings = RingAnalysis(
+    outer = rings(xy[further], radii_px[first_read:])
+    joined = RingAnalysis(
         *(np.concatenate([a[further], b], axis=1) for a, b in zip(inner, outer, strict=True))
     )
-    full, _ = _ring_runs(rings, radii_px, *options)
-    return SymmetryCheck(*(_scatter(a, further, b) for a, b in zip(check, full, strict=True)))
+    full, _ = _ring_runs(joined, radii_px, *options)
+    return check.with_rows(further, full)
 
 
 def _ring_runs(
@@ -1618,6 +1685,7 @@ def prescreen_symmetry(
     xy: NDArray[np.float64],
     radii_px: NDArray[np.float64],
     min_contrast: float | NDArray[np.float64],
+    equalise: bool = False,
 ) -> NDArray[np.bool_]:
     """(N,) True where all :data:`PRESCREEN_GOOD_RINGS` rings show the X.
 
@@ -1631,6 +1699,7 @@ def prescreen_symmetry(
         radii_px: (N, 3) ring radii (:func:`prescreen_ring_radii`), px.
         min_contrast: smallest bright-minus-dark level of a good ring, raw grey levels;
             or (N,) one per candidate.
+        equalise: read each ring after :func:`equalise_bright_sectors`.
     """
     good = count_symmetric_rings(
         image,
@@ -1639,5 +1708,6 @@ def prescreen_symmetry(
         min_contrast=min_contrast,
         min_symmetry=PRESCREEN_SYMMETRY,
         min_good=PRESCREEN_GOOD_RINGS,
+        equalise=equalise,
     )
     return good >= PRESCREEN_GOOD_RINGS

@@ -14,7 +14,13 @@ from marker_localizer.bench.accuracy import families
 from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.core import decision, pipeline, verification
 from marker_localizer.errors import ImageError
-from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
+from marker_localizer.synthetic import (
+    MarkerPlacement,
+    SceneConfig,
+    render_checkerboard,
+    render_markers,
+    render_scene,
+)
 
 
 def _checker_2x2(size: int = 64, blur: float = 1.0) -> np.ndarray:
@@ -312,19 +318,51 @@ def _recall_and_false(config: DetectorConfig, frames) -> tuple[float, float]:
     return found / total, false / len(frames)
 
 
+def test_the_default_finds_wide_markers_with_a_dull_quadrant_and_no_texture_with_them():
+    # Bright quadrants 0.45-0.6 as bright as their opposites on markers of 16-28 px:
+    # the plain rings see two sectors, not four (none of these found before); with
+    # the bright sectors equalised for X's wider than texture's, and the template
+    # match and the refit giving the quadrants their levels, some are.
+    found = false = 0
+    for seed in (0, 3):
+        rng = np.random.default_rng(seed)
+        placements = [
+            MarkerPlacement(
+                160 + 320 * (i % 3) + rng.uniform(-20, 20),
+                160 + 320 * (i // 3) + rng.uniform(-20, 20),
+                rng.uniform(16, 28),
+                rng.uniform(0, np.pi),
+                rng.uniform(0, 40),
+                rng.uniform(0, np.pi),
+                "quarter_disks",
+                dull_factor=rng.uniform(0.45, 0.6),
+                dull_quadrant=int(rng.integers(2)),
+            )
+            for i in range(6)
+        ]
+        scene = render_markers((640, 960), placements, seed, blur_sigma_px=1.0, noise_sigma_dn=2.0)
+        config = DetectorConfig(marker_radius_min_px=10.0, marker_radius_max_px=30.0)
+        hits, misses, _ = _score(Detector(config).detect(scene.image).as_array(), scene.centres)
+        found, false = found + hits, false + misses
+    assert found >= 4
+    assert false == 0
+
+
 def test_the_template_decision_keeps_markers_with_a_dull_quadrant_or_a_shadow_edge(
     uneven_light_frames,
 ):
     """Grey-level symmetry loses most of them; the sector order and the fit fewer.
 
-    (The default's template match gives each bright quadrant its level, which keeps
-    some dull ones: 13 -> 21 % of these frames' markers; the template decision 33 %.)
+    (The default gives the quadrants their levels in the template match and the
+    refit, and equalises the rings of X's wider than texture's: 13 -> 25 % of these
+    frames' markers; the template decision 33 %.)
     """
     (low, high), frames = uneven_light_frames
     radius = {"marker_radius_min_px": low, "marker_radius_max_px": high}
     symmetry, _ = _recall_and_false(DetectorConfig(**radius), frames)
     template_recall, false = _recall_and_false(DetectorConfig(**radius, **TEMPLATE), frames)
-    assert template_recall >= symmetry + 0.1
+    assert template_recall > symmetry
+    assert template_recall >= 0.3
     assert false <= 0.5
 
 

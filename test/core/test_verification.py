@@ -314,3 +314,19 @@ def test_windows_enlarged_together_are_those_enlarged_one_by_one():
     ):
         alone = cv2.resize(window, None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
         np.testing.assert_array_equal(together, alone if zoom > 1 else window)
+
+
+def test_equalising_the_bright_sectors_restores_a_dull_quadrants_symmetry_and_nothing_else():
+    dull = _sector_profile([1.0, 0.1, 0.45, 0.1], [25, 115, 205, 295])
+    even = _sector_profile([1.0, 0.1, 1.0, 0.1], [25, 115, 205, 295])
+    # Texture: bright sectors that differ in width, or dark ones that differ in level.
+    uneven_widths = _sector_profile([1.0, 0.1, 0.45, 0.1], [25, 65, 205, 295])
+    uneven_darks = _sector_profile([1.0, 0.1, 0.45, 0.5], [25, 115, 205, 295])
+    rings = np.stack([dull, even, uneven_widths, uneven_darks])[:, None, :]
+    plain = verification.analyse_rings(rings)
+    equalised = verification.analyse_rings(verification.equalise_bright_sectors(rings))
+    assert plain.symmetry[0, 0] < 0.5 and not plain.four_sectors[0, 0]
+    assert equalised.symmetry[0, 0] > 0.99 and equalised.four_sectors[0, 0]
+    np.testing.assert_array_equal(verification.equalise_bright_sectors(even), even)
+    assert (equalised.symmetry[2:, 0] < 0.5).all()
+    assert not equalised.four_sectors[2:, 0].any()
