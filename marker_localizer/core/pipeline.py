@@ -754,13 +754,13 @@ class Detector:
         108 nearest-pixel samples each (the cascade stops at the first bad ring).
         At most :data:`_MAX_VERIFIED` of those that pass go on, spread over the
         frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`); the
-        rest are cut and counted.
+        rest are cut and counted. Candidates screened at or beyond texture's scale
+        (:data:`verification.TEXTURE_EXTENT_PX`) that fail are read again with the
+        bright sectors equalised (:meth:`_ring_check` says why and when).
         """
         floor = self._raw_contrast_floor(full_scale, gamma, candidates.xy)
         radii = self._prescreen_radii(candidates)
         keep = verification.prescreen_symmetry(gray, candidates.xy, radii, floor)
-        # Candidates screened beyond texture's scale may be X's with a dull quadrant:
-        # their rings are read again with the bright sectors equalised.
         wide = np.flatnonzero(~keep & (candidates.scale_px >= verification.TEXTURE_EXTENT_PX))
         keep[wide] = verification.prescreen_symmetry(
             gray, candidates.xy[wide], radii[wide], floor[wide], equalise=True
@@ -1067,19 +1067,19 @@ class Detector:
             normalise=gamma,
         )
         plain = check(candidates.xy)
-        wide = verification.TEXTURE_EXTENT_PX
+        texture_px = verification.TEXTURE_EXTENT_PX
         settled = (
             plain.accepted
-            & (plain.radius_px >= wide)
+            & (plain.radius_px >= texture_px)
             & (plain.score >= self._score_floor(plain.radius_px))
         )
-        retry = np.flatnonzero(~settled & (candidates.scale_px >= wide))
+        retry = np.flatnonzero(~settled & (candidates.scale_px >= texture_px))
         if not len(retry):
             return plain
         equalised = check(candidates.xy[retry], equalise=True)
         better = (
             equalised.accepted
-            & (equalised.radius_px >= wide)
+            & (equalised.radius_px >= texture_px)
             & (~plain.accepted[retry] | (equalised.score > plain.score[retry]))
         )
         return plain.with_rows(retry[better], equalised, better)
