@@ -183,6 +183,17 @@ def test_a_dull_bright_quadrant_keeps_the_template_match_of_a_perfect_x(levels):
     assert match.ncc[0] > 0.98
 
 
+def test_a_bright_quadrant_as_dark_as_the_dark_ones_is_no_dull_x():
+    # One bright quadrant of three dark ones (an L corner) would fit the template
+    # with its bright pair split at 0.98; the duller must stand above the dark pair.
+    angles = np.array([0.3, 1.7])
+    image = _four_level_x([0.9, 0.1, 0.05, 0.1], (47.3, 48.6), angles)
+    match = template.template_correlation(
+        image, np.array([[47.3, 48.6]]), angles[None], np.array([12.0])
+    )
+    assert match.ncc[0] < 0.6
+
+
 def test_dark_quadrants_that_differ_still_lower_the_template_match():
     # Texture saddles' dark gaps differ as their stones do; black paint does not.
     angles = np.array([0.3, 1.7])
