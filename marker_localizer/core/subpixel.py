@@ -27,7 +27,6 @@ import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
-from scipy.special import erf
 
 from marker_localizer.core import template
 from marker_localizer.core.sampling import (
@@ -888,14 +887,13 @@ def _edge_steps(
         s2: the same from line 2.
         blur_px: the edges' Gaussian blur, px (pixel integration is added).
     """
-    scale = 1.0 / np.sqrt(2.0 * (blur_px**2 + template.PIXEL_VARIANCE_PX2))
-    return np.stack([erf(s1 * scale), erf(s2 * scale)], axis=-1)
+    return np.stack([template.edge_step(s1, blur_px), template.edge_step(s2, blur_px)], axis=-1)
 
 
 def _edge_step_chi2(
     residual: NDArray[np.float64],
     weight: NDArray[np.float64],
-    jacobian: NDArray[np.float64],
+    weighted: NDArray[np.float64],
     normal: NDArray[np.float64],
     steps: NDArray[np.float64],
     cell: NDArray[np.float64],
@@ -906,21 +904,21 @@ def _edge_step_chi2(
     :func:`_edge_steps` too would give, to first order (the steps orthogonalised
     against the fit's columns), over the residual variance with them: chi-square
     with 2 degrees of freedom where the quadrants match. ``residual``, ``weight``
-    (N, K), ``jacobian`` (N, K, P) and its ``normal`` matrix are the fit's at its
-    end; ``cell`` (N,) is the area a sample stands for, px^2 (samples closer than a
+    (N, K), the ``weighted`` Jacobian (N, K, P) and the ``normal`` matrix are the
+    fit's at its end; ``cell`` (N,) is the area a sample stands for, px^2 (samples closer than a
     pixel share their noise).
     """
     weighted_steps = steps * weight[..., None]
-    cross = (jacobian * weight[..., None]).transpose(0, 2, 1) @ steps
+    cross = weighted.transpose(0, 2, 1) @ steps
     projected = np.linalg.solve(normal + 1e-9 * np.eye(normal.shape[-1]), cross)
     reduced = weighted_steps.transpose(0, 2, 1) @ steps - cross.transpose(0, 2, 1) @ projected
-    gradient = ((jacobian * weight[..., None]).transpose(0, 2, 1) @ residual[..., None])[..., 0]
+    gradient = (weighted.transpose(0, 2, 1) @ residual[..., None])[..., 0]
     score = (weighted_steps.transpose(0, 2, 1) @ residual[..., None])[..., 0]
     score -= (projected.transpose(0, 2, 1) @ gradient[..., None])[..., 0]
     drop = (score[:, None, :] @ np.linalg.pinv(reduced) @ score[..., None])[:, 0, 0]
     # The variance left with the levels fitted: the symmetric fit's own residual holds
     # the misfit of the levels it lacks.
-    dof = np.maximum(weight.sum(axis=1) - jacobian.shape[-1] - steps.shape[-1], 1.0)
+    dof = np.maximum(weight.sum(axis=1) - weighted.shape[-1] - steps.shape[-1], 1.0)
     variance = np.maximum((weight * residual**2).sum(axis=1) - drop, 1e-12) / dof
     chi2: NDArray[np.float64] = drop / variance * cell
     return chi2
@@ -1032,7 +1030,7 @@ def _gauss_newton_symmetry(
     contrast = _row_spread(samples, both)
     step_chi2: NDArray[np.float64] = np.full(n, np.nan)
     if test_steps is not None:
-        step_chi2 = _edge_step_chi2(residual, weight, jacobian, normal, test_steps, cell[:, 0, 0])
+        step_chi2 = _edge_step_chi2(residual, weight, weighted, normal, test_steps, cell[:, 0, 0])
     return _SymmetrySolution(centre, covariance, residual_rms, contrast, converged, step_chi2)
 
 

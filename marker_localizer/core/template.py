@@ -288,10 +288,9 @@ def template_correlation(
     # that of the last entry, padding wherever a point has any.
     s1_read, s2_read = s1[present], s2[present]
     for sigma in sigmas_px:
-        scale = 1.0 / np.sqrt(2.0 * (sigma**2 + PIXEL_VARIANCE_PX2))
-        model = erf(s1[:, -1:] * scale) * erf(s2[:, -1:] * scale)
+        model = edge_step(s1[:, -1:], sigma) * edge_step(s2[:, -1:], sigma)
         model = np.repeat(model, padded.shape[1], axis=1)
-        model[present] = erf(s1_read * scale) * erf(s2_read * scale)
+        model[present] = edge_step(s1_read, sigma) * edge_step(s2_read, sigma)
         model_centred = _centred(model, present, count)
         model_norm2 = (model_centred**2).sum(axis=1) + 1e-12
         product = (centred * model_centred).sum(axis=1)
@@ -321,6 +320,20 @@ def template_correlation(
     extra = np.where(np.abs(split) < 2.0 * np.abs(contrast), projected**2 / difference_norm2, 0.0)
     ncc = np.sqrt(np.minimum(ncc**2 + extra / norm_i2, 1.0))
     return TemplateMatch(ncc, best_sigma)
+
+
+def edge_step(distance_px: NDArray[np.float64], blur_px: float) -> NDArray[np.float64]:
+    """erf(s / (sqrt(2) w)): a straight edge's blurred step, -1 to 1, at signed distances s.
+
+    w^2 is the Gaussian blur's variance plus the pixel's own (:data:`PIXEL_VARIANCE_PX2`).
+
+    Args:
+        distance_px: signed distances from the edge, px.
+        blur_px: the optics' blur sigma, px.
+    """
+    scale = 1.0 / np.sqrt(2.0 * (blur_px**2 + PIXEL_VARIANCE_PX2))
+    step: NDArray[np.float64] = erf(distance_px * scale)
+    return step
 
 
 def _centred(

@@ -156,17 +156,24 @@ def test_template_correlation_is_near_one_on_an_x_and_low_on_an_l_corner():
     assert match_l.ncc[0] < 0.8
 
 
-def _four_level_x(
-    levels: list[float], centre: tuple[float, float], angles: np.ndarray
-) -> np.ndarray:
-    """A blurred X with a grey level per quadrant, in the order of the quadrants
-    (s1 > 0, s2 > 0), (s1 > 0, s2 < 0), (s1 < 0, s2 < 0), (s1 < 0, s2 > 0)."""
+_FOUR_LEVEL_CENTRE = (47.3, 48.6)
+_FOUR_LEVEL_ANGLES = np.array([0.3, 1.7])
+
+
+def _four_level_match(levels: list[float]) -> float:
+    """The template match at the centre of a blurred X with a grey level per quadrant,
+    in the order (s1 > 0, s2 > 0), (s1 > 0, s2 < 0), (s1 < 0, s2 < 0), (s1 < 0, s2 > 0)."""
     fine = (np.arange(96 * 8) + 0.5) / 8 - 0.5
     y, x = np.meshgrid(fine, fine, indexing="ij")
-    s1, s2 = template.line_distances(x - centre[0], y - centre[1], angles)
+    cx, cy = _FOUR_LEVEL_CENTRE
+    s1, s2 = template.line_distances(x - cx, y - cy, _FOUR_LEVEL_ANGLES)
     quadrant = np.where(s1 > 0, np.where(s2 > 0, 0, 1), np.where(s2 < 0, 2, 3))
     sharp = np.asarray(levels)[quadrant]
-    return cv2.GaussianBlur(cv2.resize(sharp, (96, 96), interpolation=cv2.INTER_AREA), (0, 0), 1.0)
+    image = cv2.GaussianBlur(cv2.resize(sharp, (96, 96), interpolation=cv2.INTER_AREA), (0, 0), 1.0)
+    match = template.template_correlation(
+        image, np.array([_FOUR_LEVEL_CENTRE]), _FOUR_LEVEL_ANGLES[None], np.array([12.0])
+    )
+    return float(match.ncc[0])
 
 
 @pytest.mark.parametrize(
@@ -175,33 +182,18 @@ def _four_level_x(
 def test_a_dull_bright_quadrant_keeps_the_template_match_of_a_perfect_x(levels):
     # The paper's two-level template matches this X at 0.85; a level per bright
     # quadrant restores the match (0.993).
-    angles = np.array([0.3, 1.7])
-    image = _four_level_x(levels, (47.3, 48.6), angles)
-    match = template.template_correlation(
-        image, np.array([[47.3, 48.6]]), angles[None], np.array([12.0])
-    )
-    assert match.ncc[0] > 0.98
+    assert _four_level_match(levels) > 0.98
 
 
 def test_a_bright_quadrant_as_dark_as_the_dark_ones_is_no_dull_x():
     # One bright quadrant of three dark ones (an L corner) would fit the template
     # with its bright pair split at 0.98; the duller must stand above the dark pair.
-    angles = np.array([0.3, 1.7])
-    image = _four_level_x([0.9, 0.1, 0.05, 0.1], (47.3, 48.6), angles)
-    match = template.template_correlation(
-        image, np.array([[47.3, 48.6]]), angles[None], np.array([12.0])
-    )
-    assert match.ncc[0] < 0.6
+    assert _four_level_match([0.9, 0.1, 0.05, 0.1]) < 0.6
 
 
 def test_dark_quadrants_that_differ_still_lower_the_template_match():
     # Texture saddles' dark gaps differ as their stones do; black paint does not.
-    angles = np.array([0.3, 1.7])
-    image = _four_level_x([0.9, 0.1, 0.9, 0.5], (47.3, 48.6), angles)
-    match = template.template_correlation(
-        image, np.array([[47.3, 48.6]]), angles[None], np.array([12.0])
-    )
-    assert match.ncc[0] < 0.92
+    assert _four_level_match([0.9, 0.1, 0.9, 0.5]) < 0.92
 
 
 @pytest.mark.parametrize("kind", ["checker", "quarter_disks"])
