@@ -385,3 +385,46 @@ def test_the_quadrant_level_statistic_follows_the_noise_where_the_quadrants_matc
     dull = [statistic(*_dull_x(seed, 0.7)) for seed in range(12)]
     assert max(even) < subpixel.EDGE_STEP_MIN_CHI2 / 4
     assert min(dull) > subpixel.EDGE_STEP_MIN_CHI2
+
+
+def _gate(image, start, angles):
+    return subpixel.locate_markers(
+        image,
+        start[None],
+        np.array([13.0]),
+        angles,
+        np.array([1.0]),
+        max_radius_px=30.0,
+        iterations=10,
+        min_contrast=1.0,
+        max_symmetry_residual=0.1,
+    )
+
+
+@pytest.mark.parametrize("dull_factor", [0.45, 0.6])
+def test_the_gating_fit_judges_a_dull_quadrant_as_it_judges_even_paint(dull_factor):
+    # A bright quadrant 0.45 as bright as its opposite leaves a grey-level symmetry
+    # residual over a tenth of the contrast, which rejects it; the residual the
+    # quadrants' own levels leave is that of even paint.
+    for seed in range(4):
+        image, truth, angles = _dull_x(seed, dull_factor)
+        even_image, even_truth, even_angles = _dull_x(seed, 1.0)
+        dull = _gate(image, truth + [0.3, -0.2], angles)
+        even = _gate(even_image, even_truth + [0.3, -0.2], even_angles)
+        assert dull.accepted[0]
+        assert dull.score[0] > even.score[0] - 0.01
+
+
+def test_the_quadrants_own_levels_judge_only_an_x_they_leave_as_clean_as_even_paint():
+    # Noise the levels cannot explain: past subpixel.LEVELLED_MAX_RESIDUAL the plain
+    # residual judges, levels or not.
+    image, truth, angles = _dull_x(0, 0.5)
+    noisy = image + np.random.default_rng(1).normal(0.0, 25.0, image.shape)
+    start = truth + [0.3, -0.2]
+    fit = subpixel.refine_point_symmetry(
+        noisy, start[None], np.array([0.9 * 13.0]), max_shift_px=1.5, line_angles=angles
+    )
+    assert fit.step_chi2[0] > subpixel.EDGE_STEP_MIN_CHI2
+    assert fit.levelled_residual[0] > subpixel.LEVELLED_MAX_RESIDUAL * fit.contrast[0]
+    gate = _gate(noisy, start, angles)
+    assert gate.score[0] == pytest.approx(1.0 - fit.residual[0] / fit.contrast[0])
