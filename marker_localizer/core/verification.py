@@ -973,6 +973,65 @@ class EdgePhaseCheck(NamedTuple):
     contrast: NDArray[np.float64]
 
 
+def _edge_rings(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radii_px: NDArray[np.float64],
+    min_contrast: float,
+    max_phase_error_rad: float,
+    normalise: Normaliser | None,
+) -> EdgePhaseRings:
+    """:func:`analyse_ring_edges` of the rings of ``radii_px`` around ``xy``."""
+    profiles = annular_profiles(image, xy, radii_px, normalise)
+    return analyse_ring_edges(
+        profiles, min_contrast=min_contrast, max_phase_error_rad=max_phase_error_rad
+    )
+
+
+def line_crossing_centres(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radii_px: NDArray[np.float64],
+    *,
+    min_contrast: float,
+    recentre_px: float = RECENTRE_MAX_PX,
+    normalise: Normaliser | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Candidates moved to where the lines found on their rings cross.
+
+    The rings' edges are paired leniently (:data:`RECENTRE_PHASE_ERROR_RAD`: a line
+    1 px off the centre meets a ring of 3 px ~40 degrees from opposite); the chords
+    of an X's lines cross at its centre wherever the ring is
+    (:func:`chord_crossing`), and the median over the rings that found two lines is
+    the estimate. Only edges' phases are read, never grey levels across the centre:
+    a dull bright quadrant or a shadow edge, which pull a fit of grey-level symmetry
+    off the centre, leave the lines where they are.
+
+    Args:
+        image: (H, W) image.
+        xy: (N, 2) candidate centres.
+        radii_px: (J,) ring radii, px: the innermost, which the X must reach.
+        min_contrast: minimum ring contrast in image units (after ``normalise``).
+        recentre_px: largest move, px; a candidate that would move further stays.
+        normalise: applied to the ring samples.
+
+    Returns:
+        (N, 2) the centres, and (N,) True where a ring found two lines.
+    """
+    rings = _edge_rings(image, xy, radii_px, min_contrast, RECENTRE_PHASE_ERROR_RAD, normalise)
+    crossing = np.where(
+        rings.good[..., None], chord_crossing(xy, radii_px, rings.crossings), np.nan
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no ring found lines
+        estimate = np.nanmedian(crossing, axis=1)
+    move = np.isfinite(estimate).all(axis=1) & (
+        np.linalg.norm(estimate - xy, axis=1) <= recentre_px
+    )
+    found_lines = cast("NDArray[np.bool_]", rings.good.any(axis=1))
+    return np.where(move[:, None], estimate, xy), found_lines
+
+
 def edge_phase_check(
     image: NDArray[Any],
     xy: NDArray[np.float64],
@@ -992,12 +1051,12 @@ def edge_phase_check(
     X is the marker's extent), each analysed by :func:`analyse_ring_edges`. A
     candidate off the centre sees the crossings of each line less than 180 degrees
     apart; the rings are therefore read twice: once at the candidate, then where the
-    chords of the lines found there cross (:func:`chord_crossing`, the median over
-    the good rings, if within ``recentre_px``). The lines of an X pass through its
-    centre, so their angles must agree from ring to ring (a bar's two edges, which
-    also pair up on one ring, spread with the radius). A candidate passes when a run
-    of at least two consecutive good rings with consistent line angles starts at
-    one of the ``max_first_ring`` innermost rings.
+    lines found on its innermost rings cross (:func:`line_crossing_centres`). The
+    lines of an X pass through its centre, so their angles must agree from ring to
+    ring (a bar's two edges, which also pair up on one ring, spread with the
+    radius). A candidate passes when a run of at least two consecutive good rings
+    with consistent line angles starts at one of the ``max_first_ring`` innermost
+    rings.
 
     Unlike :func:`centre_symmetry_check` it never compares grey levels across the
     centre: one bright sector duller than the other leaves the edges' phases and
@@ -1029,32 +1088,17 @@ def edge_phase_check(
             np.zeros(0),
         )
 
-    def scan(
-        centres: NDArray[np.float64], radii: NDArray[np.float64], phase_error_rad: float
-    ) -> EdgePhaseRings:
-        profiles = annular_profiles(image, centres, radii, normalise)
-        return analyse_ring_edges(
-            profiles, min_contrast=min_contrast, max_phase_error_rad=phase_error_rad
-        )
-
-    # First the rings a run may start on, and the next, paired leniently: a line 1 px
-    # off the centre meets a ring of 3 px ~40 degrees from opposite. They only say
-    # where the lines cross, and which candidates can pass at all: a ring that fails
-    # the lenient pairing fails the strict one.
-    inner_radii = radii_px[: max_first_ring + 1]
-    first_look = scan(xy, inner_radii, RECENTRE_PHASE_ERROR_RAD)
-    crossing = np.where(
-        first_look.good[..., None], chord_crossing(xy, inner_radii, first_look.crossings), np.nan
+    # A ring that fails the lenient pairing of the recentring fails the strict one.
+    xy, found_lines = line_crossing_centres(
+        image,
+        xy,
+        radii_px[: max_first_ring + 1],
+        min_contrast=min_contrast,
+        recentre_px=recentre_px,
+        normalise=normalise,
     )
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no ring found lines
-        estimate = np.nanmedian(crossing, axis=1)
-    move = np.isfinite(estimate).all(axis=1) & (
-        np.linalg.norm(estimate - xy, axis=1) <= recentre_px
-    )
-    xy = np.where(move[:, None], estimate, xy)
-    hopeful = np.flatnonzero(first_look.good.any(axis=1))
-    strict = scan(xy[hopeful], radii_px, max_phase_error_rad)
+    hopeful = np.flatnonzero(found_lines)
+    strict = _edge_rings(image, xy[hopeful], radii_px, min_contrast, max_phase_error_rad, normalise)
     rings = EdgePhaseRings(
         *(
             _scatter(np.zeros((n, *np.shape(part)[1:]), part.dtype), hopeful, part)

@@ -346,11 +346,12 @@ def _wide_dull_markers(seeds, dull_factors):
 
 def test_the_default_finds_wide_markers_with_a_dull_quadrant_and_no_texture_with_them():
     # Bright quadrants 0.45-0.6 as bright as their opposites on markers of 16-28 px:
-    # the plain rings see two sectors, not four (none of these found before); with
-    # the bright sectors equalised for X's wider than texture's, and the template
-    # match and the refit giving the quadrants their levels, some are.
+    # the plain rings see two sectors, not four, and the centring is pulled 1-3 px
+    # towards the brighter side. The equalised rings read where the X's lines cross,
+    # the template match and the fit giving the quadrants their levels, find them
+    # (0 of these 12 before the equalised rings, 5 before the lines' crossing, 11).
     found, false = _wide_dull_markers((0, 3), (0.45, 0.6))
-    assert found >= 4
+    assert found >= 10
     assert false == 0
 
 
@@ -363,22 +364,22 @@ def test_a_milder_dull_quadrant_costs_wide_markers_almost_nothing():
     assert false == 0
 
 
-def test_the_template_decision_keeps_markers_with_a_dull_quadrant_or_a_shadow_edge(
+def test_both_decisions_keep_markers_with_a_dull_quadrant_or_a_shadow_edge(
     uneven_light_frames,
 ):
-    """Grey-level symmetry loses most of them; the sector order and the fit fewer.
+    """Plain grey-level symmetry loses most of them; the sector order and the fit fewer.
 
     (The default gives the quadrants their levels in the template match and the
-    refit, and equalises the rings of X's wider than texture's: 13 -> 25 % of these
-    frames' markers; the template decision 33 %.)
+    fit, equalises the rings of X's wider than texture's and reads them where the
+    X's lines cross: 13 -> 25 -> 33 % of these frames' markers; the template
+    decision 33 %.)
     """
     (low, high), frames = uneven_light_frames
     radius = {"marker_radius_min_px": low, "marker_radius_max_px": high}
-    symmetry, _ = _recall_and_false(DetectorConfig(**radius), frames)
-    template_recall, false = _recall_and_false(DetectorConfig(**radius, **TEMPLATE), frames)
-    assert template_recall > symmetry
-    assert template_recall >= 0.3
-    assert false <= 0.5
+    for config in (DetectorConfig(**radius), DetectorConfig(**radius, **TEMPLATE)):
+        recall, false = _recall_and_false(config, frames)
+        assert recall >= 0.3
+        assert false <= 0.5
 
 
 def test_the_template_decision_gives_every_candidate_it_saw_one_verdict(cluttered_frames):

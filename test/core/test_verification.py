@@ -93,6 +93,32 @@ def test_the_papers_annular_check_accepts_an_x_and_moves_a_start_1_5_px_off_onto
     assert check.radius_px[0] >= 8.0
 
 
+@pytest.mark.parametrize("dull_factor", [0.45, 0.6])
+def test_the_lines_crossing_finds_the_centre_a_dull_quadrant_hides_from_grey_level_symmetry(
+    dull_factor,
+):
+    # The rings' edges stay where the X's lines are, whatever the quadrants' levels:
+    # started where a fit of grey-level symmetry ends, 1-3 px off, the candidate
+    # moves back onto the centre; without lines it stays where it is.
+    dull = MarkerPlacement(
+        *CENTRE[0], 18.0, 0.3, 30.0, 0.7, "quarter_disks", dull_factor=dull_factor
+    )
+    scene = render_markers((128, 128), [dull], 0, blur_sigma_px=1.0, noise_sigma_dn=2.0)
+    image = scene.image.astype(np.float32) / 255.0
+    starts = CENTRE + np.array([[1.5, -1.0], [-2.0, 1.5]])
+    moved, found = verification.line_crossing_centres(
+        image, starts, verification.ring_radii((6.0, 40.0))[:3], min_contrast=20 / 255
+    )
+    assert found.all()
+    assert np.linalg.norm(moved - scene.centres[0], axis=1).max() < 0.3
+    flat = np.full_like(image, 0.5)
+    stay, lines = verification.line_crossing_centres(
+        flat, starts, verification.ring_radii((6.0, 40.0))[:3], min_contrast=20 / 255
+    )
+    assert not lines.any()
+    np.testing.assert_array_equal(stay, starts)
+
+
 @pytest.mark.parametrize(
     "kind", ["l_corner", "quarter_disk", "t_junction", "bar", "blob", "plus", "triangle"]
 )
