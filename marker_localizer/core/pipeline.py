@@ -127,6 +127,14 @@ _LINE_WINDOW_MIN_PX = 3.0
 #: those a run of good rings may start on and the next
 #: (:func:`verification.centre_symmetry_check`'s ``max_first_ring`` of 2, plus one).
 _LINE_CROSSING_RINGS = 3
+#: Candidates screened at this scale or wider, px (the saddle pyramid's second level
+#: on), that the plain rings reject are read again with the bright sectors
+#: equalised, and where the X's lines cross (:meth:`Detector._ring_check`). What
+#: counts is still the extent the rings show (:data:`verification.EQUALISED_MIN_EXTENT_PX`);
+#: the scale only spares the cost: texture responds at the first level (4 px), and
+#: on the real aerial and cirn_uas frames this re-reads ~15 candidates a frame at
+#: 3-30 px, ~200 at 6-40 px (every rejected one: sand frames 150 -> 295 ms at 3-30).
+_EQUALISED_MIN_SCALE_PX = 8.0
 
 
 @dataclass(frozen=True)
@@ -758,14 +766,14 @@ class Detector:
         108 nearest-pixel samples each (the cascade stops at the first bad ring).
         At most :data:`_MAX_VERIFIED` of those that pass go on, spread over the
         frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`); the
-        rest are cut and counted. Candidates screened at or beyond texture's scale
-        (:data:`verification.TEXTURE_EXTENT_PX`) that fail are read again with the
+        rest are cut and counted. Candidates screened beyond texture's scale
+        (:data:`_EQUALISED_MIN_SCALE_PX`) that fail are read again with the
         bright sectors equalised (:meth:`_ring_check` says why and when).
         """
         floor = self._raw_contrast_floor(full_scale, gamma, candidates.xy)
         radii = self._prescreen_radii(candidates)
         keep = verification.prescreen_symmetry(gray, candidates.xy, radii, floor)
-        wide = np.flatnonzero(~keep & (candidates.scale_px >= verification.TEXTURE_EXTENT_PX))
+        wide = np.flatnonzero(~keep & (candidates.scale_px >= _EQUALISED_MIN_SCALE_PX))
         keep[wide] = verification.prescreen_symmetry(
             gray, candidates.xy[wide], radii[wide], floor[wide], equalise=True
         )
@@ -1053,9 +1061,10 @@ class Detector:
         X's geometry; :func:`verification.equalise_bright_sectors` gives the two
         bright sectors one level. That is evidence texture can fake at its own
         sizes (equalised everywhere, texture saddles of extent 2-6 px pass on the
-        renderer's (a) and (c) and on real aerial ground), so it counts only for
-        candidates wider than :data:`verification.TEXTURE_EXTENT_PX`: screened
-        beyond it, or shown out to it by the plain rings. Their equalised result
+        renderer's (a) and (c) and on real aerial ground), so it counts only where
+        it shows the X out to :data:`verification.EQUALISED_MIN_EXTENT_PX`, and is read for
+        candidates screened beyond texture's scale (:data:`_EQUALISED_MIN_SCALE_PX`)
+        or shown out to that extent by the plain rings. Their equalised result
         stands where it shows the X out to that extent and the plain check did not,
         or scored lower (a dull quadrant lowers the plain rings' symmetry, and with
         it the score every later floor reads).
@@ -1063,17 +1072,17 @@ class Detector:
         The same quadrant pulls the centring, a fit of grey-level symmetry, towards
         the brighter side: 1-3 px on the renderer's (g) markers of 10-30 px, where
         the inner rings no longer see the X symmetric, equalised or not. Candidates
-        screened that wide and still rejected are therefore read again, equalised,
+        screened wide and still rejected are therefore read again, equalised,
         where the lines found on their innermost rings cross
         (:func:`verification.line_crossing_centres`: edges' phases only, which the
         levels leave in place), and move there where the X shows out to that extent.
 
-        Rendered (g): 18 -> 21 of 96 markers for those screened wide, 25 -> 28
-        with those shown wide (the fit judging by the quadrants' own levels), 28 ->
-        36 with the recentring; independent (g) 5 -> 7, 8 -> 8, 8 -> 13 of 48. No
-        false point more on any family or real ground, where no candidate is
-        screened that wide at 3-30 or 6-40 px and the few shown wide cost no
-        measurable time.
+        Rendered (g): 18 -> 21 of 96 markers for those screened at 9 px or wider,
+        25 -> 28 with those shown wide (the fit judging by the quadrants' own
+        levels), 28 -> 36 with the recentring, 36 -> 39 from 8 px on, 39 -> 42
+        counting equalised rings out to 7 px, not 9; independent (g) 5 -> 7, 8 ->
+        8, 8 -> 13, 13 -> 13, 13 -> 17 of 48. No false point more on any family or
+        real ground, where the re-reading costs no measurable time.
 
         Returns:
             The candidates (those recentred moved) and their check.
@@ -1087,18 +1096,26 @@ class Detector:
             min_symmetry=cfg.symmetry_min,
             normalise=gamma,
         )
-        texture_px = verification.TEXTURE_EXTENT_PX
-        screened_wide = candidates.scale_px >= texture_px
+        wide_px = verification.EQUALISED_MIN_EXTENT_PX
+        screened_wide = candidates.scale_px >= _EQUALISED_MIN_SCALE_PX
         ring = check(candidates.xy)
-        retry = np.flatnonzero(screened_wide | (ring.accepted & (ring.radius_px >= texture_px)))
+        retry = np.flatnonzero(screened_wide | (ring.accepted & (ring.radius_px >= wide_px)))
         if len(retry):
             equalised = check(candidates.xy[retry], equalise=True)
             better = (
                 equalised.accepted
-                & (equalised.radius_px >= texture_px)
+                & (equalised.radius_px >= wide_px)
                 & (~ring.accepted[retry] | (equalised.score > ring.score[retry]))
             )
-            ring = ring.with_rows(retry[better], equalised, better)
+            # Where the plain rings accept, the equalised ones may raise the score, not
+            # the extent: beyond the plate, equalising lets the ground pass as the X
+            # (the flight simulator's markers: 8 -> 11.3 px, their error doubled).
+            reach = np.where(
+                ring.accepted[retry],
+                np.minimum(equalised.radius_px, ring.radius_px[retry]),
+                equalised.radius_px,
+            )
+            ring = ring.with_rows(retry[better], equalised._replace(radius_px=reach), better)
         lost = np.flatnonzero(screened_wide & ~ring.accepted)
         if not len(lost):
             return candidates, ring
@@ -1110,7 +1127,7 @@ class Detector:
             normalise=gamma,
         )
         there = check(crossing, equalise=True)
-        found = there.accepted & (there.radius_px >= texture_px)
+        found = there.accepted & (there.radius_px >= wide_px)
         xy = candidates.xy.copy()
         xy[lost[found]] = crossing[found]
         moved = Candidates(xy, candidates.strength, candidates.scale_px)

@@ -108,6 +108,13 @@ TEXTURE_EXTENT_PX = 9.0
 #: simulated flights (where 0.88 let 1 texture point per frame through) and the
 #: renderer's families, but for 8 % of the tiny ones of family (b).
 TEXTURE_SCORE_FLOORS = ((6.0, 0.92), (TEXTURE_EXTENT_PX, 0.88))
+#: Smallest extent, px, at which rings read with their bright sectors equalised
+#: (:func:`equalise_bright_sectors`) count as an X: equalised, texture saddles pass
+#: out to 6 px (on the renderer's (a) and (c) and on real aerial ground, with the
+#: ring ladder's 6 px rung); a dull marker's rings, 7.07 px and more (the ladder's
+#: next rungs at 5-30 and 6-40 px: 7.07 and 8.49). A rung lower, at 6, the false
+#: points come back (own (a) 0 -> 2, (c) 0 -> 2, real aerial at 6-40 px 2 -> 3).
+EQUALISED_MIN_EXTENT_PX = 7.0
 #: Detections whose X extends no further than the smallest expected radius (times this,
 #: for the ring ladder's rounding), or than :data:`SMALL_EXTENT_MAX_RADIUS_PX` where that
 #: is smaller, are small markers.
