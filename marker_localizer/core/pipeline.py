@@ -1080,8 +1080,9 @@ class Detector:
         Rendered (g): 18 -> 21 of 96 markers for those screened at 9 px or wider,
         25 -> 28 with those shown wide (the fit judging by the quadrants' own
         levels), 28 -> 36 with the recentring, 36 -> 39 from 8 px on, 39 -> 42
-        counting equalised rings out to 7 px, not 9; independent (g) 5 -> 7, 8 ->
-        8, 8 -> 13, 13 -> 13, 13 -> 17 of 48. No false point more on any family or
+        counting equalised rings out to 7 px, not 9, 42 -> 45 with their extent
+        where the plain rings' score falls under its floor; independent (g) 5 -> 7,
+        8 -> 8, 8 -> 13, 13 -> 13, 13 -> 17, 17 -> 17 of 48. No false point more on any family or
         real ground, where the re-reading costs no measurable time.
 
         Returns:
@@ -1102,16 +1103,20 @@ class Detector:
         retry = np.flatnonzero(screened_wide | (ring.accepted & (ring.radius_px >= wide_px)))
         if len(retry):
             equalised = check(candidates.xy[retry], equalise=True)
+            plain_floor = self._score_floor(ring.radius_px[retry])
+            weak = ring.accepted[retry] & (ring.score[retry] < plain_floor)
             better = (
                 equalised.accepted
                 & (equalised.radius_px >= wide_px)
-                & (~ring.accepted[retry] | (equalised.score > ring.score[retry]))
+                & (~ring.accepted[retry] | weak | (equalised.score > ring.score[retry]))
             )
-            # Where the plain rings accept, the equalised ones may raise the score, not
-            # the extent: beyond the plate, equalising lets the ground pass as the X
-            # (the flight simulator's markers: 8 -> 11.3 px, their error doubled).
+            # Where the plain rings accept an X above the score floor of its extent,
+            # the equalised ones may raise the score, not the extent: beyond the plate,
+            # equalising lets the ground pass as the X (the flight simulator's
+            # markers: 8 -> 11.3 px, their error doubled). Under that floor (a dull
+            # quadrant cuts both), the equalised reading stands whole.
             reach = np.where(
-                ring.accepted[retry],
+                ring.accepted[retry] & ~weak,
                 np.minimum(equalised.radius_px, ring.radius_px[retry]),
                 equalised.radius_px,
             )

@@ -368,6 +368,15 @@ def test_a_milder_dull_quadrant_costs_wide_markers_almost_nothing():
     assert false == 0
 
 
+def test_the_equalised_rings_stand_whole_where_the_plain_ones_score_under_their_floor():
+    # A dull quadrant shortens the plain rings' reach and lowers their score: their
+    # extent's floor rejects the X that the equalised rings show wider and clean
+    # (9 of these 12 found where the plain extent stood, 12 with the equalised).
+    found, false = _wide_dull_markers((3, 4), (0.6, 0.8), (12, 20), (8.0, 24.0))
+    assert found >= 11
+    assert false == 0
+
+
 def test_equalised_rings_count_from_7_px_where_texture_stops():
     # Markers of 10-16 px tilted up to 40 degrees: their equalised rings may reach
     # only the 8.49 px rung of the ladder at 6-20 px (19 of these 24 found when
