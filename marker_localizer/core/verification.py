@@ -409,19 +409,15 @@ def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64
     smooth = _circular_smooth(np.where(np.isnan(rings), 0.0, rings))
     dark, peak = smooth.min(axis=1), smooth.max(axis=1)
     duller = np.minimum(smooth[:, :_HALF_TURN], smooth[:, _HALF_TURN:]).max(axis=1)
-    # Each ring turned so that its maximum sits at the half turn.
-    angle = np.arange(N_ANGLES)
-    turned = (angle + smooth.argmax(axis=1)[:, None] - _HALF_TURN) % N_ANGLES
-    low = np.take_along_axis(smooth, turned, axis=1) <= (0.5 * (dark + duller))[:, None]
-    start = np.where(low[:, :_HALF_TURN], angle[:_HALF_TURN], -1).max(axis=1)
-    stop = np.where(low[:, _HALF_TURN + 1 :], angle[_HALF_TURN + 1 :], N_ANGLES).min(axis=1)
-    sector = (angle > start[:, None]) & (angle < stop[:, None])
+    # Each sample's angle from the ring's maximum, which sits at the half turn.
+    turned = (np.arange(N_ANGLES) - smooth.argmax(axis=1)[:, None] + _HALF_TURN) % N_ANGLES
+    low = smooth <= (0.5 * (dark + duller))[:, None]
+    start = np.where(low & (turned < _HALF_TURN), turned, -1).max(axis=1)
+    stop = np.where(low & (turned > _HALF_TURN), turned, N_ANGLES).min(axis=1)
     scalable = (start >= 0) & (stop < N_ANGLES) & (duller > dark)
-    gain = np.where(scalable, (duller - dark) / np.maximum(peak - dark, 1e-12), 1.0)
-    samples = np.take_along_axis(rings, turned, axis=1)
-    samples = np.where(sector, dark[:, None] + (samples - dark[:, None]) * gain[:, None], samples)
-    equalised = np.empty_like(rings)
-    np.put_along_axis(equalised, turned, samples, axis=1)
+    sector = scalable[:, None] & (turned > start[:, None]) & (turned < stop[:, None])
+    gain = (duller - dark) / np.maximum(peak - dark, 1e-12)
+    equalised = np.where(sector, dark[:, None] + (rings - dark[:, None]) * gain[:, None], rings)
     return cast("NDArray[np.float64]", equalised.reshape(shape).astype(profiles.dtype))
 
 
