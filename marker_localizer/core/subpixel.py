@@ -144,6 +144,16 @@ EDGE_STEP_BLUR_PX = 1.0
 #: bound went 2.29 -> 2.30 on (a), 2.71 -> 2.75 on (c), and on the independent
 #: renderer's (a) frames 2.33 -> 2.79.
 EDGE_STEP_MIN_CHI2 = 100.0
+#: The same statistic from which :func:`refine_along_lines` fits the quadrants' own
+#: levels: lower than the gating's :data:`EDGE_STEP_MIN_CHI2`, since with the lines'
+#: directions measured afresh (:func:`_edge_directions`) the levels cost a marker
+#: of even paint nothing measured down to 45, and markers a shadow edge crosses
+#: score 10-140 while the symmetric fit leaves them 0.1-0.6 px off. Rendered (g):
+#: mean error 0.060 px at 80 and 100, 0.050 at 60, 0.047 at 45 and 30; at 30 the
+#: tiny markers of (b) lose (error over the bound 2.04 -> 2.08), at 13.8 (b) 2.12
+#: and the independent renderer's (a) 2.33 -> 2.44. At 45 the independent
+#: renderer's families stay as they were ((b) 2.43 -> 2.41).
+LEVELS_REFIT_MIN_CHI2 = 45.0
 #: Farther than this from the gating fit's centre, px, a fit with the quadrants' own
 #: levels has slipped: the gating fit is point-symmetric in grey levels, and a bright
 #: quadrant 0.45 as bright as its opposite pulls it 0.3-0.6 px (rendered, tilt 20 deg).
@@ -691,16 +701,16 @@ def refine_along_lines(
     a shadow over two quadrants) the grey levels are not point-symmetric and this
     fit is pulled towards the brighter side, 0.2-0.5 px for a quadrant 0.7-0.5 as
     bright as its opposite. Each point's score statistic for the quadrants' own
-    levels (:func:`_edge_step_chi2`) says where: above :data:`EDGE_STEP_MIN_CHI2` the
+    levels (:func:`_edge_step_chi2`) says where: above :data:`LEVELS_REFIT_MIN_CHI2` the
     fit runs again with them (two more parameters, linear in :func:`_edge_steps`),
     along the lines' directions measured afresh from their edges
     (:func:`_edge_directions`: the levels' steps must lie on the lines, and the
     ring check's directions are a few degrees off), and may move up to
     :data:`EDGE_STEP_MAX_SHIFT_PX`. Rendered family (g) (every marker with a dull
     quadrant, half with a shadow edge): mean error 0.151 -> 0.073 px with the
-    levels, 0.054 px with the directions; independent (g) 0.109 -> 0.086 -> 0.044
-    px; no marker of the other families reaches the threshold, so their centres
-    stay as they were.
+    levels, 0.054 px with the directions, 0.047 px with the lower threshold;
+    independent (g) 0.109 -> 0.086 -> 0.044 px. The other families' errors stay
+    as they were but for (d)'s (error over the bound 2.76 -> 2.61).
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -743,7 +753,7 @@ def refine_along_lines(
             symmetric.covariance,
             symmetric.converged,
         )
-        uneven = np.flatnonzero(symmetric.converged & (symmetric.step_chi2 > EDGE_STEP_MIN_CHI2))
+        uneven = np.flatnonzero(symmetric.converged & (symmetric.step_chi2 > LEVELS_REFIT_MIN_CHI2))
         if len(uneven):
             at = rows[uneven]
             reach[at] = EDGE_STEP_MAX_SHIFT_PX
