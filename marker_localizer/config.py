@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, TypeVar, overload
 
 from marker_localizer.core.verification import (
+    EQUALISED_MIN_EXTENT_PX,
     SMALL_EXTENT_MAX_RADIUS_PX,
     TEMPLATE_MIN_RADIUS_PX,
     TEMPLATE_RADIUS_FRACTION,
@@ -234,8 +235,8 @@ class DetectorConfig:
         "levels, which illumination does not change. Printed black and white give "
         "0.7-0.8, partly shadowed markers on the renderer kept 0.31 and more, "
         "ground-texture saddles (gravel gaps) stayed below 0.38 and mostly below 0.3. "
-        f"Tested on X's under {TEXTURE_EXTENT_PX:g} px only (texture's scale): dim real "
-        "boards give 0.18.",
+        f"Tested on X's under {EQUALISED_MIN_EXTENT_PX:g} px only (texture's reach): dim "
+        "real boards give 0.18, the faintest rendered markers 0.21.",
         low=0.0,
         high=1.0,
     )

@@ -1638,8 +1638,13 @@ def modulation_gate(
     levels of markers with an extent under ~4 px say little about their paint: they
     are tested only when they also fall short of the expected radius, as texture
     saddles do (a small marker in a frame of small markers is not suspect). X's
-    larger than texture makes (:data:`TEXTURE_EXTENT_PX`) are not tested: dim real
-    boards (black level, haze) modulate as little as 0.18.
+    wider than texture's rings reach even equalised (:data:`EQUALISED_MIN_EXTENT_PX`)
+    are not tested: dim real boards (black level, haze) modulate as little as 0.18,
+    and so do markers of the lowest contrast the renderers draw (0.35: 0.21). Up to
+    :data:`TEXTURE_EXTENT_PX` instead, the gate lost 1 marker on the renderer's (a),
+    2 on (c), 1 on (d) and 1 on its 12 MP frames, and kept out no false point there,
+    on the independent renderer's frames, the real aerial frames or the disc
+    lattice (on the flight simulator's mirror-tiled ground, 2 in 100 frames).
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -1657,7 +1662,7 @@ def modulation_gate(
     measurable = (
         (offset_px >= MODULATION_MIN_OFFSET_PX)
         & ((radius_px < min_radius_px) | (offset_px >= MODULATION_FREE_OFFSET_PX))
-        & (radius_px < TEXTURE_EXTENT_PX)
+        & (radius_px < EQUALISED_MIN_EXTENT_PX)
     )
     return cast("NDArray[np.bool_]", ~measurable | (modulation >= min_modulation))
 
