@@ -322,6 +322,38 @@ def test_the_line_weighted_refit_is_more_precise_than_the_gating_fit_on_large_ma
     assert np.mean(refit_error) < 0.6 * np.mean(gating_error)
 
 
+def test_a_tiny_marker_is_located_within_one_and_a_half_times_its_cramer_rao_bound():
+    # On a disk of 3.6 px the light's slope would cost more than it corrects
+    # (1.7x the bound with it).
+    errors, bounds = [], []
+    for seed in range(16):
+        rng = np.random.default_rng(seed)
+        placement = MarkerPlacement(
+            32 + rng.random(), 32 + rng.random(), 4.0, rng.uniform(0, np.pi), 30.0, 0.3, "checker"
+        )
+        scene = render_markers(
+            (64, 64), [placement], seed, blur_sigma_px=0.8, noise_sigma_dn=3.0, crlb=True
+        )
+        truth, angles = scene.centres[0], np.array([scene.markers[0].angles])
+        gating = subpixel.locate_markers(
+            scene.image,
+            np.round(truth)[None],
+            np.array([4.0]),
+            angles,
+            np.array([0.9]),
+            max_radius_px=10.0,
+            iterations=12,
+            min_contrast=10.0,
+            max_symmetry_residual=0.2,
+        )
+        refit, _ = subpixel.refine_along_lines(
+            scene.image, gating.xy, gating.sigma, np.array([4.0]), angles, max_radius_px=10.0
+        )
+        errors.append(np.linalg.norm(refit[0] - truth))
+        bounds.append(scene.crlb_px[0])
+    assert np.mean(errors) < 1.5 * np.mean(bounds)
+
+
 def test_a_line_weighted_refit_that_slips_from_the_gating_centre_keeps_it():
     image, truth = _large_noisy_x(0)
     start = truth[None] + [[0.8, 0.0]]
