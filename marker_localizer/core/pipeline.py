@@ -130,10 +130,11 @@ _LINE_CROSSING_RINGS = 3
 #: Candidates screened at this scale or wider, px (the saddle pyramid's second level
 #: on), that the plain rings reject are read again with the bright sectors
 #: equalised, and where the X's lines cross (:meth:`Detector._ring_check`). What
-#: counts is still the extent the rings show (:data:`verification.EQUALISED_MIN_EXTENT_PX`);
-#: the scale only spares the cost: texture responds at the first level (4 px), and
-#: on the real aerial and cirn_uas frames this re-reads ~15 candidates a frame at
-#: 3-30 px, ~200 at 6-40 px (every rejected one: sand frames 150 -> 295 ms at 3-30).
+#: counts is still the extent the rings show
+#: (:data:`verification.EQUALISED_MIN_EXTENT_PX`); the scale only spares the cost:
+#: texture responds at the first level (4 px), and on the real aerial and cirn_uas
+#: frames this re-reads ~15 candidates a frame at 3-30 px, ~200 at 6-40 px (every
+#: rejected one: sand frames 150 -> 295 ms at 3-30).
 _EQUALISED_MIN_SCALE_PX = 8.0
 
 
@@ -1062,12 +1063,12 @@ class Detector:
         bright sectors one level. That is evidence texture can fake at its own
         sizes (equalised everywhere, texture saddles of extent 2-6 px pass on the
         renderer's (a) and (c) and on real aerial ground), so it counts only where
-        it shows the X out to :data:`verification.EQUALISED_MIN_EXTENT_PX`, and is read for
-        candidates screened beyond texture's scale (:data:`_EQUALISED_MIN_SCALE_PX`)
-        or shown out to that extent by the plain rings. Their equalised result
-        stands where it shows the X out to that extent and the plain check did not,
-        or scored lower (a dull quadrant lowers the plain rings' symmetry, and with
-        it the score every later floor reads).
+        it shows the X out to :data:`verification.EQUALISED_MIN_EXTENT_PX`, and is
+        read for candidates screened beyond texture's scale
+        (:data:`_EQUALISED_MIN_SCALE_PX`) or shown out to that extent by the plain
+        rings. Their equalised result stands where it shows the X out to that
+        extent and the plain check did not, or scored lower (a dull quadrant lowers
+        the plain rings' symmetry, and with it the score every later floor reads).
 
         The same quadrant pulls the centring, a fit of grey-level symmetry, towards
         the brighter side: 1-3 px on the renderer's (g) markers of 10-30 px, where
@@ -1082,8 +1083,8 @@ class Detector:
         levels), 28 -> 36 with the recentring, 36 -> 39 from 8 px on, 39 -> 42
         counting equalised rings out to 7 px, not 9, 42 -> 45 with their extent
         where the plain rings' score falls under its floor; independent (g) 5 -> 7,
-        8 -> 8, 8 -> 13, 13 -> 13, 13 -> 17, 17 -> 17 of 48. No false point more on any family or
-        real ground, where the re-reading costs no measurable time.
+        8 -> 8, 8 -> 13, 13 -> 13, 13 -> 17, 17 -> 17 of 48. No false point more on
+        any family or real ground, where the re-reading costs no measurable time.
 
         Returns:
             The candidates (those recentred moved) and their check.
