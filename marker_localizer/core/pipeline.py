@@ -1132,6 +1132,9 @@ class Detector:
             min_contrast=self._min_contrast,
             normalise=gamma,
         )
+        # Those the crossing left where they were have had their equalised reading.
+        shifted = (crossing != candidates.xy[lost]).any(axis=1)
+        lost, crossing = lost[shifted], crossing[shifted]
         there = check(crossing, equalise=True)
         found = there.accepted & (there.radius_px >= wide_px)
         xy = candidates.xy.copy()
