@@ -720,10 +720,12 @@ def refine_along_lines(
     (:func:`_edge_directions`: the levels' steps must lie on the lines, and the
     ring check's directions are a few degrees off), and may move up to
     :data:`EDGE_STEP_MAX_SHIFT_PX`. Rendered family (g) (every marker with a dull
-    quadrant, half with a shadow edge): mean error 0.151 -> 0.073 px with the
-    levels, 0.054 px with the directions, 0.047 px with the lower threshold;
-    independent (g) 0.109 -> 0.086 -> 0.044 px. The other families' errors stay
-    as they were but for (d)'s (error over the bound 2.76 -> 2.61).
+    quadrant, half with a shadow edge): mean error 0.151 -> 0.071 px with the
+    levels (on the 18 markers then found); on the 42 found at db1ccd2 0.105 ->
+    0.066 px with the directions; 0.060 -> 0.047 px on 45 with the lower
+    threshold; independent (g) 0.104 -> 0.061 px on its 17 (`bench accuracy` at
+    9066720: 0.047 and 0.061 px). The other families' errors stay as they were
+    but for (d)'s (error over the bound 2.76 -> 2.61).
 
     Args:
         image: (H, W) grey image, raw levels.
