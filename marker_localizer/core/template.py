@@ -322,14 +322,16 @@ def template_correlation(
     return TemplateMatch(ncc, best_sigma)
 
 
-def edge_step(distance_px: NDArray[np.float64], blur_px: float) -> NDArray[np.float64]:
+def edge_step(
+    distance_px: NDArray[np.float64], blur_px: float | NDArray[np.float64]
+) -> NDArray[np.float64]:
     """erf(s / (sqrt(2) w)): a straight edge's blurred step, -1 to 1, at signed distances s.
 
     w^2 is the Gaussian blur's variance plus the pixel's own (:data:`PIXEL_VARIANCE_PX2`).
 
     Args:
         distance_px: signed distances from the edge, px.
-        blur_px: the optics' blur sigma, px.
+        blur_px: the optics' blur sigma, px (or one per point, broadcast with the distances).
     """
     scale = 1.0 / np.sqrt(2.0 * (blur_px**2 + PIXEL_VARIANCE_PX2))
     step: NDArray[np.float64] = erf(distance_px * scale)
