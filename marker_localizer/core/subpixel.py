@@ -796,7 +796,7 @@ def refine_along_lines(
                 np.where(level_differ[:, None, None], 0.0, inside.information),
             )
         symmetric = fit(
-            centre[rows], *band[:4], model_gain=sloped, test_steps=band.steps, slope_prior=prior
+            centre[rows], *band[:4], model_gain=sloped, test_steps=band.steps(), slope_prior=prior
         )
         centre[rows], covariance[rows], converged[rows] = (
             symmetric.centre,
@@ -821,15 +821,12 @@ def refine_along_lines(
                 ).centre
             lines = _edge_directions(image, centre[at], float(key), line_angles[at])
             levelled = _line_band(float(key), lines)
-            blur = _step_blur(image, centre[at], levelled, lines, sloped)
-            across = template.line_distances(
-                levelled.offsets[..., 0], levelled.offsets[..., 1], lines
-            )
+            blur = _step_blur(image, centre[at], levelled, sloped)
             centre[at], covariance[at], _, _, converged[at], _, _ = fit(
                 centre[at],
                 *levelled[:4],
                 model_gain=sloped,
-                edge_steps=_edge_steps(*across, blur[:, None]),
+                edge_steps=levelled.steps(blur[:, None]),
             )
     refined = converged & (np.linalg.norm(centre - xy, axis=1) <= reach)
     variance = covariance[:, 0, 0] + covariance[:, 1, 1]
@@ -845,15 +842,21 @@ class _LineBand(NamedTuple):
     """The half-pixel pairs :func:`refine_along_lines` reads around N points' lines.
 
     ``offsets`` (N, K, 2), ``weight`` and ``present`` (N, K) and ``spacing`` (N,)
-    in :func:`_gauss_newton_symmetry`'s order; ``steps`` (N, K, 2) are
-    :func:`_edge_steps` at the offsets.
+    in :func:`_gauss_newton_symmetry`'s order; ``across`` (N, K, 2) the offsets'
+    signed distances from the two lines (:func:`template.line_distances`).
     """
 
     offsets: NDArray[np.float64]
     weight: NDArray[np.float64]
     present: NDArray[np.bool_]
     spacing: NDArray[np.float64]
-    steps: NDArray[np.float64]
+    across: NDArray[np.float64]
+
+    def steps(
+        self, blur_px: float | NDArray[np.float64] = EDGE_STEP_BLUR_PX
+    ) -> NDArray[np.float64]:
+        """(N, K, 2) :func:`_edge_steps` at the offsets for an edge blur, px (or (N, 1) blurs)."""
+        return _edge_steps(self.across[..., 0], self.across[..., 1], blur_px)
 
 
 def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
@@ -872,17 +875,16 @@ def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
         nearest = np.broadcast_to(np.arange(len(disk)), near.shape)
     distance = np.take_along_axis(near, nearest, axis=1)
     present = distance <= _LINE_BAND_REACH
-    steps = _edge_steps(
-        np.take_along_axis(np.broadcast_to(s1, near.shape), nearest, axis=1),
-        np.take_along_axis(np.broadcast_to(s2, near.shape), nearest, axis=1),
-        EDGE_STEP_BLUR_PX,
+    across = np.stack(
+        [np.take_along_axis(np.broadcast_to(s, near.shape), nearest, axis=1) for s in (s1, s2)],
+        axis=-1,
     )
     return _LineBand(
         disk[nearest],
         np.where(present, np.exp(-0.5 * distance**2), 0.0),
         present,
         np.full(len(line_angles), np.min(np.abs(disk[disk != 0]), initial=1.0)),
-        steps,
+        across,
     )
 
 
@@ -890,7 +892,6 @@ def _step_blur(
     image: NDArray[Any],
     centre: NDArray[np.float64],
     band: _LineBand,
-    line_angles: NDArray[np.float64],
     model_gain: bool,
 ) -> NDArray[np.float64]:
     """(N,) each X's edge blur for its quadrants' own levels, of :data:`EDGE_STEP_BLURS_PX`, px.
@@ -906,13 +907,12 @@ def _step_blur(
     did no better (0.077 px); eleven blurs 0.5-1.6 px by this profile neither
     (0.080 px: the more choices, the more the noise picks).
     """
-    s1, s2 = template.line_distances(band.offsets[..., 0], band.offsets[..., 1], line_angles)
     residual, weight, jacobian, _ = _symmetry_terms(
         image, centre, np.zeros((len(centre), 4)), band.offsets, band.weight, model_gain
     )
     cost = []
     for blur in EDGE_STEP_BLURS_PX:
-        design = np.concatenate([jacobian, -_edge_steps(s1, s2, blur)], axis=-1)
+        design = np.concatenate([jacobian, -band.steps(blur)], axis=-1)
         weighted = design * weight[..., None]
         normal = weighted.transpose(0, 2, 1) @ design
         rhs = weighted.transpose(0, 2, 1) @ residual[..., None]
@@ -1005,11 +1005,7 @@ def _light_inside(
     disk, _ = symmetric_offsets(radius_px, _INSIDE_MAX_SAMPLES)
     s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], line_angles)
     k = len(disk)
-    both, valid = bilinear(
-        image,
-        np.concatenate([centre[:, 0, None] + disk[:, 0], centre[:, 0, None] - disk[:, 0]], axis=1),
-        np.concatenate([centre[:, 1, None] + disk[:, 1], centre[:, 1, None] - disk[:, 1]], axis=1),
-    )
+    both, valid = bilinear(image, *_pair_positions(centre, disk[None, :, 0], disk[None, :, 1]))
     plus, minus = both[:, :k], both[:, k:]
     weight = (
         (np.minimum(np.abs(s1), np.abs(s2)) >= INSIDE_LINE_DISTANCE_PX)
@@ -1128,13 +1124,7 @@ def _symmetry_terms(
     """
     dx, dy = offsets[..., 0], offsets[..., 1]
     k = dx.shape[1]
-    # c + d and c - d in one gather: for a few dozen points the calls, not the
-    # samples, are the cost.
-    both, gx, gy, valid = bilinear_with_gradient(
-        image,
-        np.concatenate([centre[:, 0, None] + dx, centre[:, 0, None] - dx], axis=1),
-        np.concatenate([centre[:, 1, None] + dy, centre[:, 1, None] - dy], axis=1),
-    )
+    both, gx, gy, valid = bilinear_with_gradient(image, *_pair_positions(centre, dx, dy))
     plus, minus = both[:, :k], both[:, k:]
     residual = plus - minus
     weight = taper * (valid[:, :k] & valid[:, k:])
@@ -1147,6 +1137,18 @@ def _symmetry_terms(
         residual -= gain[:, 2, None] * edge_steps[..., 0] + gain[:, 3, None] * edge_steps[..., 1]
         jac += [-edge_steps[..., 0], -edge_steps[..., 1]]
     return residual, weight, np.stack(jac, axis=-1), both
+
+
+def _pair_positions(
+    centre: NDArray[np.float64], dx: NDArray[np.float64], dy: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(x, y), each (N, 2K): the positions c + d of the K offsets d per point, then c - d.
+
+    Both ends of every pair in one gather: for a few dozen points the calls, not the
+    samples, are the cost. The first K columns are c + d, the last K c - d.
+    """
+    x, y = centre[:, 0, None], centre[:, 1, None]
+    return np.concatenate([x + dx, x - dx], axis=1), np.concatenate([y + dy, y - dy], axis=1)
 
 
 def _edge_steps(

@@ -370,20 +370,31 @@ def test_a_line_weighted_refit_that_slips_from_the_gating_centre_keeps_it():
     np.testing.assert_array_equal(kept, sigma)
 
 
-def _dull_x(seed: int, dull_factor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _dull_x(
+    seed: int, dull_factor: float, *, blur: float = 1.0, tilt_deg: float = 20.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     placement = MarkerPlacement(
         48 + rng.random(),
         48 + rng.random(),
         16.0,
         rng.uniform(0, np.pi),
-        20.0,
+        tilt_deg,
         0.3,
         "quarter_disks",
         dull_factor=dull_factor,
     )
-    scene = render_markers((96, 96), [placement], seed, blur_sigma_px=1.0, noise_sigma_dn=1.0)
+    scene = render_markers((96, 96), [placement], seed, blur_sigma_px=blur, noise_sigma_dn=1.0)
     return scene.image, scene.centres[0], np.array([scene.markers[0].angles])
+
+
+def _gate_and_refit(image, truth, angles):
+    """The gating fit from 0.36 px off a dull X of 16 px, and the line fit after it."""
+    gating = subpixel.refine_point_symmetry(image, truth[None] + [0.3, -0.2], np.array([12.0]))
+    refit, _ = subpixel.refine_along_lines(
+        image, gating.xy, np.array([0.1]), np.array([13.0]), angles, max_radius_px=30.0
+    )
+    return gating.xy[0], refit[0]
 
 
 @pytest.mark.parametrize("dull_factor", [0.5, 0.7])
@@ -393,12 +404,9 @@ def test_the_line_weighted_refit_gives_a_dull_quadrant_its_own_level(dull_factor
     gating_error, refit_error = [], []
     for seed in range(6):
         image, truth, angles = _dull_x(seed, dull_factor)
-        gating = subpixel.refine_point_symmetry(image, truth[None] + [0.3, -0.2], np.array([12.0]))
-        refit, _ = subpixel.refine_along_lines(
-            image, gating.xy, np.array([0.1]), np.array([13.0]), angles, max_radius_px=30.0
-        )
-        gating_error.append(np.linalg.norm(gating.xy[0] - truth))
-        refit_error.append(np.linalg.norm(refit[0] - truth))
+        gating, refit = _gate_and_refit(image, truth, angles)
+        gating_error.append(np.linalg.norm(gating - truth))
+        refit_error.append(np.linalg.norm(refit - truth))
     assert np.mean(gating_error) > 0.15
     assert np.mean(refit_error) < 0.03
 
@@ -430,11 +438,7 @@ def test_a_slightly_dull_quadrant_gets_its_own_level_under_the_gating_threshold(
     refit_error = []
     for seed in range(6):
         image, truth, angles = _dull_x(seed, 0.975)
-        gating = subpixel.refine_point_symmetry(image, truth[None] + [0.3, -0.2], np.array([12.0]))
-        refit, _ = subpixel.refine_along_lines(
-            image, gating.xy, np.array([0.1]), np.array([13.0]), angles, max_radius_px=30.0
-        )
-        refit_error.append(np.linalg.norm(refit[0] - truth))
+        refit_error.append(np.linalg.norm(_gate_and_refit(image, truth, angles)[1] - truth))
     assert subpixel.LEVELS_REFIT_MIN_CHI2 < subpixel.EDGE_STEP_MIN_CHI2
     assert np.mean(refit_error) < 0.005
 
@@ -445,7 +449,7 @@ def test_the_quadrant_level_statistic_follows_the_noise_where_the_quadrants_matc
     def statistic(image, centre, angles):
         band = subpixel._line_band(12.0, angles)
         fit = subpixel._gauss_newton_symmetry(
-            image, centre[None], *band[:4], 10, 1e-3, True, 0.0, True, test_steps=band.steps
+            image, centre[None], *band[:4], 10, 1e-3, True, 0.0, True, test_steps=band.steps()
         )
         return fit.step_chi2[0]
 
@@ -565,35 +569,15 @@ def test_the_light_slope_from_the_insides_costs_the_centre_little():
     assert np.mean(errors) < 1.75 * np.mean(bounds)
 
 
-def _dull_blurred_x(seed, blur):
-    rng = np.random.default_rng(seed)
-    placement = MarkerPlacement(
-        48 + rng.random(),
-        48 + rng.random(),
-        16.0,
-        rng.uniform(0, np.pi),
-        30.0,
-        0.3,
-        "quarter_disks",
-        dull_factor=0.6,
-    )
-    scene = render_markers((96, 96), [placement], seed, blur_sigma_px=blur, noise_sigma_dn=1.0)
-    return scene.image, scene.centres[0], np.array([scene.markers[0].angles])
-
-
 @pytest.mark.parametrize("blur", [0.6, 1.4])
 def test_the_quadrants_own_levels_step_with_the_blur_that_fits(blur):
     # With steps of 1 px the level of a dull quadrant bleeds into the centre: 0.02 px
     # off at a blur of 0.6 px, 0.08 px at 1.4 px.
     picked, errors = [], []
     for seed in range(8):
-        image, truth, angles = _dull_blurred_x(seed, blur)
+        image, truth, angles = _dull_x(seed, 0.6, blur=blur, tilt_deg=30.0)
         band = subpixel._line_band(0.9 * 13.0, angles)
-        picked.append(subpixel._step_blur(image, truth[None], band, angles, True)[0])
-        gating = subpixel.refine_point_symmetry(image, truth[None] + [0.3, -0.2], np.array([12.0]))
-        refit, _ = subpixel.refine_along_lines(
-            image, gating.xy, np.array([0.1]), np.array([13.0]), angles, max_radius_px=30.0
-        )
-        errors.append(np.linalg.norm(refit[0] - truth))
+        picked.append(subpixel._step_blur(image, truth[None], band, True)[0])
+        errors.append(np.linalg.norm(_gate_and_refit(image, truth, angles)[1] - truth))
     assert np.median(picked) == pytest.approx(blur, abs=0.21)
     assert np.mean(errors) < 0.015
