@@ -644,6 +644,7 @@ def coarse_centre(
     xy: NDArray[np.float64],
     scale_px: NDArray[np.float64],
     max_radius_px: float,
+    light_slope: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Move each candidate to its local centre of point symmetry (2 parameters, a few steps).
 
@@ -657,6 +658,10 @@ def coarse_centre(
         xy: (N, 2) candidate positions.
         scale_px: (N,) the candidates' scales, px.
         max_radius_px: the largest expected marker radius, px.
+        light_slope: fit the light's slope too (the gain gradient of
+            :func:`refine_point_symmetry`, two parameters more): a light changing
+            across the X, or a dull bright quadrant, no longer pulls the centre
+            towards the brighter side.
 
     Returns:
         (centres, inside): (N, 2) fitted centres and (N,) True where the fit found
@@ -671,7 +676,7 @@ def coarse_centre(
         iterations=_COARSE_ITERATIONS,
         tolerance_px=_COARSE_TOLERANCE_PX,
         max_shift_px=reach,
-        model_gain=False,
+        model_gain=light_slope,
         max_samples=_COARSE_SAMPLES,
         uncertainty=False,
     )

@@ -318,7 +318,9 @@ def _recall_and_false(config: DetectorConfig, frames) -> tuple[float, float]:
     return found / total, false / len(frames)
 
 
-def _wide_dull_markers(seeds, dull_factors, radii=(16, 28), radius_range=(10.0, 30.0)):
+def _wide_dull_markers(
+    seeds, dull_factors, radii=(16, 28), radius_range=(10.0, 30.0), max_tilt_deg=40.0
+):
     """Found and false points over frames of six markers, each with a dull quadrant."""
     found = false = 0
     for seed in seeds:
@@ -329,7 +331,7 @@ def _wide_dull_markers(seeds, dull_factors, radii=(16, 28), radius_range=(10.0, 
                 160 + 320 * (i // 3) + rng.uniform(-20, 20),
                 rng.uniform(*radii),
                 rng.uniform(0, np.pi),
-                rng.uniform(0, 40),
+                rng.uniform(0, max_tilt_deg),
                 rng.uniform(0, np.pi),
                 "quarter_disks",
                 dull_factor=rng.uniform(*dull_factors),
@@ -355,6 +357,34 @@ def test_the_default_finds_wide_markers_with_a_dull_quadrant_and_no_texture_with
     found, false = _wide_dull_markers((0, 3), (0.45, 0.6))
     assert found >= 10
     assert false == 0
+
+
+def test_wide_markers_the_centring_leaves_off_are_found_centred_with_the_light_slope():
+    # Bright quadrants 0.45-0.7 as bright as their opposites on markers of 10-25 px
+    # tilted up to 55 degrees: centred without the light's slope, some settle towards
+    # the brighter side where the rings do not see them whole (31 of these 36 found
+    # then); centred again with the slope where no marker was found, 34.
+    found, false = _wide_dull_markers(range(6), (0.45, 0.7), (10, 25), (6.0, 30.0), 55.0)
+    assert found >= 33
+    assert false == 0
+
+
+def test_lost_wide_candidates_centred_again_are_counted_and_add_only_new_markers(
+    uneven_light_frames,
+):
+    (low, high), frames = uneven_light_frames
+    detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
+    added = 0
+    for scene in frames:
+        result = detector.detect(scene.image)
+        counts = result.counts
+        assert 0 <= counts["found_recentred"] <= counts["recentred"]
+        added += counts["found_recentred"]
+        first = dict(result.survivors)["merging"]
+        assert len(result) == len(first) + counts["found_recentred"]
+        distance = cKDTree(result.as_array()[:, :2]).query(result.as_array()[:, :2], k=2)[0]
+        assert len(result) < 2 or distance[:, 1].min() > detector.merge_radius_px
+    assert added > 0
 
 
 def test_a_milder_dull_quadrant_costs_wide_markers_almost_nothing():
@@ -539,11 +569,14 @@ def test_the_survivors_narrow_test_by_test_down_to_the_detections():
     sizes = [len(xy) for _, xy in result.survivors]
     assert tuple(tests) == pipeline.SURVIVOR_TESTS
     # Each test keeps a subset of what reached it (the centring moves candidates and
-    # merges duplicates, so it keeps no more than it was given).
-    assert all(later <= earlier for earlier, later in itertools.pairwise(sizes))
-    assert sizes[-1] == len(result) > 0
-    merged = dict(result.survivors)["merging"]
-    assert np.allclose(np.sort(merged, axis=0), np.sort(result.as_array()[:, :2], axis=0), atol=0.5)
+    # merges duplicates, so it keeps no more than it was given); the last, the
+    # recentring of the lost wide candidates, only adds markers to the detections.
+    assert all(later <= earlier for earlier, later in itertools.pairwise(sizes[:-1]))
+    assert sizes[-2] <= sizes[-1] == len(result) > 0
+    survivors = dict(result.survivors)
+    detections = result.as_array()[:, :2]
+    assert np.allclose(np.sort(survivors["recentring"], axis=0), np.sort(detections, axis=0))
+    assert cKDTree(detections).query(survivors["merging"])[0].max() < 0.5
 
 
 def test_faint_paint_beyond_textures_reach_is_not_held_to_the_modulation_gate():
