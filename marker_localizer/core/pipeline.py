@@ -145,6 +145,13 @@ _WIDE_SCALE_PX = 8.0
 #: light's slope moves its centre this far, px: less moves the rings' crossings,
 #: read every 10 degrees from 3 px out, by under half a sample (4.8 degrees).
 _RECENTRE_MIN_SHIFT_PX = 0.25
+#: Lost wide candidates read again per frame at most, the strongest spread over the
+#: frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`): markers are
+#: among a frame's strongest saddles (the 9 the recentring adds on the rendered (g)
+#: frames ranked 0-58 among their frame's wide candidates; a cap of 32 keeps all 9,
+#: 16 loses one), and each costs about 0.1-0.2 ms (one of the speed benchmark's
+#: 12 MP cluttered frames lost 1102: +110 ms uncapped, +9 ms at 64).
+_MAX_RECENTRED = 64
 
 
 @dataclass(frozen=True)
@@ -193,8 +200,9 @@ class DetectionResult:
             ``rejected_centring``,
             ``rejected_symmetry``, ``rejected_template``, ``rejected_lines``,
             ``rejected_refinement``, ``rejected_score``,
-            ``merged_duplicates``, ``recentred``, ``found_recentred``
-            (:meth:`Detector._recentre_lost`), ``accepted``; with ``refinement="template"``,
+            ``merged_duplicates``, ``recentred``, ``found_recentred``,
+            ``recentring_over_cap`` (:meth:`Detector._recentre_lost`), ``accepted``;
+            with ``refinement="template"``,
             ``rejected_<reason>`` for each of :data:`decision.REASONS` instead of
             the centring, symmetry, template, refinement and score counts).
             ``dropped_over_cap`` counts every candidate that ``max_candidates``
@@ -572,17 +580,17 @@ class Detector:
         of 48; every other family, the real boards and the real aerial frames as
         they were, no false point more. Read again per frame, and the time it
         adds on one core: real aerial frames 0-1 at 3-30 px (none), 15 at 6-40 px
-        (112 -> 117 ms); cirn_uas 5 at 3-30 px (128 -> 132 ms); the flight
-        simulator's 12 MP frames 173 at 3-30 px (129 -> 147 ms), 24 at 6-40 px
-        (41 -> 47 ms).
+        (112 -> 117 ms); cirn_uas 5 at 3-30 px (128 -> 132 ms); the speed
+        benchmark's 12 MP cluttered frames at 6-40 px 46-60 (86 -> 98 ms).
 
-        Counts ``recentred``, the candidates centred again, and ``found_recentred``,
-        the markers they added; their second rejections are not counted again. The
-        survivors end with ``recentring``: the detections then.
+        Counts ``recentred``, the candidates read again, ``found_recentred``, the
+        markers they added, and ``recentring_over_cap``, the lost wide candidates
+        over :data:`_MAX_RECENTRED`; their second rejections are not counted again.
+        The survivors end with ``recentring``: the detections then.
         """
         cfg = self.config
         counts = result.counts
-        counts["recentred"] = counts["found_recentred"] = 0
+        counts["recentred"] = counts["found_recentred"] = counts["recentring_over_cap"] = 0
         lost = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
         found = np.array([[d.x, d.y] for d in result.detections]).reshape(-1, 2)
         if len(found) and len(lost):
@@ -591,6 +599,11 @@ class Detector:
             )
             lost = lost[~np.isfinite(distance)]
         if len(lost):
+            kept = screening.even_cap_index(
+                screened.xy[lost], screened.strength[lost], _MAX_RECENTRED, cfg.entropy_cell_px
+            )
+            counts["recentring_over_cap"] = len(lost) - len(kept)
+            lost = lost[kept]
             with timer("centring"):
                 start, scale = screened.xy[lost], screened.scale_px[lost]
                 plain, read = subpixel.coarse_centre(gray, start, scale, cfg.marker_radius_max_px)
