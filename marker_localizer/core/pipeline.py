@@ -596,8 +596,9 @@ class Detector:
         counts["recentred"] = counts["found_recentred"] = counts["recentring_over_cap"] = 0
         lost = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
         found = np.array([[d.x, d.y] for d in result.detections]).reshape(-1, 2)
-        if len(found) and len(lost):
-            distance, _ = cKDTree(found).query(
+        near_found = cKDTree(found) if len(found) else None
+        if near_found is not None and len(lost):
+            distance, _ = near_found.query(
                 screened.xy[lost], distance_upper_bound=self.merge_radius_px
             )
             lost = lost[~np.isfinite(distance)]
@@ -620,8 +621,8 @@ class Detector:
             # The second reading's counts describe candidates the first has counted.
             second = DetectionResult(counts=dict.fromkeys(counts, 0))
             added = self._verify_and_locate(gray, full_scale, gamma, again, second, timer)
-            if len(found) and added:
-                distance, _ = cKDTree(found).query(
+            if near_found is not None and added:
+                distance, _ = near_found.query(
                     [(d.x, d.y) for d in added], distance_upper_bound=self.merge_radius_px
                 )
                 counts["merged_duplicates"] += int(np.isfinite(distance).sum())

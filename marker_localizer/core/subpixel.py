@@ -921,8 +921,7 @@ def _step_blur(
         weighted = design * weight[..., None]
         normal = weighted.transpose(0, 2, 1) @ design
         rhs = weighted.transpose(0, 2, 1) @ residual[..., None]
-        scale = np.maximum(normal.diagonal(axis1=1, axis2=2), 1e-12)
-        solution = np.linalg.solve(normal + 1e-9 * scale[:, :, None] * np.eye(len(scale[0])), rhs)
+        solution = _damped_solve(normal, rhs)
         cost.append((weight * residual**2).sum(axis=1) - (rhs * solution)[..., 0].sum(axis=1))
     picked: NDArray[np.float64] = np.asarray(EDGE_STEP_BLURS_PX)[np.argmin(np.array(cost), axis=0)]
     return picked
@@ -1144,6 +1143,17 @@ def _symmetry_terms(
     return residual, weight, np.stack(jac, axis=-1), both
 
 
+def _damped_solve(normal: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, P, M) solutions of (N, P, P) normal equations, each damped by 1e-9 of its diagonal.
+
+    A parameter the pairs say nothing about (a slope column at the frame's edge, a
+    step the band misses) then stays put instead of making the system singular.
+    """
+    scale = np.maximum(normal.diagonal(axis1=1, axis2=2), 1e-12)
+    damped = normal + 1e-9 * scale[:, :, None] * np.eye(normal.shape[-1])
+    return cast("NDArray[np.float64]", np.linalg.solve(damped, rhs))
+
+
 def _pair_positions(
     centre: NDArray[np.float64], dx: NDArray[np.float64], dy: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -1256,7 +1266,6 @@ def _gauss_newton_symmetry(
     if slope_prior is not None:
         gain[:, :2] = slope_prior[0]
     step_norm: NDArray[np.float64] = np.full(n, np.inf)
-    eye = np.eye(n_params)
     # The points whose centre the last step moved: only their terms change. A point
     # whose step fell below the tolerance is evaluated once more, where it stopped.
     todo: NDArray[np.intp] = np.arange(n)
@@ -1294,9 +1303,7 @@ def _gauss_newton_symmetry(
         if slope_prior is not None:
             away = gain[active, :2] - slope_prior[0][active]
             rhs[:, 2:4] += (prior[active, 2:4, 2:4] @ away[..., None])[..., 0]
-        scale = np.maximum(system.diagonal(axis1=1, axis2=2), 1e-12)
-        damped = system + 1e-9 * scale[:, :, None] * eye
-        step = -np.linalg.solve(damped, rhs[..., None])[..., 0]
+        step = -_damped_solve(system, rhs[..., None])[..., 0]
         # A Gauss-Newton step larger than a pixel is untrustworthy this far from the optimum.
         np.clip(step[:, :2], -1.0, 1.0, out=step[:, :2])
         centre[active] += step[:, :2]
