@@ -211,6 +211,31 @@ def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path,
     assert set(saved["summary"]) == {"rendered (g)"}
 
 
+def test_held_out_frames_are_other_seeds_of_the_chosen_families_read_by_ours_alone(
+    tmp_path, capsys
+):
+    out = tmp_path / "accuracy.json"
+    status = accuracy.main(
+        ["--families", "a,heldout", "--frames", "1", "--no-curvature", "--json", str(out)]
+    )
+    assert status == 0
+    printed = capsys.readouterr().out
+    first = accuracy.HELDOUT_SEED_OFFSET
+    assert f"Held-out frames, ours (symmetry) alone: 1 frames a family of seeds {first}-" in (
+        printed
+    )
+    saved = json.loads(out.read_text())
+    assert set(saved["heldout"]) == {"rendered (a)"}
+    held_out, timed = saved["heldout"]["rendered (a)"], saved["summary"]["rendered (a)"]
+    assert held_out["frames"] == timed["frames"] == 1
+    assert held_out["truth"] == 12
+    # Another seed, another frame: the same family's figures, not the same ones.
+    assert (held_out["mean_px"], held_out["fp_per_frame"]) != (
+        timed["mean_px"],
+        timed["fp_per_frame"],
+    )
+
+
 def test_negatives_count_every_detection_per_frame_and_per_megapixel():
     frames = [real_data.UasFrame(str(i), np.zeros((1000, 500), np.uint8)) for i in range(2)]
     (row,) = accuracy.evaluate_negatives(
