@@ -72,6 +72,7 @@ _MAX_SHADOW_GAIN = 4.0
 #: The tests of the default path in the order :attr:`DetectionResult.survivors` lists
 #: them (``floor``, the score floor, runs on the ring symmetry, on it times the
 #: template's NCC, and on the fitted score; ``cap`` is a cap on the candidates;
+#: ``x_end``, that a small X ends where its extent does (:func:`verification.x_ends`);
 #: ``recentring``, the detections once the lost wide candidates are centred again,
 #: the one test that adds: :meth:`Detector._recentre_lost`).
 SURVIVOR_TESTS = (
@@ -87,6 +88,7 @@ SURVIVOR_TESTS = (
     "cap",
     "fit",
     "floor",
+    "x_end",
     "lines",
     "merging",
     "recentring",
@@ -1445,6 +1447,12 @@ class Detector:
         counts["rejected_score"] = counts.get("rejected_score", 0) + int(weak.sum())
         keep = np.flatnonzero(ok & ~weak)
         result.survivors += [("fit", fit.xy[ok]), ("floor", fit.xy[keep])]
+        ended = verification.x_ends(
+            gray, fit.xy[keep], radius[keep], angles[keep], cfg.marker_radius_min_px
+        )
+        counts["rejected_x_end"] = counts.get("rejected_x_end", 0) + int((~ended).sum())
+        keep = keep[ended]
+        result.survivors.append(("x_end", fit.xy[keep]))
         if check_lines:
             # At the verified centres, where the checks before the fit looked.
             straight, lined = self._double_lines(

@@ -1667,6 +1667,118 @@ def modulation_gate(
     return cast("NDArray[np.bool_]", ~measurable | (modulation >= min_modulation))
 
 
+#: Rings beyond an X's measured extent, in extents, where a marker's X has ended:
+#: its quadrants stop at its radius, on its plate or on the ground. Ground
+#: texture's saddles measured as small X's go on beyond (stones, their gaps).
+X_END_RINGS = (1.5, 1.75, 2.0)
+#: ... against the ring at this share of the extent, inside the X.
+X_END_INSIDE = 0.6
+#: Largest modulation of the X's sectors on :data:`X_END_RINGS` over that inside it
+#: (:func:`modulation_beyond_extent`) of an X that has ended: 94 % of the rendered
+#: tiny markers measure less (223 of them, radius 2.5-5 px, on the frames of ``bench
+#: accuracy``'s (b) and of seeds 200-215). Of real marker-free aerial ground's
+#: texture saddles that :func:`x_must_end` asks (1026 of them at radius 3-30 px,
+#: whatever their score), 45 % measure less: the gate takes 55 % of the texture
+#: that passes the score floors there, 0.083 false points per megapixel to 0.037.
+#: ``false_points_per_mp``'s 0.025 would need 0.37, and lose 11 % of those markers.
+MAX_MODULATION_BEYOND = 0.5
+#: X's measured under this extent, px, are asked to end (:func:`x_must_end`): on the
+#: real aerial frames at radius 3-30 px the texture saddles that reach the score
+#: floors measure 3 and 4.24 px (the ring ladder's rungs), none wider. Wider X's are
+#: not asked: a dull quadrant or a tilt of 60 degrees leaves a marker's rings at
+#: half its radius, its X going on beyond them (rendered (g): a marker of 8.8 px
+#: measured at 5 px, its sector pattern 0.66 of the inside's beyond that).
+X_END_MAX_EXTENT_PX = 4.5
+#: Samples on each of those rings: 5 degrees apart.
+_X_END_SAMPLES = 72
+
+
+def x_must_end(radius_px: NDArray[np.float64], min_radius_px: float) -> NDArray[np.bool_]:
+    """(N,) True for X's of ground texture's saddles' size, measured whole.
+
+    Under :data:`X_END_MAX_EXTENT_PX`, and not under the smallest expected radius:
+    an X measured smaller than any expected marker is a larger one seen
+    foreshortened (its rings stop at the minor axis while its lines go on), whose
+    X does not end where its rings do; so a tighter, correct radius range asks
+    this of fewer X's, never of more.
+    """
+    return (radius_px < X_END_MAX_EXTENT_PX) & (radius_px >= min_radius_px)
+
+
+def x_ends(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    min_radius_px: float,
+) -> NDArray[np.bool_]:
+    """(N,) False for X's :func:`x_must_end` asks whose sector pattern goes on beyond them.
+
+    Such an X is ground texture's saddle, not a marker: its modulation beyond its
+    extent (:func:`modulation_beyond_extent`) exceeds :data:`MAX_MODULATION_BEYOND`.
+
+    Args:
+        image: (H, W) grey image, raw levels.
+        xy: (N, 2) centres.
+        radius_px: (N,) extents of the X, px.
+        line_angles: (N, 2) line directions, radians.
+        min_radius_px: the smallest expected marker radius, px.
+    """
+    ended = np.ones(len(xy), dtype=bool)
+    asked = x_must_end(radius_px, min_radius_px)
+    if asked.any():
+        beyond = modulation_beyond_extent(image, xy[asked], radius_px[asked], line_angles[asked])
+        ended[asked] = beyond <= MAX_MODULATION_BEYOND
+    return ended
+
+
+def modulation_beyond_extent(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """(N,) how much of an X's sector pattern goes on beyond its measured extent.
+
+    On each ring, the mean raw grey level of one opposite pair of the four sectors
+    the lines make less that of the other pair is the X's modulation there; on
+    :data:`X_END_RINGS` it is averaged and divided by that on the ring
+    :data:`X_END_INSIDE` of the extent out, inside the X. A marker's X ends at its
+    radius: its plate or the ground beyond take no sign from its lines (rendered
+    tiny markers: 0.12, median). A texture saddle's goes on (real aerial
+    ground's: 0.54; the false points on rendered tiny markers' frames: 0.85). Raw
+    levels serve: a smooth light scales both rings alike.
+
+    Args:
+        image: (H, W) grey image, raw levels.
+        xy: (N, 2) centres.
+        radius_px: (N,) extents of the X, px.
+        line_angles: (N, 2) line directions, radians.
+    """
+    theta = np.linspace(0.0, 2.0 * np.pi, _X_END_SAMPLES, endpoint=False)
+    sign = np.sign(np.sin(theta[None] - line_angles[:, :1])) * np.sign(
+        np.sin(theta[None] - line_angles[:, 1:])
+    )
+    factors = np.array([X_END_INSIDE, *X_END_RINGS])
+    rho = radius_px[:, None, None] * factors[None, :, None]
+    levels, valid = bilinear(
+        image,
+        xy[:, 0, None, None] + rho * np.cos(theta),
+        xy[:, 1, None, None] + rho * np.sin(theta),
+    )
+    # The two sector pairs' mean levels apart: lines not at right angles give the
+    # pairs unequal arcs, so a signed mean would carry the ring's mean level.
+    pair_means = [
+        (levels * weight).sum(axis=2) / np.maximum(weight.sum(axis=2), 1.0)
+        for weight in (valid & (sign[:, None, :] > 0), valid & (sign[:, None, :] < 0))
+    ]
+    modulation = np.abs(pair_means[0] - pair_means[1])
+    return cast(
+        "NDArray[np.float64]",
+        modulation[:, 1:].mean(axis=1) / np.maximum(modulation[:, 0], 1e-12),
+    )
+
+
 def texture_score_floor(radius_px: NDArray[np.float64], min_score: float) -> NDArray[np.float64]:
     """(N,) the lowest score of a detection of each extent, by ground texture's saddles.
 

@@ -356,3 +356,47 @@ def test_equalising_the_bright_sectors_restores_a_dull_quadrants_symmetry_and_no
     np.testing.assert_array_equal(verification.equalise_bright_sectors(even), even)
     assert (equalised.symmetry[2:, 0] < 0.5).all()
     assert not equalised.four_sectors[2:, 0].any()
+
+
+def _tiny_marker(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    placement = MarkerPlacement(32.3, 31.6, 4.0, 0.4, 20.0)
+    scene = render_markers((64, 64), [placement], seed, blur_sigma_px=0.8, noise_sigma_dn=2.0)
+    return scene.image, scene.centres, np.array([scene.markers[0].angles])
+
+
+def test_a_tiny_markers_x_ends_at_its_extent_where_a_crossing_of_two_edges_goes_on():
+    extent = np.array([4.0])
+    ended = []
+    for seed in range(4):
+        image, centre, angles = _tiny_marker(seed)
+        ended.append(verification.modulation_beyond_extent(image, centre, extent, angles)[0])
+    # The same X without its end: two straight edges crossing the whole window.
+    crossing = np.full((64, 64), 200.0, np.float32)
+    crossing[:32, :32] = crossing[32:, 32:] = 40.0
+    crossing = cv2.GaussianBlur(crossing, (0, 0), 0.8)
+    goes_on = verification.modulation_beyond_extent(
+        crossing, np.array([[31.5, 31.5]]), extent, np.array([[0.0, np.pi / 2]])
+    )[0]
+    assert max(ended) < verification.MAX_MODULATION_BEYOND < 0.9 < goes_on
+
+
+def test_only_xs_of_textures_size_not_under_the_smallest_radius_are_asked_to_end():
+    extents = np.array([2.1, 3.0, 4.24, 5.0, 8.5])
+    asked = verification.x_must_end(extents, 3.0)
+    np.testing.assert_array_equal(asked, [False, True, True, False, False])
+    # A tighter range asks fewer X's, never more: it cannot lose a marker this way.
+    tighter = verification.x_must_end(extents, 4.0)
+    assert not (tighter & ~asked).any() and tighter.sum() < asked.sum()
+
+
+def test_an_x_the_gate_is_not_asked_about_always_passes():
+    crossing = np.full((64, 64), 200.0, np.float32)
+    crossing[:32, :32] = crossing[32:, 32:] = 40.0
+    ends = verification.x_ends(
+        crossing,
+        np.array([[31.5, 31.5], [31.5, 31.5]]),
+        np.array([4.0, 8.0]),
+        np.array([[0.0, np.pi / 2], [0.0, np.pi / 2]]),
+        min_radius_px=3.0,
+    )
+    np.testing.assert_array_equal(ends, [False, True])
