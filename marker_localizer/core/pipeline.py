@@ -1144,7 +1144,7 @@ class Detector:
         # A detection's score is this ring symmetry times factors of at most 1 (the
         # template's NCC, the fit's 1 - relative residual): a candidate already below
         # its floor stays below it, and is spared the costly checks and the fit.
-        floor = self._score_floor(symmetry.radius_px)
+        floor = self._lowest_score(symmetry.radius_px)
         weak = keep & (symmetry.score < floor)
         counts["rejected_score"] = int(weak.sum())
         result.survivors += [
@@ -1400,6 +1400,17 @@ class Detector:
             radius, cfg.min_score, cfg.min_score_small, cfg.marker_radius_min_px
         )
 
+    def _lowest_score(self, radius: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(N,) the lowest score with which a candidate of extent ``radius`` (px) goes on.
+
+        Its floor (:meth:`_score_floor`), less
+        :data:`verification.ENDED_SCORE_ALLOWANCE` for the X's asked to end
+        (:func:`verification.x_must_end`): one that has clearly ended may score
+        that much under its floor (:func:`verification.x_ends`).
+        """
+        asked = verification.x_must_end(radius, self.config.marker_radius_min_px)
+        return self._score_floor(radius) - verification.ENDED_SCORE_ALLOWANCE * asked
+
     def _locate(
         self,
         gray: NDArray[Any],
@@ -1443,14 +1454,18 @@ class Detector:
         )
         ok = fit.accepted
         counts["rejected_refinement"] = int((~ok).sum())
-        weak = ok & (fit.score < self._score_floor(radius))
-        counts["rejected_score"] = counts.get("rejected_score", 0) + int(weak.sum())
+        weak = ok & (fit.score < self._lowest_score(radius))
         keep = np.flatnonzero(ok & ~weak)
         result.survivors += [("fit", fit.xy[ok]), ("floor", fit.xy[keep])]
+        under = fit.score[keep] < self._score_floor(radius[keep])
         ended = verification.x_ends(
-            gray, fit.xy[keep], radius[keep], angles[keep], cfg.marker_radius_min_px
+            gray, fit.xy[keep], radius[keep], angles[keep], cfg.marker_radius_min_px, under
         )
-        counts["rejected_x_end"] = counts.get("rejected_x_end", 0) + int((~ended).sum())
+        # Under its floor and not clearly ended, a candidate fails the floor.
+        counts["rejected_score"] = counts.get("rejected_score", 0) + int(
+            weak.sum() + (under & ~ended).sum()
+        )
+        counts["rejected_x_end"] = counts.get("rejected_x_end", 0) + int((~under & ~ended).sum())
         keep = keep[ended]
         result.survivors.append(("x_end", fit.xy[keep]))
         if check_lines:

@@ -564,10 +564,10 @@ def test_markers_in_deep_shadow_are_found_as_in_the_open(white_share):
     assert false == 0
 
 
-def test_on_stony_ground_small_xs_that_do_not_end_are_texture_and_are_counted():
+def test_on_stony_ground_small_xs_that_do_not_end_are_texture_and_are_counted(monkeypatch):
     # Three frames of family (b) (tiny markers) whose ground makes many saddles that
-    # score like them; seeds no benchmark table renders. The X-end gate takes 18
-    # texture points there and one marker.
+    # score like them; seeds no benchmark table renders. Of the 10 false points
+    # there the X-end gate takes 9 (19 candidates, some duplicates), at most a marker.
     family = next(f for f in families() if f.key == "b")
     detector = Detector(
         DetectorConfig(
@@ -575,19 +575,23 @@ def test_on_stony_ground_small_xs_that_do_not_end_are_texture_and_are_counted():
             marker_radius_max_px=family.radius_range[1],
         )
     )
-    texture = markers = 0
-    for seed in (300, 305, 313):
-        scene = family.render(seed)
-        result = detector.detect(scene.image)
-        survivors = dict(result.survivors)
-        floor, ended = survivors["floor"], survivors["x_end"]
-        gone = floor[cKDTree(ended).query(floor)[0] > 0] if len(ended) else floor
-        assert len(gone) == result.counts["rejected_x_end"]
-        near = cKDTree(scene.centres).query(gone)[0] <= 2.0 if len(gone) else np.zeros(0, bool)
-        markers += int(near.sum())
-        texture += int((~near).sum())
-    assert texture >= 12
-    assert markers <= 2
+    scenes = [family.render(seed) for seed in (300, 305, 313)]
+
+    def false_and_true(results):
+        false = true = 0
+        for scene, result in zip(scenes, results, strict=True):
+            near = cKDTree(scene.centres).query(result.as_array()[:, :2])[0] <= 2.0
+            false, true = false + int((~near).sum()), true + int(near.sum())
+        return false, true
+
+    gated = [detector.detect(scene.image) for scene in scenes]
+    taken = sum(result.counts["rejected_x_end"] for result in gated)
+    monkeypatch.setattr(verification, "MAX_MODULATION_BEYOND", np.inf)
+    ungated = [detector.detect(scene.image) for scene in scenes]
+    (false, true), (false_before, true_before) = false_and_true(gated), false_and_true(ungated)
+    assert all(result.counts["rejected_x_end"] == 0 for result in ungated)
+    assert taken >= false_before - false >= 7
+    assert true_before - true <= 1
 
 
 def test_the_survivors_narrow_test_by_test_down_to_the_detections():

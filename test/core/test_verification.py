@@ -398,5 +398,24 @@ def test_an_x_the_gate_is_not_asked_about_always_passes():
         np.array([4.0, 8.0]),
         np.array([[0.0, np.pi / 2], [0.0, np.pi / 2]]),
         min_radius_px=3.0,
+        under_floor=np.array([False, False]),
     )
     np.testing.assert_array_equal(ends, [False, True])
+
+
+def test_under_its_floor_only_an_x_that_has_clearly_ended_passes():
+    image, centre, angles = _tiny_marker(0)
+    extent = np.array([4.0])
+    beyond = verification.modulation_beyond_extent(image, centre, extent, angles)[0]
+    assert beyond <= verification.CLEARLY_ENDED
+    crossing = np.full((64, 64), 200.0, np.float32)
+    crossing[:32, :32] = crossing[32:, 32:] = 40.0
+    for picture, xy, lines, kept in (
+        (image, centre, angles, True),
+        (crossing, np.array([[31.5, 31.5]]), np.array([[0.0, np.pi / 2]]), False),
+    ):
+        under = verification.x_ends(picture, xy, extent, lines, 3.0, np.array([True]))
+        assert under[0] is np.True_ if kept else under[0] is np.False_
+    # Not asked (wider than texture's saddles), a candidate under its floor fails it.
+    wide = verification.x_ends(image, centre, np.array([8.0]), angles, 3.0, np.array([True]))
+    assert not wide[0]
