@@ -1683,9 +1683,8 @@ X_END_INSIDE = 0.6
 #: ``false_points_per_mp``'s 0.025 would need 0.37, and lose 11 % of those markers.
 MAX_MODULATION_BEYOND = 0.5
 #: An X that has clearly ended, at most this (:func:`modulation_beyond_extent`), may
-#: score up to :data:`ENDED_SCORE_ALLOWANCE` under its floor: half the rendered tiny
-#: markers measure 0.12 or less, 5 % of real aerial ground's texture saddles
-#: 0.15 or less.
+#: score up to :data:`ENDED_SCORE_ALLOWANCE` under its floor: 60 % of the rendered
+#: tiny markers measure 0.15 or less, 4 % of real aerial ground's texture saddles.
 CLEARLY_ENDED = 0.15
 #: ... how far under, from the benchmark's (b) frames (72 -> 81 of 192 markers)
 #: and real aerial ground (its one false point at 3-30 px stays one; 0.04 under
