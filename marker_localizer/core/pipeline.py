@@ -1144,16 +1144,15 @@ class Detector:
         # A detection's score is this ring symmetry times factors of at most 1 (the
         # template's NCC, the fit's 1 - relative residual): a candidate already below
         # its floor stays below it, and is spared the costly checks and the fit.
-        floor = self._lowest_score(symmetry.radius_px)
-        weak = keep & (symmetry.score < floor)
+        floor = self._score_floor(symmetry.radius_px)
+        lowest = self._lowest_score(symmetry.radius_px, floor)
+        weak = keep & (symmetry.score < lowest)
         # Under its own floor, a candidate goes on only if its X has clearly ended
         # (verification.x_ends): read here on the rings' centre and lines, it spares
         # the template match the ground's saddles the allowance would let in (real
         # aerial frames at 3-30 px: 10 ms a frame without this, 2 with it; the same
         # detections on every family, held out and independent too).
-        under = np.flatnonzero(
-            keep & ~weak & (symmetry.score < self._score_floor(symmetry.radius_px))
-        )
+        under = np.flatnonzero(keep & ~weak & (symmetry.score < floor))
         if len(under):
             weak[under] = ~verification.x_ends(
                 gray,
@@ -1169,7 +1168,7 @@ class Detector:
             ("floor", candidates.xy[keep & ~weak]),
         ]
         chosen, ncc = self._match_templates(
-            gray, candidates.xy, symmetry, floor, np.flatnonzero(keep & ~weak), gamma, result
+            gray, candidates.xy, symmetry, lowest, np.flatnonzero(keep & ~weak), gamma, result
         )
         candidates, radius, angles, score = (
             candidates.take(chosen),
@@ -1417,16 +1416,18 @@ class Detector:
             radius, cfg.min_score, cfg.min_score_small, cfg.marker_radius_min_px
         )
 
-    def _lowest_score(self, radius: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _lowest_score(
+        self, radius: NDArray[np.float64], floor: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
         """(N,) the lowest score with which a candidate of extent ``radius`` (px) goes on.
 
-        Its floor (:meth:`_score_floor`), less
+        Its ``floor`` (:meth:`_score_floor`), less
         :data:`verification.ENDED_SCORE_ALLOWANCE` for the X's asked to end
         (:func:`verification.x_must_end`): one that has clearly ended may score
         that much under its floor (:func:`verification.x_ends`).
         """
         asked = verification.x_must_end(radius, self.config.marker_radius_min_px)
-        return self._score_floor(radius) - verification.ENDED_SCORE_ALLOWANCE * asked
+        return floor - verification.ENDED_SCORE_ALLOWANCE * asked
 
     def _locate(
         self,
@@ -1471,10 +1472,11 @@ class Detector:
         )
         ok = fit.accepted
         counts["rejected_refinement"] = int((~ok).sum())
-        weak = ok & (fit.score < self._lowest_score(radius))
+        floor = self._score_floor(radius)
+        weak = ok & (fit.score < self._lowest_score(radius, floor))
         keep = np.flatnonzero(ok & ~weak)
         result.survivors += [("fit", fit.xy[ok]), ("floor", fit.xy[keep])]
-        under = fit.score[keep] < self._score_floor(radius[keep])
+        under = fit.score[keep] < floor[keep]
         ended = verification.x_ends(
             gray, fit.xy[keep], radius[keep], angles[keep], cfg.marker_radius_min_px, under
         )
