@@ -358,6 +358,13 @@ def test_equalising_the_bright_sectors_restores_a_dull_quadrants_symmetry_and_no
     assert not equalised.four_sectors[2:, 0].any()
 
 
+def _two_edges_crossing(blur_px: float = 0.0) -> np.ndarray:
+    """An X without an end: two straight edges crossing a 64 px window at (31.5, 31.5)."""
+    crossing = np.full((64, 64), 200.0, np.float32)
+    crossing[:32, :32] = crossing[32:, 32:] = 40.0
+    return cv2.GaussianBlur(crossing, (0, 0), blur_px) if blur_px else crossing
+
+
 def _tiny_marker(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     placement = MarkerPlacement(32.3, 31.6, 4.0, 0.4, 20.0)
     scene = render_markers((64, 64), [placement], seed, blur_sigma_px=0.8, noise_sigma_dn=2.0)
@@ -370,10 +377,8 @@ def test_a_tiny_markers_x_ends_at_its_extent_where_a_crossing_of_two_edges_goes_
     for seed in range(4):
         image, centre, angles = _tiny_marker(seed)
         ended.append(verification.modulation_beyond_extent(image, centre, extent, angles)[0])
-    # The same X without its end: two straight edges crossing the whole window.
-    crossing = np.full((64, 64), 200.0, np.float32)
-    crossing[:32, :32] = crossing[32:, 32:] = 40.0
-    crossing = cv2.GaussianBlur(crossing, (0, 0), 0.8)
+    # The same X without its end.
+    crossing = _two_edges_crossing(0.8)
     goes_on = verification.modulation_beyond_extent(
         crossing, np.array([[31.5, 31.5]]), extent, np.array([[0.0, np.pi / 2]])
     )[0]
@@ -390,8 +395,7 @@ def test_only_xs_of_textures_size_not_under_the_smallest_radius_are_asked_to_end
 
 
 def test_an_x_the_gate_is_not_asked_about_always_passes():
-    crossing = np.full((64, 64), 200.0, np.float32)
-    crossing[:32, :32] = crossing[32:, 32:] = 40.0
+    crossing = _two_edges_crossing()
     ends = verification.x_ends(
         crossing,
         np.array([[31.5, 31.5], [31.5, 31.5]]),
@@ -408,8 +412,7 @@ def test_under_its_floor_only_an_x_that_has_clearly_ended_passes():
     extent = np.array([4.0])
     beyond = verification.modulation_beyond_extent(image, centre, extent, angles)[0]
     assert beyond <= verification.CLEARLY_ENDED
-    crossing = np.full((64, 64), 200.0, np.float32)
-    crossing[:32, :32] = crossing[32:, 32:] = 40.0
+    crossing = _two_edges_crossing()
     for picture, xy, lines, kept in (
         (image, centre, angles, True),
         (crossing, np.array([[31.5, 31.5]]), np.array([[0.0, np.pi / 2]]), False),
