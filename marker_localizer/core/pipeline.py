@@ -12,7 +12,7 @@ import functools
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -383,6 +383,9 @@ class Detector:
                     cfg.illumination_window_px,
                     regions=measured,
                 )
+        # What the default and the paper's checks read of the frame (the template
+        # path on the saddle screening reads the noise instead).
+        frame = None if gamma is None else _Frame(gray, full_scale, gamma, result, timer)
         with timer("screening"):
             candidates = self._screen(gray, full_scale, result.counts, regions, gamma)
             result.counts["skipped_known"] = 0
@@ -404,8 +407,8 @@ class Detector:
             elif cfg.candidate_detector == "saddle":
                 # Contour corners sit up to 2 px off the centre, too far for the
                 # prescreen's small rings; the paper's path goes straight to centring.
-                assert gamma is not None
-                candidates = self._prescreen(gray, full_scale, gamma, candidates, result)
+                assert frame is not None
+                candidates = self._prescreen(frame, candidates)
         if noise is not None and cfg.candidate_detector == "saddle":
             if cfg.line_check:
                 with timer("verification"):
@@ -429,10 +432,10 @@ class Detector:
             strength = np.full(len(seeds), np.inf)
             scale = np.full(len(seeds), self._seed_scale)
             candidates = Candidates.concat([candidates, Candidates(seeds, strength, scale)])
-        assert gamma is not None
+        assert frame is not None
         if cfg.candidate_detector == "curvature":
-            return self._confirm_paper(gray, full_scale, gamma, noise, candidates, result, timer)
-        return self._confirm(gray, full_scale, gamma, candidates, result, timer)
+            return self._confirm_paper(frame, noise, candidates)
+        return self._confirm(frame, candidates)
 
     def locate(
         self,
@@ -494,71 +497,35 @@ class Detector:
             )
         with timer("subpixel"):
             result.detections = self._locate(
-                gray,
+                _Frame(gray, full_scale, gamma, result, timer),
                 points,
                 np.asarray(radius_px, np.float64),
                 np.asarray(line_angles, np.float64).reshape(-1, 2),
                 np.asarray(evidence, np.float64),
-                result,
-                full_scale,
-                gamma,
             )
         counts["accepted"] = len(result.detections)
         return result
 
-    def _confirm(
-        self,
-        gray: NDArray[Any],
-        full_scale: float,
-        gamma: preprocessing.LocalGamma,
-        candidates: Candidates,
-        result: DetectionResult,
-        timer: _StageTimer,
-    ) -> DetectionResult:
+    def _confirm(self, frame: _Frame, candidates: Candidates) -> DetectionResult:
         """Centre, verify and locate the candidates of the saddle path."""
-        with timer("centring"):
-            centred = self._centre(gray, candidates, result)
-        result.detections = self._verify_and_locate(gray, full_scale, gamma, centred, result, timer)
-        self._recentre_lost(gray, full_scale, gamma, candidates, result, timer)
+        result = frame.result
+        with frame.timer("centring"):
+            centred = self._centre(frame.gray, candidates, result)
+        result.detections = self._verify_and_locate(frame, centred)
+        self._recentre_lost(frame, candidates)
         result.counts["accepted"] = len(result.detections)
         return result
 
-    def _verify_and_locate(
-        self,
-        gray: NDArray[Any],
-        full_scale: float,
-        gamma: preprocessing.LocalGamma,
-        candidates: Candidates,
-        result: DetectionResult,
-        timer: _StageTimer,
-    ) -> list[Detection]:
+    def _verify_and_locate(self, frame: _Frame, candidates: Candidates) -> list[Detection]:
         """The checks, the template match and the fit of centred candidates: their markers."""
-        with timer("verification"):
-            candidates, radius, angles, score = self._verify(
-                gray, full_scale, candidates, gamma, result
-            )
-        with timer("subpixel"):
+        with frame.timer("verification"):
+            candidates, radius, angles, score = self._verify(frame, candidates)
+        with frame.timer("subpixel"):
             return self._locate(
-                gray,
-                candidates.xy,
-                radius,
-                angles,
-                score,
-                result,
-                full_scale,
-                gamma,
-                check_lines=self._lines_after_fit,
+                frame, candidates.xy, radius, angles, score, check_lines=self._lines_after_fit
             )
 
-    def _recentre_lost(
-        self,
-        gray: NDArray[Any],
-        full_scale: float,
-        gamma: preprocessing.LocalGamma,
-        screened: Candidates,
-        result: DetectionResult,
-        timer: _StageTimer,
-    ) -> None:
+    def _recentre_lost(self, frame: _Frame, screened: Candidates) -> None:
         """Candidates screened wide that found no marker, centred again with the light's slope.
 
         The coarse centring (:meth:`_centre`) fits grey-level point symmetry alone. On
@@ -594,6 +561,7 @@ class Detector:
         The survivors end with ``recentring``: the detections then.
         """
         cfg = self.config
+        gray, result = frame.gray, frame.result
         counts = result.counts
         counts["recentred"] = counts["found_recentred"] = counts["recentring_over_cap"] = 0
         lost = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
@@ -610,7 +578,7 @@ class Detector:
             )
             counts["recentring_over_cap"] = len(lost) - len(kept)
             lost = lost[kept]
-            with timer("centring"):
+            with frame.timer("centring"):
                 start, scale = screened.xy[lost], screened.scale_px[lost]
                 plain, read = subpixel.coarse_centre(gray, start, scale, cfg.marker_radius_max_px)
                 xy, inside = subpixel.coarse_centre(
@@ -620,9 +588,7 @@ class Detector:
             moved = ~read | (np.linalg.norm(xy - plain, axis=1) >= _RECENTRE_MIN_SHIFT_PX)
             again = Candidates(xy, screened.strength[lost], scale).take(inside & moved)
             counts["recentred"] = len(again.xy)
-            # The second reading's counts describe candidates the first has counted.
-            second = DetectionResult(counts=dict.fromkeys(counts, 0))
-            added = self._verify_and_locate(gray, full_scale, gamma, again, second, timer)
+            added = self._verify_and_locate(frame.reread(), again)
             if near_found is not None and added:
                 distance, _ = near_found.query(
                     [(d.x, d.y) for d in added], distance_upper_bound=self.merge_radius_px
@@ -638,14 +604,7 @@ class Detector:
         )
 
     def _confirm_paper(
-        self,
-        gray: NDArray[Any],
-        full_scale: float,
-        gamma: preprocessing.LocalGamma,
-        noise: NoiseModel | None,
-        candidates: Candidates,
-        result: DetectionResult,
-        timer: _StageTimer,
+        self, frame: _Frame, noise: NoiseModel | None, candidates: Candidates
     ) -> DetectionResult:
         """The paper's checks and location (sections 3.2-3.3) for the curvature path.
 
@@ -659,11 +618,16 @@ class Detector:
         ``refinement="template"`` the template fit and the calibrated decision.
         """
         cfg = self.config
+        gray, result, timer = frame.gray, frame.result, frame.timer
         counts = result.counts
         counts["rejected_centring"] = 0
         with timer("verification"):
             check = verification.edge_phase_check(
-                gray, candidates.xy, self._radii, min_contrast=self._min_contrast, normalise=gamma
+                gray,
+                candidates.xy,
+                self._radii,
+                min_contrast=self._min_contrast,
+                normalise=frame.gamma,
             )
             keep = check.accepted & verification.reaches_extent(
                 check.radius_px, cfg.min_extent_fraction, cfg.marker_radius_min_px
@@ -679,7 +643,7 @@ class Detector:
                 xy,
                 angles,
                 verification.template_radius(radius, cfg.marker_radius_max_px),
-                normalise=gamma,
+                normalise=frame.gamma,
             ).ncc
             ok = template.template_evidence(score, ncc, cfg.template_ncc_min)
             counts["rejected_template"] = int((~ok).sum())
@@ -695,7 +659,7 @@ class Detector:
                     radius,
                     extend_px=cfg.line_extend_px,
                     max_distance_px=cfg.line_max_distance_px,
-                    full_scale=full_scale,
+                    full_scale=frame.full_scale,
                 )
                 ok = lines.accepted
                 counts["rejected_lines"] = int((~ok).sum())
@@ -709,9 +673,7 @@ class Detector:
             return result
         with timer("subpixel"):
             if cfg.refinement != "ncc":
-                result.detections = self._locate(
-                    gray, xy, radius, angles, score, result, full_scale, gamma
-                )
+                result.detections = self._locate(frame, xy, radius, angles, score)
                 counts["accepted"] = len(result.detections)
                 return result
             fit = subpixel.ncc_refine(
@@ -870,14 +832,7 @@ class Detector:
             parts.append(Candidates(xy, found.strength, found.scale_px).take(inside))
         return Candidates.concat(parts)
 
-    def _prescreen(
-        self,
-        gray: NDArray[Any],
-        full_scale: float,
-        gamma: preprocessing.LocalGamma,
-        candidates: Candidates,
-        result: DetectionResult,
-    ) -> Candidates:
+    def _prescreen(self, frame: _Frame, candidates: Candidates) -> Candidates:
         """A three-ring centre-symmetry test at each candidate's own scale, before any fit.
 
         Lenient per ring (the candidate may sit a fraction of its scale off the
@@ -890,7 +845,8 @@ class Detector:
         (:data:`_WIDE_SCALE_PX`) that fail are read again with the
         bright sectors equalised (:meth:`_ring_check` says why and when).
         """
-        floor = self._raw_contrast_floor(full_scale, gamma, candidates.xy)
+        gray, result = frame.gray, frame.result
+        floor = self._raw_contrast_floor(frame.full_scale, frame.gamma, candidates.xy)
         radii = self._prescreen_radii(candidates)
         keep = verification.prescreen_symmetry(gray, candidates.xy, radii, floor)
         wide = np.flatnonzero(~keep & (candidates.scale_px >= _WIDE_SCALE_PX))
@@ -1126,17 +1082,13 @@ class Detector:
         return centred
 
     def _verify(
-        self,
-        gray: NDArray[Any],
-        full_scale: float,
-        candidates: Candidates,
-        gamma: preprocessing.LocalGamma,
-        result: DetectionResult,
+        self, frame: _Frame, candidates: Candidates
     ) -> tuple[Candidates, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Section 3.2, geometric checks, and the adaptive-template NCC of section 3.3.1."""
         cfg = self.config
+        gray, result = frame.gray, frame.result
         counts = result.counts
-        candidates, symmetry = self._ring_check(gray, candidates, gamma)
+        candidates, symmetry = self._ring_check(gray, candidates, frame.gamma)
         keep = symmetry.accepted & verification.reaches_extent(
             symmetry.radius_px, cfg.min_extent_fraction, cfg.marker_radius_min_px
         )
@@ -1168,7 +1120,7 @@ class Detector:
             ("floor", candidates.xy[keep & ~weak]),
         ]
         chosen, ncc = self._match_templates(
-            gray, candidates.xy, symmetry, lowest, np.flatnonzero(keep & ~weak), gamma, result
+            frame, candidates.xy, symmetry, lowest, np.flatnonzero(keep & ~weak)
         )
         candidates, radius, angles, score = (
             candidates.take(chosen),
@@ -1177,9 +1129,7 @@ class Detector:
             symmetry.score[chosen] * ncc,
         )
         if not self._lines_after_fit:
-            ok, angles = self._double_lines(
-                gray, full_scale, gamma, candidates.xy, radius, angles, result
-            )
+            ok, angles = self._double_lines(frame, candidates.xy, radius, angles)
             candidates, radius, angles, score = (
                 candidates.take(ok),
                 radius[ok],
@@ -1289,13 +1239,10 @@ class Detector:
 
     def _double_lines(
         self,
-        gray: NDArray[Any],
-        full_scale: float,
-        gamma: preprocessing.LocalGamma,
+        frame: _Frame,
         xy: NDArray[np.float64],
         radius: NDArray[np.float64],
         angles: NDArray[np.float64],
-        result: DetectionResult,
     ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
         """The double-line check (Eq. 9) where ``line_check`` asks for it.
 
@@ -1307,30 +1254,28 @@ class Detector:
         ok: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
         if cfg.line_check and len(xy):
             lines = verification.double_line_check(
-                gray,
+                frame.gray,
                 xy,
                 radius,
                 extend_px=cfg.line_extend_px,
                 max_distance_px=max(cfg.line_max_distance_px, 0.0),
-                full_scale=full_scale,
-                stretch=self._shadow_gain_at(gamma, xy),
+                full_scale=frame.full_scale,
+                stretch=self._shadow_gain_at(frame.gamma, xy),
             )
             ok = lines.accepted
             angles = angles.copy()
             angles[ok] = verification.agreed_line_angles(lines.line_angles[ok], angles[ok])
-        result.counts["rejected_lines"] = int((~ok).sum())
-        result.survivors.append(("lines", xy[ok]))
+        frame.result.counts["rejected_lines"] = int((~ok).sum())
+        frame.result.survivors.append(("lines", xy[ok]))
         return ok, angles
 
     def _match_templates(
         self,
-        gray: NDArray[Any],
+        frame: _Frame,
         xy: NDArray[np.float64],
         symmetry: verification.SymmetryCheck,
         floor: NDArray[np.float64],
         passed: NDArray[np.intp],
-        gamma: preprocessing.LocalGamma,
-        result: DetectionResult,
     ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         """The template NCC and modulation gates, and the score floor, up to the cap.
 
@@ -1345,6 +1290,7 @@ class Detector:
             The indices (ascending) of the candidates that pass, and their NCC.
         """
         cfg = self.config
+        gray, result = frame.gray, frame.result
         counts = result.counts
         order = passed[
             screening.even_order(xy[passed], symmetry.score[passed], cfg.entropy_cell_px)
@@ -1365,7 +1311,7 @@ class Detector:
                 xy[batch],
                 angles,
                 verification.template_radius(radius, cfg.marker_radius_max_px),
-                normalise=gamma,
+                normalise=frame.gamma,
             ).ncc
             modulated = verification.modulation_gate(
                 gray,
@@ -1431,14 +1377,11 @@ class Detector:
 
     def _locate(
         self,
-        gray: NDArray[Any],
+        frame: _Frame,
         xy: NDArray[np.float64],
         radius: NDArray[np.float64],
         angles: NDArray[np.float64],
         score: NDArray[np.float64],
-        result: DetectionResult,
-        full_scale: float,
-        gamma: preprocessing.LocalGamma,
         check_lines: bool = False,
     ) -> list[Detection]:
         """Section 3.3: sub-pixel centres and final gates (:func:`subpixel.locate_markers`).
@@ -1449,6 +1392,7 @@ class Detector:
         duplicates, strongest first.
         """
         cfg = self.config
+        gray, result = frame.gray, frame.result
         counts = result.counts
         if len(xy) == 0:
             counts["rejected_refinement"] = 0
@@ -1465,7 +1409,7 @@ class Detector:
             score,
             max_radius_px=cfg.marker_radius_max_px,
             iterations=cfg.refinement_max_iterations,
-            min_contrast=self._raw_contrast_floor(full_scale, gamma, xy),
+            min_contrast=self._raw_contrast_floor(frame.full_scale, frame.gamma, xy),
             max_symmetry_residual=cfg.max_symmetry_residual,
             ncc_offset_px=cfg.template_offset_px if cfg.refinement == "ncc" else None,
             ncc_search_px=cfg.ncc_search_px,
@@ -1489,9 +1433,7 @@ class Detector:
         result.survivors.append(("x_end", fit.xy[keep]))
         if check_lines:
             # At the verified centres, where the checks before the fit looked.
-            straight, lined = self._double_lines(
-                gray, full_scale, gamma, xy[keep], radius[keep], angles[keep], result
-            )
+            straight, lined = self._double_lines(frame, xy[keep], radius[keep], angles[keep])
             angles = angles.copy()
             angles[keep] = lined
             keep = keep[straight]
@@ -1541,3 +1483,30 @@ class _StageTimer:
         finally:
             elapsed_ms = (time.perf_counter() - start) * 1000.0
             self._timings[stage] = self._timings.get(stage, 0.0) + elapsed_ms
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """One frame as the default and the paper's checks read it, and where they report.
+
+    Attributes:
+        gray: (H, W) grey image, raw levels.
+        full_scale: its white, in its own grey levels.
+        gamma: the local means of Eq. (2), which normalise the rings and lower the
+            contrast floors in shadow.
+        result: where the stages write their counts, survivors and detections.
+        timer: where they record their wall time.
+    """
+
+    gray: NDArray[Any]
+    full_scale: float
+    gamma: preprocessing.LocalGamma
+    result: DetectionResult
+    timer: _StageTimer
+
+    def reread(self) -> _Frame:
+        """The same frame reporting to a fresh result, its counts at zero.
+
+        A second reading's counts describe candidates the first reading has counted.
+        """
+        return replace(self, result=DetectionResult(counts=dict.fromkeys(self.result.counts, 0)))
