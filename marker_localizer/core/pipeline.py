@@ -24,6 +24,7 @@ from marker_localizer.core import (
     decision,
     preprocessing,
     screening,
+    shadow,
     subpixel,
     template,
     verification,
@@ -74,7 +75,9 @@ _MAX_SHADOW_GAIN = 4.0
 #: template's NCC, and on the fitted score; ``cap`` is a cap on the candidates;
 #: ``x_end``, that a small X ends where its extent does (:func:`verification.x_ends`);
 #: ``recentring``, the detections once the lost wide candidates are centred again,
-#: the one test that adds: :meth:`Detector._recentre_lost`).
+#: and ``shadow``, once they are read again with a shadow's edge divided out: the
+#: two tests that add, :meth:`Detector._recentre_lost` and
+#: :meth:`Detector._reread_shadowed`).
 SURVIVOR_TESTS = (
     "screening",
     "prescreen",
@@ -92,6 +95,7 @@ SURVIVOR_TESTS = (
     "lines",
     "merging",
     "recentring",
+    "shadow",
 )
 #: Candidates centred closer than this to a stronger one have found its X, px.
 _CENTRED_DUPLICATE_PX = 1.5
@@ -147,13 +151,22 @@ _WIDE_SCALE_PX = 8.0
 #: light's slope moves its centre this far, px: less moves the rings' crossings,
 #: read every 10 degrees from 3 px out, by under half a sample (4.8 degrees).
 _RECENTRE_MIN_SHIFT_PX = 0.25
-#: Lost wide candidates read again per frame at most, the strongest spread over the
-#: frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`): markers are
-#: among a frame's strongest saddles (the 9 the recentring adds on the rendered (g)
-#: frames ranked 0-58 among their frame's wide candidates; a cap of 32 keeps all 9,
-#: 16 loses one), and each costs about 0.1-0.2 ms (one of the speed benchmark's
-#: 12 MP cluttered frames lost 1102: +110 ms uncapped, +9 ms at 64).
-_MAX_RECENTRED = 64
+#: Lost wide candidates each second reading (:meth:`Detector._recentre_lost`,
+#: :meth:`Detector._reread_shadowed`) reads again per frame at most, the strongest
+#: spread over the frame as Eq. (7)'s thinning spreads them
+#: (:func:`screening.even_cap`): markers are among a frame's strongest saddles (the
+#: 9 the recentring adds on the rendered (g) frames ranked 0-58 among their frame's
+#: wide candidates; a cap of 32 keeps all 9, 16 loses one), and each costs about
+#: 0.1-0.2 ms (one of the speed benchmark's 12 MP cluttered frames lost 1102: +110 ms
+#: uncapped, +9 ms at 64).
+_MAX_REREAD = 64
+#: A lost candidate's shadow edge is sought within this many of its screening scales,
+#: px (:func:`shadow.find_edges`): a marker's X reaches about twice the scale its
+#: saddle answers at ...
+_SHADOW_REACH_SCALES = 2.0
+#: ... and divided out within this many reaches (:func:`shadow.divided_out`): the
+#: checks' rings and the fit read the X out to its extent, and the X-end rings beyond.
+_SHADOW_DISK_REACHES = 1.5
 
 
 @dataclass(frozen=True)
@@ -513,6 +526,7 @@ class Detector:
             centred = self._centre(frame.gray, candidates, result)
         result.detections = self._verify_and_locate(frame, centred)
         self._recentre_lost(frame, candidates)
+        self._reread_shadowed(frame, candidates)
         result.counts["accepted"] = len(result.detections)
         return result
 
@@ -539,7 +553,7 @@ class Detector:
         where the slope-free centring put them (rendered (d): 95 -> 93 of 96 found
         with the slope in every centring). So only the candidates screened at
         :data:`_WIDE_SCALE_PX` or wider that ended farther than the merge radius
-        from every detection are centred again; those the slope moves by
+        from every detection (:meth:`_lost_wide`) are centred again; those the slope moves by
         :data:`_RECENTRE_MIN_SHIFT_PX` or more go through the checks and the fit
         once more. A marker they find joins the detections, which stay as they
         were.
@@ -557,27 +571,15 @@ class Detector:
 
         Counts ``recentred``, the candidates read again, ``found_recentred``, the
         markers they added, and ``recentring_over_cap``, the lost wide candidates
-        over :data:`_MAX_RECENTRED`; their second rejections are not counted again.
+        over :data:`_MAX_REREAD`; their second rejections are not counted again.
         The survivors end with ``recentring``: the detections then.
         """
         cfg = self.config
         gray, result = frame.gray, frame.result
         counts = result.counts
-        counts["recentred"] = counts["found_recentred"] = counts["recentring_over_cap"] = 0
-        lost = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
-        found = np.array([[d.x, d.y] for d in result.detections]).reshape(-1, 2)
-        near_found = cKDTree(found) if len(found) else None
-        if near_found is not None and len(lost):
-            distance, _ = near_found.query(
-                screened.xy[lost], distance_upper_bound=self.merge_radius_px
-            )
-            lost = lost[~np.isfinite(distance)]
+        lost, counts["recentring_over_cap"] = self._lost_wide(result, screened)
+        counts["recentred"] = counts["found_recentred"] = 0
         if len(lost):
-            kept = screening.even_cap_index(
-                screened.xy[lost], screened.strength[lost], _MAX_RECENTRED, cfg.entropy_cell_px
-            )
-            counts["recentring_over_cap"] = len(lost) - len(kept)
-            lost = lost[kept]
             with frame.timer("centring"):
                 start, scale = screened.xy[lost], screened.scale_px[lost]
                 plain, read = subpixel.coarse_centre(gray, start, scale, cfg.marker_radius_max_px)
@@ -588,20 +590,114 @@ class Detector:
             moved = ~read | (np.linalg.norm(xy - plain, axis=1) >= _RECENTRE_MIN_SHIFT_PX)
             again = Candidates(xy, screened.strength[lost], scale).take(inside & moved)
             counts["recentred"] = len(again.xy)
-            added = self._verify_and_locate(frame.reread(), again)
-            if near_found is not None and added:
-                distance, _ = near_found.query(
-                    [(d.x, d.y) for d in added], distance_upper_bound=self.merge_radius_px
+            counts["found_recentred"] = self._join(
+                result, self._verify_and_locate(frame.reread(), again)
+            )
+        result.survivors.append(("recentring", _positions(result.detections)))
+
+    def _reread_shadowed(self, frame: _Frame, screened: Candidates) -> None:
+        """Lost wide candidates a shadow's edge crosses, read again with the shadow divided out.
+
+        A hard shadow across a marker breaks the grey-level symmetry every check
+        reads, not the X's geometry. Where :func:`shadow.find_edges` finds a shadow's
+        straight edge across a candidate the readings before left without a marker
+        (:meth:`_lost_wide`, on their first prescreen ring's line directions), the
+        frame is copied with that shadow divided out around it
+        (:func:`shadow.divided_out`; one copy per group of candidates whose disks do
+        not overlap) and the candidate is centred, checked and fitted there again. A
+        marker it finds joins the detections, which stay as they were.
+
+        Rendered (g), where a hard shadow's edge crosses half of the markers: on 24
+        frames of seeds 100-123, 152 -> 168 of 288 markers found; on the held-out
+        seeds 500-523, 138 -> 168, as many false points as before on both, and on
+        (a), (c), (d) at those seeds, on the real aerial frames and cirn_uas. The
+        independent renderer's (g): 20 -> 22 of 48.
+
+        Counts ``shadow_read``, the candidates read again, ``found_shadowed``, the
+        markers they added, and ``shadow_over_cap``, the lost wide candidates over
+        :data:`_MAX_REREAD`. The survivors end with ``shadow``: the detections then.
+        """
+        cfg = self.config
+        gray, result = frame.gray, frame.result
+        counts = result.counts
+        lost, counts["shadow_over_cap"] = self._lost_wide(result, screened)
+        counts["shadow_read"] = counts["found_shadowed"] = 0
+        if len(lost):
+            with frame.timer("shadow"):
+                chosen = screened.take(lost)
+                reach = np.clip(
+                    _SHADOW_REACH_SCALES * chosen.scale_px,
+                    _FIT_MIN_START_PX,
+                    cfg.marker_radius_max_px,
                 )
-                counts["merged_duplicates"] += int(np.isfinite(distance).sum())
-                added = [
-                    d for d, near in zip(added, np.isfinite(distance), strict=True) if not near
-                ]
-            counts["found_recentred"] = len(added)
-            result.detections = sorted(result.detections + added, key=lambda d: -d.score)
-        result.survivors.append(
-            ("recentring", np.array([[d.x, d.y] for d in result.detections]).reshape(-1, 2))
+                edges = shadow.find_edges(
+                    gray, chosen.xy, reach, self._line_directions(gray, chosen)
+                )
+                crossed = np.flatnonzero(edges.found)
+                disk = _SHADOW_DISK_REACHES * reach[crossed]
+                groups = shadow.disjoint_groups(chosen.xy[crossed], disk)
+            counts["shadow_read"] = len(crossed)
+            added: list[Detection] = []
+            for group in groups:
+                members = crossed[group]
+                with frame.timer("shadow"):
+                    lit = shadow.divided_out(
+                        gray,
+                        chosen.xy[members],
+                        edges.take(members),
+                        disk[group],
+                        frame.full_scale,
+                    )
+                again = replace(frame.reread(), gray=lit)
+                with frame.timer("centring"):
+                    centred = self._centre(lit, chosen.take(members), again.result)
+                added += self._verify_and_locate(again, centred)
+            counts["found_shadowed"] = self._join(result, added)
+        result.survivors.append(("shadow", _positions(result.detections)))
+
+    def _lost_wide(
+        self, result: DetectionResult, screened: Candidates
+    ) -> tuple[NDArray[np.intp], int]:
+        """The screened candidates a second reading takes, and how many its cap cut.
+
+        Those screened at :data:`_WIDE_SCALE_PX` or wider that ended farther than the
+        merge radius from every detection, at most :data:`_MAX_REREAD` of them, the
+        strongest spread over the frame (:func:`screening.even_cap_index`).
+        """
+        lost = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
+        found = _positions(result.detections)
+        if len(found) and len(lost):
+            distance, _ = cKDTree(found).query(
+                screened.xy[lost], distance_upper_bound=self.merge_radius_px
+            )
+            lost = lost[~np.isfinite(distance)]
+        if not len(lost):
+            return lost, 0
+        kept = screening.even_cap_index(
+            screened.xy[lost], screened.strength[lost], _MAX_REREAD, self.config.entropy_cell_px
         )
+        return lost[kept], len(lost) - len(kept)
+
+    def _join(self, result: DetectionResult, added: list[Detection]) -> int:
+        """Add a second reading's markers to the detections; returns how many joined.
+
+        One within the merge radius of a detection, or of a stronger marker added,
+        is a duplicate, counted in ``merged_duplicates``.
+        """
+        if not added:
+            return 0
+        xy = _positions(added)
+        unique = screening.non_maximum_suppression(
+            xy, np.array([d.score for d in added]), self.merge_radius_px
+        )
+        found = _positions(result.detections)
+        if len(found):
+            distance, _ = cKDTree(found).query(xy, distance_upper_bound=self.merge_radius_px)
+            unique &= ~np.isfinite(distance)
+        result.counts["merged_duplicates"] += int((~unique).sum())
+        joined = [d for d, keep in zip(added, unique, strict=True) if keep]
+        result.detections = sorted(result.detections + joined, key=lambda d: -d.score)
+        return len(joined)
 
     def _confirm_paper(
         self, frame: _Frame, noise: NoiseModel | None, candidates: Candidates
@@ -1483,6 +1579,11 @@ class _StageTimer:
         finally:
             elapsed_ms = (time.perf_counter() - start) * 1000.0
             self._timings[stage] = self._timings.get(stage, 0.0) + elapsed_ms
+
+
+def _positions(detections: list[Detection]) -> NDArray[np.float64]:
+    """(N, 2) the detections' centres."""
+    return np.array([[d.x, d.y] for d in detections], dtype=np.float64).reshape(-1, 2)
 
 
 @dataclass(frozen=True)

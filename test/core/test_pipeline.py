@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench.accuracy import families
 from marker_localizer.bench.ground import x_tiling_frame
-from marker_localizer.core import decision, pipeline, verification
+from marker_localizer.core import decision, pipeline, shadow, verification
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import (
     MarkerPlacement,
@@ -373,22 +373,39 @@ def test_wide_markers_the_centring_leaves_off_are_found_centred_with_the_light_s
     assert false == 0
 
 
-def test_lost_wide_candidates_centred_again_are_counted_and_add_only_new_markers(
+def test_lost_wide_candidates_read_again_are_counted_and_add_only_new_markers(
     uneven_light_frames,
 ):
     (low, high), frames = uneven_light_frames
     detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
-    added = 0
+    recentred = shadowed = 0
     for scene in frames:
         result = detector.detect(scene.image)
         counts = result.counts
         assert 0 <= counts["found_recentred"] <= counts["recentred"]
-        added += counts["found_recentred"]
+        assert 0 <= counts["found_shadowed"] <= counts["shadow_read"]
+        recentred += counts["found_recentred"]
+        shadowed += counts["found_shadowed"]
         first = dict(result.survivors)["merging"]
-        assert len(result) == len(first) + counts["found_recentred"]
+        assert len(result) == len(first) + counts["found_recentred"] + counts["found_shadowed"]
         distance = cKDTree(result.as_array()[:, :2]).query(result.as_array()[:, :2], k=2)[0]
         assert len(result) < 2 or distance[:, 1].min() > detector.merge_radius_px
-    assert added > 0
+    assert recentred > 0 and shadowed > 0
+
+
+def test_markers_a_shadows_edge_crosses_are_found_with_the_shadow_divided_out(monkeypatch):
+    # Rendered (g) frames whose lost candidates include markers a hard shadow's edge
+    # crosses; with no edge ever found (an explained share over 1), they stay lost.
+    family = next(f for f in families() if f.key == "g")
+    low, high = family.radius_range
+    detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
+    frames = [family.render(seed) for seed in (2, 11)]
+    with_edges = [_score(detector.detect(s.image).as_array(), s.centres)[:2] for s in frames]
+    added = sum(detector.detect(s.image).counts["found_shadowed"] for s in frames)
+    monkeypatch.setattr(shadow, "MIN_EXPLAINED", 1.1)
+    without = [_score(detector.detect(s.image).as_array(), s.centres)[:2] for s in frames]
+    assert sum(f for f, _ in with_edges) - sum(f for f, _ in without) == added >= 3
+    assert sum(m for _, m in with_edges) == sum(m for _, m in without) == 0
 
 
 def test_a_milder_dull_quadrant_costs_wide_markers_almost_nothing():
@@ -603,13 +620,13 @@ def test_the_survivors_narrow_test_by_test_down_to_the_detections():
     sizes = [len(xy) for _, xy in result.survivors]
     assert tuple(tests) == pipeline.SURVIVOR_TESTS
     # Each test keeps a subset of what reached it (the centring moves candidates and
-    # merges duplicates, so it keeps no more than it was given); the last, the
-    # recentring of the lost wide candidates, only adds markers to the detections.
-    assert all(later <= earlier for earlier, later in itertools.pairwise(sizes[:-1]))
-    assert sizes[-2] <= sizes[-1] == len(result) > 0
+    # merges duplicates, so it keeps no more than it was given); the last two, the
+    # second readings of the lost wide candidates, only add markers to the detections.
+    assert all(later <= earlier for earlier, later in itertools.pairwise(sizes[:-2]))
+    assert sizes[-3] <= sizes[-2] <= sizes[-1] == len(result) > 0
     survivors = dict(result.survivors)
     detections = result.as_array()[:, :2]
-    assert np.allclose(np.sort(survivors["recentring"], axis=0), np.sort(detections, axis=0))
+    assert np.allclose(np.sort(survivors["shadow"], axis=0), np.sort(detections, axis=0))
     assert cKDTree(detections).query(survivors["merging"])[0].max() < 0.5
 
 

@@ -1,0 +1,76 @@
+"""A cast shadow's edge across a marker: found where it is, divided out, nowhere else."""
+
+import numpy as np
+import pytest
+
+from marker_localizer.core import shadow
+from marker_localizer.synthetic import MarkerPlacement, render_markers
+from marker_localizer.synthetic.scene import CastShadow
+
+CENTRE = (64.3, 63.6)
+RADIUS_PX = 16.0
+#: Where the candidate sits: a pixel or so off the centre, as the screening leaves it.
+CANDIDATE = np.array([[CENTRE[0] + 0.5, CENTRE[1] - 0.4]])
+
+
+def _marker(cast: list[CastShadow], dull: float = 0.7, noise: float = 2.0):
+    placement = MarkerPlacement(*CENTRE, RADIUS_PX, 0.4, 20.0, 0.3, dull_factor=dull)
+    return render_markers(
+        (128, 128), [placement], 0, blur_sigma_px=1.0, noise_sigma_dn=noise, cast_shadows=cast
+    )
+
+
+def _edges(scene) -> shadow.ShadowEdges:
+    return shadow.find_edges(
+        scene.image, CANDIDATE, np.array([RADIUS_PX]), np.array([scene.markers[0].angles])
+    )
+
+
+@pytest.mark.parametrize(
+    ("normal", "offset", "darkening"), [(0.7, 3.0, 0.5), (2.5, -4.0, 0.6), (4.0, 1.0, 0.45)]
+)
+def test_a_shadows_straight_edge_across_a_marker_is_found_where_it_is(normal, offset, darkening):
+    edges = _edges(_marker([CastShadow(*CENTRE, normal, offset, darkening, 2 * RADIUS_PX)]))
+    assert edges.found[0]
+    turned = (edges.normal[0] - normal + np.pi) % (2 * np.pi) - np.pi
+    assert abs(turned) < np.radians(3.0)
+    # Its offset from the candidate, not from the centre.
+    moved = (CANDIDATE[0] - CENTRE) @ [np.cos(normal), np.sin(normal)]
+    assert abs(edges.offset[0] - (offset - moved)) < 0.5
+    assert edges.depth[0] == pytest.approx(-np.log(1 - darkening), abs=0.15)
+
+
+@pytest.mark.parametrize("dull", [1.0, 0.5])
+def test_a_marker_in_even_light_shows_no_shadow_whatever_its_quadrants_levels(dull):
+    # A dull quadrant is the quadrants' own levels, which the fit takes out first.
+    assert not _edges(_marker([], dull=dull)).found[0]
+
+
+def test_the_shadow_divided_out_gives_the_marker_its_light_back():
+    cast = CastShadow(*CENTRE, 0.7, 3.0, 0.5, 2 * RADIUS_PX)
+    shaded, lit = _marker([cast], noise=0.0), _marker([], noise=0.0)
+    edges = _edges(shaded)
+    restored = shadow.divided_out(shaded.image, CANDIDATE, edges, np.array([20.0]), 255.0)
+    assert restored.dtype == shaded.image.dtype
+    rows, cols = np.mgrid[:128, :128]
+    across = (cols - CENTRE[0]) * np.cos(0.7) + (rows - CENTRE[1]) * np.sin(0.7) - 3.0
+    within = (cols - CENTRE[0]) ** 2 + (rows - CENTRE[1]) ** 2 <= 18.0**2
+    in_shadow = within & (across > 2.0)
+    before = np.abs(shaded.image.astype(float) - lit.image)[in_shadow].mean()
+    after = np.abs(restored.astype(float) - lit.image)[in_shadow].mean()
+    assert before > 20.0 and after < 0.1 * before
+    # Beyond its disk the frame is as it was.
+    beyond = (cols - CANDIDATE[0, 0]) ** 2 + (rows - CANDIDATE[0, 1]) ** 2 > 21.0**2
+    assert (restored[beyond] == shaded.image[beyond]).all()
+
+
+def test_candidates_whose_disks_overlap_are_never_divided_out_in_one_copy():
+    xy = np.array([[0.0, 0.0], [10.0, 0.0], [50.0, 0.0], [25.0, 0.0]])
+    disks = np.array([6.0, 6.0, 6.0, 6.0])
+    groups = shadow.disjoint_groups(xy, disks)
+    assert sorted(np.concatenate(groups).tolist()) == [0, 1, 2, 3]
+    for group in groups:
+        apart = np.hypot(*(xy[group][:, None] - xy[group][None]).transpose(2, 0, 1))
+        np.fill_diagonal(apart, np.inf)
+        assert (apart > 12.0).all()
+    assert [g.tolist() for g in groups] == [[0, 2, 3], [1]]
