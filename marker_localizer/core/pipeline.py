@@ -151,15 +151,19 @@ _WIDE_SCALE_PX = 8.0
 #: light's slope moves its centre this far, px: less moves the rings' crossings,
 #: read every 10 degrees from 3 px out, by under half a sample (4.8 degrees).
 _RECENTRE_MIN_SHIFT_PX = 0.25
-#: Lost wide candidates each second reading (:meth:`Detector._recentre_lost`,
-#: :meth:`Detector._reread_shadowed`) reads again per frame at most, the strongest
-#: spread over the frame as Eq. (7)'s thinning spreads them
-#: (:func:`screening.even_cap`): markers are among a frame's strongest saddles (the
-#: 9 the recentring adds on the rendered (g) frames ranked 0-58 among their frame's
-#: wide candidates; a cap of 32 keeps all 9, 16 loses one), and each costs about
-#: 0.1-0.2 ms (one of the speed benchmark's 12 MP cluttered frames lost 1102: +110 ms
-#: uncapped, +9 ms at 64).
-_MAX_REREAD = 64
+#: Lost wide candidates read again per frame at most, the strongest spread over the
+#: frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`): markers are
+#: among a frame's strongest saddles (the 9 the recentring adds on the rendered (g)
+#: frames ranked 0-58 among their frame's wide candidates; a cap of 32 keeps all 9,
+#: 16 loses one), and each costs about 0.1-0.2 ms (one of the speed benchmark's
+#: 12 MP cluttered frames lost 1102: +110 ms uncapped, +9 ms at 64).
+_MAX_RECENTRED = 64
+#: ... and those whose shadow's edge is sought after the recentring
+#: (:meth:`Detector._reread_shadowed`, 0.1 ms each, and a reading again of those a
+#: shadow crosses): on the rendered (g) frames of seeds 100-123 the 32 strongest
+#: hold 12 of the 13 markers the 64 strongest give (29 and 28 on the held-out seeds
+#: 500-523), for 2 ms less on the speed benchmark's 12 MP cluttered frames.
+_MAX_SHADOW_READ = 32
 #: A lost candidate's shadow edge is sought within this many of its screening scales,
 #: px (:func:`shadow.find_edges`): a marker's X reaches about twice the scale its
 #: saddle answers at ...
@@ -571,13 +575,13 @@ class Detector:
 
         Counts ``recentred``, the candidates read again, ``found_recentred``, the
         markers they added, and ``recentring_over_cap``, the lost wide candidates
-        over :data:`_MAX_REREAD`; their second rejections are not counted again.
+        over :data:`_MAX_RECENTRED`; their second rejections are not counted again.
         The survivors end with ``recentring``: the detections then.
         """
         cfg = self.config
         gray, result = frame.gray, frame.result
         counts = result.counts
-        lost, counts["recentring_over_cap"] = self._lost_wide(result, screened)
+        lost, counts["recentring_over_cap"] = self._lost_wide(result, screened, _MAX_RECENTRED)
         counts["recentred"] = counts["found_recentred"] = 0
         if len(lost):
             with frame.timer("centring"):
@@ -601,26 +605,29 @@ class Detector:
         A hard shadow across a marker breaks the grey-level symmetry every check
         reads, not the X's geometry. Where :func:`shadow.find_edges` finds a shadow's
         straight edge across a candidate the readings before left without a marker
-        (:meth:`_lost_wide`, on their first prescreen ring's line directions), the
-        frame is copied with that shadow divided out around it
-        (:func:`shadow.divided_out`; one copy per group of candidates whose disks do
-        not overlap) and the candidate is centred, checked and fitted there again. A
-        marker it finds joins the detections, which stay as they were.
+        (:meth:`_lost_wide`, at most :data:`_MAX_SHADOW_READ`, on their first
+        prescreen ring's line directions), one copy of the frame gets those shadows
+        divided out (:func:`shadow.divided_out`; of candidates whose disks overlap,
+        the best explained edge, :func:`shadow.apart`), and there the candidates are
+        centred, checked and fitted again. A marker found joins the detections,
+        which stay as they were.
 
-        Rendered (g), where a hard shadow's edge crosses half of the markers: on 24
-        frames of seeds 100-123, 152 -> 168 of 288 markers found; on the held-out
-        seeds 500-523, 138 -> 168, as many false points as before on both, and on
-        (a), (c), (d) at those seeds, on the real aerial frames and cirn_uas. The
-        independent renderer's (g): 20 -> 22 of 48.
+        Rendered (g), where a hard shadow's edge crosses half of the markers (seeds
+        100-123, where it was built): 152 -> 165 of 288 markers; the held-out seeds
+        500-523: 138 -> 166; the benchmark's frames 54 -> 57 of 96; the independent
+        renderer's (g) 20 -> 21 of 48. As many false points as before on each, on
+        (a), (c), (d), the real aerial frames and cirn_uas. About 10 ms more per
+        12 MP cluttered frame of the speed benchmark (find_edges 4-5 ms, the reading
+        again the rest), 2 ms on real 8 MP ground at 3-30 px.
 
         Counts ``shadow_read``, the candidates read again, ``found_shadowed``, the
         markers they added, and ``shadow_over_cap``, the lost wide candidates over
-        :data:`_MAX_REREAD`. The survivors end with ``shadow``: the detections then.
+        :data:`_MAX_SHADOW_READ`. The survivors end with ``shadow``: the detections then.
         """
         cfg = self.config
         gray, result = frame.gray, frame.result
         counts = result.counts
-        lost, counts["shadow_over_cap"] = self._lost_wide(result, screened)
+        lost, counts["shadow_over_cap"] = self._lost_wide(result, screened, _MAX_SHADOW_READ)
         counts["shadow_read"] = counts["found_shadowed"] = 0
         if len(lost):
             with frame.timer("shadow"):
@@ -635,34 +642,30 @@ class Detector:
                 )
                 crossed = np.flatnonzero(edges.found)
                 disk = _SHADOW_DISK_REACHES * reach[crossed]
-                groups = shadow.disjoint_groups(chosen.xy[crossed], disk)
+                kept = shadow.apart(chosen.xy[crossed], disk, edges.explained[crossed])
+                crossed, disk = crossed[kept], disk[kept]
             counts["shadow_read"] = len(crossed)
             added: list[Detection] = []
-            for group in groups:
-                members = crossed[group]
+            if len(crossed):
                 with frame.timer("shadow"):
                     lit = shadow.divided_out(
-                        gray,
-                        chosen.xy[members],
-                        edges.take(members),
-                        disk[group],
-                        frame.full_scale,
+                        gray, chosen.xy[crossed], edges.take(crossed), disk, frame.full_scale
                     )
                 again = replace(frame.reread(), gray=lit)
                 with frame.timer("centring"):
-                    centred = self._centre(lit, chosen.take(members), again.result)
-                added += self._verify_and_locate(again, centred)
+                    centred = self._centre(lit, chosen.take(crossed), again.result)
+                added = self._verify_and_locate(again, centred)
             counts["found_shadowed"] = self._join(result, added)
         result.survivors.append(("shadow", _positions(result.detections)))
 
     def _lost_wide(
-        self, result: DetectionResult, screened: Candidates
+        self, result: DetectionResult, screened: Candidates, cap: int
     ) -> tuple[NDArray[np.intp], int]:
-        """The screened candidates a second reading takes, and how many its cap cut.
+        """The screened candidates a second reading takes, and how many its ``cap`` cut.
 
         Those screened at :data:`_WIDE_SCALE_PX` or wider that ended farther than the
-        merge radius from every detection, at most :data:`_MAX_REREAD` of them, the
-        strongest spread over the frame (:func:`screening.even_cap_index`).
+        merge radius from every detection, at most ``cap`` of them, the strongest
+        spread over the frame (:func:`screening.even_cap_index`).
         """
         lost = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
         found = _positions(result.detections)
@@ -674,7 +677,7 @@ class Detector:
         if not len(lost):
             return lost, 0
         kept = screening.even_cap_index(
-            screened.xy[lost], screened.strength[lost], _MAX_REREAD, self.config.entropy_cell_px
+            screened.xy[lost], screened.strength[lost], cap, self.config.entropy_cell_px
         )
         return lost[kept], len(lost) - len(kept)
 

@@ -49,9 +49,10 @@ def test_a_marker_in_even_light_shows_no_shadow_whatever_its_quadrants_levels(du
 def test_the_shadow_divided_out_gives_the_marker_its_light_back():
     cast = CastShadow(*CENTRE, 0.7, 3.0, 0.5, 2 * RADIUS_PX)
     shaded, lit = _marker([cast], noise=0.0), _marker([], noise=0.0)
-    edges = _edges(shaded)
-    restored = shadow.divided_out(shaded.image, CANDIDATE, edges, np.array([20.0]), 255.0)
-    assert restored.dtype == shaded.image.dtype
+    given = shaded.image.copy()
+    restored = shadow.divided_out(given, CANDIDATE, _edges(shaded), np.array([20.0]), 255.0)
+    assert restored.dtype == given.dtype
+    np.testing.assert_array_equal(given, shaded.image)  # a copy: the frame stays
     rows, cols = np.mgrid[:128, :128]
     across = (cols - CENTRE[0]) * np.cos(0.7) + (rows - CENTRE[1]) * np.sin(0.7) - 3.0
     within = (cols - CENTRE[0]) ** 2 + (rows - CENTRE[1]) ** 2 <= 18.0**2
@@ -64,13 +65,8 @@ def test_the_shadow_divided_out_gives_the_marker_its_light_back():
     assert (restored[beyond] == shaded.image[beyond]).all()
 
 
-def test_candidates_whose_disks_overlap_are_never_divided_out_in_one_copy():
+def test_of_overlapping_candidates_the_best_explained_edge_is_divided_out():
     xy = np.array([[0.0, 0.0], [10.0, 0.0], [50.0, 0.0], [25.0, 0.0]])
-    disks = np.array([6.0, 6.0, 6.0, 6.0])
-    groups = shadow.disjoint_groups(xy, disks)
-    assert sorted(np.concatenate(groups).tolist()) == [0, 1, 2, 3]
-    for group in groups:
-        apart = np.hypot(*(xy[group][:, None] - xy[group][None]).transpose(2, 0, 1))
-        np.fill_diagonal(apart, np.inf)
-        assert (apart > 12.0).all()
-    assert [g.tolist() for g in groups] == [[0, 2, 3], [1]]
+    kept = shadow.apart(xy, np.full(4, 6.0), np.array([0.6, 0.9, 0.7, 0.8]))
+    # 1 beats 0 (10 px apart, disks of 6); 3 is clear of 1 (15 px) and of 2 (25 px).
+    assert kept.tolist() == [False, True, True, True]
