@@ -186,6 +186,47 @@ def _parting(
     return parts[0] - parts[1], derivatives[0] - derivatives[1]
 
 
+class _Reading(NamedTuple):
+    """The pairs :func:`find_edges` reads around N candidates, with the candidates.
+
+    ``xy`` (N, 2), ``reach`` (N,) and ``lines`` (N, 2) are the candidates; ``offsets``
+    (N, K, 2) the pairs' d; ``ratio`` (N, K) log I(c + d) - log I(c - d); ``weight``
+    (N, K) 1 on the quadrants' insides; ``sides`` (N, K, 2) the signs of d's
+    distances from the two lines.
+    """
+
+    xy: NDArray[np.float64]
+    reach: NDArray[np.float64]
+    lines: NDArray[np.float64]
+    offsets: NDArray[np.float64]
+    ratio: NDArray[np.float64]
+    weight: NDArray[np.float64]
+    sides: NDArray[np.float64]
+
+    def take(self, rows: NDArray[np.intp]) -> _Reading:
+        """The reading of the candidates ``rows``."""
+        return _Reading._make(field[rows] for field in self)
+
+
+def _read_pairs(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    reach_px: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+) -> _Reading:
+    """The pairs' log ratios around each candidate, and which lie on the insides."""
+    d = reach_px[:, None, None] * _PAIRS[None]
+    x, y = xy[:, 0, None], xy[:, 1, None]
+    ahead, valid_ahead = _log_levels(image, x + d[..., 0], y + d[..., 1])
+    behind, valid_behind = _log_levels(image, x - d[..., 0], y - d[..., 1])
+    s1, s2 = line_distances(d[..., 0], d[..., 1], line_angles)
+    weight = (
+        (np.minimum(np.abs(s1), np.abs(s2)) >= INSIDE_LINE_DISTANCE_PX) & valid_ahead & valid_behind
+    ).astype(np.float64)
+    sides = np.stack([np.sign(s1), np.sign(s2)], axis=-1)
+    return _Reading(xy, reach_px, line_angles, d, ahead - behind, weight, sides)
+
+
 def find_edges(
     image: NDArray[Any],
     xy: NDArray[np.float64],
@@ -215,26 +256,17 @@ def find_edges(
         :class:`ShadowEdges`.
     """
     n = len(xy)
-    d = reach_px[:, None, None] * _PAIRS[None]
-    x, y = xy[:, 0, None], xy[:, 1, None]
-    ahead, valid_ahead = _log_levels(image, x + d[..., 0], y + d[..., 1])
-    behind, valid_behind = _log_levels(image, x - d[..., 0], y - d[..., 1])
-    ratio = ahead - behind
-    s1, s2 = line_distances(d[..., 0], d[..., 1], line_angles)
-    weight = (
-        (np.minimum(np.abs(s1), np.abs(s2)) >= INSIDE_LINE_DISTANCE_PX) & valid_ahead & valid_behind
-    ).astype(np.float64)
-    sides = np.stack([np.sign(s1), np.sign(s2)], axis=-1)
+    reading = _read_pairs(image, xy, reach_px, line_angles)
+    ratio, weight, sides = reading.ratio, reading.weight, reading.sides
     # The quadrants' levels projected out: what is left is the shadow's to explain.
-    levels_normal = (sides * weight[..., None]).transpose(0, 2, 1) @ sides + 1e-9 * np.eye(2)
-    levels_inverse = np.linalg.inv(levels_normal)
     weighted_sides = sides * weight[..., None]
-    levels = levels_inverse @ (weighted_sides.transpose(0, 2, 1) @ ratio[..., None])
-    residual = ratio - (sides @ levels)[..., 0]
+    levels_inverse = np.linalg.inv(weighted_sides.transpose(0, 2, 1) @ sides + 1e-9 * np.eye(2))
+    levels = (levels_inverse @ (weighted_sides.transpose(0, 2, 1) @ ratio[..., None]))[..., 0]
+    residual = ratio - (sides @ levels[..., None])[..., 0]
     total = (weight * residual**2).sum(axis=1)
-    # Coarse: every pattern against every candidate as matrix products.
+    # Coarse: every pattern against every candidate as matrix products, the
+    # candidates' two sides in one: (M, K) @ (K, 2N).
     correlation = (weight * residual) @ _PATTERNS.T
-    # One matrix product for every candidate's two sides: (M, K) @ (K, 2N).
     pattern_sides = (
         (_PATTERNS @ weighted_sides.transpose(1, 0, 2).reshape(len(_PAIRS), -1))
         .reshape(len(_PATTERNS), n, 2)
@@ -258,17 +290,10 @@ def find_edges(
     if len(refine):
         normal[refine], offset[refine], depth[refine], explained[refine], step[refine] = _refine(
             image,
-            xy[refine],
-            reach_px[refine],
-            line_angles[refine],
-            ratio[refine],
-            weight[refine],
-            sides[refine],
+            reading.take(refine),
             total[refine],
-            levels[refine, :, 0],
-            normal[refine],
-            offset[refine],
-            depth[refine],
+            levels[refine],
+            (normal[refine], offset[refine], depth[refine]),
         )
     found = np.zeros(n, dtype=bool)
     found[refine] = (
@@ -281,37 +306,33 @@ def find_edges(
 
 def _refine(
     image: NDArray[Any],
-    xy: NDArray[np.float64],
-    reach_px: NDArray[np.float64],
-    line_angles: NDArray[np.float64],
-    ratio: NDArray[np.float64],
-    weight: NDArray[np.float64],
-    sides: NDArray[np.float64],
+    reading: _Reading,
     total: NDArray[np.float64],
     levels: NDArray[np.float64],
-    normal: NDArray[np.float64],
-    distance: NDArray[np.float64],
-    depth: NDArray[np.float64],
+    coarse: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
 ) -> tuple[NDArray[np.float64], ...]:
     """:func:`find_edges`' coarse edges made exact: normal, offset, depth, explained, step.
 
-    The pairs cannot tell an edge at +o from one at -o (both part the same pairs):
-    the log step of the raw levels across each says which is there. Then the model
-    ratio = levels . sides + the shadow's part (:func:`_parting`) is fitted by
-    Gauss-Newton, all five parameters together.
+    ``coarse`` is each edge's normal, distance and signed depth; ``total`` the
+    pairs' variance and ``levels`` the quadrants' levels without a shadow. The
+    pairs cannot tell an edge at +o from one at -o (both part the same pairs):
+    the log step of the raw levels across each says which is there. Then the
+    model ratio = levels . sides + the shadow's part (:func:`_parting`) is fitted
+    by Gauss-Newton, all five parameters together.
     """
-    d = reach_px[:, None, None] * _PAIRS[None]
+    normal, distance, depth = coarse
     normal = np.where(depth < 0, normal + np.pi, normal)
     depth = np.clip(np.nan_to_num(np.abs(depth)), 0.0, _MAX_DEPTH)
-    plus = _edge_step(image, xy, reach_px, line_angles, normal, distance, depth)
-    minus = _edge_step(image, xy, reach_px, line_angles, normal, -distance, depth)
+    plus = _edge_step(image, reading, normal, distance, depth)
+    minus = _edge_step(image, reading, normal, -distance, depth)
     offset = np.where(np.abs(plus - 1.0) <= np.abs(minus - 1.0), distance, -distance)
     levels = levels.copy()
+    bound = _MAX_OFFSET * reading.reach
     for _ in range(_REFINE_ITERATIONS):
-        part, by_shadow = _parting(d, normal, offset, depth)
-        misfit = ratio - (sides @ levels[..., None])[..., 0] - part
-        jacobian = np.concatenate([sides, by_shadow], axis=-1)
-        weighted = jacobian * weight[..., None]
+        part, by_shadow = _parting(reading.offsets, normal, offset, depth)
+        misfit = reading.ratio - (reading.sides @ levels[..., None])[..., 0] - part
+        jacobian = np.concatenate([reading.sides, by_shadow], axis=-1)
+        weighted = jacobian * reading.weight[..., None]
         normal_eq = weighted.transpose(0, 2, 1) @ jacobian + 1e-9 * np.eye(5)
         # Too few pairs make the system singular: no step.
         step = np.nan_to_num(
@@ -320,19 +341,16 @@ def _refine(
         levels += step[:, :2]
         depth = np.clip(depth + step[:, 2], 0.0, _MAX_DEPTH)
         normal = normal + step[:, 3]
-        offset = np.clip(offset + step[:, 4], -_MAX_OFFSET * reach_px, _MAX_OFFSET * reach_px)
-    part, _ = _parting(d, normal, offset, depth)
-    misfit = ratio - (sides @ levels[..., None])[..., 0] - part
-    explained = 1.0 - (weight * misfit**2).sum(axis=1) / np.maximum(total, 1e-12)
-    step_ratio = _edge_step(image, xy, reach_px, line_angles, normal, offset, depth)
-    return normal, offset, depth, explained, step_ratio
+        offset = np.clip(offset + step[:, 4], -bound, bound)
+    part, _ = _parting(reading.offsets, normal, offset, depth)
+    misfit = reading.ratio - (reading.sides @ levels[..., None])[..., 0] - part
+    explained = 1.0 - (reading.weight * misfit**2).sum(axis=1) / np.maximum(total, 1e-12)
+    return normal, offset, depth, explained, _edge_step(image, reading, normal, offset, depth)
 
 
 def _edge_step(
     image: NDArray[Any],
-    xy: NDArray[np.float64],
-    reach_px: NDArray[np.float64],
-    line_angles: NDArray[np.float64],
+    reading: _Reading,
     normal: NDArray[np.float64],
     offset: NDArray[np.float64],
     depth: NDArray[np.float64],
@@ -344,12 +362,12 @@ def _edge_step(
     of that depth, about 0 across its mirror image through the candidate.
     """
     cos, sin = np.cos(normal)[:, None], np.sin(normal)[:, None]
-    along = np.linspace(-1.0, 1.0, _STEP_SAMPLES)[None, :] * reach_px[:, None]
+    along = np.linspace(-1.0, 1.0, _STEP_SAMPLES)[None, :] * reading.reach[:, None]
     px, py = offset[:, None] * cos - along * sin, offset[:, None] * sin + along * cos
-    x, y = xy[:, 0, None] + px, xy[:, 1, None] + py
+    x, y = reading.xy[:, 0, None] + px, reading.xy[:, 1, None] + py
     shaded, valid_shaded = _log_levels(image, x + _STEP_READ_PX * cos, y + _STEP_READ_PX * sin)
     lit, valid_lit = _log_levels(image, x - _STEP_READ_PX * cos, y - _STEP_READ_PX * sin)
-    s1, s2 = line_distances(px, py, line_angles)
+    s1, s2 = line_distances(px, py, reading.lines)
     weight = (
         (np.minimum(np.abs(s1), np.abs(s2)) >= INSIDE_LINE_DISTANCE_PX + _STEP_READ_PX)
         & valid_shaded
