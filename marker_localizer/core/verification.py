@@ -13,7 +13,6 @@ ring (which rejects bars, blobs and plus signs that pass a single ring).
 from __future__ import annotations
 
 import functools
-import warnings
 from typing import Any, NamedTuple, cast
 
 import cv2
@@ -1025,9 +1024,11 @@ def line_crossing_centres(
     crossing = np.where(
         rings.good[..., None], chord_crossing(xy, radii_px, rings.crossings), np.nan
     )
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no ring found lines
-        estimate = np.nanmedian(crossing, axis=1)
+    # Rows where no ring found lines stay NaN. (A warnings filter is no way to keep
+    # nanmedian quiet about them: it is process-wide, and the node's workers are threads.)
+    found = np.isfinite(crossing).any(axis=1).all(axis=1)
+    estimate = np.full((len(xy), 2), np.nan)
+    estimate[found] = np.nanmedian(crossing[found], axis=1)
     move = np.isfinite(estimate).all(axis=1) & (
         np.linalg.norm(estimate - xy, axis=1) <= recentre_px
     )

@@ -422,3 +422,15 @@ def test_under_its_floor_only_an_x_that_has_clearly_ended_passes():
     # Not asked (wider than texture's saddles), a candidate under its floor fails it.
     wide = verification.x_ends(image, centre, np.array([8.0]), angles, 3.0, np.array([True]))
     assert not wide[0]
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_a_candidate_whose_rings_find_no_lines_stays_where_it_was_and_says_so_quietly():
+    # Quietly: a warnings filter would be process-wide, and the node's workers are threads.
+    flat = np.full((64, 64), 100.0)
+    xy = np.array([[32.0, 32.0], [30.5, 33.5]])
+    moved, found = verification.line_crossing_centres(
+        flat, xy, np.array([3.0, 4.24, 6.0]), min_contrast=5.0
+    )
+    np.testing.assert_array_equal(moved, xy)
+    assert not found.any()
