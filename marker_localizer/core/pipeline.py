@@ -616,9 +616,10 @@ class Detector:
         100-123, where it was built): 152 -> 165 of 288 markers; the held-out seeds
         500-523: 138 -> 166; the benchmark's frames 54 -> 57 of 96; the independent
         renderer's (g) 20 -> 21 of 48. As many false points as before on each, on
-        (a), (c), (d), the real aerial frames and cirn_uas. About 10 ms more per
-        12 MP cluttered frame of the speed benchmark (find_edges 4-5 ms, the reading
-        again the rest), 2 ms on real 8 MP ground at 3-30 px.
+        (a), (c), (d), the real aerial frames and cirn_uas. About 7 ms more per
+        12 MP cluttered frame of the speed benchmark (finding the edges 4-5 ms, the
+        copy and the reading again the rest) and per real 8 MP aerial frame at
+        6-40 px, none measurable at 3-30 px (docs/speed.md).
 
         Counts ``shadow_read``, the candidates read again, ``found_shadowed``, the
         markers they added, and ``shadow_over_cap``, the lost wide candidates over
