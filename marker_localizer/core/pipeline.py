@@ -609,17 +609,19 @@ class Detector:
         prescreen ring's line directions), one copy of the frame gets those shadows
         divided out (:func:`shadow.divided_out`; of candidates whose disks overlap,
         the best explained edge, :func:`shadow.apart`), and there the candidates are
-        centred, checked and fitted again. A marker found joins the detections,
-        which stay as they were.
+        centred with the light's slope (the shadow gone, a dull quadrant is left),
+        checked and fitted again. A marker found joins the detections, which stay
+        as they were.
 
         Rendered (g), where a hard shadow's edge crosses half of the markers (seeds
-        100-123, where it was built): 152 -> 165 of 288 markers; the held-out seeds
-        500-523: 138 -> 166; the benchmark's frames 54 -> 57 of 96; the independent
-        renderer's (g) 20 -> 21 of 48. As many false points as before on each, on
-        (a), (c), (d), the real aerial frames and cirn_uas. About 7 ms more per
-        12 MP cluttered frame of the speed benchmark (finding the edges 4-5 ms, the
-        copy and the reading again the rest) and per real 8 MP aerial frame at
-        6-40 px, none measurable at 3-30 px (docs/speed.md).
+        100-123, where it was built): 152 -> 172 of 288 markers (165 centring
+        without the slope); the held-out seeds 500-523: 138 -> 169; the
+        benchmark's frames 54 -> 57 of 96; the independent renderer's (g) 20 -> 21
+        of 48. As many false points as before on each, on (a), (c), (d), the real
+        aerial frames and cirn_uas. About 7 ms more per 12 MP cluttered frame of
+        the speed benchmark (finding the edges 4-5 ms, the copy and the reading
+        again the rest) and per real 8 MP aerial frame at 6-40 px, none measurable
+        at 3-30 px (docs/speed.md).
 
         Counts ``shadow_read``, the candidates read again, ``found_shadowed``, the
         markers they added, and ``shadow_over_cap``, the lost wide candidates over
@@ -652,10 +654,15 @@ class Detector:
                     lit = shadow.divided_out(
                         gray, chosen.xy[crossed], edges.take(crossed), disk, frame.full_scale
                     )
-                again = replace(frame.reread(), gray=lit)
+                read = chosen.take(crossed)
                 with frame.timer("centring"):
-                    centred = self._centre(lit, chosen.take(crossed), again.result)
-                added = self._verify_and_locate(again, centred)
+                    # With the light's slope, as the recentring: the shadow gone, a
+                    # dull quadrant still pulls a slope-free centring off the X.
+                    xy, inside = subpixel.coarse_centre(
+                        lit, read.xy, read.scale_px, cfg.marker_radius_max_px, light_slope=True
+                    )
+                centred = Candidates(xy, read.strength, read.scale_px).take(inside)
+                added = self._verify_and_locate(replace(frame.reread(), gray=lit), centred)
             counts["found_shadowed"] = self._join(result, added)
         result.survivors.append(("shadow", _positions(result.detections)))
 
