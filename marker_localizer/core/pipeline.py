@@ -220,7 +220,9 @@ class DetectionResult:
             ``rejected_symmetry``, ``rejected_template``, ``rejected_lines``,
             ``rejected_refinement``, ``rejected_score``,
             ``merged_duplicates``, ``recentred``, ``found_recentred``,
-            ``recentring_over_cap`` (:meth:`Detector._recentre_lost`), ``accepted``;
+            ``recentring_over_cap`` (:meth:`Detector._recentre_lost`), ``shadow_read``,
+            ``found_shadowed``, ``shadow_over_cap`` (:meth:`Detector._reread_shadowed`),
+            ``accepted``;
             with ``refinement="template"``,
             ``rejected_<reason>`` for each of :data:`decision.REASONS` instead of
             the centring, symmetry, template, refinement and score counts).
@@ -635,11 +637,7 @@ class Detector:
         if len(lost):
             with frame.timer("shadow"):
                 chosen = screened.take(lost)
-                reach = np.clip(
-                    _SHADOW_REACH_SCALES * chosen.scale_px,
-                    _FIT_MIN_START_PX,
-                    cfg.marker_radius_max_px,
-                )
+                reach = np.minimum(_SHADOW_REACH_SCALES * chosen.scale_px, cfg.marker_radius_max_px)
                 edges = shadow.find_edges(
                     gray, chosen.xy, reach, self._line_directions(gray, chosen)
                 )
