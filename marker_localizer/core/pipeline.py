@@ -639,7 +639,7 @@ class Detector:
                 chosen = screened.take(lost)
                 reach = np.minimum(_SHADOW_REACH_SCALES * chosen.scale_px, cfg.marker_radius_max_px)
                 edges = shadow.find_edges(
-                    gray, chosen.xy, reach, self._line_directions(gray, chosen)
+                    gray, chosen.xy, reach, self._line_directions(gray, chosen), frame.full_scale
                 )
                 crossed = np.flatnonzero(edges.found)
                 disk = _SHADOW_DISK_REACHES * reach[crossed]

@@ -75,6 +75,9 @@ STEP_TOLERANCE = 0.5
 #: of :data:`MIN_EXPLAINED` with this share of :data:`MIN_DEPTH`: the refinement
 #: costs most of the time, and most texture candidates show no edge at all.
 _PROMISING = 0.8
+#: The log reads levels of at least this share of white: one 8-bit grey level,
+#: under which a level is its quantisation.
+_DARKEST_SHARE = 1.0 / 255.0
 #: Fewest pairs on the insides for a fit of five parameters to mean anything.
 _MIN_PAIRS = 20
 
@@ -144,11 +147,11 @@ _PATTERN_POWER = _PATTERNS**2
 
 
 def _log_levels(
-    image: NDArray[Any], x: NDArray[np.float64], y: NDArray[np.float64]
+    image: NDArray[Any], x: NDArray[np.float64], y: NDArray[np.float64], floor: float
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Log of the raw levels at (x, y) (bilinear; at least 1 grey level), and validity."""
+    """Log of the raw levels at (x, y) (bilinear; at least ``floor``), and validity."""
     values, valid = bilinear(image, x, y)
-    return np.log(np.maximum(values, 1.0)), valid
+    return np.log(np.maximum(values, floor)), valid
 
 
 def _parting(
@@ -210,6 +213,7 @@ class _Reading(NamedTuple):
 
 def _read_pairs(
     image: NDArray[Any],
+    floor: float,
     xy: NDArray[np.float64],
     reach_px: NDArray[np.float64],
     line_angles: NDArray[np.float64],
@@ -217,8 +221,8 @@ def _read_pairs(
     """The pairs' log ratios around each candidate, and which lie on the insides."""
     d = reach_px[:, None, None] * _PAIRS[None]
     x, y = xy[:, 0, None], xy[:, 1, None]
-    ahead, valid_ahead = _log_levels(image, x + d[..., 0], y + d[..., 1])
-    behind, valid_behind = _log_levels(image, x - d[..., 0], y - d[..., 1])
+    ahead, valid_ahead = _log_levels(image, x + d[..., 0], y + d[..., 1], floor)
+    behind, valid_behind = _log_levels(image, x - d[..., 0], y - d[..., 1], floor)
     s1, s2 = line_distances(d[..., 0], d[..., 1], line_angles)
     weight = (
         (np.minimum(np.abs(s1), np.abs(s2)) >= INSIDE_LINE_DISTANCE_PX) & valid_ahead & valid_behind
@@ -232,6 +236,7 @@ def find_edges(
     xy: NDArray[np.float64],
     reach_px: NDArray[np.float64],
     line_angles: NDArray[np.float64],
+    full_scale: float,
 ) -> ShadowEdges:
     """A cast shadow's straight edge across each candidate, where the evidence shows one.
 
@@ -251,12 +256,14 @@ def find_edges(
         xy: (N, 2) candidate centres (a pixel or two off is no matter).
         reach_px: (N,) radius of the disk read around each, px.
         line_angles: (N, 2) the X's line directions, radians.
+        full_scale: the image's white (255 for uint8, 1 for float images in [0, 1]).
 
     Returns:
         :class:`ShadowEdges`.
     """
     n = len(xy)
-    reading = _read_pairs(image, xy, reach_px, line_angles)
+    floor = _DARKEST_SHARE * full_scale
+    reading = _read_pairs(image, floor, xy, reach_px, line_angles)
     ratio, weight, sides = reading.ratio, reading.weight, reading.sides
     # The quadrants' levels projected out: what is left is the shadow's to explain.
     weighted_sides = sides * weight[..., None]
@@ -290,6 +297,7 @@ def find_edges(
     if len(refine):
         normal[refine], offset[refine], depth[refine], explained[refine], step[refine] = _refine(
             image,
+            floor,
             reading.take(refine),
             total[refine],
             levels[refine],
@@ -306,6 +314,7 @@ def find_edges(
 
 def _refine(
     image: NDArray[Any],
+    floor: float,
     reading: _Reading,
     total: NDArray[np.float64],
     levels: NDArray[np.float64],
@@ -323,8 +332,8 @@ def _refine(
     normal, distance, depth = coarse
     normal = np.where(depth < 0, normal + np.pi, normal)
     depth = np.clip(np.nan_to_num(np.abs(depth)), 0.0, _MAX_DEPTH)
-    plus = _edge_step(image, reading, normal, distance, depth)
-    minus = _edge_step(image, reading, normal, -distance, depth)
+    plus = _edge_step(image, floor, reading, normal, distance, depth)
+    minus = _edge_step(image, floor, reading, normal, -distance, depth)
     offset = np.where(np.abs(plus - 1.0) <= np.abs(minus - 1.0), distance, -distance)
     levels = levels.copy()
     bound = _MAX_OFFSET * reading.reach
@@ -345,11 +354,18 @@ def _refine(
     part, _ = _parting(reading.offsets, normal, offset, depth)
     misfit = reading.ratio - (reading.sides @ levels[..., None])[..., 0] - part
     explained = 1.0 - (reading.weight * misfit**2).sum(axis=1) / np.maximum(total, 1e-12)
-    return normal, offset, depth, explained, _edge_step(image, reading, normal, offset, depth)
+    return (
+        normal,
+        offset,
+        depth,
+        explained,
+        _edge_step(image, floor, reading, normal, offset, depth),
+    )
 
 
 def _edge_step(
     image: NDArray[Any],
+    floor: float,
     reading: _Reading,
     normal: NDArray[np.float64],
     offset: NDArray[np.float64],
@@ -365,8 +381,10 @@ def _edge_step(
     along = np.linspace(-1.0, 1.0, _STEP_SAMPLES)[None, :] * reading.reach[:, None]
     px, py = offset[:, None] * cos - along * sin, offset[:, None] * sin + along * cos
     x, y = reading.xy[:, 0, None] + px, reading.xy[:, 1, None] + py
-    shaded, valid_shaded = _log_levels(image, x + _STEP_READ_PX * cos, y + _STEP_READ_PX * sin)
-    lit, valid_lit = _log_levels(image, x - _STEP_READ_PX * cos, y - _STEP_READ_PX * sin)
+    shaded, valid_shaded = _log_levels(
+        image, x + _STEP_READ_PX * cos, y + _STEP_READ_PX * sin, floor
+    )
+    lit, valid_lit = _log_levels(image, x - _STEP_READ_PX * cos, y - _STEP_READ_PX * sin, floor)
     s1, s2 = line_distances(px, py, reading.lines)
     weight = (
         (np.minimum(np.abs(s1), np.abs(s2)) >= INSIDE_LINE_DISTANCE_PX + _STEP_READ_PX)

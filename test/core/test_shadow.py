@@ -20,9 +20,13 @@ def _marker(cast: list[CastShadow], dull: float = 0.7, noise: float = 2.0):
     )
 
 
-def _edges(scene) -> shadow.ShadowEdges:
+def _edges(scene, image: np.ndarray | None = None, white: float = 255.0) -> shadow.ShadowEdges:
     return shadow.find_edges(
-        scene.image, CANDIDATE, np.array([RADIUS_PX]), np.array([scene.markers[0].angles])
+        scene.image if image is None else image,
+        CANDIDATE,
+        np.array([RADIUS_PX]),
+        np.array([scene.markers[0].angles]),
+        white,
     )
 
 
@@ -38,6 +42,22 @@ def test_a_shadows_straight_edge_across_a_marker_is_found_where_it_is(normal, of
     moved = (CANDIDATE[0] - CENTRE) @ [np.cos(normal), np.sin(normal)]
     assert abs(edges.offset[0] - (offset - moved)) < 0.5
     assert edges.depth[0] == pytest.approx(-np.log(1 - darkening), abs=0.15)
+
+
+def test_the_edge_is_the_same_in_any_images_grey_levels():
+    scene = _marker([CastShadow(*CENTRE, 0.7, 3.0, 0.5, 2 * RADIUS_PX)])
+    eight_bit = _edges(scene)
+    for image, white in (
+        (scene.image.astype(np.uint16) * 257, 65535.0),
+        (scene.image.astype(np.float32) / 255.0, 1.0),
+    ):
+        edges = _edges(scene, image, white)
+        assert edges.found[0]
+        np.testing.assert_allclose(
+            [edges.normal[0], edges.offset[0], edges.depth[0]],
+            [eight_bit.normal[0], eight_bit.offset[0], eight_bit.depth[0]],
+            atol=1e-3,
+        )
 
 
 @pytest.mark.parametrize("dull", [1.0, 0.5])
