@@ -648,11 +648,11 @@ class Detector:
             counts["shadow_read"] = len(crossed)
             added: list[Detection] = []
             if len(crossed):
+                read = chosen.take(crossed)
                 with frame.timer("shadow"):
                     lit = shadow.divided_out(
-                        gray, chosen.xy[crossed], edges.take(crossed), disk, frame.full_scale
+                        gray, read.xy, edges.take(crossed), disk, frame.full_scale
                     )
-                read = chosen.take(crossed)
                 with frame.timer("centring"):
                     # With the light's slope, as the recentring: the shadow gone, a
                     # dull quadrant still pulls a slope-free centring off the X.

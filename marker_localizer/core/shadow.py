@@ -32,8 +32,10 @@ _RINGS = 8
 #: ... each of this many pairs over a half turn (a pair holds both ends).
 _PAIRS_PER_RING = 32
 #: Pairs this close to either of the X's lines are left out, px: there the X's own
-#: blurred edges part the pair, a centre a pixel off included.
-INSIDE_LINE_DISTANCE_PX = 2.0
+#: blurred edges part the pair, a centre a pixel off included. (The line fit's slope
+#: prior, :data:`subpixel.INSIDE_LINE_DISTANCE_PX`, keeps 3 px: its pairs must hold
+#: no edge at all, these only no edge the quadrants' levels cannot take.)
+_CLEAR_OF_LINES_PX = 2.0
 #: The edge's directions tried first (normals over a half turn; the depth's sign
 #: says which side is in shadow) ...
 _COARSE_DIRECTIONS = 36
@@ -225,7 +227,7 @@ def _read_pairs(
     behind, valid_behind = _log_levels(image, x - d[..., 0], y - d[..., 1], floor)
     s1, s2 = line_distances(d[..., 0], d[..., 1], line_angles)
     weight = (
-        (np.minimum(np.abs(s1), np.abs(s2)) >= INSIDE_LINE_DISTANCE_PX) & valid_ahead & valid_behind
+        (np.minimum(np.abs(s1), np.abs(s2)) >= _CLEAR_OF_LINES_PX) & valid_ahead & valid_behind
     ).astype(np.float64)
     sides = np.stack([np.sign(s1), np.sign(s2)], axis=-1)
     return _Reading(xy, reach_px, line_angles, d, ahead - behind, weight, sides)
@@ -387,7 +389,7 @@ def _edge_step(
     lit, valid_lit = _log_levels(image, x - _STEP_READ_PX * cos, y - _STEP_READ_PX * sin, floor)
     s1, s2 = line_distances(px, py, reading.lines)
     weight = (
-        (np.minimum(np.abs(s1), np.abs(s2)) >= INSIDE_LINE_DISTANCE_PX + _STEP_READ_PX)
+        (np.minimum(np.abs(s1), np.abs(s2)) >= _CLEAR_OF_LINES_PX + _STEP_READ_PX)
         & valid_shaded
         & valid_lit
     ).astype(np.float64)

@@ -1771,9 +1771,7 @@ def modulation_beyond_extent(
         line_angles: (N, 2) line directions, radians.
     """
     theta = np.linspace(0.0, 2.0 * np.pi, _X_END_SAMPLES, endpoint=False)
-    sign = np.sign(np.sin(theta[None] - line_angles[:, :1])) * np.sign(
-        np.sin(theta[None] - line_angles[:, 1:])
-    )
+    sign = template.sector_sign(np.cos(theta)[None], np.sin(theta)[None], line_angles)
     factors = np.array([X_END_INSIDE, *X_END_RINGS])
     rho = radius_px[:, None, None] * factors[None, :, None]
     levels, valid = bilinear(
