@@ -471,7 +471,7 @@ QUADRANT_EDGES = ((0, 1), (1, 2), (2, 3), (3, 0))
 PIXEL_VARIANCE_PX2 = 1.0 / 12.0
 #: Gauss-Legendre nodes on [-1, 1] and their weights for :func:`blurred_x`'s integral
 #: over the angle: six give the X to 1e-5 of its contrast for lines 20 degrees apart
-#: (the narrowest angle the checks take) and to 3e-7 from 32 degrees.
+#: and to 3e-7 from 32 degrees.
 _CROSSING_NODES, _CROSSING_WEIGHTS = np.polynomial.legendre.leggauss(6)
 _SQRT_2PI = np.sqrt(2.0 * np.pi)
 #: Quadrant index by (side of line 1, side of line 2), 0 = negative, 1 = positive.
