@@ -1,6 +1,8 @@
 """Sections 3.3.1-3.3.2: adaptive template, NCC by matrix product, quadratic extremum,
 and the point-symmetry refinement."""
 
+from collections.abc import Callable
+
 import cv2
 import numpy as np
 import pytest
@@ -160,20 +162,33 @@ _FOUR_LEVEL_CENTRE = (47.3, 48.6)
 _FOUR_LEVEL_ANGLES = np.array([0.3, 1.7])
 
 
-def _four_level_match(levels: list[float]) -> float:
-    """The template match at the centre of a blurred X with a grey level per quadrant,
-    in the order (s1 > 0, s2 > 0), (s1 > 0, s2 < 0), (s1 < 0, s2 < 0), (s1 < 0, s2 > 0)."""
+def _blurred_match(
+    sharp: Callable[[np.ndarray, np.ndarray], np.ndarray], angles: np.ndarray, disk_px: float
+) -> float:
+    """The template match at the centre of a 96 x 96 image: ``sharp(s1, s2)`` of the signed
+    distances from lines of ``angles`` through the centre, area-averaged from 8 x 8
+    sub-pixels and blurred by 1 px."""
     fine = (np.arange(96 * 8) + 0.5) / 8 - 0.5
     y, x = np.meshgrid(fine, fine, indexing="ij")
     cx, cy = _FOUR_LEVEL_CENTRE
-    s1, s2 = template.line_distances(x - cx, y - cy, _FOUR_LEVEL_ANGLES)
-    quadrant = np.where(s1 > 0, np.where(s2 > 0, 0, 1), np.where(s2 < 0, 2, 3))
-    sharp = np.asarray(levels)[quadrant]
-    image = cv2.GaussianBlur(cv2.resize(sharp, (96, 96), interpolation=cv2.INTER_AREA), (0, 0), 1.0)
+    s1, s2 = template.line_distances(x - cx, y - cy, angles)
+    area = cv2.resize(sharp(s1, s2), (96, 96), interpolation=cv2.INTER_AREA)
+    image = cv2.GaussianBlur(area, (0, 0), 1.0)
     match = template.template_correlation(
-        image, np.array([_FOUR_LEVEL_CENTRE]), _FOUR_LEVEL_ANGLES[None], np.array([12.0])
+        image, np.array([_FOUR_LEVEL_CENTRE]), angles[None], np.array([disk_px])
     )
     return float(match.ncc[0])
+
+
+def _four_level_match(levels: list[float]) -> float:
+    """The template match at the centre of a blurred X with a grey level per quadrant,
+    in the order (s1 > 0, s2 > 0), (s1 > 0, s2 < 0), (s1 < 0, s2 < 0), (s1 < 0, s2 > 0)."""
+
+    def sharp(s1: np.ndarray, s2: np.ndarray) -> np.ndarray:
+        quadrant = np.where(s1 > 0, np.where(s2 > 0, 0, 1), np.where(s2 < 0, 2, 3))
+        return np.asarray(levels)[quadrant]
+
+    return _blurred_match(sharp, _FOUR_LEVEL_ANGLES, 12.0)
 
 
 @pytest.mark.parametrize(
@@ -614,17 +629,13 @@ def test_the_blurred_x_at_any_angle_is_the_mean_of_the_sharp_x_under_the_blur(cr
 def _crossing_match(kind: str, crossing_deg: float, disk_px: float) -> float:
     """The template match at the centre of a blurred X, or of a smooth saddle with the
     same zero lines, whose lines cross at ``crossing_deg``."""
-    angles = np.array([0.3, 0.3 + np.deg2rad(crossing_deg)])
-    fine = (np.arange(96 * 8) + 0.5) / 8 - 0.5
-    y, x = np.meshgrid(fine, fine, indexing="ij")
-    cx, cy = _FOUR_LEVEL_CENTRE
-    s1, s2 = template.line_distances(x - cx, y - cy, angles)
-    sharp = np.where(s1 * s2 > 0, 0.9, 0.1) if kind == "x" else np.clip(0.5 + 0.02 * s1 * s2, 0, 1)
-    image = cv2.GaussianBlur(cv2.resize(sharp, (96, 96), interpolation=cv2.INTER_AREA), (0, 0), 1.0)
-    match = template.template_correlation(
-        image, np.array([_FOUR_LEVEL_CENTRE]), angles[None], np.array([disk_px])
-    )
-    return float(match.ncc[0])
+
+    def sharp(s1: np.ndarray, s2: np.ndarray) -> np.ndarray:
+        if kind == "x":
+            return np.where(s1 * s2 > 0, 0.9, 0.1)
+        return np.clip(0.5 + 0.02 * s1 * s2, 0, 1)
+
+    return _blurred_match(sharp, np.array([0.3, 0.3 + np.deg2rad(crossing_deg)]), disk_px)
 
 
 @pytest.mark.parametrize("crossing_deg", [35.0, 50.0, 70.0])
