@@ -330,6 +330,14 @@ def test_independent_frames_load_with_their_truth_bound_and_radius_range():
 
 
 @needs_data
+def test_each_rendered_family_draws_every_radius_the_independent_family_draws():
+    rendered = {f.key: f.radius_range for f in accuracy.families() if not f.variant}
+    for frame in real_data.iter_independent(DATA):
+        low, high = rendered[frame.family]
+        assert low <= frame.radius_range[0] and frame.radius_range[1] <= high, frame.name
+
+
+@needs_data
 def test_independent_table_scores_every_detector_against_the_frames_bound():
     frame = next(real_data.iter_independent(DATA, 1, ("a",)))
     ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
