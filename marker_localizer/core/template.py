@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import erf
 
+from marker_localizer.core.noise import NoiseModel
 from marker_localizer.core.sampling import Normaliser, bilinear, pad_patterns
 
 _SUPERSAMPLING = 4  # template pixels are area-integrated from 4x4 sub-samples
@@ -279,13 +280,9 @@ def template_correlation(
     n = len(xy)
     if n == 0:
         return TemplateMatch(np.zeros(0), np.zeros(0))
-    # One disk pattern per rounded radius; the padding's samples are left out below.
-    radius_key = np.round(np.asarray(radius_px, dtype=np.float64))
-    keys, pattern_of = np.unique(radius_key, return_inverse=True)
-    patterns = [_disk_offsets(float(radius), max_samples) for radius in keys]
-    padded, in_pattern = pad_patterns(patterns)
-    present = in_pattern[pattern_of]
-    values, valid, s1, s2 = _disk_reads(image, xy, line_angles, patterns, pattern_of, normalise)
+    disk = _disk_samples(image, xy, line_angles, radius_px, max_samples, normalise)
+    values, valid, s1, s2, present = disk.values, disk.valid, disk.s1, disk.s2, disk.present
+    padded_width = values.shape[1]
     count = present.sum(axis=1, keepdims=True)
     centred = (values - (values * present).sum(axis=1, keepdims=True) / count) * (valid & present)
     norm_i2 = (centred**2).sum(axis=1) + 1e-12
@@ -298,7 +295,7 @@ def template_correlation(
     s1_read, s2_read = s1[present], s2[present]
     for sigma in sigmas_px:
         model = edge_step(s1[:, -1:], sigma) * edge_step(s2[:, -1:], sigma)
-        model = np.repeat(model, padded.shape[1], axis=1)
+        model = np.repeat(model, padded_width, axis=1)
         model[present] = edge_step(s1_read, sigma) * edge_step(s2_read, sigma)
         model_centred = _centred(model, present, count)
         model_norm2 = (model_centred**2).sum(axis=1) + 1e-12
@@ -331,6 +328,52 @@ def template_correlation(
     extra = np.where(np.abs(split) < 2.0 * np.abs(contrast), projected**2 / difference_norm2, 0.0)
     ncc = np.sqrt(np.minimum(ncc**2 + extra / norm_i2, 1.0))
     return TemplateMatch(ncc, best_sigma)
+
+
+def template_misfit(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    noise: NoiseModel,
+    max_samples: int = 300,
+) -> NDArray[np.float64]:
+    """(N,) share of the disk's variance the blurred X leaves unexplained beyond the noise.
+
+    1 - NCC^2 of :func:`template_correlation` (raw levels) is the share of the
+    samples' variance about their mean that the X, its bright quadrants a level
+    each, leaves unexplained. Noise alone leaves its variance over the samples'
+    variance; a bilinear sample carries ((1 - fx)^2 + fx^2) ((1 - fy)^2 + fy^2) of
+    its pixels' noise variance, fx and fy its fractional position. What is left is
+    shape that is not the X's: an X whose lines are straight, blurred, leaves next
+    to none (rendered markers: median 0.003), while a saddle between round blobs
+    (a lattice of discs, stones in rows) leaves the curvature of their outlines
+    (0.06-0.12), whatever its contrast and however point-symmetric it is.
+
+    Args:
+        image: (H, W) image, raw levels.
+        xy: (N, 2) centres (sub-pixel).
+        line_angles: (N, 2) line directions, radians.
+        radius_px: (N,) disk radius over which to read, px.
+        noise: the frame's noise (:func:`~marker_localizer.core.noise.estimate_noise`).
+        max_samples: cap on samples per point (as :func:`template_correlation`).
+    """
+    if len(xy) == 0:
+        return np.zeros(0)
+    match = template_correlation(image, xy, line_angles, radius_px, max_samples=max_samples)
+    disk = _disk_samples(image, xy, line_angles, radius_px, max_samples, None)
+    read = disk.valid & disk.present
+    count = np.maximum(read.sum(axis=1), 1)
+    mean = (disk.values * read).sum(axis=1) / count
+    variance = (np.square(disk.values - mean[:, None]) * read).sum(axis=1) / count
+    position = xy[:, None, :] + disk.offsets
+    fraction = position - np.floor(position)
+    carried = np.prod(np.square(1.0 - fraction) + np.square(fraction), axis=-1)
+    noise_variance = (np.square(noise.std(disk.values)) * carried * read).sum(axis=1) / count
+    misfit: NDArray[np.float64] = (
+        1.0 - np.square(match.ncc) - noise_variance / np.maximum(variance, 1e-12)
+    )
+    return misfit
 
 
 def blurred_x(
@@ -402,6 +445,43 @@ def _centred(
         model - (model * present).sum(axis=1, keepdims=True) / count
     ) * present
     return centred
+
+
+class _DiskSamples(NamedTuple):
+    """Each point's disk samples, padded to the longest pattern (:func:`_disk_samples`).
+
+    Attributes:
+        values: (N, K) samples.
+        valid: (N, K) whether each was read inside the image.
+        s1: (N, K) signed distances from line 1, px.
+        s2: the same from line 2.
+        present: (N, K) the point's own samples (False: the padding).
+        offsets: (N, K, 2) their offsets from the point, px (0 for the padding).
+    """
+
+    values: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+    s1: NDArray[np.float64]
+    s2: NDArray[np.float64]
+    present: NDArray[np.bool_]
+    offsets: NDArray[np.float64]
+
+
+def _disk_samples(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    max_samples: int,
+    normalise: Normaliser | None,
+) -> _DiskSamples:
+    """The samples of a disk of each point's radius, one pattern per rounded radius."""
+    radius_key = np.round(np.asarray(radius_px, dtype=np.float64))
+    keys, pattern_of = np.unique(radius_key, return_inverse=True)
+    patterns = [_disk_offsets(float(radius), max_samples) for radius in keys]
+    padded, in_pattern = pad_patterns(patterns)
+    values, valid, s1, s2 = _disk_reads(image, xy, line_angles, patterns, pattern_of, normalise)
+    return _DiskSamples(values, valid, s1, s2, in_pattern[pattern_of], padded[pattern_of])
 
 
 def _disk_reads(

@@ -10,7 +10,7 @@ from scenes import SMALL_SCENE
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
-from marker_localizer.bench.accuracy import families
+from marker_localizer.bench.accuracy import disc_lattice_frame, families
 from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.core import decision, pipeline, shadow, verification
 from marker_localizer.errors import ImageError
@@ -590,6 +590,9 @@ def test_on_stony_ground_small_xs_that_do_not_end_are_texture_and_are_counted(mo
     # Three frames of family (b) (tiny markers) whose ground makes many saddles that
     # score like them; seeds no benchmark table renders. Of the 10 false points
     # there the X-end gate takes 9 (19 candidates, some duplicates), at most a marker.
+    # The template's misfit, after it, takes some of the same saddles (a few, by the
+    # library versions): it is lifted here, so the gate is measured alone.
+    monkeypatch.setattr(pipeline, "MAX_TEMPLATE_MISFIT", np.inf)
     family = next(f for f in families() if f.key == "b")
     detector = Detector(
         DetectorConfig(
@@ -666,3 +669,33 @@ def test_faint_paint_beyond_textures_reach_is_not_held_to_the_modulation_gate():
         found, false = found + hits, false + misses
     assert found >= 14
     assert false == 0
+
+
+def test_saddles_between_the_discs_of_a_lattice_are_no_xs():
+    # Rendered coins at 0.25 frame px per photograph px, seeds no benchmark table
+    # renders: between two discs the grey levels are point-symmetric and four-sectored
+    # and score like markers of 8-11 px at a radius range from 4 px (27 and 23 false
+    # points on these frames), but the X with straight lines leaves 0.08-0.12 of them
+    # unexplained beyond the noise.
+    detector = Detector(DetectorConfig(marker_radius_min_px=4.0, marker_radius_max_px=40.0))
+    results = [detector.detect(disc_lattice_frame(seed).image) for seed in (105, 110)]
+    assert all(len(result) == 0 for result in results)
+    assert sum(result.counts["rejected_misfit"] for result in results) >= 40
+
+
+def test_a_shadows_edge_keeps_the_markers_whose_x_alone_leaves_it_unexplained(monkeypatch):
+    # Rendered (g) frames, seeds no benchmark table renders: a hard shadow's edge
+    # across a marker is shape the blurred X does not have. With the edge sought
+    # nowhere (a reach of 1e-3 px), the misfit takes 4 of these markers.
+    family = next(f for f in families() if f.key == "g")
+    low, high = family.radius_range
+    detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
+    scenes = [family.render(seed) for seed in (8, 15, 26, 35)]
+
+    def found() -> int:
+        results = [detector.detect(scene.image) for scene in scenes]
+        return sum(_score(r.as_array(), s.centres)[0] for r, s in zip(results, scenes, strict=True))
+
+    kept = found()
+    monkeypatch.setattr(pipeline, "_MISFIT_SHADOW_REACHES", 1e-3)
+    assert kept - found() >= 3
