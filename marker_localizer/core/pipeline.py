@@ -1496,8 +1496,8 @@ class Detector:
         :data:`verification.X_END_MAX_EXTENT_PX`) are not asked: their disk is the
         template's smallest, a few pixels a quadrant, and whether they end where
         their extent does (:func:`verification.x_ends`) is what parts them from
-        texture (asked, 8 of the 1 536 development and held-out tiny markers fail,
-        no false point with them). 1 - NCC^2 bounds the misfit from above, so the
+        texture (asked, 8 of 1 536 rendered tiny markers failed it, no false point
+        with them). 1 - NCC^2 bounds the misfit from above, so the
         frame's noise is estimated (~6 ms on 12 MP) only where a detection could fail.
         """
         cfg = self.config
