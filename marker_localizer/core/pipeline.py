@@ -1504,13 +1504,14 @@ class Detector:
         doubtful = np.flatnonzero(radius >= verification.X_END_MAX_EXTENT_PX)
         disk = verification.template_radius(radius, cfg.marker_radius_max_px)
         if len(doubtful):
-            match = template.template_correlation(
+            ncc = template.template_correlation(
                 frame.gray, xy[doubtful], angles[doubtful], disk[doubtful]
-            )
-            doubtful = doubtful[1.0 - np.square(match.ncc) > MAX_TEMPLATE_MISFIT]
+            ).ncc
+            could_fail = 1.0 - np.square(ncc) > MAX_TEMPLATE_MISFIT
+            doubtful, ncc = doubtful[could_fail], ncc[could_fail]
         if len(doubtful):
             misfit = template.template_misfit(
-                frame.gray, xy[doubtful], angles[doubtful], disk[doubtful], frame.noise()
+                frame.gray, xy[doubtful], angles[doubtful], disk[doubtful], ncc, frame.noise()
             )
             doubtful = doubtful[misfit > MAX_TEMPLATE_MISFIT]
         if len(doubtful):

@@ -335,6 +335,7 @@ def template_misfit(
     xy: NDArray[np.float64],
     line_angles: NDArray[np.float64],
     radius_px: NDArray[np.float64],
+    ncc: NDArray[np.float64],
     noise: NoiseModel,
     max_samples: int = 300,
 ) -> NDArray[np.float64]:
@@ -355,12 +356,13 @@ def template_misfit(
         xy: (N, 2) centres (sub-pixel).
         line_angles: (N, 2) line directions, radians.
         radius_px: (N,) disk radius over which to read, px.
+        ncc: (N,) :func:`template_correlation`'s match on these disks, raw levels, the
+            same ``max_samples``.
         noise: the frame's noise (:func:`~marker_localizer.core.noise.estimate_noise`).
         max_samples: cap on samples per point (as :func:`template_correlation`).
     """
     if len(xy) == 0:
         return np.zeros(0)
-    match = template_correlation(image, xy, line_angles, radius_px, max_samples=max_samples)
     disk = _disk_samples(image, xy, line_angles, radius_px, max_samples, None)
     read = disk.valid & disk.present
     count = np.maximum(read.sum(axis=1), 1)
@@ -371,7 +373,7 @@ def template_misfit(
     carried = np.prod(np.square(1.0 - fraction) + np.square(fraction), axis=-1)
     noise_variance = (np.square(noise.std(disk.values)) * carried * read).sum(axis=1) / count
     misfit: NDArray[np.float64] = (
-        1.0 - np.square(match.ncc) - noise_variance / np.maximum(variance, 1e-12)
+        1.0 - np.square(ncc) - noise_variance / np.maximum(variance, 1e-12)
     )
     return misfit
 

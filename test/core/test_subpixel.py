@@ -674,7 +674,8 @@ def test_a_smooth_saddle_matches_the_template_of_an_x_with_its_zero_lines_less_w
 def _misfit(image: np.ndarray, angles: np.ndarray, disk_px: float, noise_dn: float) -> float:
     noise = NoiseModel(max(noise_dn, 0.3) ** 2, 0.0, 0.3)
     centre, disk = np.array([_FOUR_LEVEL_CENTRE]), np.array([disk_px])
-    return float(template.template_misfit(image, centre, angles[None], disk, noise)[0])
+    ncc = template.template_correlation(image, centre, angles[None], disk).ncc
+    return float(template.template_misfit(image, centre, angles[None], disk, ncc, noise)[0])
 
 
 @pytest.mark.parametrize("contrast", [10.0, 20.0, 60.0, 160.0])
