@@ -176,14 +176,11 @@ _SHADOW_DISK_REACHES = 1.5
 #: Most of a detection's template disk the blurred X may leave unexplained beyond the
 #: noise (:func:`template.template_misfit`). Rendered markers leave 0.003 (median);
 #: 99 % of them under 0.05 on the development seeds of (a), (c), (d), 0.12 on (g),
-#: whose cast shadows the X does not model (:data:`_MISFIT_SHADOW_REACHES`).
+#: whose cast shadows the X does not model (:data:`shadow.DETECTION_REACH_EXTENTS`).
 #: Saddles between the discs of a lattice leave 0.06-0.12 (0.08-0.12 at 0.25-0.3
 #: frame px per photograph px of the coins, where they come as 9-69 false points a
 #: frame at 4-40 px).
 MAX_TEMPLATE_MISFIT = 0.08
-#: A detection the X leaves more unexplained is kept where a shadow's straight edge
-#: crosses it (:func:`shadow.find_edges`, read within this many extents).
-_MISFIT_SHADOW_REACHES = 1.5
 
 
 @dataclass(frozen=True)
@@ -1515,7 +1512,9 @@ class Detector:
             )
             doubtful = doubtful[misfit > MAX_TEMPLATE_MISFIT]
         if len(doubtful):
-            reach = np.minimum(_MISFIT_SHADOW_REACHES * radius[doubtful], cfg.marker_radius_max_px)
+            reach = np.minimum(
+                shadow.DETECTION_REACH_EXTENTS * radius[doubtful], cfg.marker_radius_max_px
+            )
             edges = shadow.find_edges(
                 frame.gray, xy[doubtful], reach, angles[doubtful], frame.full_scale
             )
@@ -1619,6 +1618,7 @@ class Detector:
                 radius[keep],
                 angles[keep],
                 max_radius_px=cfg.marker_radius_max_px,
+                full_scale=frame.full_scale,
             )
         return [
             Detection(

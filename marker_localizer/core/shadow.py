@@ -84,6 +84,12 @@ _DARKEST_SHARE = 1.0 / 255.0
 _MIN_PAIRS = 20
 
 
+#: A detection's shadow edge is looked for within this many extents of its centre
+#: (:func:`find_edges`' reach): the renderers' edges cross within 0.6 foreshortened
+#: radii of the centre, and the disk holds the plate on both sides of them.
+DETECTION_REACH_EXTENTS = 1.5
+
+
 class ShadowEdges(NamedTuple):
     """Where :func:`find_edges` puts a shadow's edge across N candidates.
 

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
-from marker_localizer.core import template
+from marker_localizer.core import shadow, template, uneven
 from marker_localizer.core.sampling import (
     bilinear,
     bilinear_with_gradient,
@@ -711,6 +711,7 @@ def refine_along_lines(
     line_angles: NDArray[np.float64],
     *,
     max_radius_px: float,
+    full_scale: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Detections' final centres: the point-symmetry fit again, weighted along the X's lines.
 
@@ -755,6 +756,16 @@ def refine_along_lines(
     each X (:func:`_step_blur`): (g) 0.046 -> 0.042 px (seeds 100-123: 0.081 ->
     0.073), independent (g) 0.061 -> 0.056 px, the other families as they were.
 
+    The levels' fit still rests on the pairs' difference of two blurred steps,
+    which a camera's tone curve and a tilted X's wedges bend where the levels
+    differ (:mod:`~marker_localizer.core.uneven` says how much); so where it ran,
+    the X is located once more by its model, four levels through the tone curve,
+    with a cast shadow's edge where :func:`shadow.find_edges` finds one
+    (:func:`uneven.locate_uneven`), and the model's centre replaces the levels' where
+    that fit converges. Rendered (g), seeds 100-123: mean error 0.091 -> 0.071 px;
+    (a) seeds 100-111 2.05 -> 2.10x the bound, (c) 1.90 -> 1.95x, (d) 2.18 -> 2.17x,
+    (b) as it was.
+
     Args:
         image: (H, W) grey image, raw levels.
         xy: (N, 2) the gating fit's centres.
@@ -762,6 +773,7 @@ def refine_along_lines(
         radius_px: (N,) extents of the X, px.
         line_angles: (N, 2) line directions, radians.
         max_radius_px: the largest expected marker radius, px.
+        full_scale: the image's white level (:func:`~marker_localizer.core.image.to_gray`).
 
     Returns:
         (xy, sigma): the refined centres and their calibrated sigmas; the gating
@@ -809,11 +821,11 @@ def refine_along_lines(
             symmetric.converged,
         )
         uneven_levels = (symmetric.step_chi2 > LEVELS_REFIT_MIN_CHI2) | level_differ
-        uneven = np.flatnonzero(symmetric.converged & uneven_levels)
-        if len(uneven):
-            at = rows[uneven]
+        differ = np.flatnonzero(symmetric.converged & uneven_levels)
+        if len(differ):
+            at = rows[differ]
             reach[at] = EDGE_STEP_MAX_SHIFT_PX
-            primed = uneven[~level_differ[uneven]] if sloped else uneven[:0]
+            primed = differ[~level_differ[differ]] if sloped else differ[:0]
             if len(primed):
                 # The levels' fit starts where the fit without the prior ends.
                 centre[rows[primed]] = fit(
@@ -833,6 +845,15 @@ def refine_along_lines(
                 model_gain=sloped,
                 edge_steps=levelled.steps(blur[:, None]),
             )
+            modelled = _model_uneven(
+                image, centre[at], lines, radius_px[at], max_radius_px, full_scale
+            )
+            located = at[modelled.located]
+            centre[located] = modelled.xy[modelled.located]
+            covariance[located] = modelled.covariance[modelled.located]
+            converged[located] = True
+            # Each refit is bounded from where it starts; the model's from the levels'.
+            reach[located] += uneven.MAX_SHIFT_PX
     refined = converged & (np.linalg.norm(centre - xy, axis=1) <= reach)
     variance = covariance[:, 0, 0] + covariance[:, 1, 1]
     refined &= np.isfinite(variance)
@@ -841,6 +862,29 @@ def refine_along_lines(
         np.where(refined[:, None], centre, xy),
         np.where(refined, line_sigma, sigma),
     )
+
+
+def _model_uneven(
+    image: NDArray[Any],
+    centre: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    max_radius_px: float,
+    full_scale: float,
+) -> uneven.UnevenFit:
+    """The X's with uneven levels located by their model (:func:`uneven.locate_uneven`).
+
+    With a cast shadow's edge where :func:`shadow.find_edges` sees one within
+    :data:`shadow.DETECTION_REACH_EXTENTS` of the extent.
+    """
+    edges = shadow.find_edges(
+        image,
+        centre,
+        np.minimum(shadow.DETECTION_REACH_EXTENTS * radius_px, max_radius_px),
+        line_angles,
+        full_scale,
+    )
+    return uneven.locate_uneven(image, centre, line_angles, radius_px, full_scale, edges)
 
 
 class _LineBand(NamedTuple):

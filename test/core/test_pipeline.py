@@ -697,5 +697,5 @@ def test_a_shadows_edge_keeps_the_markers_whose_x_alone_leaves_it_unexplained(mo
         return sum(_score(r.as_array(), s.centres)[0] for r, s in zip(results, scenes, strict=True))
 
     kept = found()
-    monkeypatch.setattr(pipeline, "_MISFIT_SHADOW_REACHES", 1e-3)
+    monkeypatch.setattr(shadow, "DETECTION_REACH_EXTENTS", 1e-3)
     assert kept - found() >= 3

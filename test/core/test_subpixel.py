@@ -339,7 +339,13 @@ def test_the_line_weighted_refit_is_more_precise_than_the_gating_fit_on_large_ma
             max_symmetry_residual=0.1,
         )
         refit, sigma = subpixel.refine_along_lines(
-            image, gating.xy, gating.sigma, np.array([30.0]), angles, max_radius_px=40.0
+            image,
+            gating.xy,
+            gating.sigma,
+            np.array([30.0]),
+            angles,
+            full_scale=255.0,
+            max_radius_px=40.0,
         )
         gating_error.append(np.linalg.norm(gating.xy[0] - truth))
         refit_error.append(np.linalg.norm(refit[0] - truth))
@@ -374,7 +380,13 @@ def test_a_tiny_marker_is_located_within_one_and_a_half_times_its_cramer_rao_bou
             max_symmetry_residual=0.2,
         )
         refit, _ = subpixel.refine_along_lines(
-            scene.image, gating.xy, gating.sigma, np.array([4.0]), angles, max_radius_px=10.0
+            scene.image,
+            gating.xy,
+            gating.sigma,
+            np.array([4.0]),
+            angles,
+            full_scale=255.0,
+            max_radius_px=10.0,
         )
         errors.append(np.linalg.norm(refit[0] - truth))
         bounds.append(scene.crlb_px[0])
@@ -392,6 +404,7 @@ def test_a_line_weighted_refit_that_slips_from_the_gating_centre_keeps_it():
         np.array([30.0]),
         np.array([[0.3, 0.3 + np.pi / 2]]),
         max_radius_px=40.0,
+        full_scale=255.0,
     )
     np.testing.assert_array_equal(xy, start)
     np.testing.assert_array_equal(kept, sigma)
@@ -419,7 +432,13 @@ def _gate_and_refit(image, truth, angles):
     """The gating fit from 0.36 px off a dull X of 16 px, and the line fit after it."""
     gating = subpixel.refine_point_symmetry(image, truth[None] + [0.3, -0.2], np.array([12.0]))
     refit, _ = subpixel.refine_along_lines(
-        image, gating.xy, np.array([0.1]), np.array([13.0]), angles, max_radius_px=30.0
+        image,
+        gating.xy,
+        np.array([0.1]),
+        np.array([13.0]),
+        angles,
+        full_scale=255.0,
+        max_radius_px=30.0,
     )
     return gating.xy[0], refit[0]
 
@@ -454,6 +473,7 @@ def test_the_quadrants_own_levels_lie_on_the_lines_found_from_the_edges(dull_fac
                 np.array([13.0]),
                 angles + np.radians(off_deg),
                 max_radius_px=30.0,
+                full_scale=255.0,
             )
             refit_error.append(np.linalg.norm(refit[0] - truth))
     assert np.mean(refit_error) < 0.04
@@ -590,7 +610,13 @@ def test_the_light_slope_from_the_insides_costs_the_centre_little():
         image = clean.image * light + rng.normal(0.0, 3.0, light.shape)
         start = clean.centres + rng.normal(0.0, 0.05, clean.centres.shape)
         xy, _ = subpixel.refine_along_lines(
-            image, start, np.full(4, 0.1), np.full(4, 20.0), angles, max_radius_px=40.0
+            image,
+            start,
+            np.full(4, 0.1),
+            np.full(4, 20.0),
+            angles,
+            full_scale=255.0,
+            max_radius_px=40.0,
         )
         errors.append(np.linalg.norm(xy - clean.centres, axis=1))
     assert np.mean(errors) < 1.75 * np.mean(bounds)
