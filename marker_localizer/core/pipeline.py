@@ -1619,6 +1619,7 @@ class Detector:
                 angles[keep],
                 max_radius_px=cfg.marker_radius_max_px,
                 full_scale=frame.full_scale,
+                noise=frame.noise,
             )
         return [
             Detection(

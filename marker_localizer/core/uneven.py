@@ -55,6 +55,13 @@ TONE_RANGE = (0.4, 2.5)
 #: Largest move from the start, px: the start is the symmetry fit's centre, which a
 #: dull quadrant pulls 0.2-0.5 px; farther, the fit has slid onto something else.
 MAX_SHIFT_PX = 1.0
+#: A fit that leaves more than this many times the image's noise (RMS) models
+#: something else than one X: a chessboard corner, whose disk takes in the next
+#: squares (every one of the renderer's (e) boards' corners the model was asked
+#: about left 3x or more, and was located 5x worse than by point symmetry), or
+#: clutter. Half the dull-quadrant markers of (g) leave under 1.2x, where the model
+#: halves the error; those a shadow's edge crosses leave 1.5-5x and gain little.
+MAX_MISFIT_NOISE = 2.0
 #: A cast shadow's edge is a few tenths of a pixel of penumbra seen through the
 #: optics: its blur starts here, px, and is fitted.
 SHADOW_START_BLUR_PX = 0.8
@@ -104,6 +111,7 @@ class UnevenFit(NamedTuple):
         xy: (N, 2) fitted centres, px (the start where ``located`` is False).
         covariance: (N, 2, 2) the centre's covariance from the fit, px^2.
         tone: (N,) the fitted tone exponent (signal = light ** tone).
+        residual_rms: (N,) the fit's RMS residual, as a share of white.
         located: (N,) where the fit converged within :data:`MAX_SHIFT_PX` of its
             start and :data:`TONE_RANGE`.
     """
@@ -111,6 +119,7 @@ class UnevenFit(NamedTuple):
     xy: NDArray[np.float64]
     covariance: NDArray[np.float64]
     tone: NDArray[np.float64]
+    residual_rms: NDArray[np.float64]
     located: NDArray[np.bool_]
 
 
@@ -354,6 +363,7 @@ def locate_uneven(
     radius_px: NDArray[np.float64],
     full_scale: float,
     shadows: ShadowEdges | None = None,
+    noise_std: NDArray[np.float64] | None = None,
 ) -> UnevenFit:
     """Centres of X's with four quadrant levels, through the tone curve, with a shadow's edge.
 
@@ -376,6 +386,8 @@ def locate_uneven(
         full_scale: the image's white level.
         shadows: (N) a cast shadow's edge about each start
             (:func:`shadow.find_edges`); tried where ``found``.
+        noise_std: (N,) the image's noise at each X, image units; where given, a fit
+            that leaves more than :data:`MAX_MISFIT_NOISE` times it is not located.
 
     Returns:
         :class:`UnevenFit`.
@@ -384,6 +396,7 @@ def locate_uneven(
     centre = np.array(xy, dtype=np.float64).reshape(-1, 2)
     covariance = np.full((n, 2, 2), np.nan)
     tone = np.ones(n)
+    residual_rms = np.full(n, np.nan)
     located = np.zeros(n, dtype=bool)
     for i in range(n):
         pixels = _pixels(
@@ -404,9 +417,13 @@ def locate_uneven(
             continue
         centre[i] += solution.params[:2]
         covariance[i] = inverse[:2, :2] * solution.cost / dof
+        rms = float(np.sqrt(solution.cost / len(solution.jacobian)))
+        if noise_std is not None and rms * full_scale > MAX_MISFIT_NOISE * noise_std[i]:
+            continue
         tone[i] = solution.params[7]
+        residual_rms[i] = rms
         located[i] = True
-    return UnevenFit(centre, covariance, tone, located)
+    return UnevenFit(centre, covariance, tone, residual_rms, located)
 
 
 def _locate_one(
