@@ -25,6 +25,12 @@ the usual one are not:
   otherwise: the same X tilted by 50 degrees is located to 6.4x the bound with
   the product, 3.4x with the exact wedges.
 
+* **A cast shadow's edge** is blurred with the X, not after it: the optics blur
+  the paint times the light, so the model's shadowed light comes from the
+  trivariate normal of a blurred point's distances from the three lines
+  (:func:`trivariate_normal`). The blurred X times a blurred half-plane is
+  0.066 px off for an X of 16 px half in a shadow that keeps half the light.
+
 :func:`locate_uneven` fits that model, with the light's linear slope and,
 where :func:`shadow.find_edges` saw one, the cast shadow's edge, on the pixels
 themselves (no interpolation) by Levenberg-Marquardt.
@@ -32,7 +38,7 @@ themselves (no interpolation) by Levenberg-Marquardt.
 
 from __future__ import annotations
 
-from typing import Any, Literal, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,7 +46,7 @@ from scipy.optimize import least_squares
 from scipy.special import ndtr
 
 from marker_localizer.core.shadow import ShadowEdges
-from marker_localizer.core.template import PIXEL_VARIANCE_PX2, line_distances
+from marker_localizer.core.template import PIXEL_VARIANCE_PX2, QUADRANT_SIDES, line_distances
 
 #: The disk fitted, as a share of the X's extent: beyond ~0.85 the plate's end
 #: (the quarter disks' arcs, the checker squares' outer edges, blurred) enters the
@@ -62,17 +68,22 @@ MAX_SHIFT_PX = 1.0
 #: clutter. Half the dull-quadrant markers of (g) leave under 1.2x, where the model
 #: halves the error; those a shadow's edge crosses leave 1.5-5x and gain little.
 MAX_MISFIT_NOISE = 2.0
-#: A cast shadow's edge is a few tenths of a pixel of penumbra seen through the
-#: optics: its blur starts here, px, and is fitted.
-SHADOW_START_BLUR_PX = 0.8
+#: A cast shadow's edge has a penumbra of a few tenths of a pixel (the renderers'
+#: 1 px from 10 to 90 %): it starts here, px, and is fitted.
+SHADOW_START_PENUMBRA_PX = 0.4
 #: A shadow's edge is kept where it takes at least this much of the residual's sum
 #: of squares, in units of the noise it leaves: chi-square of 4 degrees of freedom
 #: (its parameters) beyond 1e-4 of chance.
 SHADOW_MIN_CHI2 = 23.5
-#: The last fit leaves out pixels within this many blur widths (the optics' and the
-#: penumbra's together) of the shadow's edge: there the blurred product the model
-#: has is not the blurred scene.
-SHADOW_BAND_BLURS = 2.5
+#: Gauss-Legendre nodes on [0, 1] for Plackett's integral (:func:`trivariate_normal`):
+#: 10 give the trivariate normal to 1e-6 for correlations up to 0.95.
+_LEGENDRE_NODES, _LEGENDRE_WEIGHTS = np.polynomial.legendre.leggauss(10)
+_PLACKETT_NODES, _PLACKETT_WEIGHTS = 0.5 * (_LEGENDRE_NODES + 1.0), 0.5 * _LEGENDRE_WEIGHTS
+#: 1 - rho^2 is held above this where it divides: correlations of +-1 (parallel
+#: lines, a shadow's edge along one with no penumbra) are no X's.
+_MIN_ONE_LESS = 1e-9
+#: The wedge term's sign in the four quadrants (:data:`QUADRANT_SIDES`' order).
+_ALTERNATE = (1.0, -1.0, 1.0, -1.0)
 #: Gauss-Legendre nodes for the wedges' correction term (Sheppard's integral over
 #: the angle): 8 give the bivariate normal to 1e-7 for lines 25 degrees apart.
 _NODES, _NODE_WEIGHTS = np.polynomial.legendre.leggauss(8)
@@ -83,8 +94,8 @@ _START_BLUR_PX = 1.0
 _MIN_SIGNAL = 1e-4
 #: Geometry: centre (2), line angles (2), ln blur, light slope (2), tone exponent.
 _GEOMETRY = 8
-#: ln of the shadow edge's blur is held within ln 0.2 - ln 5 px: a sharper or softer
-#: edge is no cast shadow's, and the step's slope would overflow.
+#: ln of the shadow edge's penumbra is held within ln 0.2 - ln 5 px: a softer edge
+#: is no cast shadow's, and a sharper one would make the blur's correlations 1.
 _SHADOW_LOG_BLUR = (float(np.log(0.2)), float(np.log(5.0)))
 #: ln of the X's blur is held within ln 0.1 - ln 10 px, and a shadow's depth (-ln of
 #: the light it keeps) within -1 - 5: beyond, Levenberg-Marquardt has wandered off
@@ -99,8 +110,6 @@ _TONE_GUARD = (0.1, 10.0)
 _TOLERANCE = 2.5e-4
 
 
-#: How :func:`_model` takes a cast shadow: none, a blurred edge, or a step of light.
-_ShadowModel = Literal["none", "edge", "step"]
 _SQRT_2PI = float(np.sqrt(2.0 * np.pi))
 
 
@@ -159,21 +168,11 @@ def wedge_correction(
 
 
 class _Pixels(NamedTuple):
-    """One point's pixels: offsets from the start, levels as a share of white.
-
-    ``shaded``, where given, says which pixels lie on a cast shadow's side of its
-    edge (the model's light is then a step there, see :func:`_model`).
-    """
+    """One point's pixels: offsets from the start, levels as a share of white."""
 
     dx: NDArray[np.float64]
     dy: NDArray[np.float64]
     level: NDArray[np.float64]
-    shaded: NDArray[np.bool_] | None = None
-
-    def take(self, keep: NDArray[np.bool_]) -> _Pixels:
-        """The pixels ``keep``."""
-        shaded = None if self.shaded is None else self.shaded[keep]
-        return _Pixels(self.dx[keep], self.dy[keep], self.level[keep], shaded)
 
 
 def _pixels(
@@ -193,108 +192,221 @@ def _pixels(
     )
 
 
+def _bivariate(x: NDArray[np.float64], y: NDArray[np.float64], rho: float) -> NDArray[np.float64]:
+    """Phi2(x, y; rho), the bivariate normal distribution."""
+    value: NDArray[np.float64] = ndtr(x) * ndtr(y) + wedge_correction(x, y, rho)[0]
+    return value
+
+
+def _density2(x: NDArray[np.float64], y: NDArray[np.float64], rho: float) -> NDArray[np.float64]:
+    """The bivariate normal density phi2(x, y; rho)."""
+    one_less = max(1.0 - rho * rho, _MIN_ONE_LESS)
+    density: NDArray[np.float64] = np.exp(
+        -(x * x - 2.0 * rho * x * y + y * y) / (2.0 * one_less)
+    ) / (2.0 * np.pi * np.sqrt(one_less))
+    return density
+
+
+def _conditional(
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    z: NDArray[np.float64],
+    r_xy: float,
+    r_xz: float,
+    r_yz: float,
+) -> NDArray[np.float64]:
+    """(z - E[Z | X = x, Y = y]) / sd[Z | X, Y] for standard normals of those correlations."""
+    one_less = max(1.0 - r_xy * r_xy, _MIN_ONE_LESS)
+    mean = (r_xz * (x - r_xy * y) + r_yz * (y - r_xy * x)) / one_less
+    variance = 1.0 - (r_xz * r_xz - 2.0 * r_xy * r_xz * r_yz + r_yz * r_yz) / one_less
+    standardised: NDArray[np.float64] = (z - mean) / np.sqrt(max(variance, _MIN_ONE_LESS))
+    return standardised
+
+
+def trivariate_normal(
+    h: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
+    r12: float,
+    r13: float,
+    r23: float,
+) -> tuple[NDArray[np.float64], list[NDArray[np.float64]], list[NDArray[np.float64]]]:
+    """Phi3(h1, h2, h3; r12, r13, r23), and its derivatives by the h's and the r's.
+
+    Plackett's reduction: along the correlations (t r12, t r13, r23), t from 0 to 1,
+    Phi3 grows from Phi(h1) Phi2(h2, h3; r23) by the integral of r_1j times
+    dPhi3 / dr_1j = phi2(h1, hj; t r_1j) Phi(the third given those two), read at
+    :data:`_PLACKETT_NODES`. Its derivative by h_i is phi(h_i) times Phi2 of the
+    other two given h_i; by r_ij, phi2(h_i, h_j; r_ij) times Phi of the third given
+    them.
+
+    Args:
+        h: the three upper limits (arrays of one shape).
+        r12: correlation of the first two; r13, r23 the others'.
+        r13: see r12.
+        r23: see r12.
+
+    Returns:
+        (Phi3, [dPhi3/dh1, dPhi3/dh2, dPhi3/dh3], [dPhi3/dr12, dPhi3/dr13, dPhi3/dr23]).
+    """
+    h1, h2, h3 = h
+    value = ndtr(h1) * _bivariate(h2, h3, r23)
+    for t, weight in zip(_PLACKETT_NODES, _PLACKETT_WEIGHTS, strict=True):
+        a, b = t * r12, t * r13
+        value = value + weight * (
+            r12 * _density2(h1, h2, a) * ndtr(_conditional(h1, h2, h3, a, b, r23))
+            + r13 * _density2(h1, h3, b) * ndtr(_conditional(h1, h3, h2, b, a, r23))
+        )
+    by_h = []
+    for hi, hj, hk, r_ij, r_ik, r_jk in (
+        (h1, h2, h3, r12, r13, r23),
+        (h2, h1, h3, r12, r23, r13),
+        (h3, h1, h2, r13, r23, r12),
+    ):
+        s_ij, s_ik = np.sqrt(1.0 - r_ij * r_ij), np.sqrt(1.0 - r_ik * r_ik)
+        partial = (r_jk - r_ij * r_ik) / (s_ij * s_ik)
+        by_h.append(
+            np.exp(-0.5 * hi * hi)
+            / _SQRT_2PI
+            * _bivariate((hj - r_ij * hi) / s_ij, (hk - r_ik * hi) / s_ik, float(partial))
+        )
+    by_r = [
+        _density2(h1, h2, r12) * ndtr(_conditional(h1, h2, h3, r12, r13, r23)),
+        _density2(h1, h3, r13) * ndtr(_conditional(h1, h3, h2, r13, r12, r23)),
+        _density2(h2, h3, r23) * ndtr(_conditional(h2, h3, h1, r23, r12, r13)),
+    ]
+    return value, by_h, by_r
+
+
 def _model(
-    params: NDArray[np.float64], pixels: _Pixels, shadow: _ShadowModel
+    params: NDArray[np.float64], pixels: _Pixels, shadowed: bool
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The X's levels at the pixels (signal, share of white) and their Jacobian (K, P).
 
-    signal = (light * sum_q level_q w_q) ** tone, w_q the quadrants' blurred wedges
-    (the product of the two lines' steps and :func:`wedge_correction`), the light a
-    linear slope times the shadow's shade: with ``"edge"`` a blurred half-plane
-    (normal, offset, depth, ln blur), with ``"step"`` the depth alone on the
-    ``pixels.shaded`` side.
+    signal = (slope * scene) ** tone: the scene is sum_q level_q w_q, w_q the
+    quadrants' blurred wedges (the product of the two lines' steps and
+    :func:`wedge_correction`); ``shadowed``, a cast shadow's edge (normal, offset,
+    depth, ln penumbra) takes exp(-depth) of the light beyond it before the blur,
+    which removes (1 - exp(-depth)) sum_q level_q T_q, T_q the probability that a
+    blurred point lies in quadrant q and beyond the edge (:func:`trivariate_normal`).
     """
     cx, cy, a1, a2, log_blur, gx, gy, tone = params[:_GEOMETRY]
     levels = params[_GEOMETRY : _GEOMETRY + 4]
     dx, dy = pixels.dx - cx, pixels.dy - cy
     s1, s2 = line_distances(dx, dy, np.array([a1, a2]))
     blur2 = np.exp(2.0 * np.clip(log_blur, *_LOG_BLUR))
-    width = np.sqrt(blur2 + PIXEL_VARIANCE_PX2)
-    h, k = s1 / width, s2 / width
-    p1, p2 = ndtr(h), ndtr(k)
-    density_h = np.exp(-0.5 * h * h) / _SQRT_2PI
-    density_k = np.exp(-0.5 * k * k) / _SQRT_2PI
-    rho = float(np.cos(a1 - a2))
-    wedge, wedge_h, wedge_k, wedge_rho = wedge_correction(h, k, rho)
-    l0, l1, l2, l3 = levels
-    alternating = l0 - l1 + l2 - l3
-    weights = np.stack(
-        [
-            p1 * p2 + wedge,
-            (1 - p1) * p2 - wedge,
-            (1 - p1) * (1 - p2) + wedge,
-            p1 * (1 - p2) - wedge,
-        ],
-        axis=-1,
-    )
-    paint = weights @ levels
-    paint_h = ((l0 - l1) * p2 + (l3 - l2) * (1 - p2)) * density_h + alternating * wedge_h
-    paint_k = ((l0 - l3) * p1 + (l1 - l2) * (1 - p1)) * density_k + alternating * wedge_k
-    paint_rho = alternating * wedge_rho
+    width2 = blur2 + PIXEL_VARIANCE_PX2
+    width = np.sqrt(width2)
+    h1, h2 = s1 / width, s2 / width
+    r12 = float(np.cos(a1 - a2))
+    p1, p2 = ndtr(h1), ndtr(h2)
+    d1, d2 = np.exp(-0.5 * h1 * h1) / _SQRT_2PI, np.exp(-0.5 * h2 * h2) / _SQRT_2PI
+    wedge, wedge_h1, wedge_h2, wedge_r = wedge_correction(h1, h2, r12)
+    alternate = np.array(_ALTERNATE)
+    weights = np.stack([p1 * p2, (1 - p1) * p2, (1 - p1) * (1 - p2), p1 * (1 - p2)], axis=-1)
+    weights += wedge[:, None] * alternate
+    by_h1 = np.stack([d1 * p2, -d1 * p2, -d1 * (1 - p2), d1 * (1 - p2)], axis=-1)
+    by_h1 += wedge_h1[:, None] * alternate
+    by_h2 = np.stack([p1 * d2, (1 - p1) * d2, -(1 - p1) * d2, -p1 * d2], axis=-1)
+    by_h2 += wedge_h2[:, None] * alternate
+    scene = weights @ levels
+    # The scene's derivatives by the parameters, through h1, h2 and r12 first.
+    d_scene = np.zeros(dx.shape + (len(params),))
+    scene_h1, scene_h2 = by_h1 @ levels, by_h2 @ levels
+    scene_r12 = wedge_r * float(alternate @ levels)
+    d_scene[:, 0] = (-np.sin(a1) * scene_h1 - np.sin(a2) * scene_h2) / width
+    d_scene[:, 1] = (np.cos(a1) * scene_h1 + np.cos(a2) * scene_h2) / width
+    d_scene[:, 2] = scene_h1 * (np.cos(a1) * dx + np.sin(a1) * dy) / width
+    d_scene[:, 2] -= scene_r12 * np.sin(a1 - a2)
+    d_scene[:, 3] = scene_h2 * (np.cos(a2) * dx + np.sin(a2) * dy) / width
+    d_scene[:, 3] += scene_r12 * np.sin(a1 - a2)
+    d_scene[:, 4] = -(scene_h1 * h1 + scene_h2 * h2) * blur2 / width2
+    d_scene[:, _GEOMETRY : _GEOMETRY + 4] = weights
+    if shadowed:
+        scene = scene + _shadow_terms(params, dx, dy, (h1, h2), (width2, blur2), levels, d_scene)
     slope = 1.0 + gx * dx + gy * dy
-    d_light = np.zeros(dx.shape + (len(params),))
-    d_light[:, 0], d_light[:, 1] = -gx, -gy
-    d_light[:, 5], d_light[:, 6] = dx, dy
-    shade = _shade(params[_GEOMETRY + 4 :], pixels, dx, dy, shadow, slope, d_light)
-    light = slope * shade
-    linear = np.maximum(paint * light, _MIN_SIGNAL)
-    signal = linear ** np.clip(tone, *_TONE_GUARD)
-    # d(signal)/d(linear), the tone curve's slope, scales every term of the light.
-    slope_of_tone = np.clip(tone, *_TONE_GUARD) * signal / linear
-    d_linear = paint[:, None] * d_light
-    d_paint = np.zeros_like(d_linear)
-    d_paint[:, 0] = -(paint_h * np.sin(a1) + paint_k * np.sin(a2)) / width
-    d_paint[:, 1] = (paint_h * np.cos(a1) + paint_k * np.cos(a2)) / width
-    d_paint[:, 2] = paint_h * (np.cos(a1) * dx + np.sin(a1) * dy) / width
-    d_paint[:, 2] -= paint_rho * np.sin(a1 - a2)
-    d_paint[:, 3] = paint_k * (np.cos(a2) * dx + np.sin(a2) * dy) / width
-    d_paint[:, 3] += paint_rho * np.sin(a1 - a2)
-    d_paint[:, 4] = -(paint_h * h + paint_k * k) * blur2 / width**2
-    d_paint[:, _GEOMETRY : _GEOMETRY + 4] = weights
-    d_linear += light[:, None] * d_paint
-    jacobian = slope_of_tone[:, None] * d_linear
+    linear = np.maximum(scene * slope, _MIN_SIGNAL)
+    exponent = np.clip(tone, *_TONE_GUARD)
+    signal = linear**exponent
+    d_linear = d_scene * slope[:, None]
+    d_linear[:, 0] -= scene * gx
+    d_linear[:, 1] -= scene * gy
+    d_linear[:, 5], d_linear[:, 6] = scene * dx, scene * dy
+    # d(signal)/d(linear), the tone curve's slope, scales every term.
+    jacobian = (exponent * signal / linear)[:, None] * d_linear
     jacobian[:, 7] = signal * np.log(linear)
     return signal, jacobian
 
 
-def _shade(
+def _shadow_terms(
     params: NDArray[np.float64],
-    pixels: _Pixels,
     dx: NDArray[np.float64],
     dy: NDArray[np.float64],
-    shadow: _ShadowModel,
-    slope: NDArray[np.float64],
-    d_light: NDArray[np.float64],
+    h12: tuple[NDArray[np.float64], NDArray[np.float64]],
+    widths2: tuple[float, float],
+    levels: NDArray[np.float64],
+    d_scene: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """The shadow's factor on the light at the pixels; adds its terms to ``d_light`` (K, P).
+    """The light a shadow's edge takes from the blurred scene; adds its derivatives to ``d_scene``.
 
-    ``d_light`` comes with the slope's derivatives and leaves with the light's.
+    Under the blur, a point's distances from the two lines and from the shadow's
+    edge (less the penumbra's own spread) are jointly normal: standardised h1, h2,
+    h3 = u / S with S^2 = w^2 + p^2 (blur and penumbra), correlated by the cosines
+    of the normals, n1 . n2 and n_i . n w / S.
     """
-    if shadow == "none":
-        return np.ones_like(dx)
-    base = _GEOMETRY + 4
-    if shadow == "step":
-        assert pixels.shaded is not None
-        kept = np.exp(-np.clip(params[0], *_DEPTH))
-        shade: NDArray[np.float64] = np.where(pixels.shaded, kept, 1.0)
-        d_light *= shade[:, None]
-        d_light[:, base] = slope * np.where(pixels.shaded, -kept, 0.0)
-        return shade
-    normal, offset, depth, log_shadow_blur = params
-    shadow_blur = np.exp(np.clip(log_shadow_blur, *_SHADOW_LOG_BLUR))
-    cos_n, sin_n = np.cos(normal), np.sin(normal)
-    z = (cos_n * dx + sin_n * dy - offset) / shadow_blur
+    a1, a2 = params[2], params[3]
+    normal, offset, depth, log_penumbra = params[_GEOMETRY + 4 : _GEOMETRY + 8]
+    width2, blur2 = widths2
+    penumbra2 = np.exp(2.0 * np.clip(log_penumbra, *_SHADOW_LOG_BLUR))
+    spread2 = width2 + penumbra2
+    spread = np.sqrt(spread2)
+    share = np.sqrt(width2) / spread
+    h1, h2 = h12
+    h3 = (np.cos(normal) * dx + np.sin(normal) * dy - offset) / spread
+    r12 = float(np.cos(a1 - a2))
+    r13, r23 = float(np.sin(a1 - normal) * share), float(np.sin(a2 - normal) * share)
+    columns = []
+    partials = []
+    for e1, e2 in QUADRANT_SIDES:
+        value, by_h, by_r = trivariate_normal(
+            (e1 * h1, e2 * h2, h3), e1 * e2 * r12, e1 * r13, e2 * r23
+        )
+        columns.append(value)
+        partials.append(
+            (e1 * by_h[0], e2 * by_h[1], by_h[2], e1 * e2 * by_r[0], e1 * by_r[1], e2 * by_r[2])
+        )
+    beyond = np.stack(columns, axis=-1)
     kept = np.exp(-np.clip(depth, *_DEPTH))
-    shade = 1.0 - (1.0 - kept) * ndtr(z)
-    shade_z = -(1.0 - kept) * np.exp(-0.5 * z * z) / _SQRT_2PI * slope
-    d_light *= shade[:, None]
-    d_light[:, 0] -= shade_z * cos_n / shadow_blur
-    d_light[:, 1] -= shade_z * sin_n / shadow_blur
-    d_light[:, base] = shade_z * (cos_n * dy - sin_n * dx) / shadow_blur
-    d_light[:, base + 1] = -shade_z / shadow_blur
-    d_light[:, base + 2] = -slope * kept * ndtr(z)
-    d_light[:, base + 3] = -shade_z * z
-    return shade
+    dark = 1.0 - kept
+    t_h1, t_h2, t_h3, t_r12, t_r13, t_r23 = (
+        sum(levels[q] * partials[q][v] for q in range(4)) for v in range(6)
+    )
+    width = np.sqrt(width2)
+    cos_n, sin_n = np.cos(normal), np.sin(normal)
+    # d(share)/d ln blur and / d ln penumbra; h3's the same way through S.
+    share_blur = share * (blur2 / width2 - blur2 / spread2)
+    share_penumbra = -share * penumbra2 / spread2
+    base = _GEOMETRY + 4
+    d_beyond = np.zeros_like(d_scene)
+    d_beyond[:, 0] = (-np.sin(a1) * t_h1 - np.sin(a2) * t_h2) / width - cos_n * t_h3 / spread
+    d_beyond[:, 1] = (np.cos(a1) * t_h1 + np.cos(a2) * t_h2) / width - sin_n * t_h3 / spread
+    d_beyond[:, 2] = t_h1 * (np.cos(a1) * dx + np.sin(a1) * dy) / width
+    d_beyond[:, 2] += -t_r12 * np.sin(a1 - a2) + t_r13 * np.cos(a1 - normal) * share
+    d_beyond[:, 3] = t_h2 * (np.cos(a2) * dx + np.sin(a2) * dy) / width
+    d_beyond[:, 3] += t_r12 * np.sin(a1 - a2) + t_r23 * np.cos(a2 - normal) * share
+    d_beyond[:, 4] = -(t_h1 * h1 + t_h2 * h2) * blur2 / width2 - t_h3 * h3 * blur2 / spread2
+    d_beyond[:, 4] += (t_r13 * np.sin(a1 - normal) + t_r23 * np.sin(a2 - normal)) * share_blur
+    d_beyond[:, _GEOMETRY : _GEOMETRY + 4] = beyond
+    d_beyond[:, base] = t_h3 * (cos_n * dy - sin_n * dx) / spread
+    d_beyond[:, base] -= (t_r13 * np.cos(a1 - normal) + t_r23 * np.cos(a2 - normal)) * share
+    d_beyond[:, base + 1] = -t_h3 / spread
+    d_beyond[:, base + 3] = -t_h3 * h3 * penumbra2 / spread2
+    d_beyond[:, base + 3] += (
+        t_r13 * np.sin(a1 - normal) + t_r23 * np.sin(a2 - normal)
+    ) * share_penumbra
+    taken = beyond @ levels
+    d_scene -= dark * d_beyond
+    d_scene[:, base + 2] = -kept * taken
+    removed: NDArray[np.float64] = -dark * taken
+    return removed
 
 
 class _CachedModel:
@@ -304,9 +416,9 @@ class _CachedModel:
     parameters; both come from one evaluation.
     """
 
-    def __init__(self, pixels: _Pixels, shadow: _ShadowModel) -> None:
+    def __init__(self, pixels: _Pixels, shadowed: bool) -> None:
         self._pixels = pixels
-        self._shadow = shadow
+        self._shadowed = shadowed
         self._params: NDArray[np.float64] | None = None
         self._value: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
@@ -315,7 +427,7 @@ class _CachedModel:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if self._value is None or self._params is None or not np.array_equal(params, self._params):
             self._params = params.copy()
-            self._value = _model(params, self._pixels, self._shadow)
+            self._value = _model(params, self._pixels, self._shadowed)
         return self._value
 
     def residual(self, params: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -335,14 +447,14 @@ class _Solution(NamedTuple):
     jacobian: NDArray[np.float64]
 
 
-def _solve(pixels: _Pixels, start: NDArray[np.float64], shadow: _ShadowModel) -> _Solution | None:
+def _solve(pixels: _Pixels, start: NDArray[np.float64], shadowed: bool) -> _Solution | None:
     """Levenberg-Marquardt from ``start``; None where it fails or slides off.
 
     Off: beyond :data:`MAX_SHIFT_PX` of the start, or the tone out of :data:`TONE_RANGE`.
     """
     if len(pixels.level) <= len(start):
         return None
-    model = _CachedModel(pixels, shadow)
+    model = _CachedModel(pixels, shadowed)
     solution = least_squares(
         model.residual, start, jac=model.jacobian, method="lm", xtol=_TOLERANCE
     )
@@ -368,14 +480,13 @@ def locate_uneven(
     """Centres of X's with four quadrant levels, through the tone curve, with a shadow's edge.
 
     Each X is fitted first without a shadow. Where ``shadows`` found an edge, it is
-    fitted again with the edge as a blurred half-plane, which is kept where it
-    explains more than its four parameters would by chance
-    (:data:`SHADOW_MIN_CHI2`). The blur acts on the shadowed scene, not on the
-    image of the X times the blurred shadow as that model has it, which errs where
-    the shadow's edge crosses the X's lines, a few blur widths from the centre (an
-    X of 16 px half in a shadow taking half the light, blur 1 px: 0.08 px off).
-    So the last fit leaves out the band along the edge
-    (:data:`SHADOW_BAND_BLURS`), and the shadow is a step of light across it.
+    fitted again with the edge (its normal, offset, depth and penumbra), which is
+    kept where it explains more than its four parameters would by chance
+    (:data:`SHADOW_MIN_CHI2`). The optics blur the shadowed scene, so the model
+    blurs the X's paint times the shadow's light together (:func:`_model`): the
+    blurred X times a blurred half-plane errs where the shadow's edge crosses the
+    X's lines, a few blur widths from the centre (an X of 16 px half in a shadow
+    taking half the light, blur 1 px: 0.066 px off from the true start).
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -433,32 +544,23 @@ def _locate_one(
 ) -> _Solution | None:
     """One X's fit: without a shadow, and with one where ``edge`` proposes it and it explains."""
     start = _start(pixels, line_angles)
-    plain = _solve(pixels, start, "none")
+    plain = _solve(pixels, start, shadowed=False)
     if edge is None:
         return plain
     normal, offset, depth = edge
     shadowed_start = np.concatenate(
         [
             start if plain is None else plain.params,
-            [normal, offset, depth, np.log(SHADOW_START_BLUR_PX)],
+            [normal, offset, depth, np.log(SHADOW_START_PENUMBRA_PX)],
         ]
     )
-    shadowed = _solve(pixels, shadowed_start, "edge")
+    shadowed = _solve(pixels, shadowed_start, shadowed=True)
     dof = len(pixels.level) - len(shadowed_start)
     if shadowed is None or dof <= 0:
         return plain
     if plain is not None and (plain.cost - shadowed.cost) / (shadowed.cost / dof) < SHADOW_MIN_CHI2:
         return plain
-    normal, offset, depth, log_blur = shadowed.params[_GEOMETRY + 4 :]
-    cx, cy = shadowed.params[:2]
-    across = np.cos(normal) * (pixels.dx - cx) + np.sin(normal) * (pixels.dy - cy) - offset
-    band = SHADOW_BAND_BLURS * np.hypot(
-        np.exp(np.clip(log_blur, *_SHADOW_LOG_BLUR)), np.exp(shadowed.params[4])
-    )
-    clear = np.abs(across) > band
-    stepped = pixels._replace(shaded=across > 0).take(clear)
-    step_start = np.concatenate([shadowed.params[: _GEOMETRY + 4], [depth]])
-    return _solve(stepped, step_start, "step") or shadowed
+    return shadowed
 
 
 def _start(pixels: _Pixels, line_angles: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -466,7 +568,7 @@ def _start(pixels: _Pixels, line_angles: NDArray[np.float64]) -> NDArray[np.floa
     geometry = np.array(
         [0.0, 0.0, line_angles[0], line_angles[1], np.log(_START_BLUR_PX), 0.0, 0.0, 1.0]
     )
-    _, jacobian = _model(np.concatenate([geometry, np.ones(4)]), pixels, "none")
+    _, jacobian = _model(np.concatenate([geometry, np.ones(4)]), pixels, shadowed=False)
     # At tone 1 the signal is linear in the levels: their columns are the wedges' weights.
     weights = jacobian[:, _GEOMETRY : _GEOMETRY + 4]
     levels, *_ = np.linalg.lstsq(weights, pixels.level, rcond=None)
