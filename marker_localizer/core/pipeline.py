@@ -13,7 +13,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import (
     decision,
+    plate,
     preprocessing,
     screening,
     shadow,
@@ -78,7 +79,8 @@ _MAX_SHADOW_GAIN = 4.0
 #: ``recentring``, the detections once the lost wide candidates are centred again,
 #: and ``shadow``, once they are read again with a shadow's edge divided out: the
 #: two tests that add, :meth:`Detector._recentre_lost` and
-#: :meth:`Detector._reread_shadowed`).
+#: :meth:`Detector._reread_shadowed`; ``plate``, once tiny X's are read with their
+#: plate, :meth:`Detector._read_plates`).
 SURVIVOR_TESTS = (
     "screening",
     "prescreen",
@@ -98,6 +100,7 @@ SURVIVOR_TESTS = (
     "merging",
     "recentring",
     "shadow",
+    "plate",
 )
 #: Candidates centred closer than this to a stronger one have found its X, px.
 _CENTRED_DUPLICATE_PX = 1.5
@@ -184,6 +187,27 @@ MAX_TEMPLATE_MISFIT = 0.08
 #: A detection the X leaves more unexplained is kept where a shadow's straight edge
 #: crosses it (:func:`shadow.find_edges`, read within this many extents).
 _MISFIT_SHADOW_REACHES = 1.5
+#: Tiny X's whose plate is read per frame at most (:meth:`Detector._read_plates`, 1-2
+#: ms each), the strongest ring symmetry first, spread over the frame as Eq. (7)'s
+#: thinning spreads them: real aerial ground at 3-30 px leaves 60-200 a frame that
+#: the centre's saddle passes, the rendered tiny markers' frames 10-60.
+_MAX_PLATE_READ = 64
+
+
+class _RingPassed(NamedTuple):
+    """Candidates the ring check passed, with what it measured.
+
+    Attributes:
+        xy: (N, 2) centres, px.
+        radius_px: (N,) extents of the X, px.
+        line_angles: (N, 2) line directions, radians.
+        score: (N,) ring symmetry.
+    """
+
+    xy: NDArray[np.float64]
+    radius_px: NDArray[np.float64]
+    line_angles: NDArray[np.float64]
+    score: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -544,20 +568,28 @@ class Detector:
         result = frame.result
         with frame.timer("centring"):
             centred = self._centre(frame.gray, candidates, result)
-        result.detections = self._verify_and_locate(frame, centred)
+        result.detections, tiny = self._verify_and_locate(frame, centred)
         self._recentre_lost(frame, candidates)
         self._reread_shadowed(frame, candidates)
+        self._read_plates(frame, tiny)
         result.counts["accepted"] = len(result.detections)
         return result
 
-    def _verify_and_locate(self, frame: _Frame, candidates: Candidates) -> list[Detection]:
-        """The checks, the template match and the fit of centred candidates: their markers."""
+    def _verify_and_locate(
+        self, frame: _Frame, candidates: Candidates
+    ) -> tuple[list[Detection], _RingPassed]:
+        """The checks, the template match and the fit of centred candidates: their markers.
+
+        Also the tiny X's the ring check passed (:meth:`_verify`), for
+        :meth:`_read_plates`.
+        """
         with frame.timer("verification"):
-            candidates, radius, angles, score = self._verify(frame, candidates)
+            candidates, radius, angles, score, tiny = self._verify(frame, candidates)
         with frame.timer("subpixel"):
-            return self._locate(
+            located = self._locate(
                 frame, candidates.xy, radius, angles, score, check_lines=self._lines_after_fit
             )
+        return located, tiny
 
     def _recentre_lost(self, frame: _Frame, screened: Candidates) -> None:
         """Candidates screened wide that found no marker, centred again with the light's slope.
@@ -611,7 +643,7 @@ class Detector:
             again = Candidates(xy, screened.strength[lost], scale).take(inside & moved)
             counts["recentred"] = len(again.xy)
             counts["found_recentred"] = self._join(
-                result, self._verify_and_locate(frame.reread(), again)
+                result, self._verify_and_locate(frame.reread(), again)[0]
             )
         result.survivors.append(("recentring", _positions(result.detections)))
 
@@ -674,7 +706,7 @@ class Detector:
                         lit, read.xy, read.scale_px, cfg.marker_radius_max_px, light_slope=True
                     )
                 centred = Candidates(xy, read.strength, read.scale_px).take(inside)
-                added = self._verify_and_locate(replace(frame.reread(), gray=lit), centred)
+                added = self._verify_and_locate(replace(frame.reread(), gray=lit), centred)[0]
             counts["found_shadowed"] = self._join(result, added)
         result.survivors.append(("shadow", _positions(result.detections)))
 
@@ -687,19 +719,24 @@ class Detector:
         merge radius from every detection, at most ``cap`` of them, the strongest
         spread over the frame (:func:`screening.even_cap_index`).
         """
-        lost = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
-        found = _positions(result.detections)
-        if len(found) and len(lost):
-            distance, _ = cKDTree(found).query(
-                screened.xy[lost], distance_upper_bound=self.merge_radius_px
-            )
-            lost = lost[~np.isfinite(distance)]
+        wide = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
+        lost = wide[self._far_from_detections(result, screened.xy[wide])]
         if not len(lost):
             return lost, 0
         kept = screening.even_cap_index(
             screened.xy[lost], screened.strength[lost], cap, self.config.entropy_cell_px
         )
         return lost[kept], len(lost) - len(kept)
+
+    def _far_from_detections(
+        self, result: DetectionResult, xy: NDArray[np.float64]
+    ) -> NDArray[np.intp]:
+        """Indices of the points farther than the merge radius from every detection."""
+        found = _positions(result.detections)
+        if not len(found) or not len(xy):
+            return np.arange(len(xy))
+        distance, _ = cKDTree(found).query(xy, distance_upper_bound=self.merge_radius_px)
+        return np.flatnonzero(~np.isfinite(distance))
 
     def _join(self, result: DetectionResult, added: list[Detection]) -> int:
         """Add a second reading's markers to the detections; returns how many joined.
@@ -1202,8 +1239,15 @@ class Detector:
 
     def _verify(
         self, frame: _Frame, candidates: Candidates
-    ) -> tuple[Candidates, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Section 3.2, geometric checks, and the adaptive-template NCC of section 3.3.1."""
+    ) -> tuple[
+        Candidates, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], _RingPassed
+    ]:
+        """Section 3.2, geometric checks, and the adaptive-template NCC of section 3.3.1.
+
+        Also returns the X's of texture's size (:data:`verification.X_END_MAX_EXTENT_PX`)
+        that passed the ring check and its floor, where such markers are expected,
+        for :meth:`_read_plates`.
+        """
         cfg = self.config
         gray, result = frame.gray, frame.result
         counts = result.counts
@@ -1238,8 +1282,18 @@ class Detector:
             ("symmetry", candidates.xy[keep]),
             ("floor", candidates.xy[keep & ~weak]),
         ]
+        passed = keep & ~weak
+        tiny = np.flatnonzero(
+            passed & (symmetry.radius_px < verification.X_END_MAX_EXTENT_PX) & self._reads_plates
+        )
+        ring_passed = _RingPassed(
+            candidates.xy[tiny],
+            symmetry.radius_px[tiny],
+            symmetry.line_angles[tiny],
+            symmetry.score[tiny],
+        )
         chosen, ncc = self._match_templates(
-            frame, candidates.xy, symmetry, lowest, np.flatnonzero(keep & ~weak)
+            frame, candidates.xy, symmetry, lowest, np.flatnonzero(passed)
         )
         candidates, radius, angles, score = (
             candidates.take(chosen),
@@ -1255,7 +1309,105 @@ class Detector:
                 angles[ok],
                 score[ok],
             )
-        return candidates, radius, angles, score
+        return candidates, radius, angles, score, ring_passed
+
+    @property
+    def _reads_plates(self) -> bool:
+        """Whether tiny X's are read with their plate (:meth:`_read_plates`).
+
+        Where the smallest expected marker is of texture's size
+        (:data:`verification.X_END_MAX_EXTENT_PX`): a larger one whose X reads that
+        small is seen foreshortened, and its plate lies beyond the models' radii.
+        """
+        return (
+            self.config.refinement == "symmetry"
+            and self.config.marker_radius_min_px < verification.X_END_MAX_EXTENT_PX
+        )
+
+    def _read_plates(self, frame: _Frame, tiny: _RingPassed) -> None:
+        """Tiny X's that found no marker, judged by their plate: the model of a marker.
+
+        Under a blur that nearly merges its quadrants a tiny marker's X is a smooth
+        saddle within its own disk, and the template's NCC, the score floors and the
+        X's end reject many (:mod:`~marker_localizer.core.plate` says why). The X's
+        of texture's size the ring check passed (``tiny``) that ended farther than
+        the merge radius from every detection and whose centre is a saddle
+        (:func:`plate.centre_saddle`), at most :data:`_MAX_PLATE_READ` of them, are
+        compared as a marker on its plate against smooth surfaces
+        (:func:`plate.plate_evidence`); those it explains (:func:`plate.plate_explains`)
+        are fitted as every detection is (the fit's own gates, not the score floors,
+        which the plate's evidence replaces) and join the detections.
+
+        Counts ``plate_read``, the candidates compared, ``found_plate``, the markers
+        they added, and ``plate_over_cap``, the saddles over the cap. The survivors
+        end with ``plate``: the detections then.
+        """
+        cfg = self.config
+        gray, result = frame.gray, frame.result
+        counts = result.counts
+        counts["plate_read"] = counts["found_plate"] = counts["plate_over_cap"] = 0
+        lost = self._far_from_detections(result, tiny.xy)
+        if len(lost):
+            with frame.timer("plate"):
+                saddle = plate.centre_saddle(gray, tiny.xy[lost])
+                with np.errstate(invalid="ignore"):
+                    is_saddle = saddle >= plate.MIN_SADDLE
+                lost, saddle = lost[is_saddle], saddle[is_saddle]
+                kept = screening.even_cap_index(
+                    tiny.xy[lost], tiny.score[lost], _MAX_PLATE_READ, cfg.entropy_cell_px
+                )
+                counts["plate_over_cap"] = len(lost) - len(kept)
+                lost, saddle = lost[kept], saddle[kept]
+                counts["plate_read"] = len(lost)
+                evidence = plate.plate_evidence(
+                    gray, tiny.xy[lost], tiny.radius_px[lost], tiny.line_angles[lost]
+                )
+                lost = lost[plate.plate_explains(evidence, saddle)]
+            if len(lost):
+                with frame.timer("subpixel"):
+                    counts["found_plate"] = self._join(result, self._fit_plates(frame, tiny, lost))
+        result.survivors.append(("plate", _positions(result.detections)))
+
+    def _fit_plates(
+        self, frame: _Frame, tiny: _RingPassed, chosen: NDArray[np.intp]
+    ) -> list[Detection]:
+        """The sub-pixel fit of the tiny X's their plate explains, with its own gates only."""
+        cfg = self.config
+        xy, radius, angles = tiny.xy[chosen], tiny.radius_px[chosen], tiny.line_angles[chosen]
+        evidence = tiny.score[chosen]
+        fit = subpixel.locate_markers(
+            frame.gray,
+            xy,
+            radius,
+            angles,
+            evidence,
+            max_radius_px=cfg.marker_radius_max_px,
+            iterations=cfg.refinement_max_iterations,
+            min_contrast=self._raw_contrast_floor(frame.full_scale, frame.gamma, xy),
+            max_symmetry_residual=cfg.max_symmetry_residual,
+        )
+        ok = np.flatnonzero(fit.accepted)
+        position, sigma = subpixel.refine_along_lines(
+            frame.gray,
+            fit.xy[ok],
+            fit.sigma[ok],
+            radius[ok],
+            angles[ok],
+            max_radius_px=cfg.marker_radius_max_px,
+        )
+        return [
+            Detection(
+                float(position[j, 0]),
+                float(position[j, 1]),
+                float(fit.score[k]),
+                float(sigma[j]),
+                float(angles[k, 0]),
+                float(angles[k, 1]),
+                float(radius[k]),
+                float(evidence[k]),
+            )
+            for j, k in enumerate(ok)
+        ]
 
     def _ring_check(
         self, gray: NDArray[Any], candidates: Candidates, gamma: preprocessing.LocalGamma
