@@ -76,6 +76,8 @@ _MAX_SHADOW_GAIN = 4.0
 #: template's NCC, and on the fitted score; ``cap`` is a cap on the candidates;
 #: ``x_end``, that a small X ends where its extent does (:func:`verification.x_ends`);
 #: ``misfit``, that the blurred X explains the detection (:meth:`Detector._x_explains`);
+#: ``quartic``, that a tiny X's plate model explains it no worse than a smooth surface
+#: (:meth:`Detector._plate_not_worse`);
 #: ``recentring``, the detections once the lost wide candidates are centred again,
 #: and ``shadow``, once they are read again with a shadow's edge divided out: the
 #: two tests that add, :meth:`Detector._recentre_lost` and
@@ -96,6 +98,7 @@ SURVIVOR_TESTS = (
     "floor",
     "x_end",
     "misfit",
+    "quartic",
     "lines",
     "merging",
     "recentring",
@@ -1676,6 +1679,30 @@ class Detector:
         explained[doubtful] = False
         return explained
 
+    def _plate_not_worse(
+        self,
+        frame: _Frame,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+    ) -> NDArray[np.bool_]:
+        """(N,) False for tiny X's whose plate model leaves more than a quartic surface.
+
+        Where :meth:`_read_plates` reads plates, the model of a marker on its plate
+        (:func:`plate.plate_evidence`) must explain a detection of texture's size
+        (under :data:`verification.X_END_MAX_EXTENT_PX`) at least as well as the
+        best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`); NaN (no window) passes.
+        """
+        kept: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
+        tiny = np.flatnonzero(radius < verification.X_END_MAX_EXTENT_PX)
+        if not self._reads_plates or not len(tiny):
+            return kept
+        with frame.timer("plate"):
+            evidence = plate.plate_evidence(frame.gray, xy[tiny], radius[tiny], angles[tiny])
+        with np.errstate(invalid="ignore"):
+            kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
+        return kept
+
     def _lowest_score(
         self, radius: NDArray[np.float64], floor: NDArray[np.float64]
     ) -> NDArray[np.float64]:
@@ -1749,6 +1776,10 @@ class Detector:
         counts["rejected_misfit"] = counts.get("rejected_misfit", 0) + int((~explained).sum())
         keep = keep[explained]
         result.survivors.append(("misfit", fit.xy[keep]))
+        smooth = ~self._plate_not_worse(frame, fit.xy[keep], radius[keep], angles[keep])
+        counts["rejected_quartic"] = counts.get("rejected_quartic", 0) + int(smooth.sum())
+        keep = keep[~smooth]
+        result.survivors.append(("quartic", fit.xy[keep]))
         if check_lines:
             # At the verified centres, where the checks before the fit looked.
             straight, lined = self._double_lines(frame, xy[keep], radius[keep], angles[keep])

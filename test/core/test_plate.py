@@ -76,3 +76,12 @@ def test_no_candidate_or_every_window_off_the_image_reads_nothing():
     assert len(empty.to_quadratic) == len(empty.to_quartic) == 0
     off = plate.plate_evidence(image, np.array([[1.0, 1.0]]), np.array([_EXTENT_PX]), angles)
     assert np.isnan(off.to_quadratic).all()
+
+
+def test_a_smooth_saddle_leaves_the_plate_model_more_than_a_quartic():
+    image = _smooth_saddle(1)
+    centre = np.array([[40.0, 40.0]])
+    evidence = plate.plate_evidence(
+        image, centre, np.array([_EXTENT_PX]), np.array([[np.pi / 4, 3 * np.pi / 4]])
+    )
+    assert evidence.to_quartic[0] > plate.MAX_TO_QUARTIC_ANY
