@@ -1697,8 +1697,7 @@ class Detector:
         tiny = np.flatnonzero(radius < verification.X_END_MAX_EXTENT_PX)
         if not self._reads_plates or not len(tiny):
             return kept
-        with frame.timer("plate"):
-            evidence = plate.plate_evidence(frame.gray, xy[tiny], radius[tiny], angles[tiny])
+        evidence = plate.plate_evidence(frame.gray, xy[tiny], radius[tiny], angles[tiny])
         with np.errstate(invalid="ignore"):
             kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
         return kept
