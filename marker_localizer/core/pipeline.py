@@ -555,16 +555,56 @@ class Detector:
                 self.config.illumination_window_px,
                 regions=np.hstack([corner, corner + 2]),
             )
+        frame = _Frame(gray, full_scale, gamma, result, timer)
+        known = _RingPassed(
+            points,
+            np.asarray(radius_px, np.float64),
+            np.asarray(line_angles, np.float64).reshape(-1, 2),
+            np.asarray(evidence, np.float64),
+        )
         with timer("subpixel"):
             result.detections = self._locate(
-                _Frame(gray, full_scale, gamma, result, timer),
-                points,
-                np.asarray(radius_px, np.float64),
-                np.asarray(line_angles, np.float64).reshape(-1, 2),
-                np.asarray(evidence, np.float64),
+                frame, known.xy, known.radius_px, known.line_angles, known.score
             )
+        self._confirm_plates(frame, known)
         counts["accepted"] = len(result.detections)
         return result
+
+    def _confirm_plates(self, frame: _Frame, known: _RingPassed) -> None:
+        """Tracked tiny X's the fit's floors reject, confirmed by their plate.
+
+        A full pass finds many tiny markers by their plate alone
+        (:meth:`_read_plates`), under the score floors :meth:`_locate` holds a
+        tracked marker to (on the rendered (b) frames of seeds 200-207 tracking kept
+        24 of 44 such markers, and lost the rest to a full pass). Where plates are
+        read, the tracked X's of texture's size that :meth:`_locate` left without a
+        marker are fitted (:meth:`_fit_plates`) and kept where the plate model
+        explains them at the fitted centre (:func:`plate.plate_explains`).
+        Counted as ``found_plate``.
+        """
+        result = frame.result
+        result.counts["found_plate"] = 0
+        if not self._reads_plates:
+            return
+        lost = self._far_from_detections(result, known.xy)
+        lost = lost[known.radius_px[lost] < verification.X_END_MAX_EXTENT_PX]
+        if not len(lost):
+            return
+        with frame.timer("subpixel"):
+            fitted = self._fit_plates(frame, known, lost)
+        if not fitted:
+            return
+        with frame.timer("plate"):
+            xy = _positions(fitted)
+            extent = np.array([d.radius_px for d in fitted])
+            angles = np.array([[d.angle1, d.angle2] for d in fitted])
+            explained = plate.plate_explains(
+                plate.plate_evidence(frame.gray, xy, extent, angles),
+                plate.centre_saddle(frame.gray, xy),
+            )
+        result.counts["found_plate"] = self._join(
+            result, [d for d, ok in zip(fitted, explained, strict=True) if ok]
+        )
 
     def _confirm(self, frame: _Frame, candidates: Candidates) -> DetectionResult:
         """Centre, verify and locate the candidates of the saddle path."""

@@ -640,41 +640,61 @@ def test_the_survivors_narrow_test_by_test_down_to_the_detections():
     assert cKDTree(detections).query(survivors["merging"])[0].max() < 0.5
 
 
+def _tiny_marker_scene(seed: int):
+    """24 markers of 3-4 px under 1.4 px of blur on ground texture, half of them checkers."""
+    rng = np.random.default_rng(seed)
+    placements = [
+        MarkerPlacement(
+            40 + 60 * (i % 6) + rng.uniform(-4, 4),
+            40 + 60 * (i // 6) + rng.uniform(-4, 4),
+            rng.uniform(3.0, 4.0),
+            rng.uniform(0, np.pi),
+            rng.uniform(0, 30),
+            kind=("quarter_disks", "checker")[i % 2],
+        )
+        for i in range(24)
+    ]
+    return render_markers(
+        (280, 400), placements, seed, background="texture", blur_sigma_px=1.4, noise_sigma_dn=2.0
+    )
+
+
+_TINY_CONFIG = DetectorConfig(marker_radius_min_px=2.5, marker_radius_max_px=5.0)
+
+
 def test_tiny_markers_the_blur_nearly_merges_are_found_by_their_plate():
-    # 3-4 px markers under 1.4 px of blur (foreshortened radius over blur 1.9-2.9) on
-    # ground texture: the template's NCC, the score floors and the X's end take half
-    # of them (24 of these 48 found before the plate was read, 38 with it), and
-    # texture's saddles none.
+    # Foreshortened radius over blur 1.9-2.9: the template's NCC, the score floors
+    # and the X's end take half of them (24 of these 48 found before the plate was
+    # read, 38 with it), and texture's saddles none.
     found = false = added = 0
     for seed in (0, 1):
-        rng = np.random.default_rng(seed)
-        placements = [
-            MarkerPlacement(
-                40 + 60 * (i % 6) + rng.uniform(-4, 4),
-                40 + 60 * (i // 6) + rng.uniform(-4, 4),
-                rng.uniform(3.0, 4.0),
-                rng.uniform(0, np.pi),
-                rng.uniform(0, 30),
-                kind=("quarter_disks", "checker")[i % 2],
-            )
-            for i in range(24)
-        ]
-        scene = render_markers(
-            (280, 400),
-            placements,
-            seed,
-            background="texture",
-            blur_sigma_px=1.4,
-            noise_sigma_dn=2.0,
-        )
-        config = DetectorConfig(marker_radius_min_px=2.5, marker_radius_max_px=5.0)
-        result = Detector(config).detect(scene.image)
+        scene = _tiny_marker_scene(seed)
+        result = Detector(_TINY_CONFIG).detect(scene.image)
         hits, misses, _ = _score(result.as_array(), scene.centres)
         found, false = found + hits, false + misses
         added += result.counts["found_plate"]
     assert found >= 34
     assert added >= 10
     assert false == 0
+
+
+def test_tracking_confirms_tiny_markers_by_their_plate_and_nothing_where_they_are_not():
+    # The fit's floors, which tracking holds a marker to, reject many a tiny marker a
+    # full pass found by its plate alone (20 of 44 on the rendered (b) frames of seeds
+    # 200-207).
+    scene = _tiny_marker_scene(0)
+    detector = Detector(_TINY_CONFIG)
+    result = detector.detect(scene.image)
+    xy = result.as_array()[:, :2]
+    radius = np.array([d.radius_px for d in result])
+    angles = np.array([[d.angle1, d.angle2] for d in result])
+    evidence = np.array([d.evidence for d in result])
+    assert result.counts["found_plate"] >= 5
+    tracked = detector.locate(scene.image, xy + 0.3, radius, angles, evidence)
+    assert len(tracked) == len(result)
+    assert cKDTree(tracked.as_array()[:, :2]).query(xy)[0].max() < 0.1
+    moved = detector.locate(scene.image, xy + [12.0, 7.0], radius, angles, evidence)
+    assert len(moved) == 0
 
 
 def test_tiny_xs_a_quartic_explains_better_than_their_plate_are_texture(monkeypatch):
