@@ -13,7 +13,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import (
     decision,
+    plate,
     preprocessing,
     screening,
     shadow,
@@ -75,10 +76,13 @@ _MAX_SHADOW_GAIN = 4.0
 #: template's NCC, and on the fitted score; ``cap`` is a cap on the candidates;
 #: ``x_end``, that a small X ends where its extent does (:func:`verification.x_ends`);
 #: ``misfit``, that the blurred X explains the detection (:meth:`Detector._x_explains`);
+#: ``quartic``, that a tiny X's plate model explains it no worse than a smooth surface
+#: (:meth:`Detector._plate_not_worse`);
 #: ``recentring``, the detections once the lost wide candidates are centred again,
 #: and ``shadow``, once they are read again with a shadow's edge divided out: the
 #: two tests that add, :meth:`Detector._recentre_lost` and
-#: :meth:`Detector._reread_shadowed`).
+#: :meth:`Detector._reread_shadowed`; ``plate``, once tiny X's are read with their
+#: plate, :meth:`Detector._read_plates`).
 SURVIVOR_TESTS = (
     "screening",
     "prescreen",
@@ -94,10 +98,12 @@ SURVIVOR_TESTS = (
     "floor",
     "x_end",
     "misfit",
+    "quartic",
     "lines",
     "merging",
     "recentring",
     "shadow",
+    "plate",
 )
 #: Candidates centred closer than this to a stronger one have found its X, px.
 _CENTRED_DUPLICATE_PX = 1.5
@@ -181,6 +187,27 @@ _SHADOW_DISK_REACHES = 1.5
 #: frame px per photograph px of the coins, where they come as 9-69 false points a
 #: frame at 4-40 px).
 MAX_TEMPLATE_MISFIT = 0.08
+#: Tiny X's whose plate is read per frame at most (:meth:`Detector._read_plates`, 1-2
+#: ms each), the strongest ring symmetry first, spread over the frame as Eq. (7)'s
+#: thinning spreads them: real aerial ground at 3-30 px leaves 60-200 a frame that
+#: the centre's saddle passes, the rendered tiny markers' frames 10-60.
+_MAX_PLATE_READ = 64
+
+
+class _RingPassed(NamedTuple):
+    """Candidates the ring check passed, with what it measured.
+
+    Attributes:
+        xy: (N, 2) centres, px.
+        radius_px: (N,) extents of the X, px.
+        line_angles: (N, 2) line directions, radians.
+        score: (N,) ring symmetry.
+    """
+
+    xy: NDArray[np.float64]
+    radius_px: NDArray[np.float64]
+    line_angles: NDArray[np.float64]
+    score: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -525,36 +552,84 @@ class Detector:
                 self.config.illumination_window_px,
                 regions=np.hstack([corner, corner + 2]),
             )
+        frame = _Frame(gray, full_scale, gamma, result, timer)
+        known = _RingPassed(
+            points,
+            np.asarray(radius_px, np.float64),
+            np.asarray(line_angles, np.float64).reshape(-1, 2),
+            np.asarray(evidence, np.float64),
+        )
         with timer("subpixel"):
             result.detections = self._locate(
-                _Frame(gray, full_scale, gamma, result, timer),
-                points,
-                np.asarray(radius_px, np.float64),
-                np.asarray(line_angles, np.float64).reshape(-1, 2),
-                np.asarray(evidence, np.float64),
+                frame, known.xy, known.radius_px, known.line_angles, known.score
             )
+        self._confirm_plates(frame, known)
         counts["accepted"] = len(result.detections)
         return result
+
+    def _confirm_plates(self, frame: _Frame, known: _RingPassed) -> None:
+        """Tracked tiny X's the fit's floors reject, confirmed by their plate.
+
+        A full pass finds many tiny markers by their plate alone
+        (:meth:`_read_plates`), under the score floors :meth:`_locate` holds a
+        tracked marker to (on the rendered (b) frames of seeds 200-207 tracking kept
+        24 of 44 such markers, and lost the rest to a full pass). Where plates are
+        read, the tracked X's of texture's size that :meth:`_locate` left without a
+        marker are fitted (:meth:`_fit_plates`) and kept where the plate model
+        explains them at the fitted centre (:func:`plate.plate_explains`).
+        Counted as ``found_plate``.
+        """
+        result = frame.result
+        result.counts["found_plate"] = 0
+        if not self._reads_plates:
+            return
+        lost = self._far_from_detections(result, known.xy)
+        lost = lost[known.radius_px[lost] < verification.X_END_MAX_EXTENT_PX]
+        if not len(lost):
+            return
+        with frame.timer("subpixel"):
+            fitted = self._fit_plates(frame, known, lost)
+        if not fitted:
+            return
+        with frame.timer("plate"):
+            xy = _positions(fitted)
+            extent = np.array([d.radius_px for d in fitted])
+            angles = np.array([[d.angle1, d.angle2] for d in fitted])
+            explained = plate.plate_explains(
+                plate.plate_evidence(frame.gray, xy, extent, angles),
+                plate.centre_saddle(frame.gray, xy),
+            )
+        result.counts["found_plate"] = self._join(
+            result, [d for d, ok in zip(fitted, explained, strict=True) if ok]
+        )
 
     def _confirm(self, frame: _Frame, candidates: Candidates) -> DetectionResult:
         """Centre, verify and locate the candidates of the saddle path."""
         result = frame.result
         with frame.timer("centring"):
             centred = self._centre(frame.gray, candidates, result)
-        result.detections = self._verify_and_locate(frame, centred)
+        result.detections, tiny = self._verify_and_locate(frame, centred)
         self._recentre_lost(frame, candidates)
         self._reread_shadowed(frame, candidates)
+        self._read_plates(frame, tiny)
         result.counts["accepted"] = len(result.detections)
         return result
 
-    def _verify_and_locate(self, frame: _Frame, candidates: Candidates) -> list[Detection]:
-        """The checks, the template match and the fit of centred candidates: their markers."""
+    def _verify_and_locate(
+        self, frame: _Frame, candidates: Candidates
+    ) -> tuple[list[Detection], _RingPassed]:
+        """The checks, the template match and the fit of centred candidates: their markers.
+
+        Also the tiny X's the ring check passed (:meth:`_verify`), for
+        :meth:`_read_plates`.
+        """
         with frame.timer("verification"):
-            candidates, radius, angles, score = self._verify(frame, candidates)
+            candidates, radius, angles, score, tiny = self._verify(frame, candidates)
         with frame.timer("subpixel"):
-            return self._locate(
+            located = self._locate(
                 frame, candidates.xy, radius, angles, score, check_lines=self._lines_after_fit
             )
+        return located, tiny
 
     def _recentre_lost(self, frame: _Frame, screened: Candidates) -> None:
         """Candidates screened wide that found no marker, centred again with the light's slope.
@@ -608,7 +683,7 @@ class Detector:
             again = Candidates(xy, screened.strength[lost], scale).take(inside & moved)
             counts["recentred"] = len(again.xy)
             counts["found_recentred"] = self._join(
-                result, self._verify_and_locate(frame.reread(), again)
+                result, self._verify_and_locate(frame.reread(), again)[0]
             )
         result.survivors.append(("recentring", _positions(result.detections)))
 
@@ -671,7 +746,7 @@ class Detector:
                         lit, read.xy, read.scale_px, cfg.marker_radius_max_px, light_slope=True
                     )
                 centred = Candidates(xy, read.strength, read.scale_px).take(inside)
-                added = self._verify_and_locate(replace(frame.reread(), gray=lit), centred)
+                added = self._verify_and_locate(replace(frame.reread(), gray=lit), centred)[0]
             counts["found_shadowed"] = self._join(result, added)
         result.survivors.append(("shadow", _positions(result.detections)))
 
@@ -684,19 +759,24 @@ class Detector:
         merge radius from every detection, at most ``cap`` of them, the strongest
         spread over the frame (:func:`screening.even_cap_index`).
         """
-        lost = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
-        found = _positions(result.detections)
-        if len(found) and len(lost):
-            distance, _ = cKDTree(found).query(
-                screened.xy[lost], distance_upper_bound=self.merge_radius_px
-            )
-            lost = lost[~np.isfinite(distance)]
+        wide = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
+        lost = wide[self._far_from_detections(result, screened.xy[wide])]
         if not len(lost):
             return lost, 0
         kept = screening.even_cap_index(
             screened.xy[lost], screened.strength[lost], cap, self.config.entropy_cell_px
         )
         return lost[kept], len(lost) - len(kept)
+
+    def _far_from_detections(
+        self, result: DetectionResult, xy: NDArray[np.float64]
+    ) -> NDArray[np.intp]:
+        """Indices of the points farther than the merge radius from every detection."""
+        found = _positions(result.detections)
+        if not len(found) or not len(xy):
+            return np.arange(len(xy))
+        distance, _ = cKDTree(found).query(xy, distance_upper_bound=self.merge_radius_px)
+        return np.flatnonzero(~np.isfinite(distance))
 
     def _join(self, result: DetectionResult, added: list[Detection]) -> int:
         """Add a second reading's markers to the detections; returns how many joined.
@@ -1199,8 +1279,15 @@ class Detector:
 
     def _verify(
         self, frame: _Frame, candidates: Candidates
-    ) -> tuple[Candidates, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Section 3.2, geometric checks, and the adaptive-template NCC of section 3.3.1."""
+    ) -> tuple[
+        Candidates, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], _RingPassed
+    ]:
+        """Section 3.2, geometric checks, and the adaptive-template NCC of section 3.3.1.
+
+        Also returns the X's of texture's size (:data:`verification.X_END_MAX_EXTENT_PX`)
+        that passed the ring check and its floor, where such markers are expected,
+        for :meth:`_read_plates`.
+        """
         cfg = self.config
         gray, result = frame.gray, frame.result
         counts = result.counts
@@ -1235,8 +1322,18 @@ class Detector:
             ("symmetry", candidates.xy[keep]),
             ("floor", candidates.xy[keep & ~weak]),
         ]
+        passed = keep & ~weak
+        tiny = np.flatnonzero(
+            passed & (symmetry.radius_px < verification.X_END_MAX_EXTENT_PX) & self._reads_plates
+        )
+        ring_passed = _RingPassed(
+            candidates.xy[tiny],
+            symmetry.radius_px[tiny],
+            symmetry.line_angles[tiny],
+            symmetry.score[tiny],
+        )
         chosen, ncc = self._match_templates(
-            frame, candidates.xy, symmetry, lowest, np.flatnonzero(keep & ~weak)
+            frame, candidates.xy, symmetry, lowest, np.flatnonzero(passed)
         )
         candidates, radius, angles, score = (
             candidates.take(chosen),
@@ -1252,7 +1349,107 @@ class Detector:
                 angles[ok],
                 score[ok],
             )
-        return candidates, radius, angles, score
+        return candidates, radius, angles, score, ring_passed
+
+    @property
+    def _reads_plates(self) -> bool:
+        """Whether tiny X's are read with their plate (:meth:`_read_plates`).
+
+        Where the smallest expected marker is of texture's size
+        (:data:`verification.X_END_MAX_EXTENT_PX`): a larger one whose X reads that
+        small is seen foreshortened, and its plate lies beyond the models' radii.
+        """
+        return (
+            self.config.refinement == "symmetry"
+            and self.config.marker_radius_min_px < verification.X_END_MAX_EXTENT_PX
+        )
+
+    def _read_plates(self, frame: _Frame, tiny: _RingPassed) -> None:
+        """Tiny X's that found no marker, judged by their plate: the model of a marker.
+
+        Under a blur that nearly merges its quadrants a tiny marker's X is a smooth
+        saddle within its own disk, and the template's NCC, the score floors and the
+        X's end reject many (:mod:`~marker_localizer.core.plate` says why). The X's
+        of texture's size the ring check passed (``tiny``) that ended farther than
+        the merge radius from every detection and whose centre is a saddle
+        (:func:`plate.centre_saddle`), at most :data:`_MAX_PLATE_READ` of them, are
+        compared as a marker on its plate against smooth surfaces
+        (:func:`plate.plate_evidence`); those it explains (:func:`plate.plate_explains`)
+        are fitted as every detection is (the fit's own gates, not the score floors,
+        which the plate's evidence replaces) and join the detections.
+
+        Counts ``plate_read``, the candidates compared, ``found_plate``, the markers
+        they added, and ``plate_over_cap``, the saddles over the cap. The survivors
+        end with ``plate``: the detections then.
+        """
+        cfg = self.config
+        gray, result = frame.gray, frame.result
+        counts = result.counts
+        counts["plate_read"] = counts["found_plate"] = counts["plate_over_cap"] = 0
+        lost = self._far_from_detections(result, tiny.xy)
+        if len(lost):
+            with frame.timer("plate"):
+                saddle = plate.centre_saddle(gray, tiny.xy[lost])
+                with np.errstate(invalid="ignore"):
+                    is_saddle = saddle >= plate.MIN_SADDLE
+                lost, saddle = lost[is_saddle], saddle[is_saddle]
+                kept = screening.even_cap_index(
+                    tiny.xy[lost], tiny.score[lost], _MAX_PLATE_READ, cfg.entropy_cell_px
+                )
+                counts["plate_over_cap"] = len(lost) - len(kept)
+                lost, saddle = lost[kept], saddle[kept]
+                counts["plate_read"] = len(lost)
+                evidence = plate.plate_evidence(
+                    gray, tiny.xy[lost], tiny.radius_px[lost], tiny.line_angles[lost]
+                )
+                lost = lost[plate.plate_explains(evidence, saddle)]
+            if len(lost):
+                with frame.timer("subpixel"):
+                    counts["found_plate"] = self._join(result, self._fit_plates(frame, tiny, lost))
+        result.survivors.append(("plate", _positions(result.detections)))
+
+    def _fit_plates(
+        self, frame: _Frame, tiny: _RingPassed, chosen: NDArray[np.intp]
+    ) -> list[Detection]:
+        """The sub-pixel fit of the tiny X's their plate explains, with its own gates only."""
+        cfg = self.config
+        xy, radius, angles = tiny.xy[chosen], tiny.radius_px[chosen], tiny.line_angles[chosen]
+        evidence = tiny.score[chosen]
+        fit = subpixel.locate_markers(
+            frame.gray,
+            xy,
+            radius,
+            angles,
+            evidence,
+            max_radius_px=cfg.marker_radius_max_px,
+            iterations=cfg.refinement_max_iterations,
+            min_contrast=self._raw_contrast_floor(frame.full_scale, frame.gamma, xy),
+            max_symmetry_residual=cfg.max_symmetry_residual,
+        )
+        ok = np.flatnonzero(fit.accepted)
+        position, sigma = subpixel.refine_along_lines(
+            frame.gray,
+            fit.xy[ok],
+            fit.sigma[ok],
+            radius[ok],
+            angles[ok],
+            max_radius_px=cfg.marker_radius_max_px,
+            full_scale=frame.full_scale,
+            noise=frame.noise,
+        )
+        return [
+            Detection(
+                float(position[j, 0]),
+                float(position[j, 1]),
+                float(fit.score[k]),
+                float(sigma[j]),
+                float(angles[k, 0]),
+                float(angles[k, 1]),
+                float(radius[k]),
+                float(evidence[k]),
+            )
+            for j, k in enumerate(ok)
+        ]
 
     def _ring_check(
         self, gray: NDArray[Any], candidates: Candidates, gamma: preprocessing.LocalGamma
@@ -1523,6 +1720,29 @@ class Detector:
         explained[doubtful] = False
         return explained
 
+    def _plate_not_worse(
+        self,
+        frame: _Frame,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+    ) -> NDArray[np.bool_]:
+        """(N,) False for tiny X's whose plate model leaves more than a quartic surface.
+
+        Where :meth:`_read_plates` reads plates, the model of a marker on its plate
+        (:func:`plate.plate_evidence`) must explain a detection of texture's size
+        (under :data:`verification.X_END_MAX_EXTENT_PX`) at least as well as the
+        best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`); NaN (no window) passes.
+        """
+        kept: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
+        tiny = np.flatnonzero(radius < verification.X_END_MAX_EXTENT_PX)
+        if not self._reads_plates or not len(tiny):
+            return kept
+        evidence = plate.plate_evidence(frame.gray, xy[tiny], radius[tiny], angles[tiny])
+        with np.errstate(invalid="ignore"):
+            kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
+        return kept
+
     def _lowest_score(
         self, radius: NDArray[np.float64], floor: NDArray[np.float64]
     ) -> NDArray[np.float64]:
@@ -1596,6 +1816,10 @@ class Detector:
         counts["rejected_misfit"] = counts.get("rejected_misfit", 0) + int((~explained).sum())
         keep = keep[explained]
         result.survivors.append(("misfit", fit.xy[keep]))
+        smooth = ~self._plate_not_worse(frame, fit.xy[keep], radius[keep], angles[keep])
+        counts["rejected_quartic"] = counts.get("rejected_quartic", 0) + int(smooth.sum())
+        keep = keep[~smooth]
+        result.survivors.append(("quartic", fit.xy[keep]))
         if check_lines:
             # At the verified centres, where the checks before the fit looked.
             straight, lined = self._double_lines(frame, xy[keep], radius[keep], angles[keep])

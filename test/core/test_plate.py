@@ -1,0 +1,87 @@
+"""The tiny marker's plate model against smooth saddles (core/plate.py)."""
+
+import cv2
+import numpy as np
+import pytest
+
+from marker_localizer.core import plate
+from marker_localizer.synthetic import MarkerPlacement, render_markers
+
+#: The ring check's extent of a 3-4 px marker (a rung of its sqrt(2) ladder).
+_EXTENT_PX = 3.0
+
+
+def _tiny_marker(kind: str, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 3.5 px marker blurred by 1.3 px on a flat ground: image, centre, line angles."""
+    placement = MarkerPlacement(40.3, 39.8, 3.5, 0.4 + seed, 20.0, kind=kind)
+    scene = render_markers(
+        (80, 80), [placement], seed, blur_sigma_px=1.3, noise_sigma_dn=2.0, background="flat"
+    )
+    return scene.image, scene.centres, np.array([scene.markers[0].angles])
+
+
+def _smooth_saddle(seed: int) -> np.ndarray:
+    """A quadratic saddle of 120 DN over 8 px with 2 DN of noise: texture's smooth X."""
+    y, x = np.mgrid[:80, :80] - 40.0
+    rng = np.random.default_rng(seed)
+    surface = 128 + 120 * (x * x - y * y) / 64.0 / 2 + rng.normal(0, 2.0, x.shape)
+    return np.clip(surface, 0, 255).round().astype(np.uint8)
+
+
+@pytest.mark.parametrize("kind", ["quarter_disks", "checker"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_tiny_blurred_marker_is_explained_by_its_plate(kind, seed):
+    image, centre, angles = _tiny_marker(kind, seed)
+    evidence = plate.plate_evidence(image, centre, np.array([_EXTENT_PX]), angles)
+    saddle = plate.centre_saddle(image, centre)
+    assert evidence.to_quadratic[0] <= plate.MAX_TO_QUADRATIC
+    assert evidence.to_quartic[0] <= plate.MAX_TO_QUARTIC
+    assert saddle[0] >= plate.MIN_SADDLE
+    assert plate.plate_explains(evidence, saddle)[0]
+
+
+def test_a_smooth_saddle_is_no_plate_whatever_the_lines():
+    image = _smooth_saddle(0)
+    centre = np.array([[40.0, 40.0]])
+    for angle in np.linspace(0.0, np.pi / 2, 4):
+        evidence = plate.plate_evidence(
+            image, centre, np.array([_EXTENT_PX]), np.array([[angle, angle + np.pi / 2]])
+        )
+        assert evidence.to_quadratic[0] > 0.9
+        assert not plate.plate_explains(evidence, plate.centre_saddle(image, centre))[0]
+
+
+def test_the_centre_of_an_x_is_a_saddle_and_that_of_a_blob_is_not():
+    image, centre, _ = _tiny_marker("quarter_disks", 0)
+    blob = np.zeros((80, 80), np.float32)
+    cv2.ellipse(blob, (40, 40), (4, 2), 30.0, 0.0, 360.0, 200.0, -1)
+    blob = cv2.GaussianBlur(blob, (0, 0), 1.3).round().astype(np.uint8)
+    assert plate.centre_saddle(image, centre)[0] >= plate.MIN_SADDLE
+    assert plate.centre_saddle(blob, np.array([[40.0, 40.0]]))[0] < 0.0
+
+
+def test_windows_off_the_image_and_parallel_lines_read_as_nan_and_no():
+    image, centre, angles = _tiny_marker("quarter_disks", 0)
+    xy = np.array([[2.0, 40.0], centre[0]])
+    lines = np.array([angles[0], [0.3, 0.3]])
+    evidence = plate.plate_evidence(image, xy, np.full(2, _EXTENT_PX), lines)
+    assert np.isnan(evidence.to_quadratic).all()
+    assert np.isnan(plate.centre_saddle(image, np.array([[0.0, 0.0]])))[0]
+    assert not plate.plate_explains(evidence, np.ones(2)).any()
+
+
+def test_no_candidate_or_every_window_off_the_image_reads_nothing():
+    image, _, angles = _tiny_marker("quarter_disks", 0)
+    empty = plate.plate_evidence(image, np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2)))
+    assert len(empty.to_quadratic) == len(empty.to_quartic) == 0
+    off = plate.plate_evidence(image, np.array([[1.0, 1.0]]), np.array([_EXTENT_PX]), angles)
+    assert np.isnan(off.to_quadratic).all()
+
+
+def test_a_smooth_saddle_leaves_the_plate_model_more_than_a_quartic():
+    image = _smooth_saddle(1)
+    centre = np.array([[40.0, 40.0]])
+    evidence = plate.plate_evidence(
+        image, centre, np.array([_EXTENT_PX]), np.array([[np.pi / 4, 3 * np.pi / 4]])
+    )
+    assert evidence.to_quartic[0] > plate.MAX_TO_QUARTIC_ANY
