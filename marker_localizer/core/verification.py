@@ -96,12 +96,6 @@ LINE_ANGLE_AGREEMENT_RAD = np.deg2rad(5.0)
 MODULATION_MIN_OFFSET_PX = 2.5
 #: ... and from this distance on they are clear of it for any expected blur, px.
 MODULATION_FREE_OFFSET_PX = 3.0
-#: Sector levels sampled closer than this to the X's lines are mixed by the blur, px:
-#: the clearance a right-angled X's windows have at :data:`MODULATION_MIN_OFFSET_PX`.
-#: The narrow sectors of a grazing view hold their windows nearer the lines (3 px out
-#: between lines crossing at 44 degrees, a 66-degree tilt: 1.1 px), where the bright
-#: sectors' light lowers the modulation read (0.37 square-on, 0.28 there).
-MODULATION_MIN_CLEARANCE_PX = MODULATION_MIN_OFFSET_PX * float(np.sin(np.pi / 4.0))
 #: Ground texture makes saddles that pass the geometric checks up to this extent
 #: (px; at most 8.5 px on the renderer's families (b) and (d)). Below it the
 #: modulation gate applies, a detection needs the score floor of its extent from
@@ -1644,13 +1638,7 @@ def modulation_gate(
     :data:`MODULATION_MIN_OFFSET_PX` to the centre are mixed by the blur, so the
     levels of markers with an extent under ~4 px say little about their paint: they
     are tested only when they also fall short of the expected radius, as texture
-    saddles do (a small marker in a frame of small markers is not suspect). Nor
-    are levels closer than :data:`MODULATION_MIN_CLEARANCE_PX` to the lines, as the
-    narrow sectors of a grazing view put them: on rendered frames of markers tilted
-    up to 72 degrees (radius 8-16 px, JPEG), the gate lost 20 of 384 markers, 11
-    once it left those levels unjudged (340 found where 338 were; the others fall
-    at the double line and the score floor), with no false point more there, on
-    the renderer's (a), (b), (d), (g) or real aerial ground. X's
+    saddles do (a small marker in a frame of small markers is not suspect). X's
     wider than texture's rings reach even equalised (:data:`EQUALISED_MIN_EXTENT_PX`)
     are not tested: dim real boards (black level, haze) modulate as little as 0.18,
     and so do markers of the lowest contrast the renderers draw (0.35: 0.21). Up to
@@ -1672,11 +1660,8 @@ def modulation_gate(
     bright = np.maximum(levels.positive, levels.negative)
     dark = np.minimum(levels.positive, levels.negative)
     modulation = (bright - dark) / np.maximum(bright + dark, 1e-12)
-    # A window on a bisector lies offset x sin(half the crossing) from both lines.
-    half_crossing = 0.5 * _angle_difference(line_angles[:, 0], line_angles[:, 1])
     measurable = (
         (offset_px >= MODULATION_MIN_OFFSET_PX)
-        & (offset_px * np.sin(half_crossing) >= MODULATION_MIN_CLEARANCE_PX)
         & ((radius_px < min_radius_px) | (offset_px >= MODULATION_FREE_OFFSET_PX))
         & (radius_px < EQUALISED_MIN_EXTENT_PX)
     )
