@@ -805,6 +805,8 @@ def refine_along_lines(
         noise_floor=_QUANTISATION_DIFFERENCE_STD if image.dtype.kind in "ui" else 0.0,
         uncertainty=True,
     )
+    uneven_rows: list[NDArray[np.intp]] = []
+    uneven_lines: list[NDArray[np.float64]] = []
     for key in np.unique(radius):
         rows = np.flatnonzero(radius == key)
         band = _line_band(float(key), line_angles[rows])
@@ -852,15 +854,26 @@ def refine_along_lines(
                 model_gain=sloped,
                 edge_steps=levelled.steps(blur[:, None]),
             )
-            modelled = _model_uneven(
-                image, centre[at], lines, radius_px[at], max_radius_px, full_scale, noise()
-            )
-            located = at[modelled.located]
-            centre[located] = modelled.xy[modelled.located]
-            covariance[located] = modelled.covariance[modelled.located]
-            converged[located] = True
-            # Each refit is bounded from where it starts; the model's from the levels'.
-            reach[located] += uneven.MAX_SHIFT_PX
+            uneven_rows.append(at)
+            uneven_lines.append(lines)
+    if uneven_rows:
+        # One model fit for every radius: its points share nothing but the cost of a pass.
+        at = np.concatenate(uneven_rows)
+        modelled = _model_uneven(
+            image,
+            centre[at],
+            np.concatenate(uneven_lines),
+            radius_px[at],
+            max_radius_px,
+            full_scale,
+            noise(),
+        )
+        located = at[modelled.located]
+        centre[located] = modelled.xy[modelled.located]
+        covariance[located] = modelled.covariance[modelled.located]
+        converged[located] = True
+        # Each refit is bounded from where it starts; the model's from the levels'.
+        reach[located] += uneven.MAX_SHIFT_PX
     refined = converged & (np.linalg.norm(centre - xy, axis=1) <= reach)
     variance = covariance[:, 0, 0] + covariance[:, 1, 1]
     refined &= np.isfinite(variance)

@@ -42,7 +42,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 from scipy.special import ndtr
 
 from marker_localizer.core.shadow import ShadowEdges
@@ -84,8 +83,9 @@ SHADOW_START_PENUMBRA_PX = 0.4
 #: (its parameters) beyond 1e-4 of chance.
 SHADOW_MIN_CHI2 = 23.5
 #: Gauss-Legendre nodes on [0, 1] for Plackett's integral (:func:`trivariate_normal`):
-#: 10 give the trivariate normal to 1e-6 for correlations up to 0.95.
-_LEGENDRE_NODES, _LEGENDRE_WEIGHTS = np.polynomial.legendre.leggauss(10)
+#: 6 give the trivariate normal to 4e-6 (200 random limits and correlations up to
+#: 0.9; 10 to 4e-7), a thousandth of the noise.
+_LEGENDRE_NODES, _LEGENDRE_WEIGHTS = np.polynomial.legendre.leggauss(6)
 _PLACKETT_NODES, _PLACKETT_WEIGHTS = 0.5 * (_LEGENDRE_NODES + 1.0), 0.5 * _LEGENDRE_WEIGHTS
 #: 1 - rho^2 is held above this where it divides: correlations of +-1 (parallel
 #: lines, a shadow's edge along one with no penumbra) are no X's.
@@ -93,8 +93,9 @@ _MIN_ONE_LESS = 1e-9
 #: The wedge term's sign in the four quadrants (:data:`QUADRANT_SIDES`' order).
 _ALTERNATE = (1.0, -1.0, 1.0, -1.0)
 #: Gauss-Legendre nodes for the wedges' correction term (Sheppard's integral over
-#: the angle): 8 give the bivariate normal to 1e-7 for lines 25 degrees apart.
-_NODES, _NODE_WEIGHTS = np.polynomial.legendre.leggauss(8)
+#: the angle): 6 give the bivariate normal to 1e-5 for lines 20 degrees apart
+#: (:func:`template.blurred_x` reads the same integral at the same nodes).
+_NODES, _NODE_WEIGHTS = np.polynomial.legendre.leggauss(6)
 #: The blur the fit starts from, px (the renderers' and most lenses' 0.5-1.5).
 _START_BLUR_PX = 1.0
 #: Paint times light below this share of white is taken as this (the tone
@@ -113,9 +114,21 @@ _DEPTH = (-1.0, 5.0)
 #: ... and the tone exponent within 0.1 - 10 while it searches (:data:`TONE_RANGE`
 #: judges the result).
 _TONE_GUARD = (0.1, 10.0)
-#: Levenberg-Marquardt's step tolerance, relative to the parameters' norm (2-4: the
-#: line angles, the levels): steps end under about a thousandth of a pixel.
-_TOLERANCE = 2.5e-4
+#: Levenberg-Marquardt stops a point whose centre steps less than this, px ...
+_TOLERANCE_PX = 1e-3
+#: ... or whose cost falls by less than this share in a step (a millionth of the
+#: noise's share over a thousand pixels: the centre then moves by less still) ...
+_TOLERANCE_COST = 1e-6
+#: (a cost is never taken as less than this, so a noise-free fit stops too)
+_MIN_COST = 1e-12
+#: ... or after this many steps (3-12 on the renderers' uneven markers) ...
+_ITERATIONS = 30
+#: ... or once its damping has grown past this: no step lowers the cost.
+_GIVE_UP_DAMPING = 1e8
+#: The damping it starts with, times the normal matrix's diagonal (Marquardt) ...
+_START_DAMPING = 1e-3
+#: ... plus this times the identity, for parameters the pixels say nothing of.
+_FLOOR_DAMPING = 1e-9
 
 
 _SQRT_2PI = float(np.sqrt(2.0 * np.pi))
@@ -172,11 +185,15 @@ def wedge_correction(
 
 
 class _Pixels(NamedTuple):
-    """One point's pixels: offsets from the start, levels as a share of white."""
+    """Points' pixels: offsets from each start, levels as a share of white.
+
+    One point's are 1-d; N points' (N, K), ``present`` marking the padding out.
+    """
 
     dx: NDArray[np.float64]
     dy: NDArray[np.float64]
     level: NDArray[np.float64]
+    present: NDArray[np.bool_]
 
 
 def _pixels(
@@ -205,7 +222,8 @@ def _pixels(
     stride = max(1, int(np.ceil(np.sqrt((inside & ~near).sum() / INSIDE_PIXELS))))
     lattice = ((ys - y0) % stride == 0) & ((xs - x0) % stride == 0)
     keep = inside & (near | lattice)
-    return _Pixels(dx[keep], dy[keep], image[ys[keep], xs[keep]].astype(np.float64) / full_scale)
+    level = image[ys[keep], xs[keep]].astype(np.float64) / full_scale
+    return _Pixels(dx[keep], dy[keep], level, np.ones(len(level), dtype=bool))
 
 
 def _bivariate(
@@ -301,7 +319,7 @@ def trivariate_normal(
 def _model(
     params: NDArray[np.float64], pixels: _Pixels, shadowed: bool
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The X's levels at the pixels (signal, share of white) and their Jacobian (K, P).
+    """N X's levels at their pixels (signal, share of white) and their Jacobians.
 
     signal = (slope * scene) ** tone: the scene is sum_q level_q w_q, w_q the
     quadrants' blurred wedges (the product of the two lines' steps and
@@ -309,52 +327,60 @@ def _model(
     depth, ln penumbra) takes exp(-depth) of the light beyond it before the blur,
     which removes (1 - exp(-depth)) sum_q level_q T_q, T_q the probability that a
     blurred point lies in quadrant q and beyond the edge (:func:`trivariate_normal`).
+
+    Args:
+        params: (N, P) each X's parameters.
+        pixels: (N, K) their pixels.
+        shadowed: whether the parameters end with a shadow's edge.
+
+    Returns:
+        (N, K) signal and (N, K, P) its derivatives.
     """
-    cx, cy, a1, a2, log_blur, gx, gy, tone = params[:_GEOMETRY]
-    levels = params[_GEOMETRY : _GEOMETRY + 4]
+    cx, cy, a1, a2, log_blur, gx, gy, tone = (params[:, j : j + 1] for j in range(_GEOMETRY))
+    levels = params[:, _GEOMETRY : _GEOMETRY + 4]
     dx, dy = pixels.dx - cx, pixels.dy - cy
-    s1, s2 = line_distances(dx, dy, np.array([a1, a2]))
+    s1, s2 = line_distances(dx, dy, np.hstack([a1, a2]))
     blur2 = np.exp(2.0 * np.clip(log_blur, *_LOG_BLUR))
     width2 = blur2 + PIXEL_VARIANCE_PX2
     width = np.sqrt(width2)
     h1, h2 = s1 / width, s2 / width
-    r12 = float(np.cos(a1 - a2))
+    r12 = np.cos(a1 - a2)
     p1, p2 = ndtr(h1), ndtr(h2)
     d1, d2 = np.exp(-0.5 * h1 * h1) / _SQRT_2PI, np.exp(-0.5 * h2 * h2) / _SQRT_2PI
     wedge, wedge_h1, wedge_h2, wedge_r = wedge_correction(h1, h2, r12)
     alternate = np.array(_ALTERNATE)
     weights = np.stack([p1 * p2, (1 - p1) * p2, (1 - p1) * (1 - p2), p1 * (1 - p2)], axis=-1)
-    weights += wedge[:, None] * alternate
+    weights += wedge[..., None] * alternate
     by_h1 = np.stack([d1 * p2, -d1 * p2, -d1 * (1 - p2), d1 * (1 - p2)], axis=-1)
-    by_h1 += wedge_h1[:, None] * alternate
+    by_h1 += wedge_h1[..., None] * alternate
     by_h2 = np.stack([p1 * d2, (1 - p1) * d2, -(1 - p1) * d2, -p1 * d2], axis=-1)
-    by_h2 += wedge_h2[:, None] * alternate
-    scene = weights @ levels
+    by_h2 += wedge_h2[..., None] * alternate
+    per_level = levels[:, None, :]
+    scene = (weights * per_level).sum(axis=-1)
     # The scene's derivatives by the parameters, through h1, h2 and r12 first.
-    d_scene = np.zeros(dx.shape + (len(params),))
-    scene_h1, scene_h2 = by_h1 @ levels, by_h2 @ levels
-    scene_r12 = wedge_r * float(alternate @ levels)
-    d_scene[:, 0] = (-np.sin(a1) * scene_h1 - np.sin(a2) * scene_h2) / width
-    d_scene[:, 1] = (np.cos(a1) * scene_h1 + np.cos(a2) * scene_h2) / width
-    d_scene[:, 2] = scene_h1 * (np.cos(a1) * dx + np.sin(a1) * dy) / width
-    d_scene[:, 2] -= scene_r12 * np.sin(a1 - a2)
-    d_scene[:, 3] = scene_h2 * (np.cos(a2) * dx + np.sin(a2) * dy) / width
-    d_scene[:, 3] += scene_r12 * np.sin(a1 - a2)
-    d_scene[:, 4] = -(scene_h1 * h1 + scene_h2 * h2) * blur2 / width2
-    d_scene[:, _GEOMETRY : _GEOMETRY + 4] = weights
+    d_scene = np.zeros(dx.shape + (params.shape[1],))
+    scene_h1, scene_h2 = (by_h1 * per_level).sum(axis=-1), (by_h2 * per_level).sum(axis=-1)
+    scene_r12 = wedge_r * (levels @ alternate)[:, None]
+    sin1, cos1, sin2, cos2 = np.sin(a1), np.cos(a1), np.sin(a2), np.cos(a2)
+    d_scene[..., 0] = (-sin1 * scene_h1 - sin2 * scene_h2) / width
+    d_scene[..., 1] = (cos1 * scene_h1 + cos2 * scene_h2) / width
+    d_scene[..., 2] = scene_h1 * (cos1 * dx + sin1 * dy) / width - scene_r12 * np.sin(a1 - a2)
+    d_scene[..., 3] = scene_h2 * (cos2 * dx + sin2 * dy) / width + scene_r12 * np.sin(a1 - a2)
+    d_scene[..., 4] = -(scene_h1 * h1 + scene_h2 * h2) * blur2 / width2
+    d_scene[..., _GEOMETRY : _GEOMETRY + 4] = weights
     if shadowed:
-        scene = scene + _shadow_terms(params, dx, dy, (h1, h2), (width2, blur2), levels, d_scene)
+        scene = scene + _shadow_terms(params, dx, dy, (h1, h2), (width2, blur2), d_scene)
     slope = 1.0 + gx * dx + gy * dy
     linear = np.maximum(scene * slope, _MIN_SIGNAL)
     exponent = np.clip(tone, *_TONE_GUARD)
     signal = linear**exponent
-    d_linear = d_scene * slope[:, None]
-    d_linear[:, 0] -= scene * gx
-    d_linear[:, 1] -= scene * gy
-    d_linear[:, 5], d_linear[:, 6] = scene * dx, scene * dy
+    d_linear = d_scene * slope[..., None]
+    d_linear[..., 0] -= scene * gx
+    d_linear[..., 1] -= scene * gy
+    d_linear[..., 5], d_linear[..., 6] = scene * dx, scene * dy
     # d(signal)/d(linear), the tone curve's slope, scales every term.
-    jacobian = (exponent * signal / linear)[:, None] * d_linear
-    jacobian[:, 7] = signal * np.log(linear)
+    jacobian = (exponent * signal / linear)[..., None] * d_linear
+    jacobian[..., 7] = signal * np.log(linear)
     return signal, jacobian
 
 
@@ -363,8 +389,7 @@ def _shadow_terms(
     dx: NDArray[np.float64],
     dy: NDArray[np.float64],
     h12: tuple[NDArray[np.float64], NDArray[np.float64]],
-    widths2: tuple[float, float],
-    levels: NDArray[np.float64],
+    widths2: tuple[NDArray[np.float64], NDArray[np.float64]],
     d_scene: NDArray[np.float64],
 ) -> NDArray[np.float64]:
     """The light a shadow's edge takes from the blurred scene; adds its derivatives to ``d_scene``.
@@ -374,24 +399,30 @@ def _shadow_terms(
     h3 = u / S with S^2 = w^2 + p^2 (blur and penumbra), correlated by the cosines
     of the normals, n1 . n2 and n_i . n w / S.
     """
-    a1, a2 = params[2], params[3]
-    normal, offset, depth, log_penumbra = params[_GEOMETRY + 4 : _GEOMETRY + 8]
+    a1, a2 = params[:, 2:3], params[:, 3:4]
+    levels = params[:, _GEOMETRY : _GEOMETRY + 4]
+    normal, offset, depth, log_penumbra = (
+        params[:, _GEOMETRY + 4 + j : _GEOMETRY + 5 + j] for j in range(4)
+    )
     width2, blur2 = widths2
     penumbra2 = np.exp(2.0 * np.clip(log_penumbra, *_SHADOW_LOG_BLUR))
     spread2 = width2 + penumbra2
     spread = np.sqrt(spread2)
     share = np.sqrt(width2) / spread
     h1, h2 = h12
-    h3 = (np.cos(normal) * dx + np.sin(normal) * dy - offset) / spread
-    r12 = float(np.cos(a1 - a2))
-    r13, r23 = float(np.sin(a1 - normal) * share), float(np.sin(a2 - normal) * share)
-    sides = np.array(QUADRANT_SIDES, np.float64)
-    e1, e2 = sides[:, 0:1], sides[:, 1:2]
+    cos_n, sin_n = np.cos(normal), np.sin(normal)
+    h3 = (cos_n * dx + sin_n * dy - offset) / spread
+    r12 = np.cos(a1 - a2)
+    r13, r23 = np.sin(a1 - normal) * share, np.sin(a2 - normal) * share
+    # The quadrants first: (4, N, K) limits, (4, N, 1) correlations.
+    e1, e2 = (
+        np.array([side[k] for side in QUADRANT_SIDES], np.float64)[:, None, None] for k in (0, 1)
+    )
     value, by_h, by_r = trivariate_normal(
-        (e1 * h1, e2 * h2, np.broadcast_to(h3, (4, len(h3)))), e1 * e2 * r12, e1 * r13, e2 * r23
+        (e1 * h1, e2 * h2, np.broadcast_to(h3, (4, *h3.shape))), e1 * e2 * r12, e1 * r13, e2 * r23
     )
     # Each quadrant's derivatives by the unsigned h's and r's, weighted by its level.
-    weighted = levels[:, None]
+    weighted = levels.T[:, :, None]
     t_h1, t_h2, t_h3 = (
         (sign * part * weighted).sum(axis=0)
         for sign, part in zip((e1, e2, np.ones_like(e1)), by_h, strict=True)
@@ -400,96 +431,126 @@ def _shadow_terms(
         (sign * part * weighted).sum(axis=0)
         for sign, part in zip((e1 * e2, e1, e2), by_r, strict=True)
     )
-    beyond = value.T
+    beyond = np.moveaxis(value, 0, -1)
     kept = np.exp(-np.clip(depth, *_DEPTH))
     dark = 1.0 - kept
     width = np.sqrt(width2)
-    cos_n, sin_n = np.cos(normal), np.sin(normal)
     # d(share)/d ln blur and / d ln penumbra; h3's the same way through S.
     share_blur = share * (blur2 / width2 - blur2 / spread2)
     share_penumbra = -share * penumbra2 / spread2
     base = _GEOMETRY + 4
     d_beyond = np.zeros_like(d_scene)
-    d_beyond[:, 0] = (-np.sin(a1) * t_h1 - np.sin(a2) * t_h2) / width - cos_n * t_h3 / spread
-    d_beyond[:, 1] = (np.cos(a1) * t_h1 + np.cos(a2) * t_h2) / width - sin_n * t_h3 / spread
-    d_beyond[:, 2] = t_h1 * (np.cos(a1) * dx + np.sin(a1) * dy) / width
-    d_beyond[:, 2] += -t_r12 * np.sin(a1 - a2) + t_r13 * np.cos(a1 - normal) * share
-    d_beyond[:, 3] = t_h2 * (np.cos(a2) * dx + np.sin(a2) * dy) / width
-    d_beyond[:, 3] += t_r12 * np.sin(a1 - a2) + t_r23 * np.cos(a2 - normal) * share
-    d_beyond[:, 4] = -(t_h1 * h1 + t_h2 * h2) * blur2 / width2 - t_h3 * h3 * blur2 / spread2
-    d_beyond[:, 4] += (t_r13 * np.sin(a1 - normal) + t_r23 * np.sin(a2 - normal)) * share_blur
-    d_beyond[:, _GEOMETRY : _GEOMETRY + 4] = beyond
-    d_beyond[:, base] = t_h3 * (cos_n * dy - sin_n * dx) / spread
-    d_beyond[:, base] -= (t_r13 * np.cos(a1 - normal) + t_r23 * np.cos(a2 - normal)) * share
-    d_beyond[:, base + 1] = -t_h3 / spread
-    d_beyond[:, base + 3] = -t_h3 * h3 * penumbra2 / spread2
-    d_beyond[:, base + 3] += (
+    d_beyond[..., 0] = (-np.sin(a1) * t_h1 - np.sin(a2) * t_h2) / width - cos_n * t_h3 / spread
+    d_beyond[..., 1] = (np.cos(a1) * t_h1 + np.cos(a2) * t_h2) / width - sin_n * t_h3 / spread
+    d_beyond[..., 2] = t_h1 * (np.cos(a1) * dx + np.sin(a1) * dy) / width
+    d_beyond[..., 2] += -t_r12 * np.sin(a1 - a2) + t_r13 * np.cos(a1 - normal) * share
+    d_beyond[..., 3] = t_h2 * (np.cos(a2) * dx + np.sin(a2) * dy) / width
+    d_beyond[..., 3] += t_r12 * np.sin(a1 - a2) + t_r23 * np.cos(a2 - normal) * share
+    d_beyond[..., 4] = -(t_h1 * h1 + t_h2 * h2) * blur2 / width2 - t_h3 * h3 * blur2 / spread2
+    d_beyond[..., 4] += (t_r13 * np.sin(a1 - normal) + t_r23 * np.sin(a2 - normal)) * share_blur
+    d_beyond[..., _GEOMETRY : _GEOMETRY + 4] = beyond
+    d_beyond[..., base] = t_h3 * (cos_n * dy - sin_n * dx) / spread
+    d_beyond[..., base] -= (t_r13 * np.cos(a1 - normal) + t_r23 * np.cos(a2 - normal)) * share
+    d_beyond[..., base + 1] = -t_h3 / spread
+    d_beyond[..., base + 3] = -t_h3 * h3 * penumbra2 / spread2
+    d_beyond[..., base + 3] += (
         t_r13 * np.sin(a1 - normal) + t_r23 * np.sin(a2 - normal)
     ) * share_penumbra
-    taken = beyond @ levels
-    d_scene -= dark * d_beyond
-    d_scene[:, base + 2] = -kept * taken
+    taken = (beyond * levels[:, None, :]).sum(axis=-1)
+    d_scene -= dark[..., None] * d_beyond
+    d_scene[..., base + 2] = -kept * taken
     removed: NDArray[np.float64] = -dark * taken
     return removed
 
 
-class _CachedModel:
-    """:func:`_model` for one point's pixels, evaluated once per parameter vector.
-
-    Levenberg-Marquardt asks for the residual and then the Jacobian at the same
-    parameters; both come from one evaluation.
-    """
-
-    def __init__(self, pixels: _Pixels, shadowed: bool) -> None:
-        self._pixels = pixels
-        self._shadowed = shadowed
-        self._params: NDArray[np.float64] | None = None
-        self._value: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
-
-    def _evaluate(
-        self, params: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        if self._value is None or self._params is None or not np.array_equal(params, self._params):
-            self._params = params.copy()
-            self._value = _model(params, self._pixels, self._shadowed)
-        return self._value
-
-    def residual(self, params: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Model less the pixels' levels."""
-        return self._evaluate(params)[0] - self._pixels.level
-
-    def jacobian(self, params: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The residual's Jacobian (K, P)."""
-        return self._evaluate(params)[1]
-
-
 class _Solution(NamedTuple):
-    """One Levenberg-Marquardt fit: parameters, sum of squared residuals, Jacobian."""
+    """N Levenberg-Marquardt fits.
+
+    Attributes:
+        params: (N, P) the parameters reached.
+        cost: (N,) their sum of squared residuals.
+        covariance: (N, 2, 2) the centre's, from the Jacobian and the residual.
+        solved: (N,) converged within :data:`MAX_SHIFT_PX` of the start and
+            :data:`TONE_RANGE`, the covariance finite.
+    """
 
     params: NDArray[np.float64]
-    cost: float
-    jacobian: NDArray[np.float64]
+    cost: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    solved: NDArray[np.bool_]
 
 
-def _solve(pixels: _Pixels, start: NDArray[np.float64], shadowed: bool) -> _Solution | None:
-    """Levenberg-Marquardt from ``start``; None where it fails or slides off.
+def _residual(
+    params: NDArray[np.float64], pixels: _Pixels, shadowed: bool
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Residuals (N, K), Jacobian (N, K, P) and cost (N,), the padding at zero."""
+    signal, jacobian = _model(params, pixels, shadowed)
+    residual = np.where(pixels.present, signal - pixels.level, 0.0)
+    jacobian *= pixels.present[..., None]
+    return residual, jacobian, np.square(residual).sum(axis=1)
 
-    Off: beyond :data:`MAX_SHIFT_PX` of the start, or the tone out of :data:`TONE_RANGE`.
+
+def _solve(pixels: _Pixels, start: NDArray[np.float64], shadowed: bool) -> _Solution:
+    """Levenberg-Marquardt from ``start`` (N, P), all N at once.
+
+    Marquardt's scaling of the damping by the normal matrix's diagonal; a point
+    stops when its centre's step falls under :data:`_TOLERANCE_PX` or after
+    :data:`_ITERATIONS`.
     """
-    if len(pixels.level) <= len(start):
-        return None
-    model = _CachedModel(pixels, shadowed)
-    solution = least_squares(
-        model.residual, start, jac=model.jacobian, method="lm", xtol=_TOLERANCE
+    n, n_params = start.shape
+    params = start.copy()
+    residual, jacobian, cost = _residual(params, pixels, shadowed)
+    damping = np.full(n, _START_DAMPING)
+    done = np.zeros(n, dtype=bool)
+    eye = np.eye(n_params)
+    for _ in range(_ITERATIONS):
+        active = np.flatnonzero(~done)
+        if not len(active):
+            break
+        normal = np.einsum("nki,nkj->nij", jacobian[active], jacobian[active])
+        gradient = np.einsum("nki,nk->ni", jacobian[active], residual[active])
+        damped = normal + damping[active, None, None] * (normal * eye + _FLOOR_DAMPING * eye)
+        step = -np.linalg.solve(damped, gradient[..., None])[..., 0]
+        trial = params[active] + step
+        t_residual, t_jacobian, t_cost = _residual(trial, _take(pixels, active), shadowed)
+        better = np.isfinite(t_cost) & (t_cost < cost[active])
+        gained = (cost[active] - t_cost) / np.maximum(cost[active], _MIN_COST)
+        took = active[better]
+        params[took], residual[took], jacobian[took], cost[took] = (
+            trial[better],
+            t_residual[better],
+            t_jacobian[better],
+            t_cost[better],
+        )
+        damping[active] = np.where(better, damping[active] / 3.0, damping[active] * 3.0)
+        settled = better & (
+            (np.hypot(step[:, 0], step[:, 1]) < _TOLERANCE_PX) | (gained < _TOLERANCE_COST)
+        )
+        done[active[settled | (damping[active] > _GIVE_UP_DAMPING)]] = True
+    present = pixels.present.sum(axis=1)
+    dof = np.maximum(present - n_params, 1)
+    normal = np.einsum("nki,nkj->nij", jacobian, jacobian)
+    invertible = np.linalg.cond(normal) < 1.0 / np.finfo(np.float64).eps
+    covariance = np.full((n, 2, 2), np.nan)
+    if invertible.any():
+        inverse = np.linalg.inv(normal[invertible])
+        covariance[invertible] = (
+            inverse[:, :2, :2] * (cost[invertible] / dof[invertible])[:, None, None]
+        )
+    solved = (
+        (present > n_params)
+        & np.isfinite(cost)
+        & np.isfinite(covariance).all(axis=(1, 2))
+        & (np.hypot(params[:, 0], params[:, 1]) <= MAX_SHIFT_PX)
+        & (params[:, 7] >= TONE_RANGE[0])
+        & (params[:, 7] <= TONE_RANGE[1])
     )
-    x = solution.x
-    if not (
-        solution.success
-        and np.hypot(x[0], x[1]) <= MAX_SHIFT_PX
-        and TONE_RANGE[0] <= x[7] <= TONE_RANGE[1]
-    ):
-        return None
-    return _Solution(x, float(solution.fun @ solution.fun), solution.jac)
+    return _Solution(params, cost, covariance, solved)
+
+
+def _take(pixels: _Pixels, rows: NDArray[np.intp]) -> _Pixels:
+    """The pixels of the points ``rows``."""
+    return _Pixels(pixels.dx[rows], pixels.dy[rows], pixels.level[rows], pixels.present[rows])
 
 
 def locate_uneven(
@@ -533,71 +594,95 @@ def locate_uneven(
     tone = np.ones(n)
     residual_rms = np.full(n, np.nan)
     located = np.zeros(n, dtype=bool)
-    for i in range(n):
-        pixels = _pixels(
+    read = [
+        _pixels(
             image,
             centre[i],
             max(RADIUS_FRACTION * float(radius_px[i]), MIN_RADIUS_PX),
             line_angles[i],
             full_scale,
         )
-        if pixels is None:
-            continue
-        edge = None
-        if shadows is not None and shadows.found[i]:
-            edge = (shadows.normal[i], shadows.offset[i], shadows.depth[i])
-        solution = _locate_one(pixels, line_angles[i], edge)
-        if solution is None:
-            continue
-        dof = max(len(solution.jacobian) - solution.jacobian.shape[1], 1)
-        try:
-            inverse = np.linalg.inv(solution.jacobian.T @ solution.jacobian)
-        except np.linalg.LinAlgError:
-            continue
-        centre[i] += solution.params[:2]
-        covariance[i] = inverse[:2, :2] * solution.cost / dof
-        rms = float(np.sqrt(solution.cost / len(solution.jacobian)))
-        if noise_std is not None and rms * full_scale > MAX_MISFIT_NOISE * noise_std[i]:
-            continue
-        tone[i] = solution.params[7]
-        residual_rms[i] = rms
-        located[i] = True
+        for i in range(n)
+    ]
+    rows = np.array([i for i, part in enumerate(read) if part is not None], dtype=np.intp)
+    if not len(rows):
+        return UnevenFit(centre, covariance, tone, residual_rms, located)
+    pixels = _padded([part for part in read if part is not None])
+    start = _start(pixels, line_angles[rows])
+    fit = _solve(pixels, start, shadowed=False)
+    if shadows is not None and shadows.found[rows].any():
+        fit = _with_shadow(pixels, start, fit, shadows.take(rows))
+    present = pixels.present.sum(axis=1)
+    rms = np.sqrt(fit.cost / present)
+    taken = fit.solved.copy()
+    if noise_std is not None:
+        taken &= rms * full_scale <= MAX_MISFIT_NOISE * noise_std[rows]
+    at = rows[taken]
+    centre[at] += fit.params[taken, :2]
+    covariance[at] = fit.covariance[taken]
+    tone[at] = fit.params[taken, 7]
+    residual_rms[at] = rms[taken]
+    located[at] = True
     return UnevenFit(centre, covariance, tone, residual_rms, located)
 
 
-def _locate_one(
-    pixels: _Pixels,
-    line_angles: NDArray[np.float64],
-    edge: tuple[float, float, float] | None,
-) -> _Solution | None:
-    """One X's fit: without a shadow, and with one where ``edge`` proposes it and it explains."""
-    start = _start(pixels, line_angles)
-    plain = _solve(pixels, start, shadowed=False)
-    if edge is None:
-        return plain
-    normal, offset, depth = edge
-    shadowed_start = np.concatenate(
+def _with_shadow(
+    pixels: _Pixels, start: NDArray[np.float64], plain: _Solution, edges: ShadowEdges
+) -> _Solution:
+    """The fits again with the shadow's edge where one was found; kept where it explains.
+
+    The shadowed fit replaces the plain one where the plain one failed, or where
+    the edge takes more of the residual than its four parameters would by chance.
+    Returns the plain fits' parameters padded to the shadowed ones' length.
+    """
+    tried = np.flatnonzero(edges.found)
+    first = np.where(plain.solved[tried, None], plain.params[tried], start[tried])
+    edge = np.column_stack(
         [
-            start if plain is None else plain.params,
-            [normal, offset, depth, np.log(SHADOW_START_PENUMBRA_PX)],
+            edges.normal[tried],
+            edges.offset[tried],
+            edges.depth[tried],
+            np.full(len(tried), np.log(SHADOW_START_PENUMBRA_PX)),
         ]
     )
-    shadowed = _solve(pixels, shadowed_start, shadowed=True)
-    dof = len(pixels.level) - len(shadowed_start)
-    if shadowed is None or dof <= 0:
-        return plain
-    if plain is not None and (plain.cost - shadowed.cost) / (shadowed.cost / dof) < SHADOW_MIN_CHI2:
-        return plain
-    return shadowed
+    shadowed = _solve(_take(pixels, tried), np.hstack([first, edge]), shadowed=True)
+    dof = np.maximum(pixels.present[tried].sum(axis=1) - shadowed.params.shape[1], 1)
+    explains = (plain.cost[tried] - shadowed.cost) / (shadowed.cost / dof) >= SHADOW_MIN_CHI2
+    better = shadowed.solved & (~plain.solved[tried] | explains)
+    params = np.hstack([plain.params, np.zeros((len(plain.params), edge.shape[1]))])
+    chosen = tried[better]
+    params[chosen] = shadowed.params[better]
+    cost, covariance, solved = plain.cost.copy(), plain.covariance.copy(), plain.solved.copy()
+    cost[chosen], covariance[chosen], solved[chosen] = (
+        shadowed.cost[better],
+        shadowed.covariance[better],
+        True,
+    )
+    return _Solution(params, cost, covariance, solved)
+
+
+def _padded(parts: list[_Pixels]) -> _Pixels:
+    """N points' pixels as (N, K) arrays, padded with absent pixels at the origin."""
+    width = max(len(part.level) for part in parts)
+    arrays = np.zeros((3, len(parts), width))
+    present = np.zeros((len(parts), width), dtype=bool)
+    for i, part in enumerate(parts):
+        k = len(part.level)
+        arrays[:, i, :k] = part.dx, part.dy, part.level
+        present[i, :k] = True
+    return _Pixels(arrays[0], arrays[1], arrays[2], present)
 
 
 def _start(pixels: _Pixels, line_angles: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The fit's start: the given lines, linear tone, the levels that fit them best."""
-    geometry = np.array(
-        [0.0, 0.0, line_angles[0], line_angles[1], np.log(_START_BLUR_PX), 0.0, 0.0, 1.0]
-    )
-    _, jacobian = _model(np.concatenate([geometry, np.ones(4)]), pixels, shadowed=False)
+    """The fits' start (N, P): the given lines, linear tone, the levels that fit them best."""
+    n = len(line_angles)
+    geometry = np.zeros((n, _GEOMETRY))
+    geometry[:, 2:4] = line_angles
+    geometry[:, 4] = np.log(_START_BLUR_PX)
+    geometry[:, 7] = 1.0
+    _, jacobian = _model(np.hstack([geometry, np.ones((n, 4))]), pixels, shadowed=False)
     # At tone 1 the signal is linear in the levels: their columns are the wedges' weights.
-    weights = jacobian[:, _GEOMETRY : _GEOMETRY + 4]
-    levels, *_ = np.linalg.lstsq(weights, pixels.level, rcond=None)
-    return np.concatenate([geometry, np.maximum(levels, _MIN_SIGNAL)])
+    weights = jacobian[..., _GEOMETRY : _GEOMETRY + 4] * pixels.present[..., None]
+    normal = np.einsum("nki,nkj->nij", weights, weights) + _FLOOR_DAMPING * np.eye(4)
+    levels = np.linalg.solve(normal, np.einsum("nki,nk->ni", weights, pixels.level)[..., None])
+    return np.hstack([geometry, np.maximum(levels[..., 0], _MIN_SIGNAL)])
