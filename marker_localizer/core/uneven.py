@@ -121,6 +121,9 @@ _TOLERANCE_PX = 1e-3
 _TOLERANCE_COST = 1e-6
 #: (a cost is never taken as less than this, so a noise-free fit stops too)
 _MIN_COST = 1e-12
+#: ... or, from this many steps on, while it leaves more than twice what the noise
+#: allows (:data:`MAX_MISFIT_NOISE`): on a board's corners the model never gets there ...
+_HOPELESS_AFTER = 3
 #: ... or after this many steps (3-12 on the renderers' uneven markers) ...
 _ITERATIONS = 30
 #: ... or once its damping has grown past this: no step lowers the cost.
@@ -490,12 +493,18 @@ def _residual(
     return residual, jacobian, np.square(residual).sum(axis=1)
 
 
-def _solve(pixels: _Pixels, start: NDArray[np.float64], shadowed: bool) -> _Solution:
+def _solve(
+    pixels: _Pixels,
+    start: NDArray[np.float64],
+    shadowed: bool,
+    hopeless_cost: NDArray[np.float64] | None = None,
+) -> _Solution:
     """Levenberg-Marquardt from ``start`` (N, P), all N at once.
 
     Marquardt's scaling of the damping by the normal matrix's diagonal; a point
-    stops when its centre's step falls under :data:`_TOLERANCE_PX` or after
-    :data:`_ITERATIONS`.
+    stops when its centre's step falls under :data:`_TOLERANCE_PX`, its cost no
+    longer falls, after :data:`_ITERATIONS`, or, from :data:`_HOPELESS_AFTER`
+    steps on, while its cost exceeds ``hopeless_cost`` (N,): no X fits there.
     """
     n, n_params = start.shape
     params = start.copy()
@@ -503,7 +512,9 @@ def _solve(pixels: _Pixels, start: NDArray[np.float64], shadowed: bool) -> _Solu
     damping = np.full(n, _START_DAMPING)
     done = np.zeros(n, dtype=bool)
     eye = np.eye(n_params)
-    for _ in range(_ITERATIONS):
+    for iteration in range(_ITERATIONS):
+        if hopeless_cost is not None and iteration >= _HOPELESS_AFTER:
+            done |= cost > hopeless_cost
         active = np.flatnonzero(~done)
         if not len(active):
             break
@@ -609,10 +620,13 @@ def locate_uneven(
         return UnevenFit(centre, covariance, tone, residual_rms, located)
     pixels = _padded([part for part in read if part is not None])
     start = _start(pixels, line_angles[rows])
-    fit = _solve(pixels, start, shadowed=False)
-    if shadows is not None and shadows.found[rows].any():
-        fit = _with_shadow(pixels, start, fit, shadows.take(rows))
     present = pixels.present.sum(axis=1)
+    hopeless = None
+    if noise_std is not None:
+        hopeless = present * np.square(2.0 * MAX_MISFIT_NOISE * noise_std[rows] / full_scale)
+    fit = _solve(pixels, start, shadowed=False, hopeless_cost=hopeless)
+    if shadows is not None and shadows.found[rows].any():
+        fit = _with_shadow(pixels, start, fit, shadows.take(rows), hopeless)
     rms = np.sqrt(fit.cost / present)
     taken = fit.solved.copy()
     if noise_std is not None:
@@ -627,7 +641,11 @@ def locate_uneven(
 
 
 def _with_shadow(
-    pixels: _Pixels, start: NDArray[np.float64], plain: _Solution, edges: ShadowEdges
+    pixels: _Pixels,
+    start: NDArray[np.float64],
+    plain: _Solution,
+    edges: ShadowEdges,
+    hopeless_cost: NDArray[np.float64] | None,
 ) -> _Solution:
     """The fits again with the shadow's edge where one was found; kept where it explains.
 
@@ -645,7 +663,12 @@ def _with_shadow(
             np.full(len(tried), np.log(SHADOW_START_PENUMBRA_PX)),
         ]
     )
-    shadowed = _solve(_take(pixels, tried), np.hstack([first, edge]), shadowed=True)
+    shadowed = _solve(
+        _take(pixels, tried),
+        np.hstack([first, edge]),
+        shadowed=True,
+        hopeless_cost=None if hopeless_cost is None else hopeless_cost[tried],
+    )
     dof = np.maximum(pixels.present[tried].sum(axis=1) - shadowed.params.shape[1], 1)
     explains = (plain.cost[tried] - shadowed.cost) / (shadowed.cost / dof) >= SHADOW_MIN_CHI2
     better = shadowed.solved & (~plain.solved[tried] | explains)
