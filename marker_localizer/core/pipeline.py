@@ -1427,29 +1427,9 @@ class Detector:
             max_symmetry_residual=cfg.max_symmetry_residual,
         )
         ok = np.flatnonzero(fit.accepted)
-        position, sigma = subpixel.refine_along_lines(
-            frame.gray,
-            fit.xy[ok],
-            fit.sigma[ok],
-            radius[ok],
-            angles[ok],
-            max_radius_px=cfg.marker_radius_max_px,
-            full_scale=frame.full_scale,
-            noise=frame.noise,
+        return self._detections(
+            frame, fit.xy[ok], fit.sigma[ok], fit.score[ok], radius[ok], angles[ok], evidence[ok]
         )
-        return [
-            Detection(
-                float(position[j, 0]),
-                float(position[j, 1]),
-                float(fit.score[k]),
-                float(sigma[j]),
-                float(angles[k, 0]),
-                float(angles[k, 1]),
-                float(radius[k]),
-                float(evidence[k]),
-            )
-            for j, k in enumerate(ok)
-        ]
 
     def _ring_check(
         self, gray: NDArray[Any], candidates: Candidates, gamma: preprocessing.LocalGamma
@@ -1833,30 +1813,55 @@ class Detector:
         keep = keep[unique]
         result.survivors.append(("merging", fit.xy[keep]))
         keep = keep[np.argsort(-fit.score[keep])]
-        position, sigma = fit.xy[keep], fit.sigma[keep]
-        if cfg.refinement == "symmetry":
-            position, sigma = subpixel.refine_along_lines(
-                gray,
-                position,
+        return self._detections(
+            frame,
+            fit.xy[keep],
+            fit.sigma[keep],
+            fit.score[keep],
+            radius[keep],
+            angles[keep],
+            score[keep],
+        )
+
+    def _detections(
+        self,
+        frame: _Frame,
+        xy: NDArray[np.float64],
+        sigma: NDArray[np.float64],
+        score: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        evidence: NDArray[np.float64],
+    ) -> list[Detection]:
+        """The located markers as detections, at their final centres.
+
+        The default path (``refinement="symmetry"``) fits them once more along
+        their lines (:func:`subpixel.refine_along_lines`); the others report the
+        gating fit's centres.
+        """
+        if self.config.refinement == "symmetry":
+            xy, sigma = subpixel.refine_along_lines(
+                frame.gray,
+                xy,
                 sigma,
-                radius[keep],
-                angles[keep],
-                max_radius_px=cfg.marker_radius_max_px,
+                radius,
+                angles,
+                max_radius_px=self.config.marker_radius_max_px,
                 full_scale=frame.full_scale,
                 noise=frame.noise,
             )
         return [
             Detection(
-                float(position[j, 0]),
-                float(position[j, 1]),
-                float(fit.score[k]),
+                float(xy[j, 0]),
+                float(xy[j, 1]),
+                float(score[j]),
                 float(sigma[j]),
-                float(angles[k, 0]),
-                float(angles[k, 1]),
-                float(radius[k]),
-                float(score[k]),
+                float(angles[j, 0]),
+                float(angles[j, 1]),
+                float(radius[j]),
+                float(evidence[j]),
             )
-            for j, k in enumerate(keep)
+            for j in range(len(xy))
         ]
 
 
