@@ -25,7 +25,7 @@ def test_the_wedge_correction_is_the_bivariate_normal_less_the_product(h, k, rho
 )
 def test_the_trivariate_normal_is_scipys_and_its_derivatives_are_its_slopes(h, r):
     covariance = np.array([[1.0, r[0], r[1]], [r[0], 1.0, r[2]], [r[1], r[2], 1.0]])
-    exact = multivariate_normal(np.zeros(3), covariance, abseps=1e-9, releps=1e-9).cdf(h)
+    exact = multivariate_normal.cdf(h, np.zeros(3), covariance, abseps=1e-9, releps=1e-9)
 
     def value(limits, correlations):
         return uneven.trivariate_normal(tuple(np.array([x]) for x in limits), *correlations)[0][0]
