@@ -1412,20 +1412,9 @@ class Detector:
         self, frame: _Frame, tiny: _RingPassed, chosen: NDArray[np.intp]
     ) -> list[Detection]:
         """The sub-pixel fit of the tiny X's their plate explains, with its own gates only."""
-        cfg = self.config
         xy, radius, angles = tiny.xy[chosen], tiny.radius_px[chosen], tiny.line_angles[chosen]
         evidence = tiny.score[chosen]
-        fit = subpixel.locate_markers(
-            frame.gray,
-            xy,
-            radius,
-            angles,
-            evidence,
-            max_radius_px=cfg.marker_radius_max_px,
-            iterations=cfg.refinement_max_iterations,
-            min_contrast=self._raw_contrast_floor(frame.full_scale, frame.gamma, xy),
-            max_symmetry_residual=cfg.max_symmetry_residual,
-        )
+        fit = self._gating_fit(frame, xy, radius, angles, evidence)
         ok = np.flatnonzero(fit.accepted)
         return self._detections(
             frame, fit.xy[ok], fit.sigma[ok], fit.score[ok], radius[ok], angles[ok], evidence[ok]
@@ -1759,22 +1748,7 @@ class Detector:
             counts["rejected_refinement"] = 0
             counts.setdefault("rejected_score", 0)
             return []
-        # The prescreen's contrast floor holds for every detection; it matters for a
-        # tracked marker confirmed by the fit alone (see :meth:`locate`), which no ring
-        # has measured on this frame.
-        fit = subpixel.locate_markers(
-            gray,
-            xy,
-            radius,
-            angles,
-            score,
-            max_radius_px=cfg.marker_radius_max_px,
-            iterations=cfg.refinement_max_iterations,
-            min_contrast=self._raw_contrast_floor(frame.full_scale, frame.gamma, xy),
-            max_symmetry_residual=cfg.max_symmetry_residual,
-            ncc_offset_px=cfg.template_offset_px if cfg.refinement == "ncc" else None,
-            ncc_search_px=cfg.ncc_search_px,
-        )
+        fit = self._gating_fit(frame, xy, radius, angles, score)
         ok = fit.accepted
         counts["rejected_refinement"] = int((~ok).sum())
         floor = self._score_floor(radius)
@@ -1821,6 +1795,33 @@ class Detector:
             radius[keep],
             angles[keep],
             score[keep],
+        )
+
+    def _gating_fit(
+        self,
+        frame: _Frame,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        evidence: NDArray[np.float64],
+    ) -> subpixel.MarkerLocation:
+        """The fit whose gates every detection passes (:func:`subpixel.locate_markers`)."""
+        cfg = self.config
+        # The prescreen's contrast floor holds for every detection; it matters for a
+        # tracked marker confirmed by the fit alone (see :meth:`locate`), which no ring
+        # has measured on this frame.
+        return subpixel.locate_markers(
+            frame.gray,
+            xy,
+            radius,
+            angles,
+            evidence,
+            max_radius_px=cfg.marker_radius_max_px,
+            iterations=cfg.refinement_max_iterations,
+            min_contrast=self._raw_contrast_floor(frame.full_scale, frame.gamma, xy),
+            max_symmetry_residual=cfg.max_symmetry_residual,
+            ncc_offset_px=cfg.template_offset_px if cfg.refinement == "ncc" else None,
+            ncc_search_px=cfg.ncc_search_px,
         )
 
     def _detections(

@@ -121,9 +121,11 @@ _TOLERANCE_PX = 1e-3
 _TOLERANCE_COST = 1e-6
 #: (a cost is never taken as less than this, so a noise-free fit stops too)
 _MIN_COST = 1e-12
-#: ... or, from this many steps on, while it leaves more than twice what the noise
-#: allows (:data:`MAX_MISFIT_NOISE`): on a board's corners the model never gets there ...
+#: ... or, from this many steps on, while it leaves more than :data:`_HOPELESS_MISFIT`
+#: times what the noise allows (:data:`MAX_MISFIT_NOISE`): on a board's corners the
+#: model never gets there ...
 _HOPELESS_AFTER = 3
+_HOPELESS_MISFIT = 2.0
 #: ... or after this many steps (3-12 on the renderers' uneven markers) ...
 _ITERATIONS = 30
 #: ... or once its damping has grown past this: no step lowers the cost.
@@ -143,16 +145,12 @@ class UnevenFit(NamedTuple):
     Attributes:
         xy: (N, 2) fitted centres, px (the start where ``located`` is False).
         covariance: (N, 2, 2) the centre's covariance from the fit, px^2.
-        tone: (N,) the fitted tone exponent (signal = light ** tone).
-        residual_rms: (N,) the fit's RMS residual, as a share of white.
         located: (N,) where the fit converged within :data:`MAX_SHIFT_PX` of its
             start and :data:`TONE_RANGE`.
     """
 
     xy: NDArray[np.float64]
     covariance: NDArray[np.float64]
-    tone: NDArray[np.float64]
-    residual_rms: NDArray[np.float64]
     located: NDArray[np.bool_]
 
 
@@ -602,8 +600,6 @@ def locate_uneven(
     n = len(xy)
     centre = np.array(xy, dtype=np.float64).reshape(-1, 2)
     covariance = np.full((n, 2, 2), np.nan)
-    tone = np.ones(n)
-    residual_rms = np.full(n, np.nan)
     located = np.zeros(n, dtype=bool)
     read = [
         _pixels(
@@ -617,27 +613,26 @@ def locate_uneven(
     ]
     rows = np.array([i for i, part in enumerate(read) if part is not None], dtype=np.intp)
     if not len(rows):
-        return UnevenFit(centre, covariance, tone, residual_rms, located)
+        return UnevenFit(centre, covariance, located)
     pixels = _padded([part for part in read if part is not None])
     start = _start(pixels, line_angles[rows])
     present = pixels.present.sum(axis=1)
+    # The RMS residual a fit may leave, as a share of white, and the cost past which
+    # it is given up.
+    limit: NDArray[np.float64] = np.full(len(rows), np.inf)
     hopeless = None
     if noise_std is not None:
-        hopeless = present * np.square(2.0 * MAX_MISFIT_NOISE * noise_std[rows] / full_scale)
+        limit = MAX_MISFIT_NOISE * noise_std[rows] / full_scale
+        hopeless = present * np.square(_HOPELESS_MISFIT * limit)
     fit = _solve(pixels, start, shadowed=False, hopeless_cost=hopeless)
     if shadows is not None and shadows.found[rows].any():
         fit = _with_shadow(pixels, start, fit, shadows.take(rows), hopeless)
-    rms = np.sqrt(fit.cost / present)
-    taken = fit.solved.copy()
-    if noise_std is not None:
-        taken &= rms * full_scale <= MAX_MISFIT_NOISE * noise_std[rows]
+    taken = fit.solved & (np.sqrt(fit.cost / present) <= limit)
     at = rows[taken]
     centre[at] += fit.params[taken, :2]
     covariance[at] = fit.covariance[taken]
-    tone[at] = fit.params[taken, 7]
-    residual_rms[at] = rms[taken]
     located[at] = True
-    return UnevenFit(centre, covariance, tone, residual_rms, located)
+    return UnevenFit(centre, covariance, located)
 
 
 def _with_shadow(
