@@ -92,6 +92,21 @@ INDEPENDENT_FAMILIES: dict[str, str] = {
 
 
 @dataclass(frozen=True)
+class RecallSplit:
+    """Classes of a family's markers by what makes them hard, for a recall table.
+
+    Attributes:
+        title: the table's heading.
+        labels: the classes' names, in the table's order.
+        classify: rendered frame -> (N,) each marker's class, an index into ``labels``.
+    """
+
+    title: str
+    labels: tuple[str, ...]
+    classify: Callable[[RenderedScene], np.ndarray]
+
+
+@dataclass(frozen=True)
 class Family:
     """A rendered scenario family.
 
@@ -103,8 +118,7 @@ class Family:
         quick_frames: frames in a quick run.
         render: seed -> rendered frame with exact truth.
         board_pattern: (columns, rows) for chessboard families (board peers run), else None.
-        resolution_bins: inner edges of the recall-by-resolution table (resolution =
-            foreshortened radius over blur sigma, :func:`marker_resolution`); empty: none.
+        split: the family's recall table by a condition of its markers; None: none.
         variant: what tells it from another family of the same key, for the summary.
     """
 
@@ -115,7 +129,7 @@ class Family:
     quick_frames: int
     render: Callable[[int], RenderedScene]
     board_pattern: tuple[int, int] | None = None
-    resolution_bins: tuple[float, ...] = ()
+    split: RecallSplit | None = None
     variant: str = ""
 
     @property
@@ -207,6 +221,50 @@ def marker_resolution(scene: RenderedScene) -> np.ndarray:
     return np.array([m.foreshortened_radius_px / sigma for m in scene.markers])
 
 
+def _bin_labels(edges: Sequence[float]) -> tuple[str, ...]:
+    return (
+        f"< {edges[0]:g}",
+        *(f"{a:g}-{b:g}" for a, b in itertools.pairwise(edges)),
+        f">= {edges[-1]:g}",
+    )
+
+
+def resolution_split(edges: Sequence[float]) -> RecallSplit:
+    """Recall by :func:`marker_resolution`, in bins with these inner ``edges``."""
+    return RecallSplit(
+        "recall by resolution: foreshortened radius over blur sigma",
+        _bin_labels(edges),
+        lambda scene: np.digitize(marker_resolution(scene), edges),
+    )
+
+
+#: Inner edges of family (g)'s classes by the dull quadrant's lead over the dark paint
+#: (:attr:`MarkerTruth.dull_margin`): under 0.2 of the other bright quadrant's lead,
+#: the dull quadrant's two edges are within a fifth of the X's contrast, of the
+#: ground's texture (the X is nearly an L-corner on its plate); from 0.5 on, as in
+#: the family's definition, dullness alone.
+DULL_MARGIN_EDGES = (0.2, 0.5)
+
+
+def _uneven_light_class(scene: RenderedScene) -> np.ndarray:
+    margin = np.digitize([m.dull_margin for m in scene.markers], DULL_MARGIN_EDGES)
+    return margin + (len(DULL_MARGIN_EDGES) + 1) * scene.shadow_crossed
+
+
+#: Family (g)'s recall table: by the dull quadrant's lead over the dark paint, without
+#: and with a cast shadow's edge across the marker.
+UNEVEN_LIGHT_SPLIT = RecallSplit(
+    "recall by the dull quadrant's lead over the dark paint (a share of the other bright "
+    "quadrant's), without and with a shadow's edge across",
+    tuple(
+        f"{label}{' shadow' if shadowed else ''}"
+        for shadowed in (False, True)
+        for label in _bin_labels(DULL_MARGIN_EDGES)
+    ),
+    _uneven_light_class,
+)
+
+
 def families() -> list[Family]:
     """The scenario families of issues 6 and 12, in table order."""
     return [
@@ -225,7 +283,7 @@ def families() -> list[Family]:
             8,
             1,
             _scene(**{**_BASE, "radius_px": (2.5, 5.0), "n_markers": 24}),
-            resolution_bins=_TINY_RESOLUTION_BINS,
+            split=resolution_split(_TINY_RESOLUTION_BINS),
         ),
         Family(
             "c",
@@ -269,6 +327,7 @@ def families() -> list[Family]:
             8,
             1,
             _scene(**{**_BASE, **_UNEVEN_LIGHT, "radius_px": (5.0, 30.0)}),
+            split=UNEVEN_LIGHT_SPLIT,
         ),
         Family(
             "e",
@@ -343,12 +402,12 @@ class FamilyResult:
     Attributes:
         rows: one :class:`Row` per detector, then the cornerSubPix row, then the
             board peers' rows for chessboard families.
-        resolution: per truth point, in the order of every tally's ``found``:
-            :func:`marker_resolution` (NaN where the blur is unknown).
+        split_class: per truth point, in the order of every tally's ``found``: its
+            class in the family's :class:`RecallSplit` (-1: none).
     """
 
     rows: list[Row]
-    resolution: np.ndarray
+    split_class: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -360,21 +419,23 @@ class LabelledFrame:
         truth: (N, 2) marker centres, px.
         crlb_px: (N,) each marker's Cramer-Rao bound (expected |error|), px; NaN: unknown.
         radius_range: (min, max) marker radius given to every detector, px.
-        resolution: (N,) :func:`marker_resolution`, NaN where unknown.
+        split_class: (N,) each marker's class in its family's :class:`RecallSplit`
+            (-1: none).
     """
 
     image: np.ndarray
     truth: np.ndarray
     crlb_px: np.ndarray
     radius_range: RadiusRange
-    resolution: np.ndarray
+    split_class: np.ndarray
 
     @classmethod
-    def rendered(cls, scene: RenderedScene, radius_range: RadiusRange) -> LabelledFrame:
-        """A frame of this package's renderer."""
-        return cls(
-            scene.image, scene.centres, scene.crlb_px, radius_range, marker_resolution(scene)
-        )
+    def rendered(
+        cls, scene: RenderedScene, radius_range: RadiusRange, split: RecallSplit | None = None
+    ) -> LabelledFrame:
+        """A frame of this package's renderer, its markers classed by ``split``."""
+        classes = split.classify(scene) if split else np.full(len(scene.markers), -1)
+        return cls(scene.image, scene.centres, scene.crlb_px, radius_range, classes)
 
     @classmethod
     def independent(cls, frame: real_data.IndependentFrame) -> LabelledFrame:
@@ -384,7 +445,7 @@ class LabelledFrame:
             frame.truth,
             frame.crlb_px,
             frame.radius_range,
-            np.full(len(frame.truth), np.nan),
+            np.full(len(frame.truth), -1),
         )
 
 
@@ -407,9 +468,9 @@ def evaluate_frames(
     rows = {d.name: Row(d.name) for d in everyone}
     refiner_row = Row(f"{peers.CornerSubPixRefiner.name} (start <= 1 px)", refiner=True)
     rng = np.random.default_rng(seed)
-    resolution = []
+    classes = []
     for frame in frames:
-        resolution.append(frame.resolution)
+        classes.append(frame.split_class)
         for detector in everyone:
             points, seconds = _timed_detect(detector, frame.image, frame.radius_range)
             matching = evaluation.match_points(points, frame.truth)
@@ -427,7 +488,7 @@ def evaluate_frames(
     ordered = [rows[d.name] for d in detectors]
     return FamilyResult(
         [*ordered, refiner_row, *(rows[d.name] for d in board)],
-        np.concatenate(resolution) if resolution else np.zeros(0),
+        np.concatenate(classes) if classes else np.zeros(0, dtype=np.int64),
     )
 
 
@@ -443,7 +504,7 @@ def evaluate_family(
         detectors: point detectors to score (ours and peers).
     """
     frames = (
-        LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range)
+        LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range, family.split)
         for i in range(n_frames)
     )
     return evaluate_frames(frames, seed, detectors, family.board_pattern)
@@ -663,13 +724,13 @@ def family_table(title: str, rows: Sequence[Row]) -> str:
 
 
 @dataclass(frozen=True)
-class ResolutionRecall:
-    """Each detector's recall per bin of marker resolution (detectors, not refiners).
+class SplitRecall:
+    """Each detector's recall per class of a :class:`RecallSplit` (detectors, not refiners).
 
     Attributes:
-        bins: bin labels, e.g. ``"2-3"``.
-        markers: truth points per bin.
-        recall: detector name -> recall per bin (NaN for an empty bin).
+        bins: class labels, e.g. ``"2-3"``.
+        markers: truth points per class.
+        recall: detector name -> recall per class (NaN for an empty class).
     """
 
     bins: list[str]
@@ -677,33 +738,29 @@ class ResolutionRecall:
     recall: dict[str, list[float]]
 
 
-def resolution_recall(result: FamilyResult, edges: Sequence[float]) -> ResolutionRecall:
-    """Split every detector's recall by :func:`marker_resolution`, at ``edges``."""
-    index = np.digitize(result.resolution, edges)
-    names = [
-        f"< {edges[0]:g}",
-        *(f"{a:g}-{b:g}" for a, b in itertools.pairwise(edges)),
-        f">= {edges[-1]:g}",
-    ]
-    counts = np.bincount(index, minlength=len(names))
+def split_recall(result: FamilyResult, labels: Sequence[str]) -> SplitRecall:
+    """Split every detector's recall by the classes of ``result.split_class``."""
+    index = result.split_class
+    counts = np.bincount(index[index >= 0], minlength=len(labels))
     recall = {}
     for row in result.rows:
         if row.refiner:
             continue
         found = np.asarray(row.tally.found, dtype=bool)
         recall[row.name] = [
-            float(found[index == k].mean()) if counts[k] else math.nan for k in range(len(names))
+            float(found[index == k].mean()) if counts[k] else math.nan for k in range(len(labels))
         ]
-    return ResolutionRecall(names, counts.tolist(), recall)
+    return SplitRecall(list(labels), counts.tolist(), recall)
 
 
-def resolution_table(title: str, split: ResolutionRecall) -> str:
-    """Format a :class:`ResolutionRecall`."""
+def split_table(title: str, split: SplitRecall) -> str:
+    """Format a :class:`SplitRecall`."""
     columns = [f"{name} ({count})" for name, count in zip(split.bins, split.markers, strict=True)]
-    header = f"{'detector':<34}" + "".join(f"{c:>14}" for c in columns)
+    width = max(14, *(len(c) + 2 for c in columns))
+    header = f"{'detector':<34}" + "".join(f"{c:>{width}}" for c in columns)
     lines = [title, header, "-" * len(header)]
     for name, recall in split.recall.items():
-        lines.append(f"{name:<34}" + "".join(f"{_pct(r):>14}" for r in recall))
+        lines.append(f"{name:<34}" + "".join(f"{_pct(r):>{width}}" for r in recall))
     return "\n".join(lines)
 
 
@@ -892,16 +949,11 @@ def run_synthetic(
         report(family_table(title, rows))
         results[family.title] = {r.name: row_record(r) for r in rows}
         summary.append((family.label, _reference(rows)))
-        if family.resolution_bins:
-            split = resolution_recall(result, family.resolution_bins)
-            report(
-                resolution_table(
-                    f"Family ({family.key}) recall by resolution: foreshortened radius over blur "
-                    "sigma (markers per bin)",
-                    split,
-                )
-            )
-            results[f"{family.title}: recall by resolution"] = {
+        if family.split:
+            split = split_recall(result, family.split.labels)
+            heading = f"Family ({family.key}) {family.split.title} (markers per class)"
+            report(split_table(heading, split))
+            results[f"{family.title}: {family.split.title}"] = {
                 name: {
                     b: (r if math.isfinite(r) else None)
                     for b, r in zip(split.bins, recall, strict=True)

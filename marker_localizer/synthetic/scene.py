@@ -460,6 +460,13 @@ class MarkerTruth:
         crlb_mean_abs_error_px: Expected Euclidean error of an efficient
             unbiased estimator of the centre (Cramer-Rao bound over the X,
             :mod:`~marker_localizer.synthetic.crlb`), px; NaN when not computed.
+        dull_margin: How far the dull bright quadrant's paint stands above the
+            dark paint, as a share of the other bright quadrant's lead, (dull x
+            bright - dark) / (bright - dark): 1 without a dull quadrant; near 0 or
+            below, the "dull" quadrant is as dark as the dark paint or darker, and
+            what is painted is no longer an X but one bright quadrant on its plate
+            (a dull factor of 0.45-0.8 does that to paint of contrast 0.35-0.55
+            whose dark is a light grey).
     """
 
     x: float
@@ -469,15 +476,18 @@ class MarkerTruth:
     homography: np.ndarray = field(compare=False)  # arrays cannot take part in ==/hash
     angles: tuple[float, float]
     crlb_mean_abs_error_px: float = math.nan
+    dull_margin: float = 1.0
 
     @classmethod
-    def from_homography(cls, homography: np.ndarray, radius_px: float, kind: str) -> MarkerTruth:
+    def from_homography(
+        cls, homography: np.ndarray, radius_px: float, kind: str, dull_margin: float = 1.0
+    ) -> MarkerTruth:
         """Truth of a target whose plane origin is the marker centre."""
         h = np.asarray(homography, dtype=np.float64) / homography[2, 2]
         x, y = float(h[0, 2]), float(h[1, 2])
         (du_x, dv_x), (du_y, dv_y) = _origin_jacobian(h)
         angles = (math.atan2(du_y, du_x) % math.pi, math.atan2(dv_y, dv_x) % math.pi)
-        return cls(x, y, float(radius_px), kind, h, angles)
+        return cls(x, y, float(radius_px), kind, h, angles, dull_margin=dull_margin)
 
     @property
     def foreshortened_radius_px(self) -> float:
@@ -528,6 +538,15 @@ class PlanarTarget:
     on_plate: bool = True
     dull_signs: tuple[int, int] | None = None
     dull_factor: float = 1.0
+
+    @property
+    def dull_margin(self) -> float:
+        """The dull quadrant's lead over the dark paint (:attr:`MarkerTruth.dull_margin`)."""
+        # An inverted marker's X is painted with the plate's paint: the brighter
+        # paint is the one dulled, whichever it is.
+        bright = max(self.bright_reflectance, self.dark_reflectance)
+        dark = min(self.bright_reflectance, self.dark_reflectance)
+        return (self.dull_factor * bright - dark) / (bright - dark)
 
     def translated(self, dx: float, dy: float) -> PlanarTarget:
         """The same target moved by (dx, dy) px in the image."""
@@ -694,6 +713,12 @@ class RenderedScene:
     def crlb_px(self) -> np.ndarray:
         """(N,) each marker's ``crlb_mean_abs_error_px`` (NaN where not computed), px."""
         return np.array([m.crlb_mean_abs_error_px for m in self.markers], dtype=np.float64)
+
+    @property
+    def shadow_crossed(self) -> np.ndarray:
+        """(N,) bool: a cast shadow (:class:`CastShadow`) is placed about the marker's centre."""
+        about = np.array([(c.x, c.y) for c in self.imaging.cast_shadows]).reshape(-1, 1, 2)
+        return np.any(np.all(np.isclose(about, self.centres[None]), axis=2), axis=0)
 
 
 # --------------------------------------------------------------------------- compositing core
@@ -1523,7 +1548,7 @@ def render_markers(
     )
     targets = [_target(p, reflectances or _random_paint(rng, contrast)) for p in markers]
     truths = [
-        MarkerTruth.from_homography(t.homography, p.radius_px, p.kind)
+        MarkerTruth.from_homography(t.homography, p.radius_px, p.kind, t.dull_margin)
         for t, p in zip(targets, markers, strict=True)
     ]
     negatives = random_negatives(

@@ -7,6 +7,7 @@ absent; the whole module runs in well under a minute.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -139,14 +140,16 @@ def test_resolution_table_gives_each_detectors_recall_per_bin_of_marker_resoluti
         peers.OurDetector(accuracy.REFERENCE_ROW, {}),
         FixedDetector("nothing", np.empty((0, 2))),
     ]
-    result = accuracy.evaluate_family(small_family(), 2, 0, detectors)
+    split = accuracy.resolution_split((2.0, 7.0))
+    family = replace(small_family(), split=split)
+    result = accuracy.evaluate_family(family, 2, 0, detectors)
     ours = result.rows[0].tally
-    assert len(result.resolution) == len(ours.found) == ours.n_truth
     # SMALL_SCENE: radii 8-16 px tilted at most 30 degrees, blur 0.8-1.0: resolution 6.9-20.
-    assert result.resolution.min() > 6.5
-    split = accuracy.resolution_recall(result, (2.0, 7.0))
-    assert split.markers == [0, 0, ours.n_truth]
-    table = accuracy.resolution_table("t", split)
+    assert len(result.split_class) == len(ours.found) == ours.n_truth
+    assert (result.split_class == 2).all()
+    recall = accuracy.split_recall(result, split.labels)
+    assert recall.markers == [0, 0, ours.n_truth]
+    table = accuracy.split_table("t", recall)
     lines = table.splitlines()
     assert "< 2 (0)" in lines[1] and f">= 7 ({ours.n_truth})" in lines[1]
     assert lines[3].split()[-1] == f"{100 * ours.recall:.1f}%"
@@ -181,12 +184,28 @@ def test_uneven_light_family_renders_dull_quadrants_shadows_and_every_markers_bo
     assert np.isfinite(scene.crlb_px).all() and (scene.crlb_px < 0.2).all()
 
 
+def test_uneven_light_family_classes_its_markers_by_dull_margin_and_shadow():
+    (family,) = [f for f in accuracy.families() if f.key == "g"]
+    scene = family.render(0)
+    classes = family.split.classify(scene)
+    margin = np.array([m.dull_margin for m in scene.markers])
+    # Every marker has a dull quadrant; each cast shadow is placed about one marker.
+    assert (margin < 1.0).all()
+    assert scene.shadow_crossed.sum() == len(scene.imaging.cast_shadows)
+    low, high = accuracy.DULL_MARGIN_EDGES
+    lit = ~scene.shadow_crossed
+    assert (classes[lit & (margin < low)] == 0).all()
+    assert (classes[lit & (margin >= high)] == 2).all()
+    assert (classes[scene.shadow_crossed] >= 3).all()
+    assert len(family.split.labels) == 6 and family.split.labels[3] == "< 0.2 shadow"
+
+
 def test_a_marker_missed_on_flat_ground_is_counted_as_lost_at_the_screening():
     frame = render_scene(SMALL_SCENE, 5)
     # A truth point where the frame holds no marker: nothing is screened there.
     flat = np.full_like(frame.image, 128)
     labelled = accuracy.LabelledFrame(
-        flat, np.array([[240.0, 180.0]]), np.array([np.nan]), (8.0, 16.0), np.array([np.nan])
+        flat, np.array([[240.0, 180.0]]), np.array([np.nan]), (8.0, 16.0), np.array([-1])
     )
     ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
     (row, _) = accuracy.evaluate_frames([labelled], 0, [ours]).rows
@@ -205,9 +224,12 @@ def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path,
     assert "Family (g) uneven light" in printed
     assert "err/CRLB" in printed and "Summary, ours (symmetry)" in printed
     assert "Markers ours (symmetry) missed, by the test" in printed
+    assert "Family (g) recall by the dull quadrant's lead over the dark paint" in printed
     saved = json.loads(out.read_text())
-    (table,) = saved["synthetic"].values()
-    assert table[accuracy.REFERENCE_ROW]["crlb_mean_px"] > 0
+    (title,) = [t for t in saved["synthetic"] if t.startswith("(g)") and ": recall" not in t]
+    assert saved["synthetic"][title][accuracy.REFERENCE_ROW]["crlb_mean_px"] > 0
+    split = saved["synthetic"][f"{title}: {accuracy.UNEVEN_LIGHT_SPLIT.title}"]
+    assert set(split[accuracy.REFERENCE_ROW]) == set(accuracy.UNEVEN_LIGHT_SPLIT.labels)
     assert set(saved["summary"]) == {"rendered (g)"}
 
 

@@ -444,6 +444,20 @@ def test_a_dull_quadrant_scales_one_bright_quadrant_and_nothing_else(inverted):
     assert image[40 + 23, 40 - 23] == round(255 * bright)
 
 
+@pytest.mark.parametrize("inverted", [False, True])
+def test_the_truth_says_how_far_a_dull_quadrant_stands_above_the_dark_paint(inverted):
+    def margin(dull_factor, paint):
+        marker = MarkerPlacement(
+            40.0, 40.0, 20.0, kind="checker", inverted=inverted, dull_factor=dull_factor
+        )
+        return render_markers((81, 81), [marker], 0, reflectances=paint).markers[0].dull_margin
+
+    assert margin(1.0, (0.1, 0.9)) == pytest.approx(1.0)
+    assert margin(0.5, (0.1, 0.9)) == pytest.approx((0.45 - 0.1) / 0.8)
+    # Light-grey "dark" paint: the dull quadrant is darker than it, the X one bright quadrant.
+    assert margin(0.5, (0.5, 0.9)) == pytest.approx((0.45 - 0.5) / 0.4)
+
+
 def test_a_cast_shadow_darkens_its_half_plane_by_the_drawn_factor_within_its_reach():
     shadow = CastShadow(50.0, 50.0, normal_rad=0.0, offset_px=3.0, darkening=0.5, reach_px=30.0)
     image = render_markers(
