@@ -607,9 +607,12 @@ class Detector:
         """Centre, verify and locate the candidates of the saddle path."""
         result = frame.result
         with frame.timer("centring"):
-            centred = self._centre(frame.gray, candidates, result)
+            plain = subpixel.coarse_centre(
+                frame.gray, candidates.xy, candidates.scale_px, self.config.marker_radius_max_px
+            )
+            centred = self._centre(candidates, plain, result)
         result.detections, tiny = self._verify_and_locate(frame, centred)
-        self._recentre_lost(frame, candidates)
+        self._recentre_lost(frame, candidates, plain)
         self._reread_shadowed(frame, candidates)
         self._read_plates(frame, tiny)
         result.counts["accepted"] = len(result.detections)
@@ -631,7 +634,12 @@ class Detector:
             )
         return located, tiny
 
-    def _recentre_lost(self, frame: _Frame, screened: Candidates) -> None:
+    def _recentre_lost(
+        self,
+        frame: _Frame,
+        screened: Candidates,
+        plain: tuple[NDArray[np.float64], NDArray[np.bool_]],
+    ) -> None:
         """Candidates screened wide that found no marker, centred again with the light's slope.
 
         The coarse centring (:meth:`_centre`) fits grey-level point symmetry alone. On
@@ -665,6 +673,9 @@ class Detector:
         markers they added, and ``recentring_over_cap``, the lost wide candidates
         over :data:`_MAX_RECENTRED`; their second rejections are not counted again.
         The survivors end with ``recentring``: the detections then.
+
+        ``plain`` is the first centring of every screened candidate (:meth:`_centre`'s
+        fit: centres and where it found one), which the slope's is compared with.
         """
         cfg = self.config
         gray, result = frame.gray, frame.result
@@ -674,12 +685,12 @@ class Detector:
         if len(lost):
             with frame.timer("centring"):
                 start, scale = screened.xy[lost], screened.scale_px[lost]
-                plain, read = subpixel.coarse_centre(gray, start, scale, cfg.marker_radius_max_px)
                 xy, inside = subpixel.coarse_centre(
                     gray, start, scale, cfg.marker_radius_max_px, light_slope=True
                 )
             # Where the slope leaves the centre where it was, the rings read it as before.
-            moved = ~read | (np.linalg.norm(xy - plain, axis=1) >= _RECENTRE_MIN_SHIFT_PX)
+            centre, read = plain[0][lost], plain[1][lost]
+            moved = ~read | (np.linalg.norm(xy - centre, axis=1) >= _RECENTRE_MIN_SHIFT_PX)
             again = Candidates(xy, screened.strength[lost], scale).take(inside & moved)
             counts["recentred"] = len(again.xy)
             counts["found_recentred"] = self._join(
@@ -1263,12 +1274,17 @@ class Detector:
         )
 
     def _centre(
-        self, gray: NDArray[Any], candidates: Candidates, result: DetectionResult
+        self,
+        candidates: Candidates,
+        fit: tuple[NDArray[np.float64], NDArray[np.bool_]],
+        result: DetectionResult,
     ) -> Candidates:
-        """Each candidate at its local centre of point symmetry (:func:`subpixel.coarse_centre`)."""
-        xy, inside = subpixel.coarse_centre(
-            gray, candidates.xy, candidates.scale_px, self.config.marker_radius_max_px
-        )
+        """Each candidate at its local centre of point symmetry, those centred apart.
+
+        ``fit`` is :func:`subpixel.coarse_centre` of the candidates: their centres, and
+        where it found one. :meth:`_recentre_lost` reads it again.
+        """
+        xy, inside = fit
         result.counts["rejected_centring"] = int((~inside).sum())
         moved = Candidates(xy, candidates.strength, candidates.scale_px).take(inside)
         keep = screening.non_maximum_suppression(moved.xy, moved.strength, _CENTRED_DUPLICATE_PX)

@@ -131,6 +131,12 @@ SMALL_EXTENT_MAX_RADIUS_PX = 4.0
 _PREVIOUS = np.roll(np.arange(N_ANGLES), 1)
 _NEXT = np.roll(np.arange(N_ANGLES), -1)
 _OPPOSITE = np.roll(np.arange(N_ANGLES), -_HALF_TURN)
+#: Row m: each sample's index counted from the half turn before sample m, as 8-bit
+#: integers (:func:`equalise_bright_sectors`: a row per ring, looked up, where a
+#: 64-bit modulo of every sample took 0.3 ms of a call on 4000 rings).
+_TURNED_FROM = (
+    (np.arange(N_ANGLES)[None, :] - np.arange(N_ANGLES)[:, None] + _HALF_TURN) % N_ANGLES
+).astype(np.int8)
 #: The annular check's angular Gaussian (binomial, sigma 1 sample) and, convolved with
 #: the central difference [1, 0, -1] / 2, its derivative filter.
 _SMOOTHING_KERNEL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
@@ -405,19 +411,31 @@ def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64
     """
     shape = profiles.shape
     rings = profiles.reshape(-1, N_ANGLES).astype(np.float64)
-    smooth = _circular_smooth(np.where(np.isnan(rings), 0.0, rings))
-    dark, peak = smooth.min(axis=1), smooth.max(axis=1)
+    smooth = _circular_smooth(rings)
+    # NaN spreads through the smoothing: the maximum finds the few rings with NaN
+    # samples, and only they are smoothed again with those samples as 0.
+    missing = np.isnan(smooth.max(axis=1))
+    if missing.any():
+        partial = rings[missing]
+        smooth[missing] = _circular_smooth(np.where(np.isnan(partial), 0.0, partial))
+    top = smooth.argmax(axis=1)
+    every = np.arange(len(smooth))
+    dark, peak = smooth.min(axis=1), smooth[every, top]
     duller = np.minimum(smooth[:, :_HALF_TURN], smooth[:, _HALF_TURN:]).max(axis=1)
     # Each sample's angle from the ring's maximum, which sits at the half turn.
-    turned = (np.arange(N_ANGLES) - smooth.argmax(axis=1)[:, None] + _HALF_TURN) % N_ANGLES
+    turned = _TURNED_FROM[top]
     low = smooth <= (0.5 * (dark + duller))[:, None]
-    start = np.where(low & (turned < _HALF_TURN), turned, -1).max(axis=1)
-    stop = np.where(low & (turned > _HALF_TURN), turned, N_ANGLES).min(axis=1)
+    start = np.where(low & (turned < _HALF_TURN), turned, np.int8(-1)).max(axis=1)
+    stop = np.where(low & (turned > _HALF_TURN), turned, np.int8(N_ANGLES)).min(axis=1)
     scalable = (start >= 0) & (stop < N_ANGLES) & (duller > dark)
     sector = scalable[:, None] & (turned > start[:, None]) & (turned < stop[:, None])
     gain = (duller - dark) / np.maximum(peak - dark, 1e-12)
-    equalised = np.where(sector, dark[:, None] + (rings - dark[:, None]) * gain[:, None], rings)
-    return cast("NDArray[np.float64]", equalised.reshape(shape).astype(profiles.dtype))
+    scaled = rings - dark[:, None]
+    scaled *= gain[:, None]
+    scaled += dark[:, None]
+    # The rings are a copy already: the sectors are scaled in place.
+    np.copyto(rings, scaled, where=sector)
+    return cast("NDArray[np.float64]", rings.reshape(shape).astype(profiles.dtype, copy=False))
 
 
 #: Candidates the prescreen's cascade takes at a time (:func:`~marker_localizer.core.
