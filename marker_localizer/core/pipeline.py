@@ -1055,11 +1055,12 @@ class Detector:
         gray, result = frame.gray, frame.result
         floor = self._raw_contrast_floor(frame.full_scale, frame.gamma, candidates.xy)
         radii = self._prescreen_radii(candidates)
-        keep = verification.prescreen_symmetry(gray, candidates.xy, radii, floor)
+        keep, first_ring = verification.prescreen_symmetry_read(gray, candidates.xy, radii, floor)
         wide = np.flatnonzero(~keep & (candidates.scale_px >= _WIDE_SCALE_PX))
-        keep[wide] = verification.prescreen_symmetry(
-            gray, candidates.xy[wide], radii[wide], floor[wide], equalise=True
-        )
+        # The equalised re-read takes the first rings the plain one gathered.
+        keep[wide] = verification.prescreen_symmetry_read(
+            gray, candidates.xy[wide], radii[wide], floor[wide], True, first_ring[wide]
+        )[0]
         result.counts["rejected_prescreen"] = int((~keep).sum())
         passed = candidates.take(keep)
         capped = screening.even_cap(passed, _MAX_VERIFIED, self.config.entropy_cell_px)
