@@ -1484,10 +1484,14 @@ class Detector:
         )
         wide_px = verification.EQUALISED_MIN_EXTENT_PX
         screened_wide = candidates.scale_px >= _WIDE_SCALE_PX
-        ring = check(candidates.xy)
+        # The inner rings read once: the equalised reading of the same points takes them.
+        inner = verification.centre_symmetry_inner_profiles(
+            gray, candidates.xy, self._radii, normalise=gamma
+        )
+        ring = check(candidates.xy, inner_profiles=inner)
         retry = np.flatnonzero(screened_wide | (ring.accepted & (ring.radius_px >= wide_px)))
         if len(retry):
-            equalised = check(candidates.xy[retry], equalise=True)
+            equalised = check(candidates.xy[retry], equalise=True, inner_profiles=inner[retry])
             plain_floor = self._score_floor(ring.radius_px[retry])
             weak = ring.accepted[retry] & (ring.score[retry] < plain_floor)
             better = (

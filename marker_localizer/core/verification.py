@@ -702,6 +702,7 @@ def centre_symmetry_check(
     max_first_ring: int = 2,
     normalise: Normaliser | None = None,
     equalise: bool = False,
+    inner_profiles: NDArray[np.float64] | None = None,
 ) -> SymmetryCheck:
     """Annular-scan centre-symmetry check (section 3.2, invariant 1).
 
@@ -721,6 +722,9 @@ def centre_symmetry_check(
         max_first_ring: the run must start at a ring index below this.
         normalise: applied to the ring samples (contrast is measured after it).
         equalise: read each ring after :func:`equalise_bright_sectors` too.
+        inner_profiles: the rings every point is read on first, as
+            :func:`centre_symmetry_inner_profiles` read them with the same
+            ``radii_px``, ``max_first_ring`` and ``normalise``; None reads them.
 
     Returns:
         :class:`SymmetryCheck`.
@@ -733,12 +737,38 @@ def centre_symmetry_check(
         normalise=normalise,
         equalise=equalise,
     )
-    return in_blocks(check, _CHECK_BLOCK, xy)
+    if inner_profiles is None:
+        return in_blocks(check, _CHECK_BLOCK, xy)
+    return in_blocks(check, _CHECK_BLOCK, xy, inner_profiles)
+
+
+def centre_symmetry_inner_profiles(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radii_px: NDArray[np.float64],
+    *,
+    max_first_ring: int = 2,
+    normalise: Normaliser | None = None,
+) -> NDArray[np.float64]:
+    """(N, K, 36) the rings :func:`centre_symmetry_check` reads first for every point.
+
+    Read once and handed to a plain and an equalised check of the same points (its
+    ``inner_profiles``), they are not read twice: the samples are per point, so
+    the same bit for bit however the points are batched.
+    """
+    radii = radii_px[: min(len(radii_px), max_first_ring + _RINGS_READ_BEYOND_START)]
+    profiles: NDArray[np.float64] = in_blocks(
+        functools.partial(annular_profiles, image, radii_px=radii, normalise=normalise),
+        _CHECK_BLOCK,
+        xy,
+    )
+    return profiles
 
 
 def _centre_symmetry_check(
     image: NDArray[Any],
     xy: NDArray[np.float64],
+    inner_profiles: NDArray[np.float64] | None = None,
     *,
     radii_px: NDArray[np.float64],
     options: tuple[float, float, float, int],
@@ -747,8 +777,15 @@ def _centre_symmetry_check(
 ) -> SymmetryCheck:
     """:func:`centre_symmetry_check` of the points ``xy``; ``options`` are its four limits."""
 
-    def rings(points: NDArray[np.float64], radii: NDArray[np.float64]) -> RingAnalysis:
-        profiles = annular_profiles(image, points, radii, normalise)
+    def rings(
+        points: NDArray[np.float64],
+        radii: NDArray[np.float64],
+        profiles: NDArray[np.float64] | None = None,
+    ) -> RingAnalysis:
+        if profiles is None:
+            profiles = annular_profiles(image, points, radii, normalise)
+        # Neither the equalising nor the analysis writes to the profiles: given ones
+        # serve another check unchanged.
         return analyse_rings(equalise_bright_sectors(profiles) if equalise else profiles)
 
     max_first_ring = options[3]
@@ -761,7 +798,7 @@ def _centre_symmetry_check(
     # it. Texture's runs end within the first rings, so the outer rings are read only
     # for the candidates whose run goes on to the last of those.
     first_read = min(n_rings, max_first_ring + _RINGS_READ_BEYOND_START)
-    inner = rings(xy, radii_px[:first_read])
+    inner = rings(xy, radii_px[:first_read], inner_profiles)
     check, going_on = _ring_runs(inner, radii_px[:first_read], *options)
     if first_read == n_rings or not going_on.any():
         return check
