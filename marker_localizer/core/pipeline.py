@@ -1055,11 +1055,12 @@ class Detector:
         gray, result = frame.gray, frame.result
         floor = self._raw_contrast_floor(frame.full_scale, frame.gamma, candidates.xy)
         radii = self._prescreen_radii(candidates)
-        keep = verification.prescreen_symmetry(gray, candidates.xy, radii, floor)
+        keep, first_ring = verification.prescreen_symmetry_read(gray, candidates.xy, radii, floor)
         wide = np.flatnonzero(~keep & (candidates.scale_px >= _WIDE_SCALE_PX))
-        keep[wide] = verification.prescreen_symmetry(
-            gray, candidates.xy[wide], radii[wide], floor[wide], equalise=True
-        )
+        # The equalised re-read takes the first rings the plain one gathered.
+        keep[wide] = verification.prescreen_symmetry_read(
+            gray, candidates.xy[wide], radii[wide], floor[wide], True, first_ring[wide]
+        )[0]
         result.counts["rejected_prescreen"] = int((~keep).sum())
         passed = candidates.take(keep)
         capped = screening.even_cap(passed, _MAX_VERIFIED, self.config.entropy_cell_px)
@@ -1483,10 +1484,14 @@ class Detector:
         )
         wide_px = verification.EQUALISED_MIN_EXTENT_PX
         screened_wide = candidates.scale_px >= _WIDE_SCALE_PX
-        ring = check(candidates.xy)
+        # The inner rings read once: the equalised reading of the same points takes them.
+        inner = verification.centre_symmetry_inner_profiles(
+            gray, candidates.xy, self._radii, normalise=gamma
+        )
+        ring = check(candidates.xy, inner_profiles=inner)
         retry = np.flatnonzero(screened_wide | (ring.accepted & (ring.radius_px >= wide_px)))
         if len(retry):
-            equalised = check(candidates.xy[retry], equalise=True)
+            equalised = check(candidates.xy[retry], equalise=True, inner_profiles=inner[retry])
             plain_floor = self._score_floor(ring.radius_px[retry])
             weak = ring.accepted[retry] & (ring.score[retry] < plain_floor)
             better = (
