@@ -446,51 +446,8 @@ def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64
 _CASCADE_BLOCK = 4096
 
 
-def count_symmetric_rings(
-    image: NDArray[Any],
-    xy: NDArray[np.float64],
-    radii_px: NDArray[np.float64],
-    *,
-    min_contrast: float | NDArray[np.float64],
-    min_symmetry: float,
-    min_good: int,
-    equalise: bool = False,
-) -> NDArray[np.int64]:
-    """Rings (of ``radii_px``, per point) with contrast, 180-degree symmetry and four sectors.
-
-    A cascade for many candidates: nearest-pixel rings of the raw image are
-    tested one radius at a time on the points that can still reach ``min_good``
-    good rings, and the sector analysis of :func:`analyse_rings` runs only on
-    those that do. Points that cannot reach ``min_good`` get a count below it
-    (not necessarily their exact count).
-
-    Args:
-        image: (H, W) image, native dtype.
-        xy: (N, 2) points.
-        radii_px: (J,) ring radii, or (N, J): each point's own (one cascade for
-            candidates of every scale).
-        min_contrast: smallest bright-minus-dark level of a good ring, image units;
-            or (N,) one per point.
-        min_symmetry: smallest 180-degree self-correlation of a good ring.
-        min_good: the count the caller will require.
-        equalise: read each ring after :func:`equalise_bright_sectors`.
-
-    Returns:
-        (N,) int number of good rings.
-    """
-    return count_symmetric_rings_read(
-        image,
-        xy,
-        radii_px,
-        min_contrast=min_contrast,
-        min_symmetry=min_symmetry,
-        min_good=min_good,
-        equalise=equalise,
-    ).good
-
-
 class RingCount(NamedTuple):
-    """:func:`count_symmetric_rings_read`'s counts, with the first ring's samples as read.
+    """:func:`count_symmetric_rings`'s counts, with the first ring's samples as read.
 
     Attributes:
         good: (N,) int number of good rings (below ``min_good`` where the cascade
@@ -504,7 +461,7 @@ class RingCount(NamedTuple):
     first_ring: NDArray[np.float64]
 
 
-def count_symmetric_rings_read(
+def count_symmetric_rings(
     image: NDArray[Any],
     xy: NDArray[np.float64],
     radii_px: NDArray[np.float64],
@@ -515,7 +472,13 @@ def count_symmetric_rings_read(
     equalise: bool = False,
     first_ring: NDArray[np.float64] | None = None,
 ) -> RingCount:
-    """:func:`count_symmetric_rings`, returning the first ring's samples and reusing given ones.
+    """Rings (of ``radii_px``, per point) with contrast, 180-degree symmetry and four sectors.
+
+    A cascade for many candidates: nearest-pixel rings of the raw image are
+    tested one radius at a time on the points that can still reach ``min_good``
+    good rings, and the sector analysis of :func:`analyse_rings` runs only on
+    those that do. Points that cannot reach ``min_good`` get a count below it
+    (not necessarily their exact count).
 
     Every point's first ring is read (the cascade's first round), so a second
     cascade on some of the same points at the same radii (the equalised re-read of
@@ -526,7 +489,8 @@ def count_symmetric_rings_read(
     Args:
         image: (H, W) image, native dtype.
         xy: (N, 2) points.
-        radii_px: (J,) ring radii, or (N, J): each point's own.
+        radii_px: (J,) ring radii, or (N, J): each point's own (one cascade for
+            candidates of every scale).
         min_contrast: smallest bright-minus-dark level of a good ring, image units;
             or (N,) one per point.
         min_symmetry: smallest 180-degree self-correlation of a good ring.
@@ -534,6 +498,9 @@ def count_symmetric_rings_read(
         equalise: read each ring after :func:`equalise_bright_sectors`.
         first_ring: (N, 36) the points' first-ring samples at their first radius,
             as a previous call returned them; None reads them.
+
+    Returns:
+        :class:`RingCount`.
     """
     n_rings = np.shape(radii_px)[-1]
     radii = np.broadcast_to(np.asarray(radii_px, dtype=np.float64), (len(xy), n_rings))
@@ -555,7 +522,7 @@ def _count_symmetric_rings(
     limits: tuple[float, int],
     equalise: bool,
 ) -> RingCount:
-    """:func:`count_symmetric_rings_read` of the points ``xy`` with their (N, J) ring radii.
+    """:func:`count_symmetric_rings` of the points ``xy`` with their (N, J) ring radii.
 
     ``min_contrast`` is (N,), one floor per point; ``first_ring`` the (N, 36) samples
     of the first ring or None; ``limits`` are ``min_symmetry`` and ``min_good``.
@@ -2028,9 +1995,9 @@ def prescreen_symmetry_read(
     """:func:`prescreen_symmetry`, and the (N, 36) samples of each point's first ring.
 
     ``first_ring``, the samples a previous call returned for the same points and
-    radii, is reused instead of read again (:func:`count_symmetric_rings_read`).
+    radii, is reused instead of read again (:func:`count_symmetric_rings`).
     """
-    count = count_symmetric_rings_read(
+    count = count_symmetric_rings(
         image,
         xy,
         radii_px,
