@@ -1055,10 +1055,10 @@ class Detector:
         gray, result = frame.gray, frame.result
         floor = self._raw_contrast_floor(frame.full_scale, frame.gamma, candidates.xy)
         radii = self._prescreen_radii(candidates)
-        keep, first_ring = verification.prescreen_symmetry_read(gray, candidates.xy, radii, floor)
+        keep, first_ring = verification.prescreen_symmetry(gray, candidates.xy, radii, floor)
         wide = np.flatnonzero(~keep & (candidates.scale_px >= _WIDE_SCALE_PX))
         # The equalised re-read takes the first rings the plain one gathered.
-        keep[wide] = verification.prescreen_symmetry_read(
+        keep[wide] = verification.prescreen_symmetry(
             gray, candidates.xy[wide], radii[wide], floor[wide], True, first_ring[wide]
         )[0]
         result.counts["rejected_prescreen"] = int((~keep).sum())

@@ -1966,8 +1966,9 @@ def prescreen_symmetry(
     radii_px: NDArray[np.float64],
     min_contrast: float | NDArray[np.float64],
     equalise: bool = False,
-) -> NDArray[np.bool_]:
-    """(N,) True where all :data:`PRESCREEN_GOOD_RINGS` rings show the X.
+    first_ring: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """(N,) True where all :data:`PRESCREEN_GOOD_RINGS` rings show the X; the first rings read.
 
     A three-ring centre-symmetry test before any fit, lenient per ring
     (:data:`PRESCREEN_SYMMETRY`; raw grey levels) but strict over the rings
@@ -1980,22 +1981,12 @@ def prescreen_symmetry(
         min_contrast: smallest bright-minus-dark level of a good ring, raw grey levels;
             or (N,) one per candidate.
         equalise: read each ring after :func:`equalise_bright_sectors`.
-    """
-    return prescreen_symmetry_read(image, xy, radii_px, min_contrast, equalise)[0]
+        first_ring: (N, 36) the samples of each point's first ring that a previous
+            call returned for the same points and radii, reused instead of read
+            again; None reads them.
 
-
-def prescreen_symmetry_read(
-    image: NDArray[Any],
-    xy: NDArray[np.float64],
-    radii_px: NDArray[np.float64],
-    min_contrast: float | NDArray[np.float64],
-    equalise: bool = False,
-    first_ring: NDArray[np.float64] | None = None,
-) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
-    """:func:`prescreen_symmetry`, and the (N, 36) samples of each point's first ring.
-
-    ``first_ring``, the samples a previous call returned for the same points and
-    radii, is reused instead of read again (:func:`count_symmetric_rings`).
+    Returns:
+        (passed, first_ring): (N,) bool, and the (N, 36) first-ring samples.
     """
     count = count_symmetric_rings(
         image,

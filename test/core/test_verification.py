@@ -326,7 +326,7 @@ def test_the_prescreen_rings_scale_with_the_candidate_above_a_floor():
 def test_the_symmetry_prescreen_passes_an_x_and_no_shape_without_its_symmetry(kind):
     image = _render(kind)
     radii = verification.prescreen_ring_radii(np.array([16.0]), min_radius_px=4.0)
-    passed = verification.prescreen_symmetry(image, CENTRE, radii, min_contrast=10 / 255)
+    passed, _ = verification.prescreen_symmetry(image, CENTRE, radii, min_contrast=10 / 255)
     assert passed.tolist() == [kind in ("quarter_disks", "checker")]
 
 
