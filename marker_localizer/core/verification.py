@@ -411,13 +411,7 @@ def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64
     """
     shape = profiles.shape
     rings = profiles.reshape(-1, N_ANGLES).astype(np.float64)
-    smooth = _circular_smooth(rings)
-    # NaN spreads through the smoothing: the maximum finds the few rings with NaN
-    # samples, and only they are smoothed again with those samples as 0.
-    missing = np.isnan(smooth.max(axis=1))
-    if missing.any():
-        partial = rings[missing]
-        smooth[missing] = _circular_smooth(np.where(np.isnan(partial), 0.0, partial))
+    smooth = _smoothed_extremes(rings)[0]
     top = smooth.argmax(axis=1)
     every = np.arange(len(smooth))
     dark, peak = smooth.min(axis=1), smooth[every, top]
@@ -723,13 +717,18 @@ def centre_symmetry_inner_profiles(
     ``inner_profiles``), they are not read twice: the samples are per point, so
     the same bit for bit however the points are batched.
     """
-    radii = radii_px[: min(len(radii_px), max_first_ring + _RINGS_READ_BEYOND_START)]
+    radii = radii_px[: _inner_rings(len(radii_px), max_first_ring)]
     profiles: NDArray[np.float64] = in_blocks(
         functools.partial(annular_profiles, image, radii_px=radii, normalise=normalise),
         _CHECK_BLOCK,
         xy,
     )
     return profiles
+
+
+def _inner_rings(n_rings: int, max_first_ring: int) -> int:
+    """How many of the innermost rings :func:`centre_symmetry_check` reads for every point."""
+    return min(n_rings, max_first_ring + _RINGS_READ_BEYOND_START)
 
 
 def _centre_symmetry_check(
@@ -764,7 +763,7 @@ def _centre_symmetry_check(
     # A run that ends before the last ring read is final: the outer rings cannot join
     # it. Texture's runs end within the first rings, so the outer rings are read only
     # for the candidates whose run goes on to the last of those.
-    first_read = min(n_rings, max_first_ring + _RINGS_READ_BEYOND_START)
+    first_read = _inner_rings(n_rings, max_first_ring)
     inner = rings(xy, radii_px[:first_read], inner_profiles)
     check, going_on = _ring_runs(inner, radii_px[:first_read], *options)
     if first_read == n_rings or not going_on.any():
