@@ -120,6 +120,8 @@ class Family:
         board_pattern: (columns, rows) for chessboard families (board peers run), else None.
         split: the family's recall table by a condition of its markers; None: none.
         variant: what tells it from another family of the same key, for the summary.
+        scene: what its frames are drawn from; None: not a :class:`SceneConfig`'s
+            (the chessboards).
     """
 
     key: str
@@ -131,6 +133,7 @@ class Family:
     board_pattern: tuple[int, int] | None = None
     split: RecallSplit | None = None
     variant: str = ""
+    scene: SceneConfig | None = None
 
     @property
     def label(self) -> str:
@@ -138,9 +141,10 @@ class Family:
         return f"rendered ({self.key}){' ' + self.variant if self.variant else ''}"
 
 
-def _scene(**fields: Any) -> Callable[[int], RenderedScene]:
+def _scene(**fields: Any) -> dict[str, Any]:
+    """A rendered family's ``render`` and ``scene``: frames drawn with each marker's bound."""
     config = SceneConfig(**fields)
-    return lambda seed: render_scene(config, seed, crlb=True)
+    return {"render": lambda seed: render_scene(config, seed, crlb=True), "scene": config}
 
 
 #: What every rendered marker family draws from: at least the independent
@@ -274,7 +278,7 @@ def families() -> list[Family]:
             (6.0, 40.0),
             12,
             2,
-            _scene(**_BASE),
+            **_scene(**_BASE),
         ),
         Family(
             "b",
@@ -282,7 +286,7 @@ def families() -> list[Family]:
             (2.5, 5.0),
             8,
             1,
-            _scene(**{**_BASE, "radius_px": (2.5, 5.0), "n_markers": 24}),
+            **_scene(**{**_BASE, "radius_px": (2.5, 5.0), "n_markers": 24}),
             split=resolution_split(_TINY_RESOLUTION_BINS),
         ),
         Family(
@@ -291,7 +295,7 @@ def families() -> list[Family]:
             (6.0, 40.0),
             8,
             1,
-            _scene(**_BASE, motion_blur_px=(0.0, 4.0)),
+            **_scene(**_BASE, motion_blur_px=(0.0, 4.0)),
         ),
         Family(
             "d",
@@ -300,7 +304,7 @@ def families() -> list[Family]:
             CLUTTER_RADIUS_PX,
             8,
             1,
-            _scene(**{**_BASE, **_CLUTTER}, n_hard_negatives=110),
+            **_scene(**{**_BASE, **_CLUTTER}, n_hard_negatives=110),
         ),
         Family(
             "d",
@@ -309,7 +313,7 @@ def families() -> list[Family]:
             CLUTTER_RADIUS_PX,
             3,
             1,
-            _scene(
+            **_scene(
                 **{**_BASE, **_CLUTTER},
                 width=4096,
                 height=3000,
@@ -326,7 +330,7 @@ def families() -> list[Family]:
             (5.0, 30.0),
             8,
             1,
-            _scene(**{**_BASE, **_UNEVEN_LIGHT, "radius_px": (5.0, 30.0)}),
+            **_scene(**{**_BASE, **_UNEVEN_LIGHT, "radius_px": (5.0, 30.0)}),
             split=UNEVEN_LIGHT_SPLIT,
         ),
         Family(

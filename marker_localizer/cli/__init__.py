@@ -66,6 +66,7 @@ COMMANDS: dict[str, Command] = {
 #: The benchmarks of ``bench WHICH``: name -> module whose ``main(argv)`` runs it.
 BENCHMARKS: dict[str, str] = {
     "accuracy": "marker_localizer.bench.accuracy",
+    "bound": "marker_localizer.bench.bound",
     "calibrate": "marker_localizer.bench.calibrate",
     "paper": "marker_localizer.bench.paper",
     "speed": "marker_localizer.bench.speed",

@@ -19,11 +19,18 @@ estimator, E|e| for e ~ N(0, F^-1): with the eigenvalues l1 >= l2 of F^-1,
 where E is the complete elliptic integral of the second kind (parameter m):
 the mean of the Rayleigh radius sqrt(pi / 2) times the mean of the ellipse's
 radius over a uniform angle, (2 / pi) sqrt(l1) E(m).
+
+That bound knows everything but the centre. A fit must also estimate the rest of
+the marker's image: its plane's homography, the paints, the blur, the light.
+With the information F of all of them, the centre's bound is the first 2 x 2
+block of F^-1 (the Schur complement of the others): :func:`centre_bound`, and
+:class:`BoundParts` for the parameters of :data:`BOUND_PARAMETERS`.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from scipy.special import ellipe
@@ -31,6 +38,94 @@ from scipy.special import ellipe
 #: Information matrices whose smaller eigenvalue is below this fraction of their
 #: trace are singular: a bound of 1e6 times the other direction's says nothing.
 _SINGULAR_RATIO = 1e-12
+#: A direction of the parameters the pixels say nothing about must hold less than this
+#: of the centre (a unit vector's component) for the centre to be bounded without it.
+_CENTRE_IN_UNSEEN = 1e-3
+
+
+#: The parameters of a marker's image whose information :class:`BoundParts` weighs, in
+#: the order of its matrices: the centre; the plane's homography about it (the images
+#: of its u and v axes, two components each, then its perspective along u and v);
+#: the dark and the bright paint's reflectance; the optics' Gaussian blur; the light's
+#: slope across the marker along x and y.
+BOUND_PARAMETERS = (
+    "x",
+    "y",
+    "u_x",
+    "u_y",
+    "v_x",
+    "v_y",
+    "perspective_u",
+    "perspective_v",
+    "dark",
+    "bright",
+    "blur",
+    "light_slope_x",
+    "light_slope_y",
+)
+#: The parameters of an affine marker: a plane seen from far away, without perspective.
+AFFINE_PARAMETERS = tuple(p for p in BOUND_PARAMETERS if not p.startswith("perspective"))
+
+
+class BoundParts(NamedTuple):
+    """A marker centre's bounds (E|e|, px) by what else is known and which pixels are read.
+
+    Attributes:
+        known: every other parameter known, the pixels of the whole X: the
+            Cramer-Rao bound (``MarkerTruth.crlb_mean_abs_error_px``).
+        affine: every parameter of :data:`AFFINE_PARAMETERS` unknown, the
+            perspective known, the whole X.
+        projective: every parameter of :data:`BOUND_PARAMETERS` unknown, the whole X.
+        inner_affine: as ``affine``, from the pixels within a share of the radius.
+        inner_projective: as ``projective``, from those pixels.
+    """
+
+    known: float
+    affine: float
+    projective: float
+    inner_affine: float
+    inner_projective: float
+
+    @classmethod
+    def of(cls, whole: np.ndarray, inner: np.ndarray) -> BoundParts:
+        """The bounds of the information over :data:`BOUND_PARAMETERS` of both regions."""
+        affine = [BOUND_PARAMETERS.index(p) for p in AFFINE_PARAMETERS]
+        return cls(
+            crlb_mean_abs_error(whole[:2, :2]),
+            centre_bound(whole[np.ix_(affine, affine)]),
+            centre_bound(whole),
+            centre_bound(inner[np.ix_(affine, affine)]),
+            centre_bound(inner),
+        )
+
+
+def centre_bound(information: np.ndarray) -> float:
+    """E|e| of the centre, the first two parameters, with every other one estimated too, px.
+
+    The first 2 x 2 block of the inverse information. Directions of the parameters
+    that the pixels cannot tell apart (the X's scale along its lines, read where
+    its arcs are not) are left out, as long as the centre takes no part in them:
+    unidentifiable, they take nothing from the centre either.
+
+    Args:
+        information: (P, P) Fisher information, the centre (x, y) first.
+
+    Returns:
+        The expected Euclidean error, px (inf where the centre is not identifiable).
+    """
+    info = np.asarray(information, np.float64)
+    scale = np.sqrt(np.maximum(np.diag(info), 0.0)) if np.isfinite(info).all() else np.zeros(1)
+    if min(scale[:2], default=0.0) <= 0.0:
+        return math.inf
+    # Scaled to unit diagonal: the parameters' units differ by orders of magnitude. A
+    # parameter with no information at all keeps a zero row, which is unseen below.
+    scale[scale == 0.0] = 1.0
+    values, vectors = np.linalg.eigh(info / np.outer(scale, scale))
+    seen = values > _SINGULAR_RATIO * values[-1]
+    if np.abs(vectors[:2, ~seen]).max(initial=0.0) > _CENTRE_IN_UNSEEN:
+        return math.inf
+    inverse = (vectors[:, seen] / values[seen]) @ vectors[:, seen].T
+    return expected_radial_error(inverse[:2, :2] / np.outer(scale[:2], scale[:2]))
 
 
 def fisher_information(
@@ -47,11 +142,26 @@ def fisher_information(
     Returns:
         (2, 2) float64 information matrix, px^-2.
     """
-    gx = np.asarray(d_mu_dx, np.float64)[mask]
-    gy = np.asarray(d_mu_dy, np.float64)[mask]
+    return parameter_information([d_mu_dx, d_mu_dy], variance, mask)
+
+
+def parameter_information(
+    derivatives: list[np.ndarray], variance: np.ndarray, mask: np.ndarray
+) -> np.ndarray:
+    """Fisher information of P parameters from the pixels in ``mask``.
+
+    Args:
+        derivatives: P (H, W) derivatives of the noise-free image, DN per unit.
+        variance: (H, W) noise variance of each pixel, DN^2 (> 0).
+        mask: (H, W) bool, the pixels that take part.
+
+    Returns:
+        (P, P) float64 information matrix.
+    """
+    columns = np.stack([np.asarray(d, np.float64)[mask] for d in derivatives], axis=1)
     weight = 1.0 / np.asarray(variance, np.float64)[mask]
-    xy = float(np.sum(weight * gx * gy))
-    return np.array([[np.sum(weight * gx * gx), xy], [xy, np.sum(weight * gy * gy)]])
+    information: np.ndarray = (columns * weight[:, None]).T @ columns
+    return information
 
 
 def expected_radial_error(covariance: np.ndarray) -> float:

@@ -467,6 +467,9 @@ class MarkerTruth:
             what is painted is no longer an X but one bright quadrant on its plate
             (a dull factor of 0.45-0.8 does that to paint of contrast 0.35-0.55
             whose dark is a light grey).
+        bound_parts: The centre's bound with the marker's other parameters unknown
+            and from fewer pixels (:class:`~marker_localizer.synthetic.crlb.BoundParts`),
+            where asked for.
     """
 
     x: float
@@ -477,6 +480,7 @@ class MarkerTruth:
     angles: tuple[float, float]
     crlb_mean_abs_error_px: float = math.nan
     dull_margin: float = 1.0
+    bound_parts: crlb.BoundParts | None = None
 
     @classmethod
     def from_homography(
@@ -1213,8 +1217,13 @@ def _render(
     supersampling: int,
     texture_scale: tuple[float, float],
     crlb_of: Sequence[int] = (),
-) -> tuple[np.ndarray, list[float]]:
-    """:func:`render_targets`, and the Cramer-Rao bound of the targets ``crlb_of``, px."""
+    parts_within: float | None = None,
+) -> tuple[np.ndarray, list[tuple[float, crlb.BoundParts | None]]]:
+    """:func:`render_targets`, and the Cramer-Rao bound of the targets ``crlb_of``, px.
+
+    With ``parts_within``, each bound's :class:`~marker_localizer.synthetic.crlb.BoundParts`
+    too (:func:`_marker_crlb`).
+    """
     if supersampling < 1:
         raise ConfigError(f"supersampling must be >= 1, got {supersampling!r}")
     radiance = make_background(shape, background, rng, background_level, texture_scale)
@@ -1225,7 +1234,9 @@ def _render(
     vignette = vignetting_field(shape, imaging.vignetting) if imaging.vignetting > 0 else None
     boxes = [_pixel_box(_normalised(t.homography), t, shape) for t in targets] if crlb_of else []
     bounds = [
-        _marker_crlb(ground, targets, boxes, i, imaging, gain, vignette, supersampling)
+        _marker_crlb(
+            ground, targets, boxes, i, imaging, gain, vignette, supersampling, parts_within
+        )
         for i in crlb_of
     ]
     return record(expose(radiance, imaging, gain, vignette), imaging, rng), bounds
@@ -1242,6 +1253,15 @@ def _render(
 CRLB_STEP_PX = 0.1
 
 
+#: Central-difference steps of :class:`~marker_localizer.synthetic.crlb.BoundParts`'
+#: smooth parameters: a paint's reflectance (its signal is linear in it) ...
+BOUND_PAINT_STEP = 0.002
+#: ... the optics' blur, px (the image is smooth in it; under 1 % of 0.5-1.5 px) ...
+BOUND_BLUR_STEP_PX = 0.02
+#: ... and the light's slope, per px (the gain is linear in it).
+BOUND_LIGHT_SLOPE_STEP_PER_PX = 1e-4
+
+
 def _marker_crlb(
     ground: np.ndarray,
     targets: Sequence[PlanarTarget],
@@ -1251,7 +1271,8 @@ def _marker_crlb(
     gain: np.ndarray | None,
     vignette: np.ndarray | None,
     supersampling: int,
-) -> float:
+    parts_within: float | None = None,
+) -> tuple[float, crlb.BoundParts | None]:
     """Cramer-Rao bound of ``targets[index]``'s centre as the expected |error|, px.
 
     The noise-free frame around the marker (its window grown by the optics'
@@ -1261,13 +1282,22 @@ def _marker_crlb(
     central differences and :meth:`ImagingConditions.pixel_variance_dn2` of
     the unmoved signal give the Fisher information over the pixels whose
     centres lie inside the X (:func:`~marker_localizer.synthetic.crlb.fisher_information`).
+
+    With ``parts_within`` (a share of the radius), also the
+    :class:`~marker_localizer.synthetic.crlb.BoundParts`: the information of every
+    parameter of :data:`~marker_localizer.synthetic.crlb.BOUND_PARAMETERS`, over the
+    X and over the pixels within that share of its radius. The homography's
+    parameters move each plane point by a velocity V(x) that changes little over the
+    blur, so their derivatives are those of the centre's, d mu / dx V_x + d mu / dy
+    V_y: exact where finite differences of a sampled plate would not be (a share of a
+    lattice step moves no sample). Paints, blur and light by central differences.
     """
     target, box = targets[index], boxes[index]
     x_extent = target.pattern.x_extent
     if x_extent is None:
         raise ConfigError(f"a Cramer-Rao bound needs a marker kind, got {target.pattern.name!r}")
     if box is None:
-        return math.nan
+        return math.nan, None
     margin = optics_margin_px(imaging) + math.ceil(CRLB_STEP_PX) + 1
     height, width = ground.shape
     r0, r1 = max(0, box[0] - margin), min(height, box[1] + margin)
@@ -1285,26 +1315,96 @@ def _marker_crlb(
             continue
         composite_target(base, other.translated(-c0, -r0), supersampling)
     window = (slice(r0, r1), slice(c0, c1))
+    light = None if gain is None else gain[window]
 
-    def signal(dx: float, dy: float) -> np.ndarray:
+    def signal(
+        dx: float = 0.0,
+        dy: float = 0.0,
+        painted: PlanarTarget = target,
+        seen: ImagingConditions = imaging,
+        lit: np.ndarray | None = light,
+    ) -> np.ndarray:
         radiance = base.copy()
-        composite_target(radiance, target.translated(dx - c0, dy - r0), supersampling)
-        return expose(
-            radiance,
-            imaging,
-            None if gain is None else gain[window],
-            None if vignette is None else vignette[window],
-        ).astype(np.float64)
+        composite_target(radiance, painted.translated(dx - c0, dy - r0), supersampling)
+        return expose(radiance, seen, lit, None if vignette is None else vignette[window]).astype(
+            np.float64
+        )
 
     step = max(1, round(CRLB_STEP_PX * supersampling)) / supersampling
     d_mu_dx = (signal(step, 0.0) - signal(-step, 0.0)) / (2.0 * step)
     d_mu_dy = (signal(0.0, step) - signal(0.0, -step)) / (2.0 * step)
     y, x = np.mgrid[r0:r1, c0:c1].astype(np.float64)
-    u, v = _to_plane(np.linalg.inv(_normalised(target.homography)), x, y)
-    information = crlb.fisher_information(
-        d_mu_dx, d_mu_dy, imaging.pixel_variance_dn2(signal(0.0, 0.0)), x_extent(u, v)
+    homography = _normalised(target.homography)
+    u, v = _to_plane(np.linalg.inv(homography), x, y)
+    variance = imaging.pixel_variance_dn2(signal())
+    inside = x_extent(u, v)
+    bound = crlb.crlb_mean_abs_error(crlb.fisher_information(d_mu_dx, d_mu_dy, variance, inside))
+    if parts_within is None:
+        return bound, None
+    derivatives = [d_mu_dx, d_mu_dy]
+    for velocity in _homography_velocities(homography, u, v):
+        derivatives.append(d_mu_dx * velocity[0] + d_mu_dy * velocity[1])
+    for paint in ("dark_reflectance", "bright_reflectance"):
+        ahead = replace(target, **{paint: getattr(target, paint) + BOUND_PAINT_STEP})
+        behind = replace(target, **{paint: getattr(target, paint) - BOUND_PAINT_STEP})
+        change = signal(painted=ahead) - signal(painted=behind)
+        derivatives.append(change / (2 * BOUND_PAINT_STEP))
+    blur = imaging.blur_sigma_px
+    # A frame rendered without blur keeps it known: there is no blur to take from.
+    blur_step = BOUND_BLUR_STEP_PX if blur > BOUND_BLUR_STEP_PX else 0.0
+    derivatives.append(
+        (
+            signal(seen=replace(imaging, blur_sigma_px=blur + blur_step))
+            - signal(seen=replace(imaging, blur_sigma_px=blur - blur_step))
+        )
+        / (2 * blur_step)
+        if blur_step
+        else np.zeros_like(d_mu_dx)
     )
-    return crlb.crlb_mean_abs_error(information)
+    flat = np.ones(x.shape, np.float32) if light is None else light
+    for along in (x - homography[0, 2], y - homography[1, 2]):
+        tilt = (BOUND_LIGHT_SLOPE_STEP_PER_PX * along).astype(np.float32)
+        derivatives.append(
+            (signal(lit=flat * (1 + tilt)) - signal(lit=flat * (1 - tilt)))
+            / (2 * BOUND_LIGHT_SLOPE_STEP_PER_PX)
+        )
+    near = np.hypot(u, v) < parts_within
+    return bound, crlb.BoundParts.of(
+        crlb.parameter_information(derivatives, variance, inside),
+        crlb.parameter_information(derivatives, variance, inside & near),
+    )
+
+
+def _homography_velocities(
+    homography: np.ndarray, u: np.ndarray, v: np.ndarray
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Image velocity (vx, vy) of the plane points (u, v) per unit of each shape parameter.
+
+    The parameters of :data:`~marker_localizer.synthetic.crlb.BOUND_PARAMETERS` after
+    the centre: the homography H becomes H P with P = [[1 + a, b, 0], [c, 1 + d, 0],
+    [g, h, 1]], which keeps the plane origin, so the centre, where it is.
+    """
+    plane = np.stack([u, v, np.ones_like(u)])
+    image = np.einsum("ij,j...->i...", homography, plane)
+    zero = np.zeros_like(u)
+    velocities = []
+    for moved in ((u, zero, zero), (zero, u, zero), (v, zero, zero), (zero, v, zero)):
+        velocities.append(_projected_velocity(homography, image, moved))
+    for weight in (u, v):
+        velocities.append(_projected_velocity(homography, image, (zero, zero, weight)))
+    return velocities
+
+
+def _projected_velocity(
+    homography: np.ndarray, image: np.ndarray, moved: tuple[np.ndarray, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The image velocity of the points ``image`` (homogeneous) as their plane points move."""
+    change = np.einsum("ij,j...->i...", homography, np.stack(moved))
+    w = image[2]
+    return (
+        change[0] / w - image[0] * change[2] / w**2,
+        change[1] / w - image[1] * change[2] / w**2,
+    )
 
 
 # --------------------------------------------------------------------------- placement
@@ -1487,6 +1587,7 @@ def render_markers(
     texture_scale: tuple[float, float] = TEXTURE_SCALE_RANGE,
     supersampling: int = 16,
     crlb: bool = False,
+    bound_parts_within: float | None = None,
 ) -> RenderedScene:
     """Render markers at explicit placements; the defaults give an exact, clean frame.
 
@@ -1526,6 +1627,9 @@ def render_markers(
         supersampling: S, samples per pixel along each axis.
         crlb: Compute each marker's Cramer-Rao bound
             (``MarkerTruth.crlb_mean_abs_error_px``); a few more renders per marker.
+        bound_parts_within: Also each marker's bounds with its other parameters
+            unknown (``MarkerTruth.bound_parts``), the inner ones from the pixels
+            within this share of its radius; implies ``crlb``, a few more renders.
 
     Returns:
         The frame, one :class:`MarkerTruth` per placement (same order) and the
@@ -1569,10 +1673,14 @@ def render_markers(
         imaging,
         supersampling,
         texture_scale,
-        range(len(truths)) if crlb else (),
+        range(len(truths)) if crlb or bound_parts_within is not None else (),
+        bound_parts_within,
     )
-    if crlb:
-        truths = [replace(t, crlb_mean_abs_error_px=b) for t, b in zip(truths, bounds, strict=True)]
+    if bounds:
+        truths = [
+            replace(t, crlb_mean_abs_error_px=bound, bound_parts=parts)
+            for t, (bound, parts) in zip(truths, bounds, strict=True)
+        ]
     return RenderedScene(image, truths, [(p.kind, p.x, p.y) for p, _ in negatives], imaging)
 
 
@@ -1790,7 +1898,11 @@ def _place_markers(
 
 
 def render_scene(
-    config: SceneConfig, seed: int | np.random.Generator, *, crlb: bool = False
+    config: SceneConfig,
+    seed: int | np.random.Generator,
+    *,
+    crlb: bool = False,
+    bound_parts_within: float | None = None,
 ) -> RenderedScene:
     """Render a random frame of markers and hard negatives on cluttered ground.
 
@@ -1798,6 +1910,8 @@ def render_scene(
         config: What to render.
         seed: Seed or Generator; the same seed gives the same frame.
         crlb: Compute each marker's Cramer-Rao bound (see :func:`render_markers`).
+        bound_parts_within: Also its bounds with the other parameters unknown (see
+            :func:`render_markers`).
 
     Returns:
         The frame and its exact truth.
@@ -1838,6 +1952,7 @@ def render_scene(
         texture_scale=config.texture_scale,
         supersampling=config.supersampling,
         crlb=crlb,
+        bound_parts_within=bound_parts_within,
     )
 
 

@@ -10,9 +10,11 @@ from scipy.special import ndtr
 
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 from marker_localizer.synthetic.crlb import (
+    centre_bound,
     crlb_mean_abs_error,
     expected_radial_error,
     fisher_information,
+    parameter_information,
 )
 
 DARK, BRIGHT = 0.1, 0.8
@@ -100,3 +102,58 @@ def test_bound_scales_with_the_noise_sigma_and_one_over_root_edge_length():
         base * math.sqrt((16 + 1 / 12) / (4 + 1 / 12)), rel=1e-6
     )
     assert crlb_of(40.0, 2.0, centre=60.5, size=121) == pytest.approx(base / math.sqrt(2), rel=0.03)
+
+
+def test_a_parameter_uncorrelated_with_the_centre_costs_it_nothing():
+    information = np.diag([4.0, 9.0, 100.0])
+    assert centre_bound(information) == pytest.approx(crlb_mean_abs_error(information[:2, :2]))
+
+
+def test_a_parameter_correlated_with_the_centre_takes_its_share_of_the_information():
+    # x's information 4, of which a nuisance with information 2 and cross term 2 takes
+    # 2^2 / 2 = 2: x keeps 2 (the Schur complement), y its 9.
+    information = np.array([[4.0, 0.0, 2.0], [0.0, 9.0, 0.0], [2.0, 0.0, 2.0]])
+    assert centre_bound(information) == pytest.approx(
+        expected_radial_error(np.diag([1 / 2.0, 1 / 9.0])), rel=1e-12
+    )
+
+
+def test_a_nuisance_the_pixels_cannot_tell_from_the_centre_leaves_it_unbounded():
+    rng = np.random.default_rng(0)
+    d_mu_dx, d_mu_dy = rng.normal(size=(2, 8, 8))
+    # A parameter that changes the image exactly as moving the marker along x does.
+    information = parameter_information(
+        [d_mu_dx, d_mu_dy, 3.0 * d_mu_dx], np.ones((8, 8)), np.ones((8, 8), bool)
+    )
+    assert centre_bound(information) == math.inf
+
+
+def test_a_parameter_the_pixels_say_nothing_about_is_left_out():
+    information = np.diag([4.0, 9.0, 0.0])
+    assert centre_bound(information) == pytest.approx(crlb_mean_abs_error(information[:2, :2]))
+
+
+def test_bound_parts_grow_as_less_is_known_and_fewer_pixels_are_read():
+    marker = MarkerPlacement(60.3, 59.6, 20.0, rotation_rad=0.4, tilt_deg=35.0)
+    scene = render_markers(
+        (121, 121),
+        [marker],
+        0,
+        reflectances=(DARK, BRIGHT),
+        blur_sigma_px=1.0,
+        illumination_strength=0.5,
+        noise_sigma_dn=2.0,
+        bound_parts_within=0.6,
+    )
+    truth = scene.markers[0]
+    parts = truth.bound_parts
+    assert parts is not None
+    assert parts.known == pytest.approx(truth.crlb_mean_abs_error_px, rel=1e-9)
+    assert parts.known < parts.affine < parts.projective
+    assert parts.affine < parts.inner_affine <= parts.inner_projective
+    # Within 0.6 of the radius no arc is read, so the X's scale along its lines is
+    # unseen: left out, and the centre still bounded.
+    assert math.isfinite(parts.inner_projective)
+    # The light's slope and the perspective are odd about the centre, as its shift is:
+    # knowing nothing else costs a marker read to its extent a tenth or more.
+    assert parts.projective > 1.1 * parts.known

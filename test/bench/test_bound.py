@@ -1,0 +1,37 @@
+"""Specification of ``bench bound``: the centre's bound with the rest of the marker unknown."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from marker_localizer.bench import bound
+from marker_localizer.synthetic.crlb import BoundParts
+
+
+def test_each_family_gets_a_row_per_bound_with_the_detectors_error_over_it():
+    lines: list[str] = []
+    figures = bound.run(["a"], [100], lines.append)
+    family = figures["families"]["a"]
+    assert family["found"] > 0
+    rows = family["bounds"]
+    assert list(rows) == list(BoundParts._fields)
+    # The bound grows as less is known and fewer pixels are read, and the error over
+    # each falls with it.
+    means = [rows[field]["mean_px"] for field in ("known", "affine", "projective")]
+    assert means == sorted(means)
+    assert rows["inner_projective"]["mean_px"] > rows["projective"]["mean_px"]
+    assert rows["known"]["error_over_bound"] == pytest.approx(
+        family["mean_error_px"] / rows["known"]["mean_px"]
+    )
+    assert all(math.isfinite(row["error_over_bound"]) for row in rows.values())
+    table = "\n".join(lines)
+    assert all(label in table for label in bound.BOUND_LABELS.values())
+
+
+def test_an_unknown_family_is_refused_on_the_command_line(capsys: pytest.CaptureFixture[str]):
+    with pytest.raises(SystemExit) as exit_info:
+        bound.main(["--families", "a,x"])
+    assert exit_info.value.code == 2
+    assert "unknown x" in capsys.readouterr().err
