@@ -46,8 +46,10 @@ _CENTRE_IN_UNSEEN = 1e-3
 #: The parameters of a marker's image whose information :class:`BoundParts` weighs, in
 #: the order of its matrices: the centre; the plane's homography about it (the images
 #: of its u and v axes, two components each, then its perspective along u and v);
-#: the dark and the bright paint's reflectance; the optics' Gaussian blur; the light's
-#: slope across the marker along x and y.
+#: the dark and the bright paint's reflectance and a dull quadrant's factor; the
+#: optics' Gaussian blur; the light's slope across the marker along x and y; a cast
+#: shadow's edge across it (its normal, its offset, its depth). A marker without a
+#: dull quadrant or a shadow has no information on them: they drop out.
 BOUND_PARAMETERS = (
     "x",
     "y",
@@ -59,9 +61,13 @@ BOUND_PARAMETERS = (
     "perspective_v",
     "dark",
     "bright",
+    "dull",
     "blur",
     "light_slope_x",
     "light_slope_y",
+    "shadow_normal",
+    "shadow_offset",
+    "shadow_depth",
 )
 #: The parameters of an affine marker: a plane seen from far away, without perspective.
 AFFINE_PARAMETERS = tuple(p for p in BOUND_PARAMETERS if not p.startswith("perspective"))

@@ -23,6 +23,7 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -1258,8 +1259,12 @@ CRLB_STEP_PX = 0.1
 BOUND_PAINT_STEP = 0.002
 #: ... the optics' blur, px (the image is smooth in it; under 1 % of 0.5-1.5 px) ...
 BOUND_BLUR_STEP_PX = 0.02
-#: ... and the light's slope, per px (the gain is linear in it).
+#: ... the light's slope, per px (the gain is linear in it) ...
 BOUND_LIGHT_SLOPE_STEP_PER_PX = 1e-4
+#: ... and a cast shadow's edge: its normal, rad, and its offset, px (its profile is
+#: a normal CDF: smooth; the shadow's depth steps as a paint does).
+BOUND_SHADOW_NORMAL_STEP_RAD = 1e-3
+BOUND_SHADOW_OFFSET_STEP_PX = 0.01
 
 
 def _marker_crlb(
@@ -1290,7 +1295,8 @@ def _marker_crlb(
     parameters move each plane point by a velocity V(x) that changes little over the
     blur, so their derivatives are those of the centre's, d mu / dx V_x + d mu / dy
     V_y: exact where finite differences of a sampled plate would not be (a share of a
-    lattice step moves no sample). Paints, blur and light by central differences.
+    lattice step moves no sample). The rest by central differences
+    (:func:`_smooth_derivatives`).
     """
     target, box = targets[index], boxes[index]
     x_extent = target.pattern.x_extent
@@ -1344,35 +1350,104 @@ def _marker_crlb(
     derivatives = [d_mu_dx, d_mu_dy]
     for velocity in _homography_velocities(homography, u, v):
         derivatives.append(d_mu_dx * velocity[0] + d_mu_dy * velocity[1])
-    for paint in ("dark_reflectance", "bright_reflectance"):
-        ahead = replace(target, **{paint: getattr(target, paint) + BOUND_PAINT_STEP})
-        behind = replace(target, **{paint: getattr(target, paint) - BOUND_PAINT_STEP})
-        change = signal(painted=ahead) - signal(painted=behind)
-        derivatives.append(change / (2 * BOUND_PAINT_STEP))
-    blur = imaging.blur_sigma_px
-    # A frame rendered without blur keeps it known: there is no blur to take from.
-    blur_step = BOUND_BLUR_STEP_PX if blur > BOUND_BLUR_STEP_PX else 0.0
-    derivatives.append(
-        (
-            signal(seen=replace(imaging, blur_sigma_px=blur + blur_step))
-            - signal(seen=replace(imaging, blur_sigma_px=blur - blur_step))
-        )
-        / (2 * blur_step)
-        if blur_step
-        else np.zeros_like(d_mu_dx)
-    )
-    flat = np.ones(x.shape, np.float32) if light is None else light
-    for along in (x - homography[0, 2], y - homography[1, 2]):
-        tilt = (BOUND_LIGHT_SLOPE_STEP_PER_PX * along).astype(np.float32)
-        derivatives.append(
-            (signal(lit=flat * (1 + tilt)) - signal(lit=flat * (1 - tilt)))
-            / (2 * BOUND_LIGHT_SLOPE_STEP_PER_PX)
-        )
+    derivatives += _smooth_derivatives(signal, target, imaging, light, (r0, c0), (x, y))
     near = np.hypot(u, v) < parts_within
     return bound, crlb.BoundParts.of(
         crlb.parameter_information(derivatives, variance, inside),
         crlb.parameter_information(derivatives, variance, inside & near),
     )
+
+
+def _smooth_derivatives(
+    signal: Callable[..., np.ndarray],
+    target: PlanarTarget,
+    imaging: ImagingConditions,
+    light: np.ndarray | None,
+    origin: tuple[int, int],
+    grid: tuple[np.ndarray, np.ndarray],
+) -> list[np.ndarray]:
+    """Central differences of a marker's window by its smooth parameters (:func:`_marker_crlb`).
+
+    In :data:`~marker_localizer.synthetic.crlb.BOUND_PARAMETERS`' order from the
+    paints on: ``signal(painted=, seen=, lit=)`` renders the window with the target,
+    the imaging and the light given; ``origin`` is the window's (row, column) in the
+    frame and ``grid`` its pixels' (x, y). A parameter the marker does not have (a
+    dull quadrant, a cast shadow; a blur of zero) gets a zero derivative: known.
+    """
+
+    def central(ahead: dict[str, Any], behind: dict[str, Any], step: float) -> np.ndarray:
+        return (signal(**ahead) - signal(**behind)) / (2.0 * step)
+
+    zero = np.zeros(grid[0].shape)
+    derivatives = []
+    for paint, has in (
+        ("dark_reflectance", True),
+        ("bright_reflectance", True),
+        ("dull_factor", target.dull_signs is not None),
+    ):
+        value = getattr(target, paint)
+        derivatives.append(
+            central(
+                {"painted": replace(target, **{paint: value + BOUND_PAINT_STEP})},
+                {"painted": replace(target, **{paint: value - BOUND_PAINT_STEP})},
+                BOUND_PAINT_STEP,
+            )
+            if has
+            else zero
+        )
+    blur = imaging.blur_sigma_px
+    derivatives.append(
+        central(
+            {"seen": replace(imaging, blur_sigma_px=blur + BOUND_BLUR_STEP_PX)},
+            {"seen": replace(imaging, blur_sigma_px=blur - BOUND_BLUR_STEP_PX)},
+            BOUND_BLUR_STEP_PX,
+        )
+        if blur > BOUND_BLUR_STEP_PX
+        else zero
+    )
+    lit = np.ones(grid[0].shape, np.float32) if light is None else light
+    centre = _normalised(target.homography)[:2, 2]
+    for along in (grid[0] - centre[0], grid[1] - centre[1]):
+        tilt = (BOUND_LIGHT_SLOPE_STEP_PER_PX * along).astype(np.float32)
+        derivatives.append(
+            central(
+                {"lit": lit * (1 + tilt)}, {"lit": lit * (1 - tilt)}, BOUND_LIGHT_SLOPE_STEP_PER_PX
+            )
+        )
+    shadow = next(
+        (
+            c
+            for c in imaging.cast_shadows
+            if math.isclose(c.x, centre[0]) and math.isclose(c.y, centre[1])
+        ),
+        None,
+    )
+    if shadow is None:
+        return derivatives + [zero] * 3
+    row, column = origin
+
+    def shaded(moved: CastShadow) -> dict[str, Any]:
+        # The light with this shadow in place of the frame's own.
+        placed = np.ones(grid[0].shape, np.float32)
+        replace(moved, x=moved.x - column, y=moved.y - row).apply(placed)
+        return {"lit": lit * placed / unmoved}
+
+    unmoved = np.ones(grid[0].shape, np.float32)
+    replace(shadow, x=shadow.x - column, y=shadow.y - row).apply(unmoved)
+    for field_name, step in (
+        ("normal_rad", BOUND_SHADOW_NORMAL_STEP_RAD),
+        ("offset_px", BOUND_SHADOW_OFFSET_STEP_PX),
+        ("darkening", BOUND_PAINT_STEP),
+    ):
+        value = getattr(shadow, field_name)
+        derivatives.append(
+            central(
+                shaded(replace(shadow, **{field_name: value + step})),
+                shaded(replace(shadow, **{field_name: value - step})),
+                step,
+            )
+        )
+    return derivatives
 
 
 def _homography_velocities(

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.special import ndtr
 
-from marker_localizer.synthetic import MarkerPlacement, render_markers
+from marker_localizer.synthetic import CastShadow, MarkerPlacement, render_markers
 from marker_localizer.synthetic.crlb import (
+    BoundParts,
     centre_bound,
     crlb_mean_abs_error,
     expected_radial_error,
@@ -157,3 +159,25 @@ def test_bound_parts_grow_as_less_is_known_and_fewer_pixels_are_read():
     # The light's slope and the perspective are odd about the centre, as its shift is:
     # knowing nothing else costs a marker read to its extent a tenth or more.
     assert parts.projective > 1.1 * parts.known
+
+
+def test_a_dull_quadrant_and_a_cast_shadow_unknown_cost_the_centre_more():
+    def parts(marker: MarkerPlacement, shadows: tuple[CastShadow, ...]) -> BoundParts:
+        scene = render_markers(
+            (121, 121),
+            [marker],
+            0,
+            reflectances=(DARK, BRIGHT),
+            blur_sigma_px=1.0,
+            noise_sigma_dn=2.0,
+            cast_shadows=shadows,
+            bound_parts_within=0.8,
+        )
+        assert scene.markers[0].bound_parts is not None
+        return scene.markers[0].bound_parts
+
+    plain = MarkerPlacement(60.3, 59.6, 20.0, rotation_rad=0.4, tilt_deg=35.0)
+    dull = replace(plain, dull_factor=0.6)
+    shadow = CastShadow(60.3, 59.6, normal_rad=1.0, offset_px=4.0, darkening=0.5, reach_px=40.0)
+    ratios = [p.projective / p.known for p in (parts(plain, ()), parts(dull, (shadow,)))]
+    assert ratios[1] > ratios[0] * 1.05
