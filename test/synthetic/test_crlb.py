@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
-from marker_localizer.synthetic import CastShadow, MarkerPlacement, render_markers
+from marker_localizer.synthetic import CastShadow, MarkerPlacement, MarkerTruth, render_markers
 from marker_localizer.synthetic.crlb import (
-    BoundParts,
     centre_bound,
     crlb_mean_abs_error,
     expected_radial_error,
@@ -135,19 +134,33 @@ def test_a_parameter_the_pixels_say_nothing_about_is_left_out():
     assert centre_bound(information) == pytest.approx(crlb_mean_abs_error(information[:2, :2]))
 
 
-def test_bound_parts_grow_as_less_is_known_and_fewer_pixels_are_read():
-    marker = MarkerPlacement(60.3, 59.6, 20.0, rotation_rad=0.4, tilt_deg=35.0)
+#: A tilted marker of 20 px, off the pixel grid, for the bounds with the rest unknown.
+TILTED = MarkerPlacement(60.3, 59.6, 20.0, rotation_rad=0.4, tilt_deg=35.0)
+
+
+def truth_with_parts(
+    marker: MarkerPlacement = TILTED,
+    within: float = 0.8,
+    shadows: tuple[CastShadow, ...] = (),
+    light: float = 0.0,
+) -> MarkerTruth:
     scene = render_markers(
         (121, 121),
         [marker],
         0,
         reflectances=(DARK, BRIGHT),
         blur_sigma_px=1.0,
-        illumination_strength=0.5,
+        illumination_strength=light,
         noise_sigma_dn=2.0,
-        bound_parts_within=0.6,
+        cast_shadows=shadows,
+        bound_parts_within=within,
     )
-    truth = scene.markers[0]
+    assert scene.markers[0].bound_parts is not None
+    return scene.markers[0]
+
+
+def test_bound_parts_grow_as_less_is_known_and_fewer_pixels_are_read():
+    truth = truth_with_parts(within=0.6, light=0.5)
     parts = truth.bound_parts
     assert parts is not None
     assert parts.known == pytest.approx(truth.crlb_mean_abs_error_px, rel=1e-9)
@@ -162,22 +175,12 @@ def test_bound_parts_grow_as_less_is_known_and_fewer_pixels_are_read():
 
 
 def test_a_dull_quadrant_and_a_cast_shadow_unknown_cost_the_centre_more():
-    def parts(marker: MarkerPlacement, shadows: tuple[CastShadow, ...]) -> BoundParts:
-        scene = render_markers(
-            (121, 121),
-            [marker],
-            0,
-            reflectances=(DARK, BRIGHT),
-            blur_sigma_px=1.0,
-            noise_sigma_dn=2.0,
-            cast_shadows=shadows,
-            bound_parts_within=0.8,
-        )
-        assert scene.markers[0].bound_parts is not None
-        return scene.markers[0].bound_parts
-
-    plain = MarkerPlacement(60.3, 59.6, 20.0, rotation_rad=0.4, tilt_deg=35.0)
-    dull = replace(plain, dull_factor=0.6)
     shadow = CastShadow(60.3, 59.6, normal_rad=1.0, offset_px=4.0, darkening=0.5, reach_px=40.0)
-    ratios = [p.projective / p.known for p in (parts(plain, ()), parts(dull, (shadow,)))]
+    ratios = []
+    for truth in (
+        truth_with_parts(),
+        truth_with_parts(replace(TILTED, dull_factor=0.6), shadows=(shadow,)),
+    ):
+        assert truth.bound_parts is not None
+        ratios.append(truth.bound_parts.projective / truth.bound_parts.known)
     assert ratios[1] > ratios[0] * 1.05
