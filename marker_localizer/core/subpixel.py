@@ -1050,8 +1050,8 @@ def _step_blur(
     did no better (0.077 px); eleven blurs 0.5-1.6 px by this profile neither
     (0.080 px: the more choices, the more the noise picks).
     """
-    residual, weight, jacobian, _ = _symmetry_terms(
-        image, centre, np.zeros((len(centre), 4)), band.offsets, band.weight, model_gain
+    residual, weight, jacobian, _, _ = _symmetry_terms(
+        image, centre, np.zeros((len(centre), 4)), _both_ends(band.offsets), band.weight, model_gain
     )
     cost = []
     for blur in EDGE_STEP_BLURS_PX:
@@ -1147,7 +1147,7 @@ def _light_inside(
     disk, _ = symmetric_offsets(radius_px, _INSIDE_MAX_SAMPLES)
     s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], line_angles)
     k = len(disk)
-    both, valid = bilinear(image, *_pair_positions(centre, disk[None, :, 0], disk[None, :, 1]))
+    both, valid = bilinear(image, *_pair_positions(centre, _both_ends(disk[None])))
     plus, minus = both[:, :k], both[:, k:]
     weight = (
         (np.minimum(np.abs(s1), np.abs(s2)) >= INSIDE_LINE_DISTANCE_PX)
@@ -1249,24 +1249,38 @@ def locate_markers(
     return MarkerLocation(position, sigma, score, accepted)
 
 
+class _Terms(NamedTuple):
+    """What :func:`_symmetry_terms` reads at N points' centres, each with the points first.
+
+    ``residual`` and ``weight`` (N, K); the ``jacobian`` (N, K, P) and its columns
+    times the weight, ``weighted``; the ``samples`` (N, 2K), I(c + d) then I(c - d).
+    """
+
+    residual: NDArray[np.float64]
+    weight: NDArray[np.float64]
+    jacobian: NDArray[np.float64]
+    weighted: NDArray[np.float64]
+    samples: NDArray[np.float64]
+
+
 def _symmetry_terms(
     image: NDArray[Any],
     centre: NDArray[np.float64],
     gain: NDArray[np.float64],
-    offsets: NDArray[np.float64],
+    ends: tuple[NDArray[np.float64], NDArray[np.float64]],
     taper: NDArray[np.float64],
     model_gain: bool,
     edge_steps: NDArray[np.float64] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Residuals r(d), weights, Jacobian (N, K, P) and the samples I(c +- d) at ``centre``.
+) -> _Terms:
+    """Residuals r(d), weights, Jacobian and the samples I(c +- d) at ``centre``.
 
-    ``offsets`` is (N, K, 2) and ``taper`` (N, K): each point's own pattern. With
-    ``edge_steps`` (N, K, 2), :func:`_edge_steps` at the offsets, r(d) also loses
-    a E1(d) + b E2(d), a and b the last two of ``gain``'s four columns.
+    ``ends`` are each point's pairs' offsets (:func:`_both_ends`) and ``taper`` (N, K)
+    their weights. With ``edge_steps`` (N, K, 2), :func:`_edge_steps` at the offsets,
+    r(d) also loses a E1(d) + b E2(d), a and b the last two of ``gain``'s four columns.
     """
-    dx, dy = offsets[..., 0], offsets[..., 1]
-    k = dx.shape[1]
-    both, gx, gy, valid = bilinear_with_gradient(image, *_pair_positions(centre, dx, dy))
+    k = ends[0].shape[1] // 2
+    dx, dy = ends[0][:, :k], ends[1][:, :k]
+    both, gx, gy, valid = bilinear_with_gradient(image, *_pair_positions(centre, ends))
     plus, minus = both[:, :k], both[:, k:]
     residual = plus - minus
     weight = taper * (valid[:, :k] & valid[:, k:])
@@ -1278,7 +1292,9 @@ def _symmetry_terms(
     if edge_steps is not None:
         residual -= gain[:, 2, None] * edge_steps[..., 0] + gain[:, 3, None] * edge_steps[..., 1]
         jac += [-edge_steps[..., 0], -edge_steps[..., 1]]
-    return residual, weight, np.stack(jac, axis=-1), both
+    # Column by column: a product broadcast along the short last axis costs 2-3x.
+    weighted = np.stack([column * weight for column in jac], axis=-1)
+    return _Terms(residual, weight, np.stack(jac, axis=-1), weighted, both)
 
 
 def _damped_solve(normal: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -1292,16 +1308,24 @@ def _damped_solve(normal: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDAr
     return cast("NDArray[np.float64]", np.linalg.solve(damped, rhs))
 
 
-def _pair_positions(
-    centre: NDArray[np.float64], dx: NDArray[np.float64], dy: NDArray[np.float64]
+def _both_ends(
+    offsets: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(x, y), each (N, 2K): the positions c + d of the K offsets d per point, then c - d.
+    """(x, y), each (N, 2K): the K offsets d (N, K, 2) of each point's pairs, then -d.
 
     Both ends of every pair in one gather: for a few dozen points the calls, not the
-    samples, are the cost. The first K columns are c + d, the last K c - d.
+    samples, are the cost. A fit reads them at every step: formed once, c + (-d)
+    is c - d to the bit.
     """
-    x, y = centre[:, 0, None], centre[:, 1, None]
-    return np.concatenate([x + dx, x - dx], axis=1), np.concatenate([y + dy, y - dy], axis=1)
+    dx, dy = offsets[..., 0], offsets[..., 1]
+    return np.concatenate([dx, -dx], axis=1), np.concatenate([dy, -dy], axis=1)
+
+
+def _pair_positions(
+    centre: NDArray[np.float64], ends: tuple[NDArray[np.float64], NDArray[np.float64]]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(x, y), each (N, 2K): the positions c + d of the pairs' :func:`_both_ends`."""
+    return centre[:, 0, None] + ends[0], centre[:, 1, None] + ends[1]
 
 
 def _edge_steps(
@@ -1416,37 +1440,40 @@ def _gauss_newton_symmetry(
     # Only the uncertainty reads the terms where the last step ends: without it, that
     # step ends the fit.
     evaluations = iterations + 1 if uncertainty or iterations == 0 else iterations
+    ends = _both_ends(offsets)
     for iteration in range(evaluations):
+        # Where every point is read (the first pass, and while all move), views, not copies.
+        rows = slice(None) if len(todo) == n else todo
         terms = _symmetry_terms(
             image,
-            centre[todo],
-            gain[todo],
-            offsets[todo],
-            taper[todo],
+            centre[rows],
+            gain[rows],
+            (ends[0][rows], ends[1][rows]),
+            taper[rows],
             model_gain,
-            None if edge_steps is None else edge_steps[todo],
+            None if edge_steps is None else edge_steps[rows],
         )
-        moved_weighted = terms[2] * terms[1][..., None]
         # Batched matrix products: three-operand einsum has no BLAS path and cost 5x.
-        moved_normal = moved_weighted.transpose(0, 2, 1) @ terms[2]
-        if iteration == 0:
-            residual, weight, jacobian, samples = terms
-            weighted, normal = moved_weighted, moved_normal
+        moved_normal = terms.weighted.transpose(0, 2, 1) @ terms.jacobian
+        if len(todo) == n:
+            residual, weight, jacobian, weighted, samples = terms
+            normal = moved_normal
         else:
             for full, part in zip(
-                (residual, weight, jacobian, samples, weighted, normal),
-                (*terms, moved_weighted, moved_normal),
+                (residual, weight, jacobian, weighted, samples, normal),
+                (*terms, moved_normal),
                 strict=True,
             ):
                 full[todo] = part
         active = np.flatnonzero(step_norm > tolerance_px)
         if iteration == iterations or not len(active):
             break
-        rhs = (weighted[active].transpose(0, 2, 1) @ residual[active, :, None])[..., 0]
-        system = normal[active] + prior[active]
+        stepping = slice(None) if len(active) == n else active
+        rhs = (weighted[stepping].transpose(0, 2, 1) @ residual[stepping, :, None])[..., 0]
+        system = normal[stepping] + prior[stepping]
         if slope_prior is not None:
-            away = gain[active, :2] - slope_prior[0][active]
-            rhs[:, 2:4] += (prior[active, 2:4, 2:4] @ away[..., None])[..., 0]
+            away = gain[stepping, :2] - slope_prior[0][stepping]
+            rhs[:, 2:4] += (prior[stepping, 2:4, 2:4] @ away[..., None])[..., 0]
         step = -_damped_solve(system, rhs[..., None])[..., 0]
         # A Gauss-Newton step larger than a pixel is untrustworthy this far from the optimum.
         np.clip(step[:, :2], -1.0, 1.0, out=step[:, :2])
