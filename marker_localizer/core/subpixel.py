@@ -511,6 +511,13 @@ def symmetric_offsets(
     return offsets, weights
 
 
+@functools.lru_cache(maxsize=256)
+def _grid_spacing(radius_px: float, max_samples: int) -> float:
+    """The smallest step of :func:`symmetric_offsets`' grid along x or y, px, and at most 1."""
+    offsets, _ = symmetric_offsets(radius_px, max_samples)
+    return float(np.min(np.abs(offsets[offsets != 0]), initial=1.0))
+
+
 def refine_point_symmetry(
     image: NDArray[Any],
     xy: NDArray[np.float64],
@@ -568,9 +575,7 @@ def refine_point_symmetry(
     patterns = [symmetric_offsets(float(radius), max_samples) for radius in keys]
     offsets, present = pad_patterns([pattern for pattern, _ in patterns])
     tapers, _ = pad_patterns([taper for _, taper in patterns])
-    spacing = np.array(
-        [np.min(np.abs(pattern[pattern != 0]), initial=1.0) for pattern, _ in patterns]
-    )
+    spacing = np.array([_grid_spacing(float(radius), max_samples) for radius in keys])
     max_shift = np.broadcast_to(np.asarray(max_shift_px, dtype=np.float64), (n,))
     fit = functools.partial(
         _gauss_newton_symmetry,
@@ -1026,7 +1031,7 @@ def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
         disk[nearest],
         np.where(present, np.exp(-0.5 * distance**2), 0.0),
         present,
-        np.full(len(line_angles), np.min(np.abs(disk[disk != 0]), initial=1.0)),
+        np.full(len(line_angles), _grid_spacing(radius_px, _LINE_FIT_MAX_SAMPLES)),
         across,
     )
 
@@ -1155,14 +1160,15 @@ def _light_inside(
         & valid[:, k:]
     ).astype(np.float64)
     total = plus + minus
-    design = np.stack([disk[:, 0] * total, disk[:, 1] * total, np.sign(s1), np.sign(s2)], axis=-1)
-    weighted = design * weight[..., None]
+    columns = [disk[:, 0] * total, disk[:, 1] * total, np.sign(s1), np.sign(s2)]
+    design = np.stack(columns, axis=-1)
+    weighted = np.stack([column * weight for column in columns], axis=-1)
     normal = weighted.transpose(0, 2, 1) @ design + 1e-9 * np.eye(4)
     residual = plus - minus
     solution = np.linalg.solve(normal, (weighted.transpose(0, 2, 1) @ residual[..., None]))[..., 0]
     misfit = residual - (design @ solution[..., None])[..., 0]
     # Per pair, like the line fit's: pairs closer than a pixel are correlated.
-    spacing = float(np.min(np.abs(disk[disk != 0]), initial=1.0))
+    spacing = _grid_spacing(radius_px, _INSIDE_MAX_SAMPLES)
     variance = (weight * misfit**2).sum(axis=1) / np.maximum(weight.sum(axis=1) - 4, 1.0)
     variance = np.maximum(variance, 1e-12) / min(spacing, 1.0) ** 2
     slope_block, cross, level_block = normal[:, :2, :2], normal[:, :2, 2:], normal[:, 2:, 2:]
@@ -1368,7 +1374,7 @@ def _edge_step_chi2(
     ``normal`` matrix are the fit's at its end; ``cell`` (N,) is the area a sample
     stands for, px^2 (samples closer than a pixel share their noise).
     """
-    weighted_steps = steps * weight[..., None]
+    weighted_steps = np.stack([steps[..., 0] * weight, steps[..., 1] * weight], axis=-1)
     cross = weighted.transpose(0, 2, 1) @ steps
     projected = np.linalg.solve(normal + 1e-9 * np.eye(normal.shape[-1]), cross)
     reduced = weighted_steps.transpose(0, 2, 1) @ steps - cross.transpose(0, 2, 1) @ projected
