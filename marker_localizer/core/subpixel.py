@@ -1015,24 +1015,22 @@ def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
     """
     disk, _ = symmetric_offsets(radius_px, _LINE_FIT_MAX_SAMPLES)
     s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], line_angles)
-    near = np.minimum(np.abs(s1), np.abs(s2)) / LINE_BAND_PX
+    distance = np.minimum(np.abs(s1), np.abs(s2)) / LINE_BAND_PX
+    # A half disk of no more pairs than that is every point's band as it is (a copy each:
+    # the fit's arrays keep the offsets' memory order, and with it their sums' order).
+    offsets = np.repeat(disk[None], len(line_angles), axis=0)
     if len(disk) > _LINE_FIT_MAX_PAIRS:
-        nearest = np.argpartition(near, _LINE_FIT_MAX_PAIRS - 1, axis=1)
+        nearest = np.argpartition(distance, _LINE_FIT_MAX_PAIRS - 1, axis=1)
         nearest = nearest[:, :_LINE_FIT_MAX_PAIRS]
-    else:
-        nearest = np.broadcast_to(np.arange(len(disk)), near.shape)
-    distance = np.take_along_axis(near, nearest, axis=1)
+        distance, s1, s2 = (np.take_along_axis(a, nearest, axis=1) for a in (distance, s1, s2))
+        offsets = disk[nearest]
     present = distance <= _LINE_BAND_REACH
-    across = np.stack(
-        [np.take_along_axis(np.broadcast_to(s, near.shape), nearest, axis=1) for s in (s1, s2)],
-        axis=-1,
-    )
     return _LineBand(
-        disk[nearest],
+        offsets,
         np.where(present, np.exp(-0.5 * distance**2), 0.0),
         present,
         np.full(len(line_angles), _grid_spacing(radius_px, _LINE_FIT_MAX_SAMPLES)),
-        across,
+        np.stack([s1, s2], axis=-1),
     )
 
 
