@@ -511,6 +511,13 @@ def symmetric_offsets(
     return offsets, weights
 
 
+@functools.lru_cache(maxsize=256)
+def _grid_spacing(radius_px: float, max_samples: int) -> float:
+    """The smallest step of :func:`symmetric_offsets`' grid along x or y, px, and at most 1."""
+    offsets, _ = symmetric_offsets(radius_px, max_samples)
+    return float(np.min(np.abs(offsets[offsets != 0]), initial=1.0))
+
+
 def refine_point_symmetry(
     image: NDArray[Any],
     xy: NDArray[np.float64],
@@ -568,9 +575,7 @@ def refine_point_symmetry(
     patterns = [symmetric_offsets(float(radius), max_samples) for radius in keys]
     offsets, present = pad_patterns([pattern for pattern, _ in patterns])
     tapers, _ = pad_patterns([taper for _, taper in patterns])
-    spacing = np.array(
-        [np.min(np.abs(pattern[pattern != 0]), initial=1.0) for pattern, _ in patterns]
-    )
+    spacing = np.array([_grid_spacing(float(radius), max_samples) for radius in keys])
     max_shift = np.broadcast_to(np.asarray(max_shift_px, dtype=np.float64), (n,))
     fit = functools.partial(
         _gauss_newton_symmetry,
@@ -1010,24 +1015,22 @@ def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
     """
     disk, _ = symmetric_offsets(radius_px, _LINE_FIT_MAX_SAMPLES)
     s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], line_angles)
-    near = np.minimum(np.abs(s1), np.abs(s2)) / LINE_BAND_PX
+    distance = np.minimum(np.abs(s1), np.abs(s2)) / LINE_BAND_PX
+    # A half disk of no more pairs than that is every point's band as it is (a copy each:
+    # the fit's arrays keep the offsets' memory order, and with it their sums' order).
+    offsets = np.repeat(disk[None], len(line_angles), axis=0)
     if len(disk) > _LINE_FIT_MAX_PAIRS:
-        nearest = np.argpartition(near, _LINE_FIT_MAX_PAIRS - 1, axis=1)
+        nearest = np.argpartition(distance, _LINE_FIT_MAX_PAIRS - 1, axis=1)
         nearest = nearest[:, :_LINE_FIT_MAX_PAIRS]
-    else:
-        nearest = np.broadcast_to(np.arange(len(disk)), near.shape)
-    distance = np.take_along_axis(near, nearest, axis=1)
+        distance, s1, s2 = (np.take_along_axis(a, nearest, axis=1) for a in (distance, s1, s2))
+        offsets = disk[nearest]
     present = distance <= _LINE_BAND_REACH
-    across = np.stack(
-        [np.take_along_axis(np.broadcast_to(s, near.shape), nearest, axis=1) for s in (s1, s2)],
-        axis=-1,
-    )
     return _LineBand(
-        disk[nearest],
+        offsets,
         np.where(present, np.exp(-0.5 * distance**2), 0.0),
         present,
-        np.full(len(line_angles), np.min(np.abs(disk[disk != 0]), initial=1.0)),
-        across,
+        np.full(len(line_angles), _grid_spacing(radius_px, _LINE_FIT_MAX_SAMPLES)),
+        np.stack([s1, s2], axis=-1),
     )
 
 
@@ -1050,8 +1053,8 @@ def _step_blur(
     did no better (0.077 px); eleven blurs 0.5-1.6 px by this profile neither
     (0.080 px: the more choices, the more the noise picks).
     """
-    residual, weight, jacobian, _ = _symmetry_terms(
-        image, centre, np.zeros((len(centre), 4)), band.offsets, band.weight, model_gain
+    residual, weight, jacobian, _, _ = _symmetry_terms(
+        image, centre, np.zeros((len(centre), 4)), _both_ends(band.offsets), band.weight, model_gain
     )
     cost = []
     for blur in EDGE_STEP_BLURS_PX:
@@ -1147,7 +1150,7 @@ def _light_inside(
     disk, _ = symmetric_offsets(radius_px, _INSIDE_MAX_SAMPLES)
     s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], line_angles)
     k = len(disk)
-    both, valid = bilinear(image, *_pair_positions(centre, disk[None, :, 0], disk[None, :, 1]))
+    both, valid = bilinear(image, *_pair_positions(centre, _both_ends(disk[None])))
     plus, minus = both[:, :k], both[:, k:]
     weight = (
         (np.minimum(np.abs(s1), np.abs(s2)) >= INSIDE_LINE_DISTANCE_PX)
@@ -1155,14 +1158,15 @@ def _light_inside(
         & valid[:, k:]
     ).astype(np.float64)
     total = plus + minus
-    design = np.stack([disk[:, 0] * total, disk[:, 1] * total, np.sign(s1), np.sign(s2)], axis=-1)
-    weighted = design * weight[..., None]
+    columns = [disk[:, 0] * total, disk[:, 1] * total, np.sign(s1), np.sign(s2)]
+    design = np.stack(columns, axis=-1)
+    weighted = np.stack([column * weight for column in columns], axis=-1)
     normal = weighted.transpose(0, 2, 1) @ design + 1e-9 * np.eye(4)
     residual = plus - minus
     solution = np.linalg.solve(normal, (weighted.transpose(0, 2, 1) @ residual[..., None]))[..., 0]
     misfit = residual - (design @ solution[..., None])[..., 0]
     # Per pair, like the line fit's: pairs closer than a pixel are correlated.
-    spacing = float(np.min(np.abs(disk[disk != 0]), initial=1.0))
+    spacing = _grid_spacing(radius_px, _INSIDE_MAX_SAMPLES)
     variance = (weight * misfit**2).sum(axis=1) / np.maximum(weight.sum(axis=1) - 4, 1.0)
     variance = np.maximum(variance, 1e-12) / min(spacing, 1.0) ** 2
     slope_block, cross, level_block = normal[:, :2, :2], normal[:, :2, 2:], normal[:, 2:, 2:]
@@ -1249,24 +1253,38 @@ def locate_markers(
     return MarkerLocation(position, sigma, score, accepted)
 
 
+class _Terms(NamedTuple):
+    """What :func:`_symmetry_terms` reads at N points' centres, each with the points first.
+
+    ``residual`` and ``weight`` (N, K); the ``jacobian`` (N, K, P) and its columns
+    times the weight, ``weighted``; the ``samples`` (N, 2K), I(c + d) then I(c - d).
+    """
+
+    residual: NDArray[np.float64]
+    weight: NDArray[np.float64]
+    jacobian: NDArray[np.float64]
+    weighted: NDArray[np.float64]
+    samples: NDArray[np.float64]
+
+
 def _symmetry_terms(
     image: NDArray[Any],
     centre: NDArray[np.float64],
     gain: NDArray[np.float64],
-    offsets: NDArray[np.float64],
+    ends: tuple[NDArray[np.float64], NDArray[np.float64]],
     taper: NDArray[np.float64],
     model_gain: bool,
     edge_steps: NDArray[np.float64] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Residuals r(d), weights, Jacobian (N, K, P) and the samples I(c +- d) at ``centre``.
+) -> _Terms:
+    """Residuals r(d), weights, Jacobian and the samples I(c +- d) at ``centre``.
 
-    ``offsets`` is (N, K, 2) and ``taper`` (N, K): each point's own pattern. With
-    ``edge_steps`` (N, K, 2), :func:`_edge_steps` at the offsets, r(d) also loses
-    a E1(d) + b E2(d), a and b the last two of ``gain``'s four columns.
+    ``ends`` are each point's pairs' offsets (:func:`_both_ends`) and ``taper`` (N, K)
+    their weights. With ``edge_steps`` (N, K, 2), :func:`_edge_steps` at the offsets,
+    r(d) also loses a E1(d) + b E2(d), a and b the last two of ``gain``'s four columns.
     """
-    dx, dy = offsets[..., 0], offsets[..., 1]
-    k = dx.shape[1]
-    both, gx, gy, valid = bilinear_with_gradient(image, *_pair_positions(centre, dx, dy))
+    k = ends[0].shape[1] // 2
+    dx, dy = ends[0][:, :k], ends[1][:, :k]
+    both, gx, gy, valid = bilinear_with_gradient(image, *_pair_positions(centre, ends))
     plus, minus = both[:, :k], both[:, k:]
     residual = plus - minus
     weight = taper * (valid[:, :k] & valid[:, k:])
@@ -1278,7 +1296,9 @@ def _symmetry_terms(
     if edge_steps is not None:
         residual -= gain[:, 2, None] * edge_steps[..., 0] + gain[:, 3, None] * edge_steps[..., 1]
         jac += [-edge_steps[..., 0], -edge_steps[..., 1]]
-    return residual, weight, np.stack(jac, axis=-1), both
+    # Column by column: a product broadcast along the short last axis costs 2-3x.
+    weighted = np.stack([column * weight for column in jac], axis=-1)
+    return _Terms(residual, weight, np.stack(jac, axis=-1), weighted, both)
 
 
 def _damped_solve(normal: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -1292,16 +1312,24 @@ def _damped_solve(normal: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDAr
     return cast("NDArray[np.float64]", np.linalg.solve(damped, rhs))
 
 
-def _pair_positions(
-    centre: NDArray[np.float64], dx: NDArray[np.float64], dy: NDArray[np.float64]
+def _both_ends(
+    offsets: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(x, y), each (N, 2K): the positions c + d of the K offsets d per point, then c - d.
+    """(x, y), each (N, 2K): the K offsets d (N, K, 2) of each point's pairs, then -d.
 
     Both ends of every pair in one gather: for a few dozen points the calls, not the
-    samples, are the cost. The first K columns are c + d, the last K c - d.
+    samples, are the cost. A fit reads them at every step: formed once, c + (-d)
+    is c - d to the bit.
     """
-    x, y = centre[:, 0, None], centre[:, 1, None]
-    return np.concatenate([x + dx, x - dx], axis=1), np.concatenate([y + dy, y - dy], axis=1)
+    dx, dy = offsets[..., 0], offsets[..., 1]
+    return np.concatenate([dx, -dx], axis=1), np.concatenate([dy, -dy], axis=1)
+
+
+def _pair_positions(
+    centre: NDArray[np.float64], ends: tuple[NDArray[np.float64], NDArray[np.float64]]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(x, y), each (N, 2K): the positions c + d of the pairs' :func:`_both_ends`."""
+    return centre[:, 0, None] + ends[0], centre[:, 1, None] + ends[1]
 
 
 def _edge_steps(
@@ -1344,7 +1372,7 @@ def _edge_step_chi2(
     ``normal`` matrix are the fit's at its end; ``cell`` (N,) is the area a sample
     stands for, px^2 (samples closer than a pixel share their noise).
     """
-    weighted_steps = steps * weight[..., None]
+    weighted_steps = np.stack([steps[..., 0] * weight, steps[..., 1] * weight], axis=-1)
     cross = weighted.transpose(0, 2, 1) @ steps
     projected = np.linalg.solve(normal + 1e-9 * np.eye(normal.shape[-1]), cross)
     reduced = weighted_steps.transpose(0, 2, 1) @ steps - cross.transpose(0, 2, 1) @ projected
@@ -1416,37 +1444,40 @@ def _gauss_newton_symmetry(
     # Only the uncertainty reads the terms where the last step ends: without it, that
     # step ends the fit.
     evaluations = iterations + 1 if uncertainty or iterations == 0 else iterations
+    ends = _both_ends(offsets)
     for iteration in range(evaluations):
+        # Where every point is read (the first pass, and while all move), views, not copies.
+        rows = slice(None) if len(todo) == n else todo
         terms = _symmetry_terms(
             image,
-            centre[todo],
-            gain[todo],
-            offsets[todo],
-            taper[todo],
+            centre[rows],
+            gain[rows],
+            (ends[0][rows], ends[1][rows]),
+            taper[rows],
             model_gain,
-            None if edge_steps is None else edge_steps[todo],
+            None if edge_steps is None else edge_steps[rows],
         )
-        moved_weighted = terms[2] * terms[1][..., None]
         # Batched matrix products: three-operand einsum has no BLAS path and cost 5x.
-        moved_normal = moved_weighted.transpose(0, 2, 1) @ terms[2]
-        if iteration == 0:
-            residual, weight, jacobian, samples = terms
-            weighted, normal = moved_weighted, moved_normal
+        moved_normal = terms.weighted.transpose(0, 2, 1) @ terms.jacobian
+        if len(todo) == n:
+            residual, weight, jacobian, weighted, samples = terms
+            normal = moved_normal
         else:
             for full, part in zip(
-                (residual, weight, jacobian, samples, weighted, normal),
-                (*terms, moved_weighted, moved_normal),
+                (residual, weight, jacobian, weighted, samples, normal),
+                (*terms, moved_normal),
                 strict=True,
             ):
                 full[todo] = part
         active = np.flatnonzero(step_norm > tolerance_px)
         if iteration == iterations or not len(active):
             break
-        rhs = (weighted[active].transpose(0, 2, 1) @ residual[active, :, None])[..., 0]
-        system = normal[active] + prior[active]
+        stepping = slice(None) if len(active) == n else active
+        rhs = (weighted[stepping].transpose(0, 2, 1) @ residual[stepping, :, None])[..., 0]
+        system = normal[stepping] + prior[stepping]
         if slope_prior is not None:
-            away = gain[active, :2] - slope_prior[0][active]
-            rhs[:, 2:4] += (prior[active, 2:4, 2:4] @ away[..., None])[..., 0]
+            away = gain[stepping, :2] - slope_prior[0][stepping]
+            rhs[:, 2:4] += (prior[stepping, 2:4, 2:4] @ away[..., None])[..., 0]
         step = -_damped_solve(system, rhs[..., None])[..., 0]
         # A Gauss-Newton step larger than a pixel is untrustworthy this far from the optimum.
         np.clip(step[:, :2], -1.0, 1.0, out=step[:, :2])
