@@ -1870,7 +1870,6 @@ class Detector:
                 angles,
                 max_radius_px=self.config.marker_radius_max_px,
                 full_scale=frame.full_scale,
-                noise=frame.noise,
             )
         return [
             Detection(

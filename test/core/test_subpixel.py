@@ -1,7 +1,6 @@
 """Sections 3.3.1-3.3.2: adaptive template, NCC by matrix product, quadratic extremum,
 and the point-symmetry refinement."""
 
-import functools
 from collections.abc import Callable
 
 import cv2
@@ -9,7 +8,7 @@ import numpy as np
 import pytest
 
 from marker_localizer.core import subpixel, template
-from marker_localizer.core.noise import NoiseModel, estimate_noise
+from marker_localizer.core.noise import NoiseModel
 from marker_localizer.core.pipeline import MAX_TEMPLATE_MISFIT
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 
@@ -346,7 +345,6 @@ def test_the_line_weighted_refit_is_more_precise_than_the_gating_fit_on_large_ma
             np.array([30.0]),
             angles,
             full_scale=255.0,
-            noise=functools.partial(estimate_noise, image, 255.0),
             max_radius_px=40.0,
         )
         gating_error.append(np.linalg.norm(gating.xy[0] - truth))
@@ -388,7 +386,6 @@ def test_a_tiny_marker_is_located_within_one_and_a_half_times_its_cramer_rao_bou
             np.array([4.0]),
             angles,
             full_scale=255.0,
-            noise=functools.partial(estimate_noise, scene.image, 255.0),
             max_radius_px=10.0,
         )
         errors.append(np.linalg.norm(refit[0] - truth))
@@ -408,7 +405,6 @@ def test_a_line_weighted_refit_that_slips_from_the_gating_centre_keeps_it():
         np.array([[0.3, 0.3 + np.pi / 2]]),
         max_radius_px=40.0,
         full_scale=255.0,
-        noise=functools.partial(estimate_noise, image, 255.0),
     )
     np.testing.assert_array_equal(xy, start)
     np.testing.assert_array_equal(kept, sigma)
@@ -442,7 +438,6 @@ def _gate_and_refit(image, truth, angles):
         np.array([13.0]),
         angles,
         full_scale=255.0,
-        noise=functools.partial(estimate_noise, image, 255.0),
         max_radius_px=30.0,
     )
     return gating.xy[0], refit[0]
@@ -479,7 +474,6 @@ def test_the_quadrants_own_levels_lie_on_the_lines_found_from_the_edges(dull_fac
                 angles + np.radians(off_deg),
                 max_radius_px=30.0,
                 full_scale=255.0,
-                noise=functools.partial(estimate_noise, image, 255.0),
             )
             refit_error.append(np.linalg.norm(refit[0] - truth))
     assert np.mean(refit_error) < 0.04
@@ -622,7 +616,6 @@ def test_the_light_slope_from_the_insides_costs_the_centre_little():
             np.full(4, 20.0),
             angles,
             full_scale=255.0,
-            noise=functools.partial(estimate_noise, image, 255.0),
             max_radius_px=40.0,
         )
         errors.append(np.linalg.norm(xy - clean.centres, axis=1))
