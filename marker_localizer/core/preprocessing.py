@@ -235,6 +235,47 @@ class StructureComponents:
         return float(np.quantile(self.from_sigma(self.sigma_at(rows, cols)), q))
 
 
+#: The largest factor :func:`area_reduced` sums blocks for itself: a block of 16 x 16
+#: 16-bit pixels sums to under 2^24, exact in OpenCV's float32 sums as in its own, and
+#: one of 8-bit pixels to under 2^16.
+_MAX_BLOCK_SUM_FACTOR = 16
+
+
+def area_reduced(image: NDArray[Any], size: tuple[int, int]) -> NDArray[Any]:
+    """``cv2.resize(image, size, interpolation=cv2.INTER_AREA)``, bit for bit.
+
+    Where an 8- or 16-bit image shrinks by one whole factor above 2 in both
+    directions, OpenCV sums each block in scalar code (~3 ms for a 12 MP frame by
+    8); adding the block's rows and then its columns as strided views gives the
+    same sums in about two thirds of the time, and they are rounded as OpenCV
+    rounds them: the sum times the float32 reciprocal of the block's area, to
+    nearest even.
+
+    Args:
+        image: (H, W) image.
+        size: (width, height) of the result.
+    """
+    height, width = image.shape
+    factor = height // size[1]
+    if (
+        image.dtype not in (np.uint8, np.uint16)
+        or not 2 < factor <= _MAX_BLOCK_SUM_FACTOR
+        or (width, height) != (size[0] * factor, size[1] * factor)
+    ):
+        return cast(NDArray[Any], cv2.resize(image, size, interpolation=cv2.INTER_AREA))
+    # 16-bit sums of 8-bit pixels: half the memory to pass over of 32-bit ones.
+    rows: NDArray[np.unsignedinteger[Any]] = image[::factor].astype(
+        np.uint16 if image.dtype == np.uint8 else np.uint32
+    )
+    for row in range(1, factor):
+        rows += image[row::factor]
+    sums = rows[:, ::factor].copy()
+    for col in range(1, factor):
+        sums += rows[:, col::factor]
+    mean = sums.astype(np.float32) * (np.float32(1.0) / np.float32(factor * factor))
+    return cast(NDArray[Any], np.rint(mean).astype(image.dtype))
+
+
 def local_mean_lattice_px(window_px: int) -> int:
     """Grid of the local-mean map of Eq. (2), px: the frame reduced by an eighth of the window.
 
@@ -315,10 +356,8 @@ class LocalGamma:
 
     def _mean_map(self, crop: NDArray[Any]) -> FloatImage:
         height, width = crop.shape
-        small = cv2.resize(
-            crop,
-            (max(2, width // self._reduction), max(2, height // self._reduction)),
-            interpolation=cv2.INTER_AREA,
+        small = area_reduced(
+            crop, (max(2, width // self._reduction), max(2, height // self._reduction))
         ).astype(np.float32) / np.float32(self._full_scale)
         return box_mean(small, self._diameter)
 
