@@ -142,7 +142,8 @@ _DECISION_PIXELS = 300
 _LINE_WINDOW_MIN_PX = 3.0
 #: Rings that say where an X's lines cross (:func:`verification.line_crossing_centres`):
 #: those a run of good rings may start on and the next
-#: (:func:`verification.centre_symmetry_check`'s ``max_first_ring`` of 2, plus one).
+#: (:func:`verification.centre_symmetry_check`'s ``max_first_ring`` of 2, plus one), so
+#: among those the check reads for every point first, whose samples they take.
 _LINE_CROSSING_RINGS = 3
 #: Candidates screened at this scale or wider, px (the saddle pyramid's second level
 #: on), get second readings where the first found no X: the plain rings' rejects are
@@ -1519,6 +1520,7 @@ class Detector:
             self._radii[:_LINE_CROSSING_RINGS],
             min_contrast=self._min_contrast,
             normalise=gamma,
+            profiles=inner[lost, :_LINE_CROSSING_RINGS],
         )
         # Those the crossing left where they were have had their equalised reading.
         shifted = (crossing != candidates.xy[lost]).any(axis=1)

@@ -1064,9 +1064,15 @@ def _edge_rings(
     min_contrast: float,
     max_phase_error_rad: float,
     normalise: Normaliser | None,
+    profiles: NDArray[np.float64] | None = None,
 ) -> EdgePhaseRings:
-    """:func:`analyse_ring_edges` of the rings of ``radii_px`` around ``xy``."""
-    profiles = annular_profiles(image, xy, radii_px, normalise)
+    """:func:`analyse_ring_edges` of the rings of ``radii_px`` around ``xy``.
+
+    ``profiles``: those rings as :func:`annular_profiles` read them with ``normalise``;
+    None reads them.
+    """
+    if profiles is None:
+        profiles = annular_profiles(image, xy, radii_px, normalise)
     return analyse_ring_edges(
         profiles, min_contrast=min_contrast, max_phase_error_rad=max_phase_error_rad
     )
@@ -1100,6 +1106,7 @@ def line_crossing_centres(
     min_contrast: float,
     recentre_px: float = RECENTRE_MAX_PX,
     normalise: Normaliser | None = None,
+    profiles: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Candidates moved to where the lines found on their rings cross.
 
@@ -1118,11 +1125,16 @@ def line_crossing_centres(
         min_contrast: minimum ring contrast in image units (after ``normalise``).
         recentre_px: largest move, px; a candidate that would move further stays.
         normalise: applied to the ring samples.
+        profiles: (N, J, 36) the rings of ``radii_px`` around ``xy`` as
+            :func:`annular_profiles` read them with ``normalise`` (a check's inner
+            rings); None reads them.
 
     Returns:
         (N, 2) the centres, and (N,) True where a ring found two lines.
     """
-    rings = _edge_rings(image, xy, radii_px, min_contrast, RECENTRE_PHASE_ERROR_RAD, normalise)
+    rings = _edge_rings(
+        image, xy, radii_px, min_contrast, RECENTRE_PHASE_ERROR_RAD, normalise, profiles
+    )
     crossing = np.where(
         rings.good[..., None], chord_crossing(xy, radii_px, rings.crossings), np.nan
     )
