@@ -254,6 +254,14 @@ def _smoothed_extremes(
 
     The contrast is 0 on a ring with NaN samples.
     """
+    f, high, low, missing = _smoothed_range(profiles)
+    return f, np.where(missing, 0.0, high - low), 0.5 * (high + low), missing
+
+
+def _smoothed_range(
+    profiles: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """The [1, 2, 1]-smoothed profiles (NaN as 0), their maxima and minima, the rings with NaN."""
     f = _circular_smooth(profiles)
     high, low = f.max(axis=-1), f.min(axis=-1)
     # The maximum propagates NaN: it finds the few rings with NaN samples without a
@@ -263,7 +271,7 @@ def _smoothed_extremes(
         partial = profiles[missing]
         f[missing] = _circular_smooth(np.where(np.isnan(partial), 0.0, partial))
         high[missing], low[missing] = f[missing].max(axis=-1), f[missing].min(axis=-1)
-    return f, np.where(missing, 0.0, high - low), 0.5 * (high + low), missing
+    return f, high, low, missing
 
 
 def _self_correlation(f: NDArray[np.float64], missing: NDArray[np.bool_]) -> NDArray[np.float64]:
@@ -411,10 +419,8 @@ def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64
     """
     shape = profiles.shape
     rings = profiles.reshape(-1, N_ANGLES).astype(np.float64)
-    smooth = _smoothed_extremes(rings)[0]
+    smooth, peak, dark, _ = _smoothed_range(rings)
     top = smooth.argmax(axis=1)
-    every = np.arange(len(smooth))
-    dark, peak = smooth.min(axis=1), smooth[every, top]
     duller = np.minimum(smooth[:, :_HALF_TURN], smooth[:, _HALF_TURN:]).max(axis=1)
     # Each sample's angle from the ring's maximum, which sits at the half turn.
     turned = _TURNED_FROM[top]
