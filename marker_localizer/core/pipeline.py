@@ -1270,9 +1270,11 @@ class Detector:
     ) -> screening.ShadowGain:
         """:meth:`_shadow_gain` for screening an image whose pixel (0, 0) is ``origin_px``."""
         origin = np.asarray(origin_px, np.float64)
+        # The gain falls as the mean rises: the darkest means bound it from above.
         return screening.ShadowGain(
             lambda xy: self._shadow_gain(gamma.mean_at(xy + origin)),
             lambda y: self._shadow_gain(gamma.darkest_mean_on_rows(y + origin[1])),
+            lambda xy: self._shadow_gain(gamma.darkest_mean_near(xy + origin)),
         )
 
     def _centre(
