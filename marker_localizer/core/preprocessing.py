@@ -276,25 +276,6 @@ def area_reduced(image: NDArray[Any], size: tuple[int, int]) -> NDArray[Any]:
     return cast(NDArray[Any], np.rint(mean).astype(image.dtype))
 
 
-#: Map cells per side of the blocks whose darkest local mean bounds the mean around a
-#: point from below (:meth:`LocalGamma.darkest_mean_near`): on a 12 MP frame half in
-#: shadow, the gain that bound allows lifts 5 % of the screening's weak peaks there
-#: over the threshold (blocks of 16 cells: 20 %), and only those are looked up exactly.
-_DARKEST_BLOCK_CELLS = 4
-
-
-def _neighbourhood_minima(values: FloatImage, block: int) -> FloatImage:
-    """The minimum over each ``block`` x ``block`` block of ``values`` and its eight neighbours."""
-    height, width = values.shape
-    rows, cols = -(-height // block), -(-width // block)
-    padded = np.pad(values, ((0, rows * block - height), (0, cols * block - width)), mode="edge")
-    minima = padded.reshape(rows, block, cols, block).min(axis=(1, 3))
-    return cast(
-        FloatImage,
-        cv2.erode(minima, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE),
-    )
-
-
 def local_mean_lattice_px(window_px: int) -> int:
     """Grid of the local-mean map of Eq. (2), px: the frame reduced by an eighth of the window.
 
@@ -370,10 +351,10 @@ class LocalGamma:
         self._maps = np.concatenate([m.ravel() for m in maps]).astype(np.float64)
         # Each map row's lowest mean, for the darkest mean along an image row.
         self._darkest_in_row = np.concatenate([m.min(axis=1) for m in maps])
-        # With one map, the darkest mean of each block of it and its neighbours: a point's
-        # four map cells lie in its own block or the next.
+        # With one map, the darkest of the four means each map cell interpolates between
+        # (the cell's own and those right of and below it).
         self._darkest_near = (
-            _neighbourhood_minima(maps[0], _DARKEST_BLOCK_CELLS) if len(maps) == 1 else None
+            cv2.erode(maps[0], np.ones((2, 2), np.uint8), anchor=(0, 0)) if len(maps) == 1 else None
         )
         #: The lowest local mean luminance in the measured area, in [0, 1].
         self.darkest_mean = float(self._darkest_in_row.min())
@@ -403,17 +384,13 @@ class LocalGamma:
     def darkest_mean_near(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """(N,) a lower bound on :meth:`mean_at` at (N, 2) points, cheaper than it.
 
-        The darkest mean of the map's block around each point and its neighbours
-        (:data:`_DARKEST_BLOCK_CELLS`), where one map is measured; the darkest mean
-        along its row where several are.
+        The darkest of the four means each point's mean interpolates between, where
+        one map is measured; the darkest mean along its row where several are.
         """
         if self._darkest_near is None:
             return self.darkest_mean_on_rows(xy[:, 1])
         _, x, y, inside = self._map_position(xy)
-        block = _DARKEST_BLOCK_CELLS
-        darkest = self._darkest_near[
-            np.floor(y).astype(np.intp) // block, np.floor(x).astype(np.intp) // block
-        ]
+        darkest = self._darkest_near[np.floor(y).astype(np.intp), np.floor(x).astype(np.intp)]
         return np.where(inside, darkest, 0.5)
 
     def mean_at(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:

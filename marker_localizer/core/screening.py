@@ -659,7 +659,7 @@ class _LevelPeaks(NamedTuple):
         weak = in_dark[self.peaks.values[in_dark] <= threshold * threshold]
         xy = self.pixel_xy(self.peaks.flat_index[weak])
         # Only those the gain's bound lifts over the threshold can pass, and only their
-        # gain is looked up (a twentieth of them on a frame half in shadow).
+        # gain is looked up (1-7 % of them, by level, on a frame half in shadow).
         bound = (threshold / shadow.at_most(xy)) ** 2 * _GAIN_BOUND_SLACK
         lifted = np.flatnonzero(self.peaks.values[weak] > bound)
         gain = shadow.at(xy[lifted])
