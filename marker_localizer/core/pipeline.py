@@ -142,7 +142,8 @@ _DECISION_PIXELS = 300
 _LINE_WINDOW_MIN_PX = 3.0
 #: Rings that say where an X's lines cross (:func:`verification.line_crossing_centres`):
 #: those a run of good rings may start on and the next
-#: (:func:`verification.centre_symmetry_check`'s ``max_first_ring`` of 2, plus one).
+#: (:func:`verification.centre_symmetry_check`'s ``max_first_ring`` of 2, plus one), so
+#: among those the check reads for every point first, whose samples they take.
 _LINE_CROSSING_RINGS = 3
 #: Candidates screened at this scale or wider, px (the saddle pyramid's second level
 #: on), get second readings where the first found no X: the plain rings' rejects are
@@ -1269,9 +1270,11 @@ class Detector:
     ) -> screening.ShadowGain:
         """:meth:`_shadow_gain` for screening an image whose pixel (0, 0) is ``origin_px``."""
         origin = np.asarray(origin_px, np.float64)
+        # The gain falls as the mean rises: the darkest means bound it from above.
         return screening.ShadowGain(
             lambda xy: self._shadow_gain(gamma.mean_at(xy + origin)),
             lambda y: self._shadow_gain(gamma.darkest_mean_on_rows(y + origin[1])),
+            lambda xy: self._shadow_gain(gamma.darkest_mean_near(xy + origin)),
         )
 
     def _centre(
@@ -1519,6 +1522,7 @@ class Detector:
             self._radii[:_LINE_CROSSING_RINGS],
             min_contrast=self._min_contrast,
             normalise=gamma,
+            profiles=inner[lost, :_LINE_CROSSING_RINGS],
         )
         # Those the crossing left where they were have had their equalised reading.
         shifted = (crossing != candidates.xy[lost]).any(axis=1)

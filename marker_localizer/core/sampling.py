@@ -32,11 +32,12 @@ def corners(
     Returns:
         Four float64 arrays: differences of uint8/uint16 samples would wrap around.
     """
+    # The gathers are fresh arrays: a float64 image's need no copy.
     return (
-        flat[base].astype(np.float64),
-        flat[base + 1].astype(np.float64),
-        flat[base + stride].astype(np.float64),
-        flat[base + stride + 1].astype(np.float64),
+        flat[base].astype(np.float64, copy=False),
+        flat[base + 1].astype(np.float64, copy=False),
+        flat[base + stride].astype(np.float64, copy=False),
+        flat[base + stride + 1].astype(np.float64, copy=False),
     )
 
 

@@ -254,6 +254,14 @@ def _smoothed_extremes(
 
     The contrast is 0 on a ring with NaN samples.
     """
+    f, high, low, missing = _smoothed_range(profiles)
+    return f, np.where(missing, 0.0, high - low), 0.5 * (high + low), missing
+
+
+def _smoothed_range(
+    profiles: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """The [1, 2, 1]-smoothed profiles (NaN as 0), their maxima and minima, the rings with NaN."""
     f = _circular_smooth(profiles)
     high, low = f.max(axis=-1), f.min(axis=-1)
     # The maximum propagates NaN: it finds the few rings with NaN samples without a
@@ -263,7 +271,7 @@ def _smoothed_extremes(
         partial = profiles[missing]
         f[missing] = _circular_smooth(np.where(np.isnan(partial), 0.0, partial))
         high[missing], low[missing] = f[missing].max(axis=-1), f[missing].min(axis=-1)
-    return f, np.where(missing, 0.0, high - low), 0.5 * (high + low), missing
+    return f, high, low, missing
 
 
 def _self_correlation(f: NDArray[np.float64], missing: NDArray[np.bool_]) -> NDArray[np.float64]:
@@ -411,10 +419,8 @@ def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64
     """
     shape = profiles.shape
     rings = profiles.reshape(-1, N_ANGLES).astype(np.float64)
-    smooth = _smoothed_extremes(rings)[0]
+    smooth, peak, dark, _ = _smoothed_range(rings)
     top = smooth.argmax(axis=1)
-    every = np.arange(len(smooth))
-    dark, peak = smooth.min(axis=1), smooth[every, top]
     duller = np.minimum(smooth[:, :_HALF_TURN], smooth[:, _HALF_TURN:]).max(axis=1)
     # Each sample's angle from the ring's maximum, which sits at the half turn.
     turned = _TURNED_FROM[top]
@@ -1064,9 +1070,15 @@ def _edge_rings(
     min_contrast: float,
     max_phase_error_rad: float,
     normalise: Normaliser | None,
+    profiles: NDArray[np.float64] | None = None,
 ) -> EdgePhaseRings:
-    """:func:`analyse_ring_edges` of the rings of ``radii_px`` around ``xy``."""
-    profiles = annular_profiles(image, xy, radii_px, normalise)
+    """:func:`analyse_ring_edges` of the rings of ``radii_px`` around ``xy``.
+
+    ``profiles``: those rings as :func:`annular_profiles` read them with ``normalise``;
+    None reads them.
+    """
+    if profiles is None:
+        profiles = annular_profiles(image, xy, radii_px, normalise)
     return analyse_ring_edges(
         profiles, min_contrast=min_contrast, max_phase_error_rad=max_phase_error_rad
     )
@@ -1100,6 +1112,7 @@ def line_crossing_centres(
     min_contrast: float,
     recentre_px: float = RECENTRE_MAX_PX,
     normalise: Normaliser | None = None,
+    profiles: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Candidates moved to where the lines found on their rings cross.
 
@@ -1118,11 +1131,16 @@ def line_crossing_centres(
         min_contrast: minimum ring contrast in image units (after ``normalise``).
         recentre_px: largest move, px; a candidate that would move further stays.
         normalise: applied to the ring samples.
+        profiles: (N, J, 36) the rings of ``radii_px`` around ``xy`` as
+            :func:`annular_profiles` read them with ``normalise`` (a check's inner
+            rings); None reads them.
 
     Returns:
         (N, 2) the centres, and (N,) True where a ring found two lines.
     """
-    rings = _edge_rings(image, xy, radii_px, min_contrast, RECENTRE_PHASE_ERROR_RAD, normalise)
+    rings = _edge_rings(
+        image, xy, radii_px, min_contrast, RECENTRE_PHASE_ERROR_RAD, normalise, profiles
+    )
     crossing = np.where(
         rings.good[..., None], chord_crossing(xy, radii_px, rings.crossings), np.nan
     )

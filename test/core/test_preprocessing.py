@@ -1,5 +1,6 @@
 """Section 3.1: GDWGIF, dynamic gamma and the structure map."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -85,3 +86,36 @@ def test_the_darkest_mean_along_a_row_bounds_the_local_mean_at_every_point_of_it
     assert np.all(gamma.mean_at(xy) >= bound - 1e-6)
     # Tight: the darkest point of a row is near its bound.
     assert gamma.darkest_mean == pytest.approx(bound.min(), abs=0.02)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
+@pytest.mark.parametrize(("factor", "extra"), [(2, 0), (3, 0), (8, 0), (8, 5), (16, 0), (17, 0)])
+def test_area_reduced_is_opencvs_area_resize_bit_for_bit(dtype, factor, extra):
+    rng = np.random.default_rng(factor + extra)
+    shape = (factor * 7 + extra, factor * 9)
+    if dtype is np.float32:
+        image = rng.random(shape, np.float32)
+    else:
+        # Levels of a few steps: many blocks whose mean lies halfway between two levels.
+        image = (rng.integers(0, 5, shape) * (np.iinfo(dtype).max // 4)).astype(dtype)
+    size = (shape[1] // factor, shape[0] // factor)
+    expected = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    reduced = preprocessing.area_reduced(image, size)
+    assert reduced.dtype == expected.dtype
+    np.testing.assert_array_equal(reduced, expected)
+
+
+def test_the_darkest_mean_near_a_point_bounds_the_local_mean_there():
+    rng = np.random.default_rng(5)
+    # A shadow's soft edge across a lit ramp: the bound follows both.
+    yy, xx = np.mgrid[0:600, 0:800]
+    light = 40 + 200 * xx / 800 - 150 / (1 + np.exp(-(yy - 0.4 * xx - 200) / 30))
+    image = np.clip(light + rng.normal(0, 6, light.shape), 0, 255).astype(np.uint8)
+    gamma = preprocessing.LocalGamma(image, 255.0)
+    xy = rng.uniform([-20, -20], [820, 620], (5000, 2))
+    near = gamma.darkest_mean_near(xy)
+    assert np.all(gamma.mean_at(xy) >= near)
+    # Tighter than the row's darkest mean on most of the frame.
+    assert np.median(gamma.mean_at(xy) - near) < 0.5 * np.median(
+        gamma.mean_at(xy) - gamma.darkest_mean_on_rows(xy[:, 1])
+    )

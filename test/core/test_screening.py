@@ -484,7 +484,10 @@ def test_the_even_order_lists_points_as_the_even_cap_keeps_them_so_any_cap_keeps
 
 
 def _shadow(gain: float) -> screening.ShadowGain:
-    return screening.ShadowGain(lambda xy: np.full(len(xy), gain), lambda y: np.full(len(y), gain))
+    def everywhere(points: np.ndarray) -> np.ndarray:
+        return np.full(len(points), gain)
+
+    return screening.ShadowGain(everywhere, everywhere, everywhere)
 
 
 def test_a_marker_in_deep_shadow_is_screened_with_the_shadow_gain_and_only_then():
@@ -508,7 +511,9 @@ def test_rows_in_the_open_keep_the_configured_threshold():
     assert np.array_equal(plain.xy, lit.xy) and np.array_equal(plain.strength, lit.strength)
     # Shadow over the lower rows only: the upper rows' candidates stay exactly as they were.
     lower = screening.ShadowGain(
-        lambda xy: np.where(xy[:, 1] >= 80, 4.0, 1.0), lambda y: np.where(y >= 80, 4.0, 1.0)
+        lambda xy: np.where(xy[:, 1] >= 80, 4.0, 1.0),
+        lambda y: np.where(y >= 80, 4.0, 1.0),
+        lambda xy: np.where(xy[:, 1] >= 80, 4.0, 1.0),
     )
     shaded = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255, shadow=lower)
     upper = plain.xy[:, 1] < 70
