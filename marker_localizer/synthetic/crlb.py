@@ -48,8 +48,9 @@ _CENTRE_IN_UNSEEN = 1e-3
 #: of its u and v axes, two components each, then its perspective along u and v);
 #: the dark and the bright paint's reflectance and a dull quadrant's factor; the
 #: optics' Gaussian blur; the light's slope across the marker along x and y; a cast
-#: shadow's edge across it (its normal, its offset, its depth). A marker without a
-#: dull quadrant or a shadow has no information on them: they drop out.
+#: shadow's edge across it (its normal, its offset, the share of the light it takes).
+#: A marker without a dull quadrant or a shadow has no information on them: they drop
+#: out.
 BOUND_PARAMETERS = (
     "x",
     "y",
@@ -67,7 +68,7 @@ BOUND_PARAMETERS = (
     "light_slope_y",
     "shadow_normal",
     "shadow_offset",
-    "shadow_depth",
+    "shadow_darkening",
 )
 #: The parameters of an affine marker: a plane seen from far away, without perspective.
 AFFINE_PARAMETERS = tuple(p for p in BOUND_PARAMETERS if not p.startswith("perspective"))

@@ -1262,7 +1262,7 @@ BOUND_BLUR_STEP_PX = 0.02
 #: ... the light's slope, per px (the gain is linear in it) ...
 BOUND_LIGHT_SLOPE_STEP_PER_PX = 1e-4
 #: ... and a cast shadow's edge: its normal, rad, and its offset, px (its profile is
-#: a normal CDF: smooth; the shadow's depth steps as a paint does).
+#: a normal CDF: smooth; the share of the light it takes steps as a paint does).
 BOUND_SHADOW_NORMAL_STEP_RAD = 1e-3
 BOUND_SHADOW_OFFSET_STEP_PX = 0.01
 
@@ -1418,7 +1418,7 @@ def _smooth_derivatives(
         (
             c
             for c in imaging.cast_shadows
-            if math.isclose(c.x, centre[0]) and math.isclose(c.y, centre[1])
+            if np.isclose(c.x, centre[0]) and np.isclose(c.y, centre[1])
         ),
         None,
     )
