@@ -976,9 +976,10 @@ def _model_uneven(
     """The X's with uneven levels located by their model (:func:`uneven.locate_uneven`).
 
     With a cast shadow's edge where :func:`shadow.find_edges` sees one within
-    :data:`shadow.DETECTION_REACH_EXTENTS` of the extent, and where the model leaves
-    no more than :data:`uneven.MAX_MISFIT_RATIO` times ``reference_rms``, the
-    levels' fit's residual per pixel at each X.
+    :data:`shadow.DETECTION_REACH_EXTENTS` of the extent, or else within
+    :data:`shadow.DETECTION_NEAR_REACH_EXTENTS`, and where the model leaves no more
+    than :data:`uneven.MAX_MISFIT_RATIO` times ``reference_rms``, the levels' fit's
+    residual per pixel at each X.
     """
     edges = shadow.find_edges(
         image,
@@ -987,6 +988,18 @@ def _model_uneven(
         line_angles,
         full_scale,
     )
+    missed = np.flatnonzero(~edges.found)
+    if len(missed):
+        edges = edges.filled(
+            missed,
+            shadow.find_edges(
+                image,
+                centre[missed],
+                np.minimum(shadow.DETECTION_NEAR_REACH_EXTENTS * radius_px[missed], max_radius_px),
+                line_angles[missed],
+                full_scale,
+            ),
+        )
     return uneven.locate_uneven(
         image, centre, line_angles, radius_px, full_scale, edges, reference_rms
     )
