@@ -8,15 +8,15 @@ found, and the detector's mean error over each:
 * the Cramer-Rao bound ``bench accuracy`` divides by: the centre alone unknown,
   every pixel of the X read;
 * every parameter of the marker's image a fit must estimate beside the centre
-  unknown (the plane's homography, the two paints, the blur, the light's slope),
-  without and with the perspective;
+  unknown (:data:`~marker_localizer.synthetic.crlb.BOUND_PARAMETERS`: the plane's
+  homography, the paints and a dull quadrant's factor, the blur, the light's
+  slope, a cast shadow's edge), without and with the perspective;
 * the same from the pixels within :data:`INNER_SHARE` of the radius alone: about
   what the line fit reads (:func:`~marker_localizer.core.subpixel.refine_along_lines`
   reads 0.9 of the ring check's extent, a rung at or under the radius).
 
 A fit's efficiency is its error over the bound of what it estimates from the
-pixels it reads. Family (g)'s dull quadrant and cast shadow are not among the
-parameters: its rows bound a fit that knows them.
+pixels it reads.
 
 The frames are those of seeds ``first_seed`` on, which no table of
 ``bench accuracy`` renders (its seeds are ``seed * 1000 + i``).
