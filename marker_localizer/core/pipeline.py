@@ -261,6 +261,8 @@ class DetectionResult:
             ``merged_duplicates``, ``recentred``, ``found_recentred``,
             ``recentring_over_cap`` (:meth:`Detector._recentre_lost`), ``shadow_read``,
             ``found_shadowed``, ``shadow_over_cap`` (:meth:`Detector._reread_shadowed`),
+            ``uneven_over_cap`` (X's located by their levels' fit, not their model, for
+            :data:`subpixel.MAX_MODELLED`),
             ``accepted``;
             with ``refinement="template"``,
             ``rejected_<reason>`` for each of :data:`decision.REASONS` instead of
@@ -1866,6 +1868,7 @@ class Detector:
         gating fit's centres.
         """
         if self.config.refinement == "symmetry":
+            frame.result.counts.setdefault("uneven_over_cap", 0)
             xy, sigma = subpixel.refine_along_lines(
                 frame.gray,
                 xy,
@@ -1874,6 +1877,7 @@ class Detector:
                 angles,
                 max_radius_px=self.config.marker_radius_max_px,
                 full_scale=frame.full_scale,
+                tally=frame.result.counts,
             )
         return [
             Detection(

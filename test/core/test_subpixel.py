@@ -722,3 +722,35 @@ def test_a_smooth_saddle_leaves_more_unexplained_than_an_x_may(disk_px):
     angles = _crossing(50.0)
     saddle = _blurred(lambda s1, s2: np.clip(0.5 + 0.02 * s1 * s2, 0, 1) * 255.0, angles)
     assert _misfit(saddle, angles, disk_px, 0.0) > MAX_TEMPLATE_MISFIT
+
+
+def test_the_model_is_fitted_to_at_most_max_modelled_xs_and_the_rest_are_counted():
+    placements = [
+        MarkerPlacement(48.3 + 96 * k, 47.6, 16.0, rotation_rad=0.3 + 0.2 * k, dull_factor=0.5)
+        for k in range(3)
+    ]
+    scene = render_markers((96, 288), placements, 1, blur_sigma_px=1.0, noise_sigma_dn=1.0)
+    angles = np.array([m.angles for m in scene.markers])
+
+    def refit(max_modelled: int) -> tuple[np.ndarray, dict[str, int]]:
+        tally: dict[str, int] = {}
+        xy, _ = subpixel.refine_along_lines(
+            scene.image,
+            scene.centres + [0.3, -0.2],
+            np.full(3, 0.1),
+            np.full(3, 13.0),
+            angles,
+            max_radius_px=30.0,
+            full_scale=255.0,
+            max_modelled=max_modelled,
+            tally=tally,
+        )
+        return xy, tally
+
+    every, none_over = refit(3)
+    capped, over = refit(1)
+    assert none_over.get("uneven_over_cap", 0) == 0
+    assert over["uneven_over_cap"] == 2
+    # One X keeps its model's centre; the two over the cap keep the levels' fit's.
+    same = np.all(np.isclose(every, capped, atol=1e-9), axis=1)
+    assert same.sum() == 1
