@@ -595,6 +595,10 @@ class CastShadow:
         if not self.penumbra_px > 0:
             raise ConfigError(f"penumbra_px must be > 0, got {self.penumbra_px!r}")
 
+    def is_about(self, x: float, y: float) -> bool:
+        """Whether this shadow is placed about the point (x, y) (a marker's centre)."""
+        return bool(np.isclose(self.x, x) and np.isclose(self.y, y))
+
     def apply(self, gain: np.ndarray) -> None:
         """Multiply a (height, width) light gain image by this shadow, in place."""
         height, width = gain.shape
@@ -722,8 +726,8 @@ class RenderedScene:
     @property
     def shadow_crossed(self) -> np.ndarray:
         """(N,) bool: a cast shadow (:class:`CastShadow`) is placed about the marker's centre."""
-        about = np.array([(c.x, c.y) for c in self.imaging.cast_shadows]).reshape(-1, 1, 2)
-        return np.any(np.all(np.isclose(about, self.centres[None]), axis=2), axis=0)
+        shadows = self.imaging.cast_shadows
+        return np.array([any(c.is_about(m.x, m.y) for c in shadows) for m in self.markers], bool)
 
 
 # --------------------------------------------------------------------------- compositing core
@@ -1414,26 +1418,22 @@ def _smooth_derivatives(
                 {"lit": lit * (1 + tilt)}, {"lit": lit * (1 - tilt)}, BOUND_LIGHT_SLOPE_STEP_PER_PX
             )
         )
-    shadow = next(
-        (
-            c
-            for c in imaging.cast_shadows
-            if np.isclose(c.x, centre[0]) and np.isclose(c.y, centre[1])
-        ),
-        None,
-    )
+    shadow = next((c for c in imaging.cast_shadows if c.is_about(*centre)), None)
     if shadow is None:
         return derivatives + [zero] * 3
     row, column = origin
 
+    def window_light(placed: CastShadow) -> np.ndarray:
+        light = np.ones(grid[0].shape, np.float32)
+        replace(placed, x=placed.x - column, y=placed.y - row).apply(light)
+        return light
+
+    unmoved = window_light(shadow)
+
     def shaded(moved: CastShadow) -> dict[str, Any]:
         # The light with this shadow in place of the frame's own.
-        placed = np.ones(grid[0].shape, np.float32)
-        replace(moved, x=moved.x - column, y=moved.y - row).apply(placed)
-        return {"lit": lit * placed / unmoved}
+        return {"lit": lit * window_light(moved) / unmoved}
 
-    unmoved = np.ones(grid[0].shape, np.float32)
-    replace(shadow, x=shadow.x - column, y=shadow.y - row).apply(unmoved)
     for field_name, step in (
         ("normal_rad", BOUND_SHADOW_NORMAL_STEP_RAD),
         ("offset_px", BOUND_SHADOW_OFFSET_STEP_PX),
