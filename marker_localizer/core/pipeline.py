@@ -260,7 +260,8 @@ class DetectionResult:
             ``rejected_misfit``,
             ``merged_duplicates``, ``recentred``, ``found_recentred``,
             ``recentring_over_cap`` (:meth:`Detector._recentre_lost`), ``shadow_read``,
-            ``found_shadowed``, ``shadow_over_cap`` (:meth:`Detector._reread_shadowed`),
+            ``found_shadowed``, ``located_in_shadow``, ``shadow_over_cap``
+            (:meth:`Detector._reread_shadowed`),
             ``uneven_over_cap`` (X's located by their levels' fit, not their model, for
             :data:`subpixel.MAX_MODELLED`),
             ``accepted``;
@@ -712,8 +713,10 @@ class Detector:
         divided out (:func:`shadow.divided_out`; of candidates whose disks overlap,
         the best explained edge, :func:`shadow.apart`), and there the candidates are
         centred with the light's slope (the shadow gone, a dull quadrant is left),
-        checked and fitted again. A marker found joins the detections, which stay
-        as they were.
+        checked and fitted again. A marker found is located once more in the frame
+        itself, by its model with the shadow's edge where that edge explains it
+        (:meth:`_located_in_shadow`), and joins the detections, which stay as they
+        were.
 
         Rendered (g), where a hard shadow's edge crosses half of the markers (seeds
         100-123, where it was built): 152 -> 172 of 288 markers (165 centring
@@ -726,14 +729,15 @@ class Detector:
         at 3-30 px (docs/speed.md).
 
         Counts ``shadow_read``, the candidates read again, ``found_shadowed``, the
-        markers they added, and ``shadow_over_cap``, the lost wide candidates over
+        markers they added, ``located_in_shadow``, those of them the model located,
+        and ``shadow_over_cap``, the lost wide candidates over
         :data:`_MAX_SHADOW_READ`. The survivors end with ``shadow``: the detections then.
         """
         cfg = self.config
         gray, result = frame.gray, frame.result
         counts = result.counts
         lost, counts["shadow_over_cap"] = self._lost_wide(result, screened, _MAX_SHADOW_READ)
-        counts["shadow_read"] = counts["found_shadowed"] = 0
+        counts["shadow_read"] = counts["found_shadowed"] = counts["located_in_shadow"] = 0
         if len(lost):
             with frame.timer("shadow"):
                 chosen = screened.take(lost)
@@ -761,8 +765,42 @@ class Detector:
                     )
                 centred = Candidates(xy, read.strength, read.scale_px).take(inside)
                 added = self._verify_and_locate(replace(frame.reread(), gray=lit), centred)[0]
+                added = self._located_in_shadow(frame, added, read.xy, edges.take(crossed))
             counts["found_shadowed"] = self._join(result, added)
         result.survivors.append(("shadow", _positions(result.detections)))
+
+    def _located_in_shadow(
+        self,
+        frame: _Frame,
+        found: list[Detection],
+        read_xy: NDArray[np.float64],
+        edges: shadow.ShadowEdges,
+    ) -> list[Detection]:
+        """The markers found with shadows divided out, located in the frame with their edges.
+
+        Each detection takes the edge of the candidate read nearest it (the disks
+        divided out do not overlap), and :func:`subpixel.locate_in_shadow` says
+        where the model's centre replaces it; those are counted in
+        ``located_in_shadow``.
+        """
+        if not found:
+            return found
+        xy = _positions(found)
+        nearest = cKDTree(read_xy).query(xy)[1]
+        located_xy, sigma, located = subpixel.locate_in_shadow(
+            frame.gray,
+            xy,
+            np.array([d.sigma for d in found]),
+            np.array([(d.angle1, d.angle2) for d in found]),
+            np.array([d.radius_px for d in found]),
+            frame.full_scale,
+            edges.take(nearest).moved(read_xy[nearest], xy),
+        )
+        frame.result.counts["located_in_shadow"] += int(located.sum())
+        return [
+            replace(d, x=float(x), y=float(y), sigma=float(s))
+            for d, (x, y), s in zip(found, located_xy, sigma, strict=True)
+        ]
 
     def _lost_wide(
         self, result: DetectionResult, screened: Candidates, cap: int

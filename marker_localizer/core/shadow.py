@@ -124,6 +124,13 @@ class ShadowEdges(NamedTuple):
         """The edges of the candidates ``rows``."""
         return ShadowEdges._make(field[rows] for field in self)
 
+    def moved(self, origin: NDArray[np.float64], to: NDArray[np.float64]) -> ShadowEdges:
+        """The same edges described about the points ``to`` (N, 2) instead of ``origin``."""
+        shift = np.cos(self.normal) * (to[:, 0] - origin[:, 0]) + np.sin(self.normal) * (
+            to[:, 1] - origin[:, 1]
+        )
+        return self._replace(offset=self.offset - shift)
+
     def filled(self, rows: NDArray[np.intp], others: ShadowEdges) -> ShadowEdges:
         """These edges with ``others`` (one per row of ``rows``) where those were found."""
         taken = rows[others.found]

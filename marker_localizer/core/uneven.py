@@ -152,11 +152,15 @@ class UnevenFit(NamedTuple):
         covariance: (N, 2, 2) the centre's covariance from the fit, px^2.
         located: (N,) where the fit converged within :data:`MAX_SHIFT_PX` of its
             start and :data:`TONE_RANGE`.
+        shadow_share: (N,) where the fit kept a cast shadow's edge, the share of the
+            residual sum of squares of the fit without it that the edge takes; 0
+            elsewhere.
     """
 
     xy: NDArray[np.float64]
     covariance: NDArray[np.float64]
     located: NDArray[np.bool_]
+    shadow_share: NDArray[np.float64]
 
 
 def wedge_correction(
@@ -607,6 +611,7 @@ def locate_uneven(
     centre = np.array(xy, dtype=np.float64).reshape(-1, 2)
     covariance = np.full((n, 2, 2), np.nan)
     located = np.zeros(n, dtype=bool)
+    shadow_share = np.zeros(n)
     read = [
         _pixels(
             image,
@@ -619,7 +624,7 @@ def locate_uneven(
     ]
     rows = np.array([i for i, part in enumerate(read) if part is not None], dtype=np.intp)
     if not len(rows):
-        return UnevenFit(centre, covariance, located)
+        return UnevenFit(centre, covariance, located, shadow_share)
     pixels = _padded([part for part in read if part is not None])
     start = _start(pixels, line_angles[rows])
     present = pixels.present.sum(axis=1)
@@ -631,14 +636,16 @@ def locate_uneven(
         limit = MAX_MISFIT_RATIO * reference_rms[rows] / full_scale
         hopeless = present * np.square(_HOPELESS_MISFIT * limit)
     fit = _solve(pixels, start, shadowed=False, hopeless_cost=hopeless)
+    share: NDArray[np.float64] = np.zeros(len(rows))
     if shadows is not None and shadows.found[rows].any():
-        fit = _with_shadow(pixels, start, fit, shadows.take(rows), hopeless)
+        fit, share = _with_shadow(pixels, start, fit, shadows.take(rows), hopeless)
     taken = fit.solved & (np.sqrt(fit.cost / present) <= limit)
     at = rows[taken]
     centre[at] += fit.params[taken, :2]
     covariance[at] = fit.covariance[taken]
     located[at] = True
-    return UnevenFit(centre, covariance, located)
+    shadow_share[at] = share[taken]
+    return UnevenFit(centre, covariance, located, shadow_share)
 
 
 def _with_shadow(
@@ -647,12 +654,14 @@ def _with_shadow(
     plain: _Solution,
     edges: ShadowEdges,
     hopeless_cost: NDArray[np.float64] | None,
-) -> _Solution:
+) -> tuple[_Solution, NDArray[np.float64]]:
     """The fits again with the shadow's edge where one was found; kept where it explains.
 
     The shadowed fit replaces the plain one where the plain one failed, or where
     the edge takes more of the residual than its four parameters would by chance.
-    Returns the plain fits' parameters padded to the shadowed ones' length.
+    Returns the plain fits' parameters padded to the shadowed ones' length, and
+    (:class:`UnevenFit`'s ``shadow_share``) the share of the plain fit's residual
+    sum of squares the edge takes where it was kept, 0 elsewhere.
     """
     tried = np.flatnonzero(edges.found)
     first = np.where(plain.solved[tried, None], plain.params[tried], start[tried])
@@ -682,7 +691,9 @@ def _with_shadow(
         shadowed.covariance[better],
         True,
     )
-    return _Solution(params, cost, covariance, solved)
+    share = np.zeros(len(plain.params))
+    share[chosen] = 1.0 - shadowed.cost[better] / np.maximum(plain.cost[chosen], _MIN_COST)
+    return _Solution(params, cost, covariance, solved), share
 
 
 def _padded(parts: list[_Pixels]) -> _Pixels:

@@ -389,6 +389,7 @@ def test_lost_wide_candidates_read_again_are_counted_and_add_only_new_markers(
         counts = result.counts
         assert 0 <= counts["found_recentred"] <= counts["recentred"]
         assert 0 <= counts["found_shadowed"] <= counts["shadow_read"]
+        assert 0 <= counts["located_in_shadow"] <= counts["found_shadowed"]
         recentred += counts["found_recentred"]
         shadowed += counts["found_shadowed"]
         first = dict(result.survivors)["merging"]

@@ -160,3 +160,83 @@ def test_a_shadows_edge_across_the_x_is_modelled_where_the_blur_acts_on_the_shad
         )
         errors.append(np.linalg.norm(fit.xy[0] - scene.centres[0]))
     assert max(errors) < 0.015
+
+
+def _shadowed_dull_marker(seed: int, shadow_depth: float):
+    """A tilted X of 16 px, a dull quadrant, a shadow's edge across it taking ``shadow_depth``."""
+    rng = np.random.default_rng(seed)
+    x, y = 48 + rng.uniform(0, 1), 48 + rng.uniform(0, 1)
+    normal, offset = rng.uniform(0, 2 * np.pi), rng.choice((-1, 1)) * rng.uniform(2, 4)
+    scene = render_markers(
+        (96, 96),
+        [
+            MarkerPlacement(
+                x, y, 16.0, rotation_rad=rng.uniform(0, np.pi), tilt_deg=30.0, dull_factor=0.7
+            )
+        ],
+        seed,
+        reflectances=(0.1, 0.8),
+        blur_sigma_px=1.0,
+        noise_sigma_dn=2.0,
+        cast_shadows=[CastShadow(x, y, normal, offset, shadow_depth, 40.0)] if shadow_depth else [],
+    )
+    edge = ShadowEdges(
+        np.array([normal]),
+        np.array([offset]),
+        np.array([-np.log(1.0 - max(shadow_depth, 0.5))]),
+        np.ones(1),
+        np.ones(1),
+        np.array([True]),
+    )
+    return scene, edge
+
+
+def test_an_edge_described_about_another_point_bounds_the_same_half_plane():
+    edge = ShadowEdges(*(np.array([v]) for v in (0.7, 1.5, 0.6, 0.8, 1.0)), np.array([True]))
+    origin, to = np.array([[10.0, 20.0]]), np.array([[12.5, 18.0]])
+    moved = edge.moved(origin, to)
+    points = np.random.default_rng(0).uniform(0, 30, (200, 2))
+    normal = np.array([np.cos(0.7), np.sin(0.7)])
+    np.testing.assert_array_equal(
+        (points - origin) @ normal > edge.offset[0], (points - to) @ normal > moved.offset[0]
+    )
+
+
+def test_a_marker_found_in_a_shadow_is_located_in_the_frame_by_its_model_with_the_edge():
+    # Started 0.3 px off, as the fit on a copy with the shadow divided out may end.
+    for seed in range(4):
+        scene, edge = _shadowed_dull_marker(seed, 0.5)
+        marker = scene.markers[0]
+        start = scene.centres + 0.3
+        xy, sigma, located = subpixel.locate_in_shadow(
+            scene.image,
+            start,
+            np.array([0.5]),
+            np.array([marker.angles]),
+            np.array([marker.foreshortened_radius_px]),
+            255.0,
+            edge.moved(scene.centres, start),
+        )
+        assert located[0]
+        assert np.linalg.norm(xy[0] - scene.centres[0]) < 0.05
+        assert sigma[0] < 0.5
+
+
+def test_where_the_edge_explains_nothing_a_marker_keeps_the_centre_it_was_found_at():
+    # No shadow in the frame: the edge proposed takes no share of the residual.
+    for seed in range(4):
+        scene, edge = _shadowed_dull_marker(seed, 0.0)
+        marker = scene.markers[0]
+        start = scene.centres + 0.3
+        xy, sigma, located = subpixel.locate_in_shadow(
+            scene.image,
+            start,
+            np.array([0.5]),
+            np.array([marker.angles]),
+            np.array([marker.foreshortened_radius_px]),
+            255.0,
+            edge.moved(scene.centres, start),
+        )
+        assert not located[0]
+        np.testing.assert_array_equal(xy, start)
+        assert sigma[0] == 0.5
