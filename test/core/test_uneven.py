@@ -202,21 +202,27 @@ def test_an_edge_described_about_another_point_bounds_the_same_half_plane():
     )
 
 
+def _located_in_shadow(seed: int, shadow_depth: float):
+    """:func:`subpixel.locate_in_shadow` from 0.3 px off, sigma 0.5, with the true edge."""
+    scene, edge = _shadowed_dull_marker(seed, shadow_depth)
+    marker = scene.markers[0]
+    start = scene.centres + 0.3
+    located = subpixel.locate_in_shadow(
+        scene.image,
+        start,
+        np.array([0.5]),
+        np.array([marker.angles]),
+        np.array([marker.foreshortened_radius_px]),
+        255.0,
+        edge.moved(scene.centres, start),
+    )
+    return scene, start, located
+
+
 def test_a_marker_found_in_a_shadow_is_located_in_the_frame_by_its_model_with_the_edge():
     # Started 0.3 px off, as the fit on a copy with the shadow divided out may end.
     for seed in range(4):
-        scene, edge = _shadowed_dull_marker(seed, 0.5)
-        marker = scene.markers[0]
-        start = scene.centres + 0.3
-        xy, sigma, located = subpixel.locate_in_shadow(
-            scene.image,
-            start,
-            np.array([0.5]),
-            np.array([marker.angles]),
-            np.array([marker.foreshortened_radius_px]),
-            255.0,
-            edge.moved(scene.centres, start),
-        )
+        scene, _, (xy, sigma, located) = _located_in_shadow(seed, 0.5)
         assert located[0]
         assert np.linalg.norm(xy[0] - scene.centres[0]) < 0.05
         assert sigma[0] < 0.5
@@ -225,18 +231,7 @@ def test_a_marker_found_in_a_shadow_is_located_in_the_frame_by_its_model_with_th
 def test_where_the_edge_explains_nothing_a_marker_keeps_the_centre_it_was_found_at():
     # No shadow in the frame: the edge proposed takes no share of the residual.
     for seed in range(4):
-        scene, edge = _shadowed_dull_marker(seed, 0.0)
-        marker = scene.markers[0]
-        start = scene.centres + 0.3
-        xy, sigma, located = subpixel.locate_in_shadow(
-            scene.image,
-            start,
-            np.array([0.5]),
-            np.array([marker.angles]),
-            np.array([marker.foreshortened_radius_px]),
-            255.0,
-            edge.moved(scene.centres, start),
-        )
+        _, start, (xy, sigma, located) = _located_in_shadow(seed, 0.0)
         assert not located[0]
         np.testing.assert_array_equal(xy, start)
         assert sigma[0] == 0.5
