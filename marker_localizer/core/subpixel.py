@@ -895,9 +895,8 @@ def refine_along_lines(
         # Each refit is bounded from where it starts; the model's from the levels'.
         reach[located] += uneven.MAX_SHIFT_PX
     refined = converged & (np.linalg.norm(centre - xy, axis=1) <= reach)
-    variance = covariance[:, 0, 0] + covariance[:, 1, 1]
-    refined &= np.isfinite(variance)
-    line_sigma = LINE_FIT_SIGMA_CALIBRATION * np.sqrt(np.maximum(variance, 0.0))
+    line_sigma = _line_fit_sigma(covariance)
+    refined &= np.isfinite(line_sigma)
     return (
         np.where(refined[:, None], centre, xy),
         np.where(refined, line_sigma, sigma),
@@ -1025,12 +1024,22 @@ def locate_in_shadow(
     """
     modelled = uneven.locate_uneven(image, xy, line_angles, radius_px, full_scale, edges)
     located = modelled.located & (modelled.shadow_share >= shadow.MIN_EXPLAINED)
-    variance = modelled.covariance[:, 0, 0] + modelled.covariance[:, 1, 1]
-    model_sigma = LINE_FIT_SIGMA_CALIBRATION * np.sqrt(np.maximum(variance, 0.0))
     return (
         np.where(located[:, None], modelled.xy, xy),
-        np.where(located, model_sigma, sigma),
+        np.where(located, _line_fit_sigma(modelled.covariance), sigma),
         located,
+    )
+
+
+def _line_fit_sigma(covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N,) the final centres' sigmas, px, from their (N, 2, 2) covariances.
+
+    sqrt(var_x + var_y) times :data:`LINE_FIT_SIGMA_CALIBRATION`; NaN where the
+    covariance is.
+    """
+    variance = covariance[:, 0, 0] + covariance[:, 1, 1]
+    return cast(
+        "NDArray[np.float64]", LINE_FIT_SIGMA_CALIBRATION * np.sqrt(np.maximum(variance, 0.0))
     )
 
 
