@@ -1619,11 +1619,19 @@ def _random_placement(
     max_tilt_deg: float,
     inverted_fraction: float,
 ) -> MarkerPlacement:
-    """A placement at (0, 0) with random size, rotation, tilt, kind and polarity."""
+    """A placement at (0, 0) with random size, rotation, tilt, kind and polarity.
+
+    The radius is drawn log-uniformly: a marker's size in the image goes as one over
+    its range, so each octave of size is as likely as the next. Drawn uniformly, as
+    before, a range of 6-40 px put 9 % of the markers under 1.5 times its smallest
+    radius, where the independent renderer's frames (``../shared/data/independent``,
+    median radius 14 px at 6-40) put 31 %: the small tilted markers, whose X's
+    shortest reach falls under the smallest radius, were rare here.
+    """
     return MarkerPlacement(
         0.0,
         0.0,
-        float(rng.uniform(*radius_px)),
+        float(np.exp(rng.uniform(*np.log(radius_px)))),
         rotation_rad=float(rng.uniform(0.0, 2.0 * math.pi)),
         tilt_deg=float(rng.uniform(0.0, max_tilt_deg)),
         tilt_axis_rad=float(rng.uniform(0.0, math.pi)),
@@ -1774,7 +1782,8 @@ SHADOW_DARKENING_RANGE: tuple[float, float] = (0.4, 0.65)
 class SceneConfig:
     """Random scene to render with :func:`render_scene`; validated on construction.
 
-    Ranges are (min, max) and drawn uniformly, per marker or per frame. The
+    Ranges are (min, max) and drawn uniformly, per marker or per frame (the
+    radius log-uniformly: each octave of size alike, as ranges vary). The
     defaults render the frames this package rendered before its field
     conditions existed; :func:`render_scene` draws the field conditions (contrast,
     peak level, shot noise, JPEG, dull quadrants, cast shadows) from a child

