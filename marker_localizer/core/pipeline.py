@@ -1739,9 +1739,10 @@ class Detector:
         cannot vouch for a candidate, the marker's model must, tested in order of
         cost: its X has ended (:func:`verification.modulation_beyond_extent`
         within :data:`verification.MAX_MODULATION_BEYOND`); the blurred X matches
-        it on raw levels (:data:`FAINT_MIN_NCC`); the marker on its plate explains
-        its window better than a smooth surface does (:func:`plate.plate_evidence`
-        within :data:`plate.MAX_TO_QUARTIC_ANY`): a texture X that the blurred X
+        it on raw levels (:data:`FAINT_MIN_NCC`); the marker on its plate, at the
+        X's scale, explains its window better than a smooth surface does
+        (:func:`plate.plate_evidence` within :data:`plate.MAX_TO_QUARTIC`, the bound
+        at which that model adds a tiny marker): a texture X that the blurred X
         explains has no plate; and the blurred X explains its disk up to the noise
         (:data:`FAINT_MAX_MISFIT`). Counts those kept in ``kept_faint``.
         """
@@ -1756,10 +1757,10 @@ class Detector:
         matched = ncc >= FAINT_MIN_NCC
         passing, disk, ncc = passing[matched], disk[matched], ncc[matched]
         plated = plate.plate_evidence(
-            gray, xy[rejected[passing]], radius[passing], angles[passing]
+            gray, xy[rejected[passing]], radius[passing], angles[passing], scale_with_extent=True
         ).to_quartic
         with np.errstate(invalid="ignore"):
-            held = plated <= plate.MAX_TO_QUARTIC_ANY
+            held = plated <= plate.MAX_TO_QUARTIC
         passing, disk, ncc = passing[held], disk[held], ncc[held]
         # The frame's noise, which the misfit needs, is measured last, where a
         # candidate has passed every other test (3-6 ms on 12 MP).

@@ -48,6 +48,10 @@ PLATE_HALF_SIDE = 1.25
 MODEL_RADII_PX = (2.25, 3.0, 3.75, 4.5, 5.25)
 #: The models' blurs (Gaussian sigma), px: across the optics' 0.5-1.5 px and JPEG.
 MODEL_BLURS_PX = (0.7, 1.0, 1.3, 1.6)
+#: The extent of the X, px, that :data:`MODEL_RADII_PX` are set for: the tiny markers'
+#: rungs of the ring ladder, 3-4.24 px. Read at a larger extent with
+#: ``scale_with_extent``, the radii (and :data:`COARSE_RADII_PX`) scale with it.
+MODEL_EXTENT_PX = 3.5
 #: A coarser search first, which spares the full one most texture: 18 shapes, not 100.
 COARSE_RADII_PX = (2.25, 3.75, 5.25)
 COARSE_BLURS_PX = (0.8, 1.4)
@@ -258,6 +262,7 @@ def plate_evidence(
     xy: NDArray[np.float64],
     extent_px: NDArray[np.float64],
     line_angles: NDArray[np.float64],
+    scale_with_extent: bool = False,
 ) -> PlateEvidence:
     """The plate model's residual over the quadratic's and the quartic's, per candidate.
 
@@ -267,6 +272,10 @@ def plate_evidence(
         extent_px: (N,) extents of the X (the ring check's), px; the models are
             compared within :data:`WINDOW_EXTENTS` of them.
         line_angles: (N, 2) the X's line directions, radians.
+        scale_with_extent: the model's radii along the lines scaled by each
+            extent over :data:`MODEL_EXTENT_PX`, for X's larger than the tiny
+            markers' (a marker of 6-9 px tilted so that its rings reach 4-6 px
+            measures 4-9 px along its lines); False: the tiny markers' radii.
 
     Returns:
         :class:`PlateEvidence`; NaN where the window leaves the image or the lines
@@ -291,11 +300,12 @@ def plate_evidence(
         dx = offsets[None, :, 0] + shift[:, 0, None]
         dy = offsets[None, :, 1] + shift[:, 1, None]
         angles = np.asarray(line_angles, np.float64)[group]
+        scale = radius / WINDOW_EXTENTS / MODEL_EXTENT_PX if scale_with_extent else 1.0
+        coarse_radii = tuple(scale * r for r in COARSE_RADII_PX)
+        model_radii = tuple(scale * r for r in MODEL_RADII_PX)
         coarse = np.concatenate(
             [
-                _plate_residual(
-                    values[s], dx[s], dy[s], angles[s], COARSE_RADII_PX, COARSE_BLURS_PX
-                )
+                _plate_residual(values[s], dx[s], dy[s], angles[s], coarse_radii, COARSE_BLURS_PX)
                 for s in _blocks(len(group))
             ]
         )
@@ -307,7 +317,9 @@ def plate_evidence(
             continue
         plate = np.concatenate(
             [
-                _plate_residual(values[full[s]], dx[full[s]], dy[full[s]], angles[full[s]])
+                _plate_residual(
+                    values[full[s]], dx[full[s]], dy[full[s]], angles[full[s]], model_radii
+                )
                 for s in _blocks(len(full))
             ]
         )
