@@ -85,3 +85,23 @@ def test_a_smooth_saddle_leaves_the_plate_model_more_than_a_quartic():
         image, centre, np.array([_EXTENT_PX]), np.array([[np.pi / 4, 3 * np.pi / 4]])
     )
     assert evidence.to_quartic[0] > plate.MAX_TO_QUARTIC_ANY
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_small_tilted_marker_is_explained_by_its_plate_read_at_its_scale(seed):
+    # An 8 px marker tilted 50 degrees: its rings reach 6 px, and along its lines it
+    # measures up to 8 px, beyond the tiny markers' radii (at most 5.25 px). At its
+    # scale the model leaves 0.07 and 0.01 of the quartic's residual, at the tiny
+    # markers' radii 0.49 and 0.68.
+    placement = MarkerPlacement(60.3, 59.8, 8.0, 0.4 + seed, 50.0, kind="quarter_disks")
+    scene = render_markers(
+        (120, 120), [placement], seed, blur_sigma_px=1.0, noise_sigma_dn=2.0, background="flat"
+    )
+    angles = np.array([scene.markers[0].angles])
+    extent = np.array([6.0])
+    tiny = plate.plate_evidence(scene.image, scene.centres, extent, angles)
+    scaled = plate.plate_evidence(
+        scene.image, scene.centres, extent, angles, scale_with_extent=True
+    )
+    assert scaled.to_quartic[0] <= plate.MAX_TO_QUARTIC
+    assert scaled.to_quartic[0] <= 0.5 * tiny.to_quartic[0]
