@@ -1650,7 +1650,8 @@ class Detector:
         a candidate, runs first: the NCC reads a disk of up to 300 samples at four
         blurs, and on cluttered ground most candidates fail the gate (the speed
         benchmark's busiest frame: 1 369 candidates, of which 558 modulate; its
-        verification 141 -> 92 ms, the same detections).
+        verification 141 -> 92 ms, the same detections). Those it rejects go on
+        where the marker's model vouches for them instead (:meth:`_faint_markers`).
 
         Returns:
             The indices (ascending) of the candidates that pass, and their NCC.
