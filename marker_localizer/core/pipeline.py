@@ -76,8 +76,8 @@ _MAX_SHADOW_GAIN = 4.0
 #: template's NCC, and on the fitted score; ``cap`` is a cap on the candidates;
 #: ``x_end``, that a small X ends where its extent does (:func:`verification.x_ends`);
 #: ``misfit``, that the blurred X explains the detection (:meth:`Detector._x_explains`);
-#: ``quartic``, that a tiny X's plate model explains it no worse than a smooth surface
-#: (:meth:`Detector._plate_not_worse`);
+#: ``quartic``, that the plate model of a tiny X, or of one that barely clears its
+#: floor, explains it no worse than a smooth surface (:meth:`Detector._plate_not_worse`);
 #: ``recentring``, the detections once the lost wide candidates are centred again,
 #: and ``shadow``, once they are read again with a shadow's edge divided out: the
 #: two tests that add, :meth:`Detector._recentre_lost` and
@@ -188,6 +188,23 @@ _SHADOW_DISK_REACHES = 1.5
 #: frame px per photograph px of the coins, where they come as 9-69 false points a
 #: frame at 4-40 px).
 MAX_TEMPLATE_MISFIT = 0.08
+#: A detection wider than texture's smallest X's (:data:`verification.X_END_MAX_EXTENT_PX`)
+#: that clears its score floor by less than this must show its plate
+#: (:meth:`Detector._plate_not_worse`). On the development seeds of (a), (c) 600-629,
+#: (d) 200-223 and (g) 100-123 the false points score 0.001-0.077 over their floors
+#: and their plate at their extent leaves 1.0-3.2 of a quartic's residual; the markers
+#: whose plate leaves more than that clear their floors by 0.039 and more on (a),
+#: (c), (d), by 0.007 and more on (g) (shadows' edges, which the plate model leaves
+#: out). At 0.03 and 0.04 the same detections; at 0.05 (d) loses a marker.
+PLATE_DOUBT_MARGIN = 0.03
+#: ... unless another detection lies within this many of its extents: a chessboard's
+#: corner, whose squares go on where a plate would end, has its neighbours one square
+#: away. On the real boards the nearest lies at 2.1 extents (median) and at up to 5.5
+#: where the squares outgrow the largest expected radius (pycbd's warped board: X's
+#: read at 57 px under squares of 190 px; its doubtful corners' at 3.3). Without it,
+#: that board lost 6 corners and libcbdetect's 2; the development seeds' false points
+#: have none this near.
+BOARD_NEIGHBOUR_EXTENTS = 4.0
 #: A candidate of texture's size whose paint the modulation gate, or whose fitted
 #: score its floor, does not vouch for (:meth:`Detector._model_vouches`) must match
 #: the blurred X at least this well, on raw levels: the 29 markers the gate rejected
@@ -272,7 +289,7 @@ class DetectionResult:
             ``rejected_centring``,
             ``rejected_symmetry``, ``rejected_template``, ``rejected_lines``,
             ``rejected_refinement``, ``rejected_score``, ``rejected_x_end``,
-            ``rejected_misfit``,
+            ``rejected_misfit``, ``rejected_quartic`` (:meth:`Detector._plate_not_worse`),
             ``merged_duplicates``, ``recentred``, ``found_recentred``,
             ``kept_faint`` and ``kept_under_floor`` (X's the modulation gate or
             the fit's score floor rejected that the marker's model vouches for,
@@ -1827,16 +1844,29 @@ class Detector:
             )
             doubtful = doubtful[misfit > MAX_TEMPLATE_MISFIT]
         if len(doubtful):
-            reach = np.minimum(
-                shadow.DETECTION_REACH_EXTENTS * radius[doubtful], cfg.marker_radius_max_px
-            )
-            edges = shadow.find_edges(
-                frame.gray, xy[doubtful], reach, angles[doubtful], frame.full_scale
-            )
-            doubtful = doubtful[~edges.found]
+            doubtful = doubtful[
+                ~self._shadow_crosses(frame, xy[doubtful], radius[doubtful], angles[doubtful])
+            ]
         explained = np.ones(len(xy), dtype=bool)
         explained[doubtful] = False
         return explained
+
+    def _shadow_crosses(
+        self,
+        frame: _Frame,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+    ) -> NDArray[np.bool_]:
+        """(N,) where a cast shadow's straight edge crosses a detection (:func:`shadow.find_edges`).
+
+        Sought within :data:`shadow.DETECTION_REACH_EXTENTS` of its extent, at most the
+        largest expected radius.
+        """
+        reach = np.minimum(
+            shadow.DETECTION_REACH_EXTENTS * radius, self.config.marker_radius_max_px
+        )
+        return shadow.find_edges(frame.gray, xy, reach, angles, frame.full_scale).found
 
     def _plate_not_worse(
         self,
@@ -1844,21 +1874,64 @@ class Detector:
         xy: NDArray[np.float64],
         radius: NDArray[np.float64],
         angles: NDArray[np.float64],
+        margin: NDArray[np.float64],
     ) -> NDArray[np.bool_]:
-        """(N,) False for tiny X's whose plate model leaves more than a quartic surface.
+        """(N,) False for detections whose plate model, where asked, leaves more than a quartic.
 
-        Where :meth:`_read_plates` reads plates, the model of a marker on its plate
-        (:func:`plate.plate_evidence`) must explain a detection of texture's size
-        (under :data:`verification.X_END_MAX_EXTENT_PX`) at least as well as the
-        best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`); NaN (no window) passes.
+        What a marker has and texture has not is the plate around its X. Asked are:
+
+        * where :meth:`_read_plates` reads plates, every detection of texture's
+          size (under :data:`verification.X_END_MAX_EXTENT_PX`): the model of a
+          marker on its plate (:func:`plate.plate_evidence`) must explain it at
+          least as well as the best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`);
+        * every larger detection that clears its score floor by less than
+          :data:`PLATE_DOUBT_MARGIN` (``margin``: its score less its floor), where
+          ground texture's false points score: the same, with the model at the X's
+          scale and each bright quadrant's own level (a dull quadrant), unless a
+          cast shadow's edge crosses it (:meth:`_shadow_crosses`; the model leaves
+          shadows out) or another detection lies within
+          :data:`BOARD_NEIGHBOUR_EXTENTS` of its extent (a chessboard's corner).
+
+        NaN (no window) passes. ``xy`` holds every detection of the call, the
+        neighbours among them.
         """
         kept: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
         tiny = np.flatnonzero(radius < verification.X_END_MAX_EXTENT_PX)
-        if not self._reads_plates or not len(tiny):
+        if self._reads_plates and len(tiny):
+            evidence = plate.plate_evidence(frame.gray, xy[tiny], radius[tiny], angles[tiny])
+            with np.errstate(invalid="ignore"):
+                kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
+        close = np.flatnonzero(
+            (radius >= verification.X_END_MAX_EXTENT_PX) & (margin < PLATE_DOUBT_MARGIN)
+        )
+        if not len(close):
             return kept
-        evidence = plate.plate_evidence(frame.gray, xy[tiny], radius[tiny], angles[tiny])
-        with np.errstate(invalid="ignore"):
-            kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
+        unheld = close
+        # The ring ladder reads an X's extent up to a rung short of its shortest reach:
+        # a plate the window at its extent cuts short is read again a rung out.
+        for rung in (1.0, verification.RING_STEP):
+            if len(unheld):
+                evidence = plate.plate_evidence(
+                    frame.gray,
+                    xy[unheld],
+                    rung * radius[unheld],
+                    angles[unheld],
+                    scale_with_extent=True,
+                    quadrant_levels=True,
+                )
+                with np.errstate(invalid="ignore"):
+                    unheld = unheld[evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY]
+        if len(unheld):
+            unheld = unheld[
+                ~self._shadow_crosses(frame, xy[unheld], radius[unheld], angles[unheld])
+            ]
+        if len(unheld):
+            # Every detection is within 0 of itself: a neighbour makes the count 2.
+            near = cKDTree(xy).query_ball_point(
+                xy[unheld], BOARD_NEIGHBOUR_EXTENTS * radius[unheld], return_length=True
+            )
+            unheld = unheld[near < 2]
+        kept[unheld] = False
         return kept
 
     def _lowest_score(
@@ -1925,7 +1998,9 @@ class Detector:
         counts["rejected_misfit"] = counts.get("rejected_misfit", 0) + int((~explained).sum())
         keep = keep[explained]
         result.survivors.append(("misfit", fit.xy[keep]))
-        smooth = ~self._plate_not_worse(frame, fit.xy[keep], radius[keep], angles[keep])
+        smooth = ~self._plate_not_worse(
+            frame, fit.xy[keep], radius[keep], angles[keep], fit.score[keep] - floor[keep]
+        )
         counts["rejected_quartic"] = counts.get("rejected_quartic", 0) + int(smooth.sum())
         keep = keep[~smooth]
         result.survivors.append(("quartic", fit.xy[keep]))

@@ -175,6 +175,7 @@ def _plate_residual(
     line_angles: NDArray[np.float64],
     radii_px: tuple[float, ...] = MODEL_RADII_PX,
     blurs_px: tuple[float, ...] = MODEL_BLURS_PX,
+    quadrant_levels: bool = False,
 ) -> NDArray[np.float64]:
     """(N,) the least residual sum of squares of the blurred plate model over its shapes.
 
@@ -187,7 +188,9 @@ def _plate_residual(
     (u = alpha / r1, v = beta / r2: the image of the quarter disks' circle), each
     blurred edge a product of blurred steps (the blurred ellipse by its signed
     distance). Levels by least squares; r1, r2, the blur and which quadrant pair
-    holds the paint by search.
+    holds the paint by search. With ``quadrant_levels`` each of the other pair's
+    quarter disks has a level of its own too (a dull bright quadrant: wear, dirt,
+    sheen).
     """
     cos, sin = np.cos(line_angles), np.sin(line_angles)
     det = cos[:, 0] * sin[:, 1] - cos[:, 1] * sin[:, 0]
@@ -228,30 +231,35 @@ def _plate_residual(
     distance = (1.0 - rho) / np.maximum(slope, np.float32(1e-6))
     disk = ndtr(distance[..., None, :] / spread[None, None, None, :, None])
     step_a, step_b = ndtr(a * g), ndtr(b * g)
-    # Least squares on the columns ground, ground x, ground y, plate, paint: the Gram
-    # matrix entry by entry (the first four are the same for both quadrant pairs).
+    # Least squares on the columns ground, ground x, ground y, plate, paint (and each
+    # other quarter disk): the Gram matrix entry by entry (the first four are the same
+    # for both quadrant pairs).
     ground = 1.0 - plate
     columns = [ground, ground * dx[:, None, None, None, :], ground * dy[:, None, None, None, :]]
     columns.append(plate)
+    size = 7 if quadrant_levels else 5
     shape = plate.shape
-    normal = np.empty((*shape[:-1], 5, 5))
-    projected = np.empty((*shape[:-1], 5))
+    normal = np.empty((*shape[:-1], size, size))
+    projected = np.empty((*shape[:-1], size))
     for i in range(4):
         projected[..., i] = np.sum(columns[i] * values[:, None, None, None, :], axis=-1)
         for j in range(i + 1):
             normal[..., i, j] = normal[..., j, i] = np.sum(columns[i] * columns[j], axis=-1)
     total = np.sum(np.square(values, dtype=np.float64), axis=1)[:, None, None, None]
     best = np.full(len(values), np.inf)
-    for pattern in (
-        step_a * step_b + (1.0 - step_a) * (1.0 - step_b),
-        step_a * (1.0 - step_b) + (1.0 - step_a) * step_b,
-    ):
-        paint = pattern * disk
-        projected[..., 4] = np.sum(paint * values[:, None, None, None, :], axis=-1)
-        for j in range(4):
-            normal[..., 4, j] = normal[..., j, 4] = np.sum(paint * columns[j], axis=-1)
-        normal[..., 4, 4] = np.sum(paint * paint, axis=-1)
-        levels = np.linalg.solve(normal + 1e-6 * np.eye(5), projected[..., None])[..., 0]
+    quarters = (
+        (step_a * step_b, (1.0 - step_a) * (1.0 - step_b)),
+        (step_a * (1.0 - step_b), (1.0 - step_a) * step_b),
+    )
+    for painted, other in (quarters, quarters[::-1]):
+        paint = [(painted[0] + painted[1]) * disk]
+        if quadrant_levels:
+            paint += [other[0] * disk, other[1] * disk]
+        for i, column in enumerate(paint, start=4):
+            projected[..., i] = np.sum(column * values[:, None, None, None, :], axis=-1)
+            for j, earlier in enumerate(columns + paint[: i - 3]):
+                normal[..., i, j] = normal[..., j, i] = np.sum(column * earlier, axis=-1)
+        levels = np.linalg.solve(normal + 1e-6 * np.eye(size), projected[..., None])[..., 0]
         residual = total - np.sum(levels * projected, axis=-1)
         best = np.minimum(best, residual.reshape(len(values), -1).min(axis=1))
     return np.where(crossing < _MIN_CROSSING_SIN, np.nan, best)
@@ -263,6 +271,7 @@ def plate_evidence(
     extent_px: NDArray[np.float64],
     line_angles: NDArray[np.float64],
     scale_with_extent: bool = False,
+    quadrant_levels: bool = False,
 ) -> PlateEvidence:
     """The plate model's residual over the quadratic's and the quartic's, per candidate.
 
@@ -276,6 +285,8 @@ def plate_evidence(
             extent over :data:`MODEL_EXTENT_PX`, for X's larger than the tiny
             markers' (a marker of 6-9 px tilted so that its rings reach 4-6 px
             measures 4-9 px along its lines); False: the tiny markers' radii.
+        quadrant_levels: each bright quarter disk its own level (a dull quadrant,
+            :func:`_plate_residual`).
 
     Returns:
         :class:`PlateEvidence`; NaN where the window leaves the image or the lines
@@ -305,7 +316,15 @@ def plate_evidence(
         model_radii = tuple(scale * r for r in MODEL_RADII_PX)
         coarse = np.concatenate(
             [
-                _plate_residual(values[s], dx[s], dy[s], angles[s], coarse_radii, COARSE_BLURS_PX)
+                _plate_residual(
+                    values[s],
+                    dx[s],
+                    dy[s],
+                    angles[s],
+                    coarse_radii,
+                    COARSE_BLURS_PX,
+                    quadrant_levels,
+                )
                 for s in _blocks(len(group))
             ]
         )
@@ -318,7 +337,13 @@ def plate_evidence(
         plate = np.concatenate(
             [
                 _plate_residual(
-                    values[full[s]], dx[full[s]], dy[full[s]], angles[full[s]], model_radii
+                    values[full[s]],
+                    dx[full[s]],
+                    dy[full[s]],
+                    angles[full[s]],
+                    model_radii,
+                    MODEL_BLURS_PX,
+                    quadrant_levels,
                 )
                 for s in _blocks(len(full))
             ]

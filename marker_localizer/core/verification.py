@@ -79,6 +79,9 @@ PRESCREEN_MIN_RING_FRACTION = 0.5
 #: candidate close enough to its centre at some level for all three to pass, while
 #: texture saddles rarely keep the X over a factor of two in radius.
 PRESCREEN_GOOD_RINGS = 3
+#: Ratio of consecutive rings of the annular scan (:func:`ring_radii`): an X's extent,
+#: its last ring that shows the X, reads up to this factor short of its shortest reach.
+RING_STEP = float(np.sqrt(2.0))
 #: Slack of the extent test, px: the ring ladder's radii are products of floats, and a
 #: ring exactly at the required extent passes.
 _EXTENT_SLACK_PX = 1e-9
@@ -639,11 +642,11 @@ class SymmetryCheck(NamedTuple):
 
 
 def ring_radii(radius_range_px: tuple[float, float]) -> NDArray[np.float64]:
-    """Ring radii of the annular scan: a sqrt(2) progression across the expected radii."""
+    """Ring radii of the annular scan: a :data:`RING_STEP` progression across the expected radii."""
     r_min, r_max = radius_range_px
     start = max(1.5, 0.5 * r_min)
-    count = int(np.floor(np.log(max(r_max, start) / start) / np.log(np.sqrt(2.0)))) + 1
-    return cast("NDArray[np.float64]", start * np.sqrt(2.0) ** np.arange(count))
+    count = int(np.floor(np.log(max(r_max, start) / start) / np.log(RING_STEP))) + 1
+    return cast("NDArray[np.float64]", start * RING_STEP ** np.arange(count))
 
 
 #: Rings :func:`centre_symmetry_check` reads first beyond those a run may start at: the

@@ -105,3 +105,31 @@ def test_a_small_tilted_marker_is_explained_by_its_plate_read_at_its_scale(seed)
     )
     assert scaled.to_quartic[0] <= plate.MAX_TO_QUARTIC
     assert scaled.to_quartic[0] <= 0.5 * tiny.to_quartic[0]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_marker_with_a_dull_quadrant_is_explained_with_its_quadrants_own_levels(seed):
+    # A 12 px marker, one bright quadrant half as bright as the other, on ground
+    # texture: one level for both bright quadrants leaves 0.6-1.1 of the quartic's
+    # residual, a level each 0.05-0.18.
+    placement = MarkerPlacement(
+        60.3,
+        59.8,
+        12.0,
+        0.4 + seed,
+        30.0,
+        kind="quarter_disks",
+        dull_factor=0.5,
+        dull_quadrant=seed % 2,
+    )
+    scene = render_markers(
+        (120, 120), [placement], seed, blur_sigma_px=1.0, noise_sigma_dn=2.0, background="texture"
+    )
+    angles = np.array([scene.markers[0].angles])
+    extent = np.array([8.49])
+    one = plate.plate_evidence(scene.image, scene.centres, extent, angles, scale_with_extent=True)
+    own = plate.plate_evidence(
+        scene.image, scene.centres, extent, angles, scale_with_extent=True, quadrant_levels=True
+    )
+    assert own.to_quartic[0] <= plate.MAX_TO_QUARTIC
+    assert own.to_quartic[0] <= 0.5 * one.to_quartic[0]
