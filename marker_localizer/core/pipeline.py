@@ -1765,14 +1765,17 @@ class Detector:
         under ``min_modulation``; on (d)'s development frames, 21 markers fit to
         0.87-0.93 at extents of 2.8-5.7 px, under those extents' floors. Where the
         paint or the score cannot vouch for a candidate, the marker's model must,
-        tested in order of cost:
-        its X has ended (:func:`verification.modulation_beyond_extent` within
+        tested in order of cost: its X has ended
+        (:func:`verification.modulation_beyond_extent` within
         :data:`verification.MAX_MODULATION_BEYOND`); the blurred X matches it on
         raw levels (:data:`FAINT_MIN_NCC`); the marker on its plate, at the X's
-        scale, explains its window better than a smooth surface does
-        (:func:`plate.plate_evidence` within :data:`plate.MAX_TO_QUARTIC`, the bound
-        at which that model adds a tiny marker): a texture X that the blurred X
-        explains has no plate; and the blurred X explains its disk up to the noise
+        scale and each bright quadrant with its own level, explains its window
+        better than a smooth surface does (:func:`plate.plate_evidence` within
+        :data:`plate.MAX_TO_QUARTIC`, the bound at which that model adds a tiny
+        marker): a texture X that the blurred X explains has no plate (a level for
+        each bright quadrant, a dull one's, found 8 more markers on the development
+        seeds of (a), (c), (d), (g) than one level for both, and one false point
+        more); and the blurred X explains its disk up to the noise
         (:data:`FAINT_MAX_MISFIT`).
         """
         cfg = self.config
@@ -1785,7 +1788,12 @@ class Detector:
         matched = ncc >= FAINT_MIN_NCC
         passing, disk, ncc = passing[matched], disk[matched], ncc[matched]
         plated = plate.plate_evidence(
-            gray, xy[passing], radius[passing], angles[passing], scale_with_extent=True
+            gray,
+            xy[passing],
+            radius[passing],
+            angles[passing],
+            scale_with_extent=True,
+            quadrant_levels=True,
         ).to_quartic
         with np.errstate(invalid="ignore"):
             held = plated <= plate.MAX_TO_QUARTIC

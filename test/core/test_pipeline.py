@@ -358,6 +358,15 @@ def _wide_dull_markers(
     return found, false
 
 
+def _found_and_counted(detector: Detector, frames: list, count: str) -> tuple[int, int, int]:
+    """Markers found, false points, and the detector's ``count`` summed over ``frames``."""
+    results = [detector.detect(scene.image) for scene in frames]
+    scores = [_score(r.as_array(), s.centres) for r, s in zip(results, frames, strict=True)]
+    hits = sum(found for found, _, _ in scores)
+    false = sum(false for _, false, _ in scores)
+    return hits, false, sum(r.counts[count] for r in results)
+
+
 def _faint_tilted_markers(seeds) -> list:
     """Frames of 15 faint markers of 7-8.5 px tilted 45-55 degrees on ground texture.
 
@@ -401,15 +410,9 @@ def test_faint_small_markers_the_modulation_gate_rejects_are_kept_by_their_model
     frames = _faint_tilted_markers((0, 1))
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
 
-    def found() -> tuple[int, int, int]:
-        results = [detector.detect(scene.image) for scene in frames]
-        scores = [_score(r.as_array(), s.centres) for r, s in zip(results, frames, strict=True)]
-        kept = sum(r.counts["kept_faint"] for r in results)
-        return sum(hits for hits, _, _ in scores), sum(false for _, false, _ in scores), kept
-
-    hits, false, kept = found()
+    hits, false, kept = _found_and_counted(detector, frames, "kept_faint")
     monkeypatch.setattr(pipeline, "FAINT_MIN_NCC", 1.1)
-    gate_hits, gate_false, gate_kept = found()
+    gate_hits, gate_false, gate_kept = _found_and_counted(detector, frames, "kept_faint")
     assert gate_kept == 0
     assert kept >= 15
     assert hits >= gate_hits + 15
@@ -430,15 +433,9 @@ def test_small_tilted_markers_under_their_score_floor_are_kept_by_their_model(mo
         )
     )
 
-    def found() -> tuple[int, int, int]:
-        results = [detector.detect(scene.image) for scene in frames]
-        scores = [_score(r.as_array(), s.centres) for r, s in zip(results, frames, strict=True)]
-        kept = sum(r.counts["kept_under_floor"] for r in results)
-        return sum(hits for hits, _, _ in scores), sum(false for _, false, _ in scores), kept
-
-    hits, false, kept = found()
+    hits, false, kept = _found_and_counted(detector, frames, "kept_under_floor")
     monkeypatch.setattr(pipeline, "FAINT_MIN_NCC", 1.1)
-    floor_hits, floor_false, floor_kept = found()
+    floor_hits, floor_false, floor_kept = _found_and_counted(detector, frames, "kept_under_floor")
     assert floor_kept == 0
     assert kept >= 3
     assert hits >= floor_hits + 3
@@ -460,14 +457,11 @@ def test_texture_xs_that_barely_clear_their_floor_and_show_no_plate_are_rejected
         )
     )
 
-    def found() -> tuple[int, int]:
-        scores = [_score(detector.detect(s.image).as_array(), s.centres) for s in frames]
-        return sum(hits for hits, _, _ in scores), sum(false for _, false, _ in scores)
-
-    hits, false = found()
+    hits, false, rejected = _found_and_counted(detector, frames, "rejected_quartic")
     monkeypatch.setattr(pipeline, "PLATE_DOUBT_MARGIN", -1.0)
-    unasked_hits, unasked_false = found()
+    unasked_hits, unasked_false, _ = _found_and_counted(detector, frames, "rejected_quartic")
     assert hits == unasked_hits
+    assert rejected >= 2
     assert false <= unasked_false - 2
 
 
