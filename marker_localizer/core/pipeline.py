@@ -1895,9 +1895,8 @@ class Detector:
         * every larger detection that clears its score floor by less than
           :data:`PLATE_DOUBT_MARGIN` (``margin``: its score less its floor), where
           ground texture's false points score: the same, with the model at the X's
-          scale and each bright quadrant's own level (a dull quadrant), unless a
-          cast shadow's edge crosses it (:meth:`_shadow_crosses`; the model leaves
-          shadows out) or another detection lies within
+          scale and each bright quadrant's own level (a dull quadrant), read at its
+          extent and a ring rung out, unless another detection lies within
           :data:`BOARD_NEIGHBOUR_EXTENTS` of its extent (a chessboard's corner).
 
         NaN (no window) passes. ``xy`` holds every detection of the call, the
@@ -1929,10 +1928,6 @@ class Detector:
                 )
                 with np.errstate(invalid="ignore"):
                     unheld = unheld[evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY]
-        if len(unheld):
-            unheld = unheld[
-                ~self._shadow_crosses(frame, xy[unheld], radius[unheld], angles[unheld])
-            ]
         if len(unheld):
             # Every detection is within 0 of itself: a neighbour makes the count 2.
             near = cKDTree(xy).query_ball_point(
