@@ -358,6 +358,16 @@ def _wide_dull_markers(
     return found, false
 
 
+def _family_detector(family) -> Detector:
+    """The default detector given a rendered family's radius range, as a user gives it."""
+    return Detector(
+        DetectorConfig(
+            marker_radius_min_px=family.radius_range[0],
+            marker_radius_max_px=family.radius_range[1],
+        )
+    )
+
+
 def _found_and_counted(detector: Detector, frames: list, count: str) -> tuple[int, int, int]:
     """Markers found, false points, and the detector's ``count`` summed over ``frames``."""
     results = [detector.detect(scene.image) for scene in frames]
@@ -426,12 +436,7 @@ def test_small_tilted_markers_under_their_score_floor_are_kept_by_their_model(mo
     # false point (one marker more in each of these three frames).
     family = next(f for f in families() if f.key == "d" and not f.variant)
     frames = [family.render(seed) for seed in (203, 219, 223)]
-    detector = Detector(
-        DetectorConfig(
-            marker_radius_min_px=family.radius_range[0],
-            marker_radius_max_px=family.radius_range[1],
-        )
-    )
+    detector = _family_detector(family)
 
     hits, false, kept = _found_and_counted(detector, frames, "kept_under_floor")
     monkeypatch.setattr(pipeline, "FAINT_MIN_NCC", 1.1)
@@ -450,12 +455,7 @@ def test_texture_xs_that_barely_clear_their_floor_and_show_no_plate_are_rejected
     # markers found are the same with the plate asked or not.
     family = next(f for f in families() if f.key == "c" and not f.variant)
     frames = [family.render(seed) for seed in (603, 615, 618)]
-    detector = Detector(
-        DetectorConfig(
-            marker_radius_min_px=family.radius_range[0],
-            marker_radius_max_px=family.radius_range[1],
-        )
-    )
+    detector = _family_detector(family)
 
     hits, false, rejected = _found_and_counted(detector, frames, "rejected_quartic")
     monkeypatch.setattr(pipeline, "PLATE_DOUBT_MARGIN", -1.0)
@@ -727,12 +727,7 @@ def test_on_stony_ground_small_xs_that_do_not_end_are_texture_and_are_counted(mo
     monkeypatch.setattr(pipeline, "MAX_TEMPLATE_MISFIT", np.inf)
     monkeypatch.setattr(plate, "MAX_TO_QUARTIC_ANY", np.inf)
     family = next(f for f in families() if f.key == "b")
-    detector = Detector(
-        DetectorConfig(
-            marker_radius_min_px=family.radius_range[0],
-            marker_radius_max_px=family.radius_range[1],
-        )
-    )
+    detector = _family_detector(family)
     scenes = [family.render(seed) for seed in (300, 305, 313)]
 
     def false_and_true(results):
