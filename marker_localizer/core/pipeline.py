@@ -1782,13 +1782,7 @@ class Detector:
         gray = frame.gray
         kept = np.zeros(len(xy), dtype=bool)
         beyond = verification.modulation_beyond_extent(gray, xy, radius, angles)
-        # A tiny X is read with its plate by the tiny markers' model and decision
-        # (_read_plates); at its own scale the plate model is too small to part it
-        # from texture (the demo's flight: 8 texture X's of 2.8-4 px vouched for).
-        passing = np.flatnonzero(
-            (beyond <= verification.MAX_MODULATION_BEYOND)
-            & (radius >= verification.X_END_MAX_EXTENT_PX)
-        )
+        passing = np.flatnonzero(beyond <= verification.MAX_MODULATION_BEYOND)
         disk = verification.template_radius(radius[passing], cfg.marker_radius_max_px)
         ncc = template.template_correlation(gray, xy[passing], angles[passing], disk).ncc
         matched = ncc >= FAINT_MIN_NCC
@@ -1984,9 +1978,11 @@ class Detector:
         counts["rejected_refinement"] = int((~ok).sum())
         floor = self._score_floor(radius)
         weak = ok & (fit.score < self._lowest_score(radius, floor))
-        # Under its floor, the fitted X goes on where the marker's model vouches for it.
+        # Under its floor, the fitted X goes on where the marker's model vouches for it;
+        # a tiny X under its floor is left to its plate reading (_read_plates): the
+        # demo's flight ground gave 8 texture X's of 2.8-4 px the model vouched for.
         vouched = np.zeros(len(xy), dtype=bool)
-        held = np.flatnonzero(weak)
+        held = np.flatnonzero(weak & (radius >= verification.X_END_MAX_EXTENT_PX))
         vouched[held] = self._model_vouches(frame, fit.xy[held], radius[held], angles[held])
         counts["kept_under_floor"] = counts.get("kept_under_floor", 0) + int(vouched.sum())
         weak &= ~vouched
