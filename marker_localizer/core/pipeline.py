@@ -2003,8 +2003,10 @@ class Detector:
         counts["rejected_misfit"] = counts.get("rejected_misfit", 0) + int((~explained).sum())
         keep = keep[explained]
         result.survivors.append(("misfit", fit.xy[keep]))
+        # A vouched X has shown its plate already, at these arguments and a tighter bound.
+        margin = np.where(vouched, np.inf, fit.score - floor)
         smooth = ~self._plate_not_worse(
-            frame, fit.xy[keep], radius[keep], angles[keep], fit.score[keep] - floor[keep]
+            frame, fit.xy[keep], radius[keep], angles[keep], margin[keep]
         )
         counts["rejected_quartic"] = counts.get("rejected_quartic", 0) + int(smooth.sum())
         keep = keep[~smooth]
