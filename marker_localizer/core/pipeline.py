@@ -1978,11 +1978,13 @@ class Detector:
         counts["rejected_refinement"] = int((~ok).sum())
         floor = self._score_floor(radius)
         weak = ok & (fit.score < self._lowest_score(radius, floor))
-        # Under its floor, the fitted X goes on where the marker's model vouches for it;
-        # a tiny X under its floor is left to its plate reading (_read_plates): the
-        # demo's flight ground gave 8 texture X's of 2.8-4 px the model vouched for.
+        # Under its floor, the fitted X goes on where the marker's model vouches for it.
+        # Where tiny markers are expected, a tiny X under its floor is left to its plate
+        # reading (_read_plates): the demo's flight ground gave 8 texture X's of 2.8-4 px
+        # the model vouched for. Where they are not, a tiny X is a tilted marker's.
         vouched = np.zeros(len(xy), dtype=bool)
-        held = np.flatnonzero(weak & (radius >= verification.X_END_MAX_EXTENT_PX))
+        asked = weak & (radius >= verification.X_END_MAX_EXTENT_PX) if self._reads_plates else weak
+        held = np.flatnonzero(asked)
         vouched[held] = self._model_vouches(frame, fit.xy[held], radius[held], angles[held])
         counts["kept_under_floor"] = counts.get("kept_under_floor", 0) + int(vouched.sum())
         weak &= ~vouched
