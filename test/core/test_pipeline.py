@@ -447,6 +447,26 @@ def test_small_tilted_markers_under_their_score_floor_are_kept_by_their_model(mo
     assert false <= floor_false
 
 
+def test_where_no_tiny_marker_is_expected_a_tiny_x_under_its_floor_is_a_tilted_markers(
+    monkeypatch,
+):
+    # Family (c) at 6-40 px: a marker of 6.6 px whose rings measure 4.24 px, texture's
+    # size, fits under that extent's floor. No tiny marker is expected, so its plate is
+    # not read; the model of a marker vouches for it instead.
+    family = next(f for f in families() if f.key == "c" and not f.variant)
+    frame = family.render(685)
+    detector = _family_detector(family)
+
+    result = detector.detect(frame.image)
+    near = cKDTree(frame.centres).query(result.as_array()[:, :2])[0] <= 2.0
+    tiny = result.as_array()[:, 6] < verification.X_END_MAX_EXTENT_PX
+    assert result.counts["kept_under_floor"] >= 1
+    assert (near & tiny).sum() >= 2 and not (~near).any()
+    monkeypatch.setattr(pipeline, "FAINT_MIN_NCC", 1.1)
+    unvouched = detector.detect(frame.image).as_array()
+    assert len(unvouched) == len(result) - result.counts["kept_under_floor"]
+
+
 def test_texture_xs_that_barely_clear_their_floor_and_show_no_plate_are_rejected(monkeypatch):
     # Family (c)'s ground photographs at 6-40 px: texture X's of 6-12 px score
     # 0.006-0.007 over their floors and their plate model leaves 1.06-1.43 of a
