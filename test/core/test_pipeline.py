@@ -467,6 +467,19 @@ def test_where_no_tiny_marker_is_expected_a_tiny_x_under_its_floor_is_a_tilted_m
     assert len(unvouched) == len(result) - result.counts["kept_under_floor"]
 
 
+def test_a_marker_whose_rings_stop_a_rung_short_of_its_x_is_not_taken_for_texture():
+    # Family (d)'s clutter frames at 4-40 px: markers of 7.7 and 8.1 px whose rings
+    # measure 4 px, texture's size, and whose X goes on beyond that; it ends a ring
+    # rung further out, within the expected radii.
+    family = next(f for f in families() if f.key == "d" and not f.variant)
+    detector = _family_detector(family)
+    for seed, marker in ((214, 7), (221, 9)):
+        frame = family.render(seed)
+        assert frame.markers[marker].radius_px > 7.5
+        found = detector.detect(frame.image).as_array()
+        assert np.hypot(*(found[:, :2] - frame.centres[marker]).T).min() <= 2.0
+
+
 def test_texture_xs_that_barely_clear_their_floor_and_show_no_plate_are_rejected(monkeypatch):
     # Family (c)'s ground photographs at 6-40 px: texture X's of 6-12 px score
     # 0.006-0.007 over their floors and their plate model leaves 1.06-1.43 of a

@@ -365,8 +365,8 @@ def _two_edges_crossing(blur_px: float = 0.0) -> np.ndarray:
     return cv2.GaussianBlur(crossing, (0, 0), blur_px) if blur_px else crossing
 
 
-def _tiny_marker(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    placement = MarkerPlacement(32.3, 31.6, 4.0, 0.4, 20.0)
+def _small_marker(seed: int, radius_px: float = 4.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    placement = MarkerPlacement(32.3, 31.6, radius_px, 0.4, 20.0)
     scene = render_markers((64, 64), [placement], seed, blur_sigma_px=0.8, noise_sigma_dn=2.0)
     return scene.image, scene.centres, np.array([scene.markers[0].angles])
 
@@ -375,7 +375,7 @@ def test_a_tiny_markers_x_ends_at_its_extent_where_a_crossing_of_two_edges_goes_
     extent = np.array([4.0])
     ended = []
     for seed in range(4):
-        image, centre, angles = _tiny_marker(seed)
+        image, centre, angles = _small_marker(seed)
         ended.append(verification.modulation_beyond_extent(image, centre, extent, angles)[0])
     # The same X without its end.
     crossing = _two_edges_crossing(0.8)
@@ -402,13 +402,52 @@ def test_an_x_the_gate_is_not_asked_about_always_passes():
         np.array([4.0, 8.0]),
         np.array([[0.0, np.pi / 2], [0.0, np.pi / 2]]),
         min_radius_px=3.0,
+        max_radius_px=30.0,
         under_floor=np.array([False, False]),
     )
     np.testing.assert_array_equal(ends, [False, True])
 
 
+def test_an_x_read_a_rung_short_of_its_reach_ends_a_rung_further_out():
+    # A marker of 8 px whose rings stopped at 4 px (clutter, a tilt) goes on beyond
+    # its extent, and has ended a ring rung further out; two crossing edges have not.
+    image, centre, angles = _small_marker(0, radius_px=8.0)
+    extent = np.array([4.0])
+    beyond = verification.modulation_beyond_extent(image, centre, extent, angles)[0]
+    assert beyond > verification.MAX_MODULATION_BEYOND
+    crossing = _two_edges_crossing(0.8)
+    for picture, xy, lines, kept in (
+        (image, centre, angles, True),
+        (crossing, np.array([[31.5, 31.5]]), np.array([[0.0, np.pi / 2]]), False),
+    ):
+        ended = verification.x_ends(picture, xy, extent, lines, 3.0, 30.0, np.array([False]))
+        assert ended[0] is np.True_ if kept else ended[0] is np.False_
+    # Not where no expected marker reaches a rung out (tiny markers, 2.5-5 px).
+    assert not verification.x_ends(image, centre, extent, angles, 2.5, 5.0, np.array([False]))[0]
+
+
+def test_an_xs_end_is_found_as_many_rungs_out_as_a_marker_reaches():
+    # A marker of 12 px read at 4 px: a rung out its X still goes on; it ends where
+    # the rungs pass its radius. Two crossing edges end nowhere.
+    image, centre, angles = _small_marker(0, radius_px=12.0)
+    extent = np.array([4.0])
+    limit = verification.MAX_MODULATION_BEYOND
+    one_rung = verification.x_end_reach(image, centre, extent, angles, limit, 30.0)
+    reach = verification.x_end_reach(image, centre, extent, angles, limit, 30.0, rungs_out=None)
+    assert np.isnan(one_rung[0])
+    assert 8.0 <= reach[0] <= 12.0 * verification.RING_STEP
+    # Not beyond the largest expected radius.
+    within = verification.x_end_reach(image, centre, extent, angles, limit, 6.0, rungs_out=None)
+    assert np.isnan(within[0])
+    crossing = _two_edges_crossing(0.8)
+    nowhere = verification.x_end_reach(
+        crossing, np.array([[31.5, 31.5]]), extent, np.array([[0.0, np.pi / 2]]), limit, 30.0, None
+    )
+    assert np.isnan(nowhere[0])
+
+
 def test_under_its_floor_only_an_x_that_has_clearly_ended_passes():
-    image, centre, angles = _tiny_marker(0)
+    image, centre, angles = _small_marker(0)
     extent = np.array([4.0])
     beyond = verification.modulation_beyond_extent(image, centre, extent, angles)[0]
     assert beyond <= verification.CLEARLY_ENDED
@@ -417,10 +456,10 @@ def test_under_its_floor_only_an_x_that_has_clearly_ended_passes():
         (image, centre, angles, True),
         (crossing, np.array([[31.5, 31.5]]), np.array([[0.0, np.pi / 2]]), False),
     ):
-        under = verification.x_ends(picture, xy, extent, lines, 3.0, np.array([True]))
+        under = verification.x_ends(picture, xy, extent, lines, 3.0, 30.0, np.array([True]))
         assert under[0] is np.True_ if kept else under[0] is np.False_
     # Not asked (wider than texture's saddles), a candidate under its floor fails it.
-    wide = verification.x_ends(image, centre, np.array([8.0]), angles, 3.0, np.array([True]))
+    wide = verification.x_ends(image, centre, np.array([8.0]), angles, 3.0, 30.0, np.array([True]))
     assert not wide[0]
 
 
