@@ -1766,12 +1766,13 @@ class Detector:
         under ``min_modulation``; on (d)'s development frames, 21 markers fit to
         0.87-0.93 at extents of 2.8-5.7 px, under those extents' floors. Where the
         paint or the score cannot vouch for a candidate, the marker's model must,
-        tested in order of cost: its X has ended (:func:`verification.x_end_reach`
-        within :data:`verification.MAX_MODULATION_BEYOND`, at its extent or as many
-        rungs out as a marker reaches: (a) and (c)'s development seeds 600-689, 4
-        markers more, no false point more; the tests that follow read at the
-        extent, where read at that reach the benchmark's (a) and (c) frames each
-        gained a false point); the blurred X matches it on
+        tested in order of cost: its X has ended at its extent
+        (:func:`verification.modulation_beyond_extent` within
+        :data:`verification.MAX_MODULATION_BEYOND`; read as many rungs out as a
+        marker reaches too, as :func:`verification.x_ends` reads one, the (a) and
+        (c) development seeds 600-689 gained 4 markers of 2 160, and the busiest
+        speed frame 46 ms, for the gate's many faint rejects the NCC then reads); the
+        blurred X matches it on
         raw levels (:data:`FAINT_MIN_NCC`); the marker on its plate, at the X's
         scale and each bright quadrant with its own level, explains its window
         better than a smooth surface does (:func:`plate.plate_evidence` within
@@ -1785,16 +1786,8 @@ class Detector:
         cfg = self.config
         gray = frame.gray
         kept = np.zeros(len(xy), dtype=bool)
-        reach = verification.x_end_reach(
-            gray,
-            xy,
-            radius,
-            angles,
-            verification.MAX_MODULATION_BEYOND,
-            cfg.marker_radius_max_px,
-            rungs_out=None,
-        )
-        passing = np.flatnonzero(np.isfinite(reach))
+        beyond = verification.modulation_beyond_extent(gray, xy, radius, angles)
+        passing = np.flatnonzero(beyond <= verification.MAX_MODULATION_BEYOND)
         disk = verification.template_radius(radius[passing], cfg.marker_radius_max_px)
         ncc = template.template_correlation(gray, xy[passing], angles[passing], disk).ncc
         matched = ncc >= FAINT_MIN_NCC

@@ -1848,11 +1848,24 @@ def x_ends(
 ) -> NDArray[np.bool_]:
     """(N,) False for X's :func:`x_must_end` asks whose sector pattern does not end.
 
-    An X that has not ended (:func:`x_end_reach`, at its extent or a rung out)
-    within :data:`MAX_MODULATION_BEYOND` is ground texture's saddle, not a marker;
-    one ``under_floor`` (scoring under its floor by up to
+    An X whose modulation beyond its extent (:func:`modulation_beyond_extent`)
+    exceeds :data:`MAX_MODULATION_BEYOND` is ground texture's saddle, not a
+    marker; one ``under_floor`` (scoring under its floor by up to
     :data:`ENDED_SCORE_ALLOWANCE`) passes only where its X has clearly ended
     (:data:`CLEARLY_ENDED`). X's not asked pass where they are not under the floor.
+
+    The rings read an extent up to a rung (:data:`RING_STEP`) short of the X's
+    reach, more in clutter or under a tilt, so an X that goes on at its extent is
+    read once more a rung out, where that reach is wider than texture's saddles
+    (:data:`X_END_MAX_EXTENT_PX`) and a marker could reach that far
+    (``max_radius_px``). On the development frames of (d) (radius 4-40 px) all 9
+    X's this test rejected after the fit were markers of 4.9-8.1 px read at 4 px,
+    and 6 of them end a rung out (0.03-0.29 there against 0.52-0.92 at 4 px, or
+    0.09 against 0.20 under the floor); no texture X was rejected there. On those
+    of the tiny markers (b) (2.5-5 px, seeds 300-315), 18 of the 51 texture X's it
+    rejected end a rung out too: 13 of them at 6 px, where no marker reaches, and
+    5 at 4.24 px, texture's size (read there too, the held-out (b) frames gained 3
+    false points).
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -1864,71 +1877,19 @@ def x_ends(
         under_floor: (N,) which score under their floor.
     """
     ended = ~under_floor
+    limit = np.where(under_floor, CLEARLY_ENDED, MAX_MODULATION_BEYOND)
     asked = np.flatnonzero(x_must_end(radius_px, min_radius_px))
-    if len(asked):
-        reach = x_end_reach(
-            image,
-            xy[asked],
-            radius_px[asked],
-            line_angles[asked],
-            np.where(under_floor[asked], CLEARLY_ENDED, MAX_MODULATION_BEYOND),
-            max_radius_px,
-        )
-        ended[asked] = np.isfinite(reach)
-    return ended
-
-
-def x_end_reach(
-    image: NDArray[Any],
-    xy: NDArray[np.float64],
-    radius_px: NDArray[np.float64],
-    line_angles: NDArray[np.float64],
-    max_beyond: NDArray[np.float64] | float,
-    max_radius_px: float,
-    rungs_out: int | None = 1,
-) -> NDArray[np.float64]:
-    """(N,) the reach, px, at which an X's sector pattern has ended; NaN where it goes on.
-
-    An X has ended at a reach beyond which at most ``max_beyond`` of it goes on
-    (:func:`modulation_beyond_extent`). It is read at the X's extent and, where it
-    goes on there, up to ``rungs_out`` rungs (:data:`RING_STEP`) further out (None:
-    as far as a marker reaches), each wider than texture's saddles
-    (:data:`X_END_MAX_EXTENT_PX`) and within ``max_radius_px``: the rings read an
-    extent up to a rung short of the X's reach, and further where clutter or the
-    light cut them short. On the development frames of (d) (radius 4-40 px) all 9
-    X's the X-end test (:func:`x_ends`) rejected after the fit were markers of
-    4.9-8.1 px read at 4 px, and 6 of them end a rung out (0.03-0.29 there against
-    0.52-0.92 at 4 px, or 0.09 against 0.20 under the floor); no texture X was
-    rejected there. On those of the tiny markers (b) (2.5-5 px, seeds 300-315), 18
-    of the 51 texture X's it rejected end a rung out too: 13 of them at 6 px, where
-    no marker reaches, and 5 at 4.24 px, texture's size (read there too, the
-    held-out (b) frames gained 3 false points).
-
-    Args:
-        image: (H, W) grey image, raw levels.
-        xy: (N, 2) centres.
-        radius_px: (N,) extents of the X, px.
-        line_angles: (N, 2) line directions, radians.
-        max_beyond: the most that may go on, for all or (N,) for each.
-        max_radius_px: the largest expected marker radius, px.
-        rungs_out: how many rungs out an X is read again.
-    """
-    limit = np.broadcast_to(max_beyond, radius_px.shape)
-    end = np.full(len(xy), np.nan)
-    reach = np.array(radius_px, dtype=np.float64)
-    asked = np.arange(len(xy))
-    rung = 0
-    while len(asked):
-        beyond = modulation_beyond_extent(image, xy[asked], reach[asked], line_angles[asked])
-        ended = beyond <= limit[asked]
-        end[asked[ended]] = reach[asked[ended]]
-        rung += 1
-        if rungs_out is not None and rung > rungs_out:
+    for reach in (1.0, RING_STEP):
+        if not len(asked):
             break
-        asked = asked[~ended]
-        reach[asked] *= RING_STEP
-        asked = asked[(reach[asked] >= X_END_MAX_EXTENT_PX) & (reach[asked] <= max_radius_px)]
-    return end
+        beyond = modulation_beyond_extent(
+            image, xy[asked], reach * radius_px[asked], line_angles[asked]
+        )
+        ended[asked] = beyond <= limit[asked]
+        going_on = asked[~ended[asked]]
+        further = RING_STEP * radius_px[going_on]
+        asked = going_on[(further >= X_END_MAX_EXTENT_PX) & (further <= max_radius_px)]
+    return ended
 
 
 def modulation_beyond_extent(

@@ -426,26 +426,6 @@ def test_an_x_read_a_rung_short_of_its_reach_ends_a_rung_further_out():
     assert not verification.x_ends(image, centre, extent, angles, 2.5, 5.0, np.array([False]))[0]
 
 
-def test_an_xs_end_is_found_as_many_rungs_out_as_a_marker_reaches():
-    # A marker of 12 px read at 4 px: a rung out its X still goes on; it ends where
-    # the rungs pass its radius. Two crossing edges end nowhere.
-    image, centre, angles = _small_marker(0, radius_px=12.0)
-    extent = np.array([4.0])
-    limit = verification.MAX_MODULATION_BEYOND
-    one_rung = verification.x_end_reach(image, centre, extent, angles, limit, 30.0)
-    reach = verification.x_end_reach(image, centre, extent, angles, limit, 30.0, rungs_out=None)
-    assert np.isnan(one_rung[0])
-    assert 8.0 <= reach[0] <= 12.0 * verification.RING_STEP
-    # Not beyond the largest expected radius.
-    within = verification.x_end_reach(image, centre, extent, angles, limit, 6.0, rungs_out=None)
-    assert np.isnan(within[0])
-    crossing = _two_edges_crossing(0.8)
-    nowhere = verification.x_end_reach(
-        crossing, np.array([[31.5, 31.5]]), extent, np.array([[0.0, np.pi / 2]]), limit, 30.0, None
-    )
-    assert np.isnan(nowhere[0])
-
-
 def test_under_its_floor_only_an_x_that_has_clearly_ended_passes():
     image, centre, angles = _small_marker(0)
     extent = np.array([4.0])
