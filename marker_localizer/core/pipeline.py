@@ -1881,6 +1881,43 @@ class Detector:
         )
         return shadow.find_edges(frame.gray, xy, reach, angles, frame.full_scale).found
 
+    def _plate_a_rung_out(
+        self,
+        frame: _Frame,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+    ) -> NDArray[np.bool_]:
+        """(N,) where a tiny X is a larger marker read short, and shows its plate there.
+
+        Its pattern goes on beyond its extent (:func:`verification.x_ends` found it
+        ended a rung out, :func:`verification.reaches_a_rung_out`), and the plate
+        model at that reach, at the X's scale and each bright quadrant with its own
+        level, leaves no more than a quartic does. The tiny markers' plate model
+        (radii of 2.25-5.25 px) misses such a marker's plate: on (d)'s development
+        seeds 200-223, 2 of the markers of 7-8 px read at 4 px that end a rung out.
+        """
+        gray, cfg = frame.gray, self.config
+        shown = np.zeros(len(xy), dtype=bool)
+        short = np.flatnonzero(verification.reaches_a_rung_out(radius, cfg.marker_radius_max_px))
+        beyond = verification.modulation_beyond_extent(
+            gray, xy[short], radius[short], angles[short]
+        )
+        short = short[beyond > verification.MAX_MODULATION_BEYOND]
+        if len(short):
+            further = verification.RING_STEP * radius[short]
+            evidence = plate.plate_evidence(
+                gray,
+                xy[short],
+                further,
+                angles[short],
+                scale_with_extent=True,
+                quadrant_levels=True,
+            )
+            with np.errstate(invalid="ignore"):
+                shown[short] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
+        return shown
+
     def _plate_not_worse(
         self,
         frame: _Frame,
@@ -1896,7 +1933,9 @@ class Detector:
         * where :meth:`_read_plates` reads plates, every detection of texture's
           size (under :data:`verification.X_END_MAX_EXTENT_PX`): the model of a
           marker on its plate (:func:`plate.plate_evidence`) must explain it at
-          least as well as the best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`);
+          least as well as the best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`),
+          or, where its X goes on to a rung out, that of a larger marker there
+          (:meth:`_plate_a_rung_out`);
         * every larger detection that clears its score floor by less than
           :data:`PLATE_DOUBT_MARGIN` (``margin``: its score less its floor), where
           ground texture's false points score: the same, with the model at the X's
@@ -1913,6 +1952,8 @@ class Detector:
             evidence = plate.plate_evidence(frame.gray, xy[tiny], radius[tiny], angles[tiny])
             with np.errstate(invalid="ignore"):
                 kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
+            failed = tiny[~kept[tiny]]
+            kept[failed] = self._plate_a_rung_out(frame, xy[failed], radius[failed], angles[failed])
         close = np.flatnonzero(
             (radius >= verification.X_END_MAX_EXTENT_PX) & (margin < PLATE_DOUBT_MARGIN)
         )

@@ -1887,9 +1887,18 @@ def x_ends(
         )
         ended[asked] = beyond <= limit[asked]
         going_on = asked[~ended[asked]]
-        further = RING_STEP * radius_px[going_on]
-        asked = going_on[(further >= X_END_MAX_EXTENT_PX) & (further <= max_radius_px)]
+        asked = going_on[reaches_a_rung_out(radius_px[going_on], max_radius_px)]
     return ended
+
+
+def reaches_a_rung_out(radius_px: NDArray[np.float64], max_radius_px: float) -> NDArray[np.bool_]:
+    """(N,) where an X read at ``radius_px`` may be a marker that reaches a rung further.
+
+    That reach (:data:`RING_STEP` times the extent) is wider than texture's saddles
+    (:data:`X_END_MAX_EXTENT_PX`) and within ``max_radius_px``.
+    """
+    further = RING_STEP * radius_px
+    return (further >= X_END_MAX_EXTENT_PX) & (further <= max_radius_px)
 
 
 def modulation_beyond_extent(

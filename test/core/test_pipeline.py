@@ -468,14 +468,15 @@ def test_where_no_tiny_marker_is_expected_a_tiny_x_under_its_floor_is_a_tilted_m
 
 
 def test_a_marker_whose_rings_stop_a_rung_short_of_its_x_is_not_taken_for_texture():
-    # Family (d)'s clutter frames at 4-40 px: markers of 7.7 and 8.1 px whose rings
+    # Family (d)'s clutter frames at 4-40 px: markers of 7.1-8.1 px whose rings
     # measure 4 px, texture's size, and whose X goes on beyond that; it ends a ring
-    # rung further out, within the expected radii.
+    # rung further out, within the expected radii, and there the last two show the
+    # plate that the tiny markers' plate model, read at 4 px, misses.
     family = next(f for f in families() if f.key == "d" and not f.variant)
     detector = _family_detector(family)
-    for seed, marker in ((214, 7), (221, 9)):
+    for seed, marker in ((214, 7), (221, 9), (205, 10), (206, 8)):
         frame = family.render(seed)
-        assert frame.markers[marker].radius_px > 7.5
+        assert frame.markers[marker].radius_px > 7.0
         found = detector.detect(frame.image).as_array()
         assert np.hypot(*(found[:, :2] - frame.centres[marker]).T).min() <= 2.0
 
