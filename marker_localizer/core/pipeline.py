@@ -1768,11 +1768,11 @@ class Detector:
         paint or the score cannot vouch for a candidate, the marker's model must,
         tested in order of cost: its X has ended at its extent
         (:func:`verification.modulation_beyond_extent` within
-        :data:`verification.MAX_MODULATION_BEYOND`; read as many rungs out as a
-        marker reaches too, as :func:`verification.x_ends` reads one, the (a) and
-        (c) development seeds 600-689 gained 4 markers of 2 160, and the busiest
-        speed frame 46 ms, for the gate's many faint rejects the NCC then reads); the
-        blurred X matches it on
+        :data:`verification.MAX_MODULATION_BEYOND`; not also a rung out, as
+        :func:`verification.x_ends` reads it: read out to where the X ends, the (a)
+        and (c) development seeds 600-689 gained 4 markers of 2 160, and the busiest
+        speed frame took 46 ms more, the NCC reading the gate's many faint rejects);
+        the blurred X matches it on
         raw levels (:data:`FAINT_MIN_NCC`); the marker on its plate, at the X's
         scale and each bright quadrant with its own level, explains its window
         better than a smooth surface does (:func:`plate.plate_evidence` within
@@ -1890,8 +1890,9 @@ class Detector:
     ) -> NDArray[np.bool_]:
         """(N,) where a tiny X is a larger marker read short, and shows its plate there.
 
-        Its pattern goes on beyond its extent (:func:`verification.x_ends` found it
-        ended a rung out, :func:`verification.reaches_a_rung_out`), and the plate
+        Its pattern goes on beyond its extent, where a marker could reach a rung out
+        (:func:`verification.reaches_a_rung_out`; :func:`verification.x_ends` has
+        found it ended there), and the plate
         model at that reach, at the X's scale and each bright quadrant with its own
         level, leaves no more than a quartic does. The tiny markers' plate model
         (radii of 2.25-5.25 px) misses such a marker's plate: on (d)'s development
