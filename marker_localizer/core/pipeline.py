@@ -1792,14 +1792,7 @@ class Detector:
         ncc = template.template_correlation(gray, xy[passing], angles[passing], disk).ncc
         matched = ncc >= FAINT_MIN_NCC
         passing, disk, ncc = passing[matched], disk[matched], ncc[matched]
-        plated = plate.plate_evidence(
-            gray,
-            xy[passing],
-            radius[passing],
-            angles[passing],
-            scale_with_extent=True,
-            quadrant_levels=True,
-        ).to_quartic
+        plated = self._plate_at_scale(frame, xy[passing], radius[passing], angles[passing])
         with np.errstate(invalid="ignore"):
             held = plated <= plate.MAX_TO_QUARTIC
         passing, disk, ncc = passing[held], disk[held], ncc[held]
@@ -1907,17 +1900,27 @@ class Detector:
         short = short[beyond > verification.MAX_MODULATION_BEYOND]
         if len(short):
             further = verification.RING_STEP * radius[short]
-            evidence = plate.plate_evidence(
-                gray,
-                xy[short],
-                further,
-                angles[short],
-                scale_with_extent=True,
-                quadrant_levels=True,
-            )
+            plated = self._plate_at_scale(frame, xy[short], further, angles[short])
             with np.errstate(invalid="ignore"):
-                shown[short] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
+                shown[short] = ~(plated > plate.MAX_TO_QUARTIC_ANY)
         return shown
+
+    def _plate_at_scale(
+        self,
+        frame: _Frame,
+        xy: NDArray[np.float64],
+        extent: NDArray[np.float64],
+        angles: NDArray[np.float64],
+    ) -> NDArray[np.float64]:
+        """(N,) the plate model's residual over a quartic's, read for an X of ``extent``.
+
+        :func:`plate.plate_evidence` with its radii at the X's scale and each bright
+        quadrant its own level (a dull quadrant): the plate every test of a marker
+        wider than a tiny one reads. NaN where no window can be read.
+        """
+        return plate.plate_evidence(
+            frame.gray, xy, extent, angles, scale_with_extent=True, quadrant_levels=True
+        ).to_quartic
 
     def _plate_not_worse(
         self,
@@ -1965,16 +1968,11 @@ class Detector:
         # a plate the window at its extent cuts short is read again a rung out.
         for rung in (1.0, verification.RING_STEP):
             if len(unheld):
-                evidence = plate.plate_evidence(
-                    frame.gray,
-                    xy[unheld],
-                    rung * radius[unheld],
-                    angles[unheld],
-                    scale_with_extent=True,
-                    quadrant_levels=True,
+                plated = self._plate_at_scale(
+                    frame, xy[unheld], rung * radius[unheld], angles[unheld]
                 )
                 with np.errstate(invalid="ignore"):
-                    unheld = unheld[evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY]
+                    unheld = unheld[plated > plate.MAX_TO_QUARTIC_ANY]
         if len(unheld):
             # Every detection is within 0 of itself: a neighbour makes the count 2.
             near = cKDTree(xy).query_ball_point(
