@@ -490,6 +490,91 @@ def test_a_slightly_dull_quadrant_gets_its_own_level_under_the_gating_threshold(
     assert np.mean(refit_error) < 0.005
 
 
+def test_the_levels_fit_is_weighed_in_by_the_share_of_the_difference_that_is_bias():
+    # Covariance traces 0.001 and 0.004 px^2: the difference's variance is at most
+    # (c (0.032 + 0.063))^2 = 0.009 c^2 px^2, c the fits' sigma calibration. Centres
+    # 0.3 px apart: 1 - 0.1 c^2 of it is bias; 0.09 c px apart, within the noise's
+    # reach: none. A levels' fit that did not converge weighs nothing.
+    calibration = subpixel.LINE_FIT_SIGMA_CALIBRATION**2
+
+    def levelled(shift, converged=True):
+        return subpixel._SymmetrySolution(
+            np.array([[10.0 + shift, 5.0]]),
+            np.diag([0.002, 0.002])[None],
+            np.zeros(1),
+            np.array([np.nan]),
+            np.array([converged]),
+            np.array([np.nan]),
+            np.array([np.nan]),
+        )
+
+    centre, covariance = np.array([[10.0, 5.0]]), np.diag([0.0005, 0.0005])[None]
+    moved, spread, weight = subpixel._blended_with_levels(centre, covariance, levelled(0.3))
+    share = 1.0 - 0.1 * calibration
+    assert 0.0 < share < 1.0
+    assert weight[0] == pytest.approx(share)
+    np.testing.assert_allclose(moved, [[10.0 + 0.3 * share, 5.0]])
+    np.testing.assert_allclose(spread[0], (0.0005 + share**2 * 0.0015) * np.eye(2))
+    for shift, converged in ((0.09 * subpixel.LINE_FIT_SIGMA_CALIBRATION, True), (0.3, False)):
+        moved, _, weight = subpixel._blended_with_levels(
+            centre, covariance, levelled(shift, converged)
+        )
+        assert weight[0] == 0.0
+        np.testing.assert_array_equal(moved, centre)
+
+
+def test_a_noisy_faintly_dull_x_moves_by_the_bias_its_levels_show(monkeypatch):
+    # An X of 8 px, contrast 0.3, at 5 DN whose bright quadrant is 0.9 as bright as the other scores
+    # 7-70, mostly under the refit's threshold: the symmetric fit's centre moves
+    # towards the levels' fit by the share of their difference that is bias (0.151 ->
+    # 0.122 px here). On even paint the difference is the noise's, and the centre
+    # stays where the symmetric fit put it.
+    def mean_error(dull_factor):
+        errors = []
+        for seed in range(12):
+            rng = np.random.default_rng(seed)
+            placement = MarkerPlacement(
+                32 + rng.random(),
+                32 + rng.random(),
+                8.0,
+                rng.uniform(0, np.pi),
+                20.0,
+                0.3,
+                "quarter_disks",
+                dull_factor=dull_factor,
+            )
+            scene = render_markers(
+                (64, 64),
+                [placement],
+                seed,
+                contrast=(0.3, 0.3),
+                blur_sigma_px=1.0,
+                noise_sigma_dn=5.0,
+            )
+            truth, angles = scene.centres[0], np.array([scene.markers[0].angles])
+            gating = subpixel.refine_point_symmetry(
+                scene.image, truth[None] + [0.2, -0.1], np.array([6.4])
+            )
+            refit, _ = subpixel.refine_along_lines(
+                scene.image,
+                gating.xy,
+                np.array([0.1]),
+                np.array([6.4]),
+                angles,
+                full_scale=255.0,
+                max_radius_px=30.0,
+            )
+            errors.append(np.linalg.norm(refit[0] - truth))
+        return np.mean(errors)
+
+    assert subpixel.LEVELS_BLEND_MIN_CHI2 < subpixel.LEVELS_REFIT_MIN_CHI2
+    blended = {factor: mean_error(factor) for factor in (0.9, 1.0)}
+    monkeypatch.setattr(subpixel, "LEVELS_BLEND_MIN_CHI2", np.inf)
+    symmetric = {factor: mean_error(factor) for factor in (0.9, 1.0)}
+    assert blended[0.9] < 0.9 * symmetric[0.9]
+    assert blended[1.0] == pytest.approx(symmetric[1.0], rel=0.02)
+
+
 def test_the_quadrant_level_statistic_follows_the_noise_where_the_quadrants_match():
     # Near a chi-square of 2 degrees of freedom on an even X (2-19 here: the model's
     # own errors add to the noise's), far above the threshold on a dull one.
