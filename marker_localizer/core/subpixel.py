@@ -849,8 +849,13 @@ def refine_along_lines(
         )
         uneven_levels = (symmetric.step_chi2 > LEVELS_REFIT_MIN_CHI2) | level_differ
         differ = np.flatnonzero(symmetric.converged & uneven_levels)
+        # A symmetric fit that slipped is not weighed in (the gating fit's centre stays).
+        held = np.linalg.norm(symmetric.centre - xy[rows], axis=1) <= _LINE_FIT_MAX_SHIFT_PX
         leaning = np.flatnonzero(
-            symmetric.converged & ~uneven_levels & (symmetric.step_chi2 > LEVELS_BLEND_MIN_CHI2)
+            symmetric.converged
+            & held
+            & ~uneven_levels
+            & (symmetric.step_chi2 > LEVELS_BLEND_MIN_CHI2)
         )
         if len(leaning):
             at = rows[leaning]

@@ -575,6 +575,42 @@ def test_a_noisy_faintly_dull_x_moves_by_the_bias_its_levels_show(monkeypatch):
     assert blended[1.0] == pytest.approx(symmetric[1.0], rel=0.02)
 
 
+def test_a_symmetric_fit_that_slipped_is_not_weighed_in_with_the_levels(monkeypatch):
+    # A noisy X of 8 px (8 DN, contrast 0.3) with a bright quadrant 0.8 as bright: where
+    # the symmetric fit slips more than half a pixel from the gating fit's centre, that
+    # centre stays, blended or not (seeds 7 and 11 here; the levels' fit would leave
+    # them 0.83 and 0.74 px off).
+    for seed in (7, 11):
+        rng = np.random.default_rng(seed)
+        placement = MarkerPlacement(
+            32 + rng.random(),
+            32 + rng.random(),
+            8.0,
+            rng.uniform(0, np.pi),
+            20.0,
+            0.3,
+            "quarter_disks",
+            dull_factor=0.8,
+        )
+        scene = render_markers(
+            (64, 64), [placement], seed, contrast=(0.3, 0.3), blur_sigma_px=1.0, noise_sigma_dn=8.0
+        )
+        truth, angles = scene.centres[0], np.array([scene.markers[0].angles])
+        gating = subpixel.refine_point_symmetry(
+            scene.image, truth[None] + [0.2, -0.1], np.array([6.4])
+        )
+        refit, _ = subpixel.refine_along_lines(
+            scene.image,
+            gating.xy,
+            np.array([0.1]),
+            np.array([6.4]),
+            angles,
+            full_scale=255.0,
+            max_radius_px=30.0,
+        )
+        np.testing.assert_array_equal(refit, gating.xy)
+
+
 def test_the_quadrant_level_statistic_follows_the_noise_where_the_quadrants_match():
     # Near a chi-square of 2 degrees of freedom on an even X (2-19 here: the model's
     # own errors add to the noise's), far above the threshold on a dull one.
