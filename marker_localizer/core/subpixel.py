@@ -857,24 +857,8 @@ def refine_along_lines(
             & ~uneven_levels
             & (symmetric.step_chi2 > LEVELS_BLEND_MIN_CHI2)
         )
-        if len(leaning):
-            at = rows[leaning]
-            _, levelled_fit = _levels_fit(
-                fit,
-                image,
-                centre[at],
-                key,
-                line_angles[at],
-                sloped,
-                None if prior is None else (prior[0][leaning], prior[1][leaning]),
-            )
-            centre[at], covariance[at], weight = _blended_with_levels(
-                centre[at], covariance[at], levelled_fit
-            )
-            reach[at[weight > 0]] = EDGE_STEP_MAX_SHIFT_PX
         if len(differ):
-            at = rows[differ]
-            reach[at] = EDGE_STEP_MAX_SHIFT_PX
+            reach[rows[differ]] = EDGE_STEP_MAX_SHIFT_PX
             primed = differ[~level_differ[differ]] if sloped else differ[:0]
             if len(primed):
                 # The levels' fit starts where the fit without the prior ends.
@@ -886,13 +870,41 @@ def refine_along_lines(
                     band.spacing[primed],
                     model_gain=True,
                 ).centre
-            lines, levelled_fit = _levels_fit(fit, image, centre[at], key, line_angles[at], sloped)
-            centre[at], covariance[at], pairs_rms, _, converged[at], _, _ = levelled_fit
+        # One levels' fit for both (for a few points a call's passes are the cost); the
+        # prior stays out where the levels differ: zero information is none.
+        levelled_rows = np.concatenate([differ, leaning])
+        if not len(levelled_rows):
+            continue
+        slope_prior = None
+        if prior is not None:
+            slope_prior = (prior[0][levelled_rows], prior[1][levelled_rows])
+            slope_prior[0][: len(differ)] = slope_prior[1][: len(differ)] = 0.0
+        lines, levelled_fit = _levels_fit(
+            fit,
+            image,
+            centre[rows[levelled_rows]],
+            key,
+            line_angles[rows[levelled_rows]],
+            sloped,
+            slope_prior,
+        )
+        if len(differ):
+            at = rows[differ]
+            own = _SymmetrySolution._make(field[: len(differ)] for field in levelled_fit)
+            centre[at], covariance[at], pairs_rms, _, converged[at], _, _ = own
             uneven_rows.append(at)
-            uneven_lines.append(lines)
+            uneven_lines.append(lines[: len(differ)])
             # A pair's residual is the difference of two pixels' noise.
             uneven_rms.append(pairs_rms / np.sqrt(2.0))
             uneven_statistic.append(symmetric.step_chi2[differ])
+        if len(leaning):
+            at = rows[leaning]
+            centre[at], covariance[at], weight = _blended_with_levels(
+                centre[at],
+                covariance[at],
+                _SymmetrySolution._make(field[len(differ) :] for field in levelled_fit),
+            )
+            reach[at[weight > 0]] = EDGE_STEP_MAX_SHIFT_PX
     if uneven_rows:
         # One model fit for every radius: its points share nothing but the cost of a pass.
         at = np.concatenate(uneven_rows)
