@@ -763,7 +763,12 @@ def refine_along_lines(
     0.066 px with the directions; 0.060 -> 0.047 px on 45 with the lower
     threshold; independent (g) 0.104 -> 0.061 px on its 17 (`bench accuracy` at
     9066720: 0.047 and 0.061 px). The other families' errors stay as they were
-    but for (d)'s (error over the bound 2.76 -> 2.61).
+    but for (d)'s (error over the bound 2.76 -> 2.61). Under that threshold, from
+    :data:`LEVELS_BLEND_MIN_CHI2`, the fit with the levels runs too, and the
+    symmetric fit's centre moves towards it by the share of their difference that
+    is bias (:func:`_blended_with_levels`), where it has not slipped: development
+    seeds of (g) 0.0790 -> 0.0729 px, the benchmark's (g) 0.0506 -> 0.0498 px, the
+    other families as they were.
 
     On disks of :data:`GAIN_MIN_RADIUS_PX` and more the light's slope is fitted
     with a prior from the quadrants' insides (:func:`_light_inside`), where the
