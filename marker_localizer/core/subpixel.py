@@ -993,13 +993,12 @@ def _blended_with_levels(
     so their correlation is unknown, and var(d) is taken at its most,
     (s_l + s_s)^2, s each fit's calibrated sigma (:func:`_line_fit_sigma`: the
     covariances predict half the errors' spread). With var(d) from the covariances
-    as they are, Cov(c_l) - Cov(c_s) or their sigmas' sum, (g)'s development seeds
-    gained twice as much (0.0790 -> 0.066-0.067 px, against 0.0729), but a light's
-    slope of 0.2 %/px across four X's of 20 px cost them 1.64 -> 1.72-1.82x the bound (the
-    levels and the slope trade off), where it now costs nothing. w is 0 where the
-    levels' fit did not converge or slipped
-    (:data:`EDGE_STEP_MAX_SHIFT_PX`). The covariance becomes Cov(c_s) +
-    w^2 (Cov(c_l) - Cov(c_s)).
+    as they are, Cov(c_l) - Cov(c_s) or the uncalibrated sigmas' sum squared, (g)'s
+    development seeds gained twice as much (0.0790 -> 0.066-0.067 px, against
+    0.0729), but a light's slope of 0.2 %/px across four X's of 20 px cost them
+    1.64 -> 1.72-1.82x the bound, where it now costs nothing. w is 0 where the
+    levels' fit did not converge or slipped (:data:`EDGE_STEP_MAX_SHIFT_PX`). The
+    covariance becomes Cov(c_s) + w^2 (Cov(c_l) - Cov(c_s)).
 
     Args:
         centre: (N, 2) the symmetric fit's centres.
