@@ -86,6 +86,13 @@ COARSE_SHIFT_PX = 1.0
 #: plate's outline, whose blurred edge is not point-symmetric about the centre.
 _FINAL_RADIUS_FRACTION = 0.9
 _FINAL_MIN_RADIUS_PX = 2.0
+#: The line fit reads an X as far as it reaches all round (:func:`template.line_reaches`),
+#: at most this many times the extent its rings found: one rung of the ring ladder,
+#: whose rungs sit at or under the X's radius ...
+REACH_MAX_GAIN = float(np.sqrt(2.0))
+#: ... in steps of this share of an octave (rounded down), so that X's of one step
+#: share a call: reading to each X's own reach gains no more on the development seeds.
+_REACH_STEPS_PER_OCTAVE = 8
 #: Step tolerance of the final fit, px: a tenth of the precision aimed at.
 _FINAL_TOLERANCE_PX = 1e-3
 #: A final fit that ends farther than this from its start has not found the X it was
@@ -820,6 +827,7 @@ def refine_along_lines(
     """
     if len(xy) == 0:
         return xy, sigma
+    radius_px = _reach_all_round(image, xy, line_angles, radius_px, max_radius_px)
     radius = np.clip(_FINAL_RADIUS_FRACTION * radius_px, _FINAL_MIN_RADIUS_PX, max_radius_px)
     # Points sharing a radius (the ring ladder's rungs) share a half-disk; each keeps
     # its own pairs nearest its lines.
@@ -942,6 +950,28 @@ def refine_along_lines(
         np.where(refined[:, None], centre, xy),
         np.where(refined, line_sigma, sigma),
     )
+
+
+def _reach_all_round(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    extent_px: NDArray[np.float64],
+    max_radius_px: float,
+) -> NDArray[np.float64]:
+    """(N,) how far the line fit reads each X: its rings' extent, or its reach where farther.
+
+    The reach (:func:`template.line_reaches`) is taken up to :data:`REACH_MAX_GAIN`
+    times the extent, on a ladder of :data:`_REACH_STEPS_PER_OCTAVE` steps an octave
+    above it, and never past ``max_radius_px``.
+    """
+    reach = template.line_reaches(
+        image, xy, line_angles, extent_px, REACH_MAX_GAIN * float(extent_px.max()) + 1.0
+    )
+    gain = np.clip(np.nan_to_num(reach / extent_px, nan=1.0), 1.0, REACH_MAX_GAIN)
+    # The small epsilon keeps a full rung (sqrt 2) from rounding down a step.
+    steps = np.floor(_REACH_STEPS_PER_OCTAVE * np.log2(gain) + 1e-9) / _REACH_STEPS_PER_OCTAVE
+    return cast("NDArray[np.float64]", np.minimum(extent_px * 2.0**steps, max_radius_px))
 
 
 def _levels_fit(

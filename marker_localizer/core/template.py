@@ -838,34 +838,147 @@ def line_extents(
         return extents
     sides = half_line_quadrants(shape.line_angles)
     rows = np.arange(n)
-    sine = np.abs(np.sin(shape.line_angles[:, 0] - shape.line_angles[:, 1]))
-    for k, (line, direction) in enumerate(((0, 1), (1, 1), (0, -1), (1, -1))):
-        angle = shape.line_angles[:, line]
-        along = direction * np.stack([np.cos(angle), np.sin(angle)], axis=1)
-        normal = np.stack([np.sin(angle), -np.cos(angle)], axis=1)
+    for k, (line, direction) in enumerate(_HALF_LINES):
         side = _EXTENT_SIDE_BLURS * np.sqrt(shape.blur_px[:, line] ** 2 + PIXEL_VARIANCE_PX2)
         side = side + _EXTENT_SIDE_PX
-        # Samples beside the line cross the other line until this distance.
-        first = side * (np.sqrt(np.maximum(1.0 - sine**2, 0.0)) / np.maximum(sine, 0.2) + 1.0)
-        on_line = shape.xy[:, None, :] + distance[None, :, None] * along[:, None, :]
-        beside = side[:, None, None] * normal[:, None, :]
-        plus, valid_plus = bilinear(image, *np.moveaxis(on_line + beside, -1, 0))
-        minus, valid_minus = bilinear(image, *np.moveaxis(on_line - beside, -1, 0))
+        plus, minus, valid = _beside_half_line(
+            image, shape.xy, shape.line_angles, line, direction, side, distance
+        )
         high, low = levels[rows, sides[:, k, 0]], levels[rows, sides[:, k, 1]]
         total = np.abs(high + low)[:, None]
         expected = (high - low)[:, None] / np.maximum(total, 1e-12)
         modulation = (plus - minus) / np.maximum(np.abs(plus + minus), _EXTENT_MIN_SUM * total)
-        ratio = np.where(
-            valid_plus & valid_minus,
-            modulation / np.where(expected == 0, 1e-12, expected),
-            0.0,
-        )
-        smooth = ratio.copy()
-        smooth[:, 1:-1] = (ratio[:, :-2] + ratio[:, 1:-1] + ratio[:, 2:]) / 3.0
-        faded = (smooth < _EXTENT_FADE) & (distance[None, :] >= first[:, None])
-        end = np.where(faded.any(axis=1), np.argmax(faded, axis=1), len(distance) - 1)
-        extents[:, k] = distance[end]
+        ratio = np.where(valid, modulation / np.where(expected == 0, 1e-12, expected), 0.0)
+        first = _first_clear_of_other_line(shape.line_angles, side)
+        extents[:, k] = _faded_end(ratio, distance, first)
     return extents
+
+
+#: The four half-lines of an X, as (line, direction): +e1, +e2, -e1, -e2.
+_HALF_LINES = ((0, 1), (1, 1), (0, -1), (1, -1))
+#: :func:`line_reaches` reads beside each line this far from it, px: 1.5 widths of a
+#: 0.8 px blur plus :data:`_EXTENT_SIDE_PX`, as :func:`line_extents` reads beside a
+#: fitted X of that blur (the renderers' optics are 0.5-1.5 px).
+_REACH_SIDE_PX = 2.0
+#: ... and takes the step each line's sides show between these shares of the X's
+#: extent (from where its samples clear the other line) as the step the X makes.
+_REACH_REFERENCE = (0.3, 0.9)
+
+
+def _beside_half_line(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    line: int,
+    direction: int,
+    side_px: NDArray[np.float64] | float,
+    distance: NDArray[Any],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """(N, D) bilinear samples either side of one half-line at ``distance`` along it.
+
+    Returns:
+        (plus, minus, valid): the samples on the line's positive and negative side,
+        and where both lie inside the image.
+    """
+    angle = line_angles[:, line]
+    along = direction * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    normal = np.stack([np.sin(angle), -np.cos(angle)], axis=1)
+    on_line = xy[:, None, :] + distance[None, :, None] * along[:, None, :]
+    beside = (
+        np.broadcast_to(np.asarray(side_px, np.float64), (len(xy),))[:, None, None]
+        * normal[:, None, :]
+    )
+    plus, valid_plus = bilinear(image, *np.moveaxis(on_line + beside, -1, 0))
+    minus, valid_minus = bilinear(image, *np.moveaxis(on_line - beside, -1, 0))
+    return plus, minus, valid_plus & valid_minus
+
+
+def _first_clear_of_other_line(
+    line_angles: NDArray[np.float64], side_px: NDArray[np.float64] | float
+) -> NDArray[np.float64]:
+    """(N,) the distance along a line from which samples ``side_px`` beside it clear the other."""
+    sine = np.abs(np.sin(line_angles[:, 0] - line_angles[:, 1]))
+    first: NDArray[np.float64] = side_px * (
+        np.sqrt(np.maximum(1.0 - sine**2, 0.0)) / np.maximum(sine, 0.2) + 1.0
+    )
+    return first
+
+
+def _faded_end(
+    ratio: NDArray[np.float64], distance: NDArray[Any], first: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """(N,) where each half-line's step over the X's, ``ratio`` (N, D), first fades.
+
+    Under :data:`_EXTENT_FADE`, three samples smoothed, from ``first`` on; the last
+    distance where it never does.
+    """
+    smooth = ratio.copy()
+    smooth[:, 1:-1] = (ratio[:, :-2] + ratio[:, 1:-1] + ratio[:, 2:]) / 3.0
+    # NaN (no step to compare with) counts as faded.
+    faded = ~(smooth >= _EXTENT_FADE) & (distance[None, :] >= first[:, None])
+    end = np.where(faded.any(axis=1), np.argmax(faded, axis=1), len(distance) - 1)
+    reach: NDArray[np.float64] = distance[end]
+    return reach
+
+
+def line_reaches(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    extent_px: NDArray[np.float64],
+    max_distance_px: float,
+) -> NDArray[np.float64]:
+    """(N,) how far an X reaches all round: the smaller semi-axis of the ellipse of its ends.
+
+    :func:`line_extents` without a fit: each half-line's step across it, the
+    modulation (a - b) / (a + b) of its two sides, is compared with the step it
+    makes inside the X, its median between :data:`_REACH_REFERENCE` of the
+    ``extent_px`` the rings found, and the half-line ends where that fades to
+    half. The modulation takes no notice of a factor on both sides, so neither a
+    dull quadrant (its own step is the reference) nor a light's slope or a shadow
+    across the line shortens the reach, where either breaks the rings' grey-level
+    symmetry short of the X's end. Under an affine view the X's ends lie on an
+    ellipse whose conjugate semi-diameters run along the two lines (each line's
+    reach the shorter of its halves); its smaller semi-axis B follows from
+    A^2 + B^2 = p^2 + q^2 and A B = p q sin(angle between the lines): the radius of
+    the largest disk about the centre inside the X.
+
+    Args:
+        image: (H, W) grey image, raw levels.
+        xy: (N, 2) centres.
+        line_angles: (N, 2) line directions, radians.
+        extent_px: (N,) the X's extent from its rings, px.
+        max_distance_px: farthest reach read, px.
+    """
+    first = _first_clear_of_other_line(line_angles, _REACH_SIDE_PX)
+    inner = np.maximum(first, _REACH_REFERENCE[0] * extent_px)
+    outer = np.maximum(_REACH_REFERENCE[1] * extent_px, inner + 1.0)
+    # The reference's samples are always read, however close the lines.
+    farthest = max(max_distance_px, float(outer.max(initial=0.0)))
+    distance = np.arange(_EXTENT_STEP_PX, farthest + _EXTENT_STEP_PX, _EXTENT_STEP_PX)
+    reference = (distance[None, :] >= inner[:, None]) & (distance[None, :] <= outer[:, None])
+    reach = np.empty((len(xy), 4))
+    for k, (line, direction) in enumerate(_HALF_LINES):
+        plus, minus, valid = _beside_half_line(
+            image, xy, line_angles, line, direction, _REACH_SIDE_PX, distance
+        )
+        total = np.abs(plus + minus)
+        typical = np.nanmedian(np.where(reference, total, np.nan), axis=1)
+        modulation = (plus - minus) / np.maximum(total, _EXTENT_MIN_SUM * typical[:, None])
+        step = np.nanmedian(np.where(reference, modulation, np.nan), axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(valid, modulation / step[:, None], 0.0)
+        reach[:, k] = _faded_end(ratio, distance, inner)
+    first_line, second_line = (
+        np.minimum(reach[:, 0], reach[:, 2]),
+        np.minimum(reach[:, 1], reach[:, 3]),
+    )
+    squares = first_line**2 + second_line**2
+    area = first_line * second_line * np.abs(np.sin(line_angles[:, 0] - line_angles[:, 1]))
+    semi_axis: NDArray[np.float64] = np.sqrt(
+        np.maximum(squares - np.sqrt(np.maximum(squares**2 - 4.0 * area**2, 0.0)), 0.0) / 2.0
+    )
+    return semi_axis
 
 
 def template_region(

@@ -158,3 +158,30 @@ def test_a_refit_on_every_pixel_changes_only_the_accepted_markers():
     np.testing.assert_array_equal(refit.shape.xy[1], grown.fit.shape.xy[1])
     assert np.hypot(*(refit.shape.xy[0] - (40.3, 39.6))) < 0.01
     assert not np.array_equal(refit.shape.xy[0], grown.fit.shape.xy[0])
+
+
+def test_an_x_reaches_its_radius_all_round_however_its_rings_read_it():
+    # A dull quadrant and a shadow across the plate stop the rings short; the step
+    # across each line, taken against its own inside, fades at the plate's end (11.5
+    # px on each half-line of this blurred 12 px X without them), and where the
+    # shadow's edge runs between the two sides a half-line reads a pixel short.
+    placement = MarkerPlacement(40.3, 39.6, 12.0, rotation_rad=0.3, dull_factor=0.5)
+    shadow = CastShadow(40.3, 39.6, normal_rad=2.0, offset_px=3.0, darkening=0.55, reach_px=30.0)
+    image = _rendered(placement, cast_shadows=[shadow])
+    angles = np.array([[0.3, 0.3 + np.pi / 2]])
+    reach = template.line_reaches(image, np.array([[40.3, 39.6]]), angles, np.array([8.49]), 20.0)
+    assert 10.0 <= reach[0] <= 12.0
+
+
+def test_a_tilted_x_reaches_all_round_as_far_as_its_ellipse_s_smaller_semi_axis():
+    # Tilted 50 degrees, the plate's circle is an ellipse of semi-axes 14 and 14 cos 50;
+    # the lines (its conjugate diameters) reach farther than the smaller one.
+    placement = MarkerPlacement(
+        40.3, 39.6, 14.0, rotation_rad=0.2, tilt_deg=50.0, tilt_axis_rad=0.9
+    )
+    image = _rendered(placement)
+    grown = _fit(image, np.array([40.0, 40.0]), np.array([0.3, 1.6]), radius=16.0)
+    angles = grown.fit.shape.line_angles
+    reach = template.line_reaches(image, grown.fit.shape.xy, angles, np.array([6.0]), 20.0)
+    assert grown.extents[0].min() > 10.0
+    assert reach[0] == pytest.approx(14.0 * np.cos(np.deg2rad(50.0)), abs=1.0)
