@@ -87,6 +87,25 @@ def size_batches(lengths: Sequence[int], ratio: float) -> list[NDArray[np.intp]]
     return [np.flatnonzero(size_class == size) for size in np.unique(size_class)]
 
 
+def nan_median(values: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``np.nanmedian(values, axis=1)`` of rows with one value or more, bit for bit.
+
+    For a few rows numpy takes the median through a masked array (``np.ma.median``:
+    ~0.6 ms a call of ~0.05 ms of arithmetic); its arithmetic is this: the values
+    sorted (NaN last, as the mask's fill puts them), the two middle ones of those
+    present (the one twice where their count is odd) summed and halved.
+    """
+    ordered = np.sort(values, axis=1)
+    present = np.count_nonzero(~np.isnan(values), axis=1)[:, None]
+    high = present // 2
+    low = np.where(present % 2 == 1, high, high - 1)
+    pair = np.take_along_axis(ordered, np.concatenate([low, high], axis=1), axis=1)
+    # The pair summed as the masked median sums it (a reduction over the axis, which
+    # gives +0.0 for two -0.0, where pair[:, 0] + pair[:, 1] would give -0.0).
+    median: NDArray[np.float64] = pair.sum(axis=1) / 2.0
+    return median
+
+
 def in_blocks(function: Callable[..., _Result], block: int, *per_point: NDArray[Any]) -> _Result:
     """``function`` over consecutive blocks of ``block`` points, its outputs concatenated.
 

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from scipy.special import erf
 
 from marker_localizer.core.noise import NoiseModel
-from marker_localizer.core.sampling import Normaliser, bilinear, pad_patterns
+from marker_localizer.core.sampling import Normaliser, bilinear, nan_median, pad_patterns
 
 _SUPERSAMPLING = 4  # template pixels are area-integrated from 4x4 sub-samples
 #: Paper path: annular score a template NCC above its minimum is worth, per unit of
@@ -963,9 +963,9 @@ def line_reaches(
             image, xy, line_angles, line, direction, _REACH_SIDE_PX, distance
         )
         total = np.abs(plus + minus)
-        typical = np.nanmedian(np.where(reference, total, np.nan), axis=1)
+        typical = nan_median(np.where(reference, total, np.nan))
         modulation = (plus - minus) / np.maximum(total, _EXTENT_MIN_SUM * typical[:, None])
-        step = np.nanmedian(np.where(reference, modulation, np.nan), axis=1)
+        step = nan_median(np.where(reference, modulation, np.nan))
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(valid, modulation / step[:, None], 0.0)
         reach[:, k] = _faded_end(ratio, distance, inner)

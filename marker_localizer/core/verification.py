@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from marker_localizer.core import template
-from marker_localizer.core.sampling import Normaliser, bilinear, in_blocks
+from marker_localizer.core.sampling import Normaliser, bilinear, in_blocks, nan_median
 from marker_localizer.core.screening import parabolic_offset
 
 N_ANGLES = 36  # the paper's 10-degree sampling of the annulus
@@ -1087,26 +1087,6 @@ def _edge_rings(
     )
 
 
-def _nan_median_rings(values: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(M, 2) ``np.nanmedian(values, axis=1)`` of (M, J, 2) values with one or more, bit for bit.
-
-    For a few rings numpy takes the median through a masked array (``np.ma.median``:
-    ~0.6 ms a call of ~0.05 ms of arithmetic, three calls a 12 MP frame); its
-    arithmetic is this: the values sorted (NaN last, as the mask's fill puts them),
-    the two middle ones of those present (the one twice where their count is odd)
-    summed and halved.
-    """
-    ordered = np.sort(values, axis=1)
-    present = np.count_nonzero(~np.isnan(values), axis=1)[:, None]
-    high = present // 2
-    low = np.where(present % 2 == 1, high, high - 1)
-    pair = np.take_along_axis(ordered, np.concatenate([low, high], axis=1), axis=1)
-    # The pair summed as the masked median sums it (a reduction over the axis, which
-    # gives +0.0 for two -0.0, where pair[:, 0] + pair[:, 1] would give -0.0).
-    median: NDArray[np.float64] = pair.sum(axis=1) / 2.0
-    return median
-
-
 def line_crossing_centres(
     image: NDArray[Any],
     xy: NDArray[np.float64],
@@ -1151,7 +1131,7 @@ def line_crossing_centres(
     # nanmedian quiet about them: it is process-wide, and the node's workers are threads.)
     found = np.isfinite(crossing).any(axis=1).all(axis=1)
     estimate = np.full((len(xy), 2), np.nan)
-    estimate[found] = _nan_median_rings(crossing[found])
+    estimate[found] = nan_median(crossing[found])
     move = np.isfinite(estimate).all(axis=1) & (
         np.linalg.norm(estimate - xy, axis=1) <= recentre_px
     )
