@@ -969,12 +969,9 @@ def line_reaches(
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(valid, modulation / step[:, None], 0.0)
         reach[:, k] = _faded_end(ratio, distance, inner)
-    first_line, second_line = (
-        np.minimum(reach[:, 0], reach[:, 2]),
-        np.minimum(reach[:, 1], reach[:, 3]),
-    )
-    squares = first_line**2 + second_line**2
-    area = first_line * second_line * np.abs(np.sin(line_angles[:, 0] - line_angles[:, 1]))
+    lines = np.minimum(reach[:, :2], reach[:, 2:])
+    squares = (lines**2).sum(axis=1)
+    area = lines.prod(axis=1) * np.abs(np.sin(line_angles[:, 0] - line_angles[:, 1]))
     semi_axis: NDArray[np.float64] = np.sqrt(
         np.maximum(squares - np.sqrt(np.maximum(squares**2 - 4.0 * area**2, 0.0)), 0.0) / 2.0
     )
