@@ -220,6 +220,22 @@ _DIRECTION_INNER_PX = 2.0
 #: ... in this many passes, each centring the wedges on the last directions (a
 #: third and fourth pass changed nothing measured).
 _DIRECTION_ITERATIONS = 2
+#: :func:`refine_along_lines` measures the lines' directions from the edges, before
+#: anything else, on X's of this extent and more, px, and tries a cast shadow's
+#: edge in their model (:func:`_model_uneven`). The ring check's directions are
+#: 1.9-3.1 degrees off (median; 5-8 at the 90th percentile) on the renderer's (a),
+#: (c), (d) and (g), the edges' 0.6-0.9 (2.5-4.2); off, the lines' band holds the
+#: wrong pairs, and the quadrants' levels' statistic (:data:`LEVELS_REFIT_MIN_CHI2`)
+#: does not see a dull quadrant or a shadow (0.8 on a shadowed X of 18 px whose
+#: levels, on its true lines, score 57). On the tiny markers of (b), 2.5-5 px, the
+#: edges' directions are worse than the rings' (median 4.1 degrees against 3.3;
+#: error over the bound 1.32 -> 1.36) and their model took shadows' edges where
+#: there are none (1.32 -> 1.35).
+MEASURED_MIN_EXTENT_PX = 6.0
+#: ... there the gradient is read on a grid of this step, px: at half a pixel, as
+#: the quadrants' levels' fit reads it (:func:`_levels_fit`), it costs 6-12 ms more
+#: on each of the speed benchmark's frames, at a whole pixel 2-3 ms.
+_MEASURED_DIRECTION_STEP_PX = 1.0
 #: Ratio of the observed error of :func:`refine_along_lines` to its covariance's
 #: prediction, measured like :data:`SIGMA_CALIBRATION`: with it 95.7 % of the errors
 #: on family (a) (96-98 % on (b), (c), (d) and the independent renderer's) fall
@@ -501,18 +517,19 @@ class SymmetryFit(NamedTuple):
 
 @functools.lru_cache(maxsize=256)
 def symmetric_offsets(
-    radius_px: float, max_samples: int = 400
+    radius_px: float, max_samples: int = 400, min_step_px: float = 0.5
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Half-disk sample offsets d (one of each +d/-d pair) and taper weights.
 
     The grid spacing is a multiple of 0.5 px, so c + d and c - d always share the
     same fractional position: bilinear interpolation errors then cancel in the
-    symmetry residual instead of biasing the centre.
+    symmetry residual instead of biasing the centre. It is ``min_step_px`` (a
+    multiple of 0.5), or coarser where that would take more than ``max_samples``.
 
     Returns:
         (offsets, weights): (K, 2) float64 and (K,) float64.
     """
-    step = 0.5
+    step = min_step_px
     while (np.pi * radius_px**2 / 2.0) / step**2 > max_samples:
         step += 0.5
     n = int(np.floor(radius_px / step))
@@ -827,6 +844,7 @@ def refine_along_lines(
     """
     if len(xy) == 0:
         return xy, sigma
+    line_angles = _measured_directions(image, xy, radius_px, line_angles, max_radius_px)
     radius_px = _reach_all_round(image, xy, line_angles, radius_px, max_radius_px)
     radius = np.clip(_FINAL_RADIUS_FRACTION * radius_px, _FINAL_MIN_RADIUS_PX, max_radius_px)
     # Points sharing a radius (the ring ladder's rungs) share a half-disk; each keeps
@@ -972,6 +990,29 @@ def _reach_all_round(
     # The small epsilon keeps a full rung (sqrt 2) from rounding down a step.
     steps = np.floor(_REACH_STEPS_PER_OCTAVE * np.log2(gain) + 1e-9) / _REACH_STEPS_PER_OCTAVE
     return cast("NDArray[np.float64]", np.minimum(extent_px * 2.0**steps, max_radius_px))
+
+
+def _measured_directions(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    extent_px: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    max_radius_px: float,
+) -> NDArray[np.float64]:
+    """(N, 2) the lines' directions from the edges (:func:`_edge_directions`), from the rings'.
+
+    On X's of :data:`MEASURED_MIN_EXTENT_PX` and more, over the disk the line fit
+    reads (those of one extent in one call); the smaller keep the rings' directions.
+    """
+    disk = np.clip(_FINAL_RADIUS_FRACTION * extent_px, _FINAL_MIN_RADIUS_PX, max_radius_px)
+    measured = np.array(line_angles, dtype=np.float64)
+    wide = extent_px >= MEASURED_MIN_EXTENT_PX
+    for key in np.unique(disk[wide]):
+        rows = np.flatnonzero(wide & (disk == key))
+        measured[rows] = _edge_directions(
+            image, xy[rows], float(key), measured[rows], _MEASURED_DIRECTION_STEP_PX
+        )
+    return measured
 
 
 def _levels_fit(
@@ -1204,31 +1245,23 @@ def _model_uneven(
 ) -> uneven.UnevenFit:
     """The X's with uneven levels located by their model (:func:`uneven.locate_uneven`).
 
-    With a cast shadow's edge where :func:`shadow.find_edges` sees one within
-    :data:`shadow.DETECTION_REACH_EXTENTS` of the extent, or else within
-    :data:`shadow.DETECTION_NEAR_REACH_EXTENTS`, and where the model leaves no more
-    than :data:`uneven.MAX_MISFIT_RATIO` times ``reference_rms``, the levels' fit's
-    residual per pixel at each X.
+    On X's of :data:`MEASURED_MIN_EXTENT_PX` and more it tries the cast shadow's
+    edge that fits best within :data:`shadow.HYPOTHESIS_REACH_EXTENTS` of the
+    extent (:func:`shadow.edge_hypotheses`), and keeps it where it explains; each
+    model is taken where it leaves no more than :data:`uneven.MAX_MISFIT_RATIO`
+    times ``reference_rms``, the levels' fit's residual per pixel at each X.
     """
-    edges = shadow.find_edges(
-        image,
-        centre,
-        np.minimum(shadow.DETECTION_REACH_EXTENTS * radius_px, max_radius_px),
-        line_angles,
-        full_scale,
+    wide = np.flatnonzero(radius_px >= MEASURED_MIN_EXTENT_PX)
+    edges = shadow.ShadowEdges.none(len(centre)).filled(
+        wide,
+        shadow.edge_hypotheses(
+            image,
+            centre[wide],
+            np.minimum(shadow.HYPOTHESIS_REACH_EXTENTS * radius_px[wide], max_radius_px),
+            line_angles[wide],
+            full_scale,
+        ),
     )
-    missed = np.flatnonzero(~edges.found)
-    if len(missed):
-        edges = edges.filled(
-            missed,
-            shadow.find_edges(
-                image,
-                centre[missed],
-                np.minimum(shadow.DETECTION_NEAR_REACH_EXTENTS * radius_px[missed], max_radius_px),
-                line_angles[missed],
-                full_scale,
-            ),
-        )
     return uneven.locate_uneven(
         image, centre, line_angles, radius_px, full_scale, edges, reference_rms
     )
@@ -1321,6 +1354,7 @@ def _edge_directions(
     centre: NDArray[np.float64],
     radius_px: float,
     line_angles: NDArray[np.float64],
+    step_px: float = 0.5,
 ) -> NDArray[np.float64]:
     """(N, 2) each X's line directions at ``centre``, from the gradient energy along its lines.
 
@@ -1338,8 +1372,9 @@ def _edge_directions(
         centre: (N, 2) the X's centres, px.
         radius_px: the disk read, px.
         line_angles: (N, 2) the directions to start from, radians.
+        step_px: the grid's step, px (:func:`symmetric_offsets`).
     """
-    disk, _ = symmetric_offsets(radius_px, _LINE_FIT_MAX_SAMPLES)
+    disk, _ = symmetric_offsets(radius_px, _LINE_FIT_MAX_SAMPLES, step_px)
     offsets = np.concatenate([disk, -disk])
     _, gx, gy, valid = bilinear_with_gradient(
         image, centre[:, 0, None] + offsets[:, 0], centre[:, 1, None] + offsets[:, 1]
