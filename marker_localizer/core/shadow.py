@@ -88,7 +88,7 @@ _MIN_PAIRS = 20
 #: (:func:`find_edges`' reach): the renderers' edges cross within 0.6 foreshortened
 #: radii of the centre, and the disk holds the plate on both sides of them.
 DETECTION_REACH_EXTENTS = 1.5
-#: A located X's model tries the edge :func:`edge_hypotheses` fits within this many
+#: A located X's model tries the edge :func:`find_edges` fits best within this many
 #: of its extents (the line fit's reach, ``subpixel._reach_all_round``): the ground
 #: beyond the plate bends the fit of the edge in the pairs, and the model, which
 #: reads the X alone, is what decides. Rendered (g), seeds 100-123, with every
@@ -274,40 +274,14 @@ def _read_pairs(
     return _Reading(xy, reach_px, line_angles, d, ahead - behind, weight, sides)
 
 
-def edge_hypotheses(
-    image: NDArray[Any],
-    xy: NDArray[np.float64],
-    reach_px: NDArray[np.float64],
-    line_angles: NDArray[np.float64],
-    full_scale: float,
-) -> ShadowEdges:
-    """Each located X's best straight shadow edge, for its model to test.
-
-    The edge :func:`find_edges` fits, ``found`` wherever the shadow is
-    :data:`MIN_DEPTH` deep or more, whatever share of the pairs it explains and
-    however the image steps across it. :func:`find_edges` decides from the pairs
-    alone, on candidates no check has passed yet, where a false edge brings a
-    texture saddle in; an X already located is fitted again with the edge by its
-    model, which keeps it only where it takes more of the residual than its four
-    parameters would by chance (:data:`uneven.SHADOW_MIN_CHI2`). The pairs' share
-    (:data:`MIN_EXPLAINED`) and the step (:data:`STEP_TOLERANCE`), set for the
-    first decision, turned away the edges of 19 of the 45 shadowed markers of
-    (g)'s seeds 100-123 that were found, 0.35-0.6 of their pairs explained or a
-    step of 0.3-0.4: fitted with the true edge, those markers' mean error falls
-    from 0.105 to 0.060 px. The depth stays: a shallower shadow is the light's
-    slope, which the model fits anyway, and on the speed benchmark's frames,
-    which have no cast shadow, two X's had edges of 0.14 and 0.24 that the model
-    kept, at 20 ms each.
-    """
-    return _fitted_edges(image, xy, reach_px, line_angles, full_scale, by_pairs=False)
-
-
 def find_edges(
     image: NDArray[Any],
     xy: NDArray[np.float64],
     reach_px: NDArray[np.float64],
     line_angles: NDArray[np.float64],
     full_scale: float,
+    *,
+    decided_by_pairs: bool = True,
 ) -> ShadowEdges:
     """A cast shadow's straight edge across each candidate, where the evidence shows one.
 
@@ -322,28 +296,32 @@ def find_edges(
     or more, and the image steps by that depth across its edge
     (:data:`STEP_TOLERANCE`).
 
+    Those three decide for a candidate no check has passed yet, where a false edge
+    brings a texture saddle in. An X already located is fitted again with the edge
+    by its model, which keeps it only where it takes more of the residual than its
+    four parameters would by chance (:data:`uneven.SHADOW_MIN_CHI2`); offered the
+    edge without ``decided_by_pairs``, wherever the shadow is deep enough, it
+    decides itself. On (g)'s seeds 100-123 the pairs' share and the step turned
+    away the edges of 19 of the 45 shadowed markers found (0.35-0.6 of their pairs
+    explained, or a step of 0.3-0.4); fitted with their true edges, the 45 are
+    0.060 px off on average instead of 0.105. The depth stays: a shallower shadow is
+    a light's slope, which the model fits anyway, and on the speed benchmark's
+    frame 0, which has no cast shadow, two X's kept edges 0.14 and 0.24 deep
+    (125 -> 236 ms).
+
     Args:
         image: (H, W) grey image, raw levels.
         xy: (N, 2) candidate centres (a pixel or two off is no matter).
         reach_px: (N,) radius of the disk read around each, px.
         line_angles: (N, 2) the X's line directions, radians.
         full_scale: the image's white (255 for uint8, 1 for float images in [0, 1]).
+        decided_by_pairs: found only where the pairs and the step show the edge
+            too; without, the edge that fits best, found where deep enough, for a
+            located X's model to test.
 
     Returns:
         :class:`ShadowEdges`.
     """
-    return _fitted_edges(image, xy, reach_px, line_angles, full_scale, by_pairs=True)
-
-
-def _fitted_edges(
-    image: NDArray[Any],
-    xy: NDArray[np.float64],
-    reach_px: NDArray[np.float64],
-    line_angles: NDArray[np.float64],
-    full_scale: float,
-    by_pairs: bool,
-) -> ShadowEdges:
-    """:func:`find_edges` (``by_pairs``) or :func:`edge_hypotheses`: the edges fitted, and found."""
     n = len(xy)
     floor = _DARKEST_SHARE * full_scale
     reading = _read_pairs(image, floor, xy, reach_px, line_angles)
@@ -374,7 +352,7 @@ def _fitted_edges(
     # Only where a sharp edge is already deep enough, and explains a share of the pairs
     # where they decide, is the edge refined.
     promising = np.abs(depth) >= _PROMISING * MIN_DEPTH
-    if by_pairs:
+    if decided_by_pairs:
         promising &= explained >= _PROMISING * MIN_EXPLAINED
     refine = np.flatnonzero(promising & (weight.sum(axis=1) >= _MIN_PAIRS))
     if len(refine):
@@ -388,7 +366,7 @@ def _fitted_edges(
         )
     found = np.zeros(n, dtype=bool)
     found[refine] = depth[refine] >= MIN_DEPTH
-    if by_pairs:
+    if decided_by_pairs:
         found[refine] &= (explained[refine] >= MIN_EXPLAINED) & (
             np.abs(step[refine] - 1.0) <= STEP_TOLERANCE
         )

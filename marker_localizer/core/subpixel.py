@@ -1247,19 +1247,21 @@ def _model_uneven(
 
     On X's of :data:`MEASURED_MIN_EXTENT_PX` and more it tries the cast shadow's
     edge that fits best within :data:`shadow.HYPOTHESIS_REACH_EXTENTS` of the
-    extent (:func:`shadow.edge_hypotheses`), and keeps it where it explains; each
+    extent (:func:`shadow.find_edges`, not ``decided_by_pairs``), and keeps it
+    where it explains; each
     model is taken where it leaves no more than :data:`uneven.MAX_MISFIT_RATIO`
     times ``reference_rms``, the levels' fit's residual per pixel at each X.
     """
     wide = np.flatnonzero(radius_px >= MEASURED_MIN_EXTENT_PX)
     edges = shadow.ShadowEdges.none(len(centre)).filled(
         wide,
-        shadow.edge_hypotheses(
+        shadow.find_edges(
             image,
             centre[wide],
             np.minimum(shadow.HYPOTHESIS_REACH_EXTENTS * radius_px[wide], max_radius_px),
             line_angles[wide],
             full_scale,
+            decided_by_pairs=False,
         ),
     )
     return uneven.locate_uneven(

@@ -23,13 +23,13 @@ def _marker(cast: list[CastShadow], dull: float = 0.7, noise: float = 2.0):
 def _edges(
     scene, image: np.ndarray | None = None, white: float = 255.0, *, hypotheses: bool = False
 ) -> shadow.ShadowEdges:
-    fitted = shadow.edge_hypotheses if hypotheses else shadow.find_edges
-    return fitted(
+    return shadow.find_edges(
         scene.image if image is None else image,
         CANDIDATE,
         np.array([RADIUS_PX]),
         np.array([scene.markers[0].angles]),
         white,
+        decided_by_pairs=not hypotheses,
     )
 
 
