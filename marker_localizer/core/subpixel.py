@@ -229,12 +229,12 @@ _DIRECTION_ITERATIONS = 2
 #: does not see a dull quadrant or a shadow (0.8 on a shadowed X of 18 px whose
 #: levels, on its true lines, score 57). On the tiny markers of (b), 2.5-5 px, the
 #: edges' directions are worse than the rings' (median 4.1 degrees against 3.3;
-#: error over the bound 1.32 -> 1.36) and their model took shadows' edges where
+#: error over the bound 1.32 -> 1.34) and their model took shadows' edges where
 #: there are none (1.32 -> 1.35).
 MEASURED_MIN_EXTENT_PX = 6.0
 #: ... there the gradient is read on a grid of this step, px: at half a pixel, as
-#: the quadrants' levels' fit reads it (:func:`_levels_fit`), it costs 6-12 ms more
-#: on each of the speed benchmark's frames, at a whole pixel 2-3 ms.
+#: the quadrants' levels' fit reads it (:func:`_levels_fit`), the final fit takes
+#: 6-10 ms more on each of the speed benchmark's frames, at a whole pixel 2-4 ms.
 _MEASURED_DIRECTION_STEP_PX = 1.0
 #: Ratio of the observed error of :func:`refine_along_lines` to its covariance's
 #: prediction, measured like :data:`SIGMA_CALIBRATION`: with it 95.7 % of the errors
@@ -999,10 +999,11 @@ def _measured_directions(
     line_angles: NDArray[np.float64],
     max_radius_px: float,
 ) -> NDArray[np.float64]:
-    """(N, 2) the lines' directions from the edges (:func:`_edge_directions`), from the rings'.
+    """(N, 2) the lines' directions measured from the edges (:func:`_edge_directions`).
 
-    On X's of :data:`MEASURED_MIN_EXTENT_PX` and more, over the disk the line fit
-    reads (those of one extent in one call); the smaller keep the rings' directions.
+    From the ring check's ``line_angles``, on X's of :data:`MEASURED_MIN_EXTENT_PX`
+    and more, over the disk the line fit reads (those of one extent in one call);
+    the smaller keep the rings' directions.
     """
     disk = np.clip(_FINAL_RADIUS_FRACTION * extent_px, _FINAL_MIN_RADIUS_PX, max_radius_px)
     measured = np.array(line_angles, dtype=np.float64)
@@ -1248,9 +1249,9 @@ def _model_uneven(
     On X's of :data:`MEASURED_MIN_EXTENT_PX` and more it tries the cast shadow's
     edge that fits best within :data:`shadow.HYPOTHESIS_REACH_EXTENTS` of the
     extent (:func:`shadow.find_edges`, not ``decided_by_pairs``), and keeps it
-    where it explains; each
-    model is taken where it leaves no more than :data:`uneven.MAX_MISFIT_RATIO`
-    times ``reference_rms``, the levels' fit's residual per pixel at each X.
+    where it explains; each model is taken where it leaves no more than
+    :data:`uneven.MAX_MISFIT_RATIO` times ``reference_rms``, the levels' fit's
+    residual per pixel at each X.
     """
     wide = np.flatnonzero(radius_px >= MEASURED_MIN_EXTENT_PX)
     edges = shadow.ShadowEdges.none(len(centre)).filled(
