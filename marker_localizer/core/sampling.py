@@ -88,7 +88,10 @@ def size_batches(lengths: Sequence[int], ratio: float) -> list[NDArray[np.intp]]
 
 
 def nan_median(values: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``np.nanmedian(values, axis=1)`` of rows with one value or more, bit for bit.
+    """``np.nanmedian(values, axis=1)``, bit for bit, where each has one value or more.
+
+    Along axis 1 of (M, J) values, or of (M, J, ...) with the trailing axes kept
+    (the rings' crossings, :func:`~marker_localizer.core.verification.line_crossing_centres`).
 
     For a few rows numpy takes the median through a masked array (``np.ma.median``:
     ~0.6 ms a call of ~0.05 ms of arithmetic); its arithmetic is this: the values
