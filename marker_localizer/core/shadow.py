@@ -130,28 +130,6 @@ class ShadowEdges(NamedTuple):
         )
         return self._replace(offset=self.offset - shift)
 
-    def filled(self, rows: NDArray[np.intp], others: ShadowEdges) -> ShadowEdges:
-        """These edges with ``others`` (one per row of ``rows``) where those were found."""
-        taken = rows[others.found]
-        fields = []
-        for mine, theirs in zip(self, others, strict=True):
-            field = mine.copy()
-            field[taken] = theirs[others.found]
-            fields.append(field)
-        return ShadowEdges._make(fields)
-
-    @staticmethod
-    def none(count: int) -> ShadowEdges:
-        """``count`` candidates without an edge."""
-        return ShadowEdges(
-            np.zeros(count),
-            np.zeros(count),
-            np.zeros(count),
-            np.zeros(count),
-            np.zeros(count),
-            np.zeros(count, dtype=bool),
-        )
-
 
 def _unit_pairs() -> NDArray[np.float64]:
     """(K, 2) the pairs' offsets for a reach of 1, over a half turn."""

@@ -221,8 +221,9 @@ _DIRECTION_INNER_PX = 2.0
 #: third and fourth pass changed nothing measured).
 _DIRECTION_ITERATIONS = 2
 #: :func:`refine_along_lines` measures the lines' directions from the edges, before
-#: anything else, on X's of this extent and more, px, and tries a cast shadow's
-#: edge in their model (:func:`_model_uneven`). The ring check's directions are
+#: anything else, on X's of this extent and more, px, and only these X's are located
+#: by their model (:func:`_model_uneven`, with a cast shadow's edge tried;
+#: :func:`locate_in_shadow`). The ring check's directions are
 #: 1.9-3.1 degrees off (median; 5-8 at the 90th percentile) on the renderer's (a),
 #: (c), (d) and (g), the edges' 0.6-0.9 (2.5-4.2); off, the lines' band holds the
 #: wrong pairs, and the quadrants' levels' statistic (:data:`LEVELS_REFIT_MIN_CHI2`)
@@ -230,7 +231,9 @@ _DIRECTION_ITERATIONS = 2
 #: levels, on its true lines, score 57). On the tiny markers of (b), 2.5-5 px, the
 #: edges' directions are worse than the rings' (median 4.1 degrees against 3.3;
 #: error over the bound 1.32 -> 1.34) and their model took shadows' edges where
-#: there are none (1.32 -> 1.35).
+#: there are none (1.32 -> 1.35). Under it the model reads its tone curve and
+#: wedges on too few pixels: on (g)'s development seeds it put each of the 4 X's
+#: it located farther from the truth than the levels' fit (0.084 -> 0.182 px).
 MEASURED_MIN_EXTENT_PX = 6.0
 #: ... there the gradient is read on a grid of this step, px: at half a pixel, as
 #: the quadrants' levels' fit reads it (:func:`_levels_fit`), the final fit takes
@@ -809,8 +812,9 @@ def refine_along_lines(
     The levels' fit still rests on the pairs' difference of two blurred steps,
     which a camera's tone curve and a tilted X's wedges bend where the levels
     differ (:mod:`~marker_localizer.core.uneven` says how much); so where it ran,
-    the X is located once more by its model, four levels through the tone curve,
-    with a cast shadow's edge where :func:`shadow.find_edges` finds one
+    an X of :data:`MEASURED_MIN_EXTENT_PX` and more is located once more by its
+    model, four levels through the tone curve, with a cast shadow's edge where
+    :func:`shadow.find_edges` finds one
     (:func:`uneven.locate_uneven`), and the model's centre replaces the levels' where
     that fit converges and leaves no more than :data:`uneven.MAX_MISFIT_RATIO` times
     the levels' fit's residual at the same X (a chessboard corner, whose disk takes
@@ -923,11 +927,12 @@ def refine_along_lines(
             at = rows[differ]
             own = _SymmetrySolution._make(field[: len(differ)] for field in levelled_fit)
             centre[at], covariance[at], pairs_rms, _, converged[at], _, _ = own
-            uneven_rows.append(at)
-            uneven_lines.append(lines[: len(differ)])
+            wide = radius_px[at] >= MEASURED_MIN_EXTENT_PX
+            uneven_rows.append(at[wide])
+            uneven_lines.append(lines[: len(differ)][wide])
             # A pair's residual is the difference of two pixels' noise.
-            uneven_rms.append(pairs_rms / np.sqrt(2.0))
-            uneven_statistic.append(symmetric.step_chi2[differ])
+            uneven_rms.append(pairs_rms[wide] / np.sqrt(2.0))
+            uneven_statistic.append(symmetric.step_chi2[differ][wide])
         if len(leaning):
             at = rows[leaning]
             centre[at], covariance[at], weight = _blended_with_levels(
@@ -1189,18 +1194,19 @@ def locate_in_shadow(
     The division (:func:`shadow.divided_out`, through the edge :func:`shadow.find_edges`
     proposed before any X was known) leaves some of the shadow, and the fits that
     found the marker on that copy are pulled by what is left: on the renderer's
-    (g), 0.1-0.2 px for some of them. Here each X is fitted in the frame by its model
-    with the shadow's edge (:func:`uneven.locate_uneven`, from ``edges``, one per
-    point, about ``xy``), and its centre is taken where that fit converges, keeps
-    the edge, and the edge takes at least :data:`shadow.MIN_EXPLAINED` of the
-    residual the model without it leaves (the same share the edge must explain of
-    the pairs to be proposed at all). Where it takes less, the model has slid onto
-    something else than the shadowed X (on (g)'s seeds 0-23, two such fits went
-    0.5-0.7 px off). Rendered (g), seeds 0-23 / 100-123 / 200-223: of the 60
-    markers found so, 49 are located by the model, 35 of them closer to the
-    truth, 13 farther by at most 0.033 px and one by 0.15; the mean error of all
-    found 0.0485 / 0.0638 / 0.0713 -> 0.0451 / 0.0585 / 0.0687 px, the held-out
-    seeds 500-523 0.0646 -> 0.0576. The other families as they were.
+    (g), 0.1-0.7 px for some of them. Here each X of :data:`MEASURED_MIN_EXTENT_PX`
+    and more is fitted in the frame by its model with the shadow's edge
+    (:func:`uneven.locate_uneven`, from ``edges``, one per point, about ``xy``),
+    which keeps the edge where it explains, and its centre is taken where that fit
+    converges. Rendered (g), development seeds 0-23 / 100-123 / 200-223, the 46
+    markers found so: 0.129 px off on the copy, 0.062 now. The model was first
+    taken only where the edge took at least :data:`shadow.MIN_EXPLAINED` of the
+    residual the model without it leaves (the share the edge must explain of the
+    pairs to be proposed): 0.082 px. Of the 11 X's that share turned away, the
+    model put 7 closer to the truth (0.29 -> 0.055, 0.66 -> 0.22, 0.43 -> 0.06 px
+    among them) and 4 farther (0.055 -> 0.55 px on seed 17, 0.08 -> 0.21, and two
+    by 0.012 px or less). Under 6 px the model reads its tone curve and wedges on
+    too few pixels: the one such marker found so went from 0.017 to 0.43 px.
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -1214,13 +1220,16 @@ def locate_in_shadow(
     Returns:
         (xy, sigma, located): the centres and sigmas, the model's where ``located``.
     """
-    modelled = uneven.locate_uneven(image, xy, line_angles, radius_px, full_scale, edges)
-    located = modelled.located & (modelled.shadow_share >= shadow.MIN_EXPLAINED)
-    return (
-        np.where(located[:, None], modelled.xy, xy),
-        np.where(located, _line_fit_sigma(modelled.covariance), sigma),
-        located,
+    wide = np.flatnonzero(radius_px >= MEASURED_MIN_EXTENT_PX)
+    modelled = uneven.locate_uneven(
+        image, xy[wide], line_angles[wide], radius_px[wide], full_scale, edges.take(wide)
     )
+    at = wide[modelled.located]
+    xy, sigma, located = xy.copy(), sigma.copy(), np.zeros(len(xy), bool)
+    xy[at] = modelled.xy[modelled.located]
+    sigma[at] = _line_fit_sigma(modelled.covariance[modelled.located])
+    located[at] = True
+    return xy, sigma, located
 
 
 def _line_fit_sigma(covariance: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -1246,24 +1255,20 @@ def _model_uneven(
 ) -> uneven.UnevenFit:
     """The X's with uneven levels located by their model (:func:`uneven.locate_uneven`).
 
-    On X's of :data:`MEASURED_MIN_EXTENT_PX` and more it tries the cast shadow's
-    edge that fits best within :data:`shadow.HYPOTHESIS_REACH_EXTENTS` of the
-    extent (:func:`shadow.find_edges`, not ``decided_by_pairs``), and keeps it
-    where it explains; each model is taken where it leaves no more than
-    :data:`uneven.MAX_MISFIT_RATIO` times ``reference_rms``, the levels' fit's
-    residual per pixel at each X.
+    X's of :data:`MEASURED_MIN_EXTENT_PX` and more (the caller's choice): the model
+    tries the cast shadow's edge that fits best within
+    :data:`shadow.HYPOTHESIS_REACH_EXTENTS` of the extent (:func:`shadow.find_edges`,
+    not ``decided_by_pairs``), and keeps it where it explains; each model is taken
+    where it leaves no more than :data:`uneven.MAX_MISFIT_RATIO` times
+    ``reference_rms``, the levels' fit's residual per pixel at each X.
     """
-    wide = np.flatnonzero(radius_px >= MEASURED_MIN_EXTENT_PX)
-    edges = shadow.ShadowEdges.none(len(centre)).filled(
-        wide,
-        shadow.find_edges(
-            image,
-            centre[wide],
-            np.minimum(shadow.HYPOTHESIS_REACH_EXTENTS * radius_px[wide], max_radius_px),
-            line_angles[wide],
-            full_scale,
-            decided_by_pairs=False,
-        ),
+    edges = shadow.find_edges(
+        image,
+        centre,
+        np.minimum(shadow.HYPOTHESIS_REACH_EXTENTS * radius_px, max_radius_px),
+        line_angles,
+        full_scale,
+        decided_by_pairs=False,
     )
     return uneven.locate_uneven(
         image, centre, line_angles, radius_px, full_scale, edges, reference_rms

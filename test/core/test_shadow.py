@@ -127,16 +127,3 @@ def test_of_overlapping_candidates_the_best_explained_edge_is_divided_out():
     kept = shadow.apart(xy, np.full(4, 6.0), np.array([0.6, 0.9, 0.7, 0.8]))
     # 1 beats 0 (10 px apart, disks of 6); 3 is clear of 1 (15 px) and of 2 (25 px).
     assert kept.tolist() == [False, True, True, True]
-
-
-def test_edges_found_fill_the_rows_that_were_without():
-    shaded = _marker([CastShadow(*CENTRE, 0.7, 3.0, 0.5, 2 * RADIUS_PX)])
-    found = _edges(shaded)
-    none = _edges(_marker([]))
-    assert found.found[0] and not none.found[0]
-    both = shadow.ShadowEdges.none(2)
-    filled = both.filled(np.array([1]), found)
-    assert list(filled.found) == [False, True]
-    assert filled.normal[1] == found.normal[0] and filled.offset[1] == found.offset[0]
-    # A second search that finds nothing leaves the row as it was.
-    assert both.filled(np.array([0]), none).normal[0] == both.normal[0]

@@ -162,8 +162,8 @@ def test_a_shadows_edge_across_the_x_is_modelled_where_the_blur_acts_on_the_shad
     assert max(errors) < 0.015
 
 
-def _shadowed_dull_marker(seed: int, shadow_depth: float):
-    """A tilted X of 16 px, a dull quadrant, a shadow's edge across it taking ``shadow_depth``."""
+def _shadowed_dull_marker(seed: int, shadow_depth: float, radius_px: float = 16.0):
+    """A tilted X, a dull quadrant, a shadow's edge across it taking ``shadow_depth``."""
     rng = np.random.default_rng(seed)
     x, y = 48 + rng.uniform(0, 1), 48 + rng.uniform(0, 1)
     normal, offset = rng.uniform(0, 2 * np.pi), rng.choice((-1, 1)) * rng.uniform(2, 4)
@@ -171,7 +171,7 @@ def _shadowed_dull_marker(seed: int, shadow_depth: float):
         (96, 96),
         [
             MarkerPlacement(
-                x, y, 16.0, rotation_rad=rng.uniform(0, np.pi), tilt_deg=30.0, dull_factor=0.7
+                x, y, radius_px, rotation_rad=rng.uniform(0, np.pi), tilt_deg=30.0, dull_factor=0.7
             )
         ],
         seed,
@@ -202,9 +202,9 @@ def test_an_edge_described_about_another_point_bounds_the_same_half_plane():
     )
 
 
-def _located_in_shadow(seed: int, shadow_depth: float):
+def _located_in_shadow(seed: int, shadow_depth: float, radius_px: float = 16.0):
     """:func:`subpixel.locate_in_shadow` from 0.3 px off, sigma 0.5, with the true edge."""
-    scene, edge = _shadowed_dull_marker(seed, shadow_depth)
+    scene, edge = _shadowed_dull_marker(seed, shadow_depth, radius_px)
     marker = scene.markers[0]
     start = scene.centres + 0.3
     located = subpixel.locate_in_shadow(
@@ -228,10 +228,20 @@ def test_a_marker_found_in_a_shadow_is_located_in_the_frame_by_its_model_with_th
         assert sigma[0] < 0.5
 
 
-def test_where_the_edge_explains_nothing_a_marker_keeps_the_centre_it_was_found_at():
-    # No shadow in the frame: the edge proposed takes no share of the residual.
+def test_a_marker_found_in_a_shadow_that_is_not_there_is_located_by_its_model_all_the_same():
+    # The edge proposed explains nothing: the model leaves it out and locates the
+    # dull X from its four levels.
     for seed in range(4):
-        _, start, (xy, sigma, located) = _located_in_shadow(seed, 0.0)
+        scene, _, (xy, sigma, located) = _located_in_shadow(seed, 0.0)
+        assert located[0]
+        assert np.linalg.norm(xy[0] - scene.centres[0]) < 0.05
+        assert sigma[0] < 0.5
+
+
+def test_a_tiny_marker_found_in_a_shadow_keeps_the_centre_it_was_found_at():
+    # Under subpixel.MEASURED_MIN_EXTENT_PX the model is not fitted.
+    for seed in range(2):
+        _, start, (xy, sigma, located) = _located_in_shadow(seed, 0.5, radius_px=5.0)
         assert not located[0]
         np.testing.assert_array_equal(xy, start)
         assert sigma[0] == 0.5
