@@ -760,7 +760,7 @@ def refine_along_lines(
     full_scale: float,
     max_modelled: int = MAX_MODELLED,
     tally: dict[str, int] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Detections' final centres: the point-symmetry fit again, weighted along the X's lines.
 
     The gating fit of :func:`locate_markers` tapers its disk and, on large markers,
@@ -841,13 +841,15 @@ def refine_along_lines(
             fitted for ``max_modelled``.
 
     Returns:
-        (xy, sigma): the refined centres and their calibrated sigmas; the gating
-        fit's where this fit did not converge or slipped
+        (xy, sigma, line_angles): the refined centres and their calibrated sigmas,
+        the gating fit's where this fit did not converge or slipped
         (:data:`_LINE_FIT_MAX_SHIFT_PX`, :data:`EDGE_STEP_MAX_SHIFT_PX` with the
-        quadrants' own levels).
+        quadrants' own levels); and the (N, 2) line directions it read along,
+        radians in [0, pi): measured from the edges on X's of
+        :data:`MEASURED_MIN_EXTENT_PX` and more, the given ones on the smaller.
     """
     if len(xy) == 0:
-        return xy, sigma
+        return xy, sigma, line_angles
     line_angles = _measured_directions(image, xy, radius_px, line_angles, max_radius_px)
     radius_px = _reach_all_round(image, xy, line_angles, radius_px, max_radius_px)
     radius = np.clip(_FINAL_RADIUS_FRACTION * radius_px, _FINAL_MIN_RADIUS_PX, max_radius_px)
@@ -972,6 +974,7 @@ def refine_along_lines(
     return (
         np.where(refined[:, None], centre, xy),
         np.where(refined, line_sigma, sigma),
+        np.mod(line_angles, np.pi),
     )
 
 

@@ -339,7 +339,7 @@ def test_the_line_weighted_refit_is_more_precise_than_the_gating_fit_on_large_ma
             min_contrast=10.0,
             max_symmetry_residual=0.1,
         )
-        refit, sigma = subpixel.refine_along_lines(
+        refit, sigma, _ = subpixel.refine_along_lines(
             image,
             gating.xy,
             gating.sigma,
@@ -380,7 +380,7 @@ def test_a_tiny_marker_is_located_within_one_and_a_half_times_its_cramer_rao_bou
             min_contrast=10.0,
             max_symmetry_residual=0.2,
         )
-        refit, _ = subpixel.refine_along_lines(
+        refit, _, _ = subpixel.refine_along_lines(
             scene.image,
             gating.xy,
             gating.sigma,
@@ -398,7 +398,7 @@ def test_a_line_weighted_refit_that_slips_from_the_gating_centre_keeps_it():
     image, truth = _large_noisy_x(0)
     start = truth[None] + [[0.8, 0.0]]
     sigma = np.array([0.2])
-    xy, kept = subpixel.refine_along_lines(
+    xy, kept, _ = subpixel.refine_along_lines(
         image,
         start,
         sigma,
@@ -446,7 +446,7 @@ def _dull_x(
 def _gate_and_refit(image, truth, angles, *, start=(0.3, -0.2), gating_px=12.0, extent_px=13.0):
     """The gating fit from ``start`` off a dull X (16 px by default), and the line fit after."""
     gating = subpixel.refine_point_symmetry(image, truth[None] + start, np.array([gating_px]))
-    refit, _ = subpixel.refine_along_lines(
+    refit, _, _ = subpixel.refine_along_lines(
         image,
         gating.xy,
         np.array([0.1]),
@@ -481,7 +481,7 @@ def test_the_quadrants_own_levels_lie_on_the_lines_found_from_the_edges(dull_fac
         image, truth, angles = _dull_x(seed, dull_factor)
         gating = subpixel.refine_point_symmetry(image, truth[None] + [0.3, -0.2], np.array([12.0]))
         for off_deg in ([3.0, -3.0], [-4.0, 2.0]):
-            refit, _ = subpixel.refine_along_lines(
+            refit, _, _ = subpixel.refine_along_lines(
                 image,
                 gating.xy,
                 np.array([0.1]),
@@ -635,6 +635,36 @@ def test_an_x_is_read_along_the_lines_its_edges_show_not_its_rings(monkeypatch):
     assert measured < 0.3 * _shadowed_x_error(2.0, 0.5, (7.0, -6.0))
 
 
+def _line_directions_read(image, truth, angles, extent_px):
+    """The directions :func:`subpixel.refine_along_lines` reports for an X at ``truth``."""
+    return subpixel.refine_along_lines(
+        image,
+        truth[None],
+        np.array([0.1]),
+        np.array([extent_px]),
+        angles,
+        full_scale=255.0,
+        max_radius_px=30.0,
+    )[2][0]
+
+
+def test_the_line_fit_reports_the_directions_its_edges_show_not_its_rings():
+    for seed in range(4):
+        image, truth, angles = _dull_x(seed, 1.0)
+        read = _line_directions_read(image, truth, angles + np.radians([7.0, -6.0]), 13.0)
+        off = np.abs((read - angles[0] + np.pi / 2) % np.pi - np.pi / 2)
+        assert np.degrees(off).max() < 1.0
+        assert ((read >= 0.0) & (read < np.pi)).all()
+
+
+def test_a_tiny_x_reports_the_directions_it_was_given():
+    # Under MEASURED_MIN_EXTENT_PX the edges' directions are the worse (family (b)).
+    image, truth, angles = _dull_x(0, 1.0)
+    given = np.mod(angles + np.radians([7.0, -6.0]), np.pi)
+    read = _line_directions_read(image, truth, given, subpixel.MEASURED_MIN_EXTENT_PX - 1.0)
+    np.testing.assert_allclose(read, given[0])
+
+
 def test_a_symmetric_fit_that_slipped_is_not_weighed_in_with_the_levels(monkeypatch):
     # At 8 DN with a bright quadrant 0.8 as bright (seed 6): the symmetric fit slips more
     # than half a pixel from the gating fit's centre, and that centre stays (0.21 px
@@ -764,7 +794,7 @@ def test_the_light_slope_from_the_insides_costs_the_centre_little():
     for _ in range(40):
         image = clean.image * light + rng.normal(0.0, 3.0, light.shape)
         start = clean.centres + rng.normal(0.0, 0.05, clean.centres.shape)
-        xy, _ = subpixel.refine_along_lines(
+        xy, _, _ = subpixel.refine_along_lines(
             image,
             start,
             np.full(4, 0.1),
@@ -889,7 +919,7 @@ def test_the_model_is_fitted_to_at_most_max_modelled_xs_and_the_rest_are_counted
 
     def refit(max_modelled: int) -> tuple[np.ndarray, dict[str, int]]:
         tally: dict[str, int] = {}
-        xy, _ = subpixel.refine_along_lines(
+        xy, _, _ = subpixel.refine_along_lines(
             scene.image,
             scene.centres + [0.3, -0.2],
             np.full(3, 0.1),
