@@ -753,9 +753,9 @@ class Detector:
         the best explained edge, :func:`shadow.apart`), and there the candidates are
         centred with the light's slope (the shadow gone, a dull quadrant is left),
         checked and fitted again. A marker found is located once more in the frame
-        itself, by its model with the shadow's edge where that edge explains it
-        (:meth:`_located_in_shadow`), and joins the detections, which stay as they
-        were.
+        itself, by its model with the shadow's edge, kept where that edge explains
+        (:meth:`_located_in_shadow`; X's of :data:`subpixel.MEASURED_MIN_EXTENT_PX`
+        and more), and joins the detections, which stay as they were.
 
         Rendered (g), where a hard shadow's edge crosses half of the markers (seeds
         100-123, where it was built): 152 -> 172 of 288 markers (165 centring
