@@ -210,6 +210,9 @@ class DetectionTally:
             aligned with ``errors_px``.
         seconds: wall time spent in the detector, s.
         found: per truth point, in the order seen, whether it was matched.
+        line_errors_deg: each matched pair's line-direction error
+            (:func:`line_direction_errors_deg`), degrees (NaN where the detector or
+            the truth gives no directions), aligned with ``errors_px``.
     """
 
     frames: int = 0
@@ -221,6 +224,7 @@ class DetectionTally:
     crlb_px: list[float] = field(default_factory=list)
     seconds: float = 0.0
     found: list[bool] = field(default_factory=list)
+    line_errors_deg: list[float] = field(default_factory=list)
 
     def add(
         self,
@@ -228,6 +232,8 @@ class DetectionTally:
         sigmas_px: np.ndarray | None = None,
         seconds: float = 0.0,
         truth_crlb_px: np.ndarray | None = None,
+        line_angles: np.ndarray | None = None,
+        truth_line_angles: np.ndarray | None = None,
     ) -> None:
         """Add one frame's matching.
 
@@ -236,6 +242,10 @@ class DetectionTally:
             sigmas_px: the detector's 1-sigma per detection, px; None: none reported.
             seconds: time the detector took on the frame, s.
             truth_crlb_px: the Cramer-Rao bound of every truth point, px; None: unknown.
+            line_angles: (M, 2) the detector's line directions per detection, radians;
+                None: none reported.
+            truth_line_angles: (N, 2) every truth point's line directions, radians
+                (NaN or None: unknown).
         """
         self.frames += 1
         self.n_truth += matching.n_truth
@@ -248,6 +258,15 @@ class DetectionTally:
         self.sigmas_px.extend(_aligned(sigmas_px, matching.detection_index))
         self.crlb_px.extend(_aligned(truth_crlb_px, matching.truth_index))
         self.seconds += seconds
+        if line_angles is None or truth_line_angles is None:
+            self.line_errors_deg.extend([math.nan] * matching.n_matched)
+        else:
+            self.line_errors_deg.extend(
+                line_direction_errors_deg(
+                    np.asarray(line_angles, np.float64)[matching.detection_index],
+                    np.asarray(truth_line_angles, np.float64)[matching.truth_index],
+                ).tolist()
+            )
 
     @classmethod
     def merged(cls, parts: Sequence[DetectionTally]) -> DetectionTally:
@@ -263,6 +282,7 @@ class DetectionTally:
             total.crlb_px.extend(part.crlb_px)
             total.seconds += part.seconds
             total.found.extend(part.found)
+            total.line_errors_deg.extend(part.line_errors_deg)
         return total
 
     @property
@@ -293,6 +313,13 @@ class DetectionTally:
         return self.stats.mean / bound if bound > 0 else math.nan
 
     @property
+    def median_line_error_deg(self) -> float:
+        """Median line-direction error of the matched pairs, degrees (NaN if none is known)."""
+        errors = np.asarray(self.line_errors_deg, dtype=np.float64)
+        errors = errors[np.isfinite(errors)]
+        return float(np.median(errors)) if len(errors) else math.nan
+
+    @property
     def within_two_sigma(self) -> float:
         """Share of matched errors within twice the reported sigma (NaN without sigmas)."""
         return share_within_sigma(np.asarray(self.errors_px), np.asarray(self.sigmas_px), 2.0)
@@ -303,6 +330,24 @@ def _aligned(values: np.ndarray | None, index: np.ndarray) -> list[float]:
     if values is None:
         return [math.nan] * len(index)
     return np.asarray(values, dtype=np.float64)[index].tolist()
+
+
+def line_direction_errors_deg(angles: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(N,) the larger of an X's two line-direction errors, degrees.
+
+    Directions are taken modulo pi, and the two lines of ``angles`` (N, 2) are
+    paired with those of ``truth`` (N, 2) the way that errs least: a detector may
+    list them in either order. NaN where either is unknown.
+    """
+
+    def apart(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.abs((a - b + np.pi / 2) % np.pi - np.pi / 2)
+
+    a = np.asarray(angles, np.float64).reshape(-1, 2)
+    t = np.asarray(truth, np.float64).reshape(-1, 2)
+    same = np.maximum(apart(a[:, 0], t[:, 0]), apart(a[:, 1], t[:, 1]))
+    swapped = np.maximum(apart(a[:, 0], t[:, 1]), apart(a[:, 1], t[:, 0]))
+    return np.degrees(np.minimum(same, swapped))
 
 
 def share_within_sigma(errors_px: np.ndarray, sigmas_px: np.ndarray, k: float) -> float:

@@ -103,6 +103,30 @@ def test_tally_keeps_the_sigma_of_the_matched_detection():
     assert tally.within_two_sigma == 0.0
 
 
+def test_a_line_direction_error_pairs_the_lines_either_way_modulo_pi():
+    truth = np.radians([[10.0, 100.0], [10.0, 100.0], [179.0, 60.0]])
+    found = np.radians([[12.0, 99.0], [101.0, 7.0], [1.0, 60.5]])
+    # In order: 2 and 1 degrees off; listed the other way round: 1 and 3; across 0/180: 2.
+    np.testing.assert_allclose(
+        evaluation.line_direction_errors_deg(found, truth), [2.0, 3.0, 2.0], atol=1e-9
+    )
+
+
+def test_tally_keeps_the_line_error_of_the_matched_detection_where_both_give_lines():
+    truth = np.array([[0.0, 0.0]])
+    matching = evaluation.match_points(np.array([[90.0, 0.0], [0.03, 0.0]]), truth)
+    tally = evaluation.DetectionTally()
+    tally.add(
+        matching,
+        line_angles=np.radians([[45.0, 135.0], [31.0, 120.0]]),
+        truth_line_angles=np.radians([[30.0, 120.0]]),
+    )
+    tally.add(matching)  # a detector that reports no lines
+    assert tally.line_errors_deg == pytest.approx([1.0, np.nan], nan_ok=True)
+    assert tally.median_line_error_deg == pytest.approx(1.0)
+    assert np.isnan(evaluation.DetectionTally().median_line_error_deg)
+
+
 def test_a_detection_on_an_excused_marker_counts_neither_way():
     truth = np.array([[10.0, 10.0], [30.0, 10.0]])
     found = np.array([[10.05, 10.0], [10.5, 10.0], [60.0, 60.0], [90.0, 5.0]])

@@ -381,6 +381,10 @@ def _sigmas(detector: PointDetector) -> np.ndarray | None:
     return detector.last_sigmas if isinstance(detector, OurDetector) else None
 
 
+def _line_angles(detector: PointDetector) -> np.ndarray | None:
+    return detector.last_line_angles if isinstance(detector, OurDetector) else None
+
+
 def _count_losses(
     row: Row, detector: PointDetector, matching: evaluation.Matching, truth: np.ndarray
 ) -> None:
@@ -425,6 +429,8 @@ class LabelledFrame:
         radius_range: (min, max) marker radius given to every detector, px.
         split_class: (N,) each marker's class in its family's :class:`RecallSplit`
             (-1: none).
+        truth_line_angles: (N, 2) each marker's line directions at its centre,
+            radians; NaN: unknown (the independent renderer's truth has none).
     """
 
     image: np.ndarray
@@ -432,6 +438,7 @@ class LabelledFrame:
     crlb_px: np.ndarray
     radius_range: RadiusRange
     split_class: np.ndarray
+    truth_line_angles: np.ndarray
 
     @classmethod
     def rendered(
@@ -439,7 +446,8 @@ class LabelledFrame:
     ) -> LabelledFrame:
         """A frame of this package's renderer, its markers classed by ``split``."""
         classes = split.classify(scene) if split else np.full(len(scene.markers), -1)
-        return cls(scene.image, scene.centres, scene.crlb_px, radius_range, classes)
+        angles = np.array([m.angles for m in scene.markers], np.float64).reshape(-1, 2)
+        return cls(scene.image, scene.centres, scene.crlb_px, radius_range, classes, angles)
 
     @classmethod
     def independent(cls, frame: real_data.IndependentFrame) -> LabelledFrame:
@@ -450,6 +458,7 @@ class LabelledFrame:
             frame.crlb_px,
             frame.radius_range,
             np.full(len(frame.truth), -1),
+            np.full((len(frame.truth), 2), np.nan),
         )
 
 
@@ -479,7 +488,14 @@ def evaluate_frames(
             points, seconds = _timed_detect(detector, frame.image, frame.radius_range)
             matching = evaluation.match_points(points, frame.truth)
             row = rows[detector.name]
-            row.tally.add(matching, _sigmas(detector), seconds, frame.crlb_px)
+            row.tally.add(
+                matching,
+                _sigmas(detector),
+                seconds,
+                frame.crlb_px,
+                _line_angles(detector),
+                frame.truth_line_angles,
+            )
             _count_losses(row, detector, matching, frame.truth)
         refiner = peers.CornerSubPixRefiner(peers.subpix_half_window(frame.radius_range))
         start = time.perf_counter()
@@ -821,12 +837,16 @@ def negatives_table(title: str, rows: Sequence[Row]) -> str:
 
 def summary_table(results: Sequence[tuple[str, Row]], title: str | None = None) -> str:
     """One line per family for the reference row: the figures issue 12's targets are about."""
-    header = f"{'family':<44}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'CRLB':>8}{'err/CRLB':>9}"
+    header = (
+        f"{'family':<44}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'CRLB':>8}{'err/CRLB':>9}{'lines':>7}"
+    )
     lines = [
         title
         or (
             f"Summary, {REFERENCE_ROW}: recall, false points per frame, mean error (px), "
-            "mean Cramer-Rao bound of the markers found (px), their ratio"
+            "mean Cramer-Rao bound of the markers found (px), their ratio, median error "
+            "of the line directions reported (degrees; the larger of the two lines'; "
+            "the independent renderer's truth has none)"
         ),
         header,
         "-" * len(header),
@@ -836,7 +856,7 @@ def summary_table(results: Sequence[tuple[str, Row]], title: str | None = None) 
         lines.append(
             f"{label:<44}{_pct(t.recall):>8}{_fmt(t.fp_per_frame, 2):>8}"
             f"{_fmt(t.stats.mean):>8}{_fmt(t.mean_crlb_px, 4):>8}"
-            f"{_fmt(t.error_over_crlb, 2):>9}"
+            f"{_fmt(t.error_over_crlb, 2):>9}{_fmt(t.median_line_error_deg, 2):>7}"
         )
     return "\n".join(lines)
 
@@ -880,6 +900,7 @@ def row_record(row: Row) -> dict[str, Any]:
         "within_2sigma": t.within_two_sigma,
         "crlb_mean_px": t.mean_crlb_px,
         "error_over_crlb": t.error_over_crlb,
+        "median_line_error_deg": t.median_line_error_deg,
         "seconds_per_frame": t.seconds / t.frames if t.frames else None,
     }
     record.update(row.extra)
@@ -996,7 +1017,8 @@ def run_heldout(options: Options, report: Callable[[str], None]) -> dict[str, An
                 rows,
                 f"Held-out frames, {REFERENCE_ROW} alone: {n_frames} frames a family of seeds "
                 f"{first}-{first + n_frames - 1}, which no table above renders; recall, false "
-                "points per frame, mean error (px), mean Cramer-Rao bound (px), their ratio",
+                "points per frame, mean error (px), mean Cramer-Rao bound (px), their ratio, "
+                "median error of the line directions reported (degrees)",
             )
         )
     return {label: row_record(row) for label, row in rows}

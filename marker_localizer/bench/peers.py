@@ -137,6 +137,7 @@ class OurDetector:
     def __post_init__(self) -> None:
         self._cache: dict[RadiusRange, Detector] = {}
         self.last_sigmas: np.ndarray = np.empty(0)
+        self.last_line_angles: np.ndarray = np.empty((0, 2))
         self.last_timings_ms: dict[str, float] = {}
         self.last_survivors: list[tuple[str, np.ndarray]] = []
 
@@ -151,10 +152,11 @@ class OurDetector:
         return self._cache[radius_range]
 
     def detect(self, image_u8: np.ndarray, radius_range: RadiusRange) -> np.ndarray:
-        """Detect; keeps the per-point sigmas (px), stage timings and survivors of the last call."""
+        """Detect; keeps the last call's sigmas, line directions, timings and survivors."""
         result = self.detector(radius_range).detect(image_u8)
         table = result.as_array()
         self.last_sigmas = table[:, 3]
+        self.last_line_angles = table[:, 4:6]
         self.last_timings_ms = dict(result.timings_ms)
         self.last_survivors = result.survivors
         return table[:, :2]
