@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from marker_localizer.core import verification
+
 #: Default largest distance between a detection and the truth it may claim, px.
 #: Two pixels: well above any refinement error worth the name, well below the
 #: spacing of distinct markers (or of chessboard corners in the rendered families).
@@ -335,19 +337,17 @@ def _aligned(values: np.ndarray | None, index: np.ndarray) -> list[float]:
 def line_direction_errors_deg(angles: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """(N,) the larger of an X's two line-direction errors, degrees.
 
-    Directions are taken modulo pi, and the two lines of ``angles`` (N, 2) are
-    paired with those of ``truth`` (N, 2) the way that errs least: a detector may
-    list them in either order. NaN where either is unknown.
+    :func:`~marker_localizer.core.verification.line_pair_difference` of ``angles``
+    and ``truth`` (N, 2), radians: directions modulo pi, the lines paired the way
+    that errs least (a detector may list them in either order). NaN where either
+    is unknown.
     """
-
-    def apart(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return np.abs((a - b + np.pi / 2) % np.pi - np.pi / 2)
-
-    a = np.asarray(angles, np.float64).reshape(-1, 2)
-    t = np.asarray(truth, np.float64).reshape(-1, 2)
-    same = np.maximum(apart(a[:, 0], t[:, 0]), apart(a[:, 1], t[:, 1]))
-    swapped = np.maximum(apart(a[:, 0], t[:, 1]), apart(a[:, 1], t[:, 0]))
-    return np.degrees(np.minimum(same, swapped))
+    return np.degrees(
+        verification.line_pair_difference(
+            np.asarray(angles, np.float64).reshape(-1, 2),
+            np.asarray(truth, np.float64).reshape(-1, 2),
+        )
+    )
 
 
 def share_within_sigma(errors_px: np.ndarray, sigmas_px: np.ndarray, k: float) -> float:
