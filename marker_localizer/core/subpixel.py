@@ -173,6 +173,17 @@ LEVELS_REFIT_MIN_CHI2 = 45.0
 #: 600-629, (d) 200-223, (b) 200-207) the mean error of (g) 0.0790 -> 0.0729 px, every
 #: other family's as it was.
 LEVELS_BLEND_MIN_CHI2 = 13.8
+#: Where the levels' statistic is in the blend's range (:data:`LEVELS_BLEND_MIN_CHI2`
+#: to :data:`LEVELS_REFIT_MIN_CHI2`) it does not say alone that the levels differ,
+#: and an X of :data:`MEASURED_MIN_EXTENT_PX` and more is located by its model only
+#: where the model leaves at most this multiple of the levels' fit's residual per
+#: pixel (:data:`uneven.MAX_MISFIT_RATIO` elsewhere): a motion-blurred X, which the
+#: model's one Gaussian blur does not describe, leaves more. At 1, (g)'s
+#: development seeds 0-23 / 100-123 / 200-223 0.0482 / 0.0571 / 0.0608 -> 0.0477 /
+#: 0.0551 / 0.0605 px, (a), (b), (c), (d) as they were; at 4, 0.0482 / 0.0568 /
+#: 0.0606 -> 0.0475 / 0.0540 / 0.0588 px (at 5ede543) but (c) 600-611 1.758 ->
+#: 1.783x the bound.
+LEANING_MAX_MISFIT_RATIO = 1.0
 #: X's of one call that :func:`refine_along_lines` locates by their model at most,
 #: those whose levels' statistic is highest first: a frame holds 10-20 markers, while
 #: a chessboard photographed under a flare has a hundred corners whose levels differ,
@@ -872,6 +883,7 @@ def refine_along_lines(
     uneven_lines: list[NDArray[np.float64]] = []
     uneven_rms: list[NDArray[np.float64]] = []
     uneven_statistic: list[NDArray[np.float64]] = []
+    uneven_ratio: list[NDArray[np.float64]] = []
     rungs = [
         _line_rung(image, centre, float(key), np.flatnonzero(radius == key), line_angles)
         for key in np.unique(radius)
@@ -935,24 +947,31 @@ def refine_along_lines(
             # A pair's residual is the difference of two pixels' noise.
             uneven_rms.append(pairs_rms[wide] / np.sqrt(2.0))
             uneven_statistic.append(symmetric.step_chi2[differ][wide])
+            uneven_ratio.append(np.full(int(wide.sum()), uneven.MAX_MISFIT_RATIO))
         if len(leaning):
             at = rows[leaning]
+            leaned = _SymmetrySolution._make(field[len(differ) :] for field in levelled_fit)
             centre[at], covariance[at], weight = _blended_with_levels(
-                centre[at],
-                covariance[at],
-                _SymmetrySolution._make(field[len(differ) :] for field in levelled_fit),
+                centre[at], covariance[at], leaned
             )
             reach[at[weight > 0]] = EDGE_STEP_MAX_SHIFT_PX
+            wide = radius_px[at] >= MEASURED_MIN_EXTENT_PX
+            uneven_rows.append(at[wide])
+            uneven_lines.append(lines[len(differ) :][wide])
+            uneven_rms.append(leaned.residual_rms[wide] / np.sqrt(2.0))
+            uneven_statistic.append(symmetric.step_chi2[leaning][wide])
+            uneven_ratio.append(np.full(int(wide.sum()), LEANING_MAX_MISFIT_RATIO))
     if uneven_rows:
         # One model fit for every radius: its points share nothing but the cost of a pass.
         at = np.concatenate(uneven_rows)
         lines, rms = np.concatenate(uneven_lines), np.concatenate(uneven_rms)
+        ratio = np.concatenate(uneven_ratio)
         if len(at) > max_modelled:
             first = np.argsort(-np.nan_to_num(np.concatenate(uneven_statistic), nan=-np.inf))
             kept = np.sort(first[:max_modelled], kind="stable")
             if tally is not None:
                 tally["uneven_over_cap"] = tally.get("uneven_over_cap", 0) + len(at) - len(kept)
-            at, lines, rms = at[kept], lines[kept], rms[kept]
+            at, lines, rms, ratio = at[kept], lines[kept], rms[kept], ratio[kept]
         modelled = _model_uneven(
             image,
             centre[at],
@@ -961,6 +980,7 @@ def refine_along_lines(
             max_radius_px,
             full_scale,
             rms,
+            ratio,
         )
         located = at[modelled.located]
         centre[located] = modelled.xy[modelled.located]
@@ -1255,6 +1275,7 @@ def _model_uneven(
     max_radius_px: float,
     full_scale: float,
     reference_rms: NDArray[np.float64],
+    misfit_ratio: NDArray[np.float64],
 ) -> uneven.UnevenFit:
     """The X's with uneven levels located by their model (:func:`uneven.locate_uneven`).
 
@@ -1262,8 +1283,8 @@ def _model_uneven(
     tries the cast shadow's edge that fits best within
     :data:`shadow.HYPOTHESIS_REACH_EXTENTS` of the extent (:func:`shadow.find_edges`,
     not ``decided_by_pairs``), and keeps it where it explains; each model is taken
-    where it leaves no more than :data:`uneven.MAX_MISFIT_RATIO` times
-    ``reference_rms``, the levels' fit's residual per pixel at each X.
+    where it leaves no more than ``misfit_ratio`` times ``reference_rms``, the
+    levels' fit's residual per pixel at each X.
     """
     edges = shadow.find_edges(
         image,
@@ -1274,7 +1295,7 @@ def _model_uneven(
         decided_by_pairs=False,
     )
     return uneven.locate_uneven(
-        image, centre, line_angles, radius_px, full_scale, edges, reference_rms
+        image, centre, line_angles, radius_px, full_scale, edges, reference_rms, misfit_ratio
     )
 
 

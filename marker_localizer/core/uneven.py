@@ -579,6 +579,7 @@ def locate_uneven(
     full_scale: float,
     shadows: ShadowEdges | None = None,
     reference_rms: NDArray[np.float64] | None = None,
+    misfit_ratio: float | NDArray[np.float64] = MAX_MISFIT_RATIO,
 ) -> UnevenFit:
     """Centres of X's with four quadrant levels, through the tone curve, with a shadow's edge.
 
@@ -602,7 +603,8 @@ def locate_uneven(
             (:func:`shadow.find_edges`); tried where ``found``.
         reference_rms: (N,) the RMS residual per pixel that a model of one X leaves
             at each (the quadrants' levels' fit's), image units; where given, a fit
-            that leaves more than :data:`MAX_MISFIT_RATIO` times it is not located.
+            that leaves more than ``misfit_ratio`` times it is not located.
+        misfit_ratio: that multiple, or (N,) one per point (:data:`MAX_MISFIT_RATIO`).
 
     Returns:
         :class:`UnevenFit`.
@@ -633,7 +635,7 @@ def locate_uneven(
     limit: NDArray[np.float64] = np.full(len(rows), np.inf)
     hopeless = None
     if reference_rms is not None:
-        limit = MAX_MISFIT_RATIO * reference_rms[rows] / full_scale
+        limit = np.broadcast_to(misfit_ratio, (n,))[rows] * reference_rms[rows] / full_scale
         hopeless = present * np.square(_HOPELESS_MISFIT * limit)
     fit = _solve(pixels, start, shadowed=False, hopeless_cost=hopeless)
     share: NDArray[np.float64] = np.zeros(len(rows))

@@ -118,6 +118,25 @@ def test_a_dull_quadrant_under_a_gamma_is_located_within_a_few_bounds(gamma):
     assert np.mean(symmetric) > 10 * np.mean(errors)
 
 
+def test_a_model_is_located_only_where_it_leaves_no_more_than_its_points_misfit_ratio():
+    # Two copies of one dull X, a reference residual of 2 DN (the noise): at 4x it is
+    # located, at 0.1x (the model leaves the noise, 2 DN, and more) it is not.
+    scene = _dull_marker(0, 1.0)
+    marker = scene.markers[0]
+    start = np.repeat(scene.centres + 0.3, 2, axis=0)
+    fit = uneven.locate_uneven(
+        scene.image,
+        start,
+        np.repeat([marker.angles], 2, axis=0),
+        np.full(2, marker.foreshortened_radius_px),
+        255.0,
+        reference_rms=np.full(2, 2.0),
+        misfit_ratio=np.array([uneven.MAX_MISFIT_RATIO, 0.1]),
+    )
+    assert fit.located.tolist() == [True, False]
+    np.testing.assert_array_equal(fit.xy[1], start[1])
+
+
 def test_an_x_beyond_the_frame_border_is_not_located():
     scene = _dull_marker(0, 1.0)
     marker = scene.markers[0]
