@@ -829,9 +829,10 @@ def refine_along_lines(
     (:func:`uneven.locate_uneven`), and the model's centre replaces the levels' where
     that fit converges and leaves no more than :data:`uneven.MAX_MISFIT_RATIO` times
     the levels' fit's residual at the same X (a chessboard corner, whose disk takes
-    in the next squares, leaves more). Rendered (g), seeds 100-123: mean error 0.091
-    -> 0.074 px (held out 0.087 -> 0.069, the independent renderer's 0.063 ->
-    0.039); (a) seeds 100-111 2.05 -> 2.07x the bound, (c) 1.90 -> 1.92x, the
+    in the next squares, leaves more; in the blend's range, where the model replaces
+    the blended centre, :data:`LEANING_MAX_MISFIT_RATIO` times). Rendered (g), seeds
+    100-123: mean error 0.091 -> 0.074 px (held out 0.087 -> 0.069, the independent
+    renderer's 0.063 -> 0.039); (a) seeds 100-111 2.05 -> 2.07x the bound, (c) 1.90 -> 1.92x, the
     chessboards (e) as they were, (b) as it was. Measured against the frame's
     noise, not the levels' fit, the model was never taken on frames written as
     JPEG, whose error along the edges the noise (measured on smooth ground) does
