@@ -627,12 +627,13 @@ def test_an_xs_model_tries_the_shadows_edge_its_pairs_alone_would_turn_away(monk
 
 def test_an_x_is_read_along_the_lines_its_edges_show_not_its_rings(monkeypatch):
     # Along directions 6-7 degrees off, the lines' band holds the wrong pairs and the
-    # quadrants' levels' statistic does not see the shadow across the X: 0.048 px, and
-    # 0.010 along the directions measured from the edges.
+    # quadrants' levels' statistic barely sees the shadow across the X: 0.048 px (0.023
+    # since the model also runs in the blend's range), and 0.010 along the directions
+    # measured from the edges.
     measured = _shadowed_x_error(2.0, 0.5, (7.0, -6.0))
     assert measured < 0.05
     monkeypatch.setattr(subpixel, "_measured_directions", lambda *args: args[3])
-    assert measured < 0.3 * _shadowed_x_error(2.0, 0.5, (7.0, -6.0))
+    assert measured < 0.6 * _shadowed_x_error(2.0, 0.5, (7.0, -6.0))
 
 
 def _line_directions_read(image, truth, angles, extent_px):
