@@ -880,11 +880,9 @@ def refine_along_lines(
         uncertainty=True,
         measure_contrast=False,
     )
-    uneven_rows: list[NDArray[np.intp]] = []
-    uneven_lines: list[NDArray[np.float64]] = []
-    uneven_rms: list[NDArray[np.float64]] = []
-    uneven_statistic: list[NDArray[np.float64]] = []
-    uneven_ratio: list[NDArray[np.float64]] = []
+    # Per rung, the X's its model locates once more: rows, lines, the levels' fit's
+    # residual per pixel, the levels' statistic and the misfit ratio it is held to.
+    queued: list[tuple[NDArray[Any], ...]] = []
     rungs = [
         _line_rung(image, centre, float(key), np.flatnonzero(radius == key), line_angles)
         for key in np.unique(radius)
@@ -941,34 +939,37 @@ def refine_along_lines(
         if len(differ):
             at = rows[differ]
             own = _SymmetrySolution._make(field[: len(differ)] for field in levelled_fit)
-            centre[at], covariance[at], pairs_rms, _, converged[at], _, _ = own
-            wide = radius_px[at] >= MEASURED_MIN_EXTENT_PX
-            uneven_rows.append(at[wide])
-            uneven_lines.append(lines[: len(differ)][wide])
-            # A pair's residual is the difference of two pixels' noise.
-            uneven_rms.append(pairs_rms[wide] / np.sqrt(2.0))
-            uneven_statistic.append(symmetric.step_chi2[differ][wide])
-            uneven_ratio.append(np.full(int(wide.sum()), uneven.MAX_MISFIT_RATIO))
+            centre[at], covariance[at], _, _, converged[at], _, _ = own
         if len(leaning):
             at = rows[leaning]
-            leaned = _SymmetrySolution._make(field[len(differ) :] for field in levelled_fit)
             centre[at], covariance[at], weight = _blended_with_levels(
-                centre[at], covariance[at], leaned
+                centre[at],
+                covariance[at],
+                _SymmetrySolution._make(field[len(differ) :] for field in levelled_fit),
             )
             reach[at[weight > 0]] = EDGE_STEP_MAX_SHIFT_PX
-            wide = radius_px[at] >= MEASURED_MIN_EXTENT_PX
-            uneven_rows.append(at[wide])
-            uneven_lines.append(lines[len(differ) :][wide])
-            uneven_rms.append(leaned.residual_rms[wide] / np.sqrt(2.0))
-            uneven_statistic.append(symmetric.step_chi2[leaning][wide])
-            uneven_ratio.append(np.full(int(wide.sum()), LEANING_MAX_MISFIT_RATIO))
-    if uneven_rows:
+        at = rows[levelled_rows]
+        wide = radius_px[at] >= MEASURED_MIN_EXTENT_PX
+        ratio = np.where(
+            np.arange(len(at)) < len(differ), uneven.MAX_MISFIT_RATIO, LEANING_MAX_MISFIT_RATIO
+        )
+        queued.append(
+            (
+                at[wide],
+                lines[wide],
+                # A pair's residual is the difference of two pixels' noise.
+                levelled_fit.residual_rms[wide] / np.sqrt(2.0),
+                symmetric.step_chi2[levelled_rows][wide],
+                ratio[wide],
+            )
+        )
+    if queued:
         # One model fit for every radius: its points share nothing but the cost of a pass.
-        at = np.concatenate(uneven_rows)
-        lines, rms = np.concatenate(uneven_lines), np.concatenate(uneven_rms)
-        ratio = np.concatenate(uneven_ratio)
+        at, lines, rms, statistic, ratio = (
+            np.concatenate(part) for part in zip(*queued, strict=True)
+        )
         if len(at) > max_modelled:
-            first = np.argsort(-np.nan_to_num(np.concatenate(uneven_statistic), nan=-np.inf))
+            first = np.argsort(-np.nan_to_num(statistic, nan=-np.inf))
             kept = np.sort(first[:max_modelled], kind="stable")
             if tally is not None:
                 tally["uneven_over_cap"] = tally.get("uneven_over_cap", 0) + len(at) - len(kept)
