@@ -108,6 +108,8 @@ _START_BLUR_PX = 1.0
 _MIN_SIGNAL = 1e-4
 #: Geometry: centre (2), line angles (2), ln blur, light slope (2), tone exponent.
 _GEOMETRY = 8
+#: A cast shadow's edge: normal, offset, depth, ln penumbra.
+_SHADOW_EDGE = 4
 #: ln of the shadow edge's penumbra is held within ln 0.2 - ln 5 px: a softer edge
 #: is no cast shadow's, and a sharper one would make the blur's correlations 1.
 _SHADOW_LOG_BLUR = (float(np.log(0.2)), float(np.log(5.0)))
@@ -491,12 +493,17 @@ class _Solution(NamedTuple):
 
 
 def _residual(
-    params: NDArray[np.float64], pixels: _Pixels, shadowed: bool
+    params: NDArray[np.float64], pixels: _Pixels, shadowed: bool, held_centre: bool = False
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Residuals (N, K), Jacobian (N, K, P) and cost (N,), the padding at zero."""
+    """Residuals (N, K), Jacobian (N, K, P) and cost (N,), the padding at zero.
+
+    ``held_centre``: the centre's columns are zero, so that no step moves it.
+    """
     signal, jacobian = _model(params, pixels, shadowed)
     residual = np.where(pixels.present, signal - pixels.level, 0.0)
     jacobian *= pixels.present[..., None]
+    if held_centre:
+        jacobian[..., :2] = 0.0
     return residual, jacobian, np.square(residual).sum(axis=1)
 
 
@@ -505,6 +512,7 @@ def _solve(
     start: NDArray[np.float64],
     shadowed: bool,
     hopeless_cost: NDArray[np.float64] | None = None,
+    held_centre: bool = False,
 ) -> _Solution:
     """Levenberg-Marquardt from ``start`` (N, P), all N at once.
 
@@ -512,10 +520,12 @@ def _solve(
     stops when its centre's step falls under :data:`_TOLERANCE_PX`, its cost no
     longer falls, after :data:`_ITERATIONS`, or, from :data:`_HOPELESS_AFTER`
     steps on, while its cost exceeds ``hopeless_cost`` (N,): no X fits there.
+    ``held_centre``: the centre stays where it starts, the rest is fitted (only the
+    cost is then read: the covariance of a held centre is none).
     """
     n, n_params = start.shape
     params = start.copy()
-    residual, jacobian, cost = _residual(params, pixels, shadowed)
+    residual, jacobian, cost = _residual(params, pixels, shadowed, held_centre)
     damping = np.full(n, _START_DAMPING)
     done = np.zeros(n, dtype=bool)
     eye = np.eye(n_params)
@@ -530,7 +540,9 @@ def _solve(
         damped = normal + damping[active, None, None] * (normal * eye + _FLOOR_DAMPING * eye)
         step = -np.linalg.solve(damped, gradient[..., None])[..., 0]
         trial = params[active] + step
-        t_residual, t_jacobian, t_cost = _residual(trial, _take(pixels, active), shadowed)
+        t_residual, t_jacobian, t_cost = _residual(
+            trial, _take(pixels, active), shadowed, held_centre
+        )
         better = np.isfinite(t_cost) & (t_cost < cost[active])
         gained = (cost[active] - t_cost) / np.maximum(cost[active], _MIN_COST)
         took = active[better]
@@ -541,9 +553,9 @@ def _solve(
             t_cost[better],
         )
         damping[active] = np.where(better, damping[active] / 3.0, damping[active] * 3.0)
-        settled = better & (
-            (np.hypot(step[:, 0], step[:, 1]) < _TOLERANCE_PX) | (gained < _TOLERANCE_COST)
-        )
+        # A held centre never steps: its fit stops by the cost alone.
+        still = (np.hypot(step[:, 0], step[:, 1]) < _TOLERANCE_PX) & (not held_centre)
+        settled = better & (still | (gained < _TOLERANCE_COST))
         done[active[settled | (damping[active] > _GIVE_UP_DAMPING)]] = True
     present = pixels.present.sum(axis=1)
     dof = np.maximum(present - n_params, 1)
@@ -579,7 +591,7 @@ def locate_uneven(
     full_scale: float,
     shadows: ShadowEdges | None = None,
     reference_rms: NDArray[np.float64] | None = None,
-    misfit_ratio: float | NDArray[np.float64] = MAX_MISFIT_RATIO,
+    min_centre_chi2: float | NDArray[np.float64] | None = None,
 ) -> UnevenFit:
     """Centres of X's with four quadrant levels, through the tone curve, with a shadow's edge.
 
@@ -603,8 +615,11 @@ def locate_uneven(
             (:func:`shadow.find_edges`); tried where ``found``.
         reference_rms: (N,) the RMS residual per pixel that a model of one X leaves
             at each (the quadrants' levels' fit's), image units; where given, a fit
-            that leaves more than ``misfit_ratio`` times it is not located.
-        misfit_ratio: that multiple, or (N,) one per point (:data:`MAX_MISFIT_RATIO`).
+            that leaves more than :data:`MAX_MISFIT_RATIO` times it is not located.
+        min_centre_chi2: where given (one, or (N,) one per point, NaN for none), a
+            fit is located only where it rejects its start as the centre by at least
+            this chi-square (:func:`_rejects_start`); 0: where it fits no worse
+            than with its centre held at the start.
 
     Returns:
         :class:`UnevenFit`.
@@ -635,19 +650,50 @@ def locate_uneven(
     limit: NDArray[np.float64] = np.full(len(rows), np.inf)
     hopeless = None
     if reference_rms is not None:
-        limit = np.broadcast_to(misfit_ratio, (n,))[rows] * reference_rms[rows] / full_scale
+        limit = MAX_MISFIT_RATIO * reference_rms[rows] / full_scale
         hopeless = present * np.square(_HOPELESS_MISFIT * limit)
     fit = _solve(pixels, start, shadowed=False, hopeless_cost=hopeless)
     share: NDArray[np.float64] = np.zeros(len(rows))
     if shadows is not None and shadows.found[rows].any():
         fit, share = _with_shadow(pixels, start, fit, shadows.take(rows), hopeless)
     taken = fit.solved & (np.sqrt(fit.cost / present) <= limit)
+    asked = np.broadcast_to(np.nan if min_centre_chi2 is None else min_centre_chi2, (n,))[rows]
+    tested = np.flatnonzero(taken & ~np.isnan(asked))
+    if len(tested):
+        taken[tested] = _rejects_start(pixels, fit, share, tested) >= asked[tested]
     at = rows[taken]
     centre[at] += fit.params[taken, :2]
     covariance[at] = fit.covariance[taken]
     located[at] = True
     shadow_share[at] = share[taken]
     return UnevenFit(centre, covariance, located, shadow_share)
+
+
+def _rejects_start(
+    pixels: _Pixels, fit: _Solution, share: NDArray[np.float64], tested: NDArray[np.intp]
+) -> NDArray[np.float64]:
+    """(M,) the chi-square by which the fits ``tested`` reject their start as the centre.
+
+    Each is fitted again with its centre held at the start and everything else free
+    (the shadow's edge where the fit kept one, ``share`` above 0), from where it
+    ended: the cost it gains, in units of its own residual per degree of freedom, is
+    a likelihood ratio's chi-square of 2 degrees of freedom where the start is the
+    centre.
+    """
+    chi2 = np.zeros(len(tested))
+    for shadowed in (False, True):
+        part = np.flatnonzero((share[tested] > 0) == shadowed)
+        if not len(part):
+            continue
+        points = tested[part]
+        n_params = _GEOMETRY + 4 + _SHADOW_EDGE * shadowed
+        start = fit.params[points, :n_params].copy()
+        start[:, :2] = 0.0
+        held = _solve(_take(pixels, points), start, shadowed=shadowed, held_centre=True)
+        dof = np.maximum(pixels.present[points].sum(axis=1) - n_params, 1)
+        noise = np.maximum(fit.cost[points] / dof, _MIN_COST)
+        chi2[part] = (held.cost - fit.cost[points]) / noise
+    return chi2
 
 
 def _with_shadow(

@@ -625,6 +625,18 @@ def test_an_xs_model_tries_the_shadows_edge_its_pairs_alone_would_turn_away(monk
     assert tried < 0.6 * _shadowed_x_error(6.0, 0.4)
 
 
+def test_a_shadows_edge_the_levels_miss_is_located_by_the_model_that_rejects_the_line_fit(
+    monkeypatch,
+):
+    # At 6 DN, a shadow taking half the light leaves some of these X's under the
+    # levels' statistic, and the symmetric fit is pulled. Where the pairs show the
+    # edge, the model is fitted, and its centre taken where it rejects the line fit's
+    # (subpixel.MODEL_MIN_CENTRE_CHI2): 0.040 -> 0.027 px over these 8.
+    modelled = _shadowed_x_error(6.0, 0.5)
+    monkeypatch.setattr(subpixel, "MODEL_MIN_CENTRE_CHI2", np.inf)
+    assert modelled < 0.8 * _shadowed_x_error(6.0, 0.5)
+
+
 def test_an_x_is_read_along_the_lines_its_edges_show_not_its_rings(monkeypatch):
     # Along directions 6-7 degrees off, the lines' band holds the wrong pairs and the
     # quadrants' levels' statistic barely sees the shadow across the X: 0.048 px (0.023

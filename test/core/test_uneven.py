@@ -118,9 +118,9 @@ def test_a_dull_quadrant_under_a_gamma_is_located_within_a_few_bounds(gamma):
     assert np.mean(symmetric) > 10 * np.mean(errors)
 
 
-def test_a_model_is_located_only_where_it_leaves_no_more_than_its_points_misfit_ratio():
-    # Two copies of one dull X, a reference residual of 2 DN (the noise): at 4x it is
-    # located, at 0.1x (the model leaves the noise, 2 DN, and more) it is not.
+def test_a_model_is_located_only_where_it_leaves_no_more_than_its_misfit_ratio():
+    # Two copies of one dull X: against a reference residual of 2 DN (the noise) it
+    # is located; against 0.05 DN, which the model's 2 DN exceed 40-fold, it is not.
     scene = _dull_marker(0, 1.0)
     marker = scene.markers[0]
     start = np.repeat(scene.centres + 0.3, 2, axis=0)
@@ -130,11 +130,59 @@ def test_a_model_is_located_only_where_it_leaves_no_more_than_its_points_misfit_
         np.repeat([marker.angles], 2, axis=0),
         np.full(2, marker.foreshortened_radius_px),
         255.0,
-        reference_rms=np.full(2, 2.0),
-        misfit_ratio=np.array([uneven.MAX_MISFIT_RATIO, 0.1]),
+        reference_rms=np.array([2.0, 0.05]),
     )
     assert fit.located.tolist() == [True, False]
     np.testing.assert_array_equal(fit.xy[1], start[1])
+
+
+@pytest.mark.parametrize(
+    ("min_centre_chi2", "located_from_the_centre"),
+    [(subpixel.MODEL_MIN_CENTRE_CHI2, 0), (0.0, 8), (None, 8)],
+)
+def test_a_model_asked_to_reject_its_start_takes_it_only_where_the_start_is_off(
+    min_centre_chi2, located_from_the_centre
+):
+    # Held at the true centre, the model leaves 1-13 more chi-square than free (its
+    # 2 degrees of freedom, the renderer's quantisation, the model's own mismatch); held
+    # 0.36 px off, 1 200-1 700. The 0.1 % point (13.8) rejects only the latter; 0
+    # rejects neither (a fit never ends worse than its start held, unless it slid).
+    from_centre = from_off = 0
+    for seed in range(8):
+        scene = _dull_marker(seed, 1.0)
+        marker = scene.markers[0]
+        fit = uneven.locate_uneven(
+            scene.image,
+            np.vstack([scene.centres[0], scene.centres[0] + [0.3, -0.2]]),
+            np.repeat([marker.angles], 2, axis=0),
+            np.full(2, marker.foreshortened_radius_px),
+            255.0,
+            min_centre_chi2=min_centre_chi2,
+        )
+        from_centre += int(fit.located[0])
+        from_off += int(fit.located[1])
+    assert from_centre == located_from_the_centre
+    assert from_off == 8
+
+
+def test_a_fit_that_ends_off_its_best_rejects_its_start_by_a_negative_chi_square():
+    # A fit stopped 0.4 px from where the model fits best (as one that slid into
+    # another minimum is) fits worse than the same model held at a start on the X:
+    # min_centre_chi2=0 turns it away.
+    scene = _dull_marker(0, 1.0)
+    marker = scene.markers[0]
+    radius = uneven.RADIUS_FRACTION * marker.foreshortened_radius_px
+    pixels = uneven._pixels(scene.image, scene.centres[0], radius, np.array(marker.angles), 255.0)
+    assert pixels is not None
+    batch = uneven._padded([pixels])
+    best = uneven._solve(batch, uneven._start(batch, np.array([marker.angles])), shadowed=False)
+    slid = best.params.copy()
+    slid[:, :2] += [0.3, 0.25]
+    cost = uneven._residual(slid, batch, shadowed=False)[2]
+    ended_off = uneven._Solution(slid, cost, best.covariance, best.solved)
+    chi2 = uneven._rejects_start(batch, ended_off, np.zeros(1), np.array([0]))
+    assert chi2[0] < 0.0
+    assert uneven._rejects_start(batch, best, np.zeros(1), np.array([0]))[0] >= 0.0
 
 
 def test_an_x_beyond_the_frame_border_is_not_located():
