@@ -980,30 +980,19 @@ def refine_along_lines(
             )
         )
     at, lines, rms, statistic, tested = (np.concatenate(part) for part in zip(*queued, strict=True))
-    if len(at):
+    reach_px = np.minimum(shadow.HYPOTHESIS_REACH_EXTENTS * radius_px[at], max_radius_px)
+    asked = _asked_of_the_model(
+        image, centre[at], lines, reach_px, statistic, tested, full_scale, max_modelled, tally
+    )
+    if len(asked):
         # One model fit for every radius: its points share nothing but the cost of a pass.
-        reach_px = np.minimum(shadow.HYPOTHESIS_REACH_EXTENTS * radius_px[at], max_radius_px)
-        # Where the levels do not differ, only where the pairs show a shadow's edge.
-        asked = ~tested
-        if tested.any():
-            asked[tested] = shadow.find_edges(
-                image, centre[at[tested]], reach_px[tested], lines[tested], full_scale
-            ).found
-        if asked.sum() > max_modelled:
-            first = np.argsort(-np.where(asked, np.nan_to_num(statistic, nan=-np.inf), -np.inf))
-            over = np.sort(first[max_modelled:], kind="stable")
-            if tally is not None:
-                tally["uneven_over_cap"] = tally.get("uneven_over_cap", 0) + int(asked[over].sum())
-            asked[over] = False
-        kept = np.flatnonzero(asked)
         at, lines, reach_px, rms, tested = (
-            at[kept],
-            lines[kept],
-            reach_px[kept],
-            rms[kept],
-            tested[kept],
+            at[asked],
+            lines[asked],
+            reach_px[asked],
+            rms[asked],
+            tested[asked],
         )
-    if len(at):
         # The edge that fits best, for the model to keep where it explains.
         edges = shadow.find_edges(
             image, centre[at], reach_px, lines, full_scale, decided_by_pairs=False
@@ -1032,6 +1021,38 @@ def refine_along_lines(
         np.where(refined, line_sigma, sigma),
         np.mod(line_angles, np.pi),
     )
+
+
+def _asked_of_the_model(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    reach_px: NDArray[np.float64],
+    statistic: NDArray[np.float64],
+    tested: NDArray[np.bool_],
+    full_scale: float,
+    max_modelled: int,
+    tally: dict[str, int] | None,
+) -> NDArray[np.intp]:
+    """The X's :func:`refine_along_lines` fits by their model, of those it queued (ascending).
+
+    Those whose levels differ, all; the others (``tested``) where their pairs show a
+    cast shadow's edge (:func:`shadow.find_edges` as it asks of a candidate, within
+    ``reach_px``). At most ``max_modelled``, the highest levels' ``statistic`` first;
+    ``uneven_over_cap`` in ``tally`` counts the rest.
+    """
+    asked = ~tested
+    if tested.any():
+        asked[tested] = shadow.find_edges(
+            image, xy[tested], reach_px[tested], line_angles[tested], full_scale
+        ).found
+    if asked.sum() > max_modelled:
+        first = np.argsort(-np.where(asked, np.nan_to_num(statistic, nan=-np.inf), -np.inf))
+        over = np.sort(first[max_modelled:], kind="stable")
+        if tally is not None:
+            tally["uneven_over_cap"] = tally.get("uneven_over_cap", 0) + int(asked[over].sum())
+        asked[over] = False
+    return np.flatnonzero(asked)
 
 
 def _reach_all_round(
