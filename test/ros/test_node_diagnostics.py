@@ -140,8 +140,12 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros,
             while not stop.is_set():
                 # cam0 sends its next frame once the last one's result is out: it
                 # never has two frames in the node, however fast the detector is.
+                # Its stamps are a camera's, one period apart whenever the frame is
+                # sent: stamps of the send time would show a loaded machine's pauses
+                # as frames lost before the node.
                 if len(tester.messages("cam0/marker_points")) >= steady_sent:
-                    tester.publish("cam0/image_raw", tester.frame(small))
+                    stamp = Time(sec=1 + steady_sent // 10, nanosec=steady_sent % 10 * 100_000_000)
+                    tester.publish("cam0/image_raw", tester.frame(small, stamp=stamp))
                     steady_sent += 1
                 tester.publish("cam1/image_raw", tester.frame(small))  # held: replaced
                 stop.wait(0.02)
