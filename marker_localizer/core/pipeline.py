@@ -167,6 +167,13 @@ _RECENTRE_MIN_SHIFT_PX = 0.25
 #: 16 loses one), and each costs about 0.1-0.2 ms (one of the speed benchmark's
 #: 12 MP cluttered frames lost 1102: +110 ms uncapped, +9 ms at 64).
 _MAX_RECENTRED = 64
+#: Candidates screened wide whose rings read equalised show an X but that the ring
+#: check rejects, or leaves under its score floor, centred again with the light's
+#: slope per frame at most (:meth:`Detector._read_dull`), the strongest spread over
+#: the frame: 20 of the rendered (g) frames (seeds 0-23, 100-123) hold 3-41 such
+#: candidates and two more (this cap cuts them); the speed benchmark's 12 MP
+#: cluttered frames 4, 18 and 123, read in about 2.5, 4.4 and 6.2 ms.
+_MAX_DULL_READ = 64
 #: ... and those whose shadow's edge is sought after the recentring
 #: (:meth:`Detector._reread_shadowed`, 0.1 ms each, and a reading again of those a
 #: shadow crosses): on the rendered (g) frames of seeds 100-123 the 32 strongest
@@ -297,7 +304,9 @@ class DetectionResult:
             ``merged_duplicates``, ``recentred``, ``found_recentred``,
             ``kept_faint`` and ``kept_under_floor`` (X's the modulation gate or
             the fit's score floor rejected that the marker's model vouches for,
-            :meth:`Detector._model_vouches`),
+            :meth:`Detector._model_vouches`), ``dull_read`` and ``kept_dull`` (X's
+            the ring check rejected that were read again from the light slope's
+            centre, and those of them it took, :meth:`Detector._read_dull`),
             ``recentring_over_cap`` (:meth:`Detector._recentre_lost`), ``shadow_read``,
             ``found_shadowed``, ``located_in_shadow``, ``shadow_over_cap``
             (:meth:`Detector._reread_shadowed`),
@@ -1390,7 +1399,8 @@ class Detector:
         cfg = self.config
         gray, result = frame.gray, frame.result
         counts = result.counts
-        candidates, symmetry = self._ring_check(gray, candidates, frame.gamma)
+        candidates, symmetry, equalised_x = self._ring_check(gray, candidates, frame.gamma)
+        candidates, symmetry = self._read_dull(frame, candidates, symmetry, equalised_x)
         keep = symmetry.accepted & verification.reaches_extent(
             symmetry.radius_px, cfg.min_extent_fraction, cfg.marker_radius_min_px
         )
@@ -1522,7 +1532,7 @@ class Detector:
 
     def _ring_check(
         self, gray: NDArray[Any], candidates: Candidates, gamma: preprocessing.LocalGamma
-    ) -> tuple[Candidates, verification.SymmetryCheck]:
+    ) -> tuple[Candidates, verification.SymmetryCheck, NDArray[np.bool_]]:
         """The centre-symmetry check, and for X's wider than texture's its equalised twin.
 
         A dull bright quadrant breaks the grey-level symmetry of the rings, not the
@@ -1554,7 +1564,8 @@ class Detector:
         any family or real ground, where the re-reading costs no measurable time.
 
         Returns:
-            The candidates (those recentred moved) and their check.
+            The candidates (those recentred moved), their check, and (N,) where the
+            equalised rings read at the candidate showed an X of any extent.
         """
         cfg = self.config
         check = functools.partial(
@@ -1573,8 +1584,10 @@ class Detector:
         )
         ring = check(candidates.xy, inner_profiles=inner)
         retry = np.flatnonzero(screened_wide | (ring.accepted & (ring.radius_px >= wide_px)))
+        equalised_x = np.zeros(len(candidates.xy), dtype=bool)
         if len(retry):
             equalised = check(candidates.xy[retry], equalise=True, inner_profiles=inner[retry])
+            equalised_x[retry] = equalised.accepted
             plain_floor = self._score_floor(ring.radius_px[retry])
             weak = ring.accepted[retry] & (ring.score[retry] < plain_floor)
             better = (
@@ -1595,7 +1608,7 @@ class Detector:
             ring = ring.with_rows(retry[better], equalised._replace(radius_px=reach), better)
         lost = np.flatnonzero(screened_wide & ~ring.accepted)
         if not len(lost):
-            return candidates, ring
+            return candidates, ring, equalised_x
         crossing, _ = verification.line_crossing_centres(
             gray,
             candidates.xy[lost],
@@ -1612,7 +1625,86 @@ class Detector:
         xy = candidates.xy.copy()
         xy[lost[found]] = crossing[found]
         moved = Candidates(xy, candidates.strength, candidates.scale_px)
-        return moved, ring.with_rows(lost[found], there, found)
+        return moved, ring.with_rows(lost[found], there, found), equalised_x
+
+    def _read_dull(
+        self,
+        frame: _Frame,
+        candidates: Candidates,
+        ring: verification.SymmetryCheck,
+        equalised_x: NDArray[np.bool_],
+    ) -> tuple[Candidates, verification.SymmetryCheck]:
+        """Small X's with a dull quadrant, read again from the light slope's centre.
+
+        At the true centre of a marker of 5-8 px with a dull bright quadrant the plain
+        rings show no X at all, and the equalised rings show it out to 5 px (3.5-7,
+        scoring 0.95-0.99: rendered (g), seeds 100-123); the centring, a fit of
+        grey-level symmetry, leaves such a candidate 0.4-0.8 px towards the brighter
+        side, where the equalised rings stop a rung short. So a candidate screened wide
+        (:data:`_WIDE_SCALE_PX`) whose equalised rings showed an X (``equalised_x``)
+        but that the ring check rejected or left under its score floor is centred
+        again with the light's slope (:func:`subpixel.coarse_centre`) and read
+        equalised there, :data:`_MAX_DULL_READ` of them at most (in the first reading
+        alone: a second one's candidates are centred so already). That reading
+        replaces the first where it shows the X out to
+        :data:`verification.DULL_MIN_EXTENT_PX`, clears the score floor of its
+        extent, and the marker's model vouches for it (:meth:`_model_vouches`, as for
+        a faint X): at that extent, a rung under
+        :data:`verification.EQUALISED_MIN_EXTENT_PX`, texture passes the rings too,
+        and without the model the development seeds of (a), (c) and (g) gained a
+        false point each. Counts ``dull_read`` and ``kept_dull``.
+
+        Returns:
+            The candidates (those read again and kept moved) and their check.
+        """
+        cfg = self.config
+        counts = frame.result.counts
+        counts["dull_read"] = counts.get("dull_read", 0)
+        counts["kept_dull"] = counts.get("kept_dull", 0)
+        if frame.slope_centred:
+            return candidates, ring
+        weak = ~ring.accepted | (ring.score < self._score_floor(ring.radius_px))
+        read = np.flatnonzero(weak & equalised_x & (candidates.scale_px >= _WIDE_SCALE_PX))
+        read = read[
+            screening.even_cap_index(
+                candidates.xy[read], candidates.strength[read], _MAX_DULL_READ, cfg.entropy_cell_px
+            )
+        ]
+        counts["dull_read"] += len(read)
+        if not len(read):
+            return candidates, ring
+        xy, inside = subpixel.coarse_centre(
+            frame.gray,
+            candidates.xy[read],
+            candidates.scale_px[read],
+            cfg.marker_radius_max_px,
+            light_slope=True,
+        )
+        there = verification.centre_symmetry_check(
+            frame.gray,
+            xy,
+            self._radii,
+            min_contrast=self._min_contrast,
+            min_symmetry=cfg.symmetry_min,
+            normalise=frame.gamma,
+            equalise=True,
+        )
+        kept = np.flatnonzero(
+            inside
+            & there.accepted
+            & (there.radius_px >= verification.DULL_MIN_EXTENT_PX)
+            & (there.score >= self._score_floor(there.radius_px))
+        )
+        kept = kept[
+            self._model_vouches(frame, xy[kept], there.radius_px[kept], there.line_angles[kept])
+        ]
+        counts["kept_dull"] += len(kept)
+        moved = candidates.xy.copy()
+        moved[read[kept]] = xy[kept]
+        return (
+            Candidates(moved, candidates.strength, candidates.scale_px),
+            ring.with_rows(read[kept], there, kept),
+        )
 
     @property
     def _lines_after_fit(self) -> bool:
@@ -2196,6 +2288,8 @@ class _Frame:
         timer: where they record their wall time.
         measured_noise: the frame's noise once :meth:`noise` has measured it (a
             second reading's frame holds the same list).
+        slope_centred: whether the candidates read were centred with the light's
+            slope (a second reading's, :meth:`reread`).
     """
 
     gray: NDArray[Any]
@@ -2204,6 +2298,7 @@ class _Frame:
     result: DetectionResult
     timer: _StageTimer
     measured_noise: list[NoiseModel] = field(default_factory=list)
+    slope_centred: bool = False
 
     def noise(self) -> NoiseModel:
         """The frame's noise (:func:`estimate_noise`), measured on first use.
@@ -2215,8 +2310,14 @@ class _Frame:
         return self.measured_noise[0]
 
     def reread(self) -> _Frame:
-        """The same frame reporting to a fresh result, its counts at zero.
+        """The same frame reporting to a fresh result, its counts at zero, for a second reading.
 
-        A second reading's counts describe candidates the first reading has counted.
+        A second reading's counts describe candidates the first reading has counted;
+        its candidates are centred with the light's slope (:meth:`Detector._recentre_lost`,
+        :meth:`Detector._reread_shadowed`).
         """
-        return replace(self, result=DetectionResult(counts=dict.fromkeys(self.result.counts, 0)))
+        return replace(
+            self,
+            result=DetectionResult(counts=dict.fromkeys(self.result.counts, 0)),
+            slope_centred=True,
+        )

@@ -117,6 +117,11 @@ TEXTURE_SCORE_FLOORS = ((6.0, 0.92), (TEXTURE_EXTENT_PX, 0.88))
 #: next rungs at 5-30 and 6-40 px: 7.07 and 8.49). A rung lower, at 6, the false
 #: points come back (own (a) 0 -> 2, (c) 0 -> 2, real aerial at 6-40 px 2 -> 3).
 EQUALISED_MIN_EXTENT_PX = 7.0
+#: ... and a rung under it, the smallest where a candidate read again from the light
+#: slope's centre counts, if the marker's model vouches for it too (a dull quadrant
+#: leaves a marker of 5-8 px equalised rings to 3.5-7 px even at its true centre;
+#: ``Detector._read_dull``): the ladder's 5 px rung at 5-30 px, 6 px at 6-40 px.
+DULL_MIN_EXTENT_PX = 5.0
 #: Detections whose X extends no further than the smallest expected radius (times this,
 #: for the ring ladder's rounding), or than :data:`SMALL_EXTENT_MAX_RADIUS_PX` where that
 #: is smaller, are small markers.
