@@ -1448,14 +1448,23 @@ def _edge_directions(
     )
     distance = np.hypot(offsets[:, 0], offsets[:, 1])
     energy = (gx**2 + gy**2) * (valid & (distance >= _DIRECTION_INNER_PX))
+    # The moments about the weighted mean from the sums of d and d d^T: one (N, S) x
+    # (S, 5) product a line, not the (N, S, 2) offsets about each mean.
+    powers = np.column_stack(
+        [offsets, offsets[:, 0] ** 2, offsets[:, 0] * offsets[:, 1], offsets[:, 1] ** 2]
+    )
     angles = np.array(line_angles, np.float64)
     for _ in range(_DIRECTION_ITERATIONS):
         across = template.line_distances(offsets[None, :, 0], offsets[None, :, 1], angles)
         for i, s in enumerate(across):
             weight = energy * (np.abs(s) <= np.sin(_DIRECTION_WEDGE_RAD) * distance)
-            total = np.maximum(weight.sum(axis=1, keepdims=True), 1e-12)
-            centred = offsets[None] - (weight @ offsets / total)[:, None, :]
-            moment = (centred * weight[..., None]).transpose(0, 2, 1) @ centred
+            total = np.maximum(weight.sum(axis=1), 1e-12)
+            sums = weight @ powers
+            mean = sums[:, :2] / total[:, None]
+            moment = np.empty((len(weight), 2, 2))
+            moment[:, 0, 0] = sums[:, 2] - total * mean[:, 0] ** 2
+            moment[:, 0, 1] = moment[:, 1, 0] = sums[:, 3] - total * mean[:, 0] * mean[:, 1]
+            moment[:, 1, 1] = sums[:, 4] - total * mean[:, 1] ** 2
             _, axes = np.linalg.eigh(moment)
             angles[:, i] = np.arctan2(axes[:, 1, 1], axes[:, 0, 1])
     return angles
