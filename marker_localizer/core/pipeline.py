@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import functools
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
@@ -1567,15 +1567,7 @@ class Detector:
             The candidates (those recentred moved), their check, and (N,) where the
             equalised rings read at the candidate showed an X of any extent.
         """
-        cfg = self.config
-        check = functools.partial(
-            verification.centre_symmetry_check,
-            gray,
-            radii_px=self._radii,
-            min_contrast=self._min_contrast,
-            min_symmetry=cfg.symmetry_min,
-            normalise=gamma,
-        )
+        check = self._ring_reader(gray, gamma)
         wide_px = verification.EQUALISED_MIN_EXTENT_PX
         screened_wide = candidates.scale_px >= _WIDE_SCALE_PX
         # The inner rings read once: the equalised reading of the same points takes them.
@@ -1622,10 +1614,25 @@ class Detector:
         lost, crossing = lost[shifted], crossing[shifted]
         there = check(crossing, equalise=True)
         found = there.accepted & (there.radius_px >= wide_px)
-        xy = candidates.xy.copy()
-        xy[lost[found]] = crossing[found]
-        moved = Candidates(xy, candidates.strength, candidates.scale_px)
+        moved = candidates.moved(lost[found], crossing[found])
         return moved, ring.with_rows(lost[found], there, found), equalised_x
+
+    def _ring_reader(
+        self, gray: NDArray[Any], gamma: preprocessing.LocalGamma
+    ) -> Callable[..., verification.SymmetryCheck]:
+        """:func:`verification.centre_symmetry_check` on ``gray`` as this detector reads rings.
+
+        Its ladder, contrast floor and symmetry threshold, the rings normalised by
+        ``gamma``; called with the points and, where asked, ``equalise``.
+        """
+        return functools.partial(
+            verification.centre_symmetry_check,
+            gray,
+            radii_px=self._radii,
+            min_contrast=self._min_contrast,
+            min_symmetry=self.config.symmetry_min,
+            normalise=gamma,
+        )
 
     def _read_dull(
         self,
@@ -1680,15 +1687,7 @@ class Detector:
             cfg.marker_radius_max_px,
             light_slope=True,
         )
-        there = verification.centre_symmetry_check(
-            frame.gray,
-            xy,
-            self._radii,
-            min_contrast=self._min_contrast,
-            min_symmetry=cfg.symmetry_min,
-            normalise=frame.gamma,
-            equalise=True,
-        )
+        there = self._ring_reader(frame.gray, frame.gamma)(xy, equalise=True)
         kept = np.flatnonzero(
             inside
             & there.accepted
@@ -1699,12 +1698,7 @@ class Detector:
             self._model_vouches(frame, xy[kept], there.radius_px[kept], there.line_angles[kept])
         ]
         counts["kept_dull"] += len(kept)
-        moved = candidates.xy.copy()
-        moved[read[kept]] = xy[kept]
-        return (
-            Candidates(moved, candidates.strength, candidates.scale_px),
-            ring.with_rows(read[kept], there, kept),
-        )
+        return candidates.moved(read[kept], xy[kept]), ring.with_rows(read[kept], there, kept)
 
     @property
     def _lines_after_fit(self) -> bool:

@@ -60,6 +60,12 @@ class Candidates(NamedTuple):
             self.xy.take(rows, axis=0), self.strength.take(rows), self.scale_px.take(rows)
         )
 
+    def moved(self, index: NDArray[np.intp], xy: NDArray[np.float64]) -> Candidates:
+        """The same candidates with those ``index`` moved to ``xy`` (K, 2)."""
+        positions = self.xy.copy()
+        positions[index] = xy
+        return Candidates(positions, self.strength, self.scale_px)
+
     def strongest(self, limit: int) -> Candidates:
         """The ``limit`` strongest candidates (all when there are no more), in their order.
 
