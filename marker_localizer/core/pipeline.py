@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import (
+    acceptance,
     decision,
     plate,
     preprocessing,
@@ -75,9 +76,10 @@ _MAX_SHADOW_GAIN = 4.0
 #: them (``floor``, the score floor, runs on the ring symmetry, on it times the
 #: template's NCC, and on the fitted score; ``cap`` is a cap on the candidates;
 #: ``x_end``, that a small X ends where its extent does (:func:`verification.x_ends`);
-#: ``misfit``, that the blurred X explains the detection (:meth:`Detector._x_explains`);
-#: ``quartic``, that the plate model of a tiny X, or of one that barely clears its
-#: floor, explains it no worse than a smooth surface (:meth:`Detector._plate_not_worse`);
+#: ``misfit``, that the blurred X explains the detection
+#: (:meth:`acceptance.MarkerModel.explains`); ``quartic``, that the plate model of a
+#: tiny X, or of one that barely clears its floor, explains it no worse than a smooth
+#: surface (:meth:`acceptance.MarkerModel.plate_not_worse`);
 #: ``recentring``, the detections once the lost wide candidates are centred again,
 #: and ``shadow``, once they are read again with a shadow's edge divided out: the
 #: two tests that add, :meth:`Detector._recentre_lost` and
@@ -187,46 +189,6 @@ _SHADOW_REACH_SCALES = 2.0
 #: ... and divided out within this many reaches (:func:`shadow.divided_out`): the
 #: checks' rings and the fit read the X out to its extent, and the X-end rings beyond.
 _SHADOW_DISK_REACHES = 1.5
-#: Most of a detection's template disk the blurred X may leave unexplained beyond the
-#: noise (:func:`template.template_misfit`). Rendered markers leave 0.003 (median);
-#: 99 % of them under 0.05 on the development seeds of (a), (c), (d), 0.12 on (g),
-#: whose cast shadows the X does not model (:data:`shadow.DETECTION_REACH_EXTENTS`).
-#: Saddles between the discs of a lattice leave 0.06-0.12 (0.08-0.12 at 0.25-0.3
-#: frame px per photograph px of the coins, where they come as 9-69 false points a
-#: frame at 4-40 px).
-MAX_TEMPLATE_MISFIT = 0.08
-#: A detection wider than texture's smallest X's (:data:`verification.X_END_MAX_EXTENT_PX`)
-#: that clears its score floor by less than this must show its plate
-#: (:meth:`Detector._plate_not_worse`). On the development seeds of (a), (c) 600-629,
-#: (d) 200-223 and (g) 100-123 the false points score 0.001-0.077 over their floors
-#: and their plate at their extent leaves 1.0-3.2 of a quartic's residual; the markers
-#: whose plate leaves more than that clear their floors by 0.039 and more on (a),
-#: (c), (d), by 0.007 and more on (g) (shadows' edges, which the plate model leaves
-#: out). At 0.03 and 0.04 the same detections; at 0.05 (d) loses a marker.
-PLATE_DOUBT_MARGIN = 0.03
-#: ... unless another detection lies within this many of its extents: a chessboard's
-#: corner, whose squares go on where a plate would end, has its neighbours one square
-#: away. On the real boards the nearest lies at 2.1 extents (median) and at up to 5.5
-#: where the squares outgrow the largest expected radius (pycbd's warped board: X's
-#: read at 57 px under squares of 190 px; its doubtful corners' at 3.3). Without it,
-#: that board lost 6 corners and libcbdetect's 2; the development seeds' false points
-#: have none this near.
-BOARD_NEIGHBOUR_EXTENTS = 4.0
-#: A candidate of texture's size whose paint the modulation gate, or whose fitted
-#: score its floor, does not vouch for (:meth:`Detector._model_vouches`) must match
-#: the blurred X at least this well, on raw levels: the 29 markers the gate rejected
-#: on the development seeds of (a), (c), (d) match at 0.94-0.998 (median 0.991), the
-#: texture candidates it rejected at up to 0.983 (99th percentile); the floor's
-#: markers on (d)'s at 0.96-0.994. Of real aerial ground's texture under the floor
-#: at 3-30 px, 57 of 467 pass this and the X-end test, none the plate's too.
-FAINT_MIN_NCC = 0.98
-#: ... and leave at most this share of its disk beyond the noise
-#: (:func:`template.template_misfit`): those markers leave 0.009 (median; 90 % under
-#: 0.03), that texture 0.037 and more (95 %). At 0.97 and 0.03 the held-out frames
-#: read as at these; at the template's and the misfit's own limits (0.95,
-#: :data:`MAX_TEMPLATE_MISFIT`) they gained false points ((a) 6 -> 11, (c) 2 -> 9 of 24
-#: frames).
-FAINT_MAX_MISFIT = 0.02
 #: Tiny X's whose plate is read per frame at most (:meth:`Detector._read_plates`, 1-2
 #: ms each), the strongest ring symmetry first, spread over the frame as Eq. (7)'s
 #: thinning spreads them: real aerial ground at 3-30 px leaves 60-200 a frame that
@@ -300,11 +262,12 @@ class DetectionResult:
             ``rejected_centring``,
             ``rejected_symmetry``, ``rejected_template``, ``rejected_lines``,
             ``rejected_refinement``, ``rejected_score``, ``rejected_x_end``,
-            ``rejected_misfit``, ``rejected_quartic`` (:meth:`Detector._plate_not_worse`),
+            ``rejected_misfit``, ``rejected_quartic``
+            (:meth:`acceptance.MarkerModel.plate_not_worse`),
             ``merged_duplicates``, ``recentred``, ``found_recentred``,
             ``kept_faint`` and ``kept_under_floor`` (X's the modulation gate or
             the fit's score floor rejected that the marker's model vouches for,
-            :meth:`Detector._model_vouches`), ``dull_read`` and ``kept_dull`` (X's
+            :meth:`acceptance.MarkerModel.vouches`), ``dull_read`` and ``kept_dull`` (X's
             the ring check rejected that were read again from the light slope's
             centre, and those of them it took, :meth:`Detector._read_dull`),
             ``recentring_over_cap`` (:meth:`Detector._recentre_lost`), ``shadow_read``,
@@ -1474,6 +1437,16 @@ class Detector:
             and self.config.marker_radius_min_px < verification.X_END_MAX_EXTENT_PX
         )
 
+    def _model(self, frame: _Frame) -> acceptance.MarkerModel:
+        """The marker's model on ``frame``, which the gates set by texture defer to."""
+        return acceptance.MarkerModel(
+            frame.gray,
+            frame.full_scale,
+            frame.noise,
+            self.config.marker_radius_max_px,
+            self._reads_plates,
+        )
+
     def _read_plates(self, frame: _Frame, tiny: _RingPassed) -> None:
         """Tiny X's that found no marker, judged by their plate: the model of a marker.
 
@@ -1655,8 +1628,8 @@ class Detector:
         alone: a second one's candidates are centred so already). That reading
         replaces the first where it shows the X out to
         :data:`verification.DULL_MIN_EXTENT_PX`, clears the score floor of its
-        extent, and the marker's model vouches for it (:meth:`_model_vouches`, as for
-        a faint X): at that extent, a rung under
+        extent, and the marker's model vouches for it
+        (:meth:`acceptance.MarkerModel.vouches`, as for a faint X): at that extent, a rung under
         :data:`verification.EQUALISED_MIN_EXTENT_PX`, texture passes the rings too,
         and without the model the development seeds of (a), (c) and (g) gained a
         false point each. Counts ``dull_read`` and ``kept_dull``.
@@ -1695,7 +1668,7 @@ class Detector:
             & (there.score >= self._score_floor(there.radius_px))
         )
         kept = kept[
-            self._model_vouches(frame, xy[kept], there.radius_px[kept], there.line_angles[kept])
+            self._model(frame).vouches(xy[kept], there.radius_px[kept], there.line_angles[kept])
         ]
         counts["kept_dull"] += len(kept)
         return candidates.moved(read[kept], xy[kept]), ring.with_rows(read[kept], there, kept)
@@ -1762,7 +1735,7 @@ class Detector:
         blurs, and on cluttered ground most candidates fail the gate (the speed
         benchmark's busiest frame: 1 369 candidates, of which 558 modulate; its
         verification 141 -> 92 ms, the same detections). Those it rejects go on
-        where the marker's model vouches for them instead (:meth:`_model_vouches`).
+        where the marker's model vouches for them instead (:meth:`acceptance.MarkerModel.vouches`).
 
         Returns:
             The indices (ascending) of the candidates that pass, and their NCC.
@@ -1795,8 +1768,8 @@ class Detector:
                 cfg.min_modulation,
             )
             faint = batch[~vouched]
-            modelled = self._model_vouches(
-                frame, xy[faint], symmetry.radius_px[faint], symmetry.line_angles[faint]
+            modelled = self._model(frame).vouches(
+                xy[faint], symmetry.radius_px[faint], symmetry.line_angles[faint]
             )
             vouched[~vouched] = modelled
             counts["kept_faint"] += int(modelled.sum())
@@ -1839,62 +1812,6 @@ class Detector:
         ascending = np.argsort(chosen)
         return chosen[ascending], ncc[ascending]
 
-    def _model_vouches(
-        self,
-        frame: _Frame,
-        xy: NDArray[np.float64],
-        radius: NDArray[np.float64],
-        angles: NDArray[np.float64],
-    ) -> NDArray[np.bool_]:
-        """(N,) where the marker's model vouches for X's a gate set by texture rejected.
-
-        The modulation gate and the score floors are set by ground texture's
-        saddles of each extent, and a small tilted marker's rings measure its
-        shortest reach, so its extent reads as texture's: such markers were most
-        of what the rendered families (a), (c), (d) and the 12 MP frames missed.
-        The faintest markers drawn (contrast 0.35 of full scale) modulate by 0.21,
-        under ``min_modulation``; on (d)'s development frames, 21 markers fit to
-        0.87-0.93 at extents of 2.8-5.7 px, under those extents' floors. Where the
-        paint or the score cannot vouch for a candidate, the marker's model must,
-        tested in order of cost: its X has ended at its extent
-        (:func:`verification.modulation_beyond_extent` within
-        :data:`verification.MAX_MODULATION_BEYOND`; not also a rung out, as
-        :func:`verification.x_ends` reads it: read out to where the X ends, the (a)
-        and (c) development seeds 600-689 gained 4 markers of 2 160, and the busiest
-        speed frame took 46 ms more, the NCC reading the gate's many faint rejects);
-        the blurred X matches it on
-        raw levels (:data:`FAINT_MIN_NCC`); the marker on its plate, at the X's
-        scale and each bright quadrant with its own level, explains its window
-        better than a smooth surface does (:func:`plate.plate_evidence` within
-        :data:`plate.MAX_TO_QUARTIC`, the bound at which that model adds a tiny
-        marker): a texture X that the blurred X explains has no plate (a level for
-        each bright quadrant, a dull one's, found 3 more markers on the development
-        seeds of (a), (c), (d), (g) than one level for both, no false point more);
-        and the blurred X explains its disk up to the noise
-        (:data:`FAINT_MAX_MISFIT`).
-        """
-        cfg = self.config
-        gray = frame.gray
-        kept = np.zeros(len(xy), dtype=bool)
-        beyond = verification.modulation_beyond_extent(gray, xy, radius, angles)
-        passing = np.flatnonzero(beyond <= verification.MAX_MODULATION_BEYOND)
-        disk = verification.template_radius(radius[passing], cfg.marker_radius_max_px)
-        ncc = template.template_correlation(gray, xy[passing], angles[passing], disk).ncc
-        matched = ncc >= FAINT_MIN_NCC
-        passing, disk, ncc = passing[matched], disk[matched], ncc[matched]
-        plated = self._plate_at_scale(frame, xy[passing], radius[passing], angles[passing])
-        with np.errstate(invalid="ignore"):
-            held = plated <= plate.MAX_TO_QUARTIC
-        passing, disk, ncc = passing[held], disk[held], ncc[held]
-        # The frame's noise, which the misfit needs, is measured last, where a
-        # candidate has passed every other test (3-6 ms on 12 MP).
-        if len(passing):
-            misfit = template.template_misfit(
-                gray, xy[passing], angles[passing], disk, ncc, frame.noise()
-            )
-            kept[passing] = misfit <= FAINT_MAX_MISFIT
-        return kept
-
     def _score_floor(self, radius: NDArray[np.float64]) -> NDArray[np.float64]:
         """(N,) the lowest score a detection of extent ``radius`` (px) may have.
 
@@ -1905,172 +1822,6 @@ class Detector:
         return verification.minimum_score(
             radius, cfg.min_score, cfg.min_score_small, cfg.marker_radius_min_px
         )
-
-    def _x_explains(
-        self,
-        frame: _Frame,
-        xy: NDArray[np.float64],
-        radius: NDArray[np.float64],
-        angles: NDArray[np.float64],
-    ) -> NDArray[np.bool_]:
-        """(N,) where the blurred X explains a detection's disk up to the noise.
-
-        Its misfit (:func:`template.template_misfit`, over the template's disk) is
-        at most :data:`MAX_TEMPLATE_MISFIT`, or a cast shadow's straight edge crosses
-        it, which the X does not model. X's of texture's size (under
-        :data:`verification.X_END_MAX_EXTENT_PX`) are not asked: their disk is the
-        template's smallest, a few pixels a quadrant, and whether they end where
-        their extent does (:func:`verification.x_ends`) is what parts them from
-        texture (asked, 8 of 1 536 rendered tiny markers failed it, no false point
-        with them). 1 - NCC^2 bounds the misfit from above, so the
-        frame's noise is estimated (~6 ms on 12 MP) only where a detection could fail.
-        """
-        cfg = self.config
-        doubtful = np.flatnonzero(radius >= verification.X_END_MAX_EXTENT_PX)
-        disk = verification.template_radius(radius, cfg.marker_radius_max_px)
-        if len(doubtful):
-            ncc = template.template_correlation(
-                frame.gray, xy[doubtful], angles[doubtful], disk[doubtful]
-            ).ncc
-            could_fail = 1.0 - np.square(ncc) > MAX_TEMPLATE_MISFIT
-            doubtful, ncc = doubtful[could_fail], ncc[could_fail]
-        if len(doubtful):
-            misfit = template.template_misfit(
-                frame.gray, xy[doubtful], angles[doubtful], disk[doubtful], ncc, frame.noise()
-            )
-            doubtful = doubtful[misfit > MAX_TEMPLATE_MISFIT]
-        if len(doubtful):
-            doubtful = doubtful[
-                ~self._shadow_crosses(frame, xy[doubtful], radius[doubtful], angles[doubtful])
-            ]
-        explained = np.ones(len(xy), dtype=bool)
-        explained[doubtful] = False
-        return explained
-
-    def _shadow_crosses(
-        self,
-        frame: _Frame,
-        xy: NDArray[np.float64],
-        radius: NDArray[np.float64],
-        angles: NDArray[np.float64],
-    ) -> NDArray[np.bool_]:
-        """(N,) where a cast shadow's straight edge crosses a detection (:func:`shadow.find_edges`).
-
-        Sought within :data:`shadow.DETECTION_REACH_EXTENTS` of its extent, at most the
-        largest expected radius.
-        """
-        reach = np.minimum(
-            shadow.DETECTION_REACH_EXTENTS * radius, self.config.marker_radius_max_px
-        )
-        return shadow.find_edges(frame.gray, xy, reach, angles, frame.full_scale).found
-
-    def _plate_a_rung_out(
-        self,
-        frame: _Frame,
-        xy: NDArray[np.float64],
-        radius: NDArray[np.float64],
-        angles: NDArray[np.float64],
-    ) -> NDArray[np.bool_]:
-        """(N,) where a tiny X is a larger marker read short, and shows its plate there.
-
-        Its pattern goes on beyond its extent, where a marker could reach a rung out
-        (:func:`verification.reaches_a_rung_out`; :func:`verification.x_ends` has
-        found it ended there), and the plate
-        model at that reach, at the X's scale and each bright quadrant with its own
-        level, leaves no more than a quartic does. The tiny markers' plate model
-        (radii of 2.25-5.25 px) misses such a marker's plate: on (d)'s development
-        seeds 200-223, 2 of the markers of 7-8 px read at 4 px that end a rung out.
-        """
-        gray, cfg = frame.gray, self.config
-        shown = np.zeros(len(xy), dtype=bool)
-        short = np.flatnonzero(verification.reaches_a_rung_out(radius, cfg.marker_radius_max_px))
-        beyond = verification.modulation_beyond_extent(
-            gray, xy[short], radius[short], angles[short]
-        )
-        short = short[beyond > verification.MAX_MODULATION_BEYOND]
-        if len(short):
-            further = verification.RING_STEP * radius[short]
-            plated = self._plate_at_scale(frame, xy[short], further, angles[short])
-            with np.errstate(invalid="ignore"):
-                shown[short] = ~(plated > plate.MAX_TO_QUARTIC_ANY)
-        return shown
-
-    def _plate_at_scale(
-        self,
-        frame: _Frame,
-        xy: NDArray[np.float64],
-        extent: NDArray[np.float64],
-        angles: NDArray[np.float64],
-    ) -> NDArray[np.float64]:
-        """(N,) the plate model's residual over a quartic's, read for an X of ``extent``.
-
-        :func:`plate.plate_evidence` with its radii at the X's scale and each bright
-        quadrant its own level (a dull quadrant): the plate every test of a marker
-        wider than a tiny one reads. NaN where no window can be read.
-        """
-        return plate.plate_evidence(
-            frame.gray, xy, extent, angles, scale_with_extent=True, quadrant_levels=True
-        ).to_quartic
-
-    def _plate_not_worse(
-        self,
-        frame: _Frame,
-        xy: NDArray[np.float64],
-        radius: NDArray[np.float64],
-        angles: NDArray[np.float64],
-        margin: NDArray[np.float64],
-    ) -> NDArray[np.bool_]:
-        """(N,) False for detections whose plate model, where asked, leaves more than a quartic.
-
-        What a marker has and texture has not is the plate around its X. Asked are:
-
-        * where :meth:`_read_plates` reads plates, every detection of texture's
-          size (under :data:`verification.X_END_MAX_EXTENT_PX`): the model of a
-          marker on its plate (:func:`plate.plate_evidence`) must explain it at
-          least as well as the best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`),
-          or, where its X goes on to a rung out, that of a larger marker there
-          (:meth:`_plate_a_rung_out`);
-        * every larger detection that clears its score floor by less than
-          :data:`PLATE_DOUBT_MARGIN` (``margin``: its score less its floor), where
-          ground texture's false points score: the same, with the model at the X's
-          scale and each bright quadrant's own level (a dull quadrant), read at its
-          extent and a ring rung out, unless another detection lies within
-          :data:`BOARD_NEIGHBOUR_EXTENTS` of its extent (a chessboard's corner).
-
-        NaN (no window) passes. ``xy`` holds every detection of the call, the
-        neighbours among them.
-        """
-        kept: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
-        tiny = np.flatnonzero(radius < verification.X_END_MAX_EXTENT_PX)
-        if self._reads_plates and len(tiny):
-            evidence = plate.plate_evidence(frame.gray, xy[tiny], radius[tiny], angles[tiny])
-            with np.errstate(invalid="ignore"):
-                kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
-            failed = tiny[~kept[tiny]]
-            kept[failed] = self._plate_a_rung_out(frame, xy[failed], radius[failed], angles[failed])
-        close = np.flatnonzero(
-            (radius >= verification.X_END_MAX_EXTENT_PX) & (margin < PLATE_DOUBT_MARGIN)
-        )
-        if not len(close):
-            return kept
-        unheld = close
-        # The ring ladder reads an X's extent up to a rung short of its shortest reach:
-        # a plate the window at its extent cuts short is read again a rung out.
-        for rung in (1.0, verification.RING_STEP):
-            if len(unheld):
-                plated = self._plate_at_scale(
-                    frame, xy[unheld], rung * radius[unheld], angles[unheld]
-                )
-                with np.errstate(invalid="ignore"):
-                    unheld = unheld[plated > plate.MAX_TO_QUARTIC_ANY]
-        if len(unheld):
-            # Every detection is within 0 of itself: a neighbour makes the count 2.
-            near = cKDTree(xy).query_ball_point(
-                xy[unheld], BOARD_NEIGHBOUR_EXTENTS * radius[unheld], return_length=True
-            )
-            unheld = unheld[near < 2]
-        kept[unheld] = False
-        return kept
 
     def _lowest_score(
         self, radius: NDArray[np.float64], floor: NDArray[np.float64]
@@ -2120,7 +1871,7 @@ class Detector:
         vouched = np.zeros(len(xy), dtype=bool)
         asked = weak & (radius >= verification.X_END_MAX_EXTENT_PX) if self._reads_plates else weak
         held = np.flatnonzero(asked)
-        vouched[held] = self._model_vouches(frame, fit.xy[held], radius[held], angles[held])
+        vouched[held] = self._model(frame).vouches(fit.xy[held], radius[held], angles[held])
         counts["kept_under_floor"] = counts.get("kept_under_floor", 0) + int(vouched.sum())
         weak &= ~vouched
         keep = np.flatnonzero(ok & ~weak)
@@ -2142,14 +1893,14 @@ class Detector:
         counts["rejected_x_end"] = counts.get("rejected_x_end", 0) + int((~under & ~ended).sum())
         keep = keep[ended]
         result.survivors.append(("x_end", fit.xy[keep]))
-        explained = self._x_explains(frame, fit.xy[keep], radius[keep], angles[keep])
+        explained = self._model(frame).explains(fit.xy[keep], radius[keep], angles[keep])
         counts["rejected_misfit"] = counts.get("rejected_misfit", 0) + int((~explained).sum())
         keep = keep[explained]
         result.survivors.append(("misfit", fit.xy[keep]))
         # A vouched X has shown its plate already, at these arguments and a tighter bound.
         margin = np.where(vouched, np.inf, fit.score - floor)
-        smooth = ~self._plate_not_worse(
-            frame, fit.xy[keep], radius[keep], angles[keep], margin[keep]
+        smooth = ~self._model(frame).plate_not_worse(
+            fit.xy[keep], radius[keep], angles[keep], margin[keep]
         )
         counts["rejected_quartic"] = counts.get("rejected_quartic", 0) + int(smooth.sum())
         keep = keep[~smooth]

@@ -13,7 +13,7 @@ from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench import real_data
 from marker_localizer.bench.accuracy import disc_lattice_frame, families
 from marker_localizer.bench.ground import x_tiling_frame
-from marker_localizer.core import decision, pipeline, plate, shadow, verification
+from marker_localizer.core import acceptance, decision, pipeline, plate, shadow, verification
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import (
     MarkerPlacement,
@@ -421,7 +421,7 @@ def test_faint_small_markers_the_modulation_gate_rejects_are_kept_by_their_model
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
 
     hits, false, kept = _found_and_counted(detector, frames, "kept_faint")
-    monkeypatch.setattr(pipeline, "FAINT_MIN_NCC", 1.1)
+    monkeypatch.setattr(acceptance, "FAINT_MIN_NCC", 1.1)
     gate_hits, gate_false, gate_kept = _found_and_counted(detector, frames, "kept_faint")
     assert gate_kept == 0
     assert kept >= 15
@@ -439,7 +439,7 @@ def test_small_tilted_markers_under_their_score_floor_are_kept_by_their_model(mo
     detector = _family_detector(family)
 
     hits, false, kept = _found_and_counted(detector, frames, "kept_under_floor")
-    monkeypatch.setattr(pipeline, "FAINT_MIN_NCC", 1.1)
+    monkeypatch.setattr(acceptance, "FAINT_MIN_NCC", 1.1)
     floor_hits, floor_false, floor_kept = _found_and_counted(detector, frames, "kept_under_floor")
     assert floor_kept == 0
     assert kept >= 3
@@ -462,7 +462,7 @@ def test_where_no_tiny_marker_is_expected_a_tiny_x_under_its_floor_is_a_tilted_m
     tiny = result.as_array()[:, 6] < verification.X_END_MAX_EXTENT_PX
     assert result.counts["kept_under_floor"] >= 1
     assert (near & tiny).sum() >= 2 and not (~near).any()
-    monkeypatch.setattr(pipeline, "FAINT_MIN_NCC", 1.1)
+    monkeypatch.setattr(acceptance, "FAINT_MIN_NCC", 1.1)
     unvouched = detector.detect(frame.image).as_array()
     assert len(unvouched) == len(result) - result.counts["kept_under_floor"]
 
@@ -492,7 +492,7 @@ def test_texture_xs_that_barely_clear_their_floor_and_show_no_plate_are_rejected
     detector = _family_detector(family)
 
     hits, false, rejected = _found_and_counted(detector, frames, "rejected_quartic")
-    monkeypatch.setattr(pipeline, "PLATE_DOUBT_MARGIN", -1.0)
+    monkeypatch.setattr(acceptance, "PLATE_DOUBT_MARGIN", -1.0)
     unasked_hits, unasked_false, _ = _found_and_counted(detector, frames, "rejected_quartic")
     assert hits == unasked_hits
     assert rejected >= 2
@@ -511,9 +511,9 @@ def test_chessboard_corners_near_their_floor_are_kept_by_their_neighbours(monkey
         return {(round(d.x, 3), round(d.y, 3)) for d in detector.detect(image)}
 
     kept = corners()
-    monkeypatch.setattr(pipeline, "BOARD_NEIGHBOUR_EXTENTS", 0.0)
+    monkeypatch.setattr(acceptance, "BOARD_NEIGHBOUR_EXTENTS", 0.0)
     alone = corners()
-    monkeypatch.setattr(pipeline, "PLATE_DOUBT_MARGIN", -1.0)
+    monkeypatch.setattr(acceptance, "PLATE_DOUBT_MARGIN", -1.0)
     unasked = corners()
     assert kept == unasked
     assert len(unasked - alone) >= 5
@@ -774,7 +774,7 @@ def test_on_stony_ground_small_xs_that_do_not_end_are_texture_and_are_counted(mo
     # there the X-end gate takes 9 (19 candidates, some duplicates), at most a marker.
     # The template's misfit and the plate model's quartic test, after it, take some or
     # all of the same saddles: they are lifted here, so the gate is measured alone.
-    monkeypatch.setattr(pipeline, "MAX_TEMPLATE_MISFIT", np.inf)
+    monkeypatch.setattr(acceptance, "MAX_TEMPLATE_MISFIT", np.inf)
     monkeypatch.setattr(plate, "MAX_TO_QUARTIC_ANY", np.inf)
     family = next(f for f in families() if f.key == "b")
     detector = _family_detector(family)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from marker_localizer.core import shadow, subpixel, template
+from marker_localizer.core.acceptance import MAX_TEMPLATE_MISFIT
 from marker_localizer.core.noise import NoiseModel
-from marker_localizer.core.pipeline import MAX_TEMPLATE_MISFIT
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 from marker_localizer.synthetic.scene import CastShadow
 

@@ -1,0 +1,307 @@
+"""What the marker's model says of an X that a gate set by ground texture doubts.
+
+The default path's gates (the modulation gate, the score floors of each extent,
+:func:`~marker_localizer.core.verification.minimum_score`) are set by the saddles
+ground texture makes at each extent of the ring ladder. A marker that reads small
+(tilted, blurred, faint) falls among them. Where those gates reject or barely pass
+an X, the model of a marker decides instead, from what texture lacks:
+
+* its X has ended where its extent says (:func:`verification.modulation_beyond_extent`);
+* the blurred X explains its disk: the template's NCC on raw levels
+  (:func:`template.template_correlation`) and what it leaves beyond the frame's
+  noise (:func:`template.template_misfit`), unless a cast shadow's edge crosses it
+  (:func:`shadow.find_edges`);
+* the plate that carries a marker explains its window better than a smooth surface
+  does (:func:`plate.plate_evidence`).
+
+:class:`MarkerModel` reads these on one frame; the detector
+(:class:`~marker_localizer.core.pipeline.Detector`) asks it where its gates doubt.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from marker_localizer.core import plate, shadow, template, verification
+from marker_localizer.core.noise import NoiseModel
+
+#: Most of a detection's template disk the blurred X may leave unexplained beyond the
+#: noise (:func:`template.template_misfit`). Rendered markers leave 0.003 (median);
+#: 99 % of them under 0.05 on the development seeds of (a), (c), (d), 0.12 on (g),
+#: whose cast shadows the X does not model (:data:`shadow.DETECTION_REACH_EXTENTS`).
+#: Saddles between the discs of a lattice leave 0.06-0.12 (0.08-0.12 at 0.25-0.3
+#: frame px per photograph px of the coins, where they come as 9-69 false points a
+#: frame at 4-40 px).
+MAX_TEMPLATE_MISFIT = 0.08
+#: A detection wider than texture's smallest X's (:data:`verification.X_END_MAX_EXTENT_PX`)
+#: that clears its score floor by less than this must show its plate
+#: (:meth:`MarkerModel.plate_not_worse`). On the development seeds of (a), (c) 600-629,
+#: (d) 200-223 and (g) 100-123 the false points score 0.001-0.077 over their floors
+#: and their plate at their extent leaves 1.0-3.2 of a quartic's residual; the markers
+#: whose plate leaves more than that clear their floors by 0.039 and more on (a),
+#: (c), (d), by 0.007 and more on (g) (shadows' edges, which the plate model leaves
+#: out). At 0.03 and 0.04 the same detections; at 0.05 (d) loses a marker.
+PLATE_DOUBT_MARGIN = 0.03
+#: ... unless another detection lies within this many of its extents: a chessboard's
+#: corner, whose squares go on where a plate would end, has its neighbours one square
+#: away. On the real boards the nearest lies at 2.1 extents (median) and at up to 5.5
+#: where the squares outgrow the largest expected radius (pycbd's warped board: X's
+#: read at 57 px under squares of 190 px; its doubtful corners' at 3.3). Without it,
+#: that board lost 6 corners and libcbdetect's 2; the development seeds' false points
+#: have none this near.
+BOARD_NEIGHBOUR_EXTENTS = 4.0
+#: A candidate of texture's size whose paint the modulation gate, or whose fitted
+#: score its floor, does not vouch for (:meth:`MarkerModel.vouches`) must match
+#: the blurred X at least this well, on raw levels: the 29 markers the gate rejected
+#: on the development seeds of (a), (c), (d) match at 0.94-0.998 (median 0.991), the
+#: texture candidates it rejected at up to 0.983 (99th percentile); the floor's
+#: markers on (d)'s at 0.96-0.994. Of real aerial ground's texture under the floor
+#: at 3-30 px, 57 of 467 pass this and the X-end test, none the plate's too.
+FAINT_MIN_NCC = 0.98
+#: ... and leave at most this share of its disk beyond the noise
+#: (:func:`template.template_misfit`): those markers leave 0.009 (median; 90 % under
+#: 0.03), that texture 0.037 and more (95 %). At 0.97 and 0.03 the held-out frames
+#: read as at these; at the template's and the misfit's own limits (0.95,
+#: :data:`MAX_TEMPLATE_MISFIT`) they gained false points ((a) 6 -> 11, (c) 2 -> 9 of 24
+#: frames).
+FAINT_MAX_MISFIT = 0.02
+
+
+@dataclass(frozen=True)
+class MarkerModel:
+    """The marker's model read on one frame, for the X's a gate set by texture doubts.
+
+    Attributes:
+        gray: (H, W) grey image, raw levels.
+        full_scale: its white, in its own grey levels.
+        noise: the frame's noise (:func:`~marker_localizer.core.noise.estimate_noise`),
+            asked for only where a candidate has passed every other test (measuring
+            it takes 3-6 ms on 12 MP; the detector's frame measures it once).
+        max_radius_px: the largest expected marker radius, px: the template's disk,
+            a shadow's reach and a reading a rung out stay within it.
+        reads_plates: whether tiny X's are read with their plate where no marker
+            was found (:meth:`~marker_localizer.core.pipeline.Detector._read_plates`):
+            then every detection of texture's size must show its plate.
+    """
+
+    gray: NDArray[Any]
+    full_scale: float
+    noise: Callable[[], NoiseModel]
+    max_radius_px: float
+    reads_plates: bool
+
+    def vouches(
+        self,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+    ) -> NDArray[np.bool_]:
+        """(N,) where the marker's model vouches for X's a gate set by texture rejected.
+
+        The modulation gate and the score floors are set by ground texture's
+        saddles of each extent, and a small tilted marker's rings measure its
+        shortest reach, so its extent reads as texture's: such markers were most
+        of what the rendered families (a), (c), (d) and the 12 MP frames missed.
+        The faintest markers drawn (contrast 0.35 of full scale) modulate by 0.21,
+        under ``min_modulation``; on (d)'s development frames, 21 markers fit to
+        0.87-0.93 at extents of 2.8-5.7 px, under those extents' floors. Where the
+        paint or the score cannot vouch for a candidate, the marker's model must,
+        tested in order of cost: its X has ended at its extent
+        (:func:`verification.modulation_beyond_extent` within
+        :data:`verification.MAX_MODULATION_BEYOND`; not also a rung out, as
+        :func:`verification.x_ends` reads it: read out to where the X ends, the (a)
+        and (c) development seeds 600-689 gained 4 markers of 2 160, and the busiest
+        speed frame took 46 ms more, the NCC reading the gate's many faint rejects);
+        the blurred X matches it on
+        raw levels (:data:`FAINT_MIN_NCC`); the marker on its plate, at the X's
+        scale and each bright quadrant with its own level, explains its window
+        better than a smooth surface does (:func:`plate.plate_evidence` within
+        :data:`plate.MAX_TO_QUARTIC`, the bound at which that model adds a tiny
+        marker): a texture X that the blurred X explains has no plate (a level for
+        each bright quadrant, a dull one's, found 3 more markers on the development
+        seeds of (a), (c), (d), (g) than one level for both, no false point more);
+        and the blurred X explains its disk up to the noise
+        (:data:`FAINT_MAX_MISFIT`).
+        """
+        gray = self.gray
+        kept = np.zeros(len(xy), dtype=bool)
+        beyond = verification.modulation_beyond_extent(gray, xy, radius, angles)
+        passing = np.flatnonzero(beyond <= verification.MAX_MODULATION_BEYOND)
+        disk = verification.template_radius(radius[passing], self.max_radius_px)
+        ncc = template.template_correlation(gray, xy[passing], angles[passing], disk).ncc
+        matched = ncc >= FAINT_MIN_NCC
+        passing, disk, ncc = passing[matched], disk[matched], ncc[matched]
+        plated = self.plate_at_scale(xy[passing], radius[passing], angles[passing])
+        with np.errstate(invalid="ignore"):
+            held = plated <= plate.MAX_TO_QUARTIC
+        passing, disk, ncc = passing[held], disk[held], ncc[held]
+        # The frame's noise, which the misfit needs, is measured last, where a
+        # candidate has passed every other test (3-6 ms on 12 MP).
+        if len(passing):
+            misfit = template.template_misfit(
+                gray, xy[passing], angles[passing], disk, ncc, self.noise()
+            )
+            kept[passing] = misfit <= FAINT_MAX_MISFIT
+        return kept
+
+    def explains(
+        self,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+    ) -> NDArray[np.bool_]:
+        """(N,) where the blurred X explains a detection's disk up to the noise.
+
+        Its misfit (:func:`template.template_misfit`, over the template's disk) is
+        at most :data:`MAX_TEMPLATE_MISFIT`, or a cast shadow's straight edge crosses
+        it, which the X does not model. X's of texture's size (under
+        :data:`verification.X_END_MAX_EXTENT_PX`) are not asked: their disk is the
+        template's smallest, a few pixels a quadrant, and whether they end where
+        their extent does (:func:`verification.x_ends`) is what parts them from
+        texture (asked, 8 of 1 536 rendered tiny markers failed it, no false point
+        with them). 1 - NCC^2 bounds the misfit from above, so the
+        frame's noise is estimated (~6 ms on 12 MP) only where a detection could fail.
+        """
+        doubtful = np.flatnonzero(radius >= verification.X_END_MAX_EXTENT_PX)
+        disk = verification.template_radius(radius, self.max_radius_px)
+        if len(doubtful):
+            ncc = template.template_correlation(
+                self.gray, xy[doubtful], angles[doubtful], disk[doubtful]
+            ).ncc
+            could_fail = 1.0 - np.square(ncc) > MAX_TEMPLATE_MISFIT
+            doubtful, ncc = doubtful[could_fail], ncc[could_fail]
+        if len(doubtful):
+            misfit = template.template_misfit(
+                self.gray, xy[doubtful], angles[doubtful], disk[doubtful], ncc, self.noise()
+            )
+            doubtful = doubtful[misfit > MAX_TEMPLATE_MISFIT]
+        if len(doubtful):
+            doubtful = doubtful[
+                ~self.shadow_crosses(xy[doubtful], radius[doubtful], angles[doubtful])
+            ]
+        explained = np.ones(len(xy), dtype=bool)
+        explained[doubtful] = False
+        return explained
+
+    def shadow_crosses(
+        self,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+    ) -> NDArray[np.bool_]:
+        """(N,) where a cast shadow's straight edge crosses a detection (:func:`shadow.find_edges`).
+
+        Sought within :data:`shadow.DETECTION_REACH_EXTENTS` of its extent, at most the
+        largest expected radius.
+        """
+        reach = np.minimum(shadow.DETECTION_REACH_EXTENTS * radius, self.max_radius_px)
+        return shadow.find_edges(self.gray, xy, reach, angles, self.full_scale).found
+
+    def plate_a_rung_out(
+        self,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+    ) -> NDArray[np.bool_]:
+        """(N,) where a tiny X is a larger marker read short, and shows its plate there.
+
+        Its pattern goes on beyond its extent, where a marker could reach a rung out
+        (:func:`verification.reaches_a_rung_out`; :func:`verification.x_ends` has
+        found it ended there), and the plate
+        model at that reach, at the X's scale and each bright quadrant with its own
+        level, leaves no more than a quartic does. The tiny markers' plate model
+        (radii of 2.25-5.25 px) misses such a marker's plate: on (d)'s development
+        seeds 200-223, 2 of the markers of 7-8 px read at 4 px that end a rung out.
+        """
+        gray = self.gray
+        shown = np.zeros(len(xy), dtype=bool)
+        short = np.flatnonzero(verification.reaches_a_rung_out(radius, self.max_radius_px))
+        beyond = verification.modulation_beyond_extent(
+            gray, xy[short], radius[short], angles[short]
+        )
+        short = short[beyond > verification.MAX_MODULATION_BEYOND]
+        if len(short):
+            further = verification.RING_STEP * radius[short]
+            plated = self.plate_at_scale(xy[short], further, angles[short])
+            with np.errstate(invalid="ignore"):
+                shown[short] = ~(plated > plate.MAX_TO_QUARTIC_ANY)
+        return shown
+
+    def plate_at_scale(
+        self,
+        xy: NDArray[np.float64],
+        extent: NDArray[np.float64],
+        angles: NDArray[np.float64],
+    ) -> NDArray[np.float64]:
+        """(N,) the plate model's residual over a quartic's, read for an X of ``extent``.
+
+        :func:`plate.plate_evidence` with its radii at the X's scale and each bright
+        quadrant its own level (a dull quadrant): the plate every test of a marker
+        wider than a tiny one reads. NaN where no window can be read.
+        """
+        return plate.plate_evidence(
+            self.gray, xy, extent, angles, scale_with_extent=True, quadrant_levels=True
+        ).to_quartic
+
+    def plate_not_worse(
+        self,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        margin: NDArray[np.float64],
+    ) -> NDArray[np.bool_]:
+        """(N,) False for detections whose plate model, where asked, leaves more than a quartic.
+
+        What a marker has and texture has not is the plate around its X. Asked are:
+
+        * where tiny X's are read with their plate (:attr:`reads_plates`), every
+          detection of texture's size (under :data:`verification.X_END_MAX_EXTENT_PX`):
+          the model of a marker on its plate (:func:`plate.plate_evidence`) must explain it at
+          least as well as the best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`),
+          or, where its X goes on to a rung out, that of a larger marker there
+          (:meth:`plate_a_rung_out`);
+        * every larger detection that clears its score floor by less than
+          :data:`PLATE_DOUBT_MARGIN` (``margin``: its score less its floor), where
+          ground texture's false points score: the same, with the model at the X's
+          scale and each bright quadrant's own level (a dull quadrant), read at its
+          extent and a ring rung out, unless another detection lies within
+          :data:`BOARD_NEIGHBOUR_EXTENTS` of its extent (a chessboard's corner).
+
+        NaN (no window) passes. ``xy`` holds every detection of the call, the
+        neighbours among them.
+        """
+        kept: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
+        tiny = np.flatnonzero(radius < verification.X_END_MAX_EXTENT_PX)
+        if self.reads_plates and len(tiny):
+            evidence = plate.plate_evidence(self.gray, xy[tiny], radius[tiny], angles[tiny])
+            with np.errstate(invalid="ignore"):
+                kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
+            failed = tiny[~kept[tiny]]
+            kept[failed] = self.plate_a_rung_out(xy[failed], radius[failed], angles[failed])
+        close = np.flatnonzero(
+            (radius >= verification.X_END_MAX_EXTENT_PX) & (margin < PLATE_DOUBT_MARGIN)
+        )
+        if not len(close):
+            return kept
+        unheld = close
+        # The ring ladder reads an X's extent up to a rung short of its shortest reach:
+        # a plate the window at its extent cuts short is read again a rung out.
+        for rung in (1.0, verification.RING_STEP):
+            if len(unheld):
+                plated = self.plate_at_scale(xy[unheld], rung * radius[unheld], angles[unheld])
+                with np.errstate(invalid="ignore"):
+                    unheld = unheld[plated > plate.MAX_TO_QUARTIC_ANY]
+        if len(unheld):
+            # Every detection is within 0 of itself: a neighbour makes the count 2.
+            near = cKDTree(xy).query_ball_point(
+                xy[unheld], BOARD_NEIGHBOUR_EXTENTS * radius[unheld], return_length=True
+            )
+            unheld = unheld[near < 2]
+        kept[unheld] = False
+        return kept

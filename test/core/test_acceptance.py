@@ -1,0 +1,158 @@
+"""The marker's model: what accepts an X that a gate set by ground texture doubts."""
+
+import cv2
+import numpy as np
+
+from marker_localizer.config import DetectorConfig
+from marker_localizer.core import acceptance, template, verification
+from marker_localizer.core.noise import NoiseModel, estimate_noise
+from marker_localizer.synthetic import MarkerPlacement, render_markers
+
+_RADIUS_RANGE_PX = (6.0, 40.0)
+
+
+def _faint_tilted_markers(seed: int):
+    """15 markers of 7-8.5 px tilted 45-55 degrees on ground texture, paint 0.5 and 0.75.
+
+    Their modulation, 0.2, is under the modulation gate's 0.3; their rings measure
+    the X's shortest reach, 4-8.5 px.
+    """
+    rng = np.random.default_rng(seed)
+    placements = [
+        MarkerPlacement(
+            100 + 200 * (i % 5) + rng.uniform(-20, 20),
+            100 + 200 * (i // 5) + rng.uniform(-20, 20),
+            rng.uniform(7.0, 8.5),
+            rng.uniform(0, np.pi),
+            rng.uniform(45, 55),
+            rng.uniform(0, np.pi),
+            "quarter_disks",
+        )
+        for i in range(15)
+    ]
+    return render_markers(
+        (640, 1040),
+        placements,
+        seed,
+        background="texture",
+        reflectances=(0.5, 0.75),
+        blur_sigma_px=1.0,
+        noise_sigma_dn=2.0,
+    )
+
+
+class _CountedNoise:
+    """The frame's noise, counting how often it is asked for."""
+
+    def __init__(self, image: np.ndarray) -> None:
+        self.image, self.calls = image, 0
+
+    def __call__(self) -> NoiseModel:
+        self.calls += 1
+        return estimate_noise(self.image, 255.0)
+
+
+def _model(image: np.ndarray, noise=None) -> acceptance.MarkerModel:
+    return acceptance.MarkerModel(
+        image, 255.0, noise or _CountedNoise(image), _RADIUS_RANGE_PX[1], reads_plates=False
+    )
+
+
+def _ring_reading(image: np.ndarray, xy: np.ndarray) -> verification.SymmetryCheck:
+    """The ring check at ``xy``: the extents and lines the gates hand the model."""
+    config = DetectorConfig(
+        marker_radius_min_px=_RADIUS_RANGE_PX[0], marker_radius_max_px=_RADIUS_RANGE_PX[1]
+    )
+    return verification.centre_symmetry_check(
+        image.astype(np.float64) / 255.0,
+        xy,
+        verification.ring_radii(_RADIUS_RANGE_PX),
+        min_contrast=config.min_contrast_dn / 255.0,
+        min_symmetry=config.symmetry_min,
+    )
+
+
+def _ground_points(scene, count: int, seed: int) -> np.ndarray:
+    """``count`` points of the frame farther than 30 px from every marker."""
+    rng = np.random.default_rng(seed)
+    height, width = scene.image.shape
+    points = np.column_stack(
+        [rng.uniform(30, width - 30, 20 * count), rng.uniform(30, height - 30, 20 * count)]
+    )
+    distance = np.hypot(*(points[:, None, :] - scene.centres[None]).transpose(2, 0, 1)).min(axis=1)
+    return points[distance > 30.0][:count]
+
+
+def test_the_model_vouches_for_faint_tilted_markers_and_for_none_of_the_ground_around_them():
+    # Read at the extents and lines their rings give, 18 of these 30 markers have
+    # ended at their extent, match the blurred X, show their plate and leave no more
+    # than the noise; random ground points, at texture's extent, none.
+    vouched = ground = 0
+    for seed in (0, 1):
+        scene = _faint_tilted_markers(seed)
+        ring = _ring_reading(scene.image, scene.centres)
+        assert ring.accepted.all()
+        model = _model(scene.image)
+        vouched += int(model.vouches(scene.centres, ring.radius_px, ring.line_angles).sum())
+        points = _ground_points(scene, 60, seed)
+        angles = np.random.default_rng(seed).uniform(0, np.pi, (len(points), 2))
+        ground += int(model.vouches(points, np.full(len(points), 4.24), angles).sum())
+    assert vouched >= 15
+    assert ground == 0
+
+
+def test_the_frames_noise_is_measured_only_where_a_candidate_passed_every_other_test():
+    # The misfit needs the frame's noise (3-6 ms on 12 MP): ground points fail the
+    # cheaper tests first, so it is never measured for them.
+    scene = _faint_tilted_markers(1)
+    noise = _CountedNoise(scene.image)
+    model = _model(scene.image, noise)
+    points = _ground_points(scene, 60, 1)
+    model.vouches(points, np.full(len(points), 4.24), np.tile([0.3, 1.9], (len(points), 1)))
+    assert noise.calls == 0
+    ring = _ring_reading(scene.image, scene.centres)
+    model.vouches(scene.centres, ring.radius_px, ring.line_angles)
+    assert noise.calls == 1
+
+
+def test_the_blurred_x_explains_markers_and_not_a_smooth_saddle():
+    # A saddle between stones is a quadratic surface: the X along its zero lines (here
+    # 50 degrees apart) leaves more of its disk unexplained than the noise would, and
+    # of a marker next to nothing (all but one of these, whose rings read on to its
+    # plate's end at 8.5 px).
+    scene = _faint_tilted_markers(0)
+    ring = _ring_reading(scene.image, scene.centres)
+    explained = _model(scene.image).explains(scene.centres, ring.radius_px, ring.line_angles)
+    assert explained.sum() >= 14
+    yy, xx = np.mgrid[0:64, 0:64] - 31.5
+    lines = np.array([[0.3, 0.3 + np.deg2rad(50.0)]])
+    s1, s2 = template.line_distances(xx, yy, lines[0])
+    saddle = np.clip(np.round(255.0 * (0.5 + 0.01 * s1 * s2)), 0, 255).astype(np.uint8)
+    assert not _model(saddle).explains(np.array([[31.5, 31.5]]), np.array([6.0]), lines)[0]
+
+
+def _chessboard(square_px: int = 24, size_px: int = 240) -> np.ndarray:
+    """A chessboard of 40 and 200 DN, area-integrated, blurred by 1 px, 1 DN of noise."""
+    supersampling = 4
+    fine = np.mgrid[0 : size_px * supersampling, 0 : size_px * supersampling] / supersampling
+    squares = np.floor(fine[0] / square_px) + np.floor(fine[1] / square_px)
+    board = np.where(squares % 2 == 0, 200.0, 40.0)
+    board = board.reshape(size_px, supersampling, size_px, supersampling).mean(axis=(1, 3))
+    noisy = cv2.GaussianBlur(board, (0, 0), 1.0) + np.random.default_rng(0).normal(
+        0, 1, board.shape
+    )
+    return np.clip(np.round(noisy), 0, 255).astype(np.uint8)
+
+
+def test_a_chessboard_corner_that_barely_clears_its_floor_stands_only_beside_another():
+    # Its squares go on where a marker's plate would end, so its plate model leaves
+    # twice a quartic's residual: alone, at its floor, it is taken for texture;
+    # with a neighbouring corner one square away it is a board's, and both stand.
+    board = _chessboard()
+    corners = np.array([[95.5, 95.5], [119.5, 95.5]])
+    extent, lines = np.full(2, 8.49), np.tile([0.0, np.pi / 2], (2, 1))
+    model = _model(board)
+    at_floor, clear = np.zeros(2), np.full(2, acceptance.PLATE_DOUBT_MARGIN)
+    assert not model.plate_not_worse(corners[:1], extent[:1], lines[:1], at_floor[:1])[0]
+    assert model.plate_not_worse(corners[:1], extent[:1], lines[:1], clear[:1])[0]
+    assert model.plate_not_worse(corners, extent, lines, at_floor).all()
