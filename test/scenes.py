@@ -1,6 +1,8 @@
-"""Rendered scenes the benchmark tests share."""
+"""Rendered scenes the tests share."""
 
-from marker_localizer.synthetic import SceneConfig
+import numpy as np
+
+from marker_localizer.synthetic import MarkerPlacement, RenderedScene, SceneConfig, render_markers
 
 #: A small frame with four 8-16 px markers tilted at most 30 degrees and four
 #: look-alikes: every benchmark path runs on it in a fraction of a second.
@@ -14,3 +16,34 @@ SMALL_SCENE = SceneConfig(
     max_tilt_deg=30.0,
     n_hard_negatives=4,
 )
+
+
+def faint_tilted_markers(seed: int) -> RenderedScene:
+    """A frame of 15 faint markers of 7-8.5 px tilted 45-55 degrees on ground texture.
+
+    Paint 0.5 and 0.75 (a modulation of 0.2, under the modulation gate's 0.3); the
+    rings measure the X's shortest reach, 4-8.5 px, mostly under the smallest radius
+    of the range 6-40 px.
+    """
+    rng = np.random.default_rng(seed)
+    placements = [
+        MarkerPlacement(
+            100 + 200 * (i % 5) + rng.uniform(-20, 20),
+            100 + 200 * (i // 5) + rng.uniform(-20, 20),
+            rng.uniform(7.0, 8.5),
+            rng.uniform(0, np.pi),
+            rng.uniform(45, 55),
+            rng.uniform(0, np.pi),
+            "quarter_disks",
+        )
+        for i in range(15)
+    ]
+    return render_markers(
+        (640, 1040),
+        placements,
+        seed,
+        background="texture",
+        reflectances=(0.5, 0.75),
+        blur_sigma_px=1.0,
+        noise_sigma_dn=2.0,
+    )

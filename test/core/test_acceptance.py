@@ -2,43 +2,13 @@
 
 import cv2
 import numpy as np
+from scenes import faint_tilted_markers
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import acceptance, template, verification
 from marker_localizer.core.noise import NoiseModel, estimate_noise
-from marker_localizer.synthetic import MarkerPlacement, render_markers
 
 _RADIUS_RANGE_PX = (6.0, 40.0)
-
-
-def _faint_tilted_markers(seed: int):
-    """15 markers of 7-8.5 px tilted 45-55 degrees on ground texture, paint 0.5 and 0.75.
-
-    Their modulation, 0.2, is under the modulation gate's 0.3; their rings measure
-    the X's shortest reach, 4-8.5 px.
-    """
-    rng = np.random.default_rng(seed)
-    placements = [
-        MarkerPlacement(
-            100 + 200 * (i % 5) + rng.uniform(-20, 20),
-            100 + 200 * (i // 5) + rng.uniform(-20, 20),
-            rng.uniform(7.0, 8.5),
-            rng.uniform(0, np.pi),
-            rng.uniform(45, 55),
-            rng.uniform(0, np.pi),
-            "quarter_disks",
-        )
-        for i in range(15)
-    ]
-    return render_markers(
-        (640, 1040),
-        placements,
-        seed,
-        background="texture",
-        reflectances=(0.5, 0.75),
-        blur_sigma_px=1.0,
-        noise_sigma_dn=2.0,
-    )
 
 
 class _CountedNoise:
@@ -89,7 +59,7 @@ def test_the_model_vouches_for_faint_tilted_markers_and_for_none_of_the_ground_a
     # than the noise; random ground points, at texture's extent, none.
     vouched = ground = 0
     for seed in (0, 1):
-        scene = _faint_tilted_markers(seed)
+        scene = faint_tilted_markers(seed)
         ring = _ring_reading(scene.image, scene.centres)
         assert ring.accepted.all()
         model = _model(scene.image)
@@ -104,7 +74,7 @@ def test_the_model_vouches_for_faint_tilted_markers_and_for_none_of_the_ground_a
 def test_the_frames_noise_is_measured_only_where_a_candidate_passed_every_other_test():
     # The misfit needs the frame's noise (3-6 ms on 12 MP): ground points fail the
     # cheaper tests first, so it is never measured for them.
-    scene = _faint_tilted_markers(1)
+    scene = faint_tilted_markers(1)
     noise = _CountedNoise(scene.image)
     model = _model(scene.image, noise)
     points = _ground_points(scene, 60, 1)
@@ -120,7 +90,7 @@ def test_the_blurred_x_explains_markers_and_not_a_smooth_saddle():
     # 50 degrees apart) leaves more of its disk unexplained than the noise would, and
     # of a marker next to nothing (all but one of these, whose rings read on to its
     # plate's end at 8.5 px).
-    scene = _faint_tilted_markers(0)
+    scene = faint_tilted_markers(0)
     ring = _ring_reading(scene.image, scene.centres)
     explained = _model(scene.image).explains(scene.centres, ring.radius_px, ring.line_angles)
     assert explained.sum() >= 14

@@ -6,7 +6,7 @@ import itertools
 import cv2
 import numpy as np
 import pytest
-from scenes import SMALL_SCENE
+from scenes import SMALL_SCENE, faint_tilted_markers
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
@@ -377,47 +377,12 @@ def _found_and_counted(detector: Detector, frames: list, count: str) -> tuple[in
     return hits, false, sum(r.counts[count] for r in results)
 
 
-def _faint_tilted_markers(seeds) -> list:
-    """Frames of 15 faint markers of 7-8.5 px tilted 45-55 degrees on ground texture.
-
-    Paint 0.5 and 0.75 (a modulation of 0.2); the rings measure the X's shortest
-    reach, 4-6 px, under the smallest radius of the range 6-40 px.
-    """
-    frames = []
-    for seed in seeds:
-        rng = np.random.default_rng(seed)
-        placements = [
-            MarkerPlacement(
-                100 + 200 * (i % 5) + rng.uniform(-20, 20),
-                100 + 200 * (i // 5) + rng.uniform(-20, 20),
-                rng.uniform(7.0, 8.5),
-                rng.uniform(0, np.pi),
-                rng.uniform(45, 55),
-                rng.uniform(0, np.pi),
-                "quarter_disks",
-            )
-            for i in range(15)
-        ]
-        frames.append(
-            render_markers(
-                (640, 1040),
-                placements,
-                seed,
-                background="texture",
-                reflectances=(0.5, 0.75),
-                blur_sigma_px=1.0,
-                noise_sigma_dn=2.0,
-            )
-        )
-    return frames
-
-
 def test_faint_small_markers_the_modulation_gate_rejects_are_kept_by_their_model(monkeypatch):
     # The gate asks the paint for a modulation of 0.3; these markers' is 0.2. Where
     # the X has ended, the blurred X explains the disk and the plate model holds,
     # they go on (19 of these 30 found, 2 with the gate alone), and the texture
     # gives no false point more.
-    frames = _faint_tilted_markers((0, 1))
+    frames = [faint_tilted_markers(seed) for seed in (0, 1)]
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
 
     hits, false, kept = _found_and_counted(detector, frames, "kept_faint")
