@@ -3,8 +3,9 @@
 The default path's gates (the modulation gate, the score floors of each extent,
 :func:`~marker_localizer.core.verification.minimum_score`) are set by the saddles
 ground texture makes at each extent of the ring ladder. A marker that reads small
-(tilted, blurred, faint) falls among them. Where those gates reject or barely pass
-an X, the model of a marker decides instead, from what texture lacks:
+(tilted, blurred, faint) falls among them. Where those gates reject an X, or pass it
+by a thin margin, the model of a marker decides instead, from what texture lacks
+(and every detection wider than texture's smallest X's must fit the blurred X):
 
 * its X has ended where its extent says (:func:`verification.modulation_beyond_extent`);
 * the blurred X explains its disk: the template's NCC on raw levels
