@@ -379,6 +379,28 @@ def test_independent_table_scores_every_detector_against_the_frames_bound():
 
 
 @needs_data
+def test_the_given_radius_range_finds_as_many_independent_markers_as_a_wider_one():
+    """Issue 12, item 5, on frames no step was tuned on (the independent renderer's).
+
+    Each frame is read with the radius range its truth gives and with a wider one,
+    the default 4-40 px. A few markers change hands between the two (their
+    candidates and the caps differ), but the tighter, correct range finds as many
+    in every family (a, c, d, g: 47, 31, 30, 23 of 48, 36, 36, 48 against 46, 31,
+    30, 21).
+    """
+    wider = (4.0, 40.0)
+    ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
+    found: dict[tuple[str, str], int] = {}
+    for frame in real_data.iter_independent(DATA, families=("a", "c", "d", "g")):
+        assert wider[0] <= frame.radius_range[0] and frame.radius_range[1] <= wider[1]
+        for reading, radius_range in (("given", frame.radius_range), ("wider", wider)):
+            matched = evaluation.match_points(ours.detect(frame.image, radius_range), frame.truth)
+            found[frame.family, reading] = found.get((frame.family, reading), 0) + matched.n_matched
+    for family in ("a", "c", "d", "g"):
+        assert found[family, "given"] >= found[family, "wider"], family
+
+
+@needs_data
 def test_our_detector_finds_the_inner_corners_of_a_real_board():
     item = next(real_data.iter_validationboof(DATA, limit_per_folder=1))
     ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
