@@ -1754,6 +1754,7 @@ class Detector:
         found = start = 0
         counts.setdefault("rejected_template", 0)
         counts.setdefault("kept_faint", 0)
+        model = self._model(frame)
         while start < len(order) and found < _MAX_CONFIRMED:
             batch = order[start : start + max(_MAX_CONFIRMED - found, _MIN_TEMPLATE_BATCH)]
             start += len(batch)
@@ -1768,7 +1769,7 @@ class Detector:
                 cfg.min_modulation,
             )
             faint = batch[~vouched]
-            modelled = self._model(frame).vouches(
+            modelled = model.vouches(
                 xy[faint], symmetry.radius_px[faint], symmetry.line_angles[faint]
             )
             vouched[~vouched] = modelled
@@ -1864,6 +1865,7 @@ class Detector:
         counts["rejected_refinement"] = int((~ok).sum())
         floor = self._score_floor(radius)
         weak = ok & (fit.score < self._lowest_score(radius, floor))
+        model = self._model(frame)
         # Under its floor, the fitted X goes on where the marker's model vouches for it.
         # Where tiny markers are expected, a tiny X under its floor is left to its plate
         # reading (_read_plates): the demo's flight ground gave 8 texture X's of 2.8-4 px
@@ -1871,7 +1873,7 @@ class Detector:
         vouched = np.zeros(len(xy), dtype=bool)
         asked = weak & (radius >= verification.X_END_MAX_EXTENT_PX) if self._reads_plates else weak
         held = np.flatnonzero(asked)
-        vouched[held] = self._model(frame).vouches(fit.xy[held], radius[held], angles[held])
+        vouched[held] = model.vouches(fit.xy[held], radius[held], angles[held])
         counts["kept_under_floor"] = counts.get("kept_under_floor", 0) + int(vouched.sum())
         weak &= ~vouched
         keep = np.flatnonzero(ok & ~weak)
@@ -1893,15 +1895,13 @@ class Detector:
         counts["rejected_x_end"] = counts.get("rejected_x_end", 0) + int((~under & ~ended).sum())
         keep = keep[ended]
         result.survivors.append(("x_end", fit.xy[keep]))
-        explained = self._model(frame).explains(fit.xy[keep], radius[keep], angles[keep])
+        explained = model.explains(fit.xy[keep], radius[keep], angles[keep])
         counts["rejected_misfit"] = counts.get("rejected_misfit", 0) + int((~explained).sum())
         keep = keep[explained]
         result.survivors.append(("misfit", fit.xy[keep]))
         # A vouched X has shown its plate already, at these arguments and a tighter bound.
         margin = np.where(vouched, np.inf, fit.score - floor)
-        smooth = ~self._model(frame).plate_not_worse(
-            fit.xy[keep], radius[keep], angles[keep], margin[keep]
-        )
+        smooth = ~model.plate_not_worse(fit.xy[keep], radius[keep], angles[keep], margin[keep])
         counts["rejected_quartic"] = counts.get("rejected_quartic", 0) + int(smooth.sum())
         keep = keep[~smooth]
         result.survivors.append(("quartic", fit.xy[keep]))
