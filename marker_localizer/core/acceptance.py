@@ -15,15 +15,18 @@ by a thin margin, the model of a marker decides instead, from what texture lacks
 * the plate that carries a marker explains its window better than a smooth surface
   does (:func:`plate.plate_evidence`).
 
-:class:`MarkerModel` reads these on one frame; the detector
-(:class:`~marker_localizer.core.pipeline.Detector`) asks it where its gates doubt.
+:class:`MarkerModel` reads these on one frame. Its :meth:`~MarkerModel.judge` is
+the default path's last decision on every located X: the score floor of its extent
+(:class:`ScoreFloors`), the model where the floor doubts, the X's end, the misfit
+and the plate, each rejection with its reason (:data:`JUDGED_REASONS`). The detector
+(:class:`~marker_localizer.core.pipeline.Detector`) chains, counts and records it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -74,6 +77,71 @@ FAINT_MIN_NCC = 0.98
 FAINT_MAX_MISFIT = 0.02
 
 
+#: Why :meth:`MarkerModel.judge` rejects a located X, in the order its tests run; the
+#: detector counts each as ``rejected_<reason>``.
+JUDGED_REASONS = ("score", "x_end", "misfit", "quartic")
+#: :attr:`Judgement.reason` of an accepted X.
+ACCEPTED = -1
+_SCORE, _X_END, _MISFIT, _QUARTIC = range(len(JUDGED_REASONS))
+
+
+@dataclass(frozen=True)
+class ScoreFloors:
+    """The lowest fitted score of an X of each extent, set by ground texture's saddles.
+
+    Attributes:
+        min_score: the lowest score of an X wider than texture's saddles.
+        min_score_small: that of an X no larger than the smallest expected marker
+            and of texture's size (:func:`verification.small_marker`).
+        min_radius_px: the smallest expected marker radius, px.
+    """
+
+    min_score: float
+    min_score_small: float
+    min_radius_px: float
+
+    def floor(self, radius: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(N,) the lowest score a detection of extent ``radius`` (px) may have.
+
+        :func:`verification.minimum_score`: ``min_score``, raised to the texture
+        floors below their extents, and ``min_score_small`` for small markers.
+        """
+        return verification.minimum_score(
+            radius, self.min_score, self.min_score_small, self.min_radius_px
+        )
+
+    def lowest(self, radius: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(N,) the lowest score with which a candidate of extent ``radius`` (px) goes on.
+
+        Its :meth:`floor`, less :data:`verification.ENDED_SCORE_ALLOWANCE` for the
+        X's asked to end (:func:`verification.x_must_end`): one that has clearly
+        ended may score that much under its floor (:func:`verification.x_ends`).
+        """
+        asked = verification.x_must_end(radius, self.min_radius_px)
+        return self.floor(radius) - verification.ENDED_SCORE_ALLOWANCE * asked
+
+
+class Judgement(NamedTuple):
+    """What :meth:`MarkerModel.judge` decided of each located X; each (N,).
+
+    Attributes:
+        reason: :data:`ACCEPTED`, or the index in :data:`JUDGED_REASONS` of the test
+            that rejected it.
+        vouched: under its score floor, the marker's model vouched for it
+            (:meth:`MarkerModel.vouches`).
+    """
+
+    reason: NDArray[np.int8]
+    vouched: NDArray[np.bool_]
+
+    def passed(self, test: str) -> NDArray[np.bool_]:
+        """(N,) the X's that passed ``test`` (of :data:`JUDGED_REASONS`) and every one before it."""
+        passed: NDArray[np.bool_] = (self.reason == ACCEPTED) | (
+            self.reason > JUDGED_REASONS.index(test)
+        )
+        return passed
+
+
 @dataclass(frozen=True)
 class MarkerModel:
     """The marker's model read on one frame, for the X's a gate set by texture doubts.
@@ -96,6 +164,70 @@ class MarkerModel:
     noise: Callable[[], NoiseModel]
     max_radius_px: float
     reads_plates: bool
+
+    def judge(
+        self,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        score: NDArray[np.float64],
+        floors: ScoreFloors,
+    ) -> Judgement:
+        """Whether each located X is a marker: the default path's last decision.
+
+        In order:
+
+        * ``score``: the fitted score reaches the :meth:`~ScoreFloors.lowest` of its
+          extent, or the marker's model vouches for it (:meth:`vouches`). Where tiny
+          X's are read with their plate (:attr:`reads_plates`), one of texture's size
+          under its floor is left to that reading instead: on texture the model
+          vouches for such X's too.
+        * ``x_end``: its X ends where its extent says (:func:`verification.x_ends`).
+          One under its :meth:`~ScoreFloors.floor` that the model did not vouch for
+          must have clearly ended, and fails the floor (``score``) if not.
+        * ``misfit``: the blurred X explains it (:meth:`explains`).
+        * ``quartic``: its plate explains it (:meth:`plate_not_worse`), a vouched X
+          having shown its plate already.
+
+        Args:
+            xy: (N, 2) fitted centres, px.
+            radius: (N,) extents of the X's, px.
+            angles: (N, 2) their lines' directions, radians.
+            score: (N,) fitted scores.
+            floors: the score floors of each extent.
+
+        Returns:
+            :class:`Judgement`.
+        """
+        reason = np.full(len(xy), ACCEPTED, dtype=np.int8)
+        floor = floors.floor(radius)
+        weak = score < floors.lowest(radius)
+        asked = weak & (radius >= verification.X_END_MAX_EXTENT_PX) if self.reads_plates else weak
+        vouched = np.zeros(len(xy), dtype=bool)
+        held = np.flatnonzero(asked)
+        vouched[held] = self.vouches(xy[held], radius[held], angles[held])
+        weak &= ~vouched
+        reason[weak] = _SCORE
+        keep = np.flatnonzero(~weak)
+        under = (score[keep] < floor[keep]) & ~vouched[keep]
+        ended = verification.x_ends(
+            self.gray,
+            xy[keep],
+            radius[keep],
+            angles[keep],
+            floors.min_radius_px,
+            self.max_radius_px,
+            under,
+        )
+        reason[keep[~ended]] = np.where(under[~ended], _SCORE, _X_END)
+        keep = keep[ended]
+        explained = self.explains(xy[keep], radius[keep], angles[keep])
+        reason[keep[~explained]] = _MISFIT
+        keep = keep[explained]
+        margin = np.where(vouched, np.inf, score - floor)
+        smooth = ~self.plate_not_worse(xy[keep], radius[keep], angles[keep], margin[keep])
+        reason[keep[smooth]] = _QUARTIC
+        return Judgement(reason, vouched)
 
     def vouches(
         self,

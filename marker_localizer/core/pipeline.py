@@ -72,6 +72,9 @@ _RAW_CONTRAST_SHARE = 0.5
 #: and 2.5 DN for the rings and the fit, above an 8-bit camera's quantisation and JPEG
 #: noise (1-2 DN); darker still, ground 6 DN dark, is beyond what is sought.
 _MAX_SHADOW_GAIN = 4.0
+#: :data:`SURVIVOR_TESTS`' names of :meth:`acceptance.MarkerModel.judge`'s tests, in
+#: the order of :data:`acceptance.JUDGED_REASONS`.
+_JUDGED_TESTS = ("floor", "x_end", "misfit", "quartic")
 #: The tests of the default path in the order :attr:`DetectionResult.survivors` lists
 #: them (``floor``, the score floor, runs on the ring symmetry, on it times the
 #: template's NCC, and on the fitted score; ``cap`` is a cap on the candidates;
@@ -381,6 +384,9 @@ class Detector:
         self._radius_range = (self.config.marker_radius_min_px, self.config.marker_radius_max_px)
         self._radii = verification.ring_radii(self._radius_range)
         self._threshold = decision.threshold_for_rate(self.config.false_points_per_mp)
+        self._floors = acceptance.ScoreFloors(
+            self.config.min_score, self.config.min_score_small, self.config.marker_radius_min_px
+        )
         #: ``min_contrast_dn`` as a share of white.
         self._min_contrast = self.config.min_contrast_dn / _WHITE_DN
         first_level = screening.saddle_levels(self._radius_range).start
@@ -1371,8 +1377,8 @@ class Detector:
         # A detection's score is this ring symmetry times factors of at most 1 (the
         # template's NCC, the fit's 1 - relative residual): a candidate already below
         # its floor stays below it, and is spared the costly checks and the fit.
-        floor = self._score_floor(symmetry.radius_px)
-        lowest = self._lowest_score(symmetry.radius_px, floor)
+        floor = self._floors.floor(symmetry.radius_px)
+        lowest = self._floors.lowest(symmetry.radius_px)
         weak = keep & (symmetry.score < lowest)
         # Under its own floor, a candidate goes on only if its X has clearly ended
         # (verification.x_ends): read here on the rings' centre and lines, it spares
@@ -1553,7 +1559,7 @@ class Detector:
         if len(retry):
             equalised = check(candidates.xy[retry], equalise=True, inner_profiles=inner[retry])
             equalised_x[retry] = equalised.accepted
-            plain_floor = self._score_floor(ring.radius_px[retry])
+            plain_floor = self._floors.floor(ring.radius_px[retry])
             weak = ring.accepted[retry] & (ring.score[retry] < plain_floor)
             better = (
                 equalised.accepted
@@ -1643,7 +1649,7 @@ class Detector:
         counts["kept_dull"] = counts.get("kept_dull", 0)
         if frame.slope_centred:
             return candidates, ring
-        weak = ~ring.accepted | (ring.score < self._score_floor(ring.radius_px))
+        weak = ~ring.accepted | (ring.score < self._floors.floor(ring.radius_px))
         read = np.flatnonzero(weak & equalised_x & (candidates.scale_px >= _WIDE_SCALE_PX))
         read = read[
             screening.even_cap_index(
@@ -1665,7 +1671,7 @@ class Detector:
             inside
             & there.accepted
             & (there.radius_px >= verification.DULL_MIN_EXTENT_PX)
-            & (there.score >= self._score_floor(there.radius_px))
+            & (there.score >= self._floors.floor(there.radius_px))
         )
         kept = kept[
             self._model(frame).vouches(xy[kept], there.radius_px[kept], there.line_angles[kept])
@@ -1813,30 +1819,6 @@ class Detector:
         ascending = np.argsort(chosen)
         return chosen[ascending], ncc[ascending]
 
-    def _score_floor(self, radius: NDArray[np.float64]) -> NDArray[np.float64]:
-        """(N,) the lowest score a detection of extent ``radius`` (px) may have.
-
-        :func:`verification.minimum_score`: ``min_score``, raised to the texture
-        floors below their extents, and ``min_score_small`` for small markers.
-        """
-        cfg = self.config
-        return verification.minimum_score(
-            radius, cfg.min_score, cfg.min_score_small, cfg.marker_radius_min_px
-        )
-
-    def _lowest_score(
-        self, radius: NDArray[np.float64], floor: NDArray[np.float64]
-    ) -> NDArray[np.float64]:
-        """(N,) the lowest score with which a candidate of extent ``radius`` (px) goes on.
-
-        Its ``floor`` (:meth:`_score_floor`), less
-        :data:`verification.ENDED_SCORE_ALLOWANCE` for the X's asked to end
-        (:func:`verification.x_must_end`): one that has clearly ended may score
-        that much under its floor (:func:`verification.x_ends`).
-        """
-        asked = verification.x_must_end(radius, self.config.marker_radius_min_px)
-        return floor - verification.ENDED_SCORE_ALLOWANCE * asked
-
     def _locate(
         self,
         frame: _Frame,
@@ -1848,13 +1830,12 @@ class Detector:
     ) -> list[Detection]:
         """Section 3.3: sub-pixel centres and final gates (:func:`subpixel.locate_markers`).
 
-        Then the score each extent needs (:meth:`_score_floor`), with ``check_lines``
-        the double-line check (:meth:`_double_lines`: LSD, ~0.15 ms a candidate, so
-        on the few the fit and the floor leave), and the last suppression of
-        duplicates, strongest first.
+        Then the marker's model judges them (:meth:`acceptance.MarkerModel.judge`),
+        with ``check_lines`` the double-line check (:meth:`_double_lines`: LSD, ~0.15 ms
+        a candidate, so on the few the fit and the floor leave), and the last
+        suppression of duplicates, strongest first.
         """
-        cfg = self.config
-        gray, result = frame.gray, frame.result
+        result = frame.result
         counts = result.counts
         if len(xy) == 0:
             counts["rejected_refinement"] = 0
@@ -1863,48 +1844,19 @@ class Detector:
         fit = self._gating_fit(frame, xy, radius, angles, score)
         ok = fit.accepted
         counts["rejected_refinement"] = int((~ok).sum())
-        floor = self._score_floor(radius)
-        weak = ok & (fit.score < self._lowest_score(radius, floor))
-        model = self._model(frame)
-        # Under its floor, the fitted X goes on where the marker's model vouches for it.
-        # Where tiny markers are expected, a tiny X under its floor is left to its plate
-        # reading (_read_plates): the demo's flight ground gave 8 texture X's of 2.8-4 px
-        # the model vouched for. Where they are not, a tiny X is a tilted marker's.
-        vouched = np.zeros(len(xy), dtype=bool)
-        asked = weak & (radius >= verification.X_END_MAX_EXTENT_PX) if self._reads_plates else weak
-        held = np.flatnonzero(asked)
-        vouched[held] = model.vouches(fit.xy[held], radius[held], angles[held])
-        counts["kept_under_floor"] = counts.get("kept_under_floor", 0) + int(vouched.sum())
-        weak &= ~vouched
-        keep = np.flatnonzero(ok & ~weak)
-        result.survivors += [("fit", fit.xy[ok]), ("floor", fit.xy[keep])]
-        under = (fit.score[keep] < floor[keep]) & ~vouched[keep]
-        ended = verification.x_ends(
-            gray,
-            fit.xy[keep],
-            radius[keep],
-            angles[keep],
-            cfg.marker_radius_min_px,
-            cfg.marker_radius_max_px,
-            under,
+        located = np.flatnonzero(ok)
+        judged = self._model(frame).judge(
+            fit.xy[located], radius[located], angles[located], fit.score[located], self._floors
         )
-        # Under its floor and not clearly ended, a candidate fails the floor.
-        counts["rejected_score"] = counts.get("rejected_score", 0) + int(
-            weak.sum() + (under & ~ended).sum()
-        )
-        counts["rejected_x_end"] = counts.get("rejected_x_end", 0) + int((~under & ~ended).sum())
-        keep = keep[ended]
-        result.survivors.append(("x_end", fit.xy[keep]))
-        explained = model.explains(fit.xy[keep], radius[keep], angles[keep])
-        counts["rejected_misfit"] = counts.get("rejected_misfit", 0) + int((~explained).sum())
-        keep = keep[explained]
-        result.survivors.append(("misfit", fit.xy[keep]))
-        # A vouched X has shown its plate already, at these arguments and a tighter bound.
-        margin = np.where(vouched, np.inf, fit.score - floor)
-        smooth = ~model.plate_not_worse(fit.xy[keep], radius[keep], angles[keep], margin[keep])
-        counts["rejected_quartic"] = counts.get("rejected_quartic", 0) + int(smooth.sum())
-        keep = keep[~smooth]
-        result.survivors.append(("quartic", fit.xy[keep]))
+        counts["kept_under_floor"] = counts.get("kept_under_floor", 0) + int(judged.vouched.sum())
+        for index, reason in enumerate(acceptance.JUDGED_REASONS):
+            counts[f"rejected_{reason}"] = counts.get(f"rejected_{reason}", 0) + int(
+                (judged.reason == index).sum()
+            )
+        result.survivors.append(("fit", fit.xy[ok]))
+        for test, reason in zip(_JUDGED_TESTS, acceptance.JUDGED_REASONS, strict=True):
+            result.survivors.append((test, fit.xy[located[judged.passed(reason)]]))
+        keep = located[judged.reason == acceptance.ACCEPTED]
         if check_lines:
             # At the verified centres, where the checks before the fit looked.
             straight, lined = self._double_lines(frame, xy[keep], radius[keep], angles[keep])

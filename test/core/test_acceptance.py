@@ -126,3 +126,43 @@ def test_a_chessboard_corner_that_barely_clears_its_floor_stands_only_beside_ano
     assert not model.plate_not_worse(corners[:1], extent[:1], lines[:1], at_floor[:1])[0]
     assert model.plate_not_worse(corners[:1], extent[:1], lines[:1], clear[:1])[0]
     assert model.plate_not_worse(corners, extent, lines, at_floor).all()
+
+
+def test_score_floors_ask_most_of_texture_sized_xs_and_let_an_ended_one_under_by_the_allowance():
+    floors = acceptance.ScoreFloors(min_score=0.8, min_score_small=0.945, min_radius_px=3.0)
+    extent = np.array([3.0, 4.24, 7.07, 12.0, 24.0])
+    floor = floors.floor(extent)
+    assert floor[0] == 0.945
+    assert (np.diff(floor) <= 0).all()
+    assert floor[-1] == 0.8
+    allowance = floor - floors.lowest(extent)
+    asked = verification.x_must_end(extent, 3.0)
+    assert asked.any() and not asked.all()
+    assert np.allclose(allowance, np.where(asked, verification.ENDED_SCORE_ALLOWANCE, 0.0))
+
+
+def test_the_judgement_names_the_test_that_rejects_each_x():
+    # Scored clear of their floors, the faint markers are accepted but where their X
+    # or plate says otherwise; scored at nothing, they stand where the model vouches
+    # for them, and ground points, which it never vouches for, fail the floor.
+    scene = faint_tilted_markers(0)
+    ring = _ring_reading(scene.image, scene.centres)
+    model = _model(scene.image)
+    floors = acceptance.ScoreFloors(0.8, 0.945, _RADIUS_RANGE_PX[0])
+    markers = (scene.centres, ring.radius_px, ring.line_angles)
+    clear = model.judge(*markers, np.ones(len(scene.centres)), floors)
+    assert (clear.reason == acceptance.ACCEPTED).sum() >= 12
+    assert not clear.vouched.any()
+    assert (clear.passed("quartic") == (clear.reason == acceptance.ACCEPTED)).all()
+    assert (clear.passed("x_end") <= clear.passed("score")).all()
+
+    unscored = model.judge(*markers, np.zeros(len(scene.centres)), floors)
+    assert (unscored.vouched == model.vouches(*markers)).all()
+    assert unscored.vouched.sum() >= 4
+    assert (unscored.reason[~unscored.vouched] == acceptance.JUDGED_REASONS.index("score")).all()
+    assert unscored.passed("score").tolist() == unscored.vouched.tolist()
+
+    points = _ground_points(scene, 40, 0)
+    angles = np.random.default_rng(0).uniform(0, np.pi, (len(points), 2))
+    ground = model.judge(points, np.full(len(points), 4.24), angles, np.zeros(len(points)), floors)
+    assert (ground.reason == acceptance.JUDGED_REASONS.index("score")).all()
