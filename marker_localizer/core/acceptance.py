@@ -120,6 +120,42 @@ class ScoreFloors:
         asked = verification.x_must_end(radius, self.min_radius_px)
         return self.floor(radius) - verification.ENDED_SCORE_ALLOWANCE * asked
 
+    def clears(
+        self,
+        gray: NDArray[Any],
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        score: NDArray[np.float64],
+        max_radius_px: float,
+    ) -> NDArray[np.bool_]:
+        """(N,) where a score clears its floor, or its :meth:`lowest` with the X clearly ended.
+
+        Whether an X under its floor has ended is read only for those
+        (:func:`verification.x_ends`), the few the allowance concerns.
+
+        Args:
+            gray: (H, W) grey image, raw levels.
+            xy: (N, 2) centres, px.
+            radius: (N,) extents of the X's, px.
+            angles: (N, 2) their lines' directions, radians.
+            score: (N,) their scores.
+            max_radius_px: the largest expected marker radius, px.
+        """
+        cleared = ~(score < self.floor(radius))
+        under = np.flatnonzero(~cleared & ~(score < self.lowest(radius)))
+        if len(under):
+            cleared[under] = verification.x_ends(
+                gray,
+                xy[under],
+                radius[under],
+                angles[under],
+                self.min_radius_px,
+                max_radius_px,
+                np.ones(len(under), dtype=bool),
+            )
+        return cleared
+
 
 class Judgement(NamedTuple):
     """What :meth:`MarkerModel.judge` decided of each located X; each (N,).

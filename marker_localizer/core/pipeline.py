@@ -1377,25 +1377,19 @@ class Detector:
         # A detection's score is this ring symmetry times factors of at most 1 (the
         # template's NCC, the fit's 1 - relative residual): a candidate already below
         # its floor stays below it, and is spared the costly checks and the fit.
-        floor = self._floors.floor(symmetry.radius_px)
-        lowest = self._floors.lowest(symmetry.radius_px)
-        weak = keep & (symmetry.score < lowest)
-        # Under its own floor, a candidate goes on only if its X has clearly ended
-        # (verification.x_ends): read here on the rings' centre and lines, it spares
-        # the template match the ground's saddles the allowance would let in (real
-        # aerial frames at 3-30 px: 10 ms a frame without this, 2 with it; the same
-        # detections on every family, held out and independent too).
-        under = np.flatnonzero(keep & ~weak & (symmetry.score < floor))
-        if len(under):
-            weak[under] = ~verification.x_ends(
-                gray,
-                candidates.xy[under],
-                symmetry.radius_px[under],
-                symmetry.line_angles[under],
-                cfg.marker_radius_min_px,
-                cfg.marker_radius_max_px,
-                np.ones(len(under), dtype=bool),
-            )
+        # Under its own floor, a candidate goes on only if its X has clearly ended: read
+        # here on the rings' centre and lines, it spares the template match the ground's
+        # saddles the allowance would let in.
+        checked = np.flatnonzero(keep)
+        weak = keep.copy()
+        weak[checked] = ~self._floors.clears(
+            gray,
+            candidates.xy[checked],
+            symmetry.radius_px[checked],
+            symmetry.line_angles[checked],
+            symmetry.score[checked],
+            cfg.marker_radius_max_px,
+        )
         counts["rejected_score"] = int(weak.sum())
         result.survivors += [
             ("symmetry", candidates.xy[keep]),
@@ -1412,7 +1406,11 @@ class Detector:
             symmetry.score[tiny],
         )
         chosen, ncc = self._match_templates(
-            frame, candidates.xy, symmetry, lowest, np.flatnonzero(passed)
+            frame,
+            candidates.xy,
+            symmetry,
+            self._floors.lowest(symmetry.radius_px),
+            np.flatnonzero(passed),
         )
         candidates, radius, angles, score = (
             candidates.take(chosen),

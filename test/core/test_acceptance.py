@@ -166,3 +166,27 @@ def test_the_judgement_names_the_test_that_rejects_each_x():
     angles = np.random.default_rng(0).uniform(0, np.pi, (len(points), 2))
     ground = model.judge(points, np.full(len(points), 4.24), angles, np.zeros(len(points)), floors)
     assert (ground.reason == acceptance.JUDGED_REASONS.index("score")).all()
+
+
+def test_a_score_under_its_floor_clears_it_only_within_the_allowance_and_where_the_x_has_ended():
+    scene = faint_tilted_markers(0)
+    ring = _ring_reading(scene.image, scene.centres)
+    # Expected from 4 px, as small as these X's read: those of texture's size are asked to end.
+    floors = acceptance.ScoreFloors(0.8, 0.945, 4.0)
+    markers = (scene.image, scene.centres, ring.radius_px, ring.line_angles)
+    floor, lowest = floors.floor(ring.radius_px), floors.lowest(ring.radius_px)
+    assert floors.clears(*markers, floor, _RADIUS_RANGE_PX[1]).all()
+    assert not floors.clears(*markers, lowest - 1e-6, _RADIUS_RANGE_PX[1]).any()
+    allowed = lowest < floor
+    assert allowed.any()
+    between = np.where(allowed, (floor + lowest) / 2.0, floor)
+    ended = verification.x_ends(
+        scene.image,
+        scene.centres,
+        ring.radius_px,
+        ring.line_angles,
+        floors.min_radius_px,
+        _RADIUS_RANGE_PX[1],
+        np.ones(len(scene.centres), dtype=bool),
+    )
+    assert (floors.clears(*markers, between, _RADIUS_RANGE_PX[1]) == (ended | ~allowed)).all()
