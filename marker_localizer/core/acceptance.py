@@ -20,6 +20,9 @@ the default path's last decision on every located X: the score floor of its exte
 (:class:`ScoreFloors`), the model where the floor doubts, the X's end, the misfit
 and the plate, each rejection with its reason (:data:`JUDGED_REASONS`). The detector
 (:class:`~marker_localizer.core.pipeline.Detector`) chains, counts and records it.
+
+What the constants here rest on, measured: docs/accuracy.md, "What the marker
+model's constants rest on".
 """
 
 from __future__ import annotations
@@ -36,44 +39,28 @@ from marker_localizer.core import plate, shadow, template, verification
 from marker_localizer.core.noise import NoiseModel
 
 #: Most of a detection's template disk the blurred X may leave unexplained beyond the
-#: noise (:func:`template.template_misfit`). Rendered markers leave 0.003 (median);
-#: 99 % of them under 0.05 on the development seeds of (a), (c), (d), 0.12 on (g),
-#: whose cast shadows the X does not model (:data:`shadow.DETECTION_REACH_EXTENTS`).
-#: Saddles between the discs of a lattice leave 0.06-0.12 (0.08-0.12 at 0.25-0.3
-#: frame px per photograph px of the coins, where they come as 9-69 false points a
-#: frame at 4-40 px).
+#: noise (:func:`template.template_misfit`): a marker leaves a few thousandths, and
+#: the saddles of a lattice of discs several hundredths, up to 0.12. A cast shadow's
+#: edge, which the X does not model, exempts a detection
+#: (:meth:`MarkerModel.shadow_crosses`).
 MAX_TEMPLATE_MISFIT = 0.08
 #: A detection wider than texture's smallest X's (:data:`verification.X_END_MAX_EXTENT_PX`)
 #: that clears its score floor by less than this must show its plate
-#: (:meth:`MarkerModel.plate_not_worse`). On the development seeds of (a), (c) 600-629,
-#: (d) 200-223 and (g) 100-123 the false points score 0.001-0.077 over their floors
-#: and their plate at their extent leaves 1.0-3.2 of a quartic's residual; the markers
-#: whose plate leaves more than that clear their floors by 0.039 and more on (a),
-#: (c), (d), by 0.007 and more on (g) (shadows' edges, which the plate model leaves
-#: out). At 0.03 and 0.04 the same detections; at 0.05 (d) loses a marker.
+#: (:meth:`MarkerModel.plate_not_worse`): texture's false points clear their floors by
+#: little, and markers whose plate the model misses (a shadow's edge across it) by more.
 PLATE_DOUBT_MARGIN = 0.03
 #: ... unless another detection lies within this many of its extents: a chessboard's
-#: corner, whose squares go on where a plate would end, has its neighbours one square
-#: away. On the real boards the nearest lies at 2.1 extents (median) and at up to 5.5
-#: where the squares outgrow the largest expected radius (pycbd's warped board: X's
-#: read at 57 px under squares of 190 px; its doubtful corners' at 3.3). Without it,
-#: that board lost 6 corners and libcbdetect's 2; the development seeds' false points
-#: have none this near.
+#: corner, whose squares go on where a plate would end, has its neighbours a square
+#: away, a few extents; texture's false points have none this near.
 BOARD_NEIGHBOUR_EXTENTS = 4.0
 #: A candidate of texture's size whose paint the modulation gate, or whose fitted
 #: score its floor, does not vouch for (:meth:`MarkerModel.vouches`) must match
-#: the blurred X at least this well, on raw levels: the 29 markers the gate rejected
-#: on the development seeds of (a), (c), (d) match at 0.94-0.998 (median 0.991), the
-#: texture candidates it rejected at up to 0.983 (99th percentile); the floor's
-#: markers on (d)'s at 0.96-0.994. Of real aerial ground's texture under the floor
-#: at 3-30 px, 57 of 467 pass this and the X-end test, none the plate's too.
+#: the blurred X at least this well, on raw levels: faint and tilted markers match at
+#: 0.99 (median), texture the gate rejects at most about this.
 FAINT_MIN_NCC = 0.98
 #: ... and leave at most this share of its disk beyond the noise
-#: (:func:`template.template_misfit`): those markers leave 0.009 (median; 90 % under
-#: 0.03), that texture 0.037 and more (95 %). At 0.97 and 0.03 the held-out frames
-#: read as at these; at the template's and the misfit's own limits (0.95,
-#: :data:`MAX_TEMPLATE_MISFIT`) they gained false points ((a) 6 -> 11, (c) 2 -> 9 of 24
-#: frames).
+#: (:func:`template.template_misfit`): those markers leave about a hundredth, that
+#: texture several.
 FAINT_MAX_MISFIT = 0.02
 
 
@@ -275,28 +262,22 @@ class MarkerModel:
 
         The modulation gate and the score floors are set by ground texture's
         saddles of each extent, and a small tilted marker's rings measure its
-        shortest reach, so its extent reads as texture's: such markers were most
-        of what the rendered families (a), (c), (d) and the 12 MP frames missed.
-        The faintest markers drawn (contrast 0.35 of full scale) modulate by 0.21,
-        under ``min_modulation``; on (d)'s development frames, 21 markers fit to
-        0.87-0.93 at extents of 2.8-5.7 px, under those extents' floors. Where the
-        paint or the score cannot vouch for a candidate, the marker's model must,
-        tested in order of cost: its X has ended at its extent
-        (:func:`verification.modulation_beyond_extent` within
-        :data:`verification.MAX_MODULATION_BEYOND`; not also a rung out, as
-        :func:`verification.x_ends` reads it: read out to where the X ends, the (a)
-        and (c) development seeds 600-689 gained 4 markers of 2 160, and the busiest
-        speed frame took 46 ms more, the NCC reading the gate's many faint rejects);
-        the blurred X matches it on
-        raw levels (:data:`FAINT_MIN_NCC`); the marker on its plate, at the X's
-        scale and each bright quadrant with its own level, explains its window
-        better than a smooth surface does (:func:`plate.plate_evidence` within
-        :data:`plate.MAX_TO_QUARTIC`, the bound at which that model adds a tiny
-        marker): a texture X that the blurred X explains has no plate (a level for
-        each bright quadrant, a dull one's, found 3 more markers on the development
-        seeds of (a), (c), (d), (g) than one level for both, no false point more);
-        and the blurred X explains its disk up to the noise
-        (:data:`FAINT_MAX_MISFIT`).
+        shortest reach, so its extent reads as texture's; the faintest markers
+        modulate under ``min_modulation``. Where the paint or the score cannot vouch
+        for a candidate, the marker's model must, tested in order of cost:
+
+        * its X has ended at its extent
+          (:func:`verification.modulation_beyond_extent` within
+          :data:`verification.MAX_MODULATION_BEYOND`; not also a rung out, as
+          :func:`verification.x_ends` reads it: that would read the gate's many faint
+          rejects for a few markers);
+        * the blurred X matches it on raw levels (:data:`FAINT_MIN_NCC`);
+        * the marker on its plate, at the X's scale and each bright quadrant with its
+          own level (a dull one's), explains its window better than a smooth surface
+          does (:func:`plate.plate_evidence` within :data:`plate.MAX_TO_QUARTIC`, the
+          bound at which that model adds a tiny marker): a texture X that the blurred
+          X explains has no plate;
+        * the blurred X explains its disk up to the noise (:data:`FAINT_MAX_MISFIT`).
         """
         gray = self.gray
         kept = np.zeros(len(xy), dtype=bool)
@@ -333,9 +314,9 @@ class MarkerModel:
         :data:`verification.X_END_MAX_EXTENT_PX`) are not asked: their disk is the
         template's smallest, a few pixels a quadrant, and whether they end where
         their extent does (:func:`verification.x_ends`) is what parts them from
-        texture (asked, 8 of 1 536 rendered tiny markers failed it, no false point
-        with them). 1 - NCC^2 bounds the misfit from above, so the
-        frame's noise is estimated (~6 ms on 12 MP) only where a detection could fail.
+        texture (asked, it fails tiny markers and takes no false point). 1 - NCC^2
+        bounds the misfit from above, so the frame's noise is estimated only where a
+        detection could fail.
         """
         doubtful = np.flatnonzero(radius >= verification.X_END_MAX_EXTENT_PX)
         disk = verification.template_radius(radius, self.max_radius_px)
@@ -385,8 +366,7 @@ class MarkerModel:
         found it ended there), and the plate
         model at that reach, at the X's scale and each bright quadrant with its own
         level, leaves no more than a quartic does. The tiny markers' plate model
-        (radii of 2.25-5.25 px) misses such a marker's plate: on (d)'s development
-        seeds 200-223, 2 of the markers of 7-8 px read at 4 px that end a rung out.
+        (radii of 2.25-5.25 px) misses such a marker's plate.
         """
         gray = self.gray
         shown = np.zeros(len(xy), dtype=bool)
