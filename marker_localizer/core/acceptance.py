@@ -129,6 +129,7 @@ class ScoreFloors:
             score: (N,) their scores.
             max_radius_px: the largest expected marker radius, px.
         """
+        # "Not under", as :meth:`MarkerModel.judge` reads it: a NaN score is no evidence against.
         cleared = ~(score < self.floor(radius))
         under = np.flatnonzero(~cleared & ~(score < self.lowest(radius)))
         if len(under):

@@ -67,11 +67,6 @@ _WHITE_DN = 255.0
 #: ``min_contrast_dn`` in raw (not gamma-corrected) grey levels: lenient, as the rings
 #: may sit off the centre and gamma stretches dark ground.
 _RAW_CONTRAST_SHARE = 0.5
-#: Most a raw contrast floor is lowered under dark surroundings
-#: (:meth:`Detector._shadow_gain`): 4 takes the default 20 DN to 5 DN for the screening
-#: and 2.5 DN for the rings and the fit, above an 8-bit camera's quantisation and JPEG
-#: noise (1-2 DN); darker still, ground 6 DN dark, is beyond what is sought.
-_MAX_SHADOW_GAIN = 4.0
 #: :data:`SURVIVOR_TESTS`' names of :meth:`acceptance.MarkerModel.judge`'s tests, in
 #: the order of :data:`acceptance.JUDGED_REASONS`.
 _JUDGED_TESTS = ("floor", "x_end", "misfit", "quartic")
@@ -389,6 +384,9 @@ class Detector:
         )
         #: ``min_contrast_dn`` as a share of white.
         self._min_contrast = self.config.min_contrast_dn / _WHITE_DN
+        self._shadowed = preprocessing.ShadowedContrast(
+            self._min_contrast, self.config.min_modulation
+        )
         first_level = screening.saddle_levels(self._radius_range).start
         self._seed_scale = screening.candidate_scale(first_level, self._radius_range)
 
@@ -981,7 +979,7 @@ class Detector:
         """Section 3.2, first layers: candidates, suppression, grid-entropy thinning, cap.
 
         With ``gamma``, the saddle screening's threshold is lowered in shadow
-        (:meth:`_shadow_gain`).
+        (:class:`preprocessing.ShadowedContrast`).
         """
         cfg = self.config
         # Cut inside the screening by the same caps as below, before any work per point.
@@ -1284,54 +1282,26 @@ class Detector:
         """(N,) :data:`_RAW_CONTRAST_SHARE` of the configured contrast in raw grey units at ``xy``.
 
         The prescreen's ring floor, which every detection's fit also meets; lowered
-        in shadow (:meth:`_shadow_gain`) as the screening's threshold is.
+        in shadow (:class:`preprocessing.ShadowedContrast`) as the screening's threshold is.
         """
         floor = _RAW_CONTRAST_SHARE * self._min_contrast * full_scale
-        gain = self._shadow_gain_at(gamma, xy)
+        gain = self._shadowed.gain_at(gamma, xy)
         return np.full(len(xy), floor) if gain is None else floor / gain
-
-    def _shadow_gain_at(
-        self, gamma: preprocessing.LocalGamma, xy: NDArray[np.float64]
-    ) -> NDArray[np.float64] | None:
-        """(N,) :meth:`_shadow_gain` at ``xy``; None where no surroundings are that dark.
-
-        Looked up only for the points on rows that hold such a mean: on real ground
-        a shadow takes a few rows, and the prescreen asks for 20 000 points.
-        """
-        if self._shadow_gain(gamma.darkest_mean) == 1.0:
-            return None
-        gain = np.ones(len(xy))
-        dark = np.flatnonzero(self._shadow_gain(gamma.darkest_mean_on_rows(xy[:, 1])) > 1.0)
-        gain[dark] = self._shadow_gain(gamma.mean_at(xy[dark]))
-        return gain
-
-    def _shadow_gain(self, mean: NDArray[np.float64] | float) -> NDArray[np.float64]:
-        """How far the raw contrast floors are lowered where the local mean is ``mean``.
-
-        A print's contrast scales with the light on it (Weber): a marker of
-        modulation m (``min_modulation``, which the checks ask of it) under a mean
-        level L has contrast 2 m L. Where that falls below ``min_contrast_dn`` (a
-        mean under 33 DN at the defaults) the floors follow it down, at most
-        :data:`_MAX_SHADOW_GAIN`-fold; elsewhere they stay (gain 1), and with them
-        the time on ordinary ground. After Eq. (2) such a marker keeps its contrast,
-        which the symmetry check measures; in raw grey levels, which the screening,
-        the prescreen and the fit's floor read, it does not.
-        """
-        weber = 2.0 * self.config.min_modulation * np.asarray(mean, np.float64)
-        with np.errstate(divide="ignore"):
-            gain = self._min_contrast / weber
-        return np.clip(gain, 1.0, _MAX_SHADOW_GAIN)
 
     def _screening_shadow(
         self, gamma: preprocessing.LocalGamma, origin_px: tuple[int, int]
     ) -> screening.ShadowGain:
-        """:meth:`_shadow_gain` for screening an image whose pixel (0, 0) is ``origin_px``."""
+        """The shadow's gain for screening an image whose pixel (0, 0) is ``origin_px``.
+
+        :meth:`preprocessing.ShadowedContrast.gain` of the local mean there.
+        """
         origin = np.asarray(origin_px, np.float64)
+        gain = self._shadowed.gain
         # The gain falls as the mean rises: the darkest means bound it from above.
         return screening.ShadowGain(
-            lambda xy: self._shadow_gain(gamma.mean_at(xy + origin)),
-            lambda y: self._shadow_gain(gamma.darkest_mean_on_rows(y + origin[1])),
-            lambda xy: self._shadow_gain(gamma.darkest_mean_near(xy + origin)),
+            lambda xy: gain(gamma.mean_at(xy + origin)),
+            lambda y: gain(gamma.darkest_mean_on_rows(y + origin[1])),
+            lambda xy: gain(gamma.darkest_mean_near(xy + origin)),
         )
 
     def _centre(
@@ -1710,7 +1680,7 @@ class Detector:
                 extend_px=cfg.line_extend_px,
                 max_distance_px=max(cfg.line_max_distance_px, 0.0),
                 full_scale=frame.full_scale,
-                stretch=self._shadow_gain_at(frame.gamma, xy),
+                stretch=self._shadowed.gain_at(frame.gamma, xy),
             )
             ok = lines.accepted
             angles = angles.copy()

@@ -10,6 +10,7 @@ References:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, TypeVar, cast
 
 import cv2
@@ -434,3 +435,53 @@ class LocalGamma:
         mean = self.mean_at(xy).reshape((-1,) + (1,) * (values.ndim - 1))
         luminance = values / self._full_scale
         return apply_gamma(luminance, mean, self._alpha, self._limits, out=luminance)
+
+
+#: Most a raw contrast floor is lowered under dark surroundings
+#: (:meth:`ShadowedContrast.gain`): 4 takes the default 20 DN to 5 DN for the screening
+#: and 2.5 DN for the rings and the fit, above an 8-bit camera's quantisation and JPEG
+#: noise (1-2 DN); darker still, ground 6 DN dark, is beyond what is sought.
+MAX_SHADOW_GAIN = 4.0
+
+
+@dataclass(frozen=True)
+class ShadowedContrast:
+    """How far the raw contrast floors follow the light down into a shadow (Weber).
+
+    A print's contrast scales with the light on it: a marker of modulation m under a
+    mean level L has contrast 2 m L. After Eq. (2) such a marker keeps its contrast,
+    which the symmetry check measures; in raw grey levels, which the screening, the
+    prescreen and the fit's floor read, it does not.
+
+    Attributes:
+        min_contrast: the contrast floor in the open, a share of white.
+        min_modulation: the modulation the checks ask of a marker.
+    """
+
+    min_contrast: float
+    min_modulation: float
+
+    def gain(self, mean: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        """How far the raw contrast floors are lowered where the local mean is ``mean``.
+
+        Where 2 m L falls below the floor (a mean under 33 DN at the defaults) the
+        floors follow it down, at most :data:`MAX_SHADOW_GAIN`-fold; elsewhere they
+        stay (gain 1), and with them the time on ordinary ground.
+        """
+        weber = 2.0 * self.min_modulation * np.asarray(mean, np.float64)
+        with np.errstate(divide="ignore"):
+            gain = self.min_contrast / weber
+        return np.clip(gain, 1.0, MAX_SHADOW_GAIN)
+
+    def gain_at(self, gamma: LocalGamma, xy: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """(N,) :meth:`gain` at ``xy``; None where no surroundings are that dark.
+
+        Looked up only for the points on rows that hold such a mean: on real ground
+        a shadow takes a few rows, and the prescreen asks for 20 000 points.
+        """
+        if self.gain(gamma.darkest_mean) == 1.0:
+            return None
+        gain = np.ones(len(xy))
+        dark = np.flatnonzero(self.gain(gamma.darkest_mean_on_rows(xy[:, 1])) > 1.0)
+        gain[dark] = self.gain(gamma.mean_at(xy[dark]))
+        return gain

@@ -704,7 +704,7 @@ def test_an_empty_search_plan_searches_nowhere():
 
 @pytest.mark.parametrize("white_share", [0.08, 0.12])
 def test_markers_in_deep_shadow_are_found_as_in_the_open(white_share):
-    """The raw contrast floors follow the light down (Detector._shadow_gain).
+    """The raw contrast floors follow the light down (preprocessing.ShadowedContrast).
 
     White at 8-12 % of full scale leaves 15-25 grey levels between the quadrants,
     under the 20 the screening asks for in the open; a marker of that modulation

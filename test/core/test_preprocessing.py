@@ -119,3 +119,25 @@ def test_the_darkest_mean_near_a_point_bounds_the_local_mean_there():
     assert np.median(gamma.mean_at(xy) - near) < 0.5 * np.median(
         gamma.mean_at(xy) - gamma.darkest_mean_on_rows(xy[:, 1])
     )
+
+
+def test_the_contrast_floors_follow_the_light_down_by_webers_law_and_no_further_than_the_cap():
+    shadowed = preprocessing.ShadowedContrast(min_contrast=20.0 / 255.0, min_modulation=0.3)
+    # A marker of modulation 0.3 under a mean L has contrast 0.6 L: at L 1/3 of white
+    # and brighter it clears the floor in the open; darker, the floor follows it.
+    mean = np.array([0.5, 20.0 / 255.0 / 0.6, 0.05, 0.02, 0.001])
+    gain = shadowed.gain(mean)
+    assert gain[:2].tolist() == [1.0, 1.0]
+    assert gain[2] == pytest.approx((20.0 / 255.0) / (0.6 * 0.05))
+    assert gain[3:].tolist() == [preprocessing.MAX_SHADOW_GAIN] * 2
+
+
+def test_the_shadow_gain_is_looked_up_only_where_the_surroundings_are_dark():
+    image = np.full((300, 400), 200, np.uint8)
+    shadowed = preprocessing.ShadowedContrast(min_contrast=20.0 / 255.0, min_modulation=0.3)
+    xy = np.array([[50.0, 50.0], [350.0, 250.0]])
+    assert shadowed.gain_at(preprocessing.LocalGamma(image, 255.0), xy) is None
+    image[:, 200:] = 8
+    gain = shadowed.gain_at(preprocessing.LocalGamma(image, 255.0), xy)
+    assert gain is not None
+    assert gain[0] == 1.0 and gain[1] > 1.0
