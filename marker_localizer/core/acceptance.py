@@ -37,6 +37,7 @@ from scipy.spatial import cKDTree
 
 from marker_localizer.core import plate, shadow, template, verification
 from marker_localizer.core.noise import NoiseModel
+from marker_localizer.core.sampling import Normaliser
 
 #: Most of a detection's template disk the blurred X may leave unexplained beyond the
 #: noise (:func:`template.template_misfit`): a marker leaves a few thousandths, and
@@ -64,12 +65,62 @@ FAINT_MIN_NCC = 0.98
 FAINT_MAX_MISFIT = 0.02
 
 
+#: Why :meth:`MarkerModel.match` rejects an X the rings passed, in the order its tests
+#: run; the detector counts the first two as ``rejected_template``, the last as
+#: ``rejected_score``.
+MATCHED_REASONS = ("modulation", "template", "score")
 #: Why :meth:`MarkerModel.judge` rejects a located X, in the order its tests run; the
 #: detector counts each as ``rejected_<reason>``.
 JUDGED_REASONS = ("score", "x_end", "misfit", "quartic")
-#: :attr:`Judgement.reason` of an accepted X.
+#: The reason of an accepted X (:class:`Match`, :class:`Judgement`).
 ACCEPTED = -1
+_MODULATION, _TEMPLATE, _MATCHED_SCORE = range(len(MATCHED_REASONS))
 _SCORE, _X_END, _MISFIT, _QUARTIC = range(len(JUDGED_REASONS))
+
+
+def _passed(reason: NDArray[np.int8], reasons: tuple[str, ...], test: str) -> NDArray[np.bool_]:
+    """(N,) the X's whose ``reason`` says they passed ``test`` and every test before it."""
+    passed: NDArray[np.bool_] = (reason == ACCEPTED) | (reason > reasons.index(test))
+    return passed
+
+
+@dataclass(frozen=True)
+class TemplateGates:
+    """The paint's and the template's gates on an X the rings passed (:meth:`MarkerModel.match`).
+
+    Attributes:
+        offset_px: how far from the centre the modulation gate reads the sectors'
+            levels, px (at most :data:`verification.TEMPLATE_RADIUS_FRACTION` of the
+            extent).
+        min_radius_px: the smallest expected marker radius, px.
+        min_modulation: the least modulation of a marker's paint.
+        min_ncc: the least NCC of the blurred X's template.
+    """
+
+    offset_px: float
+    min_radius_px: float
+    min_modulation: float
+    min_ncc: float
+
+
+class Match(NamedTuple):
+    """What :meth:`MarkerModel.match` decided of each X the rings passed; each (N,).
+
+    Attributes:
+        reason: :data:`ACCEPTED`, or the index in :data:`MATCHED_REASONS` of the test
+            that rejected it.
+        faint: the modulation gate rejected it and the marker's model vouched for it
+            (:meth:`MarkerModel.vouches`).
+        ncc: the template's NCC; NaN where the paint failed first.
+    """
+
+    reason: NDArray[np.int8]
+    faint: NDArray[np.bool_]
+    ncc: NDArray[np.float64]
+
+    def passed(self, test: str) -> NDArray[np.bool_]:
+        """(N,) the X's that passed ``test`` (of :data:`MATCHED_REASONS`) and every one before."""
+        return _passed(self.reason, MATCHED_REASONS, test)
 
 
 @dataclass(frozen=True)
@@ -160,10 +211,7 @@ class Judgement(NamedTuple):
 
     def passed(self, test: str) -> NDArray[np.bool_]:
         """(N,) the X's that passed ``test`` (of :data:`JUDGED_REASONS`) and every one before it."""
-        passed: NDArray[np.bool_] = (self.reason == ACCEPTED) | (
-            self.reason > JUDGED_REASONS.index(test)
-        )
-        return passed
+        return _passed(self.reason, JUDGED_REASONS, test)
 
 
 @dataclass(frozen=True)
@@ -181,6 +229,8 @@ class MarkerModel:
         reads_plates: whether tiny X's are read with their plate where no marker
             was found (:meth:`~marker_localizer.core.pipeline.Detector._read_plates`):
             then every detection of texture's size must show its plate.
+        normalise: what the checks read the frame's levels through (Eq. (2)'s local
+            gamma), for the template's NCC in :meth:`match`; None: raw levels.
     """
 
     gray: NDArray[Any]
@@ -188,6 +238,70 @@ class MarkerModel:
     noise: Callable[[], NoiseModel]
     max_radius_px: float
     reads_plates: bool
+    normalise: Normaliser | None = None
+
+    def match(
+        self,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        ring_score: NDArray[np.float64],
+        lowest: NDArray[np.float64],
+        gates: TemplateGates,
+    ) -> Match:
+        """Whether the paint and the blurred X bear out each X the rings passed (Sec. 3.3.1).
+
+        In order:
+
+        * ``modulation``: its sectors' raw levels modulate like paint
+          (:func:`verification.modulation_gate`), or the marker's model vouches for
+          it (:meth:`vouches`: a faint or small tilted marker);
+        * ``template``: the blurred X's template matches it
+          (:func:`template.template_correlation`, at least ``gates.min_ncc``);
+        * ``score``: its ring symmetry times that NCC, which the fit's score can only
+          lower, reaches the ``lowest`` score of its extent
+          (:meth:`ScoreFloors.lowest`).
+
+        Args:
+            xy: (N, 2) centres, px.
+            radius: (N,) extents of the X's, px.
+            angles: (N, 2) their lines' directions, radians.
+            ring_score: (N,) their ring symmetry.
+            lowest: (N,) the lowest score of each extent.
+            gates: the gates' settings.
+
+        Returns:
+            :class:`Match`.
+        """
+        gray = self.gray
+        reason = np.full(len(xy), ACCEPTED, dtype=np.int8)
+        modulates = verification.modulation_gate(
+            gray,
+            xy,
+            angles,
+            radius,
+            np.minimum(gates.offset_px, verification.TEMPLATE_RADIUS_FRACTION * radius),
+            gates.min_radius_px,
+            gates.min_modulation,
+        )
+        faint = np.zeros(len(xy), dtype=bool)
+        doubted = np.flatnonzero(~modulates)
+        faint[doubted] = self.vouches(xy[doubted], radius[doubted], angles[doubted])
+        read = modulates | faint
+        reason[~read] = _MODULATION
+        ncc = np.full(len(xy), np.nan)
+        ncc[read] = template.template_correlation(
+            gray,
+            xy[read],
+            angles[read],
+            verification.template_radius(radius[read], self.max_radius_px),
+            normalise=self.normalise,
+        ).ncc
+        with np.errstate(invalid="ignore"):
+            fits = ncc >= gates.min_ncc
+        reason[read & ~fits] = _TEMPLATE
+        reason[fits & (ring_score * ncc < lowest)] = _MATCHED_SCORE
+        return Match(reason, faint, ncc)
 
     def judge(
         self,

@@ -382,6 +382,12 @@ class Detector:
         self._floors = acceptance.ScoreFloors(
             self.config.min_score, self.config.min_score_small, self.config.marker_radius_min_px
         )
+        self._template_gates = acceptance.TemplateGates(
+            self.config.template_offset_px,
+            self.config.marker_radius_min_px,
+            self.config.min_modulation,
+            self.config.template_ncc_min,
+        )
         #: ``min_contrast_dn`` as a share of white.
         self._min_contrast = self.config.min_contrast_dn / _WHITE_DN
         self._shadowed = preprocessing.ShadowedContrast(
@@ -1419,6 +1425,7 @@ class Detector:
             frame.noise,
             self.config.marker_radius_max_px,
             self._reads_plates,
+            frame.gamma,
         )
 
     def _read_plates(self, frame: _Frame, tiny: _RingPassed) -> None:
@@ -1694,10 +1701,10 @@ class Detector:
         frame: _Frame,
         xy: NDArray[np.float64],
         symmetry: verification.SymmetryCheck,
-        floor: NDArray[np.float64],
+        lowest: NDArray[np.float64],
         passed: NDArray[np.intp],
     ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        """The modulation and template NCC gates, and the score floor, up to the cap.
+        """The paint's and the template's gates, and the score floor, up to the cap.
 
         The candidates ``passed`` (indices into ``xy``) are matched in the order
         :func:`screening.even_order` gives them (cell by cell, the best ring symmetry
@@ -1708,14 +1715,14 @@ class Detector:
         a candidate, runs first: the NCC reads a disk of up to 300 samples at four
         blurs, and on cluttered ground most candidates fail the gate (the speed
         benchmark's busiest frame: 1 369 candidates, of which 558 modulate; its
-        verification 141 -> 92 ms, the same detections). Those it rejects go on
-        where the marker's model vouches for them instead (:meth:`acceptance.MarkerModel.vouches`).
+        verification 141 -> 92 ms, the same detections). Each batch is decided by
+        :meth:`acceptance.MarkerModel.match`; this counts and records its reasons.
 
         Returns:
             The indices (ascending) of the candidates that pass, and their NCC.
         """
         cfg = self.config
-        gray, result = frame.gray, frame.result
+        result = frame.result
         counts = result.counts
         order = passed[
             screening.even_order(xy[passed], symmetry.score[passed], cfg.entropy_cell_px)
@@ -1732,42 +1739,25 @@ class Detector:
         while start < len(order) and found < _MAX_CONFIRMED:
             batch = order[start : start + max(_MAX_CONFIRMED - found, _MIN_TEMPLATE_BATCH)]
             start += len(batch)
-            radius = symmetry.radius_px[batch]
-            vouched = verification.modulation_gate(
-                gray,
+            match = model.match(
                 xy[batch],
+                symmetry.radius_px[batch],
                 symmetry.line_angles[batch],
-                radius,
-                np.minimum(cfg.template_offset_px, verification.TEMPLATE_RADIUS_FRACTION * radius),
-                cfg.marker_radius_min_px,
-                cfg.min_modulation,
+                symmetry.score[batch],
+                lowest[batch],
+                self._template_gates,
             )
-            faint = batch[~vouched]
-            modelled = model.vouches(
-                xy[faint], symmetry.radius_px[faint], symmetry.line_angles[faint]
+            counts["kept_faint"] += int(match.faint.sum())
+            counts["rejected_template"] += int((~match.passed("template")).sum())
+            counts["rejected_score"] += int(
+                (match.reason == acceptance.MATCHED_REASONS.index("score")).sum()
             )
-            vouched[~vouched] = modelled
-            counts["kept_faint"] += int(modelled.sum())
-            modulating = batch[vouched]
-            ncc = template.template_correlation(
-                gray,
-                xy[modulating],
-                symmetry.line_angles[modulating],
-                verification.template_radius(
-                    symmetry.radius_px[modulating], cfg.marker_radius_max_px
-                ),
-                normalise=frame.gamma,
-            ).ncc
-            fits = ncc >= cfg.template_ncc_min
-            modulated.append(modulating)
-            correlated_too.append(modulating[fits])
-            counts["rejected_template"] += len(batch) - int(fits.sum())
-            weak = fits & (symmetry.score[modulating] * ncc < floor[modulating])
-            counts["rejected_score"] += int(weak.sum())
-            fits &= ~weak
-            matched.append(modulating[fits])
-            matched_ncc.append(ncc[fits])
-            found += int(fits.sum())
+            accepted = match.reason == acceptance.ACCEPTED
+            modulated.append(batch[match.passed("modulation")])
+            correlated_too.append(batch[match.passed("template")])
+            matched.append(batch[accepted])
+            matched_ncc.append(match.ncc[accepted])
+            found += int(accepted.sum())
         chosen = np.concatenate([np.zeros(0, np.intp), *matched])[:_MAX_CONFIRMED]
         ncc = np.concatenate([np.zeros(0), *matched_ncc])[:_MAX_CONFIRMED]
         counts["dropped_over_verification_cap"] = (

@@ -190,3 +190,38 @@ def test_a_score_under_its_floor_clears_it_only_within_the_allowance_and_where_t
         np.ones(len(scene.centres), dtype=bool),
     )
     assert (floors.clears(*markers, between, _RADIUS_RANGE_PX[1]) == (ended | ~allowed)).all()
+
+
+def test_the_template_match_names_the_gate_that_rejects_each_x_the_rings_passed():
+    # Faint tilted markers: the paint's gate doubts some, which the model vouches for,
+    # and the blurred X matches them; random ground points fail the paint or the
+    # template. Asked for a score no X reaches, every matched marker fails the floor.
+    config = DetectorConfig(
+        marker_radius_min_px=_RADIUS_RANGE_PX[0], marker_radius_max_px=_RADIUS_RANGE_PX[1]
+    )
+    gates = acceptance.TemplateGates(
+        config.template_offset_px,
+        config.marker_radius_min_px,
+        config.min_modulation,
+        config.template_ncc_min,
+    )
+    scene = faint_tilted_markers(0)
+    ring = _ring_reading(scene.image, scene.centres)
+    model = _model(scene.image)
+    markers = (scene.centres, ring.radius_px, ring.line_angles, ring.score)
+    match = model.match(*markers, np.zeros(len(scene.centres)), gates)
+    accepted = match.reason == acceptance.ACCEPTED
+    assert accepted.sum() >= 5
+    assert (match.ncc[accepted] >= config.template_ncc_min).all()
+    assert match.faint[accepted].any()
+    assert np.isfinite(match.ncc[match.passed("modulation")]).all()
+    assert np.isnan(match.ncc[~match.passed("modulation")]).all()
+    unreachable = model.match(*markers, np.full(len(scene.centres), 2.0), gates)
+    score = acceptance.MATCHED_REASONS.index("score")
+    assert (unreachable.reason[accepted] == score).all()
+
+    points = _ground_points(scene, 40, 0)
+    angles = np.random.default_rng(0).uniform(0, np.pi, (len(points), 2))
+    extent = np.full(len(points), 4.24)
+    ground = model.match(points, extent, angles, np.ones(len(points)), 0.0 * extent, gates)
+    assert not (ground.reason == acceptance.ACCEPTED).any()
