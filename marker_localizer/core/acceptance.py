@@ -1,4 +1,4 @@
-"""What the marker's model says of an X that a gate set by ground texture doubts.
+"""Whether an X the rings passed is a marker: the default path's decisions, in one place.
 
 The default path's gates (the modulation gate, the score floors of each extent,
 :func:`~marker_localizer.core.verification.minimum_score`) are set by the saddles
@@ -15,11 +15,18 @@ by a thin margin, the model of a marker decides instead, from what texture lacks
 * the plate that carries a marker explains its window better than a smooth surface
   does (:func:`plate.plate_evidence`).
 
-:class:`MarkerModel` reads these on one frame. Its :meth:`~MarkerModel.judge` is
-the default path's last decision on every located X: the score floor of its extent
-(:class:`ScoreFloors`), the model where the floor doubts, the X's end, the misfit
-and the plate, each rejection with its reason (:data:`JUDGED_REASONS`). The detector
-(:class:`~marker_localizer.core.pipeline.Detector`) chains, counts and records it.
+:class:`MarkerModel` reads these on one frame, and decides twice, each rejection
+with its reason:
+
+* :meth:`~MarkerModel.match`, on each X the rings passed: the paint's modulation
+  (or the model), the blurred X's template, the score floor
+  (:data:`MATCHED_REASONS`, :class:`TemplateGates`);
+* :meth:`~MarkerModel.judge`, on each located X: the score floor of its extent
+  (:class:`ScoreFloors`) or the model where the floor doubts, the X's end, the
+  misfit and the plate (:data:`JUDGED_REASONS`).
+
+The detector (:class:`~marker_localizer.core.pipeline.Detector`) chains them with
+the fit between, caps, counts and records them.
 
 What the constants here rest on, measured: docs/accuracy.md, "What the marker
 model's constants rest on".
