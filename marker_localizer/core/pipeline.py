@@ -1493,13 +1493,10 @@ class Detector:
         X's geometry; :func:`verification.equalise_bright_sectors` gives the two
         bright sectors one level. That is evidence texture can fake at its own
         sizes (equalised everywhere, texture saddles of extent 2-6 px pass on the
-        renderer's (a) and (c) and on real aerial ground), so it counts only where
-        it shows the X out to :data:`verification.EQUALISED_MIN_EXTENT_PX`, and is
-        read for candidates screened beyond texture's scale
-        (:data:`_WIDE_SCALE_PX`) or shown out to that extent by the plain
-        rings. Their equalised result stands where it shows the X out to that
-        extent and the plain check did not, or scored lower (a dull quadrant lowers
-        the plain rings' symmetry, and with it the score every later floor reads).
+        renderer's (a) and (c) and on real aerial ground), so it is read for
+        candidates screened beyond texture's scale (:data:`_WIDE_SCALE_PX`) or
+        shown out to :data:`verification.EQUALISED_MIN_EXTENT_PX` by the plain
+        rings, and :func:`verification.with_equalised` says where it is believed.
 
         The same quadrant pulls the centring, a fit of grey-level symmetry, towards
         the brighter side: 1-3 px on the renderer's (g) markers of 10-30 px, where
@@ -1534,24 +1531,9 @@ class Detector:
         if len(retry):
             equalised = check(candidates.xy[retry], equalise=True, inner_profiles=inner[retry])
             equalised_x[retry] = equalised.accepted
-            plain_floor = self._floors.floor(ring.radius_px[retry])
-            weak = ring.accepted[retry] & (ring.score[retry] < plain_floor)
-            better = (
-                equalised.accepted
-                & (equalised.radius_px >= wide_px)
-                & (~ring.accepted[retry] | weak | (equalised.score > ring.score[retry]))
+            ring = verification.with_equalised(
+                ring, retry, equalised, self._floors.floor(ring.radius_px[retry])
             )
-            # Where the plain rings accept an X above the score floor of its extent,
-            # the equalised ones may raise the score, not the extent: beyond the plate,
-            # equalising lets the ground pass as the X (the flight simulator's
-            # markers: 8 -> 11.3 px, their error doubled). Under that floor (a dull
-            # quadrant cuts both), the equalised reading stands whole.
-            reach = np.where(
-                ring.accepted[retry] & ~weak,
-                np.minimum(equalised.radius_px, ring.radius_px[retry]),
-                equalised.radius_px,
-            )
-            ring = ring.with_rows(retry[better], equalised._replace(radius_px=reach), better)
         lost = np.flatnonzero(screened_wide & ~ring.accepted)
         if not len(lost):
             return candidates, ring, equalised_x

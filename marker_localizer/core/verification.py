@@ -646,6 +646,44 @@ class SymmetryCheck(NamedTuple):
         )
 
 
+def with_equalised(
+    plain: SymmetryCheck,
+    rows: NDArray[np.intp],
+    equalised: SymmetryCheck,
+    plain_floor: NDArray[np.float64],
+) -> SymmetryCheck:
+    """The plain ring check with the equalised reading of its ``rows`` where that is believed.
+
+    Equalised rings (:func:`equalise_bright_sectors`) see through a dull bright
+    quadrant, and texture through them at its own sizes, so their reading stands
+    only where it shows the X out to :data:`EQUALISED_MIN_EXTENT_PX`, and where the
+    plain rings rejected the X, scored it under its floor (``plain_floor``, (M,) for
+    the rows), or scored lower. Where the plain rings accept the X above that floor,
+    the equalised ones may raise its score, not its extent: beyond the plate,
+    equalising lets the ground pass as the X. Under it (a dull quadrant cuts both),
+    the equalised reading stands whole.
+
+    Args:
+        plain: (N,) the plain check.
+        rows: (M,) the candidates read equalised too.
+        equalised: (M,) their equalised check.
+        plain_floor: (M,) the score floor of the plain extent of each.
+    """
+    accepted = plain.accepted[rows]
+    weak = accepted & (plain.score[rows] < plain_floor)
+    better = (
+        equalised.accepted
+        & (equalised.radius_px >= EQUALISED_MIN_EXTENT_PX)
+        & (~accepted | weak | (equalised.score > plain.score[rows]))
+    )
+    reach = np.where(
+        accepted & ~weak,
+        np.minimum(equalised.radius_px, plain.radius_px[rows]),
+        equalised.radius_px,
+    )
+    return plain.with_rows(rows[better], equalised._replace(radius_px=reach), better)
+
+
 def ring_radii(radius_range_px: tuple[float, float]) -> NDArray[np.float64]:
     """Ring radii of the annular scan: a :data:`RING_STEP` progression across the expected radii."""
     r_min, r_max = radius_range_px

@@ -453,3 +453,36 @@ def test_a_candidate_whose_rings_find_no_lines_stays_where_it_was_and_says_so_qu
     )
     np.testing.assert_array_equal(moved, xy)
     assert not found.any()
+
+
+def _checks(accepted, score, radius_px) -> verification.SymmetryCheck:
+    n = len(accepted)
+    return verification.SymmetryCheck(
+        np.asarray(accepted, bool),
+        np.asarray(score, float),
+        np.asarray(radius_px, float),
+        np.tile([0.2, 1.8], (n, 1)),
+        np.full(n, 0.5),
+    )
+
+
+def test_the_equalised_rings_are_believed_out_to_texture_free_extents_and_never_widen_a_sound_x():
+    wide = verification.EQUALISED_MIN_EXTENT_PX
+    plain = _checks(
+        accepted=[False, True, True, True, False],
+        score=[0.0, 0.85, 0.95, 0.95, 0.0],
+        radius_px=[4.0, 8.5, 8.5, 8.5, 4.0],
+    )
+    # Rows: rejected plain; plain under its floor; plain sound but equalised scores
+    # higher and reads wider; plain sound and equalised lower; equalised too short.
+    equalised = _checks(
+        accepted=[True, True, True, True, True],
+        score=[0.9, 0.93, 0.97, 0.90, 0.99],
+        radius_px=[12.0, 12.0, 12.0, 12.0, wide - 1.0],
+    )
+    rows = np.arange(5)
+    merged = verification.with_equalised(plain, rows, equalised, np.full(5, 0.9))
+    assert merged.accepted.tolist() == [True, True, True, True, False]
+    assert merged.score.tolist() == [0.9, 0.93, 0.97, 0.95, 0.0]
+    # The sound X keeps its plain extent; under its floor or rejected, the equalised stands.
+    assert merged.radius_px.tolist() == [12.0, 12.0, 8.5, 8.5, 4.0]
