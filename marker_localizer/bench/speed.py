@@ -19,8 +19,13 @@ simulator's and two worst cases, at radius 3-30 and 6-40 px
 
 Each subprocess runs with ``OMP_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS`` /
 ``MKL_NUM_THREADS`` = 1 set before numpy loads and ``cv2.setNumThreads(1)``: the
-"one core" figure. Times are the median and 95th percentile over every
-(frame, repeat) pair, after one untimed warm-up detection per frame.
+"one core" figure. The subjects are timed in rounds: each worker, warmed up
+(one untimed detection per frame), times one frame when asked, and every frame
+of a round goes to every subject in turn before the next frame, so a change in
+the shared host's load falls on all of them alike. Times are the median and
+95th percentile over every (frame, round) pair; ``ours/peer`` is the median,
+over those pairs, of our time over the peer's on the same frame in the same
+round (:func:`paired_ratio`).
 
 Peak memory: in the fresh subprocess, after the frames are loaded and the
 detector is built, the kernel's peak-RSS mark is reset (``/proc/self/clear_refs``)
@@ -33,6 +38,7 @@ of ``resource.getrusage(RUSAGE_SELF).ru_maxrss``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import resource
@@ -43,7 +49,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -62,6 +68,8 @@ SUBJECTS = {
     "radon": "chess-corners radon",
 }
 REFERENCE_SUBJECT = "ours (symmetry)"
+#: The peer of the issue's ratio target.
+HESSIAN_SUBJECT = SUBJECTS["hessian"]
 #: The issue's targets for the "one core" figure.
 TARGET_MEDIAN_MS = 200.0
 TARGET_RATIO_TO_HESSIAN = 0.5
@@ -281,39 +289,38 @@ def peak_growth_mb(work: Callable[[], object]) -> float:
     return _max_rss_mb() - before
 
 
-def measure(name: str, frames: Sequence[np.ndarray], repeats: int) -> WorkerResult:
-    """Time one subject on the frames (in this process): warm-up, memory, repeats."""
+def _timed(subject: Subject, frame: np.ndarray) -> tuple[float, dict[str, float]]:
+    """One timed detection: wall time in ms and the stage times ``run`` returns."""
+    image = subject.prepare(frame)
+    start = time.perf_counter()
+    stages = subject.run(image)
+    return (time.perf_counter() - start) * 1000.0, stages
+
+
+def worker_main(name: str, frames_path: Path) -> int:
+    """Subprocess entry: warm up one subject, then time the frames asked for on stdin.
+
+    Prints one JSON line when ready (``rss_growth_mb``, ``error``), then, for each
+    frame index read from stdin, one line with its ``ms`` and ``stages``; returns at
+    the end of stdin.
+    """
     import cv2  # noqa: PLC0415
 
     cv2.setNumThreads(1)
-    result = WorkerResult(name)
-    try:
-        subject = _make_subject(name)
-    except ImportError as err:
-        result.error = str(err)
-        return result
-    result.rss_growth_mb = peak_growth_mb(
-        lambda: [subject.run(subject.prepare(frame)) for frame in frames]
-    )
-    for _ in range(repeats):
-        for frame in frames:
-            image = subject.prepare(frame)
-            start = time.perf_counter()
-            stages = subject.run(image)
-            result.times_ms.append((time.perf_counter() - start) * 1000.0)
-            if stages:
-                result.stages_ms.append(stages)
-    return result
-
-
-def worker_main(name: str, frames_path: Path, repeats: int) -> int:
-    """Subprocess entry: load the frames, measure one subject, print its JSON on stdout."""
     with np.load(frames_path) as archive:
         frames = [archive[key] for key in sorted(archive.files) if key.startswith("frame")]
         if name == SUBJECTS["tracking"]:
             frames = [archive["tracking_base"]] * len(frames)
-    result = measure(name, frames, repeats)
-    print(json.dumps(result.__dict__))
+    try:
+        subject = _make_subject(name)
+    except ImportError as err:
+        print(json.dumps({"rss_growth_mb": float("nan"), "error": str(err)}), flush=True)
+        return 0
+    grown = peak_growth_mb(lambda: [subject.run(subject.prepare(frame)) for frame in frames])
+    print(json.dumps({"rss_growth_mb": grown, "error": ""}), flush=True)
+    for line in sys.stdin:
+        elapsed_ms, stages = _timed(subject, frames[int(line)])
+        print(json.dumps({"ms": elapsed_ms, "stages": stages}), flush=True)
     return 0
 
 
@@ -327,31 +334,107 @@ def single_thread_env() -> dict[str, str]:
     return env
 
 
-def run_subject(name: str, frames_path: Path, repeats: int) -> WorkerResult:
-    """Measure one subject in a fresh single-threaded subprocess."""
-    command = [
-        sys.executable,
-        "-m",
-        "marker_localizer.bench.speed",
-        "--worker",
-        name,
-        "--frames-file",
-        str(frames_path),
-        "--repeats",
-        str(repeats),
-    ]
-    done = subprocess.run(
-        command,
-        capture_output=True,
-        text=True,
-        env=single_thread_env(),
-        check=False,
-        timeout=_WORKER_TIMEOUT_S,
-    )
-    if done.returncode != 0:
-        tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
-        return WorkerResult(name, error=f"worker failed: {tail}")
-    return WorkerResult(**json.loads(done.stdout.strip().splitlines()[-1]))
+class _Worker:
+    """One subject's warmed-up subprocess, single-threaded, timing a frame when asked."""
+
+    def __init__(self, name: str, frames_path: Path, stderr: IO[str]) -> None:
+        """Start the worker and wait until it has warmed up.
+
+        ``stderr``: an open file for the worker's errors (not a pipe: nobody reads
+        it while the worker runs).
+        """
+        self.result = WorkerResult(name)
+        self._stderr = stderr
+        self._process = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "marker_localizer.bench.speed",
+                "--worker",
+                name,
+                "--frames-file",
+                str(frames_path),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=self._stderr,
+            text=True,
+            env=single_thread_env(),
+        )
+        ready = self._reply()
+        if ready is not None:
+            self.result.rss_growth_mb = float(ready["rss_growth_mb"])
+            self.result.error = str(ready["error"])
+
+    @property
+    def running(self) -> bool:
+        return not self.result.error
+
+    def time(self, frame_index: int) -> None:
+        """Time frame ``frame_index`` once, into :attr:`result`."""
+        assert self._process.stdin is not None
+        try:
+            self._process.stdin.write(f"{frame_index}\n")
+            self._process.stdin.flush()
+        except BrokenPipeError:
+            self._fail()
+            return
+        reply = self._reply()
+        if reply is not None:
+            self.result.times_ms.append(float(reply["ms"]))
+            if reply["stages"]:
+                self.result.stages_ms.append(reply["stages"])
+
+    def close(self) -> None:
+        """End the worker: the end of its stdin, or a kill where it does not stop."""
+        if self._process.stdin is not None and not self._process.stdin.closed:
+            with contextlib.suppress(BrokenPipeError):
+                self._process.stdin.close()
+        try:
+            self._process.wait(timeout=_WORKER_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+
+    def _reply(self) -> dict[str, Any] | None:
+        assert self._process.stdout is not None
+        line = self._process.stdout.readline()
+        if not line:
+            self._fail()
+            return None
+        reply: dict[str, Any] = json.loads(line)
+        return reply
+
+    def _fail(self) -> None:
+        self._process.wait(timeout=_WORKER_TIMEOUT_S)
+        self._stderr.seek(0)
+        tail = (self._stderr.read().strip().splitlines() or ["no output"])[-1]
+        self.result.error = f"worker failed: {tail}"
+
+
+def run_subjects(
+    names: Sequence[str], frames_path: Path, n_frames: int, repeats: int
+) -> list[WorkerResult]:
+    """Time every subject in rounds, each in its own warmed-up subprocess.
+
+    The workers start (and warm up) one after another; then each round gives
+    every frame to every running subject in turn, the subjects' order rotating
+    from one frame to the next, so that no subject always follows the same one.
+    A worker that fails is reported with its error and left out of later rounds.
+    """
+    with contextlib.ExitStack() as stack:
+        workers = []
+        for name in names:
+            worker = _Worker(name, frames_path, stack.enter_context(tempfile.TemporaryFile("w+")))
+            stack.callback(worker.close)
+            workers.append(worker)
+        for _ in range(repeats):
+            for index in range(n_frames):
+                turn = index % max(len(workers), 1)
+                for worker in workers[turn:] + workers[:turn]:
+                    if worker.running:
+                        worker.time(index)
+        return [worker.result for worker in workers]
 
 
 def available_subjects(include_ncc: bool = True) -> list[str]:
@@ -373,6 +456,16 @@ def _p95(values: Sequence[float]) -> float:
     return float(np.percentile(values, 95)) if len(values) else float("nan")
 
 
+def paired_ratio(ours: Sequence[float], peer: Sequence[float]) -> float:
+    """Median of our time over the peer's, pair by pair (the same frame, the same round).
+
+    NaN where the two did not time the same number of detections (a failed worker).
+    """
+    if not len(ours) or len(ours) != len(peer):
+        return float("nan")
+    return float(np.median(np.asarray(ours, float) / np.asarray(peer, float)))
+
+
 def stage_medians(stages: Sequence[dict[str, float]]) -> dict[str, float]:
     """Median time of every stage over the runs, ms, in the pipeline's order."""
     names = list(stages[0]) if stages else []
@@ -381,7 +474,7 @@ def stage_medians(stages: Sequence[dict[str, float]]) -> dict[str, float]:
 
 def speed_table(results: Sequence[WorkerResult]) -> str:
     """Format the timing table (ms, MiB) with ratios ours / peer."""
-    ours = next((_median(r.times_ms) for r in results if r.name == REFERENCE_SUBJECT), float("nan"))
+    ours = next((r.times_ms for r in results if r.name == REFERENCE_SUBJECT), [])
     header = (
         f"{'subject':<32}{'median ms':>11}{'p95 ms':>10}{'runs':>6}{'RSS +MiB':>10}"
         f"{'ours/peer':>11}"
@@ -393,7 +486,7 @@ def speed_table(results: Sequence[WorkerResult]) -> str:
             continue
         median = _median(r.times_ms)
         # Ratios compare ours with peers; our own variants get none.
-        ratio = ours / median if not r.name.startswith("ours") and median > 0 else float("nan")
+        ratio = float("nan") if r.name.startswith("ours") else paired_ratio(ours, r.times_ms)
         lines.append(
             f"{r.name:<32}{median:>11.1f}{_p95(r.times_ms):>10.1f}"
             f"{len(r.times_ms):>6}{r.rss_growth_mb:>10.1f}"
@@ -421,16 +514,17 @@ def stages_table(results: Sequence[WorkerResult]) -> str:
 
 def verdict(results: Sequence[WorkerResult]) -> str:
     """One line on the issue's targets: full frame, ratio to the Hessian peer, tracking."""
-    by_name = {r.name: _median(r.times_ms) for r in results if not r.error}
+    times = {r.name: r.times_ms for r in results if not r.error}
+    by_name = {name: _median(values) for name, values in times.items()}
     ours = by_name.get(REFERENCE_SUBJECT, float("nan"))
-    hessian = by_name.get("OpenCV Hessian+cornerSubPix", float("nan"))
-    if not (np.isfinite(ours) and np.isfinite(hessian)):
+    ratio = paired_ratio(times.get(REFERENCE_SUBJECT, []), times.get(HESSIAN_SUBJECT, []))
+    if not (np.isfinite(ours) and np.isfinite(ratio)):
         return "targets: not measured (ours or the Hessian peer did not run)"
     line = (
         f"targets: median {ours:.0f} ms (target <= {TARGET_MEDIAN_MS:.0f} ms: "
         f"{'met' if ours <= TARGET_MEDIAN_MS else 'missed'}); ours/Hessian "
-        f"{ours / hessian:.2f} (target <= {TARGET_RATIO_TO_HESSIAN}: "
-        f"{'met' if ours / hessian <= TARGET_RATIO_TO_HESSIAN else 'missed'})"
+        f"{ratio:.2f} (target <= {TARGET_RATIO_TO_HESSIAN}: "
+        f"{'met' if ratio <= TARGET_RATIO_TO_HESSIAN else 'missed'})"
     )
     tracking = by_name.get(SUBJECTS["tracking"])
     if tracking is not None:
@@ -475,13 +569,14 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         if SUBJECTS["tracking"] in names:
             arrays["tracking_base"] = render_tracking_base(options.seed)
         np.savez(frames_path, **arrays)
-        results = [run_subject(name, frames_path, options.repeats) for name in names]
+        results = run_subjects(names, frames_path, len(frames), options.repeats)
     report_load(load_before, report)
     report(
         f"Full-frame detection, {options.frames} rendered {FRAME_WIDTH}x{FRAME_HEIGHT} "
         f"cluttered frames x {options.repeats} repeats, one core (cv2.setNumThreads(1), "
         f"OMP/OPENBLAS/MKL threads = 1), radius range {RADIUS_RANGE[0]:g}-"
-        f"{RADIUS_RANGE[1]:g} px; RSS + = peak RSS growth (VmHWM) in a fresh subprocess"
+        f"{RADIUS_RANGE[1]:g} px; RSS + = peak RSS growth (VmHWM) in a fresh subprocess; "
+        "subjects timed in turn, frame by frame; ours/peer = median of the paired ratios"
     )
     report(speed_table(results))
     stages = stages_table(results)
@@ -511,6 +606,10 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         "subjects": {
             r.name: {
                 "median_ms": _median(r.times_ms),
+                "ours_over_this": paired_ratio(
+                    next((o.times_ms for o in results if o.name == REFERENCE_SUBJECT), []),
+                    r.times_ms,
+                ),
                 "p95_ms": _p95(r.times_ms),
                 "times_ms": r.times_ms,
                 "rss_growth_mb": r.rss_growth_mb,
@@ -592,7 +691,7 @@ def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     args = parse_args(argv)
     if args.worker is not None:
-        return worker_main(args.worker, args.frames_file, args.repeats or 1)
+        return worker_main(args.worker, args.frames_file)
     return run_and_save(
         "speed benchmark", lambda report: run(options_from(args), report), args.json
     )

@@ -15,7 +15,7 @@ import pytest
 from scenes import SMALL_SCENE
 
 from marker_localizer import evaluation
-from marker_localizer.bench import accuracy, peers, real_data, speed
+from marker_localizer.bench import accuracy, peers, real_data
 from marker_localizer.synthetic import render_checkerboard, render_scene
 
 
@@ -406,30 +406,3 @@ def test_our_detector_finds_the_inner_corners_of_a_real_board():
     ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
     found = ours.detect(item.image, accuracy.REAL_RADIUS_RANGES["validationboof"])
     assert evaluation.match_points(found, item.reference).n_matched >= 22
-
-
-# --------------------------------------------------------------------------- speed helpers
-
-
-def test_peak_growth_sees_a_large_temporary_allocation():
-    grown = speed.peak_growth_mb(lambda: np.ones(64 * 1024 * 1024 // 8).sum())
-    assert grown > 40.0
-
-
-def test_stage_medians_keep_the_pipeline_order():
-    medians = speed.stage_medians([{"a": 1.0, "b": 5.0}, {"a": 3.0, "b": 7.0}])
-    assert list(medians) == ["a", "b"]
-    assert medians["a"] == pytest.approx(2.0)
-
-
-def test_speed_worker_env_limits_every_thread_pool_to_one():
-    env = speed.single_thread_env()
-    assert env["OMP_NUM_THREADS"] == env["OPENBLAS_NUM_THREADS"] == "1"
-
-
-def test_tracking_views_keep_their_size_and_pan_by_the_step():
-    base = np.arange(200 * 300, dtype=np.int64).reshape(200, 300)
-    first, second = speed.tracking_view(base, 0), speed.tracking_view(base, 1)
-    assert first.shape == second.shape
-    dx, dy = speed.TRACKING_STEP_PX
-    np.testing.assert_array_equal(second[:-dy, :-dx], first[dy:, dx:])

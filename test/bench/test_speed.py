@@ -1,0 +1,76 @@
+"""bench speed: the workers, the rounds they are timed in, the paired ratio."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scenes import SMALL_SCENE
+
+from marker_localizer.bench import speed
+from marker_localizer.synthetic import render_scene
+
+# --------------------------------------------------------------------------- helpers
+
+
+def test_peak_growth_sees_a_large_temporary_allocation():
+    grown = speed.peak_growth_mb(lambda: np.ones(64 * 1024 * 1024 // 8).sum())
+    assert grown > 40.0
+
+
+def test_stage_medians_keep_the_pipeline_order():
+    medians = speed.stage_medians([{"a": 1.0, "b": 5.0}, {"a": 3.0, "b": 7.0}])
+    assert list(medians) == ["a", "b"]
+    assert medians["a"] == pytest.approx(2.0)
+
+
+def test_speed_worker_env_limits_every_thread_pool_to_one():
+    env = speed.single_thread_env()
+    assert env["OMP_NUM_THREADS"] == env["OPENBLAS_NUM_THREADS"] == "1"
+
+
+def test_tracking_views_keep_their_size_and_pan_by_the_step():
+    base = np.arange(200 * 300, dtype=np.int64).reshape(200, 300)
+    first, second = speed.tracking_view(base, 0), speed.tracking_view(base, 1)
+    assert first.shape == second.shape
+    dx, dy = speed.TRACKING_STEP_PX
+    np.testing.assert_array_equal(second[:-dy, :-dx], first[dy:, dx:])
+
+
+# --------------------------------------------------------------------------- rounds
+
+
+def test_the_ratio_to_a_peer_is_the_median_of_the_paired_ratios():
+    # A host slowed down in the second pair slows both subjects: the pairs keep 0.5.
+    assert speed.paired_ratio([100.0, 300.0, 120.0], [200.0, 600.0, 240.0]) == pytest.approx(0.5)
+    assert speed.paired_ratio([100.0, 300.0], [200.0, 300.0]) == pytest.approx(0.75)
+
+
+def test_the_ratio_is_not_given_when_the_subjects_timed_different_detections():
+    assert np.isnan(speed.paired_ratio([100.0, 300.0], [200.0]))
+    assert np.isnan(speed.paired_ratio([], []))
+
+
+def test_every_subject_times_every_frame_of_every_round_in_its_own_worker(tmp_path):
+    frames = [render_scene(SMALL_SCENE, seed).image for seed in (1, 2)]
+    path = tmp_path / "frames.npz"
+    np.savez(path, frame00=frames[0], frame01=frames[1])
+    names = [speed.REFERENCE_SUBJECT, speed.HESSIAN_SUBJECT]
+    ours, hessian = speed.run_subjects(names, path, n_frames=2, repeats=2)
+    assert (ours.name, hessian.name) == tuple(names)
+    assert ours.error == hessian.error == ""
+    assert len(ours.times_ms) == len(hessian.times_ms) == 4
+    assert len(ours.stages_ms) == 4 and "screening" in ours.stages_ms[0]
+    assert hessian.stages_ms == []
+    assert np.isfinite(ours.rss_growth_mb) and np.isfinite(hessian.rss_growth_mb)
+    assert np.isfinite(speed.paired_ratio(ours.times_ms, hessian.times_ms))
+
+
+def test_a_subject_whose_worker_fails_is_reported_and_the_others_still_run(tmp_path):
+    path = tmp_path / "frames.npz"
+    np.savez(path, frame00=render_scene(SMALL_SCENE, 1).image)
+    ours, unknown = speed.run_subjects(
+        [speed.REFERENCE_SUBJECT, "no such detector"], path, n_frames=1, repeats=2
+    )
+    assert unknown.error.startswith("worker failed: ")
+    assert unknown.times_ms == []
+    assert ours.error == "" and len(ours.times_ms) == 2
