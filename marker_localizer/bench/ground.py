@@ -14,19 +14,19 @@ rendered ground says little about real ground. The grounds:
   passes the prescreen), which the detector's caps must bound.
 
 Each subject (this detector's default and every installed point-detector peer)
-runs in a fresh single-threaded subprocess over every ground and radius range
-(3-30 px: markers down to 3 px, screened from full resolution; 6-40 px: the
-first table's range, screened from half resolution). Per ground and range one
-untimed warm-up detection on its first frame measures the peak memory of the
-arrays it allocates (tracemalloc), then every frame is timed once.
+runs in its own single-threaded worker (:mod:`~marker_localizer.bench.workers`),
+over every ground and radius range (3-30 px: markers down to 3 px, screened from
+full resolution; 6-40 px: the first table's range, screened from half
+resolution). Per ground and range each subject makes one untimed warm-up
+detection on its first frame, which measures the peak memory of the arrays it
+allocates (tracemalloc); then every frame is timed once, by every subject in
+turn before the next frame, and ``ours/peer`` is the median of the ratios frame
+by frame (:func:`workers.paired_ratio`).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
-import sys
 import time
 import tracemalloc
 from collections.abc import Callable, Sequence
@@ -37,8 +37,8 @@ from typing import Any
 
 import numpy as np
 
-from marker_localizer.bench import real_data
-from marker_localizer.bench.speed import REFERENCE_SUBJECT, single_thread_env
+from marker_localizer.bench import real_data, workers
+from marker_localizer.bench.speed import REFERENCE_SUBJECT
 
 #: Radius ranges timed on every ground, px: markers from 3 px (the issue's real-ground
 #: target) and the first table's 6-40.
@@ -59,7 +59,6 @@ TILING_SQUARE_PX = 8
 _TILING_LEVELS_DN = (40, 200)
 _TILING_BLUR_PX = 1.0
 WORST_CASE_SHAPE = (3000, 4096)
-_WORKER_TIMEOUT_S = 3600
 
 
 @dataclass(frozen=True)
@@ -172,38 +171,44 @@ def _point_detector(name: str) -> Any:
     return next(d for d in everyone if d.name == name)
 
 
-def measure(name: str, ground_frames: Sequence[Sequence[np.ndarray]]) -> list[list[GroundTiming]]:
-    """Time one subject (in this process) on every ground and range: [ground][range]."""
-    detector = _point_detector(name)
-    timings = []
-    for frames in ground_frames:
-        per_range = []
-        for radius_range in RANGES:
-            timing = GroundTiming()
-            timing.peak_mb = peak_traced_mb(partial(detector.detect, frames[0], radius_range))
-            for frame in frames:
-                start = time.perf_counter()
-                points = detector.detect(frame, radius_range)
-                timing.times_ms.append((time.perf_counter() - start) * 1000.0)
-                timing.points.append(len(points))
-            per_range.append(timing)
-        timings.append(per_range)
-    return timings
-
-
-def worker_main(name: str, frames_path: Path) -> int:
-    """Subprocess entry: load the grounds, measure one subject, print its JSON on stdout."""
-    import cv2  # noqa: PLC0415
-
-    cv2.setNumThreads(1)
+def _ground_frames(frames_path: Path) -> list[list[np.ndarray]]:
+    """The grounds' frames as :func:`save_grounds` wrote them: [ground][frame]."""
     with np.load(frames_path) as archive:
         count = int(archive["ground_count"])
-        ground_frames = [
+        return [
             [archive[key] for key in sorted(archive.files) if key.startswith(f"ground{g:02d}_")]
             for g in range(count)
         ]
-    timings = measure(name, ground_frames)
-    print(json.dumps([[t.__dict__ for t in per_range] for per_range in timings]))
+
+
+def worker_main(name: str, frames_path: Path) -> int:
+    """Subprocess entry: one subject, asked for its warm-ups and timings (:func:`workers.serve`).
+
+    ``warm G K``: the warm-up detection on ground G's first frame at range K, its
+    ``peak_mb``; ``time G K I``: frame I of ground G at range K, its ``ms`` and
+    ``points``.
+    """
+    import cv2  # noqa: PLC0415
+
+    cv2.setNumThreads(1)
+    ground_frames = _ground_frames(frames_path)
+    detector = _point_detector(name)
+
+    def answer(request: str) -> dict[str, Any]:
+        verb, *numbers = request.split()
+        g, k, *rest = (int(n) for n in numbers)
+        radius_range = RANGES[k]
+        if verb == "warm":
+            return {
+                "peak_mb": peak_traced_mb(
+                    partial(detector.detect, ground_frames[g][0], radius_range)
+                )
+            }
+        start = time.perf_counter()
+        points = detector.detect(ground_frames[g][rest[0]], radius_range)
+        return {"ms": (time.perf_counter() - start) * 1000.0, "points": len(points)}
+
+    workers.serve({"error": ""}, answer)
     return 0
 
 
@@ -212,37 +217,44 @@ def worker_main(name: str, frames_path: Path) -> int:
 
 @dataclass
 class SubjectTimings:
-    """What one subject's subprocess measured: [ground][range], or why it could not run."""
+    """What one subject's worker measured: [ground][range], or why it could not run."""
 
     name: str
     timings: list[list[GroundTiming]] = field(default_factory=list)
     error: str = ""
 
 
-def run_subject(name: str, frames_path: Path) -> SubjectTimings:
-    """Measure one subject in a fresh single-threaded subprocess."""
-    command = [
-        sys.executable,
-        "-m",
-        "marker_localizer.bench.ground",
-        "--worker",
-        name,
-        "--frames-file",
-        str(frames_path),
+def run_subjects(names: Sequence[str], frames_path: Path) -> list[SubjectTimings]:
+    """Time every subject on every ground and range, frame by frame in turn.
+
+    Per ground and range every subject warms up, then each frame goes to every
+    running subject in turn (:func:`workers.in_turn`) before the next. A subject
+    whose worker fails is reported with its error and no timings.
+    """
+    ground_frames = _ground_frames(frames_path)
+    results = [
+        SubjectTimings(name, [[GroundTiming() for _ in RANGES] for _ in ground_frames])
+        for name in names
     ]
-    done = subprocess.run(
-        command,
-        capture_output=True,
-        text=True,
-        env=single_thread_env(),
-        check=False,
-        timeout=_WORKER_TIMEOUT_S,
-    )
-    if done.returncode != 0:
-        tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
-        return SubjectTimings(name, error=f"worker failed: {tail}")
-    raw = json.loads(done.stdout.strip().splitlines()[-1])
-    return SubjectTimings(name, [[GroundTiming(**t) for t in per_range] for per_range in raw])
+    with workers.started("marker_localizer.bench.ground", names, frames_path) as started:
+        place = {id(worker): result for worker, result in zip(started, results, strict=True)}
+        for g, frames in enumerate(ground_frames):
+            for k in range(len(RANGES)):
+                for worker in workers.in_turn(started, 0):
+                    reply = worker.ask(f"warm {g} {k}")
+                    if reply is not None:
+                        place[id(worker)].timings[g][k].peak_mb = float(reply["peak_mb"])
+                for i in range(len(frames)):
+                    for worker in workers.in_turn(started, i):
+                        reply = worker.ask(f"time {g} {k} {i}")
+                        if reply is not None:
+                            timing = place[id(worker)].timings[g][k]
+                            timing.times_ms.append(float(reply["ms"]))
+                            timing.points.append(int(reply["points"]))
+        for worker, result in zip(started, results, strict=True):
+            if worker.error:
+                result.error, result.timings = worker.error, []
+    return results
 
 
 def save_grounds(found: Sequence[Ground], path: Path) -> None:
@@ -259,7 +271,7 @@ def _range_text(radius_range: tuple[float, float]) -> str:
 
 
 def ground_table(found: Sequence[Ground], results: Sequence[SubjectTimings]) -> str:
-    """Median and slowest frame per ground and range, ms; ours over each peer's median."""
+    """Median and slowest frame per ground and range, ms; ours over each peer, frame by frame."""
     ours = next((r for r in results if r.name == REFERENCE_SUBJECT and not r.error), None)
     peers_run = [r for r in results if r.name != REFERENCE_SUBJECT and not r.error]
     header = (
@@ -290,7 +302,7 @@ def ground_table(found: Sequence[Ground], results: Sequence[SubjectTimings]) -> 
             for peer in peers_run:
                 theirs = peer.timings[g][k]
                 ratio = (
-                    np.median(ours.timings[g][k].times_ms) / np.median(theirs.times_ms)
+                    workers.paired_ratio(ours.timings[g][k].times_ms, theirs.times_ms)
                     if ours is not None
                     else float("nan")
                 )
@@ -353,10 +365,11 @@ def run(
     found = grounds(real_data.data_root(), seed, report)
     frames_path = folder / "grounds.npz"
     save_grounds(found, frames_path)
-    results = [run_subject(name, frames_path) for name in subjects]
+    results = run_subjects(subjects, frames_path)
     report(
         "Real ground: time per frame on one core, one detection per frame after a warm-up "
-        "per ground and range;\nworst = slowest frame; peak MiB = the warm-up detection's "
+        "per ground and range, the subjects in turn frame by frame; ours/peer = median of the "
+        "paired ratios;\nworst = slowest frame; peak MiB = the warm-up detection's "
         "peak of allocated arrays (tracemalloc); pts/frame = points returned"
     )
     report(ground_table(found, results))

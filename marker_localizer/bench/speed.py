@@ -38,21 +38,18 @@ of ``resource.getrusage(RUSAGE_SELF).ru_maxrss``.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import json
 import os
 import resource
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 
+from marker_localizer.bench import workers
 from marker_localizer.bench.runner import run_and_save
 
 #: Subjects in table order, by the short key ``--subjects`` takes; "ours (symmetry)"
@@ -77,13 +74,6 @@ TARGET_TRACKING_MS = 20.0
 #: Marker radius range given to our detector and the peers, px (family (d)).
 RADIUS_RANGE = (6.0, 40.0)
 FRAME_WIDTH, FRAME_HEIGHT = 4096, 3000
-_THREAD_VARIABLES = (
-    "OMP_NUM_THREADS",
-    "OPENBLAS_NUM_THREADS",
-    "MKL_NUM_THREADS",
-    "NUMEXPR_NUM_THREADS",
-)
-_WORKER_TIMEOUT_S = 1800
 
 
 def cluttered_scene(width: int = FRAME_WIDTH, height: int = FRAME_HEIGHT) -> Any:
@@ -298,11 +288,10 @@ def _timed(subject: Subject, frame: np.ndarray) -> tuple[float, dict[str, float]
 
 
 def worker_main(name: str, frames_path: Path) -> int:
-    """Subprocess entry: warm up one subject, then time the frames asked for on stdin.
+    """Subprocess entry: warm up one subject, then time each frame asked for.
 
-    Prints one JSON line when ready (``rss_growth_mb``, ``error``), then, for each
-    frame index read from stdin, one line with its ``ms`` and ``stages``; returns at
-    the end of stdin.
+    Ready (:func:`workers.serve`): ``rss_growth_mb`` and ``error``; asked a frame
+    index: its ``ms`` and ``stages``.
     """
     import cv2  # noqa: PLC0415
 
@@ -314,102 +303,19 @@ def worker_main(name: str, frames_path: Path) -> int:
     try:
         subject = _make_subject(name)
     except ImportError as err:
-        print(json.dumps({"rss_growth_mb": float("nan"), "error": str(err)}), flush=True)
+        workers.serve({"rss_growth_mb": float("nan"), "error": str(err)}, None)
         return 0
     grown = peak_growth_mb(lambda: [subject.run(subject.prepare(frame)) for frame in frames])
-    print(json.dumps({"rss_growth_mb": grown, "error": ""}), flush=True)
-    for line in sys.stdin:
-        elapsed_ms, stages = _timed(subject, frames[int(line)])
-        print(json.dumps({"ms": elapsed_ms, "stages": stages}), flush=True)
+
+    def answer(request: str) -> dict[str, Any]:
+        elapsed_ms, stages = _timed(subject, frames[int(request)])
+        return {"ms": elapsed_ms, "stages": stages}
+
+    workers.serve({"rss_growth_mb": grown, "error": ""}, answer)
     return 0
 
 
 # --------------------------------------------------------------------------- driver side
-
-
-def single_thread_env() -> dict[str, str]:
-    """This process's environment with every BLAS/OpenMP pool limited to one thread."""
-    env = dict(os.environ)
-    env.update(dict.fromkeys(_THREAD_VARIABLES, "1"))
-    return env
-
-
-class _Worker:
-    """One subject's warmed-up subprocess, single-threaded, timing a frame when asked."""
-
-    def __init__(self, name: str, frames_path: Path, stderr: IO[str]) -> None:
-        """Start the worker and wait until it has warmed up.
-
-        ``stderr``: an open file for the worker's errors (not a pipe: nobody reads
-        it while the worker runs).
-        """
-        self.result = WorkerResult(name)
-        self._stderr = stderr
-        self._process = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "marker_localizer.bench.speed",
-                "--worker",
-                name,
-                "--frames-file",
-                str(frames_path),
-            ],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=self._stderr,
-            text=True,
-            env=single_thread_env(),
-        )
-        ready = self._reply()
-        if ready is not None:
-            self.result.rss_growth_mb = float(ready["rss_growth_mb"])
-            self.result.error = str(ready["error"])
-
-    @property
-    def running(self) -> bool:
-        return not self.result.error
-
-    def time(self, frame_index: int) -> None:
-        """Time frame ``frame_index`` once, into :attr:`result`."""
-        assert self._process.stdin is not None
-        try:
-            self._process.stdin.write(f"{frame_index}\n")
-            self._process.stdin.flush()
-        except BrokenPipeError:
-            self._fail()
-            return
-        reply = self._reply()
-        if reply is not None:
-            self.result.times_ms.append(float(reply["ms"]))
-            if reply["stages"]:
-                self.result.stages_ms.append(reply["stages"])
-
-    def close(self) -> None:
-        """End the worker: the end of its stdin, or a kill where it does not stop."""
-        if self._process.stdin is not None and not self._process.stdin.closed:
-            with contextlib.suppress(BrokenPipeError):
-                self._process.stdin.close()
-        try:
-            self._process.wait(timeout=_WORKER_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
-
-    def _reply(self) -> dict[str, Any] | None:
-        assert self._process.stdout is not None
-        line = self._process.stdout.readline()
-        if not line:
-            self._fail()
-            return None
-        reply: dict[str, Any] = json.loads(line)
-        return reply
-
-    def _fail(self) -> None:
-        self._process.wait(timeout=_WORKER_TIMEOUT_S)
-        self._stderr.seek(0)
-        tail = (self._stderr.read().strip().splitlines() or ["no output"])[-1]
-        self.result.error = f"worker failed: {tail}"
 
 
 def run_subjects(
@@ -422,19 +328,22 @@ def run_subjects(
     from one frame to the next, so that no subject always follows the same one.
     A worker that fails is reported with its error and left out of later rounds.
     """
-    with contextlib.ExitStack() as stack:
-        workers = []
-        for name in names:
-            worker = _Worker(name, frames_path, stack.enter_context(tempfile.TemporaryFile("w+")))
-            stack.callback(worker.close)
-            workers.append(worker)
+    results = [WorkerResult(name) for name in names]
+    with workers.started("marker_localizer.bench.speed", names, frames_path) as started:
+        for worker, result in zip(started, results, strict=True):
+            result.rss_growth_mb = float(worker.ready.get("rss_growth_mb", float("nan")))
         for _ in range(repeats):
             for index in range(n_frames):
-                turn = index % max(len(workers), 1)
-                for worker in workers[turn:] + workers[:turn]:
-                    if worker.running:
-                        worker.time(index)
-        return [worker.result for worker in workers]
+                for worker in workers.in_turn(started, index):
+                    reply = worker.ask(str(index))
+                    if reply is not None:
+                        result = results[started.index(worker)]
+                        result.times_ms.append(float(reply["ms"]))
+                        if reply["stages"]:
+                            result.stages_ms.append(reply["stages"])
+        for worker, result in zip(started, results, strict=True):
+            result.error = worker.error
+    return results
 
 
 def available_subjects(include_ncc: bool = True) -> list[str]:
@@ -454,16 +363,6 @@ def _median(values: Sequence[float]) -> float:
 
 def _p95(values: Sequence[float]) -> float:
     return float(np.percentile(values, 95)) if len(values) else float("nan")
-
-
-def paired_ratio(ours: Sequence[float], peer: Sequence[float]) -> float:
-    """Median of our time over the peer's, pair by pair (the same frame, the same round).
-
-    NaN where the two did not time the same number of detections (a failed worker).
-    """
-    if not len(ours) or len(ours) != len(peer):
-        return float("nan")
-    return float(np.median(np.asarray(ours, float) / np.asarray(peer, float)))
 
 
 def stage_medians(stages: Sequence[dict[str, float]]) -> dict[str, float]:
@@ -486,7 +385,9 @@ def speed_table(results: Sequence[WorkerResult]) -> str:
             continue
         median = _median(r.times_ms)
         # Ratios compare ours with peers; our own variants get none.
-        ratio = float("nan") if r.name.startswith("ours") else paired_ratio(ours, r.times_ms)
+        ratio = (
+            float("nan") if r.name.startswith("ours") else workers.paired_ratio(ours, r.times_ms)
+        )
         lines.append(
             f"{r.name:<32}{median:>11.1f}{_p95(r.times_ms):>10.1f}"
             f"{len(r.times_ms):>6}{r.rss_growth_mb:>10.1f}"
@@ -517,7 +418,7 @@ def verdict(results: Sequence[WorkerResult]) -> str:
     times = {r.name: r.times_ms for r in results if not r.error}
     by_name = {name: _median(values) for name, values in times.items()}
     ours = by_name.get(REFERENCE_SUBJECT, float("nan"))
-    ratio = paired_ratio(times.get(REFERENCE_SUBJECT, []), times.get(HESSIAN_SUBJECT, []))
+    ratio = workers.paired_ratio(times.get(REFERENCE_SUBJECT, []), times.get(HESSIAN_SUBJECT, []))
     if not (np.isfinite(ours) and np.isfinite(ratio)):
         return "targets: not measured (ours or the Hessian peer did not run)"
     line = (
@@ -606,7 +507,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         "subjects": {
             r.name: {
                 "median_ms": _median(r.times_ms),
-                "ours_over_this": paired_ratio(
+                "ours_over_this": workers.paired_ratio(
                     next((o.times_ms for o in results if o.name == REFERENCE_SUBJECT), []),
                     r.times_ms,
                 ),

@@ -1,4 +1,4 @@
-"""bench speed: the workers, the rounds they are timed in, the paired ratio."""
+"""bench speed and its workers: helpers, the rounds the subjects are timed in, the paired ratio."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scenes import SMALL_SCENE
 
-from marker_localizer.bench import speed
+from marker_localizer.bench import speed, workers
 from marker_localizer.synthetic import render_scene
 
 # --------------------------------------------------------------------------- helpers
@@ -24,7 +24,7 @@ def test_stage_medians_keep_the_pipeline_order():
 
 
 def test_speed_worker_env_limits_every_thread_pool_to_one():
-    env = speed.single_thread_env()
+    env = workers.single_thread_env()
     assert env["OMP_NUM_THREADS"] == env["OPENBLAS_NUM_THREADS"] == "1"
 
 
@@ -41,13 +41,13 @@ def test_tracking_views_keep_their_size_and_pan_by_the_step():
 
 def test_the_ratio_to_a_peer_is_the_median_of_the_paired_ratios():
     # A host slowed down in the second pair slows both subjects: the pairs keep 0.5.
-    assert speed.paired_ratio([100.0, 300.0, 120.0], [200.0, 600.0, 240.0]) == pytest.approx(0.5)
-    assert speed.paired_ratio([100.0, 300.0], [200.0, 300.0]) == pytest.approx(0.75)
+    assert workers.paired_ratio([100.0, 300.0, 120.0], [200.0, 600.0, 240.0]) == pytest.approx(0.5)
+    assert workers.paired_ratio([100.0, 300.0], [200.0, 300.0]) == pytest.approx(0.75)
 
 
 def test_the_ratio_is_not_given_when_the_subjects_timed_different_detections():
-    assert np.isnan(speed.paired_ratio([100.0, 300.0], [200.0]))
-    assert np.isnan(speed.paired_ratio([], []))
+    assert np.isnan(workers.paired_ratio([100.0, 300.0], [200.0]))
+    assert np.isnan(workers.paired_ratio([], []))
 
 
 def test_every_subject_times_every_frame_of_every_round_in_its_own_worker(tmp_path):
@@ -62,7 +62,7 @@ def test_every_subject_times_every_frame_of_every_round_in_its_own_worker(tmp_pa
     assert len(ours.stages_ms) == 4 and "screening" in ours.stages_ms[0]
     assert hessian.stages_ms == []
     assert np.isfinite(ours.rss_growth_mb) and np.isfinite(hessian.rss_growth_mb)
-    assert np.isfinite(speed.paired_ratio(ours.times_ms, hessian.times_ms))
+    assert np.isfinite(workers.paired_ratio(ours.times_ms, hessian.times_ms))
 
 
 def test_a_subject_whose_worker_fails_is_reported_and_the_others_still_run(tmp_path):

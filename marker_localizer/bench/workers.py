@@ -1,0 +1,162 @@
+"""Timing workers: each subject in its own single-threaded subprocess, timed in turn.
+
+Both speed tables (:mod:`~marker_localizer.bench.speed`, :mod:`~marker_localizer.bench.ground`)
+start one worker per subject, warm it up, then ask each in turn to time one frame:
+every frame goes to every subject before the next frame, so that a change in the
+shared host's load falls on all of them alike, and a ratio between two subjects is
+taken pair by pair (:func:`paired_ratio`). A worker reads one request per line on
+its stdin and answers each with one JSON line on its stdout (:func:`serve`); it
+prints one JSON line when it is ready, with ``error`` empty or saying why it
+cannot run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+#: The thread pools a worker limits to one thread: the "one core" figure.
+THREAD_VARIABLES = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "NUMEXPR_NUM_THREADS",
+)
+#: How long a worker may take to answer once, s: the slowest subject's warm-up on the
+#: busiest ground takes minutes.
+WORKER_TIMEOUT_S = 3600
+
+
+def single_thread_env() -> dict[str, str]:
+    """This process's environment with every BLAS/OpenMP pool limited to one thread."""
+    env = dict(os.environ)
+    env.update(dict.fromkeys(THREAD_VARIABLES, "1"))
+    return env
+
+
+def paired_ratio(ours: Sequence[float], peer: Sequence[float]) -> float:
+    """Median of our time over the peer's, pair by pair (the same frame, the same round).
+
+    NaN where the two did not time the same number of detections (a failed worker).
+    """
+    if not len(ours) or len(ours) != len(peer):
+        return float("nan")
+    return float(np.median(np.asarray(ours, float) / np.asarray(peer, float)))
+
+
+def serve(ready: dict[str, Any], answer: Callable[[str], dict[str, Any]] | None) -> None:
+    """The worker's loop: print ``ready``, then ``answer`` each request line until stdin ends.
+
+    A worker that cannot run says why in ``ready["error"]`` and gives no ``answer``.
+    """
+    print(json.dumps(ready), flush=True)
+    if answer is None:
+        return
+    for line in sys.stdin:
+        print(json.dumps(answer(line.strip())), flush=True)
+
+
+class Worker:
+    """One subject's single-threaded subprocess (``python -m module --worker name``).
+
+    Attributes:
+        ready: what the worker printed when ready (empty where it failed).
+        error: why it cannot run or stopped ("" while it runs).
+    """
+
+    def __init__(self, module: str, name: str, frames_path: Path, stderr: IO[str]) -> None:
+        """Start the worker and wait until it is ready (warmed up, where it warms up).
+
+        ``stderr``: an open file for the worker's errors (not a pipe: nobody reads it
+        while the worker runs).
+        """
+        self._stderr = stderr
+        self._process = subprocess.Popen(
+            [sys.executable, "-m", module, "--worker", name, "--frames-file", str(frames_path)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=stderr,
+            text=True,
+            env=single_thread_env(),
+        )
+        self.error = ""
+        self.ready = self._reply() or {}
+        if self.ready.get("error"):
+            self.error = str(self.ready["error"])
+
+    @property
+    def running(self) -> bool:
+        """Whether the worker still answers."""
+        return not self.error
+
+    def ask(self, request: str) -> dict[str, Any] | None:
+        """Its answer to one request; None where it failed (see :attr:`error`)."""
+        assert self._process.stdin is not None
+        try:
+            self._process.stdin.write(request + "\n")
+            self._process.stdin.flush()
+        except BrokenPipeError:
+            self._fail()
+            return None
+        return self._reply()
+
+    def close(self) -> None:
+        """End the worker: the end of its stdin, or a kill where it does not stop."""
+        if self._process.stdin is not None and not self._process.stdin.closed:
+            with contextlib.suppress(BrokenPipeError):
+                self._process.stdin.close()
+        try:
+            self._process.wait(timeout=WORKER_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+
+    def _reply(self) -> dict[str, Any] | None:
+        assert self._process.stdout is not None
+        line = self._process.stdout.readline()
+        if not line:
+            self._fail()
+            return None
+        reply: dict[str, Any] = json.loads(line)
+        return reply
+
+    def _fail(self) -> None:
+        self._process.wait(timeout=WORKER_TIMEOUT_S)
+        self._stderr.seek(0)
+        tail = (self._stderr.read().strip().splitlines() or ["no output"])[-1]
+        self.error = f"worker failed: {tail}"
+
+
+def in_turn(workers: Sequence[Worker], index: int) -> list[Worker]:
+    """The running workers in the order they time frame ``index``: rotated by one a frame.
+
+    So that no subject always follows the same one (the cache it leaves, the
+    turbo it wakes).
+    """
+    turn = index % max(len(workers), 1)
+    return [worker for worker in [*workers[turn:], *workers[:turn]] if worker.running]
+
+
+@contextlib.contextmanager
+def started(module: str, names: Sequence[str], frames_path: Path) -> Iterator[list[Worker]]:
+    """The workers of ``names``, started one after another, closed after.
+
+    One after another, so that no two warm-ups overlap.
+    """
+    with contextlib.ExitStack() as stack:
+        workers = []
+        for name in names:
+            stderr = stack.enter_context(tempfile.TemporaryFile("w+"))
+            worker = Worker(module, name, frames_path, stderr)
+            stack.callback(worker.close)
+            workers.append(worker)
+        yield workers
