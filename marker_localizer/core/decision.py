@@ -84,8 +84,8 @@ SCORE_FEATURES = (
 #: ``marker-localizer bench calibrate`` refits them (markers against texture at both
 #: radius ranges) and prints the result; its refit of 2026-11-24 separates the
 #: training data better but, at the threshold its own tail gives, finds fewer markers
-#: on the package's evaluation frames (4 per family, seeds 100-103: (a) 0.79 against
-#: 0.90, (g) 0.13 against 0.44, no false points either way), so these stay.
+#: on the package's evaluation frames, so these stay (measured: docs/accuracy.md,
+#: "Figures the fit's and the detector's docstrings carried").
 SCORE_WEIGHTS = (1.795, 4.074, -1.564, -2.291, -0.968, 2.328, -1.567, 2.506, 4.015)
 SCORE_BIAS = -14.775
 #: The tail of ground texture's scores under these weights, from

@@ -153,8 +153,8 @@ _LINE_CROSSING_RINGS = 3
 #: What counts is still the evidence each reading shows (the equalised rings' extent,
 #: :data:`verification.EQUALISED_MIN_EXTENT_PX`); the scale only spares the cost:
 #: texture responds at the first level (4 px), and on the real aerial and cirn_uas
-#: frames this re-reads ~15 candidates a frame at 3-30 px, ~200 at 6-40 px (every
-#: rejected one: sand frames 150 -> 295 ms at 3-30).
+#: frames this re-reads ~15 candidates a frame at 3-30 px, ~200 at 6-40 px (measured:
+#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried").
 _WIDE_SCALE_PX = 8.0
 #: A lost wide candidate is read again (:meth:`Detector._recentre_lost`) where the
 #: light's slope moves its centre this far, px: less moves the rings' crossings,
@@ -162,23 +162,22 @@ _WIDE_SCALE_PX = 8.0
 _RECENTRE_MIN_SHIFT_PX = 0.25
 #: Lost wide candidates read again per frame at most, the strongest spread over the
 #: frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`): markers are
-#: among a frame's strongest saddles (the 9 the recentring adds on the rendered (g)
-#: frames ranked 0-58 among their frame's wide candidates; a cap of 32 keeps all 9,
-#: 16 loses one), and each costs about 0.1-0.2 ms (one of the speed benchmark's
-#: 12 MP cluttered frames lost 1102: +110 ms uncapped, +9 ms at 64).
+#: among a frame's strongest saddles, and each costs about 0.1-0.2 ms (measured:
+#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried";
+#: docs/speed.md, "Real ground, the radius range and the worst case").
 _MAX_RECENTRED = 64
 #: Candidates screened wide whose rings read equalised show an X but that the ring
 #: check rejects, or leaves under its score floor, centred again with the light's
 #: slope per frame at most (:meth:`Detector._read_dull`), the strongest spread over
-#: the frame: 20 of the rendered (g) frames (seeds 0-23, 100-123) hold 3-41 such
-#: candidates and two more (this cap cuts them); the speed benchmark's 12 MP
-#: cluttered frames 4, 18 and 123, read in about 2.5, 4.4 and 6.2 ms.
+#: the frame: most frames hold fewer (measured: docs/accuracy.md, "Small X's with a
+#: dull quadrant, read again from the light slope's centre" and "Figures the fit's
+#: and the detector's docstrings carried").
 _MAX_DULL_READ = 64
 #: ... and those whose shadow's edge is sought after the recentring
 #: (:meth:`Detector._reread_shadowed`, 0.1 ms each, and a reading again of those a
-#: shadow crosses): on the rendered (g) frames of seeds 100-123 the 32 strongest
-#: hold 12 of the 13 markers the 64 strongest give (29 and 28 on the held-out seeds
-#: 500-523), for 2 ms less on the speed benchmark's 12 MP cluttered frames.
+#: shadow crosses): the 32 strongest hold nearly every marker the 64 strongest give
+#: (measured: docs/accuracy.md, "Figures the fit's and the detector's docstrings
+#: carried").
 _MAX_SHADOW_READ = 32
 #: A lost candidate's shadow edge is sought within this many of its screening scales,
 #: px (:func:`shadow.find_edges`): a marker's X reaches about twice the scale its
@@ -597,8 +596,8 @@ class Detector:
 
         A full pass finds many tiny markers by their plate alone
         (:meth:`_read_plates`), under the score floors :meth:`_locate` holds a
-        tracked marker to (on the rendered (b) frames of seeds 200-207 tracking kept
-        24 of 44 such markers, and lost the rest to a full pass). Where plates are
+        tracked marker to, so that tracking alone loses markers a full pass finds
+        (measured: docs/method.md, "A tiny X is judged by its plate"). Where plates are
         read, the tracked X's of texture's size that :meth:`_locate` left without a
         marker are fitted (:meth:`_fit_plates`) and kept where the plate model
         explains them at the fitted centre (:func:`plate.plate_explains`).
@@ -675,24 +674,14 @@ class Detector:
         as the final fit takes it on disks of :data:`subpixel.GAIN_MIN_RADIUS_PX`
         and more), they do. Not every candidate is centred so: the rings are
         grey-level symmetry too, and see some markers under a light gradient best
-        where the slope-free centring put them (rendered (d): 95 -> 93 of 96 found
-        with the slope in every centring). So only the candidates screened at
+        where the slope-free centring put them. So only the candidates screened at
         :data:`_WIDE_SCALE_PX` or wider that ended farther than the merge radius
         from every detection (:meth:`_lost_wide`) are centred again; those the slope moves by
         :data:`_RECENTRE_MIN_SHIFT_PX` or more go through the checks and the fit
         once more. A marker they find joins the detections, which stay as they
-        were.
-
-        Rendered (g) (a dull quadrant on every marker, a shadow edge across half)
-        45 -> 54 of 96, (c) 90 -> 91 of 96, the independent renderer's (g) 17 -> 20
-        of 48; every other family, the real boards and the real aerial frames as
-        they were, no false point more. On frames the benchmark does not render
-        (seeds 100-123 of (g), (c), (d), 100-111 of (a)) it adds 33 markers and 2
-        false points (texture saddles of 10-12 px scoring 0.82; the markers it
-        adds score 0.82-0.95, so no floor parts them). Read again per frame, and the time it
-        adds on one core: real aerial frames 0-1 at 3-30 px (none), 15 at 6-40 px
-        (112 -> 117 ms); cirn_uas 5 at 3-30 px (128 -> 132 ms); the speed
-        benchmark's 12 MP cluttered frames at 6-40 px 46-60 (86 -> 98 ms).
+        were. Measured: docs/method.md, "A second centring, with the light's slope,
+        for the wide candidates that found no marker"; docs/accuracy.md, the run at
+        21bc646 and "Figures the fit's and the detector's docstrings carried".
 
         Counts ``recentred``, the candidates read again, ``found_recentred``, the
         markers they added, and ``recentring_over_cap``, the lost wide candidates
@@ -737,17 +726,10 @@ class Detector:
         checked and fitted again. A marker found is located once more in the frame
         itself, by its model with the shadow's edge, kept where that edge explains
         (:meth:`_located_in_shadow`; X's of :data:`subpixel.MEASURED_MIN_EXTENT_PX`
-        and more), and joins the detections, which stay as they were.
-
-        Rendered (g), where a hard shadow's edge crosses half of the markers (seeds
-        100-123, where it was built): 152 -> 172 of 288 markers (165 centring
-        without the slope); the held-out seeds 500-523: 138 -> 169; the
-        benchmark's frames 54 -> 57 of 96; the independent renderer's (g) 20 -> 21
-        of 48. As many false points as before on each, on (a), (c), (d), the real
-        aerial frames and cirn_uas. About 7 ms more per 12 MP cluttered frame of
-        the speed benchmark (finding the edges 4-5 ms, the copy and the reading
-        again the rest) and per real 8 MP aerial frame at 6-40 px, none measurable
-        at 3-30 px (docs/speed.md).
+        and more), and joins the detections, which stay as they were. Measured:
+        docs/method.md, "A cast shadow's edge, found and divided out, for the wide
+        candidates still lost"; docs/accuracy.md, "Evidence measured and not taken";
+        docs/speed.md, "Earlier runs".
 
         Counts ``shadow_read``, the candidates read again, ``found_shadowed``, the
         markers they added, ``located_in_shadow``, those of them the model located,
@@ -1505,14 +1487,9 @@ class Detector:
         where the lines found on their innermost rings cross
         (:func:`verification.line_crossing_centres`: edges' phases only, which the
         levels leave in place), and move there where the X shows out to that extent.
-
-        Rendered (g): 18 -> 21 of 96 markers for those screened at 9 px or wider,
-        25 -> 28 with those shown wide (the fit judging by the quadrants' own
-        levels), 28 -> 36 with the recentring, 36 -> 39 from 8 px on, 39 -> 42
-        counting equalised rings out to 7 px, not 9, 42 -> 45 with their extent
-        where the plain rings' score falls under its floor; independent (g) 5 -> 7,
-        8 -> 8, 8 -> 13, 13 -> 13, 13 -> 17, 17 -> 17 of 48. No false point more on
-        any family or real ground, where the re-reading costs no measurable time.
+        Measured: docs/method.md, "Equalised rings for X's wider than texture's" and
+        "The lines' crossing, not grey-level symmetry, for a dull X's centre";
+        docs/accuracy.md, "Figures the fit's and the detector's docstrings carried".
 
         Returns:
             The candidates (those recentred moved), their check, and (N,) where the
@@ -1593,9 +1570,9 @@ class Detector:
         :data:`verification.DULL_MIN_EXTENT_PX`, clears the score floor of its
         extent, and the marker's model vouches for it
         (:meth:`acceptance.MarkerModel.vouches`, as for a faint X): at that extent, a rung under
-        :data:`verification.EQUALISED_MIN_EXTENT_PX`, texture passes the rings too,
-        and without the model the development seeds of (a), (c) and (g) gained a
-        false point each. Counts ``dull_read`` and ``kept_dull``.
+        :data:`verification.EQUALISED_MIN_EXTENT_PX`, texture passes the rings too
+        (measured: docs/accuracy.md, "Small X's with a dull quadrant, read again from
+        the light slope's centre"). Counts ``dull_read`` and ``kept_dull``.
 
         Returns:
             The candidates (those read again and kept moved) and their check.
@@ -1695,10 +1672,10 @@ class Detector:
         where all pass (a tiling of X's) only the first are. The rest are counted
         in ``dropped_over_verification_cap``. The modulation gate, a few grey levels
         a candidate, runs first: the NCC reads a disk of up to 300 samples at four
-        blurs, and on cluttered ground most candidates fail the gate (the speed
-        benchmark's busiest frame: 1 369 candidates, of which 558 modulate; its
-        verification 141 -> 92 ms, the same detections). Each batch is decided by
-        :meth:`acceptance.MarkerModel.match`; this counts and records its reasons.
+        blurs, and on cluttered ground most candidates fail the gate (measured:
+        docs/speed.md, "The modulation gate before the template"). Each batch is
+        decided by :meth:`acceptance.MarkerModel.match`; this counts and records its
+        reasons.
 
         Returns:
             The indices (ascending) of the candidates that pass, and their NCC.

@@ -2,17 +2,15 @@
 
 A marker half in a shadow (a mast, a wing, a building's edge) is no longer
 point-symmetric in its grey levels, and the default's checks, all of grey-level
-symmetry, lose it: on the renderer's family (g), where a hard shadow edge crosses
-half of the markers, the default finds 42 of the 141 so crossed (seeds 100-123).
-Its geometry stands, and so does the shadow's: the light it takes away
-multiplies the raw levels (a camera's gamma keeps a product a product), so in
-their logarithm the point pairs (c + d, c - d) the edge parts differ by its
-depth and the others not at all, whatever the X's own levels. That is the
-evidence :func:`find_edges` reads, on the quadrants' insides where the X's own
-edges are not; :func:`divided_out` then gives the checks the frame with the
-shadow taken back out of it. With the renderer's shadows divided out exactly,
-the default finds 77 of those 141; the division must be close: 1 px off, or 8
-degrees, and 53 or 51 are found (docs/accuracy.md).
+symmetry, lose it. Its geometry stands, and so does the shadow's: the light it
+takes away multiplies the raw levels (a camera's gamma keeps a product a
+product), so in their logarithm the point pairs (c + d, c - d) the edge parts
+differ by its depth and the others not at all, whatever the X's own levels.
+That is the evidence :func:`find_edges` reads, on the quadrants' insides where
+the X's own edges are not; :func:`divided_out` then gives the checks the frame
+with the shadow taken back out of it. The division must be close: a pixel or a few
+degrees off, it loses much of what an exact one gives back (measured:
+docs/accuracy.md, "Evidence measured and not taken").
 """
 
 from __future__ import annotations
@@ -91,8 +89,8 @@ DETECTION_REACH_EXTENTS = 1.5
 #: A located X's model tries the edge :func:`find_edges` fits best within this many
 #: of its extents (the line fit's reach, ``subpixel._reach_all_round``): the ground
 #: beyond the plate bends the fit of the edge in the pairs, and the model, which
-#: reads the X alone, is what decides. Rendered (g), seeds 100-123, with every
-#: edge tried: mean error 0.0647 px at 1, 0.0653 at 1.5.
+#: reads the X alone, is what decides (measured: docs/accuracy.md, "Figures the fit's
+#: and the detector's docstrings carried").
 HYPOTHESIS_REACH_EXTENTS = 1.0
 
 
@@ -279,13 +277,13 @@ def find_edges(
     by its model, which keeps it only where it takes more of the residual than its
     four parameters would by chance (:data:`uneven.SHADOW_MIN_CHI2`); offered the
     edge without ``decided_by_pairs``, wherever the shadow is deep enough, it
-    decides itself. On (g)'s seeds 100-123 the pairs' share and the step turned
-    away the edges of 19 of the 45 shadowed markers found (0.35-0.6 of their pairs
-    explained, or a step of 0.3-0.4); fitted with their true edges, the 45 are
-    0.060 px off on average instead of 0.105. The depth stays: a shallower shadow is
-    a light's slope, which the model fits anyway, and on the speed benchmark's
-    frame 0, which has no cast shadow, two X's kept edges 0.14 and 0.24 deep
-    (125 -> 236 ms).
+    decides itself: the pairs' share and the step turn away the edges of shadowed
+    markers that their model, fitted with those edges, locates better. The depth
+    stays: a shallower shadow is a light's slope, which the model fits anyway, and
+    X's under no cast shadow keep shallow edges, at a cost in time. Measured:
+    docs/accuracy.md, "The lines measured from the edges, and the shadow's edge
+    tried in the model" and "Figures the fit's and the detector's docstrings
+    carried".
 
     Args:
         image: (H, W) grey image, raw levels.

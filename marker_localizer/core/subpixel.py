@@ -151,27 +151,22 @@ EDGE_STEP_BLURS_PX = (0.6, 0.8, 1.0, 1.2, 1.5)
 #: renderer's families (a), (c) and (d), where 14 of the 18 found of (g), whose
 #: every marker has a dull quadrant, score 200-2800 (median 580). Above the
 #: markers' largest, because the levels of a marker that does not need them cost it
-#: precision: from the chi-square's 0.1 % point (13.8) on, the mean error over the
-#: bound went 2.29 -> 2.30 on (a), 2.71 -> 2.75 on (c), and on the independent
-#: renderer's (a) frames 2.33 -> 2.79.
+#: precision (measured: docs/accuracy.md, "Figures the fit's and the detector's
+#: docstrings carried").
 EDGE_STEP_MIN_CHI2 = 100.0
 #: The same statistic from which :func:`refine_along_lines` fits the quadrants' own
 #: levels: lower than the gating's :data:`EDGE_STEP_MIN_CHI2`, since with the lines'
 #: directions measured afresh (:func:`_edge_directions`) the levels cost a marker
 #: of even paint nothing measured down to 45, and markers a shadow edge crosses
-#: score 10-140 while the symmetric fit leaves them 0.1-0.6 px off. Rendered (g):
-#: mean error 0.060 px at 80 and 100, 0.050 at 60, 0.047 at 45 and 30; at 30 the
-#: tiny markers of (b) lose (error over the bound 2.04 -> 2.08), at 13.8 (b) 2.12
-#: and the independent renderer's (a) 2.33 -> 2.44. At 45 the independent
-#: renderer's families stay as they were ((b) 2.43 -> 2.41).
+#: score 10-140 while the symmetric fit leaves them 0.1-0.6 px off (measured:
+#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried").
 LEVELS_REFIT_MIN_CHI2 = 45.0
 #: The same statistic from which :func:`refine_along_lines` fits the quadrants' own
 #: levels under :data:`LEVELS_REFIT_MIN_CHI2` too, and moves the symmetric fit's
 #: centre towards theirs by the share of their difference that is bias, not noise
 #: (:func:`_blended_with_levels`): the chi-square's 0.1 % point, where chance alone
-#: passes once in a thousand. On the development seeds ((g) 100-123, (a) and (c)
-#: 600-629, (d) 200-223, (b) 200-207) the mean error of (g) 0.0790 -> 0.0729 px, every
-#: other family's as it was.
+#: passes once in a thousand (measured: docs/accuracy.md, "The levels' fit weighed in
+#: by its bias").
 LEVELS_BLEND_MIN_CHI2 = 13.8
 #: Where the levels' statistic does not say alone that the levels differ (under
 #: :data:`LEVELS_REFIT_MIN_CHI2`), an X of :data:`MEASURED_MIN_EXTENT_PX` and more on
@@ -181,33 +176,25 @@ LEVELS_BLEND_MIN_CHI2 = 13.8
 #: there, it leaves this much more chi-square (2 degrees of freedom, in units of its
 #: own residual) than free, the 0.1 % point, where chance alone passes once in a
 #: thousand. The symmetric fit is the more efficient where the levels are even (the
-#: model reads 0.8 of the extent, not 0.9, and pays for the light's slope: on (a)'s
-#: seeds 600-623 at the same centres, 2.57x the bound against 1.88x), so it stays
-#: wherever the model cannot tell it is biased. A shadow's edge that the levels'
-#: statistic misses pulls it 0.1-0.4 px on (g)'s development seeds (the rings stop
-#: short at the edge, the disk read is small, and the pairs show no step that is the
-#: quadrants' own). (g)'s seeds 0-23 / 100-123 / 200-223 0.0477 / 0.0551 / 0.0605 ->
-#: 0.0430 / 0.0553 / 0.0591 px with :func:`locate_in_shadow`'s test, (a), (b), (c), (d)
-#: as they were. Fitted wherever a shadow's edge is found deep enough (not asking the
-#: pairs), 100-123 gained 0.0014 px more, but an X of the speed benchmark's frame 0
-#: took 20 ms more; there, at 9.2 or 6 instead of 13.8, 200-223 0.0586 -> 0.0597 px.
+#: model reads 0.8 of the extent, not 0.9, and pays for the light's slope), so it
+#: stays wherever the model cannot tell it is biased. A shadow's edge that the levels'
+#: statistic misses pulls it 0.1-0.4 px (the rings stop short at the edge, the disk
+#: read is small, and the pairs show no step that is the quadrants' own). Measured:
+#: docs/accuracy.md, "The model where it rejects the line fit's centre".
 MODEL_MIN_CENTRE_CHI2 = 13.8
 #: X's of one call that :func:`refine_along_lines` locates by their model at most,
 #: those whose levels' statistic is highest first: a frame holds 10-20 markers, while
 #: a chessboard photographed under a flare has a hundred corners whose levels differ,
-#: each fitted in ~3 ms (pycbd's flare photograph at 6-40 px: 686 -> 962 ms a frame
-#: with every one fitted). The others keep the levels' fit, and are counted.
+#: each fitted in ~3 ms (measured: docs/speed.md, "The worst frame: a chessboard under
+#: a flare"). The others keep the levels' fit, and are counted.
 MAX_MODELLED = 32
 #: :func:`refine_along_lines` fits the light's slope (the gain gradient of
 #: :func:`refine_point_symmetry`) where it reads a disk of at least this radius, px.
 #: Across a smaller disk the light changes little, and the slope's two columns,
 #: d (I(c + d) + I(c - d)) with short lever arms, share much of what the centre's
-#: say: they cost more precision than the bias they take away. Mean error over the
-#: bound with the slope from 0 / 4.5 / 6 / 8 / 12 px, rendered (a) 2.29 / 2.20 /
-#: 2.14 / 2.25 / 2.13, (b) 2.04 / 1.49 (all alike above), (c) 2.67 / 2.63 / 2.59 /
-#: 2.44 / 2.31, (d) 2.61 / 2.41 / 2.32 / 2.39 / 2.37, (g) 0.047 px up to 6, 0.055
-#: from 8 (the levels' markers need the slope); the independent renderer's at 6:
-#: (a) 2.33 -> 2.25, (b) 2.41 -> 2.26, (c) 3.04 -> 2.61, (d) 2.26 -> 2.18, (g) as it was.
+#: say: they cost more precision than the bias they take away. From 8 px on, the
+#: markers whose quadrants' levels differ lose: they need the slope (measured:
+#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried").
 GAIN_MIN_RADIUS_PX = 6.0
 #: :func:`_light_inside` reads the quadrants' insides from this distance to both
 #: lines, px: twice the widest blur sigma met (1.5 px), where an edge has levelled out.
@@ -248,11 +235,11 @@ _DIRECTION_ITERATIONS = 2
 #: wrong pairs, and the quadrants' levels' statistic (:data:`LEVELS_REFIT_MIN_CHI2`)
 #: does not see a dull quadrant or a shadow (0.8 on a shadowed X of 18 px whose
 #: levels, on its true lines, score 57). On the tiny markers of (b), 2.5-5 px, the
-#: edges' directions are worse than the rings' (median 4.1 degrees against 3.3;
-#: error over the bound 1.32 -> 1.34) and their model took shadows' edges where
-#: there are none (1.32 -> 1.35). Under it the model reads its tone curve and
-#: wedges on too few pixels: on (g)'s development seeds it put each of the 4 X's
-#: it located farther from the truth than the levels' fit (0.084 -> 0.182 px).
+#: edges' directions are worse than the rings' (median 4.1 degrees against 3.3) and
+#: their model takes shadows' edges where there are none. Under it the model reads
+#: its tone curve and wedges on too few pixels. Measured: docs/accuracy.md, "The
+#: lines measured from the edges, and the shadow's edge tried in the model" and "The
+#: model wherever it converges on a marker found in a shadow, and never under 6 px".
 MEASURED_MIN_EXTENT_PX = 6.0
 #: ... there the gradient is read on a grid of this step, px: at half a pixel, as
 #: the quadrants' levels' fit reads it (:func:`_levels_fit`), the final fit takes
@@ -788,11 +775,9 @@ def refine_along_lines(
     the same share of the extent nearest the lines (at most
     :data:`_LINE_FIT_MAX_PAIRS`) and weighs each by its distance from the nearer
     line (:data:`LINE_BAND_PX`): the edges carry the centre, the quadrants' insides
-    only noise. On the renderer's families (a), (c), (d) and the independent
-    renderer's it takes the mean error over the Cramer-Rao bound from 2.9-3.6 to
-    2.3-3.0; fitting the light's slope only on disks of
-    :data:`GAIN_MIN_RADIUS_PX` and more, to 2.1-2.6 (tiny markers, (b): 2.0-2.4
-    to 1.5-2.3).
+    only noise. The light's slope is fitted only on disks of
+    :data:`GAIN_MIN_RADIUS_PX` and more (measured: docs/method.md,
+    "Point-symmetry refinement").
 
     Where the quadrants' levels differ (a dull bright quadrant: wear, dirt, sheen;
     a shadow over two quadrants) the grey levels are not point-symmetric and this
@@ -803,30 +788,17 @@ def refine_along_lines(
     along the lines' directions measured afresh from their edges
     (:func:`_edge_directions`: the levels' steps must lie on the lines, and the
     ring check's directions are a few degrees off), and may move up to
-    :data:`EDGE_STEP_MAX_SHIFT_PX`. Rendered family (g) (every marker with a dull
-    quadrant, half with a shadow edge): mean error 0.151 -> 0.071 px with the
-    levels (on the 18 markers then found); on the 42 found at db1ccd2 0.105 ->
-    0.066 px with the directions; 0.060 -> 0.047 px on 45 with the lower
-    threshold; independent (g) 0.104 -> 0.061 px on its 17 (`bench accuracy` at
-    9066720: 0.047 and 0.061 px). The other families' errors stay as they were
-    but for (d)'s (error over the bound 2.76 -> 2.61). Under that threshold, from
+    :data:`EDGE_STEP_MAX_SHIFT_PX`. Under that threshold, from
     :data:`LEVELS_BLEND_MIN_CHI2`, the fit with the levels runs too, and the
     symmetric fit's centre moves towards it by the share of their difference that
-    is bias (:func:`_blended_with_levels`), where it has not slipped: development
-    seeds of (g) 0.0790 -> 0.0729 px, the benchmark's (g) 0.0506 -> 0.0498 px, the
-    other families as they were.
+    is bias (:func:`_blended_with_levels`), where it has not slipped.
 
     On disks of :data:`GAIN_MIN_RADIUS_PX` and more the light's slope is fitted
     with a prior from the quadrants' insides (:func:`_light_inside`), where the
     levels there do not differ; where they do (their statistic above
     :data:`LEVELS_REFIT_MIN_CHI2`, like the lines' own) the quadrants' own levels
-    are fitted as above, from where the fit without the prior ends. Error over the
-    bound, rendered (a) 2.16 -> 2.05, (c) 2.59 -> 2.32, (d) 2.31 -> 2.11, (g)
-    0.047 -> 0.046 px (24 frames of seeds 100-123: 0.084 -> 0.081 px); the
-    independent renderer's (a) 2.25 -> 2.11, (c) 2.61 -> 2.45, (d) 2.18 -> 2.19,
-    (g) 0.061 px as it was. The quadrants' own levels step with the blur that fits
-    each X (:func:`_step_blur`): (g) 0.046 -> 0.042 px (seeds 100-123: 0.081 ->
-    0.073), independent (g) 0.061 -> 0.056 px, the other families as they were.
+    are fitted as above, from where the fit without the prior ends. The quadrants'
+    own levels step with the blur that fits each X (:func:`_step_blur`).
 
     The levels' fit still rests on the pairs' difference of two blurred steps,
     which a camera's tone curve and a tilted X's wedges bend where the levels
@@ -841,15 +813,14 @@ def refine_along_lines(
     differ (under :data:`LEVELS_REFIT_MIN_CHI2`, the blend's range included) the
     model is fitted only where the pairs show a shadow's edge, and its centre is
     taken only where it also rejects the line fit's (:data:`MODEL_MIN_CENTRE_CHI2`).
-    Rendered (g), seeds
-    100-123: mean error 0.091 -> 0.074 px (held out 0.087 -> 0.069, the independent
-    renderer's 0.063 -> 0.039); (a) seeds 100-111 2.05 -> 2.07x the bound, (c) 1.90 -> 1.92x, the
-    chessboards (e) as they were, (b) as it was. Measured against the frame's
-    noise, not the levels' fit, the model was never taken on frames written as
-    JPEG, whose error along the edges the noise (measured on smooth ground) does
-    not hold: (g) seeds 100-123 0.074 -> 0.067 px with the levels' fit as the
-    reference (held out 0.070 -> 0.067), (a) 2.04 -> 2.06x the bound (held out
-    2.11 -> 2.15x), (c) 1.94 -> 1.95x, (d), (b) and the chessboards as they were.
+    The misfit is measured against the levels' fit, not the frame's noise: on
+    frames written as JPEG the error along the edges exceeds the noise measured on
+    smooth ground.
+
+    Measured: docs/method.md, "Point-symmetry refinement"; docs/accuracy.md, "The
+    levels' fit weighed in by its bias", "The uneven X's model, and what bounds the
+    fit", "The uneven model judged against the levels' fit, not the frame's noise"
+    and "Figures the fit's and the detector's docstrings carried".
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -1149,13 +1120,12 @@ def _blended_with_levels(
     afresh) and models (under a light's slope the levels and the slope trade off),
     so their correlation is unknown, and var(d) is taken at its most,
     (s_l + s_s)^2, s each fit's calibrated sigma (:func:`_line_fit_sigma`: the
-    covariances predict half the errors' spread). With var(d) from the covariances
-    as they are, Cov(c_l) - Cov(c_s) or the uncalibrated sigmas' sum squared, (g)'s
-    development seeds gained twice as much (0.0790 -> 0.066-0.067 px, against
-    0.0729), but a light's slope of 0.2 %/px across four X's of 20 px cost them
-    1.64 -> 1.72-1.82x the bound, where it now costs nothing. w is 0 where the
-    levels' fit did not converge or slipped (:data:`EDGE_STEP_MAX_SHIFT_PX`). The
-    covariance becomes Cov(c_s) + w^2 (Cov(c_l) - Cov(c_s)).
+    covariances predict half the errors' spread): with var(d) from the covariances
+    as they are, the levels and a light's slope trade off, and the slope then costs
+    the centre precision (measured: docs/accuracy.md, "The levels' fit weighed in by
+    its bias"). w is 0 where the levels' fit did not converge or slipped
+    (:data:`EDGE_STEP_MAX_SHIFT_PX`). The covariance becomes
+    Cov(c_s) + w^2 (Cov(c_l) - Cov(c_s)).
 
     Args:
         centre: (N, 2) the symmetric fit's centres.
@@ -1279,18 +1249,14 @@ def locate_in_shadow(
     (:func:`uneven.locate_uneven`, from ``edges``, one per point, about ``xy``),
     which keeps the edge where it explains, and its centre is taken where that fit
     converges and fits no worse than with its centre held at ``xy``
-    (``min_centre_chi2`` 0): a fit that ends worse has slid into another minimum
-    (on (g)'s development seeds 5 of the 44 so fitted, 0.069 px off at ``xy`` and
-    0.169 by the model, the 0.055 -> 0.55 px of seed 17 below among them). Rendered
-    (g), development seeds 0-23 / 100-123 / 200-223, the 46 markers found so: 0.129
-    px off on the copy, 0.062 by the model wherever it converged. The model was first
-    taken only where the edge took at least :data:`shadow.MIN_EXPLAINED` of the
-    residual the model without it leaves (the share the edge must explain of the
-    pairs to be proposed): 0.082 px. Of the 11 X's that share turned away, the
-    model put 7 closer to the truth (0.29 -> 0.055, 0.66 -> 0.22, 0.43 -> 0.06 px
-    among them) and 4 farther (0.055 -> 0.55 px on seed 17, 0.08 -> 0.21, and two
-    by 0.012 px or less). Under 6 px the model reads its tone curve and wedges on
-    too few pixels: the one such marker found so went from 0.017 to 0.43 px.
+    (``min_centre_chi2`` 0): a fit that ends worse has slid into another minimum.
+    The edge's share of the residual (:data:`shadow.MIN_EXPLAINED`, the share the
+    edge must explain of the pairs to be proposed) is not asked: it turns away X's
+    the model puts closer to the truth, and does not tell a slide from them. Under
+    6 px the model reads its tone curve and wedges on too few pixels. Measured:
+    docs/accuracy.md, "The model wherever it converges on a marker found in a
+    shadow, and never under 6 px" and "The model where it rejects the line fit's
+    centre".
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -1391,15 +1357,16 @@ def _step_blur(
     """(N,) each X's edge blur for its quadrants' own levels, of :data:`EDGE_STEP_BLURS_PX`, px.
 
     The steps' shape decides where a dull quadrant's level ends and the centre's
-    information begins: with the blur of every X taken as :data:`EDGE_STEP_BLUR_PX`,
-    rendered (g) markers of blur 0.5-1.5 px were located 0.081 px off on 24 frames
-    (seeds 100-123), with each frame's own blur 0.071 px, with this pick 0.073 px.
+    information begins, and one blur for every X (:data:`EDGE_STEP_BLUR_PX`) lets a
+    dull quadrant's level bleed into the centre where the X is sharper or softer.
     From one reading of the pairs at ``centre``, the fit linearised there (centre,
     slope, and the two steps at each blur in turn) leaves a least-squares cost per
     blur; the blur of the least is taken (the cost's profile over the blur). Five
     full fits, one per blur, kept by their residual, cost five times the refit and
-    did no better (0.077 px); eleven blurs 0.5-1.6 px by this profile neither
-    (0.080 px: the more choices, the more the noise picks).
+    do no better; eleven blurs 0.5-1.6 px by this profile neither (the more choices,
+    the more the noise picks). Measured: docs/method.md,
+    "Point-symmetry refinement"; docs/accuracy.md, "Figures the fit's and the
+    detector's docstrings carried".
     """
     residual, weight, jacobian, _, _ = _symmetry_terms(
         image, centre, np.zeros((len(centre), 4)), _both_ends(band.offsets), band.weight, model_gain

@@ -259,10 +259,8 @@ def template_correlation(
     saddle differ as its stones do. And the duller bright quadrant must still stand
     above the dark pair, or the second level is left out (an L corner is one bright
     quadrant of three dark ones, not an X with a quadrant dulled to black).
-    Measured at the default path's gates (``bench accuracy``): rendered (g)
-    14 -> 18 of 96 markers, independent (g) 3 -> 5 of 48, every other family and
-    the real frames as before, and no false point more on any of them (the demo's
-    flight-simulator frames: 2 more in 20).
+    Measured: docs/accuracy.md, "Figures the fit's and the detector's docstrings
+    carried".
 
     Args:
         image: (H, W) image (any numeric dtype).

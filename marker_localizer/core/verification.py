@@ -115,7 +115,7 @@ TEXTURE_SCORE_FLOORS = ((6.0, 0.92), (TEXTURE_EXTENT_PX, 0.88))
 #: out to 6 px (on the renderer's (a) and (c) and on real aerial ground, with the
 #: ring ladder's 6 px rung); a dull marker's rings, 7.07 px and more (the ladder's
 #: next rungs at 5-30 and 6-40 px: 7.07 and 8.49). A rung lower, at 6, the false
-#: points come back (own (a) 0 -> 2, (c) 0 -> 2, real aerial at 6-40 px 2 -> 3).
+#: points come back (measured: docs/accuracy.md, the summary's "Uneven light (g)").
 EQUALISED_MIN_EXTENT_PX = 7.0
 #: ... and a rung under it, the smallest where a candidate read again from the light
 #: slope's centre counts, if the marker's model vouches for it too (a dull quadrant
@@ -1833,9 +1833,9 @@ MAX_MODULATION_BEYOND = 0.5
 #: score up to :data:`ENDED_SCORE_ALLOWANCE` under its floor: 60 % of the rendered
 #: tiny markers measure 0.15 or less, 4 % of real aerial ground's texture saddles.
 CLEARLY_ENDED = 0.15
-#: ... how far under, from the benchmark's (b) frames (72 -> 81 of 192 markers)
-#: and real aerial ground (its one false point at 3-30 px stays one; 0.04 under
-#: gives six).
+#: ... how far under, set on the benchmark's (b) frames and real aerial ground, whose
+#: false points it leaves as they were (measured: docs/method.md, "A small X must end
+#: where its extent does").
 ENDED_SCORE_ALLOWANCE = 0.02
 #: X's measured under this extent, px, are asked to end (:func:`x_must_end`): on the
 #: real aerial frames at radius 3-30 px the texture saddles that reach the score
@@ -1881,14 +1881,8 @@ def x_ends(
     reach, more in clutter or under a tilt, so an X that goes on at its extent is
     read once more a rung out, where that reach is wider than texture's saddles
     (:data:`X_END_MAX_EXTENT_PX`) and a marker could reach that far
-    (``max_radius_px``). On the development frames of (d) (radius 4-40 px) all 9
-    X's this test rejected after the fit were markers of 4.9-8.1 px read at 4 px,
-    and 6 of them end a rung out (0.03-0.29 there against 0.52-0.92 at 4 px, or
-    0.09 against 0.20 under the floor); no texture X was rejected there. On those
-    of the tiny markers (b) (2.5-5 px, seeds 300-315), 18 of the 51 texture X's it
-    rejected end a rung out too: 13 of them at 6 px, where no marker reaches, and
-    5 at 4.24 px, texture's size (read there too, the held-out (b) frames gained 3
-    false points).
+    (``max_radius_px``). Measured: docs/accuracy.md, "An X whose rings stop short
+    of its reach" and "Figures the fit's and the detector's docstrings carried".
 
     Args:
         image: (H, W) grey image, raw levels.
