@@ -499,6 +499,9 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         with tempfile.TemporaryDirectory() as folder:
             on_ground = ground.run([REFERENCE_SUBJECT, *others], options.seed, Path(folder), report)
         report_load(load_before, report)
+    # Each subject's "ours_over" is the median of ours over its time, frame by frame
+    # (workers.paired_ratio): the table's ours/peer.
+    ours = next((r.times_ms for r in results if r.name == REFERENCE_SUBJECT), [])
     return {
         "frames": options.frames,
         "repeats": options.repeats,
@@ -507,10 +510,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         "subjects": {
             r.name: {
                 "median_ms": _median(r.times_ms),
-                "ours_over_this": workers.paired_ratio(
-                    next((o.times_ms for o in results if o.name == REFERENCE_SUBJECT), []),
-                    r.times_ms,
-                ),
+                "ours_over": workers.paired_ratio(ours, r.times_ms),
                 "p95_ms": _p95(r.times_ms),
                 "times_ms": r.times_ms,
                 "rss_growth_mb": r.rss_growth_mb,
