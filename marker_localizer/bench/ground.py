@@ -224,31 +224,32 @@ class SubjectTimings:
     error: str = ""
 
 
-def run_subjects(names: Sequence[str], frames_path: Path) -> list[SubjectTimings]:
+def run_subjects(
+    names: Sequence[str], frames_path: Path, frame_counts: Sequence[int]
+) -> list[SubjectTimings]:
     """Time every subject on every ground and range, frame by frame in turn.
 
-    Per ground and range every subject warms up, then each frame goes to every
-    running subject in turn (:func:`workers.in_turn`) before the next. A subject
-    whose worker fails is reported with its error and no timings.
+    ``frame_counts``: how many frames each ground of ``frames_path`` has
+    (:func:`save_grounds`). Per ground and range every subject warms up, then each
+    frame goes to every running subject in turn (:func:`workers.in_turn`) before
+    the next. A subject whose worker fails is reported with its error and no timings.
     """
-    ground_frames = _ground_frames(frames_path)
     results = [
-        SubjectTimings(name, [[GroundTiming() for _ in RANGES] for _ in ground_frames])
+        SubjectTimings(name, [[GroundTiming() for _ in RANGES] for _ in frame_counts])
         for name in names
     ]
     with workers.started("marker_localizer.bench.ground", names, frames_path) as started:
-        place = {id(worker): result for worker, result in zip(started, results, strict=True)}
-        for g, frames in enumerate(ground_frames):
+        for g, count in enumerate(frame_counts):
             for k in range(len(RANGES)):
-                for worker in workers.in_turn(started, 0):
-                    reply = worker.ask(f"warm {g} {k}")
+                for position in workers.in_turn(started, 0):
+                    reply = started[position].ask(f"warm {g} {k}")
                     if reply is not None:
-                        place[id(worker)].timings[g][k].peak_mb = float(reply["peak_mb"])
-                for i in range(len(frames)):
-                    for worker in workers.in_turn(started, i):
-                        reply = worker.ask(f"time {g} {k} {i}")
+                        results[position].timings[g][k].peak_mb = float(reply["peak_mb"])
+                for i in range(count):
+                    for position in workers.in_turn(started, i):
+                        reply = started[position].ask(f"time {g} {k} {i}")
                         if reply is not None:
-                            timing = place[id(worker)].timings[g][k]
+                            timing = results[position].timings[g][k]
                             timing.times_ms.append(float(reply["ms"]))
                             timing.points.append(int(reply["points"]))
         for worker, result in zip(started, results, strict=True):
@@ -365,7 +366,7 @@ def run(
     found = grounds(real_data.data_root(), seed, report)
     frames_path = folder / "grounds.npz"
     save_grounds(found, frames_path)
-    results = run_subjects(subjects, frames_path)
+    results = run_subjects(subjects, frames_path, [len(ground.frames) for ground in found])
     report(
         "Real ground: time per frame on one core, one detection per frame after a warm-up "
         "per ground and range, the subjects in turn frame by frame; ours/peer = median of the "

@@ -25,7 +25,7 @@ of a round goes to every subject in turn before the next frame, so a change in
 the shared host's load falls on all of them alike. Times are the median and
 95th percentile over every (frame, round) pair; ``ours/peer`` is the median,
 over those pairs, of our time over the peer's on the same frame in the same
-round (:func:`paired_ratio`).
+round (:func:`workers.paired_ratio`).
 
 Peak memory: in the fresh subprocess, after the frames are loaded and the
 detector is built, the kernel's peak-RSS mark is reset (``/proc/self/clear_refs``)
@@ -334,10 +334,10 @@ def run_subjects(
             result.rss_growth_mb = float(worker.ready.get("rss_growth_mb", float("nan")))
         for _ in range(repeats):
             for index in range(n_frames):
-                for worker in workers.in_turn(started, index):
-                    reply = worker.ask(str(index))
+                for position in workers.in_turn(started, index):
+                    reply = started[position].ask(str(index))
                     if reply is not None:
-                        result = results[started.index(worker)]
+                        result = results[position]
                         result.times_ms.append(float(reply["ms"]))
                         if reply["stages"]:
                             result.stages_ms.append(reply["stages"])

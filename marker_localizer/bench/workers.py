@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import select
 import subprocess
 import sys
 import tempfile
@@ -121,29 +122,41 @@ class Worker:
             self._process.wait()
 
     def _reply(self) -> dict[str, Any] | None:
-        assert self._process.stdout is not None
-        line = self._process.stdout.readline()
+        stdout = self._process.stdout
+        assert stdout is not None
+        # A worker writes one line an answer, so nothing waits in the pipe's buffer
+        # once a line is read, and the pipe itself says when the next one is there.
+        answered, _, _ = select.select([stdout], [], [], WORKER_TIMEOUT_S)
+        if not answered:
+            self._process.kill()
+            self._process.wait()
+            self._fail(f"no answer within {WORKER_TIMEOUT_S} s")
+            return None
+        line = stdout.readline()
         if not line:
             self._fail()
             return None
         reply: dict[str, Any] = json.loads(line)
         return reply
 
-    def _fail(self) -> None:
+    def _fail(self, why: str = "") -> None:
+        """Record why the worker stopped: ``why``, or the last line of its stderr."""
         self._process.wait(timeout=WORKER_TIMEOUT_S)
-        self._stderr.seek(0)
-        tail = (self._stderr.read().strip().splitlines() or ["no output"])[-1]
-        self.error = f"worker failed: {tail}"
+        if not why:
+            self._stderr.seek(0)
+            why = (self._stderr.read().strip().splitlines() or ["no output"])[-1]
+        self.error = f"worker failed: {why}"
 
 
-def in_turn(workers: Sequence[Worker], index: int) -> list[Worker]:
-    """The running workers in the order they time frame ``index``: rotated by one a frame.
+def in_turn(workers: Sequence[Worker], index: int) -> list[int]:
+    """The positions of the running workers in the order they time frame ``index``.
 
-    So that no subject always follows the same one (the cache it leaves, the
-    turbo it wakes).
+    Rotated by one a frame, so that no subject always follows the same one (the
+    cache it leaves, the turbo it wakes).
     """
     turn = index % max(len(workers), 1)
-    return [worker for worker in [*workers[turn:], *workers[:turn]] if worker.running]
+    order = [*range(turn, len(workers)), *range(turn)]
+    return [position for position in order if workers[position].running]
 
 
 @contextlib.contextmanager

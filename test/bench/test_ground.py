@@ -42,7 +42,7 @@ def test_every_subject_times_every_frame_of_every_ground_at_every_range_in_turn(
     path = tmp_path / "grounds.npz"
     ground.save_grounds(found, path)
     names = [speed.REFERENCE_SUBJECT, speed.HESSIAN_SUBJECT]
-    ours, hessian = ground.run_subjects(names, path)
+    ours, hessian = ground.run_subjects(names, path, [2, 1])
     assert ours.error == hessian.error == ""
     for result in (ours, hessian):
         assert [len(per_range) for per_range in result.timings] == [len(ground.RANGES)] * 2
@@ -54,7 +54,7 @@ def test_every_subject_times_every_frame_of_every_ground_at_every_range_in_turn(
 def test_a_subject_whose_ground_worker_fails_is_reported_without_timings(tmp_path):
     path = tmp_path / "grounds.npz"
     ground.save_grounds([ground.Ground("x", [_x_frame()])], path)
-    ours, unknown = ground.run_subjects([speed.REFERENCE_SUBJECT, "no such detector"], path)
+    ours, unknown = ground.run_subjects([speed.REFERENCE_SUBJECT, "no such detector"], path, [1])
     assert unknown.error.startswith("worker failed: ") and unknown.timings == []
     assert ours.error == "" and len(ours.timings[0][0].times_ms) == 1
 

@@ -74,3 +74,13 @@ def test_a_subject_whose_worker_fails_is_reported_and_the_others_still_run(tmp_p
     assert unknown.error.startswith("worker failed: ")
     assert unknown.times_ms == []
     assert ours.error == "" and len(ours.times_ms) == 2
+
+
+def test_a_worker_that_does_not_answer_in_time_is_stopped_and_reported(tmp_path, monkeypatch):
+    path = tmp_path / "frames.npz"
+    np.savez(path, frame00=render_scene(SMALL_SCENE, 1).image)
+    # Far less than a worker takes to import the detector and warm up.
+    monkeypatch.setattr(workers, "WORKER_TIMEOUT_S", 0.01)
+    (ours,) = speed.run_subjects([speed.REFERENCE_SUBJECT], path, n_frames=1, repeats=1)
+    assert ours.error == "worker failed: no answer within 0.01 s"
+    assert ours.times_ms == []
