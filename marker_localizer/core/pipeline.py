@@ -26,7 +26,7 @@ from marker_localizer.core import (
     plate,
     preprocessing,
     screening,
-    shadow,
+    second_reading,
     subpixel,
     template,
     verification,
@@ -145,27 +145,6 @@ _LINE_WINDOW_MIN_PX = 3.0
 #: (:func:`verification.centre_symmetry_check`'s ``max_first_ring`` of 2, plus one), so
 #: among those the check reads for every point first, whose samples they take.
 _LINE_CROSSING_RINGS = 3
-#: Candidates screened at this scale or wider, px (the saddle pyramid's second level
-#: on), get second readings where the first found no X: the plain rings' rejects are
-#: read again with the bright sectors equalised, and where the X's lines cross
-#: (:meth:`Detector._ring_check`); those that end as no marker are centred again
-#: with the light's slope and checked once more (:meth:`Detector._recentre_lost`).
-#: What counts is still the evidence each reading shows (the equalised rings' extent,
-#: :data:`verification.EQUALISED_MIN_EXTENT_PX`); the scale only spares the cost:
-#: texture responds at the first level (4 px), and on the real aerial and cirn_uas
-#: frames this re-reads ~15 candidates a frame at 3-30 px, ~200 at 6-40 px (measured:
-#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried").
-_WIDE_SCALE_PX = 8.0
-#: A lost wide candidate is read again (:meth:`Detector._recentre_lost`) where the
-#: light's slope moves its centre this far, px: less moves the rings' crossings,
-#: read every 10 degrees from 3 px out, by under half a sample (4.8 degrees).
-_RECENTRE_MIN_SHIFT_PX = 0.25
-#: Lost wide candidates read again per frame at most, the strongest spread over the
-#: frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`): markers are
-#: among a frame's strongest saddles, and each costs about 0.1-0.2 ms (measured:
-#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried";
-#: docs/speed.md, "Real ground, the radius range and the worst case").
-_MAX_RECENTRED = 64
 #: Candidates screened wide whose rings read equalised show an X but that the ring
 #: check rejects, or leaves under its score floor, centred again with the light's
 #: slope per frame at most (:meth:`Detector._read_dull`), the strongest spread over
@@ -173,19 +152,6 @@ _MAX_RECENTRED = 64
 #: dull quadrant, read again from the light slope's centre" and "Figures the fit's
 #: and the detector's docstrings carried").
 _MAX_DULL_READ = 64
-#: ... and those whose shadow's edge is sought after the recentring
-#: (:meth:`Detector._reread_shadowed`, 0.1 ms each, and a reading again of those a
-#: shadow crosses): the 32 strongest hold nearly every marker the 64 strongest give
-#: (measured: docs/accuracy.md, "Figures the fit's and the detector's docstrings
-#: carried").
-_MAX_SHADOW_READ = 32
-#: A lost candidate's shadow edge is sought within this many of its screening scales,
-#: px (:func:`shadow.find_edges`): a marker's X reaches about twice the scale its
-#: saddle answers at ...
-_SHADOW_REACH_SCALES = 2.0
-#: ... and divided out within this many reaches (:func:`shadow.divided_out`): the
-#: checks' rings and the fit read the X out to its extent, and the X-end rings beyond.
-_SHADOW_DISK_REACHES = 1.5
 #: Tiny X's whose plate is read per frame at most (:meth:`Detector._read_plates`, 1-2
 #: ms each), the strongest ring symmetry first, spread over the frame as Eq. (7)'s
 #: thinning spreads them: real aerial ground at 3-30 px leaves 60-200 a frame that
@@ -664,48 +630,35 @@ class Detector:
         screened: Candidates,
         plain: tuple[NDArray[np.float64], NDArray[np.bool_]],
     ) -> None:
-        """Candidates screened wide that found no marker, centred again with the light's slope.
+        """Lost wide candidates centred again with the light's slope, and read once more.
 
-        The coarse centring (:meth:`_centre`) fits grey-level point symmetry alone. On
-        an X under a light that changes across it (a cloud's shadow, a dull bright
-        quadrant) it settles a few tenths of a pixel to a pixel towards the brighter
-        side, where the rings, the template and the fit no longer see the X whole.
-        Centred with the light's slope fitted too (:func:`subpixel.coarse_centre`,
-        as the final fit takes it on disks of :data:`subpixel.GAIN_MIN_RADIUS_PX`
-        and more), they do. Not every candidate is centred so: the rings are
-        grey-level symmetry too, and see some markers under a light gradient best
-        where the slope-free centring put them. So only the candidates screened at
-        :data:`_WIDE_SCALE_PX` or wider that ended farther than the merge radius
-        from every detection (:meth:`_lost_wide`) are centred again; those the slope moves by
-        :data:`_RECENTRE_MIN_SHIFT_PX` or more go through the checks and the fit
-        once more. A marker they find joins the detections, which stay as they
-        were. Measured: docs/method.md, "A second centring, with the light's slope,
-        for the wide candidates that found no marker"; docs/accuracy.md, the run at
-        21bc646 and "Figures the fit's and the detector's docstrings carried".
+        Those :func:`second_reading.lost_wide` gives, at most
+        :data:`second_reading.MAX_RECENTRED`, are centred by
+        :func:`second_reading.recentred`; those the slope moved go through the checks
+        and the fit once more, and a marker they find joins the detections.
+        ``plain`` is the first centring of every screened candidate (:meth:`_centre`'s
+        fit: centres and where it found one).
 
         Counts ``recentred``, the candidates read again, ``found_recentred``, the
         markers they added, and ``recentring_over_cap``, the lost wide candidates
-        over :data:`_MAX_RECENTRED`; their second rejections are not counted again.
-        The survivors end with ``recentring``: the detections then.
-
-        ``plain`` is the first centring of every screened candidate (:meth:`_centre`'s
-        fit: centres and where it found one), which the slope's is compared with.
+        over the cap; their second rejections are not counted again. The survivors
+        end with ``recentring``: the detections then.
         """
-        cfg = self.config
-        gray, result = frame.gray, frame.result
+        result = frame.result
         counts = result.counts
-        lost, counts["recentring_over_cap"] = self._lost_wide(result, screened, _MAX_RECENTRED)
+        lost, counts["recentring_over_cap"] = self._lost_wide(
+            result, screened, second_reading.MAX_RECENTRED
+        )
         counts["recentred"] = counts["found_recentred"] = 0
         if len(lost):
             with frame.timer("centring"):
-                start, scale = screened.xy[lost], screened.scale_px[lost]
-                xy, inside = subpixel.coarse_centre(
-                    gray, start, scale, cfg.marker_radius_max_px, light_slope=True
+                again = second_reading.recentred(
+                    frame.gray,
+                    screened.take(lost),
+                    plain[0][lost],
+                    plain[1][lost],
+                    self.config.marker_radius_max_px,
                 )
-            # Where the slope leaves the centre where it was, the rings read it as before.
-            centre, read = plain[0][lost], plain[1][lost]
-            moved = ~read | (np.linalg.norm(xy - centre, axis=1) >= _RECENTRE_MIN_SHIFT_PX)
-            again = Candidates(xy, screened.strength[lost], scale).take(inside & moved)
             counts["recentred"] = len(again.xy)
             counts["found_recentred"] = self._join(
                 result, self._verify_and_locate(frame.reread(), again)[0]
@@ -713,142 +666,94 @@ class Detector:
         result.survivors.append(("recentring", _positions(result.detections)))
 
     def _reread_shadowed(self, frame: _Frame, screened: Candidates) -> None:
-        """Lost wide candidates a shadow's edge crosses, read again with the shadow divided out.
+        """Lost wide candidates a shadow's edge crosses, read again with it divided out.
 
-        A hard shadow across a marker breaks the grey-level symmetry every check
-        reads, not the X's geometry. Where :func:`shadow.find_edges` finds a shadow's
-        straight edge across a candidate the readings before left without a marker
-        (:meth:`_lost_wide`, at most :data:`_MAX_SHADOW_READ`, on their first
-        prescreen ring's line directions), one copy of the frame gets those shadows
-        divided out (:func:`shadow.divided_out`; of candidates whose disks overlap,
-        the best explained edge, :func:`shadow.apart`), and there the candidates are
-        centred with the light's slope (the shadow gone, a dull quadrant is left),
-        checked and fitted again. A marker found is located once more in the frame
-        itself, by its model with the shadow's edge, kept where that edge explains
-        (:meth:`_located_in_shadow`; X's of :data:`subpixel.MEASURED_MIN_EXTENT_PX`
-        and more), and joins the detections, which stay as they were. Measured:
-        docs/method.md, "A cast shadow's edge, found and divided out, for the wide
-        candidates still lost"; docs/accuracy.md, "Evidence measured and not taken";
-        docs/speed.md, "Earlier runs".
+        Those :func:`second_reading.lost_wide` gives after the recentring, at most
+        :data:`second_reading.MAX_SHADOW_READ`, are read by
+        :func:`second_reading.shadowed` on their first prescreen ring's line
+        directions. The checks and the fit read those a shadow crosses in the frame
+        with the shadows divided out; a marker found is located once more in the
+        frame itself, by its model with the shadow's edge
+        (:func:`second_reading.located_in_shadow`, X's of
+        :data:`subpixel.MEASURED_MIN_EXTENT_PX` and more), and joins the detections.
 
         Counts ``shadow_read``, the candidates read again, ``found_shadowed``, the
         markers they added, ``located_in_shadow``, those of them the model located,
-        and ``shadow_over_cap``, the lost wide candidates over
-        :data:`_MAX_SHADOW_READ`. The survivors end with ``shadow``: the detections then.
+        and ``shadow_over_cap``, the lost wide candidates over the cap. The survivors
+        end with ``shadow``: the detections then.
         """
-        cfg = self.config
         gray, result = frame.gray, frame.result
         counts = result.counts
-        lost, counts["shadow_over_cap"] = self._lost_wide(result, screened, _MAX_SHADOW_READ)
+        lost, counts["shadow_over_cap"] = self._lost_wide(
+            result, screened, second_reading.MAX_SHADOW_READ
+        )
         counts["shadow_read"] = counts["found_shadowed"] = counts["located_in_shadow"] = 0
+        reading = None
         if len(lost):
             with frame.timer("shadow"):
                 chosen = screened.take(lost)
-                reach = np.minimum(_SHADOW_REACH_SCALES * chosen.scale_px, cfg.marker_radius_max_px)
-                edges = shadow.find_edges(
-                    gray, chosen.xy, reach, self._line_directions(gray, chosen), frame.full_scale
+                reading = second_reading.shadowed(
+                    gray,
+                    chosen,
+                    self._line_directions(gray, chosen),
+                    self.config.marker_radius_max_px,
+                    frame.full_scale,
                 )
-                crossed = np.flatnonzero(edges.found)
-                disk = _SHADOW_DISK_REACHES * reach[crossed]
-                kept = shadow.apart(chosen.xy[crossed], disk, edges.explained[crossed])
-                crossed, disk = crossed[kept], disk[kept]
-            counts["shadow_read"] = len(crossed)
-            added: list[Detection] = []
-            if len(crossed):
-                read = chosen.take(crossed)
-                with frame.timer("shadow"):
-                    lit = shadow.divided_out(
-                        gray, read.xy, edges.take(crossed), disk, frame.full_scale
-                    )
-                with frame.timer("centring"):
-                    # With the light's slope, as the recentring: the shadow gone, a
-                    # dull quadrant still pulls a slope-free centring off the X.
-                    xy, inside = subpixel.coarse_centre(
-                        lit, read.xy, read.scale_px, cfg.marker_radius_max_px, light_slope=True
-                    )
-                centred = Candidates(xy, read.strength, read.scale_px).take(inside)
-                added = self._verify_and_locate(replace(frame.reread(), gray=lit), centred)[0]
-                added = self._located_in_shadow(frame, added, read.xy, edges.take(crossed))
-            counts["found_shadowed"] = self._join(result, added)
+        if reading is not None:
+            counts["shadow_read"] = len(reading.read.xy)
+            found = self._verify_and_locate(
+                replace(frame.reread(), gray=reading.lit), reading.centred
+            )[0]
+            if found:
+                xy, sigma, located = second_reading.located_in_shadow(
+                    gray,
+                    _positions(found),
+                    np.array([d.sigma for d in found]),
+                    np.array([(d.angle1, d.angle2) for d in found]),
+                    np.array([d.radius_px for d in found]),
+                    frame.full_scale,
+                    reading,
+                )
+                counts["located_in_shadow"] = int(located.sum())
+                found = [
+                    replace(d, x=float(x), y=float(y), sigma=float(e))
+                    for d, (x, y), e in zip(found, xy, sigma, strict=True)
+                ]
+            counts["found_shadowed"] = self._join(result, found)
         result.survivors.append(("shadow", _positions(result.detections)))
-
-    def _located_in_shadow(
-        self,
-        frame: _Frame,
-        found: list[Detection],
-        read_xy: NDArray[np.float64],
-        edges: shadow.ShadowEdges,
-    ) -> list[Detection]:
-        """The markers found with shadows divided out, located in the frame with their edges.
-
-        Each detection takes the edge of the candidate read nearest it (the disks
-        divided out do not overlap), and :func:`subpixel.locate_in_shadow` says
-        where the model's centre replaces it; those are counted in
-        ``located_in_shadow``.
-        """
-        if not found:
-            return found
-        xy = _positions(found)
-        nearest = cKDTree(read_xy).query(xy)[1]
-        located_xy, sigma, located = subpixel.locate_in_shadow(
-            frame.gray,
-            xy,
-            np.array([d.sigma for d in found]),
-            np.array([(d.angle1, d.angle2) for d in found]),
-            np.array([d.radius_px for d in found]),
-            frame.full_scale,
-            edges.take(nearest).moved(read_xy[nearest], xy),
-        )
-        frame.result.counts["located_in_shadow"] += int(located.sum())
-        return [
-            replace(d, x=float(x), y=float(y), sigma=float(s))
-            for d, (x, y), s in zip(found, located_xy, sigma, strict=True)
-        ]
 
     def _lost_wide(
         self, result: DetectionResult, screened: Candidates, cap: int
     ) -> tuple[NDArray[np.intp], int]:
-        """The screened candidates a second reading takes, and how many its ``cap`` cut.
-
-        Those screened at :data:`_WIDE_SCALE_PX` or wider that ended farther than the
-        merge radius from every detection, at most ``cap`` of them, the strongest
-        spread over the frame (:func:`screening.even_cap_index`).
-        """
-        wide = np.flatnonzero(screened.scale_px >= _WIDE_SCALE_PX)
-        lost = wide[self._far_from_detections(result, screened.xy[wide])]
-        if not len(lost):
-            return lost, 0
-        kept = screening.even_cap_index(
-            screened.xy[lost], screened.strength[lost], cap, self.config.entropy_cell_px
+        """:func:`second_reading.lost_wide` of the screened candidates, against the detections."""
+        return second_reading.lost_wide(
+            screened,
+            _positions(result.detections),
+            self.merge_radius_px,
+            cap,
+            self.config.entropy_cell_px,
         )
-        return lost[kept], len(lost) - len(kept)
 
     def _far_from_detections(
         self, result: DetectionResult, xy: NDArray[np.float64]
     ) -> NDArray[np.intp]:
         """Indices of the points farther than the merge radius from every detection."""
-        found = _positions(result.detections)
-        if not len(found) or not len(xy):
-            return np.arange(len(xy))
-        distance, _ = cKDTree(found).query(xy, distance_upper_bound=self.merge_radius_px)
-        return np.flatnonzero(~np.isfinite(distance))
+        return second_reading.far_from(_positions(result.detections), xy, self.merge_radius_px)
 
     def _join(self, result: DetectionResult, added: list[Detection]) -> int:
         """Add a second reading's markers to the detections; returns how many joined.
 
-        One within the merge radius of a detection, or of a stronger marker added,
-        is a duplicate, counted in ``merged_duplicates``.
+        A duplicate (:func:`second_reading.new_points`) is counted in
+        ``merged_duplicates``.
         """
         if not added:
             return 0
-        xy = _positions(added)
-        unique = screening.non_maximum_suppression(
-            xy, np.array([d.score for d in added]), self.merge_radius_px
+        unique = second_reading.new_points(
+            _positions(result.detections),
+            _positions(added),
+            np.array([d.score for d in added]),
+            self.merge_radius_px,
         )
-        found = _positions(result.detections)
-        if len(found):
-            distance, _ = cKDTree(found).query(xy, distance_upper_bound=self.merge_radius_px)
-            unique &= ~np.isfinite(distance)
         result.counts["merged_duplicates"] += int((~unique).sum())
         joined = [d for d, keep in zip(added, unique, strict=True) if keep]
         result.detections = sorted(result.detections + joined, key=lambda d: -d.score)
@@ -1093,14 +998,14 @@ class Detector:
         At most :data:`_MAX_VERIFIED` of those that pass go on, spread over the
         frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`); the
         rest are cut and counted. Candidates screened beyond texture's scale
-        (:data:`_WIDE_SCALE_PX`) that fail are read again with the
+        (:data:`second_reading.WIDE_SCALE_PX`) that fail are read again with the
         bright sectors equalised (:meth:`_ring_check` says why and when).
         """
         gray, result = frame.gray, frame.result
         floor = self._raw_contrast_floor(frame.full_scale, frame.gamma, candidates.xy)
         radii = self._prescreen_radii(candidates)
         keep, first_ring = verification.prescreen_symmetry(gray, candidates.xy, radii, floor)
-        wide = np.flatnonzero(~keep & (candidates.scale_px >= _WIDE_SCALE_PX))
+        wide = np.flatnonzero(~keep & (candidates.scale_px >= second_reading.WIDE_SCALE_PX))
         # The equalised re-read takes the first rings the plain one gathered.
         keep[wide] = verification.prescreen_symmetry(
             gray, candidates.xy[wide], radii[wide], floor[wide], True, first_ring[wide]
@@ -1476,7 +1381,7 @@ class Detector:
         bright sectors one level. That is evidence texture can fake at its own
         sizes (equalised everywhere, texture saddles of extent 2-6 px pass on the
         renderer's (a) and (c) and on real aerial ground), so it is read for
-        candidates screened beyond texture's scale (:data:`_WIDE_SCALE_PX`) or
+        candidates screened beyond texture's scale (:data:`second_reading.WIDE_SCALE_PX`) or
         shown out to :data:`verification.EQUALISED_MIN_EXTENT_PX` by the plain
         rings, and :func:`verification.with_equalised` says where it is believed.
 
@@ -1497,7 +1402,7 @@ class Detector:
         """
         check = self._ring_reader(gray, gamma)
         wide_px = verification.EQUALISED_MIN_EXTENT_PX
-        screened_wide = candidates.scale_px >= _WIDE_SCALE_PX
+        screened_wide = candidates.scale_px >= second_reading.WIDE_SCALE_PX
         # The inner rings read once: the equalised reading of the same points takes them.
         inner = verification.centre_symmetry_inner_profiles(
             gray, candidates.xy, self._radii, normalise=gamma
@@ -1561,7 +1466,7 @@ class Detector:
         scoring 0.95-0.99: rendered (g), seeds 100-123); the centring, a fit of
         grey-level symmetry, leaves such a candidate 0.4-0.8 px towards the brighter
         side, where the equalised rings stop a rung short. So a candidate screened wide
-        (:data:`_WIDE_SCALE_PX`) whose equalised rings showed an X (``equalised_x``)
+        (:data:`second_reading.WIDE_SCALE_PX`) whose equalised rings showed an X (``equalised_x``)
         but that the ring check rejected or left under its score floor is centred
         again with the light's slope (:func:`subpixel.coarse_centre`) and read
         equalised there, :data:`_MAX_DULL_READ` of them at most (in the first reading
@@ -1584,7 +1489,9 @@ class Detector:
         if frame.slope_centred:
             return candidates, ring
         weak = ~ring.accepted | (ring.score < self._floors.floor(ring.radius_px))
-        read = np.flatnonzero(weak & equalised_x & (candidates.scale_px >= _WIDE_SCALE_PX))
+        read = np.flatnonzero(
+            weak & equalised_x & (candidates.scale_px >= second_reading.WIDE_SCALE_PX)
+        )
         read = read[
             screening.even_cap_index(
                 candidates.xy[read], candidates.strength[read], _MAX_DULL_READ, cfg.entropy_cell_px

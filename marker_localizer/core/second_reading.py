@@ -1,0 +1,276 @@
+"""Second readings: screened candidates the first reading left without a marker, read again.
+
+The checks and the fit read grey-level point symmetry. A light that changes across
+an X (a cloud's shadow, a dull bright quadrant) or a cast shadow's edge across it
+breaks that symmetry, not the X's geometry, and the first reading loses the X.
+The candidates it lost are read again, by the same checks and fit, where the light
+is taken into account:
+
+* :func:`recentred`: centred once more with the light's slope fitted too;
+* :func:`shadowed`: with a cast shadow's straight edge, found by
+  :func:`shadow.find_edges`, divided out of a copy of the frame
+  (:func:`shadow.divided_out`), and centred there with the light's slope; a marker
+  found so is then located in the frame itself by its model with that edge
+  (:func:`located_in_shadow`).
+
+Which candidates are read again (:func:`lost_wide`): those screened at
+:data:`WIDE_SCALE_PX` or wider that ended farther than the merge radius from every
+detection, at most a cap of them, the strongest spread over the frame. A marker a
+second reading finds joins the detections unless it duplicates one
+(:func:`new_points`); the detections already made stay as they were.
+
+The detector (:class:`~marker_localizer.core.pipeline.Detector`) chains these with
+its checks and fit, counts and times them. Measured: docs/method.md, "A second
+centring, with the light's slope, for the wide candidates that found no marker" and
+"A cast shadow's edge, found and divided out, for the wide candidates still lost";
+docs/accuracy.md, "Figures the fit's and the detector's docstrings carried";
+docs/speed.md, "The second readings on the speed frames, and a gate on the
+recentring".
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from marker_localizer.core import screening, shadow, subpixel
+from marker_localizer.core.screening import Candidates
+
+#: Candidates screened at this scale or wider, px (the saddle pyramid's second level
+#: on), get second readings where the first found no X: the plain rings' rejects are
+#: read again with the bright sectors equalised, and where the X's lines cross
+#: (:meth:`~marker_localizer.core.pipeline.Detector._ring_check`); those that end as
+#: no marker are centred again with the light's slope (:func:`recentred`) and read
+#: with a shadow's edge divided out (:func:`shadowed`).
+#: What counts is still the evidence each reading shows (the equalised rings' extent,
+#: :data:`verification.EQUALISED_MIN_EXTENT_PX`); the scale only spares the cost:
+#: texture responds at the first level (4 px), and on the real aerial and cirn_uas
+#: frames this re-reads ~15 candidates a frame at 3-30 px, ~200 at 6-40 px (measured:
+#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried").
+WIDE_SCALE_PX = 8.0
+#: A lost wide candidate is read again (:func:`recentred`) where the light's slope
+#: moves its centre this far, px: less moves the rings' crossings, read every 10
+#: degrees from 3 px out, by under half a sample (4.8 degrees).
+RECENTRE_MIN_SHIFT_PX = 0.25
+#: Lost wide candidates centred again per frame at most, the strongest spread over the
+#: frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap_index`): markers
+#: are among a frame's strongest saddles, and each costs about 0.1-0.2 ms (measured:
+#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried";
+#: docs/speed.md, "Real ground, the radius range and the worst case").
+MAX_RECENTRED = 64
+#: ... and those whose shadow's edge is sought after the recentring (:func:`shadowed`,
+#: 0.1 ms each, and a reading again of those a shadow crosses): the 32 strongest hold
+#: nearly every marker the 64 strongest give (measured: docs/accuracy.md, "Figures the
+#: fit's and the detector's docstrings carried").
+MAX_SHADOW_READ = 32
+#: A lost candidate's shadow edge is sought within this many of its screening scales,
+#: px (:func:`shadow.find_edges`): a marker's X reaches about twice the scale its
+#: saddle answers at ...
+SHADOW_REACH_SCALES = 2.0
+#: ... and divided out within this many reaches (:func:`shadow.divided_out`): the
+#: checks' rings and the fit read the X out to its extent, and the X-end rings beyond.
+SHADOW_DISK_REACHES = 1.5
+
+
+def far_from(
+    found_xy: NDArray[np.float64], xy: NDArray[np.float64], radius_px: float
+) -> NDArray[np.intp]:
+    """Indices of the points ``xy`` farther than ``radius_px`` from every point of ``found_xy``."""
+    if not len(found_xy) or not len(xy):
+        return np.arange(len(xy))
+    distance, _ = cKDTree(found_xy).query(xy, distance_upper_bound=radius_px)
+    return np.flatnonzero(~np.isfinite(distance))
+
+
+def lost_wide(
+    screened: Candidates,
+    found_xy: NDArray[np.float64],
+    merge_radius_px: float,
+    cap: int,
+    cell_px: float,
+) -> tuple[NDArray[np.intp], int]:
+    """The screened candidates a second reading takes, and how many its ``cap`` cut.
+
+    Those screened at :data:`WIDE_SCALE_PX` or wider that ended farther than
+    ``merge_radius_px`` from every detection (``found_xy``), at most ``cap`` of
+    them, the strongest spread over the frame's cells of ``cell_px``
+    (:func:`screening.even_cap_index`).
+
+    Returns:
+        (indices into ``screened``, how many lost wide candidates the cap cut).
+    """
+    wide = np.flatnonzero(screened.scale_px >= WIDE_SCALE_PX)
+    lost = wide[far_from(found_xy, screened.xy[wide], merge_radius_px)]
+    if not len(lost):
+        return lost, 0
+    kept = screening.even_cap_index(screened.xy[lost], screened.strength[lost], cap, cell_px)
+    return lost[kept], len(lost) - len(kept)
+
+
+def new_points(
+    found_xy: NDArray[np.float64],
+    added_xy: NDArray[np.float64],
+    added_score: NDArray[np.float64],
+    merge_radius_px: float,
+) -> NDArray[np.bool_]:
+    """(M,) which of a second reading's points join the detections ``found_xy``.
+
+    One within ``merge_radius_px`` of a detection, or of a stronger point added
+    (``added_score``), is a duplicate.
+    """
+    unique = screening.non_maximum_suppression(added_xy, added_score, merge_radius_px)
+    if len(found_xy) and len(added_xy):
+        distance, _ = cKDTree(found_xy).query(added_xy, distance_upper_bound=merge_radius_px)
+        unique &= ~np.isfinite(distance)
+    return unique
+
+
+def recentred(
+    gray: NDArray[Any],
+    lost: Candidates,
+    plain_xy: NDArray[np.float64],
+    plain_found: NDArray[np.bool_],
+    max_radius_px: float,
+) -> Candidates:
+    """The lost candidates centred with the light's slope, where that moves them.
+
+    The coarse centring fits grey-level point symmetry alone. On an X under a light
+    that changes across it (a cloud's shadow, a dull bright quadrant) it settles a
+    few tenths of a pixel to a pixel towards the brighter side, where the rings,
+    the template and the fit no longer see the X whole. Centred with the light's
+    slope fitted too (:func:`subpixel.coarse_centre`, as the final fit takes it on
+    disks of :data:`subpixel.GAIN_MIN_RADIUS_PX` and more), they do. Not every
+    candidate is centred so: the rings are grey-level symmetry too, and see some
+    markers under a light gradient best where the slope-free centring put them; so
+    only the lost ones are, and those the slope moves by
+    :data:`RECENTRE_MIN_SHIFT_PX` or more from their first centre (or whose first
+    centring found none) are read again.
+
+    Args:
+        gray: (H, W) grey image, raw levels.
+        lost: the lost candidates, as screened.
+        plain_xy: (N, 2) their first, slope-free centres (:func:`subpixel.coarse_centre`).
+        plain_found: (N,) where that centring found a centre.
+        max_radius_px: the largest expected marker radius, px.
+
+    Returns:
+        The candidates to read again, at their slope-fitted centres.
+    """
+    xy, inside = subpixel.coarse_centre(
+        gray, lost.xy, lost.scale_px, max_radius_px, light_slope=True
+    )
+    # Where the slope leaves the centre where it was, the rings read it as before.
+    moved = ~plain_found | (np.linalg.norm(xy - plain_xy, axis=1) >= RECENTRE_MIN_SHIFT_PX)
+    return Candidates(xy, lost.strength, lost.scale_px).take(inside & moved)
+
+
+def shadow_reach(lost: Candidates, max_radius_px: float) -> NDArray[np.float64]:
+    """(N,) how far around each lost candidate its shadow's edge is sought, px."""
+    return np.minimum(SHADOW_REACH_SCALES * lost.scale_px, max_radius_px)
+
+
+class ShadowedReading(NamedTuple):
+    """What :func:`shadowed` gives a second reading.
+
+    Attributes:
+        lit: the frame with the shadows found divided out (a copy).
+        read: the lost candidates a shadow's edge crosses, as screened.
+        edges: their shadows' edges (:class:`shadow.ShadowEdges`).
+        centred: those candidates centred in ``lit`` with the light's slope.
+    """
+
+    lit: NDArray[Any]
+    read: Candidates
+    edges: shadow.ShadowEdges
+    centred: Candidates
+
+
+def shadowed(
+    gray: NDArray[Any],
+    lost: Candidates,
+    line_angles: NDArray[np.float64],
+    max_radius_px: float,
+    full_scale: float,
+) -> ShadowedReading | None:
+    """The lost candidates a cast shadow's edge crosses, with the shadows divided out.
+
+    A hard shadow across a marker breaks the grey-level symmetry every check reads,
+    not the X's geometry. Where :func:`shadow.find_edges` finds a shadow's straight
+    edge across a lost candidate (within :func:`shadow_reach`, on ``line_angles``),
+    one copy of the frame gets those shadows divided out
+    (:func:`shadow.divided_out`, within :data:`SHADOW_DISK_REACHES` reaches; of
+    candidates whose disks overlap, the best explained edge,
+    :func:`shadow.apart`), and there the candidates are centred with the light's
+    slope: the shadow gone, a dull quadrant still pulls a slope-free centring off
+    the X.
+
+    Args:
+        gray: (H, W) grey image, raw levels.
+        lost: the lost candidates, as screened.
+        line_angles: (N, 2) their line directions, radians (the first prescreen ring's).
+        max_radius_px: the largest expected marker radius, px.
+        full_scale: the image's white level.
+
+    Returns:
+        :class:`ShadowedReading`, or None where no shadow's edge crosses a candidate.
+    """
+    reach = shadow_reach(lost, max_radius_px)
+    edges = shadow.find_edges(gray, lost.xy, reach, line_angles, full_scale)
+    crossed = np.flatnonzero(edges.found)
+    disk = SHADOW_DISK_REACHES * reach[crossed]
+    kept = shadow.apart(lost.xy[crossed], disk, edges.explained[crossed])
+    crossed, disk = crossed[kept], disk[kept]
+    if not len(crossed):
+        return None
+    read, edges = lost.take(crossed), edges.take(crossed)
+    lit = shadow.divided_out(gray, read.xy, edges, disk, full_scale)
+    xy, inside = subpixel.coarse_centre(
+        lit, read.xy, read.scale_px, max_radius_px, light_slope=True
+    )
+    return ShadowedReading(
+        lit, read, edges, Candidates(xy, read.strength, read.scale_px).take(inside)
+    )
+
+
+def located_in_shadow(
+    gray: NDArray[Any],
+    xy: NDArray[np.float64],
+    sigma: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    full_scale: float,
+    reading: ShadowedReading,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """The markers a shadowed reading found, located in the frame itself with their edges.
+
+    Each marker takes the edge of the candidate read nearest it (the disks divided out
+    do not overlap), moved to its centre, and :func:`subpixel.locate_in_shadow` says
+    where the model's centre replaces it.
+
+    Args:
+        gray: (H, W) the frame itself, raw levels (not ``reading.lit``).
+        xy: (M, 2) the markers found in ``reading.lit``.
+        sigma: (M,) their sigmas, px.
+        line_angles: (M, 2) their line directions, radians.
+        radius_px: (M,) their extents, px.
+        full_scale: the image's white level.
+        reading: the :class:`ShadowedReading` that found them.
+
+    Returns:
+        (xy, sigma, located): (M, 2) the centres, (M,) sigmas, and where the model's
+        centre was taken.
+    """
+    read_xy = reading.read.xy
+    nearest = cKDTree(read_xy).query(xy)[1]
+    return subpixel.locate_in_shadow(
+        gray,
+        xy,
+        sigma,
+        line_angles,
+        radius_px,
+        full_scale,
+        reading.edges.take(nearest).moved(read_xy[nearest], xy),
+    )

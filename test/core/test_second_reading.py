@@ -1,0 +1,135 @@
+"""Second readings: which lost candidates are read again, where, and what joins."""
+
+import numpy as np
+import pytest
+
+from marker_localizer.core import second_reading, subpixel
+from marker_localizer.core.screening import Candidates
+from marker_localizer.synthetic import MarkerPlacement, render_markers
+from marker_localizer.synthetic.scene import CastShadow
+
+CENTRE = (64.3, 63.6)
+RADIUS_PX = 14.0
+MAX_RADIUS_PX = 30.0
+#: Where the screening leaves the candidate: a pixel or so off the centre, at the
+#: pyramid's second level.
+SCREENED = Candidates(np.array([[CENTRE[0] + 0.6, CENTRE[1] - 0.5]]), np.ones(1), np.array([8.0]))
+
+
+def _marker(
+    dull: float = 1.0, cast: tuple[CastShadow, ...] = ()
+) -> tuple[np.ndarray, tuple[float, float]]:
+    placement = MarkerPlacement(*CENTRE, RADIUS_PX, 0.4, 20.0, 0.3, dull_factor=dull)
+    scene = render_markers(
+        (128, 128),
+        [placement],
+        0,
+        blur_sigma_px=1.0,
+        noise_sigma_dn=1.0,
+        cast_shadows=list(cast),
+    )
+    return scene.image, scene.markers[0].angles
+
+
+def _error(xy: np.ndarray) -> float:
+    return float(np.hypot(*(np.asarray(xy) - CENTRE)))
+
+
+def test_points_within_the_radius_of_a_found_one_are_not_far():
+    found = np.array([[10.0, 10.0], [50.0, 50.0]])
+    xy = np.array([[10.5, 10.0], [30.0, 30.0], [50.0, 52.5], [90.0, 10.0]])
+    assert second_reading.far_from(found, xy, 2.0).tolist() == [1, 2, 3]
+    assert second_reading.far_from(np.zeros((0, 2)), xy, 2.0).tolist() == [0, 1, 2, 3]
+
+
+def test_only_wide_candidates_far_from_every_detection_are_lost_and_the_cap_is_counted():
+    wide = second_reading.WIDE_SCALE_PX
+    screened = Candidates(
+        np.array([[10.0, 10.0], [40.0, 10.0], [70.0, 10.0], [100.0, 10.0], [130.0, 10.0]]),
+        np.array([5.0, 4.0, 3.0, 2.0, 1.0]),
+        np.array([wide / 2, wide, wide, 2 * wide, 4 * wide]),
+    )
+    found = np.array([[40.5, 10.0]])
+    lost, over = second_reading.lost_wide(screened, found, 2.0, cap=10, cell_px=1000.0)
+    # The first is texture's scale, the second has found a marker.
+    assert sorted(lost.tolist()) == [2, 3, 4]
+    assert over == 0
+    lost, over = second_reading.lost_wide(screened, found, 2.0, cap=2, cell_px=1000.0)
+    assert len(lost) == 2 and over == 1
+    # The strongest are kept.
+    assert sorted(lost.tolist()) == [2, 3]
+
+
+def test_a_second_readings_point_near_a_detection_or_a_stronger_point_is_a_duplicate():
+    found = np.array([[10.0, 10.0]])
+    added = np.array([[11.0, 10.0], [40.0, 40.0], [41.0, 40.0], [80.0, 80.0]])
+    score = np.array([0.99, 0.9, 0.95, 0.9])
+    joins = second_reading.new_points(found, added, score, 2.0)
+    assert joins.tolist() == [False, False, True, True]
+    assert second_reading.new_points(np.zeros((0, 2)), added, score, 2.0).tolist() == [
+        True,
+        False,
+        True,
+        True,
+    ]
+
+
+@pytest.mark.parametrize("dull", [0.6, 0.45])
+def test_a_dull_quadrant_pulls_the_plain_centring_off_and_the_lights_slope_brings_it_back(dull):
+    image, _ = _marker(dull)
+    plain, found = subpixel.coarse_centre(image, SCREENED.xy, SCREENED.scale_px, MAX_RADIUS_PX)
+    again = second_reading.recentred(image, SCREENED, plain, found, MAX_RADIUS_PX)
+    assert _error(plain[0]) > 0.9
+    assert len(again.xy) == 1
+    assert _error(again.xy[0]) < 0.7 * _error(plain[0])
+    assert again.scale_px.tolist() == SCREENED.scale_px.tolist()
+
+
+def test_a_candidate_the_slope_leaves_where_it_was_is_not_read_again_unless_it_was_never_centred():
+    image, _ = _marker()
+    plain, found = subpixel.coarse_centre(image, SCREENED.xy, SCREENED.scale_px, MAX_RADIUS_PX)
+    assert found[0] and _error(plain[0]) < second_reading.RECENTRE_MIN_SHIFT_PX
+    assert len(second_reading.recentred(image, SCREENED, plain, found, MAX_RADIUS_PX).xy) == 0
+    assert len(second_reading.recentred(image, SCREENED, plain, ~found, MAX_RADIUS_PX).xy) == 1
+
+
+def test_a_shadows_edge_across_a_lost_candidate_is_divided_out_around_it_alone():
+    shade = CastShadow(*CENTRE, 0.7, 3.0, 0.5, 2 * RADIUS_PX)
+    image, angles = _marker(0.7, (shade,))
+    reading = second_reading.shadowed(image, SCREENED, np.array([angles]), MAX_RADIUS_PX, 255.0)
+    assert reading is not None
+    assert reading.read.xy.tolist() == SCREENED.xy.tolist()
+    changed_y, changed_x = np.nonzero(reading.lit != image)
+    disk = second_reading.SHADOW_DISK_REACHES * second_reading.shadow_reach(SCREENED, MAX_RADIUS_PX)
+    reach = np.hypot(changed_x - SCREENED.xy[0, 0], changed_y - SCREENED.xy[0, 1])
+    assert len(reach) and reach.max() <= disk[0]
+    # The shadow's side is lit again, nothing darkened.
+    assert (reading.lit.astype(int) >= image.astype(int)).all()
+    # Centred in the lit copy with the light's slope, near the X's centre.
+    assert len(reading.centred.xy) == 1 and _error(reading.centred.xy[0]) < 0.5
+
+
+def test_without_a_shadows_edge_nothing_is_read_again():
+    image, angles = _marker(0.7)
+    assert (
+        second_reading.shadowed(image, SCREENED, np.array([angles]), MAX_RADIUS_PX, 255.0) is None
+    )
+
+
+def test_a_marker_found_with_its_shadow_divided_out_is_located_in_the_frame_with_its_edge():
+    shade = CastShadow(*CENTRE, 0.7, 3.0, 0.5, 2 * RADIUS_PX)
+    image, angles = _marker(0.7, (shade,))
+    reading = second_reading.shadowed(image, SCREENED, np.array([angles]), MAX_RADIUS_PX, 255.0)
+    assert reading is not None
+    xy, sigma, located = second_reading.located_in_shadow(
+        image,
+        reading.centred.xy,
+        np.array([0.05]),
+        np.array([angles]),
+        np.array([0.9 * RADIUS_PX]),
+        255.0,
+        reading,
+    )
+    assert located.tolist() == [True]
+    assert _error(xy[0]) < 0.05 < _error(reading.centred.xy[0])
+    assert np.isfinite(sigma).all()
