@@ -145,13 +145,6 @@ _LINE_WINDOW_MIN_PX = 3.0
 #: (:func:`verification.centre_symmetry_check`'s ``max_first_ring`` of 2, plus one), so
 #: among those the check reads for every point first, whose samples they take.
 _LINE_CROSSING_RINGS = 3
-#: Candidates screened wide whose rings read equalised show an X but that the ring
-#: check rejects, or leaves under its score floor, centred again with the light's
-#: slope per frame at most (:meth:`Detector._read_dull`), the strongest spread over
-#: the frame: most frames hold fewer (measured: docs/accuracy.md, "Small X's with a
-#: dull quadrant, read again from the light slope's centre" and "Figures the fit's
-#: and the detector's docstrings carried").
-_MAX_DULL_READ = 64
 #: Tiny X's whose plate is read per frame at most (:meth:`Detector._read_plates`, 1-2
 #: ms each), the strongest ring symmetry first, spread over the frame as Eq. (7)'s
 #: thinning spreads them: real aerial ground at 3-30 px leaves 60-200 a frame that
@@ -232,7 +225,7 @@ class DetectionResult:
             the fit's score floor rejected that the marker's model vouches for,
             :meth:`acceptance.MarkerModel.vouches`), ``dull_read`` and ``kept_dull`` (X's
             the ring check rejected that were read again from the light slope's
-            centre, and those of them it took, :meth:`Detector._read_dull`),
+            centre, and those of them it took, :func:`second_reading.read_dull`),
             ``recentring_over_cap`` (:meth:`Detector._recentre_lost`), ``shadow_read``,
             ``found_shadowed``, ``located_in_shadow``, ``shadow_over_cap``
             (:meth:`Detector._reread_shadowed`),
@@ -1461,64 +1454,32 @@ class Detector:
     ) -> tuple[Candidates, verification.SymmetryCheck]:
         """Small X's with a dull quadrant, read again from the light slope's centre.
 
-        At the true centre of a marker of 5-8 px with a dull bright quadrant the plain
-        rings show no X at all, and the equalised rings show it out to 5 px (3.5-7,
-        scoring 0.95-0.99: rendered (g), seeds 100-123); the centring, a fit of
-        grey-level symmetry, leaves such a candidate 0.4-0.8 px towards the brighter
-        side, where the equalised rings stop a rung short. So a candidate screened wide
-        (:data:`second_reading.WIDE_SCALE_PX`) whose equalised rings showed an X (``equalised_x``)
-        but that the ring check rejected or left under its score floor is centred
-        again with the light's slope (:func:`subpixel.coarse_centre`) and read
-        equalised there, :data:`_MAX_DULL_READ` of them at most (in the first reading
-        alone: a second one's candidates are centred so already). That reading
-        replaces the first where it shows the X out to
-        :data:`verification.DULL_MIN_EXTENT_PX`, clears the score floor of its
-        extent, and the marker's model vouches for it
-        (:meth:`acceptance.MarkerModel.vouches`, as for a faint X): at that extent, a rung under
-        :data:`verification.EQUALISED_MIN_EXTENT_PX`, texture passes the rings too
-        (measured: docs/accuracy.md, "Small X's with a dull quadrant, read again from
-        the light slope's centre"). Counts ``dull_read`` and ``kept_dull``.
+        :func:`second_reading.read_dull`, in the first reading alone: a second one's
+        candidates are centred with the light's slope already. Counts ``dull_read``
+        and ``kept_dull``.
 
         Returns:
             The candidates (those read again and kept moved) and their check.
         """
-        cfg = self.config
         counts = frame.result.counts
         counts["dull_read"] = counts.get("dull_read", 0)
         counts["kept_dull"] = counts.get("kept_dull", 0)
         if frame.slope_centred:
             return candidates, ring
-        weak = ~ring.accepted | (ring.score < self._floors.floor(ring.radius_px))
-        read = np.flatnonzero(
-            weak & equalised_x & (candidates.scale_px >= second_reading.WIDE_SCALE_PX)
-        )
-        read = read[
-            screening.even_cap_index(
-                candidates.xy[read], candidates.strength[read], _MAX_DULL_READ, cfg.entropy_cell_px
-            )
-        ]
-        counts["dull_read"] += len(read)
-        if not len(read):
-            return candidates, ring
-        xy, inside = subpixel.coarse_centre(
+        reading = second_reading.read_dull(
             frame.gray,
-            candidates.xy[read],
-            candidates.scale_px[read],
-            cfg.marker_radius_max_px,
-            light_slope=True,
+            candidates,
+            ring,
+            equalised_x,
+            functools.partial(self._ring_reader(frame.gray, frame.gamma), equalise=True),
+            self._floors,
+            self._model(frame),
+            self.config.marker_radius_max_px,
+            self.config.entropy_cell_px,
         )
-        there = self._ring_reader(frame.gray, frame.gamma)(xy, equalise=True)
-        kept = np.flatnonzero(
-            inside
-            & there.accepted
-            & (there.radius_px >= verification.DULL_MIN_EXTENT_PX)
-            & (there.score >= self._floors.floor(there.radius_px))
-        )
-        kept = kept[
-            self._model(frame).vouches(xy[kept], there.radius_px[kept], there.line_angles[kept])
-        ]
-        counts["kept_dull"] += len(kept)
-        return candidates.moved(read[kept], xy[kept]), ring.with_rows(read[kept], there, kept)
+        counts["dull_read"] += len(reading.read)
+        counts["kept_dull"] += len(reading.kept)
+        return reading.moved(candidates, ring)
 
     @property
     def _lines_after_fit(self) -> bool:

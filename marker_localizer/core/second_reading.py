@@ -6,6 +6,9 @@ breaks that symmetry, not the X's geometry, and the first reading loses the X.
 The candidates it lost are read again, by the same checks and fit, where the light
 is taken into account:
 
+* :func:`read_dull`: small X's with a dull quadrant, whose equalised rings showed
+  them in the first reading but short, read there again from the light slope's
+  centre;
 * :func:`recentred`: centred once more with the light's slope fitted too;
 * :func:`shadowed`: with a cast shadow's straight edge, found by
   :func:`shadow.find_edges`, divided out of a copy of the frame
@@ -30,13 +33,14 @@ recentring".
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from marker_localizer.core import screening, shadow, subpixel
+from marker_localizer.core import acceptance, screening, shadow, subpixel, verification
 from marker_localizer.core.screening import Candidates
 
 #: Candidates screened at this scale or wider, px (the saddle pyramid's second level
@@ -73,6 +77,106 @@ SHADOW_REACH_SCALES = 2.0
 #: ... and divided out within this many reaches (:func:`shadow.divided_out`): the
 #: checks' rings and the fit read the X out to its extent, and the X-end rings beyond.
 SHADOW_DISK_REACHES = 1.5
+#: Candidates :func:`read_dull` reads again per frame at most, the strongest spread
+#: over the frame: most frames hold fewer (measured: docs/accuracy.md, "Small X's with
+#: a dull quadrant, read again from the light slope's centre" and "Figures the fit's
+#: and the detector's docstrings carried").
+MAX_DULL_READ = 64
+
+
+class DullReading(NamedTuple):
+    """What :func:`read_dull` read again, and what it kept.
+
+    Attributes:
+        read: (R,) rows of the candidates read again.
+        xy: (R, 2) their centres with the light's slope.
+        rings: their equalised rings there (R rows).
+        kept: (K,) which of them replace the first reading, as positions in ``read``.
+    """
+
+    read: NDArray[np.intp]
+    xy: NDArray[np.float64]
+    rings: verification.SymmetryCheck | None
+    kept: NDArray[np.intp]
+
+    def moved(
+        self, candidates: Candidates, ring: verification.SymmetryCheck
+    ) -> tuple[Candidates, verification.SymmetryCheck]:
+        """The candidates and their check with the kept ones replaced by this reading."""
+        if self.rings is None:
+            return candidates, ring
+        rows = self.read[self.kept]
+        return (
+            candidates.moved(rows, self.xy[self.kept]),
+            ring.with_rows(rows, self.rings, self.kept),
+        )
+
+
+def read_dull(
+    gray: NDArray[Any],
+    candidates: Candidates,
+    ring: verification.SymmetryCheck,
+    equalised_x: NDArray[np.bool_],
+    equalised_rings: Callable[[NDArray[np.float64]], verification.SymmetryCheck],
+    floors: acceptance.ScoreFloors,
+    model: acceptance.MarkerModel,
+    max_radius_px: float,
+    cell_px: float,
+) -> DullReading:
+    """Small X's with a dull quadrant, read again from the light slope's centre.
+
+    At the true centre of a marker of 5-8 px with a dull bright quadrant the plain
+    rings show no X at all, and the equalised rings show it out to 5 px; the
+    centring, a fit of grey-level symmetry, leaves such a candidate 0.4-0.8 px
+    towards the brighter side, where the equalised rings stop a rung short. So a
+    candidate screened at :data:`WIDE_SCALE_PX` or wider whose equalised rings
+    showed an X (``equalised_x``) but that the ring check rejected or left under
+    its score floor is centred again with the light's slope
+    (:func:`subpixel.coarse_centre`) and read equalised there, :data:`MAX_DULL_READ`
+    of them at most, the strongest spread over the frame's cells of ``cell_px``.
+    That reading replaces the first where it shows the X out to
+    :data:`verification.DULL_MIN_EXTENT_PX`, clears the score floor of its extent,
+    and the marker's model vouches for it (:meth:`acceptance.MarkerModel.vouches`,
+    as for a faint X): at that extent, a rung under
+    :data:`verification.EQUALISED_MIN_EXTENT_PX`, texture passes the rings too
+    (measured: docs/accuracy.md, "Small X's with a dull quadrant, read again from
+    the light slope's centre").
+
+    Args:
+        gray: (H, W) grey image, raw levels.
+        candidates: the centred candidates of the first reading.
+        ring: their ring check.
+        equalised_x: (N,) where their equalised rings showed an X of any extent.
+        equalised_rings: the ring check with the bright sectors equalised, at points.
+        floors: the score floors of each extent.
+        model: the marker's model on the frame.
+        max_radius_px: the largest expected marker radius, px.
+        cell_px: the cells the cap spreads the candidates over, px.
+
+    Returns:
+        :class:`DullReading`.
+    """
+    weak = ~ring.accepted | (ring.score < floors.floor(ring.radius_px))
+    read = np.flatnonzero(weak & equalised_x & (candidates.scale_px >= WIDE_SCALE_PX))
+    read = read[
+        screening.even_cap_index(
+            candidates.xy[read], candidates.strength[read], MAX_DULL_READ, cell_px
+        )
+    ]
+    if not len(read):
+        return DullReading(read, np.zeros((0, 2)), None, read)
+    xy, inside = subpixel.coarse_centre(
+        gray, candidates.xy[read], candidates.scale_px[read], max_radius_px, light_slope=True
+    )
+    there = equalised_rings(xy)
+    kept = np.flatnonzero(
+        inside
+        & there.accepted
+        & (there.radius_px >= verification.DULL_MIN_EXTENT_PX)
+        & (there.score >= floors.floor(there.radius_px))
+    )
+    kept = kept[model.vouches(xy[kept], there.radius_px[kept], there.line_angles[kept])]
+    return DullReading(read, xy, there, kept)
 
 
 def far_from(

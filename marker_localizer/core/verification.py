@@ -120,7 +120,7 @@ EQUALISED_MIN_EXTENT_PX = 7.0
 #: ... and a rung under it, the smallest where a candidate read again from the light
 #: slope's centre counts, if the marker's model vouches for it too (a dull quadrant
 #: leaves a marker of 5-8 px equalised rings to 3.5-7 px even at its true centre;
-#: ``Detector._read_dull``): the ladder's 5 px rung at 5-30 px, 6 px at 6-40 px.
+#: :func:`second_reading.read_dull`): the ladder's 5 px rung at 5-30 px, 6 px at 6-40 px.
 DULL_MIN_EXTENT_PX = 5.0
 #: Detections whose X extends no further than the smallest expected radius (times this,
 #: for the ring ladder's rounding), or than :data:`SMALL_EXTENT_MAX_RADIUS_PX` where that

@@ -13,7 +13,15 @@ from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench import real_data
 from marker_localizer.bench.accuracy import disc_lattice_frame, families
 from marker_localizer.bench.ground import x_tiling_frame
-from marker_localizer.core import acceptance, decision, pipeline, plate, shadow, verification
+from marker_localizer.core import (
+    acceptance,
+    decision,
+    pipeline,
+    plate,
+    second_reading,
+    shadow,
+    verification,
+)
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import (
     MarkerPlacement,
@@ -582,7 +590,7 @@ def test_small_markers_with_a_dull_quadrant_are_read_again_from_the_light_slopes
     # again from the light slope's centre, with the marker's model vouching, 41 of these
     # 48 are found; without that reading, 34.
     found, false = _wide_dull_markers(range(8), (0.6, 0.8), (5.5, 8.0), (5.0, 30.0))
-    monkeypatch.setattr(pipeline, "_MAX_DULL_READ", 0)
+    monkeypatch.setattr(second_reading, "MAX_DULL_READ", 0)
     unread, unread_false = _wide_dull_markers(range(8), (0.6, 0.8), (5.5, 8.0), (5.0, 30.0))
     assert found >= 40 and unread <= 36
     assert false == unread_false == 0

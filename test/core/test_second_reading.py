@@ -1,9 +1,13 @@
 """Second readings: which lost candidates are read again, where, and what joins."""
 
+import functools
+
 import numpy as np
 import pytest
 
-from marker_localizer.core import second_reading, subpixel
+from marker_localizer.config import DetectorConfig
+from marker_localizer.core import acceptance, preprocessing, second_reading, subpixel, verification
+from marker_localizer.core.noise import estimate_noise
 from marker_localizer.core.screening import Candidates
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 from marker_localizer.synthetic.scene import CastShadow
@@ -17,9 +21,9 @@ SCREENED = Candidates(np.array([[CENTRE[0] + 0.6, CENTRE[1] - 0.5]]), np.ones(1)
 
 
 def _marker(
-    dull: float = 1.0, cast: tuple[CastShadow, ...] = ()
+    dull: float = 1.0, cast: tuple[CastShadow, ...] = (), radius_px: float = RADIUS_PX
 ) -> tuple[np.ndarray, tuple[float, float]]:
-    placement = MarkerPlacement(*CENTRE, RADIUS_PX, 0.4, 20.0, 0.3, dull_factor=dull)
+    placement = MarkerPlacement(*CENTRE, radius_px, 0.4, 20.0, 0.3, dull_factor=dull)
     scene = render_markers(
         (128, 128),
         [placement],
@@ -133,3 +137,66 @@ def test_a_marker_found_with_its_shadow_divided_out_is_located_in_the_frame_with
     assert located.tolist() == [True]
     assert _error(xy[0]) < 0.05 < _error(reading.centred.xy[0])
     assert np.isfinite(sigma).all()
+
+
+def _read_dull(
+    image: np.ndarray, scale_px: float
+) -> tuple[second_reading.DullReading, Candidates, verification.SymmetryCheck]:
+    """The first reading's centring and rings of one screened candidate, then read_dull."""
+    config = DetectorConfig(marker_radius_min_px=5.0, marker_radius_max_px=MAX_RADIUS_PX)
+    gamma = preprocessing.LocalGamma(
+        image, 255.0, config.gamma_alpha, config.illumination_window_px
+    )
+    rings = functools.partial(
+        verification.centre_symmetry_check,
+        image,
+        radii_px=verification.ring_radii((5.0, MAX_RADIUS_PX)),
+        min_contrast=config.min_contrast_dn / 255.0,
+        min_symmetry=config.symmetry_min,
+        normalise=gamma,
+    )
+    screened = Candidates(SCREENED.xy, SCREENED.strength, np.array([scale_px]))
+    plain, _ = subpixel.coarse_centre(image, screened.xy, screened.scale_px, MAX_RADIUS_PX)
+    centred = Candidates(plain, screened.strength, screened.scale_px)
+    first = rings(plain)
+    reading = second_reading.read_dull(
+        image,
+        centred,
+        first,
+        rings(plain, equalise=True).accepted,
+        functools.partial(rings, equalise=True),
+        acceptance.ScoreFloors(config.min_score, config.min_score_small, 5.0),
+        acceptance.MarkerModel(
+            image, 255.0, lambda: estimate_noise(image, 255.0), MAX_RADIUS_PX, False, gamma
+        ),
+        MAX_RADIUS_PX,
+        config.entropy_cell_px,
+    )
+    return reading, centred, first
+
+
+@pytest.mark.parametrize("radius_px", [7.0, 8.0])
+def test_a_small_x_with_a_dull_quadrant_is_read_again_from_the_light_slopes_centre(radius_px):
+    # The plain rings at the slope-free centre, 0.9-1 px towards the brighter side,
+    # show no X; the equalised ones show it, short. From the slope's centre they
+    # show it out to 5 px, and the marker's model vouches for it.
+    image, _ = _marker(0.55, radius_px=radius_px)
+    reading, centred, first = _read_dull(image, second_reading.WIDE_SCALE_PX)
+    assert not first.accepted[0]
+    assert reading.read.tolist() == [0] and reading.kept.tolist() == [0]
+    assert _error(reading.xy[0]) < 0.6 * _error(centred.xy[0])
+    # The reading replaces the first: the candidate moves, and its rings are these.
+    moved, ring = reading.moved(centred, first)
+    assert moved.xy.tolist() == reading.xy.tolist()
+    assert ring.accepted[0] and ring.radius_px[0] >= verification.DULL_MIN_EXTENT_PX
+
+
+def test_an_x_screened_at_textures_scale_or_read_whole_is_not_read_again():
+    image, _ = _marker(0.55, radius_px=7.0)
+    reading, centred, first = _read_dull(image, second_reading.WIDE_SCALE_PX / 2)
+    assert len(reading.read) == 0
+    moved, ring = reading.moved(centred, first)
+    assert moved is centred and ring is first
+    even, _ = _marker(1.0, radius_px=7.0)
+    reading, _, first = _read_dull(even, second_reading.WIDE_SCALE_PX)
+    assert first.accepted[0] and len(reading.read) == 0
