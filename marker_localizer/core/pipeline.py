@@ -140,11 +140,6 @@ _DECISION_PIXELS = 300
 #: Smallest half-size of the double-line check's window, px: LSD needs segments a
 #: few pixels long (the check upsamples small windows).
 _LINE_WINDOW_MIN_PX = 3.0
-#: Rings that say where an X's lines cross (:func:`verification.line_crossing_centres`):
-#: those a run of good rings may start on and the next
-#: (:func:`verification.centre_symmetry_check`'s ``max_first_ring`` of 2, plus one), so
-#: among those the check reads for every point first, whose samples they take.
-_LINE_CROSSING_RINGS = 3
 #: Tiny X's whose plate is read per frame at most (:meth:`Detector._read_plates`, 1-2
 #: ms each), the strongest ring symmetry first, spread over the frame as Eq. (7)'s
 #: thinning spreads them: real aerial ground at 3-30 px leaves 60-200 a frame that
@@ -992,7 +987,7 @@ class Detector:
         frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap`); the
         rest are cut and counted. Candidates screened beyond texture's scale
         (:data:`second_reading.WIDE_SCALE_PX`) that fail are read again with the
-        bright sectors equalised (:meth:`_ring_check` says why and when).
+        bright sectors equalised (:func:`verification.ring_check` says why and when).
         """
         gray, result = frame.gray, frame.result
         floor = self._raw_contrast_floor(frame.full_scale, frame.gamma, candidates.xy)
@@ -1367,79 +1362,33 @@ class Detector:
     def _ring_check(
         self, gray: NDArray[Any], candidates: Candidates, gamma: preprocessing.LocalGamma
     ) -> tuple[Candidates, verification.SymmetryCheck, NDArray[np.bool_]]:
-        """The centre-symmetry check, and for X's wider than texture's its equalised twin.
-
-        A dull bright quadrant breaks the grey-level symmetry of the rings, not the
-        X's geometry; :func:`verification.equalise_bright_sectors` gives the two
-        bright sectors one level. That is evidence texture can fake at its own
-        sizes (equalised everywhere, texture saddles of extent 2-6 px pass on the
-        renderer's (a) and (c) and on real aerial ground), so it is read for
-        candidates screened beyond texture's scale (:data:`second_reading.WIDE_SCALE_PX`) or
-        shown out to :data:`verification.EQUALISED_MIN_EXTENT_PX` by the plain
-        rings, and :func:`verification.with_equalised` says where it is believed.
-
-        The same quadrant pulls the centring, a fit of grey-level symmetry, towards
-        the brighter side: 1-3 px on the renderer's (g) markers of 10-30 px, where
-        the inner rings no longer see the X symmetric, equalised or not. Candidates
-        screened wide and still rejected are therefore read again, equalised,
-        where the lines found on their innermost rings cross
-        (:func:`verification.line_crossing_centres`: edges' phases only, which the
-        levels leave in place), and move there where the X shows out to that extent.
-        Measured: docs/method.md, "Equalised rings for X's wider than texture's" and
-        "The lines' crossing, not grey-level symmetry, for a dull X's centre";
-        docs/accuracy.md, "Figures the fit's and the detector's docstrings carried".
+        """:func:`verification.ring_check` of the centred candidates, as this detector reads rings.
 
         Returns:
-            The candidates (those recentred moved), their check, and (N,) where the
-            equalised rings read at the candidate showed an X of any extent.
+            The candidates (those the lines' crossing recentred moved), their check,
+            and (N,) where the equalised rings read at the candidate showed an X of
+            any extent.
         """
-        check = self._ring_reader(gray, gamma)
-        wide_px = verification.EQUALISED_MIN_EXTENT_PX
-        screened_wide = candidates.scale_px >= second_reading.WIDE_SCALE_PX
-        # The inner rings read once: the equalised reading of the same points takes them.
-        inner = verification.centre_symmetry_inner_profiles(
-            gray, candidates.xy, self._radii, normalise=gamma
-        )
-        ring = check(candidates.xy, inner_profiles=inner)
-        retry = np.flatnonzero(screened_wide | (ring.accepted & (ring.radius_px >= wide_px)))
-        equalised_x = np.zeros(len(candidates.xy), dtype=bool)
-        if len(retry):
-            equalised = check(candidates.xy[retry], equalise=True, inner_profiles=inner[retry])
-            equalised_x[retry] = equalised.accepted
-            ring = verification.with_equalised(
-                ring, retry, equalised, self._floors.floor(ring.radius_px[retry])
-            )
-        lost = np.flatnonzero(screened_wide & ~ring.accepted)
-        if not len(lost):
-            return candidates, ring, equalised_x
-        crossing, _ = verification.line_crossing_centres(
+        reading = verification.ring_check(
             gray,
-            candidates.xy[lost],
-            self._radii[:_LINE_CROSSING_RINGS],
+            candidates.xy,
+            candidates.scale_px >= second_reading.WIDE_SCALE_PX,
+            self._radii,
             min_contrast=self._min_contrast,
+            min_symmetry=self.config.symmetry_min,
             normalise=gamma,
-            profiles=inner[lost, :_LINE_CROSSING_RINGS],
+            floor=self._floors.floor,
         )
-        # Those the crossing left where they were have had their equalised reading.
-        shifted = (crossing != candidates.xy[lost]).any(axis=1)
-        lost, crossing = lost[shifted], crossing[shifted]
-        there = check(crossing, equalise=True)
-        found = there.accepted & (there.radius_px >= wide_px)
-        moved = candidates.moved(lost[found], crossing[found])
-        return moved, ring.with_rows(lost[found], there, found), equalised_x
+        moved = Candidates(reading.xy, candidates.strength, candidates.scale_px)
+        return moved, reading.check, reading.equalised_x
 
     def _ring_reader(
         self, gray: NDArray[Any], gamma: preprocessing.LocalGamma
     ) -> Callable[..., verification.SymmetryCheck]:
-        """:func:`verification.centre_symmetry_check` on ``gray`` as this detector reads rings.
-
-        Its ladder, contrast floor and symmetry threshold, the rings normalised by
-        ``gamma``; called with the points and, where asked, ``equalise``.
-        """
-        return functools.partial(
-            verification.centre_symmetry_check,
+        """:func:`verification.ring_reader` on ``gray``, as this detector reads rings."""
+        return verification.ring_reader(
             gray,
-            radii_px=self._radii,
+            self._radii,
             min_contrast=self._min_contrast,
             min_symmetry=self.config.symmetry_min,
             normalise=gamma,

@@ -46,9 +46,9 @@ from marker_localizer.core.screening import Candidates
 #: Candidates screened at this scale or wider, px (the saddle pyramid's second level
 #: on), get second readings where the first found no X: the plain rings' rejects are
 #: read again with the bright sectors equalised, and where the X's lines cross
-#: (:meth:`~marker_localizer.core.pipeline.Detector._ring_check`); those that end as
-#: no marker are centred again with the light's slope (:func:`recentred`) and read
-#: with a shadow's edge divided out (:func:`shadowed`).
+#: (:func:`verification.ring_check`); those that end as no marker are centred again
+#: with the light's slope (:func:`recentred`) and read with a shadow's edge divided
+#: out (:func:`shadowed`).
 #: What counts is still the evidence each reading shows (the equalised rings' extent,
 #: :data:`verification.EQUALISED_MIN_EXTENT_PX`); the scale only spares the cost:
 #: texture responds at the first level (4 px), and on the real aerial and cirn_uas

@@ -13,6 +13,7 @@ ring (which rejects bars, blobs and plus signs that pass a single ring).
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from typing import Any, NamedTuple, cast
 
 import cv2
@@ -753,6 +754,129 @@ def centre_symmetry_check(
     if inner_profiles is None:
         return in_blocks(check, _CHECK_BLOCK, xy)
     return in_blocks(check, _CHECK_BLOCK, xy, inner_profiles)
+
+
+def ring_reader(
+    image: NDArray[Any],
+    radii_px: NDArray[np.float64],
+    *,
+    min_contrast: float,
+    min_symmetry: float,
+    normalise: Normaliser | None,
+) -> Callable[..., SymmetryCheck]:
+    """:func:`centre_symmetry_check` on ``image`` with one ladder, floor and threshold.
+
+    Called with the points and, where asked, ``equalise`` and ``inner_profiles``.
+    """
+    return functools.partial(
+        centre_symmetry_check,
+        image,
+        radii_px=radii_px,
+        min_contrast=min_contrast,
+        min_symmetry=min_symmetry,
+        normalise=normalise,
+    )
+
+
+#: Rings that say where an X's lines cross (:func:`line_crossing_centres`): those a
+#: run of good rings may start on and the next (:func:`centre_symmetry_check`'s
+#: ``max_first_ring`` of 2, plus one), so among those the check reads for every point
+#: first, whose samples they take.
+LINE_CROSSING_RINGS = 3
+
+
+class RingReading(NamedTuple):
+    """What :func:`ring_check` read.
+
+    Attributes:
+        xy: (N, 2) the candidates' positions, those the lines' crossing moved, moved.
+        check: their :class:`SymmetryCheck`.
+        equalised_x: (N,) where the equalised rings read at the candidate showed an X
+            of any extent.
+    """
+
+    xy: NDArray[np.float64]
+    check: SymmetryCheck
+    equalised_x: NDArray[np.bool_]
+
+
+def ring_check(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    wide: NDArray[np.bool_],
+    radii_px: NDArray[np.float64],
+    *,
+    min_contrast: float,
+    min_symmetry: float,
+    normalise: Normaliser | None,
+    floor: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+) -> RingReading:
+    """The centre-symmetry check, and for X's wider than texture's its equalised twin.
+
+    A dull bright quadrant breaks the grey-level symmetry of the rings, not the
+    X's geometry; :func:`equalise_bright_sectors` gives the two bright sectors one
+    level. That is evidence texture can fake at its own sizes (equalised
+    everywhere, texture saddles of extent 2-6 px pass on the renderer's (a) and
+    (c) and on real aerial ground), so it is read for the candidates screened
+    beyond texture's scale (``wide``) or shown out to
+    :data:`EQUALISED_MIN_EXTENT_PX` by the plain rings, and :func:`with_equalised`
+    says where it is believed (``floor``: the score floor of each extent).
+
+    The same quadrant pulls the centring, a fit of grey-level symmetry, towards
+    the brighter side: 1-3 px on the renderer's (g) markers of 10-30 px, where
+    the inner rings no longer see the X symmetric, equalised or not. Wide
+    candidates still rejected are therefore read again, equalised, where the lines
+    found on their innermost rings cross (:func:`line_crossing_centres`: edges'
+    phases only, which the levels leave in place), and move there where the X
+    shows out to that extent. Measured: docs/method.md, "Equalised rings for X's
+    wider than texture's" and "The lines' crossing, not grey-level symmetry, for
+    a dull X's centre"; docs/accuracy.md, "Figures the fit's and the detector's
+    docstrings carried".
+
+    Args:
+        image: (H, W) grey image, raw levels.
+        xy: (N, 2) centred candidates.
+        wide: (N,) those screened beyond texture's scale.
+        radii_px: (J,) the ring ladder (:func:`ring_radii`).
+        min_contrast: a good ring's least contrast, after ``normalise``.
+        min_symmetry: a good ring's least 180-degree self-correlation.
+        normalise: applied to the ring samples.
+        floor: the score floor of an X of each extent.
+
+    Returns:
+        :class:`RingReading`.
+    """
+    check = ring_reader(
+        image, radii_px, min_contrast=min_contrast, min_symmetry=min_symmetry, normalise=normalise
+    )
+    # The inner rings read once: the equalised reading of the same points takes them.
+    inner = centre_symmetry_inner_profiles(image, xy, radii_px, normalise=normalise)
+    ring = check(xy, inner_profiles=inner)
+    retry = np.flatnonzero(wide | (ring.accepted & (ring.radius_px >= EQUALISED_MIN_EXTENT_PX)))
+    equalised_x = np.zeros(len(xy), dtype=bool)
+    if len(retry):
+        equalised = check(xy[retry], equalise=True, inner_profiles=inner[retry])
+        equalised_x[retry] = equalised.accepted
+        ring = with_equalised(ring, retry, equalised, floor(ring.radius_px[retry]))
+    lost = np.flatnonzero(wide & ~ring.accepted)
+    if not len(lost):
+        return RingReading(xy, ring, equalised_x)
+    crossing, _ = line_crossing_centres(
+        image,
+        xy[lost],
+        radii_px[:LINE_CROSSING_RINGS],
+        min_contrast=min_contrast,
+        normalise=normalise,
+        profiles=inner[lost, :LINE_CROSSING_RINGS],
+    )
+    # Those the crossing left where they were have had their equalised reading.
+    shifted = (crossing != xy[lost]).any(axis=1)
+    lost, crossing = lost[shifted], crossing[shifted]
+    there = check(crossing, equalise=True)
+    found = there.accepted & (there.radius_px >= EQUALISED_MIN_EXTENT_PX)
+    moved = xy.copy()
+    moved[lost[found]] = crossing[found]
+    return RingReading(moved, ring.with_rows(lost[found], there, found), equalised_x)
 
 
 def centre_symmetry_inner_profiles(

@@ -486,3 +486,48 @@ def test_the_equalised_rings_are_believed_out_to_texture_free_extents_and_never_
     assert merged.score.tolist() == [0.9, 0.93, 0.97, 0.95, 0.0]
     # The sound X keeps its plain extent; under its floor or rejected, the equalised stands.
     assert merged.radius_px.tolist() == [12.0, 12.0, 8.5, 8.5, 4.0]
+
+
+def _dull_x(dull: float) -> np.ndarray:
+    placement = MarkerPlacement(*CENTRE[0], 16.0, 0.4, 20.0, 0.3, dull_factor=dull)
+    scene = render_markers((128, 128), [placement], 0, blur_sigma_px=1.0, noise_sigma_dn=1.0)
+    return scene.image
+
+
+def _ring_check(image: np.ndarray, xy: np.ndarray, wide: bool) -> verification.RingReading:
+    return verification.ring_check(
+        image,
+        xy,
+        np.array([wide]),
+        verification.ring_radii((5.0, 30.0)),
+        min_contrast=20 / 255,
+        min_symmetry=0.8,
+        normalise=None,
+        floor=lambda extent: np.full(np.shape(extent), 0.9),
+    )
+
+
+@pytest.mark.parametrize("dull", [0.6, 0.45])
+def test_the_equalised_rings_show_a_wide_x_with_a_dull_quadrant_that_the_plain_ones_reject(dull):
+    image, near = _dull_x(dull), CENTRE + [0.3, -0.3]
+    plain = verification.centre_symmetry_check(
+        image, near, verification.ring_radii((5.0, 30.0)), min_contrast=20 / 255, min_symmetry=0.8
+    )
+    assert not plain.accepted[0]
+    wide = _ring_check(image, near, wide=True)
+    assert wide.equalised_x[0] and wide.check.accepted[0]
+    assert wide.check.radius_px[0] >= verification.EQUALISED_MIN_EXTENT_PX
+    # Screened at texture's scale, and shown by no plain ring, it is not read equalised.
+    narrow = _ring_check(image, near, wide=False)
+    assert not narrow.equalised_x[0] and not narrow.check.accepted[0]
+
+
+@pytest.mark.parametrize("offset", [(1.2, -0.2), (2.0, 0.5)])
+def test_a_wide_candidate_left_off_its_x_moves_to_where_the_lines_cross(offset):
+    image, off = _dull_x(0.45), CENTRE + offset
+    wide = _ring_check(image, off, wide=True)
+    assert wide.check.accepted[0]
+    assert np.hypot(*(wide.xy[0] - CENTRE[0])) < 0.25
+    narrow = _ring_check(image, off, wide=False)
+    assert not narrow.check.accepted[0]
+    assert narrow.xy.tolist() == off.tolist()
