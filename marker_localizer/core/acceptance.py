@@ -234,7 +234,7 @@ class MarkerModel:
         max_radius_px: the largest expected marker radius, px: the template's disk,
             a shadow's reach and a reading a rung out stay within it.
         reads_plates: whether tiny X's are read with their plate where no marker
-            was found (:meth:`~marker_localizer.core.pipeline.Detector._read_plates`):
+            was found (:func:`plate.read_plates`):
             then every detection of texture's size must show its plate.
         normalise: what the checks read the frame's levels through (Eq. (2)'s local
             gamma), for the template's NCC in :meth:`match`; None: raw levels.

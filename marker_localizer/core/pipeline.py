@@ -140,11 +140,6 @@ _DECISION_PIXELS = 300
 #: Smallest half-size of the double-line check's window, px: LSD needs segments a
 #: few pixels long (the check upsamples small windows).
 _LINE_WINDOW_MIN_PX = 3.0
-#: Tiny X's whose plate is read per frame at most (:meth:`Detector._read_plates`, 1-2
-#: ms each), the strongest ring symmetry first, spread over the frame as Eq. (7)'s
-#: thinning spreads them: real aerial ground at 3-30 px leaves 60-200 a frame that
-#: the centre's saddle passes, the rendered tiny markers' frames 10-60.
-_MAX_PLATE_READ = 64
 
 
 class _RingPassed(NamedTuple):
@@ -1304,47 +1299,39 @@ class Detector:
         )
 
     def _read_plates(self, frame: _Frame, tiny: _RingPassed) -> None:
-        """Tiny X's that found no marker, judged by their plate: the model of a marker.
+        """Tiny X's that found no marker, judged by their plate (:func:`plate.read_plates`).
 
-        Under a blur that nearly merges its quadrants a tiny marker's X is a smooth
-        saddle within its own disk, and the template's NCC, the score floors and the
-        X's end reject many (:mod:`~marker_localizer.core.plate` says why). The X's
-        of texture's size the ring check passed (``tiny``) that ended farther than
-        the merge radius from every detection and whose centre is a saddle
-        (:func:`plate.centre_saddle`), at most :data:`_MAX_PLATE_READ` of them, are
-        compared as a marker on its plate against smooth surfaces
-        (:func:`plate.plate_evidence`); those it explains (:func:`plate.plate_explains`)
-        are fitted as every detection is (the fit's own gates, not the score floors,
+        The X's of texture's size the ring check passed (``tiny``) that ended farther
+        than the merge radius from every detection; those the plate explains are
+        fitted as every detection is (the fit's own gates, not the score floors,
         which the plate's evidence replaces) and join the detections.
 
         Counts ``plate_read``, the candidates compared, ``found_plate``, the markers
         they added, and ``plate_over_cap``, the saddles over the cap. The survivors
         end with ``plate``: the detections then.
         """
-        cfg = self.config
-        gray, result = frame.gray, frame.result
+        result = frame.result
         counts = result.counts
         counts["plate_read"] = counts["found_plate"] = counts["plate_over_cap"] = 0
         lost = self._far_from_detections(result, tiny.xy)
         if len(lost):
             with frame.timer("plate"):
-                saddle = plate.centre_saddle(gray, tiny.xy[lost])
-                with np.errstate(invalid="ignore"):
-                    is_saddle = saddle >= plate.MIN_SADDLE
-                lost, saddle = lost[is_saddle], saddle[is_saddle]
-                kept = screening.even_cap_index(
-                    tiny.xy[lost], tiny.score[lost], _MAX_PLATE_READ, cfg.entropy_cell_px
+                reading = plate.read_plates(
+                    frame.gray,
+                    tiny.xy[lost],
+                    tiny.score[lost],
+                    tiny.radius_px[lost],
+                    tiny.line_angles[lost],
+                    self.config.entropy_cell_px,
                 )
-                counts["plate_over_cap"] = len(lost) - len(kept)
-                lost, saddle = lost[kept], saddle[kept]
-                counts["plate_read"] = len(lost)
-                evidence = plate.plate_evidence(
-                    gray, tiny.xy[lost], tiny.radius_px[lost], tiny.line_angles[lost]
-                )
-                lost = lost[plate.plate_explains(evidence, saddle)]
-            if len(lost):
+            counts["plate_over_cap"] = reading.over_cap
+            counts["plate_read"] = len(reading.read)
+            explained = lost[reading.explained]
+            if len(explained):
                 with frame.timer("subpixel"):
-                    counts["found_plate"] = self._join(result, self._fit_plates(frame, tiny, lost))
+                    counts["found_plate"] = self._join(
+                        result, self._fit_plates(frame, tiny, explained)
+                    )
         result.survivors.append(("plate", _positions(result.detections)))
 
     def _fit_plates(

@@ -22,8 +22,7 @@ the centre to be a saddle (a blurred blob's is an extremum: the plate model fits
 small elongated blob as two paint lobes merged by the blur).
 
 On the candidates of tiny markers the default rejects, the plate model with the
-saddle keeps more than half, and almost no texture saddle (the pipeline's
-:meth:`~marker_localizer.core.pipeline.Detector._read_plates`). The plain X with
+saddle keeps more than half, and almost no texture saddle (:func:`read_plates`). The plain X with
 four quadrant levels, the same comparison without the plate, explains markers no
 better than texture. Measured: docs/accuracy.md, "The tiny markers' plate".
 """
@@ -35,6 +34,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtr
+
+from marker_localizer.core import screening
 
 #: Half-side of the square plate that carries a marker, in marker radii: 1.25 on the
 #: package's renderer, 1.25-1.3 on the independent one.
@@ -79,6 +80,11 @@ MAX_TO_QUARTIC_ANY = 1.0
 #: (0.28 at the 10th percentile); the texture and look-alike blobs it would keep:
 #: -0.15-0.1 but for three.
 MIN_SADDLE = 0.2
+#: Tiny X's whose plate :func:`read_plates` reads per frame at most (1-2 ms each), the
+#: strongest ring symmetry first, spread over the frame as Eq. (7)'s thinning spreads
+#: them: real aerial ground at 3-30 px leaves 60-200 a frame that the centre's saddle
+#: passes, the rendered tiny markers' frames 10-60.
+MAX_PLATE_READ = 64
 #: Radius of the disk whose quadratic surface gives the centre's curvatures, px.
 _SADDLE_DISK_PX = 2.0
 #: Variance of a pixel's box over its area, px^2: it adds to the blur's.
@@ -369,3 +375,57 @@ def plate_explains(evidence: PlateEvidence, saddle: NDArray[np.float64]) -> NDAr
             & (saddle >= MIN_SADDLE)
         )
     return explained
+
+
+class PlateReading(NamedTuple):
+    """What :func:`read_plates` read, and what the plate explains.
+
+    Attributes:
+        read: (R,) the rows compared with the plate model.
+        explained: (K,) those it explains as markers, a subset of ``read``.
+        over_cap: how many saddles :data:`MAX_PLATE_READ` left unread.
+    """
+
+    read: NDArray[np.intp]
+    explained: NDArray[np.intp]
+    over_cap: int
+
+
+def read_plates(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    score: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    cell_px: float,
+) -> PlateReading:
+    """Tiny X's judged by their plate: the model of a marker against smooth surfaces.
+
+    Under a blur that nearly merges its quadrants a tiny marker's X is a smooth
+    saddle within its own disk, and the template's NCC, the score floors and the
+    X's end reject many (the module says why). Of the X's of texture's size given,
+    those whose centre is a saddle (:func:`centre_saddle`), at most
+    :data:`MAX_PLATE_READ` of them (the strongest ring symmetry ``score`` first,
+    spread over the frame's cells of ``cell_px``), are compared as a marker on its
+    plate against smooth surfaces (:func:`plate_evidence`), and kept where it
+    explains them (:func:`plate_explains`).
+
+    Args:
+        image: (H, W) grey image, raw levels.
+        xy: (N, 2) the X's centres, px.
+        score: (N,) their ring symmetry.
+        radius_px: (N,) their extents, px.
+        line_angles: (N, 2) their line directions, radians.
+        cell_px: the cells the cap spreads them over, px.
+
+    Returns:
+        :class:`PlateReading`.
+    """
+    saddle = centre_saddle(image, xy)
+    with np.errstate(invalid="ignore"):
+        rows = np.flatnonzero(saddle >= MIN_SADDLE)
+    kept = screening.even_cap_index(xy[rows], score[rows], MAX_PLATE_READ, cell_px)
+    over_cap = len(rows) - len(kept)
+    rows = rows[kept]
+    evidence = plate_evidence(image, xy[rows], radius_px[rows], line_angles[rows])
+    return PlateReading(rows, rows[plate_explains(evidence, saddle[rows])], over_cap)

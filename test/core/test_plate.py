@@ -133,3 +133,32 @@ def test_a_marker_with_a_dull_quadrant_is_explained_with_its_quadrants_own_level
     )
     assert own.to_quartic[0] <= plate.MAX_TO_QUARTIC
     assert own.to_quartic[0] <= 0.5 * one.to_quartic[0]
+
+
+def test_read_plates_keeps_the_tiny_marker_and_reads_no_blob_or_smooth_saddle():
+    marker, centre, angles = _tiny_marker("quarter_disks", 0)
+    saddle = _smooth_saddle(0)
+    blob = np.zeros((80, 80), np.float32)
+    cv2.ellipse(blob, (40, 40), (4, 2), 30.0, 0.0, 360.0, 200.0, -1)
+    # Side by side: the marker, a smooth saddle and a blob, each read at its centre.
+    image = np.hstack([marker, saddle, cv2.GaussianBlur(blob, (0, 0), 1.3).astype(np.uint8)])
+    xy = np.array([centre[0], [120.0, 40.0], [200.0, 40.0]])
+    reading = plate.read_plates(
+        image, xy, np.ones(3), np.full(3, _EXTENT_PX), np.repeat(angles, 3, axis=0), 1000.0
+    )
+    # The blob's centre is no saddle: it is not compared.
+    assert reading.read.tolist() == [0, 1]
+    assert reading.explained.tolist() == [0]
+    assert reading.over_cap == 0
+
+
+def test_read_plates_compares_at_most_the_cap_and_counts_the_rest(monkeypatch):
+    image, centre, angles = _tiny_marker("quarter_disks", 0)
+    xy = np.repeat(centre, 3, axis=0)
+    monkeypatch.setattr(plate, "MAX_PLATE_READ", 2)
+    reading = plate.read_plates(
+        image, xy, np.array([0.9, 0.99, 0.95]), np.full(3, _EXTENT_PX), np.repeat(angles, 3, 0), 1e3
+    )
+    # The strongest ring symmetry first.
+    assert sorted(reading.read.tolist()) == [1, 2]
+    assert reading.over_cap == 1
