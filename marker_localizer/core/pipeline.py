@@ -568,10 +568,7 @@ class Detector:
             xy = _positions(fitted)
             extent = np.array([d.radius_px for d in fitted])
             angles = np.array([[d.angle1, d.angle2] for d in fitted])
-            explained = plate.plate_explains(
-                plate.plate_evidence(frame.gray, xy, extent, angles),
-                plate.centre_saddle(frame.gray, xy),
-            )
+            explained = plate.explained_at(frame.gray, xy, extent, angles)
         result.counts["found_plate"] = self._join(
             result, [d for d, ok in zip(fitted, explained, strict=True) if ok]
         )
@@ -671,7 +668,6 @@ class Detector:
             result, screened, second_reading.MAX_SHADOW_READ
         )
         counts["shadow_read"] = counts["found_shadowed"] = counts["located_in_shadow"] = 0
-        reading = None
         if len(lost):
             with frame.timer("shadow"):
                 chosen = screened.take(lost)
@@ -682,11 +678,16 @@ class Detector:
                     self.config.marker_radius_max_px,
                     frame.full_scale,
                 )
-        if reading is not None:
             counts["shadow_read"] = len(reading.read.xy)
-            found = self._verify_and_locate(
-                replace(frame.reread(), gray=reading.lit), reading.centred
-            )[0]
+            found: list[Detection] = []
+            if len(reading.read.xy):
+                with frame.timer("centring"):
+                    centred = second_reading.slope_centred(
+                        reading.lit, reading.read, self.config.marker_radius_max_px
+                    )
+                found = self._verify_and_locate(replace(frame.reread(), gray=reading.lit), centred)[
+                    0
+                ]
             if found:
                 xy, sigma, located = second_reading.located_in_shadow(
                     gray,
@@ -988,7 +989,7 @@ class Detector:
         floor = self._raw_contrast_floor(frame.full_scale, frame.gamma, candidates.xy)
         radii = self._prescreen_radii(candidates)
         keep, first_ring = verification.prescreen_symmetry(gray, candidates.xy, radii, floor)
-        wide = np.flatnonzero(~keep & (candidates.scale_px >= second_reading.WIDE_SCALE_PX))
+        wide = np.flatnonzero(~keep & second_reading.screened_wide(candidates))
         # The equalised re-read takes the first rings the plain one gathered.
         keep[wide] = verification.prescreen_symmetry(
             gray, candidates.xy[wide], radii[wide], floor[wide], True, first_ring[wide]
@@ -1348,26 +1349,18 @@ class Detector:
 
     def _ring_check(
         self, gray: NDArray[Any], candidates: Candidates, gamma: preprocessing.LocalGamma
-    ) -> tuple[Candidates, verification.SymmetryCheck, NDArray[np.bool_]]:
-        """:func:`verification.ring_check` of the centred candidates, as this detector reads rings.
-
-        Returns:
-            The candidates (those the lines' crossing recentred moved), their check,
-            and (N,) where the equalised rings read at the candidate showed an X of
-            any extent.
-        """
-        reading = verification.ring_check(
+    ) -> verification.RingReading:
+        """:func:`verification.ring_check` of the centred candidates, as this detector reads."""
+        return verification.ring_check(
             gray,
-            candidates.xy,
-            candidates.scale_px >= second_reading.WIDE_SCALE_PX,
+            candidates,
+            second_reading.screened_wide(candidates),
             self._radii,
             min_contrast=self._min_contrast,
             min_symmetry=self.config.symmetry_min,
             normalise=gamma,
             floor=self._floors.floor,
         )
-        moved = Candidates(reading.xy, candidates.strength, candidates.scale_px)
-        return moved, reading.check, reading.equalised_x
 
     def _ring_reader(
         self, gray: NDArray[Any], gamma: preprocessing.LocalGamma
@@ -1407,11 +1400,13 @@ class Detector:
             candidates,
             ring,
             equalised_x,
-            functools.partial(self._ring_reader(frame.gray, frame.gamma), equalise=True),
-            self._floors,
-            self._model(frame),
-            self.config.marker_radius_max_px,
-            self.config.entropy_cell_px,
+            equalised_rings=functools.partial(
+                self._ring_reader(frame.gray, frame.gamma), equalise=True
+            ),
+            floors=self._floors,
+            model=self._model(frame),
+            max_radius_px=self.config.marker_radius_max_px,
+            cell_px=self.config.entropy_cell_px,
         )
         counts["dull_read"] += len(reading.read)
         counts["kept_dull"] += len(reading.kept)

@@ -377,6 +377,18 @@ def plate_explains(evidence: PlateEvidence, saddle: NDArray[np.float64]) -> NDAr
     return explained
 
 
+def explained_at(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """(N,) where the plate model explains an X at ``xy`` as a marker (:func:`plate_explains`)."""
+    return plate_explains(
+        plate_evidence(image, xy, radius_px, line_angles), centre_saddle(image, xy)
+    )
+
+
 class PlateReading(NamedTuple):
     """What :func:`read_plates` read, and what the plate explains.
 

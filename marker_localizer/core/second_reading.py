@@ -96,14 +96,14 @@ class DullReading(NamedTuple):
 
     read: NDArray[np.intp]
     xy: NDArray[np.float64]
-    rings: verification.SymmetryCheck | None
+    rings: verification.SymmetryCheck
     kept: NDArray[np.intp]
 
     def moved(
         self, candidates: Candidates, ring: verification.SymmetryCheck
     ) -> tuple[Candidates, verification.SymmetryCheck]:
         """The candidates and their check with the kept ones replaced by this reading."""
-        if self.rings is None:
+        if not len(self.kept):
             return candidates, ring
         rows = self.read[self.kept]
         return (
@@ -117,6 +117,7 @@ def read_dull(
     candidates: Candidates,
     ring: verification.SymmetryCheck,
     equalised_x: NDArray[np.bool_],
+    *,
     equalised_rings: Callable[[NDArray[np.float64]], verification.SymmetryCheck],
     floors: acceptance.ScoreFloors,
     model: acceptance.MarkerModel,
@@ -157,14 +158,15 @@ def read_dull(
         :class:`DullReading`.
     """
     weak = ~ring.accepted | (ring.score < floors.floor(ring.radius_px))
-    read = np.flatnonzero(weak & equalised_x & (candidates.scale_px >= WIDE_SCALE_PX))
+    read = np.flatnonzero(weak & equalised_x & screened_wide(candidates))
     read = read[
         screening.even_cap_index(
             candidates.xy[read], candidates.strength[read], MAX_DULL_READ, cell_px
         )
     ]
     if not len(read):
-        return DullReading(read, np.zeros((0, 2)), None, read)
+        nothing = verification.SymmetryCheck._make(field[read] for field in ring)
+        return DullReading(read, np.zeros((0, 2)), nothing, read)
     xy, inside = subpixel.coarse_centre(
         gray, candidates.xy[read], candidates.scale_px[read], max_radius_px, light_slope=True
     )
@@ -177,6 +179,11 @@ def read_dull(
     )
     kept = kept[model.vouches(xy[kept], there.radius_px[kept], there.line_angles[kept])]
     return DullReading(read, xy, there, kept)
+
+
+def screened_wide(candidates: Candidates) -> NDArray[np.bool_]:
+    """(N,) the candidates screened at :data:`WIDE_SCALE_PX` or wider."""
+    return candidates.scale_px >= WIDE_SCALE_PX
 
 
 def far_from(
@@ -206,7 +213,7 @@ def lost_wide(
     Returns:
         (indices into ``screened``, how many lost wide candidates the cap cut).
     """
-    wide = np.flatnonzero(screened.scale_px >= WIDE_SCALE_PX)
+    wide = np.flatnonzero(screened_wide(screened))
     lost = wide[far_from(found_xy, screened.xy[wide], merge_radius_px)]
     if not len(lost):
         return lost, 0
@@ -225,11 +232,10 @@ def new_points(
     One within ``merge_radius_px`` of a detection, or of a stronger point added
     (``added_score``), is a duplicate.
     """
-    unique = screening.non_maximum_suppression(added_xy, added_score, merge_radius_px)
-    if len(found_xy) and len(added_xy):
-        distance, _ = cKDTree(found_xy).query(added_xy, distance_upper_bound=merge_radius_px)
-        unique &= ~np.isfinite(distance)
-    return unique
+    joins = np.zeros(len(added_xy), dtype=bool)
+    joins[far_from(found_xy, added_xy, merge_radius_px)] = True
+    joins &= screening.non_maximum_suppression(added_xy, added_score, merge_radius_px)
+    return joins
 
 
 def recentred(
@@ -280,16 +286,15 @@ class ShadowedReading(NamedTuple):
     """What :func:`shadowed` gives a second reading.
 
     Attributes:
-        lit: the frame with the shadows found divided out (a copy).
+        lit: the frame with the shadows found divided out (a copy where there are
+            any; the frame itself where there are none).
         read: the lost candidates a shadow's edge crosses, as screened.
         edges: their shadows' edges (:class:`shadow.ShadowEdges`).
-        centred: those candidates centred in ``lit`` with the light's slope.
     """
 
     lit: NDArray[Any]
     read: Candidates
     edges: shadow.ShadowEdges
-    centred: Candidates
 
 
 def shadowed(
@@ -298,7 +303,7 @@ def shadowed(
     line_angles: NDArray[np.float64],
     max_radius_px: float,
     full_scale: float,
-) -> ShadowedReading | None:
+) -> ShadowedReading:
     """The lost candidates a cast shadow's edge crosses, with the shadows divided out.
 
     A hard shadow across a marker breaks the grey-level symmetry every check reads,
@@ -307,9 +312,9 @@ def shadowed(
     one copy of the frame gets those shadows divided out
     (:func:`shadow.divided_out`, within :data:`SHADOW_DISK_REACHES` reaches; of
     candidates whose disks overlap, the best explained edge,
-    :func:`shadow.apart`), and there the candidates are centred with the light's
-    slope: the shadow gone, a dull quadrant still pulls a slope-free centring off
-    the X.
+    :func:`shadow.apart`). There the candidates are to be centred with the light's
+    slope (:func:`slope_centred`): the shadow gone, a dull quadrant still pulls a
+    slope-free centring off the X.
 
     Args:
         gray: (H, W) grey image, raw levels.
@@ -319,7 +324,7 @@ def shadowed(
         full_scale: the image's white level.
 
     Returns:
-        :class:`ShadowedReading`, or None where no shadow's edge crosses a candidate.
+        :class:`ShadowedReading`, with no candidate where no shadow's edge crosses one.
     """
     reach = shadow_reach(lost, max_radius_px)
     edges = shadow.find_edges(gray, lost.xy, reach, line_angles, full_scale)
@@ -327,16 +332,18 @@ def shadowed(
     disk = SHADOW_DISK_REACHES * reach[crossed]
     kept = shadow.apart(lost.xy[crossed], disk, edges.explained[crossed])
     crossed, disk = crossed[kept], disk[kept]
-    if not len(crossed):
-        return None
     read, edges = lost.take(crossed), edges.take(crossed)
-    lit = shadow.divided_out(gray, read.xy, edges, disk, full_scale)
+    if not len(crossed):
+        return ShadowedReading(gray, read, edges)
+    return ShadowedReading(shadow.divided_out(gray, read.xy, edges, disk, full_scale), read, edges)
+
+
+def slope_centred(gray: NDArray[Any], candidates: Candidates, max_radius_px: float) -> Candidates:
+    """The candidates centred with the light's slope (:func:`subpixel.coarse_centre`)."""
     xy, inside = subpixel.coarse_centre(
-        lit, read.xy, read.scale_px, max_radius_px, light_slope=True
+        gray, candidates.xy, candidates.scale_px, max_radius_px, light_slope=True
     )
-    return ShadowedReading(
-        lit, read, edges, Candidates(xy, read.strength, read.scale_px).take(inside)
-    )
+    return Candidates(xy, candidates.strength, candidates.scale_px).take(inside)
 
 
 def located_in_shadow(

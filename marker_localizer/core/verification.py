@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from marker_localizer.core import template
 from marker_localizer.core.sampling import Normaliser, bilinear, in_blocks, nan_median
-from marker_localizer.core.screening import parabolic_offset
+from marker_localizer.core.screening import Candidates, parabolic_offset
 
 N_ANGLES = 36  # the paper's 10-degree sampling of the annulus
 #: Smallest LSD window side, px: smaller windows are enlarged so that the edges of a
@@ -83,6 +83,11 @@ PRESCREEN_GOOD_RINGS = 3
 #: Ratio of consecutive rings of the annular scan (:func:`ring_radii`): an X's extent,
 #: its last ring that shows the X, reads up to this factor short of its shortest reach.
 RING_STEP = float(np.sqrt(2.0))
+#: Rings that say where an X's lines cross (:func:`line_crossing_centres`): those a
+#: run of good rings may start on and the next (:func:`centre_symmetry_check`'s
+#: ``max_first_ring`` of 2, plus one), so among those the check reads for every point
+#: first, whose samples they take.
+LINE_CROSSING_RINGS = 3
 #: Slack of the extent test, px: the ring ladder's radii are products of floats, and a
 #: ring exactly at the required extent passes.
 _EXTENT_SLACK_PX = 1e-9
@@ -778,31 +783,24 @@ def ring_reader(
     )
 
 
-#: Rings that say where an X's lines cross (:func:`line_crossing_centres`): those a
-#: run of good rings may start on and the next (:func:`centre_symmetry_check`'s
-#: ``max_first_ring`` of 2, plus one), so among those the check reads for every point
-#: first, whose samples they take.
-LINE_CROSSING_RINGS = 3
-
-
 class RingReading(NamedTuple):
     """What :func:`ring_check` read.
 
     Attributes:
-        xy: (N, 2) the candidates' positions, those the lines' crossing moved, moved.
+        candidates: the candidates, those the lines' crossing recentred moved.
         check: their :class:`SymmetryCheck`.
         equalised_x: (N,) where the equalised rings read at the candidate showed an X
             of any extent.
     """
 
-    xy: NDArray[np.float64]
+    candidates: Candidates
     check: SymmetryCheck
     equalised_x: NDArray[np.bool_]
 
 
 def ring_check(
     image: NDArray[Any],
-    xy: NDArray[np.float64],
+    candidates: Candidates,
     wide: NDArray[np.bool_],
     radii_px: NDArray[np.float64],
     *,
@@ -835,7 +833,7 @@ def ring_check(
 
     Args:
         image: (H, W) grey image, raw levels.
-        xy: (N, 2) centred candidates.
+        candidates: the centred candidates.
         wide: (N,) those screened beyond texture's scale.
         radii_px: (J,) the ring ladder (:func:`ring_radii`).
         min_contrast: a good ring's least contrast, after ``normalise``.
@@ -849,6 +847,7 @@ def ring_check(
     check = ring_reader(
         image, radii_px, min_contrast=min_contrast, min_symmetry=min_symmetry, normalise=normalise
     )
+    xy = candidates.xy
     # The inner rings read once: the equalised reading of the same points takes them.
     inner = centre_symmetry_inner_profiles(image, xy, radii_px, normalise=normalise)
     ring = check(xy, inner_profiles=inner)
@@ -860,7 +859,7 @@ def ring_check(
         ring = with_equalised(ring, retry, equalised, floor(ring.radius_px[retry]))
     lost = np.flatnonzero(wide & ~ring.accepted)
     if not len(lost):
-        return RingReading(xy, ring, equalised_x)
+        return RingReading(candidates, ring, equalised_x)
     crossing, _ = line_crossing_centres(
         image,
         xy[lost],
@@ -874,9 +873,11 @@ def ring_check(
     lost, crossing = lost[shifted], crossing[shifted]
     there = check(crossing, equalise=True)
     found = there.accepted & (there.radius_px >= EQUALISED_MIN_EXTENT_PX)
-    moved = xy.copy()
-    moved[lost[found]] = crossing[found]
-    return RingReading(moved, ring.with_rows(lost[found], there, found), equalised_x)
+    return RingReading(
+        candidates.moved(lost[found], crossing[found]),
+        ring.with_rows(lost[found], there, found),
+        equalised_x,
+    )
 
 
 def centre_symmetry_inner_profiles(

@@ -135,7 +135,7 @@ def test_a_marker_with_a_dull_quadrant_is_explained_with_its_quadrants_own_level
     assert own.to_quartic[0] <= 0.5 * one.to_quartic[0]
 
 
-def test_read_plates_keeps_the_tiny_marker_and_reads_no_blob_or_smooth_saddle():
+def test_read_plates_compares_no_blob_and_explains_no_smooth_saddle():
     marker, centre, angles = _tiny_marker("quarter_disks", 0)
     saddle = _smooth_saddle(0)
     blob = np.zeros((80, 80), np.float32)
@@ -152,13 +152,20 @@ def test_read_plates_keeps_the_tiny_marker_and_reads_no_blob_or_smooth_saddle():
     assert reading.over_cap == 0
 
 
-def test_read_plates_compares_at_most_the_cap_and_counts_the_rest(monkeypatch):
-    image, centre, angles = _tiny_marker("quarter_disks", 0)
-    xy = np.repeat(centre, 3, axis=0)
+def test_read_plates_compares_at_most_the_cap_spread_over_the_cells(monkeypatch):
+    # Three tiny markers, two in one cell: a cap of two takes the strongest of that
+    # cell and the one alone in the other, not the two strongest.
+    marker, centre, angles = _tiny_marker("quarter_disks", 0)
+    image = np.hstack([marker, marker])
+    xy = np.array([centre[0], centre[0] + [0.5, 0.0], centre[0] + [80.0, 0.0]])
     monkeypatch.setattr(plate, "MAX_PLATE_READ", 2)
     reading = plate.read_plates(
-        image, xy, np.array([0.9, 0.99, 0.95]), np.full(3, _EXTENT_PX), np.repeat(angles, 3, 0), 1e3
+        image,
+        xy,
+        np.array([0.99, 0.98, 0.9]),
+        np.full(3, _EXTENT_PX),
+        np.repeat(angles, 3, 0),
+        60.0,
     )
-    # The strongest ring symmetry first.
-    assert sorted(reading.read.tolist()) == [1, 2]
+    assert reading.read.tolist() == [0, 2]
     assert reading.over_cap == 1

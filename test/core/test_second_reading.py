@@ -35,6 +35,10 @@ def _marker(
     return scene.image, scene.markers[0].angles
 
 
+def _shadowed_marker() -> tuple[np.ndarray, tuple[float, float]]:
+    return _marker(0.7, (CastShadow(*CENTRE, 0.7, 3.0, 0.5, 2 * RADIUS_PX),))
+
+
 def _error(xy: np.ndarray) -> float:
     return float(np.hypot(*(np.asarray(xy) - CENTRE)))
 
@@ -92,87 +96,126 @@ def test_a_dull_quadrant_pulls_the_plain_centring_off_and_the_lights_slope_bring
 def test_a_candidate_the_slope_leaves_where_it_was_is_not_read_again_unless_it_was_never_centred():
     image, _ = _marker()
     plain, found = subpixel.coarse_centre(image, SCREENED.xy, SCREENED.scale_px, MAX_RADIUS_PX)
-    assert found[0] and _error(plain[0]) < second_reading.RECENTRE_MIN_SHIFT_PX
+    sloped, _ = subpixel.coarse_centre(
+        image, SCREENED.xy, SCREENED.scale_px, MAX_RADIUS_PX, light_slope=True
+    )
+    assert found[0]
+    assert np.hypot(*(sloped[0] - plain[0])) < second_reading.RECENTRE_MIN_SHIFT_PX
     assert len(second_reading.recentred(image, SCREENED, plain, found, MAX_RADIUS_PX).xy) == 0
     assert len(second_reading.recentred(image, SCREENED, plain, ~found, MAX_RADIUS_PX).xy) == 1
 
 
 def test_a_shadows_edge_across_a_lost_candidate_is_divided_out_around_it_alone():
-    shade = CastShadow(*CENTRE, 0.7, 3.0, 0.5, 2 * RADIUS_PX)
-    image, angles = _marker(0.7, (shade,))
-    reading = second_reading.shadowed(image, SCREENED, np.array([angles]), MAX_RADIUS_PX, 255.0)
-    assert reading is not None
-    assert reading.read.xy.tolist() == SCREENED.xy.tolist()
+    image, angles = _shadowed_marker()
+    # The same saddle found twice, a pixel apart: their disks overlap, one is read.
+    twice = Candidates(
+        np.vstack([SCREENED.xy, SCREENED.xy + [1.0, 0.0]]), np.ones(2), np.full(2, 8.0)
+    )
+    reading = second_reading.shadowed(image, twice, np.array([angles] * 2), MAX_RADIUS_PX, 255.0)
+    assert len(reading.read.xy) == 1 and reading.edges.found.all()
     changed_y, changed_x = np.nonzero(reading.lit != image)
-    disk = second_reading.SHADOW_DISK_REACHES * second_reading.shadow_reach(SCREENED, MAX_RADIUS_PX)
-    reach = np.hypot(changed_x - SCREENED.xy[0, 0], changed_y - SCREENED.xy[0, 1])
+    disk = second_reading.SHADOW_DISK_REACHES * second_reading.shadow_reach(
+        reading.read, MAX_RADIUS_PX
+    )
+    reach = np.hypot(changed_x - reading.read.xy[0, 0], changed_y - reading.read.xy[0, 1])
     assert len(reach) and reach.max() <= disk[0]
     # The shadow's side is lit again, nothing darkened.
     assert (reading.lit.astype(int) >= image.astype(int)).all()
     # Centred in the lit copy with the light's slope, near the X's centre.
-    assert len(reading.centred.xy) == 1 and _error(reading.centred.xy[0]) < 0.5
+    centred = second_reading.slope_centred(reading.lit, reading.read, MAX_RADIUS_PX)
+    assert len(centred.xy) == 1 and _error(centred.xy[0]) < 0.5
 
 
-def test_without_a_shadows_edge_nothing_is_read_again():
+def test_without_a_shadows_edge_nothing_is_read_again_and_the_frame_is_not_copied():
     image, angles = _marker(0.7)
-    assert (
-        second_reading.shadowed(image, SCREENED, np.array([angles]), MAX_RADIUS_PX, 255.0) is None
-    )
-
-
-def test_a_marker_found_with_its_shadow_divided_out_is_located_in_the_frame_with_its_edge():
-    shade = CastShadow(*CENTRE, 0.7, 3.0, 0.5, 2 * RADIUS_PX)
-    image, angles = _marker(0.7, (shade,))
     reading = second_reading.shadowed(image, SCREENED, np.array([angles]), MAX_RADIUS_PX, 255.0)
-    assert reading is not None
+    assert len(reading.read.xy) == 0 and reading.lit is image
+
+
+def test_markers_found_with_their_shadows_divided_out_are_located_each_with_its_own_edge():
+    # Two markers, each under its own shadow's edge: each found centre takes the edge of
+    # the candidate read nearest it, whatever the order they were found in.
+    centres = np.array([CENTRE, (CENTRE[0] + 128.0, CENTRE[1] + 2.0)])
+    scene = render_markers(
+        (128, 256),
+        [
+            MarkerPlacement(*centre, RADIUS_PX, rotation, 20.0, 0.3, dull_factor=0.7)
+            for centre, rotation in zip(centres, (0.4, 0.9), strict=True)
+        ],
+        0,
+        blur_sigma_px=1.0,
+        noise_sigma_dn=1.0,
+        cast_shadows=[
+            CastShadow(*centres[0], 0.7, 3.0, 0.5, 2 * RADIUS_PX),
+            CastShadow(*centres[1], 2.5, -4.0, 0.6, 2 * RADIUS_PX),
+        ],
+    )
+    angles = np.array([m.angles for m in scene.markers])
+    lost = Candidates(centres + [0.6, -0.5], np.ones(2), np.full(2, 8.0))
+    reading = second_reading.shadowed(scene.image, lost, angles, MAX_RADIUS_PX, 255.0)
+    assert len(reading.read.xy) == 2
+    centred = second_reading.slope_centred(reading.lit, reading.read, MAX_RADIUS_PX)
+    found = centred.xy[::-1]
     xy, sigma, located = second_reading.located_in_shadow(
-        image,
-        reading.centred.xy,
-        np.array([0.05]),
-        np.array([angles]),
-        np.array([0.9 * RADIUS_PX]),
+        scene.image,
+        found,
+        np.full(2, 0.05),
+        angles[::-1],
+        np.full(2, 0.9 * RADIUS_PX),
         255.0,
         reading,
     )
-    assert located.tolist() == [True]
-    assert _error(xy[0]) < 0.05 < _error(reading.centred.xy[0])
+    assert located.tolist() == [True, True]
+    error = np.hypot(*(xy - centres[::-1]).T)
+    assert (error < 0.05).all()
+    assert (error < np.hypot(*(found - centres[::-1]).T)).all()
     assert np.isfinite(sigma).all()
 
 
+def _first_reading(image: np.ndarray) -> tuple[Candidates, verification.SymmetryCheck, np.ndarray]:
+    """The first reading's slope-free centring of the screened candidate, and its rings."""
+    plain, _ = subpixel.coarse_centre(image, SCREENED.xy, SCREENED.scale_px, MAX_RADIUS_PX)
+    rings = _ring_reader(image)
+    return (
+        Candidates(plain, SCREENED.strength, SCREENED.scale_px),
+        rings(plain),
+        rings(plain, equalise=True).accepted,
+    )
+
+
+def _ring_reader(image: np.ndarray):
+    return verification.ring_reader(
+        image,
+        verification.ring_radii((5.0, MAX_RADIUS_PX)),
+        min_contrast=DetectorConfig().min_contrast_dn / 255.0,
+        min_symmetry=DetectorConfig().symmetry_min,
+        normalise=None,
+    )
+
+
 def _read_dull(
-    image: np.ndarray, scale_px: float
-) -> tuple[second_reading.DullReading, Candidates, verification.SymmetryCheck]:
-    """The first reading's centring and rings of one screened candidate, then read_dull."""
+    image: np.ndarray,
+    centred: Candidates,
+    first: verification.SymmetryCheck,
+    equalised_x: np.ndarray,
+) -> second_reading.DullReading:
     config = DetectorConfig(marker_radius_min_px=5.0, marker_radius_max_px=MAX_RADIUS_PX)
     gamma = preprocessing.LocalGamma(
         image, 255.0, config.gamma_alpha, config.illumination_window_px
     )
-    rings = functools.partial(
-        verification.centre_symmetry_check,
-        image,
-        radii_px=verification.ring_radii((5.0, MAX_RADIUS_PX)),
-        min_contrast=config.min_contrast_dn / 255.0,
-        min_symmetry=config.symmetry_min,
-        normalise=gamma,
-    )
-    screened = Candidates(SCREENED.xy, SCREENED.strength, np.array([scale_px]))
-    plain, _ = subpixel.coarse_centre(image, screened.xy, screened.scale_px, MAX_RADIUS_PX)
-    centred = Candidates(plain, screened.strength, screened.scale_px)
-    first = rings(plain)
-    reading = second_reading.read_dull(
+    return second_reading.read_dull(
         image,
         centred,
         first,
-        rings(plain, equalise=True).accepted,
-        functools.partial(rings, equalise=True),
-        acceptance.ScoreFloors(config.min_score, config.min_score_small, 5.0),
-        acceptance.MarkerModel(
+        equalised_x,
+        equalised_rings=functools.partial(_ring_reader(image), equalise=True),
+        floors=acceptance.ScoreFloors(config.min_score, config.min_score_small, 5.0),
+        model=acceptance.MarkerModel(
             image, 255.0, lambda: estimate_noise(image, 255.0), MAX_RADIUS_PX, False, gamma
         ),
-        MAX_RADIUS_PX,
-        config.entropy_cell_px,
+        max_radius_px=MAX_RADIUS_PX,
+        cell_px=config.entropy_cell_px,
     )
-    return reading, centred, first
 
 
 @pytest.mark.parametrize("radius_px", [7.0, 8.0])
@@ -181,8 +224,9 @@ def test_a_small_x_with_a_dull_quadrant_is_read_again_from_the_light_slopes_cent
     # show no X; the equalised ones show it, short. From the slope's centre they
     # show it out to 5 px, and the marker's model vouches for it.
     image, _ = _marker(0.55, radius_px=radius_px)
-    reading, centred, first = _read_dull(image, second_reading.WIDE_SCALE_PX)
-    assert not first.accepted[0]
+    centred, first, equalised_x = _first_reading(image)
+    assert not first.accepted[0] and equalised_x[0]
+    reading = _read_dull(image, centred, first, equalised_x)
     assert reading.read.tolist() == [0] and reading.kept.tolist() == [0]
     assert _error(reading.xy[0]) < 0.6 * _error(centred.xy[0])
     # The reading replaces the first: the candidate moves, and its rings are these.
@@ -191,12 +235,19 @@ def test_a_small_x_with_a_dull_quadrant_is_read_again_from_the_light_slopes_cent
     assert ring.accepted[0] and ring.radius_px[0] >= verification.DULL_MIN_EXTENT_PX
 
 
-def test_an_x_screened_at_textures_scale_or_read_whole_is_not_read_again():
+def test_the_same_x_screened_at_textures_scale_is_not_read_again():
     image, _ = _marker(0.55, radius_px=7.0)
-    reading, centred, first = _read_dull(image, second_reading.WIDE_SCALE_PX / 2)
+    centred, first, equalised_x = _first_reading(image)
+    assert not first.accepted[0] and equalised_x[0]
+    narrow = Candidates(centred.xy, centred.strength, np.array([second_reading.WIDE_SCALE_PX / 2]))
+    reading = _read_dull(image, narrow, first, equalised_x)
     assert len(reading.read) == 0
-    moved, ring = reading.moved(centred, first)
-    assert moved is centred and ring is first
-    even, _ = _marker(1.0, radius_px=7.0)
-    reading, _, first = _read_dull(even, second_reading.WIDE_SCALE_PX)
-    assert first.accepted[0] and len(reading.read) == 0
+    moved, ring = reading.moved(narrow, first)
+    assert moved is narrow and ring is first
+
+
+def test_an_x_the_plain_rings_show_whole_is_not_read_again():
+    image, _ = _marker(1.0, radius_px=7.0)
+    centred, first, equalised_x = _first_reading(image)
+    assert first.accepted[0]
+    assert len(_read_dull(image, centred, first, equalised_x).read) == 0

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from marker_localizer.core import verification
+from marker_localizer.core.screening import Candidates
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 
 CENTRE = np.array([[64.3, 63.6]])
@@ -497,7 +498,7 @@ def _dull_x(dull: float) -> np.ndarray:
 def _ring_check(image: np.ndarray, xy: np.ndarray, wide: bool) -> verification.RingReading:
     return verification.ring_check(
         image,
-        xy,
+        Candidates(xy, np.ones(len(xy)), np.full(len(xy), 8.0 if wide else 4.0)),
         np.array([wide]),
         verification.ring_radii((5.0, 30.0)),
         min_contrast=20 / 255,
@@ -527,7 +528,17 @@ def test_a_wide_candidate_left_off_its_x_moves_to_where_the_lines_cross(offset):
     image, off = _dull_x(0.45), CENTRE + offset
     wide = _ring_check(image, off, wide=True)
     assert wide.check.accepted[0]
-    assert np.hypot(*(wide.xy[0] - CENTRE[0])) < 0.25
+    assert np.hypot(*(wide.candidates.xy[0] - CENTRE[0])) < 0.25
     narrow = _ring_check(image, off, wide=False)
     assert not narrow.check.accepted[0]
-    assert narrow.xy.tolist() == off.tolist()
+    assert narrow.candidates.xy.tolist() == off.tolist()
+
+
+def test_an_x_of_textures_scale_that_the_plain_rings_show_wide_is_read_equalised_too():
+    # Screened at texture's scale, but shown out to EQUALISED_MIN_EXTENT_PX by the
+    # plain rings: the equalised reading may raise its score.
+    image = _dull_x(0.9)
+    reading = _ring_check(image, CENTRE + [0.3, -0.3], wide=False)
+    assert reading.check.accepted[0]
+    assert reading.check.radius_px[0] >= verification.EQUALISED_MIN_EXTENT_PX
+    assert reading.equalised_x[0]
