@@ -7,8 +7,8 @@ The candidates it lost are read again, by the same checks and fit, where the lig
 is taken into account:
 
 * :func:`read_dull`: small X's with a dull quadrant, whose equalised rings showed
-  them in the first reading but short, read there again from the light slope's
-  centre;
+  them but short, read again from the light slope's centre (inside the first
+  reading, before its template match);
 * :func:`recentred`: centred once more with the light's slope fitted too;
 * :func:`shadowed`: with a cast shadow's straight edge, found by
   :func:`shadow.find_edges`, divided out of a copy of the frame
@@ -16,9 +16,10 @@ is taken into account:
   found so is then located in the frame itself by its model with that edge
   (:func:`located_in_shadow`).
 
-Which candidates are read again (:func:`lost_wide`): those screened at
-:data:`WIDE_SCALE_PX` or wider that ended farther than the merge radius from every
-detection, at most a cap of them, the strongest spread over the frame. A marker a
+Which candidates the recentring and the shadow's reading take (:func:`lost_wide`):
+those screened at :data:`WIDE_SCALE_PX` or wider that ended farther than the merge
+radius from every detection, at most a cap of them, the strongest spread over the
+frame. A marker a
 second reading finds joins the detections unless it duplicates one
 (:func:`new_points`); the detections already made stay as they were.
 
