@@ -436,6 +436,22 @@ def verdict(results: Sequence[WorkerResult]) -> str:
     return line
 
 
+def ratio_by_frame(results: Sequence[WorkerResult], n_frames: int) -> str:
+    """One line: ours over the Hessian peer frame by frame, each the median over the rounds.
+
+    The table's ours/peer is the median over every pair; a frame whose ground
+    passes many more candidates to the checks shows apart here.
+    """
+    times = {r.name: r.times_ms for r in results if not r.error}
+    if REFERENCE_SUBJECT not in times or HESSIAN_SUBJECT not in times:
+        return ""
+    ratios = workers.paired_ratios_by_frame(
+        times[REFERENCE_SUBJECT], times[HESSIAN_SUBJECT], n_frames
+    )
+    cells = " / ".join("-" if not np.isfinite(r) else f"{r:.2f}" for r in ratios)
+    return f"ours/Hessian frame by frame (median over the rounds): {cells}"
+
+
 @dataclass(frozen=True)
 class Options:
     """What one run measures.
@@ -492,6 +508,9 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
                 f"{TRACKING_STEP_PX} px per frame)"
             )
     report(verdict(results))
+    by_frame = ratio_by_frame(results, len(frames))
+    if by_frame:
+        report(by_frame)
     on_ground: dict[str, Any] = {}
     if options.ground:
         others = [n for n in names if not n.startswith("ours")]
@@ -500,7 +519,8 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
             on_ground = ground.run([REFERENCE_SUBJECT, *others], options.seed, Path(folder), report)
         report_load(load_before, report)
     # Each subject's "ours_over" is the median of ours over its time, frame by frame
-    # (workers.paired_ratio): the table's ours/peer.
+    # (workers.paired_ratio): the table's ours/peer; "ours_over_by_frame" the same per
+    # frame, over the rounds (workers.paired_ratios_by_frame).
     ours = next((r.times_ms for r in results if r.name == REFERENCE_SUBJECT), [])
     return {
         "frames": options.frames,
@@ -511,6 +531,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
             r.name: {
                 "median_ms": _median(r.times_ms),
                 "ours_over": workers.paired_ratio(ours, r.times_ms),
+                "ours_over_by_frame": workers.paired_ratios_by_frame(ours, r.times_ms, len(frames)),
                 "p95_ms": _p95(r.times_ms),
                 "times_ms": r.times_ms,
                 "rss_growth_mb": r.rss_growth_mb,

@@ -54,6 +54,21 @@ def paired_ratio(ours: Sequence[float], peer: Sequence[float]) -> float:
     return float(np.median(np.asarray(ours, float) / np.asarray(peer, float)))
 
 
+def paired_ratios_by_frame(
+    ours: Sequence[float], peer: Sequence[float], n_frames: int
+) -> list[float]:
+    """Per frame, the median over the rounds of our time over the peer's.
+
+    The times are in the order the drivers take them, round by round and frame by
+    frame within a round. NaN for every frame where the two did not time the same
+    whole rounds (a failed worker).
+    """
+    if not len(ours) or len(ours) != len(peer) or len(ours) % n_frames:
+        return [float("nan")] * n_frames
+    ratio = np.asarray(ours, float) / np.asarray(peer, float)
+    return [float(np.median(ratio[frame::n_frames])) for frame in range(n_frames)]
+
+
 def serve(ready: dict[str, Any], answer: Callable[[str], dict[str, Any]] | None) -> None:
     """The worker's loop: print ``ready``, then ``answer`` each request line until stdin ends.
 

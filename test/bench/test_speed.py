@@ -45,6 +45,15 @@ def test_the_ratio_to_a_peer_is_the_median_of_the_paired_ratios():
     assert workers.paired_ratio([100.0, 300.0], [200.0, 300.0]) == pytest.approx(0.75)
 
 
+def test_the_ratio_frame_by_frame_is_the_median_over_the_rounds_of_each_frames_pairs():
+    # Two rounds of three frames, round by round: the third frame's ground is slow for
+    # ours only.
+    ours = [50.0, 60.0, 200.0, 55.0, 66.0, 210.0]
+    peer = [100.0, 100.0, 200.0, 100.0, 120.0, 200.0]
+    assert workers.paired_ratios_by_frame(ours, peer, 3) == pytest.approx([0.525, 0.575, 1.025])
+    assert np.isnan(workers.paired_ratios_by_frame(ours[:5], peer[:5], 3)).all()
+
+
 def test_the_ratio_is_not_given_when_the_subjects_timed_different_detections():
     assert np.isnan(workers.paired_ratio([100.0, 300.0], [200.0]))
     assert np.isnan(workers.paired_ratio([], []))
@@ -63,6 +72,9 @@ def test_every_subject_times_every_frame_of_every_round_in_its_own_worker(tmp_pa
     assert hessian.stages_ms == []
     assert np.isfinite(ours.rss_growth_mb) and np.isfinite(hessian.rss_growth_mb)
     assert np.isfinite(workers.paired_ratio(ours.times_ms, hessian.times_ms))
+    line = speed.ratio_by_frame([ours, hessian], 2)
+    assert line.startswith("ours/Hessian frame by frame")
+    assert len(line.split(": ")[1].split(" / ")) == 2 and "-" not in line.split(": ")[1]
 
 
 def test_a_subject_whose_worker_fails_is_reported_and_the_others_still_run(tmp_path):
