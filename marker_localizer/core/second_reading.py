@@ -27,9 +27,9 @@ The detector (:class:`~marker_localizer.core.pipeline.Detector`) chains these wi
 its checks and fit, counts and times them. Measured: docs/method.md, "A second
 centring, with the light's slope, for the wide candidates that found no marker" and
 "A cast shadow's edge, found and divided out, for the wide candidates still lost";
-docs/accuracy.md, "Figures the fit's and the detector's docstrings carried";
-docs/speed.md, "The second readings on the speed frames, and a gate on the
-recentring".
+docs/accuracy.md, the run at 21bc646, "Evidence measured and not taken" and
+"Figures the fit's and the detector's docstrings carried"; docs/speed.md, "Earlier
+runs" and "The second readings on the speed frames, and a gate on the recentring".
 """
 
 from __future__ import annotations
