@@ -8,9 +8,8 @@ it, so that nothing disappears without a counter.
 
 from __future__ import annotations
 
-import functools
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
@@ -1352,26 +1351,18 @@ class Detector:
     ) -> verification.RingReading:
         """:func:`verification.ring_check` of the centred candidates, as this detector reads."""
         return verification.ring_check(
-            gray,
+            self._ring_reader(gray, gamma),
             candidates,
             second_reading.screened_wide(candidates),
-            self._radii,
-            min_contrast=self._min_contrast,
-            min_symmetry=self.config.symmetry_min,
-            normalise=gamma,
-            floor=self._floors.floor,
+            self._floors.floor,
         )
 
     def _ring_reader(
         self, gray: NDArray[Any], gamma: preprocessing.LocalGamma
-    ) -> Callable[..., verification.SymmetryCheck]:
-        """:func:`verification.ring_reader` on ``gray``, as this detector reads rings."""
-        return verification.ring_reader(
-            gray,
-            self._radii,
-            min_contrast=self._min_contrast,
-            min_symmetry=self.config.symmetry_min,
-            normalise=gamma,
+    ) -> verification.RingReader:
+        """The ring check on ``gray`` as this detector reads rings: its ladder, floor, threshold."""
+        return verification.RingReader(
+            gray, self._radii, self._min_contrast, self.config.symmetry_min, gamma
         )
 
     def _read_dull(
@@ -1400,9 +1391,7 @@ class Detector:
             candidates,
             ring,
             equalised_x,
-            equalised_rings=functools.partial(
-                self._ring_reader(frame.gray, frame.gamma), equalise=True
-            ),
+            rings=self._ring_reader(frame.gray, frame.gamma),
             floors=self._floors,
             model=self._model(frame),
             max_radius_px=self.config.marker_radius_max_px,

@@ -34,7 +34,6 @@ runs" and "The second readings on the speed frames, and a gate on the recentring
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -122,7 +121,7 @@ def read_dull(
     ring: verification.SymmetryCheck,
     equalised_x: NDArray[np.bool_],
     *,
-    equalised_rings: Callable[[NDArray[np.float64]], verification.SymmetryCheck],
+    rings: verification.RingReader,
     floors: acceptance.ScoreFloors,
     model: acceptance.MarkerModel,
     max_radius_px: float,
@@ -152,7 +151,7 @@ def read_dull(
         candidates: the centred candidates of the first reading.
         ring: their ring check.
         equalised_x: (N,) where their equalised rings showed an X of any extent.
-        equalised_rings: the ring check with the bright sectors equalised, at points.
+        rings: the ring check as the detector reads rings; read equalised here.
         floors: the score floors of each extent.
         model: the marker's model on the frame.
         max_radius_px: the largest expected marker radius, px.
@@ -174,7 +173,7 @@ def read_dull(
     xy, inside = subpixel.coarse_centre(
         gray, candidates.xy[read], candidates.scale_px[read], max_radius_px, light_slope=True
     )
-    there = equalised_rings(xy)
+    there = rings(xy, equalise=True)
     kept = np.flatnonzero(
         inside
         & there.accepted

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, NamedTuple, cast
 
 import cv2
@@ -761,26 +762,42 @@ def centre_symmetry_check(
     return in_blocks(check, _CHECK_BLOCK, xy, inner_profiles)
 
 
-def ring_reader(
-    image: NDArray[Any],
-    radii_px: NDArray[np.float64],
-    *,
-    min_contrast: float,
-    min_symmetry: float,
-    normalise: Normaliser | None,
-) -> Callable[..., SymmetryCheck]:
-    """:func:`centre_symmetry_check` on ``image`` with one ladder, floor and threshold.
+@dataclass(frozen=True)
+class RingReader:
+    """:func:`centre_symmetry_check` on one image with one ladder, floor and threshold.
 
-    Called with the points and, where asked, ``equalise`` and ``inner_profiles``.
+    Attributes:
+        image: (H, W) grey image, raw levels.
+        radii_px: (J,) the ring ladder (:func:`ring_radii`).
+        min_contrast: a good ring's least contrast, after ``normalise``.
+        min_symmetry: a good ring's least 180-degree self-correlation.
+        normalise: applied to the ring samples.
     """
-    return functools.partial(
-        centre_symmetry_check,
-        image,
-        radii_px=radii_px,
-        min_contrast=min_contrast,
-        min_symmetry=min_symmetry,
-        normalise=normalise,
-    )
+
+    image: NDArray[Any]
+    radii_px: NDArray[np.float64]
+    min_contrast: float
+    min_symmetry: float
+    normalise: Normaliser | None = None
+
+    def __call__(
+        self,
+        xy: NDArray[np.float64],
+        *,
+        equalise: bool = False,
+        inner_profiles: NDArray[np.float64] | None = None,
+    ) -> SymmetryCheck:
+        """The check at ``xy``; ``equalise`` and ``inner_profiles`` as for the function."""
+        return centre_symmetry_check(
+            self.image,
+            xy,
+            self.radii_px,
+            min_contrast=self.min_contrast,
+            min_symmetry=self.min_symmetry,
+            normalise=self.normalise,
+            equalise=equalise,
+            inner_profiles=inner_profiles,
+        )
 
 
 class RingReading(NamedTuple):
@@ -799,14 +816,9 @@ class RingReading(NamedTuple):
 
 
 def ring_check(
-    image: NDArray[Any],
+    rings: RingReader,
     candidates: Candidates,
     wide: NDArray[np.bool_],
-    radii_px: NDArray[np.float64],
-    *,
-    min_contrast: float,
-    min_symmetry: float,
-    normalise: Normaliser | None,
     floor: Callable[[NDArray[np.float64]], NDArray[np.float64]],
 ) -> RingReading:
     """The centre-symmetry check, and for X's wider than texture's its equalised twin.
@@ -832,46 +844,41 @@ def ring_check(
     docstrings carried".
 
     Args:
-        image: (H, W) grey image, raw levels.
+        rings: the check, on the frame, as the detector reads rings.
         candidates: the centred candidates.
         wide: (N,) those screened beyond texture's scale.
-        radii_px: (J,) the ring ladder (:func:`ring_radii`).
-        min_contrast: a good ring's least contrast, after ``normalise``.
-        min_symmetry: a good ring's least 180-degree self-correlation.
-        normalise: applied to the ring samples.
         floor: the score floor of an X of each extent.
 
     Returns:
         :class:`RingReading`.
     """
-    check = ring_reader(
-        image, radii_px, min_contrast=min_contrast, min_symmetry=min_symmetry, normalise=normalise
-    )
     xy = candidates.xy
     # The inner rings read once: the equalised reading of the same points takes them.
-    inner = centre_symmetry_inner_profiles(image, xy, radii_px, normalise=normalise)
-    ring = check(xy, inner_profiles=inner)
+    inner = centre_symmetry_inner_profiles(
+        rings.image, xy, rings.radii_px, normalise=rings.normalise
+    )
+    ring = rings(xy, inner_profiles=inner)
     retry = np.flatnonzero(wide | (ring.accepted & (ring.radius_px >= EQUALISED_MIN_EXTENT_PX)))
     equalised_x = np.zeros(len(xy), dtype=bool)
     if len(retry):
-        equalised = check(xy[retry], equalise=True, inner_profiles=inner[retry])
+        equalised = rings(xy[retry], equalise=True, inner_profiles=inner[retry])
         equalised_x[retry] = equalised.accepted
         ring = with_equalised(ring, retry, equalised, floor(ring.radius_px[retry]))
     lost = np.flatnonzero(wide & ~ring.accepted)
     if not len(lost):
         return RingReading(candidates, ring, equalised_x)
     crossing, _ = line_crossing_centres(
-        image,
+        rings.image,
         xy[lost],
-        radii_px[:LINE_CROSSING_RINGS],
-        min_contrast=min_contrast,
-        normalise=normalise,
+        rings.radii_px[:LINE_CROSSING_RINGS],
+        min_contrast=rings.min_contrast,
+        normalise=rings.normalise,
         profiles=inner[lost, :LINE_CROSSING_RINGS],
     )
     # Those the crossing left where they were have had their equalised reading.
     shifted = (crossing != xy[lost]).any(axis=1)
     lost, crossing = lost[shifted], crossing[shifted]
-    there = check(crossing, equalise=True)
+    there = rings(crossing, equalise=True)
     found = there.accepted & (there.radius_px >= EQUALISED_MIN_EXTENT_PX)
     return RingReading(
         candidates.moved(lost[found], crossing[found]),

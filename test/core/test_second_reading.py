@@ -1,7 +1,5 @@
 """Second readings: which lost candidates are read again, where, and what joins."""
 
-import functools
-
 import numpy as np
 import pytest
 
@@ -183,13 +181,12 @@ def _first_reading(image: np.ndarray) -> tuple[Candidates, verification.Symmetry
     )
 
 
-def _ring_reader(image: np.ndarray):
-    return verification.ring_reader(
+def _ring_reader(image: np.ndarray) -> verification.RingReader:
+    return verification.RingReader(
         image,
         verification.ring_radii((5.0, MAX_RADIUS_PX)),
-        min_contrast=DetectorConfig().min_contrast_dn / 255.0,
-        min_symmetry=DetectorConfig().symmetry_min,
-        normalise=None,
+        DetectorConfig().min_contrast_dn / 255.0,
+        DetectorConfig().symmetry_min,
     )
 
 
@@ -208,7 +205,7 @@ def _read_dull(
         centred,
         first,
         equalised_x,
-        equalised_rings=functools.partial(_ring_reader(image), equalise=True),
+        rings=_ring_reader(image),
         floors=acceptance.ScoreFloors(config.min_score, config.min_score_small, 5.0),
         model=acceptance.MarkerModel(
             image, 255.0, lambda: estimate_noise(image, 255.0), MAX_RADIUS_PX, False, gamma

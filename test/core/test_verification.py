@@ -497,14 +497,10 @@ def _dull_x(dull: float) -> np.ndarray:
 
 def _ring_check(image: np.ndarray, xy: np.ndarray, wide: bool) -> verification.RingReading:
     return verification.ring_check(
-        image,
+        verification.RingReader(image, verification.ring_radii((5.0, 30.0)), 20 / 255, 0.8),
         Candidates(xy, np.ones(len(xy)), np.full(len(xy), 8.0 if wide else 4.0)),
         np.array([wide]),
-        verification.ring_radii((5.0, 30.0)),
-        min_contrast=20 / 255,
-        min_symmetry=0.8,
-        normalise=None,
-        floor=lambda extent: np.full(np.shape(extent), 0.9),
+        lambda extent: np.full(np.shape(extent), 0.9),
     )
 
 
