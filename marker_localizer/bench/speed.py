@@ -371,9 +371,19 @@ def stage_medians(stages: Sequence[dict[str, float]]) -> dict[str, float]:
     return {stage: _median([s.get(stage, float("nan")) for s in stages]) for stage in names}
 
 
+def _reference_times(results: Sequence[WorkerResult]) -> list[float]:
+    """Our detector's frame times, ms, in the order timed (empty where it did not run)."""
+    return next((r.times_ms for r in results if r.name == REFERENCE_SUBJECT), [])
+
+
+def _subject_times(results: Sequence[WorkerResult]) -> dict[str, list[float]]:
+    """Each subject's frame times, ms, in the order timed; subjects that failed are left out."""
+    return {r.name: r.times_ms for r in results if not r.error}
+
+
 def speed_table(results: Sequence[WorkerResult]) -> str:
     """Format the timing table (ms, MiB) with ratios ours / peer."""
-    ours = next((r.times_ms for r in results if r.name == REFERENCE_SUBJECT), [])
+    ours = _reference_times(results)
     header = (
         f"{'subject':<32}{'median ms':>11}{'p95 ms':>10}{'runs':>6}{'RSS +MiB':>10}"
         f"{'ours/peer':>11}"
@@ -415,7 +425,7 @@ def stages_table(results: Sequence[WorkerResult]) -> str:
 
 def verdict(results: Sequence[WorkerResult]) -> str:
     """One line on the issue's targets: full frame, ratio to the Hessian peer, tracking."""
-    times = {r.name: r.times_ms for r in results if not r.error}
+    times = _subject_times(results)
     by_name = {name: _median(values) for name, values in times.items()}
     ours = by_name.get(REFERENCE_SUBJECT, float("nan"))
     ratio = workers.paired_ratio(times.get(REFERENCE_SUBJECT, []), times.get(HESSIAN_SUBJECT, []))
@@ -442,7 +452,7 @@ def ratio_by_frame(results: Sequence[WorkerResult], n_frames: int) -> str:
     The table's ours/peer is the median over every pair; a frame whose ground
     passes many more candidates to the checks shows apart here.
     """
-    times = {r.name: r.times_ms for r in results if not r.error}
+    times = _subject_times(results)
     if REFERENCE_SUBJECT not in times or HESSIAN_SUBJECT not in times:
         return ""
     ratios = workers.paired_ratios_by_frame(
@@ -521,7 +531,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
     # Each subject's "ours_over" is the median of ours over its time, frame by frame
     # (workers.paired_ratio): the table's ours/peer; "ours_over_by_frame" the same per
     # frame, over the rounds (workers.paired_ratios_by_frame).
-    ours = next((r.times_ms for r in results if r.name == REFERENCE_SUBJECT), [])
+    ours = _reference_times(results)
     return {
         "frames": options.frames,
         "repeats": options.repeats,
