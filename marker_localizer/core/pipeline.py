@@ -684,9 +684,8 @@ class Detector:
                     centred = second_reading.slope_centred(
                         reading.lit, reading.read, self.config.marker_radius_max_px
                     )
-                found = self._verify_and_locate(replace(frame.reread(), gray=reading.lit), centred)[
-                    0
-                ]
+                lit = replace(frame.reread(), gray=reading.lit)
+                found = self._verify_and_locate(lit, centred)[0]
             if found:
                 xy, sigma, located = second_reading.located_in_shadow(
                     gray,

@@ -170,9 +170,8 @@ def read_dull(
     if not len(read):
         nothing = verification.SymmetryCheck._make(field[read] for field in ring)
         return DullReading(read, np.zeros((0, 2)), nothing, read)
-    xy, inside = subpixel.coarse_centre(
-        gray, candidates.xy[read], candidates.scale_px[read], max_radius_px, light_slope=True
-    )
+    centred, inside = _centred_with_slope(gray, candidates.take(read), max_radius_px)
+    xy = centred.xy
     there = rings(xy, equalise=True)
     kept = np.flatnonzero(
         inside
@@ -272,12 +271,10 @@ def recentred(
     Returns:
         The candidates to read again, at their slope-fitted centres.
     """
-    xy, inside = subpixel.coarse_centre(
-        gray, lost.xy, lost.scale_px, max_radius_px, light_slope=True
-    )
+    centred, inside = _centred_with_slope(gray, lost, max_radius_px)
     # Where the slope leaves the centre where it was, the rings read it as before.
-    moved = ~plain_found | (np.linalg.norm(xy - plain_xy, axis=1) >= RECENTRE_MIN_SHIFT_PX)
-    return Candidates(xy, lost.strength, lost.scale_px).take(inside & moved)
+    shift = np.linalg.norm(centred.xy - plain_xy, axis=1)
+    return centred.take(inside & (~plain_found | (shift >= RECENTRE_MIN_SHIFT_PX)))
 
 
 def shadow_reach(lost: Candidates, max_radius_px: float) -> NDArray[np.float64]:
@@ -342,11 +339,23 @@ def shadowed(
 
 
 def slope_centred(gray: NDArray[Any], candidates: Candidates, max_radius_px: float) -> Candidates:
-    """The candidates centred with the light's slope (:func:`subpixel.coarse_centre`)."""
+    """The candidates centred with the light's slope, those the centring found a centre for."""
+    centred, inside = _centred_with_slope(gray, candidates, max_radius_px)
+    return centred.take(inside)
+
+
+def _centred_with_slope(
+    gray: NDArray[Any], candidates: Candidates, max_radius_px: float
+) -> tuple[Candidates, NDArray[np.bool_]]:
+    """Every candidate at its centre with the light's slope fitted too, and (N,) where found.
+
+    :func:`subpixel.coarse_centre` with ``light_slope``, the one centring every second
+    reading takes.
+    """
     xy, inside = subpixel.coarse_centre(
         gray, candidates.xy, candidates.scale_px, max_radius_px, light_slope=True
     )
-    return Candidates(xy, candidates.strength, candidates.scale_px).take(inside)
+    return Candidates(xy, candidates.strength, candidates.scale_px), inside
 
 
 def located_in_shadow(
