@@ -57,6 +57,9 @@ MAX_TEMPLATE_MISFIT = 0.08
 #: (:meth:`MarkerModel.plate_not_worse`): texture's false points clear their floors by
 #: little, and markers whose plate the model misses (a shadow's edge across it) by more.
 PLATE_DOUBT_MARGIN = 0.03
+#: Most of the best quartic's residual the plate model may leave on such a detection
+#: (:func:`plate.plate_evidence` at its extent or a rung out, the better of the two).
+PLATE_DOUBT_MAX_TO_QUARTIC = 0.8
 #: ... unless another detection lies within this many of its extents: a chessboard's
 #: corner, whose squares go on where a plate would end, has its neighbours a square
 #: away, a few extents; texture's false points have none this near.
@@ -567,7 +570,7 @@ class MarkerModel:
             if len(unheld):
                 plated = self.plate_at_scale(xy[unheld], rung * radius[unheld], angles[unheld])
                 with np.errstate(invalid="ignore"):
-                    unheld = unheld[plated > plate.MAX_TO_QUARTIC_ANY]
+                    unheld = unheld[plated > PLATE_DOUBT_MAX_TO_QUARTIC]
         if len(unheld):
             # Every detection is within 0 of itself: a neighbour makes the count 2.
             near = cKDTree(xy).query_ball_point(
