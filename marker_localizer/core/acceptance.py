@@ -60,9 +60,9 @@ PLATE_DOUBT_MARGIN = 0.03
 #: Most of the best quartic's residual the plate model may leave on such a detection
 #: (:func:`plate.plate_evidence` at its extent or a rung out, the better of the two).
 #: Near their floors, markers leave at most 0.7 on the development frames unless a cast
-#: shadow's edge crosses them (which the model leaves out), texture's false points
-#: 0.87-1.07: measured in docs/accuracy.md, "A plate that leaves most of a quartic's
-#: residual near the floor".
+#: shadow's edge crosses them (the model leaves shadows out); texture's false points
+#: leave 0.87-1.07, all but one. Measured: docs/accuracy.md, "A plate that leaves
+#: most of a quartic's residual near the floor".
 PLATE_DOUBT_MAX_TO_QUARTIC = 0.8
 #: ... unless another detection lies within this many of its extents: a chessboard's
 #: corner, whose squares go on where a plate would end, has its neighbours a square
