@@ -548,7 +548,8 @@ class MarkerModel:
           :data:`PLATE_DOUBT_MARGIN` (``margin``: its score less its floor), where
           ground texture's false points score: the same, with the model at the X's
           scale and each bright quadrant's own level (a dull quadrant), read at its
-          extent and a ring rung out, unless another detection lies within
+          extent and a ring rung out, within :data:`PLATE_DOUBT_MAX_TO_QUARTIC` of
+          the quartic's residual, unless another detection lies within
           :data:`BOARD_NEIGHBOUR_EXTENTS` of its extent (a chessboard's corner).
 
         NaN (no window) passes. ``xy`` holds every detection of the call, the
