@@ -46,6 +46,11 @@ PLATE_HALF_SIDE = 1.25
 MODEL_RADII_PX = (2.25, 3.0, 3.75, 4.5, 5.25)
 #: The models' blurs (Gaussian sigma), px: across the optics' 0.5-1.5 px and JPEG.
 MODEL_BLURS_PX = (0.7, 1.0, 1.3, 1.6)
+#: The steepest view of a plate the models take, radians from face on: the 60 degrees
+#: the detector is built for (the renderers' and the design's limit). A shape of
+#: radii r1, r2 along lines that no circle seen at most this steeply makes is left
+#: out (:func:`seen_within_max_tilt`): elongated texture fits it, a marker cannot.
+MAX_TILT_RAD = np.deg2rad(60.0)
 #: The extent of the X, px, that :data:`MODEL_RADII_PX` are set for: the tiny markers'
 #: rungs of the ring ladder, 3-4.24 px. Read at a larger extent with
 #: ``scale_with_extent``, the radii (and :data:`COARSE_RADII_PX`) scale with it.
@@ -191,9 +196,10 @@ def _plate_residual(
     (u = alpha / r1, v = beta / r2: the image of the quarter disks' circle), each
     blurred edge a product of blurred steps (the blurred ellipse by its signed
     distance). Levels by least squares; r1, r2, the blur and which quadrant pair
-    holds the paint by search. With ``quadrant_levels`` each of the other pair's
-    quarter disks has a level of its own too (a dull bright quadrant: wear, dirt,
-    sheen).
+    holds the paint by search, over the shapes a plate seen within
+    :data:`MAX_TILT_RAD` of face on makes (:func:`seen_within_max_tilt`; inf where
+    none does). With ``quadrant_levels`` each of the other pair's quarter disks has
+    a level of its own too (a dull bright quadrant: wear, dirt, sheen).
     """
     cos, sin = np.cos(line_angles), np.sin(line_angles)
     det = cos[:, 0] * sin[:, 1] - cos[:, 1] * sin[:, 0]
@@ -249,6 +255,9 @@ def _plate_residual(
         for j in range(i + 1):
             normal[..., i, j] = normal[..., j, i] = np.sum(columns[i] * columns[j], axis=-1)
     total = np.sum(np.square(values, dtype=np.float64), axis=1)[:, None, None, None]
+    # The radii are a grid: each stands for those within half its spacing.
+    half_step = 0.5 * float(np.diff(radii).max(initial=0.0))
+    possible = seen_within_max_tilt(radii, crossing, half_step)[..., None]
     best = np.full(len(values), np.inf)
     quarters = (
         (step_a * step_b, (1.0 - step_a) * (1.0 - step_b)),
@@ -263,9 +272,42 @@ def _plate_residual(
             for j, earlier in enumerate(columns + paint[: i - 3]):
                 normal[..., i, j] = normal[..., j, i] = np.sum(column * earlier, axis=-1)
         levels = np.linalg.solve(normal + 1e-6 * np.eye(size), projected[..., None])[..., 0]
-        residual = total - np.sum(levels * projected, axis=-1)
+        residual = np.where(possible, total - np.sum(levels * projected, axis=-1), np.inf)
         best = np.minimum(best, residual.reshape(len(values), -1).min(axis=1))
     return np.where(crossing < _MIN_CROSSING_SIN, np.nan, best)
+
+
+def seen_within_max_tilt(
+    radii_px: NDArray[np.floating[Any]], crossing: NDArray[np.float64], half_step_px: float
+) -> NDArray[np.bool_]:
+    """(N, R, R) whether radii r1, r2 along each X's lines can be a circle's seen at most steeply.
+
+    A marker's lines are the images of two perpendicular diameters of its plate's
+    circle, so r1 e1 and r2 e2 (e1, e2 the lines' unit directions, crossing at
+    |sin| ``crossing``) are conjugate semi-diameters of the circle's image, an
+    ellipse whose axes a >= b satisfy a^2 + b^2 = r1^2 + r2^2 and a b = r1 r2 |sin|
+    (Apollonius). So b / a + a / b = (k + 1 / k) / |sin|, k = r1 / r2, and a circle
+    seen t from face on shows b / a = cos t: the shape is a marker's where that sum
+    is at most cos t + 1 / cos t at :data:`MAX_TILT_RAD`. A model's radius stands for
+    those within ``half_step_px`` of it (half its grid's spacing), so k is taken as
+    near 1 as that allows. (Over a plate of a few pixels the perspective is an
+    affine map.)
+
+    Args:
+        radii_px: (R,) the models' radii along each line, px.
+        crossing: (N,) |sin| of the angle between each X's lines.
+        half_step_px: how far from each radius the radii it stands for reach, px.
+    """
+    radii = np.asarray(radii_px, np.float64)
+    longer = np.maximum(radii[:, None], radii[None, :]) - half_step_px
+    shorter = np.minimum(radii[:, None], radii[None, :]) + half_step_px
+    k = np.maximum(longer / shorter, 1.0)
+    cos_tilt = np.cos(MAX_TILT_RAD)
+    sum_bound = cos_tilt + 1.0 / cos_tilt
+    possible: NDArray[np.bool_] = (k + 1.0 / k)[None] <= sum_bound * np.asarray(
+        crossing, np.float64
+    )[:, None, None]
+    return possible
 
 
 def plate_evidence(

@@ -87,6 +87,52 @@ def test_a_smooth_saddle_leaves_the_plate_model_more_than_a_quartic():
     assert evidence.to_quartic[0] > plate.MAX_TO_QUARTIC_ANY
 
 
+def _conjugate_radii(tilt_deg: float, phase: float) -> tuple[float, float, float]:
+    """Radii along the images of two perpendicular diameters of a circle of 3 px seen
+    ``tilt_deg`` from face on, and the |sin| of the angle between them."""
+    squash = np.cos(np.deg2rad(tilt_deg))
+    first = 3.0 * np.array([np.cos(phase), squash * np.sin(phase)])
+    second = 3.0 * np.array([-np.sin(phase), squash * np.cos(phase)])
+    r1, r2 = np.linalg.norm(first), np.linalg.norm(second)
+    return r1, r2, abs(first[0] * second[1] - first[1] * second[0]) / (r1 * r2)
+
+
+@pytest.mark.parametrize(
+    ("tilt_deg", "possible"), [(0, True), (45, True), (59, True), (61, False), (75, False)]
+)
+def test_the_plate_shapes_are_those_of_a_circle_seen_at_most_sixty_degrees_from_face_on(
+    tilt_deg, possible
+):
+    for phase in np.linspace(0.0, np.pi, 13):
+        r1, r2, crossing = _conjugate_radii(tilt_deg, phase)
+        shapes = plate.seen_within_max_tilt(np.array([r1, r2]), np.array([crossing]), 0.0)
+        assert shapes[0, 0, 1] == possible
+
+
+def test_a_model_shape_stands_for_the_radii_within_half_the_grid_spacing():
+    # 2.25 and 5.25 px along lines at right angles: an ellipse of axis ratio 0.43, a
+    # circle seen 65 degrees from face on; the shapes within half a step (0.375 px)
+    # of it reach 2.625 and 4.875 px, 0.54: 57 degrees.
+    radii, right_angle = np.array([2.25, 5.25]), np.array([1.0])
+    assert not plate.seen_within_max_tilt(radii, right_angle, 0.0)[0, 0, 1]
+    assert plate.seen_within_max_tilt(radii, right_angle, 0.375)[0, 0, 1]
+    assert not plate.seen_within_max_tilt(radii, np.array([0.5]), 0.375)[0, 0, 1]
+
+
+@pytest.mark.parametrize("tilt_deg", [55.0, 60.0])
+@pytest.mark.parametrize("seed", range(3))
+def test_a_tiny_marker_seen_up_to_sixty_degrees_from_face_on_is_explained_by_its_plate(
+    tilt_deg, seed
+):
+    placement = MarkerPlacement(40.3, 39.8, 4.5, 0.4 + seed, tilt_deg, kind="quarter_disks")
+    scene = render_markers(
+        (80, 80), [placement], seed, blur_sigma_px=1.0, noise_sigma_dn=2.0, background="flat"
+    )
+    assert plate.explained_at(
+        scene.image, scene.centres, np.array([_EXTENT_PX]), np.array([scene.markers[0].angles])
+    )[0]
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_small_tilted_marker_is_explained_by_its_plate_read_at_its_scale(seed):
     # An 8 px marker tilted 50 degrees: its rings reach 6 px, and along its lines it
