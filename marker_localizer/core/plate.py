@@ -335,9 +335,10 @@ def plate_evidence(
 
     Returns:
         :class:`PlateEvidence`; NaN where the window leaves the image or the lines
-        are nearly parallel. Where the coarse search (:data:`COARSE_RADII_PX`,
-        :data:`COARSE_BLURS_PX`) already leaves more than
-        :data:`COARSE_MAX_TO_QUADRATIC` of the quadratic's residual, its ratios.
+        are nearly parallel, inf where they cross too obliquely for any plate seen
+        within :data:`MAX_TILT_RAD` (:func:`seen_within_max_tilt`). Where the coarse
+        search (:data:`COARSE_RADII_PX`, :data:`COARSE_BLURS_PX`) already leaves more
+        than :data:`COARSE_MAX_TO_QUADRATIC` of the quadratic's residual, its ratios.
     """
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     to_quadratic = np.full(len(xy), np.nan)
