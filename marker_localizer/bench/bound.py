@@ -1,4 +1,4 @@
-"""What the Cramer-Rao bound asks of a fit: the bound with the marker's other parameters unknown.
+"""What the pixels allow: the centre's bound with the rest unknown, and the X's SNR.
 
 ``marker-localizer bench bound`` renders a rendered family's frames with each
 marker's :class:`~marker_localizer.synthetic.crlb.BoundParts`, runs the default
@@ -18,6 +18,12 @@ found, and the detector's mean error over each:
 A fit's efficiency is its error over the bound of what it estimates from the
 pixels it reads.
 
+It also prints how many of the family's markers the detector finds, by their X's
+signal-to-noise ratio (:func:`~marker_localizer.synthetic.crlb.x_snr`, in the
+octaves of :data:`SNR_BANDS`): the evidence a matched filter that knew everything
+but whether the X is there would have. A marker the detector misses at a high
+ratio is lost to its tests or to the ground's texture, not to the noise.
+
 The frames are those of seeds ``first_seed`` on, which no table of
 ``bench accuracy`` renders (its seeds are ``seed * 1000 + i``).
 """
@@ -25,6 +31,7 @@ The frames are those of seeds ``first_seed`` on, which no table of
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -46,6 +53,14 @@ INNER_SHARE = 0.8
 #: measurements in docs/accuracy.md.
 FIRST_SEED = 100
 FRAMES = 12
+#: Edges of the bands of the X's signal-to-noise ratio the markers found are counted
+#: in: octaves from 8, about where a matched filter searching a 12 MP frame for an X of
+#: any position, lines and blur starts to find it at a fraction of a false point a
+#: frame (its threshold on noise alone: docs/accuracy.md, "What an ideal detector
+#: could find").
+SNR_BANDS = (8.0, 16.0, 32.0, 64.0, 128.0, 256.0, 512.0)
+#: The heading of those bands' rows.
+SNR_HEADING = "the X's signal-to-noise ratio"
 #: The rows of the table: each bound's label, by its field of :class:`BoundParts`.
 BOUND_LABELS = {
     "known": "Cramer-Rao bound: the centre alone unknown, the whole X",
@@ -58,19 +73,35 @@ BOUND_LABELS = {
 
 @dataclass(frozen=True)
 class FamilyBounds:
-    """One family's markers found: the detector's errors and their bounds.
+    """One family's markers: which the detector found, its errors and their bounds.
 
     Attributes:
         key: the family's key (``bench accuracy --families``).
-        markers: how many markers the frames hold.
+        x_snr: (M,) the X's signal-to-noise ratio of every marker the frames hold.
+        found: (M,) True for the markers the detector found.
         errors_px: (N,) the detector's error on each marker it found, px.
         parts: (N, 5) the bounds of those markers, columns in :class:`BoundParts`' order, px.
     """
 
     key: str
-    markers: int
+    x_snr: np.ndarray
+    found: np.ndarray
     errors_px: np.ndarray
     parts: np.ndarray
+
+    @property
+    def markers(self) -> int:
+        """How many markers the frames hold."""
+        return len(self.x_snr)
+
+    def by_snr(self) -> list[tuple[float, float, int, int]]:
+        """Per band of :data:`SNR_BANDS` (from, to), the markers in it and those found."""
+        edges = (0.0, *SNR_BANDS, math.inf)
+        bands = []
+        for low, high in itertools.pairwise(edges):
+            inside = (self.x_snr >= low) & (self.x_snr < high)
+            bands.append((low, high, int(inside.sum()), int((inside & self.found).sum())))
+        return bands
 
     def row(self, column: int) -> tuple[float, float, int]:
         """A bound's mean (px) and the mean error over it, over the markers it bounds.
@@ -98,15 +129,24 @@ class FamilyBounds:
             mean, efficiency, unbounded = self.row(column)
             note = f"  ({unbounded} unbounded, left out)" if unbounded else ""
             lines.append(f"  {label:72s} {mean:8.4f} {mean / crb:6.2f} {efficiency:14.2f}{note}")
+        lines.append(f"  {SNR_HEADING:32s} {'markers':>8s} {'found':>14s}")
+        for low, high, in_band, found_in_band in self.by_snr():
+            band = f"{low:g}-{high:g}" if math.isfinite(high) else f"{low:g} and more"
+            share = f"{found_in_band} ({found_in_band / in_band:.0%})" if in_band else "-"
+            lines.append(f"  {band:32s} {in_band:8d} {share:>14s}")
         return "\n".join(lines)
 
     def figures(self) -> dict[str, Any]:
-        """The JSON figures: counts, the mean error, and each bound's row (:meth:`row`)."""
+        """The JSON figures: counts, the mean error, each bound's row (:meth:`row`), the bands."""
         rows = {field: self.row(k) for k, field in enumerate(BoundParts._fields)}
         return {
             "markers": self.markers,
             "found": len(self.errors_px),
             "mean_error_px": float(self.errors_px.mean()) if len(self.errors_px) else None,
+            "by_x_snr": [
+                {"from": low, "to": high if math.isfinite(high) else None, "markers": m, "found": f}
+                for low, high, m, f in self.by_snr()
+            ],
             "bounds": {
                 field: {"mean_px": mean, "error_over_bound": ratio, "unbounded": unbounded}
                 for field, (mean, ratio, unbounded) in rows.items()
@@ -124,28 +164,36 @@ def family_bounds(key: str, seeds: Sequence[int]) -> FamilyBounds:
             marker_radius_max_px=family.radius_range[1],
         )
     )
+    snr: list[np.ndarray] = []
+    found: list[np.ndarray] = []
     errors: list[np.ndarray] = []
     parts: list[np.ndarray] = []
-    markers = 0
     for seed in seeds:
         scene = render_scene(family.scene, seed, bound_parts_within=INNER_SHARE)
-        found = detector.detect(scene.image).as_array()[:, :2]
-        matching = match_points(found, scene.centres)
-        markers += len(scene.markers)
+        detections = detector.detect(scene.image).as_array()[:, :2]
+        matching = match_points(detections, scene.centres)
+        snr.append(np.array([m.x_snr for m in scene.markers], dtype=np.float64))
+        found.append(np.isin(np.arange(len(scene.markers)), matching.truth_index))
         errors.append(matching.errors_px)
         parts.append(
             np.array([scene.markers[i].bound_parts for i in matching.truth_index]).reshape(
                 -1, len(BoundParts._fields)
             )
         )
-    return FamilyBounds(key, markers, np.concatenate(errors), np.concatenate(parts))
+    return FamilyBounds(
+        key,
+        np.concatenate(snr),
+        np.concatenate(found),
+        np.concatenate(errors),
+        np.concatenate(parts),
+    )
 
 
 def run(keys: Sequence[str], seeds: Sequence[int], report: Report) -> dict[str, Any]:
     """Print and return each family's bounds over ``seeds``."""
     report(
         f"seeds {seeds[0]}-{seeds[-1]}; the bounds' means over the markers found, the "
-        "detector's mean error over each"
+        "detector's mean error over each; the markers found by their X's signal-to-noise ratio"
     )
     figures = {}
     for key in keys:
@@ -161,7 +209,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="marker-localizer bench bound",
         description="The centre's bound with the marker's other parameters unknown, "
-        "and the default's error over each.",
+        "and the default's error over each; the markers it finds by their X's "
+        "signal-to-noise ratio.",
     )
     parser.add_argument(
         "--families",

@@ -30,6 +30,7 @@ block of F^-1 (the Schur complement of the others): :func:`centre_bound`, and
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -198,3 +199,32 @@ def crlb_mean_abs_error(information: np.ndarray) -> float:
     if smallest <= _SINGULAR_RATIO * np.trace(info):
         return math.inf
     return expected_radial_error(np.linalg.inv(info))
+
+
+def x_snr(turned: Sequence[np.ndarray], variance: np.ndarray) -> float:
+    """The signal-to-noise ratio of a marker's X: what an ideal detector has to go on.
+
+    A diagonal marker turned a quarter in its plane is its own negative (its
+    bright and dark quadrants trade places), while its plate, a blob, the ground
+    and the light are not changed by the turn. With ``turned[k]`` the noise-free
+    image of the marker turned k quarters, the image's part that changes sign
+    under the turn, X = (I0 - I1 + I2 - I3) / 4, is the X alone: the mean of the
+    four turns (what the marker has in common with an X-less plate) and a light's
+    slope or a shadow's edge across it (odd under a half turn) drop out. A matched
+    filter tells the marker from its plate without the X (the four turns' mean) at
+
+        d' = sqrt(sum_i X_i^2 / var_i),
+
+    the known-signal limit: a detector that estimates the X's position, lines and
+    blur, or that must tell it from ground texture rather than from noise, needs
+    more (docs/accuracy.md, "What an ideal detector could find").
+
+    Args:
+        turned: Four (H, W) noise-free images of the marker turned 0, 1, 2 and 3
+            quarters in its plane, DN.
+        variance: (H, W) each pixel's noise variance, DN^2.
+    """
+    if len(turned) != 4:
+        raise ValueError(f"x_snr needs the marker turned 0-3 quarters, got {len(turned)} images")
+    x_part = (turned[0] - turned[1] + turned[2] - turned[3]) / 4.0
+    return math.sqrt(float(np.sum(x_part**2 / variance)))

@@ -471,6 +471,8 @@ class MarkerTruth:
         bound_parts: The centre's bound with the marker's other parameters unknown
             and from fewer pixels (:class:`~marker_localizer.synthetic.crlb.BoundParts`),
             where asked for.
+        x_snr: The signal-to-noise ratio of its X, what an ideal detector has to go on
+            (:func:`~marker_localizer.synthetic.crlb.x_snr`); NaN when not computed.
     """
 
     x: float
@@ -482,6 +484,7 @@ class MarkerTruth:
     crlb_mean_abs_error_px: float = math.nan
     dull_margin: float = 1.0
     bound_parts: crlb.BoundParts | None = None
+    x_snr: float = math.nan
 
     @classmethod
     def from_homography(
@@ -1223,8 +1226,8 @@ def _render(
     texture_scale: tuple[float, float],
     crlb_of: Sequence[int] = (),
     parts_within: float | None = None,
-) -> tuple[np.ndarray, list[tuple[float, crlb.BoundParts | None]]]:
-    """:func:`render_targets`, and the Cramer-Rao bound of the targets ``crlb_of``, px.
+) -> tuple[np.ndarray, list[tuple[float, float, crlb.BoundParts | None]]]:
+    """:func:`render_targets`, and the Cramer-Rao bound (px) and X's SNR of the targets ``crlb_of``.
 
     With ``parts_within``, each bound's :class:`~marker_localizer.synthetic.crlb.BoundParts`
     too (:func:`_marker_crlb`).
@@ -1256,6 +1259,13 @@ def _render(
 #: within 1 % (0.3 % on average) of those with a 0.025 px step and 4x finer
 #: supersampling.
 CRLB_STEP_PX = 0.1
+#: The plane turned by one, two and three quarters, (u, v) -> (-v, u) and its powers,
+#: as homographies of the plane: a marker's plate turned onto itself, its X onto its
+#: negative.
+_QUARTER_TURNS = tuple(
+    np.linalg.matrix_power(np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), k)
+    for k in (1, 2, 3)
+)
 
 
 #: Central-difference steps of :class:`~marker_localizer.synthetic.crlb.BoundParts`'
@@ -1281,8 +1291,8 @@ def _marker_crlb(
     vignette: np.ndarray | None,
     supersampling: int,
     parts_within: float | None = None,
-) -> tuple[float, crlb.BoundParts | None]:
-    """Cramer-Rao bound of ``targets[index]``'s centre as the expected |error|, px.
+) -> tuple[float, float, crlb.BoundParts | None]:
+    """Cramer-Rao bound of ``targets[index]``'s centre as the expected |error|, px, and its X's SNR.
 
     The noise-free frame around the marker (its window grown by the optics'
     reach, with the ground and every other target in it) is re-rendered with
@@ -1291,6 +1301,8 @@ def _marker_crlb(
     central differences and :meth:`ImagingConditions.pixel_variance_dn2` of
     the unmoved signal give the Fisher information over the pixels whose
     centres lie inside the X (:func:`~marker_localizer.synthetic.crlb.fisher_information`).
+    The same frame with the marker turned by quarters in its plane gives its X's
+    signal-to-noise ratio (:func:`~marker_localizer.synthetic.crlb.x_snr`).
 
     With ``parts_within`` (a share of the radius), also the
     :class:`~marker_localizer.synthetic.crlb.BoundParts`: the information of every
@@ -1307,7 +1319,7 @@ def _marker_crlb(
     if x_extent is None:
         raise ConfigError(f"a Cramer-Rao bound needs a marker kind, got {target.pattern.name!r}")
     if box is None:
-        return math.nan, None
+        return math.nan, math.nan, None
     margin = optics_margin_px(imaging) + math.ceil(CRLB_STEP_PX) + 1
     height, width = ground.shape
     r0, r1 = max(0, box[0] - margin), min(height, box[1] + margin)
@@ -1346,19 +1358,28 @@ def _marker_crlb(
     y, x = np.mgrid[r0:r1, c0:c1].astype(np.float64)
     homography = _normalised(target.homography)
     u, v = _to_plane(np.linalg.inv(homography), x, y)
-    variance = imaging.pixel_variance_dn2(signal())
+    still = signal()
+    variance = imaging.pixel_variance_dn2(still)
     inside = x_extent(u, v)
     bound = crlb.crlb_mean_abs_error(crlb.fisher_information(d_mu_dx, d_mu_dy, variance, inside))
+    turns = [
+        signal(painted=replace(target, homography=homography @ turn)) for turn in _QUARTER_TURNS
+    ]
+    snr = crlb.x_snr([still, *turns], variance)
     if parts_within is None:
-        return bound, None
+        return bound, snr, None
     derivatives = [d_mu_dx, d_mu_dy]
     for velocity in _homography_velocities(homography, u, v):
         derivatives.append(d_mu_dx * velocity[0] + d_mu_dy * velocity[1])
     derivatives += _smooth_derivatives(signal, target, imaging, light, (r0, c0), (x, y))
     near = np.hypot(u, v) < parts_within
-    return bound, crlb.BoundParts.of(
-        crlb.parameter_information(derivatives, variance, inside),
-        crlb.parameter_information(derivatives, variance, inside & near),
+    return (
+        bound,
+        snr,
+        crlb.BoundParts.of(
+            crlb.parameter_information(derivatives, variance, inside),
+            crlb.parameter_information(derivatives, variance, inside & near),
+        ),
     )
 
 
@@ -1709,7 +1730,8 @@ def render_markers(
         texture_scale: (min, max) magnification of the ground photographs.
         supersampling: S, samples per pixel along each axis.
         crlb: Compute each marker's Cramer-Rao bound
-            (``MarkerTruth.crlb_mean_abs_error_px``); a few more renders per marker.
+            (``MarkerTruth.crlb_mean_abs_error_px``) and its X's signal-to-noise
+            ratio (``MarkerTruth.x_snr``); a few more renders per marker.
         bound_parts_within: Also each marker's bounds with its other parameters
             unknown (``MarkerTruth.bound_parts``), the inner ones from the pixels
             within this share of its radius; implies ``crlb``, a few more renders.
@@ -1761,8 +1783,8 @@ def render_markers(
     )
     if bounds:
         truths = [
-            replace(t, crlb_mean_abs_error_px=bound, bound_parts=parts)
-            for t, (bound, parts) in zip(truths, bounds, strict=True)
+            replace(t, crlb_mean_abs_error_px=bound, x_snr=snr, bound_parts=parts)
+            for t, (bound, snr, parts) in zip(truths, bounds, strict=True)
         ]
     return RenderedScene(image, truths, [(p.kind, p.x, p.y) for p, _ in negatives], imaging)
 

@@ -30,6 +30,18 @@ def test_each_family_gets_a_row_per_bound_with_the_detectors_error_over_it():
     assert all(label in table for label in bound.BOUND_LABELS.values())
 
 
+def test_every_marker_is_counted_once_in_the_bands_of_its_xs_signal_to_noise_ratio():
+    lines: list[str] = []
+    family = bound.run(["b"], [100], lines.append)["families"]["b"]
+    bands = family["by_x_snr"]
+    assert [band["from"] for band in bands] == [0.0, *bound.SNR_BANDS]
+    assert [band["to"] for band in bands] == [*bound.SNR_BANDS, None]
+    assert sum(band["markers"] for band in bands) == family["markers"]
+    assert sum(band["found"] for band in bands) == family["found"]
+    assert all(0 <= band["found"] <= band["markers"] for band in bands)
+    assert bound.SNR_HEADING in "\n".join(lines)
+
+
 def test_an_unknown_family_is_refused_on_the_command_line(capsys: pytest.CaptureFixture[str]):
     with pytest.raises(SystemExit) as exit_info:
         bound.main(["--families", "a,x"])

@@ -184,3 +184,51 @@ def test_a_dull_quadrant_and_a_cast_shadow_unknown_cost_the_centre_more():
         assert truth.bound_parts is not None
         ratios.append(truth.bound_parts.projective / truth.bound_parts.known)
     assert ratios[1] > ratios[0] * 1.05
+
+
+def x_snr_of(marker: MarkerPlacement, noise: float = 4.0, blur: float = 0.0) -> float:
+    scene = render_markers(
+        (81, 81),
+        [marker],
+        0,
+        reflectances=(DARK, BRIGHT),
+        blur_sigma_px=blur,
+        noise_sigma_dn=noise,
+        crlb=True,
+    )
+    return scene.markers[0].x_snr
+
+
+def test_a_sharp_checkers_x_snr_is_half_its_contrast_over_the_noise_summed_over_its_square():
+    # Centred on a pixel corner with a whole radius, every pixel of the X's square
+    # lies in one quadrant: the X's part is +-contrast / 2 on each of its (2 r)^2.
+    radius, noise = 12.0, 4.0
+    contrast = 255 * (BRIGHT - DARK)
+    expected = contrast / 2 * 2 * radius / math.sqrt(noise**2 + 1 / 12)
+    marker = MarkerPlacement(40.5, 40.5, radius, kind="checker")
+    assert x_snr_of(marker, noise) == pytest.approx(expected, rel=1e-6)
+
+
+def test_a_dull_quadrant_leaves_the_x_the_mean_of_the_two_bright_quadrants_leads():
+    # The X's part is the quadrants' levels alternated, (q0 - q1 + q2 - q3) / 4: a dull
+    # bright quadrant of lead m (of the other's) leaves (1 + m) / 2 of it everywhere.
+    plain = MarkerPlacement(40.5, 40.5, 12.0, kind="checker")
+    dull = replace(plain, dull_factor=0.6)
+    scene = render_markers((81, 81), [dull], 0, reflectances=(DARK, BRIGHT), crlb=True)
+    margin = scene.markers[0].dull_margin
+    assert x_snr_of(dull) / x_snr_of(plain) == pytest.approx((1 + margin) / 2, rel=1e-6)
+
+
+def test_the_x_snr_falls_with_the_noise_the_tilt_and_the_blur_the_more_so_for_a_small_x():
+    # A tilt shrinks the X's area by cos(tilt), and the SNR, a root of that area, by its
+    # root; the blur takes the X's energy along its edges, which hold more of a small X.
+    face_on = MarkerPlacement(40.3, 40.6, 14.0, rotation_rad=0.3)
+    sharp = x_snr_of(face_on)
+    assert x_snr_of(face_on, noise=8.0) == pytest.approx(sharp / 2, rel=0.01)
+    assert x_snr_of(replace(face_on, tilt_deg=60.0)) == pytest.approx(
+        sharp * math.sqrt(0.5), rel=0.05
+    )
+    small = replace(face_on, radius_px=4.0)
+    lost_large = 1 - x_snr_of(face_on, blur=1.0) / sharp
+    lost_small = 1 - x_snr_of(small, blur=1.0) / x_snr_of(small)
+    assert 0 < lost_large < lost_small
