@@ -63,20 +63,27 @@ def test_fisher_information_of_a_blurred_straight_edge_is_its_analytic_value():
     assert crlb_mean_abs_error(information) == math.inf
 
 
-def crlb_of(
-    radius: float = 30.0, noise: float = 2.0, centre: float = 50.0, size: int = 101
-) -> float:
-    marker = MarkerPlacement(centre, centre, radius, kind="checker")
+def rendered_truth(
+    marker: MarkerPlacement, size: int, noise: float, blur: float = 1.0
+) -> MarkerTruth:
+    """The truth of one marker rendered alone on a flat ground, its bound and SNR with it."""
     scene = render_markers(
         (size, size),
         [marker],
         0,
         reflectances=(DARK, BRIGHT),
-        blur_sigma_px=1.0,
+        blur_sigma_px=blur,
         noise_sigma_dn=noise,
         crlb=True,
     )
-    return scene.markers[0].crlb_mean_abs_error_px
+    return scene.markers[0]
+
+
+def crlb_of(
+    radius: float = 30.0, noise: float = 2.0, centre: float = 50.0, size: int = 101
+) -> float:
+    marker = MarkerPlacement(centre, centre, radius, kind="checker")
+    return rendered_truth(marker, size, noise).crlb_mean_abs_error_px
 
 
 def test_bound_of_an_upright_checker_is_that_of_its_straight_edges():
@@ -187,16 +194,7 @@ def test_a_dull_quadrant_and_a_cast_shadow_unknown_cost_the_centre_more():
 
 
 def x_snr_of(marker: MarkerPlacement, noise: float = 4.0, blur: float = 0.0) -> float:
-    scene = render_markers(
-        (81, 81),
-        [marker],
-        0,
-        reflectances=(DARK, BRIGHT),
-        blur_sigma_px=blur,
-        noise_sigma_dn=noise,
-        crlb=True,
-    )
-    return scene.markers[0].x_snr
+    return rendered_truth(marker, 81, noise, blur).x_snr
 
 
 def test_a_sharp_checkers_x_snr_is_half_its_contrast_over_the_noise_summed_over_its_square():
@@ -213,10 +211,9 @@ def test_a_dull_quadrant_leaves_the_x_the_mean_of_the_two_bright_quadrants_leads
     # The X's part is the quadrants' levels alternated, (q0 - q1 + q2 - q3) / 4: a dull
     # bright quadrant of lead m (of the other's) leaves (1 + m) / 2 of it everywhere.
     plain = MarkerPlacement(40.5, 40.5, 12.0, kind="checker")
-    dull = replace(plain, dull_factor=0.6)
-    scene = render_markers((81, 81), [dull], 0, reflectances=(DARK, BRIGHT), crlb=True)
-    margin = scene.markers[0].dull_margin
-    assert x_snr_of(dull) / x_snr_of(plain) == pytest.approx((1 + margin) / 2, rel=1e-6)
+    dull = rendered_truth(replace(plain, dull_factor=0.6), 81, 4.0, blur=0.0)
+    expected = (1 + dull.dull_margin) / 2
+    assert dull.x_snr / x_snr_of(plain) == pytest.approx(expected, rel=1e-6)
 
 
 def test_the_x_snr_falls_with_the_noise_the_tilt_and_the_blur_the_more_so_for_a_small_x():
