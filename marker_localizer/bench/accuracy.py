@@ -49,6 +49,7 @@ from marker_localizer.core import pipeline
 from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import DetectionTally
 from marker_localizer.synthetic import RenderedScene, SceneConfig, render_checkerboard, render_scene
+from marker_localizer.synthetic.crlb import X_SNR_BANDS
 from marker_localizer.synthetic.textures import warped_texture
 
 #: The row every peer is compared with ("peer/ours" = peer mean error / this row's).
@@ -118,7 +119,7 @@ class Family:
         quick_frames: frames in a quick run.
         render: seed -> rendered frame with exact truth.
         board_pattern: (columns, rows) for chessboard families (board peers run), else None.
-        split: the family's recall table by a condition of its markers; None: none.
+        splits: the family's recall tables, each by a condition of its markers.
         variant: what tells it from another family of the same key, for the summary.
         scene: what its frames are drawn from; None: not a :class:`SceneConfig`'s
             (the chessboards).
@@ -131,7 +132,7 @@ class Family:
     quick_frames: int
     render: Callable[[int], RenderedScene]
     board_pattern: tuple[int, int] | None = None
-    split: RecallSplit | None = None
+    splits: tuple[RecallSplit, ...] = ()
     variant: str = ""
     scene: SceneConfig | None = None
 
@@ -225,7 +226,8 @@ def marker_resolution(scene: RenderedScene) -> np.ndarray:
     return np.array([m.foreshortened_radius_px / sigma for m in scene.markers])
 
 
-def _bin_labels(edges: Sequence[float]) -> tuple[str, ...]:
+def bin_labels(edges: Sequence[float]) -> tuple[str, ...]:
+    """The labels of the bins ``np.digitize`` puts values in, given their inner ``edges``."""
     return (
         f"< {edges[0]:g}",
         *(f"{a:g}-{b:g}" for a, b in itertools.pairwise(edges)),
@@ -237,9 +239,23 @@ def resolution_split(edges: Sequence[float]) -> RecallSplit:
     """Recall by :func:`marker_resolution`, in bins with these inner ``edges``."""
     return RecallSplit(
         "recall by resolution: foreshortened radius over blur sigma",
-        _bin_labels(edges),
+        bin_labels(edges),
         lambda scene: np.digitize(marker_resolution(scene), edges),
     )
+
+
+def _x_snr_class(scene: RenderedScene) -> np.ndarray:
+    """(N,) each marker's band of the X's signal-to-noise ratio (``X_SNR_BANDS``); -1: unknown."""
+    snr = np.array([m.x_snr for m in scene.markers], dtype=np.float64)
+    return np.where(np.isnan(snr), -1, np.digitize(snr, X_SNR_BANDS))
+
+
+#: Recall by what an ideal detector has to go on: the X's signal-to-noise ratio
+#: (:func:`~marker_localizer.synthetic.crlb.x_snr`). A marker missed at a high ratio
+#: is lost to the detector's tests or to the ground, not to the noise.
+X_SNR_SPLIT = RecallSplit(
+    "recall by the X's signal-to-noise ratio", bin_labels(X_SNR_BANDS), _x_snr_class
+)
 
 
 #: Inner edges of family (g)'s classes by the dull quadrant's lead over the dark paint
@@ -263,7 +279,7 @@ UNEVEN_LIGHT_SPLIT = RecallSplit(
     tuple(
         f"{label}{' shadow' if shadowed else ''}"
         for shadowed in (False, True)
-        for label in _bin_labels(DULL_MARGIN_EDGES)
+        for label in bin_labels(DULL_MARGIN_EDGES)
     ),
     _uneven_light_class,
 )
@@ -279,6 +295,7 @@ def families() -> list[Family]:
             12,
             2,
             **_scene(**_BASE),
+            splits=(X_SNR_SPLIT,),
         ),
         Family(
             "b",
@@ -287,7 +304,7 @@ def families() -> list[Family]:
             8,
             1,
             **_scene(**{**_BASE, "radius_px": (2.5, 5.0), "n_markers": 24}),
-            split=resolution_split(_TINY_RESOLUTION_BINS),
+            splits=(resolution_split(_TINY_RESOLUTION_BINS), X_SNR_SPLIT),
         ),
         Family(
             "c",
@@ -296,6 +313,7 @@ def families() -> list[Family]:
             8,
             1,
             **_scene(**_BASE, motion_blur_px=(0.0, 4.0)),
+            splits=(X_SNR_SPLIT,),
         ),
         Family(
             "d",
@@ -305,6 +323,7 @@ def families() -> list[Family]:
             8,
             1,
             **_scene(**{**_BASE, **_CLUTTER}, n_hard_negatives=110),
+            splits=(X_SNR_SPLIT,),
         ),
         Family(
             "d",
@@ -320,6 +339,7 @@ def families() -> list[Family]:
                 n_markers=24,
                 n_hard_negatives=400,
             ),
+            splits=(X_SNR_SPLIT,),
             variant="4096x3000",
         ),
         Family(
@@ -331,7 +351,7 @@ def families() -> list[Family]:
             8,
             1,
             **_scene(**{**_BASE, **_UNEVEN_LIGHT, "radius_px": (5.0, 30.0)}),
-            split=UNEVEN_LIGHT_SPLIT,
+            splits=(UNEVEN_LIGHT_SPLIT, X_SNR_SPLIT),
         ),
         Family(
             "e",
@@ -410,8 +430,8 @@ class FamilyResult:
     Attributes:
         rows: one :class:`Row` per detector, then the cornerSubPix row, then the
             board peers' rows for chessboard families.
-        split_class: per truth point, in the order of every tally's ``found``: its
-            class in the family's :class:`RecallSplit` (-1: none).
+        split_class: (N, S) per truth point, in the order of every tally's ``found``:
+            its class in each of the family's S :class:`RecallSplit` (-1: none).
     """
 
     rows: list[Row]
@@ -427,8 +447,8 @@ class LabelledFrame:
         truth: (N, 2) marker centres, px.
         crlb_px: (N,) each marker's Cramer-Rao bound (expected |error|), px; NaN: unknown.
         radius_range: (min, max) marker radius given to every detector, px.
-        split_class: (N,) each marker's class in its family's :class:`RecallSplit`
-            (-1: none).
+        split_class: (N, S) each marker's class in each of its family's S
+            :class:`RecallSplit` (-1: none).
         truth_line_angles: (N, 2) each marker's line directions at its centre,
             radians; NaN: unknown (the independent renderer's truth has none).
     """
@@ -442,10 +462,14 @@ class LabelledFrame:
 
     @classmethod
     def rendered(
-        cls, scene: RenderedScene, radius_range: RadiusRange, split: RecallSplit | None = None
+        cls,
+        scene: RenderedScene,
+        radius_range: RadiusRange,
+        splits: Sequence[RecallSplit] = (),
     ) -> LabelledFrame:
-        """A frame of this package's renderer, its markers classed by ``split``."""
-        classes = split.classify(scene) if split else np.full(len(scene.markers), -1)
+        """A frame of this package's renderer, its markers classed by each of ``splits``."""
+        classes = np.array([split.classify(scene) for split in splits], dtype=np.int64)
+        classes = classes.reshape(len(splits), len(scene.markers)).T
         angles = np.array([m.angles for m in scene.markers], np.float64).reshape(-1, 2)
         return cls(scene.image, scene.centres, scene.crlb_px, radius_range, classes, angles)
 
@@ -457,7 +481,7 @@ class LabelledFrame:
             frame.truth,
             frame.crlb_px,
             frame.radius_range,
-            np.full(len(frame.truth), -1),
+            np.zeros((len(frame.truth), 0), np.int64),
             np.full((len(frame.truth), 2), np.nan),
         )
 
@@ -508,7 +532,7 @@ def evaluate_frames(
     ordered = [rows[d.name] for d in detectors]
     return FamilyResult(
         [*ordered, refiner_row, *(rows[d.name] for d in board)],
-        np.concatenate(classes) if classes else np.zeros(0, dtype=np.int64),
+        np.concatenate(classes) if classes else np.zeros((0, 0), dtype=np.int64),
     )
 
 
@@ -524,7 +548,7 @@ def evaluate_family(
         detectors: point detectors to score (ours and peers).
     """
     frames = (
-        LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range, family.split)
+        LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range, family.splits)
         for i in range(n_frames)
     )
     return evaluate_frames(frames, seed, detectors, family.board_pattern)
@@ -758,9 +782,9 @@ class SplitRecall:
     recall: dict[str, list[float]]
 
 
-def split_recall(result: FamilyResult, labels: Sequence[str]) -> SplitRecall:
-    """Split every detector's recall by the classes of ``result.split_class``."""
-    index = result.split_class
+def split_recall(result: FamilyResult, labels: Sequence[str], split: int = 0) -> SplitRecall:
+    """Split every detector's recall by the classes of ``result.split_class[:, split]``."""
+    index = result.split_class[:, split]
     counts = np.bincount(index[index >= 0], minlength=len(labels))
     recall = {}
     for row in result.rows:
@@ -974,11 +998,11 @@ def run_synthetic(
         report(family_table(title, rows))
         results[family.title] = {r.name: row_record(r) for r in rows}
         summary.append((family.label, _reference(rows)))
-        if family.split:
-            split = split_recall(result, family.split.labels)
-            heading = f"Family ({family.key}) {family.split.title} (markers per class)"
+        for k, recall_split in enumerate(family.splits):
+            split = split_recall(result, recall_split.labels, k)
+            heading = f"Family ({family.key}) {recall_split.title} (markers per class)"
             report(split_table(heading, split))
-            results[f"{family.title}: {family.split.title}"] = {
+            results[f"{family.title}: {recall_split.title}"] = {
                 name: {
                     b: (r if math.isfinite(r) else None)
                     for b, r in zip(split.bins, recall, strict=True)

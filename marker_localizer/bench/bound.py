@@ -19,10 +19,11 @@ A fit's efficiency is its error over the bound of what it estimates from the
 pixels it reads.
 
 It also prints how many of the family's markers the detector finds, by their X's
-signal-to-noise ratio (:func:`~marker_localizer.synthetic.crlb.x_snr`, in the
-octaves of :data:`SNR_BANDS`): the evidence a matched filter that knew everything
-but whether the X is there would have. A marker the detector misses at a high
-ratio is lost to its tests or to the ground's texture, not to the noise.
+signal-to-noise ratio (:func:`~marker_localizer.synthetic.crlb.x_snr`, in the bands
+of :data:`~marker_localizer.synthetic.crlb.X_SNR_BANDS`): the evidence a matched
+filter that knew everything but whether the X is there would have. A marker the
+detector misses at a high ratio is lost to its tests or to the ground's texture,
+not to the noise.
 
 The frames are those of seeds ``first_seed`` on, which no table of
 ``bench accuracy`` renders (its seeds are ``seed * 1000 + i``).
@@ -41,11 +42,11 @@ from typing import Any
 import numpy as np
 
 from marker_localizer import Detector, DetectorConfig
-from marker_localizer.bench.accuracy import families
+from marker_localizer.bench.accuracy import bin_labels, families
 from marker_localizer.bench.runner import Report, run_and_save
 from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import render_scene
-from marker_localizer.synthetic.crlb import BoundParts
+from marker_localizer.synthetic.crlb import X_SNR_BANDS, BoundParts
 
 #: Share of a marker's radius whose pixels the inner bounds read (see the module).
 INNER_SHARE = 0.8
@@ -53,12 +54,6 @@ INNER_SHARE = 0.8
 #: measurements in docs/accuracy.md.
 FIRST_SEED = 100
 FRAMES = 12
-#: Edges of the bands of the X's signal-to-noise ratio the markers found are counted
-#: in: octaves from 8, about where a matched filter searching a 12 MP frame for an X of
-#: any position, lines and blur starts to find it at a fraction of a false point a
-#: frame (its threshold on noise alone: docs/accuracy.md, "What an ideal detector
-#: could find").
-SNR_BANDS = (8.0, 16.0, 32.0, 64.0, 128.0, 256.0, 512.0)
 #: The heading of those bands' rows.
 SNR_HEADING = "the X's signal-to-noise ratio"
 #: The rows of the table: each bound's label, by its field of :class:`BoundParts`.
@@ -95,13 +90,13 @@ class FamilyBounds:
         return len(self.x_snr)
 
     def by_snr(self) -> list[tuple[float, float, int, int]]:
-        """Per band of :data:`SNR_BANDS` (from, to), the markers in it and those found."""
-        edges = (0.0, *SNR_BANDS, math.inf)
-        bands = []
-        for low, high in itertools.pairwise(edges):
-            inside = (self.x_snr >= low) & (self.x_snr < high)
-            bands.append((low, high, int(inside.sum()), int((inside & self.found).sum())))
-        return bands
+        """Per band of ``X_SNR_BANDS`` (from, to), the markers in it and those found."""
+        edges = (0.0, *X_SNR_BANDS, math.inf)
+        band = np.digitize(self.x_snr, X_SNR_BANDS)
+        return [
+            (low, high, int((band == k).sum()), int((self.found & (band == k)).sum()))
+            for k, (low, high) in enumerate(itertools.pairwise(edges))
+        ]
 
     def row(self, column: int) -> tuple[float, float, int]:
         """A bound's mean (px) and the mean error over it, over the markers it bounds.
@@ -130,10 +125,10 @@ class FamilyBounds:
             note = f"  ({unbounded} unbounded, left out)" if unbounded else ""
             lines.append(f"  {label:72s} {mean:8.4f} {mean / crb:6.2f} {efficiency:14.2f}{note}")
         lines.append(f"  {SNR_HEADING:32s} {'markers':>8s} {'found':>14s}")
-        for low, high, in_band, found_in_band in self.by_snr():
-            band = f"{low:g}-{high:g}" if math.isfinite(high) else f"{low:g} and more"
+        labels = bin_labels(X_SNR_BANDS)
+        for label, (_, _, in_band, found_in_band) in zip(labels, self.by_snr(), strict=True):
             share = f"{found_in_band} ({found_in_band / in_band:.0%})" if in_band else "-"
-            lines.append(f"  {band:32s} {in_band:8d} {share:>14s}")
+            lines.append(f"  {label:32s} {in_band:8d} {share:>14s}")
         return "\n".join(lines)
 
     def figures(self) -> dict[str, Any]:

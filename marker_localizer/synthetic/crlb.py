@@ -201,6 +201,14 @@ def crlb_mean_abs_error(information: np.ndarray) -> float:
     return expected_radial_error(np.linalg.inv(info))
 
 
+#: Edges of the bands of the X's signal-to-noise ratio (:func:`x_snr`) that recall is
+#: split by: octaves from 8, about where a matched filter searching a 12 MP frame for
+#: an X of any position, lines and blur starts to find it at a fraction of a false
+#: point a frame (its threshold on noise alone: docs/accuracy.md, "What an ideal
+#: detector could find").
+X_SNR_BANDS = (8.0, 16.0, 32.0, 64.0, 128.0, 256.0, 512.0)
+
+
 def x_snr(turned: Sequence[np.ndarray], variance: np.ndarray) -> float:
     """The signal-to-noise ratio of a marker's X: what an ideal detector has to go on.
 

@@ -7,6 +7,7 @@ absent; the whole module runs in well under a minute.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 
 import cv2
@@ -17,6 +18,7 @@ from scenes import SMALL_SCENE
 from marker_localizer import evaluation
 from marker_localizer.bench import accuracy, peers, real_data
 from marker_localizer.synthetic import render_checkerboard, render_scene
+from marker_localizer.synthetic.crlb import X_SNR_BANDS
 
 
 def exact_x(size: int = 64) -> np.ndarray:
@@ -141,12 +143,12 @@ def test_resolution_table_gives_each_detectors_recall_per_bin_of_marker_resoluti
         FixedDetector("nothing", np.empty((0, 2))),
     ]
     split = accuracy.resolution_split((2.0, 7.0))
-    family = replace(small_family(), split=split)
+    family = replace(small_family(), splits=(split,))
     result = accuracy.evaluate_family(family, 2, 0, detectors)
     ours = result.rows[0].tally
     # SMALL_SCENE: radii 8-16 px tilted at most 30 degrees, blur 0.8-1.0: resolution 6.9-20.
     assert len(result.split_class) == len(ours.found) == ours.n_truth
-    assert (result.split_class == 2).all()
+    assert (result.split_class[:, 0] == 2).all()
     recall = accuracy.split_recall(result, split.labels)
     assert recall.markers == [0, 0, ours.n_truth]
     table = accuracy.split_table("t", recall)
@@ -187,7 +189,8 @@ def test_uneven_light_family_renders_dull_quadrants_shadows_and_every_markers_bo
 def test_uneven_light_family_classes_its_markers_by_dull_margin_and_shadow():
     (family,) = [f for f in accuracy.families() if f.key == "g"]
     scene = family.render(0)
-    classes = family.split.classify(scene)
+    split = family.splits[0]
+    classes = split.classify(scene)
     margin = np.array([m.dull_margin for m in scene.markers])
     # Every marker has a dull quadrant; each cast shadow is placed about one marker.
     assert (margin < 1.0).all()
@@ -197,7 +200,20 @@ def test_uneven_light_family_classes_its_markers_by_dull_margin_and_shadow():
     assert (classes[lit & (margin < low)] == 0).all()
     assert (classes[lit & (margin >= high)] == 2).all()
     assert (classes[scene.shadow_crossed] >= 3).all()
-    assert len(family.split.labels) == 6 and family.split.labels[3] == "< 0.2 shadow"
+    assert len(split.labels) == 6 and split.labels[3] == "< 0.2 shadow"
+
+
+def test_every_rendered_marker_family_splits_recall_by_the_xs_signal_to_noise_ratio():
+    marker_families = [f for f in accuracy.families() if f.scene is not None]
+    assert all(accuracy.X_SNR_SPLIT in f.splits for f in marker_families)
+    (tiny,) = [f for f in marker_families if f.key == "b"]
+    scene = tiny.render(0)
+    lower, upper = (0.0, *X_SNR_BANDS), (*X_SNR_BANDS, math.inf)
+    for band, truth in zip(accuracy.X_SNR_SPLIT.classify(scene), scene.markers, strict=True):
+        assert lower[band] <= truth.x_snr < upper[band]
+    # Rendered without its bounds, a marker has no SNR and no class.
+    assert tiny.scene is not None
+    assert (accuracy.X_SNR_SPLIT.classify(render_scene(tiny.scene, 0)) == -1).all()
 
 
 def test_a_marker_missed_on_flat_ground_is_counted_as_lost_at_the_screening():
@@ -230,6 +246,7 @@ def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path,
     assert "err/CRLB" in printed and "Summary, ours (symmetry)" in printed
     assert "Markers ours (symmetry) missed, by the test" in printed
     assert "Family (g) recall by the dull quadrant's lead over the dark paint" in printed
+    assert f"Family (g) {accuracy.X_SNR_SPLIT.title}" in printed
     saved = json.loads(out.read_text())
     (title,) = [t for t in saved["synthetic"] if t.startswith("(g)") and ": recall" not in t]
     ours = saved["synthetic"][title][accuracy.REFERENCE_ROW]
@@ -238,6 +255,8 @@ def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path,
     assert 0.0 < ours["median_line_error_deg"] < 5.0
     split = saved["synthetic"][f"{title}: {accuracy.UNEVEN_LIGHT_SPLIT.title}"]
     assert set(split[accuracy.REFERENCE_ROW]) == set(accuracy.UNEVEN_LIGHT_SPLIT.labels)
+    by_snr = saved["synthetic"][f"{title}: {accuracy.X_SNR_SPLIT.title}"]
+    assert set(by_snr[accuracy.REFERENCE_ROW]) == set(accuracy.X_SNR_SPLIT.labels)
     assert set(saved["summary"]) == {"rendered (g)"}
 
 

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from marker_localizer.bench import bound
-from marker_localizer.synthetic.crlb import BoundParts
+from marker_localizer.synthetic.crlb import X_SNR_BANDS, BoundParts
 
 
 def test_each_family_gets_a_row_per_bound_with_the_detectors_error_over_it():
@@ -34,8 +34,8 @@ def test_every_marker_is_counted_once_in_the_bands_of_its_xs_signal_to_noise_rat
     lines: list[str] = []
     family = bound.run(["b"], [100], lines.append)["families"]["b"]
     bands = family["by_x_snr"]
-    assert [band["from"] for band in bands] == [0.0, *bound.SNR_BANDS]
-    assert [band["to"] for band in bands] == [*bound.SNR_BANDS, None]
+    assert [band["from"] for band in bands] == [0.0, *X_SNR_BANDS]
+    assert [band["to"] for band in bands] == [*X_SNR_BANDS, None]
     assert sum(band["markers"] for band in bands) == family["markers"]
     assert sum(band["found"] for band in bands) == family["found"]
     assert all(0 <= band["found"] <= band["markers"] for band in bands)
