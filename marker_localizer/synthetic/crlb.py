@@ -213,13 +213,14 @@ def x_snr(turned: Sequence[np.ndarray], variance: np.ndarray) -> float:
     """The signal-to-noise ratio of a marker's X: what an ideal detector has to go on.
 
     A diagonal marker turned a quarter in its plane is its own negative (its
-    bright and dark quadrants trade places), while its plate, a blob, the ground
-    and the light are not changed by the turn. With ``turned[k]`` the noise-free
-    image of the marker turned k quarters, the image's part that changes sign
-    under the turn, X = (I0 - I1 + I2 - I3) / 4, is the X alone: the mean of the
-    four turns (what the marker has in common with an X-less plate) and a light's
-    slope or a shadow's edge across it (odd under a half turn) drop out. A matched
-    filter tells the marker from its plate without the X (the four turns' mean) at
+    bright and dark quadrants trade places), while its plate and the ground are
+    not changed by the turn. With ``turned[k]`` the noise-free image of the marker
+    turned k quarters under the frame's own light, optics and gamma, the image's
+    part that changes sign under the turn, X = (I0 - I1 + I2 - I3) / 4, is the X
+    alone: the mean of the four turns, what the marker has in common with a plate
+    without an X, drops out, and the light, which does not turn with the marker,
+    scales the X where it falls (a shadow's half the less). A matched filter tells
+    the marker from its plate without the X (the four turns' mean) at
 
         d' = sqrt(sum_i X_i^2 / var_i),
 
