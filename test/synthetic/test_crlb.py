@@ -229,3 +229,21 @@ def test_the_x_snr_falls_with_the_noise_the_tilt_and_the_blur_the_more_so_for_a_
     lost_large = 1 - x_snr_of(face_on, blur=1.0) / sharp
     lost_small = 1 - x_snr_of(small, blur=1.0) / x_snr_of(small)
     assert 0 < lost_large < lost_small
+
+
+def test_a_shadow_over_half_the_x_dims_its_half_of_the_x_energy():
+    # The light does not turn with the marker: in the half a shadow taking half the
+    # light covers, the X is half as strong, its energy a quarter, (1 + 1/4) / 2 in all.
+    marker = MarkerPlacement(40.5, 40.5, 12.0, kind="checker")
+    half = CastShadow(40.5, 40.5, normal_rad=0.3, offset_px=0.0, darkening=0.5, reach_px=30.0)
+    scene = render_markers(
+        (81, 81),
+        [marker],
+        0,
+        reflectances=(DARK, BRIGHT),
+        noise_sigma_dn=4.0,
+        cast_shadows=(half,),
+        crlb=True,
+    )
+    shadowed = scene.markers[0].x_snr
+    assert shadowed / x_snr_of(marker) == pytest.approx(math.sqrt((1 + 0.25) / 2), rel=0.02)
