@@ -37,7 +37,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -257,6 +257,62 @@ X_SNR_SPLIT = RecallSplit(
     "recall by the X's signal-to-noise ratio", bin_labels(X_SNR_BANDS), _x_snr_class
 )
 
+#: First seed of the rendered frames each family's :class:`XSnrModel` is fitted on
+#: (:func:`x_snr_model`; no table renders seeds under 1000) ...
+X_SNR_MODEL_SEED = 300
+#: ... and how many: 144-288 markers give its coefficients to a few percent.
+X_SNR_MODEL_FRAMES = 12
+X_SNR_MODEL_QUICK_FRAMES = 2
+
+
+class XSnrModel(NamedTuple):
+    """A marker's X signal-to-noise ratio from its Cramer-Rao bound and its radius.
+
+    Another renderer's truth may give each marker's bound and radius but not its X
+    (the independent renderer's ``truth.json``). Both follow the X's contrast over
+    the noise, the bound inversely: log SNR = c0 + c1 log bound + c2 log radius,
+    fitted on this renderer's markers of the same family, holds them to within a
+    fifth (``residual_sd``, in the log; measured: docs/accuracy.md, "What an ideal
+    detector could find"). Recall on those frames can then be split by the SNR
+    their markers would have.
+
+    Attributes:
+        coefficients: (c0, c1, c2).
+        residual_sd: the fit's residual standard deviation, in the log.
+    """
+
+    coefficients: tuple[float, float, float]
+    residual_sd: float
+
+    @classmethod
+    def fit(cls, x_snr: np.ndarray, bound_px: np.ndarray, radius_px: np.ndarray) -> XSnrModel:
+        """Least squares in the logs, over the markers with a finite, positive SNR and bound."""
+        usable = (x_snr > 0) & (bound_px > 0) & np.isfinite(x_snr) & np.isfinite(bound_px)
+        design = np.column_stack(
+            [np.ones(int(usable.sum())), np.log(bound_px[usable]), np.log(radius_px[usable])]
+        )
+        target = np.log(x_snr[usable])
+        c0, c1, c2 = np.linalg.lstsq(design, target, rcond=None)[0]
+        residual = target - design @ np.array([c0, c1, c2])
+        return cls((float(c0), float(c1), float(c2)), float(residual.std()))
+
+    def predict(self, bound_px: np.ndarray, radius_px: np.ndarray) -> np.ndarray:
+        """(N,) the SNR markers of these bounds and radii have (NaN where the bound is not)."""
+        c0, c1, c2 = self.coefficients
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.exp(c0 + c1 * np.log(bound_px) + c2 * np.log(radius_px))
+
+
+def x_snr_model(family: Family, frames: int) -> XSnrModel:
+    """:class:`XSnrModel` fitted on ``frames`` of a rendered family, seeds from 300 on."""
+    snr, bound, radius = [], [], []
+    for i in range(frames):
+        scene = family.render(X_SNR_MODEL_SEED + i)
+        snr += [m.x_snr for m in scene.markers]
+        bound += [m.crlb_mean_abs_error_px for m in scene.markers]
+        radius += [m.radius_px for m in scene.markers]
+    return XSnrModel.fit(np.array(snr), np.array(bound), np.array(radius))
+
 
 #: Inner edges of family (g)'s classes by the dull quadrant's lead over the dark paint
 #: (:attr:`MarkerTruth.dull_margin`): under 0.2 of the other bright quadrant's lead,
@@ -474,14 +530,24 @@ class LabelledFrame:
         return cls(scene.image, scene.centres, scene.crlb_px, radius_range, classes, angles)
 
     @classmethod
-    def independent(cls, frame: real_data.IndependentFrame) -> LabelledFrame:
-        """A frame of the independent renderer, with its own radius range and bound."""
+    def independent(
+        cls, frame: real_data.IndependentFrame, x_snr: XSnrModel | None = None
+    ) -> LabelledFrame:
+        """A frame of the independent renderer, with its own radius range and bound.
+
+        With ``x_snr``, its markers are classed by :data:`X_SNR_SPLIT` on the SNR the
+        model gives them.
+        """
+        classes: np.ndarray = np.zeros((len(frame.truth), 0), np.int64)
+        if x_snr is not None:
+            snr = x_snr.predict(frame.crlb_px, frame.radius_px)
+            classes = np.where(np.isfinite(snr), np.digitize(snr, X_SNR_BANDS), -1)[:, None]
         return cls(
             frame.image,
             frame.truth,
             frame.crlb_px,
             frame.radius_range,
-            np.zeros((len(frame.truth), 0), np.int64),
+            classes,
             np.full((len(frame.truth), 2), np.nan),
         )
 
@@ -781,6 +847,15 @@ class SplitRecall:
     markers: list[int]
     recall: dict[str, list[float]]
 
+    def record(self) -> dict[str, dict[str, float | None]]:
+        """The JSON figures: detector -> class -> recall (None for an empty class)."""
+        return {
+            name: {
+                b: (r if math.isfinite(r) else None) for b, r in zip(self.bins, recall, strict=True)
+            }
+            for name, recall in self.recall.items()
+        }
+
 
 def split_recall(result: FamilyResult, labels: Sequence[str], split: int = 0) -> SplitRecall:
     """Split every detector's recall by the classes of ``result.split_class[:, split]``."""
@@ -1002,13 +1077,7 @@ def run_synthetic(
             split = split_recall(result, recall_split.labels, k)
             heading = f"Family ({family.key}) {recall_split.title} (markers per class)"
             report(split_table(heading, split))
-            results[f"{family.title}: {recall_split.title}"] = {
-                name: {
-                    b: (r if math.isfinite(r) else None)
-                    for b, r in zip(split.bins, recall, strict=True)
-                }
-                for name, recall in split.recall.items()
-            }
+            results[f"{family.title}: {recall_split.title}"] = split.record()
     return results
 
 
@@ -1061,13 +1130,17 @@ def run_independent(
         return {}
     detectors = _detectors(options)
     results: dict[str, Any] = {}
+    rendered = {f.key: f for f in families() if f.scene is not None and not f.variant}
+    model_frames = X_SNR_MODEL_QUICK_FRAMES if options.quick else X_SNR_MODEL_FRAMES
     for key, description in INDEPENDENT_FAMILIES.items():
         frames = list(real_data.iter_independent(root, 1 if options.quick else None, (key,)))
         if not frames:
             continue
-        rows = evaluate_frames(
-            (LabelledFrame.independent(f) for f in frames), options.seed, detectors
-        ).rows
+        model = x_snr_model(rendered[key], model_frames)
+        result = evaluate_frames(
+            (LabelledFrame.independent(f, model) for f in frames), options.seed, detectors
+        )
+        rows = result.rows
         ranges = sorted({f.radius_range for f in frames})
         title = (
             f"Independent renderer, family ({key}) {description}; {len(frames)} frames, "
@@ -1078,6 +1151,16 @@ def run_independent(
         report(family_table(title, rows))
         results[f"({key}) {description}"] = {r.name: row_record(r) for r in rows}
         summary.append((f"independent ({key})", _reference(rows)))
+        split = split_recall(result, X_SNR_SPLIT.labels)
+        report(
+            split_table(
+                f"Independent renderer, family ({key}) {X_SNR_SPLIT.title}, the SNR from each "
+                f"marker's bound and radius (fitted on {model_frames} rendered frames of "
+                f"({key}), residual sd {model.residual_sd:.2f} in the log; markers per class)",
+                split,
+            )
+        )
+        results[f"({key}) {description}: {X_SNR_SPLIT.title}"] = split.record()
     return results
 
 

@@ -322,6 +322,7 @@ class IndependentFrame:
         truth: (N, 2) marker centres, px (this project's convention).
         crlb_px: (N,) each marker's Cramer-Rao bound as the expected |error|, px.
         radius_range: (min, max) marker radius a user would give, px.
+        radius_px: (N,) each marker's radius, px (centre to the end of its X).
     """
 
     name: str
@@ -330,6 +331,7 @@ class IndependentFrame:
     truth: np.ndarray
     crlb_px: np.ndarray
     radius_range: tuple[float, float]
+    radius_px: np.ndarray
 
 
 def iter_independent(
@@ -362,6 +364,7 @@ def iter_independent(
             np.array([(m["x"], m["y"]) for m in markers], dtype=np.float64).reshape(-1, 2),
             np.array([m["crlb_mean_abs_error_px"] for m in markers], dtype=np.float64),
             (float(low), float(high)),
+            np.array([m["radius_px"] for m in markers], dtype=np.float64),
         )
 
 
