@@ -260,8 +260,9 @@ X_SNR_SPLIT = RecallSplit(
 #: First seed of the rendered frames each family's :class:`XSnrModel` is fitted on
 #: (:func:`x_snr_model`; no table renders seeds under 1000) ...
 X_SNR_MODEL_SEED = 300
-#: ... and how many: 144-288 markers give its coefficients to a few percent.
+#: ... and how many: 144-288 markers give its coefficients to a few percent ...
 X_SNR_MODEL_FRAMES = 12
+#: ... or in a quick run, where the bound's share is fitted well and the radius's is not.
 X_SNR_MODEL_QUICK_FRAMES = 2
 
 
@@ -304,7 +305,7 @@ class XSnrModel(NamedTuple):
 
 
 def x_snr_model(family: Family, frames: int) -> XSnrModel:
-    """:class:`XSnrModel` fitted on ``frames`` of a rendered family, seeds from 300 on."""
+    """:class:`XSnrModel` fitted on ``frames`` of a rendered family, from ``X_SNR_MODEL_SEED``."""
     snr, bound, radius = [], [], []
     for i in range(frames):
         scene = family.render(X_SNR_MODEL_SEED + i)
