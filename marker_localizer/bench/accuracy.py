@@ -244,10 +244,14 @@ def resolution_split(edges: Sequence[float]) -> RecallSplit:
     )
 
 
+def x_snr_band(x_snr: np.ndarray) -> np.ndarray:
+    """(N,) each X signal-to-noise ratio's band of ``X_SNR_BANDS``; -1 where it is unknown."""
+    return np.where(np.isfinite(x_snr), np.digitize(x_snr, X_SNR_BANDS), -1)
+
+
 def _x_snr_class(scene: RenderedScene) -> np.ndarray:
-    """(N,) each marker's band of the X's signal-to-noise ratio (``X_SNR_BANDS``); -1: unknown."""
-    snr = np.array([m.x_snr for m in scene.markers], dtype=np.float64)
-    return np.where(np.isnan(snr), -1, np.digitize(snr, X_SNR_BANDS))
+    """(N,) each marker's band of the X's signal-to-noise ratio (:func:`x_snr_band`)."""
+    return x_snr_band(np.array([m.x_snr for m in scene.markers], dtype=np.float64))
 
 
 #: Recall by what an ideal detector has to go on: the X's signal-to-noise ratio
@@ -541,8 +545,7 @@ class LabelledFrame:
         """
         classes: np.ndarray = np.zeros((len(frame.truth), 0), np.int64)
         if x_snr is not None:
-            snr = x_snr.predict(frame.crlb_px, frame.radius_px)
-            classes = np.where(np.isfinite(snr), np.digitize(snr, X_SNR_BANDS), -1)[:, None]
+            classes = x_snr_band(x_snr.predict(frame.crlb_px, frame.radius_px))[:, None]
         return cls(
             frame.image,
             frame.truth,

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from marker_localizer import Detector, DetectorConfig
-from marker_localizer.bench.accuracy import bin_labels, families
+from marker_localizer.bench.accuracy import bin_labels, families, x_snr_band
 from marker_localizer.bench.runner import Report, run_and_save
 from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import render_scene
@@ -92,7 +92,7 @@ class FamilyBounds:
     def by_snr(self) -> list[tuple[float, float, int, int]]:
         """Per band of ``X_SNR_BANDS`` (from, to), the markers in it and those found."""
         edges = (0.0, *X_SNR_BANDS, math.inf)
-        band = np.digitize(self.x_snr, X_SNR_BANDS)
+        band = x_snr_band(self.x_snr)
         return [
             (low, high, int((band == k).sum()), int((self.found & (band == k)).sum()))
             for k, (low, high) in enumerate(itertools.pairwise(edges))
