@@ -11,6 +11,12 @@ from numpy.typing import NDArray
 from marker_localizer.errors import ImageError
 
 _CHANNEL_CONVERSIONS = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}
+#: How far a float image's levels may lie outside [0, 1] and be clipped, as a share of
+#: white: the ringing of interpolation and sharpening overshoots a step by a few tenths
+#: of its contrast at most, where a float image holding 8- or 16-bit levels reaches 255
+#: or 65535 and would be clipped to a white frame without a word (scikit-image's
+#: ``img_as_*`` refuse such floats too).
+FLOAT_OVERSHOOT = 0.5
 
 
 def bit_depth_scale(dtype: np.dtype[Any], bit_depth: int = 16) -> float:
@@ -35,8 +41,9 @@ def to_gray(
 
     Args:
         image: (H, W), (H, W, 1), (H, W, 3) or (H, W, 4) array of uint8, uint16,
-            float32 or float64. Colour is BGR(A) unless ``rgb``. Float images must
-            be in [0, 1].
+            float32 or float64. Colour is BGR(A) unless ``rgb``. Float images hold
+            levels in [0, 1] (white 1); within :data:`FLOAT_OVERSHOOT` of it they are
+            clipped to it.
         rgb: the channels are RGB(A) instead of BGR(A).
         bit_depth: significant bits of uint16 pixels (see :func:`bit_depth_scale`).
 
@@ -45,7 +52,8 @@ def to_gray(
         (see :func:`bit_depth_scale`; 1.0 for float images).
 
     Raises:
-        ImageError: empty image, unsupported shape or dtype, non-finite values.
+        ImageError: empty image, unsupported shape or dtype, non-finite values, float
+            levels beyond :data:`FLOAT_OVERSHOOT` of [0, 1].
     """
     if not isinstance(image, np.ndarray):
         raise ImageError(f"expected a numpy array, got {type(image).__name__}")
@@ -66,7 +74,14 @@ def to_gray(
     if image.ndim != 2:
         raise ImageError(f"expected a 2-D grey or 3-D colour image, got shape {image.shape}")
     if image.dtype.kind == "f":
-        if not np.isfinite(image).all():
+        # NaN and infinities carry into the extremes: two reductions check all three.
+        darkest, brightest = float(image.min()), float(image.max())
+        if not (np.isfinite(darkest) and np.isfinite(brightest)):
             raise ImageError("image contains NaN or infinite values")
+        if darkest < -FLOAT_OVERSHOOT or brightest > 1.0 + FLOAT_OVERSHOOT:
+            raise ImageError(
+                f"float image levels span {darkest:g} to {brightest:g}, beyond [0, 1] (white 1): "
+                "scale them to it (8-bit levels divided by 255)"
+            )
         return np.ascontiguousarray(np.clip(image, 0.0, 1.0), dtype=np.float32), 1.0
     return np.ascontiguousarray(image), bit_depth_scale(image.dtype, bit_depth)

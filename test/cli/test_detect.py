@@ -61,6 +61,21 @@ def test_unreadable_files_give_one_line_naming_the_file_and_exit_1(x_image, tmp_
     assert len(captured.out.strip().splitlines()) == 1  # the good image is still processed
 
 
+def test_a_float_tiff_of_8_bit_levels_is_one_line_not_a_blank_frame(x_image, tmp_path, capsys):
+    _, image = x_image
+    unit, levels = tmp_path / "unit.tiff", tmp_path / "levels.tiff"
+    cv2.imwrite(str(unit), image.astype(np.float32) / 255.0)
+    cv2.imwrite(str(levels), image.astype(np.float32))
+    assert main(["detect", str(unit), str(levels), "--json"]) == 1
+    captured = capsys.readouterr()
+    assert captured.err.strip().splitlines() == [
+        f"marker-localizer: error: {levels}: float image levels span 30 to 200, beyond [0, 1] "
+        "(white 1): scale them to it (8-bit levels divided by 255)"
+    ]
+    (record,) = (json.loads(line) for line in captured.out.splitlines())
+    assert record["image"] == str(unit) and len(record["markers"]) == 1
+
+
 def test_param_overrides_and_params_file_are_validated(x_image, tmp_path, capsys):
     path, _ = x_image
     assert main(["detect", str(path), "--param", "min_score=1.5"]) == 1

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from marker_localizer import Detector, DetectorConfig
-from marker_localizer.core.image import bit_depth_scale, to_gray
+from marker_localizer.core.image import FLOAT_OVERSHOOT, bit_depth_scale, to_gray
 from marker_localizer.errors import ImageError
 
 
@@ -80,10 +80,17 @@ def test_a_single_channel_axis_and_an_alpha_channel_are_accepted():
     assert to_gray(bgra)[0][0, 0] == round(0.587 * 100)
 
 
-def test_float_images_are_clipped_to_0_1():
-    grey, full_scale = to_gray(np.array([[-0.5, 0.25], [1.0, 3.0]]))
+def test_float_images_overshooting_0_1_a_little_are_clipped_to_it():
+    grey, full_scale = to_gray(np.array([[-FLOAT_OVERSHOOT, 0.25], [1.0, 1.0 + FLOAT_OVERSHOOT]]))
     np.testing.assert_array_equal(grey, np.array([[0.0, 0.25], [1.0, 1.0]], np.float32))
     assert full_scale == 1.0
+
+
+@pytest.mark.parametrize("levels", [(0.0, 255.0), (-1.0, 1.0)])
+def test_float_images_of_another_scale_are_refused_not_clipped_to_a_blank_frame(levels):
+    image = np.array([levels], np.float32)
+    with pytest.raises(ImageError, match=r"beyond \[0, 1\] \(white 1\): scale them"):
+        to_gray(image)
 
 
 @pytest.mark.parametrize(
