@@ -16,6 +16,7 @@ import numpy as np
 from marker_localizer import config as config_module
 from marker_localizer import evaluation
 from marker_localizer.cli.exits import EXIT_ERROR, PROG
+from marker_localizer.core.image import bit_depth_hint, bit_depth_scale, peak_level
 from marker_localizer.core.pipeline import DetectionResult, Detector
 from marker_localizer.errors import ConfigError, ImageError
 from marker_localizer.image_files import read_image_file
@@ -156,6 +157,7 @@ def main(argv: Sequence[str]) -> int:
             failed += 1
             print(f"{PROG}: error: {err}", file=sys.stderr)
             continue
+        _warn_if_shallow(path, image, detector.config.bit_depth)
         record = result_record(path, image, result, elapsed_ms)
         if args.why:
             record["why"] = why_record(result, np.array(args.why, dtype=np.float64))
@@ -167,6 +169,22 @@ def main(argv: Sequence[str]) -> int:
             failed += 1
             print(f"{PROG}: error: {overlays[path]}: cannot write the overlay", file=sys.stderr)
     return EXIT_ERROR if failed else 0
+
+
+def _warn_if_shallow(path: str, image: np.ndarray, bit_depth: int) -> None:
+    """One line on stderr where a 16-bit file's levels look like a shallower sensor's."""
+    if image.dtype != np.uint16:
+        return
+    peak = peak_level(image)
+    hint = bit_depth_hint(peak, bit_depth)
+    if hint is not None:
+        white = bit_depth_scale(image.dtype, bit_depth)
+        print(
+            f"{PROG}: warning: {path}: its brightest level, {peak:g}, is under 1/16 of white "
+            f"({white:g} at bit_depth {bit_depth}); a {hint}-bit image wants "
+            f"--param bit_depth={hint}",
+            file=sys.stderr,
+        )
 
 
 def _overlay_paths(images: Sequence[str], folder: str) -> dict[str, Path]:

@@ -17,6 +17,15 @@ _CHANNEL_CONVERSIONS = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}
 #: or 65535 and would be clipped to a white frame without a word (scikit-image's
 #: ``img_as_*`` refuse such floats too).
 FLOAT_OVERSHOOT = 0.5
+#: A 16-bit image whose brightest level stays under this share of white holds, most
+#: likely, the words of a shallower sensor read at a deeper ``bit_depth``: a 12-bit
+#: sensor's levels in 16-bit words reach 1/16 of white at most, where a frame exposed
+#: for its markers puts their bright paint over a third of white. Its grey-level
+#: thresholds then ask 16 times the contrast, and most markers are lost.
+SHALLOW_PEAK_SHARE = 1.0 / 16.0
+#: :func:`peak_level` reads every this many rows and columns: a marker's bright paint
+#: spans more, and a 12 MP frame costs 0.75 M reads.
+_PEAK_STRIDE = 4
 
 
 def bit_depth_scale(dtype: np.dtype[Any], bit_depth: int = 16) -> float:
@@ -85,3 +94,21 @@ def to_gray(
             )
         return np.ascontiguousarray(np.clip(image, 0.0, 1.0), dtype=np.float32), 1.0
     return np.ascontiguousarray(image), bit_depth_scale(image.dtype, bit_depth)
+
+
+def peak_level(image: NDArray[Any]) -> float:
+    """The brightest level of an image, read on every fourth row and column (any channel)."""
+    return float(image[::_PEAK_STRIDE, ::_PEAK_STRIDE].max())
+
+
+def bit_depth_hint(peak: float, bit_depth: int) -> int | None:
+    """The bit depth a 16-bit image's levels fit, where ``bit_depth`` makes them dim; else None.
+
+    Where the brightest level ``peak`` stays under :data:`SHALLOW_PEAK_SHARE` of
+    white at ``bit_depth``, the fewest bits (8 at least) that hold it: the sensor's
+    depth if the frame is exposed at all. Advice only: white is never taken from
+    the frame's content (:func:`bit_depth_scale`).
+    """
+    if peak >= SHALLOW_PEAK_SHARE * bit_depth_scale(np.dtype(np.uint16), bit_depth):
+        return None
+    return max(8, int(np.ceil(np.log2(peak + 1.0))))

@@ -15,7 +15,11 @@ Levels of a camera:
   more than that fraction of the frames the camera sent in the window never
   arrived (lost upstream: in DDS, in the camera driver, on the network), as the
   gaps between consecutive header stamps tell against the camera's own rate
-  (:func:`frames_lost_upstream`); or the latency p95 exceeds ``latency_warn_ms``.
+  (:func:`frames_lost_upstream`); or the latency p95 exceeds ``latency_warn_ms``;
+  or every 16-bit frame delivered in the window stayed under
+  :data:`~marker_localizer.core.image.SHALLOW_PEAK_SHARE` of white, as a shallower
+  sensor's words read at the configured ``bit_depth`` do
+  (:func:`~marker_localizer.core.image.bit_depth_hint`).
 * OK otherwise.
 
 Latency is the time a frame spent in the node, from its arrival to the
@@ -44,6 +48,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Header
 
+from marker_localizer.core.image import bit_depth_hint, bit_depth_scale
 from marker_localizer.errors import shorten
 
 OK, WARN, ERROR = 0, 1, 2
@@ -114,6 +119,11 @@ class CameraSnapshot:
         any_frame: whether a frame ever arrived.
         last_error: text of the newest failure ("" if none).
         since_last_error_s: time since that failure, s (None if none).
+        peak_share: the brightest level of the frames delivered in the window, over
+            the white of the newest (NaN: none).
+        bit_depth_hint: the bit depth the 16-bit frames of the window fit, where
+            the configured one leaves them all dim
+            (:func:`~marker_localizer.core.image.bit_depth_hint`); None otherwise.
     """
 
     camera: str
@@ -137,6 +147,8 @@ class CameraSnapshot:
     any_frame: bool
     last_error: str
     since_last_error_s: float | None
+    peak_share: float = math.nan
+    bit_depth_hint: int | None = None
 
 
 class CameraStats:
@@ -162,8 +174,9 @@ class CameraStats:
         self._received_at: deque[int] = deque()
         self._stamps: deque[int] = deque()  # header stamp of each frame in _received_at
         self._dropped_at: deque[int] = deque()
-        # (delivery time ns, latency ms, clock offset s, markers) per delivered frame.
-        self._results: deque[tuple[int, float, float, int]] = deque()
+        # (delivery time ns, latency ms, clock offset s, markers, brightest level, bit
+        # depth of a 16-bit frame or 0) per delivered frame.
+        self._results: deque[tuple[int, float, float, int, float, int]] = deque()
 
     def frame_received(self, now_ns: int, stamp_ns: int) -> None:
         """Count a frame put into the mailbox; ``stamp_ns`` is its header stamp."""
@@ -192,6 +205,8 @@ class CameraStats:
         clock_offset_s: float,
         markers: int,
         capped: int = 0,
+        peak: float = math.nan,
+        bit_depth: int = 0,
     ) -> None:
         """Count a delivered result.
 
@@ -201,12 +216,16 @@ class CameraStats:
             clock_offset_s: arrival time minus the frame's header stamp, s.
             markers: markers found in the frame.
             capped: candidates the detector's caps cut in the frame.
+            peak: the frame's brightest level
+                (:func:`~marker_localizer.core.image.peak_level`).
+            bit_depth: the configured bit depth where the frame is 16-bit; 0 for an
+                8-bit frame.
         """
         with self._lock:
             self._processed += 1
             self._frames_capped += capped > 0
             self._candidates_capped += capped
-            self._results.append((now_ns, latency_ms, clock_offset_s, markers))
+            self._results.append((now_ns, latency_ms, clock_offset_s, markers, peak, bit_depth))
             while len(self._results) > _LATENCY_SAMPLES:
                 self._results.popleft()
 
@@ -229,6 +248,7 @@ class CameraStats:
             recent = [r for r in self._results if r[0] >= horizon]
             span_s = max(min(now_ns - self._start_ns, self._window_ns), 1) / _NS_PER_S
             latency = np.array([r[1] for r in recent])
+            deep = [r for r in recent if r[5]]
             last_frame = self._start_ns if self._last_frame_ns is None else self._last_frame_ns
             return CameraSnapshot(
                 camera=self.camera,
@@ -254,7 +274,21 @@ class CameraStats:
                 since_last_error_s=None
                 if self._last_error_ns is None
                 else max(now_ns - self._last_error_ns, 0) / _NS_PER_S,
+                peak_share=_peak_share(recent),
+                bit_depth_hint=bit_depth_hint(max(r[4] for r in deep), deep[-1][5])
+                if deep
+                else None,
             )
+
+
+def _peak_share(results: Sequence[tuple[int, float, float, int, float, int]]) -> float:
+    """The brightest level of delivered frames over the newest one's white (NaN: none)."""
+    read = [r for r in results if not math.isnan(r[4])]
+    if not read:
+        return math.nan
+    bit_depth = read[-1][5]
+    white = bit_depth_scale(np.dtype(np.uint16 if bit_depth else np.uint8), bit_depth)
+    return max(r[4] for r in read) / white
 
 
 def frames_lost_upstream(stamps_ns: np.ndarray, rate_hz: float = 0.0) -> tuple[int, float]:
@@ -333,6 +367,11 @@ def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> 
         warnings.append(
             f"latency p95 {snapshot.latency_p95_ms:.0f} ms > {thresholds.latency_warn_ms:g} ms"
         )
+    if snapshot.bit_depth_hint is not None:
+        warnings.append(
+            f"16-bit frames under 1/16 of white: a {snapshot.bit_depth_hint}-bit camera "
+            f"wants detector.bit_depth {snapshot.bit_depth_hint}"
+        )
     if errors:
         return ERROR, "; ".join(errors + warnings)
     if warnings:
@@ -401,6 +440,7 @@ def camera_status(
         "latency p95 (ms)": f"{snapshot.latency_p95_ms:.1f}",
         "clock offset p50 (s)": f"{snapshot.clock_offset_s:.3f}",
         "markers per frame": f"{snapshot.markers_per_frame:.2f}",
+        "peak level in window (% of white)": f"{100.0 * snapshot.peak_share:.1f}",
         "lost upstream in window": str(lost),
         "camera rate from stamps (Hz)": f"{rate_hz:.3g}",
         "time since last frame (s)": f"{snapshot.since_last_frame_s:.2f}",

@@ -51,6 +51,7 @@ from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig, TrackerConfig
+from marker_localizer.core.image import peak_level
 from marker_localizer.core.pipeline import CAP_COUNTS, DetectionResult, Detector
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.errors import ConfigError
@@ -425,4 +426,6 @@ class FrameProcessor:
             clock_offset_s=(frame.received_ns - stamp_to_ns(header)) / _NS_PER_S,
             markers=len(detections),
             capped=sum(result.counts.get(key, 0) for key in CAP_COUNTS),
+            peak=peak_level(pixels),
+            bit_depth=self.config.bit_depth if pixels.dtype == np.uint16 else 0,
         )

@@ -61,6 +61,24 @@ def test_unreadable_files_give_one_line_naming_the_file_and_exit_1(x_image, tmp_
     assert len(captured.out.strip().splitlines()) == 1  # the good image is still processed
 
 
+def test_a_12_bit_png_read_at_16_bits_is_processed_with_a_warning_naming_its_depth(
+    x_image, tmp_path, capsys
+):
+    _, image = x_image
+    deep = tmp_path / "deep.png"
+    cv2.imwrite(str(deep), image.astype(np.uint16) * 16)  # 12-bit levels, right-aligned
+    assert main(["detect", str(deep), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.strip().splitlines() == [
+        f"marker-localizer: warning: {deep}: its brightest level, 3200, is under 1/16 of white "
+        "(65535 at bit_depth 16); a 12-bit image wants --param bit_depth=12"
+    ]
+    assert main(["detect", str(deep), "--json", "--param", "bit_depth=12"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""
+    assert len(json.loads(captured.out)["markers"]) == 1
+
+
 def test_a_float_tiff_of_8_bit_levels_is_one_line_not_a_blank_frame(x_image, tmp_path, capsys):
     _, image = x_image
     unit, levels = tmp_path / "unit.tiff", tmp_path / "levels.tiff"

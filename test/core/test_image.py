@@ -5,7 +5,13 @@ import numpy as np
 import pytest
 
 from marker_localizer import Detector, DetectorConfig
-from marker_localizer.core.image import FLOAT_OVERSHOOT, bit_depth_scale, to_gray
+from marker_localizer.core.image import (
+    FLOAT_OVERSHOOT,
+    bit_depth_hint,
+    bit_depth_scale,
+    peak_level,
+    to_gray,
+)
 from marker_localizer.errors import ImageError
 
 
@@ -107,3 +113,27 @@ def test_float_images_of_another_scale_are_refused_not_clipped_to_a_blank_frame(
 def test_bad_input_is_one_error_naming_what_is_wrong(image, message):
     with pytest.raises(ImageError, match=message):
         to_gray(image)
+
+
+@pytest.mark.parametrize(
+    ("peak", "bit_depth", "hint"),
+    [
+        (4095, 16, 12),  # a 12-bit sensor's words read as 16-bit
+        (1023, 16, 10),
+        (200, 16, 8),  # a dark frame: the fewest bits that hold it, 8 at least
+        (4096, 16, None),  # 1/16 of white and more: a frame of the configured depth
+        (4095, 12, None),
+        (60000, 16, None),
+    ],
+)
+def test_a_16_bit_frame_dimmer_than_a_16th_of_white_is_advised_the_depth_its_levels_fit(
+    peak, bit_depth, hint
+):
+    assert bit_depth_hint(peak, bit_depth) == hint
+
+
+def test_the_peak_level_is_read_on_every_fourth_row_and_column_of_every_channel():
+    image = np.zeros((9, 9, 3), np.uint16)
+    image[4, 8, 2] = 4000
+    image[5, 5, 0] = 60000  # between the rows read
+    assert peak_level(image) == 4000.0

@@ -250,3 +250,33 @@ def test_candidates_the_detectors_caps_cut_are_counted_and_shown_per_camera():
     values = values_of(camera_status("marker_localizer", snap, LIMITS))
     assert values["frames capped"] == "2"
     assert values["candidates capped"] == "1230"
+
+
+def test_16_bit_frames_all_under_a_16th_of_white_warn_with_the_bit_depth_they_fit():
+    stats, now = healthy_camera(frames=2)  # 8-bit frames, no level reported
+    for level in (3000.0, 4095.0):  # a 12-bit camera's words read at bit_depth 16
+        stats.frame_processed(now, 50.0, 0.01, markers=1, peak=level, bit_depth=16)
+    snap = stats.snapshot(now)
+    assert snap.bit_depth_hint == 12
+    assert snap.peak_share == pytest.approx(4095.0 / 65535.0)
+    assert camera_level(snap, LIMITS) == (
+        WARN,
+        "16-bit frames under 1/16 of white: a 12-bit camera wants detector.bit_depth 12",
+    )
+    values = values_of(camera_status("loc", snap, LIMITS))
+    assert values["peak level in window (% of white)"] == "6.2"
+    # Told the depth, the same levels are bright enough: no warning.
+    stats.frame_processed(now, 50.0, 0.01, markers=1, peak=4095.0, bit_depth=12)
+    assert stats.snapshot(now).bit_depth_hint is None
+
+
+def test_one_bright_16_bit_frame_in_the_window_and_8_bit_frames_never_warn_of_the_depth():
+    stats, now = healthy_camera(frames=2)
+    stats.frame_processed(now, 50.0, 0.01, markers=1, peak=900.0, bit_depth=16)  # lens cap
+    stats.frame_processed(now, 50.0, 0.01, markers=1, peak=40000.0, bit_depth=16)
+    assert stats.snapshot(now).bit_depth_hint is None
+    dim = CameraStats("cam2", start_ns=0, window_s=10.0)
+    dim.frame_processed(S, 50.0, 0.01, markers=0, peak=10.0, bit_depth=0)
+    snap = dim.snapshot(S)
+    assert snap.bit_depth_hint is None and snap.peak_share == pytest.approx(10.0 / 255.0)
+    assert camera_level(snap, LIMITS)[0] == OK

@@ -23,7 +23,7 @@ from rclpy.qos import ReliabilityPolicy
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
-from marker_localizer.ros.diagnostics import OK
+from marker_localizer.ros.diagnostics import OK, WARN
 from marker_localizer.ros.node import MarkerLocalizerNode
 
 # --------------------------------------------------------------------------- in-process node
@@ -164,3 +164,33 @@ def test_diagnostics_report_ok_levels_values_and_node_status(localizer, tester):
     node = statuses["marker_localizer: node"]
     assert level_of(node) == OK
     assert values_of(node)["workers"] == "2"
+
+
+def test_diagnostics_warn_when_16_bit_frames_look_like_a_shallower_cameras(localizer, tester):
+    tester.listen("/diagnostics", DiagnosticArray)
+    tester.listen("cam1/marker_points", PointCloud2)
+    frame = tester.frame(x_marker_64().astype(np.uint16) * 16, "mono16")  # 12-bit levels
+    tester.publish("cam1/image_raw", frame)
+    tester.result_for("cam1/marker_points", frame.header)
+
+    def warned():
+        for array_msg in reversed(tester.messages("/diagnostics")):
+            cam1 = {s.name: s for s in array_msg.status}.get("marker_localizer: cam1")
+            if cam1 is not None and level_of(cam1) == WARN:
+                return cam1
+        return None
+
+    cam1 = wait_until(warned, "cam1's diagnostics warning of its bit depth")
+    assert "a 12-bit camera wants detector.bit_depth 12" in cam1.message
+    assert float(values_of(cam1)["peak level in window (% of white)"]) < 100.0 / 16.0
+    # A frame that uses the whole word clears it (and leaves the node as it found it).
+    bright = tester.frame(x_marker_64().astype(np.uint16) * 257, "mono16")
+    tester.publish("cam1/image_raw", bright)
+    tester.result_for("cam1/marker_points", bright.header)
+
+    def cleared():
+        array_msg = tester.messages("/diagnostics")[-1]
+        cam1 = {s.name: s for s in array_msg.status}["marker_localizer: cam1"]
+        return level_of(cam1) == OK and int(values_of(cam1)["frames processed"]) >= 2
+
+    wait_until(cleared, "cam1's diagnostics back to OK after a bright frame")
