@@ -16,7 +16,12 @@ import numpy as np
 from marker_localizer import config as config_module
 from marker_localizer import evaluation
 from marker_localizer.cli.exits import EXIT_ERROR, PROG
-from marker_localizer.core.image import bit_depth_hint, bit_depth_scale, peak_level
+from marker_localizer.core.image import (
+    SHALLOW_PEAK_TEXT,
+    bit_depth_hint,
+    bit_depth_scale,
+    peak_level,
+)
 from marker_localizer.core.pipeline import DetectionResult, Detector
 from marker_localizer.errors import ConfigError, ImageError
 from marker_localizer.image_files import read_image_file
@@ -180,7 +185,8 @@ def _warn_if_shallow(path: str, image: np.ndarray, bit_depth: int) -> None:
     if hint is not None:
         white = bit_depth_scale(image.dtype, bit_depth)
         print(
-            f"{PROG}: warning: {path}: its brightest level, {peak:g}, is under 1/16 of white "
+            f"{PROG}: warning: {path}: its brightest level, {peak:g}, is under "
+            f"{SHALLOW_PEAK_TEXT} of white "
             f"({white:g} at bit_depth {bit_depth}); a {hint}-bit image wants "
             f"--param bit_depth={hint}",
             file=sys.stderr,

@@ -23,6 +23,8 @@ FLOAT_OVERSHOOT = 0.5
 #: for its markers puts their bright paint over a third of white. Its grey-level
 #: thresholds then ask 16 times the contrast, and most markers are lost.
 SHALLOW_PEAK_SHARE = 1.0 / 16.0
+#: :data:`SHALLOW_PEAK_SHARE` as the warnings write it.
+SHALLOW_PEAK_TEXT = f"1/{round(1.0 / SHALLOW_PEAK_SHARE)}"
 #: :func:`peak_level` reads every this many rows and columns: a marker's bright paint
 #: spans more, and a 12 MP frame costs 0.75 M reads.
 _PEAK_STRIDE = 4

@@ -48,7 +48,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Header
 
-from marker_localizer.core.image import bit_depth_hint, bit_depth_scale
+from marker_localizer.core.image import SHALLOW_PEAK_TEXT, bit_depth_hint, bit_depth_scale
 from marker_localizer.errors import shorten
 
 OK, WARN, ERROR = 0, 1, 2
@@ -367,10 +367,11 @@ def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> 
         warnings.append(
             f"latency p95 {snapshot.latency_p95_ms:.0f} ms > {thresholds.latency_warn_ms:g} ms"
         )
-    if snapshot.bit_depth_hint is not None:
+    hint = snapshot.bit_depth_hint
+    if hint is not None:
         warnings.append(
-            f"16-bit frames under 1/16 of white: a {snapshot.bit_depth_hint}-bit camera "
-            f"wants detector.bit_depth {snapshot.bit_depth_hint}"
+            f"16-bit frames under {SHALLOW_PEAK_TEXT} of white: a {hint}-bit camera "
+            f"wants detector.bit_depth {hint}"
         )
     if errors:
         return ERROR, "; ".join(errors + warnings)
