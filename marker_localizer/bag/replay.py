@@ -58,6 +58,7 @@ from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import BagError, ImageError, shorten
 from marker_localizer.evaluation import DEFAULT_GATE_PX, DetectionTally, match_points
 from marker_localizer.ros.conversions import ENCODINGS, IMAGE_TRANSPORTS, cloud_to_array
+from marker_localizer.ros.diagnostics import bit_depth_warning
 from marker_localizer.ros.node import NODE_NAME
 from marker_localizer.ros.parameters import NodeConfig, diagnostic_thresholds
 from marker_localizer.ros.processing import FrameProcessor, stamp_to_ns
@@ -85,6 +86,9 @@ class CameraReplay:
         failed: Frames the processor rejected or failed on.
         undecodable: Image messages whose bytes do not decode.
         last_error: Text of the newest failure.
+        bit_depth_hint: Where every 16-bit frame of the replay's last statistics window
+            stayed dim at the configured bit depth, the depth its levels fit
+            (:func:`~marker_localizer.core.image.bit_depth_hint`); None otherwise.
         evaluation: Against the bag's truth; None without truth topics.
     """
 
@@ -97,6 +101,7 @@ class CameraReplay:
     failed: int = 0
     undecodable: int = 0
     last_error: str = ""
+    bit_depth_hint: int | None = None
     evaluation: DetectionTally | None = None
 
     @property
@@ -191,6 +196,8 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
     for c in cams:
         if c.last_error:
             lines.append(f"{c.camera}: last failure: {c.last_error}")
+        if c.bit_depth_hint is not None:
+            lines.append(f"{c.camera}: {bit_depth_warning(c.bit_depth_hint)}")
     lines += [f"undecodable {topic}: {n} skipped" for topic, n in report.undecodable.items()]
     lines += [f"damaged storage: {line}" for line in report.damage]
     if not report.complete:
@@ -329,6 +336,8 @@ class _Session:
         with self._cond:
             self._cond.wait_for(lambda: not self._in_flight)
         self.processor.wait_idle()
+        for camera, snapshot in self.processor.snapshots().items():
+            self.stats[camera].bit_depth_hint = snapshot.bit_depth_hint
         self._write_done()
         if self._next_diagnostics_ns is not None:
             self._write_diagnostics(self.now_ns)

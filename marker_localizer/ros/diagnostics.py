@@ -367,17 +367,21 @@ def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> 
         warnings.append(
             f"latency p95 {snapshot.latency_p95_ms:.0f} ms > {thresholds.latency_warn_ms:g} ms"
         )
-    hint = snapshot.bit_depth_hint
-    if hint is not None:
-        warnings.append(
-            f"16-bit frames under {SHALLOW_PEAK_TEXT} of white: a {hint}-bit camera "
-            f"wants detector.bit_depth {hint}"
-        )
+    if snapshot.bit_depth_hint is not None:
+        warnings.append(bit_depth_warning(snapshot.bit_depth_hint))
     if errors:
         return ERROR, "; ".join(errors + warnings)
     if warnings:
         return WARN, "; ".join(warnings)
     return OK, "ok"
+
+
+def bit_depth_warning(hint: int) -> str:
+    """The warning for a camera whose 16-bit frames fit ``hint`` bits (its diagnostics, replay)."""
+    return (
+        f"16-bit frames under {SHALLOW_PEAK_TEXT} of white: a {hint}-bit camera "
+        f"wants detector.bit_depth {hint}"
+    )
 
 
 def drop_report(

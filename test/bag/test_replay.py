@@ -19,7 +19,7 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
 from marker_localizer.bag.io import BagReader, BagWriter, typestore
-from marker_localizer.bag.replay import replay_bag
+from marker_localizer.bag.replay import format_report, replay_bag
 from marker_localizer.cli import main as cli
 from marker_localizer.errors import BagError
 from marker_localizer.ros.conversions import CLOUD_FIELDS, array_to_image, cloud_to_array
@@ -349,3 +349,17 @@ def test_writer_in_a_missing_parent_creates_it_and_renames_only_on_success(tmp_p
     assert sorted(os.listdir(target)) == ["bag.db3", "metadata.yaml"]
     with BagReader(target) as bag:
         assert [m.time_ns for m in bag.messages()] == [5]
+
+
+def test_a_12_bit_camera_read_at_16_bits_is_named_in_the_report_with_its_depth(tmp_path):
+    shallow = (x_marker_frame().astype(np.uint16) * 16).astype(np.uint16)  # 12-bit levels
+    frames = [("/cam0/image_raw", n, image(shallow, n, "mono16")) for n in (1, 2)]
+    report = replay_bag(write_bag(tmp_path / "deep", frames), tmp_path / "out", workers=1)
+    assert report.cameras["cam0"].bit_depth_hint == 12
+    assert (
+        "cam0: 16-bit frames under 1/16 of white: a 12-bit camera wants detector.bit_depth 12"
+        in (format_report(report).splitlines())
+    )
+    full = [("/cam0/image_raw", n, image(shallow * 16, n, "mono16")) for n in (1, 2)]
+    report = replay_bag(write_bag(tmp_path / "full", full), tmp_path / "out2", workers=1)
+    assert report.cameras["cam0"].bit_depth_hint is None
