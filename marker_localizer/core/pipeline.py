@@ -304,6 +304,8 @@ class SearchPlan:
             value = np.asarray(getattr(self, name))
             if value.size % columns:
                 raise ValueError(f"SearchPlan.{name} of shape {value.shape} is not (N, {columns})")
+            if name != "regions" and not np.isfinite(value).all():
+                raise ValueError(f"SearchPlan.{name} holds a NaN or infinite position")
             dtype = np.int64 if name == "regions" else np.float64
             object.__setattr__(self, name, value.astype(dtype).reshape(-1, columns))
 
@@ -493,7 +495,13 @@ class Detector:
 
         Returns:
             :class:`DetectionResult` of the confirmed markers.
+
+        Raises:
+            ImageError: as :meth:`detect`.
+            ValueError: the four arrays do not describe the same N points, or hold a
+                NaN or an infinity.
         """
+        xy, radius_px, line_angles, evidence = _known_markers(xy, radius_px, line_angles, evidence)
         result = DetectionResult()
         timer = _StageTimer(result.timings_ms)
         with timer("input"):
@@ -502,21 +510,14 @@ class Detector:
             with timer("noise"):
                 noise = estimate_noise(gray, full_scale)
             self._fit_and_decide(
-                gray,
-                noise,
-                np.asarray(xy, np.float64).reshape(-1, 2),
-                np.asarray(line_angles, np.float64).reshape(-1, 2),
-                self._fit_start(np.asarray(radius_px, np.float64)),
-                result,
-                timer,
+                gray, noise, xy, line_angles, self._fit_start(radius_px), result, timer
             )
             return result
         counts = result.counts
         counts["merged_duplicates"] = 0
-        points = np.asarray(xy, np.float64).reshape(-1, 2)
         with timer("preprocessing"):
             # The local means of Eq. (2) at the markers alone, for the fit's contrast floor.
-            corner = np.floor(points).astype(np.int64)
+            corner = np.floor(xy).astype(np.int64)
             gamma = preprocessing.LocalGamma(
                 gray,
                 full_scale,
@@ -525,12 +526,7 @@ class Detector:
                 regions=np.hstack([corner, corner + 2]),
             )
         frame = _Frame(gray, full_scale, gamma, result, timer)
-        known = _RingPassed(
-            points,
-            np.asarray(radius_px, np.float64),
-            np.asarray(line_angles, np.float64).reshape(-1, 2),
-            np.asarray(evidence, np.float64),
-        )
+        known = _RingPassed(xy, radius_px, line_angles, evidence)
         with timer("subpixel"):
             result.detections = self._locate(
                 frame, known.xy, known.radius_px, known.line_angles, known.score
@@ -1669,6 +1665,32 @@ class _StageTimer:
         finally:
             elapsed_ms = (time.perf_counter() - start) * 1000.0
             self._timings[stage] = self._timings.get(stage, 0.0) + elapsed_ms
+
+
+def _known_markers(
+    xy: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    evidence: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """:meth:`Detector.locate`'s arrays as (N, 2), (N,), (N, 2), (N,) float64, checked.
+
+    Raises:
+        ValueError: they do not describe the same N points, or hold a NaN or an infinity.
+    """
+    arrays = {
+        "xy": np.asarray(xy, np.float64).reshape(-1, 2),
+        "radius_px": np.asarray(radius_px, np.float64).reshape(-1),
+        "line_angles": np.asarray(line_angles, np.float64).reshape(-1, 2),
+        "evidence": np.asarray(evidence, np.float64).reshape(-1),
+    }
+    counts = {name: len(array) for name, array in arrays.items()}
+    if len(set(counts.values())) > 1:
+        raise ValueError(f"locate needs one row per marker in each array, got {counts}")
+    for name, array in arrays.items():
+        if not np.isfinite(array).all():
+            raise ValueError(f"locate's {name} holds a NaN or an infinity")
+    return arrays["xy"], arrays["radius_px"], arrays["line_angles"], arrays["evidence"]
 
 
 def _positions(detections: list[Detection]) -> NDArray[np.float64]:

@@ -28,7 +28,8 @@ plate plus that motion.
 
 The rule for full-frame passes, precisely. A frame gets a full-frame pass
 
-* when no marker is tracked (the first frame, after :meth:`MarkerTracker.reset`);
+* when no marker is tracked (the first frame, after :meth:`MarkerTracker.reset`, and
+  after a stamp that does not advance or a frame of another size, which reset);
 * when ``full_frame_every - 1`` frames have been tracked since the last one;
 * when the image motion cannot be measured: no anchor's patch is found again;
 * when a marker is lost: the detector does not confirm a track whose predicted
@@ -126,6 +127,7 @@ class MarkerTracker:
     _tracks: list[_Track] = field(default_factory=list, init=False)
     _frames_since_full: int = field(default=0, init=False)
     _last_stamp_s: float = field(default=0.0, init=False)
+    _frame_shape: tuple[int, ...] = field(default=(), init=False)
 
     def reset(self) -> None:
         """Forget every track (after a jump in time or a parameter change)."""
@@ -138,19 +140,28 @@ class MarkerTracker:
         Args:
             image: the frame, as for :meth:`Detector.detect`.
             stamp_s: capture time in seconds; frames are taken to be one second
-                apart if omitted. A stamp that does not advance resets the tracks.
+                apart if omitted. A stamp that does not advance, or a frame of
+                another size than the last (the camera's window or binning changed:
+                the border bands would not cover what came into view), resets the
+                tracks.
 
         Returns:
             The frame's result; ``counts["full_frame"]`` is 1 when the frame got a
             full-frame pass, ``counts["tracked"]`` the markers confirmed by tracking;
             ``timings_ms["registration"]`` is the anchor matching of a tracked frame.
+
+        Raises:
+            ImageError: as :meth:`Detector.detect`.
+            ValueError: ``stamp_s`` is not finite.
         """
         stamp = self._last_stamp_s + 1.0 if stamp_s is None else float(stamp_s)
-        if self._tracks and stamp <= self._last_stamp_s:
-            self.reset()
-        self._last_stamp_s = stamp
+        if not np.isfinite(stamp):
+            raise ValueError(f"stamp_s must be a finite time in seconds, got {stamp_s!r}")
         # Once, not per detector call: a strided view (a crop) is copied here.
         gray, _ = to_gray(image)
+        if self._tracks and (stamp <= self._last_stamp_s or gray.shape != self._frame_shape):
+            self.reset()
+        self._last_stamp_s, self._frame_shape = stamp, gray.shape
         # Measured on full passes too: it carries the tracks a pass misses.
         start = time.perf_counter()
         motion, located, predicted = None, None, None

@@ -731,6 +731,30 @@ def test_a_search_plan_of_the_wrong_shape_is_refused_with_its_name():
 
     with pytest.raises(ValueError, match=r"SearchPlan.regions of shape \(3,\) is not \(N, 4\)"):
         pipeline.SearchPlan(regions=np.array([0, 0, 8]))
+    with pytest.raises(ValueError, match=r"SearchPlan.seeds holds a NaN or infinite position"):
+        pipeline.SearchPlan(seeds=np.array([[np.nan, 3.0]]))
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda a: {**a, "radius_px": a["radius_px"][:1]}, r"one row per marker .*'radius_px': 1"),
+        (lambda a: {**a, "xy": a["xy"] * np.nan}, "locate's xy holds a NaN or an infinity"),
+        (lambda a: {**a, "evidence": a["evidence"] + np.inf}, "evidence holds a NaN"),
+    ],
+)
+def test_markers_to_locate_that_are_not_n_finite_rows_are_refused_with_what_is_wrong(
+    change, message
+):
+    markers = {
+        "xy": np.array([[31.5, 31.5], [10.0, 12.0]]),
+        "radius_px": np.array([12.0, 12.0]),
+        "line_angles": np.array([[0.0, np.pi / 2]] * 2),
+        "evidence": np.array([0.9, 0.9]),
+    }
+    image = np.full((64, 64), 200, np.uint8)
+    with pytest.raises(ValueError, match=message):
+        Detector(DetectorConfig()).locate(image, **change(markers))
 
 
 def test_an_empty_search_plan_searches_nowhere():

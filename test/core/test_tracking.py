@@ -93,6 +93,28 @@ def test_a_stamp_that_does_not_advance_resets_the_tracks(moving_frames):
     assert result.counts["full_frame"] == 1
 
 
+def test_a_frame_of_another_size_resets_the_tracks_and_gets_a_full_pass(moving_frames):
+    tracker = MarkerTracker(_detector())
+    (image, truth), (later, _) = moving_frames[0], moving_frames[1]
+    tracker.update(image, stamp_s=1.0)
+    window = tracker.update(image[:240, :320], stamp_s=1.1)
+    assert window.counts["full_frame"] == 1
+    # Back to the whole frame: the markers outside the window are found at once.
+    whole = tracker.update(later, stamp_s=1.2)
+    assert whole.counts["full_frame"] == 1
+    assert len(whole.as_array()) == len(truth)
+
+
+@pytest.mark.parametrize("stamp_s", [float("nan"), float("inf")])
+def test_a_stamp_that_is_not_a_finite_time_is_refused(moving_frames, stamp_s):
+    tracker = MarkerTracker(_detector())
+    image, _ = moving_frames[0]
+    tracker.update(image, stamp_s=1.0)
+    with pytest.raises(ValueError, match="stamp_s must be a finite time in seconds"):
+        tracker.update(image, stamp_s=stamp_s)
+    assert tracker.update(image, stamp_s=1.1).counts["full_frame"] == 0
+
+
 def _faded(image: np.ndarray, centre: np.ndarray, half_px: int, factor: float) -> np.ndarray:
     """The image with the contrast around ``centre`` scaled by ``factor`` (haze, glare)."""
     faded = image.astype(np.float64)
