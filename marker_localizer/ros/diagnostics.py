@@ -16,7 +16,10 @@ Levels of a camera:
   arrived (lost upstream: in DDS, in the camera driver, on the network), as the
   gaps between consecutive header stamps tell against the camera's own rate
   (:func:`frames_lost_upstream`); or the latency p95 exceeds ``latency_warn_ms``;
-  or every 16-bit frame delivered in the window stayed under
+  or more than ``drop_warn_fraction`` of the window's frames did not advance the
+  header stamp (an unset or stuck stamp: a tracker restarts with a full pass on
+  each, :func:`stalled_stamps`); or every 16-bit frame delivered in the window
+  stayed under
   :data:`~marker_localizer.core.image.SHALLOW_PEAK_SHARE` of white, as a shallower
   sensor's words read at the configured ``bit_depth`` do
   (:func:`~marker_localizer.core.image.bit_depth_hint`).
@@ -75,7 +78,8 @@ class DiagnosticThresholds:
         input_timeout_s: ERROR when no frame arrived for this long, s.
         window_s: sliding window of rates, drop fraction and recent errors, s.
         drop_warn_fraction: WARN when more than this fraction of the frames
-            received in the window was dropped, or of those sent was lost upstream.
+            received in the window was dropped, or did not advance the header stamp,
+            or of those sent was lost upstream.
         expected_rate_hz: the cameras' frame rate, Hz, against which stamp gaps
             count lost frames; 0 measures each camera's rate from its stamps.
     """
@@ -291,6 +295,11 @@ def _peak_share(results: Sequence[tuple[int, float, float, int, float, int]]) ->
     return max(r[4] for r in read) / white
 
 
+def stalled_stamps(stamps_ns: np.ndarray) -> int:
+    """How many frames carry a header stamp no later than the frame's before them."""
+    return int(np.count_nonzero(np.diff(stamps_ns) <= 0))
+
+
 def frames_lost_upstream(stamps_ns: np.ndarray, rate_hz: float = 0.0) -> tuple[int, float]:
     """Frames a camera sent but the node never received, from the gaps between its stamps.
 
@@ -362,6 +371,13 @@ def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> 
         warnings.append(
             f"{100.0 * lost / sent:.0f} % of frames lost before the node ({lost} of {sent} "
             f"in {thresholds.window_s:g} s, from stamp gaps at {rate_hz:.3g} Hz)"
+        )
+    stalled = stalled_stamps(snapshot.window_stamps_ns)
+    gaps = max(len(snapshot.window_stamps_ns) - 1, 0)
+    if stalled > thresholds.drop_warn_fraction * gaps:
+        warnings.append(
+            f"{stalled} of {gaps} frames in {thresholds.window_s:g} s did not advance the "
+            "header stamp (a tracker restarts with a full pass on each)"
         )
     if snapshot.latency_p95_ms > thresholds.latency_warn_ms:
         warnings.append(

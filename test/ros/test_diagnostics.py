@@ -70,7 +70,8 @@ def test_dropped_frames_leave_the_window_and_the_warning_clears():
     stats.frame_replaced(now)
     later = now + 11 * S
     for i in range(4):
-        stats.frame_received(later - i * S // 2, stamp_ns=later - i * S // 2)
+        t = later - (3 - i) * S // 2
+        stats.frame_received(t, stamp_ns=t)
     assert camera_level(stats.snapshot(later), LIMITS)[0] == OK
 
 
@@ -280,3 +281,20 @@ def test_one_bright_16_bit_frame_in_the_window_and_8_bit_frames_never_warn_of_th
     snap = dim.snapshot(S)
     assert snap.bit_depth_hint is None and snap.peak_share == pytest.approx(10.0 / 255.0)
     assert camera_level(snap, LIMITS)[0] == OK
+
+
+def test_header_stamps_that_do_not_advance_warn_with_the_count():
+    stats = CameraStats("cam0", start_ns=0, window_s=LIMITS.window_s)
+    for i in range(8):  # a driver that leaves the stamp unset
+        t = (i + 1) * S // 4
+        stats.frame_received(t, stamp_ns=0)
+        stats.frame_processed(t, latency_ms=50.0, clock_offset_s=t / S, markers=3)
+    assert camera_level(stats.snapshot(2 * S), LIMITS) == (
+        WARN,
+        "7 of 7 frames in 10 s did not advance the header stamp "
+        "(a tracker restarts with a full pass on each)",
+    )
+    # One repeated stamp in twenty is under the 10 % that warns.
+    steady, now = healthy_camera(frames=20)
+    steady.frame_received(now + S // 2, stamp_ns=now)
+    assert camera_level(steady.snapshot(now + S // 2), LIMITS) == (OK, "ok")
