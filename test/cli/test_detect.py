@@ -169,3 +169,6 @@ def test_why_with_a_malformed_point_is_a_usage_error(x_image, capsys):
         main(["detect", str(path), "--why", "1,2,3"])
     assert exit_info.value.code == 2
     assert "--why: expected X,Y in pixels, got '1,2,3'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["detect", str(path), "--why", "nan,3"])
+    assert "--why: expected finite X,Y in pixels, got 'nan,3'" in capsys.readouterr().err
