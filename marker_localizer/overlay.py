@@ -27,15 +27,19 @@ def _fixed(point: np.ndarray) -> tuple[int, int]:
 
 
 def to_bgr(pixels: np.ndarray, bit_depth: int = 16) -> np.ndarray:
-    """An 8-bit BGR copy of a grey (uint8/uint16 with ``bit_depth`` bits) or BGR(A) frame."""
-    if pixels.ndim == 2:
-        grey = (
-            pixels
-            if pixels.dtype == np.uint8
-            else cv2.convertScaleAbs(pixels, alpha=255.0 / bit_depth_scale(pixels.dtype, bit_depth))
-        )
-        return cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
-    return np.ascontiguousarray(pixels[:, :, :3]).copy()
+    """An 8-bit BGR copy of a grey or BGR(A) frame, its white at 255.
+
+    White is 255 in uint8, ``2**bit_depth - 1`` in uint16 and 1 in a float frame
+    (:func:`~marker_localizer.core.image.to_gray`'s), so that the colours drawn on
+    the copy show on every kind.
+    """
+    colour = np.ascontiguousarray(pixels[:, :, :3] if pixels.ndim == 3 else pixels)
+    if colour.dtype != np.uint8:
+        white = 1.0 if colour.dtype.kind == "f" else bit_depth_scale(colour.dtype, bit_depth)
+        colour = cv2.convertScaleAbs(colour, alpha=255.0 / white)
+    if colour.ndim == 2:
+        return cv2.cvtColor(colour, cv2.COLOR_GRAY2BGR)
+    return colour.copy() if colour is pixels else colour
 
 
 def draw_detections(

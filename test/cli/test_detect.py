@@ -124,6 +124,23 @@ def test_overlay_writes_an_annotated_png(x_image, tmp_path):
     assert drawn.shape == (64, 64, 3)
 
 
+def test_overlays_of_float_and_16_bit_colour_files_are_8_bit_with_their_levels(x_image, tmp_path):
+    _, image = x_image
+    files = {
+        "float.tiff": image.astype(np.float32) / 255.0,
+        "deep_colour.png": np.dstack([image.astype(np.uint16) * 257] * 3),
+    }
+    for name, pixels in files.items():
+        cv2.imwrite(str(tmp_path / name), pixels)
+    out = tmp_path / "out"
+    assert main(["detect", *(str(tmp_path / n) for n in files), "--overlay", str(out)]) == 0
+    for name in files:
+        drawn = cv2.imread(str(out / f"{Path(name).stem}_markers.png"), cv2.IMREAD_UNCHANGED)
+        assert drawn.dtype == np.uint8 and drawn.shape == (64, 64, 3)
+        # Away from the lines drawn, the frame's own levels (they were black, or 16-bit).
+        np.testing.assert_allclose(drawn[2, 2], [image[2, 2]] * 3, atol=1)
+
+
 def test_overlays_of_images_with_the_same_name_do_not_overwrite_each_other(x_image, tmp_path):
     path, _ = x_image
     other = tmp_path / "b" / "x.png"  # no marker: its overlay is the image itself
