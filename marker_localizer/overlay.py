@@ -33,13 +33,14 @@ def to_bgr(pixels: np.ndarray, bit_depth: int = 16) -> np.ndarray:
     (:func:`~marker_localizer.core.image.to_gray`'s), so that the colours drawn on
     the copy show on every kind.
     """
-    colour = np.ascontiguousarray(pixels[:, :, :3] if pixels.ndim == 3 else pixels)
+    colour = pixels[:, :, :3] if pixels.ndim == 3 else pixels
     if colour.dtype != np.uint8:
         white = 1.0 if colour.dtype.kind == "f" else bit_depth_scale(colour.dtype, bit_depth)
-        colour = cv2.convertScaleAbs(colour, alpha=255.0 / white)
-    if colour.ndim == 2:
-        return cv2.cvtColor(colour, cv2.COLOR_GRAY2BGR)
-    return colour.copy() if colour is pixels else colour
+        colour = cv2.convertScaleAbs(np.ascontiguousarray(colour), alpha=255.0 / white)
+    elif colour.ndim == 3:
+        # Drawn on next: never the caller's frame (nor a view of it).
+        return np.array(colour)
+    return cv2.cvtColor(colour, cv2.COLOR_GRAY2BGR) if colour.ndim == 2 else colour
 
 
 def draw_detections(

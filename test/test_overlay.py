@@ -1,0 +1,32 @@
+"""Annotated frames (overlay.py): drawn on an 8-bit copy, never on the caller's frame."""
+
+import numpy as np
+import pytest
+
+from marker_localizer.core.pipeline import Detection
+from marker_localizer.overlay import draw_detections
+
+MARKER = Detection(
+    x=8.0, y=8.0, score=1.0, sigma=0.01, angle1=0.0, angle2=np.pi / 2, radius_px=5.0, evidence=1.0
+)
+
+
+@pytest.mark.parametrize(
+    "frame",
+    [
+        np.full((16, 16), 100, np.uint8),
+        np.full((16, 16, 3), 100, np.uint8),
+        np.full((16, 16, 4), 100, np.uint8),
+        np.full((16, 16), 25700, np.uint16),
+        np.full((16, 16, 3), 25700, np.uint16),
+        np.full((16, 16), 100 / 255, np.float32),
+    ],
+    ids=["mono8", "bgr8", "bgra8", "mono16", "bgr16", "float"],
+)
+def test_the_overlay_is_an_8_bit_copy_at_the_frames_levels_and_leaves_the_frame_as_it_was(frame):
+    before = frame.copy()
+    drawn = draw_detections(frame, [MARKER])
+    np.testing.assert_array_equal(frame, before)
+    assert drawn.dtype == np.uint8 and drawn.shape == (16, 16, 3)
+    np.testing.assert_allclose(drawn[0, 15], [100, 100, 100], atol=1)  # away from the lines
+    assert (drawn != 100).any()  # the marker was drawn
