@@ -1923,7 +1923,7 @@ def modulation_gate(
     :data:`TEXTURE_EXTENT_PX` instead, the gate lost 1 marker on the renderer's (a),
     2 on (c), 1 on (d) and 1 on its 12 MP frames, and kept out no false point there,
     on the independent renderer's frames, the real aerial frames or the disc
-    lattice (on the flight simulator's mirror-tiled ground, 2 in 100 frames).
+    lattice (the flight simulator's ground, mirrored then, gave 2 in 100 frames).
 
     Args:
         image: (H, W) grey image, raw levels.

@@ -11,7 +11,7 @@ A camera sees the ground through the plane -> image homography
 ``H = K [r1 r2 t]`` (``r1``, ``r2`` the first two columns of the world -> camera
 rotation, ``t`` the world origin in camera coordinates), from ground metres
 (x, y) to pixels. Everything drawn goes through it: the ground texture (a
-mirror-tiled mosaic of scikit-image photographs, warped with
+seamlessly repeated mosaic of scikit-image photographs, warped with
 ``cv2.warpPerspective`` from the pyramid level whose sampling matches the
 camera's), the markers (``H`` times the marker's own plane -> ground map, painted
 with area-integrated supersampling by :func:`~marker_localizer.synthetic.scene.composite_target`)
@@ -57,7 +57,11 @@ from marker_localizer.synthetic.scene import (
     illumination_field,
     shadow_field,
 )
-from marker_localizer.synthetic.textures import texture_background
+from marker_localizer.synthetic.textures import (
+    GROUND_REFLECTANCE_LIMITS,
+    periodic_component,
+    texture_background,
+)
 
 #: Camera names of the multi-aperture rig, in layout order: nadir, forward, backward,
 #: left, right. The node's default ``cameras`` parameter uses the same names.
@@ -81,10 +85,16 @@ _MOUNT_DEPTH_M = 0.1
 #: Pixels across the world light field (clouds and shadows): it is smooth, so a
 #: coarse grid warped per camera is enough.
 _LIGHT_FIELD_PX = 512
-#: Smallest and largest side of the ground texture mosaic, px (mirror tiling
-#: repeats it with twice this period).
+#: Smallest and largest side of the ground texture mosaic, px (it repeats with this
+#: period) ...
 _MOSAIC_MIN_PX = 1024
 _MOSAIC_MAX_PX = 4096
+#: ... a multiple of this, so that each level of its pyramid, down to 64 px, halves
+#: the period exactly and repeats without a seam too.
+_MOSAIC_MULTIPLE_PX = 64
+#: Pixels of the repeated texture read beyond each border by ``cv2.pyrDown`` (its 5x5
+#: kernel reaches 2; an even count keeps the halved grid on the texture's).
+_PYR_DOWN_REACH_PX = 2
 _NS_PER_S = 1_000_000_000
 
 
@@ -474,13 +484,23 @@ class FlightFrame:
 
 
 class _GroundMosaic:
-    """Mirror-tiled ground texture with a pyramid, addressed in world metres."""
+    """Ground texture repeated without seams, with a pyramid, addressed in world metres.
+
+    The texture is its periodic component (:func:`periodic_component`) and repeats
+    side by side (``BORDER_WRAP``), every level of the pyramid too. Mirrored
+    instead, the ground would be symmetric about every join and point-symmetric
+    where two cross (the mosaic's corner lies at the world's origin, under every
+    flight): an exact X to a detector that reads grey-level point symmetry, and
+    each ground feature near the corner seen four times (measured: docs/accuracy.md,
+    "The flight simulator's ground repeated without mirrors").
+    """
 
     def __init__(self, size_px: int, sample_m: float, rng: np.random.Generator) -> None:
-        base = texture_background((size_px, size_px), rng)
+        base = periodic_component(texture_background((size_px, size_px), rng))
+        np.clip(base, *GROUND_REFLECTANCE_LIMITS, out=base)
         self.levels = [base]
         while min(self.levels[-1].shape) > 64:
-            self.levels.append(cv2.pyrDown(self.levels[-1]))
+            self.levels.append(_wrapped_pyr_down(self.levels[-1]))
         self.sample_m = sample_m
 
     def warp(self, homography: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -495,10 +515,10 @@ class _GroundMosaic:
         offset = self.sample_m * (scale - 1) / 2.0
         to_ground = np.array([[sample, 0.0, offset], [0.0, sample, offset], [0.0, 0.0, 1.0]])
         image_to_mosaic = np.linalg.inv(homography @ to_ground)
-        # Mirror tiling repeats every 2 * size pixels: move the frame's centre near
-        # the origin so that OpenCV's int16 source coordinates cannot saturate.
+        # The texture repeats every size pixels: move the frame's centre near the
+        # origin so that OpenCV's int16 source coordinates cannot saturate.
         centre = image_to_mosaic @ np.array([(width - 1) / 2, (height - 1) / 2, 1.0])
-        period = 2.0 * np.array(texture.shape[::-1], dtype=np.float64)
+        period = np.array(texture.shape[::-1], dtype=np.float64)
         shift = np.floor(centre[:2] / centre[2] / period) * period
         image_to_mosaic = np.array([[1, 0, -shift[0]], [0, 1, -shift[1]], [0, 0, 1]]) @ (
             image_to_mosaic
@@ -508,7 +528,7 @@ class _GroundMosaic:
             image_to_mosaic,
             (width, height),
             flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-            borderMode=cv2.BORDER_REFLECT,
+            borderMode=cv2.BORDER_WRAP,
         )
 
     def _level_for(self, homography: np.ndarray, width: int, height: int) -> int:
@@ -526,6 +546,14 @@ class _GroundMosaic:
         area = abs(float(ax * by - ay * bx))  # ground area of one pixel, m^2
         ratio = math.sqrt(area) / self.sample_m
         return int(np.clip(round(math.log2(max(ratio, 1e-9))), 0, len(self.levels) - 1))
+
+
+def _wrapped_pyr_down(texture: np.ndarray) -> np.ndarray:
+    """``cv2.pyrDown`` of a texture that repeats side by side, read across its joins."""
+    reach = _PYR_DOWN_REACH_PX
+    padded = cv2.copyMakeBorder(texture, reach, reach, reach, reach, cv2.BORDER_WRAP)
+    half = reach // 2
+    return cv2.pyrDown(padded)[half:-half, half:-half]
 
 
 class FlightSimulator:
@@ -555,7 +583,8 @@ class FlightSimulator:
         low, high = self._ground_extent()
         self.markers = self._lay_markers(low, high, world_rng)
         self._marker_maps = np.stack([m.plane_to_ground() for m in self.markers]).reshape(-1, 3, 3)
-        mosaic_px = int(np.clip(max(config.width, config.height), _MOSAIC_MIN_PX, _MOSAIC_MAX_PX))
+        side = int(np.clip(max(config.width, config.height), _MOSAIC_MIN_PX, _MOSAIC_MAX_PX))
+        mosaic_px = -(-side // _MOSAIC_MULTIPLE_PX) * _MOSAIC_MULTIPLE_PX
         self._mosaic = _GroundMosaic(mosaic_px, config.ground_sample_m, world_rng)
         self._light, self._light_to_ground = self._light_field(low, high, world_rng)
         self._frame_gains = world_rng.uniform(*config.frame_gain_range, size=config.n_frames)

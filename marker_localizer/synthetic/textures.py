@@ -15,6 +15,7 @@ import math
 
 import cv2
 import numpy as np
+import scipy.fft
 import skimage.data
 
 from marker_localizer.errors import ConfigError
@@ -217,6 +218,46 @@ def texture_background(
     layer_a += np.float32(rng.uniform(*GROUND_MEAN_RANGE))
     np.clip(layer_a, *GROUND_REFLECTANCE_LIMITS, out=layer_a)
     return layer_a
+
+
+def periodic_component(image: np.ndarray) -> np.ndarray:
+    """The part of ``image`` that repeats without a seam: Moisan's periodic component.
+
+    An image repeated side by side jumps at every join where its opposite borders
+    differ; mirrored instead, it does not jump but is symmetric about every join,
+    and where two joins cross it is point-symmetric: a saddle there is an exact
+    X to a detector that looks for grey-level point symmetry. The periodic
+    component (L. Moisan, "Periodic plus smooth image decomposition", J. Math.
+    Imaging Vision 39, 2011) is the image less the smooth field whose Laplacian
+    takes up the jumps across the borders: it keeps the detail and repeats with
+    no seam and no symmetry.
+
+    Args:
+        image: (rows, cols) float image.
+
+    Returns:
+        float32 array of the same shape.
+    """
+    u = np.asarray(image, dtype=np.float32)
+    rows, cols = u.shape
+    jumps = np.zeros_like(u)
+    row_jump, col_jump = u[-1] - u[0], u[:, -1] - u[:, 0]
+    jumps[0] += row_jump
+    jumps[-1] -= row_jump
+    jumps[:, 0] += col_jump
+    jumps[:, -1] -= col_jump
+    spectrum = scipy.fft.rfft2(jumps)
+    # The discrete Laplacian's eigenvalues; its zero (the mean) stays the image's own.
+    laplacian = (
+        2.0 * np.cos(2.0 * np.pi * np.arange(rows) / rows)[:, None]
+        + 2.0 * np.cos(2.0 * np.pi * np.arange(cols // 2 + 1) / cols)[None, :]
+        - 4.0
+    )
+    laplacian[0, 0] = 1.0
+    spectrum /= laplacian
+    spectrum[0, 0] = 0.0
+    smooth = scipy.fft.irfft2(spectrum, s=(rows, cols))
+    return (u - smooth).astype(np.float32)
 
 
 def flat_background(shape: tuple[int, int], level: float) -> np.ndarray:

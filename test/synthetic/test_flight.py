@@ -7,6 +7,7 @@ camera optical x right / y down / z forward; image coordinates x right, y down,
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import cv2
@@ -43,6 +44,9 @@ CLEAN = FlightConfig(
     frame_gain_range=(1.0, 1.0),
     supersampling=16,
 )
+
+#: Points of the ground near the mosaic's corner, px: how asymmetric the texture is there.
+SHIFTS_PX = np.array([[30.0, 0.0], [-30.0, 0.0], [0.0, 30.0], [0.0, -30.0], [25.0, 25.0]])
 
 
 @pytest.fixture(scope="module")
@@ -240,6 +244,19 @@ def test_ground_texture_is_the_same_ground_in_overlapping_cameras():
         a = nadir.image[ya - 2 : ya + 3, xa - 2 : xa + 3].mean()
         b = cv2.getRectSubPix(forward.image, (5, 5), (float(xb), float(yb))).mean()
         assert abs(a - b) < 12.0, (a, b)
+
+
+def test_the_ground_repeats_without_mirrors_so_no_join_is_a_point_of_symmetry():
+    # Mirrored about its borders, the ground mosaic was point-symmetric about its corner
+    # (half a ground sample from the world's origin, under every flight): an exact X
+    # to a detector that reads grey-level point symmetry.
+    config = dataclasses.replace(CLEAN, marker_spacing_m=1000.0)
+    view = FlightSimulator(config, seed=5).render(0).cameras[0]
+    corner = project(view.homography, np.full((1, 2), -0.5 * config.ground_sample_m))[0]
+    markers = np.array([(m.x, m.y) for m in view.markers]).reshape(-1, 2)
+    assert np.all(np.hypot(*(markers - corner).T) > 40.0)
+    elsewhere = [symmetry_residual(view.image, corner + shift, 12.0) for shift in SHIFTS_PX]
+    assert symmetry_residual(view.image, corner, 12.0) > 0.5 * np.median(elsewhere)
 
 
 @pytest.mark.parametrize(

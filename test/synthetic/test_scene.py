@@ -33,6 +33,7 @@ from marker_localizer.synthetic import (
     texture_background,
 )
 from marker_localizer.synthetic.scene import illumination_field, shadow_field
+from marker_localizer.synthetic.textures import periodic_component
 
 DARK, BRIGHT = 0.1, 0.9
 SMALL_SCENE = SceneConfig(
@@ -411,6 +412,24 @@ def test_texture_background_is_cluttered_reflectance_of_any_size():
         assert ground.min() > 0.0 and ground.max() < 1.0
     assert ground.std() > 0.02
     assert np.abs(np.diff(ground, axis=1)).mean() > 0.005  # texture, not a smooth ramp
+
+
+def test_the_periodic_component_repeats_without_a_seam_and_keeps_the_detail():
+    rows, cols = np.mgrid[:96, :128]
+    # Ground on a ramp: repeated as it is, it jumps by the ramp at every join.
+    image = texture_background((96, 128), np.random.default_rng(2)) + 0.004 * cols + 0.002 * rows
+    periodic = periodic_component(image)
+    assert periodic.shape == image.shape and periodic.dtype == np.float32
+    across = np.abs(np.diff(periodic, axis=1)).mean()
+    down = np.abs(np.diff(periodic, axis=0)).mean()
+    assert np.abs(image[:, 0] - image[:, -1]).mean() > 2.0 * across
+    assert np.abs(periodic[:, 0] - periodic[:, -1]).mean() < 1.5 * across
+    assert np.abs(periodic[0] - periodic[-1]).mean() < 1.5 * down
+    # What it takes away is smooth, harmonic inside the borders, and the mean stays.
+    smooth = image.astype(np.float64) - periodic
+    laplacian = smooth[:-2, 1:-1] + smooth[2:, 1:-1] + smooth[1:-1, :-2] + smooth[1:-1, 2:]
+    assert np.abs(laplacian - 4.0 * smooth[1:-1, 1:-1]).max() < 1e-5
+    assert periodic.mean() == pytest.approx(image.mean(), abs=1e-5)
 
 
 def test_texture_scene_keeps_truth_exact_on_clutter():
