@@ -57,7 +57,12 @@ from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import BagError, ImageError, shorten
 from marker_localizer.evaluation import DEFAULT_GATE_PX, DetectionTally, match_points
-from marker_localizer.ros.conversions import ENCODINGS, IMAGE_TRANSPORTS, cloud_to_array
+from marker_localizer.ros.conversions import (
+    ENCODINGS,
+    ENCODINGS_TEXT,
+    IMAGE_TRANSPORTS,
+    cloud_to_array,
+)
 from marker_localizer.ros.diagnostics import bit_depth_warning
 from marker_localizer.ros.node import NODE_NAME
 from marker_localizer.ros.parameters import NodeConfig, diagnostic_thresholds
@@ -493,7 +498,7 @@ def _require_results(bag: str | Path, stats: dict[str, CameraReplay]) -> None:
     raise BagError(
         f"{bag}: no frame could be processed ({skipped_encoding} with an unsupported "
         f"encoding, {skipped_order} out of order, {sum(c.failed for c in stats.values())} "
-        f"failed, {undecodable} undecodable; supported encodings: {', '.join(ENCODINGS)})"
+        f"failed, {undecodable} undecodable; supported encodings: {ENCODINGS_TEXT})"
         f"{reason}"
     )
 

@@ -18,6 +18,7 @@ from marker_localizer import evaluation
 from marker_localizer.cli.exits import EXIT_ERROR, PROG
 from marker_localizer.core.image import (
     SHALLOW_PEAK_TEXT,
+    bayer_luminance,
     bit_depth_hint,
     bit_depth_scale,
     peak_level,
@@ -132,6 +133,12 @@ def build_parser() -> argparse.ArgumentParser:
         "this run gets _2, _3, ... in command-line order)",
     )
     parser.add_argument(
+        "--bayer",
+        action="store_true",
+        help="the files hold a camera's raw Bayer mosaic (any pattern, 8 or 16 bits): read "
+        "as grey, (R + 2G + B) / 4 about every pixel",
+    )
+    parser.add_argument(
         "--why",
         action="append",
         default=[],
@@ -157,6 +164,8 @@ def main(argv: Sequence[str]) -> int:
     for path in args.images:
         try:
             image = read_image_file(path, detector.config.max_pixels)
+            if args.bayer:
+                image = _bayer_luminance(image, path)
             start = time.perf_counter()
             result = _detect_file(detector, image, path)
             elapsed_ms = (time.perf_counter() - start) * 1000.0
@@ -228,6 +237,14 @@ def _write_overlay(
         return bool(cv2.imwrite(str(out), drawn))
     except cv2.error:
         return False
+
+
+def _bayer_luminance(image: np.ndarray, path: str) -> np.ndarray:
+    """A decoded file's Bayer mosaic read as grey; a file that holds none names itself."""
+    try:
+        return bayer_luminance(image)
+    except ImageError as err:
+        raise ImageError(f"{path}: {err}") from err
 
 
 def _detect_file(detector: Detector, image: np.ndarray, path: str) -> DetectionResult:

@@ -31,9 +31,18 @@ import numpy as np
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
+from marker_localizer.core.image import bayer_luminance
 from marker_localizer.core.pipeline import Detection
 from marker_localizer.errors import ImageError, shorten
 from marker_localizer.image_files import check_pixel_count, decode_image
+
+#: The patterns and depths of the Bayer mosaics camera drivers publish raw ...
+_BAYER_PATTERNS = ("rggb", "bggr", "gbrg", "grbg")
+_BAYER_BITS = (8, 16)
+#: ... their encodings, read as grey (:func:`~marker_localizer.core.image.bayer_luminance`).
+BAYER_ENCODINGS: tuple[str, ...] = tuple(
+    f"bayer_{pattern}{bits}" for pattern in _BAYER_PATTERNS for bits in _BAYER_BITS
+)
 
 #: Encodings the node accepts: numpy dtype and channel count of each.
 ENCODINGS: dict[str, tuple[np.dtype, int]] = {
@@ -43,7 +52,17 @@ ENCODINGS: dict[str, tuple[np.dtype, int]] = {
     "rgb8": (np.dtype(np.uint8), 3),
     "bgra8": (np.dtype(np.uint8), 4),
     "rgba8": (np.dtype(np.uint8), 4),
+    **{
+        name: (np.dtype(np.uint16 if name.endswith("16") else np.uint8), 1)
+        for name in BAYER_ENCODINGS
+    },
 }
+
+#: :data:`ENCODINGS` as the errors list them, the Bayer ones in one entry.
+ENCODINGS_TEXT = ", ".join(
+    [name for name in ENCODINGS if name not in BAYER_ENCODINGS]
+    + [f"bayer_{{{','.join(_BAYER_PATTERNS)}}}{{{','.join(map(str, _BAYER_BITS))}}}"]
+)
 
 #: The node's ``image_transport`` choices: each camera's input topic (under ``<cam>/``)
 #: and message type, named as image_transport names them.
@@ -79,16 +98,17 @@ def image_to_array(msg: Image, max_pixels: int | None = None) -> np.ndarray:
     """View the pixels of a sensor_msgs/Image as a numpy array.
 
     Row padding (``step`` larger than ``width`` times the pixel size) is honoured
-    without copying; big-endian mono16 is byte-swapped into a native copy.
+    without copying; big-endian 16-bit pixels are byte-swapped into a native copy.
 
     Args:
         msg: Image with one of the :data:`ENCODINGS`.
         max_pixels: refuse a larger width x height, px (None: no limit).
 
     Returns:
-        (height, width) uint8/uint16 for mono encodings, (height, width, C)
-        uint8 in the message's own channel order for colour ones. The array
-        shares memory with ``msg.data`` unless a byte swap was needed.
+        (height, width) uint8/uint16 for mono and Bayer encodings (the mosaic as
+        it is), (height, width, C) uint8 in the message's own channel order for
+        colour ones. The array shares memory with ``msg.data`` unless a byte swap
+        was needed.
 
     Raises:
         ImageError: unsupported encoding, empty image, more than ``max_pixels``,
@@ -97,8 +117,7 @@ def image_to_array(msg: Image, max_pixels: int | None = None) -> np.ndarray:
     """
     if msg.encoding not in ENCODINGS:
         raise ImageError(
-            f"unsupported encoding {shorten(repr(msg.encoding))} "
-            f"(expected one of {', '.join(ENCODINGS)})"
+            f"unsupported encoding {shorten(repr(msg.encoding))} (expected one of {ENCODINGS_TEXT})"
         )
     dtype, channels = ENCODINGS[msg.encoding]
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
@@ -116,7 +135,7 @@ def image_to_array(msg: Image, max_pixels: int | None = None) -> np.ndarray:
         raise ImageError(
             f"data holds {len(msg.data)} B but height {height} x step {step} = {height * step} B"
         )
-    if msg.encoding == "mono16" and bool(msg.is_bigendian) != _HOST_IS_BIGENDIAN:
+    if dtype.itemsize > 1 and bool(msg.is_bigendian) != _HOST_IS_BIGENDIAN:
         dtype = dtype.newbyteorder()
     shape: tuple[int, ...] = (height, width) if channels == 1 else (height, width, channels)
     strides: tuple[int, ...] = (step, channels * dtype.itemsize, dtype.itemsize)[: len(shape)]
@@ -136,12 +155,17 @@ def image_to_detector_input(msg: Image, max_pixels: int | None = None) -> np.nda
         max_pixels: refuse a larger width x height, px (None: no limit).
 
     Returns:
-        (H, W) uint8/uint16 or (H, W, 3|4) uint8 BGR(A); RGB(A) input is reordered.
+        (H, W) uint8/uint16 or (H, W, 3|4) uint8 BGR(A); RGB(A) input is reordered,
+        a Bayer mosaic read as grey (:func:`~marker_localizer.core.image.bayer_luminance`):
+        the markers are black and white, and grey is all the detector reads of a
+        colour frame.
 
     Raises:
         ImageError: as :func:`image_to_array`.
     """
     pixels = image_to_array(msg, max_pixels)
+    if msg.encoding in BAYER_ENCODINGS:
+        return bayer_luminance(pixels)
     order = _TO_BGR.get(msg.encoding)
     return pixels if order is None else pixels[:, :, order]
 
@@ -193,9 +217,7 @@ def array_to_image(pixels: np.ndarray, encoding: str, header: Header | None = No
         ImageError: unsupported encoding, or ``pixels`` does not fit it.
     """
     if encoding not in ENCODINGS:
-        raise ImageError(
-            f"unsupported encoding {encoding!r} (expected one of {', '.join(ENCODINGS)})"
-        )
+        raise ImageError(f"unsupported encoding {encoding!r} (expected one of {ENCODINGS_TEXT})")
     dtype, channels = ENCODINGS[encoding]
     got_channels = 1 if pixels.ndim == 2 else pixels.shape[2] if pixels.ndim == 3 else -1
     if pixels.dtype != dtype or got_channels != channels:

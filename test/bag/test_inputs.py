@@ -23,6 +23,7 @@ from marker_localizer.bag.io import BagReader, BagWriter
 from marker_localizer.bag.replay import image_cameras, replay_bag
 from marker_localizer.errors import ImageError
 from marker_localizer.ros.conversions import (
+    array_to_image,
     cloud_to_array,
     compressed_to_detector_input,
 )
@@ -173,3 +174,25 @@ def test_replay_reads_a_ros1_bag_raw_and_compressed(tmp_path):
         assert len(found) == 2
         for xy in found:
             np.testing.assert_allclose(xy, [CENTRE], atol=TOLERANCE_PX)
+
+
+def test_replay_reads_a_cameras_raw_bayer_frames_as_grey(tmp_path):
+    # The sensor's red and blue sites before white balance, as a driver publishes them.
+    mosaic = marker_frame().astype(np.float64)
+    mosaic[0::2, 0::2] *= 0.55
+    mosaic[1::2, 1::2] *= 0.75
+    frames = {
+        "cam0": array_to_image(mosaic.round().astype(np.uint8), "bayer_rggb8"),
+        "cam1": array_to_image((mosaic * 257).round().astype(np.uint16), "bayer_rggb16"),
+    }
+    bag = tmp_path / "bayer"
+    with BagWriter(bag) as writer:
+        for camera, msg in frames.items():
+            writer.add_topic(f"/{camera}/image_raw", "sensor_msgs/msg/Image")
+            msg.header = Header(stamp=Time(sec=1), frame_id=f"{camera}_optical")
+            writer.write(f"/{camera}/image_raw", 10**9, msg)
+    report = replay_bag(bag, tmp_path / "out", workers=1)
+    assert report.complete, report.cameras
+    for camera in frames:
+        (found,) = points(tmp_path / "out", camera)
+        np.testing.assert_allclose(found, [CENTRE], atol=TOLERANCE_PX)

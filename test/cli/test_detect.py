@@ -189,3 +189,24 @@ def test_why_with_a_malformed_point_is_a_usage_error(x_image, capsys):
     with pytest.raises(SystemExit):
         main(["detect", str(path), "--why", "nan,3"])
     assert "--why: expected finite X,Y in pixels, got 'nan,3'" in capsys.readouterr().err
+
+
+def test_a_raw_bayer_file_is_read_as_grey_with_bayer_and_a_colour_one_is_refused(
+    x_image, tmp_path, capsys
+):
+    _, image = x_image
+    mosaic = image.astype(np.float64)
+    mosaic[0::2, 0::2] *= 0.55  # an RGGB sensor's red sites, before white balance
+    mosaic[1::2, 1::2] *= 0.75  # and its blue ones
+    raw, colour = tmp_path / "raw.png", tmp_path / "colour.png"
+    cv2.imwrite(str(raw), mosaic.round().astype(np.uint8))
+    cv2.imwrite(str(colour), cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+    assert main(["detect", str(raw), str(colour), "--bayer", "--json"]) == 1
+    captured = capsys.readouterr()
+    (record,) = (json.loads(line) for line in captured.out.splitlines())
+    assert record["image"] == str(raw)
+    (marker,) = record["markers"]
+    assert np.hypot(marker["x"] - 31.5, marker["y"] - 31.5) < 0.02
+    assert f"{colour}: a Bayer mosaic is one channel of 8- or 16-bit pixels, not 64x64x3 uint8" in (
+        captured.err
+    )

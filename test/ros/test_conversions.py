@@ -110,7 +110,7 @@ def test_detector_finds_the_exact_centre_through_every_encoding(encoding):
     ("change", "match"),
     [
         ({"encoding": "yuv422"}, r"unsupported encoding 'yuv422'"),
-        ({"encoding": "bayer_rggb8"}, r"unsupported encoding 'bayer_rggb8'"),
+        ({"encoding": "rgb16"}, r"unsupported encoding 'rgb16'"),
         ({"height": 0, "data": array.array("B")}, r"empty image \(7x0\)"),
         ({"width": 0}, r"empty image \(0x5\)"),
         ({"step": 6}, r"step 6 B is shorter than one row of 7 mono8 pixels \(7 B\)"),
