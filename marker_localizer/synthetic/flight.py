@@ -510,10 +510,10 @@ class _GroundMosaic:
         texture = self.levels[level]
         scale = 2**level
         sample = self.sample_m * scale
-        # Mosaic pixel (col, row) of level L -> ground metres. Level-L pixel centres
-        # lie at level-0 coordinate scale * col + (scale - 1) / 2 (pyrDown halves).
-        offset = self.sample_m * (scale - 1) / 2.0
-        to_ground = np.array([[sample, 0.0, offset], [0.0, sample, offset], [0.0, 0.0, 1.0]])
+        # Mosaic pixel (col, row) of level L -> ground metres. Level-L pixel centres lie
+        # at level-0 coordinate scale * col: pyrDown centres its kernel on every second
+        # pixel (an area average's would lie (scale - 1) / 2 further on).
+        to_ground = np.diag([sample, sample, 1.0])
         image_to_mosaic = np.linalg.inv(homography @ to_ground)
         # The texture repeats every size pixels: move the frame's centre near the
         # origin so that OpenCV's int16 source coordinates cannot saturate.

@@ -19,6 +19,7 @@ from marker_localizer.synthetic.flight import (
     CAMERA_NAMES,
     FlightConfig,
     FlightSimulator,
+    _wrapped_pyr_down,
     camera_in_world,
     camera_rig,
     ground_homography,
@@ -280,3 +281,24 @@ def test_invalid_flight_config_raises_config_error_naming_the_field(changes, mes
 def test_rendering_a_frame_outside_the_flight_raises():
     with pytest.raises(ConfigError, match="frame index 2"):
         FlightSimulator(FlightConfig(width=64, height=48, n_frames=2), seed=0).render(2)
+
+
+def test_every_level_of_the_ground_pyramid_lies_where_the_full_resolution_one_does():
+    # A ramp of the ground's x in metres as the mosaic: each level's pixel shows the
+    # x of the ground it is warped onto, if the levels are registered.
+    simulator = FlightSimulator(SMALL, seed=1)
+    mosaic = simulator._mosaic
+    sample = mosaic.sample_m
+    ramp = np.tile(np.arange(256, dtype=np.float32) * np.float32(sample), (256, 1))
+    mosaic.levels = [ramp]
+    for _ in range(3):
+        mosaic.levels.append(_wrapped_pyr_down(mosaic.levels[-1]))
+    for level in range(4):
+        scale_m = sample * 2**level  # one image pixel per level-L mosaic pixel
+        x0 = 2.0  # m, the ground's x at the image's column 0, clear of the ramp's wrap
+        homography = np.array(
+            [[1 / scale_m, 0.0, -x0 / scale_m], [0.0, 1 / scale_m, 0.0], [0, 0, 1]]
+        )
+        view = mosaic.warp(homography, (16, 16))
+        ground_x = x0 + scale_m * np.arange(16)
+        np.testing.assert_allclose(view[8], ground_x, atol=1e-3 * sample)
