@@ -6,9 +6,11 @@ within reach of the sub-pixel fit, which then confirms the markers and measures
 the motion in one go. When it does not (a jolt of the attitude moves the image
 by tens of pixels), a few anchor markers are found again by matching their grey
 patch from the last frame (normalised cross-correlation within ``max_motion_px``
-of the prediction). Markers lie on the ground, a plane, so the motion is a
-homography; fitted to the markers (a similarity or a shift from fewer than four
-anchors), it maps every track's last position into the frame. Each marker is then
+of the prediction); after such a frame the patches alone measure the next few
+(a jittery camera's predictions keep missing). Markers lie on the ground, a
+plane, so the motion is a homography; fitted to the markers (a similarity or a
+shift from fewer than four anchors), it maps every track's last position into
+the frame. Each marker is then
 confirmed by the detector's sub-pixel fit alone (:meth:`Detector.locate`),
 started where the motion puts it, with the extent, line angles and verification
 evidence of its last detection: the same fit and gates as a full pass, so its
@@ -89,6 +91,12 @@ _MIN_PATCH_NCC = 0.7
 #: two, and this search costs a hundredth of one over ``max_motion_px``.
 _NEAR_SEARCH_PX = 6.0
 _NEAR_MIN_PATCH_NCC = 0.9
+#: Frames whose motion the anchors' patches measure, without the tracks' fit at their
+#: predictions first, once that fit has failed to measure it: under attitude jitter the
+#: predictions miss by more than the fit's reach frame after frame, a failed fit costs
+#: what a confirming one does, and the patches find the same markers (docs/speed.md,
+#: "Tracking under the flight simulator's attitude jitter"). Then it is tried again.
+_FIT_MOTION_RETRY_FRAMES = 4
 #: A marker's strongest screening candidate lies within this distance of the centre
 #: the detector reports (measured on the speed benchmark's frames: windows of this
 #: half-size around full-frame detections give back every one of them).
@@ -128,11 +136,13 @@ class MarkerTracker:
     _frames_since_full: int = field(default=0, init=False)
     _last_stamp_s: float = field(default=0.0, init=False)
     _frame_shape: tuple[int, ...] = field(default=(), init=False)
+    _fit_motion_skips: int = field(default=0, init=False)
 
     def reset(self) -> None:
         """Forget every track (after a jump in time or a parameter change)."""
         self._tracks = []
         self._frames_since_full = 0
+        self._fit_motion_skips = 0
 
     def update(self, image: NDArray[Any], stamp_s: float | None = None) -> DetectionResult:
         """Detect the markers of the next frame of this camera.
@@ -167,7 +177,12 @@ class MarkerTracker:
         motion, located, predicted = None, None, None
         if self._tracks:
             predicted = self._predict(stamp)
-            motion, located = self._motion_from_fit(gray, predicted)
+            if self._fit_motion_skips:
+                self._fit_motion_skips -= 1
+            else:
+                motion, located = self._motion_from_fit(gray, predicted)
+                if motion is None:
+                    self._fit_motion_skips = _FIT_MOTION_RETRY_FRAMES
             if motion is None:
                 motion = self._register(gray, predicted)
         registration_ms = (time.perf_counter() - start) * 1000.0

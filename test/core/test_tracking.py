@@ -6,6 +6,7 @@ from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.config import TrackerConfig
+from marker_localizer.core import tracking
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import MarkerPlacement, render_markers
@@ -196,3 +197,40 @@ def test_tracking_keeps_recall_and_error_of_full_frame_detection_on_a_simulated_
     for statistic in (np.mean, lambda e: np.percentile(e, 95)):
         assert statistic(errors["tracking"]) <= 1.10 * statistic(errors["full"])
     assert tracked_frames >= 10  # of 20: tracking did the work, not full passes
+
+
+class _CountingDetector(Detector):
+    """The detector, counting the fits it runs on tracked markers (:meth:`Detector.locate`)."""
+
+    locate_calls = 0
+
+    def locate(self, *args, **kwargs):
+        self.locate_calls += 1
+        return super().locate(*args, **kwargs)
+
+
+def _tracked_run(frames, detector):
+    tracker = MarkerTracker(detector, TrackerConfig(full_frame_every=100))
+    results, calls = [], []
+    for k, (image, _) in enumerate(frames):
+        before = detector.locate_calls
+        results.append(tracker.update(image, stamp_s=0.5 * k))
+        calls.append(detector.locate_calls - before)
+    return results, calls
+
+
+def test_once_the_fit_at_the_predictions_fails_the_anchors_measure_the_next_frames_motion(
+    monkeypatch,
+):
+    # A jitter of 6 px a frame: the constant-velocity predictions miss the fit's reach.
+    rng = np.random.default_rng(11)
+    frames = [_frame(np.array([5.0, 2.0]) * k + rng.normal(0.0, 6.0, 2), k) for k in range(7)]
+    retried, retried_calls = _tracked_run(frames, _CountingDetector(_detector().config))
+    monkeypatch.setattr(tracking, "_FIT_MOTION_RETRY_FRAMES", 0)
+    every, every_calls = _tracked_run(frames, _CountingDetector(_detector().config))
+    assert [r.counts["full_frame"] for r in retried] == [1, 0, 0, 0, 0, 0, 0]
+    # The fit at the predictions, then at the anchors' motion: twice a frame, or once.
+    assert every_calls == [0, 2, 2, 2, 2, 2, 2]
+    assert retried_calls == [0, 2, 1, 1, 1, 1, 2]
+    for a, b in zip(retried, every, strict=True):
+        np.testing.assert_array_equal(a.as_array(), b.as_array())
