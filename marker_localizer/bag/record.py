@@ -4,7 +4,8 @@ Topics written, per camera ``<cam>`` of the rig (``cam0`` nadir, ``cam1`` to
 ``cam4`` forward, backward, left, right), each message at bag time = its
 header stamp = the frame's mid-exposure time:
 
-* ``/<cam>/image_raw``: sensor_msgs/Image, mono8, ``frame_id`` ``<cam>_optical``;
+* ``/<cam>/image_raw``: sensor_msgs/Image, mono8 (``bayer_<pattern>8`` for a flight of
+  Bayer cameras, ``FlightConfig.bayer_pattern``), ``frame_id`` ``<cam>_optical``;
 * ``/<cam>/camera_info``: sensor_msgs/CameraInfo, K and P of the pinhole,
   ``plumb_bob`` with D all zero (the renderer has no distortion), R identity;
 * ``/<cam>/marker_points_truth``: sensor_msgs/PointCloud2 in the layout of the
@@ -183,6 +184,8 @@ def record_flight(
     """
     cameras = simulator.rig
     names = [c.name for c in cameras]
+    pattern = simulator.config.bayer_pattern
+    encoding = "mono8" if pattern is None else f"bayer_{pattern}8"
     truth_markers = 0
     with BagWriter(out, storage) as bag:
         bag.set_metadata(
@@ -203,7 +206,7 @@ def record_flight(
                 name = view.camera.name
                 header = Header(stamp=stamp_msg(t_ns), frame_id=optical_frame(name))
                 bag.write(
-                    f"/{name}/{IMAGE_SUFFIX}", t_ns, array_to_image(view.image, "mono8", header)
+                    f"/{name}/{IMAGE_SUFFIX}", t_ns, array_to_image(view.image, encoding, header)
                 )
                 bag.write(f"/{name}/{INFO_SUFFIX}", t_ns, camera_info(view.camera, header))
                 bag.write(f"/{name}/{TRUTH_SUFFIX}", t_ns, truth_cloud(header, view.markers))

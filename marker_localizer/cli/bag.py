@@ -32,6 +32,7 @@ from marker_localizer.config import (
     from_mapping,
     load_params_file,
 )
+from marker_localizer.core.image import BAYER_PATTERNS
 from marker_localizer.evaluation import DEFAULT_GATE_PX
 from marker_localizer.ros.parameters import NodeConfig
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
@@ -111,6 +112,14 @@ def build_simulate_parser() -> argparse.ArgumentParser:
         metavar="DEG",
         help="tilt of the oblique cameras, degrees (default: %(default)s)",
     )
+    parser.add_argument(
+        "--bayer",
+        choices=BAYER_PATTERNS,
+        default=None,
+        metavar="PATTERN",
+        help="record each camera's raw Bayer mosaic (bayer_<PATTERN>8) instead of mono8: "
+        f"one of {', '.join(BAYER_PATTERNS)}",
+    )
     return parser
 
 
@@ -126,6 +135,7 @@ def config_from_args(args: argparse.Namespace) -> FlightConfig:
         marker_radius_m=args.marker_radius,
         altitude_m=args.altitude,
         speed_mps=args.speed,
+        bayer_pattern=args.bayer,
     )
 
 

@@ -17,8 +17,9 @@ from marker_localizer import config as config_module
 from marker_localizer import evaluation
 from marker_localizer.cli.exits import EXIT_ERROR, PROG
 from marker_localizer.core.image import (
+    BAYER_PATTERNS,
     SHALLOW_PEAK_TEXT,
-    bayer_luminance,
+    bayer_to_grey,
     bit_depth_hint,
     bit_depth_scale,
     peak_level,
@@ -134,9 +135,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--bayer",
-        action="store_true",
-        help="the files hold a camera's raw Bayer mosaic (any pattern, 8 or 16 bits): read "
-        "as grey, (R + 2G + B) / 4 about every pixel",
+        choices=BAYER_PATTERNS,
+        metavar="PATTERN",
+        help="the files hold a camera's raw Bayer mosaic of this pattern (8 or 16 bits): "
+        f"demosaiced to grey as cv_bridge does; one of {', '.join(BAYER_PATTERNS)}",
     )
     parser.add_argument(
         "--why",
@@ -165,7 +167,7 @@ def main(argv: Sequence[str]) -> int:
         try:
             image = read_image_file(path, detector.config.max_pixels)
             if args.bayer:
-                image = _bayer_luminance(image, path)
+                image = _bayer_to_grey(image, args.bayer, path)
             start = time.perf_counter()
             result = _detect_file(detector, image, path)
             elapsed_ms = (time.perf_counter() - start) * 1000.0
@@ -239,10 +241,10 @@ def _write_overlay(
         return False
 
 
-def _bayer_luminance(image: np.ndarray, path: str) -> np.ndarray:
-    """A decoded file's Bayer mosaic read as grey; a file that holds none names itself."""
+def _bayer_to_grey(image: np.ndarray, pattern: str, path: str) -> np.ndarray:
+    """A decoded file's Bayer mosaic as grey; a file that holds none names itself."""
     try:
-        return bayer_luminance(image)
+        return bayer_to_grey(image, pattern)
     except ImageError as err:
         raise ImageError(f"{path}: {err}") from err
 

@@ -31,18 +31,17 @@ import numpy as np
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from marker_localizer.core.image import bayer_luminance
+from marker_localizer.core.image import BAYER_PATTERNS, bayer_to_grey
 from marker_localizer.core.pipeline import Detection
 from marker_localizer.errors import ImageError, shorten
 from marker_localizer.image_files import check_pixel_count, decode_image
 
-#: The patterns and depths of the Bayer mosaics camera drivers publish raw ...
-_BAYER_PATTERNS = ("rggb", "bggr", "gbrg", "grbg")
+#: The depths of the Bayer mosaics camera drivers publish raw ...
 _BAYER_BITS = (8, 16)
-#: ... their encodings, read as grey (:func:`~marker_localizer.core.image.bayer_luminance`).
-BAYER_ENCODINGS: tuple[str, ...] = tuple(
-    f"bayer_{pattern}{bits}" for pattern in _BAYER_PATTERNS for bits in _BAYER_BITS
-)
+#: ... each encoding's pattern, read as grey (:func:`~marker_localizer.core.image.bayer_to_grey`).
+BAYER_ENCODINGS: dict[str, str] = {
+    f"bayer_{pattern}{bits}": pattern for pattern in BAYER_PATTERNS for bits in _BAYER_BITS
+}
 
 #: Encodings the node accepts: numpy dtype and channel count of each.
 ENCODINGS: dict[str, tuple[np.dtype, int]] = {
@@ -61,7 +60,7 @@ ENCODINGS: dict[str, tuple[np.dtype, int]] = {
 #: :data:`ENCODINGS` as the errors list them, the Bayer ones in one entry.
 ENCODINGS_TEXT = ", ".join(
     [name for name in ENCODINGS if name not in BAYER_ENCODINGS]
-    + [f"bayer_{{{','.join(_BAYER_PATTERNS)}}}{{{','.join(map(str, _BAYER_BITS))}}}"]
+    + [f"bayer_{{{','.join(BAYER_PATTERNS)}}}{{{','.join(map(str, _BAYER_BITS))}}}"]
 )
 
 #: The node's ``image_transport`` choices: each camera's input topic (under ``<cam>/``)
@@ -156,16 +155,16 @@ def image_to_detector_input(msg: Image, max_pixels: int | None = None) -> np.nda
 
     Returns:
         (H, W) uint8/uint16 or (H, W, 3|4) uint8 BGR(A); RGB(A) input is reordered,
-        a Bayer mosaic read as grey (:func:`~marker_localizer.core.image.bayer_luminance`):
-        the markers are black and white, and grey is all the detector reads of a
-        colour frame.
+        a Bayer mosaic demosaiced to grey (:func:`~marker_localizer.core.image.bayer_to_grey`,
+        as cv_bridge does): the markers are black and white, and grey is all the
+        detector reads of a colour frame.
 
     Raises:
         ImageError: as :func:`image_to_array`.
     """
     pixels = image_to_array(msg, max_pixels)
     if msg.encoding in BAYER_ENCODINGS:
-        return bayer_luminance(pixels)
+        return bayer_to_grey(pixels, BAYER_ENCODINGS[msg.encoding])
     order = _TO_BGR.get(msg.encoding)
     return pixels if order is None else pixels[:, :, order]
 

@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from marker_localizer.core.image import BAYER_PATTERNS
 from marker_localizer.errors import ConfigError
 from marker_localizer.synthetic.scene import (
     BRIGHT_REFLECTANCE_RANGE,
@@ -53,6 +54,7 @@ from marker_localizer.synthetic.scene import (
     MarkerTruth,
     PlanarTarget,
     apply_imaging,
+    bayer_gain,
     composite_target,
     illumination_field,
     shadow_field,
@@ -147,6 +149,11 @@ class FlightConfig:
             and exposure changes).
         supersampling: Samples per pixel along each axis at marker edges.
         start_time_ns: Stamp of the first frame set, ns since the epoch.
+        bayer_pattern: Colour filter array of every camera, one of
+            :data:`~marker_localizer.core.image.BAYER_PATTERNS`: the frames are
+            its raw mosaic of the achromatic scene, each pixel's signal times its
+            colour's :data:`~marker_localizer.synthetic.scene.RAW_BAYER_GAINS` before
+            the noise. None: monochrome sensors.
     """
 
     width: int = 4096
@@ -174,6 +181,7 @@ class FlightConfig:
     frame_gain_range: tuple[float, float] = (0.8, 1.0)
     supersampling: int = 8
     start_time_ns: int = 1_700_000_000 * _NS_PER_S
+    bayer_pattern: str | None = None
 
     def __post_init__(self) -> None:
         positive = {
@@ -218,6 +226,10 @@ class FlightConfig:
             raise ConfigError(f"full_well_e={self.full_well_e!r} must be positive or None")
         if self.speed_mps < 0 or self.exposure_s < 0 or self.attitude_jitter_deg < 0:
             raise ConfigError("speed_mps, exposure_s and attitude_jitter_deg must be >= 0")
+        if self.bayer_pattern is not None and self.bayer_pattern not in BAYER_PATTERNS:
+            raise ConfigError(
+                f"bayer_pattern={self.bayer_pattern!r} must be one of {BAYER_PATTERNS} or None"
+            )
         # The imaging fields are checked by the renderer's own rules.
         ImagingConditions(
             blur_sigma_px=self.blur_sigma_px,
@@ -731,7 +743,12 @@ class FlightSimulator:
         radiance *= light
         radiance *= np.float32(self._frame_gains[index])
         imaging = self._imaging(camera, pose, homography)
-        image = apply_imaging(radiance, imaging, rng)
+        filters = (
+            None
+            if cfg.bayer_pattern is None
+            else bayer_gain((cfg.height, cfg.width), cfg.bayer_pattern)
+        )
+        image = apply_imaging(radiance, imaging, rng, filters)
         return CameraFrame(camera, image, truths, list(full), cut, homography, imaging)
 
     def _visible_markers(self, homography: np.ndarray) -> tuple[list[int], list[int]]:

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 from scipy.special import ndtr
 
+from marker_localizer.core.image import BAYER_PATTERNS
 from marker_localizer.errors import ConfigError
 from marker_localizer.synthetic import crlb
 from marker_localizer.synthetic.textures import (
@@ -1120,7 +1121,10 @@ def record(
 
 
 def apply_imaging(
-    radiance: np.ndarray, imaging: ImagingConditions, rng: np.random.Generator
+    radiance: np.ndarray,
+    imaging: ImagingConditions,
+    rng: np.random.Generator,
+    sensor_gain: np.ndarray | None = None,
 ) -> np.ndarray:
     """Turn a scene reflectance image into an 8-bit camera frame.
 
@@ -1130,6 +1134,9 @@ def apply_imaging(
         radiance: (height, width) float32 reflectance in [0, 1]; overwritten.
         imaging: Light, optics and sensor.
         rng: Source of randomness.
+        sensor_gain: (height, width) float32 gain of each pixel's filter on the exposed
+            signal, before the sensor's noise (a colour filter array's,
+            :func:`bayer_gain`); None: a monochrome sensor.
 
     Returns:
         (height, width) uint8 frame.
@@ -1138,7 +1145,42 @@ def apply_imaging(
     vignette = (
         vignetting_field(radiance.shape, imaging.vignetting) if imaging.vignetting > 0 else None
     )
-    return record(expose(radiance, imaging, gain, vignette), imaging, rng)
+    signal = expose(radiance, imaging, gain, vignette)
+    if sensor_gain is not None:
+        signal *= sensor_gain
+    return record(signal, imaging, rng)
+
+
+#: A raw sensor's red, green and blue response to white light, relative to green,
+#: before white balance: a CMOS sensor behind an infrared cut filter in daylight.
+RAW_BAYER_GAINS: tuple[float, float, float] = (0.55, 1.0, 0.75)
+
+
+def bayer_gain(
+    shape: tuple[int, int], pattern: str, rgb_gains: tuple[float, float, float] = RAW_BAYER_GAINS
+) -> np.ndarray:
+    """(height, width) float32 gain of a Bayer filter's pixels on an achromatic scene.
+
+    Args:
+        shape: (height, width) of the frame, px.
+        pattern: one of :data:`BAYER_PATTERNS`; the frame's pixel (0, 0) is its cell's first.
+        rgb_gains: the red, green and blue pixels' response to white.
+
+    Raises:
+        ConfigError: an unknown pattern.
+    """
+    if pattern not in BAYER_PATTERNS:
+        raise ConfigError(f"unknown Bayer pattern {pattern!r}; choose from {BAYER_PATTERNS}")
+    by_colour = dict(zip("rgb", rgb_gains, strict=True))
+    cell = np.array(
+        [
+            [by_colour[pattern[0]], by_colour[pattern[1]]],
+            [by_colour[pattern[2]], by_colour[pattern[3]]],
+        ],
+        np.float32,
+    )
+    height, width = shape
+    return np.tile(cell, ((height + 1) // 2, (width + 1) // 2))[:height, :width]
 
 
 def make_background(

@@ -363,3 +363,15 @@ def test_a_12_bit_camera_read_at_16_bits_is_named_in_the_report_with_its_depth(t
     full = [("/cam0/image_raw", n, image(shallow * 16, n, "mono16")) for n in (1, 2)]
     report = replay_bag(write_bag(tmp_path / "full", full), tmp_path / "out2", workers=1)
     assert report.cameras["cam0"].bit_depth_hint is None
+
+
+def test_a_flight_of_bayer_cameras_is_recorded_raw_and_replayed_as_grey(tmp_path):
+    bag = tmp_path / "bayer_flight"
+    argv = ["--out", str(bag), "--frames", "2", "--width", "320", "--height", "240"]
+    assert cli(["simulate", *argv, "--seed", "0", "--bayer", "grbg"]) == 0
+    with BagReader(bag) as recorded:
+        image = next(recorded.messages({"/cam0/image_raw"})).decode()
+    assert image.encoding == "bayer_grbg8"
+    overall = replay_bag(bag, tmp_path / "out", workers=2).evaluation
+    assert overall.n_truth > 0 and overall.recall >= MIN_RECALL
+    assert overall.stats.mean <= MAX_MEAN_ERROR_PX

@@ -15,6 +15,7 @@ from marker_localizer.config import DetectorConfig
 from marker_localizer.core.pipeline import Detection, Detector
 from marker_localizer.errors import ImageError
 from marker_localizer.ros.conversions import (
+    BAYER_ENCODINGS,
     CLOUD_FIELDS,
     ENCODINGS,
     array_to_image,
@@ -102,8 +103,10 @@ def test_detector_finds_the_exact_centre_through_every_encoding(encoding):
     if channels > 1:
         pixels = np.repeat(pixels[:, :, None], channels, axis=2)
     msg = padded_message(pixels, encoding, pad=3, bigendian=True)
-    found = Detector(DetectorConfig()).detect(image_to_detector_input(msg)).detections
-    assert [(round(d.x, 3), round(d.y, 3)) for d in found] == [(31.5, 31.5)]
+    (found,) = Detector(DetectorConfig()).detect(image_to_detector_input(msg)).detections
+    # Demosaicing weighs the channels differently at each pixel of a Bayer cell.
+    tolerance_px = 0.03 if encoding in BAYER_ENCODINGS else 1e-3
+    assert np.hypot(found.x - 31.5, found.y - 31.5) < tolerance_px
 
 
 @pytest.mark.parametrize(

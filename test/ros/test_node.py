@@ -72,7 +72,9 @@ def test_node_reads_colour_16_bit_and_raw_bayer_frames(localizer, tester, encodi
     frame = tester.frame(pixels, encoding)
     tester.publish("cam3/image_raw", frame)
     cloud = tester.result_for("cam3/marker_points", frame.header)
-    np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=1e-3)
+    # Demosaicing weighs the channels differently at each pixel of a Bayer cell.
+    tolerance_px = 0.03 if encoding.startswith("bayer_") else 1e-3
+    np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=tolerance_px)
 
 
 def test_with_compressed_transport_each_camera_reads_jpeg_and_counts_undecodable_data(ros):

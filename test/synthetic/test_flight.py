@@ -25,7 +25,7 @@ from marker_localizer.synthetic.flight import (
     ground_homography,
     image_to_ground,
 )
-from marker_localizer.synthetic.scene import PLATE_HALF_SIDE, project
+from marker_localizer.synthetic.scene import PLATE_HALF_SIDE, bayer_gain, project
 
 SMALL = FlightConfig(width=320, height=240, n_frames=2)
 #: A clean frame: no noise, blur, motion, jitter or light variation.
@@ -271,6 +271,7 @@ def test_the_ground_repeats_without_mirrors_so_no_join_is_a_point_of_symmetry():
         ({"marker_kinds": ("triangle",)}, "marker_kinds"),
         ({"frame_gain_range": (0.0, 1.0)}, "frame_gain_range"),
         ({"vignetting": 1.5}, "vignetting"),
+        ({"bayer_pattern": "rgbg"}, "bayer_pattern"),
     ],
 )
 def test_invalid_flight_config_raises_config_error_naming_the_field(changes, message):
@@ -302,3 +303,14 @@ def test_every_level_of_the_ground_pyramid_lies_where_the_full_resolution_one_do
         view = mosaic.warp(homography, (16, 16))
         ground_x = x0 + scale_m * np.arange(16)
         np.testing.assert_allclose(view[8], ground_x, atol=1e-3 * sample)
+
+
+def test_a_bayer_camera_writes_the_monochrome_signal_through_its_filters_gains():
+    mono = FlightSimulator(CLEAN, seed=2).render(0).cameras[0].image
+    raw = FlightSimulator(dataclasses.replace(CLEAN, bayer_pattern="gbrg"), seed=2)
+    mosaic = raw.render(0).cameras[0].image
+    # Green, blue / red, green: the blue pixels at 0.75 of green, the red at 0.55.
+    expected = mono * bayer_gain(mono.shape, "gbrg")
+    assert mosaic.dtype == np.uint8
+    assert np.abs(mosaic - expected).max() <= 1.0
+    np.testing.assert_array_equal(mosaic[::2, ::2], mono[::2, ::2])
