@@ -1363,6 +1363,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
 def parse_args(argv: list[str] | None) -> tuple[Options, Path | None]:
     """Parse the command line into :class:`Options` and the JSON output path."""
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog="marker-localizer bench accuracy",
         description="Accuracy of this detector and its peers on rendered and real images.",
     )

@@ -202,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     keys = sorted({f.key for f in families() if f.scene is not None})
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog="marker-localizer bench bound",
         description="The centre's bound with the marker's other parameters unknown, "
         "and the default's error over each; the markers it finds by their X's "

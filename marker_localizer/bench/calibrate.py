@@ -241,6 +241,7 @@ def exponential_tail(scores: np.ndarray, megapixels: float) -> tuple[float, floa
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog="marker-localizer bench calibrate",
         description="The decision's score weights and false-alarm rate, from data.",
     )

@@ -311,6 +311,7 @@ def run(
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog="marker-localizer bench paper",
         description="The paper's pipeline beside the default on the same frames.",
     )

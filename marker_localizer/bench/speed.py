@@ -564,6 +564,7 @@ def report_load(before: float, report: Callable[[str], None]) -> None:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """Parse the command line (the driver's options and the hidden worker ones)."""
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog="marker-localizer bench speed",
         description="Full-frame detection time on one core: ours against peers.",
     )

@@ -374,6 +374,7 @@ def format_table(results: Sequence[RunResult]) -> str:
 def build_parser() -> argparse.ArgumentParser:
     """Command-line options of the benchmark."""
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog="marker-localizer bench throughput",
         description="Frames per second of the node with 1 and 2 workers, five cameras.",
     )

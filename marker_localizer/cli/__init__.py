@@ -81,7 +81,9 @@ def _load(module: str, function: str) -> Callable[[list[str]], int]:
 def build_parser() -> argparse.ArgumentParser:
     """The parser of ``marker-localizer`` itself: it lists the commands (each parses its own)."""
     parser = argparse.ArgumentParser(
-        prog=PROG, description="Sub-pixel localisation of diagonal (X) ground markers."
+        allow_abbrev=False,
+        prog=PROG,
+        description="Sub-pixel localisation of diagonal (X) ground markers.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, command in COMMANDS.items():

@@ -43,6 +43,7 @@ from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
 def build_simulate_parser() -> argparse.ArgumentParser:
     """Arguments of ``marker-localizer simulate``."""
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog=f"{PROG} simulate",
         description="Fly the five-camera UAV simulator over a marked ground and record a "
         "rosbag2 with images, camera_info, /tf_static and the exact marker truth.",
@@ -164,6 +165,7 @@ def simulate(argv: Sequence[str]) -> int:
 def build_replay_parser() -> argparse.ArgumentParser:
     """Arguments of ``marker-localizer replay``."""
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog=f"{PROG} replay",
         description="Run every <cam>/image_raw frame of a rosbag2 through the node's "
         "processing (no frame dropped) and write <cam>/marker_points and /diagnostics to a "
@@ -232,6 +234,7 @@ def replay(argv: Sequence[str]) -> int:
 def build_play_parser() -> argparse.ArgumentParser:
     """Arguments of ``marker-localizer play``."""
     parser = argparse.ArgumentParser(
+        allow_abbrev=False,
         prog=f"{PROG} play",
         description="Publish a rosbag2's messages on their ROS 2 topics, like 'ros2 bag play'. "
         "ROS arguments follow --ros-args.",

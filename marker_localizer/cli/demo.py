@@ -64,7 +64,9 @@ def run(out_dir: Path, frames: int = 4, seed: int = 7, width: int = 1280, height
 def main(argv: Sequence[str]) -> int:
     """``marker-localizer demo``: the README's main job."""
     parser = argparse.ArgumentParser(
-        prog=f"{PROG} demo", description="Render frames, detect, print accuracy, write overlays."
+        allow_abbrev=False,
+        prog=f"{PROG} demo",
+        description="Render frames, detect, print accuracy, write overlays.",
     )
     parser.add_argument("--out", default="out/demo", help="folder for the annotated frames")
     parser.add_argument("--frames", type=int, default=4, help="frames per camera")

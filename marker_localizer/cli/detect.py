@@ -111,7 +111,7 @@ def _write_table(record: dict[str, Any]) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """Arguments of ``marker-localizer detect``."""
     parser = argparse.ArgumentParser(
-        prog=f"{PROG} detect", description="Detect markers in image files."
+        allow_abbrev=False, prog=f"{PROG} detect", description="Detect markers in image files."
     )
     parser.add_argument("images", nargs="+", metavar="IMAGE")
     parser.add_argument("--json", action="store_true", help="one JSON object per image per line")

@@ -64,3 +64,13 @@ def test_python_m_runs_the_same_command_line():
     )
     assert result.returncode == 0
     assert result.stdout.startswith("usage: marker-localizer detect")
+
+
+def test_an_option_a_command_lacks_is_refused_not_read_as_one_it_begins(capsys):
+    # replay has --params-file, not detect's --param: abbreviated, it took the
+    # override for a file name and said the file could not be read.
+    pytest.importorskip("rclpy")
+    with pytest.raises(SystemExit) as exit_info:
+        main(["replay", "flight", "--out", "out", "--param", "marker_radius_min_px=4"])
+    assert exit_info.value.code == 2
+    assert "unrecognized arguments: --param marker_radius_min_px=4" in capsys.readouterr().err
