@@ -8,7 +8,7 @@ the CLI parses ``--param key=value`` against it, so nothing is written twice.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar, overload
@@ -538,6 +538,28 @@ def load_params_file(
             flat = _flatten(entry["ros__parameters"] or {}, path)
             return {k[len(prefix) :]: v for k, v in flat.items() if k.startswith(prefix)}
     raise ConfigError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
+
+
+def detector_config(params_file: str | Path | None, overrides: Sequence[str]) -> DetectorConfig:
+    """The detector's config from a node parameter YAML, then ``key=value`` overrides.
+
+    What the command line's ``--params-file`` and ``--param`` give (``detect``,
+    ``replay``): the file's ``detector.*`` values, each override (in the detector's
+    own names) over them, validated together.
+
+    Raises:
+        ConfigError: an unreadable file, an override not of the form ``key=value``,
+            an unknown name or a value outside its range.
+    """
+    values: dict[str, Any] = {}
+    if params_file:
+        values.update(load_params_file(params_file))
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ConfigError(f"--param expects key=value, got {item!r}")
+        values[key.strip()] = parse_value(key.strip(), text)
+    return from_mapping(values)
 
 
 def _flatten(params: Any, path: str | Path, prefix: str = "") -> dict[str, Any]:

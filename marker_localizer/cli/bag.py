@@ -27,8 +27,8 @@ from marker_localizer.cli.exits import EXIT_INCOMPLETE, PROG
 from marker_localizer.cli.progress import ProgressBar
 from marker_localizer.config import (
     TRACKER_NAMESPACE,
-    DetectorConfig,
     TrackerConfig,
+    detector_config,
     from_mapping,
     load_params_file,
 )
@@ -180,6 +180,14 @@ def build_replay_parser() -> argparse.ArgumentParser:
         help="the node's parameter YAML; its detector.* and tracker.* values are used",
     )
     parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a detector parameter over the file's (repeatable), as detect takes it, "
+        "e.g. marker_radius_min_px=4",
+    )
+    parser.add_argument(
         "--workers",
         type=int,
         default=NodeConfig().workers,
@@ -204,9 +212,8 @@ def build_replay_parser() -> argparse.ArgumentParser:
 def replay(argv: Sequence[str]) -> int:
     """Run ``marker-localizer replay``; 0, or EXIT_INCOMPLETE when a frame gave no result."""
     args = build_replay_parser().parse_args(argv)
-    config, tracking = DetectorConfig(), TrackerConfig()
+    config, tracking = detector_config(args.params_file, args.param), TrackerConfig()
     if args.params_file is not None:
-        config = from_mapping(load_params_file(args.params_file))
         tracking = from_mapping(
             load_params_file(args.params_file, namespace=TRACKER_NAMESPACE), base=tracking
         )

@@ -29,19 +29,6 @@ from marker_localizer.errors import ConfigError, ImageError
 from marker_localizer.image_files import read_image_file
 
 
-def build_config(params: Sequence[str], params_file: str | None) -> config_module.DetectorConfig:
-    """Detector config from a node parameter YAML and ``key=value`` overrides (in that order)."""
-    values: dict[str, Any] = {}
-    if params_file:
-        values.update(config_module.load_params_file(params_file))
-    for item in params:
-        key, sep, text = item.partition("=")
-        if not sep:
-            raise ConfigError(f"--param expects key=value, got {item!r}")
-        values[key.strip()] = config_module.parse_value(key.strip(), text)
-    return config_module.from_mapping(values)
-
-
 def result_record(
     path: str, image: np.ndarray, result: DetectionResult, elapsed_ms: float
 ) -> dict[str, Any]:
@@ -160,7 +147,7 @@ def main(argv: Sequence[str]) -> int:
         0, or :data:`EXIT_ERROR` when an image could not be read or its overlay written.
     """
     args = build_parser().parse_args(argv)
-    detector = Detector(build_config(args.param, args.params_file))
+    detector = Detector(config_module.detector_config(args.params_file, args.param))
     overlays = _overlay_paths(args.images, args.overlay) if args.overlay else {}
     failed = 0
     for path in args.images:

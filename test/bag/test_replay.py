@@ -375,3 +375,15 @@ def test_a_flight_of_bayer_cameras_is_recorded_raw_and_replayed_as_grey(tmp_path
     overall = replay_bag(bag, tmp_path / "out", workers=2).evaluation
     assert overall.n_truth > 0 and overall.recall >= MIN_RECALL
     assert overall.stats.mean <= MAX_MEAN_ERROR_PX
+
+
+def test_replay_takes_detector_overrides_over_the_params_file_as_detect_does(
+    flight_bag, tmp_path, capsys
+):
+    out = tmp_path / "overridden"
+    argv = ["replay", str(flight_bag), "--out", str(out), "--params-file", str(PARAMS_FILE)]
+    assert cli([*argv, "--param", "marker_radius_min_px=4", "--param", "min_score=0.85"]) == 0
+    assert "recall" in capsys.readouterr().out
+    assert cli([*argv[:3], str(tmp_path / "refused"), "--param", "min_score=2"]) == 1
+    assert "min_score=2.0 is outside [0, 1]" in capsys.readouterr().err
+    assert not (tmp_path / "refused").exists()

@@ -67,10 +67,10 @@ def test_python_m_runs_the_same_command_line():
 
 
 def test_an_option_a_command_lacks_is_refused_not_read_as_one_it_begins(capsys):
-    # replay has --params-file, not detect's --param: abbreviated, it took the
-    # override for a file name and said the file could not be read.
+    # Abbreviated, "--param" was taken for replay's "--params-file" (before replay had
+    # a --param), and the override for a file that could not be read.
     pytest.importorskip("rclpy")
     with pytest.raises(SystemExit) as exit_info:
-        main(["replay", "flight", "--out", "out", "--param", "marker_radius_min_px=4"])
+        main(["replay", "flight", "--out", "out", "--work", "2"])
     assert exit_info.value.code == 2
-    assert "unrecognized arguments: --param marker_radius_min_px=4" in capsys.readouterr().err
+    assert "unrecognized arguments: --work 2" in capsys.readouterr().err
