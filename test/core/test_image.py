@@ -14,6 +14,7 @@ from marker_localizer.core.image import (
     to_gray,
 )
 from marker_localizer.errors import ImageError
+from marker_localizer.synthetic.scene import RAW_BAYER_GAINS, bayer_gain
 
 
 def _x_marker_12_bit(dark: float = 30.0, bright: float = 200.0) -> np.ndarray:
@@ -140,17 +141,9 @@ def test_the_peak_level_is_read_on_every_fourth_row_and_column_of_every_channel(
     assert peak_level(image) == 4000.0
 
 
-#: A raw sensor's channel gains before white balance, (R, G, B).
-RAW_GAINS = (0.55, 1.0, 0.75)
-
-
-def _bayer(grey: np.ndarray, pattern: str, gains=RAW_GAINS) -> np.ndarray:
+def _bayer(grey: np.ndarray, pattern: str, gains=RAW_BAYER_GAINS) -> np.ndarray:
     """The mosaic a sensor of ``pattern`` ("rggb", ...) writes of an achromatic scene."""
-    gain = dict(zip("rgb", gains, strict=True))
-    mosaic = np.empty(grey.shape, np.float64)
-    for (row, col), colour in zip([(0, 0), (0, 1), (1, 0), (1, 1)], pattern, strict=True):
-        mosaic[row::2, col::2] = grey[row::2, col::2] * gain[colour]
-    return mosaic.round().astype(grey.dtype)
+    return (grey * bayer_gain(grey.shape, pattern, gains)).round().astype(grey.dtype)
 
 
 @pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
@@ -159,14 +152,14 @@ def test_a_bayer_mosaic_is_demosaiced_to_the_bt601_grey_of_its_colours(pattern):
     # a pattern read in the wrong order would swap the red and blue weights.
     mosaic = _bayer(np.full((8, 10), 200, np.uint8), pattern)
     grey = bayer_to_grey(mosaic, pattern)
-    red, green, blue = (200 * gain for gain in RAW_GAINS)
+    red, green, blue = (200 * gain for gain in RAW_BAYER_GAINS)
     assert grey.dtype == np.uint8 and grey.shape == (8, 10)
     assert np.all(grey[2:-2, 2:-2] == round(0.299 * red + 0.587 * green + 0.114 * blue))
 
 
 @pytest.mark.parametrize("pattern", ["rggb", "gbrg"])
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
-@pytest.mark.parametrize("gains", [(1.0, 1.0, 1.0), RAW_GAINS])
+@pytest.mark.parametrize("gains", [(1.0, 1.0, 1.0), RAW_BAYER_GAINS])
 def test_a_marker_seen_through_a_bayer_mosaic_keeps_its_centre_to_three_hundredths_of_a_pixel(
     pattern, dtype, gains
 ):
