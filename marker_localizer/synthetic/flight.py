@@ -600,6 +600,12 @@ class FlightSimulator:
         self._mosaic = _GroundMosaic(mosaic_px, config.ground_sample_m, world_rng)
         self._light, self._light_to_ground = self._light_field(low, high, world_rng)
         self._frame_gains = world_rng.uniform(*config.frame_gain_range, size=config.n_frames)
+        # Every camera's colour filter, the same for every frame: built once.
+        self._sensor_gain = (
+            None
+            if config.bayer_pattern is None
+            else bayer_gain((config.height, config.width), config.bayer_pattern)
+        )
 
     def __len__(self) -> int:
         return self.config.n_frames
@@ -743,12 +749,7 @@ class FlightSimulator:
         radiance *= light
         radiance *= np.float32(self._frame_gains[index])
         imaging = self._imaging(camera, pose, homography)
-        filters = (
-            None
-            if cfg.bayer_pattern is None
-            else bayer_gain((cfg.height, cfg.width), cfg.bayer_pattern)
-        )
-        image = apply_imaging(radiance, imaging, rng, filters)
+        image = apply_imaging(radiance, imaging, rng, self._sensor_gain)
         return CameraFrame(camera, image, truths, list(full), cut, homography, imaging)
 
     def _visible_markers(self, homography: np.ndarray) -> tuple[list[int], list[int]]:
