@@ -47,7 +47,7 @@ from std_msgs.msg import Header
 
 from marker_localizer.bag.io import DEFAULT_STORAGE, BagWriter, typestore
 from marker_localizer.core.pipeline import Detection
-from marker_localizer.ros.conversions import array_to_image, detections_to_cloud
+from marker_localizer.ros.conversions import array_to_image, bayer_encoding, detections_to_cloud
 from marker_localizer.synthetic.flight import FlightSimulator, PinholeCamera
 from marker_localizer.synthetic.scene import MarkerTruth
 
@@ -185,7 +185,7 @@ def record_flight(
     cameras = simulator.rig
     names = [c.name for c in cameras]
     pattern = simulator.config.bayer_pattern
-    encoding = "mono8" if pattern is None else f"bayer_{pattern}8"
+    encoding = "mono8" if pattern is None else bayer_encoding(pattern, 8)
     truth_markers = 0
     with BagWriter(out, storage) as bag:
         bag.set_metadata(

@@ -38,9 +38,16 @@ from marker_localizer.image_files import check_pixel_count, decode_image
 
 #: The depths of the Bayer mosaics camera drivers publish raw ...
 _BAYER_BITS = (8, 16)
+
+
+def bayer_encoding(pattern: str, bits: int) -> str:
+    """The ROS encoding of a raw Bayer mosaic of ``pattern`` (``"rggb"``...) and depth."""
+    return f"bayer_{pattern}{bits}"
+
+
 #: ... each encoding's pattern, read as grey (:func:`~marker_localizer.core.image.bayer_to_grey`).
 BAYER_ENCODINGS: dict[str, str] = {
-    f"bayer_{pattern}{bits}": pattern for pattern in BAYER_PATTERNS for bits in _BAYER_BITS
+    bayer_encoding(pattern, bits): pattern for pattern in BAYER_PATTERNS for bits in _BAYER_BITS
 }
 
 #: Encodings the node accepts: numpy dtype and channel count of each.
