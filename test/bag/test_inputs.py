@@ -28,7 +28,7 @@ from marker_localizer.ros.conversions import (
     compressed_to_detector_input,
 )
 from marker_localizer.synthetic import render_markers
-from marker_localizer.synthetic.scene import MarkerPlacement
+from marker_localizer.synthetic.scene import MarkerPlacement, bayer_gain
 
 CENTRE = (40.3, 30.6)
 #: JPEG at quality 95 moves a 14 px marker's centre by a few hundredths of a pixel.
@@ -177,10 +177,9 @@ def test_replay_reads_a_ros1_bag_raw_and_compressed(tmp_path):
 
 
 def test_replay_reads_a_cameras_raw_bayer_frames_as_grey(tmp_path):
-    # The sensor's red and blue sites before white balance, as a driver publishes them.
-    mosaic = marker_frame().astype(np.float64)
-    mosaic[0::2, 0::2] *= 0.55
-    mosaic[1::2, 1::2] *= 0.75
+    # The sensor's raw sites before white balance, as a driver publishes them.
+    frame = marker_frame()
+    mosaic = frame * bayer_gain(frame.shape, "rggb").astype(np.float64)
     frames = {
         "cam0": array_to_image(mosaic.round().astype(np.uint8), "bayer_rggb8"),
         "cam1": array_to_image((mosaic * 257).round().astype(np.uint16), "bayer_rggb16"),

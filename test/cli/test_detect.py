@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from marker_localizer.cli import main
+from marker_localizer.synthetic.scene import bayer_gain
 
 
 @pytest.fixture
@@ -195,9 +196,8 @@ def test_a_raw_bayer_file_is_demosaiced_with_bayer_and_a_colour_one_is_refused(
     x_image, tmp_path, capsys
 ):
     _, image = x_image
-    mosaic = image.astype(np.float64)
-    mosaic[0::2, 0::2] *= 0.55  # an RGGB sensor's red sites, before white balance
-    mosaic[1::2, 1::2] *= 0.75  # and its blue ones
+    # An RGGB sensor's raw sites, before white balance.
+    mosaic = image * bayer_gain(image.shape, "rggb").astype(np.float64)
     raw, colour = tmp_path / "raw.png", tmp_path / "colour.png"
     cv2.imwrite(str(raw), mosaic.round().astype(np.uint8))
     cv2.imwrite(str(colour), cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
