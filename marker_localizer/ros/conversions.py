@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import array
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import Literal
 
 import numpy as np
@@ -50,24 +50,48 @@ BAYER_ENCODINGS: dict[str, str] = {
     bayer_encoding(pattern, bits): pattern for pattern in BAYER_PATTERNS for bits in _BAYER_BITS
 }
 
+#: Packed YUV 4:2:2 encodings (USB and V4L2 cameras; two bytes a pixel, its luma and
+#: one chroma sample of its pair, sensor_msgs' ``uyvy`` and ``yuyv`` and their
+#: deprecated names): the byte that holds the luma. Luma is the grey the detector
+#: reads, the bytes OpenCV's ``COLOR_YUV2GRAY_UYVY`` and ``_YUY2`` take, with no
+#: filter across pixels to move an X's centre.
+YUV422_LUMA_BYTE: dict[str, int] = {"uyvy": 1, "yuv422": 1, "yuyv": 0, "yuv422_yuy2": 0}
+
+#: The depths of grey and colour pixels: a byte or a 16-bit word a channel.
+_DEPTHS: dict[int, np.dtype] = {8: np.dtype(np.uint8), 16: np.dtype(np.uint16)}
+#: Channels of the colour encodings by their names' stems (``bgr8``, ``rgba16``).
+_COLOUR_CHANNELS = {"bgr": 3, "rgb": 3, "bgra": 4, "rgba": 4}
+
 #: Encodings the node accepts: numpy dtype and channel count of each.
 ENCODINGS: dict[str, tuple[np.dtype, int]] = {
-    "mono8": (np.dtype(np.uint8), 1),
-    "mono16": (np.dtype(np.uint16), 1),
-    "bgr8": (np.dtype(np.uint8), 3),
-    "rgb8": (np.dtype(np.uint8), 3),
-    "bgra8": (np.dtype(np.uint8), 4),
-    "rgba8": (np.dtype(np.uint8), 4),
+    **{f"mono{bits}": (dtype, 1) for bits, dtype in _DEPTHS.items()},
     **{
-        name: (np.dtype(np.uint16 if name.endswith("16") else np.uint8), 1)
-        for name in BAYER_ENCODINGS
+        f"{stem}{bits}": (dtype, channels)
+        for stem, channels in _COLOUR_CHANNELS.items()
+        for bits, dtype in _DEPTHS.items()
+    },
+    **{name: (_DEPTHS[8], 2) for name in YUV422_LUMA_BYTE},
+    **{
+        bayer_encoding(pattern, bits): (_DEPTHS[bits], 1)
+        for pattern in BAYER_PATTERNS
+        for bits in _BAYER_BITS
     },
 }
 
-#: :data:`ENCODINGS` as the errors list them, the Bayer ones in one entry.
+
+def _alternatives(names: Iterable[object]) -> str:
+    """``{a,b,c}``: the parts that tell apart encodings whose names share the rest."""
+    return "{" + ",".join(map(str, names)) + "}"
+
+
+#: :data:`ENCODINGS` as the errors list them, those of one stem or pattern in one entry.
 ENCODINGS_TEXT = ", ".join(
-    [name for name in ENCODINGS if name not in BAYER_ENCODINGS]
-    + [f"bayer_{{{','.join(BAYER_PATTERNS)}}}{{{','.join(map(str, _BAYER_BITS))}}}"]
+    [
+        f"mono{_alternatives(_DEPTHS)}",
+        f"{_alternatives(_COLOUR_CHANNELS)}{_alternatives(_DEPTHS)}",
+        *YUV422_LUMA_BYTE,
+        f"bayer_{_alternatives(BAYER_PATTERNS)}{_alternatives(_BAYER_BITS)}",
+    ]
 )
 
 #: The node's ``image_transport`` choices: each camera's input topic (under ``<cam>/``)
@@ -78,7 +102,9 @@ IMAGE_TRANSPORTS: dict[str, tuple[str, type[Image] | type[CompressedImage]]] = {
 }
 
 #: Channel order that turns an RGB(A) image into the BGR(A) order the core reads.
-_TO_BGR = {"rgb8": [2, 1, 0], "rgba8": [2, 1, 0, 3]}
+_TO_BGR = {name: [2, 1, 0] for name in ("rgb8", "rgb16")} | {
+    name: [2, 1, 0, 3] for name in ("rgba8", "rgba16")
+}
 
 #: Fields of the marker point cloud, in byte order; all float64.
 CLOUD_FIELDS: tuple[str, ...] = ("x", "y", "sigma", "score", "angle1", "angle2")
@@ -112,9 +138,9 @@ def image_to_array(msg: Image, max_pixels: int | None = None) -> np.ndarray:
 
     Returns:
         (height, width) uint8/uint16 for mono and Bayer encodings (the mosaic as
-        it is), (height, width, C) uint8 in the message's own channel order for
-        colour ones. The array shares memory with ``msg.data`` unless a byte swap
-        was needed.
+        it is), (height, width, C) uint8/uint16 in the message's own channel (or
+        byte) order for colour and packed YUV ones. The array shares memory with
+        ``msg.data`` unless a byte swap was needed.
 
     Raises:
         ImageError: unsupported encoding, empty image, more than ``max_pixels``,
@@ -161,10 +187,11 @@ def image_to_detector_input(msg: Image, max_pixels: int | None = None) -> np.nda
         max_pixels: refuse a larger width x height, px (None: no limit).
 
     Returns:
-        (H, W) uint8/uint16 or (H, W, 3|4) uint8 BGR(A); RGB(A) input is reordered,
-        a Bayer mosaic demosaiced to grey (:func:`~marker_localizer.core.image.bayer_to_grey`,
-        as cv_bridge does): the markers are black and white, and grey is all the
-        detector reads of a colour frame.
+        (H, W) uint8/uint16 or (H, W, 3|4) uint8/uint16 BGR(A); RGB(A) input is
+        reordered, a Bayer mosaic demosaiced to grey
+        (:func:`~marker_localizer.core.image.bayer_to_grey`, as cv_bridge does), packed
+        YUV read as its luma (:data:`YUV422_LUMA_BYTE`): the markers are black and
+        white, and grey is all the detector reads of a colour frame.
 
     Raises:
         ImageError: as :func:`image_to_array`.
@@ -172,6 +199,8 @@ def image_to_detector_input(msg: Image, max_pixels: int | None = None) -> np.nda
     pixels = image_to_array(msg, max_pixels)
     if msg.encoding in BAYER_ENCODINGS:
         return bayer_to_grey(pixels, BAYER_ENCODINGS[msg.encoding])
+    if msg.encoding in YUV422_LUMA_BYTE:
+        return np.ascontiguousarray(pixels[:, :, YUV422_LUMA_BYTE[msg.encoding]])
     order = _TO_BGR.get(msg.encoding)
     return pixels if order is None else pixels[:, :, order]
 

@@ -3,15 +3,15 @@
 Topics, relative to the node's namespace and remappable as usual:
 
 * in ``<cam>/image_raw`` (sensor_msgs/Image: one of
-  :data:`~marker_localizer.ros.conversions.ENCODINGS`, a raw Bayer mosaic read as
-  grey), or with ``image_transport`` = ``compressed``, ``<cam>/image_raw/compressed``
-  (sensor_msgs/CompressedImage, JPEG or PNG). QoS reliable, keep-last 1.
-  Measured on this stack (two processes, default Fast DDS): a best-effort
-  subscription receives none of the 1.2 MB or 12 MB images a reliable publisher
-  sends, while reliable keep-last 1 receives them, with frames the node has no
-  time for replaced by newer ones. Switch to best effort through the parameter
-  ``qos_overrides./<cam>/image_raw.subscription.reliability`` if your driver
-  publishes best effort.
+  :data:`~marker_localizer.ros.conversions.ENCODINGS`: packed YUV read as its luma,
+  a raw Bayer mosaic as grey), or with ``image_transport`` = ``compressed``,
+  ``<cam>/image_raw/compressed`` (sensor_msgs/CompressedImage, JPEG or PNG). QoS
+  reliable, keep-last 1. Measured on this stack (two processes, default Fast
+  DDS): a best-effort subscription receives none of the 1.2 MB or 12 MB images a
+  reliable publisher sends, while reliable keep-last 1 receives them, with frames
+  the node has no time for replaced by newer ones. Switch to best effort through
+  the parameter ``qos_overrides./<cam>/image_raw.subscription.reliability`` if your
+  driver publishes best effort.
 * in ``<cam>/camera_info`` (sensor_msgs/CameraInfo), cached and reported in
   the diagnostics when published.
 * out ``<cam>/marker_points`` (sensor_msgs/PointCloud2, layout in

@@ -195,3 +195,24 @@ def test_replay_reads_a_cameras_raw_bayer_frames_as_grey(tmp_path):
     for camera in frames:
         (found,) = points(tmp_path / "out", camera)
         np.testing.assert_allclose(found, [CENTRE], atol=TOLERANCE_PX)
+
+
+def test_replay_reads_packed_yuv_frames_by_their_luma(tmp_path):
+    # A USB camera's frames: luma and a chroma sample a pixel, in either byte order.
+    luma = marker_frame().round().astype(np.uint8)
+    chroma = np.random.default_rng(2).integers(0, 256, luma.shape).astype(np.uint8)
+    frames = {
+        "cam0": array_to_image(np.dstack([chroma, luma]), "uyvy"),
+        "cam1": array_to_image(np.dstack([luma, chroma]), "yuv422_yuy2"),
+    }
+    bag = tmp_path / "yuv"
+    with BagWriter(bag) as writer:
+        for camera, msg in frames.items():
+            writer.add_topic(f"/{camera}/image_raw", "sensor_msgs/msg/Image")
+            msg.header = Header(stamp=Time(sec=1), frame_id=f"{camera}_optical")
+            writer.write(f"/{camera}/image_raw", 10**9, msg)
+    report = replay_bag(bag, tmp_path / "out", workers=1)
+    assert report.complete, report.cameras
+    for camera in frames:
+        (found,) = points(tmp_path / "out", camera)
+        np.testing.assert_allclose(found, [CENTRE], atol=TOLERANCE_PX)

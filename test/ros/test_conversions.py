@@ -18,6 +18,7 @@ from marker_localizer.ros.conversions import (
     BAYER_ENCODINGS,
     CLOUD_FIELDS,
     ENCODINGS,
+    YUV422_LUMA_BYTE,
     array_to_image,
     cloud_to_array,
     detections_to_cloud,
@@ -86,13 +87,41 @@ def test_image_to_array_reads_big_endian_mono16_values():
 
 @pytest.mark.parametrize(
     ("encoding", "expected_bgr"),
-    [("rgb8", [30, 20, 10]), ("rgba8", [30, 20, 10, 40]), ("bgr8", [10, 20, 30])],
+    [
+        ("rgb8", [30, 20, 10]),
+        ("rgba8", [30, 20, 10, 40]),
+        ("bgr8", [10, 20, 30]),
+        ("rgb16", [30, 20, 10]),
+        ("rgba16", [30, 20, 10, 40]),
+        ("bgra16", [10, 20, 30, 40]),
+    ],
 )
 def test_detector_input_is_in_bgr_order(encoding, expected_bgr):
-    channels = ENCODINGS[encoding][1]
-    pixels = np.tile(np.array([10, 20, 30, 40][:channels], np.uint8), (2, 3, 1))
+    dtype, channels = ENCODINGS[encoding]
+    pixels = np.tile(np.array([10, 20, 30, 40][:channels], dtype), (2, 3, 1))
     result = image_to_detector_input(array_to_image(pixels, encoding))
+    assert result.dtype == dtype
     np.testing.assert_array_equal(result[1, 2], expected_bgr)
+
+
+@pytest.mark.parametrize(
+    ("encoding", "opencv_code"),
+    [
+        ("uyvy", cv2.COLOR_YUV2GRAY_UYVY),
+        ("yuv422", cv2.COLOR_YUV2GRAY_UYVY),
+        ("yuyv", cv2.COLOR_YUV2GRAY_YUY2),
+        ("yuv422_yuy2", cv2.COLOR_YUV2GRAY_YUY2),
+    ],
+)
+def test_packed_yuv_is_read_as_its_luma_as_cv_bridge_reads_it(encoding, opencv_code):
+    luma = x_marker_64()
+    chroma = np.random.default_rng(5).integers(0, 256, luma.shape).astype(np.uint8)
+    pixels = np.dstack([chroma, luma] if YUV422_LUMA_BYTE[encoding] else [luma, chroma])
+    grey = image_to_detector_input(padded_message(pixels, encoding, pad=4, bigendian=False))
+    np.testing.assert_array_equal(grey, luma)
+    np.testing.assert_array_equal(grey, cv2.cvtColor(pixels, opencv_code))
+    (found,) = Detector(DetectorConfig()).detect(grey).detections
+    assert np.hypot(found.x - 31.5, found.y - 31.5) < 1e-3
 
 
 @pytest.mark.parametrize("encoding", sorted(ENCODINGS))
@@ -112,8 +141,8 @@ def test_detector_finds_the_exact_centre_through_every_encoding(encoding):
 @pytest.mark.parametrize(
     ("change", "match"),
     [
-        ({"encoding": "yuv422"}, r"unsupported encoding 'yuv422'"),
-        ({"encoding": "rgb16"}, r"unsupported encoding 'rgb16'"),
+        ({"encoding": "nv12"}, r"unsupported encoding 'nv12'"),
+        ({"encoding": "32FC1"}, r"unsupported encoding '32FC1'"),
         ({"height": 0, "data": array.array("B")}, r"empty image \(7x0\)"),
         ({"width": 0}, r"empty image \(0x5\)"),
         ({"step": 6}, r"step 6 B is shorter than one row of 7 mono8 pixels \(7 B\)"),

@@ -58,16 +58,21 @@ def test_node_publishes_empty_cloud_when_frame_has_no_marker(localizer, tester):
     assert (cloud.width, len(cloud.data)) == (0, 0)
 
 
-@pytest.mark.parametrize("encoding", ["mono16", "bgr8", "rgb8", "bayer_rggb8", "bayer_gbrg16"])
-def test_node_reads_colour_16_bit_and_raw_bayer_frames(localizer, tester, encoding):
+@pytest.mark.parametrize(
+    "encoding", ["mono16", "bgr8", "rgb8", "rgba16", "yuyv", "bayer_rggb8", "bayer_gbrg16"]
+)
+def test_node_reads_colour_16_bit_yuv_and_raw_bayer_frames(localizer, tester, encoding):
     tester.listen("cam3/marker_points", PointCloud2)
     grey = x_marker_64()
+    words = grey.astype(np.uint16) * 257  # white at 65535
     pixels = {
-        "mono16": grey.astype(np.uint16) * 257,  # white at 65535
+        "mono16": words,
         "bgr8": np.dstack([grey] * 3),
         "rgb8": np.dstack([grey] * 3),
+        "rgba16": np.dstack([words] * 3 + [np.full_like(words, 7)]),  # any alpha
+        "yuyv": np.dstack([grey, np.full_like(grey, 128)]),  # luma, then neutral chroma
         "bayer_rggb8": grey,  # a grey scene through a sensor of equal channel gains
-        "bayer_gbrg16": grey.astype(np.uint16) * 257,
+        "bayer_gbrg16": words,
     }[encoding]
     frame = tester.frame(pixels, encoding)
     tester.publish("cam3/image_raw", frame)
