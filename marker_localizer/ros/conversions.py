@@ -53,8 +53,8 @@ BAYER_ENCODINGS: dict[str, str] = {
 #: Packed YUV 4:2:2 encodings (USB and V4L2 cameras; two bytes a pixel, its luma and
 #: one chroma sample of its pair, sensor_msgs' ``uyvy`` and ``yuyv`` and their
 #: deprecated names): the byte that holds the luma. Luma is the grey the detector
-#: reads, the bytes OpenCV's ``COLOR_YUV2GRAY_UYVY`` and ``_YUY2`` take, with no
-#: filter across pixels to move an X's centre.
+#: reads, as cv_bridge's mono conversion takes it (OpenCV's ``COLOR_YUV2GRAY_UYVY``
+#: and ``_YUY2``), with no filter across pixels to move an X's centre.
 YUV422_LUMA_BYTE: dict[str, int] = {"uyvy": 1, "yuv422": 1, "yuyv": 0, "yuv422_yuy2": 0}
 
 #: The depths of grey and colour pixels: a byte or a 16-bit word a channel.
