@@ -54,8 +54,9 @@ BAYER_ENCODINGS: dict[str, str] = {
 #: Packed YUV 4:2:2 encodings (USB and V4L2 cameras; two bytes a pixel, its luma and
 #: one chroma sample of its pair, sensor_msgs' ``uyvy`` and ``yuyv`` and their
 #: deprecated names): the byte that holds the luma. Luma is the grey the detector
-#: reads, as cv_bridge's mono conversion takes it (OpenCV's ``COLOR_YUV2GRAY_UYVY``
-#: and ``_YUY2``), with no filter across pixels to move an X's centre.
+#: reads, as cv_bridge's mono conversion of ``yuv422`` and ``yuv422_yuy2`` takes it
+#: (OpenCV's ``COLOR_YUV2GRAY_UYVY`` and ``_YUY2``), with no filter across pixels to
+#: move an X's centre.
 YUV422_LUMA_BYTE: dict[str, int] = {"uyvy": 1, "yuv422": 1, "yuyv": 0, "yuv422_yuy2": 0}
 
 #: The depths of grey and colour pixels: a byte or a 16-bit word a channel.
@@ -103,8 +104,10 @@ IMAGE_TRANSPORTS: dict[str, tuple[str, type[Image] | type[CompressedImage]]] = {
 }
 
 #: Channel order that turns an RGB(A) image into the BGR(A) order the core reads.
-_TO_BGR = {name: [2, 1, 0] for name in ("rgb8", "rgb16")} | {
-    name: [2, 1, 0, 3] for name in ("rgba8", "rgba16")
+_TO_BGR = {
+    f"{stem}{bits}": order
+    for stem, order in (("rgb", [2, 1, 0]), ("rgba", [2, 1, 0, 3]))
+    for bits in _DEPTHS
 }
 
 #: Fields of the marker point cloud, in byte order; all float64.
