@@ -58,6 +58,13 @@ BAYER_ENCODINGS: dict[str, str] = {
 #: (OpenCV's ``COLOR_YUV2GRAY_UYVY`` and ``_YUY2``), with no filter across pixels to
 #: move an X's centre.
 YUV422_LUMA_BYTE: dict[str, int] = {"uyvy": 1, "yuv422": 1, "yuyv": 0, "yuv422_yuy2": 0}
+#: Semi-planar YUV 4:2:0 encodings (OAK / DepthAI and Jetson cameras): a plane of
+#: ``height`` luma rows, then one row of interleaved chroma for every two (sensor_msgs'
+#: height scaling of 1.5), each ``step`` bytes. The luma plane is the grey, read in
+#: place.
+SEMIPLANAR_YUV420 = ("nv12", "nv21")
+#: The chroma byte of a grey pixel.
+_NEUTRAL_CHROMA = 128
 
 #: The depths of grey and colour pixels: a byte or a 16-bit word a channel.
 _DEPTHS: dict[int, np.dtype] = {8: np.dtype(np.uint8), 16: np.dtype(np.uint16)}
@@ -73,6 +80,7 @@ ENCODINGS: dict[str, tuple[np.dtype, int]] = {
         for bits, dtype in _DEPTHS.items()
     },
     **{name: (_DEPTHS[8], 2) for name in YUV422_LUMA_BYTE},
+    **{name: (_DEPTHS[8], 1) for name in SEMIPLANAR_YUV420},
     **{
         bayer_encoding(pattern, bits): (_DEPTHS[bits], 1)
         for pattern in BAYER_PATTERNS
@@ -92,6 +100,7 @@ ENCODINGS_TEXT = ", ".join(
         f"mono{_alternatives(_DEPTHS)}",
         f"{_alternatives(_COLOUR_CHANNELS)}{_alternatives(_DEPTHS)}",
         *YUV422_LUMA_BYTE,
+        *SEMIPLANAR_YUV420,
         f"bayer_{_alternatives(BAYER_PATTERNS)}{_alternatives(_BAYER_BITS)}",
     ]
 )
@@ -130,6 +139,11 @@ _POINT_FIELD_DTYPES: dict[int, np.dtype] = {
 _HOST_IS_BIGENDIAN = sys.byteorder == "big"
 
 
+def _chroma_rows(encoding: str, height: int) -> int:
+    """Rows of ``step`` bytes an image's data holds after its ``height`` rows of pixels."""
+    return (height + 1) // 2 if encoding in SEMIPLANAR_YUV420 else 0
+
+
 def image_to_array(msg: Image, max_pixels: int | None = None) -> np.ndarray:
     """View the pixels of a sensor_msgs/Image as a numpy array.
 
@@ -142,14 +156,15 @@ def image_to_array(msg: Image, max_pixels: int | None = None) -> np.ndarray:
 
     Returns:
         (height, width) uint8/uint16 for mono and Bayer encodings (the mosaic as
-        it is), (height, width, C) uint8/uint16 in the message's own channel (or
-        byte) order for colour and packed YUV ones. The array shares memory with
-        ``msg.data`` unless a byte swap was needed.
+        it is) and the luma plane of semi-planar YUV; (height, width, C)
+        uint8/uint16 in the message's own channel (or byte) order for colour and
+        packed YUV ones. The array shares memory with ``msg.data`` unless a byte
+        swap was needed.
 
     Raises:
         ImageError: unsupported encoding, empty image, more than ``max_pixels``,
             ``step`` shorter than a row, or ``data`` length different from
-            ``height * step``.
+            ``height * step`` (semi-planar YUV: with its chroma rows).
     """
     if msg.encoding not in ENCODINGS:
         raise ImageError(
@@ -167,9 +182,11 @@ def image_to_array(msg: Image, max_pixels: int | None = None) -> np.ndarray:
             f"step {step} B is shorter than one row of {width} {msg.encoding} pixels "
             f"({row_bytes} B)"
         )
-    if len(msg.data) != height * step:
+    chroma = _chroma_rows(msg.encoding, height)
+    if len(msg.data) != (height + chroma) * step:
+        rows = f"(height {height} + {chroma} chroma rows)" if chroma else f"height {height}"
         raise ImageError(
-            f"data holds {len(msg.data)} B but height {height} x step {step} = {height * step} B"
+            f"data holds {len(msg.data)} B but {rows} x step {step} = {(height + chroma) * step} B"
         )
     if dtype.itemsize > 1 and bool(msg.is_bigendian) != _HOST_IS_BIGENDIAN:
         dtype = dtype.newbyteorder()
@@ -194,8 +211,9 @@ def image_to_detector_input(msg: Image, max_pixels: int | None = None) -> np.nda
         (H, W) uint8/uint16 or (H, W, 3|4) uint8/uint16 BGR(A); RGB(A) input is
         reordered, a Bayer mosaic demosaiced to grey
         (:func:`~marker_localizer.core.image.bayer_to_grey`, as cv_bridge does), packed
-        YUV read as its luma (:data:`YUV422_LUMA_BYTE`): the markers are black and
-        white, and grey is all the detector reads of a colour frame.
+        YUV read as its luma (:data:`YUV422_LUMA_BYTE`, :data:`SEMIPLANAR_YUV420`):
+        the markers are black and white, and grey is all the detector reads of a
+        colour frame.
 
     Raises:
         ImageError: as :func:`image_to_array`.
@@ -246,7 +264,8 @@ def array_to_image(pixels: np.ndarray, encoding: str, header: Header | None = No
 
     Args:
         pixels: (H, W) or (H, W, C) array whose dtype and channel count match
-            ``encoding``.
+            ``encoding``; for semi-planar YUV, the luma plane (its chroma is
+            written neutral).
         encoding: one of :data:`ENCODINGS`.
         header: copied into the message; an empty header if None.
 
@@ -271,8 +290,10 @@ def array_to_image(pixels: np.ndarray, encoding: str, header: Header | None = No
     msg.encoding = encoding
     msg.is_bigendian = _HOST_IS_BIGENDIAN
     msg.step = msg.width * channels * dtype.itemsize
+    # Semi-planar YUV's chroma rows follow its luma, neutral: the pixels are its grey.
+    chroma = bytes([_NEUTRAL_CHROMA]) * (_chroma_rows(encoding, msg.height) * msg.step)
     # array.array('B', bytes) copies once through frombytes(); a list would be per-byte slow.
-    msg.data = array.array("B", np.ascontiguousarray(pixels).tobytes())
+    msg.data = array.array("B", np.ascontiguousarray(pixels).tobytes() + chroma)
     return msg
 
 

@@ -3,8 +3,8 @@
 Topics, relative to the node's namespace and remappable as usual:
 
 * in ``<cam>/image_raw`` (sensor_msgs/Image: one of
-  :data:`~marker_localizer.ros.conversions.ENCODINGS`: packed YUV read as its luma,
-  a raw Bayer mosaic as grey), or with ``image_transport`` = ``compressed``,
+  :data:`~marker_localizer.ros.conversions.ENCODINGS`: YUV read as its luma, a raw
+  Bayer mosaic as grey), or with ``image_transport`` = ``compressed``,
   ``<cam>/image_raw/compressed`` (sensor_msgs/CompressedImage, JPEG or PNG). QoS
   reliable, keep-last 1. Measured on this stack (two processes, default Fast
   DDS): a best-effort subscription receives none of the 1.2 MB or 12 MB images a

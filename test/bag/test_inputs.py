@@ -204,8 +204,9 @@ def test_replay_reads_a_cameras_raw_bayer_frames_as_grey(tmp_path):
     )
 
 
-def test_replay_reads_packed_yuv_frames_by_their_luma(tmp_path):
-    # A USB camera's frames: luma and a chroma sample a pixel, in either byte order.
+def test_replay_reads_packed_and_semi_planar_yuv_frames_by_their_luma(tmp_path):
+    # A USB camera's frames (luma and a chroma sample a pixel, in either byte order), and
+    # an OAK camera's (the luma plane, then the chroma rows).
     luma = marker_frame().round().astype(np.uint8)
     chroma = np.random.default_rng(2).integers(0, 256, luma.shape).astype(np.uint8)
     assert_replay_finds_the_marker_in_each_camera(
@@ -213,5 +214,6 @@ def test_replay_reads_packed_yuv_frames_by_their_luma(tmp_path):
         {
             "cam0": array_to_image(np.dstack([chroma, luma]), "uyvy"),
             "cam1": array_to_image(np.dstack([luma, chroma]), "yuv422_yuy2"),
+            "cam2": array_to_image(luma, "nv21"),
         },
     )

@@ -18,6 +18,7 @@ from marker_localizer.ros.conversions import (
     BAYER_ENCODINGS,
     CLOUD_FIELDS,
     ENCODINGS,
+    SEMIPLANAR_YUV420,
     YUV422_LUMA_BYTE,
     array_to_image,
     cloud_to_array,
@@ -37,10 +38,16 @@ def pixels_for(encoding: str, height: int = 5, width: int = 7) -> np.ndarray:
 
 
 def padded_message(pixels: np.ndarray, encoding: str, pad: int, bigendian: bool) -> Image:
-    """An Image whose rows carry ``pad`` garbage bytes, in the byte order asked for."""
+    """An Image whose rows carry ``pad`` garbage bytes, in the byte order asked for.
+
+    Semi-planar YUV's chroma rows (one for every two of ``pixels``, its luma) are random.
+    """
     order = ">" if bigendian else "<"
     rows = pixels.astype(pixels.dtype.newbyteorder(order)).reshape(pixels.shape[0], -1)
     raw = rows.view(np.uint8).reshape(pixels.shape[0], -1)
+    if encoding in SEMIPLANAR_YUV420:
+        chroma = np.random.default_rng(4).integers(0, 256, ((len(raw) + 1) // 2, raw.shape[1]))
+        raw = np.vstack([raw, chroma.astype(np.uint8)])
     padded = np.hstack([raw, np.full((raw.shape[0], pad), 0xAB, np.uint8)])
     return Image(
         header=HEADER,
@@ -138,10 +145,21 @@ def test_detector_finds_the_exact_centre_through_every_encoding(encoding):
     assert np.hypot(found.x - 31.5, found.y - 31.5) < tolerance_px
 
 
+def test_semi_planar_yuv_is_read_as_its_luma_plane_and_its_chroma_rows_must_be_there():
+    luma = x_marker_64()
+    msg = padded_message(luma, "nv12", pad=6, bigendian=False)
+    np.testing.assert_array_equal(image_to_detector_input(msg), luma)
+    # A driver's 4:2:0 frame of 64 rows holds 96 rows of data (sensor_msgs' scaling of 1.5).
+    assert len(msg.data) == 96 * msg.step
+    msg.data = msg.data[: 64 * msg.step]
+    with pytest.raises(ImageError, match=r"but \(height 64 \+ 32 chroma rows\) x step 70"):
+        image_to_array(msg)
+
+
 @pytest.mark.parametrize(
     ("change", "match"),
     [
-        ({"encoding": "nv12"}, r"unsupported encoding 'nv12'"),
+        ({"encoding": "nv24"}, r"unsupported encoding 'nv24'"),
         ({"encoding": "32FC1"}, r"unsupported encoding '32FC1'"),
         ({"height": 0, "data": array.array("B")}, r"empty image \(7x0\)"),
         ({"width": 0}, r"empty image \(0x5\)"),

@@ -96,10 +96,10 @@ def test_camera_that_never_sent_a_frame_is_error_after_the_timeout_only():
 
 def test_failed_frame_keeps_the_camera_at_error_for_one_window():
     stats, now = healthy_camera()
-    stats.frame_failed(now, "ImageError: unsupported encoding 'nv12'")
+    stats.frame_failed(now, "ImageError: unsupported encoding 'nv24'")
     level, message = camera_level(stats.snapshot(now + S // 2), LIMITS)
     assert level == ERROR
-    assert "unsupported encoding 'nv12'" in message
+    assert "unsupported encoding 'nv24'" in message
     for i in range(25):  # frames keep coming, all good
         stats.frame_received(now + (i + 1) * S // 2, stamp_ns=now + (i + 1) * S // 2)
     assert camera_level(stats.snapshot(now + 12 * S), LIMITS)[0] == OK

@@ -59,7 +59,8 @@ def test_node_publishes_empty_cloud_when_frame_has_no_marker(localizer, tester):
 
 
 @pytest.mark.parametrize(
-    "encoding", ["mono16", "bgr8", "rgb8", "rgba16", "yuyv", "bayer_rggb8", "bayer_gbrg16"]
+    "encoding",
+    ["mono16", "bgr8", "rgb8", "rgba16", "yuyv", "nv12", "bayer_rggb8", "bayer_gbrg16"],
 )
 def test_node_reads_colour_16_bit_yuv_and_raw_bayer_frames(localizer, tester, encoding):
     tester.listen("cam3/marker_points", PointCloud2)
@@ -71,6 +72,7 @@ def test_node_reads_colour_16_bit_yuv_and_raw_bayer_frames(localizer, tester, en
         "rgb8": np.dstack([grey] * 3),
         "rgba16": np.dstack([words] * 3 + [np.full_like(words, 7)]),  # any alpha
         "yuyv": np.dstack([grey, np.full_like(grey, 128)]),  # luma, then neutral chroma
+        "nv12": grey,  # the luma plane; the chroma rows follow it, neutral
         "bayer_rggb8": grey,  # a grey scene through a sensor of equal channel gains
         "bayer_gbrg16": words,
     }[encoding]

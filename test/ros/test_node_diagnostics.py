@@ -129,7 +129,7 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros,
         tester.listen("cam4/marker_points", PointCloud2)
         small = x_marker_64()
         bad_encoding = tester.frame(np.zeros((48, 64), np.uint8))
-        bad_encoding.encoding = "nv12"
+        bad_encoding.encoding = "nv24"
         truncated = tester.frame(small)
         truncated.data = truncated.data[: len(truncated.data) // 2]
         tester.publish("cam3/image_raw", bad_encoding)
@@ -190,7 +190,7 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros,
 
         wait_until(drops_logged, "the node logging cam1's drops with their reason")
         assert statuses["cam2"].message.startswith("no frame since start")
-        assert "unsupported encoding 'nv12'" in statuses["cam3"].message
+        assert "unsupported encoding 'nv24'" in statuses["cam3"].message
         assert "data holds 2048 B" in values_of(statuses["cam4"])["last error"]
         node_status = statuses["diag_localizer"]
         assert level_of(node_status) == ERROR
