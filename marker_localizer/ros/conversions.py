@@ -58,7 +58,7 @@ BAYER_ENCODINGS: dict[str, str] = {
 #: (OpenCV's ``COLOR_YUV2GRAY_UYVY`` and ``_YUY2``), with no filter across pixels to
 #: move an X's centre.
 YUV422_LUMA_BYTE: dict[str, int] = {"uyvy": 1, "yuv422": 1, "yuyv": 0, "yuv422_yuy2": 0}
-#: Semi-planar YUV 4:2:0 encodings (OAK / DepthAI and Jetson cameras): a plane of
+#: Semi-planar YUV 4:2:0 encodings (DepthAI's OAK cameras publish nv12): a plane of
 #: ``height`` luma rows, then one row of interleaved chroma for every two (sensor_msgs'
 #: height scaling of 1.5), each ``step`` bytes. The luma plane is the grey, read in
 #: place.
