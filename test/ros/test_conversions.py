@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
+from node_testing import x_marker_64
 from numpy.lib import recfunctions
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Image, PointCloud2, PointField
@@ -58,13 +59,6 @@ def padded_message(pixels: np.ndarray, encoding: str, pad: int, bigendian: bool)
         step=padded.shape[1],
         data=array.array("B", padded.tobytes()),
     )
-
-
-def x_marker_64() -> np.ndarray:
-    """The analytic X of the Detector docstring: exact centre (31.5, 31.5)."""
-    image = np.full((64, 64), 200, np.uint8)
-    image[:32, :32] = image[32:, 32:] = 30
-    return cv2.GaussianBlur(image, (0, 0), 1.0)
 
 
 @pytest.mark.parametrize("encoding", sorted(ENCODINGS))

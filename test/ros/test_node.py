@@ -23,6 +23,7 @@ from rclpy.qos import ReliabilityPolicy
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
+from marker_localizer.ros.conversions import BAYER_ENCODINGS
 from marker_localizer.ros.diagnostics import OK, WARN
 from marker_localizer.ros.node import MarkerLocalizerNode
 
@@ -85,7 +86,7 @@ def test_node_reads_colour_16_bit_yuv_and_raw_bayer_frames(localizer, tester, en
     tester.publish(f"{camera}/image_raw", frame)
     cloud = tester.result_for(f"{camera}/marker_points", frame.header)
     # Demosaicing weighs the channels differently at each pixel of a Bayer cell.
-    tolerance_px = 0.03 if encoding.startswith("bayer_") else 1e-3
+    tolerance_px = 0.03 if encoding in BAYER_ENCODINGS else 1e-3
     np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=tolerance_px)
 
 
