@@ -124,14 +124,6 @@ TEXTURE_SCORE_FLOORS = ((6.0, 0.92), (TEXTURE_EXTENT_PX, 0.88))
 #: next rungs at 5-30 and 6-40 px: 7.07 and 8.49). A rung lower, at 6, the false
 #: points come back (measured: docs/accuracy.md, the summary's "Uneven light (g)").
 EQUALISED_MIN_EXTENT_PX = 7.0
-#: A duller bright sector that holds less than this share of the brighter one's
-#: contrast over the dark level is raised to the brighter one's level, not the brighter
-#: lowered to it (:func:`equalise_bright_sectors`). Lowered, the ring would keep less
-#: than half its contrast, and the dark sectors' own difference (the light's slope
-#: across the X) would move the mid-level crossings of the four-sector test by tens
-#: of degrees; raised, the ring keeps its contrast. Measured: docs/accuracy.md, "A
-#: dull quadrant raised, not the bright one lowered".
-RAISE_DULL_BELOW_SHARE = 0.5
 #: ... and a rung under it, the smallest where a candidate read again from the light
 #: slope's centre counts, if the marker's model vouches for it too (a dull quadrant
 #: leaves a marker of 5-8 px equalised rings to 3.5-7 px even at its true centre;
@@ -422,21 +414,17 @@ def _nearest_ring(
 
 
 def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Ring profiles with their two bright sectors brought to one level.
+    """Ring profiles with the brighter bright sector scaled down to the duller one's level.
 
     A marker whose bright quadrants differ (a dull one: wear, dirt, sheen) is
-    point-symmetric in its geometry but not in its grey levels; with one bright
-    sector scaled about the ring's dark level to match the other, its ring reads as
-    that of an X of one paint. The duller level is the highest that two opposite
-    samples both reach; the brighter sector is the run of samples above halfway to
-    it from the dark level that holds the ring's maximum, the duller sector the run
-    opposite it (on the [1, 2, 1]-smoothed profile). The brighter sector is scaled
-    down to the duller level, or, where the duller holds less than
-    :data:`RAISE_DULL_BELOW_SHARE` of the brighter one's contrast, the duller
-    sector up to the brighter level. A sector's shape is kept, only its contrast
-    scaled: a texture saddle's bright stones differ in shape as well as level, and
-    stay asymmetric. Rings whose maximum is not in such a run (no dark sample
-    either side) are left as they are.
+    point-symmetric in its geometry but not in its grey levels; scaled about the
+    ring's dark level to match the duller sector, its ring reads as that of an X of
+    one paint. The duller level is the highest that two opposite samples both
+    reach; the brighter sector is the run of samples above halfway to it from the
+    dark level that holds the ring's maximum (on the [1, 2, 1]-smoothed profile).
+    A sector's shape is kept, only its contrast scaled: a texture saddle's bright
+    stones differ in shape as well as level, and stay asymmetric. Rings whose
+    maximum is not in such a run (no dark sample either side) are left as they are.
 
     Args:
         profiles: (..., 36) ring samples, NaN where the ring leaves the image.
@@ -452,23 +440,11 @@ def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64
     # Each sample's angle from the ring's maximum, which sits at the half turn.
     turned = _TURNED_FROM[top]
     low = smooth <= (0.5 * (dark + duller))[:, None]
-    before, after = low & (turned < _HALF_TURN), low & (turned > _HALF_TURN)
-    start = np.where(before, turned, np.int8(-1)).max(axis=1)
-    stop = np.where(after, turned, np.int8(N_ANGLES)).min(axis=1)
+    start = np.where(low & (turned < _HALF_TURN), turned, np.int8(-1)).max(axis=1)
+    stop = np.where(low & (turned > _HALF_TURN), turned, np.int8(N_ANGLES)).min(axis=1)
     scalable = (start >= 0) & (stop < N_ANGLES) & (duller > dark)
-    # The run scaled, the brighter sector unless the duller one is raised.
-    run = (turned > start[:, None]) & (turned < stop[:, None])
+    sector = scalable[:, None] & (turned > start[:, None]) & (turned < stop[:, None])
     gain = (duller - dark) / np.maximum(peak - dark, 1e-12)
-    raised = gain < RAISE_DULL_BELOW_SHARE
-    if raised.any():
-        # The duller sector runs from the half turn opposite the maximum out to the
-        # first dark samples either side of it.
-        first = np.where(before, turned, np.int8(N_ANGLES)).min(axis=1)
-        last = np.where(after, turned, np.int8(-1)).max(axis=1)
-        duller_sector = (turned < first[:, None]) | (turned > last[:, None])
-        run = np.where(raised[:, None], duller_sector, run)
-        gain = np.where(raised, 1.0 / np.maximum(gain, 1e-12), gain)
-    sector = scalable[:, None] & run
     scaled = rings - dark[:, None]
     scaled *= gain[:, None]
     scaled += dark[:, None]
