@@ -305,6 +305,15 @@ def test_held_out_frames_are_other_seeds_of_the_chosen_families_read_by_ours_alo
     )
 
 
+def test_held_out_frames_of_d_include_its_12_mp_variant():
+    options = accuracy.Options(frames=1, families=("d", "heldout"), curvature=False)
+    printed: list[str] = []
+    held_out = accuracy.run_heldout(options, printed.append)
+    assert set(held_out) == {"rendered (d)", "rendered (d) 4096x3000"}
+    assert held_out["rendered (d) 4096x3000"]["truth"] == 24
+    assert "rendered (d) 4096x3000" in printed[0]
+
+
 def test_negatives_count_every_detection_per_frame_and_per_megapixel():
     frames = [real_data.UasFrame(str(i), np.zeros((1000, 500), np.uint8)) for i in range(2)]
     (row,) = accuracy.evaluate_negatives(
