@@ -25,8 +25,8 @@ from marker_localizer.core.pipeline import Detector
 from marker_localizer.overlay import draw_detections
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
 
-#: Marker radii the simulated rig produces (8.4-17.3 px; 15 at nadir), with the margin
-#: of the default's smallest radius: the one input a user of the detector gives.
+#: Marker radii the simulated rig produces (8.4-17.3 px; 15 at nadir), widened to the
+#: default's smallest radius: the one input a user of the detector gives.
 DEMO_RADIUS_RANGE_PX = (4.0, 30.0)
 
 

@@ -180,7 +180,6 @@ def test_a_tighter_correct_radius_range_keeps_the_flight_simulators_tilted_marke
             detector.detect(camera.image).as_array()[:, :2], distance_upper_bound=2.0
         )
         found.append(set(index[np.isfinite(distance)].tolist()))
-    assert len(found[0]) == len(camera.markers)
     assert found[0] <= found[1]
 
 
