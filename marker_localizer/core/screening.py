@@ -145,6 +145,8 @@ _NOISE_CONTRAST_FACTOR = 6.0
 #: (a quarter disk of radius r_min) are noise: a 60-degree tilt halves a quadrant.
 _MIN_DOMAIN_QUADRANT_FRACTION = 0.25
 
+#: ``scale_px`` of the full-resolution level's candidates, px; level L's is 2**L times it.
+LEVEL_SCALE_PX = 4.0
 #: Smallest half-width (level px) of a foreshortened marker at the first level searched:
 #: below ~1.5 px the 5x5 Sobel kernels' smoothing mixes the quadrants with the plate.
 MIN_LEVEL_RADIUS_PX = 1.5
@@ -529,10 +531,25 @@ def candidate_scale(level: int, radius_range_px: tuple[float, float]) -> float:
     The first level searched also holds markers smaller than its typical radius,
     down to the smallest expected: their centre checks must fit inside them.
     """
-    scale = 4.0 * 2**level
+    scale = LEVEL_SCALE_PX * 2**level
     if level == saddle_levels(radius_range_px).start:
-        scale = min(scale, max(radius_range_px[0], 4.0))
+        scale = min(scale, max(radius_range_px[0], LEVEL_SCALE_PX))
     return cast("float", scale)
+
+
+def level_scale(scale_px: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N,) the scale 4 * 2**L of the level that found candidates of ``scale_px``, px.
+
+    :func:`candidate_scale` caps the first level's scale at the smallest expected
+    radius, which is at least 3/4 of it (that level still spans the radius
+    foreshortened by a 60-degree tilt), so the level's own scale is the next at or
+    above. A scale under the full resolution's (no level gives one) is its own.
+    """
+    octaves = np.ceil(np.log2(np.maximum(scale_px, LEVEL_SCALE_PX) / LEVEL_SCALE_PX))
+    return cast(
+        "NDArray[np.float64]",
+        np.where(scale_px > LEVEL_SCALE_PX, LEVEL_SCALE_PX * 2.0**octaves, scale_px),
+    )
 
 
 class CellCap(NamedTuple):

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from marker_localizer.core import template
 from marker_localizer.core.sampling import Normaliser, bilinear, in_blocks, nan_median
-from marker_localizer.core.screening import Candidates, parabolic_offset
+from marker_localizer.core.screening import Candidates, level_scale, parabolic_offset
 
 N_ANGLES = 36  # the paper's 10-degree sampling of the annulus
 #: Smallest LSD window side, px: smaller windows are enlarged so that the edges of a
@@ -2147,16 +2147,29 @@ def prescreen_ring_radii(
 
     :data:`PRESCREEN_RINGS` times the scale, at least :data:`PRESCREEN_MIN_RING_PX`
     or :data:`PRESCREEN_MIN_RING_FRACTION` of the smallest expected radius,
-    whichever is less.
+    whichever is less; and no ring smaller than the smallest one of the scale of
+    the level that found the candidate (:func:`screening.level_scale`).
+
+    That last floor is :data:`PRESCREEN_MIN_RING_PX`'s reason at a coarser level:
+    a candidate lies as far off a marker's centre as its level's pixels allow,
+    however small the range made its scale. From a smallest radius of 6 px the
+    half-resolution level's candidates are given 6 px, not 8, and their 2.1 px ring
+    failed on strong tilted markers (signal-to-noise ratio 120-210) whose candidate
+    lay 0.3-0.9 px off; held to the level's own 2.8 px, the held-out frames of (a)
+    and (c) gave 278 -> 280 and 272 -> 275 markers of 288, with 3 -> 3 and 1 -> 2
+    false points (docs/accuracy.md, "The prescreen's rings at the level's own
+    scale").
 
     Args:
         scale_px: (N,) the candidates' scales, px.
         min_radius_px: the smallest expected marker radius, px.
     """
     floor_px = min(PRESCREEN_MIN_RING_PX, PRESCREEN_MIN_RING_FRACTION * min_radius_px)
+    rings = np.array(PRESCREEN_RINGS)
+    radii = np.maximum(scale_px[:, None] * rings, floor_px)
     return cast(
         "NDArray[np.float64]",
-        np.maximum(scale_px[:, None] * np.array(PRESCREEN_RINGS), floor_px),
+        np.maximum(radii, rings.min() * level_scale(scale_px)[:, None]),
     )
 
 

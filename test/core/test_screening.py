@@ -90,6 +90,15 @@ def test_saddle_levels_start_at_full_resolution_only_for_small_markers():
     assert screening.saddle_levels((3.0, 40.0)).stop >= 4
 
 
+def test_a_candidates_level_scale_is_that_of_the_level_that_found_it_uncapped():
+    scales = np.array([2.5, 4.0, 6.0, 8.0, 12.0, 16.0])
+    np.testing.assert_array_equal(screening.level_scale(scales), [2.5, 4.0, 8.0, 8.0, 16.0, 16.0])
+    for r_min, r_max in ((6.0, 40.0), (7.0, 24.0), (12.0, 60.0), (3.0, 30.0)):
+        for level in screening.saddle_levels((r_min, r_max)):
+            scale = np.array([screening.candidate_scale(level, (r_min, r_max))])
+            assert screening.level_scale(scale)[0] == screening.LEVEL_SCALE_PX * 2**level
+
+
 def _polygon(corners: list[tuple[float, float]], per_side: int = 12) -> np.ndarray:
     """Points along a closed polygon, ``per_side`` per side, corners included."""
     corners_ = np.array(corners, dtype=float)
