@@ -2153,11 +2153,9 @@ def prescreen_ring_radii(
     That last floor is :data:`PRESCREEN_MIN_RING_PX`'s reason at a coarser level:
     a candidate lies as far off a marker's centre as its level's pixels allow,
     however small the range made its scale. From a smallest radius of 6 px the
-    half-resolution level's candidates are given 6 px, not 8, and their 2.1 px ring
-    failed on strong tilted markers (signal-to-noise ratio 120-210) whose candidate
-    lay 0.3-0.9 px off; held to the level's own 2.8 px, the held-out frames of (a)
-    and (c) gave 278 -> 280 and 272 -> 275 markers of 288, with 3 -> 3 and 1 -> 2
-    false points (docs/accuracy.md, "The prescreen's rings at the level's own
+    half-resolution level's candidates are given 6 px, not 8, and their inner ring
+    of 2.1 px (2.8 px now) failed on strong tilted markers whose candidate lay up
+    to 0.9 px off (docs/accuracy.md, "The prescreen's rings at the level's own
     scale").
 
     Args:

@@ -173,7 +173,7 @@ def test_a_tighter_correct_radius_range_keeps_the_flight_simulators_tilted_marke
 
     The rig shows its markers at 8.4-17.3 px, so both ranges are correct. From a
     6 px minimum the first level searched is the pyramid's second, whose candidates
-    for these steeply seen markers lie 0.6-0.9 px off. On seed 11's view the
+    for these steeply seen markers lie 0.6-0.8 px off. On seed 11's view the
     prescreen's rings, held to that level's own scale, still show the X. Not yet
     true on seed 19's: at half resolution the marker's saddle response splits
     between its X and its plate's edges, and no ring around the candidate shows the

@@ -325,7 +325,7 @@ def test_a_capped_candidates_prescreen_rings_are_no_smaller_than_its_levels_own(
     # From a 6 px minimum the half-resolution level's candidates are given 6 px, not 8:
     # their outer rings shrink to fit the smallest marker, the inner one stays at 8 px's.
     capped, own = verification.prescreen_ring_radii(np.array([6.0, 8.0]), min_radius_px=6.0)
-    np.testing.assert_allclose(capped, [3.0, 0.35 * 8.0, 3.6])
+    np.testing.assert_allclose(capped, [3.0, 2.8, 3.6])
     np.testing.assert_allclose(own, 8.0 * np.array(verification.PRESCREEN_RINGS))
 
 
