@@ -161,7 +161,7 @@ _TIGHTER_RANGE_VIEWS = [
         id="seed 19: a 9.0 px marker, 5.2 px at its shortest",
         marks=pytest.mark.xfail(
             strict=True,
-            reason="issue 12, item 5: the half-resolution level does not resolve the marker",
+            reason="issue 12, item 5: the half-resolution candidate lies 0.8 px off",
         ),
     ),
 ]
@@ -175,11 +175,11 @@ def test_a_tighter_correct_radius_range_keeps_the_flight_simulators_tilted_marke
     6 px minimum the first level searched is the pyramid's second, whose candidates
     for these steeply seen markers lie 0.6-0.8 px off. On seed 11's view the
     prescreen's rings, held to that level's own scale, still show the X. Not yet
-    true on seed 19's: at half resolution the marker's saddle response splits
-    between its X and its plate's edges, and no ring around the candidate shows the
-    X; from 4 px the full-resolution level finds it (docs/accuracy.md, "The
-    prescreen's rings at the level's own scale"). Strict: the fix that makes it
-    pass removes the mark.
+    true on seed 19's: at half resolution the marker's saddle peak is narrower than
+    a level pixel, the parabolas that place it leave the candidate 0.8 px off, and
+    no ring around it shows the X; from 4 px the full-resolution level finds it
+    (docs/accuracy.md, "The prescreen's rings at the level's own scale"). Strict:
+    the fix that makes it pass removes the mark.
     """
     seed, n_frames, frame, camera_index = view
     flight = FlightSimulator(FlightConfig(width=1280, height=960, n_frames=n_frames), seed=seed)
