@@ -98,6 +98,61 @@ def parabolic_offset(
     return np.clip(offset, -0.5, 0.5)
 
 
+#: (row, column) offsets of the eight neighbours a peak's refinement reads: left, right,
+#: above and below first (the parabolas'), then the diagonals.
+_NEIGHBOURS: tuple[tuple[int, int], ...] = (
+    (0, -1),
+    (0, 1),
+    (-1, 0),
+    (1, 0),
+    (-1, -1),
+    (-1, 1),
+    (1, -1),
+    (1, 1),
+)
+#: A peak whose lowest edge neighbour's response is at most this share of its own is
+#: narrower than the grid samples (a Gaussian of sigma 0.6 px or less): a parabola
+#: through three samples misplaces its vertex, the centroid of the positive response
+#: over the 3x3 does not.
+NARROW_PEAK_SHARE = 0.25
+
+
+def _neighbour_steps(width: int) -> list[int]:
+    """Flat index steps to :data:`_NEIGHBOURS` in rows of ``width``."""
+    return [d_row * width + d_col for d_row, d_col in _NEIGHBOURS]
+
+
+def peak_offset(
+    centre: NDArray[np.floating[Any]],
+    neighbours: NDArray[np.floating[Any]],
+    narrow_by_centroid: bool = True,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(dx, dy) sub-sample offsets of 3x3 response peaks, within half a sample.
+
+    A parabola per axis where the peak is at least as wide as the grid; where an edge
+    neighbour falls to :data:`NARROW_PEAK_SHARE` of the peak or under (and
+    ``narrow_by_centroid``), the centroid of the positive response over the 3x3.
+
+    Args:
+        centre: (N,) the peaks' responses.
+        neighbours: (N, 8) the responses at :data:`_NEIGHBOURS`.
+        narrow_by_centroid: place narrow peaks at their centroid; False: parabolas
+            for every peak.
+    """
+    left, right, up, down = neighbours[:, :4].T
+    dx = parabolic_offset(left, centre, right).astype(np.float64)
+    dy = parabolic_offset(up, centre, down).astype(np.float64)
+    narrow = narrow_by_centroid & (neighbours[:, :4].min(axis=1) <= NARROW_PEAK_SHARE * centre)
+    if narrow.any():
+        weight = np.maximum(neighbours[narrow].astype(np.float64), 0.0)
+        total = weight.sum(axis=1) + centre[narrow]
+        columns = np.array([d_col for _, d_col in _NEIGHBOURS], np.float64)
+        rows = np.array([d_row for d_row, _ in _NEIGHBOURS], np.float64)
+        dx[narrow] = np.clip(weight @ columns / total, -0.5, 0.5)
+        dy[narrow] = np.clip(weight @ rows / total, -0.5, 0.5)
+    return dx, dy
+
+
 #: Gain of OpenCV's 5x5 Sobel second-derivative kernels (f_xx, f_yy, f_xy alike):
 #: [1 0 -2 0 1] (4 f'') times the [1 4 6 4 1] smoothing (16).
 _SOBEL5_GAIN = 64.0
@@ -278,8 +333,8 @@ class _Strip(NamedTuple):
         flat_index: (N,) ascending flat indices in the level of the peaks of at
             least the bound.
         values: (N,) their responses.
-        neighbours: (N, 4) float32 responses of the pixels left, right, above and
-            below each.
+        neighbours: (N, 8) float32 responses of the pixels around each, in the
+            order of :data:`_NEIGHBOURS`.
         unexamined: the strip's pixels above the threshold but below the bound.
         response: the strip's own rows of response, where kept (a sampled strip's,
             to count them again); None: dropped, so that the next strip reuses the
@@ -330,9 +385,7 @@ def _strip_peaks(
     local, value = _local_maxima(strip[above - first : below - first], _limit(rows, bound))
     # The neighbours the peaks' sub-pixel refinement reads, while the strip is at hand.
     flat = strip[above - first :].reshape(-1)
-    neighbours = np.stack(
-        [flat[local - 1], flat[local + 1], flat[local - width], flat[local + width]], axis=1
-    )
+    neighbours = np.stack([flat[local + step] for step in _neighbour_steps(width)], axis=1)
     own = threshold if np.ndim(threshold) == 0 else threshold[start:stop]  # type: ignore[index]
     response = strip[start - first : stop - first]
     return _Strip(
@@ -360,8 +413,8 @@ class SaddlePeaks(NamedTuple):
         shape: (H, W) of the image.
         flat_index: (N,) ascending flat indices of the peaks listed.
         values: (N,) their responses.
-        neighbours: (N, 4) float32 responses of the pixels left, right, above and
-            below each.
+        neighbours: (N, 8) float32 responses of the pixels around each, in the
+            order of :data:`_NEIGHBOURS`.
         bound: every peak of at least this response is listed (0: every peak).
         unexamined: pixels above the threshold but below the bound, never
             compared with their neighbours.
@@ -433,7 +486,9 @@ def saddle_peaks(
         (height, width),
         np.concatenate([np.zeros(0, np.intp), *(strip.flat_index for strip in strips)]),
         np.concatenate([np.zeros(0, np.float32), *(strip.values for strip in strips)]),
-        np.concatenate([np.zeros((0, 4), np.float32), *(strip.neighbours for strip in strips)]),
+        np.concatenate(
+            [np.zeros((0, len(_NEIGHBOURS)), np.float32), *(strip.neighbours for strip in strips)]
+        ),
         bound,
         sum(strip.unexamined for strip in strips),
     )
@@ -728,14 +783,19 @@ class _LevelPeaks(NamedTuple):
         )
 
     def refined(self, chosen: NDArray[np.intp] | None) -> Candidates:
-        """Candidates at the listed peaks ``chosen`` (all: None), refined by parabolas."""
+        """Candidates at the listed peaks ``chosen`` (all: None), refined (:func:`peak_offset`)."""
         every = slice(None)
         peak = self.peaks.flat_index[every if chosen is None else chosen]
         centre = self.peaks.values[every if chosen is None else chosen]
-        left, right, up, down = self.peaks.neighbours[every if chosen is None else chosen].T
         rows, cols = np.divmod(peak, self.peaks.shape[1])
-        dx = parabolic_offset(left, centre, right)
-        dy = parabolic_offset(up, centre, down)
+        # Centroids only on a level whose scale the range capped (:func:`candidate_scale`),
+        # which holds markers narrower than its own. On the others they lost markers
+        # with a dull quadrant, whose lopsided response pulls the centroid (docs/
+        # accuracy.md, "The saddle peaks' centroid").
+        capped = self.scale_px < LEVEL_SCALE_PX * 2**self.level
+        dx, dy = peak_offset(
+            centre, self.peaks.neighbours[every if chosen is None else chosen], capped
+        )
         xy = self._to_frame(cols, rows, dx, dy)
         strength = np.sqrt(centre.astype(np.float64)) / self.expected
         return Candidates(xy, strength, np.full(len(peak), self.scale_px))
@@ -854,7 +914,7 @@ def saddle_candidates(
     A peak is kept when its response exceeds ``relative_threshold`` times what an
     X of contrast ``min_contrast`` blurred by 1.5 px would give at that level, so
     the threshold follows the user's contrast in grey levels. Peaks are refined to
-    sub-sample precision with a parabola per axis. At the first level, the
+    sub-sample precision (:func:`peak_offset`). At the first level, the
     midpoints of peak pairs that may be one split peak join them
     (:func:`split_peak_midpoints`).
 

@@ -156,12 +156,13 @@ def test_a_tighter_correct_radius_range_never_loses_a_marker():
 
 _TIGHTER_RANGE_VIEWS = [
     pytest.param((11, 8, 1, 4), id="seed 11: a 9.4 px marker, 5.6 px at its shortest"),
+    pytest.param((19, 4, 3, 3), id="seed 19: a 9.0 px marker, 5.2 px at its shortest"),
     pytest.param(
-        (19, 4, 3, 3),
-        id="seed 19: a 9.0 px marker, 5.2 px at its shortest",
+        (37, 4, 0, 4),
+        id="seed 37: a 9.1 px marker, 5.4 px at its shortest",
         marks=pytest.mark.xfail(
             strict=True,
-            reason="issue 12, item 5: the half-resolution candidate lies 0.8 px off",
+            reason="issue 12, item 5: the rings from 3 px read the X to 12 px, past the marker",
         ),
     ),
 ]
@@ -172,14 +173,15 @@ def test_a_tighter_correct_radius_range_keeps_the_flight_simulators_tilted_marke
     """Issue 12, item 5, on the flight simulator's rig: 6-24 px instead of 4-30 px.
 
     The rig shows its markers at 8.4-17.3 px, so both ranges are correct. From a
-    6 px minimum the first level searched is the pyramid's second, whose candidates
-    for these steeply seen markers lie 0.6-0.8 px off. On seed 11's view the
-    prescreen's rings, held to that level's own scale, still show the X. Not yet
-    true on seed 19's: at half resolution the marker's saddle peak is narrower than
-    a level pixel, the parabolas that place it leave the candidate 0.8 px off, and
-    no ring around it shows the X; from 4 px the full-resolution level finds it
-    (docs/accuracy.md, "The prescreen's rings at the level's own scale"). Strict:
-    the fix that makes it pass removes the mark.
+    6 px minimum the first level searched is the pyramid's second, and these
+    steeply seen markers are narrow for it. Seed 11's candidate lies 0.6 px off:
+    the prescreen's rings, held to the level's own scale, still show its X. Seed
+    19's saddle peak is narrower than a level pixel, where parabolas left its
+    candidate 0.8 px off; its centroid places it 0.23 px off. Not yet true on
+    seed 37's view: its candidate lies 0.03 px off, but the rings of a range from
+    3 px read its X on to 12 px, past the marker, where the template does not
+    match; those from 2 px stop at 8 (docs/accuracy.md, "The saddle peaks'
+    centroid"). Strict: the fix that makes it pass removes the mark.
     """
     seed, n_frames, frame, camera_index = view
     flight = FlightSimulator(FlightConfig(width=1280, height=960, n_frames=n_frames), seed=seed)
@@ -725,15 +727,24 @@ def test_tracking_confirms_markers_half_a_pixel_off_by_the_template_decision(clu
     on_marker = cKDTree(scene.centres).query(detected.as_array()[:, :2])[0] < 0.1
     full = [d for d, hit in zip(detected, on_marker, strict=True) if hit]
     assert len(full) >= 0.9 * len(scene.centres)
-    located = detector.locate(
-        scene.image,
-        np.array([[d.x + 0.4, d.y - 0.3] for d in full]),
-        np.array([d.radius_px for d in full]),
-        np.array([[d.angle1, d.angle2] for d in full]),
-        np.array([d.evidence for d in full]),
-    )
-    assert len(located) == len(full)
-    distance, _ = cKDTree([(d.x, d.y) for d in full]).query(located.as_array()[:, :2])
+
+    def located(offset: tuple[float, float]) -> pipeline.DetectionResult:
+        return detector.locate(
+            scene.image,
+            np.array([[d.x + offset[0], d.y + offset[1]] for d in full]),
+            np.array([d.radius_px for d in full]),
+            np.array([[d.angle1, d.angle2] for d in full]),
+            np.array([d.evidence for d in full]),
+        )
+
+    # The detection starts its fit from the candidate's scale, tracking from the
+    # extent found: a marker at its threshold (one here, scoring 0.924) may fall
+    # either side. Every marker tracking confirms where it was found, it confirms
+    # from half a pixel off.
+    in_place, off = located((0.0, 0.0)), located((0.4, -0.3))
+    assert len(in_place) >= len(full) - 1
+    assert len(off) == len(in_place)
+    distance, _ = cKDTree([(d.x, d.y) for d in full]).query(off.as_array()[:, :2])
     # Not to the fit's tolerance: its pixels reach as far as the extent measured from
     # each start, and a few pixels more or less move the optimum by hundredths.
     assert distance.max() < 0.03

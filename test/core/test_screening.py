@@ -99,6 +99,26 @@ def test_a_candidates_level_scale_is_that_of_the_level_that_found_it_uncapped():
             assert screening.level_scale(scale)[0] == screening.LEVEL_SCALE_PX * 2**level
 
 
+def _sampled_peak(sigma: float, x: float, y: float) -> tuple[np.ndarray, np.ndarray]:
+    """A Gaussian peak at (x, y) sampled at a pixel and its eight neighbours (centre, (1, 8))."""
+    steps = [(0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)]
+    value = [np.exp(-((col - x) ** 2 + (row - y) ** 2) / (2 * sigma**2)) for row, col in steps]
+    return np.array([np.exp(-(x**2 + y**2) / (2 * sigma**2))]), np.array([value])
+
+
+def test_a_peak_narrower_than_the_grid_is_placed_by_its_centroid_a_broad_one_by_parabolas():
+    centre, neighbours = _sampled_peak(0.5, 0.3, -0.2)
+    dx, dy = screening.peak_offset(centre, neighbours)
+    assert abs(dx[0] - 0.3) < 0.03 and abs(dy[0] + 0.2) < 0.03
+    # A parabola through three samples of so narrow a peak falls halfway short.
+    assert screening.parabolic_offset(neighbours[:, 0], centre, neighbours[:, 1])[0] < 0.15
+    centre, neighbours = _sampled_peak(1.5, 0.3, -0.2)
+    dx, dy = screening.peak_offset(centre, neighbours)
+    assert dx[0] == screening.parabolic_offset(neighbours[:, 0], centre, neighbours[:, 1])[0]
+    assert dy[0] == screening.parabolic_offset(neighbours[:, 2], centre, neighbours[:, 3])[0]
+    assert abs(dx[0] - 0.3) < 0.03 and abs(dy[0] + 0.2) < 0.03
+
+
 def _polygon(corners: list[tuple[float, float]], per_side: int = 12) -> np.ndarray:
     """Points along a closed polygon, ``per_side`` per side, corners included."""
     corners_ = np.array(corners, dtype=float)
@@ -327,9 +347,10 @@ def test_the_response_and_peaks_found_strip_by_strip_are_those_of_the_whole_imag
 
 
 def _neighbours(response, peaks):
-    """(N, 4) the responses left, right, above and below each peak."""
-    flat, width = response.reshape(-1), response.shape[1]
-    return np.stack([flat[peaks + step] for step in (-1, 1, -width, width)], axis=1)
+    """(N, 8) the responses left, right, above and below each peak, then its diagonals."""
+    rows, cols = np.divmod(peaks, response.shape[1])
+    steps = [(0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)]
+    return np.stack([response[rows + d_row, cols + d_col] for d_row, d_col in steps], axis=1)
 
 
 @pytest.mark.parametrize("at_least", [0.0, 300.0**2])
