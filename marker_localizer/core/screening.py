@@ -112,8 +112,8 @@ _NEIGHBOURS: tuple[tuple[int, int], ...] = (
 )
 #: A peak whose lowest edge neighbour's response is at most this share of its own is
 #: narrower than the grid samples (a Gaussian of sigma 0.6 px or less): a parabola
-#: through three samples misplaces its vertex, the centroid of the positive response
-#: over the 3x3 does not.
+#: through three samples falls short of its vertex (by half of a 0.3 px offset at
+#: sigma 0.5), the centroid of the positive response over the 3x3 much less.
 NARROW_PEAK_SHARE = 0.25
 
 
