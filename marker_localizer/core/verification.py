@@ -54,7 +54,8 @@ RECENTRE_PHASE_ERROR_RAD = np.deg2rad(60.0)
 #: families the first three rings of a marker's run agree within 6 degrees (99 %).
 MAX_LINE_DRIFT_RAD = np.deg2rad(8.0)
 #: Rings of a run see at least this fraction of the candidate's best ring contrast: a
-#: marker's rings keep 0.6 of it and more (99 %, blur and tilt included).
+#: marker's rings keep 0.6 of it and more (99 %, blur and tilt included). A ring under it
+#: lies on the marker's outline or past it (:func:`_past_a_dim_ring`).
 RING_CONTRAST_FRACTION = 0.5
 #: The prescreen's 180-degree self-correlation threshold: lenient, the candidate may
 #: sit a fraction of its scale off the centre.
@@ -728,8 +729,9 @@ def centre_symmetry_check(
 
     A ring is "good" when it has enough contrast, correlates with itself turned
     by 180 degrees at least ``min_symmetry``, shows exactly four sector boundaries
-    in opposite pairs, and its line angles agree with the innermost good ring. A
-    candidate passes when a run of at least two consecutive good rings starts at
+    in opposite pairs, its line angles agree with the innermost good ring, and no
+    good ring inside it was dim (:func:`_past_a_dim_ring`: a dim ring may end a run,
+    not carry it on). A candidate passes when a run of at least two consecutive good rings starts at
     one of the ``max_first_ring`` innermost rings (the X must reach the centre).
 
     Args:
@@ -961,6 +963,22 @@ def _centre_symmetry_check(
     return check.with_rows(further, full)
 
 
+def _past_a_dim_ring(good: NDArray[np.bool_], contrast: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """(N, J) the rings past a dim one, where a run of good rings must end.
+
+    A good ring is dim under :data:`RING_CONTRAST_FRACTION` of the brightest good
+    ring inside it. A marker's rings see its paint's contrast out to its outline;
+    the ring along the outline sees the ground too, dims, and may be the run's last.
+    Rings past it that still show an X read the dark quadrants going on into dark
+    ground: on a steeply seen marker a fifth to a quarter of its contrast, out to
+    rings well past its shortest reach, where the template of that extent does not
+    match it (docs/accuracy.md, "The rings' run ends at a dim ring").
+    """
+    brightest = np.maximum.accumulate(np.where(good, contrast, 0.0), axis=1)
+    dim = good & (contrast < RING_CONTRAST_FRACTION * brightest)
+    return np.cumsum(dim, axis=1) - dim > 0
+
+
 def _ring_runs(
     rings: RingAnalysis,
     radii_px: NDArray[np.float64],
@@ -976,6 +994,7 @@ def _ring_runs(
     """
     n, n_rings = rings.contrast.shape
     good = rings.good(min_contrast, min_symmetry)
+    good &= ~_past_a_dim_ring(good, rings.contrast)
     first = np.argmax(good[:, :max_first_ring], axis=1)
     has_first = good[np.arange(n), first] & good[:, :max_first_ring].any(axis=1)
     reference = rings.line_angles[np.arange(n), first]  # (N, 2)

@@ -137,8 +137,8 @@ def test_a_tighter_correct_radius_range_never_loses_a_marker():
 
     Every marker found with the looser range is found with the tighter one: the
     small-marker score floor follows texture's size, not the range, and the
-    prescreen's rings the level's. Not yet true of every frame: the flight
-    simulator's test below has one it fails on.
+    prescreen's rings the level's. The flight simulator's tilted markers, below,
+    at a tighter range still.
     """
     family = next(f for f in families() if f.key == "a" and not f.variant)
     tight, loose = (
@@ -157,14 +157,7 @@ def test_a_tighter_correct_radius_range_never_loses_a_marker():
 _TIGHTER_RANGE_VIEWS = [
     pytest.param((11, 8, 1, 4), id="seed 11: a 9.4 px marker, 5.6 px at its shortest"),
     pytest.param((19, 4, 3, 3), id="seed 19: a 9.0 px marker, 5.2 px at its shortest"),
-    pytest.param(
-        (37, 4, 0, 4),
-        id="seed 37: a 9.1 px marker, 5.4 px at its shortest",
-        marks=pytest.mark.xfail(
-            strict=True,
-            reason="issue 12, item 5: the rings from 3 px read the X to 12 px, past the marker",
-        ),
-    ),
+    pytest.param((37, 4, 0, 4), id="seed 37: a 9.1 px marker, 5.4 px at its shortest"),
 ]
 
 
@@ -177,11 +170,10 @@ def test_a_tighter_correct_radius_range_keeps_the_flight_simulators_tilted_marke
     steeply seen markers are narrow for it. Seed 11's candidate lies 0.6 px off:
     the prescreen's rings, held to the level's own scale, still show its X. Seed
     19's saddle peak is narrower than a level pixel, where parabolas left its
-    candidate 0.8 px off; its centroid places it 0.23 px off. Not yet true on
-    seed 37's view: its candidate lies 0.03 px off, but the rings of a range from
-    3 px read its X on to 12 px, past the marker, where the template does not
-    match; those from 2 px stop at 8 (docs/accuracy.md, "The saddle peaks'
-    centroid"). Strict: the fix that makes it pass removes the mark.
+    candidate 0.8 px off; its centroid places it 0.23 px off. Seed 37's candidate
+    lies 0.03 px off, and the rings of a range from 3 px show its X on to 12 px,
+    past the marker, at a fifth of its contrast: the run ends at its first dim
+    ring, where the template of that extent matches.
     """
     seed, n_frames, frame, camera_index = view
     flight = FlightSimulator(FlightConfig(width=1280, height=960, n_frames=n_frames), seed=seed)

@@ -46,6 +46,29 @@ def test_symmetry_check_rejects_look_alikes(kind):
     assert not _check(_render(kind)).accepted[0]
 
 
+def _x_fading_at(outline_px: float, contrast_past: float) -> np.ndarray:
+    """An X of contrast 0.6 out to ``outline_px`` and of ``contrast_past`` beyond it."""
+    y, x = np.mgrid[:128, :128] - CENTRE[0, ::-1, None, None]
+    sign = np.sign(np.cos(2.0 * (np.arctan2(y, x) - 0.3)))
+    contrast = np.where(np.hypot(x, y) <= outline_px, 0.6, contrast_past)
+    return cv2.GaussianBlur((0.5 + 0.5 * contrast * sign).astype(np.float32), (0, 0), 1.0)
+
+
+def test_an_xs_run_of_rings_ends_at_its_first_dim_ring():
+    # A marker's dark quadrants on dark ground: its X goes on past the outline at a
+    # fifth of its contrast. The ring along the outline may end the run; the dim
+    # rings past it do not carry it on, as rings of the full contrast do.
+    radii = verification.ring_radii((6.0, 24.0))
+    extent = {
+        past: verification.centre_symmetry_check(
+            _x_fading_at(7.0, past), CENTRE, radii, min_contrast=20 / 255, min_symmetry=0.8
+        ).radius_px[0]
+        for past in (0.12, 0.6)
+    }
+    assert extent[0.12] == radii[radii > 7.0][0]
+    assert extent[0.6] == radii[-1]
+
+
 def test_symmetry_check_measures_the_line_angles():
     rotation = 0.3
     check = _check(_render("checker", rotation=rotation, blur=0.8))
