@@ -976,7 +976,9 @@ def _past_a_dim_ring(good: NDArray[np.bool_], contrast: NDArray[np.float64]) -> 
     """
     brightest = np.maximum.accumulate(np.where(good, contrast, 0.0), axis=1)
     dim = good & (contrast < RING_CONTRAST_FRACTION * brightest)
-    return np.cumsum(dim, axis=1) - dim > 0
+    past = np.zeros_like(dim)
+    past[:, 1:] = np.logical_or.accumulate(dim[:, :-1], axis=1)
+    return past
 
 
 def _ring_runs(
