@@ -730,9 +730,10 @@ def centre_symmetry_check(
     A ring is "good" when it has enough contrast, correlates with itself turned
     by 180 degrees at least ``min_symmetry``, shows exactly four sector boundaries
     in opposite pairs, its line angles agree with the innermost good ring, and no
-    good ring inside it was dim (:func:`_past_a_dim_ring`: a dim ring may end a run,
-    not carry it on). A candidate passes when a run of at least two consecutive good rings starts at
-    one of the ``max_first_ring`` innermost rings (the X must reach the centre).
+    good ring inside it was dim (:func:`_past_a_dim_ring`: a dim ring may end a
+    run, not carry it on). A candidate passes when a run of at least two
+    consecutive good rings starts at one of the ``max_first_ring`` innermost rings
+    (the X must reach the centre).
 
     Args:
         image: (H, W) float image.

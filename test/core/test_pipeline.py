@@ -137,8 +137,8 @@ def test_a_tighter_correct_radius_range_never_loses_a_marker():
 
     Every marker found with the looser range is found with the tighter one: the
     small-marker score floor follows texture's size, not the range, and the
-    prescreen's rings the level's. The flight simulator's tilted markers, below,
-    at a tighter range still.
+    prescreen's rings the level's. Below, the flight simulator's tilted markers
+    are held to it at 6-24 px against 4-30, and (d) at its low end.
     """
     family = next(f for f in families() if f.key == "a" and not f.variant)
     tight, loose = (
@@ -164,8 +164,9 @@ def test_a_tighter_minimum_radius_keeps_the_clutter_familys_small_tilted_markers
     Not yet true. The ring ladder starts at half the smallest radius, so the two
     ranges read a marker on different rungs, and the extent read sets the score
     floor and the modulation gate: seed 106's 8.4 px marker (5.0 px at its
-    shortest) reads 5.66 px from 4 px and 6.4 px from 3.2, under and over the
-    floor's edge at 6 (docs/accuracy.md, "The rings' run ends at a dim ring").
+    shortest) reads 5.66 px on the ladder of a 4 px minimum and 6.4 px on that of
+    3.2 px, under and over the floor's edge at 6 (docs/accuracy.md, "The rings'
+    run ends at a dim ring").
     Strict: the fix that makes it pass removes the mark.
     """
     family = next(f for f in families() if f.key == "d" and not f.variant)
