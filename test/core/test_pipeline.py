@@ -164,9 +164,9 @@ def test_a_tighter_minimum_radius_keeps_the_clutter_familys_small_tilted_markers
     Not yet true. The ring ladder starts at half the smallest radius, so the two
     ranges read a marker on different rungs, and the extent read sets the score
     floor: seed 106's 8.4 px marker (5.0 px at its shortest) reads 4.0 px at
-    4-40, a small marker's floor, and 6.4 px at 3.2-50. Seed 107's fails the
-    modulation gate, which reads X's measured under the smallest radius
-    (docs/accuracy.md, "The rings' run ends at a dim ring").
+    4-40, a small marker's floor, and 6.4 px at 3.2-50. Seed 107's reads 5.66
+    px at 4-40, where the modulation gate reads its paint and fails it, and 4.53
+    px at 3.2-50 (docs/accuracy.md, "The rings' run ends at a dim ring").
     Strict: the fix that makes it pass removes the mark.
     """
     family = next(f for f in families() if f.key == "d" and not f.variant)
