@@ -2,6 +2,7 @@
 
 import dataclasses
 import itertools
+from collections.abc import Iterable
 
 import cv2
 import numpy as np
@@ -11,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench import real_data
-from marker_localizer.bench.accuracy import disc_lattice_frame, families
+from marker_localizer.bench.accuracy import Family, disc_lattice_frame, families
 from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.core import (
     acceptance,
@@ -132,6 +133,22 @@ def _markers_found(detector: Detector, image: np.ndarray, centres: np.ndarray) -
     return set(index[np.isfinite(distance)].tolist())
 
 
+def _found_only_at_the_looser_range(
+    family: Family, looser: tuple[float, float], seeds: Iterable[int]
+) -> list[tuple[int, int]]:
+    """(seed, marker) of the family's frames found at ``looser`` but not at its own range."""
+    given, loose = (
+        Detector(DetectorConfig(marker_radius_min_px=r_min, marker_radius_max_px=r_max))
+        for r_min, r_max in (family.radius_range, looser)
+    )
+    lost = []
+    for seed in seeds:
+        scene = family.render(seed)
+        found = [_markers_found(d, scene.image, scene.centres) for d in (given, loose)]
+        lost += [(seed, k) for k in found[1] - found[0]]
+    return lost
+
+
 def test_a_tighter_correct_radius_range_never_loses_a_marker():
     """Issue 12, item 5: family (a)'s markers (6-40 px) given 6-40 px instead of 4-40 px.
 
@@ -141,17 +158,8 @@ def test_a_tighter_correct_radius_range_never_loses_a_marker():
     are held to it at 6-24 px against 4-30, and (d) at its low end.
     """
     family = next(f for f in families() if f.key == "a" and not f.variant)
-    tight, loose = (
-        Detector(DetectorConfig(marker_radius_min_px=r_min, marker_radius_max_px=40.0))
-        for r_min in (family.radius_range[0], 4.0)
-    )
     assert family.radius_range == (6.0, 40.0)
-    lost = []
-    for seed in range(6):
-        scene = family.render(seed)
-        found = [_markers_found(d, scene.image, scene.centres) for d in (tight, loose)]
-        lost += [(seed, k) for k in found[1] - found[0]]
-    assert lost == []
+    assert _found_only_at_the_looser_range(family, (4.0, 40.0), range(6)) == []
 
 
 @pytest.mark.xfail(
@@ -170,17 +178,8 @@ def test_a_tighter_minimum_radius_keeps_the_clutter_familys_small_tilted_markers
     Strict: the fix that makes it pass removes the mark.
     """
     family = next(f for f in families() if f.key == "d" and not f.variant)
-    tight, loose = (
-        Detector(DetectorConfig(marker_radius_min_px=r_min, marker_radius_max_px=r_max))
-        for r_min, r_max in (family.radius_range, (3.2, 50.0))
-    )
     assert family.radius_range == (4.0, 40.0)
-    lost = []
-    for seed in (106, 107):
-        scene = family.render(seed)
-        found = [_markers_found(d, scene.image, scene.centres) for d in (tight, loose)]
-        lost += [(seed, k) for k in found[1] - found[0]]
-    assert lost == []
+    assert _found_only_at_the_looser_range(family, (3.2, 50.0), (106, 107)) == []
 
 
 _TIGHTER_RANGE_VIEWS = [
