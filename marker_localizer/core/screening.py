@@ -784,18 +784,16 @@ class _LevelPeaks(NamedTuple):
 
     def refined(self, chosen: NDArray[np.intp] | None) -> Candidates:
         """Candidates at the listed peaks ``chosen`` (all: None), refined (:func:`peak_offset`)."""
-        every = slice(None)
-        peak = self.peaks.flat_index[every if chosen is None else chosen]
-        centre = self.peaks.values[every if chosen is None else chosen]
+        listed = slice(None) if chosen is None else chosen
+        peak = self.peaks.flat_index[listed]
+        centre = self.peaks.values[listed]
         rows, cols = np.divmod(peak, self.peaks.shape[1])
         # Centroids only on a level whose scale the range capped (:func:`candidate_scale`),
         # which holds markers narrower than its own. On the others they lost markers
         # with a dull quadrant, whose lopsided response pulls the centroid (docs/
         # accuracy.md, "The saddle peaks' centroid").
         capped = self.scale_px < LEVEL_SCALE_PX * 2**self.level
-        dx, dy = peak_offset(
-            centre, self.peaks.neighbours[every if chosen is None else chosen], capped
-        )
+        dx, dy = peak_offset(centre, self.peaks.neighbours[listed], capped)
         xy = self._to_frame(cols, rows, dx, dy)
         strength = np.sqrt(centre.astype(np.float64)) / self.expected
         return Candidates(xy, strength, np.full(len(peak), self.scale_px))
