@@ -693,7 +693,16 @@ def with_equalised(
 
 
 def ring_radii(radius_range_px: tuple[float, float]) -> NDArray[np.float64]:
-    """Ring radii of the annular scan: a :data:`RING_STEP` progression across the expected radii."""
+    """Ring radii of the annular scan: a :data:`RING_STEP` progression across the expected radii.
+
+    It starts at half the smallest radius (1.5 px at least), so each range reads
+    its own rungs. On one grid for every range, a tighter range would read a subset
+    of a looser one's rungs; but the extent edges (:data:`TEXTURE_SCORE_FLOORS`,
+    :data:`SMALL_EXTENT_FACTOR`, :data:`EQUALISED_MIN_EXTENT_PX`) lie between the
+    rungs of the ranges they were set on, and on such a grid at or next to a rung,
+    where each rung's side trades texture's false points against markers
+    (docs/accuracy.md, "Two more grids").
+    """
     r_min, r_max = radius_range_px
     start = max(1.5, 0.5 * r_min)
     count = int(np.floor(np.log(max(r_max, start) / start) / np.log(RING_STEP))) + 1
