@@ -335,6 +335,21 @@ def test_the_minimum_score_is_min_score_small_for_small_markers_else_the_texture
     np.testing.assert_array_equal(needed, [0.945, 0.92, 0.8])
 
 
+@pytest.mark.parametrize(
+    ("radius_range", "first"), [((4.0, 40.0), 2.0), ((6.0, 24.0), 3.0), ((2.5, 5.0), 1.5)]
+)
+def test_the_ring_ladder_steps_by_root_two_from_half_the_smallest_radius(radius_range, first):
+    # 2.5-5 px starts at the ladder's 1.5 px floor, not at 1.25.
+    radii = verification.ring_radii(radius_range)
+    assert radii[0] == pytest.approx(first)
+    np.testing.assert_allclose(radii[1:] / radii[:-1], verification.RING_STEP)
+    # It ends at its last rung within the largest expected radius (to rounding: 6-24 px
+    # ends at 16.97, its next rung 24.000000000000004).
+    slack = 1.0 + 1e-9
+    assert radii[-1] <= radius_range[1] * slack
+    assert radius_range[1] < radii[-1] * verification.RING_STEP * slack
+
+
 def test_the_prescreen_rings_scale_with_the_candidate_above_a_floor():
     radii = verification.prescreen_ring_radii(np.array([4.0, 16.0]), min_radius_px=6.0)
     np.testing.assert_allclose(radii[1], 16.0 * np.array(verification.PRESCREEN_RINGS))
