@@ -99,16 +99,11 @@ def test_a_candidates_level_scale_is_that_of_the_level_that_found_it_uncapped():
             assert screening.level_scale(scale)[0] == screening.LEVEL_SCALE_PX * 2**level
 
 
-#: (row, column) of a peak's neighbours as the screening lists them: left, right, above,
-#: below, then the diagonals.
-_EIGHT_NEIGHBOURS = [(0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)]
-
-
 def _sampled_peak(sigma: float, x: float, y: float) -> tuple[np.ndarray, np.ndarray]:
     """A Gaussian peak at (x, y) sampled at a pixel and its eight neighbours (centre, (1, 8))."""
     value = [
         np.exp(-((col - x) ** 2 + (row - y) ** 2) / (2 * sigma**2))
-        for row, col in _EIGHT_NEIGHBOURS
+        for row, col in screening._NEIGHBOURS
     ]
     return np.array([np.exp(-(x**2 + y**2) / (2 * sigma**2))]), np.array([value])
 
@@ -357,7 +352,7 @@ def _neighbours(response, peaks):
     """(N, 8) the responses left, right, above and below each peak, then its diagonals."""
     rows, cols = np.divmod(peaks, response.shape[1])
     return np.stack(
-        [response[rows + d_row, cols + d_col] for d_row, d_col in _EIGHT_NEIGHBOURS], axis=1
+        [response[rows + d_row, cols + d_col] for d_row, d_col in screening._NEIGHBOURS], axis=1
     )
 
 
