@@ -2184,10 +2184,11 @@ def prescreen_ring_radii(
     That last floor is :data:`PRESCREEN_MIN_RING_PX`'s reason at a coarser level:
     a candidate lies as far off a marker's centre as its level's pixels allow,
     however small the range made its scale. From a smallest radius of 6 px the
-    half-resolution level's candidates are given 6 px, not 8: an inner ring of
-    0.35 x 6 = 2.1 px failed on strong tilted markers whose candidate lay up to
-    0.9 px off, where the level's own 0.35 x 8 = 2.8 px shows their X
-    (docs/accuracy.md, "The prescreen's rings at the level's own scale").
+    half-resolution level's candidates are given 6 px, not 8: the inner ring of
+    :data:`PRESCREEN_RINGS` at 6 px (2.1 px) failed on strong tilted markers whose
+    candidate lay up to 0.9 px off, where the one at the level's own 8 px (2.8 px)
+    shows their X (docs/accuracy.md, "The prescreen's rings at the level's own
+    scale").
 
     Args:
         scale_px: (N,) the candidates' scales, px.
