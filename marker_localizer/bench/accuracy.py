@@ -22,7 +22,8 @@ in ``<repo>/../shared/data`` (skipped when absent):
 * cirn_uas: both ground targets found per frame, false positives per frame.
 * aerial_negatives: real ground without any marker; false points per frame and
   per megapixel. Beside it, a rendered lattice of bright discs (the ``coins``
-  photograph at a quarter of its size), the ground whose saddles pass for X's.
+  photograph at a quarter to half its size, shaded or flat), the ground whose
+  saddles pass for X's.
 
 A detection matches a truth point within :data:`evaluation.DEFAULT_GATE_PX` (2 px).
 """
@@ -1211,25 +1212,40 @@ def _run_frames_without_markers(
 
 
 #: The disc lattice: the ``coins`` photograph (coins in rows on a dark cloth) shrunk
-#: to this many frame px per photograph px, where its coins become a lattice of bright
-#: discs ~10 px apart; the smallest scale the families draw their ground at.
-DISC_LATTICE_SCALE = 0.25
+#: to this many frame px per photograph px, drawn per frame: the small end of the
+#: scales the families draw their ground at, where its coins become a lattice of
+#: bright discs 10-18 px apart.
+DISC_LATTICE_SCALES = (0.25, 0.45)
+#: Its contrast stretched this many times, drawn per frame, before the levels clip:
+#: from coins shaded as the photograph has them to flat discs with hard edges
+#: (painted studs, lids in rows), whose saddles score higher.
+DISC_LATTICE_STRETCH = (1.0, 1.6)
 #: Its grey levels (dark cloth, bright coins) and read noise, DN.
 DISC_LATTICE_LEVELS = (40.0, 220.0)
 DISC_LATTICE_NOISE_DN = 2.0
 #: Frames of it in a run, and the radius range the detectors are given (family (a)'s).
-#: Its false points come in bursts, by where the photograph is cut: 0-16 a frame over
-#: seeds 0-11, so three frames (0, 1, 0) read 0.33 where twelve read 2.25.
+#: Its false points come in bursts, by where the photograph is cut and by its scale.
 DISC_LATTICE_FRAMES = 12
 DISC_LATTICE_RADIUS_RANGE: RadiusRange = (6.0, 40.0)
 
 
-def disc_lattice_frame(seed: int, shape: tuple[int, int] = (960, 1280)) -> real_data.UasFrame:
-    """A frame of the disc lattice (:data:`DISC_LATTICE_SCALE`): ground only, no marker."""
+def disc_lattice_frame(
+    seed: int,
+    shape: tuple[int, int] = (960, 1280),
+    scales: tuple[float, float] = DISC_LATTICE_SCALES,
+    stretch: tuple[float, float] = DISC_LATTICE_STRETCH,
+) -> real_data.UasFrame:
+    """A frame of the disc lattice (:data:`DISC_LATTICE_SCALES`): ground only, no marker.
+
+    The stretch is drawn from a stream of its own: a frame at one stretch is the
+    same lattice and noise at any other.
+    """
     rng = np.random.default_rng(seed)
-    ground = warped_texture("coins", shape, rng, (DISC_LATTICE_SCALE, DISC_LATTICE_SCALE))
+    ground = warped_texture("coins", shape, rng, scales)
+    gain = np.random.default_rng([seed, 1]).uniform(*stretch)
+    share = np.clip(gain * (ground - ground.min()) / max(float(np.ptp(ground)), 1e-9), 0.0, 1.0)
     dark, bright = DISC_LATTICE_LEVELS
-    level = dark + (bright - dark) * (ground - ground.min()) / max(float(np.ptp(ground)), 1e-9)
+    level = dark + (bright - dark) * share
     level += rng.normal(0.0, DISC_LATTICE_NOISE_DN, shape)
     return real_data.UasFrame(
         f"disc lattice {seed}", np.clip(np.round(level), 0, 255).astype(np.uint8)
@@ -1245,7 +1261,9 @@ def run_disc_lattice(options: Options, report: Callable[[str], None]) -> dict[st
     low, high = DISC_LATTICE_RADIUS_RANGE
     return _run_frames_without_markers(
         f"Rendered ground without markers: a lattice of bright discs (the coins photograph "
-        f"at {DISC_LATTICE_SCALE:g} px per photograph px), {len(frames)} frames "
+        f"at {DISC_LATTICE_SCALES[0]:g}-{DISC_LATTICE_SCALES[1]:g} px per photograph px, its "
+        f"contrast stretched {DISC_LATTICE_STRETCH[0]:g}-{DISC_LATTICE_STRETCH[1]:g} times), "
+        f"{len(frames)} frames "
         f"(1280x960); every detection is a false point; radius range {low:g}-{high:g} px",
         frames,
         DISC_LATTICE_RADIUS_RANGE,

@@ -334,6 +334,19 @@ def test_the_disc_lattice_is_ground_alone_between_its_two_levels_with_a_lattice_
     assert len(hessian.detect(frame.image, accuracy.DISC_LATTICE_RADIUS_RANGE)) > 100
 
 
+def test_a_stretched_disc_lattice_is_the_same_lattice_with_flat_discs():
+    # The stretch has a stream of its own: the lattice and the noise stay, and the
+    # discs' shading clips to the bright level.
+    shaded, flat = (
+        accuracy.disc_lattice_frame(3, scales=(0.3, 0.3), stretch=(gain, gain)).image.astype(float)
+        for gain in (1.0, 1.6)
+    )
+    bright = accuracy.DISC_LATTICE_LEVELS[1]
+    assert (flat >= bright - 5).mean() > 2 * (shaded >= bright - 5).mean()
+    unclipped = flat < bright - 10
+    assert np.corrcoef(shaded[unclipped], flat[unclipped])[0, 1] > 0.99
+
+
 def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
     out = tmp_path / "accuracy.json"
     status = accuracy.main(
