@@ -76,7 +76,9 @@ _JUDGED_TESTS = ("floor", "x_end", "misfit", "quartic")
 #: ``misfit``, that the blurred X explains the detection
 #: (:meth:`acceptance.MarkerModel.explains`); ``quartic``, that the plate model of a
 #: tiny X, or of one that barely clears its floor, explains it no worse than a smooth
-#: surface (:meth:`acceptance.MarkerModel.plate_not_worse`);
+#: surface (:meth:`acceptance.MarkerModel.plate_not_worse`); ``lattice``, after the
+#: last suppression, that the ground does not repeat the detection
+#: (:meth:`acceptance.MarkerModel.stands_alone`);
 #: ``recentring``, the detections once the lost wide candidates are centred again,
 #: and ``shadow``, once they are read again with a shadow's edge divided out: the
 #: two tests that add, :meth:`Detector._recentre_lost` and
@@ -100,6 +102,7 @@ SURVIVOR_TESTS = (
     "quartic",
     "lines",
     "merging",
+    "lattice",
     "recentring",
     "shadow",
     "plate",
@@ -208,7 +211,8 @@ class DetectionResult:
             ``rejected_symmetry``, ``rejected_template``, ``rejected_lines``,
             ``rejected_refinement``, ``rejected_score``, ``rejected_x_end``,
             ``rejected_misfit``, ``rejected_quartic``
-            (:meth:`acceptance.MarkerModel.plate_not_worse`),
+            (:meth:`acceptance.MarkerModel.plate_not_worse`), ``rejected_lattice``
+            (:meth:`acceptance.MarkerModel.stands_alone`),
             ``merged_duplicates``, ``recentred``, ``found_recentred``,
             ``kept_faint`` and ``kept_under_floor`` (X's the modulation gate or
             the fit's score floor rejected that the marker's model vouches for,
@@ -1570,15 +1574,38 @@ class Detector:
         keep = keep[unique]
         result.survivors.append(("merging", fit.xy[keep]))
         keep = keep[np.argsort(-fit.score[keep])]
-        return self._detections(
+        return self._standing_alone(
             frame,
-            fit.xy[keep],
-            fit.sigma[keep],
-            fit.score[keep],
-            radius[keep],
-            angles[keep],
-            score[keep],
+            self._detections(
+                frame,
+                fit.xy[keep],
+                fit.sigma[keep],
+                fit.score[keep],
+                radius[keep],
+                angles[keep],
+                score[keep],
+            ),
         )
+
+    def _standing_alone(self, frame: _Frame, detections: list[Detection]) -> list[Detection]:
+        """The detections whose ground does not repeat them, at their final centres and lines.
+
+        :meth:`acceptance.MarkerModel.stands_alone`; counts ``rejected_lattice``. Read
+        along the lines the default path's final fit measured from the edges: a
+        chessboard's go on beyond the corner within a pixel or two, where the checks'
+        directions, which the paper's refinement reports, may miss them by more.
+        """
+        if self.config.refinement != "symmetry":
+            return detections
+        table = np.array([(d.x, d.y, d.radius_px, d.angle1, d.angle2) for d in detections]).reshape(
+            -1, 5
+        )
+        alone = self._model(frame).stands_alone(table[:, :2], table[:, 2], table[:, 3:])
+        counts = frame.result.counts
+        counts["rejected_lattice"] = counts.get("rejected_lattice", 0) + int((~alone).sum())
+        kept = [detection for detection, keep in zip(detections, alone, strict=True) if keep]
+        frame.result.survivors.append(("lattice", _positions(kept)))
+        return kept
 
     def _gating_fit(
         self,

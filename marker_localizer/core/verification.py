@@ -2104,26 +2104,164 @@ def modulation_beyond_extent(
         radius_px: (N,) extents of the X, px.
         line_angles: (N, 2) line directions, radians.
     """
+    modulation = np.abs(
+        _sector_modulation(image, xy, radius_px, line_angles, (X_END_INSIDE, *X_END_RINGS))
+    )
+    return cast(
+        "NDArray[np.float64]",
+        modulation[:, 1:].mean(axis=1) / np.maximum(modulation[:, 0], 1e-12),
+    )
+
+
+def _sector_modulation(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    factors: tuple[float, ...],
+) -> NDArray[np.float64]:
+    """(N, F) one opposite pair of the X's sectors less the other on rings at ``factors`` extents.
+
+    Mean raw grey levels on each ring: lines not at right angles give the pairs
+    unequal arcs, so a signed mean over the ring would carry its mean level.
+    """
     theta = np.linspace(0.0, 2.0 * np.pi, _X_END_SAMPLES, endpoint=False)
     sign = template.sector_sign(np.cos(theta)[None], np.sin(theta)[None], line_angles)
-    factors = np.array([X_END_INSIDE, *X_END_RINGS])
-    rho = radius_px[:, None, None] * factors[None, :, None]
+    rho = radius_px[:, None, None] * np.asarray(factors)[None, :, None]
     levels, valid = bilinear(
         image,
         xy[:, 0, None, None] + rho * np.cos(theta),
         xy[:, 1, None, None] + rho * np.sin(theta),
     )
-    # The two sector pairs' mean levels apart: lines not at right angles give the
-    # pairs unequal arcs, so a signed mean would carry the ring's mean level.
     pair_means = [
         (levels * weight).sum(axis=2) / np.maximum(weight.sum(axis=2), 1.0)
         for weight in (valid & (sign[:, None, :] > 0), valid & (sign[:, None, :] < 0))
     ]
-    modulation = np.abs(pair_means[0] - pair_means[1])
-    return cast(
-        "NDArray[np.float64]",
-        modulation[:, 1:].mean(axis=1) / np.maximum(modulation[:, 0], 1e-12),
-    )
+    return cast("NDArray[np.float64]", pair_means[0] - pair_means[1])
+
+
+#: Offsets from an X, in extents, where :func:`disk_recurrence` seeks copies of its
+#: disk: from where a copy no longer overlaps the X's own disk (a lone X on flat
+#: grey reads 0.05 from 2, 0.45 from 1.2) out to a lattice's third period when its
+#: discs are an extent or two across.
+RECURRENCE_REACH = (2.0, 3.2)
+#: Radius of the disk :func:`disk_recurrence` correlates, px: a wider X's
+#: neighbourhood is area-reduced to it (its copies lie as many extents away), so
+#: each X costs about the same; 8 px holds some 300 pixels, enough for an NCC.
+_RECURRENCE_RADIUS_PX = 8.0
+
+
+def disk_recurrence(
+    image: NDArray[Any], xy: NDArray[np.float64], radius_px: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """(N,) how well each X's disk recurs on both sides of it: a lattice's period.
+
+    The NCC of the square of the X's extent about its centre with the image at
+    each offset :data:`RECURRENCE_REACH` extents away; at each offset the lower of
+    it and the NCC at the opposite offset (to a pixel), and the highest of those.
+    A lattice repeats its saddles in opposite pairs along its rows, and a
+    marker's ground does not repeat its X. Offsets whose copy, or the opposite
+    one, leaves the image are not read; 0 where none is left.
+
+    Args:
+        image: (H, W) grey image, raw levels.
+        xy: (N, 2) centres.
+        radius_px: (N,) extents of the X's, px.
+    """
+    height, width = image.shape[:2]
+    recurrence = np.zeros(len(xy))
+    far = RECURRENCE_REACH[1]
+    for k, ((x, y), radius) in enumerate(zip(xy, radius_px, strict=True)):
+        shrink = min(1.0, _RECURRENCE_RADIUS_PX / radius)
+        disk = max(1, round(radius * shrink))
+        reach = round((far + 1.0) * radius * shrink)
+        # The neighbourhood area-reduced about the X's centre, as far as the image goes.
+        column, row = round(x * shrink), round(y * shrink)
+        low = (max(0, column - reach), max(0, row - reach))
+        if shrink < 1.0:
+            corner = np.floor(np.array(low) / shrink).astype(int)
+            end = np.ceil((np.array([column, row]) + reach + 1) / shrink).astype(int)
+            crop = image[corner[1] : min(end[1], height), corner[0] : min(end[0], width)]
+            size = (round(crop.shape[1] * shrink), round(crop.shape[0] * shrink))
+            window = cv2.resize(crop.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+        else:
+            window = image[low[1] : row + reach + 1, low[0] : column + reach + 1].astype(np.float32)
+        centre = (column - low[0], row - low[1])
+        if not (
+            disk <= centre[0] < window.shape[1] - disk
+            and disk <= centre[1] < window.shape[0] - disk
+        ):
+            continue
+        patch = window[
+            centre[1] - disk : centre[1] + disk + 1, centre[0] - disk : centre[0] + disk + 1
+        ]
+        ncc = np.nan_to_num(cv2.matchTemplate(window, patch, cv2.TM_CCOEFF_NORMED), nan=-1.0)
+        # The map on a square about the X's own position, -1 where it was not read,
+        # so that turning it half round gives each offset's opposite.
+        span = reach - disk
+        full = np.full((2 * span + 1, 2 * span + 1), -1.0, np.float32)
+        top, left = span - (centre[1] - disk), span - (centre[0] - disk)
+        rows, columns = (
+            min(ncc.shape[0], full.shape[0] - top),
+            min(ncc.shape[1], full.shape[1] - left),
+        )
+        full[top : top + rows, left : left + columns] = ncc[:rows, :columns]
+        opposite = cv2.dilate(np.ascontiguousarray(full[::-1, ::-1]), _OPPOSITE_SLACK)
+        both = np.minimum(full, opposite)[_recurrence_annulus(span, float(radius * shrink))]
+        recurrence[k] = max(float(both.max(initial=0.0)), 0.0)
+    return recurrence
+
+
+#: The opposite offset's reach, a pixel either way: a lattice is warped.
+_OPPOSITE_SLACK = np.ones((3, 3), np.uint8)
+
+
+@functools.lru_cache(maxsize=256)
+def _recurrence_annulus(span: int, extent: float) -> NDArray[np.bool_]:
+    """The offsets of a (2 span + 1)^2 map :data:`RECURRENCE_REACH` extents from its centre."""
+    offset = np.hypot(*(np.mgrid[: 2 * span + 1, : 2 * span + 1] - span)) / extent
+    near, far = RECURRENCE_REACH
+    return cast("NDArray[np.bool_]", (offset >= near) & (offset <= far))
+
+
+#: Reach along each of an X's four half-lines, beyond its extent, where
+#: :func:`line_continuation` reads the step across it, in extents.
+CONTINUATION_REACH = (1.1, 1.9)
+#: Distance of the two samples either side of the line, px: clear of a blurred
+#: edge's middle, within a pixel or two of the line a small angle error moves.
+_CONTINUATION_SIDE_PX = 1.5
+
+
+def line_continuation(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """(N,) how far an X's lines go on as edges beyond its extent: a chessboard's do.
+
+    On each of the four half-lines, the median absolute step across it at
+    :data:`CONTINUATION_REACH` extents, over the X's modulation inside
+    (:data:`X_END_INSIDE`); the largest of the four. A chessboard's corners are
+    joined by straight edges; a marker's lines end on its plate, and the outlines
+    of a lattice's discs bend away from the lines their saddles show.
+
+    Args:
+        image: (H, W) grey image, raw levels.
+        xy: (N, 2) centres.
+        radius_px: (N,) extents of the X's, px.
+        line_angles: (N, 2) line directions, radians.
+    """
+    inside = np.abs(_sector_modulation(image, xy, radius_px, line_angles, (X_END_INSIDE,))[:, 0])
+    directions = np.concatenate([line_angles, line_angles + np.pi], axis=1)[:, :, None]
+    along = np.cos(directions), np.sin(directions)
+    rho = radius_px[:, None, None] * np.linspace(*CONTINUATION_REACH, 9)[None, None, :]
+    x, y = xy[:, 0, None, None] + rho * along[0], xy[:, 1, None, None] + rho * along[1]
+    side_x, side_y = -_CONTINUATION_SIDE_PX * along[1], _CONTINUATION_SIDE_PX * along[0]
+    left, _ = bilinear(image, x + side_x, y + side_y)
+    right, _ = bilinear(image, x - side_x, y - side_y)
+    step = np.median(np.abs(left - right), axis=2).max(axis=1)
+    return cast("NDArray[np.float64]", step / np.maximum(inside, 1e-12))
 
 
 def texture_score_floor(radius_px: NDArray[np.float64], min_score: float) -> NDArray[np.float64]:

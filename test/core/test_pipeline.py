@@ -1050,6 +1050,32 @@ def test_saddles_between_the_discs_of_a_lattice_are_no_xs():
     assert sum(result.counts["rejected_misfit"] for result in results) >= 40
 
 
+def test_a_lattice_of_flat_discs_is_ground_its_saddles_repeated_not_a_field_of_markers(
+    monkeypatch,
+):
+    # Rendered disc lattices (seeds no benchmark table renders) whose saddles fit and
+    # score as X's of 6-12 px: each one's disk recurs on both sides of it.
+    detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
+    frames = [disc_lattice_frame(seed).image for seed in (105, 107, 112)]
+    results = [detector.detect(frame) for frame in frames]
+    monkeypatch.setattr(acceptance, "MIN_LATTICE_RECURRENCE", np.inf)
+    unasked = sum(len(detector.detect(frame)) for frame in frames)
+    assert unasked >= 40
+    assert sum(len(result) for result in results) <= unasked // 4
+    assert sum(result.counts["rejected_lattice"] for result in results) >= unasked // 2
+
+
+def test_markers_and_a_chessboards_corners_stand_alone_as_the_lattice_test_reads_them():
+    # A marker's ground does not repeat its X; a chessboard repeats its corners, but
+    # its lines go on as edges from corner to corner.
+    for family in families():
+        if family.key in ("a", "e") and family.variant == "":
+            detector = _family_detector(family)
+            for seed in (600, 601):
+                result = detector.detect(family.render(seed).image)
+                assert len(result) >= 10 and result.counts["rejected_lattice"] == 0
+
+
 def test_a_shadows_edge_keeps_the_markers_whose_x_alone_leaves_it_unexplained(monkeypatch):
     # Rendered (g) frames of markers of 10-30 px: a hard shadow's edge across a marker
     # is shape the blurred X does not have. With the edge sought nowhere (a reach of

@@ -584,3 +584,26 @@ def test_an_x_of_textures_scale_that_the_plain_rings_show_wide_is_read_equalised
     assert reading.check.accepted[0]
     assert reading.check.radius_px[0] >= verification.EQUALISED_MIN_EXTENT_PX
     assert reading.equalised_x[0]
+
+
+def _corner_image(board: bool) -> np.ndarray:
+    """An X of 16 px at (80, 80), its lines the axes: a chessboard's corner or a lone X."""
+    y, x = np.mgrid[:161, :161] - 80.0
+    if board:
+        paint = (np.floor(x / 16.0) + np.floor(y / 16.0)) % 2
+    else:
+        paint = np.where(np.hypot(x, y) <= 16.0, (x * y > 0).astype(float), 0.5)
+    return cv2.GaussianBlur((40.0 + 160.0 * paint).astype(np.float32), (0, 0), 1.0)
+
+
+def test_a_chessboard_repeats_its_corner_and_joins_it_by_its_lines_and_a_lone_x_neither():
+    centre, extent, lines = np.array([[80.0, 80.0]]), np.array([16.0]), np.array([[0.0, np.pi / 2]])
+    board, lone = _corner_image(board=True), _corner_image(board=False)
+    assert verification.disk_recurrence(board, centre, extent)[0] > 0.9
+    assert verification.disk_recurrence(lone, centre, extent)[0] < 0.3
+    assert verification.line_continuation(board, centre, extent, lines)[0] > 0.5
+    assert verification.line_continuation(lone, centre, extent, lines)[0] < 0.1
+    # By the image's border it reads the copies whose opposite is inside too; an X
+    # whose own disk leaves the image has none.
+    assert verification.disk_recurrence(board, np.array([[20.0, 80.0]]), extent)[0] > 0.9
+    assert verification.disk_recurrence(board, np.array([[4.0, 80.0]]), extent)[0] == 0.0
