@@ -1595,12 +1595,10 @@ class Detector:
         chessboard's go on beyond the corner within a pixel or two, where the checks'
         directions, which the paper's refinement reports, may miss them by more.
         """
-        if self.config.refinement != "symmetry":
-            return detections
-        table = np.array([(d.x, d.y, d.radius_px, d.angle1, d.angle2) for d in detections]).reshape(
-            -1, 5
-        )
-        alone = self._model(frame).stands_alone(table[:, :2], table[:, 2], table[:, 3:])
+        alone: NDArray[np.bool_] = np.ones(len(detections), dtype=bool)
+        if self.config.refinement == "symmetry" and detections:
+            table = np.array([(d.x, d.y, d.radius_px, d.angle1, d.angle2) for d in detections])
+            alone = self._model(frame).stands_alone(table[:, :2], table[:, 2], table[:, 3:])
         counts = frame.result.counts
         counts["rejected_lattice"] = counts.get("rejected_lattice", 0) + int((~alone).sum())
         kept = [detection for detection, keep in zip(detections, alone, strict=True) if keep]
