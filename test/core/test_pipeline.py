@@ -1076,6 +1076,26 @@ def test_markers_and_a_chessboards_corners_stand_alone_as_the_lattice_test_reads
                 assert len(result) >= 10 and result.counts["rejected_lattice"] == 0
 
 
+@pytest.mark.parametrize("spacing", [3.0, 3.5])
+def test_a_grid_of_markers_stands_alone_from_three_and_a_half_radii_apart(spacing):
+    # Identical markers in rows recur on both sides of each as a lattice's saddles
+    # do: 3.5 radii apart (centre to centre) each stands alone, at 3 only those at
+    # the grid's edge do.
+    radius = 12.0
+    placements = [
+        MarkerPlacement(60 + i * spacing * radius, 60 + j * spacing * radius, radius, 0.3)
+        for i in range(5)
+        for j in range(4)
+    ]
+    shape = (round(120 + 3 * spacing * radius), round(120 + 4 * spacing * radius))
+    scene = render_markers(shape, placements, 0, blur_sigma_px=1.0, noise_sigma_dn=2.0)
+    result = Detector(DetectorConfig(marker_radius_min_px=6.0)).detect(scene.image)
+    if spacing >= 3.5:
+        assert len(result) == 20 and result.counts["rejected_lattice"] == 0
+    else:
+        assert result.counts["rejected_lattice"] >= 12
+
+
 def test_a_shadows_edge_keeps_the_markers_whose_x_alone_leaves_it_unexplained(monkeypatch):
     # Rendered (g) frames of markers of 10-30 px: a hard shadow's edge across a marker
     # is shape the blurred X does not have. With the edge sought nowhere (a reach of
