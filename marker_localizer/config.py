@@ -302,6 +302,13 @@ class DetectorConfig:
         0.1,
         20.0,
     )
+    lattice_check: bool = _param(
+        True,
+        "refinement='symmetry': reject a detection whose X recurs on both sides of it, as "
+        "the saddles between discs, studs or lids in rows do, unless its lines go on as a "
+        "chessboard's. Markers laid out in rows are then found from 3.5 radii apart "
+        "(centre to centre); turn it off for a tighter target array.",
+    )
 
     # Section 3.3: sub-pixel location.
     refinement: str = _param(

@@ -1596,7 +1596,7 @@ class Detector:
         directions, which the paper's refinement reports, may miss them by more.
         """
         alone: NDArray[np.bool_] = np.ones(len(detections), dtype=bool)
-        if self.config.refinement == "symmetry" and detections:
+        if self.config.refinement == "symmetry" and self.config.lattice_check and detections:
             table = np.array([(d.x, d.y, d.radius_px, d.angle1, d.angle2) for d in detections])
             alone = self._model(frame).stands_alone(table[:, :2], table[:, 2], table[:, 3:])
         counts = frame.result.counts
