@@ -1590,7 +1590,8 @@ class Detector:
     def _standing_alone(self, frame: _Frame, detections: list[Detection]) -> list[Detection]:
         """The detections whose ground does not repeat them, at their final centres and lines.
 
-        :meth:`acceptance.MarkerModel.stands_alone`; counts ``rejected_lattice``. Read
+        :meth:`acceptance.MarkerModel.stands_alone`, where ``lattice_check`` asks for it;
+        counts ``rejected_lattice``. Read
         along the lines the default path's final fit measured from the edges: a
         chessboard's go on beyond the corner within a pixel or two, where the checks'
         directions, which the paper's refinement reports, may miss them by more.
