@@ -2178,14 +2178,13 @@ def disk_recurrence(
         # The neighbourhood area-reduced about the X's centre, as far as the image goes.
         column, row = round(x * shrink), round(y * shrink)
         low = (max(0, column - reach), max(0, row - reach))
+        corner = np.floor(np.array(low) / shrink).astype(int)
+        end = np.ceil((np.array([column, row]) + reach + 1) / shrink).astype(int)
+        crop = image[corner[1] : min(end[1], height), corner[0] : min(end[0], width)]
+        window: NDArray[Any] = crop.astype(np.float32)
         if shrink < 1.0:
-            corner = np.floor(np.array(low) / shrink).astype(int)
-            end = np.ceil((np.array([column, row]) + reach + 1) / shrink).astype(int)
-            crop = image[corner[1] : min(end[1], height), corner[0] : min(end[0], width)]
             size = (round(crop.shape[1] * shrink), round(crop.shape[0] * shrink))
-            window = cv2.resize(crop.astype(np.float32), size, interpolation=cv2.INTER_AREA)
-        else:
-            window = image[low[1] : row + reach + 1, low[0] : column + reach + 1].astype(np.float32)
+            window = cv2.resize(window, size, interpolation=cv2.INTER_AREA)
         centre = (column - low[0], row - low[1])
         if not (
             disk <= centre[0] < window.shape[1] - disk
