@@ -20,6 +20,9 @@ in ``<repo>/../shared/data`` (skipped when absent):
   found, the paper's Table 1 deviation from OpenCV's refined corners, and the
   reference-free row/column residuals (straight line and projective spacing).
 * cirn_uas: both ground targets found per frame, false positives per frame.
+* rendered markers on real ground: family (a)'s markers and look-alikes drawn on
+  crops of the real frames without a diagonal marker (:func:`real_ground_family`),
+  scored as a rendered family: recall on ground no renderer made.
 * aerial_negatives: real ground without any marker; false points per frame and
   per megapixel. Beside it, a rendered lattice of bright discs (the ``coins``
   photograph at a quarter to half its size, shaded or flat), the ground whose
@@ -51,7 +54,7 @@ from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import DetectionTally
 from marker_localizer.synthetic import RenderedScene, SceneConfig, render_checkerboard, render_scene
 from marker_localizer.synthetic.crlb import X_SNR_BANDS
-from marker_localizer.synthetic.textures import warped_texture
+from marker_localizer.synthetic.textures import GROUND_REFLECTANCE_LIMITS, warped_texture
 
 #: The row every peer is compared with ("peer/ours" = peer mean error / this row's).
 REFERENCE_ROW = "ours (symmetry)"
@@ -69,10 +72,23 @@ REAL_RADIUS_RANGES: dict[str, RadiusRange] = {
     "cirn_uas": (6.0, 24.0),
     "aerial_negatives": (3.0, 30.0),
 }
-#: What ``--families`` can choose: the rendered families, the independent
-#: renderer's frames, the real sets with reference points, the real negatives, the
-#: held-out frames of the rendered families (:func:`run_heldout`).
-FAMILY_KEYS = ("a", "b", "c", "d", "e", "g", "independent", "real", "negatives", "heldout")
+#: What ``--families`` can choose: the rendered families, the rendered markers on
+#: real ground, the independent renderer's frames, the real sets with reference
+#: points, the real negatives, the held-out frames of the rendered families
+#: (:func:`run_heldout`).
+FAMILY_KEYS = (
+    "a",
+    "b",
+    "c",
+    "d",
+    "e",
+    "g",
+    "ground",
+    "independent",
+    "real",
+    "negatives",
+    "heldout",
+)
 #: The held-out frames of a rendered family are those of seeds ``seed * 1000 +
 #: HELDOUT_SEED_OFFSET + i``: far from the family tables' ``seed * 1000 + i``.
 HELDOUT_SEED_OFFSET = 500
@@ -426,6 +442,87 @@ def families() -> list[Family]:
             board_pattern=(10, 10),
         ),
     ]
+
+
+#: A crop of a cirn_uas frame keeps its two targets this far outside it, px: their
+#: plates (about 30 px across) and the blur around them.
+REAL_GROUND_TARGET_CLEARANCE_PX = 60.0
+#: Crops drawn before a frame's targets are declared in the way of every one.
+_REAL_GROUND_TRIES = 100
+
+
+def real_ground_family(root: Path) -> Family | None:
+    """Family (a)'s markers on real ground; None where no marker-free real frame is found.
+
+    Family (a)'s scene (markers, look-alikes, light, blur, noise, JPEG) drawn on a
+    crop of a real frame in place of the renderer's ground photographs: the
+    aerial frames without markers, and cirn_uas's frames away from their two
+    targets. Frame ``seed`` crops real frame ``seed`` modulo their number, where
+    a stream of its own draws (:func:`real_ground_frame`). Its false points are
+    the real ground's and the look-alikes'.
+    """
+    grounds = _real_grounds(root)
+    if not grounds:
+        return None
+    scene = SceneConfig(**_BASE)
+
+    def render(seed: int) -> RenderedScene:
+        return real_ground_frame(scene, grounds, seed)
+
+    return Family(
+        "ground",
+        "(ground) family (a)'s markers and look-alikes drawn on real ground: 1280x960 "
+        f"crops of the {len(grounds)} real frames without a diagonal marker (aerial_negatives, "
+        "cirn_uas away from its targets), their grey levels as the ground's reflectance",
+        (6.0, 40.0),
+        12,
+        2,
+        render,
+        splits=(X_SNR_SPLIT,),
+        scene=scene,
+    )
+
+
+def _real_grounds(root: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(grey frame, (K, 2) points a crop keeps clear of) of every marker-free real frame."""
+    grounds = [(f.image, np.zeros((0, 2))) for f in real_data.iter_aerial_negatives(root)]
+    if (root / "cirn_uas").is_dir():
+        grounds += [(f.image, real_data.CIRN_TARGETS) for f in real_data.iter_cirn_uas(root)]
+    return grounds
+
+
+def real_ground_frame(
+    scene: SceneConfig, grounds: Sequence[tuple[np.ndarray, np.ndarray]], seed: int
+) -> RenderedScene:
+    """``scene`` rendered on a crop of ``grounds[seed % len(grounds)]``, of its frame's size.
+
+    The crop's corner is drawn from its own stream (``[seed, 1]``), so the scene
+    draws its markers as :func:`render_scene` does from ``seed``; it keeps
+    :data:`REAL_GROUND_TARGET_CLEARANCE_PX` from the frame's points to avoid.
+
+    Raises:
+        ConfigError: where no crop of the frame keeps clear of its points.
+    """
+    image, avoid = grounds[seed % len(grounds)]
+    height, width = scene.height, scene.width
+    rng = np.random.default_rng([seed, 1])
+    for _ in range(_REAL_GROUND_TRIES):
+        top = int(rng.integers(0, image.shape[0] - height + 1))
+        left = int(rng.integers(0, image.shape[1] - width + 1))
+        margin = REAL_GROUND_TARGET_CLEARANCE_PX
+        inside = (
+            (avoid[:, 0] > left - margin)
+            & (avoid[:, 0] < left + width + margin)
+            & (avoid[:, 1] > top - margin)
+            & (avoid[:, 1] < top + height + margin)
+        )
+        if not inside.any():
+            break
+    else:
+        raise ConfigError(f"no {width}x{height} crop of real frame {seed % len(grounds)} is clear")
+    crop = image[top : top + height, left : left + width].astype(np.float32) / 255.0
+    ground = np.clip(crop, *GROUND_REFLECTANCE_LIMITS)
+    return render_scene(scene, seed, crlb=True, ground=ground)
 
 
 # --------------------------------------------------------------------------- evaluation
@@ -1046,6 +1143,12 @@ def frames_for(family: Family, options: Options) -> int:
     return family.quick_frames if options.quick else family.frames
 
 
+def _families(options: Options) -> list[Family]:
+    """The rendered families, and family (a) on real ground where the real frames are."""
+    ground = real_ground_family(options.data_root) if options.data_root is not None else None
+    return families() + ([ground] if ground is not None else [])
+
+
 def _detectors(options: Options) -> list[PointDetector]:
     return [*peers.our_variants(options.curvature), *peers.point_detectors()]
 
@@ -1063,7 +1166,7 @@ def run_synthetic(
     """
     detectors = _detectors(options)
     results: dict[str, Any] = {}
-    chosen = [f for f in families() if f.key in options.families]
+    chosen = [f for f in _families(options) if f.key in options.families]
     if chosen:
         report(f"Shared by the {BASE_CONDITIONS}")
     for family in chosen:
@@ -1105,7 +1208,7 @@ def run_heldout(options: Options, report: Callable[[str], None]) -> dict[str, An
     n_frames = options.frames or (2 if options.quick else HELDOUT_FRAMES)
     first = options.seed * 1000 + HELDOUT_SEED_OFFSET
     rows: list[tuple[str, Row]] = []
-    for family in families():
+    for family in _families(options):
         if family.key not in options.families or family.board_pattern:
             continue
         frames = (

@@ -2051,6 +2051,7 @@ def render_scene(
     *,
     crlb: bool = False,
     bound_parts_within: float | None = None,
+    ground: np.ndarray | None = None,
 ) -> RenderedScene:
     """Render a random frame of markers and hard negatives on cluttered ground.
 
@@ -2060,6 +2061,8 @@ def render_scene(
         crlb: Compute each marker's Cramer-Rao bound (see :func:`render_markers`).
         bound_parts_within: Also its bounds with the other parameters unknown (see
             :func:`render_markers`).
+        ground: (height, width) reflectances in [0, 1] to draw on instead of
+            ``config.background`` (a photograph of real ground, say).
 
     Returns:
         The frame and its exact truth.
@@ -2080,7 +2083,7 @@ def render_scene(
         (config.height, config.width),
         placements,
         rng,
-        background=config.background,
+        background=config.background if ground is None else ground,
         contrast=config.contrast,
         blur_sigma_px=float(rng.uniform(*config.blur_sigma_px)),
         motion_blur_px=float(rng.uniform(*config.motion_blur_px)),

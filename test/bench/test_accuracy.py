@@ -17,7 +17,8 @@ from scenes import SMALL_SCENE
 
 from marker_localizer import evaluation
 from marker_localizer.bench import accuracy, peers, real_data
-from marker_localizer.synthetic import render_checkerboard, render_scene
+from marker_localizer.errors import ConfigError
+from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
 from marker_localizer.synthetic.crlb import X_SNR_BANDS
 
 
@@ -347,6 +348,44 @@ def test_a_stretched_disc_lattice_is_the_same_lattice_with_flat_discs():
     assert np.corrcoef(shaded[unclipped], flat[unclipped])[0, 1] > 0.99
 
 
+#: A scene that draws its ground as given: no marker, look-alike, light, blur or noise.
+_BARE_GROUND = SceneConfig(
+    width=160,
+    height=120,
+    n_markers=0,
+    n_hard_negatives=0,
+    blur_sigma_px=(0.0, 0.0),
+    noise_sigma_dn=(0.0, 0.0),
+    shot_noise_gain_dn=(0.0, 0.0),
+    illumination_strength=0.0,
+    n_shadows=0,
+    gamma=(1.0, 1.0),
+    peak_level=(1.0, 1.0),
+)
+
+
+def test_a_frame_on_real_ground_is_a_crop_of_its_real_frame_clear_of_its_targets():
+    real = np.random.default_rng(0).uniform(20, 235, (400, 600)).astype(np.uint8)
+    target = np.array([[300.0, 200.0]])
+    margin = accuracy.REAL_GROUND_TARGET_CLEARANCE_PX
+    for seed in range(6):
+        frame = accuracy.real_ground_frame(_BARE_GROUND, [(real, target)], seed).image
+        _, _, (left, top), _ = cv2.minMaxLoc(cv2.matchTemplate(real, frame, cv2.TM_SQDIFF))
+        crop = real[top : top + frame.shape[0], left : left + frame.shape[1]]
+        assert np.abs(frame.astype(int) - crop).max() <= 1
+        x, y = target[0]
+        assert not (
+            left - margin < x < left + frame.shape[1] + margin
+            and top - margin < y < top + frame.shape[0] + margin
+        )
+
+
+def test_a_real_frame_whose_every_crop_holds_a_target_is_a_config_error():
+    real = np.full((200, 260), 100, np.uint8)
+    with pytest.raises(ConfigError, match="clear"):
+        accuracy.real_ground_frame(_BARE_GROUND, [(real, np.array([[130.0, 100.0]]))], 0)
+
+
 def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
     out = tmp_path / "accuracy.json"
     status = accuracy.main(
@@ -420,6 +459,16 @@ def test_independent_frames_load_with_their_truth_bound_and_radius_range():
     assert ((tiny.radius_px >= 2.5) & (tiny.radius_px <= 5.0)).all()
     height, width = tiny.image.shape
     assert ((tiny.truth >= 0) & (tiny.truth < (width, height))).all()
+
+
+@needs_data
+def test_family_a_on_real_ground_draws_its_markers_and_their_bounds_on_each_real_frame():
+    family = accuracy.real_ground_family(DATA)
+    assert family is not None and family.radius_range == (6.0, 40.0)
+    aerial = len(list(real_data.iter_aerial_negatives(DATA)))
+    scene = family.render(aerial)  # the first cirn_uas frame, away from its targets
+    assert scene.image.shape == (960, 1280) and len(scene.markers) == 12
+    assert np.isfinite(scene.crlb_px).all() and (scene.crlb_px > 0).all()
 
 
 @needs_data
