@@ -464,7 +464,7 @@ def real_ground_family(root: Path) -> Family | None:
     grounds = _real_grounds(root)
     if not grounds:
         return None
-    scene = SceneConfig(**_BASE)
+    scene = next(f.scene for f in families() if f.key == "a" and f.scene is not None)
 
     def render(seed: int) -> RenderedScene:
         return real_ground_frame(scene, grounds, seed)
@@ -485,7 +485,9 @@ def real_ground_family(root: Path) -> Family | None:
 
 def _real_grounds(root: Path) -> list[tuple[np.ndarray, np.ndarray]]:
     """(grey frame, (K, 2) points a crop keeps clear of) of every marker-free real frame."""
-    grounds = [(f.image, np.zeros((0, 2))) for f in real_data.iter_aerial_negatives(root)]
+    grounds: list[tuple[np.ndarray, np.ndarray]] = [
+        (f.image, np.zeros((0, 2))) for f in real_data.iter_aerial_negatives(root)
+    ]
     if (root / "cirn_uas").is_dir():
         grounds += [(f.image, real_data.CIRN_TARGETS) for f in real_data.iter_cirn_uas(root)]
     return grounds
