@@ -581,10 +581,12 @@ class MarkerModel:
           least as well as the best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`),
           or, where its X goes on to a rung out, that of a larger marker there
           (:meth:`plate_a_rung_out`);
-        * every larger detection that clears its score floor by less than
+        * every other detection that clears its score floor by less than
           :data:`PLATE_DOUBT_MARGIN` (``margin``: its score less its floor), where
-          ground texture's false points score: the same, with the model at the X's
-          scale and each bright quadrant's own level (a dull quadrant), read at its
+          ground texture's false points score (of texture's size too, where tiny
+          X's are not read with their plate: a marker tilted to that shortest
+          reach, or a saddle of blurred sand at 6-40 px): the same, with the model
+          at the X's scale and each bright quadrant's own level (a dull quadrant), read at its
           extent and a ring rung out, within :data:`PLATE_DOUBT_MAX_TO_QUARTIC` of
           the quartic's residual, unless another detection lies within
           :data:`BOARD_NEIGHBOUR_EXTENTS` of its extent (a chessboard's corner).
@@ -600,9 +602,9 @@ class MarkerModel:
                 kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
             failed = tiny[~kept[tiny]]
             kept[failed] = self.plate_a_rung_out(xy[failed], radius[failed], angles[failed])
-        close = np.flatnonzero(
-            (radius >= verification.X_END_MAX_EXTENT_PX) & (margin < PLATE_DOUBT_MARGIN)
-        )
+        read_tiny = np.zeros(len(xy), dtype=bool)
+        read_tiny[tiny] = self.reads_plates
+        close = np.flatnonzero(~read_tiny & (margin < PLATE_DOUBT_MARGIN))
         if not len(close):
             return kept
         unheld = close

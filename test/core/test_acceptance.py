@@ -7,6 +7,7 @@ from scenes import faint_tilted_markers
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import acceptance, template, verification
 from marker_localizer.core.noise import NoiseModel, estimate_noise
+from marker_localizer.synthetic import MarkerPlacement, render_markers
 
 _RADIUS_RANGE_PX = (6.0, 40.0)
 
@@ -126,6 +127,31 @@ def test_a_chessboard_corner_that_barely_clears_its_floor_stands_only_beside_ano
     assert not model.plate_not_worse(corners[:1], extent[:1], lines[:1], at_floor[:1])[0]
     assert model.plate_not_worse(corners[:1], extent[:1], lines[:1], clear[:1])[0]
     assert model.plate_not_worse(corners, extent, lines, at_floor).all()
+
+
+def test_an_x_of_texture_size_near_its_floor_shows_its_plate_where_no_tiny_plate_reading_runs():
+    # At a 6 px minimum the tiny markers' plate reading is off, and an X the rings
+    # read at 4.24 px is a marker tilted to that shortest reach or the ground's
+    # saddle: near its floor it shows its plate as a wider X does. A saddle that goes
+    # on without a plate does not; markers of 6 px, face on or tilted to 4.24 and
+    # 3.44 px, both kinds, do.
+    centre, extent, at_floor = np.array([[31.5, 31.5]]), np.array([4.24]), np.zeros(1)
+    yy, xx = np.mgrid[0:64, 0:64] - 31.5
+    lines = np.array([[0.3, 0.3 + np.pi / 2]])
+    s1, s2 = template.line_distances(xx, yy, lines[0])
+    saddle = np.clip(np.round(255.0 * (0.5 + 0.004 * s1 * s2)), 0, 255).astype(np.uint8)
+    assert not _model(saddle).plate_not_worse(centre, extent, lines, at_floor)[0]
+    for seed, (kind, tilt) in enumerate(
+        (kind, tilt) for kind in ("quarter_disks", "checker") for tilt in (0.0, 45.0, 55.0)
+    ):
+        placement = MarkerPlacement(31.5, 31.5, 6.0, 0.3, tilt, 1.0, kind)
+        scene = render_markers((64, 64), [placement], seed, blur_sigma_px=0.8, noise_sigma_dn=1.0)
+        truth = scene.markers[0]
+        angles = np.array([truth.angles])
+        assert _model(scene.image).plate_not_worse(centre, extent, angles, at_floor)[0], (
+            kind,
+            tilt,
+        )
 
 
 def test_score_floors_ask_most_of_texture_sized_xs_and_let_an_ended_one_under_by_the_allowance():
