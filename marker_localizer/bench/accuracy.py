@@ -39,7 +39,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -464,22 +464,21 @@ def real_ground_family(root: Path) -> Family | None:
     grounds = _real_grounds(root)
     if not grounds:
         return None
-    scene = next(f.scene for f in families() if f.key == "a" and f.scene is not None)
+    family = next(f for f in families() if f.key == "a" and not f.variant)
+    scene = family.scene
+    if scene is None:
+        raise ConfigError("family (a) is not drawn from a SceneConfig")
 
     def render(seed: int) -> RenderedScene:
         return real_ground_frame(scene, grounds, seed)
 
-    return Family(
-        "ground",
-        "(ground) family (a)'s markers and look-alikes drawn on real ground: 1280x960 "
+    return replace(
+        family,
+        key="ground",
+        title="(ground) family (a)'s markers and look-alikes drawn on real ground: 1280x960 "
         f"crops of the {len(grounds)} real frames without a diagonal marker (aerial_negatives, "
         "cirn_uas away from its targets), their grey levels as the ground's reflectance",
-        (6.0, 40.0),
-        12,
-        2,
-        render,
-        splits=(X_SNR_SPLIT,),
-        scene=scene,
+        render=render,
     )
 
 
@@ -508,10 +507,10 @@ def real_ground_frame(
     image, avoid = grounds[seed % len(grounds)]
     height, width = scene.height, scene.width
     rng = np.random.default_rng([seed, 1])
+    margin = REAL_GROUND_TARGET_CLEARANCE_PX
     for _ in range(_REAL_GROUND_TRIES):
         top = int(rng.integers(0, image.shape[0] - height + 1))
         left = int(rng.integers(0, image.shape[1] - width + 1))
-        margin = REAL_GROUND_TARGET_CLEARANCE_PX
         inside = (
             (avoid[:, 0] > left - margin)
             & (avoid[:, 0] < left + width + margin)

@@ -585,9 +585,10 @@ class MarkerModel:
           :data:`PLATE_DOUBT_MARGIN` (``margin``: its score less its floor), where
           ground texture's false points score (of texture's size too, where tiny
           X's are not read with their plate: a marker tilted to that shortest
-          reach, or a saddle of blurred sand at 6-40 px): the same, with the model
-          at the X's scale and each bright quadrant's own level (a dull quadrant), read at its
-          extent and a ring rung out, within :data:`PLATE_DOUBT_MAX_TO_QUARTIC` of
+          reach, or a saddle of blurred sand at 6-40 px): the same, with the
+          model at the X's scale and each bright quadrant's own level (a dull
+          quadrant), read at its extent and a ring rung out, within
+          :data:`PLATE_DOUBT_MAX_TO_QUARTIC` of
           the quartic's residual, unless another detection lies within
           :data:`BOARD_NEIGHBOUR_EXTENTS` of its extent (a chessboard's corner).
 
