@@ -1168,6 +1168,8 @@ def run_synthetic(
     detectors = _detectors(options)
     results: dict[str, Any] = {}
     chosen = [f for f in _families(options) if f.key in options.families]
+    if "ground" in options.families and not any(f.key == "ground" for f in chosen):
+        report("Family (a) on real ground: no real frame without markers found, skipped.")
     if chosen:
         report(f"Shared by the {BASE_CONDITIONS}")
     for family in chosen:

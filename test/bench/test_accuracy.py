@@ -400,6 +400,13 @@ def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
     assert table[accuracy.REFERENCE_ROW]["recall"] == 1.0
 
 
+def test_family_a_on_real_ground_says_it_is_skipped_without_the_real_frames():
+    printed: list[str] = []
+    options = accuracy.Options(families=("ground",), data_root=None)
+    assert accuracy.run_synthetic(options, printed.append, []) == {}
+    assert printed == ["Family (a) on real ground: no real frame without markers found, skipped."]
+
+
 # --------------------------------------------------------------------------- real data
 
 
