@@ -34,6 +34,7 @@ A detection matches a truth point within :data:`evaluation.DEFAULT_GATE_PX` (2 p
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 import math
 import time
@@ -482,14 +483,18 @@ def real_ground_family(root: Path) -> Family | None:
     )
 
 
-def _real_grounds(root: Path) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(grey frame, (K, 2) points a crop keeps clear of) of every marker-free real frame."""
+@functools.lru_cache(maxsize=1)
+def _real_grounds(root: Path) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """(grey frame, (K, 2) points a crop keeps clear of) of every marker-free real frame.
+
+    Read once a run: the family tables and the held-out frames both build the family.
+    """
     grounds: list[tuple[np.ndarray, np.ndarray]] = [
         (f.image, np.zeros((0, 2))) for f in real_data.iter_aerial_negatives(root)
     ]
     if (root / "cirn_uas").is_dir():
         grounds += [(f.image, real_data.CIRN_TARGETS) for f in real_data.iter_cirn_uas(root)]
-    return grounds
+    return tuple(grounds)
 
 
 def real_ground_frame(

@@ -64,10 +64,10 @@ MIN_LATTICE_RECURRENCE = 0.75
 #: real boards' 1 615 corners the default finds (ValidationBoof, libcbdetect, pycbd)
 #: read 0.59 and more, the disc lattice's false points that recur 0.14 at most.
 MIN_BOARD_CONTINUATION = 0.3
-#: A detection wider than texture's smallest X's (:data:`verification.X_END_MAX_EXTENT_PX`)
-#: that clears its score floor by less than this must show its plate
-#: (:meth:`MarkerModel.plate_not_worse`): texture's false points clear their floors by
-#: little, and markers whose plate the model misses (a shadow's edge across it) by more.
+#: A detection that clears its score floor by less than this must show its plate
+#: (:meth:`MarkerModel.plate_not_worse`), unless it is a tiny X the tiny markers' plate
+#: reading asks already: texture's false points clear their floors by little, and
+#: markers whose plate the model misses (a shadow's edge across it) by more.
 PLATE_DOUBT_MARGIN = 0.03
 #: Most of the best quartic's residual the plate model may leave on such a detection
 #: (:func:`plate.plate_evidence` at its extent or a rung out, the better of the two).
@@ -588,23 +588,22 @@ class MarkerModel:
           reach, or a saddle of blurred sand at 6-40 px): the same, with the
           model at the X's scale and each bright quadrant's own level (a dull
           quadrant), read at its extent and a ring rung out, within
-          :data:`PLATE_DOUBT_MAX_TO_QUARTIC` of
-          the quartic's residual, unless another detection lies within
-          :data:`BOARD_NEIGHBOUR_EXTENTS` of its extent (a chessboard's corner).
+          :data:`PLATE_DOUBT_MAX_TO_QUARTIC` of the quartic's residual, unless
+          another detection lies within :data:`BOARD_NEIGHBOUR_EXTENTS` of its
+          extent (a chessboard's corner).
 
         NaN (no window) passes. ``xy`` holds every detection of the call, the
         neighbours among them.
         """
         kept: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
-        tiny = np.flatnonzero(radius < verification.X_END_MAX_EXTENT_PX)
-        if self.reads_plates and len(tiny):
+        read_tiny = self.reads_plates & (radius < verification.X_END_MAX_EXTENT_PX)
+        tiny = np.flatnonzero(read_tiny)
+        if len(tiny):
             evidence = plate.plate_evidence(self.gray, xy[tiny], radius[tiny], angles[tiny])
             with np.errstate(invalid="ignore"):
                 kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
             failed = tiny[~kept[tiny]]
             kept[failed] = self.plate_a_rung_out(xy[failed], radius[failed], angles[failed])
-        read_tiny = np.zeros(len(xy), dtype=bool)
-        read_tiny[tiny] = self.reads_plates
         close = np.flatnonzero(~read_tiny & (margin < PLATE_DOUBT_MARGIN))
         if not len(close):
             return kept
