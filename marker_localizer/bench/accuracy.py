@@ -24,9 +24,10 @@ in ``<repo>/../shared/data`` (skipped when absent):
   crops of the real frames without a diagonal marker (:func:`real_ground_family`),
   scored as a rendered family: recall on ground no renderer made.
 * aerial_negatives: real ground without any marker; false points per frame and
-  per megapixel. Beside it, a rendered lattice of bright discs (the ``coins``
-  photograph at a quarter to half its size, shaded or flat), the ground whose
-  saddles pass for X's.
+  per megapixel; and the same frames seen from half the height
+  (:func:`closer_frames`), for the reference row. Beside them, a rendered lattice
+  of bright discs (the ``coins`` photograph at a quarter to half its size, shaded
+  or flat), the ground whose saddles pass for X's.
 
 A detection matches a truth point within :data:`evaluation.DEFAULT_GATE_PX` (2 px).
 """
@@ -39,11 +40,12 @@ import itertools
 import math
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import cv2
 import numpy as np
 
 from marker_localizer import evaluation
@@ -1307,6 +1309,66 @@ def run_negatives(options: Options, report: Callable[[str], None]) -> dict[str, 
     )
 
 
+#: The real aerial frames seen from half the height: resized this many times larger
+#: (bicubic), so that the ground's texture spans twice the pixels and is a little
+#: softer than the photographs' own, as a camera nearer the ground or a lens of twice
+#: the focal length with the same optics would see it ...
+CLOSER_MAGNIFICATION = 2.0
+#: ... with this much read noise added, DN: the resized frame's noise is the
+#: photograph's, smoothed; the nearer camera's own pixels add theirs.
+CLOSER_READ_NOISE_DN = 2.0
+
+
+def closer_frames(frames: Sequence[real_data.UasFrame], seed: int) -> Iterator[real_data.UasFrame]:
+    """``frames`` seen from half the height (:data:`CLOSER_MAGNIFICATION`); noise from ``seed``."""
+    rng = np.random.default_rng([seed, 2])
+    for frame in frames:
+        magnified: np.ndarray = cv2.resize(
+            frame.image.astype(np.float32),
+            None,
+            fx=CLOSER_MAGNIFICATION,
+            fy=CLOSER_MAGNIFICATION,
+            interpolation=cv2.INTER_CUBIC,
+        )
+        magnified = magnified + rng.normal(0.0, CLOSER_READ_NOISE_DN, magnified.shape)
+        yield real_data.UasFrame(frame.name, np.clip(np.rint(magnified), 0, 255).astype(np.uint8))
+
+
+def run_closer_negatives(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
+    """The reference row alone on the real aerial frames seen closer; report the table.
+
+    The aerial frames hold no marker and are 3 of them: a detector's floors may fit
+    their ground at the one scale they show it. Seen from half the height, their sand
+    spans twice the pixels and is a little softer: what a camera flying lower meets.
+    Only the reference row reads them (the peers' points run to tens of thousands a
+    frame there too, docs/accuracy.md, "Every X of texture's size shows its plate").
+    """
+    root = options.data_root
+    if root is None or not (root / "aerial_negatives").is_dir():
+        return {}
+    frames = list(
+        closer_frames(
+            list(real_data.iter_aerial_negatives(root, 1 if options.quick else None)),
+            options.seed,
+        )
+    )
+    reference = [d for d in peers.our_variants(False) if d.name == REFERENCE_ROW]
+    rows = evaluate_negatives(frames, reference, REAL_RADIUS_RANGES["aerial_negatives"])
+    megapixels = sum(f.image.size for f in frames) / 1e6
+    report(
+        negatives_table(
+            f"The same real aerial frames seen from half the height ({REFERENCE_ROW} alone): "
+            f"resized {CLOSER_MAGNIFICATION:g} times (bicubic), {CLOSER_READ_NOISE_DN:g} DN of "
+            f"read noise added; {len(frames)} frames, {megapixels:.1f} MP in all; radius "
+            f"range {_range_text('aerial_negatives')}",
+            rows,
+        )
+    )
+    return {
+        r.name: {k: (v if math.isfinite(v) else None) for k, v in r.extra.items()} for r in rows
+    }
+
+
 def _run_frames_without_markers(
     title: str,
     frames: Sequence[real_data.UasFrame],
@@ -1485,6 +1547,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         results["real"] = run_real(options, report)
     if "negatives" in options.families:
         results["aerial_negatives"] = run_negatives(options, report)
+        results["aerial_negatives_closer"] = run_closer_negatives(options, report)
         results["disc_lattice"] = run_disc_lattice(options, report)
     if summary:
         report(summary_table(summary))

@@ -478,6 +478,35 @@ def test_family_a_on_real_ground_draws_its_markers_and_their_bounds_on_each_real
     assert np.isfinite(scene.crlb_px).all() and (scene.crlb_px > 0).all()
 
 
+def test_real_ground_seen_from_half_the_height_spans_twice_the_pixels_with_its_levels():
+    rng = np.random.default_rng(0)
+    ground = cv2.GaussianBlur(rng.uniform(40, 200, (60, 80)).astype(np.float32), (0, 0), 2.0)
+    frame = real_data.UasFrame("ground", ground.astype(np.uint8))
+    (closer,) = accuracy.closer_frames([frame], seed=0)
+    again = next(accuracy.closer_frames([frame], seed=0))
+    assert closer.image.dtype == np.uint8 and closer.image.shape == (120, 160)
+    assert np.array_equal(closer.image, again.image)
+    shrunk = cv2.resize(closer.image.astype(np.float32), (80, 60), interpolation=cv2.INTER_AREA)
+    assert np.abs(shrunk - frame.image).mean() < 1.5
+    assert abs(closer.image.mean() - frame.image.mean()) < 0.5
+
+
+def test_the_closer_aerial_ground_is_skipped_without_the_real_frames():
+    printed: list[str] = []
+    assert accuracy.run_closer_negatives(accuracy.Options(data_root=None), printed.append) == {}
+    assert printed == []
+
+
+@needs_data
+def test_the_closer_aerial_ground_is_read_by_the_reference_row_alone():
+    printed: list[str] = []
+    options = accuracy.Options(quick=True, families=("negatives",), data_root=DATA)
+    figures = accuracy.run_closer_negatives(options, printed.append)
+    assert list(figures) == [accuracy.REFERENCE_ROW]
+    assert figures[accuracy.REFERENCE_ROW]["fp_per_frame"] >= 0
+    assert "half the height" in printed[0]
+
+
 @needs_data
 def test_each_rendered_family_draws_every_radius_the_independent_family_draws():
     rendered = {f.key: f.radius_range for f in accuracy.families() if not f.variant}
