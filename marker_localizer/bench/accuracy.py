@@ -1341,7 +1341,8 @@ def run_closer_negatives(options: Options, report: Callable[[str], None]) -> dic
     their ground at the one scale they show it. Seen from half the height, their sand
     spans twice the pixels and is a little softer: what a camera flying lower meets.
     Only the reference row reads them (the peers' points run to tens of thousands a
-    frame there too, docs/accuracy.md, "Every X of texture's size shows its plate").
+    frame there too, docs/accuracy.md, "Real sand seen closer, and every X of
+    texture's size asked for its plate").
     """
     root = options.data_root
     if root is None or not (root / "aerial_negatives").is_dir():
