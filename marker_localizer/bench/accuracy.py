@@ -1161,6 +1161,11 @@ def _detectors(options: Options) -> list[PointDetector]:
     return [*peers.our_variants(options.curvature), *peers.point_detectors()]
 
 
+def _reference_detectors() -> list[PointDetector]:
+    """The reference row's detector alone, for the tables no peer's time is spent on."""
+    return [d for d in peers.our_variants(False) if d.name == REFERENCE_ROW]
+
+
 def _reference(rows: Sequence[Row]) -> Row:
     return next(r for r in rows if r.name == REFERENCE_ROW)
 
@@ -1214,7 +1219,7 @@ def run_heldout(options: Options, report: Callable[[str], None]) -> dict[str, An
     accuracy.md, "The coins lattice at the renderer's other scales"). The
     chessboards (e) are left out: their table's eight boards hold 800 corners.
     """
-    reference = [d for d in peers.our_variants(False) if d.name == REFERENCE_ROW]
+    reference = _reference_detectors()
     n_frames = options.frames or (2 if options.quick else HELDOUT_FRAMES)
     first = options.seed * 1000 + HELDOUT_SEED_OFFSET
     rows: list[tuple[str, Row]] = []
@@ -1304,7 +1309,7 @@ def run_negatives(options: Options, report: Callable[[str], None]) -> dict[str, 
         f"radius range {_range_text('aerial_negatives')}",
         frames,
         REAL_RADIUS_RANGES["aerial_negatives"],
-        options,
+        _detectors(options),
         report,
     )
 
@@ -1319,7 +1324,7 @@ CLOSER_MAGNIFICATION = 2.0
 CLOSER_READ_NOISE_DN = 2.0
 
 
-def closer_frames(frames: Sequence[real_data.UasFrame], seed: int) -> Iterator[real_data.UasFrame]:
+def closer_frames(frames: Iterable[real_data.UasFrame], seed: int) -> Iterator[real_data.UasFrame]:
     """``frames`` seen from half the height (:data:`CLOSER_MAGNIFICATION`); noise from ``seed``."""
     rng = np.random.default_rng([seed, 2])
     for frame in frames:
@@ -1349,36 +1354,31 @@ def run_closer_negatives(options: Options, report: Callable[[str], None]) -> dic
         return {}
     frames = list(
         closer_frames(
-            list(real_data.iter_aerial_negatives(root, 1 if options.quick else None)),
-            options.seed,
+            real_data.iter_aerial_negatives(root, 1 if options.quick else None), options.seed
         )
     )
-    reference = [d for d in peers.our_variants(False) if d.name == REFERENCE_ROW]
-    rows = evaluate_negatives(frames, reference, REAL_RADIUS_RANGES["aerial_negatives"])
     megapixels = sum(f.image.size for f in frames) / 1e6
-    report(
-        negatives_table(
-            f"The same real aerial frames seen from half the height ({REFERENCE_ROW} alone): "
-            f"resized {CLOSER_MAGNIFICATION:g} times (bicubic), {CLOSER_READ_NOISE_DN:g} DN of "
-            f"read noise added; {len(frames)} frames, {megapixels:.1f} MP in all; radius "
-            f"range {_range_text('aerial_negatives')}",
-            rows,
-        )
+    return _run_frames_without_markers(
+        f"The same real aerial frames seen from half the height ({REFERENCE_ROW} alone): "
+        f"resized {CLOSER_MAGNIFICATION:g} times (bicubic), {CLOSER_READ_NOISE_DN:g} DN of "
+        f"read noise added; {len(frames)} frames, {megapixels:.1f} MP in all; radius "
+        f"range {_range_text('aerial_negatives')}",
+        frames,
+        REAL_RADIUS_RANGES["aerial_negatives"],
+        _reference_detectors(),
+        report,
     )
-    return {
-        r.name: {k: (v if math.isfinite(v) else None) for k, v in r.extra.items()} for r in rows
-    }
 
 
 def _run_frames_without_markers(
     title: str,
     frames: Sequence[real_data.UasFrame],
     radius_range: RadiusRange,
-    options: Options,
+    detectors: Sequence[PointDetector],
     report: Callable[[str], None],
 ) -> dict[str, Any]:
-    """Every detector on ``frames`` (no marker in them): the table reported, its figures."""
-    rows = evaluate_negatives(frames, _detectors(options), radius_range)
+    """``detectors`` on ``frames`` (no marker in them): the table reported, its figures."""
+    rows = evaluate_negatives(frames, detectors, radius_range)
     report(negatives_table(title, rows))
     return {
         r.name: {k: (v if math.isfinite(v) else None) for k, v in r.extra.items()} for r in rows
@@ -1441,7 +1441,7 @@ def run_disc_lattice(options: Options, report: Callable[[str], None]) -> dict[st
         f"(1280x960); every detection is a false point; radius range {low:g}-{high:g} px",
         frames,
         DISC_LATTICE_RADIUS_RANGE,
-        options,
+        _detectors(options),
         report,
     )
 
