@@ -76,6 +76,14 @@ PLATE_DOUBT_MARGIN = 0.03
 #: leave 0.87-1.07, all but one. Measured: docs/accuracy.md, "A plate that leaves
 #: most of a quartic's residual near the floor".
 PLATE_DOUBT_MAX_TO_QUARTIC = 0.8
+#: Every other detection under this extent, px, shows a plate no worse than a quartic
+#: (:data:`plate.MAX_TO_QUARTIC_ANY`), as the tiny markers' plate reading asks of
+#: its own, whatever its score: texture makes saddles up to this extent
+#: (:data:`verification.TEXTURE_EXTENT_PX`), and real sand blurred a little more
+#: than the aerial frames' own makes them score 0.92-0.96, clear of every floor.
+#: Measured: docs/accuracy.md, "Real sand seen closer, and every X of texture's size
+#: asked for its plate".
+PLATE_ASKED_MAX_EXTENT_PX = verification.TEXTURE_EXTENT_PX
 #: ... unless another detection lies within this many of its extents: a chessboard's
 #: corner, whose squares go on where a plate would end, has its neighbours a square
 #: away, a few extents; texture's false points have none this near.
@@ -428,7 +436,9 @@ class MarkerModel:
         ncc = template.template_correlation(gray, xy[passing], angles[passing], disk).ncc
         matched = ncc >= FAINT_MIN_NCC
         passing, disk, ncc = passing[matched], disk[matched], ncc[matched]
-        plated = self.plate_at_scale(xy[passing], radius[passing], angles[passing])
+        plated = self.plate_at_scale(
+            xy[passing], radius[passing], angles[passing], plate.MAX_TO_QUARTIC
+        )
         with np.errstate(invalid="ignore"):
             held = plated <= plate.MAX_TO_QUARTIC
         passing, disk, ncc = passing[held], disk[held], ncc[held]
@@ -518,7 +528,9 @@ class MarkerModel:
         short = short[beyond > verification.MAX_MODULATION_BEYOND]
         if len(short):
             further = verification.RING_STEP * radius[short]
-            plated = self.plate_at_scale(xy[short], further, angles[short])
+            plated = self.plate_at_scale(
+                xy[short], further, angles[short], plate.MAX_TO_QUARTIC_ANY
+            )
             with np.errstate(invalid="ignore"):
                 shown[short] = ~(plated > plate.MAX_TO_QUARTIC_ANY)
         return shown
@@ -528,15 +540,24 @@ class MarkerModel:
         xy: NDArray[np.float64],
         extent: NDArray[np.float64],
         angles: NDArray[np.float64],
+        bar: float | NDArray[np.float64] | None = None,
     ) -> NDArray[np.float64]:
         """(N,) the plate model's residual over a quartic's, read for an X of ``extent``.
 
         :func:`plate.plate_evidence` with its radii at the X's scale and each bright
         quadrant its own level (a dull quadrant): the plate every test of a marker
-        wider than a tiny one reads. NaN where no window can be read.
+        wider than a tiny one reads. The test's ``bar`` (scalar or (N,)) spares the
+        full search where the coarse one already clears it. NaN where no window can
+        be read.
         """
         return plate.plate_evidence(
-            self.gray, xy, extent, angles, scale_with_extent=True, quadrant_levels=True
+            self.gray,
+            xy,
+            extent,
+            angles,
+            scale_with_extent=True,
+            quadrant_levels=True,
+            enough_to_quartic=bar,
         ).to_quartic
 
     def stands_alone(
@@ -564,6 +585,30 @@ class MarkerModel:
             alone[repeated] = continued >= MIN_BOARD_CONTINUATION
         return alone
 
+    def _plate_worse(
+        self,
+        xy: NDArray[np.float64],
+        scale: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        bar: NDArray[np.float64],
+        unread_passes: bool = True,
+    ) -> NDArray[np.bool_]:
+        """(N,) where :meth:`plate_at_scale` leaves more than ``bar`` of a quartic at both reads.
+
+        Read at ``scale`` and, where that leaves more, a ring rung out: the ring ladder
+        reads an X's extent up to a rung short of its shortest reach, and a window
+        at the extent cuts such a plate short. A window off the image (NaN) passes
+        where ``unread_passes``.
+        """
+        worse: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
+        for rung in (1.0, verification.RING_STEP):
+            rows = np.flatnonzero(worse)
+            if len(rows):
+                plated = self.plate_at_scale(xy[rows], rung * scale[rows], angles[rows], bar[rows])
+                with np.errstate(invalid="ignore"):
+                    worse[rows] = plated > bar[rows] if unread_passes else ~(plated <= bar[rows])
+        return worse
+
     def plate_not_worse(
         self,
         xy: NDArray[np.float64],
@@ -581,40 +626,68 @@ class MarkerModel:
           least as well as the best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`),
           or, where its X goes on to a rung out, that of a larger marker there
           (:meth:`plate_a_rung_out`);
-        * every other detection that clears its score floor by less than
+        * every other detection of texture's size (under
+          :data:`PLATE_ASKED_MAX_EXTENT_PX`: a marker tilted to that shortest
+          reach, or a saddle of blurred sand): the same, with the model at the X's
+          scale and each bright quadrant's own level (a dull quadrant) (:meth:`plate_at_scale`);
+        * every detection that clears its score floor by less than
           :data:`PLATE_DOUBT_MARGIN` (``margin``: its score less its floor), where
-          ground texture's false points score (of texture's size too, where tiny
-          X's are not read with their plate: a marker tilted to that shortest
-          reach, or a saddle of blurred sand at 6-40 px): the same, with the
-          model at the X's scale and each bright quadrant's own level (a dull
-          quadrant), read at its extent and a ring rung out, within
-          :data:`PLATE_DOUBT_MAX_TO_QUARTIC` of the quartic's residual, unless
-          another detection lies within :data:`BOARD_NEIGHBOUR_EXTENTS` of its
-          extent (a chessboard's corner).
+          ground texture's false points score: so read, within
+          :data:`PLATE_DOUBT_MAX_TO_QUARTIC` of the quartic's residual.
 
-        NaN (no window) passes. ``xy`` holds every detection of the call, the
-        neighbours among them.
+        Both read the plate at the X's extent and a ring rung out; the first, where
+        the X reaches farther along its lines (:func:`template.line_reaches`: rings
+        that stopped short of a larger marker), at that reach and a rung out too.
+        Each passes at the best of these, or where another detection lies within
+        :data:`BOARD_NEIGHBOUR_EXTENTS` of its extent (a chessboard's corner).
+
+        NaN (no window) passes at the extent and a rung out, not at the reach.
+        ``xy`` holds every detection of the call, the neighbours among them.
         """
         kept: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
         read_tiny = self.reads_plates & (radius < verification.X_END_MAX_EXTENT_PX)
         tiny = np.flatnonzero(read_tiny)
         if len(tiny):
-            evidence = plate.plate_evidence(self.gray, xy[tiny], radius[tiny], angles[tiny])
+            evidence = plate.plate_evidence(
+                self.gray,
+                xy[tiny],
+                radius[tiny],
+                angles[tiny],
+                enough_to_quartic=plate.MAX_TO_QUARTIC_ANY,
+            )
             with np.errstate(invalid="ignore"):
                 kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)
             failed = tiny[~kept[tiny]]
             kept[failed] = self.plate_a_rung_out(xy[failed], radius[failed], angles[failed])
-        close = np.flatnonzero(~read_tiny & (margin < PLATE_DOUBT_MARGIN))
-        if not len(close):
+        doubted = margin < PLATE_DOUBT_MARGIN
+        unheld = np.flatnonzero(~read_tiny & (doubted | (radius < PLATE_ASKED_MAX_EXTENT_PX)))
+        if not len(unheld):
             return kept
-        unheld = close
-        # The ring ladder reads an X's extent up to a rung short of its shortest reach:
-        # a plate the window at its extent cuts short is read again a rung out.
-        for rung in (1.0, verification.RING_STEP):
-            if len(unheld):
-                plated = self.plate_at_scale(xy[unheld], rung * radius[unheld], angles[unheld])
-                with np.errstate(invalid="ignore"):
-                    unheld = unheld[plated > PLATE_DOUBT_MAX_TO_QUARTIC]
+        bar = np.where(doubted[unheld], PLATE_DOUBT_MAX_TO_QUARTIC, plate.MAX_TO_QUARTIC_ANY)
+        worse = self._plate_worse(xy[unheld], radius[unheld], angles[unheld], bar)
+        unheld, bar = unheld[worse], bar[worse]
+        if len(unheld):
+            # Rings that stop short of a larger marker's X leave its plate beyond a
+            # rung out: one asked for its size alone is read again at the X's own
+            # reach along its lines.
+            reach = template.line_reaches(
+                self.gray, xy[unheld], angles[unheld], radius[unheld], self.max_radius_px
+            )
+            with np.errstate(invalid="ignore"):
+                farther = np.flatnonzero(
+                    (reach > verification.RING_STEP * radius[unheld]) & ~doubted[unheld]
+                )
+            worse = np.ones(len(unheld), dtype=bool)
+            # Only a plate read there spares it: an X whose lines run on out of the
+            # frame has shown none.
+            worse[farther] = self._plate_worse(
+                xy[unheld[farther]],
+                reach[farther],
+                angles[unheld[farther]],
+                bar[farther],
+                unread_passes=False,
+            )
+            unheld = unheld[worse]
         if len(unheld):
             # Every detection is within 0 of itself: a neighbour makes the count 2.
             near = cKDTree(xy).query_ball_point(

@@ -63,6 +63,12 @@ COARSE_BLURS_PX = (0.8, 1.4)
 #: (0.3 loses 7 of 163); 17-24 % of the tiny markers' frames' saddles, 28 % of real
 #: aerial ground's, leave as little.
 COARSE_MAX_TO_QUADRATIC = 0.4
+#: Most pixels a window is read at. A larger window (an X wider than 6 px: its
+#: plate reaches 12 px and more) is read on a grid of every k-th pixel, the least k
+#: that keeps within this: the models' residual sums are compared on the same
+#: pixels, so their ratio keeps its expectation, and the search costs what a 6 px
+#: X's does (its window, 2 extents, 441-457 pixels, is read whole).
+MAX_WINDOW_PIXELS = 480
 #: The window the models are compared on, in extents of the X (the ring check's):
 #: the plate's corners lie at 1.77 radii, and a marker's extent reads up to a rung
 #: (sqrt 2) short of its radius.
@@ -119,6 +125,19 @@ def _disk_offsets(radius_px: float) -> NDArray[np.int64]:
     dy, dx = np.mgrid[-half : half + 1, -half : half + 1]
     inside = np.hypot(dx, dy) <= radius_px
     return np.stack([dx[inside], dy[inside]], 1).astype(np.int64)
+
+
+def _window_offsets(radius_px: float) -> NDArray[np.int64]:
+    """The disk's offsets (:func:`_disk_offsets`), every k-th row and column of them.
+
+    k is the least that leaves at most :data:`MAX_WINDOW_PIXELS` (1 for windows that
+    small).
+    """
+    offsets = _disk_offsets(radius_px)
+    stride = 1
+    while np.count_nonzero(np.all(offsets % stride == 0, axis=1)) > MAX_WINDOW_PIXELS:
+        stride += 1
+    return offsets[np.all(offsets % stride == 0, axis=1)]
 
 
 def _read(
@@ -317,6 +336,7 @@ def plate_evidence(
     line_angles: NDArray[np.float64],
     scale_with_extent: bool = False,
     quadrant_levels: bool = False,
+    enough_to_quartic: float | NDArray[np.float64] | None = None,
 ) -> PlateEvidence:
     """The plate model's residual over the quadratic's and the quartic's, per candidate.
 
@@ -332,22 +352,32 @@ def plate_evidence(
             measures 4-9 px along its lines); False: the tiny markers' radii.
         quadrant_levels: each bright quarter disk its own level (a dull quadrant,
             :func:`_plate_residual`).
+        enough_to_quartic: scalar or (N,): where the coarse search already leaves
+            at most this of the quartic's residual, the full search is spared (a
+            test at that bar is decided); None: every candidate the coarse search
+            leaves room for is searched in full.
 
     Returns:
-        :class:`PlateEvidence`; NaN where the window leaves the image or the lines
-        are nearly parallel, inf where they cross too obliquely for any plate seen
-        within :data:`MAX_TILT_RAD` (:func:`seen_within_max_tilt`). Where the coarse
-        search (:data:`COARSE_RADII_PX`, :data:`COARSE_BLURS_PX`) already leaves more
-        than :data:`COARSE_MAX_TO_QUADRATIC` of the quadratic's residual, its ratios.
+        :class:`PlateEvidence`, the least residual over every shape searched; NaN
+        where the window leaves the image or the lines are nearly parallel, inf
+        where they cross too obliquely for any plate seen within
+        :data:`MAX_TILT_RAD` (:func:`seen_within_max_tilt`). The full search runs
+        only where the coarse one (:data:`COARSE_RADII_PX`, :data:`COARSE_BLURS_PX`)
+        leaves at most :data:`COARSE_MAX_TO_QUADRATIC` of the quadratic's residual.
+        Windows over :data:`MAX_WINDOW_PIXELS` pixels are read on a coarser grid.
     """
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     to_quadratic = np.full(len(xy), np.nan)
     to_quartic = np.full(len(xy), np.nan)
     window = WINDOW_EXTENTS * np.asarray(extent_px, np.float64)
+    enough = np.broadcast_to(
+        -np.inf if enough_to_quartic is None else np.asarray(enough_to_quartic, np.float64),
+        len(xy),
+    )
     # The ring check's extents are rungs of a ladder: one window, one basis per rung.
     for radius in np.unique(window):
         group = np.flatnonzero(window == radius)
-        offsets = _disk_offsets(float(radius))
+        offsets = _window_offsets(float(radius))
         values, inside = _read(image, xy[group], offsets)
         group, values = group[inside], values[inside]
         if not len(group):
@@ -377,7 +407,10 @@ def plate_evidence(
         quartic = _polynomial_residual(values, offsets, 4)
         to_quadratic[group], to_quartic[group] = coarse / quadratic, coarse / quartic
         with np.errstate(invalid="ignore"):
-            full = np.flatnonzero(coarse <= COARSE_MAX_TO_QUADRATIC * quadratic)
+            full = np.flatnonzero(
+                (coarse <= COARSE_MAX_TO_QUADRATIC * quadratic)
+                & ~(coarse <= enough[group] * quartic)
+            )
         if not len(full):
             continue
         plate = np.concatenate(
@@ -394,6 +427,8 @@ def plate_evidence(
                 for s in _blocks(len(full))
             ]
         )
+        # The two grids' blurs differ: a coarse shape may fit better than every full one.
+        plate = np.fmin(plate, coarse[full])
         to_quadratic[group[full]] = plate / quadratic[full]
         to_quartic[group[full]] = plate / quartic[full]
     return PlateEvidence(to_quadratic, to_quartic)

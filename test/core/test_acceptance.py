@@ -121,7 +121,7 @@ def test_a_chessboard_corner_that_barely_clears_its_floor_stands_only_beside_ano
     # with a neighbouring corner one square away it is a board's, and both stand.
     board = _chessboard()
     corners = np.array([[95.5, 95.5], [119.5, 95.5]])
-    extent, lines = np.full(2, 8.49), np.tile([0.0, np.pi / 2], (2, 1))
+    extent, lines = np.full(2, 12.0), np.tile([0.0, np.pi / 2], (2, 1))
     model = _model(board)
     at_floor, clear = np.zeros(2), np.full(2, acceptance.PLATE_DOUBT_MARGIN)
     assert not model.plate_not_worse(corners[:1], extent[:1], lines[:1], at_floor[:1])[0]
@@ -152,6 +152,55 @@ def test_an_x_of_texture_size_near_its_floor_shows_its_plate_where_no_tiny_plate
             kind,
             tilt,
         )
+
+
+def test_an_x_of_texture_size_shows_its_plate_however_clear_of_its_floor():
+    # Under the extent where texture makes saddles, a score clear of its floor does
+    # not spare an X its plate: a saddle that goes on without one is rejected at 6
+    # and 8.49 px, and markers of 6-8 px, face on or tilted, both kinds, are kept.
+    # A wider saddle clear of its floor is not asked.
+    centre, clear = np.array([[47.5, 47.5]]), np.full(1, 0.1)
+    yy, xx = np.mgrid[0:96, 0:96] - 47.5
+    lines = np.array([[0.3, 0.3 + np.pi / 2]])
+    s1, s2 = template.line_distances(xx, yy, lines[0])
+    saddle = np.clip(np.round(255.0 * (0.5 + 0.004 * s1 * s2)), 0, 255).astype(np.uint8)
+    for extent in (6.0, 8.49):
+        assert not _model(saddle).plate_not_worse(centre, np.array([extent]), lines, clear)[0]
+    wide = np.array([acceptance.PLATE_ASKED_MAX_EXTENT_PX + 3.0])
+    assert _model(saddle).plate_not_worse(centre, wide, lines, clear)[0]
+    for seed, (kind, radius, tilt) in enumerate(
+        (kind, radius, tilt)
+        for kind in ("quarter_disks", "checker")
+        for radius, tilt in ((6.0, 0.0), (8.0, 0.0), (8.0, 45.0))
+    ):
+        placement = MarkerPlacement(47.5, 47.5, radius, 0.3, tilt, 1.0, kind)
+        scene = render_markers((96, 96), [placement], seed, blur_sigma_px=0.8, noise_sigma_dn=1.0)
+        truth = scene.markers[0]
+        extent = verification.ring_radii(_RADIUS_RANGE_PX)
+        extent = extent[extent <= radius * np.cos(np.deg2rad(tilt)) + 1e-9][-1:]
+        angles = np.array([truth.angles])
+        assert _model(scene.image).plate_not_worse(centre, extent, angles, clear)[0], (
+            kind,
+            radius,
+            tilt,
+        )
+
+
+def test_a_larger_marker_whose_rings_stopped_short_shows_its_plate_at_its_reach():
+    # Markers of 20 px, face on or tilted by 50 degrees, read at 6 px: a window of
+    # that scale holds nothing but their X, and their plate model leaves 1.3-2 times
+    # a quartic's residual there. Read out to their reach along the lines, their
+    # plate shows.
+    centre, clear, short = np.array([[63.5, 63.5]]), np.full(1, 0.1), np.array([6.0])
+    for seed, (kind, tilt) in enumerate(
+        (kind, tilt) for kind in ("quarter_disks", "checker") for tilt in (0.0, 50.0)
+    ):
+        placement = MarkerPlacement(63.5, 63.5, 20.0, 0.3, tilt, 1.0, kind)
+        scene = render_markers((128, 128), [placement], seed, blur_sigma_px=0.8, noise_sigma_dn=1.0)
+        angles = np.array([scene.markers[0].angles])
+        model = _model(scene.image)
+        assert model.plate_at_scale(centre, short, angles)[0] > 1.0
+        assert model.plate_not_worse(centre, short, angles, clear)[0], (kind, tilt)
 
 
 def test_score_floors_ask_most_of_texture_sized_xs_and_let_an_ended_one_under_by_the_allowance():

@@ -530,6 +530,7 @@ def test_texture_xs_that_barely_clear_their_floor_and_show_no_plate_are_rejected
 
     hits, false, rejected = _found_and_counted(detector, frames, "rejected_quartic")
     monkeypatch.setattr(acceptance, "PLATE_DOUBT_MARGIN", -1.0)
+    monkeypatch.setattr(acceptance, "PLATE_ASKED_MAX_EXTENT_PX", 0.0)
     unasked_hits, unasked_false, _ = _found_and_counted(detector, frames, "rejected_quartic")
     assert hits == unasked_hits
     assert rejected >= 2
@@ -583,6 +584,7 @@ def test_chessboard_corners_near_their_floor_are_kept_by_their_neighbours(monkey
     monkeypatch.setattr(acceptance, "BOARD_NEIGHBOUR_EXTENTS", 0.0)
     alone = corners()
     monkeypatch.setattr(acceptance, "PLATE_DOUBT_MARGIN", -1.0)
+    monkeypatch.setattr(acceptance, "PLATE_ASKED_MAX_EXTENT_PX", 0.0)
     unasked = corners()
     assert kept == unasked
     assert len(unasked - alone) >= 5

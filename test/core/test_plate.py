@@ -215,3 +215,71 @@ def test_read_plates_compares_at_most_the_cap_spread_over_the_cells(monkeypatch)
     )
     assert reading.read.tolist() == [0, 2]
     assert reading.over_cap == 1
+
+
+def _markers_and_saddles() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Four tiny markers and two smooth saddles side by side: image, centres, line angles."""
+    tiles, centres, angles = [], [], []
+    for seed, kind in enumerate(("quarter_disks", "checker", "quarter_disks", "checker")):
+        image, centre, lines = _tiny_marker(kind, seed)
+        tiles.append(image)
+        centres.append(centre[0] + [80.0 * seed, 0.0])
+        angles.append(lines[0])
+    for seed in range(2):
+        tiles.append(_smooth_saddle(seed))
+        centres.append([80.0 * len(centres) + 40.0, 40.0])
+        angles.append([np.pi / 4, 3 * np.pi / 4])
+    return np.hstack(tiles), np.array(centres), np.array(angles)
+
+
+def test_the_full_search_reads_no_plate_worse_than_the_coarse_one():
+    image, xy, angles = _markers_and_saddles()
+    extent = np.full(len(xy), _EXTENT_PX)
+    coarse = plate.plate_evidence(image, xy, extent, angles, enough_to_quartic=np.inf)
+    searched = plate.plate_evidence(image, xy, extent, angles)
+    assert np.all(searched.to_quartic <= coarse.to_quartic)
+    # The markers are searched in full and read better; the saddles are not.
+    assert np.all(searched.to_quartic[:4] < coarse.to_quartic[:4])
+    assert np.array_equal(searched.to_quartic[4:], coarse.to_quartic[4:])
+
+
+def test_a_bar_the_coarse_search_clears_spares_the_full_search_and_not_the_decision():
+    image, xy, angles = _markers_and_saddles()
+    extent = np.full(len(xy), _EXTENT_PX)
+    searched = plate.plate_evidence(image, xy, extent, angles).to_quartic
+    for bar in (0.1, plate.MAX_TO_QUARTIC, plate.MAX_TO_QUARTIC_ANY):
+        spared = plate.plate_evidence(image, xy, extent, angles, enough_to_quartic=bar).to_quartic
+        assert np.array_equal(spared <= bar, searched <= bar), bar
+        assert np.all(spared >= searched)
+    assert np.sum(searched[:4] <= plate.MAX_TO_QUARTIC) == 4
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_wide_window_read_on_a_coarser_grid_parts_a_marker_from_a_saddle_as_the_whole_does(
+    seed, monkeypatch
+):
+    # A 12 px marker and a smooth saddle read at 8.49 px: a window of 17 px, 889
+    # pixels, read on every other row and column (225) under the pixel budget.
+    placement = MarkerPlacement(60.3, 59.8, 12.0, 0.4 + seed, 30.0, kind="quarter_disks")
+    scene = render_markers(
+        (120, 120), [placement], seed, blur_sigma_px=1.0, noise_sigma_dn=2.0, background="texture"
+    )
+    y, x = np.mgrid[:120, :120] - 60.0
+    noise = np.random.default_rng(seed).normal(0, 2.0, x.shape)
+    saddle = np.clip(128 + 60 * (x * x - y * y) / 289.0 + noise, 0, 255).round().astype(np.uint8)
+    image = np.hstack([scene.image, saddle])
+    xy = np.array([scene.centres[0], [180.0, 60.0]])
+    angles = np.array([scene.markers[0].angles, [np.pi / 4, 3 * np.pi / 4]])
+    extent = np.full(2, 8.49)
+
+    def read() -> np.ndarray:
+        return plate.plate_evidence(
+            image, xy, extent, angles, scale_with_extent=True, quadrant_levels=True
+        ).to_quartic
+
+    budgeted = read()
+    monkeypatch.setattr(plate, "MAX_WINDOW_PIXELS", 10**6)
+    whole = read()
+    for reading in (budgeted, whole):
+        assert reading[0] <= plate.MAX_TO_QUARTIC
+        assert reading[1] > plate.MAX_TO_QUARTIC_ANY
