@@ -455,6 +455,19 @@ def test_validationboof_hand_clicks_agree_with_opencv_after_the_half_pixel_shift
 
 
 @needs_data
+def test_opencvs_reference_boards_are_the_same_from_one_search_to_the_next():
+    # Unseeded, OpenCV's sector-based search found one board or two in pycbd's flare
+    # and none or one in its warped board, from one call to the next.
+    for name in ("flare.jpg", "warped.jpg"):
+        image = real_data.read_gray(DATA / "pycbd" / name)
+        first = real_data.opencv_boards(image)
+        for _ in range(2):
+            again = real_data.opencv_boards(image)
+            assert len(again) == len(first), name
+            assert all(np.array_equal(a, b) for a, b in zip(again, first, strict=True)), name
+
+
+@needs_data
 def test_independent_frames_load_with_their_truth_bound_and_radius_range():
     frames = list(real_data.iter_independent(DATA, limit_per_family=1))
     assert [f.family for f in frames] == list(accuracy.INDEPENDENT_FAMILIES)
