@@ -67,7 +67,7 @@ COARSE_MAX_TO_QUADRATIC = 0.4
 #: plate reaches 12 px and more) is read on a grid of every k-th pixel, the least k
 #: that keeps within this: the models' residual sums are compared on the same
 #: pixels, so their ratio keeps its expectation, and the search costs what a 6 px
-#: X's does (its window, 2 extents, 441-457 pixels, is read whole).
+#: X's does (its window, 2 extents, 441 pixels, is read whole).
 MAX_WINDOW_PIXELS = 480
 #: The window the models are compared on, in extents of the X (the ring check's):
 #: the plate's corners lie at 1.77 radii, and a marker's extent reads up to a rung
