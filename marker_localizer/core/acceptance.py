@@ -666,25 +666,25 @@ class MarkerModel:
         bar = np.where(doubted[unheld], PLATE_DOUBT_MAX_TO_QUARTIC, plate.MAX_TO_QUARTIC_ANY)
         worse = self._plate_worse(xy[unheld], radius[unheld], angles[unheld], bar)
         unheld, bar = unheld[worse], bar[worse]
-        if len(unheld):
-            # Rings that stop short of a larger marker's X leave its plate beyond a
-            # rung out: one asked for its size alone is read again at the X's own
-            # reach along its lines.
+        # Rings that stop short of a larger marker's X leave its plate beyond a rung
+        # out: one asked for its size alone is read again at the X's own reach along
+        # its lines.
+        asked = np.flatnonzero(~doubted[unheld])
+        if len(asked):
+            rows = unheld[asked]
             reach = template.line_reaches(
-                self.gray, xy[unheld], angles[unheld], radius[unheld], self.max_radius_px
+                self.gray, xy[rows], angles[rows], radius[rows], self.max_radius_px
             )
             with np.errstate(invalid="ignore"):
-                farther = np.flatnonzero(
-                    (reach > verification.RING_STEP * radius[unheld]) & ~doubted[unheld]
-                )
+                farther = np.flatnonzero(reach > verification.RING_STEP * radius[rows])
             worse = np.ones(len(unheld), dtype=bool)
             # Only a plate read there spares it: an X whose lines run on out of the
             # frame has shown none.
-            worse[farther] = self._plate_worse(
-                xy[unheld[farther]],
+            worse[asked[farther]] = self._plate_worse(
+                xy[rows[farther]],
                 reach[farther],
-                angles[unheld[farther]],
-                bar[farther],
+                angles[rows[farther]],
+                bar[asked[farther]],
                 unread_passes=False,
             )
             unheld = unheld[worse]

@@ -135,9 +135,11 @@ def _window_offsets(radius_px: float) -> NDArray[np.int64]:
     """
     offsets = _disk_offsets(radius_px)
     stride = 1
-    while np.count_nonzero(np.all(offsets % stride == 0, axis=1)) > MAX_WINDOW_PIXELS:
+    while True:
+        on_grid = offsets[np.all(offsets % stride == 0, axis=1)]
+        if len(on_grid) <= MAX_WINDOW_PIXELS:
+            return on_grid
         stride += 1
-    return offsets[np.all(offsets % stride == 0, axis=1)]
 
 
 def _read(
