@@ -256,8 +256,8 @@ class MarkerModel:
         gray: (H, W) grey image, raw levels.
         full_scale: its white, in its own grey levels.
         noise: the frame's noise (:func:`~marker_localizer.core.noise.estimate_noise`),
-            asked for only where a candidate's misfit or plate is read (measuring it
-            takes 3-8 ms on 12 MP; the detector's frame measures it once).
+            asked for only where a candidate has passed every other test (measuring
+            it takes 3-6 ms on 12 MP; the detector's frame measures it once).
         max_radius_px: the largest expected marker radius, px: the template's disk,
             a shadow's reach and a reading a rung out stay within it.
         reads_plates: whether tiny X's are read with their plate where no marker
@@ -442,8 +442,8 @@ class MarkerModel:
         with np.errstate(invalid="ignore"):
             held = plated <= plate.MAX_TO_QUARTIC
         passing, disk, ncc = passing[held], disk[held], ncc[held]
-        # The frame's noise, which the plate and the misfit read, is measured only
-        # where a candidate has passed the cheaper tests (3-8 ms on 12 MP).
+        # The frame's noise, which the misfit needs, is measured last, where a
+        # candidate has passed every other test (3-6 ms on 12 MP).
         if len(passing):
             misfit = template.template_misfit(
                 gray, xy[passing], angles[passing], disk, ncc, self.noise()
@@ -558,8 +558,6 @@ class MarkerModel:
             scale_with_extent=True,
             quadrant_levels=True,
             enough_to_quartic=bar,
-            # Measured where a candidate first reaches a test that reads it.
-            noise=self.noise() if len(xy) else None,
         ).to_quartic
 
     def stands_alone(
@@ -656,7 +654,6 @@ class MarkerModel:
                 radius[tiny],
                 angles[tiny],
                 enough_to_quartic=plate.MAX_TO_QUARTIC_ANY,
-                noise=self.noise(),
             )
             with np.errstate(invalid="ignore"):
                 kept[tiny] = ~(evidence.to_quartic > plate.MAX_TO_QUARTIC_ANY)

@@ -567,7 +567,7 @@ class Detector:
             xy = _positions(fitted)
             extent = np.array([d.radius_px for d in fitted])
             angles = np.array([[d.angle1, d.angle2] for d in fitted])
-            explained = plate.explained_at(frame.gray, xy, extent, angles, frame.noise())
+            explained = plate.explained_at(frame.gray, xy, extent, angles)
         result.counts["found_plate"] = self._join(
             result, [d for d, ok in zip(fitted, explained, strict=True) if ok]
         )
@@ -1322,7 +1322,6 @@ class Detector:
                     tiny.radius_px[lost],
                     tiny.line_angles[lost],
                     self.config.entropy_cell_px,
-                    frame.noise(),
                 )
             counts["plate_over_cap"] = reading.over_cap
             counts["plate_read"] = len(reading.read)

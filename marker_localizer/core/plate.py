@@ -17,11 +17,7 @@ plate, on a ground with a linear light, blurred: the levels by linear least
 squares, the shape by a search over the radii along each line and the blur) and
 compares what it leaves with what a quadratic and a quartic surface leave on the
 same pixels: a generalised likelihood ratio of two Gaussian models with one noise,
-read as the ratio of their residual sums of squares. Given the frame's noise, each
-sum is first relieved of the share the noise alone is sure to leave it
-(:class:`_NoiseLeft`): the ratio then weighs the structure each model misses, which
-a faint marker's plate explains as a clear one's does, where the raw sums tend to
-one as the noise grows. :func:`centre_saddle` asks
+read as the ratio of their residual sums of squares. :func:`centre_saddle` asks
 the centre to be a saddle (a blurred blob's is an extremum: the plate model fits a
 small elongated blob as two paint lobes merged by the blur).
 
@@ -40,7 +36,6 @@ from numpy.typing import NDArray
 from scipy.special import ndtr
 
 from marker_localizer.core import screening
-from marker_localizer.core.noise import NoiseModel
 
 #: Half-side of the square plate that carries a marker, in marker radii: 1.25 on the
 #: package's renderer, 1.25-1.3 on the independent one.
@@ -101,24 +96,6 @@ MIN_SADDLE = 0.2
 #: them: real aerial ground at 3-30 px leaves 60-200 a frame that the centre's saddle
 #: passes, the rendered tiny markers' frames 10-60.
 MAX_PLATE_READ = 64
-#: Standard deviations under its mean at which the noise's share of a model's
-#: residual is taken (:class:`_NoiseLeft`): a share the noise leaves in all but
-#: 2.3 % of windows (the normal tail), so that a plate is not credited with more of
-#: its residual as noise than the noise holds. Taken at its mean (0), (b)'s
-#: development frames 400-423, on their own grounds and on gravel, find 34 markers
-#: more and 7 false points; at 2, 27 and 1 (docs/accuracy.md, "The plate's
-#: residuals less the noise's share").
-NOISE_SHARE_SIGMAS = 2.0
-#: Parameters each model fits, in :class:`_NoiseLeft`'s order: the quadratic
-#: surface; the quartic; the plate model with a level per quarter disk
-#: (``quadrant_levels``), then with one per painted pair (its levels, and the two
-#: radii and the blur its search sets).
-_MODEL_PARAMETERS = np.array([6, 15, 10, 8])
-#: Standard deviations over its mean that a polynomial's residual must pass before
-#: it holds structure a plate could explain (:meth:`_NoiseLeft.structure`): a smooth saddle in
-#: noise passes in 0.13 % of windows (the normal tail). Markers pass by 18 and more.
-STRUCTURE_SIGMAS = 3.0
-_QUADRATIC, _QUARTIC, _PLATE_QUADRANT_LEVELS, _PLATE = range(len(_MODEL_PARAMETERS))
 #: Radius of the disk whose quadratic surface gives the centre's curvatures, px.
 _SADDLE_DISK_PX = 2.0
 #: Variance of a pixel's box over its area, px^2: it adds to the blur's.
@@ -362,7 +339,6 @@ def plate_evidence(
     scale_with_extent: bool = False,
     quadrant_levels: bool = False,
     enough_to_quartic: float | NDArray[np.float64] | None = None,
-    noise: NoiseModel | None = None,
 ) -> PlateEvidence:
     """The plate model's residual over the quadratic's and the quartic's, per candidate.
 
@@ -382,8 +358,6 @@ def plate_evidence(
             at most this of the quartic's residual, the full search is spared (a
             test at that bar is decided); None: every candidate the coarse search
             leaves room for is searched in full.
-        noise: the frame's noise: each model's residual is compared less the share
-            the noise is sure to leave it (:class:`_NoiseLeft`); None: as it is.
 
     Returns:
         :class:`PlateEvidence`, the least residual over every shape searched; NaN
@@ -410,9 +384,7 @@ def plate_evidence(
         group, values = group[inside], values[inside]
         if not len(group):
             continue
-        noise_left = _NoiseLeft(_noise_variance(values, noise), len(offsets))
-        plate_fit = _PLATE_QUADRANT_LEVELS if quadrant_levels else _PLATE
-        quadratic = noise_left.structure(_polynomial_residual(values, offsets, 2), _QUADRATIC)
+        quadratic = _polynomial_residual(values, offsets, 2)
         shift = np.rint(xy[group]) - xy[group]
         dx = offsets[None, :, 0] + shift[:, 0, None]
         dy = offsets[None, :, 1] + shift[:, 1, None]
@@ -434,13 +406,12 @@ def plate_evidence(
                 for s in _blocks(len(group))
             ]
         )
-        coarse = noise_left.less_share(coarse, plate_fit)
-        quartic = noise_left.structure(_polynomial_residual(values, offsets, 4), _QUARTIC)
-        to_quadratic[group], to_quartic[group] = _ratio(coarse, quadratic), _ratio(coarse, quartic)
+        quartic = _polynomial_residual(values, offsets, 4)
+        to_quadratic[group], to_quartic[group] = coarse / quadratic, coarse / quartic
         with np.errstate(invalid="ignore"):
             full = np.flatnonzero(
-                (to_quadratic[group] <= COARSE_MAX_TO_QUADRATIC)
-                & ~(to_quartic[group] <= enough[group])
+                (coarse <= COARSE_MAX_TO_QUADRATIC * quadratic)
+                & ~(coarse <= enough[group] * quartic)
             )
         if not len(full):
             continue
@@ -459,74 +430,10 @@ def plate_evidence(
             ]
         )
         # The two grids' blurs differ: a coarse shape may fit better than every full one.
-        plate = np.fmin(noise_left.less_share(plate, plate_fit, full), coarse[full])
-        to_quadratic[group[full]] = _ratio(plate, quadratic[full])
-        to_quartic[group[full]] = _ratio(plate, quartic[full])
+        plate = np.fmin(plate, coarse[full])
+        to_quadratic[group[full]] = plate / quadratic[full]
+        to_quartic[group[full]] = plate / quartic[full]
     return PlateEvidence(to_quadratic, to_quartic)
-
-
-class _NoiseLeft:
-    """What the frame's noise leaves each model's residual sum of squares on one window.
-
-    On n pixels a least-squares fit of p parameters (:data:`_MODEL_PARAMETERS`)
-    leaves chi^2 with f = n - p degrees of freedom of a unit white noise, mean f,
-    standard deviation sqrt(2 f).
-
-    Args:
-        variance: (N,) the noise's variance over each candidate's window.
-        pixels: the window's pixels read.
-    """
-
-    def __init__(self, variance: NDArray[np.float64], pixels: int) -> None:
-        free = pixels - _MODEL_PARAMETERS
-        spread = np.sqrt(2.0 * np.maximum(free, 0))
-        # The share the noise is sure to leave: all but NOISE_SHARE_SIGMAS' tail.
-        self._share = variance[:, None] * np.maximum(free - NOISE_SHARE_SIGMAS * spread, 0.0)
-        # What it leaves in all but STRUCTURE_SIGMAS' tail.
-        self._bound = variance[:, None] * (free + STRUCTURE_SIGMAS * spread)
-
-    def less_share(
-        self,
-        residual: NDArray[np.float64],
-        model: int,
-        rows: NDArray[np.intp] | slice = slice(None),
-    ) -> NDArray[np.float64]:
-        """(R,) ``residual`` of ``model`` at ``rows`` less the noise's sure share."""
-        less: NDArray[np.float64] = residual - self._share[rows, model]
-        return less
-
-    def structure(self, residual: NDArray[np.float64], model: int) -> NDArray[np.float64]:
-        """(N,) what a polynomial ``model`` leaves beyond the noise: 0 where within its bound.
-
-        A polynomial that leaves no more than the noise leaves a plate nothing to
-        explain.
-        """
-        beyond: NDArray[np.float64] = np.where(
-            residual > self._bound[:, model], self.less_share(residual, model), 0.0
-        )
-        return beyond
-
-
-def _noise_variance(values: NDArray[np.float64], noise: NoiseModel | None) -> NDArray[np.float64]:
-    """(N,) the noise's variance over each row of window pixels, at their levels; 0 without."""
-    if noise is None:
-        return np.zeros(len(values))
-    variance: NDArray[np.float64] = np.mean(np.square(noise.std(values)), axis=1)
-    return variance
-
-
-def _ratio(model: NDArray[np.float64], polynomial: NDArray[np.float64]) -> NDArray[np.float64]:
-    """What a plate model leaves over what a polynomial leaves (each beyond the noise).
-
-    inf where the polynomial leaves nothing (:meth:`_NoiseLeft.structure`): no
-    structure for a plate to explain. 0 where the plate leaves less than the
-    noise's sure share: it explains all. NaN and inf stay as the plate's.
-    """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio: NDArray[np.float64] = np.where(
-            polynomial > 0.0, np.maximum(model, 0.0) / polynomial, np.inf
-        )
-    return np.where(np.isnan(model), np.nan, ratio)
 
 
 def _blocks(count: int) -> list[slice]:
@@ -555,14 +462,10 @@ def explained_at(
     xy: NDArray[np.float64],
     radius_px: NDArray[np.float64],
     line_angles: NDArray[np.float64],
-    noise: NoiseModel | None = None,
 ) -> NDArray[np.bool_]:
-    """(N,) where the plate model explains an X at ``xy`` as a marker (:func:`plate_explains`).
-
-    ``noise``: the frame's, as :func:`plate_evidence` takes it.
-    """
+    """(N,) where the plate model explains an X at ``xy`` as a marker (:func:`plate_explains`)."""
     return plate_explains(
-        plate_evidence(image, xy, radius_px, line_angles, noise=noise), centre_saddle(image, xy)
+        plate_evidence(image, xy, radius_px, line_angles), centre_saddle(image, xy)
     )
 
 
@@ -587,7 +490,6 @@ def read_plates(
     radius_px: NDArray[np.float64],
     line_angles: NDArray[np.float64],
     cell_px: float,
-    noise: NoiseModel | None = None,
 ) -> PlateReading:
     """Tiny X's judged by their plate: the model of a marker against smooth surfaces.
 
@@ -607,7 +509,6 @@ def read_plates(
         radius_px: (N,) their extents, px.
         line_angles: (N, 2) their line directions, radians.
         cell_px: the cells the cap spreads them over, px.
-        noise: the frame's noise, as :func:`plate_evidence` takes it.
 
     Returns:
         :class:`PlateReading`.
@@ -618,5 +519,5 @@ def read_plates(
     kept = screening.even_cap_index(xy[rows], score[rows], MAX_PLATE_READ, cell_px)
     over_cap = len(rows) - len(kept)
     rows = rows[kept]
-    evidence = plate_evidence(image, xy[rows], radius_px[rows], line_angles[rows], noise=noise)
+    evidence = plate_evidence(image, xy[rows], radius_px[rows], line_angles[rows])
     return PlateReading(rows, rows[plate_explains(evidence, saddle[rows])], over_cap)

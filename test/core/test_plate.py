@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 
 from marker_localizer.core import plate
-from marker_localizer.core.noise import estimate_noise
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 
 #: The ring check's extent of a 3-4 px marker (a rung of its sqrt(2) ladder).
@@ -21,26 +20,11 @@ def _tiny_marker(kind: str, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return scene.image, scene.centres, np.array([scene.markers[0].angles])
 
 
-def _faint_tiny_marker(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The 3.5 px marker at a quarter of full scale's contrast, under 4 DN of noise."""
-    placement = MarkerPlacement(40.3, 39.8, 3.5, 0.4 + seed, 20.0)
-    scene = render_markers(
-        (80, 80),
-        [placement],
-        seed,
-        blur_sigma_px=1.3,
-        noise_sigma_dn=4.0,
-        background="flat",
-        contrast=(0.25, 0.25),
-    )
-    return scene.image, scene.centres, np.array([scene.markers[0].angles])
-
-
-def _smooth_saddle(seed: int, contrast_dn: float = 120.0, noise_dn: float = 2.0) -> np.ndarray:
-    """A quadratic saddle of ``contrast_dn`` over 8 px with noise: texture's smooth X."""
+def _smooth_saddle(seed: int) -> np.ndarray:
+    """A quadratic saddle of 120 DN over 8 px with 2 DN of noise: texture's smooth X."""
     y, x = np.mgrid[:80, :80] - 40.0
     rng = np.random.default_rng(seed)
-    surface = 128 + contrast_dn * (x * x - y * y) / 64.0 / 2 + rng.normal(0, noise_dn, x.shape)
+    surface = 128 + 120 * (x * x - y * y) / 64.0 / 2 + rng.normal(0, 2.0, x.shape)
     return np.clip(surface, 0, 255).round().astype(np.uint8)
 
 
@@ -65,33 +49,6 @@ def test_a_smooth_saddle_is_no_plate_whatever_the_lines():
         )
         assert evidence.to_quadratic[0] > 0.9
         assert not plate.plate_explains(evidence, plate.centre_saddle(image, centre))[0]
-
-
-@pytest.mark.parametrize("seed", [1, 3, 5])
-def test_a_faint_tiny_marker_is_explained_once_the_noise_share_is_taken_out(seed):
-    """The raw residuals tend to one another as the noise grows; the structure does not."""
-    image, centre, angles = _faint_tiny_marker(seed)
-    extent = np.array([_EXTENT_PX])
-    assert not plate.explained_at(image, centre, extent, angles)[0]
-    assert plate.explained_at(image, centre, extent, angles, estimate_noise(image, 255.0))[0]
-
-
-@pytest.mark.parametrize("noise_dn", [2.0, 4.0, 8.0])
-@pytest.mark.parametrize("contrast_dn", [10.0, 40.0])
-def test_a_smooth_saddle_in_noise_is_no_plate_with_the_noise_share_taken_out(contrast_dn, noise_dn):
-    """A polynomial that leaves only the noise leaves a plate nothing to explain."""
-    centre = np.array([[40.0, 40.0]])
-    for seed in range(4):
-        image = _smooth_saddle(seed, contrast_dn, noise_dn)
-        noise = estimate_noise(image, 255.0)
-        for angle in np.linspace(0.0, np.pi / 2, 3):
-            angles = np.array([[angle, angle + np.pi / 2]])
-            for extent in (2.12, 3.0, 4.24):
-                evidence = plate.plate_evidence(
-                    image, centre, np.array([extent]), angles, noise=noise
-                )
-                assert evidence.to_quadratic[0] > 0.8
-                assert not plate.plate_explains(evidence, plate.centre_saddle(image, centre))[0]
 
 
 def test_the_centre_of_an_x_is_a_saddle_and_that_of_a_blob_is_not():
