@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from marker_localizer.core import plate, shadow, template, verification
+from marker_localizer.core import plate, screening, shadow, template, verification
 from marker_localizer.core.noise import NoiseModel
 from marker_localizer.core.sampling import Normaliser
 
@@ -88,6 +88,14 @@ PLATE_ASKED_MAX_EXTENT_PX = verification.TEXTURE_EXTENT_PX
 #: corner, whose squares go on where a plate would end, has its neighbours a square
 #: away, a few extents; texture's false points have none this near.
 BOARD_NEIGHBOUR_EXTENTS = 4.0
+#: Detections whose plate one :meth:`MarkerModel.judge` reads at most (1-1.5 ms each,
+#: up to four windows), those that clear their floor by most first; the rest are
+#: rejected unread and counted (:attr:`Judgement.unread`). Real frames ask 0-15
+#: (aerial ground, cirn_uas, the boards, the flight simulator, the rendered
+#: families), real sand seen from half the height up to 80 a 32 MP frame; a frame
+#: tiled with X's, thinned by the detector's caps so that no corner has a neighbour
+#: near, asks 760-790 (docs/speed.md, "The plate asked of a frame tiled with X's").
+MAX_PLATE_ASKED = 128
 #: A candidate of texture's size whose paint the modulation gate, or whose fitted
 #: score its floor, does not vouch for (:meth:`MarkerModel.vouches`) must match
 #: the blurred X at least this well, on raw levels: faint and tilted markers match at
@@ -238,10 +246,13 @@ class Judgement(NamedTuple):
             that rejected it.
         vouched: under its score floor, the marker's model vouched for it
             (:meth:`MarkerModel.vouches`).
+        unread: asked for its plate over :data:`MAX_PLATE_ASKED`, and rejected at
+            that test (``quartic``) unread.
     """
 
     reason: NDArray[np.int8]
     vouched: NDArray[np.bool_]
+    unread: NDArray[np.bool_]
 
     def passed(self, test: str) -> NDArray[np.bool_]:
         """(N,) the X's that passed ``test`` (of :data:`JUDGED_REASONS`) and every one before it."""
@@ -344,6 +355,7 @@ class MarkerModel:
         angles: NDArray[np.float64],
         score: NDArray[np.float64],
         floors: ScoreFloors,
+        cell_px: float,
     ) -> Judgement:
         """Whether each located X is a marker: the default path's last decision.
 
@@ -359,7 +371,10 @@ class MarkerModel:
           must have clearly ended, and fails the floor (``score``) if not.
         * ``misfit``: the blurred X explains it (:meth:`explains`).
         * ``quartic``: its plate explains it (:meth:`plate_not_worse`), a vouched X
-          having shown its plate already.
+          having shown its plate already; of those it asks (:meth:`plate_asked`), at
+          most :data:`MAX_PLATE_ASKED` are read, spread over the frame's cells of
+          ``cell_px``, those that clear their floor by most first
+          (:func:`screening.even_cap_index`).
 
         Args:
             xy: (N, 2) fitted centres, px.
@@ -367,6 +382,7 @@ class MarkerModel:
             angles: (N, 2) their lines' directions, radians.
             score: (N,) fitted scores.
             floors: the score floors of each extent.
+            cell_px: the cells the plate's cap spreads its readings over, px.
 
         Returns:
             :class:`Judgement`.
@@ -397,9 +413,18 @@ class MarkerModel:
         reason[keep[~explained]] = _MISFIT
         keep = keep[explained]
         margin = np.where(vouched, np.inf, score - floor)
-        smooth = ~self.plate_not_worse(xy[keep], radius[keep], angles[keep], margin[keep])
-        reason[keep[smooth]] = _QUARTIC
-        return Judgement(reason, vouched)
+        asked = self.plate_asked(xy[keep], radius[keep], margin[keep])
+        rows = np.flatnonzero(asked)
+        read = rows[
+            screening.even_cap_index(xy[keep[rows]], margin[keep[rows]], MAX_PLATE_ASKED, cell_px)
+        ]
+        unread = np.zeros(len(xy), dtype=bool)
+        unread[keep[rows]] = True
+        unread[keep[read]] = False
+        asked[unread[keep]] = False
+        smooth = ~self.plate_not_worse(xy[keep], radius[keep], angles[keep], margin[keep], asked)
+        reason[keep[smooth | unread[keep]]] = _QUARTIC
+        return Judgement(reason, vouched, unread)
 
     def vouches(
         self,
@@ -609,16 +634,42 @@ class MarkerModel:
                     worse[rows] = plated > bar[rows] if unread_passes else ~(plated <= bar[rows])
         return worse
 
+    def plate_asked(
+        self,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        margin: NDArray[np.float64],
+    ) -> NDArray[np.bool_]:
+        """(N,) the detections whose plate :meth:`plate_not_worse` reads (it says who is asked).
+
+        A board's corner is spared before any plate is read: on a chessboard every
+        corner is, and the plate is the costliest reading. ``xy`` holds every
+        detection of the call, the neighbours among them.
+        """
+        read_tiny = self.reads_plates & (radius < verification.X_END_MAX_EXTENT_PX)
+        doubted = margin < PLATE_DOUBT_MARGIN
+        asked = ~read_tiny & (doubted | (radius < PLATE_ASKED_MAX_EXTENT_PX))
+        rows = np.flatnonzero(asked)
+        if len(rows):
+            # Every detection is within 0 of itself: a neighbour makes the count 2.
+            near = cKDTree(xy).query_ball_point(
+                xy[rows], BOARD_NEIGHBOUR_EXTENTS * radius[rows], return_length=True
+            )
+            asked[rows[near >= 2]] = False
+        return read_tiny | asked
+
     def plate_not_worse(
         self,
         xy: NDArray[np.float64],
         radius: NDArray[np.float64],
         angles: NDArray[np.float64],
         margin: NDArray[np.float64],
+        asked: NDArray[np.bool_] | None = None,
     ) -> NDArray[np.bool_]:
         """(N,) False for detections whose plate model, where asked, leaves more than a quartic.
 
-        What a marker has and texture has not is the plate around its X. Asked are:
+        What a marker has and texture has not is the plate around its X. Asked are
+        (:meth:`plate_asked`):
 
         * where tiny X's are read with their plate (:attr:`reads_plates`), every
           detection of texture's size (under :data:`verification.X_END_MAX_EXTENT_PX`):
@@ -643,9 +694,13 @@ class MarkerModel:
 
         NaN (no window) passes at the extent and a rung out, not at the reach.
         ``xy`` holds every detection of the call, the neighbours among them.
+        ``asked``: (N,) which to read, where the caller has settled it already;
+        None: :meth:`plate_asked`.
         """
         kept: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
-        read_tiny = self.reads_plates & (radius < verification.X_END_MAX_EXTENT_PX)
+        if asked is None:
+            asked = self.plate_asked(xy, radius, margin)
+        read_tiny = asked & self.reads_plates & (radius < verification.X_END_MAX_EXTENT_PX)
         tiny = np.flatnonzero(read_tiny)
         if len(tiny):
             evidence = plate.plate_evidence(
@@ -660,7 +715,7 @@ class MarkerModel:
             failed = tiny[~kept[tiny]]
             kept[failed] = self.plate_a_rung_out(xy[failed], radius[failed], angles[failed])
         doubted = margin < PLATE_DOUBT_MARGIN
-        unheld = np.flatnonzero(~read_tiny & (doubted | (radius < PLATE_ASKED_MAX_EXTENT_PX)))
+        unheld = np.flatnonzero(asked & ~read_tiny)
         if not len(unheld):
             return kept
         bar = np.where(doubted[unheld], PLATE_DOUBT_MAX_TO_QUARTIC, plate.MAX_TO_QUARTIC_ANY)
@@ -669,9 +724,9 @@ class MarkerModel:
         # Rings that stop short of a larger marker's X leave its plate beyond a rung
         # out: one asked for its size alone is read again at the X's own reach along
         # its lines.
-        asked = np.flatnonzero(~doubted[unheld])
-        if len(asked):
-            rows = unheld[asked]
+        for_size = np.flatnonzero(~doubted[unheld])
+        if len(for_size):
+            rows = unheld[for_size]
             reach = template.line_reaches(
                 self.gray, xy[rows], angles[rows], radius[rows], self.max_radius_px
             )
@@ -680,19 +735,13 @@ class MarkerModel:
             worse = np.ones(len(unheld), dtype=bool)
             # Only a plate read there spares it: an X whose lines run on out of the
             # frame has shown none.
-            worse[asked[farther]] = self._plate_worse(
+            worse[for_size[farther]] = self._plate_worse(
                 xy[rows[farther]],
                 reach[farther],
                 angles[rows[farther]],
-                bar[asked[farther]],
+                bar[for_size[farther]],
                 unread_passes=False,
             )
             unheld = unheld[worse]
-        if len(unheld):
-            # Every detection is within 0 of itself: a neighbour makes the count 2.
-            near = cKDTree(xy).query_ball_point(
-                xy[unheld], BOARD_NEIGHBOUR_EXTENTS * radius[unheld], return_length=True
-            )
-            unheld = unheld[near < 2]
         kept[unheld] = False
         return kept

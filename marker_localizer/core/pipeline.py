@@ -56,9 +56,10 @@ _MAX_CONFIRMED = 800
 _MIN_TEMPLATE_BATCH = 256
 #: The counts of :class:`DetectionResult` that say what the caps cut, the price of a
 #: bounded worst case (``max_candidates`` after screening, :data:`_MAX_VERIFIED` after
-#: the prescreen, :data:`_MAX_CONFIRMED` after the template): the node's
-#: diagnostics show their sum.
-CAP_COUNTS = ("dropped_over_cap", "dropped_over_verification_cap")
+#: the prescreen, :data:`_MAX_CONFIRMED` after the template, and
+#: :data:`acceptance.MAX_PLATE_ASKED` at the plate's test): the node's diagnostics
+#: show their sum.
+CAP_COUNTS = ("dropped_over_cap", "dropped_over_verification_cap", "plate_asked_over_cap")
 #: ``min_contrast_dn`` is in 8-bit grey levels, of which white is this: the thresholds
 #: in grey levels are its share of white times the image's white (``full_scale``).
 _WHITE_DN = 255.0
@@ -211,7 +212,9 @@ class DetectionResult:
             ``rejected_symmetry``, ``rejected_template``, ``rejected_lines``,
             ``rejected_refinement``, ``rejected_score``, ``rejected_x_end``,
             ``rejected_misfit``, ``rejected_quartic``
-            (:meth:`acceptance.MarkerModel.plate_not_worse`), ``rejected_lattice``
+            (:meth:`acceptance.MarkerModel.plate_not_worse`; of them
+            ``plate_asked_over_cap`` unread, over :data:`acceptance.MAX_PLATE_ASKED`),
+            ``rejected_lattice``
             (:meth:`acceptance.MarkerModel.stands_alone`),
             ``merged_duplicates``, ``recentred``, ``found_recentred``,
             ``kept_faint`` and ``kept_under_floor`` (X's the modulation gate or
@@ -238,7 +241,8 @@ class DetectionResult:
             cap);
             ``dropped_over_verification_cap`` those over :data:`_MAX_VERIFIED` after
             the prescreen and over :data:`_MAX_CONFIRMED` after the template;
-            :data:`CAP_COUNTS` are the caps' cuts.
+            ``plate_asked_over_cap`` the located X's rejected unread at the
+            plate's test; :data:`CAP_COUNTS` are the caps' cuts.
         timings_ms: wall time per stage in milliseconds.
         verdicts: with ``refinement="template"``, every candidate the decision saw:
             where its fit ended, whether it was accepted and why not, its score and
@@ -1550,9 +1554,17 @@ class Detector:
         counts["rejected_refinement"] = int((~ok).sum())
         located = np.flatnonzero(ok)
         judged = self._model(frame).judge(
-            fit.xy[located], radius[located], angles[located], fit.score[located], self._floors
+            fit.xy[located],
+            radius[located],
+            angles[located],
+            fit.score[located],
+            self._floors,
+            self.config.entropy_cell_px,
         )
         counts["kept_under_floor"] = counts.get("kept_under_floor", 0) + int(judged.vouched.sum())
+        counts["plate_asked_over_cap"] = counts.get("plate_asked_over_cap", 0) + int(
+            judged.unread.sum()
+        )
         for index, reason in enumerate(acceptance.JUDGED_REASONS):
             counts[f"rejected_{reason}"] = counts.get(f"rejected_{reason}", 0) + int(
                 (judged.reason == index).sum()

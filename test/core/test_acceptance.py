@@ -10,6 +10,7 @@ from marker_localizer.core.noise import NoiseModel, estimate_noise
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 
 _RADIUS_RANGE_PX = (6.0, 40.0)
+_CELL_PX = DetectorConfig().entropy_cell_px
 
 
 class _CountedNoise:
@@ -225,13 +226,13 @@ def test_the_judgement_names_the_test_that_rejects_each_x():
     model = _model(scene.image)
     floors = acceptance.ScoreFloors(0.8, 0.945, _RADIUS_RANGE_PX[0])
     markers = (scene.centres, ring.radius_px, ring.line_angles)
-    clear = model.judge(*markers, np.ones(len(scene.centres)), floors)
+    clear = model.judge(*markers, np.ones(len(scene.centres)), floors, _CELL_PX)
     assert (clear.reason == acceptance.ACCEPTED).sum() >= 12
     assert not clear.vouched.any()
     assert (clear.passed("quartic") == (clear.reason == acceptance.ACCEPTED)).all()
     assert (clear.passed("x_end") <= clear.passed("score")).all()
 
-    unscored = model.judge(*markers, np.zeros(len(scene.centres)), floors)
+    unscored = model.judge(*markers, np.zeros(len(scene.centres)), floors, _CELL_PX)
     assert (unscored.vouched == model.vouches(*markers)).all()
     assert unscored.vouched.sum() >= 4
     assert (unscored.reason[~unscored.vouched] == acceptance.JUDGED_REASONS.index("score")).all()
@@ -239,7 +240,9 @@ def test_the_judgement_names_the_test_that_rejects_each_x():
 
     points = _ground_points(scene, 40, 0)
     angles = np.random.default_rng(0).uniform(0, np.pi, (len(points), 2))
-    ground = model.judge(points, np.full(len(points), 4.24), angles, np.zeros(len(points)), floors)
+    ground = model.judge(
+        points, np.full(len(points), 4.24), angles, np.zeros(len(points)), floors, _CELL_PX
+    )
     assert (ground.reason == acceptance.JUDGED_REASONS.index("score")).all()
 
 
@@ -300,3 +303,25 @@ def test_the_template_match_names_the_gate_that_rejects_each_x_the_rings_passed(
     extent = np.full(len(points), 4.24)
     ground = model.match(points, extent, angles, np.ones(len(points)), 0.0 * extent, gates)
     assert not (ground.reason == acceptance.ACCEPTED).any()
+
+
+def test_past_the_frames_cap_on_plates_an_x_fails_that_test_unread(monkeypatch):
+    # A frame tiled with X's, thinned by the caps before, asks hundreds of plates;
+    # at most MAX_PLATE_ASKED are read, and the rest carry the plate's reason unread.
+    scene = faint_tilted_markers(0)
+    ring = _ring_reading(scene.image, scene.centres)
+    model = _model(scene.image)
+    floors = acceptance.ScoreFloors(0.8, 0.945, _RADIUS_RANGE_PX[0])
+    markers = (scene.centres, ring.radius_px, ring.line_angles)
+    scores = np.ones(len(scene.centres))
+    whole = model.judge(*markers, scores, floors, _CELL_PX)
+    judged = whole.passed("misfit")
+    margin = scores[judged] - floors.floor(ring.radius_px[judged])
+    asked = model.plate_asked(scene.centres[judged], ring.radius_px[judged], margin).sum()
+    assert asked >= 4 and not whole.unread.any()
+
+    monkeypatch.setattr(acceptance, "MAX_PLATE_ASKED", 2)
+    capped = model.judge(*markers, scores, floors, _CELL_PX)
+    assert capped.unread.sum() == asked - 2
+    assert (capped.reason[capped.unread] == acceptance.JUDGED_REASONS.index("quartic")).all()
+    assert (capped.reason[~capped.unread] == whole.reason[~capped.unread]).all()
