@@ -316,6 +316,20 @@ def test_more_xs_than_the_costly_checks_take_are_cut_over_the_frame_and_counted(
     assert per_band.min() >= 0.5 * len(found) / 9
 
 
+def test_a_frame_tiled_with_xs_reads_at_most_the_caps_plates_and_counts_the_rest():
+    """Thinned to the cap over a wider frame, no X has a board's neighbour near: all ask
+    for their plate, and those over acceptance.MAX_PLATE_ASKED are rejected unread."""
+    image = x_tiling_frame(seed=1, shape=(1200, 1600))
+    detector = Detector(DetectorConfig(marker_radius_min_px=3.0, marker_radius_max_px=30.0))
+    result = detector.detect(image)
+    counts = result.counts
+    assert counts["plate_asked_over_cap"] > acceptance.MAX_PLATE_ASKED
+    assert counts["plate_asked_over_cap"] <= counts["rejected_quartic"]
+    rejected = counts["rejected_x_end"] + counts["rejected_quartic"]
+    assert len(result) + rejected == pipeline._MAX_CONFIRMED
+    assert "plate_asked_over_cap" in pipeline.CAP_COUNTS
+
+
 def test_markers_already_located_are_not_searched_again_but_the_others_are(cluttered_frames):
     """Tracking mode passes the markers the fit confirmed as ``known``."""
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
