@@ -415,15 +415,16 @@ class MarkerModel:
         margin = np.where(vouched, np.inf, score - floor)
         asked = self.plate_asked(xy[keep], radius[keep], margin[keep])
         rows = np.flatnonzero(asked)
-        read = rows[
-            screening.even_cap_index(xy[keep[rows]], margin[keep[rows]], MAX_PLATE_ASKED, cell_px)
-        ]
+        read = screening.even_cap_index(
+            xy[keep[rows]], margin[keep[rows]], MAX_PLATE_ASKED, cell_px
+        )
+        over = np.delete(rows, read)
+        asked[over] = False
         unread = np.zeros(len(xy), dtype=bool)
-        unread[keep[rows]] = True
-        unread[keep[read]] = False
-        asked[unread[keep]] = False
+        unread[keep[over]] = True
         smooth = ~self.plate_not_worse(xy[keep], radius[keep], angles[keep], margin[keep], asked)
-        reason[keep[smooth | unread[keep]]] = _QUARTIC
+        reason[keep[smooth]] = _QUARTIC
+        reason[unread] = _QUARTIC
         return Judgement(reason, vouched, unread)
 
     def vouches(
