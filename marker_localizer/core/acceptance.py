@@ -89,12 +89,13 @@ PLATE_ASKED_MAX_EXTENT_PX = verification.TEXTURE_EXTENT_PX
 #: away, a few extents; texture's false points have none this near.
 BOARD_NEIGHBOUR_EXTENTS = 4.0
 #: Detections whose plate one :meth:`MarkerModel.judge` reads at most (1-1.5 ms each,
-#: up to four windows), those that clear their floor by most first; the rest are
-#: rejected unread and counted (:attr:`Judgement.unread`). Real frames ask 0-15
-#: (aerial ground, cirn_uas, the boards, the flight simulator, the rendered
-#: families), real sand seen from half the height up to 80 a 32 MP frame; a frame
-#: tiled with X's, thinned by the detector's caps so that no corner has a neighbour
-#: near, asks 760-790 (docs/speed.md, "The plate asked of a frame tiled with X's").
+#: up to four windows), spread over the frame's cells, those that clear their floor
+#: by most first; the rest are rejected unread and counted (:attr:`Judgement.unread`).
+#: Frames ask 0-15 (real aerial ground, cirn_uas and boards 0-4; the flight simulator
+#: and the rendered families up to 15), real sand seen from half the height up to 80
+#: a 32 MP frame; a frame tiled with X's, thinned by the detector's caps so that no
+#: corner has a neighbour near, asks 760-790 (docs/speed.md, "The plate asked of a
+#: frame tiled with X's").
 MAX_PLATE_ASKED = 128
 #: A candidate of texture's size whose paint the modulation gate, or whose fitted
 #: score its floor, does not vouch for (:meth:`MarkerModel.vouches`) must match
