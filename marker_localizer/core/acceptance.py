@@ -391,7 +391,7 @@ class MarkerModel:
         reason = np.full(len(xy), ACCEPTED, dtype=np.int8)
         floor = floors.floor(radius)
         weak = score < floors.lowest(radius)
-        asked = weak & (radius >= verification.X_END_MAX_EXTENT_PX) if self.reads_plates else weak
+        asked = weak & ~self.read_as_tiny(radius)
         vouched = np.zeros(len(xy), dtype=bool)
         held = np.flatnonzero(asked)
         vouched[held] = self.vouches(xy[held], radius[held], angles[held])
@@ -636,6 +636,15 @@ class MarkerModel:
                     worse[rows] = plated > bar[rows] if unread_passes else ~(plated <= bar[rows])
         return worse
 
+    def read_as_tiny(self, radius: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """(N,) the X's the tiny markers' plate reading judges, not the model's vouch.
+
+        Where tiny X's are read with their plate (:attr:`reads_plates`), those of
+        texture's size (under :data:`verification.X_END_MAX_EXTENT_PX`).
+        """
+        tiny: NDArray[np.bool_] = self.reads_plates & (radius < verification.X_END_MAX_EXTENT_PX)
+        return tiny
+
     def plate_asked(
         self,
         xy: NDArray[np.float64],
@@ -648,7 +657,7 @@ class MarkerModel:
         corner is, and the plate is the costliest reading. ``xy`` holds every
         detection of the call, the neighbours among them.
         """
-        read_tiny = self.reads_plates & (radius < verification.X_END_MAX_EXTENT_PX)
+        read_tiny = self.read_as_tiny(radius)
         doubted = margin < PLATE_DOUBT_MARGIN
         asked = ~read_tiny & (doubted | (radius < PLATE_ASKED_MAX_EXTENT_PX))
         rows = np.flatnonzero(asked)
@@ -702,7 +711,7 @@ class MarkerModel:
         kept: NDArray[np.bool_] = np.ones(len(xy), dtype=bool)
         if asked is None:
             asked = self.plate_asked(xy, radius, margin)
-        read_tiny = asked & self.reads_plates & (radius < verification.X_END_MAX_EXTENT_PX)
+        read_tiny = asked & self.read_as_tiny(radius)
         tiny = np.flatnonzero(read_tiny)
         if len(tiny):
             evidence = plate.plate_evidence(
