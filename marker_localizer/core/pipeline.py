@@ -1245,9 +1245,7 @@ class Detector:
             ("floor", candidates.xy[keep & ~weak]),
         ]
         passed = keep & ~weak
-        tiny = np.flatnonzero(
-            passed & (symmetry.radius_px < verification.X_END_MAX_EXTENT_PX) & self._reads_plates
-        )
+        tiny = np.flatnonzero(passed & self._model(frame).read_as_tiny(symmetry.radius_px))
         ring_passed = _RingPassed(
             candidates.xy[tiny],
             symmetry.radius_px[tiny],
