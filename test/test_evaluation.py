@@ -89,6 +89,40 @@ def test_tally_counts_recall_and_false_positives_per_frame():
     assert tally.stats.mean == pytest.approx((0.1 + 0.2 + 0.1) / 3)
 
 
+def test_a_recall_interval_holds_the_recall_and_narrows_as_markers_are_added():
+    low, high = evaluation.recall_interval(47, 48)
+    assert low < 47 / 48 < high <= 1.0
+    # Wilson's interval of 47 of 48 at 95 %: 0.891-0.996.
+    assert (low, high) == pytest.approx((0.891, 0.996), abs=1e-3)
+    ten_times_the_markers = evaluation.recall_interval(470, 480)
+    assert ten_times_the_markers[1] - ten_times_the_markers[0] < high - low
+
+
+def test_a_recall_interval_reaches_the_ends_only_at_none_or_all_found():
+    assert evaluation.recall_interval(0, 10)[0] == pytest.approx(0.0)
+    assert evaluation.recall_interval(10, 10)[1] == pytest.approx(1.0)
+    assert evaluation.recall_interval(1, 10)[0] > 0.0
+    assert evaluation.recall_interval(9, 10)[1] < 1.0
+    assert all(math.isnan(b) for b in evaluation.recall_interval(0, 0))
+
+
+def test_no_false_point_in_three_frames_still_allows_one_a_frame():
+    # Exact Poisson: no event in 3 frames bounds the rate at -ln(0.025) / 3 a frame.
+    assert evaluation.rate_interval(0, 3) == pytest.approx((0.0, -math.log(0.025) / 3))
+    low, high = evaluation.rate_interval(1, 3)
+    assert (low, high) == pytest.approx((0.00844, 1.857), rel=1e-3)
+    assert all(math.isnan(b) for b in evaluation.rate_interval(2, 0))
+
+
+def test_a_tally_gives_the_intervals_of_its_recall_and_false_points():
+    tally = evaluation.DetectionTally()
+    truth = np.array([[0.0, 0.0], [10.0, 0.0]])
+    tally.add(evaluation.match_points(np.array([[0.1, 0.0], [40.0, 40.0]]), truth))
+    tally.add(evaluation.match_points(np.array([[0.0, 0.2], [10.0, 0.1]]), truth))
+    assert tally.recall_interval == evaluation.recall_interval(3, 4)
+    assert tally.fp_per_frame_interval == evaluation.rate_interval(1, 2)
+
+
 def test_share_within_two_sigma_counts_errors_against_their_own_sigma():
     errors = np.array([0.01, 0.05, 0.2])
     sigmas = np.array([0.01, 0.01, 0.2])

@@ -884,8 +884,9 @@ def evaluate_negatives(
 ) -> list[Row]:
     """Score detectors on real frames without any marker: every detection is false.
 
-    ``Row.extra``: ``fp_per_frame``, ``fp_per_megapixel`` (over all the frames'
-    pixels), ``seconds`` (per frame).
+    ``Row.extra``: ``fp_per_frame`` and its interval (``fp_per_frame_low``,
+    ``fp_per_frame_high``: :func:`evaluation.rate_interval`), ``fp_per_megapixel``
+    (over all the frames' pixels), ``seconds`` (per frame).
     """
     megapixels = sum(f.image.size for f in frames) / 1e6
     rows = []
@@ -896,11 +897,14 @@ def evaluate_negatives(
             false_points += len(points)
             seconds += dt
         n = max(len(frames), 1)
+        low, high = evaluation.rate_interval(false_points, len(frames))
         rows.append(
             Row(
                 detector.name,
                 extra={
                     "fp_per_frame": false_points / n,
+                    "fp_per_frame_low": low,
+                    "fp_per_frame_high": high,
                     "fp_per_megapixel": false_points / megapixels if megapixels else math.nan,
                     "seconds": seconds / n,
                 },
@@ -911,6 +915,9 @@ def evaluate_negatives(
 
 # --------------------------------------------------------------------------- tables
 
+#: The heading of an interval's column: its coverage.
+_INTERVAL_HEADING = f"{evaluation.INTERVAL_LEVEL:.0%}"
+
 
 def _fmt(value: float, digits: int = 3) -> str:
     return "-" if value is None or not np.isfinite(value) else f"{value:.{digits}f}"
@@ -918,6 +925,14 @@ def _fmt(value: float, digits: int = 3) -> str:
 
 def _pct(value: float) -> str:
     return "-" if not np.isfinite(value) else f"{100.0 * value:.1f}%"
+
+
+def _span(bounds: tuple[float, float], digits: int = 2, scale: float = 1.0) -> str:
+    """An interval (:data:`evaluation.INTERVAL_LEVEL`) as "low-high"."""
+    low, high = bounds
+    if not (np.isfinite(low) and np.isfinite(high)):
+        return "-"
+    return f"{scale * low:.{digits}f}-{scale * high:.{digits}f}"
 
 
 def family_table(title: str, rows: Sequence[Row]) -> str:
@@ -1033,12 +1048,13 @@ def uas_table(title: str, rows: Sequence[Row]) -> str:
 
 def negatives_table(title: str, rows: Sequence[Row]) -> str:
     """Format the table of real frames without markers (every detection is false)."""
-    header = f"{'detector':<34}{'FP/frame':>11}{'FP/MP':>10}{'s/frame':>9}"
+    header = f"{'detector':<34}{'FP/frame':>11}{_INTERVAL_HEADING:>14}{'FP/MP':>10}{'s/frame':>9}"
     lines = [title, header, "-" * len(header)]
     for row in rows:
         e = row.extra
         lines.append(
             f"{row.name:<34}{_fmt(e['fp_per_frame'], 2):>11}"
+            f"{_span((e['fp_per_frame_low'], e['fp_per_frame_high'])):>14}"
             f"{_fmt(e['fp_per_megapixel'], 3):>10}{_fmt(e['seconds'], 2):>9}"
         )
     return "\n".join(lines)
@@ -1047,12 +1063,14 @@ def negatives_table(title: str, rows: Sequence[Row]) -> str:
 def summary_table(results: Sequence[tuple[str, Row]], title: str | None = None) -> str:
     """One line per family for the reference row: the figures issue 12's targets are about."""
     header = (
-        f"{'family':<44}{'recall':>8}{'FP/fr':>8}{'mean':>8}{'CRLB':>8}{'err/CRLB':>9}{'lines':>7}"
+        f"{'family':<44}{'recall':>8}{_INTERVAL_HEADING:>12}{'FP/fr':>8}{_INTERVAL_HEADING:>12}"
+        f"{'mean':>8}{'CRLB':>8}{'err/CRLB':>9}{'lines':>7}"
     )
     lines = [
         title
         or (
-            f"Summary, {REFERENCE_ROW}: recall, false points per frame, mean error (px), "
+            f"Summary, {REFERENCE_ROW}: recall, false points per frame (each with its "
+            f"{_INTERVAL_HEADING} interval: Wilson's, exact Poisson), mean error (px), "
             "mean Cramer-Rao bound of the markers found (px), their ratio, median error "
             "of the line directions reported (degrees; the larger of the two lines'; "
             "the independent renderer's truth has none)"
@@ -1063,7 +1081,8 @@ def summary_table(results: Sequence[tuple[str, Row]], title: str | None = None) 
     for label, row in results:
         t = row.tally
         lines.append(
-            f"{label:<44}{_pct(t.recall):>8}{_fmt(t.fp_per_frame, 2):>8}"
+            f"{label:<44}{_pct(t.recall):>8}{_span(t.recall_interval, 1, 100.0):>12}"
+            f"{_fmt(t.fp_per_frame, 2):>8}{_span(t.fp_per_frame_interval):>12}"
             f"{_fmt(t.stats.mean):>8}{_fmt(t.mean_crlb_px, 4):>8}"
             f"{_fmt(t.error_over_crlb, 2):>9}{_fmt(t.median_line_error_deg, 2):>7}"
         )
@@ -1092,6 +1111,11 @@ def losses_table(results: Sequence[tuple[str, Row]]) -> str:
     return "\n".join(lines)
 
 
+def _finite_pair(bounds: tuple[float, float]) -> list[float] | None:
+    """An interval for JSON: [low, high], or None where it is undefined."""
+    return [float(b) for b in bounds] if all(math.isfinite(b) for b in bounds) else None
+
+
 def row_record(row: Row) -> dict[str, Any]:
     """JSON-ready figures of a row."""
     t, s = row.tally, row.tally.stats
@@ -1100,7 +1124,9 @@ def row_record(row: Row) -> dict[str, Any]:
         "truth": t.n_truth,
         "found": t.n_matched,
         "recall": t.recall,
+        "recall_interval": _finite_pair(t.recall_interval),
         "fp_per_frame": None if row.refiner else t.fp_per_frame,
+        "fp_per_frame_interval": None if row.refiner else _finite_pair(t.fp_per_frame_interval),
         "mean_px": s.mean,
         "rms_px": s.rms,
         "p95_px": s.p95,

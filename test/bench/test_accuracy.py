@@ -279,6 +279,14 @@ def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path,
     by_snr = saved["synthetic"][f"{title}: {accuracy.X_SNR_SPLIT.title}"]
     assert set(by_snr[accuracy.REFERENCE_ROW]) == set(accuracy.X_SNR_SPLIT.labels)
     assert set(saved["summary"]) == {"rendered (g)"}
+    # Recall and false points carry their intervals, printed and saved.
+    summary = saved["summary"]["rendered (g)"]
+    found, truth, frames = summary["found"], summary["truth"], summary["frames"]
+    assert summary["recall_interval"] == pytest.approx(evaluation.recall_interval(found, truth))
+    low, high = summary["fp_per_frame_interval"]
+    assert low <= summary["fp_per_frame"] < high
+    assert f"{low:.2f}-{high:.2f}" in printed.split("Summary, ours (symmetry)")[1]
+    assert frames == 1
 
 
 def test_held_out_frames_are_other_seeds_of_the_chosen_families_read_by_ours_alone(
@@ -322,7 +330,11 @@ def test_negatives_count_every_detection_per_frame_and_per_megapixel():
     )
     assert row.extra["fp_per_frame"] == 3.0
     assert row.extra["fp_per_megapixel"] == pytest.approx(6.0)
-    assert "FP/MP" in accuracy.negatives_table("t", [row])
+    # Six false points in two frames: the exact Poisson interval of 3 a frame.
+    interval = (row.extra["fp_per_frame_low"], row.extra["fp_per_frame_high"])
+    assert interval == evaluation.rate_interval(6, 2)
+    table = accuracy.negatives_table("t", [row])
+    assert "FP/MP" in table and f"{interval[0]:.2f}-{interval[1]:.2f}" in table
 
 
 def test_the_disc_lattice_is_ground_alone_between_its_two_levels_with_a_lattice_of_saddles():
