@@ -1048,13 +1048,13 @@ def uas_table(title: str, rows: Sequence[Row]) -> str:
 
 def negatives_table(title: str, rows: Sequence[Row]) -> str:
     """Format the table of real frames without markers (every detection is false)."""
-    header = f"{'detector':<34}{'FP/frame':>11}{_INTERVAL_HEADING:>14}{'FP/MP':>10}{'s/frame':>9}"
+    header = f"{'detector':<34}{'FP/frame':>11}{_INTERVAL_HEADING:>20}{'FP/MP':>10}{'s/frame':>9}"
     lines = [title, header, "-" * len(header)]
     for row in rows:
         e = row.extra
         lines.append(
             f"{row.name:<34}{_fmt(e['fp_per_frame'], 2):>11}"
-            f"{_span((e['fp_per_frame_low'], e['fp_per_frame_high'])):>14}"
+            f"{_span((e['fp_per_frame_low'], e['fp_per_frame_high'])):>20}"
             f"{_fmt(e['fp_per_megapixel'], 3):>10}{_fmt(e['seconds'], 2):>9}"
         )
     return "\n".join(lines)
