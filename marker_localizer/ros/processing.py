@@ -14,10 +14,11 @@ load): two threads 1.65x the frames per second of one, two processes (frames
 pickled to the workers) 1.58x; a worker thread waits for the GIL 5 % of its time
 (/proc/<pid>/task/<tid>/schedstat). The ceiling is memory bandwidth, not the
 GIL: two processes streaming 48 MB float32 arrays reach 1.45x on that machine,
-pure-Python loops 2.1x. The busier the ground, the more of a frame goes to
-Python between small numpy calls: two threads do 1.5x of one on real aerial
-frames, and 0.92x on the demo's 1280x960 gravel with 70 000 candidates a view
-(docs/speed.md, "Two worker threads against one, by ground").
+pure-Python loops 2.1x. How far threads scale depends on the ground: two do
+1.5x of one on real aerial frames, and 0.92x on the demo's 1280x960 gravel
+with 70 000 candidates a view, where each waits a third of its time and the
+pair spends half again the CPU time of one (docs/speed.md, "Two worker threads
+against one, by ground").
 
 Guarantees:
 
