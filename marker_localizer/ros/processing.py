@@ -14,11 +14,15 @@ load): two threads 1.65x the frames per second of one, two processes (frames
 pickled to the workers) 1.58x; a worker thread waits for the GIL 5 % of its time
 (/proc/<pid>/task/<tid>/schedstat). The ceiling is memory bandwidth, not the
 GIL: two processes streaming 48 MB float32 arrays reach 1.45x on that machine,
-pure-Python loops 2.1x. How far threads scale depends on the ground: two do
-1.5x of one on real aerial frames, and 0.92x on the demo's 1280x960 gravel
-with 70 000 candidates a view, where each waits a third of its time and the
-pair spends half again the CPU time of one (docs/speed.md, "Two worker threads
-against one, by ground").
+pure-Python loops 2.1x.
+
+That measurement predates most of the detector's later stages, and no longer
+holds (docs/speed.md, "Two worker threads against one, by ground", measured
+on 2026-12-01): two threads do 1.1-1.5x of one on the speed benchmark's and the
+real aerial frames and 0.8-0.9x on the demo's busy 1280x960 gravel, where
+each waits a third of its time for the GIL; two processes (frames pickled to
+them) do 1.9-2.2x of one on all three. The threads stay until the per-camera
+trackers, which any worker may serve, can move between processes.
 
 Guarantees:
 
