@@ -391,9 +391,8 @@ class MarkerModel:
         reason = np.full(len(xy), ACCEPTED, dtype=np.int8)
         floor = floors.floor(radius)
         weak = score < floors.lowest(radius)
-        asked = weak & ~self.read_as_tiny(radius)
         vouched = np.zeros(len(xy), dtype=bool)
-        held = np.flatnonzero(asked)
+        held = np.flatnonzero(weak & ~self.read_as_tiny(radius))
         vouched[held] = self.vouches(xy[held], radius[held], angles[held])
         weak &= ~vouched
         reason[weak] = _SCORE
