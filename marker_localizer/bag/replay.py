@@ -132,7 +132,8 @@ class ReplayReport:
     Attributes:
         bag: Input bag.
         out: Output bag.
-        workers: Worker threads used.
+        workers: Workers used.
+        worker_processes: whether they were processes (or threads).
         wall_s: Wall time from the first frame read to the last result written, s.
         cameras: Per camera, in topic order.
         undecodable: Per topic other than the images (truth), messages whose
@@ -143,6 +144,7 @@ class ReplayReport:
     bag: Path
     out: Path
     workers: int
+    worker_processes: bool
     wall_s: float
     cameras: dict[str, CameraReplay]
     undecodable: dict[str, int] = field(default_factory=dict)
@@ -179,7 +181,8 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
     cams = list(report.cameras.values())
     lines = [
         f"replayed {report.bag} -> {report.out}: {report.frames} frames in "
-        f"{report.wall_s:.2f} s ({report.frames_per_s:.2f} frames/s, {report.workers} workers)",
+        f"{report.wall_s:.2f} s ({report.frames_per_s:.2f} frames/s, {report.workers} worker "
+        f"{'processes' if report.worker_processes else 'threads'})",
         f"{'camera':<12}{'frames':>8}{'markers/frame':>15}{'ms/frame':>10}"
         f"{'skipped: encoding':>19}{'order':>7}{'failed':>8}{'undecodable':>13}",
     ]
@@ -280,6 +283,7 @@ class _Session:
         tracker_config: TrackerConfig,
         writer: BagWriter,
         workers: int,
+        worker_processes: bool,
     ) -> None:
         self.writer = writer
         self.workers = workers
@@ -299,6 +303,7 @@ class _Session:
             config,
             self._on_result,
             workers=workers,
+            worker_processes=worker_processes,
             max_frame_age_s=0.0,
             clock_ns=lambda: self.now_ns,
             on_error=self._on_error,
@@ -398,6 +403,7 @@ def replay_bag(
     config: DetectorConfig | None = None,
     tracker_config: TrackerConfig | None = None,
     workers: int | None = None,
+    worker_processes: bool | None = None,
     storage: str = DEFAULT_STORAGE,
     match_distance_px: float = DEFAULT_GATE_PX,
     progress: Callable[[int, int], None] | None = None,
@@ -410,7 +416,8 @@ def replay_bag(
             when the replay finished.
         config: Detector configuration (default: the defaults).
         tracker_config: Tracking settings (default: the defaults, as the node's).
-        workers: Worker threads (default: the node's default).
+        workers: Workers (default: the node's default).
+        worker_processes: run the workers as processes (default: the node's default).
         storage: Storage of the output, ``"mcap"`` or ``"sqlite3"``.
         match_distance_px: Largest detection-to-truth distance of a match, px.
         progress: Called with (image messages handled, image messages in the bag).
@@ -423,7 +430,10 @@ def replay_bag(
             no ``<cam>/image_raw`` topic; ``out`` exists or cannot be written.
         ConfigError: ``workers`` < 1.
     """
-    workers = NodeConfig().workers if workers is None else workers
+    defaults = NodeConfig()
+    workers = defaults.workers if workers is None else workers
+    if worker_processes is None:
+        worker_processes = defaults.worker_processes
     with BagReader(bag) as reader:
         topics = reader.topics
         cameras = image_cameras(topics)
@@ -456,6 +466,7 @@ def replay_bag(
                 tracker_config or TrackerConfig(),
                 writer,
                 workers,
+                worker_processes,
             )
             started = time.perf_counter()
             handled = 0
@@ -483,7 +494,9 @@ def replay_bag(
         _evaluate(
             session, clouds[TRUTH_SUFFIX], clouds[PARTIAL_SUFFIX], list(truth), match_distance_px
         )
-    return ReplayReport(Path(bag), Path(out), workers, wall_s, session.stats, undecodable, damage)
+    return ReplayReport(
+        Path(bag), Path(out), workers, worker_processes, wall_s, session.stats, undecodable, damage
+    )
 
 
 def _require_results(bag: str | Path, stats: dict[str, CameraReplay]) -> None:

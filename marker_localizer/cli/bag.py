@@ -191,7 +191,13 @@ def build_replay_parser() -> argparse.ArgumentParser:
         "--workers",
         type=int,
         default=NodeConfig().workers,
-        help="worker threads (default: %(default)s, as the node)",
+        help="workers (default: %(default)s, as the node)",
+    )
+    parser.add_argument(
+        "--worker-threads",
+        action="store_true",
+        help="run the workers as threads of this process, not as processes of their own "
+        "(the node's worker_processes:=false)",
     )
     parser.add_argument(
         "--storage",
@@ -225,6 +231,7 @@ def replay(argv: Sequence[str]) -> int:
             config=config,
             tracker_config=tracking,
             workers=args.workers,
+            worker_processes=not args.worker_threads,
             storage=args.storage,
             match_distance_px=args.match_distance,
             progress=bar.update,

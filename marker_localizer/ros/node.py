@@ -116,6 +116,7 @@ class MarkerLocalizerNode(Node):
             self._live.detector_config,
             self._deliver,
             workers=settings.workers,
+            worker_processes=settings.worker_processes,
             max_frame_age_s=settings.max_frame_age_s,
             clock_ns=lambda: self.get_clock().now().nanoseconds,
             publish_overlay=settings.publish_overlay,
@@ -142,7 +143,8 @@ class MarkerLocalizerNode(Node):
         if unknown:
             self.get_logger().warning(f"ignoring unknown parameter(s): {', '.join(unknown)}")
         self.get_logger().info(
-            f"serving cameras {', '.join(settings.cameras)} with {settings.workers} worker(s)"
+            f"serving cameras {', '.join(settings.cameras)} with {settings.workers} worker "
+            f"{'process' if settings.worker_processes else 'thread'}(s)"
         )
 
     def publish_diagnostics(self) -> None:

@@ -5,24 +5,23 @@ return; worker threads convert, detect and hand the result to a callback. Bag
 replay drives the same object with ``submit(..., block=True)`` and
 :meth:`FrameProcessor.wait_idle`, so that no frame is dropped.
 
-Why threads and not processes: the detector spends its time in OpenCV and numpy,
-which release the GIL, and threads share the frame, the Detector and the
-per-camera trackers without copying 12 MB images between processes or
-re-sending the configuration on every parameter change. Measured on the 2-core
-development machine (4096x3000 textured frames, full-frame detection, no other
-load): two threads 1.65x the frames per second of one, two processes (frames
-pickled to the workers) 1.58x; a worker thread waits for the GIL 5 % of its time
-(/proc/<pid>/task/<tid>/schedstat). The ceiling is memory bandwidth, not the
-GIL: two processes streaming 48 MB float32 arrays reach 1.45x on that machine,
-pure-Python loops 2.1x.
-
-That measurement predates most of the detector's later stages, and no longer
-holds (docs/speed.md, "Two worker threads against one, by ground", measured
-on 2026-12-01): two threads do 1.1-1.5x of one on the speed benchmark's and the
-real aerial frames and 0.8-0.9x on the demo's busy 1280x960 gravel, where
-each waits a third of its time for the GIL; two processes (frames pickled to
-them) do 1.9-2.2x of one on all three. The threads stay until the per-camera
-trackers, which any worker may serve, can move between processes.
+Threads or processes (``worker_processes``): worker threads share the frame and
+the Detector, and wait for the GIL wherever the detector runs Python rather than
+OpenCV or numpy, which on busy ground is much of its time. Measured on the
+2-core development machine (docs/speed.md, "Two worker threads against one, by
+ground"): two threads do 1.1-1.5x the frames a second of one on the speed
+benchmark's and the real aerial frames and 0.8-0.9x on the demo's busy
+1280x960 gravel, where each waits a third of its time for the GIL; two
+processes do 1.9-2.2x of one on all three. With processes, each worker thread
+hands its frame to a worker process of its own and waits: the frame, the
+Detector (its settings, 2 kB) and the camera's :class:`MarkerTracker` (its
+tracks and anchor patches, about 25 kB) go there pickled, the result and the
+tracker come back. So any process may serve any camera, a parameter change
+reaches the next frame as with threads, and the mailboxes, scheduling and
+guarantees below are the same either way. The processes are forked from a fork
+server that imported the detector once (a new one starts in milliseconds); a
+process that dies (killed for memory, a crash in native code) fails the frames
+it had, counted as failures, and the next frames go to fresh processes.
 
 Guarantees:
 
@@ -47,11 +46,17 @@ Guarantees:
 
 from __future__ import annotations
 
+import ctypes
+import multiprocessing
+import signal
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
@@ -84,6 +89,17 @@ ResultCallback = Callable[[str, PointCloud2, Image | None], None]
 ErrorCallback = Callable[[str, Exception], None]
 
 _NS_PER_S = 1_000_000_000
+#: What a worker process imports once, in the fork server its workers are forked from,
+#: so that a new worker starts in milliseconds, not the seconds these imports take.
+_WORKER_PRELOAD = ["marker_localizer.ros.processing"]
+#: OpenBLAS's setter of its thread count, by build: numpy's and scipy's wheels
+#: (scipy-openblas, 64- and 32-bit integers), older wheels, the distributions' libopenblas.
+_OPENBLAS_SETTERS = (
+    "scipy_openblas_set_num_threads64_",
+    "scipy_openblas_set_num_threads",
+    "openblas_set_num_threads64_",
+    "openblas_set_num_threads",
+)
 
 
 @dataclass(frozen=True)
@@ -96,13 +112,71 @@ class _Frame:
     waiting_since_ns: int
 
 
+def single_thread_blas() -> list[str]:
+    """Limit every OpenBLAS loaded in this process to one thread, from now on.
+
+    The workers are the parallelism, one per core. OpenBLAS's own threads
+    would only compete with them, and they spin while they wait: two workers
+    whose numpy and scipy each ran two BLAS threads did 0.6-0.9x the frames a
+    second of the same workers with one (docs/speed.md, "Worker processes").
+    ``OPENBLAS_NUM_THREADS`` acts only before numpy loads, so the loaded
+    libraries are asked instead. Linux only (the libraries are found in
+    /proc/self/maps); another BLAS (MKL) is left as it is.
+
+    Returns:
+        The paths of the libraries limited.
+    """
+    try:
+        with open("/proc/self/maps") as maps:
+            paths = {line.split()[-1] for line in maps if "openblas" in line.lower()}
+    except OSError:
+        return []
+    limited = []
+    for path in sorted(p for p in paths if p.startswith("/")):
+        library = ctypes.CDLL(path)
+        setter = next((getattr(library, n) for n in _OPENBLAS_SETTERS if hasattr(library, n)), None)
+        if setter is not None:
+            setter(1)
+            limited.append(path)
+    return limited
+
+
+def _start_worker_process() -> None:
+    """Initialiser of a worker process."""
+    # Ctrl-C reaches the whole process group; the parent finishes the frames in flight
+    # on it, which a worker that died of the signal would fail.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # One worker per core: OpenCV's and BLAS's thread pools would compete with the others.
+    cv2.setNumThreads(1)
+    single_thread_blas()
+
+
+def _worker_ready() -> None:
+    """Nothing: the task whose return shows that a worker process is up."""
+
+
+def _detect_frame(
+    detector: Detector, tracker: MarkerTracker | None, pixels: np.ndarray, stamp_s: float
+) -> tuple[DetectionResult, MarkerTracker | None]:
+    """One frame, in a worker thread or process: the camera's tracker, or a full pass.
+
+    Returns:
+        The result without its survivors (the candidates' positions after each
+        test, up to a few hundred kB a frame that a process would copy back for
+        nothing: the node publishes the detections and counts), and the tracker,
+        which has moved on by this frame.
+    """
+    result = detector.detect(pixels) if tracker is None else tracker.update(pixels, stamp_s)
+    return DetectionResult(result.detections, result.counts, result.timings_ms), tracker
+
+
 def stamp_to_ns(header: Header) -> int:
     """Header stamp in nanoseconds."""
     return int(header.stamp.sec) * _NS_PER_S + int(header.stamp.nanosec)
 
 
 class FrameProcessor:
-    """Newest-frame mailboxes per camera served by a pool of worker threads.
+    """Newest-frame mailboxes per camera served by a pool of worker threads or processes.
 
     Args:
         cameras: camera names; :meth:`submit` accepts only these.
@@ -119,6 +193,8 @@ class FrameProcessor:
             worker thread.
         stats_window_s: sliding window of the per-camera statistics, s.
         tracker_config: tracking-mode settings of the first frames.
+        worker_processes: each worker thread runs the detector in a process of
+            its own (see the module's docstring); blocks until they are up.
 
     Raises:
         ConfigError: no cameras, duplicate names, workers < 1, negative age
@@ -138,6 +214,7 @@ class FrameProcessor:
         on_error: ErrorCallback | None = None,
         stats_window_s: float = 10.0,
         tracker_config: TrackerConfig | None = None,
+        worker_processes: bool = False,
     ) -> None:
         if not cameras or len(set(cameras)) != len(cameras):
             raise ConfigError(f"cameras must be non-empty and unique, got {list(cameras)!r}")
@@ -164,6 +241,11 @@ class FrameProcessor:
         # Held while a result is delivered; shutdown takes it to close the gate.
         self._deliver_lock = threading.Lock()
         self._gate_open = True
+        # Replaced when one of its processes dies (_in_worker_process).
+        self._pool_lock = threading.Lock()
+        self._pool: ProcessPoolExecutor | None = None
+        if worker_processes:
+            self._pool = self._start_pool(workers)
         self._threads = [
             threading.Thread(target=self._work, name=f"marker_worker_{i}", daemon=True)
             for i in range(workers)
@@ -178,8 +260,13 @@ class FrameProcessor:
 
     @property
     def workers(self) -> int:
-        """Number of worker threads."""
+        """Number of workers."""
         return len(self._threads)
+
+    @property
+    def worker_processes(self) -> bool:
+        """Whether the workers run the detector in processes of their own."""
+        return self._pool is not None
 
     @property
     def max_frame_age_s(self) -> float:
@@ -307,6 +394,7 @@ class FrameProcessor:
         config = self.config
         values = {
             "workers": str(self.workers),
+            "worker kind": "processes" if self.worker_processes else "threads",
             "frames in flight": str(len(self.in_flight())),
             "max frame age (s)": f"{self.max_frame_age_s:g}",
             "marker radius range (px)": (
@@ -336,7 +424,36 @@ class FrameProcessor:
             thread.join(None if deadline is None else max(deadline - time.monotonic(), 0.0))
         with self._deliver_lock:
             self._gate_open = False
-        return not any(thread.is_alive() for thread in self._threads)
+        finished = not any(thread.is_alive() for thread in self._threads)
+        with self._pool_lock:
+            if self._pool is not None:
+                # A process still busy at the timeout finishes its frame and exits.
+                self._pool.shutdown(wait=finished, cancel_futures=True)
+        return finished
+
+    def _start_pool(self, workers: int) -> ProcessPoolExecutor:
+        """Worker processes, up and ready."""
+        context = multiprocessing.get_context("forkserver")
+        context.set_forkserver_preload(_WORKER_PRELOAD)
+        pool = ProcessPoolExecutor(workers, context, _start_worker_process)
+        for started in [pool.submit(_worker_ready) for _ in range(workers)]:
+            started.result()
+        return pool
+
+    def _in_worker_process(
+        self, detector: Detector, tracker: MarkerTracker | None, pixels: np.ndarray, stamp_s: float
+    ) -> tuple[DetectionResult, MarkerTracker | None]:
+        """:func:`_detect_frame` in one of the worker processes."""
+        pool = self._pool
+        assert pool is not None
+        try:
+            return pool.submit(_detect_frame, detector, tracker, pixels, stamp_s).result()
+        except BrokenProcessPool:
+            with self._pool_lock:
+                if self._pool is pool and not self._stopping:
+                    pool.shutdown(wait=False, cancel_futures=True)
+                    self._pool = self._start_pool(self.workers)
+            raise
 
     def _tracker(self, camera: str, detector: Detector, config: TrackerConfig) -> MarkerTracker:
         """The camera's tracker around ``detector`` (a new one after a configuration change)."""
@@ -361,9 +478,16 @@ class FrameProcessor:
         """
         # Read once: a reconfiguration applies from the next frame.
         detector, tracking = self._detector, self._tracker_config
-        if tracking.enabled:
-            return self._tracker(camera, detector, tracking).update(pixels, stamp_s)
-        return detector.detect(pixels)
+        tracker = self._tracker(camera, detector, tracking) if tracking.enabled else None
+        if self._pool is None:
+            return _detect_frame(detector, tracker, pixels, stamp_s)[0]
+        result, moved = self._in_worker_process(detector, tracker, pixels, stamp_s)
+        if moved is not None:
+            # The copy that came back, tied to this side's detector and settings again,
+            # which _tracker compares by identity.
+            moved.detector, moved.config = detector, tracking
+            self._trackers[camera] = moved
+        return result
 
     def _idle(self) -> bool:
         return not self._busy and all(frame is None for frame in self._pending.values())

@@ -203,6 +203,7 @@ def test_replay_main_reads_sqlite3_with_the_node_params_file_and_prints_both_tab
     )
     text = capsys.readouterr().out
     assert status == 0, text
+    assert "2 worker processes" in text
     assert "markers/frame" in text and "ms/frame" in text
     assert "recall" in text and "p95 px" in text
     all_row = next(line for line in text.splitlines() if line.startswith("all ") and "." in line)
@@ -287,6 +288,22 @@ def test_unknown_encodings_are_counted_and_skipped(tmp_path):
     cam = report.cameras["cam0"]
     assert (cam.frames, cam.skipped_encoding, cam.failed) == (1, 1, 0)
     assert cam.markers == 1
+
+
+def test_worker_processes_and_worker_threads_write_the_same_points(tmp_path):
+    frames = [("/cam0/image_raw", t, image(x_marker_frame(), t)) for t in (1, 2, 3)]
+    bag = write_bag(tmp_path / "in", frames)
+    points = {}
+    for processes in (True, False):
+        out = tmp_path / f"out_{processes}"
+        report = replay_bag(bag, out, workers=2, worker_processes=processes)
+        assert report.worker_processes is processes
+        with BagReader(out) as written:
+            clouds = [m.decode() for m in written.messages(["/cam0/marker_points"])]
+        points[processes] = np.concatenate([cloud_to_array(c)[["x", "y"]].tolist() for c in clouds])
+    assert points[True].shape == (3, 2)
+    np.testing.assert_allclose(points[True], [(40.3, 30.6)] * 3, atol=0.05)
+    np.testing.assert_allclose(points[True], points[False], atol=1e-9)
 
 
 def test_bag_with_nothing_processable_fails_and_leaves_no_output(tmp_path):

@@ -181,6 +181,7 @@ def test_diagnostics_report_ok_levels_values_and_node_status(localizer, tester):
     node = statuses["marker_localizer: node"]
     assert level_of(node) == OK
     assert values_of(node)["workers"] == "2"
+    assert values_of(node)["worker kind"] == "processes"
 
 
 def test_diagnostics_warn_when_16_bit_frames_look_like_a_shallower_cameras(localizer, tester):

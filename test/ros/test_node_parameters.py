@@ -63,6 +63,7 @@ def test_accepted_parameter_change_takes_effect_on_the_next_frame(localizer, tes
         ("tracker.match_px", 0.0, "out of range"),
         ("tracker.full_frame_every", 2.5, "Wrong parameter type"),
         ("workers", 4, "read-only"),
+        ("worker_processes", False, "read-only"),
         ("cameras", ["cam0"], "read-only"),
     ],
 )

@@ -1,7 +1,11 @@
 """FrameProcessor, the node's and replay's worker pool: mailboxes, order, age, failures, stop."""
 
 import array
+import ctypes
+import os
+import signal
 import threading
+from pathlib import Path
 
 import numpy as np
 from node_testing import (
@@ -14,7 +18,8 @@ from node_testing import (
 
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ImageError
-from marker_localizer.ros.processing import FrameProcessor
+from marker_localizer.ros.processing import FrameProcessor, single_thread_blas
+from marker_localizer.synthetic import MarkerPlacement, render_markers
 
 # --------------------------------------------------------------------------- FrameProcessor
 
@@ -177,3 +182,139 @@ def test_frame_over_max_pixels_fails_and_the_next_smaller_one_is_served():
     assert collect.results == [("cam0", 2, 1)]
     snap = processor.snapshots()["cam0"]
     assert snap.last_error == "ImageError: image: 65x64 = 4160 px exceeds max_pixels=4096"
+
+
+# --------------------------------------------------------------------------- worker processes
+
+
+def _panning_frames(n_frames: int) -> list[np.ndarray]:
+    """Textured ground with three markers, moving 5 px right and 2 px up a frame."""
+    frames = []
+    for k in range(n_frames):
+        placements = [
+            MarkerPlacement(x + 5 * k, y - 2 * k, 12.0, 0.4 * i, 15.0, 0.5)
+            for i, (x, y) in enumerate([(90.3, 80.6), (220.8, 150.1), (140.2, 200.7)])
+        ]
+        scene = render_markers((260, 340), placements, k, background="texture", noise_sigma_dn=2.0)
+        frames.append(scene.image)
+    return frames
+
+
+def _worker_process_ids() -> set[int]:
+    """Live processes whose parent is a child of this one: the fork server's workers."""
+    parents: dict[int, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            # The command name may hold spaces; the parent's pid follows its ')'.
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if fields[0] != "Z":
+            parents[int(stat.parent.name)] = int(fields[1])
+    children = {pid for pid, parent in parents.items() if parent == os.getpid()}
+    return {pid for pid, parent in parents.items() if parent in children}
+
+
+def test_worker_processes_find_what_threads_find_and_carry_each_cameras_tracks():
+    config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=20.0)
+    frames = _panning_frames(4)
+    results = {}
+    for processes in (False, True):
+        processor = FrameProcessor(
+            ["a", "b"], config, Collector(), workers=2, worker_processes=processes
+        )
+        try:
+            results[processes] = [
+                processor.detect(camera, frame, float(k + 1))
+                for k, frame in enumerate(frames)
+                for camera in ("a", "b")
+            ]
+        finally:
+            assert processor.shutdown(TIMEOUT_S)
+    for threaded, in_process in zip(results[False], results[True], strict=True):
+        assert len(in_process.detections) == len(threaded.detections) == 3
+        np.testing.assert_allclose(
+            [(d.x, d.y) for d in in_process.detections],
+            [(d.x, d.y) for d in threaded.detections],
+            atol=1e-9,
+        )
+    # After each camera's first frame, its markers are confirmed by the tracks the
+    # worker processes passed back, not found again by full passes.
+    assert [r.counts["full_frame"] for r in results[True]] == [1, 1] + [0] * 6
+    assert all(r.counts["tracked"] == 3 for r in results[True][2:])
+
+
+def test_worker_processes_exit_on_shutdown():
+    before = _worker_process_ids()
+    processor = FrameProcessor(
+        ["a"], DetectorConfig(), Collector(), workers=2, worker_processes=True
+    )
+    workers = _worker_process_ids() - before
+    assert len(workers) == 2
+    assert processor.shutdown(TIMEOUT_S)
+    wait_until(lambda: not workers & _worker_process_ids(), "the worker processes to exit")
+
+
+def test_a_killed_worker_process_fails_its_frame_and_a_fresh_one_serves_the_next():
+    collect = Collector()
+    failures = []
+    before = _worker_process_ids()
+    processor = FrameProcessor(
+        ["cam0"],
+        DetectorConfig(),
+        collect,
+        workers=1,
+        worker_processes=True,
+        on_error=lambda camera, err: failures.append(err),
+    )
+    try:
+        (worker,) = _worker_process_ids() - before
+        os.kill(worker, signal.SIGKILL)  # as the kernel's out-of-memory killer would
+        processor.submit("cam0", stamped(1), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+        processor.submit("cam0", stamped(2), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown(TIMEOUT_S)
+    assert collect.results == [("cam0", 2, 1)]
+    assert [type(err).__name__ for err in failures] == ["BrokenProcessPool"]
+    snap = processor.snapshots()["cam0"]
+    assert (snap.errors, snap.processed) == (1, 1)
+
+
+def test_worker_processes_leave_ctrl_c_to_the_node():
+    collect = Collector()
+    before = _worker_process_ids()
+    processor = FrameProcessor(
+        ["cam0"], DetectorConfig(), collect, workers=1, worker_processes=True
+    )
+    try:
+        (worker,) = _worker_process_ids() - before
+        # What a terminal's Ctrl-C sends to every process of the node's group.
+        os.kill(worker, signal.SIGINT)
+        processor.submit("cam0", stamped(1), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+        assert worker in _worker_process_ids()
+    finally:
+        processor.shutdown(TIMEOUT_S)
+    assert collect.results == [("cam0", 1, 1)]
+    assert processor.snapshots()["cam0"].errors == 0
+
+
+def test_single_thread_blas_leaves_every_loaded_openblas_one_thread():
+    limited = single_thread_blas()
+    # numpy's and scipy's wheels each bring an OpenBLAS.
+    assert len(limited) >= 2
+    for path in limited:
+        library = ctypes.CDLL(path)
+        getter = next(
+            getattr(library, name)
+            for name in (
+                "scipy_openblas_get_num_threads64_",
+                "scipy_openblas_get_num_threads",
+                "openblas_get_num_threads64_",
+                "openblas_get_num_threads",
+            )
+            if hasattr(library, name)
+        )
+        assert getter() == 1
