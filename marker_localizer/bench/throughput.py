@@ -1,5 +1,8 @@
 """Throughput of the node: five cameras of rendered 12 MP frames over real DDS, 1 and 2 workers.
 
+The workers are the node's default, processes (``worker_processes``), or with
+``--worker-threads`` threads of the node's process.
+
 ``marker-localizer bench throughput`` (or ``python -m marker_localizer.bench.throughput``)
 renders one ground frame per camera once, then for each worker count starts a
 :class:`MarkerLocalizerNode` in this process and a camera process that
@@ -26,9 +29,10 @@ reports:
   still waiting in the mailboxes grow old and are dropped by age (up to one
   per camera): the end of the feed, not a steady-state loss;
 * latency p50/p95 from the header stamp to the result's arrival at a subscriber;
-* CPU use of the node's process and of the camera process (100 % = one core
-  busy), CPU used meanwhile by any other process on the machine (from
-  /proc/stat), and the node process's peak resident memory. On a shared machine
+* CPU use of the node's process with its worker processes and of the camera
+  process (100 % = one core busy), CPU used meanwhile by any other process on
+  the machine (from /proc/stat), and the node process's peak resident memory
+  (its worker processes' not included). On a shared machine
   the scaling ratio means little unless the other processes left the second
   core free.
 """
@@ -84,6 +88,7 @@ class RunResult:
     """Figures of one run with a given number of workers."""
 
     workers: int
+    worker_processes: bool
     published: int
     received: int
     processed: int
@@ -180,6 +185,7 @@ def run_once(
     *,
     tracking: bool = True,
     radius_range: tuple[float, float] = speed.RADIUS_RANGE,
+    worker_processes: bool = True,
 ) -> RunResult:
     """Start a node with ``workers`` workers, feed it from a camera process, finish, measure.
 
@@ -190,6 +196,7 @@ def run_once(
         rate_hz: frames per second and camera.
         tracking: the node's ``tracker.enabled`` parameter.
         radius_range: the node's marker radius range, px.
+        worker_processes: the node's ``worker_processes`` parameter.
 
     Returns:
         The run's figures.
@@ -200,6 +207,7 @@ def run_once(
         namespace=namespace,
         parameter_overrides=[
             Parameter("workers", value=workers),
+            Parameter("worker_processes", value=worker_processes),
             Parameter("tracker.enabled", value=tracking),
             # The diagnostics' window over the whole run, to compare their loss count.
             Parameter("stats_window_s", value=min(seconds + _CAMERA_START_TIMEOUT_S, 3600.0)),
@@ -238,13 +246,14 @@ def run_once(
         )
         if not started.is_set():
             raise RuntimeError(f"the camera process exited with code {cameras.exitcode}")
-        cpu_start, machine_start, start_ns = _cpu_s(), _machine_busy_s(), time.time_ns()
+        cpu_start = _node_cpu_s(cameras.pid)
+        machine_start, start_ns = _machine_busy_s(), time.time_ns()
         published, camera_cpu_s = report.get(timeout=seconds + _CAMERA_START_TIMEOUT_S)
         cameras.join()
         if not node.processor.wait_idle(_DRAIN_TIMEOUT_S):
             raise RuntimeError(f"frames still in flight {_DRAIN_TIMEOUT_S:g} s after the end")
         _wait(lambda: len(arrivals) >= _processed(node), "the last results")
-        cpu_s = _cpu_s() - cpu_start
+        cpu_s = _node_cpu_s(cameras.pid) - cpu_start
         machine_s = _machine_busy_s() - machine_start
         end_ns = max(a for a, _ in arrivals) if arrivals else time.time_ns()
     finally:
@@ -259,6 +268,7 @@ def run_once(
     span_s = (end_ns - start_ns) / _NS_PER_S
     return RunResult(
         workers=workers,
+        worker_processes=worker_processes,
         published=published,
         received=sum(s.received for s in snaps),
         processed=len(arrivals),
@@ -333,6 +343,29 @@ def _cpu_s() -> float:
     return times.user + times.system
 
 
+def _node_cpu_s(camera_pid: int | None) -> float:
+    """CPU seconds of this process and its descendants but the camera process's subtree.
+
+    The node's worker processes are children of its fork server; a process that
+    has exited no longer counts (the workers live as long as the node).
+    """
+    parents, used = {}, {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            # The command name may hold spaces; the fields from the state on follow its ')'.
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        pid = int(stat.parent.name)
+        parents[pid] = int(fields[1])
+        used[pid] = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    tree, frontier = {os.getpid()}, {os.getpid()}
+    while frontier:
+        frontier = {p for p, parent in parents.items() if parent in frontier and p != camera_pid}
+        tree |= frontier
+    return sum(used.get(pid, 0.0) for pid in tree)
+
+
 def _machine_busy_s() -> float:
     """CPU seconds all processes have used since boot (NaN where /proc/stat is missing)."""
     try:
@@ -355,14 +388,15 @@ def _wait(predicate: Callable[[], bool], what: str, timeout_s: float = 60.0) -> 
 def format_table(results: Sequence[RunResult]) -> str:
     """The results as a fixed-width text table, one row per worker count."""
     header = (
-        f"{'workers':>7} {'frames/s':>9} {'processed':>9} {'published':>9} "
+        f"{'workers':>7} {'kind':>9} {'frames/s':>9} {'processed':>9} {'published':>9} "
         f"{'drop DDS':>8} {'diag lost':>9} {'drop mbox':>9} {'drop age':>8} {'lat p50 ms':>10} "
         f"{'lat p95 ms':>10} {'CPU %':>6} {'cameras %':>9} {'others %':>8} {'peak MB':>8}"
     )
     rows = [header, "-" * len(header)]
     for r in results:
         rows.append(
-            f"{r.workers:>7} {r.frames_per_s:>9.3f} {r.processed:>9} {r.published:>9} "
+            f"{r.workers:>7} {'processes' if r.worker_processes else 'threads':>9} "
+            f"{r.frames_per_s:>9.3f} {r.processed:>9} {r.published:>9} "
             f"{r.dropped_in_transport:>8} {r.lost_by_stamps:>9} {r.dropped_mailbox:>9} "
             f"{r.dropped_age:>8} "
             f"{r.latency_p50_ms:>10.0f} {r.latency_p95_ms:>10.0f} {r.cpu_percent:>6.0f} "
@@ -408,6 +442,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="the node's marker radius range, px (default 6 40)",
     )
     parser.add_argument(
+        "--worker-threads",
+        action="store_true",
+        help="the node's workers as threads of its process (worker_processes:=false) "
+        "instead of processes of their own",
+    )
+    parser.add_argument(
         "--full-frame",
         action="store_true",
         help="a full-frame detection per frame (tracker.enabled off) instead of the "
@@ -444,6 +484,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         args.rate_hz,
                         tracking=tracking,
                         radius_range=tuple(args.radius_range),
+                        worker_processes=not args.worker_threads,
                     )
                 )
         finally:

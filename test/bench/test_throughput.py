@@ -1,4 +1,4 @@
-"""bench throughput: the panning cameras, and one short run with 1 and 2 workers."""
+"""bench throughput: the panning cameras; short runs, 1 and 2 worker processes, 2 threads."""
 
 import numpy as np
 
@@ -23,13 +23,20 @@ def test_benchmark_cameras_pan_at_a_constant_step_and_turn_back_at_the_end_of_th
 def test_throughput_benchmark_measures_one_and_two_workers_on_small_frames(ros, tmp_path):
     grounds = throughput.render_grounds(320, 240, directory=tmp_path, markers=1)
     results = [throughput.run_once(grounds, n, seconds=1.0, rate_hz=10.0) for n in (1, 2)]
+    results.append(
+        throughput.run_once(grounds, 2, seconds=1.0, rate_hz=10.0, worker_processes=False)
+    )
     for result in results:
         assert result.processed > 0
         assert result.frames_per_s > 0
         assert result.published == 5 * 10
         assert result.dropped_mailbox + result.dropped_age + result.processed <= result.received
         assert result.latency_p95_ms >= result.latency_p50_ms > 0
-    table = throughput.format_table(results)
-    assert table.splitlines()[0].split()[:2] == ["workers", "frames/s"]
-    assert "cameras %" in table.splitlines()[0]  # the camera process's CPU apart
-    assert len(table.splitlines()) == 4
+    table = throughput.format_table(results).splitlines()
+    assert table[0].split()[:3] == ["workers", "kind", "frames/s"]
+    assert "cameras %" in table[0]  # the camera process's CPU apart
+    assert [row.split()[:2] for row in table[2:]] == [
+        ["1", "processes"],
+        ["2", "processes"],
+        ["2", "threads"],
+    ]
