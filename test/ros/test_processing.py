@@ -244,14 +244,18 @@ def test_worker_processes_find_what_threads_find_and_carry_each_cameras_tracks()
     assert all(r.counts["tracked"] == 3 for r in results[True][2:])
 
 
-def test_worker_processes_exit_on_shutdown():
-    before = _worker_process_ids()
-    processor = FrameProcessor(
-        ["a"], DetectorConfig(), Collector(), workers=2, worker_processes=True
-    )
+def test_worker_processes_and_the_frames_shared_memory_are_gone_after_shutdown():
+    before, blocks = _worker_process_ids(), set(os.listdir("/dev/shm"))
+    collect = Collector()
+    processor = FrameProcessor(["a"], DetectorConfig(), collect, workers=2, worker_processes=True)
     workers = _worker_process_ids() - before
     assert len(workers) == 2
+    processor.submit("a", stamped(1), block=True)
+    assert processor.wait_idle(TIMEOUT_S)
+    assert set(os.listdir("/dev/shm")) > blocks  # the block the frame went through
     assert processor.shutdown(TIMEOUT_S)
+    assert collect.results == [("a", 1, 1)]
+    assert set(os.listdir("/dev/shm")) == blocks
     wait_until(lambda: not workers & _worker_process_ids(), "the worker processes to exit")
 
 
