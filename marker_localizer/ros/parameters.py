@@ -108,11 +108,11 @@ class NodeConfig:
     )
     worker_processes: bool = _node_param(
         True,
-        "Each worker runs the detector in a process of its own (frames and the camera's "
-        "tracks pickled to it, ~10 ms a 12 MP frame); false: in a thread of the node's "
-        "process. Default true: on the 2-core development machine two processes did "
-        "1.5x the frames a second of two threads on 12 MP frames, which wait for "
-        "Python's GIL.",
+        "Each worker runs the detector in a process of its own (the frame through shared "
+        "memory, the camera's tracks pickled: 6 ms a 12 MP frame); false: in a thread of "
+        "the node's process. Default true: on the 2-core development machine two "
+        "processes took 1.7x the frames a second of two threads, which wait for Python's "
+        "GIL (five 12 MP cameras, bench throughput).",
         read_only=True,
     )
     max_frame_age_s: float = _node_param(

@@ -12,13 +12,14 @@ OpenCV or numpy, which on busy ground is much of its time. Measured on the
 ground"): two threads do 1.1-1.5x the frames a second of one on the speed
 benchmark's and the real aerial frames and 0.8-0.9x on the demo's busy
 1280x960 gravel, where each waits a third of its time for the GIL; two
-processes do 1.9-2.2x of one on all three. With processes, each worker thread
-hands its frame to a worker process of its own and waits: the frame, the
-Detector (its settings, 2 kB) and the camera's :class:`MarkerTracker` (its
-tracks and anchor patches, about 25 kB) go there pickled, the result and the
-tracker come back. So any process may serve any camera, a parameter change
-reaches the next frame as with threads, and the mailboxes, scheduling and
-guarantees below are the same either way. The processes are forked from a fork
+processes do 1.8-2.0x of one on all three, once each runs one BLAS thread
+(:func:`single_thread_blas`). With processes, each worker thread hands its
+frame to a worker process and waits: the frame through the thread's shared
+memory block, the Detector (its settings, 2 kB) and the camera's
+:class:`MarkerTracker` (its tracks and anchor patches, about 25 kB) pickled;
+the result and the tracker come back. So any process may serve any camera,
+a parameter change reaches the next frame as with threads, and the
+mailboxes, scheduling and guarantees below are the same either way. The processes are forked from a fork
 server that imported the detector once (a new one starts in milliseconds); a
 process that dies (killed for memory, a crash in native code) fails the frames
 it had, counted as failures, and the next frames go to fresh processes.
