@@ -19,10 +19,11 @@ memory block, the Detector (its settings, 2 kB) and the camera's
 :class:`MarkerTracker` (its tracks and anchor patches, about 25 kB) pickled;
 the result and the tracker come back. So any process may serve any camera,
 a parameter change reaches the next frame as with threads, and the
-mailboxes, scheduling and guarantees below are the same either way. The processes are forked from a fork
-server that imported the detector once (a new one starts in milliseconds); a
-process that dies (killed for memory, a crash in native code) fails the frames
-it had, counted as failures, and the next frames go to fresh processes.
+mailboxes, scheduling and guarantees below are the same either way. The
+processes are forked from a fork server that imported the detector once (a
+new one starts in milliseconds); a process that dies (killed for memory, a
+crash in native code) fails the frames it had, counted as failures, and the
+next frames go to fresh processes.
 
 Guarantees:
 
