@@ -120,7 +120,7 @@ def single_thread_blas() -> list[str]:
 
     The workers are the parallelism, one per core. OpenBLAS's own threads
     would only compete with them, and they spin while they wait: two workers
-    whose numpy and scipy each ran two BLAS threads did 0.6-0.9x the frames a
+    whose numpy and scipy each ran two BLAS threads did 0.5-0.8x the frames a
     second of the same workers with one (docs/speed.md, "Worker processes").
     ``OPENBLAS_NUM_THREADS`` acts only before numpy loads, so the loaded
     libraries are asked instead. Linux only (the libraries are found in
@@ -470,7 +470,7 @@ class FrameProcessor:
         """Worker processes, up and ready."""
         context = multiprocessing.get_context("forkserver")
         context.set_forkserver_preload(_WORKER_PRELOAD)
-        pool = ProcessPoolExecutor(workers, context, _start_worker_process)
+        pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker_process)
         for started in [pool.submit(_worker_ready) for _ in range(workers)]:
             started.result()
         return pool
