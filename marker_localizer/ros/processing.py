@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import ctypes
 import multiprocessing
+import os
 import signal
 import threading
 import time
@@ -95,6 +96,8 @@ _NS_PER_S = 1_000_000_000
 #: What a worker process imports once, in the fork server its workers are forked from,
 #: so that a new worker starts in milliseconds, not the seconds these imports take.
 _WORKER_PRELOAD = ["marker_localizer.ros.processing"]
+#: Where POSIX shared memory blocks are files (Linux).
+_SHARED_MEMORY_DIR = "/dev/shm"
 #: OpenBLAS's setter of its thread count, by build: numpy's and scipy's wheels
 #: (scipy-openblas, 64- and 32-bit integers), older wheels, the distributions' libopenblas.
 _OPENBLAS_SETTERS = (
@@ -142,6 +145,22 @@ def single_thread_blas() -> list[str]:
             setter(1)
             limited.append(path)
     return limited
+
+
+def _reserve_pages(block: shared_memory.SharedMemory) -> None:
+    """Have tmpfs give every page of ``block`` now.
+
+    Raises:
+        OSError: it has no room for them (ENOSPC).
+    """
+    path = os.path.join(_SHARED_MEMORY_DIR, block.name.lstrip("/"))
+    if not os.path.exists(path):
+        return  # not Linux: the block is not a file there
+    descriptor = os.open(path, os.O_RDWR)
+    try:
+        os.posix_fallocate(descriptor, 0, block.size)
+    finally:
+        os.close(descriptor)
 
 
 def _start_worker_process() -> None:
@@ -274,6 +293,7 @@ class FrameProcessor:
         # made, to unlink at shutdown.
         self._frame_block = threading.local()
         self._frame_blocks: list[shared_memory.SharedMemory] = []
+        self._frames_pickled = 0
         self._pool: ProcessPoolExecutor | None = None
         if worker_processes:
             self._pool = self._start_pool(workers)
@@ -433,6 +453,8 @@ class FrameProcessor:
             ),
             **(node_values or {}),
         }
+        if self.worker_processes:
+            values["frames pickled (no room in shared memory)"] = str(self.frames_pickled)
         statuses.append(node_status(node_name, statuses, values))
         return diagnostic_array(stamp, statuses)
 
@@ -475,18 +497,37 @@ class FrameProcessor:
             started.result()
         return pool
 
-    def _frame_block_for(self, size: int) -> shared_memory.SharedMemory:
-        """This thread's shared memory block, made or grown to ``size`` bytes."""
+    @property
+    def frames_pickled(self) -> int:
+        """Frames sent to a worker process pickled: no room for them in shared memory."""
+        return self._frames_pickled
+
+    def _frame_block_for(self, size: int) -> shared_memory.SharedMemory | None:
+        """This thread's shared memory block, made or grown to ``size`` bytes.
+
+        None where shared memory has no room for it. A page of a block that
+        tmpfs cannot give kills the process that writes it (SIGBUS), and a
+        container's /dev/shm is 64 MB unless told otherwise, which Fast DDS
+        shares: so a block's pages are reserved when it is made.
+        """
         block: shared_memory.SharedMemory | None = getattr(self._frame_block, "memory", None)
-        if block is None or block.size < size:
-            with self._pool_lock:
-                if block is not None:
-                    self._frame_blocks.remove(block)
-                    block.close()
-                    block.unlink()
-                block = shared_memory.SharedMemory(create=True, size=max(size, 1))
-                self._frame_blocks.append(block)
-            self._frame_block.memory = block
+        if block is not None and block.size >= size:
+            return block
+        with self._pool_lock:
+            if block is not None:
+                self._frame_blocks.remove(block)
+                block.close()
+                block.unlink()
+                self._frame_block.memory = None
+            block = shared_memory.SharedMemory(create=True, size=max(size, 1))
+            try:
+                _reserve_pages(block)
+            except OSError:
+                block.close()
+                block.unlink()
+                return None
+            self._frame_blocks.append(block)
+        self._frame_block.memory = block
         return block
 
     def _in_worker_process(
@@ -501,9 +542,13 @@ class FrameProcessor:
         pool = self._pool
         assert pool is not None
         block = self._frame_block_for(pixels.nbytes)
-        frame = _SharedFrame(block.name, pixels.shape, pixels.dtype.str)
-        np.ndarray(frame.shape, frame.dtype, buffer=block.buf)[...] = pixels
         try:
+            if block is None:
+                with self._pool_lock:
+                    self._frames_pickled += 1
+                return pool.submit(_detect_frame, detector, tracker, pixels, stamp_s).result()
+            frame = _SharedFrame(block.name, pixels.shape, pixels.dtype.str)
+            np.ndarray(frame.shape, frame.dtype, buffer=block.buf)[...] = pixels
             return pool.submit(_detect_shared_frame, detector, tracker, frame, stamp_s).result()
         except BrokenProcessPool:
             with self._pool_lock:

@@ -2,12 +2,14 @@
 
 import array
 import ctypes
+import errno
 import os
 import signal
 import threading
 from pathlib import Path
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from node_testing import (
     TIMEOUT_S,
     Collector,
@@ -18,6 +20,7 @@ from node_testing import (
 
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ImageError
+from marker_localizer.ros.diagnostics import DiagnosticThresholds
 from marker_localizer.ros.processing import FrameProcessor, single_thread_blas
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 
@@ -215,6 +218,11 @@ def _worker_process_ids() -> set[int]:
     return {pid for pid, parent in parents.items() if parent in children}
 
 
+def _shared_memory_blocks() -> set[str]:
+    """Python's shared memory blocks now (its semaphores live in /dev/shm too)."""
+    return {name for name in os.listdir("/dev/shm") if name.startswith("psm_")}
+
+
 def test_worker_processes_find_what_threads_find_and_carry_each_cameras_tracks():
     config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=20.0)
     frames = _panning_frames(4)
@@ -245,17 +253,17 @@ def test_worker_processes_find_what_threads_find_and_carry_each_cameras_tracks()
 
 
 def test_worker_processes_and_the_frames_shared_memory_are_gone_after_shutdown():
-    before, blocks = _worker_process_ids(), set(os.listdir("/dev/shm"))
+    before, blocks = _worker_process_ids(), _shared_memory_blocks()
     collect = Collector()
     processor = FrameProcessor(["a"], DetectorConfig(), collect, workers=2, worker_processes=True)
     workers = _worker_process_ids() - before
     assert len(workers) == 2
     processor.submit("a", stamped(1), block=True)
     assert processor.wait_idle(TIMEOUT_S)
-    assert set(os.listdir("/dev/shm")) > blocks  # the block the frame went through
+    assert _shared_memory_blocks() > blocks  # the block the frame went through
     assert processor.shutdown(TIMEOUT_S)
     assert collect.results == [("a", 1, 1)]
-    assert set(os.listdir("/dev/shm")) == blocks
+    assert _shared_memory_blocks() == blocks
     wait_until(lambda: not workers & _worker_process_ids(), "the worker processes to exit")
 
 
@@ -303,6 +311,33 @@ def test_worker_processes_leave_ctrl_c_to_the_node():
         processor.shutdown(TIMEOUT_S)
     assert collect.results == [("cam0", 1, 1)]
     assert processor.snapshots()["cam0"].errors == 0
+
+
+def test_frames_shared_memory_has_no_room_for_go_pickled_and_are_counted(monkeypatch):
+    def no_room(descriptor, offset, length):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    # tmpfs out of room (a container's 64 MB /dev/shm that Fast DDS fills): writing
+    # an unreserved page there would kill the node with SIGBUS.
+    monkeypatch.setattr(os, "posix_fallocate", no_room)
+    blocks = _shared_memory_blocks()
+    collect = Collector()
+    processor = FrameProcessor(
+        ["cam0"], DetectorConfig(), collect, workers=1, worker_processes=True
+    )
+    try:
+        for sec in (1, 2):
+            processor.submit("cam0", stamped(sec), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+        assert _shared_memory_blocks() == blocks
+    finally:
+        processor.shutdown(TIMEOUT_S)
+    assert collect.results == [("cam0", 1, 1), ("cam0", 2, 1)]
+    assert processor.frames_pickled == 2
+    thresholds = DiagnosticThresholds(1000.0, 2.0, 10.0, 0.1, 0.0)
+    (*_, node) = processor.diagnostics("loc", Time(), thresholds).status
+    values = {v.key: v.value for v in node.values}
+    assert values["frames pickled (no room in shared memory)"] == "2"
 
 
 def test_single_thread_blas_leaves_every_loaded_openblas_one_thread():
