@@ -183,17 +183,29 @@ def wedge_correction(
     Returns:
         (T, dT/dh, dT/dk, dT/drho), each of the shape of ``h`` and ``rho`` broadcast.
     """
+    scale, integrand, sine, cos2 = _sheppard_integrand(h, k, rho)
+    value = scale * integrand.sum(axis=0)
+    by_h = scale * (integrand * (k * sine - h) / cos2).sum(axis=0)
+    by_k = scale * (integrand * (h * sine - k) / cos2).sum(axis=0)
+    return value, by_h, by_k, _density2(h, k, rho)
+
+
+def _sheppard_integrand(
+    h: NDArray[np.float64], k: NDArray[np.float64], rho: float | NDArray[np.float64]
+) -> tuple[Any, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Sheppard's integral of :func:`wedge_correction` at its nodes.
+
+    Returns:
+        (the integral's scale, the weighted integrand at each node, sin t, cos^2 t):
+        the correction is the scale times the integrand's sum over the nodes.
+    """
     span = np.arcsin(np.clip(rho, -1.0, 1.0))
     nodes = np.reshape(_NODES, (-1,) + (1,) * max(np.ndim(h), np.ndim(span)))
     weights = np.reshape(_NODE_WEIGHTS, nodes.shape)
     t = 0.5 * span * (1.0 + nodes)
     sine, cos2 = np.sin(t), np.cos(t) ** 2
     integrand = weights * np.exp(-(h**2 + k**2 - 2.0 * h * k * sine) / (2.0 * cos2))
-    scale = 0.5 * span / (2.0 * np.pi)
-    value = scale * integrand.sum(axis=0)
-    by_h = scale * (integrand * (k * sine - h) / cos2).sum(axis=0)
-    by_k = scale * (integrand * (h * sine - k) / cos2).sum(axis=0)
-    return value, by_h, by_k, _density2(h, k, rho)
+    return 0.5 * span / (2.0 * np.pi), integrand, sine, cos2
 
 
 class _Pixels(NamedTuple):
@@ -242,7 +254,9 @@ def _bivariate(
     x: NDArray[np.float64], y: NDArray[np.float64], rho: float | NDArray[np.float64]
 ) -> NDArray[np.float64]:
     """Phi2(x, y; rho), the bivariate normal distribution."""
-    value: NDArray[np.float64] = ndtr(x) * ndtr(y) + wedge_correction(x, y, rho)[0]
+    # Without the wedge's derivatives, which :func:`wedge_correction` adds.
+    scale, integrand, _, _ = _sheppard_integrand(x, y, rho)
+    value: NDArray[np.float64] = ndtr(x) * ndtr(y) + scale * integrand.sum(axis=0)
     return value
 
 
