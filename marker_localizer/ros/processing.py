@@ -23,7 +23,8 @@ mailboxes, scheduling and guarantees below are the same either way. The
 processes are forked from a fork server that imported the detector once (a
 new one starts in milliseconds); a process that dies (killed for memory, a
 crash in native code) fails the frames it had, counted as failures, and the
-next frames go to fresh processes.
+next frames go to fresh processes; a worker whose node died (however it died)
+exits. The worker processes ignore SIGINT and SIGTERM: the node stops them.
 
 Guarantees:
 
@@ -86,6 +87,7 @@ from marker_localizer.ros.diagnostics import (
     diagnostic_array,
     node_status,
 )
+from marker_localizer.stopping import STOP_SIGNALS
 
 #: Receives (camera, marker cloud, overlay image or None); both carry the input's header.
 ResultCallback = Callable[[str, PointCloud2, Image | None], None]
@@ -165,12 +167,27 @@ def _reserve_pages(block: shared_memory.SharedMemory) -> None:
 
 def _start_worker_process() -> None:
     """Initialiser of a worker process."""
-    # Ctrl-C reaches the whole process group; the parent finishes the frames in flight
-    # on it, which a worker that died of the signal would fail.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # Ctrl-C reaches the whole process group, and a service manager's SIGTERM may reach
+    # the whole control group; the parent finishes the frames in flight on them, which a
+    # worker that died of the signal would fail.
+    for stop in STOP_SIGNALS:
+        signal.signal(stop, signal.SIG_IGN)
+    # Its task queue never closes (each worker holds both ends), so a worker of a node
+    # that was killed would wait for tasks for ever, and keep the fork server alive.
+    parent = multiprocessing.parent_process()
+    if parent is not None:
+        threading.Thread(
+            target=_exit_with, args=(parent,), name="marker_parent_watch", daemon=True
+        ).start()
     # One worker per core: OpenCV's and BLAS's thread pools would compete with the others.
     cv2.setNumThreads(1)
     single_thread_blas()
+
+
+def _exit_with(parent: multiprocessing.process.BaseProcess) -> None:
+    """End this worker process once ``parent`` has ended, however it ended."""
+    parent.join()
+    os._exit(1)
 
 
 def _worker_ready() -> None:

@@ -5,10 +5,13 @@ import ctypes
 import errno
 import os
 import signal
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
 from builtin_interfaces.msg import Time
 from node_testing import (
     TIMEOUT_S,
@@ -203,8 +206,8 @@ def _panning_frames(n_frames: int) -> list[np.ndarray]:
     return frames
 
 
-def _worker_process_ids() -> set[int]:
-    """Live processes whose parent is a child of this one: the fork server's workers."""
+def _worker_process_ids(node_pid: int | None = None) -> set[int]:
+    """Live processes whose parent is a child of the node's: the fork server's workers."""
     parents: dict[int, int] = {}
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
@@ -214,7 +217,8 @@ def _worker_process_ids() -> set[int]:
             continue
         if fields[0] != "Z":
             parents[int(stat.parent.name)] = int(fields[1])
-    children = {pid for pid, parent in parents.items() if parent == os.getpid()}
+    node_pid = os.getpid() if node_pid is None else node_pid
+    children = {pid for pid, parent in parents.items() if parent == node_pid}
     return {pid for pid, parent in parents.items() if parent in children}
 
 
@@ -294,7 +298,32 @@ def test_a_killed_worker_process_fails_its_frame_and_a_fresh_one_serves_the_next
     assert (snap.errors, snap.processed) == (1, 1)
 
 
-def test_worker_processes_leave_ctrl_c_to_the_node():
+def test_worker_processes_end_with_a_node_that_was_killed():
+    node_code = (
+        "import os, sys\n"
+        "from marker_localizer.config import DetectorConfig\n"
+        "from marker_localizer.ros.processing import FrameProcessor\n"
+        "FrameProcessor(['a'], DetectorConfig(), print, workers=2, worker_processes=True)\n"
+        "print(os.getpid(), flush=True)\n"
+        "sys.stdin.read()\n"
+    )
+    node = subprocess.Popen(
+        [sys.executable, "-c", node_code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        workers = _worker_process_ids(int(node.stdout.readline()))
+        assert len(workers) == 2
+    finally:
+        node.kill()  # no shutdown: as a crash or the kernel's out-of-memory killer ends it
+        node.communicate()
+    wait_until(
+        lambda: not any(Path(f"/proc/{pid}").exists() for pid in workers),
+        "the worker processes to exit",
+    )
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_worker_processes_leave_the_stop_signals_to_the_node(signum):
     collect = Collector()
     before = _worker_process_ids()
     processor = FrameProcessor(
@@ -302,8 +331,9 @@ def test_worker_processes_leave_ctrl_c_to_the_node():
     )
     try:
         (worker,) = _worker_process_ids() - before
-        # What a terminal's Ctrl-C sends to every process of the node's group.
-        os.kill(worker, signal.SIGINT)
+        # What a terminal's Ctrl-C sends to every process of the node's group, and a
+        # service manager's stop to every process of its control group.
+        os.kill(worker, signum)
         processor.submit("cam0", stamped(1), block=True)
         assert processor.wait_idle(TIMEOUT_S)
         assert worker in _worker_process_ids()
