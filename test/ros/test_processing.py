@@ -19,6 +19,7 @@ from node_testing import (
     clock_at,
     stamped,
     wait_until,
+    x_marker_64,
 )
 
 from marker_localizer.config import DetectorConfig, TrackerConfig
@@ -269,6 +270,28 @@ def test_worker_processes_and_the_frames_shared_memory_are_gone_after_shutdown()
     assert collect.results == [("a", 1, 1)]
     assert _shared_memory_blocks() == blocks
     wait_until(lambda: not workers & _worker_process_ids(), "the worker processes to exit")
+
+
+def test_a_larger_frame_gets_a_larger_shared_memory_block_and_the_smaller_one_is_unlinked():
+    collect = Collector()
+    blocks = _shared_memory_blocks()
+    processor = FrameProcessor(
+        ["cam0"], DetectorConfig(), collect, workers=1, worker_processes=True
+    )
+    try:
+        processor.submit("cam0", stamped(1), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+        (small,) = _shared_memory_blocks() - blocks
+        larger = np.pad(x_marker_64(), 32, mode="edge")  # 128 x 128, the X at (63.5, 63.5)
+        processor.submit("cam0", stamped(2, larger), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+        (large,) = _shared_memory_blocks() - blocks
+        assert large != small
+        assert os.path.getsize(f"/dev/shm/{large}") >= larger.nbytes
+    finally:
+        processor.shutdown(TIMEOUT_S)
+    assert collect.results == [("cam0", 1, 1), ("cam0", 2, 1)]
+    assert processor.snapshots()["cam0"].errors == 0
 
 
 def test_a_killed_worker_process_fails_its_frame_and_a_fresh_one_serves_the_next():
