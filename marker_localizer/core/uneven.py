@@ -534,6 +534,11 @@ def _solve(
     stops when its centre's step falls under :data:`_TOLERANCE_PX`, its cost no
     longer falls, after :data:`_ITERATIONS`, or, from :data:`_HOPELESS_AFTER`
     steps on, while its cost exceeds ``hopeless_cost`` (N,): no X fits there.
+    The blur, tone, and shadow's depth and penumbra stay in the box the model
+    holds them to (:func:`_bounds`): a step is cut at the box, and a parameter on
+    its bound that the step would take out of it is held there for that step.
+    Beyond the box the model is flat, and a Jacobian that still read the slope
+    there sent the rest of the step astray (a shadowed fit 18 steps long).
     ``held_centre``: the centre stays where it starts, the rest is fitted (only the
     cost is then read: the covariance of a held centre is none).
     """
@@ -543,17 +548,24 @@ def _solve(
     damping = np.full(n, _START_DAMPING)
     done = np.zeros(n, dtype=bool)
     eye = np.eye(n_params)
+    lower, upper = _bounds(n_params)
     for iteration in range(_ITERATIONS):
         if hopeless_cost is not None and iteration >= _HOPELESS_AFTER:
             done |= cost > hopeless_cost
         active = np.flatnonzero(~done)
         if not len(active):
             break
-        normal = np.einsum("nki,nkj->nij", jacobian[active], jacobian[active])
         gradient = np.einsum("nki,nk->ni", jacobian[active], residual[active])
+        # Descent (-gradient) out of the box from a bound: that parameter sits still.
+        held = ((params[active] <= lower) & (gradient > 0)) | (
+            (params[active] >= upper) & (gradient < 0)
+        )
+        free = jacobian[active] * ~held[:, None, :]
+        normal = np.einsum("nki,nkj->nij", free, free)
+        gradient *= ~held
         damped = normal + damping[active, None, None] * (normal * eye + _FLOOR_DAMPING * eye)
         step = -np.linalg.solve(damped, gradient[..., None])[..., 0]
-        trial = params[active] + step
+        trial = np.clip(params[active] + step, lower, upper)
         t_residual, t_jacobian, t_cost = _residual(
             trial, _take(pixels, active), shadowed, held_centre
         )
@@ -590,6 +602,17 @@ def _solve(
         & (params[:, 7] <= TONE_RANGE[1])
     )
     return _Solution(params, cost, covariance, solved)
+
+
+def _bounds(n_params: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(P,) lower and upper bounds of the parameters: the box :func:`_model` holds them to."""
+    lower, upper = np.full(n_params, -np.inf), np.full(n_params, np.inf)
+    lower[4], upper[4] = _LOG_BLUR
+    lower[7], upper[7] = _TONE_GUARD
+    if n_params > _GEOMETRY + 4:
+        lower[_GEOMETRY + 6], upper[_GEOMETRY + 6] = _DEPTH
+        lower[_GEOMETRY + 7], upper[_GEOMETRY + 7] = _SHADOW_LOG_BLUR
+    return lower, upper
 
 
 def _take(pixels: _Pixels, rows: NDArray[np.intp]) -> _Pixels:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.optimize import least_squares
 from scipy.special import ndtr
 from scipy.stats import multivariate_normal
 
@@ -312,3 +313,50 @@ def test_a_tiny_marker_found_in_a_shadow_keeps_the_centre_it_was_found_at():
         assert not located[0]
         np.testing.assert_array_equal(xy, start)
         assert sigma[0] == 0.5
+
+
+def _soft_shadow_fit(seed: int):
+    """A shadowed X's fit from the edge's start, and the cost a bounded solver reaches.
+
+    The shadow's edge is softer than the box allows (10-90 % over 12 px): the model
+    holds its penumbra at ln 5 px and reads no slope beyond.
+    """
+    rng = np.random.default_rng(seed)
+    x, y = 48 + rng.uniform(0, 1), 48 + rng.uniform(0, 1)
+    normal, offset = rng.uniform(0, 2 * np.pi), rng.uniform(-3, 3)
+    scene = render_markers(
+        (96, 96),
+        [MarkerPlacement(x, y, 16.0, rotation_rad=rng.uniform(0, np.pi), tilt_deg=30.0)],
+        seed,
+        reflectances=(0.1, 0.8),
+        blur_sigma_px=1.0,
+        noise_sigma_dn=2.0,
+        cast_shadows=[CastShadow(x, y, normal, offset, 0.5, 40.0, penumbra_px=12.0)],
+    )
+    angles = np.array([scene.markers[0].angles])
+    part = uneven._pixels(scene.image, scene.centres[0], 12.8, angles[0], 255.0)
+    assert part is not None
+    pixels = uneven._padded([part])
+    edge = [[normal, offset, np.log(2.0), np.log(uneven.SHADOW_START_PENUMBRA_PX)]]
+    start = np.hstack([uneven._start(pixels, angles), edge])
+    fit = uneven._solve(pixels, start, shadowed=True)
+    best = least_squares(
+        lambda p: uneven._model(p[None], pixels, True)[0][0] - pixels.level[0],
+        start[0],
+        jac=lambda p: uneven._model(p[None], pixels, True)[1][0],
+        bounds=uneven._bounds(start.shape[1]),
+        x_scale="jac",
+    )
+    return fit, 2.0 * best.cost
+
+
+def test_a_shadowed_fit_stays_in_the_models_box_and_reaches_a_bounded_solvers_least_cost():
+    # A fit whose penumbra had wandered out of the box, where the model is flat,
+    # was left with up to 4 times the least cost after 18 steps.
+    lower, upper = uneven._bounds(uneven._GEOMETRY + 4 + uneven._SHADOW_EDGE)
+    ratios = []
+    for seed in range(6):
+        fit, least = _soft_shadow_fit(seed)
+        assert np.all((fit.params[0] >= lower) & (fit.params[0] <= upper))
+        ratios.append(fit.cost[0] / least)
+    assert np.median(ratios) < 1.01
