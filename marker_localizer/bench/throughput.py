@@ -50,6 +50,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import rclpy
@@ -343,27 +344,44 @@ def _cpu_s() -> float:
     return times.user + times.system
 
 
-def _node_cpu_s(camera_pid: int | None) -> float:
-    """CPU seconds of this process and its descendants but the camera process's subtree.
+class ProcessStat(NamedTuple):
+    """One process's line of ``/proc/<pid>/stat``: what the benchmark and its tests read."""
 
-    The node's worker processes are children of its fork server; a process that
-    has exited no longer counts (the workers live as long as the node).
-    """
-    parents, used = {}, {}
+    parent: int  # the parent's pid
+    state: str  # R, S, D, Z (a zombie: exited, not yet waited for), ...
+    cpu_s: float  # user + system CPU seconds it has used
+
+
+def process_table() -> dict[int, ProcessStat]:
+    """Every process's :class:`ProcessStat` by pid (empty where there is no /proc)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    table = {}
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
             # The command name may hold spaces; the fields from the state on follow its ')'.
             fields = stat.read_text().rsplit(")", 1)[1].split()
         except (OSError, IndexError):
             continue
-        pid = int(stat.parent.name)
-        parents[pid] = int(fields[1])
-        used[pid] = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        table[int(stat.parent.name)] = ProcessStat(
+            int(fields[1]), fields[0], (int(fields[11]) + int(fields[12])) / tick
+        )
+    return table
+
+
+def _node_cpu_s(camera_pid: int | None) -> float:
+    """CPU seconds of this process and its descendants but the camera process's subtree.
+
+    The node's worker processes are children of its fork server; a process that
+    has exited no longer counts (the workers live as long as the node).
+    """
+    table = process_table()
     tree, frontier = {os.getpid()}, {os.getpid()}
     while frontier:
-        frontier = {p for p, parent in parents.items() if parent in frontier and p != camera_pid}
+        frontier = {
+            pid for pid, stat in table.items() if stat.parent in frontier and pid != camera_pid
+        }
         tree |= frontier
-    return sum(used.get(pid, 0.0) for pid in tree)
+    return sum(table[pid].cpu_s for pid in tree if pid in table)
 
 
 def _machine_busy_s() -> float:

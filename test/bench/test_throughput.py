@@ -1,5 +1,9 @@
 """bench throughput: the panning cameras; short runs, 1 and 2 worker processes, 2 threads."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 
 from marker_localizer.bench import throughput
@@ -18,6 +22,28 @@ def test_benchmark_cameras_pan_at_a_constant_step_and_turn_back_at_the_end_of_th
     assert origins[frames] == (frames * dx, frames * dy)  # the far end of the ground
     assert origins[frames + 1] == ((frames - 1) * dx, (frames - 1) * dy)  # turned back
     assert origins[2 * frames] == (0, 0)
+
+
+def test_the_process_table_reads_each_processs_parent_and_the_cpu_time_it_used():
+    # The child spins 0.3 s of its own CPU time, says so, and waits to be told to end.
+    spin = (
+        "import sys, time\n"
+        "start = time.process_time()\n"
+        "while time.process_time() - start < 0.3: pass\n"
+        "print('spun', flush=True)\n"
+        "sys.stdin.readline()\n"
+    )
+    child = subprocess.Popen(
+        [sys.executable, "-c", spin], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert child.stdout is not None and child.stdout.readline() == "spun\n"
+        table = throughput.process_table()
+        assert table[os.getpid()].parent == os.getppid()
+        assert table[child.pid].parent == os.getpid()
+        assert table[child.pid].cpu_s >= 0.25
+    finally:
+        child.communicate("\n")
 
 
 def test_throughput_benchmark_measures_one_and_two_workers_on_small_frames(ros, tmp_path):

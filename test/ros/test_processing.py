@@ -22,6 +22,7 @@ from node_testing import (
     x_marker_64,
 )
 
+from marker_localizer.bench.throughput import process_table
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ImageError
 from marker_localizer.ros.diagnostics import DiagnosticThresholds
@@ -209,15 +210,7 @@ def _panning_frames(n_frames: int) -> list[np.ndarray]:
 
 def _worker_process_ids(node_pid: int | None = None) -> set[int]:
     """Live processes whose parent is a child of the node's: the fork server's workers."""
-    parents: dict[int, int] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            # The command name may hold spaces; the parent's pid follows its ')'.
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):
-            continue
-        if fields[0] != "Z":
-            parents[int(stat.parent.name)] = int(fields[1])
+    parents = {pid: stat.parent for pid, stat in process_table().items() if stat.state != "Z"}
     node_pid = os.getpid() if node_pid is None else node_pid
     children = {pid for pid, parent in parents.items() if parent == node_pid}
     return {pid for pid, parent in parents.items() if parent in children}
