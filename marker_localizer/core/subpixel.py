@@ -2045,7 +2045,8 @@ def _fit_template_batch(
     cols = np.clip(pixels[..., 0], 0, width - 1).astype(np.intp)
     rows = np.clip(pixels[..., 1], 0, height - 1).astype(np.intp)
     values = image[rows, cols].astype(np.float64)
-    params = _clip_parameters(template.shape_parameters(start))
+    lower, upper = _template_bounds()
+    params = np.clip(template.shape_parameters(start), lower, upper)
     # Without a shadow its four parameters are undetermined: they stay where they are.
     free = np.ones((n, template.SHAPE_PARAMETERS), dtype=bool)
     free[:, _SHADOW] = (start.shadow[:, 2] > 0)[:, None]
@@ -2062,14 +2063,19 @@ def _fit_template_batch(
         idx = np.flatnonzero(active)
         residual, jacobian = state.residual[idx], state.jacobian[idx]
         weighted = jacobian * weight[idx, :, None]
-        normal = weighted.transpose(0, 2, 1) @ jacobian
         gradient = (weighted.transpose(0, 2, 1) @ residual[..., None])[..., 0]
-        # Frozen parameters get a unit diagonal and no gradient: a zero step.
-        scale = np.where(free[idx], np.maximum(normal.diagonal(axis1=1, axis2=2), 1e-12), 1.0)
-        ridge = damping[idx, None] * scale + ~free[idx]
+        # The step descends along +gradient; a parameter on its bound that it would
+        # take out of the box is held there for this step, as a frozen one is.
+        moving = free[idx] & ~uneven.held_on_bounds(params[idx], -gradient, lower, upper)
+        weighted = weighted * moving[:, None, :]
+        normal = weighted.transpose(0, 2, 1) @ (jacobian * moving[:, None, :])
+        gradient *= moving
+        # Frozen and held parameters get a unit diagonal and no gradient: a zero step.
+        scale = np.where(moving, np.maximum(normal.diagonal(axis1=1, axis2=2), 1e-12), 1.0)
+        ridge = damping[idx, None] * scale + ~moving
         damped = normal + ridge[:, :, None] * eye
         step = np.linalg.solve(damped, gradient[..., None])[..., 0]
-        trial = _clip_parameters(params[idx] + step)
+        trial = np.clip(params[idx] + step, lower, upper)
         new = _template_residuals(values[idx], weight[idx], pixels[idx], trial, free[idx])
         within = np.hypot(*(trial[:, :2] - start.xy[idx]).T) <= reach[idx]
         better = (new.cost < state.cost[idx]) & within
@@ -2115,13 +2121,20 @@ _BATCH_SIZE_RATIO = 2.0
 _SHADOW = slice(8, 12)
 
 
-def _clip_parameters(params: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Keep a trial step's blur, gain and shadow inside what is physical (in place)."""
-    params[:, 4:6] = np.clip(params[:, 4:6], np.log(_MIN_BLUR_PX), np.log(_MAX_BLUR_PX))
-    params[:, 6:8] = np.clip(params[:, 6:8], -_MAX_GAIN_PER_PX, _MAX_GAIN_PER_PX)
-    params[:, 10] = np.clip(params[:, 10], 0.0, _MAX_SHADOW_DEPTH)
-    params[:, 11] = np.clip(params[:, 11], np.log(_MIN_BLUR_PX), np.log(_MAX_BLUR_PX))
-    return params
+def _template_bounds() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(12,) lower and upper bounds of :func:`template.shape_parameters`: what is physical.
+
+    The blurs across the lines and the shadow's penumbra, the light's gradient and
+    the shadow's depth; the centre, the lines and the shadow's edge are free.
+    """
+    lower, upper = (
+        np.full(template.SHAPE_PARAMETERS, -np.inf),
+        np.full(template.SHAPE_PARAMETERS, np.inf),
+    )
+    lower[[4, 5, 11]], upper[[4, 5, 11]] = np.log(_MIN_BLUR_PX), np.log(_MAX_BLUR_PX)
+    lower[6:8], upper[6:8] = -_MAX_GAIN_PER_PX, _MAX_GAIN_PER_PX
+    lower[10], upper[10] = 0.0, _MAX_SHADOW_DEPTH
+    return lower, upper
 
 
 class _TemplateState(NamedTuple):

@@ -556,10 +556,7 @@ def _solve(
         if not len(active):
             break
         gradient = np.einsum("nki,nk->ni", jacobian[active], residual[active])
-        # Descent (-gradient) out of the box from a bound: that parameter sits still.
-        held = ((params[active] <= lower) & (gradient > 0)) | (
-            (params[active] >= upper) & (gradient < 0)
-        )
+        held = held_on_bounds(params[active], gradient, lower, upper)
         free = jacobian[active] * ~held[:, None, :]
         normal = np.einsum("nki,nkj->nij", free, free)
         gradient *= ~held
@@ -613,6 +610,30 @@ def _bounds(n_params: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         lower[_GEOMETRY + 6], upper[_GEOMETRY + 6] = _DEPTH
         lower[_GEOMETRY + 7], upper[_GEOMETRY + 7] = _SHADOW_LOG_BLUR
     return lower, upper
+
+
+def held_on_bounds(
+    params: NDArray[np.float64],
+    gradient: NDArray[np.float64],
+    lower: NDArray[np.float64],
+    upper: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """(N, P) the parameters on a bound of their box that descent would take out of it.
+
+    A bounded Levenberg-Marquardt step holds them (zero Jacobian column and
+    gradient) for that step: a step cut at the box is not the step the normal
+    equations solved for, and the other parameters' share of it goes astray.
+
+    Args:
+        params: (N, P) the parameters, inside the box.
+        gradient: (N, P) the cost's gradient; descent is along ``-gradient``.
+        lower: (P,) the box's lower bounds (-inf: none).
+        upper: (P,) its upper bounds (inf: none).
+    """
+    held: NDArray[np.bool_] = ((params <= lower) & (gradient > 0)) | (
+        (params >= upper) & (gradient < 0)
+    )
+    return held
 
 
 def _take(pixels: _Pixels, rows: NDArray[np.intp]) -> _Pixels:
