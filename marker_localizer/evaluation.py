@@ -206,10 +206,9 @@ class DetectionTally:
     """Running totals of one detector on a set of frames (a family, a camera of a bag).
 
     Attributes:
-        frames: frames scored.
-        n_truth: truth points seen.
-        n_matched: truth points found.
-        n_false_positives: detections that claimed no truth point.
+        truth_per_frame: truth points of each frame scored.
+        found_per_frame: truth points each frame found.
+        false_per_frame: detections in each frame that claimed no truth point.
         errors_px: errors of all matched pairs, px.
         sigmas_px: reported 1-sigma of each matched pair, px (NaN where the
             detector reports none), aligned with ``errors_px``.
@@ -223,10 +222,9 @@ class DetectionTally:
             the truth gives no directions), aligned with ``errors_px``.
     """
 
-    frames: int = 0
-    n_truth: int = 0
-    n_matched: int = 0
-    n_false_positives: int = 0
+    truth_per_frame: list[int] = field(default_factory=list)
+    found_per_frame: list[int] = field(default_factory=list)
+    false_per_frame: list[int] = field(default_factory=list)
     errors_px: list[float] = field(default_factory=list)
     sigmas_px: list[float] = field(default_factory=list)
     crlb_px: list[float] = field(default_factory=list)
@@ -255,10 +253,9 @@ class DetectionTally:
             truth_line_angles: (N, 2) every truth point's line directions, radians
                 (NaN or None: unknown).
         """
-        self.frames += 1
-        self.n_truth += matching.n_truth
-        self.n_matched += matching.n_matched
-        self.n_false_positives += matching.n_false_positives
+        self.truth_per_frame.append(matching.n_truth)
+        self.found_per_frame.append(matching.n_matched)
+        self.false_per_frame.append(matching.n_false_positives)
         self.errors_px.extend(matching.errors_px.tolist())
         found = np.zeros(matching.n_truth, dtype=bool)
         found[matching.truth_index] = True
@@ -281,10 +278,9 @@ class DetectionTally:
         """The totals of several tallies (of cameras, of families) as one."""
         total = cls()
         for part in parts:
-            total.frames += part.frames
-            total.n_truth += part.n_truth
-            total.n_matched += part.n_matched
-            total.n_false_positives += part.n_false_positives
+            total.truth_per_frame.extend(part.truth_per_frame)
+            total.found_per_frame.extend(part.found_per_frame)
+            total.false_per_frame.extend(part.false_per_frame)
             total.errors_px.extend(part.errors_px)
             total.sigmas_px.extend(part.sigmas_px)
             total.crlb_px.extend(part.crlb_px)
@@ -292,6 +288,26 @@ class DetectionTally:
             total.found.extend(part.found)
             total.line_errors_deg.extend(part.line_errors_deg)
         return total
+
+    @property
+    def frames(self) -> int:
+        """Frames scored."""
+        return len(self.truth_per_frame)
+
+    @property
+    def n_truth(self) -> int:
+        """Truth points seen."""
+        return sum(self.truth_per_frame)
+
+    @property
+    def n_matched(self) -> int:
+        """Truth points found."""
+        return sum(self.found_per_frame)
+
+    @property
+    def n_false_positives(self) -> int:
+        """Detections that claimed no truth point."""
+        return sum(self.false_per_frame)
 
     @property
     def recall(self) -> float:
@@ -305,13 +321,21 @@ class DetectionTally:
 
     @property
     def recall_interval(self) -> tuple[float, float]:
-        """:func:`recall_interval` of the recall: (low, high), in [0, 1]."""
-        return recall_interval(self.n_matched, self.n_truth)
+        """:func:`recall_interval` of the recall, widened by the frames' spread: (low, high).
+
+        The design effect is :func:`frame_design_effect` of the frames' counts.
+        """
+        design_effect = frame_design_effect(self.found_per_frame, self.truth_per_frame)
+        return recall_interval(self.n_matched, self.n_truth, design_effect=design_effect)
 
     @property
     def fp_per_frame_interval(self) -> tuple[float, float]:
-        """:func:`rate_interval` of the false positives per frame: (low, high)."""
-        return rate_interval(self.n_false_positives, self.frames)
+        """:func:`rate_interval` of the false positives per frame, widened by their spread.
+
+        The dispersion is :func:`frame_dispersion` of the frames' counts.
+        """
+        dispersion = frame_dispersion(self.false_per_frame)
+        return rate_interval(self.n_false_positives, self.frames, dispersion=dispersion)
 
     @property
     def stats(self) -> ErrorStats:
@@ -343,36 +367,83 @@ class DetectionTally:
         return share_within_sigma(np.asarray(self.errors_px), np.asarray(self.sigmas_px), 2.0)
 
 
-def recall_interval(found: int, total: int, level: float = INTERVAL_LEVEL) -> tuple[float, float]:
-    """The Wilson score interval of the recall ``found`` / ``total``; (NaN, NaN) without truth.
+def recall_interval(
+    found: int, total: int, level: float = INTERVAL_LEVEL, design_effect: float = 1.0
+) -> tuple[float, float]:
+    """Wilson's score interval of the recall ``found`` / ``total``; (NaN, NaN) without truth.
 
-    Each marker counts as a trial of its own. The markers of one frame share its
-    light, blur and ground, so the spread from one set of frames to the next is
-    wider still: the interval understates it.
+    With a ``design_effect`` of 1 each marker counts as a trial of its own. The
+    markers of one frame share its light, blur and ground, so the recall spreads
+    more from one set of frames to the next than that: ``design_effect``
+    (:func:`frame_design_effect`) is how many times more, and the interval is
+    Wilson's on ``total / design_effect`` markers (Korn and Graubard's effective
+    sample size).
     """
     if total <= 0:
         return math.nan, math.nan
-    bounds = stats.binomtest(found, total).proportion_ci(confidence_level=level, method="wilson")
-    return float(bounds.low), float(bounds.high)
+    markers = total / max(design_effect, 1.0)
+    share = found / total
+    z2 = stats.norm.ppf(0.5 + 0.5 * level) ** 2
+    centre = (share + z2 / (2.0 * markers)) / (1.0 + z2 / markers)
+    half = math.sqrt(z2 * (share * (1.0 - share) / markers + z2 / (4.0 * markers**2))) / (
+        1.0 + z2 / markers
+    )
+    return max(centre - half, 0.0), min(centre + half, 1.0)
+
+
+def frame_design_effect(found_per_frame: Sequence[int], truth_per_frame: Sequence[int]) -> float:
+    """How many times the spread between frames widens the recall's variance; at least 1.
+
+    The recall is a ratio of sums over frames: its variance from the frames'
+    residuals (found - recall x truth, the cluster-robust ratio estimator's) over
+    the variance the same count of independent markers would give, p (1 - p) / n.
+    1 where fewer than two frames hold truth, or none or every marker was found:
+    then the frames say nothing of their spread.
+    """
+    found = np.asarray(found_per_frame, np.float64)
+    truth = np.asarray(truth_per_frame, np.float64)
+    frames, total = int(np.count_nonzero(truth)), float(truth.sum())
+    share = found.sum() / total if total else math.nan
+    if frames < 2 or not 0.0 < share < 1.0:
+        return 1.0
+    between = frames / (frames - 1) * float(np.sum((found - share * truth) ** 2)) / total**2
+    return max(1.0, between / (share * (1.0 - share) / total))
 
 
 def rate_interval(
-    count: int, exposure: float, level: float = INTERVAL_LEVEL
+    count: int, exposure: float, level: float = INTERVAL_LEVEL, dispersion: float = 1.0
 ) -> tuple[float, float]:
     """The exact (Garwood) Poisson interval of ``count`` events over ``exposure``.
 
     ``exposure`` in the rate's unit: frames for false points per frame, megapixels
     for false points per megapixel. (NaN, NaN) without exposure. Zero events give
     (0, -ln((1 - level) / 2) / exposure): at 95 %, 3.69 / exposure. False points
-    gather on the frames whose ground makes them (a lattice of discs), so the
-    spread from one set of frames to the next is wider: the interval understates it.
+    gather on the frames whose ground makes them (a lattice of discs), so they
+    spread more from one set of frames to the next than Poisson counts:
+    ``dispersion`` (:func:`frame_dispersion`) is how many times more, and the
+    interval is Garwood's on ``count / dispersion`` events over ``exposure /
+    dispersion`` (the quasi-Poisson scaling).
     """
     if not exposure > 0:
         return math.nan, math.nan
+    scale = max(dispersion, 1.0)
+    events = count / scale
     tail = (1.0 - level) / 2.0
-    low = stats.chi2.ppf(tail, 2 * count) / 2.0 if count else 0.0
-    high = stats.chi2.ppf(1.0 - tail, 2 * count + 2) / 2.0
-    return float(low) / exposure, float(high) / exposure
+    low = stats.chi2.ppf(tail, 2.0 * events) / 2.0 if count else 0.0
+    high = stats.chi2.ppf(1.0 - tail, 2.0 * events + 2.0) / 2.0
+    return float(low) * scale / exposure, float(high) * scale / exposure
+
+
+def frame_dispersion(counts_per_frame: Sequence[int]) -> float:
+    """The frames' counts' variance over their mean (Poisson: 1); at least 1.
+
+    1 with fewer than two frames or no event: then the frames say nothing of
+    their spread.
+    """
+    counts = np.asarray(counts_per_frame, np.float64)
+    if len(counts) < 2 or not counts.sum() > 0:
+        return 1.0
+    return max(1.0, float(counts.var(ddof=1) / counts.mean()))
 
 
 def _aligned(values: np.ndarray | None, index: np.ndarray) -> list[float]:

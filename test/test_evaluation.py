@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from marker_localizer import evaluation
 
@@ -119,8 +120,63 @@ def test_a_tally_gives_the_intervals_of_its_recall_and_false_points():
     truth = np.array([[0.0, 0.0], [10.0, 0.0]])
     tally.add(evaluation.match_points(np.array([[0.1, 0.0], [40.0, 40.0]]), truth))
     tally.add(evaluation.match_points(np.array([[0.0, 0.2], [10.0, 0.1]]), truth))
-    assert tally.recall_interval == evaluation.recall_interval(3, 4)
+    # One marker of two found on the first frame, both on the second: the recall's
+    # residuals (-0.5, +0.5 markers) give 4/3 the variance of four independent
+    # markers. One false point and none: less spread than Poisson counts, taken as 1.
+    assert evaluation.frame_design_effect([1, 2], [2, 2]) == pytest.approx(4 / 3)
+    assert tally.recall_interval == pytest.approx(
+        evaluation.recall_interval(3, 4, design_effect=4 / 3)
+    )
     assert tally.fp_per_frame_interval == evaluation.rate_interval(1, 2)
+
+
+def test_a_recall_interval_matches_scipys_wilson_interval_at_any_count():
+    for found, total in [(0, 7), (3, 7), (7, 7), (47, 48), (301, 600)]:
+        wilson = stats.binomtest(found, total).proportion_ci(0.95, method="wilson")
+        assert evaluation.recall_interval(found, total) == pytest.approx(
+            (wilson.low, wilson.high), abs=1e-12
+        )
+
+
+def _tally(found_per_frame, truth_per_frame, false_per_frame) -> evaluation.DetectionTally:
+    """A tally of frames whose first ``found`` truth points are found, in a row."""
+    tally = evaluation.DetectionTally()
+    for found, truth, false in zip(found_per_frame, truth_per_frame, false_per_frame, strict=True):
+        points = np.column_stack([10.0 * np.arange(truth), np.zeros(truth)])
+        far = np.column_stack([1000.0 + 10.0 * np.arange(false), np.zeros(false)])
+        tally.add(evaluation.match_points(np.vstack([points[:found], far]), points))
+    return tally
+
+
+def test_markers_missed_together_on_one_frame_widen_the_recall_interval():
+    # 36 of 40 both times: one missed on each frame, or all four on one.
+    spread = _tally([9, 9, 9, 9], [10] * 4, [0] * 4)
+    together = _tally([10, 10, 10, 6], [10] * 4, [0] * 4)
+    assert spread.recall == together.recall == 0.9
+    assert spread.recall_interval == pytest.approx(evaluation.recall_interval(36, 40))
+    low, high = together.recall_interval
+    assert low < spread.recall_interval[0] and high > spread.recall_interval[1]
+    assert low < 0.9 < high
+
+
+def test_false_points_gathered_on_one_frame_widen_their_rate_interval():
+    # Four false points in four frames: one on each, or all on one.
+    even = _tally([1] * 4, [1] * 4, [1, 1, 1, 1])
+    gathered = _tally([1] * 4, [1] * 4, [0, 0, 0, 4])
+    assert even.fp_per_frame_interval == evaluation.rate_interval(4, 4)
+    # Variance 4 over a mean of 1: Garwood's interval on 1 event over 1 frame, times 4 / 4.
+    assert evaluation.frame_dispersion([0, 0, 0, 4]) == pytest.approx(4.0)
+    assert gathered.fp_per_frame_interval == pytest.approx(evaluation.rate_interval(1, 1))
+    low, high = gathered.fp_per_frame_interval
+    assert low < even.fp_per_frame_interval[0] and high > even.fp_per_frame_interval[1]
+
+
+def test_one_frame_or_none_missed_says_nothing_of_the_spread_between_frames():
+    assert evaluation.frame_design_effect([3], [4]) == 1.0
+    assert evaluation.frame_design_effect([4, 5], [4, 5]) == 1.0
+    assert evaluation.frame_design_effect([0, 0], [4, 5]) == 1.0
+    assert evaluation.frame_dispersion([0, 0, 0]) == 1.0
+    assert evaluation.frame_dispersion([2]) == 1.0
 
 
 def test_share_within_two_sigma_counts_errors_against_their_own_sigma():

@@ -885,19 +885,22 @@ def evaluate_negatives(
     """Score detectors on real frames without any marker: every detection is false.
 
     ``Row.extra``: ``fp_per_frame`` and its interval (``fp_per_frame_low``,
-    ``fp_per_frame_high``: :func:`evaluation.rate_interval`), ``fp_per_megapixel``
+    ``fp_per_frame_high``: :func:`evaluation.rate_interval`, widened by the frames'
+    spread, :func:`evaluation.frame_dispersion`), ``fp_per_megapixel``
     (over all the frames' pixels), ``seconds`` (per frame).
     """
     megapixels = sum(f.image.size for f in frames) / 1e6
     rows = []
     for detector in detectors:
-        false_points, seconds = 0, 0.0
+        per_frame, seconds = [], 0.0
         for frame in frames:
             points, dt = _timed_detect(detector, frame.image, radius_range)
-            false_points += len(points)
+            per_frame.append(len(points))
             seconds += dt
-        n = max(len(frames), 1)
-        low, high = evaluation.rate_interval(false_points, len(frames))
+        n, false_points = max(len(frames), 1), sum(per_frame)
+        low, high = evaluation.rate_interval(
+            false_points, len(frames), dispersion=evaluation.frame_dispersion(per_frame)
+        )
         rows.append(
             Row(
                 detector.name,
@@ -1070,7 +1073,8 @@ def summary_table(results: Sequence[tuple[str, Row]], title: str | None = None) 
         title
         or (
             f"Summary, {REFERENCE_ROW}: recall, false points per frame (each with its "
-            f"{_INTERVAL_HEADING} interval: Wilson's, exact Poisson), mean error (px), "
+            f"{_INTERVAL_HEADING} interval: Wilson's, exact Poisson, each widened by the "
+            "spread between frames), mean error (px), "
             "mean Cramer-Rao bound of the markers found (px), their ratio, median error "
             "of the line directions reported (degrees; the larger of the two lines'; "
             "the independent renderer's truth has none)"

@@ -330,11 +330,34 @@ def test_negatives_count_every_detection_per_frame_and_per_megapixel():
     )
     assert row.extra["fp_per_frame"] == 3.0
     assert row.extra["fp_per_megapixel"] == pytest.approx(6.0)
-    # Six false points in two frames: the exact Poisson interval of 3 a frame.
+    # Six false points in two frames, three on each: the exact Poisson interval of 3
+    # a frame (counts that agree show no spread beyond Poisson's).
     interval = (row.extra["fp_per_frame_low"], row.extra["fp_per_frame_high"])
     assert interval == evaluation.rate_interval(6, 2)
     table = accuracy.negatives_table("t", [row])
     assert "FP/MP" in table and f"{interval[0]:.2f}-{interval[1]:.2f}" in table
+
+
+class _OneFrameOfTexture:
+    """A peer that returns ``count`` points on the frame whose top-left pixel is 1."""
+
+    name = "texture"
+
+    def __init__(self, count: int) -> None:
+        self.count = count
+
+    def detect(self, image_u8: np.ndarray, radius_range: peers.RadiusRange) -> np.ndarray:
+        return np.ones((self.count if image_u8[0, 0] else 0, 2))
+
+
+def test_false_points_gathered_on_one_negative_frame_widen_their_interval():
+    frames = [real_data.UasFrame(str(i), np.full((100, 100), i == 2, np.uint8)) for i in range(3)]
+    (row,) = accuracy.evaluate_negatives(frames, [_OneFrameOfTexture(6)], (3.0, 30.0))
+    assert row.extra["fp_per_frame"] == 2.0
+    # 0, 0 and 6: variance 12 over a mean of 2, six times Poisson's spread.
+    interval = (row.extra["fp_per_frame_low"], row.extra["fp_per_frame_high"])
+    assert interval == pytest.approx(evaluation.rate_interval(6, 3, dispersion=6.0))
+    assert interval[1] > evaluation.rate_interval(6, 3)[1]
 
 
 def test_the_disc_lattice_is_ground_alone_between_its_two_levels_with_a_lattice_of_saddles():
