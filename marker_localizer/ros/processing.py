@@ -100,6 +100,11 @@ _NS_PER_S = 1_000_000_000
 _WORKER_PRELOAD = ["marker_localizer.ros.processing"]
 #: Where POSIX shared memory blocks are files (Linux).
 _SHARED_MEMORY_DIR = "/dev/shm"
+#: Frames a worker thread sends pickled after shared memory had no room for one,
+#: before it asks again. Each ask fills tmpfs to its limit for a moment (tmpfs gives
+#: the pages, then takes them back), and Fast DDS's transport shares it; at the
+#: cameras' 4-20 Hz room freed since is still found within seconds.
+NO_ROOM_RETRY_FRAMES = 50
 #: OpenBLAS's setter of its thread count, by build: numpy's and scipy's wheels
 #: (scipy-openblas, 64- and 32-bit integers), older wheels, the distributions' libopenblas.
 _OPENBLAS_SETTERS = (
@@ -522,14 +527,19 @@ class FrameProcessor:
     def _frame_block_for(self, size: int) -> shared_memory.SharedMemory | None:
         """This thread's shared memory block, made or grown to ``size`` bytes.
 
-        None where shared memory has no room for it. A page of a block that
-        tmpfs cannot give kills the process that writes it (SIGBUS), and a
-        container's /dev/shm is 64 MB unless told otherwise, which Fast DDS
-        shares: so a block's pages are reserved when it is made.
+        None where shared memory has no room for it, and for the
+        :data:`NO_ROOM_RETRY_FRAMES` frames after. A page of a block that tmpfs
+        cannot give kills the process that writes it (SIGBUS), and a container's
+        /dev/shm is 64 MB unless told otherwise, which Fast DDS shares: so a
+        block's pages are reserved when it is made.
         """
         block: shared_memory.SharedMemory | None = getattr(self._frame_block, "memory", None)
         if block is not None and block.size >= size:
             return block
+        waiting = getattr(self._frame_block, "frames_before_retry", 0)
+        if waiting:
+            self._frame_block.frames_before_retry = waiting - 1
+            return None
         with self._pool_lock:
             if block is not None:
                 self._frame_blocks.remove(block)
@@ -542,6 +552,7 @@ class FrameProcessor:
             except OSError:
                 block.close()
                 block.unlink()
+                self._frame_block.frames_before_retry = NO_ROOM_RETRY_FRAMES
                 return None
             self._frame_blocks.append(block)
         self._frame_block.memory = block

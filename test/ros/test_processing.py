@@ -25,6 +25,7 @@ from node_testing import (
 from marker_localizer.bench.throughput import process_table
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ImageError
+from marker_localizer.ros import processing
 from marker_localizer.ros.diagnostics import DiagnosticThresholds
 from marker_localizer.ros.processing import FrameProcessor, single_thread_blas
 from marker_localizer.synthetic import MarkerPlacement, render_markers
@@ -360,7 +361,10 @@ def test_worker_processes_leave_the_stop_signals_to_the_node(signum):
 
 
 def test_frames_shared_memory_has_no_room_for_go_pickled_and_are_counted(monkeypatch):
+    asked = []
+
     def no_room(descriptor, offset, length):
+        asked.append(length)
         raise OSError(errno.ENOSPC, "No space left on device")
 
     # tmpfs out of room (a container's 64 MB /dev/shm that Fast DDS fills): writing
@@ -380,10 +384,42 @@ def test_frames_shared_memory_has_no_room_for_go_pickled_and_are_counted(monkeyp
         processor.shutdown(TIMEOUT_S)
     assert collect.results == [("cam0", 1, 1), ("cam0", 2, 1)]
     assert processor.frames_pickled == 2
+    # Each ask fills tmpfs for a moment, which Fast DDS shares: the next frames do not.
+    assert len(asked) == 1
     thresholds = DiagnosticThresholds(1000.0, 2.0, 10.0, 0.1, 0.0)
     (*_, node) = processor.diagnostics("loc", Time(), thresholds).status
     values = {v.key: v.value for v in node.values}
     assert values["frames pickled (no room in shared memory)"] == "2"
+
+
+def test_a_worker_asks_shared_memory_for_room_again_after_some_frames(monkeypatch):
+    asked = []
+
+    def no_room(descriptor, offset, length):
+        asked.append(length)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "posix_fallocate", no_room)
+    monkeypatch.setattr(processing, "NO_ROOM_RETRY_FRAMES", 2)
+    collect = Collector()
+    processor = FrameProcessor(
+        ["cam0"], DetectorConfig(), collect, workers=1, worker_processes=True
+    )
+    try:
+        for sec in range(1, 6):
+            processor.submit("cam0", stamped(sec), block=True)
+            assert processor.wait_idle(TIMEOUT_S)
+        asked_with_room_gone = len(asked)
+        monkeypatch.undo()
+        for sec in range(6, 9):
+            processor.submit("cam0", stamped(sec), block=True)
+            assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown(TIMEOUT_S)
+    # Frames 1 and 4 ask (2 and 3 wait), 7 asks again and finds room: 8 follows it.
+    assert asked_with_room_gone == 2
+    assert processor.frames_pickled == 6
+    assert [sec for _, sec, _ in collect.results] == list(range(1, 9))
 
 
 def test_single_thread_blas_leaves_every_loaded_openblas_one_thread():
