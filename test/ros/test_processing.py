@@ -360,16 +360,31 @@ def test_worker_processes_leave_the_stop_signals_to_the_node(signum):
     assert processor.snapshots()["cam0"].errors == 0
 
 
-def test_frames_shared_memory_has_no_room_for_go_pickled_and_are_counted(monkeypatch):
-    asked = []
+class _Tmpfs:
+    """``os.posix_fallocate`` patched: while ``full``, each reservation fails (ENOSPC)."""
 
-    def no_room(descriptor, offset, length):
-        asked.append(length)
-        raise OSError(errno.ENOSPC, "No space left on device")
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.full = True
+        self.asked = 0
+        reserve = os.posix_fallocate
 
+        def fallocate(descriptor: int, offset: int, length: int) -> None:
+            if not self.full:
+                return reserve(descriptor, offset, length)
+            self.asked += 1
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        monkeypatch.setattr(os, "posix_fallocate", fallocate)
+
+
+@pytest.fixture
+def full_tmpfs(monkeypatch):
     # tmpfs out of room (a container's 64 MB /dev/shm that Fast DDS fills): writing
     # an unreserved page there would kill the node with SIGBUS.
-    monkeypatch.setattr(os, "posix_fallocate", no_room)
+    return _Tmpfs(monkeypatch)
+
+
+def test_frames_shared_memory_has_no_room_for_go_pickled_and_are_counted(full_tmpfs):
     blocks = _shared_memory_blocks()
     collect = Collector()
     processor = FrameProcessor(
@@ -385,21 +400,14 @@ def test_frames_shared_memory_has_no_room_for_go_pickled_and_are_counted(monkeyp
     assert collect.results == [("cam0", 1, 1), ("cam0", 2, 1)]
     assert processor.frames_pickled == 2
     # Each ask fills tmpfs for a moment, which Fast DDS shares: the next frames do not.
-    assert len(asked) == 1
+    assert full_tmpfs.asked == 1
     thresholds = DiagnosticThresholds(1000.0, 2.0, 10.0, 0.1, 0.0)
     (*_, node) = processor.diagnostics("loc", Time(), thresholds).status
     values = {v.key: v.value for v in node.values}
     assert values["frames pickled (no room in shared memory)"] == "2"
 
 
-def test_a_worker_asks_shared_memory_for_room_again_after_some_frames(monkeypatch):
-    asked = []
-
-    def no_room(descriptor, offset, length):
-        asked.append(length)
-        raise OSError(errno.ENOSPC, "No space left on device")
-
-    monkeypatch.setattr(os, "posix_fallocate", no_room)
+def test_a_worker_asks_shared_memory_for_room_again_after_some_frames(full_tmpfs, monkeypatch):
     monkeypatch.setattr(processing, "NO_ROOM_RETRY_FRAMES", 2)
     collect = Collector()
     processor = FrameProcessor(
@@ -409,8 +417,8 @@ def test_a_worker_asks_shared_memory_for_room_again_after_some_frames(monkeypatc
         for sec in range(1, 6):
             processor.submit("cam0", stamped(sec), block=True)
             assert processor.wait_idle(TIMEOUT_S)
-        asked_with_room_gone = len(asked)
-        monkeypatch.undo()
+        asked_with_room_gone = full_tmpfs.asked
+        full_tmpfs.full = False
         for sec in range(6, 9):
             processor.submit("cam0", stamped(sec), block=True)
             assert processor.wait_idle(TIMEOUT_S)
