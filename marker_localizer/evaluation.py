@@ -388,7 +388,18 @@ def recall_interval(
     half = math.sqrt(z2 * (share * (1.0 - share) / markers + z2 / (4.0 * markers**2))) / (
         1.0 + z2 / markers
     )
-    return max(centre - half, 0.0), min(centre + half, 1.0)
+    # At none or all found the interval ends at 0 or 1 exactly; rounding would miss it.
+    low = 0.0 if found == 0 else max(centre - half, 0.0)
+    high = 1.0 if found == total else min(centre + half, 1.0)
+    return low, high
+
+
+def interval_text(bounds: tuple[float, float], digits: int = 2, scale: float = 1.0) -> str:
+    """An interval (:data:`INTERVAL_LEVEL`) as "low-high", times ``scale``; "-" if undefined."""
+    low, high = bounds
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return "-"
+    return f"{scale * low:.{digits}f}-{scale * high:.{digits}f}"
 
 
 def frame_design_effect(found_per_frame: Sequence[int], truth_per_frame: Sequence[int]) -> float:

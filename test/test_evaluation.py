@@ -100,8 +100,9 @@ def test_a_recall_interval_holds_the_recall_and_narrows_as_markers_are_added():
 
 
 def test_a_recall_interval_reaches_the_ends_only_at_none_or_all_found():
-    assert evaluation.recall_interval(0, 10)[0] == pytest.approx(0.0)
-    assert evaluation.recall_interval(10, 10)[1] == pytest.approx(1.0)
+    assert evaluation.recall_interval(0, 10)[0] == 0.0
+    assert evaluation.recall_interval(10, 10)[1] == 1.0
+    assert evaluation.recall_interval(10, 10, design_effect=3.0)[1] == 1.0
     assert evaluation.recall_interval(1, 10)[0] > 0.0
     assert evaluation.recall_interval(9, 10)[1] < 1.0
     assert all(math.isnan(b) for b in evaluation.recall_interval(0, 0))

@@ -56,7 +56,13 @@ from marker_localizer.bag.io import DEFAULT_STORAGE, BagMessage, BagReader, BagW
 from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import BagError, ImageError, shorten
-from marker_localizer.evaluation import DEFAULT_GATE_PX, DetectionTally, match_points
+from marker_localizer.evaluation import (
+    DEFAULT_GATE_PX,
+    INTERVAL_LEVEL,
+    DetectionTally,
+    interval_text,
+    match_points,
+)
 from marker_localizer.ros.conversions import (
     ENCODINGS,
     ENCODINGS_TEXT,
@@ -217,18 +223,21 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
     overall = report.evaluation
     if overall is None:
         return "\n".join(lines)
+    level = f"{INTERVAL_LEVEL:.0%}"
     lines += [
-        f"accuracy against {TRUTH_SUFFIX} (one-to-one matches within {match_distance_px:g} px):",
-        f"{'camera':<12}{'truth':>7}{'recall':>8}{'FP/frame':>10}{'mean px':>9}{'RMS px':>9}"
-        f"{'p95 px':>9}{'max px':>9}",
+        f"accuracy against {TRUTH_SUFFIX} (one-to-one matches within {match_distance_px:g} px; "
+        f"{level} intervals widened by the spread between frames):",
+        f"{'camera':<12}{'truth':>7}{'recall':>8}{level:>13}{'FP/frame':>10}{level:>12}"
+        f"{'mean px':>9}{'RMS px':>9}{'p95 px':>9}{'max px':>9}",
     ]
     rows = [(c.camera, c.evaluation) for c in cams if c.evaluation is not None]
     for name, evaluation in [*rows, ("all", overall)]:
         stats = evaluation.stats
         lines.append(
             f"{name:<12}{evaluation.n_truth:>7}{evaluation.recall:>8.3f}"
-            f"{evaluation.fp_per_frame:>10.2f}{stats.mean:>9.4f}"
-            f"{stats.rms:>9.4f}{stats.p95:>9.4f}{stats.max:>9.4f}"
+            f"{interval_text(evaluation.recall_interval, 3):>13}"
+            f"{evaluation.fp_per_frame:>10.2f}{interval_text(evaluation.fp_per_frame_interval):>12}"
+            f"{stats.mean:>9.4f}{stats.rms:>9.4f}{stats.p95:>9.4f}{stats.max:>9.4f}"
         )
     return "\n".join(lines)
 

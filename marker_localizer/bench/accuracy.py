@@ -930,14 +930,6 @@ def _pct(value: float) -> str:
     return "-" if not np.isfinite(value) else f"{100.0 * value:.1f}%"
 
 
-def _span(bounds: tuple[float, float], digits: int = 2, scale: float = 1.0) -> str:
-    """An interval (:data:`evaluation.INTERVAL_LEVEL`) as "low-high"."""
-    low, high = bounds
-    if not (np.isfinite(low) and np.isfinite(high)):
-        return "-"
-    return f"{scale * low:.{digits}f}-{scale * high:.{digits}f}"
-
-
 def family_table(title: str, rows: Sequence[Row]) -> str:
     """Format a family's table (errors and bounds in px)."""
     ours = next((r.tally.stats.mean for r in rows if r.name == REFERENCE_ROW), math.nan)
@@ -1057,7 +1049,7 @@ def negatives_table(title: str, rows: Sequence[Row]) -> str:
         e = row.extra
         lines.append(
             f"{row.name:<34}{_fmt(e['fp_per_frame'], 2):>11}"
-            f"{_span((e['fp_per_frame_low'], e['fp_per_frame_high'])):>20}"
+            f"{evaluation.interval_text((e['fp_per_frame_low'], e['fp_per_frame_high'])):>20}"
             f"{_fmt(e['fp_per_megapixel'], 3):>10}{_fmt(e['seconds'], 2):>9}"
         )
     return "\n".join(lines)
@@ -1084,9 +1076,10 @@ def summary_table(results: Sequence[tuple[str, Row]], title: str | None = None) 
     ]
     for label, row in results:
         t = row.tally
+        recall_interval = evaluation.interval_text(t.recall_interval, 1, 100.0)
         lines.append(
-            f"{label:<44}{_pct(t.recall):>8}{_span(t.recall_interval, 1, 100.0):>12}"
-            f"{_fmt(t.fp_per_frame, 2):>8}{_span(t.fp_per_frame_interval):>12}"
+            f"{label:<44}{_pct(t.recall):>8}{recall_interval:>12}"
+            f"{_fmt(t.fp_per_frame, 2):>8}{evaluation.interval_text(t.fp_per_frame_interval):>12}"
             f"{_fmt(t.stats.mean):>8}{_fmt(t.mean_crlb_px, 4):>8}"
             f"{_fmt(t.error_over_crlb, 2):>9}{_fmt(t.median_line_error_deg, 2):>7}"
         )

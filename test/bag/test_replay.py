@@ -149,6 +149,18 @@ def test_replay_finds_the_simulated_markers_with_sub_pixel_error(replayed):
         assert camera.mean_ms > 0
 
 
+def test_replays_accuracy_table_gives_each_recall_and_false_point_rate_its_interval(replayed):
+    report, _ = replayed
+    overall = report.evaluation
+    # The throughput table's total row comes first, the accuracy table's last.
+    *_, row = [line for line in format_report(report).splitlines() if line.startswith("all ")]
+    low, high = overall.recall_interval
+    assert low < overall.recall <= high
+    assert f"{overall.recall:.3f}{f'{low:.3f}-{high:.3f}':>13}" in row
+    assert f"{overall.fp_per_frame:.2f}" in row
+    assert "-".join(f"{b:.2f}" for b in overall.fp_per_frame_interval) in row
+
+
 def test_replay_writes_points_with_the_input_header_at_the_input_bag_time(flight_bag, replayed):
     _, out = replayed
     with BagReader(flight_bag) as bag:
