@@ -320,22 +320,26 @@ class DetectionTally:
         return self.n_false_positives / self.frames if self.frames else math.nan
 
     @property
-    def recall_interval(self) -> tuple[float, float]:
-        """:func:`recall_interval` of the recall, widened by the frames' spread: (low, high).
+    def recall_design_effect(self) -> float:
+        """:func:`frame_design_effect` of the frames' counts: at least 1."""
+        return frame_design_effect(self.found_per_frame, self.truth_per_frame)
 
-        The design effect is :func:`frame_design_effect` of the frames' counts.
-        """
-        design_effect = frame_design_effect(self.found_per_frame, self.truth_per_frame)
-        return recall_interval(self.n_matched, self.n_truth, design_effect=design_effect)
+    @property
+    def fp_dispersion(self) -> float:
+        """:func:`frame_dispersion` of the frames' false positives: at least 1."""
+        return frame_dispersion(self.false_per_frame)
+
+    @property
+    def recall_interval(self) -> tuple[float, float]:
+        """:func:`recall_interval` of the recall, widened by :attr:`recall_design_effect`."""
+        return recall_interval(
+            self.n_matched, self.n_truth, design_effect=self.recall_design_effect
+        )
 
     @property
     def fp_per_frame_interval(self) -> tuple[float, float]:
-        """:func:`rate_interval` of the false positives per frame, widened by their spread.
-
-        The dispersion is :func:`frame_dispersion` of the frames' counts.
-        """
-        dispersion = frame_dispersion(self.false_per_frame)
-        return rate_interval(self.n_false_positives, self.frames, dispersion=dispersion)
+        """:func:`rate_interval` of the false points per frame, widened by :attr:`fp_dispersion`."""
+        return rate_interval(self.n_false_positives, self.frames, dispersion=self.fp_dispersion)
 
     @property
     def stats(self) -> ErrorStats:

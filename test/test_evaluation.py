@@ -125,6 +125,8 @@ def test_a_tally_gives_the_intervals_of_its_recall_and_false_points():
     # residuals (-0.5, +0.5 markers) give 4/3 the variance of four independent
     # markers. One false point and none: less spread than Poisson counts, taken as 1.
     assert evaluation.frame_design_effect([1, 2], [2, 2]) == pytest.approx(4 / 3)
+    assert tally.recall_design_effect == pytest.approx(4 / 3)
+    assert tally.fp_dispersion == 1.0
     assert tally.recall_interval == pytest.approx(
         evaluation.recall_interval(3, 4, design_effect=4 / 3)
     )

@@ -282,6 +282,8 @@ def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path,
     # Recall and false points carry their intervals, printed and saved.
     summary = saved["summary"]["rendered (g)"]
     found, truth, frames = summary["found"], summary["truth"], summary["frames"]
+    # One frame says nothing of the spread between frames: the intervals are the plain ones.
+    assert summary["recall_design_effect"] == summary["fp_dispersion"] == 1.0
     assert summary["recall_interval"] == pytest.approx(evaluation.recall_interval(found, truth))
     low, high = summary["fp_per_frame_interval"]
     assert low <= summary["fp_per_frame"] < high
