@@ -338,8 +338,8 @@ class DetectionTally:
 
     @property
     def fp_per_frame_interval(self) -> tuple[float, float]:
-        """:func:`rate_interval` of the false points per frame, widened by :attr:`fp_dispersion`."""
-        return rate_interval(self.n_false_positives, self.frames, dispersion=self.fp_dispersion)
+        """:func:`frame_rate_interval` of the false points per frame."""
+        return frame_rate_interval(self.false_per_frame)
 
     @property
     def stats(self) -> ErrorStats:
@@ -447,6 +447,22 @@ def rate_interval(
     low = stats.chi2.ppf(tail, 2.0 * events) / 2.0 if count else 0.0
     high = stats.chi2.ppf(1.0 - tail, 2.0 * events + 2.0) / 2.0
     return float(low) * scale / exposure, float(high) * scale / exposure
+
+
+def frame_rate_interval(
+    counts_per_frame: Sequence[int], level: float = INTERVAL_LEVEL
+) -> tuple[float, float]:
+    """:func:`rate_interval` of events per frame from each frame's count.
+
+    Widened by the counts' :func:`frame_dispersion`: the false points of a set of
+    frames, in a tally or on the marker-free frames alike.
+    """
+    return rate_interval(
+        sum(counts_per_frame),
+        len(counts_per_frame),
+        level,
+        dispersion=frame_dispersion(counts_per_frame),
+    )
 
 
 def frame_dispersion(counts_per_frame: Sequence[int]) -> float:

@@ -885,8 +885,8 @@ def evaluate_negatives(
     """Score detectors on real frames without any marker: every detection is false.
 
     ``Row.extra``: ``fp_per_frame`` and its interval (``fp_per_frame_low``,
-    ``fp_per_frame_high``: :func:`evaluation.rate_interval`, widened by the frames'
-    spread, :func:`evaluation.frame_dispersion`), ``fp_per_megapixel``
+    ``fp_per_frame_high``: :func:`evaluation.frame_rate_interval`, widened by the
+    frames' spread), ``fp_per_megapixel``
     (over all the frames' pixels), ``seconds`` (per frame).
     """
     megapixels = sum(f.image.size for f in frames) / 1e6
@@ -898,9 +898,7 @@ def evaluate_negatives(
             per_frame.append(len(points))
             seconds += dt
         n, false_points = max(len(frames), 1), sum(per_frame)
-        low, high = evaluation.rate_interval(
-            false_points, len(frames), dispersion=evaluation.frame_dispersion(per_frame)
-        )
+        low, high = evaluation.frame_rate_interval(per_frame)
         rows.append(
             Row(
                 detector.name,
