@@ -37,6 +37,8 @@ ASTRAY = "astray"
 #: 36-600 markers and 3-24 frames, where those figures move by several points from
 #: one sample of frames to the next.
 INTERVAL_LEVEL = 0.95
+#: The heading of an interval's column in a printed table: its coverage.
+INTERVAL_HEADING = f"{INTERVAL_LEVEL:.0%}"
 
 
 @dataclass(frozen=True)

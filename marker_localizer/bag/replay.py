@@ -58,7 +58,7 @@ from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import BagError, ImageError, shorten
 from marker_localizer.evaluation import (
     DEFAULT_GATE_PX,
-    INTERVAL_LEVEL,
+    INTERVAL_HEADING,
     DetectionTally,
     interval_text,
     match_points,
@@ -223,11 +223,11 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
     overall = report.evaluation
     if overall is None:
         return "\n".join(lines)
-    level = f"{INTERVAL_LEVEL:.0%}"
     lines += [
         f"accuracy against {TRUTH_SUFFIX} (one-to-one matches within {match_distance_px:g} px; "
-        f"{level} intervals widened by the spread between frames):",
-        f"{'camera':<12}{'truth':>7}{'recall':>8}{level:>13}{'FP/frame':>10}{level:>12}"
+        f"{INTERVAL_HEADING} intervals widened by the spread between frames):",
+        f"{'camera':<12}{'truth':>7}{'recall':>8}{INTERVAL_HEADING:>13}{'FP/frame':>10}"
+        f"{INTERVAL_HEADING:>12}"
         f"{'mean px':>9}{'RMS px':>9}{'p95 px':>9}{'max px':>9}",
     ]
     rows = [(c.camera, c.evaluation) for c in cams if c.evaluation is not None]

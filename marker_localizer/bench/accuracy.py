@@ -54,7 +54,7 @@ from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
 from marker_localizer.bench.runner import run_and_save
 from marker_localizer.core import pipeline
 from marker_localizer.errors import ConfigError
-from marker_localizer.evaluation import DetectionTally
+from marker_localizer.evaluation import INTERVAL_HEADING, DetectionTally
 from marker_localizer.synthetic import RenderedScene, SceneConfig, render_checkerboard, render_scene
 from marker_localizer.synthetic.crlb import X_SNR_BANDS
 from marker_localizer.synthetic.textures import GROUND_REFLECTANCE_LIMITS, warped_texture
@@ -916,9 +916,6 @@ def evaluate_negatives(
 
 # --------------------------------------------------------------------------- tables
 
-#: The heading of an interval's column: its coverage.
-_INTERVAL_HEADING = f"{evaluation.INTERVAL_LEVEL:.0%}"
-
 
 def _fmt(value: float, digits: int = 3) -> str:
     return "-" if value is None or not np.isfinite(value) else f"{value:.{digits}f}"
@@ -1041,7 +1038,7 @@ def uas_table(title: str, rows: Sequence[Row]) -> str:
 
 def negatives_table(title: str, rows: Sequence[Row]) -> str:
     """Format the table of real frames without markers (every detection is false)."""
-    header = f"{'detector':<34}{'FP/frame':>11}{_INTERVAL_HEADING:>20}{'FP/MP':>10}{'s/frame':>9}"
+    header = f"{'detector':<34}{'FP/frame':>11}{INTERVAL_HEADING:>20}{'FP/MP':>10}{'s/frame':>9}"
     lines = [title, header, "-" * len(header)]
     for row in rows:
         e = row.extra
@@ -1056,14 +1053,14 @@ def negatives_table(title: str, rows: Sequence[Row]) -> str:
 def summary_table(results: Sequence[tuple[str, Row]], title: str | None = None) -> str:
     """One line per family for the reference row: the figures issue 12's targets are about."""
     header = (
-        f"{'family':<44}{'recall':>8}{_INTERVAL_HEADING:>12}{'FP/fr':>8}{_INTERVAL_HEADING:>12}"
+        f"{'family':<44}{'recall':>8}{INTERVAL_HEADING:>12}{'FP/fr':>8}{INTERVAL_HEADING:>12}"
         f"{'mean':>8}{'CRLB':>8}{'err/CRLB':>9}{'lines':>7}"
     )
     lines = [
         title
         or (
             f"Summary, {REFERENCE_ROW}: recall, false points per frame (each with its "
-            f"{_INTERVAL_HEADING} interval: Wilson's, exact Poisson, each widened by the "
+            f"{INTERVAL_HEADING} interval: Wilson's, exact Poisson, each widened by the "
             "spread between frames), mean error (px), "
             "mean Cramer-Rao bound of the markers found (px), their ratio, median error "
             "of the line directions reported (degrees; the larger of the two lines'; "
