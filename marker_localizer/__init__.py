@@ -9,6 +9,7 @@ of the top-left pixel (OpenCV's convention).
 """
 
 from marker_localizer.config import DetectorConfig
-from marker_localizer.core.pipeline import Detection, DetectionResult, Detector
+from marker_localizer.core.pipeline import Detector
+from marker_localizer.core.result import Detection, DetectionResult
 
 __all__ = ["Detection", "DetectionResult", "Detector", "DetectorConfig"]

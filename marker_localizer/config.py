@@ -23,6 +23,9 @@ from marker_localizer.core.verification import (
 )
 from marker_localizer.errors import ConfigError
 
+#: White in the 8-bit grey levels ``min_contrast_dn`` is given in.
+WHITE_DN = 255.0
+
 
 @dataclass(frozen=True)
 class ParamSpec:
@@ -374,6 +377,23 @@ class DetectorConfig:
                 f"marker_radius_min_px={self.marker_radius_min_px} is larger than "
                 f"marker_radius_max_px={self.marker_radius_max_px}"
             )
+
+    @property
+    def merge_radius_px(self) -> float:
+        """Detections closer than this to a stronger one are its duplicates, px.
+
+        Half of ``min_peak_separation_px``: the last suppression of every pass.
+        """
+        return self.min_peak_separation_px / 2.0
+
+    @property
+    def min_contrast_share(self) -> float:
+        """``min_contrast_dn`` as a share of white.
+
+        A threshold in an image's own grey levels is this times its white
+        (``full_scale``).
+        """
+        return self.min_contrast_dn / WHITE_DN
 
     def replace(self, **changes: Any) -> DetectorConfig:
         """Return a validated copy with ``changes`` applied (unknown keys raise)."""

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from marker_localizer.core.image import bit_depth_scale
-from marker_localizer.core.pipeline import Detection
+from marker_localizer.core.result import Detection
 
 _LINE_BGR = (0, 255, 0)
 _EXTENT_BGR = (0, 255, 255)

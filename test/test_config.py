@@ -45,6 +45,12 @@ def test_integers_are_accepted_for_float_fields():
     assert from_mapping({"marker_radius_max_px": 50}).marker_radius_max_px == 50.0
 
 
+def test_the_derived_settings_follow_the_fields_they_come_from():
+    config = DetectorConfig(min_peak_separation_px=7.0, min_contrast_dn=51.0)
+    assert config.merge_radius_px == 3.5
+    assert config.min_contrast_share == pytest.approx(0.2)
+
+
 def test_replace_returns_a_validated_copy():
     config = DetectorConfig().replace(min_score=0.5)
     assert config.min_score == 0.5

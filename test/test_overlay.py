@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from marker_localizer.core.pipeline import Detection
+from marker_localizer.core.result import Detection
 from marker_localizer.overlay import draw_detections
 
 MARKER = Detection(

@@ -46,7 +46,7 @@ from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from marker_localizer.bag.io import DEFAULT_STORAGE, BagWriter, typestore
-from marker_localizer.core.pipeline import Detection
+from marker_localizer.core.result import Detection
 from marker_localizer.ros.conversions import array_to_image, bayer_encoding, detections_to_cloud
 from marker_localizer.synthetic.flight import FlightSimulator, PinholeCamera
 from marker_localizer.synthetic.scene import MarkerTruth

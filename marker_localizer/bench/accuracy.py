@@ -52,7 +52,7 @@ from marker_localizer import evaluation
 from marker_localizer.bench import metrics, peers, real_data
 from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
 from marker_localizer.bench.runner import run_and_save
-from marker_localizer.core import pipeline
+from marker_localizer.core import symmetry_path
 from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import INTERVAL_HEADING, DetectionTally
 from marker_localizer.synthetic import RenderedScene, SceneConfig, render_checkerboard, render_scene
@@ -1084,11 +1084,11 @@ def summary_table(results: Sequence[tuple[str, Row]], title: str | None = None) 
 def losses_table(results: Sequence[tuple[str, Row]]) -> str:
     """One line per family: how many markers the reference row missed, by the test that lost them.
 
-    The tests in the order they run (:data:`~marker_localizer.core.pipeline.SURVIVOR_TESTS`;
+    The tests in the order they run (:data:`~marker_localizer.core.symmetry_path.SURVIVOR_TESTS`;
     ``floor`` is the score floor wherever it is applied), then those that passed
     every test but ended off their marker (:data:`evaluation.ASTRAY`).
     """
-    tests = list(dict.fromkeys([*pipeline.SURVIVOR_TESTS, evaluation.ASTRAY]))
+    tests = list(dict.fromkeys([*symmetry_path.SURVIVOR_TESTS, evaluation.ASTRAY]))
     shown = [t for t in tests if any(row.lost_at[t] for _, row in results)]
     header = f"{'family':<44}{'missed':>7}" + "".join(f"{t:>11}" for t in shown)
     lines = [

@@ -24,7 +24,8 @@ from marker_localizer.core.image import (
     bit_depth_scale,
     peak_level,
 )
-from marker_localizer.core.pipeline import DetectionResult, Detector
+from marker_localizer.core.pipeline import Detector
+from marker_localizer.core.result import DetectionResult
 from marker_localizer.errors import ConfigError, ImageError
 from marker_localizer.image_files import read_image_file
 

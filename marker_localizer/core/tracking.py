@@ -73,7 +73,8 @@ from scipy.spatial import cKDTree
 
 from marker_localizer.config import TrackerConfig
 from marker_localizer.core.image import to_gray
-from marker_localizer.core.pipeline import Detection, DetectionResult, Detector, SearchPlan
+from marker_localizer.core.pipeline import Detector
+from marker_localizer.core.result import Detection, DetectionResult, SearchPlan
 from marker_localizer.core.screening import non_maximum_suppression, parabolic_offset
 
 #: Anchors whose patches measure the image motion: four fix a homography, the
@@ -378,7 +379,7 @@ class MarkerTracker:
                     SearchPlan(regions, located.as_array()[:, :2], corrected[seeded]),
                 )
             )
-        result = _combine(parts, self.detector.merge_radius_px)
+        result = _combine(parts, self.detector.config.merge_radius_px)
         found = result.as_array()
         owner = _associate(found[:, :2], corrected, inside, self.config.match_px)
         missed = owner < 0

@@ -2340,6 +2340,24 @@ def prescreen_ring_radii(
     )
 
 
+def prescreen_line_directions(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    scale_px: NDArray[np.float64],
+    min_radius_px: float,
+) -> NDArray[np.float64]:
+    """(N, 2) the directions of the edge pairs on each point's first prescreen ring, radians.
+
+    What :func:`prescreen_sector_order` reads on the innermost of
+    :func:`prescreen_ring_radii`, with no test of their strength: the line
+    directions of a point no ring test has passed (a tracked seed, a candidate
+    read again with a shadow's edge).
+    """
+    radii = prescreen_ring_radii(scale_px, min_radius_px)[:, :1]
+    _, angles = prescreen_sector_order(image, xy, radii, np.full(len(xy), -np.inf))
+    return angles
+
+
 def prescreen_symmetry(
     image: NDArray[Any],
     xy: NDArray[np.float64],

@@ -33,7 +33,7 @@ from sensor_msgs.msg import CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from marker_localizer.core.image import BAYER_PATTERNS, bayer_to_grey
-from marker_localizer.core.pipeline import Detection
+from marker_localizer.core.result import Detection
 from marker_localizer.errors import ImageError, shorten
 from marker_localizer.image_files import check_pixel_count, decode_image
 

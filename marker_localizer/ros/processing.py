@@ -70,7 +70,8 @@ from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.core.image import peak_level
-from marker_localizer.core.pipeline import CAP_COUNTS, DetectionResult, Detector
+from marker_localizer.core.pipeline import Detector
+from marker_localizer.core.result import CAP_COUNTS, DetectionResult
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.errors import ConfigError
 from marker_localizer.overlay import draw_detections

@@ -17,12 +17,13 @@ from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.core import (
     acceptance,
     decision,
-    pipeline,
     plate,
     second_reading,
     shadow,
+    symmetry_path,
     verification,
 )
+from marker_localizer.core.result import CAP_COUNTS, DetectionResult, SearchPlan
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import (
     MarkerPlacement,
@@ -308,8 +309,8 @@ def test_more_xs_than_the_costly_checks_take_are_cut_over_the_frame_and_counted(
     found = result.as_array()
     # Each of the cap's X's is a marker but for a few whose neighbours' sectors
     # carry their pattern on beyond their extent: those the X-end gate counts.
-    assert len(found) + result.counts["rejected_x_end"] == pipeline._MAX_CONFIRMED
-    assert result.counts["rejected_x_end"] < 0.05 * pipeline._MAX_CONFIRMED
+    assert len(found) + result.counts["rejected_x_end"] == symmetry_path.MAX_CONFIRMED
+    assert result.counts["rejected_x_end"] < 0.05 * symmetry_path.MAX_CONFIRMED
     assert result.counts["dropped_over_verification_cap"] > 1000
     # Spread over the frame: every 100 px column band keeps its share.
     per_band = np.bincount((found[:, 0] // 100).astype(int), minlength=9)
@@ -326,8 +327,8 @@ def test_a_frame_tiled_with_xs_reads_at_most_the_caps_plates_and_counts_the_rest
     assert counts["plate_asked_over_cap"] > acceptance.MAX_PLATE_ASKED
     assert counts["plate_asked_over_cap"] <= counts["rejected_quartic"]
     rejected = counts["rejected_x_end"] + counts["rejected_quartic"]
-    assert len(result) + rejected == pipeline._MAX_CONFIRMED
-    assert "plate_asked_over_cap" in pipeline.CAP_COUNTS
+    assert len(result) + rejected == symmetry_path.MAX_CONFIRMED
+    assert "plate_asked_over_cap" in CAP_COUNTS
 
 
 def test_markers_already_located_are_not_searched_again_but_the_others_are(cluttered_frames):
@@ -337,7 +338,7 @@ def test_markers_already_located_are_not_searched_again_but_the_others_are(clutt
     full = detector.detect(image).as_array()[:, :2]
     known, others = full[::2], full[1::2]
     height, width = image.shape[:2]
-    plan = pipeline.SearchPlan(regions=np.array([[0, 0, width, height]]), known=known)
+    plan = SearchPlan(regions=np.array([[0, 0, width, height]]), known=known)
     result = detector.detect(image, plan)
     found = result.as_array()[:, :2]
     assert result.counts["skipped_known"] >= len(known)
@@ -352,7 +353,7 @@ def test_seeded_markers_take_the_full_passs_stages_and_end_at_its_centres(clutte
     full = detector.detect(image).as_array()[:, :2]
     texture = np.array([[5.0, 5.0], [600.0, 20.0]])  # no marker there
     seeds = np.vstack([full + [0.4, -0.3], texture])
-    result = detector.detect(image, pipeline.SearchPlan(seeds=seeds))
+    result = detector.detect(image, SearchPlan(seeds=seeds))
     found = result.as_array()[:, :2]
     distance, index = cKDTree(found).query(full)
     assert len(found) == len(full)
@@ -643,7 +644,7 @@ def test_lost_wide_candidates_read_again_are_counted_and_add_only_new_markers(
         first = dict(result.survivors)["merging"]
         assert len(result) == len(first) + counts["found_recentred"] + counts["found_shadowed"]
         distance = cKDTree(result.as_array()[:, :2]).query(result.as_array()[:, :2], k=2)[0]
-        assert len(result) < 2 or distance[:, 1].min() > detector.merge_radius_px
+        assert len(result) < 2 or distance[:, 1].min() > detector.config.merge_radius_px
     assert recentred > 0 and shadowed > 0
 
 
@@ -764,7 +765,7 @@ def test_tracking_confirms_markers_half_a_pixel_off_by_the_template_decision(clu
     full = [d for d, hit in zip(detected, on_marker, strict=True) if hit]
     assert len(full) >= 0.9 * len(scene.centres)
 
-    def located(offset: tuple[float, float]) -> pipeline.DetectionResult:
+    def located(offset: tuple[float, float]) -> DetectionResult:
         return detector.locate(
             scene.image,
             np.array([[d.x + offset[0], d.y + offset[1]] for d in full]),
@@ -802,7 +803,7 @@ def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_cou
     detector = Detector(DetectorConfig(marker_radius_min_px=12.0, marker_radius_max_px=32.0))
     everything = detector.detect(board.image)
     assert len(everything) == 63
-    monkeypatch.setattr(pipeline, "_MAX_VERIFIED", 10)
+    monkeypatch.setattr(symmetry_path, "MAX_VERIFIED", 10)
     capped = detector.detect(board.image)
     counts = capped.counts
     assert len(capped) == 10
@@ -819,9 +820,9 @@ def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_cou
 def test_a_search_plan_of_the_wrong_shape_is_refused_with_its_name():
 
     with pytest.raises(ValueError, match=r"SearchPlan.regions of shape \(3,\) is not \(N, 4\)"):
-        pipeline.SearchPlan(regions=np.array([0, 0, 8]))
+        SearchPlan(regions=np.array([0, 0, 8]))
     with pytest.raises(ValueError, match=r"SearchPlan.seeds holds a NaN or infinite position"):
-        pipeline.SearchPlan(seeds=np.array([[np.nan, 3.0]]))
+        SearchPlan(seeds=np.array([[np.nan, 3.0]]))
 
 
 @pytest.mark.parametrize(
@@ -852,7 +853,7 @@ def test_an_empty_search_plan_searches_nowhere():
     image[:32, :32] = image[32:, 32:] = 30
     image = cv2.GaussianBlur(image, (0, 0), 1.0)
     assert len(Detector(DetectorConfig()).detect(image)) == 1
-    assert len(Detector(DetectorConfig()).detect(image, pipeline.SearchPlan())) == 0
+    assert len(Detector(DetectorConfig()).detect(image, SearchPlan())) == 0
 
 
 @pytest.mark.parametrize("white_share", [0.08, 0.12])
@@ -922,7 +923,7 @@ def test_the_survivors_narrow_test_by_test_down_to_the_detections():
     )
     tests = [test for test, _ in result.survivors]
     sizes = [len(xy) for _, xy in result.survivors]
-    assert tuple(tests) == pipeline.SURVIVOR_TESTS
+    assert tuple(tests) == symmetry_path.SURVIVOR_TESTS
     # Each test keeps a subset of what reached it (the centring moves candidates and
     # merges duplicates, so it keeps no more than it was given); the last three, the
     # second readings of the lost wide candidates and of the tiny X's plates, only

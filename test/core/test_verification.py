@@ -255,6 +255,19 @@ def test_the_prescreen_passes_an_x_on_three_rings_and_names_its_line_directions(
     np.testing.assert_allclose(lines, np.sort([0.3, 0.3 + np.pi / 2]), atol=np.deg2rad(10.0))
 
 
+def test_a_point_no_ring_test_passed_still_takes_its_line_directions_from_the_first_ring():
+    # A dim X, weaker than any prescreen would ask: its directions are read all the same.
+    image = 100.0 + 10.0 * _render("quarter_disks", rotation=0.3)
+    scale = np.array([8.0])
+    angles = verification.prescreen_line_directions(image, CENTRE, scale, 6.0)
+    passed, _ = verification.prescreen_sector_order(
+        image, CENTRE, verification.prescreen_ring_radii(scale, 6.0), np.array([1e3])
+    )
+    assert not passed[0]
+    lines = np.sort(angles[0] % np.pi)
+    np.testing.assert_allclose(lines, np.sort([0.3, 0.3 + np.pi / 2]), atol=np.deg2rad(10.0))
+
+
 def test_an_x_reaches_the_required_extent_only_from_that_share_of_the_smallest_radius():
     reached = verification.reaches_extent(np.array([2.7, 2.8, 2.8 - 1e-6]), 0.7, 4.0)
     assert reached.tolist() == [False, True, False]

@@ -13,7 +13,8 @@ from sensor_msgs.msg import Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig
-from marker_localizer.core.pipeline import Detection, Detector
+from marker_localizer.core.pipeline import Detector
+from marker_localizer.core.result import Detection
 from marker_localizer.errors import ImageError
 from marker_localizer.ros.conversions import (
     BAYER_ENCODINGS,

@@ -1,0 +1,212 @@
+"""What a pass of the detector gives back, and where a tracking pass searches.
+
+:class:`Detection` is one marker centre; :class:`DetectionResult` a frame's
+detections with what each stage counted, timed and left standing;
+:class:`SearchPlan` the regions, known markers and seeds of a tracking pass.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from marker_localizer.core import decision
+
+#: The counts of :class:`DetectionResult` that say what the caps cut, the price of a
+#: bounded worst case (``max_candidates`` after screening,
+#: :data:`symmetry_path.MAX_VERIFIED` after the prescreen,
+#: :data:`symmetry_path.MAX_CONFIRMED` after the template, and
+#: :data:`acceptance.MAX_PLATE_ASKED` at the plate's test): the node's diagnostics
+#: show their sum.
+CAP_COUNTS = ("dropped_over_cap", "dropped_over_verification_cap", "plate_asked_over_cap")
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One marker centre.
+
+    Attributes:
+        x: column position in pixels, (0, 0) = centre of the top-left pixel.
+        y: row position in pixels.
+        score: confidence in [0, 1] (centre symmetry times fit quality; with
+            ``refinement="template"`` :func:`decision.confidence` of the decision's
+            score, 0.5 at the threshold).
+        sigma: 1-sigma radial position uncertainty in pixels, from the fit's
+            covariance: sqrt(var_x + var_y).
+        angle1: direction of the first line through the centre, radians in [0, pi);
+            on the default path, measured from the edges on X's of
+            :data:`subpixel.MEASURED_MIN_EXTENT_PX` and more (median error
+            0.6-1.4 degrees on the renderer's (a), (c), (d), (g), against the
+            ring check's 1.9-3.4).
+        angle2: direction of the second line, radians in [0, pi).
+        radius_px: extent of the X pattern found by the annular scan.
+        evidence: the verification's part of the score (ring symmetry x template
+            NCC); ``score`` is ``evidence`` x (1 - relative symmetry residual of the
+            fit). :meth:`Detector.locate` takes it back to confirm a tracked marker.
+            With ``refinement="template"`` it equals ``score``: that decision reads
+            every frame's evidence afresh.
+    """
+
+    x: float
+    y: float
+    score: float
+    sigma: float
+    angle1: float
+    angle2: float
+    radius_px: float
+    evidence: float = 1.0
+
+
+@dataclass
+class DetectionResult:
+    """Detections of one frame, with per-stage counts and timings.
+
+    Iterating over a result yields its :class:`Detection` objects.
+
+    Attributes:
+        detections: accepted markers, strongest first.
+        counts: how many points entered or left each stage (``candidates``,
+            ``after_suppression``, ``dropped_over_cap``, ``skipped_known``,
+            ``rejected_prescreen``, ``dropped_over_verification_cap``,
+            ``rejected_centring``,
+            ``rejected_symmetry``, ``rejected_template``, ``rejected_lines``,
+            ``rejected_refinement``, ``rejected_score``, ``rejected_x_end``,
+            ``rejected_misfit``, ``rejected_quartic``
+            (:meth:`acceptance.MarkerModel.plate_not_worse`; of them
+            ``plate_asked_over_cap`` unread, over :data:`acceptance.MAX_PLATE_ASKED`),
+            ``rejected_lattice``
+            (:meth:`acceptance.MarkerModel.stands_alone`),
+            ``merged_duplicates``, ``recentred``, ``found_recentred``,
+            ``kept_faint`` and ``kept_under_floor`` (X's the modulation gate or
+            the fit's score floor rejected that the marker's model vouches for,
+            :meth:`acceptance.MarkerModel.vouches`), ``dull_read`` and ``kept_dull`` (X's
+            the ring check rejected that were read again from the light slope's
+            centre, and those of them it took, :func:`second_reading.read_dull`),
+            ``recentring_over_cap`` (:meth:`SymmetryPath._recentre_lost`), ``shadow_read``,
+            ``found_shadowed``, ``located_in_shadow``, ``shadow_over_cap``
+            (:meth:`SymmetryPath._reread_shadowed`),
+            ``uneven_over_cap`` (X's located by their levels' fit, not their model, for
+            :data:`subpixel.MAX_MODELLED`),
+            ``accepted``;
+            with ``refinement="template"``,
+            ``rejected_<reason>`` for each of :data:`decision.REASONS` instead of
+            the centring, symmetry, template, refinement and score counts).
+            ``dropped_over_cap`` counts every candidate that ``max_candidates``
+            cut, including those the screening found and left out early as too
+            weak to pass it (:meth:`screening.CellCap.floor`);
+            ``unexamined_below_floor`` the pixels whose saddle response passed
+            the threshold but not the bound the floor sets, which the screening
+            never compared with their neighbours (on busy ground most of them,
+            about one in six a 3x3 peak on real sand; none of them could pass the
+            cap);
+            ``dropped_over_verification_cap`` those over :data:`symmetry_path.MAX_VERIFIED` after
+            the prescreen and over :data:`symmetry_path.MAX_CONFIRMED` after the template;
+            ``plate_asked_over_cap`` the located X's rejected unread at the
+            plate's test; :data:`CAP_COUNTS` are the caps' cuts.
+        timings_ms: wall time per stage in milliseconds.
+        verdicts: with ``refinement="template"``, every candidate the decision saw:
+            where its fit ended, whether it was accepted and why not, its score and
+            evidence; None otherwise.
+        survivors: (test, (K, 2) positions of the candidates that passed it), in
+            the order the tests ran: where a marker was lost is the first test
+            after which no candidate is left near it. The default path records
+            every test (:data:`symmetry_path.SURVIVOR_TESTS`); the paper's and the
+            template path the screening and the prescreen. References to arrays the
+            stages make anyway: no copies.
+    """
+
+    detections: list[Detection] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    verdicts: decision.Verdicts | None = None
+    survivors: list[tuple[str, NDArray[np.float64]]] = field(default_factory=list)
+
+    def __iter__(self) -> Iterator[Detection]:
+        return iter(self.detections)
+
+    def __len__(self) -> int:
+        return len(self.detections)
+
+    def __getitem__(self, index: int) -> Detection:
+        return self.detections[index]
+
+    def as_array(self) -> NDArray[np.float64]:
+        """(N, 7) float64: x, y, score, sigma, angle1, angle2, radius_px."""
+        return np.array(
+            [
+                [d.x, d.y, d.score, d.sigma, d.angle1, d.angle2, d.radius_px]
+                for d in self.detections
+            ],
+            dtype=np.float64,
+        ).reshape(-1, 7)
+
+
+@dataclass(frozen=True)
+class SearchPlan:
+    """Where :meth:`Detector.detect` searches on one frame: tracking mode's seam.
+
+    Arrays are copied and validated on construction.
+
+    Attributes:
+        regions: (K, 4) int windows (x0, y0, x1, y1), end-exclusive, to search
+            instead of the whole frame; the detector samples the whole image, a
+            window only bounds where candidates are screened. Snapped to
+            :attr:`Detector.region_lattice_px` they read the same local means as a
+            full-frame pass.
+        known: (M, 2) centres of markers already located on this frame (by
+            :meth:`Detector.locate`): screening candidates closer than
+            ``min_peak_separation_px`` to one are that marker's and are not verified
+            again (counted as ``skipped_known``).
+        seeds: (S, 2) positions that join the screening candidates (markers whose
+            plate the frame border cuts, where the fit alone cannot tell what a full
+            pass would accept). They take every stage after the prescreen, at the
+            first pyramid level's scale.
+    """
+
+    regions: NDArray[np.int64] = field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    known: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
+    seeds: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
+
+    def __post_init__(self) -> None:
+        for name, columns in (("regions", 4), ("known", 2), ("seeds", 2)):
+            value = np.asarray(getattr(self, name))
+            if value.size % columns:
+                raise ValueError(f"SearchPlan.{name} of shape {value.shape} is not (N, {columns})")
+            if name != "regions" and not np.isfinite(value).all():
+                raise ValueError(f"SearchPlan.{name} holds a NaN or infinite position")
+            dtype = np.int64 if name == "regions" else np.float64
+            object.__setattr__(self, name, value.astype(dtype).reshape(-1, columns))
+
+
+def positions(detections: list[Detection]) -> NDArray[np.float64]:
+    """(N, 2) the detections' centres."""
+    return np.array([[d.x, d.y] for d in detections], dtype=np.float64).reshape(-1, 2)
+
+
+def detections_of(
+    xy: NDArray[np.float64],
+    score: NDArray[np.float64],
+    sigma: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    radius_px: NDArray[np.float64],
+    evidence: NDArray[np.float64],
+) -> list[Detection]:
+    """One :class:`Detection` per row of the arrays, in their order.
+
+    Args:
+        xy: (N, 2) centres, px.
+        score: (N,) scores.
+        sigma: (N,) radial position uncertainties, px.
+        line_angles: (N, 2) line directions, radians.
+        radius_px: (N,) extents of the X, px.
+        evidence: (N,) the verification's part of each score.
+    """
+    return [
+        Detection(float(x), float(y), float(s), float(e), float(a1), float(a2), float(r), float(v))
+        for (x, y), s, e, (a1, a2), r, v in zip(
+            xy, score, sigma, line_angles, radius_px, evidence, strict=True
+        )
+    ]
