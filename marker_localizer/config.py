@@ -11,7 +11,7 @@ import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar, overload
+from typing import Any, Literal, TypeVar, get_args, overload
 
 from marker_localizer.core.verification import (
     EQUALISED_MIN_EXTENT_PX,
@@ -23,6 +23,20 @@ from marker_localizer.core.verification import (
 )
 from marker_localizer.errors import ConfigError
 
+#: How candidates are found and checked (``candidate_detector``).
+CandidateDetector = Literal["saddle", "curvature"]
+#: How candidates are located and accepted (``refinement``).
+Refinement = Literal["symmetry", "ncc", "template"]
+#: The value type of each field annotation a configuration uses: a choice's
+#: ``Literal`` alias takes a string.
+_VALUE_TYPES: dict[str, type] = {
+    "float": float,
+    "int": int,
+    "str": str,
+    "bool": bool,
+    "CandidateDetector": str,
+    "Refinement": str,
+}
 #: White in the 8-bit grey levels ``min_contrast_dn`` is given in.
 WHITE_DN = 255.0
 
@@ -147,13 +161,13 @@ class DetectorConfig:
     )
 
     # Section 3.2: multi-layer point screening.
-    candidate_detector: str = _param(
+    candidate_detector: CandidateDetector = _param(
         "saddle",
         "How candidates are found and checked: 'curvature' is the paper's section 3.2 "
         "as published (contour curvature Eq. 4, density mean shift, grid-entropy "
         "thinning, the annular check by edge phase and polarity, LSD); 'saddle' is a "
         "Hessian saddle response on a pyramid with the grey-level symmetry checks.",
-        choices=("saddle", "curvature"),
+        choices=get_args(CandidateDetector),
     )
     saddle_threshold: float = _param(
         1.5,
@@ -314,7 +328,7 @@ class DetectorConfig:
     )
 
     # Section 3.3: sub-pixel location.
-    refinement: str = _param(
+    refinement: Refinement = _param(
         "symmetry",
         "'ncc' is the paper's adaptive template + NCC + quadratic surface "
         "(Eqs. 10-14); 'symmetry' continues from it with a least-squares "
@@ -323,7 +337,7 @@ class DetectorConfig:
         "shadow edge (Eq. 10 made a model) and replaces the prescreen, checks and gates "
         "by the sector order and one decision calibrated to false_points_per_mp: it "
         "keeps markers with a dull quadrant or a shadow edge, at several times the time.",
-        choices=("symmetry", "ncc", "template"),
+        choices=get_args(Refinement),
     )
     false_points_per_mp: float = _param(
         0.025,
@@ -468,8 +482,18 @@ def param_specs(
     return {f.name: (f, f.metadata["spec"]) for f in dataclasses.fields(kind)}
 
 
+def field_kind(f: dataclasses.Field[Any]) -> str:
+    """The name of a configuration field's value type (``float``, ``str``, ``tuple[str, ...]``).
+
+    A choice's ``Literal`` alias (:data:`CandidateDetector`, :data:`Refinement`)
+    names ``str``: its values are strings, checked against the field's choices.
+    """
+    name = str(f.type)
+    return _VALUE_TYPES[name].__name__ if name in _VALUE_TYPES else name
+
+
 def _field_type(f: dataclasses.Field[Any]) -> type:
-    return {"float": float, "int": int, "str": str, "bool": bool}[str(f.type)]
+    return _VALUE_TYPES[field_kind(f)]
 
 
 def _check_field(f: dataclasses.Field[Any], value: Any) -> None:

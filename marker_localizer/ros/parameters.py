@@ -48,6 +48,7 @@ from marker_localizer.config import (
     DetectorConfig,
     ParamSpec,
     TrackerConfig,
+    field_kind,
     from_mapping,
     param_specs,
 )
@@ -281,8 +282,8 @@ def _declare(
 ) -> Any:
     """Declare one field as parameter ``name``; return its start value (override or default)."""
     read_only = bool(f.metadata.get("read_only", False))
-    described = descriptor(name, f.metadata["spec"], str(f.type), read_only=read_only)
-    start = _as_double(str(f.type), overrides[name].value) if name in overrides else default
+    described = descriptor(name, f.metadata["spec"], field_kind(f), read_only=read_only)
+    start = _as_double(field_kind(f), overrides[name].value) if name in overrides else default
     # rclpy infers STRING_ARRAY from a list, not from a tuple.
     ros_start = list(start) if isinstance(start, tuple) else start
     value = node.declare_parameter(name, ros_start, described, ignore_override=True).value
@@ -315,10 +316,10 @@ class LiveParameters:
             kind: {f"{namespace}.{name}": name for name in param_specs(kind)}
             for kind, namespace in _NAMESPACES.items()
         }
-        self._kinds = {name: str(f.type) for name, (f, _) in node_specs().items()}
+        self._kinds = {name: field_kind(f) for name, (f, _) in node_specs().items()}
         for kind, names in self._names.items():
             self._kinds.update(
-                {full: str(param_specs(kind)[name][0].type) for full, name in names.items()}
+                {full: field_kind(param_specs(kind)[name][0]) for full, name in names.items()}
             )
         overrides = _overrides(node)
         unknown = sorted(
