@@ -149,6 +149,10 @@ class CandidateSearch:
         margin = _REGION_MARGIN_LEVEL_PX * coarsest + _REGION_MARGIN_PX
         parts = []
         for x0, y0, x1, y1 in regions:
+            # A region wholly beyond the frame's border (a track leaving the view)
+            # holds no pixel to search.
+            if min(x1, width) <= max(x0, 0) or min(y1, height) <= max(y0, 0):
+                continue
             # Windows start on the coarsest level's pixel grid, so every level sees the
             # same pixels as in a full-frame pass and finds the same candidates.
             cx0, cy0 = max(int(x0) - margin, 0), max(int(y0) - margin, 0)

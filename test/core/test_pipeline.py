@@ -817,14 +817,6 @@ def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_cou
     assert np.all(distance < 1e-6)
 
 
-def test_a_search_plan_of_the_wrong_shape_is_refused_with_its_name():
-
-    with pytest.raises(ValueError, match=r"SearchPlan.regions of shape \(3,\) is not \(N, 4\)"):
-        SearchPlan(regions=np.array([0, 0, 8]))
-    with pytest.raises(ValueError, match=r"SearchPlan.seeds holds a NaN or infinite position"):
-        SearchPlan(seeds=np.array([[np.nan, 3.0]]))
-
-
 @pytest.mark.parametrize(
     ("change", "message"),
     [

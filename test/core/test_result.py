@@ -1,0 +1,63 @@
+"""What a detector pass gives back, and where a tracking pass searches."""
+
+import numpy as np
+import pytest
+
+from marker_localizer.core.result import DetectionResult, SearchPlan, detections_of, positions
+
+
+def test_detections_are_built_row_by_row_in_the_order_given():
+    detections = detections_of(
+        xy=np.array([[10.5, 20.25], [3.0, 4.0]]),
+        score=np.array([0.9, 0.7]),
+        sigma=np.array([0.01, 0.02]),
+        line_angles=np.array([[0.1, 1.7], [0.2, 1.8]]),
+        radius_px=np.array([12.0, 6.0]),
+        evidence=np.array([0.95, 0.8]),
+    )
+    first, second = detections
+    assert (first.x, first.y, first.score, first.sigma) == (10.5, 20.25, 0.9, 0.01)
+    assert (first.angle1, first.angle2, first.radius_px, first.evidence) == (0.1, 1.7, 12.0, 0.95)
+    assert (second.x, second.y, second.evidence) == (3.0, 4.0, 0.8)
+    assert all(type(value) is float for value in vars(first).values())
+    np.testing.assert_array_equal(positions(detections), [[10.5, 20.25], [3.0, 4.0]])
+
+
+def test_arrays_of_unequal_rows_are_refused():
+    with pytest.raises(ValueError):
+        detections_of(
+            np.zeros((2, 2)), np.zeros(1), np.zeros(2), np.zeros((2, 2)), np.zeros(2), np.zeros(2)
+        )
+
+
+def test_a_result_iterates_and_tabulates_its_detections():
+    result = DetectionResult(
+        detections=detections_of(
+            np.array([[1.0, 2.0]]),
+            np.array([0.5]),
+            np.array([0.1]),
+            np.array([[0.0, 1.5]]),
+            np.array([7.0]),
+            np.array([0.6]),
+        )
+    )
+    assert len(result) == 1 and result[0].x == 1.0 and [d.y for d in result] == [2.0]
+    np.testing.assert_array_equal(result.as_array(), [[1.0, 2.0, 0.5, 0.1, 0.0, 1.5, 7.0]])
+    assert DetectionResult().as_array().shape == (0, 7)
+    assert positions([]).shape == (0, 2)
+
+
+def test_a_search_plan_of_the_wrong_shape_is_refused_with_its_name():
+    with pytest.raises(ValueError, match=r"SearchPlan.regions of shape \(3,\) is not \(N, 4\)"):
+        SearchPlan(regions=np.array([0, 0, 8]))
+    with pytest.raises(ValueError, match=r"SearchPlan.seeds holds a NaN or infinite position"):
+        SearchPlan(seeds=np.array([[np.nan, 3.0]]))
+
+
+def test_a_search_plan_holds_its_own_typed_copies():
+    regions = np.array([[0.0, 0.0, 64.0, 48.0]])
+    plan = SearchPlan(regions=regions, known=[[5, 6]])
+    regions[0, 0] = 99.0
+    assert plan.regions.dtype == np.int64 and plan.regions[0, 0] == 0
+    assert plan.known.dtype == np.float64 and plan.known.shape == (1, 2)
+    assert plan.seeds.shape == (0, 2)

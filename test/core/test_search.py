@@ -1,0 +1,45 @@
+"""Section 3.2's first layers as the detector runs them: on the frame or in regions."""
+
+import numpy as np
+import pytest
+
+from marker_localizer.config import DetectorConfig
+from marker_localizer.core.image import to_gray
+from marker_localizer.core.search import CandidateSearch
+from marker_localizer.synthetic import SceneConfig, render_scene
+
+
+@pytest.fixture(scope="module")
+def frame():
+    return to_gray(render_scene(SceneConfig(), 12).image)
+
+
+def test_a_region_over_the_whole_frame_screens_what_the_frame_does(frame):
+    gray, white = frame
+    search = CandidateSearch(DetectorConfig())
+    full = search.screen(gray, white, {})
+    height, width = gray.shape
+    for region in ([0, 0, width, height], [-50, -50, width + 50, height + 50]):
+        part = search.screen(gray, white, {}, np.array([region]))
+        np.testing.assert_array_equal(part.xy, full.xy)
+
+
+def test_a_regions_candidates_lie_inside_it(frame):
+    gray, white = frame
+    region = np.array([[256, 192, 768, 576]])
+    part = CandidateSearch(DetectorConfig()).screen(gray, white, {}, region)
+    assert len(part) > 50
+    assert np.all((part.xy >= [256, 192]) & (part.xy < [768, 576]))
+
+
+@pytest.mark.parametrize(
+    "region",
+    [[-20, -20, -15, -15], [-50, 100, -1, 200], [2000, 100, 2100, 200]],
+    ids=["above and left", "left", "right"],
+)
+def test_a_region_wholly_beyond_the_frame_holds_no_candidate(frame, region):
+    # A tracked marker's region once it has left the view.
+    gray, white = frame
+    counts: dict[str, int] = {}
+    found = CandidateSearch(DetectorConfig()).screen(gray, white, counts, np.array([region]))
+    assert len(found) == 0 and counts["candidates"] == 0
