@@ -4,7 +4,10 @@ Candidates (:mod:`screening`'s saddle or curvature screening), their suppression
 the grid-entropy thinning of Eq. (7) and the cap, on the whole frame or inside a
 tracking pass's regions (:class:`~marker_localizer.core.result.SearchPlan`), each
 screened with the context its filters need so that it finds what a full-frame
-pass finds there.
+pass finds there. Two exceptions, both among texture's points: a peak just
+outside a region's border that the refinement moves just inside it, and a
+crowded cell whose cap falls among equally strong points, where the order the
+points come in decides which are kept.
 """
 
 from __future__ import annotations
@@ -154,7 +157,7 @@ class CandidateSearch:
             if min(x1, width) <= max(x0, 0) or min(y1, height) <= max(y0, 0):
                 continue
             # Windows start on the coarsest level's pixel grid, so every level sees the
-            # same pixels as in a full-frame pass and finds the same candidates.
+            # same pixels as in a full-frame pass and finds the same peaks.
             cx0, cy0 = max(int(x0) - margin, 0), max(int(y0) - margin, 0)
             cx0, cy0 = cx0 - cx0 % coarsest, cy0 - cy0 % coarsest
             cx1, cy1 = min(int(x1) + margin, width), min(int(y1) + margin, height)
