@@ -40,6 +40,9 @@ _MASK_NORM = 6.0
 _SMOOTH_SHARE = 1.0 / 3.0
 #: Brightness bins of the signal-dependent fit sigma^2 = read^2 + gain * I.
 _LEVEL_BINS = 6
+#: Fewest pixels of a bin whose smoothest share gives its robust std; a bin with
+#: fewer (a frame's few brightest or darkest pixels) is left out of the fit.
+_MIN_BIN_PIXELS = 50
 #: |N(0, 1)| has this mean, sqrt(2 / pi): a bin's std is its mean |response| over it
 #: (Immerkaer's estimator; a median would be quantised by 8-bit data). The response is
 #: even in the neighbours and the gradient odd, so on white noise the two are
@@ -117,7 +120,7 @@ def estimate_noise(image: NDArray[Any], full_scale: float) -> NoiseModel:
     means, variances = [], []
     for b in range(_LEVEL_BINS):
         members = np.flatnonzero(bin_of == b)
-        if len(members) < 50:
+        if len(members) < _MIN_BIN_PIXELS:
             continue
         if counted:
             members = members[smooth[members]]

@@ -205,6 +205,9 @@ LEVEL_SCALE_PX = 4.0
 #: Smallest half-width (level px) of a foreshortened marker at the first level searched:
 #: below ~1.5 px the 5x5 Sobel kernels' smoothing mixes the quadrants with the plate.
 MIN_LEVEL_RADIUS_PX = 1.5
+#: Largest half-width (level px) a level answers to best: the last level searched is
+#: the first at which the largest marker is no wider.
+MAX_LEVEL_RADIUS_PX = 6.0
 
 
 def saddle_response(image: NDArray[Any]) -> NDArray[np.float32]:
@@ -548,7 +551,7 @@ def saddle_levels(radius_range_px: tuple[float, float]) -> range:
     """
     r_min, r_max = radius_range_px
     foreshortened = 0.5 * r_min
-    last = max(0, int(np.ceil(np.log2(max(r_max, 1.0) / 6.0))))
+    last = max(0, int(np.ceil(np.log2(max(r_max, 1.0) / MAX_LEVEL_RADIUS_PX))))
     first = max(0, int(np.floor(np.log2(max(foreshortened, 1.0) / MIN_LEVEL_RADIUS_PX))))
     return range(min(first, max(last - 1, 0)), last + 1)
 

@@ -2301,6 +2301,10 @@ def fit_growing_template(
     return GrownFit(fit, extents, grew)
 
 
+#: Parameters of the template fit without a shadow's edge (the centre, the lines, the
+#: blurs, the light's gradient, the four quadrants' levels), and those the edge adds.
+_PLAIN_FIT_PARAMETERS = 12
+_SHADOW_EDGE_PARAMETERS = 4
 #: A shadow's edge is tried where the fit without it leaves this many times the noise.
 _SHADOW_TRY_RATIO = 1.3
 #: ... and kept where it takes at least this share of the residual's sum of squares.
@@ -2329,8 +2333,10 @@ def _with_shadow_edges(
         image, find_shadow_edges(image, part, subset), subset, max_shift_px=max_shift_px[tried]
     )
     # The shadow's four parameters must pay for themselves in the sum of squares.
-    plain_ss = part.residual_rms**2 * np.maximum(part.n_pixels - 12.0, 1.0)
-    shaded_ss = shaded.residual_rms**2 * np.maximum(shaded.n_pixels - 16.0, 1.0)
+    plain_ss = part.residual_rms**2 * np.maximum(part.n_pixels - _PLAIN_FIT_PARAMETERS, 1.0)
+    shaded_ss = shaded.residual_rms**2 * np.maximum(
+        shaded.n_pixels - (_PLAIN_FIT_PARAMETERS + _SHADOW_EDGE_PARAMETERS), 1.0
+    )
     better = (shaded_ss < (1.0 - _SHADOW_MIN_GAIN) * plain_ss) & (shaded.shape.shadow[:, 2] > 0)
     return fit.with_rows(tried[better], shaded.take(better))
 

@@ -33,6 +33,10 @@ _LSD_MIN_WINDOW_PX = 24
 #: but not the plate's outline, whose segments would only add crossings to test.
 LSD_WINDOW_RADII = 1.25
 _HALF_TURN = N_ANGLES // 2
+#: A centrally symmetric X's opposite sector boundaries lie half a turn apart within
+#: this, radians (three of the annulus' 10-degree samples): a tilt keeps them opposite,
+#: but a ring centred off the X sees them turned from it.
+_OPPOSITE_TOLERANCE_RAD = np.deg2rad(30.0)
 #: Paper's annular check: a derivative extremum is an edge from this fraction of the
 #: ring's strongest. A bright sector dulled to 0.45 of the other keeps edges of about
 #: 0.4 of the strongest; ground texture's wiggles mostly stay below a third.
@@ -365,12 +369,12 @@ def _four_crossings(
 
 
 def _opposite_pairs(boundaries: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """(M,) True where boundaries i and i+2 of (M, 4) are 180 +- 30 degrees apart.
+    """(M,) True where boundaries i and i+2 of (M, 4) are half a turn apart.
 
-    They are on a centrally symmetric X.
+    Within :data:`_OPPOSITE_TOLERANCE_RAD`: they are on a centrally symmetric X.
     """
     gap = np.abs(_wrapped(boundaries[:, 2:] - boundaries[:, :2] - np.pi))
-    return cast("NDArray[np.bool_]", (gap < np.deg2rad(30.0)).all(axis=-1))
+    return cast("NDArray[np.bool_]", (gap < _OPPOSITE_TOLERANCE_RAD).all(axis=-1))
 
 
 def _wrapped(angle: NDArray[np.float64]) -> NDArray[np.float64]:
