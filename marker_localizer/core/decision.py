@@ -310,7 +310,7 @@ def marker_score(evidence: Evidence, min_radius_px: float) -> NDArray[np.float64
 
 
 def score_features(evidence: Evidence, min_radius_px: float) -> NDArray[np.float64]:
-    """(N, 8) the features :func:`marker_score` weighs, in the order of :data:`SCORE_FEATURES`."""
+    """(N, F) the F features :func:`marker_score` weighs, in the order of :data:`SCORE_FEATURES`."""
     return np.stack(
         [
             np.log(np.clip(evidence.edge_t, 1.0, None)),
