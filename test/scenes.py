@@ -1,6 +1,8 @@
-"""Rendered scenes the tests share."""
+"""Rendered scenes, and the scoring against their truth, that the tests share."""
 
+import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from marker_localizer.synthetic import MarkerPlacement, RenderedScene, SceneConfig, render_markers
 
@@ -47,3 +49,22 @@ def faint_tilted_markers(seed: int) -> RenderedScene:
         blur_sigma_px=1.0,
         noise_sigma_dn=2.0,
     )
+
+
+#: ``refinement="template"`` with the X reaching 0.6 of the smallest radius.
+TEMPLATE_DECISION = {"refinement": "template", "min_extent_fraction": 0.6}
+
+
+def checker_2x2(size: int = 64, blur: float = 1.0) -> np.ndarray:
+    """A 2x2 checkerboard whose corner lies exactly between the four middle pixels."""
+    image = np.full((size, size), 200.0, np.float32)
+    image[: size // 2, : size // 2] = 30.0
+    image[size // 2 :, size // 2 :] = 30.0
+    return cv2.GaussianBlur(image, (0, 0), blur).round().astype(np.uint8)
+
+
+def found_false_errors(detections: np.ndarray, truth: np.ndarray) -> tuple[int, int, np.ndarray]:
+    """Markers found within 1.5 px, false points, and the found detections' errors, px."""
+    distance, index = cKDTree(truth).query(detections[:, :2])
+    hit = distance <= 1.5
+    return len(np.unique(index[hit])), int((~hit).sum()), distance[hit]

@@ -1,4 +1,8 @@
-"""The Detector end to end: analytic images, rendered frames, input handling."""
+"""The Detector end to end: analytic images, rendered frames, input handling.
+
+Also the default path's checks and second readings; the paper's path and the
+template path have their own files (test_paper_path.py, test_template_path.py).
+"""
 
 import dataclasses
 import itertools
@@ -7,7 +11,13 @@ from collections.abc import Iterable
 import cv2
 import numpy as np
 import pytest
-from scenes import SMALL_SCENE, faint_tilted_markers
+from scenes import (
+    SMALL_SCENE,
+    TEMPLATE_DECISION,
+    checker_2x2,
+    faint_tilted_markers,
+    found_false_errors,
+)
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
@@ -16,14 +26,13 @@ from marker_localizer.bench.accuracy import Family, disc_lattice_frame, families
 from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.core import (
     acceptance,
-    decision,
     plate,
     second_reading,
     shadow,
     symmetry_path,
     verification,
 )
-from marker_localizer.core.result import CAP_COUNTS, DetectionResult, SearchPlan
+from marker_localizer.core.result import CAP_COUNTS, SearchPlan
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import (
     MarkerPlacement,
@@ -35,15 +44,8 @@ from marker_localizer.synthetic import (
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
 
 
-def _checker_2x2(size: int = 64, blur: float = 1.0) -> np.ndarray:
-    image = np.full((size, size), 200.0, np.float32)
-    image[: size // 2, : size // 2] = 30.0
-    image[size // 2 :, size // 2 :] = 30.0
-    return cv2.GaussianBlur(image, (0, 0), blur).round().astype(np.uint8)
-
-
 def test_the_corner_of_a_2x2_checkerboard_is_exactly_between_the_four_pixels():
-    result = Detector().detect(_checker_2x2())
+    result = Detector().detect(checker_2x2())
     assert len(result) == 1
     assert result[0].x == pytest.approx(31.5, abs=1e-3)
     assert result[0].y == pytest.approx(31.5, abs=1e-3)
@@ -51,22 +53,11 @@ def test_the_corner_of_a_2x2_checkerboard_is_exactly_between_the_four_pixels():
 
 
 def test_detections_carry_both_line_angles_and_the_marker_extent():
-    d = Detector().detect(_checker_2x2())[0]
+    d = Detector().detect(checker_2x2())[0]
     assert sorted([d.angle1, d.angle2]) == pytest.approx([0.0, np.pi / 2], abs=0.02) or sorted(
         [d.angle1, d.angle2]
     ) == pytest.approx([np.pi / 2, np.pi], abs=0.02)
     assert d.radius_px >= 16
-
-
-@pytest.fixture(scope="module")
-def cluttered_frames():
-    return [render_scene(SceneConfig(), seed) for seed in (11, 12, 13)]
-
-
-def _score(detections: np.ndarray, truth: np.ndarray) -> tuple[int, int, np.ndarray]:
-    distance, index = cKDTree(truth).query(detections[:, :2])
-    hit = distance <= 1.5
-    return len(np.unique(index[hit])), int((~hit).sum()), distance[hit]
 
 
 def test_cluttered_frames_meet_the_core_targets():
@@ -80,7 +71,9 @@ def test_cluttered_frames_meet_the_core_targets():
     found = false = total = 0
     errors = []
     for scene in frames:
-        hits, misses, err = _score(detector.detect(scene.image).as_array(), scene.centres)
+        hits, misses, err = found_false_errors(
+            detector.detect(scene.image).as_array(), scene.centres
+        )
         found, false, total = found + hits, false + misses, total + len(scene.centres)
         errors.extend(err)
     assert found / total >= 0.95
@@ -109,21 +102,16 @@ def test_reported_line_directions_follow_the_markers_lines(cluttered_frames):
 def test_the_papers_ncc_refinement_is_selectable_and_less_precise(cluttered_frames):
     scene = cluttered_frames[0]
     base = dict(marker_radius_min_px=6.0, marker_radius_max_px=40.0)
-    _, _, paper = _score(
+    _, _, paper = found_false_errors(
         Detector(DetectorConfig(refinement="ncc", **base)).detect(scene.image).as_array(),
         scene.centres,
     )
-    _, _, ours = _score(
+    _, _, ours = found_false_errors(
         Detector(DetectorConfig(**base)).detect(scene.image).as_array(), scene.centres
     )
     assert len(paper) >= 0.9 * len(scene.centres)
     assert np.mean(paper) < 0.25
     assert np.mean(ours) < np.mean(paper)
-
-
-def test_the_papers_curvature_screening_is_selectable():
-    result = Detector(DetectorConfig(candidate_detector="curvature")).detect(_checker_2x2(96))
-    assert len(result) == 1 and result[0].x == pytest.approx(47.5, abs=0.01)
 
 
 def _markers_found(detector: Detector, image: np.ndarray, centres: np.ndarray) -> set[int]:
@@ -217,46 +205,6 @@ def test_a_tighter_correct_radius_range_keeps_the_flight_simulators_tilted_marke
         for r_min, r_max in ((4.0, 30.0), (6.0, 24.0))
     )
     assert loose <= tight
-
-
-_PAPER = dict(candidate_detector="curvature", refinement="ncc")
-
-
-def test_the_papers_pipeline_finds_the_markers_of_rendered_frames(cluttered_frames):
-    """Issue 13: contour curvature, the paper's checks and NCC: recall >= 90 %, <= 0.5 FP/frame."""
-    detector = Detector(
-        DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0, **_PAPER)
-    )
-    found = false = total = 0
-    for scene in cluttered_frames:
-        hits, misses, _ = _score(detector.detect(scene.image).as_array(), scene.centres)
-        found, false, total = found + hits, false + misses, total + len(scene.centres)
-    assert found / total >= 0.9
-    assert false / len(cluttered_frames) <= 0.5
-
-
-def test_the_papers_pipeline_locates_chessboard_corners_as_its_table_1_claims():
-    """Table 1: mean deviation under 0.03 px, over 97 % of the corners within 0.1 px."""
-    board = render_checkerboard(
-        (480, 640),
-        (7, 5),
-        40.0,
-        rotation_rad=0.3,
-        tilt_deg=35.0,
-        tilt_axis_rad=1.0,
-        blur_sigma_px=1.0,
-        noise_sigma_dn=2.0,
-        gamma=1.1,
-        seed=4,
-    )
-    detector = Detector(
-        DetectorConfig(marker_radius_min_px=25.0, marker_radius_max_px=40.0, **_PAPER)
-    )
-    hits, misses, errors = _score(detector.detect(board.image).as_array(), board.centres)
-    assert hits / len(board.centres) >= 0.97
-    assert misses == 0
-    assert np.mean(errors) <= 0.03
-    assert np.mean(errors <= 0.1) >= 0.97
 
 
 def test_every_stage_reports_its_count_and_time(cluttered_frames):
@@ -377,7 +325,7 @@ def test_an_image_without_markers_gives_no_candidate_and_an_empty_result():
     ids=["bgr8", "mono16", "float"],
 )
 def test_colour_16_bit_and_float_images_are_converted_not_rejected(convert):
-    result = Detector().detect(convert(_checker_2x2()))
+    result = Detector().detect(convert(checker_2x2()))
     assert len(result) == 1 and result[0].x == pytest.approx(31.5, abs=1e-3)
 
 
@@ -395,9 +343,7 @@ def test_bad_images_raise_a_clear_image_error(image, message):
         Detector().detect(image)
 
 
-# refinement="template": the template fit and the one calibrated decision.
-
-TEMPLATE = {"refinement": "template", "min_extent_fraction": 0.6}
+# Uneven light: a dull quadrant, a shadow's edge (family (g)); both decisions.
 
 
 @pytest.fixture(scope="module")
@@ -410,7 +356,7 @@ def _recall_and_false(config: DetectorConfig, frames) -> tuple[float, float]:
     detector = Detector(config)
     found = false = total = 0
     for scene in frames:
-        hits, misses, _ = _score(detector.detect(scene.image).as_array(), scene.centres)
+        hits, misses, _ = found_false_errors(detector.detect(scene.image).as_array(), scene.centres)
         found, false, total = found + hits, false + misses, total + len(scene.centres)
     return found / total, false / len(frames)
 
@@ -440,7 +386,9 @@ def _wide_dull_markers(
         config = DetectorConfig(
             marker_radius_min_px=radius_range[0], marker_radius_max_px=radius_range[1]
         )
-        hits, misses, _ = _score(Detector(config).detect(scene.image).as_array(), scene.centres)
+        hits, misses, _ = found_false_errors(
+            Detector(config).detect(scene.image).as_array(), scene.centres
+        )
         found, false = found + hits, false + misses
     return found, false
 
@@ -458,7 +406,9 @@ def _family_detector(family) -> Detector:
 def _found_and_counted(detector: Detector, frames: list, count: str) -> tuple[int, int, int]:
     """Markers found, false points, and the detector's ``count`` summed over ``frames``."""
     results = [detector.detect(scene.image) for scene in frames]
-    scores = [_score(r.as_array(), s.centres) for r, s in zip(results, frames, strict=True)]
+    scores = [
+        found_false_errors(r.as_array(), s.centres) for r, s in zip(results, frames, strict=True)
+    ]
     hits = sum(found for found, _, _ in scores)
     false = sum(false for _, false, _ in scores)
     return hits, false, sum(r.counts[count] for r in results)
@@ -657,10 +607,14 @@ def test_markers_a_shadows_edge_crosses_are_found_with_the_shadow_divided_out(mo
     detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
     scene = dataclasses.replace(family.scene, radius_px=(10.0, 30.0))
     frames = [render_scene(scene, seed) for seed in (2, 11)]
-    with_edges = [_score(detector.detect(s.image).as_array(), s.centres)[:2] for s in frames]
+    with_edges = [
+        found_false_errors(detector.detect(s.image).as_array(), s.centres)[:2] for s in frames
+    ]
     added = sum(detector.detect(s.image).counts["found_shadowed"] for s in frames)
     monkeypatch.setattr(shadow, "MIN_EXPLAINED", 1.1)
-    without = [_score(detector.detect(s.image).as_array(), s.centres)[:2] for s in frames]
+    without = [
+        found_false_errors(detector.detect(s.image).as_array(), s.centres)[:2] for s in frames
+    ]
     assert sum(f for f, _ in with_edges) - sum(f for f, _ in without) == added >= 3
     assert sum(m for _, m in with_edges) == sum(m for _, m in without) == 0
 
@@ -722,69 +676,10 @@ def test_both_decisions_keep_markers_with_a_dull_quadrant_or_a_shadow_edge(
     """
     (low, high), frames = uneven_light_frames
     radius = {"marker_radius_min_px": low, "marker_radius_max_px": high}
-    for config in (DetectorConfig(**radius), DetectorConfig(**radius, **TEMPLATE)):
+    for config in (DetectorConfig(**radius), DetectorConfig(**radius, **TEMPLATE_DECISION)):
         recall, false = _recall_and_false(config, frames)
         assert recall >= 0.25
         assert false <= 0.5
-
-
-def test_the_template_decision_gives_every_candidate_it_saw_one_verdict(cluttered_frames):
-    config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0, **TEMPLATE)
-    result = Detector(config).detect(cluttered_frames[0].image)
-    verdicts = result.verdicts
-    assert verdicts is not None
-    rejected = sum(result.counts[f"rejected_{reason}"] for reason in decision.REASONS)
-    assert rejected + int(verdicts.decision.accepted.sum()) == len(verdicts.xy)
-    assert result.counts["accepted"] + result.counts["merged_duplicates"] == int(
-        verdicts.decision.accepted.sum()
-    )
-    hits, misses, errors = _score(result.as_array(), cluttered_frames[0].centres)
-    assert hits >= 0.9 * len(cluttered_frames[0].centres)
-    assert misses <= 1
-    assert np.mean(errors) <= 0.05
-
-
-def test_a_lower_false_alarm_rate_raises_the_threshold_and_keeps_a_subset(cluttered_frames):
-    assert decision.threshold_for_rate(0.01) > decision.threshold_for_rate(0.1)
-    image = cluttered_frames[1].image
-    radius = {"marker_radius_min_px": 6.0, "marker_radius_max_px": 40.0}
-    lenient = Detector(DetectorConfig(**radius, **TEMPLATE, false_points_per_mp=1.0))
-    strict = Detector(DetectorConfig(**radius, **TEMPLATE, false_points_per_mp=0.001))
-    kept = lenient.detect(image).as_array()[:, :2]
-    stricter = strict.detect(image).as_array()[:, :2]
-    assert len(stricter) <= len(kept)
-    assert len(stricter) == 0 or cKDTree(kept).query(stricter)[0].max() < 1e-6
-
-
-def test_tracking_confirms_markers_half_a_pixel_off_by_the_template_decision(cluttered_frames):
-    config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0, **TEMPLATE)
-    detector = Detector(config)
-    scene = cluttered_frames[0]
-    detected = detector.detect(scene.image)
-    on_marker = cKDTree(scene.centres).query(detected.as_array()[:, :2])[0] < 0.1
-    full = [d for d, hit in zip(detected, on_marker, strict=True) if hit]
-    assert len(full) >= 0.9 * len(scene.centres)
-
-    def located(offset: tuple[float, float]) -> DetectionResult:
-        return detector.locate(
-            scene.image,
-            np.array([[d.x + offset[0], d.y + offset[1]] for d in full]),
-            np.array([d.radius_px for d in full]),
-            np.array([[d.angle1, d.angle2] for d in full]),
-            np.array([d.evidence for d in full]),
-        )
-
-    # The detection starts its fit from the candidate's scale, tracking from the
-    # extent found: a marker at its threshold (one here, scoring 0.924) may fall
-    # either side. Every marker tracking confirms where it was found, it confirms
-    # from half a pixel off.
-    in_place, off = located((0.0, 0.0)), located((0.4, -0.3))
-    assert len(in_place) >= len(full) - 1
-    assert len(off) == len(in_place)
-    distance, _ = cKDTree([(d.x, d.y) for d in full]).query(off.as_array()[:, :2])
-    # Not to the fit's tolerance: its pixels reach as far as the extent measured from
-    # each start, and a few pixels more or less move the optimum by hundredths.
-    assert distance.max() < 0.03
 
 
 def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_counts_the_rest(
@@ -864,7 +759,7 @@ def test_markers_in_deep_shadow_are_found_as_in_the_open(white_share):
     for seed in range(4):
         scene = render_scene(scene_config, seed)
         result = detector.detect(scene.image)
-        hits, misses, _ = _score(result.as_array(), scene.centres)
+        hits, misses, _ = found_false_errors(result.as_array(), scene.centres)
         found, false, total = found + hits, false + misses, total + len(scene.centres)
         # Tracking confirms them by the fit alone, whose contrast floor follows the light too.
         tracked = detector.locate(
@@ -958,7 +853,7 @@ def test_tiny_markers_the_blur_nearly_merges_are_found_by_their_plate():
     for seed in (0, 1):
         scene = _tiny_marker_scene(seed)
         result = Detector(_TINY_CONFIG).detect(scene.image)
-        hits, misses, _ = _score(result.as_array(), scene.centres)
+        hits, misses, _ = found_false_errors(result.as_array(), scene.centres)
         found, false = found + hits, false + misses
         added += result.counts["found_plate"]
     assert found >= 34
@@ -999,7 +894,9 @@ def test_tiny_xs_a_quartic_explains_better_than_their_plate_are_texture(monkeypa
     def true_and_false() -> tuple[int, int]:
         true = false = 0
         for scene in scenes:
-            hits, misses, _ = _score(detector.detect(scene.image).as_array(), scene.centres)
+            hits, misses, _ = found_false_errors(
+                detector.detect(scene.image).as_array(), scene.centres
+            )
             true, false = true + hits, false + misses
         return true, false
 
@@ -1038,7 +935,9 @@ def test_faint_paint_beyond_textures_reach_is_not_held_to_the_modulation_gate():
             reflectances=(0.6, 0.95),
         )
         config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0)
-        hits, misses, _ = _score(Detector(config).detect(scene.image).as_array(), scene.centres)
+        hits, misses, _ = found_false_errors(
+            Detector(config).detect(scene.image).as_array(), scene.centres
+        )
         found, false = found + hits, false + misses
     assert found >= 14
     assert false == 0
@@ -1122,7 +1021,10 @@ def test_a_shadows_edge_keeps_the_markers_whose_x_alone_leaves_it_unexplained(mo
 
     def found() -> int:
         results = [detector.detect(scene.image) for scene in scenes]
-        return sum(_score(r.as_array(), s.centres)[0] for r, s in zip(results, scenes, strict=True))
+        return sum(
+            found_false_errors(r.as_array(), s.centres)[0]
+            for r, s in zip(results, scenes, strict=True)
+        )
 
     kept = found()
     monkeypatch.setattr(shadow, "DETECTION_REACH_EXTENTS", 1e-3)
