@@ -208,7 +208,7 @@ def compare_checks(frames: Sequence[LabelledFrame], seed: int) -> dict[str, Chec
         points = np.vstack([frame.truth, shifted, saddles[far]])
         n = len(frame.truth)
         min_extent = config.min_extent_fraction * config.marker_radius_min_px - 1e-9
-        contrast = config.min_contrast_dn / 255.0
+        contrast = config.min_contrast_share
         edge = verification.edge_phase_check(
             frame.image, points, radii, min_contrast=contrast, normalise=gamma
         )

@@ -30,9 +30,6 @@ class PaperPath:
         self, config: DetectorConfig, symmetry: SymmetryPath, template_fit: TemplatePath
     ) -> None:
         self.config = config
-        self._radii = verification.ring_radii(
-            (config.marker_radius_min_px, config.marker_radius_max_px)
-        )
         self._symmetry = symmetry
         self._template_fit = template_fit
 
@@ -58,7 +55,7 @@ class PaperPath:
             check = verification.edge_phase_check(
                 gray,
                 candidates.xy,
-                self._radii,
+                self._symmetry.ring_radii_px,
                 min_contrast=self.config.min_contrast_share,
                 normalise=frame.gamma,
             )

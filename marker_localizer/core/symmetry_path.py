@@ -123,7 +123,9 @@ class SymmetryPath:
 
     def __init__(self, config: DetectorConfig) -> None:
         self.config = config
-        self._radii = verification.ring_radii(
+        #: The ring check's ladder of radii (:func:`verification.ring_radii`), px; the
+        #: paper's annular check reads the same rings.
+        self.ring_radii_px = verification.ring_radii(
             (config.marker_radius_min_px, config.marker_radius_max_px)
         )
         self._floors = acceptance.ScoreFloors(
@@ -594,7 +596,11 @@ class SymmetryPath:
     ) -> verification.RingReader:
         """The ring check on ``gray`` as this detector reads rings: its ladder, floor, threshold."""
         return verification.RingReader(
-            gray, self._radii, self.config.min_contrast_share, self.config.symmetry_min, gamma
+            gray,
+            self.ring_radii_px,
+            self.config.min_contrast_share,
+            self.config.symmetry_min,
+            gamma,
         )
 
     def _read_dull(
