@@ -60,10 +60,13 @@ def noise_sigma(image: NDArray[Any]) -> float:
         image: (H, W) image.
 
     Returns:
-        sigma in the image's units.
+        sigma in the image's units; 0 for an image under 3 px wide, which holds no
+        such pair.
     """
     sample = np.asarray(image[::2, ::2], dtype=np.float32)
     difference = np.abs(sample[:, 1:] - sample[:, :-1])
+    if difference.size == 0:
+        return 0.0
     return MAD_TO_STD * float(np.median(difference)) / float(np.sqrt(2.0))
 
 
@@ -232,7 +235,9 @@ class StructureComponents:
         """The ``q`` quantile of s_k over the frame (every few pixels)."""
         height, width = self._shape
         step = STRUCTURE_SAMPLE_STEP_PX
-        rows, cols = np.mgrid[step // 2 : height : step, step // 2 : width : step]
+        # At least one sample where the frame is narrower than half a step.
+        first_row, first_col = min(step // 2, height - 1), min(step // 2, width - 1)
+        rows, cols = np.mgrid[first_row:height:step, first_col:width:step]
         return float(np.quantile(self.from_sigma(self.sigma_at(rows, cols)), q))
 
 

@@ -413,6 +413,9 @@ def _nearest_ring(
     np.trunc(index, out=index)
     index *= width
     index += np.trunc(col, out=col)
+    # A row off the image reads its first pixel: an image narrower than its ring has
+    # no pixel at the stand-in centre's.
+    index[~inside] = 0.0
     values = image.reshape(-1)[index.astype(np.intp)].astype(np.float32)
     values[~inside] = np.nan
     return cast("NDArray[np.float64]", values)

@@ -6,6 +6,7 @@ template path have their own files (test_paper_path.py, test_template_path.py).
 
 import dataclasses
 import itertools
+import warnings
 from collections.abc import Iterable
 
 import cv2
@@ -341,6 +342,36 @@ def test_colour_16_bit_and_float_images_are_converted_not_rejected(convert):
 def test_bad_images_raise_a_clear_image_error(image, message):
     with pytest.raises(ImageError, match=message):
         Detector().detect(image)
+
+
+def _strip_across_an_x(height: int, width: int, seed: int) -> np.ndarray:
+    """A noisy strip cut across a blurred X's centre: saddles, but no room for a ring."""
+    x = checker_2x2(size=128).astype(np.float64)
+    top, left = 64 - height // 2, 64 - width // 2
+    strip = x[top : top + height, left : left + width]
+    noise = np.random.default_rng(seed).normal(0.0, 20.0, strip.shape)
+    return (strip + noise).clip(0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize(
+    "shape", [(1, 1), (2, 52), (4, 51), (5, 5), (63, 2)], ids=lambda s: f"{s[0]}x{s[1]}"
+)
+@pytest.mark.parametrize(
+    "config",
+    [
+        DetectorConfig(),
+        DetectorConfig(refinement="template"),
+        DetectorConfig(refinement="ncc"),
+        DetectorConfig(candidate_detector="curvature"),
+    ],
+    ids=["default", "template", "ncc", "curvature"],
+)
+def test_images_narrower_than_a_marker_give_an_empty_result_on_every_path(shape, config):
+    """A crop or strip too small for any ring: no marker, and no error or warning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for seed in range(4):
+            assert len(Detector(config).detect(_strip_across_an_x(*shape, seed))) == 0
 
 
 # Uneven light: a dull quadrant, a shadow's edge (family (g)); both decisions.
