@@ -241,9 +241,10 @@ class DetectorConfig:
         "texture saddles mostly stay below 20 DN. The raw-level floors (screening, "
         "prescreen, fit, line detection) follow the light down where the local mean is "
         "too dark for a marker of min_modulation to reach it (under 33 DN at the "
-        "defaults), at most 4-fold.",
+        "defaults), at most 4-fold. From 1 DN, a grey level: the screening measures each "
+        "saddle against the response of an X of this contrast.",
         unit="DN",
-        low=0.0,
+        low=1.0,
         high=255.0,
     )
     min_modulation: float = _param(

@@ -34,6 +34,7 @@ def test_defaults_are_valid_and_every_field_documents_itself():
         ({"line_check": 1}, "line_check=1 must be of type bool"),
         ({"marker_radius_min_px": 30.0, "marker_radius_max_px": 10.0}, "is larger than"),
         ({"nonsense": 1}, "unknown parameter"),
+        ({"min_contrast_dn": 0.0}, r"min_contrast_dn=0.0 is outside \[1, 255\] DN"),
     ],
 )
 def test_invalid_values_are_rejected_with_the_value_named(change, message):

@@ -474,7 +474,8 @@ def saddle_peaks(
         sampled = starts[::_SAMPLE_STRIP_STRIDE]
         found = {start: _strip_peaks(image, start, threshold, bound, True) for start in sampled}
         values = np.concatenate([np.zeros(0, np.float32), *(found[s].values for s in sampled)])
-        rank = int(_SAMPLE_RANK_MARGIN * strongest * len(sampled) / len(starts))
+        # At least the sample's strongest, however few are wanted of a frame.
+        rank = max(1, int(_SAMPLE_RANK_MARGIN * strongest * len(sampled) / len(starts)))
         if len(values) > rank:
             bound = max(bound, float(np.partition(values, len(values) - rank)[len(values) - rank]))
             for start in sampled:
@@ -831,7 +832,8 @@ class _LevelPeaks(NamedTuple):
                 # where it is too high): that of a regular sample of the peaks costs a
                 # fraction of an exact rank.
                 sample = values[::_FLOOR_SAMPLE_STRIDE]
-                rank = max(len(sample) - search // _FLOOR_SAMPLE_STRIDE, 0)
+                # At least the sample's strongest, however few the frame's cap keeps.
+                rank = max(len(sample) - max(search // _FLOOR_SAMPLE_STRIDE, 1), 0)
                 strongest = max(float(np.partition(sample, rank)[rank]), self.peaks.bound)
                 if strongest > lowest:
                     bounds.append(strongest)
