@@ -179,8 +179,8 @@ class Detector:
 
         Raises:
             ImageError: as :meth:`detect`.
-            ValueError: the four arrays do not describe the same N points, or hold a
-                NaN or an infinity.
+            ValueError: the four arrays do not describe the same N points, hold a
+                NaN or an infinity, or an extent is not positive.
         """
         xy, radius_px, line_angles, evidence = _known_markers(xy, radius_px, line_angles, evidence)
         result = DetectionResult()
@@ -217,7 +217,8 @@ def _known_markers(
     """:meth:`Detector.locate`'s arrays as (N, 2), (N,), (N, 2), (N,) float64, checked.
 
     Raises:
-        ValueError: they do not describe the same N points, or hold a NaN or an infinity.
+        ValueError: they do not describe the same N points, hold a NaN or an infinity,
+            or an extent is not positive.
     """
     arrays = {
         "xy": np.asarray(xy, np.float64).reshape(-1, 2),
@@ -231,4 +232,6 @@ def _known_markers(
     for name, array in arrays.items():
         if not np.isfinite(array).all():
             raise ValueError(f"locate's {name} holds a NaN or an infinity")
+    if (arrays["radius_px"] <= 0).any():
+        raise ValueError("locate's radius_px must be positive: a marker's extent, px")
     return arrays["xy"], arrays["radius_px"], arrays["line_angles"], arrays["evidence"]

@@ -758,9 +758,11 @@ def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_cou
         (lambda a: {**a, "radius_px": a["radius_px"][:1]}, r"one row per marker .*'radius_px': 1"),
         (lambda a: {**a, "xy": a["xy"] * np.nan}, "locate's xy holds a NaN or an infinity"),
         (lambda a: {**a, "evidence": a["evidence"] + np.inf}, "evidence holds a NaN"),
+        (lambda a: {**a, "radius_px": a["radius_px"] * 0}, "locate's radius_px must be positive"),
+        (lambda a: {**a, "radius_px": -a["radius_px"]}, "locate's radius_px must be positive"),
     ],
 )
-def test_markers_to_locate_that_are_not_n_finite_rows_are_refused_with_what_is_wrong(
+def test_markers_to_locate_not_n_finite_rows_of_positive_extent_are_refused_with_what_is_wrong(
     change, message
 ):
     markers = {
