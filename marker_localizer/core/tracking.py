@@ -106,18 +106,27 @@ _CANDIDATE_OFFSET_PX = 2.0
 
 @dataclass
 class _Track:
-    xy: NDArray[
-        np.float64
-    ]  # (2,) position on the last frame (detected, or predicted if missed), px
-    velocity: NDArray[np.float64] | None  # (2,) px per second; None until confirmed twice
-    detection: Detection  # the last detection: extent, line angles, evidence
-    stamp_s: float  # time of the last frame
-    missed: int = 0  # consecutive frames searched without a confirmation
-    patch: NDArray[np.float64] | None = (
-        None  # grey patch centred on round(xy) at the last confirmation
-    )
-    anchor: bool = False  # its patch measures the next frame's motion
-    missed_by_full_pass: bool = False  # since its last confirmation
+    """One tracked marker.
+
+    Attributes:
+        xy: (2,) position on the last frame (detected, or predicted if missed), px.
+        velocity: (2,) px per second; None until confirmed twice.
+        detection: the last detection: extent, line angles, evidence.
+        stamp_s: time of the last frame, s.
+        missed: consecutive frames searched without a confirmation.
+        patch: grey patch centred on round(xy) at the last confirmation.
+        anchor: its patch measures the next frame's motion.
+        missed_by_full_pass: a full pass has missed it since its last confirmation.
+    """
+
+    xy: NDArray[np.float64]
+    velocity: NDArray[np.float64] | None
+    detection: Detection
+    stamp_s: float
+    missed: int = 0
+    patch: NDArray[np.float64] | None = None
+    anchor: bool = False
+    missed_by_full_pass: bool = False
 
 
 @dataclass
