@@ -157,7 +157,7 @@ def weakest_edge_t(fit: TemplateFit) -> NDArray[np.float64]:
     return cast("NDArray[np.float64]", (t * alternation).min(axis=1))
 
 
-def worth_growing(fit: TemplateFit, extents: NDArray[np.float64]) -> NDArray[np.float64]:
+def worth_growing(fit: TemplateFit, extents: NDArray[np.float64]) -> NDArray[np.bool_]:
     """(N,) which candidates grow on: those whose fit on a small region is still an X.
 
     The tests of :func:`decide` that a small region can already answer, leniently
@@ -168,7 +168,7 @@ def worth_growing(fit: TemplateFit, extents: NDArray[np.float64]) -> NDArray[np.
     """
     reach = np.maximum(extents.mean(axis=1), 1.0)
     return cast(
-        "NDArray[np.float64]",
+        "NDArray[np.bool_]",
         (weakest_edge_t(fit) >= _GROW_MIN_EDGE_T)
         & (fit.shape.blur_px.max(axis=1) <= _GROW_SLACK * MAX_BLUR_PX)
         & (np.linalg.norm(fit.shape.gain, axis=1) * reach <= _GROW_SLACK * MAX_LIGHT_CHANGE),

@@ -2232,7 +2232,7 @@ def fit_growing_template(
     steps: int = _GROWTH_STEPS,
     max_pixels: int | None = None,
     noise_std: NDArray[np.float64] | None = None,
-    keep: Callable[[TemplateFit, NDArray[np.float64]], NDArray[np.float64]] | None = None,
+    keep: Callable[[TemplateFit, NDArray[np.float64]], NDArray[np.bool_]] | None = None,
     iterations: int = _GROWTH_ITERATIONS,
 ) -> GrownFit:
     """Fit the adaptive template over a region that grows to the whole X.
@@ -2255,7 +2255,8 @@ def fit_growing_template(
         noise_std: (N,) the image's noise at each point; where the last fit leaves
             clearly more than that, a cast shadow's edge is tried
             (:func:`find_shadow_edges`) and kept if it explains enough more.
-        keep: (fit, extents) -> (M,) bool for the M points of one step: which grow on.
+        keep: (fit, extents) -> (M,) bool for the M points of one step: which grow on;
+            asked first about every point (their first fits), then about those growing.
         iterations: Levenberg-Marquardt iterations per step.
 
     Returns:
@@ -2272,7 +2273,7 @@ def fit_growing_template(
     )
     cap = keys.copy()
     extents = template.line_extents(image, fit.shape, fit.levels, max_radius_px)
-    alive = np.arange(len(keys))
+    alive: NDArray[np.intp] = np.arange(len(keys))
     regions: list[NDArray[np.float64]] = list(disks)
     for _ in range(steps):
         if keep is not None:

@@ -5,7 +5,8 @@ from scenes import TEMPLATE_DECISION, found_false_errors
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
-from marker_localizer.core import decision
+from marker_localizer.bench.ground import x_tiling_frame
+from marker_localizer.core import decision, template_path
 from marker_localizer.core.result import DetectionResult
 
 
@@ -70,3 +71,24 @@ def test_tracking_confirms_markers_half_a_pixel_off_by_the_template_decision(clu
     # Not to the fit's tolerance: its pixels reach as far as the extent measured from
     # each start, and a few pixels more or less move the optimum by hundredths.
     assert distance.max() < 0.03
+
+
+def test_a_frame_tiled_with_xs_grows_at_most_the_caps_fits_spread_over_it_and_counts_the_rest(
+    monkeypatch,
+):
+    """Every X of a chessboard is worth growing (5-10 ms a fit); over the cap the rest
+    are cut cell by cell, counted with the other caps' cuts, and never decided."""
+    monkeypatch.setattr(template_path, "MAX_GROWN", 40)
+    image = x_tiling_frame(seed=1, shape=(240, 320))
+    config = DetectorConfig(
+        refinement="template", marker_radius_min_px=3.0, marker_radius_max_px=30.0
+    )
+    result = Detector(config).detect(image)
+    counts = result.counts
+    assert result.verdicts is not None
+    fitted = counts["after_suppression"] - counts["rejected_prescreen"] - counts["rejected_lines"]
+    assert counts["dropped_over_verification_cap"] == fitted - len(result.verdicts.xy) > 400
+    assert result.verdicts.evidence.converged.sum() <= 40
+    assert 0 < len(result) <= 40
+    quadrants = {(d.x > 160, d.y > 120) for d in result}
+    assert len(quadrants) == 4
