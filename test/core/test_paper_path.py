@@ -5,6 +5,8 @@ import pytest
 from scenes import checker_2x2, found_false_errors
 
 from marker_localizer import Detector, DetectorConfig
+from marker_localizer.bench.ground import x_tiling_frame
+from marker_localizer.core import paper_path
 from marker_localizer.synthetic import render_checkerboard
 
 #: The paper's pipeline as published.
@@ -53,3 +55,28 @@ def test_the_papers_pipeline_locates_chessboard_corners_as_its_table_1_claims():
     assert misses == 0
     assert np.mean(errors) <= 0.03
     assert np.mean(errors <= 0.1) >= 0.97
+
+
+@pytest.mark.parametrize("refinement", ["symmetry", "ncc", "template"])
+def test_a_frame_tiled_with_xs_locates_at_most_the_caps_candidates_and_counts_the_rest(
+    refinement, monkeypatch
+):
+    """Every X of a chessboard passes the paper's checks; over the cap the lowest scores
+    of each cell are cut, counted with the other caps' cuts, and never located."""
+    monkeypatch.setattr(paper_path, "MAX_LOCATED", 30)
+    image = x_tiling_frame(seed=1, shape=(240, 320))
+    config = DetectorConfig(
+        candidate_detector="curvature",
+        refinement=refinement,
+        marker_radius_min_px=3.0,
+        marker_radius_max_px=30.0,
+    )
+    result = Detector(config).detect(image)
+    counts = result.counts
+    checked = (
+        counts["after_suppression"] - counts["rejected_symmetry"] - counts["merged_duplicates"]
+    )
+    passed = checked - counts["rejected_template"] - counts["rejected_lines"]
+    assert counts["dropped_over_verification_cap"] == passed - 30 > 1000
+    assert len(result) == 30
+    assert len({(d.x > 160, d.y > 120) for d in result}) == 4
