@@ -115,11 +115,12 @@ def build_simulate_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--bayer",
+        type=str.lower,
         choices=BAYER_PATTERNS,
         default=None,
         metavar="PATTERN",
         help="record each camera's raw Bayer mosaic (bayer_<PATTERN>8) instead of mono8: "
-        f"one of {', '.join(BAYER_PATTERNS)}",
+        f"one of {', '.join(BAYER_PATTERNS)}, in either case",
     )
     return parser
 

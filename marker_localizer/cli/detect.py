@@ -123,10 +123,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--bayer",
+        type=str.lower,
         choices=BAYER_PATTERNS,
         metavar="PATTERN",
         help="the files hold a camera's raw Bayer mosaic of this pattern (8 or 16 bits): "
-        f"demosaiced to grey as cv_bridge does; one of {', '.join(BAYER_PATTERNS)}",
+        f"demosaiced to grey as cv_bridge does; one of {', '.join(BAYER_PATTERNS)}, "
+        "in either case",
     )
     parser.add_argument(
         "--why",

@@ -192,16 +192,18 @@ def test_why_with_a_malformed_point_is_a_usage_error(x_image, capsys):
     assert "--why: expected finite X,Y in pixels, got 'nan,3'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("pattern", ["rggb", "RGGB"])
 def test_a_raw_bayer_file_is_demosaiced_with_bayer_and_a_colour_one_is_refused(
-    x_image, tmp_path, capsys
+    pattern, x_image, tmp_path, capsys
 ):
+    """``--bayer`` takes the pattern as ROS encodings write it, or as camera SDKs do."""
     _, image = x_image
     # An RGGB sensor's raw sites, before white balance.
     mosaic = image * bayer_gain(image.shape, "rggb").astype(np.float64)
     raw, colour = tmp_path / "raw.png", tmp_path / "colour.png"
     cv2.imwrite(str(raw), mosaic.round().astype(np.uint8))
     cv2.imwrite(str(colour), cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
-    assert main(["detect", str(raw), str(colour), "--bayer", "rggb", "--json"]) == 1
+    assert main(["detect", str(raw), str(colour), "--bayer", pattern, "--json"]) == 1
     captured = capsys.readouterr()
     (record,) = (json.loads(line) for line in captured.out.splitlines())
     assert record["image"] == str(raw)
