@@ -50,7 +50,7 @@ _DECISION_PIXELS = 300
 #: few pixels long (the check upsamples small windows).
 _LINE_WINDOW_MIN_PX = 3.0
 #: The most candidates of a frame whose template fit grows past its first disk
-#: (:func:`subpixel.fit_growing_template`: 5-10 ms each on one core, where texture
+#: (:func:`subpixel.fit_growing_template`: 3-10 ms each on one core, where texture
 #: stops at the first disk for about 0.2 ms). Over it, those whose weakest edge
 #: stands out least are cut, spread over the frame as Eq. (7)'s thinning spreads
 #: them (:class:`_CappedGrowth`), and counted. Twice what real ground grows: at

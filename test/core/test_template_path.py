@@ -76,7 +76,7 @@ def test_tracking_confirms_markers_half_a_pixel_off_by_the_template_decision(clu
 def test_a_frame_tiled_with_xs_grows_at_most_the_caps_fits_spread_over_it_and_counts_the_rest(
     monkeypatch,
 ):
-    """Every X of a chessboard is worth growing (5-10 ms a fit); over the cap the rest
+    """Every X of a chessboard is worth growing (3-10 ms a fit); over the cap the rest
     are cut cell by cell, counted with the other caps' cuts, and never decided."""
     monkeypatch.setattr(template_path, "MAX_GROWN", 40)
     image = x_tiling_frame(seed=1, shape=(240, 320))
