@@ -18,9 +18,10 @@ from marker_localizer.core import decision
 #: The counts of :class:`DetectionResult` that say what the caps cut, the price of a
 #: bounded worst case (``max_candidates`` after screening,
 #: :data:`symmetry_path.MAX_VERIFIED` after the prescreen,
-#: :data:`symmetry_path.MAX_CONFIRMED` after the template, and
-#: :data:`acceptance.MAX_PLATE_ASKED` at the plate's test): the node's diagnostics
-#: show their sum.
+#: :data:`symmetry_path.MAX_CONFIRMED` after the template,
+#: :data:`acceptance.MAX_PLATE_ASKED` at the plate's test; on the other paths
+#: :data:`template_path.MAX_GROWN` and :data:`paper_path.MAX_LOCATED`): the node's
+#: diagnostics show their sum.
 CAP_COUNTS = ("dropped_over_cap", "dropped_over_verification_cap", "plate_asked_over_cap")
 
 
@@ -104,6 +105,8 @@ class DetectionResult:
             cap);
             ``dropped_over_verification_cap`` those over :data:`symmetry_path.MAX_VERIFIED` after
             the prescreen and over :data:`symmetry_path.MAX_CONFIRMED` after the template;
+            on the other paths those over :data:`template_path.MAX_GROWN` and
+            :data:`paper_path.MAX_LOCATED`;
             ``plate_asked_over_cap`` the located X's rejected unread at the
             plate's test; :data:`CAP_COUNTS` are the caps' cuts.
         timings_ms: wall time per stage in milliseconds.
