@@ -209,11 +209,12 @@ class TemplatePath:
                 noise_std=noise.std(level.astype(np.float64)),
                 keep=growth,
             )
-            counts["dropped_over_verification_cap"] = counts.get(
-                "dropped_over_verification_cap", 0
-            ) + len(growth.cut)
-            if len(growth.cut):
-                kept = np.setdiff1d(np.arange(len(xy)), growth.cut)
+            cut = int(growth.cut.sum())
+            counts["dropped_over_verification_cap"] = (
+                counts.get("dropped_over_verification_cap", 0) + cut
+            )
+            if cut:
+                kept = ~growth.cut
                 grown = subpixel.GrownFit(
                     grown.fit.take(kept), grown.extents[kept], grown.grown[kept]
                 )
@@ -262,14 +263,15 @@ class _CappedGrowth:
     :func:`subpixel.fit_growing_template` asks it first about every candidate. Of
     those worth growing, the ``limit`` it keeps are taken cell by cell, those whose
     weakest edge stands out most first (:func:`screening.even_cap_index`); the rest
-    are listed in :attr:`cut`. Later steps ask about the kept alone.
+    are marked in :attr:`cut`. Later steps ask about the kept alone.
     """
 
     def __init__(self, limit: int, cell_px: float) -> None:
         self.limit = limit
         self.cell_px = cell_px
-        #: Indices of the candidates worth growing that the cap cut.
-        self.cut: NDArray[np.intp] = np.zeros(0, np.intp)
+        #: (N,) True where a candidate worth growing was cut by the cap (empty before
+        #: the first call).
+        self.cut: NDArray[np.bool_] = np.zeros(0, dtype=bool)
         self._asked = False
 
     def __call__(
@@ -279,12 +281,10 @@ class _CappedGrowth:
         if self._asked:
             return grow
         self._asked = True
+        self.cut = np.zeros(len(grow), dtype=bool)
         rows = np.flatnonzero(grow)
         if len(rows) > self.limit:
             strength = decision.weakest_edge_t(fit)[rows]
-            kept = rows[
-                screening.even_cap_index(fit.shape.xy[rows], strength, self.limit, self.cell_px)
-            ]
-            self.cut = np.setdiff1d(rows, kept)
-            grow[self.cut] = False
-        return grow
+            kept = screening.even_cap_index(fit.shape.xy[rows], strength, self.limit, self.cell_px)
+            self.cut[np.delete(rows, kept)] = True
+        return grow & ~self.cut

@@ -402,8 +402,9 @@ def _nearest_ring(
         & (xy[:, 0] < width - reach)
         & (xy[:, 1] < height - reach)
     )
-    centre = np.where(inside[:, None], xy, reach[:, None]) + 0.5
-    # Coordinates are positive here, so truncation after +0.5 rounds to the nearest pixel.
+    centre = xy + 0.5
+    # Coordinates are positive on the image, so truncation after +0.5 rounds to the
+    # nearest pixel there; rows off the image are set apart below.
     # The flat index is formed in place in float64 (exact below 2^53): one conversion
     # to integers instead of three integer passes.
     col = radius_px[:, None] * np.cos(theta)
@@ -413,8 +414,7 @@ def _nearest_ring(
     np.trunc(index, out=index)
     index *= width
     index += np.trunc(col, out=col)
-    # A row off the image reads its first pixel: an image narrower than its ring has
-    # no pixel at the stand-in centre's.
+    # A row off the image reads its first pixel (and is NaN after).
     index[~inside] = 0.0
     values = image.reshape(-1)[index.astype(np.intp)].astype(np.float32)
     values[~inside] = np.nan
