@@ -17,7 +17,13 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from marker_localizer.config import DetectorConfig
-from marker_localizer.core import preprocessing, verification
+from marker_localizer.core import (
+    paper_path,
+    preprocessing,
+    symmetry_path,
+    template_path,
+    verification,
+)
 from marker_localizer.core.frame import Frame, StageTimer
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.noise import estimate_noise
@@ -68,6 +74,20 @@ class Detector:
         marker's centre, what a full pass accepts depends on the cut.
         """
         return verification.LSD_WINDOW_RADII
+
+    @property
+    def max_fitted(self) -> int:
+        """The most candidates one pass takes on to the sub-pixel fit: its path's cap.
+
+        :data:`symmetry_path.MAX_CONFIRMED`, :data:`paper_path.MAX_LOCATED` or
+        :data:`template_path.MAX_GROWN`, each above every real frame measured: a
+        frame with more is a tiling of X's, and the rest are cut and counted.
+        """
+        if self.config.candidate_detector == "curvature":
+            return paper_path.MAX_LOCATED
+        if self.config.refinement == "template":
+            return template_path.MAX_GROWN
+        return symmetry_path.MAX_CONFIRMED
 
     def detect(self, image: NDArray[Any], plan: SearchPlan | None = None) -> DetectionResult:
         """Find and locate every diagonal marker in ``image``.

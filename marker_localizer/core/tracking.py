@@ -33,6 +33,10 @@ The rule for full-frame passes, precisely. A frame gets a full-frame pass
 * when no marker is tracked (the first frame, after :meth:`MarkerTracker.reset`, and
   after a stamp that does not advance or a frame of another size, which reset);
 * when ``full_frame_every - 1`` frames have been tracked since the last one;
+* when there are more tracks than one pass takes on to the fit
+  (:attr:`Detector.max_fitted`): a tiling of X's, where a tracked frame would
+  confirm every track and add what its bands find, so that the tracks, and the
+  time a frame takes, would grow from frame to frame;
 * when the image motion cannot be measured: no anchor's patch is found again;
 * when a marker is lost: the detector does not confirm a track whose predicted
   centre lies farther than its plate's half-width inside the frame, and the
@@ -185,16 +189,13 @@ class MarkerTracker:
         # Measured on full passes too: it carries the tracks a pass misses.
         start = time.perf_counter()
         motion, located, predicted = None, None, None
+        # More tracks than one pass fits are a tiling of X's, not markers: a tracked
+        # frame would confirm every one and add what its bands find, frame after frame.
+        crowded = len(self._tracks) > self.detector.max_fitted
         if self._tracks:
             predicted = self._predict(stamp)
-            if self._fit_motion_skips:
-                self._fit_motion_skips -= 1
-            else:
-                motion, located = self._motion_from_fit(gray, predicted)
-                if motion is None:
-                    self._fit_motion_skips = _FIT_MOTION_RETRY_FRAMES
-            if motion is None:
-                motion = self._register(gray, predicted)
+            if not crowded:
+                motion, located = self._measure_motion(gray, predicted)
         registration_ms = (time.perf_counter() - start) * 1000.0
         if motion is not None and self._frames_since_full + 1 < self.config.full_frame_every:
             result = self._track(gray, stamp, motion, located)
@@ -210,6 +211,26 @@ class MarkerTracker:
         self._frames_since_full = 0
         self._cut_patches(gray)
         return result
+
+    def _measure_motion(
+        self, gray: NDArray[Any], predicted: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64] | None, DetectionResult | None]:
+        """(3, 3) image motion from the last frame, and the tracks' fits if they measured it.
+
+        The tracks' own fits first (:meth:`_motion_from_fit`); after they failed, the
+        anchors' patches (:meth:`_register`) alone for a few frames. (None, None) when
+        neither measures it.
+        """
+        motion, located = None, None
+        if self._fit_motion_skips:
+            self._fit_motion_skips -= 1
+        else:
+            motion, located = self._motion_from_fit(gray, predicted)
+            if motion is None:
+                self._fit_motion_skips = _FIT_MOTION_RETRY_FRAMES
+        if motion is None:
+            motion = self._register(gray, predicted)
+        return motion, located
 
     def _predict(self, stamp: float) -> NDArray[np.float64]:
         """(N, 2) constant-velocity predictions; a track without velocity moves with the rest."""

@@ -27,10 +27,12 @@ from marker_localizer.bench.accuracy import Family, disc_lattice_frame, families
 from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.core import (
     acceptance,
+    paper_path,
     plate,
     second_reading,
     shadow,
     symmetry_path,
+    template_path,
     verification,
 )
 from marker_localizer.core.result import CAP_COUNTS, SearchPlan
@@ -1071,3 +1073,19 @@ def test_a_shadows_edge_keeps_the_markers_whose_x_alone_leaves_it_unexplained(mo
     kept = found()
     monkeypatch.setattr(shadow, "DETECTION_REACH_EXTENTS", 1e-3)
     assert kept - found() >= 3
+
+
+@pytest.mark.parametrize(
+    ("candidate_detector", "refinement", "cap"),
+    [
+        ("saddle", "symmetry", symmetry_path.MAX_CONFIRMED),
+        ("saddle", "template", template_path.MAX_GROWN),
+        ("curvature", "template", paper_path.MAX_LOCATED),
+        ("curvature", "ncc", paper_path.MAX_LOCATED),
+    ],
+)
+def test_the_most_a_pass_fits_is_the_cap_of_the_path_the_config_names(
+    candidate_detector, refinement, cap
+):
+    config = DetectorConfig(candidate_detector=candidate_detector, refinement=refinement)
+    assert Detector(config).max_fitted == cap

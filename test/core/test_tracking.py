@@ -5,8 +5,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
+from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.config import TrackerConfig
-from marker_localizer.core import tracking
+from marker_localizer.core import symmetry_path, tracking
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import MarkerPlacement, render_markers
@@ -153,6 +154,25 @@ def test_a_marker_that_disappears_is_lost_and_gets_a_full_pass_on_the_same_frame
     ]
     # Neither confirmed nor its patch found where predicted: the pass ends its track.
     assert passes == [1, 0, 1, 0, 0]
+
+
+def test_a_frame_after_more_tracks_than_one_pass_fits_gets_a_full_pass(monkeypatch):
+    """On a tiling of X's a tracked frame confirms every track and adds what its bands
+    find; without the full pass the tracks would grow frame after frame."""
+    monkeypatch.setattr(symmetry_path, "MAX_CONFIRMED", 30)
+    tiling = x_tiling_frame(seed=1, shape=(280, 360))
+    tracker = MarkerTracker(
+        Detector(DetectorConfig(marker_radius_min_px=3.0, marker_radius_max_px=30.0))
+    )
+    results = [
+        tracker.update(np.ascontiguousarray(tiling[2 * k : 2 * k + 240, 3 * k : 3 * k + 320]), k)
+        for k in range(6)
+    ]
+    assert tracker.detector.max_fitted == 30
+    crowded = [len(r) > 30 for r in results]
+    assert any(crowded)
+    for before, after in zip(crowded[:-1], results[1:], strict=True):
+        assert after.counts["full_frame"] == (1 if before else 0)
 
 
 def test_markers_entering_and_leaving_across_the_border_are_tracked_as_full_frames_see_them():
