@@ -146,8 +146,7 @@ class Detector:
         seeded = Candidates(
             seeds, np.full(len(seeds), np.inf), np.full(len(seeds), self._search.seed_scale_px)
         )
-        with timer("prescreen"):
-            result.counts["rejected_prescreen"] = result.counts["dropped_over_verification_cap"] = 0
+        result.counts["rejected_prescreen"] = result.counts["dropped_over_verification_cap"] = 0
         if noise is not None and cfg.candidate_detector == "saddle":
             # The template path on the saddle screening reads the noise, not the local means.
             return self._template.confirm(
