@@ -140,6 +140,10 @@ def bayer_to_grey(mosaic: NDArray[Any], pattern: str) -> NDArray[Any]:
         )
     if pattern not in _BAYER_TO_GREY:
         raise ImageError(f"unknown Bayer pattern {pattern!r} (expected one of {BAYER_PATTERNS})")
+    if not mosaic.flags.aligned:
+        # OpenCV takes rows a whole number of pixels apart; a 16-bit message's rows
+        # padded by an odd number of bytes are not.
+        mosaic = np.ascontiguousarray(mosaic)
     return cast("NDArray[Any]", cv2.cvtColor(mosaic, _BAYER_TO_GREY[pattern]))
 
 

@@ -81,6 +81,18 @@ def test_image_to_array_honours_row_padding_and_byte_order(encoding, bigendian):
     np.testing.assert_array_equal(result, pixels)
 
 
+@pytest.mark.parametrize("encoding", sorted(ENCODINGS))
+@pytest.mark.parametrize("pad", [1, 5])
+def test_detector_input_is_the_same_whatever_bytes_pad_the_rows(encoding, pad):
+    """Padding of bytes that are not a whole pixel (an odd step of 16-bit pixels) too:
+    the rows then lie at odd addresses, which OpenCV does not take."""
+    pixels = pixels_for(encoding, height=6, width=8)
+    plain = image_to_detector_input(padded_message(pixels, encoding, 0, False))
+    padded = image_to_detector_input(padded_message(pixels, encoding, pad, False))
+    np.testing.assert_array_equal(padded, plain)
+    assert Detector().detect(padded).counts["accepted"] == 0
+
+
 def test_image_to_array_reads_big_endian_mono16_values():
     msg = Image(height=1, width=2, encoding="mono16", is_bigendian=True, step=4)
     msg.data = array.array("B", bytes([0x12, 0x34, 0xFF, 0x00]))
