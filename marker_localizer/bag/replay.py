@@ -143,7 +143,7 @@ class ReplayReport:
         wall_s: Wall time from the first frame read to the last result written, s.
         cameras: Per camera, in topic order.
         undecodable: Per topic other than the images (truth), messages whose
-            bytes do not decode.
+            bytes do not decode, or decode to points without x and y.
         damage: What the reader could not read, one line each.
     """
 
@@ -267,8 +267,17 @@ def image_cameras(topics: dict[str, str]) -> dict[str, str]:
 
 
 def _xy(cloud: PointCloud2) -> np.ndarray:
+    """(N, 2) the points' x and y; ImageError for points without those fields.
+
+    A cloud of no points is no markers, whatever fields it declares.
+    """
     points = cloud_to_array(cloud)
-    return np.column_stack([points["x"], points["y"]]) if len(points) else np.empty((0, 2))
+    if not len(points):
+        return np.empty((0, 2))
+    if not {"x", "y"} <= set(points.dtype.names or ()):
+        fields = ", ".join(map(repr, points.dtype.names or ())) or "none"
+        raise ImageError(f"points without fields 'x' and 'y' (their fields: {shorten(fields)})")
+    return np.column_stack([points["x"], points["y"]])
 
 
 @dataclass

@@ -340,8 +340,9 @@ def cloud_to_array(cloud: PointCloud2) -> np.ndarray:
         (N, 6) array.
 
     Raises:
-        ImageError: unknown field datatype, count other than 1, or a data
-            length that does not match the declared size.
+        ImageError: unknown field datatype, count other than 1, a field name
+            given twice, a field that overruns ``point_step``, points of 0 B, or
+            a data length that does not match the declared size.
     """
     order: Literal[">", "<"] = ">" if cloud.is_bigendian else "<"
     names: list[str] = []
@@ -353,13 +354,23 @@ def cloud_to_array(cloud: PointCloud2) -> np.ndarray:
                 f"point field {f.name!r}: datatype {f.datatype} x count {f.count} "
                 "is not a supported scalar"
             )
+        if f.name in names:
+            raise ImageError(f"point field {f.name!r} is given twice")
+        scalar = _POINT_FIELD_DTYPES[f.datatype]
+        if f.offset + scalar.itemsize > cloud.point_step:
+            raise ImageError(
+                f"point field {f.name!r} ({scalar.itemsize} B at offset {f.offset}) "
+                f"overruns point_step {cloud.point_step} B"
+            )
         names.append(f.name)
-        formats.append(_POINT_FIELD_DTYPES[f.datatype].newbyteorder(order))
+        formats.append(scalar.newbyteorder(order))
         offsets.append(f.offset)
     dtype = np.dtype(
         {"names": names, "formats": formats, "offsets": offsets, "itemsize": cloud.point_step}
     )
     n_points = int(cloud.height) * int(cloud.width)
+    if n_points and not cloud.point_step:
+        raise ImageError(f"{n_points} points of point_step 0 B")
     if cloud.row_step < cloud.width * cloud.point_step or len(cloud.data) != (
         cloud.height * cloud.row_step
     ):
@@ -371,5 +382,8 @@ def cloud_to_array(cloud: PointCloud2) -> np.ndarray:
     rows = np.frombuffer(memoryview(cloud.data), dtype=np.uint8).reshape(
         cloud.height, cloud.row_step
     )
+    if not n_points:
+        # An empty cloud may declare no layout at all (point_step 0), which no view takes.
+        return np.zeros(0, dtype)
     packed = rows[:, : cloud.width * cloud.point_step].copy()
     return packed.view(dtype).reshape(n_points)

@@ -16,7 +16,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.typesys import Stores, get_typestore
-from sensor_msgs.msg import CompressedImage, Image
+from sensor_msgs.msg import CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from marker_localizer.bag.io import BagReader, BagWriter
@@ -124,6 +124,32 @@ def test_replay_reads_compressed_frames_and_counts_undecodable_ones_per_camera(t
     for camera in ("cam0", "cam1"):
         for found in points(tmp_path / "out", camera):
             np.testing.assert_allclose(found, [CENTRE], atol=TOLERANCE_PX)
+
+
+def test_replay_counts_truth_clouds_without_x_and_y_and_reads_an_empty_one_as_no_markers(
+    tmp_path,
+):
+    """A cloud of other fields (a foreign publisher's) is not truth; one of no points and
+    no declared layout (a default PointCloud2) is a frame without markers."""
+    foreign = PointCloud2(header=Header(stamp=Time(sec=1)), height=1, width=1, point_step=8)
+    foreign.fields = [PointField(name="u", offset=0, datatype=PointField.FLOAT64, count=1)]
+    foreign.row_step, foreign.data = 8, bytes(8)
+    bag = tmp_path / "truth"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        writer.add_topic("/cam0/marker_points_truth", "sensor_msgs/msg/PointCloud2")
+        for sec, truth in ((1, foreign), (2, PointCloud2(header=Header(stamp=Time(sec=2))))):
+            header = Header(stamp=Time(sec=sec), frame_id="cam0_optical")
+            writer.write(
+                "/cam0/image_raw", sec * 10**9, array_to_image(marker_frame(), "mono8", header)
+            )
+            writer.write("/cam0/marker_points_truth", sec * 10**9, truth)
+    report = replay_bag(bag, tmp_path / "out", workers=1)
+    assert report.undecodable == {"/cam0/marker_points_truth": 1}
+    assert report.cameras["cam0"].frames == 2
+    # The second frame's truth holds no marker: its detection is a false point.
+    evaluation = report.cameras["cam0"].evaluation
+    assert (evaluation.frames, evaluation.n_truth, evaluation.n_false_positives) == (1, 0, 1)
 
 
 def test_replay_reads_a_ros1_bag_raw_and_compressed(tmp_path):

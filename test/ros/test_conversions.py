@@ -249,6 +249,35 @@ def test_cloud_of_no_detection_is_empty():
     assert cloud_to_array(cloud).shape == (0,)
 
 
+def test_a_cloud_of_no_points_and_no_declared_layout_is_empty():
+    assert cloud_to_array(PointCloud2()).shape == (0,)
+
+
+def _cloud(fields: list[tuple[str, int]], point_step: int, width: int = 2) -> PointCloud2:
+    """A cloud of ``width`` zero points with float64 ``fields`` at (name, offset)."""
+    cloud = PointCloud2(height=1, width=width, point_step=point_step, row_step=width * point_step)
+    cloud.fields = [
+        PointField(name=name, offset=offset, datatype=PointField.FLOAT64, count=1)
+        for name, offset in fields
+    ]
+    cloud.data = bytes(width * point_step)
+    return cloud
+
+
+@pytest.mark.parametrize(
+    ("cloud", "match"),
+    [
+        (_cloud([("x", 0), ("x", 8)], 16), r"point field 'x' is given twice"),
+        (_cloud([("x", 0), ("y", 8)], 12), r"'y' \(8 B at offset 8\) overruns point_step 12 B"),
+        (_cloud([], 0), r"2 points of point_step 0 B"),
+    ],
+    ids=["a name twice", "a field past the point", "points of no size"],
+)
+def test_cloud_to_array_refuses_a_layout_that_cannot_hold_its_fields(cloud, match):
+    with pytest.raises(ImageError, match=match):
+        cloud_to_array(cloud)
+
+
 def test_cloud_to_array_reads_a_foreign_padded_big_endian_cloud():
     points = np.array([(1.5, -2.0), (3.25, 4.0)], dtype=[("u", ">f4"), ("v", ">f8")])
     cloud = PointCloud2(height=1, width=2, point_step=16, row_step=32, is_bigendian=True)
