@@ -245,23 +245,31 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
 # --------------------------------------------------------------------------- replay
 
 
-def image_cameras(topics: dict[str, str]) -> dict[str, str]:
+def image_cameras(
+    topics: dict[str, str], message_counts: dict[str, int] | None = None
+) -> dict[str, str]:
     """Cameras of a bag and the image topic each is read from.
 
     A camera is a namespace with ``<cam>/image_raw`` (sensor_msgs/Image) or
     ``<cam>/image_raw/compressed`` (sensor_msgs/CompressedImage), the node's two
-    ``image_transport`` inputs; where a bag has both, the raw one is read.
+    ``image_transport`` inputs; where a bag has both, the raw one is read, unless
+    ``message_counts`` (topic -> messages) shows it empty and the compressed one
+    not: a recording may declare a topic that never carried a frame.
 
     Returns:
         Camera name (the topic's namespace without the leading slash) -> image topic.
     """
+    counts = message_counts or {}
     cameras: dict[str, str] = {}
     # Raw last, so that it wins where a camera has both.
     for suffix, message_type in reversed(IMAGE_TRANSPORTS.values()):
         msgtype = f"sensor_msgs/msg/{message_type.__name__}"
         for topic in sorted(t for t, m in topics.items() if m == msgtype):
             camera = topic.removesuffix(f"/{suffix}").lstrip("/")
-            if topic.endswith(f"/{suffix}") and camera:
+            if not (topic.endswith(f"/{suffix}") and camera):
+                continue
+            other = cameras.get(camera)
+            if other is None or counts.get(topic, 0) or not counts.get(other, 0):
                 cameras[camera] = topic
     return dict(sorted(cameras.items()))
 
@@ -454,7 +462,8 @@ def replay_bag(
         worker_processes = defaults.worker_processes
     with BagReader(bag) as reader:
         topics = reader.topics
-        cameras = image_cameras(topics)
+        counts = reader.message_counts
+        cameras = image_cameras(topics, counts)
         if not cameras:
             listed = ", ".join(f"{t} ({m})" for t, m in sorted(topics.items())) or "none"
             raise BagError(
@@ -465,7 +474,6 @@ def replay_bag(
         truth = _cloud_topics(topics, cameras, TRUTH_SUFFIX)
         partial = _cloud_topics(topics, cameras, PARTIAL_SUFFIX)
         topic_camera = {topic: cam for cam, topic in cameras.items()}
-        counts = reader.message_counts
         total = sum(counts.get(t, 0) for t in cameras.values())
         clouds: dict[str, dict[tuple[str, int], np.ndarray]] = {
             TRUTH_SUFFIX: {},

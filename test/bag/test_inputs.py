@@ -88,7 +88,7 @@ def test_undecodable_data_is_an_image_error_naming_the_format():
         compressed_to_detector_input(compressed("jpeg", 1, b"\x00" * 64), MAX_PIXELS)
 
 
-def test_cameras_are_found_in_either_form_and_raw_wins_where_both_are_recorded():
+def test_cameras_are_found_in_either_form_and_raw_wins_where_both_hold_frames():
     topics = {
         "/cam0/image_raw": "sensor_msgs/msg/Image",
         "/cam0/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
@@ -100,6 +100,11 @@ def test_cameras_are_found_in_either_form_and_raw_wins_where_both_are_recorded()
         "cam0": "/cam0/image_raw",
         "cam1": "/cam1/image_raw/compressed",
     }
+    # A raw topic declared but never written to: its camera's frames are the compressed.
+    counts = {"/cam0/image_raw": 0, "/cam0/image_raw/compressed": 3}
+    assert image_cameras(topics, counts)["cam0"] == "/cam0/image_raw/compressed"
+    counts = {"/cam0/image_raw": 1, "/cam0/image_raw/compressed": 3}
+    assert image_cameras(topics, counts)["cam0"] == "/cam0/image_raw"
 
 
 def test_replay_reads_compressed_frames_and_counts_undecodable_ones_per_camera(tmp_path):
@@ -107,6 +112,8 @@ def test_replay_reads_compressed_frames_and_counts_undecodable_ones_per_camera(t
     with BagWriter(bag) as writer:
         for camera in ("cam0", "cam1"):
             writer.add_topic(f"/{camera}/image_raw/compressed", "sensor_msgs/msg/CompressedImage")
+        # Declared, never written to (its frames were not published while recording).
+        writer.add_topic("/cam1/image_raw", "sensor_msgs/msg/Image")
         for sec, (camera, msg) in enumerate(
             [
                 ("cam0", compressed("jpeg", 1)),
