@@ -52,6 +52,7 @@ from marker_localizer import evaluation
 from marker_localizer.bench import metrics, peers, real_data
 from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
 from marker_localizer.bench.runner import run_and_save
+from marker_localizer.cli.arguments import count_type, seed_type
 from marker_localizer.core import symmetry_path
 from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import INTERVAL_HEADING, DetectionTally
@@ -1585,10 +1586,13 @@ def parse_args(argv: list[str] | None) -> tuple[Options, Path | None]:
         description="Accuracy of this detector and its peers on rendered and real images.",
     )
     parser.add_argument(
-        "--frames", type=int, default=None, help="frames per rendered family (default: per family)"
+        "--frames",
+        type=count_type,
+        default=None,
+        help="frames per rendered family (default: per family)",
     )
     parser.add_argument("--quick", action="store_true", help="small run (< 2 minutes)")
-    parser.add_argument("--seed", type=int, default=0, help="base seed")
+    parser.add_argument("--seed", type=seed_type, default=0, help="base seed")
     parser.add_argument(
         "--families",
         default=",".join(FAMILY_KEYS),

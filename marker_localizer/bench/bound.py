@@ -44,6 +44,7 @@ import numpy as np
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench.accuracy import bin_labels, families, x_snr_band
 from marker_localizer.bench.runner import Report, run_and_save
+from marker_localizer.cli.arguments import count_type, seed_type
 from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import render_scene
 from marker_localizer.synthetic.crlb import X_SNR_BANDS, BoundParts
@@ -213,16 +214,16 @@ def main(argv: list[str] | None = None) -> int:
         default="a,c,d",
         help=f"comma-separated rendered families, of {','.join(keys)} (default: a,c,d)",
     )
-    parser.add_argument("--first-seed", type=int, default=FIRST_SEED, help="first seed rendered")
-    parser.add_argument("--frames", type=int, default=FRAMES, help="frames per family")
+    parser.add_argument(
+        "--first-seed", type=seed_type, default=FIRST_SEED, help="first seed rendered"
+    )
+    parser.add_argument("--frames", type=count_type, default=FRAMES, help="frames per family")
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
     args = parser.parse_args(argv)
     chosen = [k.strip() for k in args.families.split(",") if k.strip()]
     unknown = sorted(set(chosen) - set(keys))
     if unknown or not chosen:
         parser.error(f"--families: unknown {', '.join(unknown) or '(none given)'}; of {keys}")
-    if args.frames < 1:
-        parser.error("--frames must be at least 1")
     seeds = range(args.first_seed, args.first_seed + args.frames)
     run_report: Callable[[Report], dict[str, Any]] = lambda report: run(  # noqa: E731
         chosen, list(seeds), report

@@ -41,6 +41,7 @@ import numpy as np
 from marker_localizer.bench import accuracy, peers, real_data
 from marker_localizer.bench.accuracy import LabelledFrame, Row
 from marker_localizer.bench.runner import run_and_save
+from marker_localizer.cli.arguments import seed_type
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import preprocessing, screening, verification
 
@@ -316,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
         description="The paper's pipeline beside the default on the same frames.",
     )
     parser.add_argument("--quick", action="store_true", help="a frame or two per set")
-    parser.add_argument("--seed", type=int, default=0, help="base seed of the rendering")
+    parser.add_argument("--seed", type=seed_type, default=0, help="base seed of the rendering")
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
     args = parser.parse_args(argv)
     return run_and_save(

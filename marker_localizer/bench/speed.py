@@ -51,6 +51,7 @@ import numpy as np
 
 from marker_localizer.bench import workers
 from marker_localizer.bench.runner import run_and_save
+from marker_localizer.cli.arguments import count_type, seed_type
 
 #: Subjects in table order, by the short key ``--subjects`` takes; "ours (symmetry)"
 #: is the row every ratio divides by. "paper" (the paper's pipeline end to end, seconds
@@ -568,10 +569,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         prog="marker-localizer bench speed",
         description="Full-frame detection time on one core: ours against peers.",
     )
-    parser.add_argument("--frames", type=int, default=3, help="rendered frames (default 3)")
+    parser.add_argument("--frames", type=count_type, default=3, help="rendered frames (default 3)")
     parser.add_argument(
         "--repeats",
-        type=int,
+        type=count_type,
         default=None,
         help="timed passes over the frames (default 3; 1 with --quick)",
     )
@@ -583,7 +584,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--no-ground", action="store_true", help="leave out the real-ground table (several minutes)"
     )
-    parser.add_argument("--seed", type=int, default=0, help="rendering seed")
+    parser.add_argument("--seed", type=seed_type, default=0, help="rendering seed")
     parser.add_argument(
         "--families",
         default=None,

@@ -62,6 +62,7 @@ from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.bench import speed
+from marker_localizer.cli.arguments import count_type, positive_float
 from marker_localizer.config import TrackerConfig
 from marker_localizer.ros.conversions import array_to_image
 from marker_localizer.ros.diagnostics import frames_lost_upstream
@@ -430,19 +431,19 @@ def build_parser() -> argparse.ArgumentParser:
         prog="marker-localizer bench throughput",
         description="Frames per second of the node with 1 and 2 workers, five cameras.",
     )
-    parser.add_argument("--width", type=int, default=4096, help="frame width, px")
-    parser.add_argument("--height", type=int, default=3000, help="frame height, px")
+    parser.add_argument("--width", type=count_type, default=4096, help="frame width, px")
+    parser.add_argument("--height", type=count_type, default=3000, help="frame height, px")
     parser.add_argument(
-        "--seconds", type=float, default=40.0, help="publishing time per worker count, s"
+        "--seconds", type=positive_float, default=40.0, help="publishing time per worker count, s"
     )
     parser.add_argument(
         "--rate-hz",
-        type=float,
+        type=positive_float,
         default=4.0,
         help="frames per second and camera published (20 in all: more than the node takes)",
     )
     parser.add_argument(
-        "--workers", type=int, nargs="+", default=[1, 2], help="worker counts to run"
+        "--workers", type=count_type, nargs="+", default=[1, 2], help="worker counts to run"
     )
     parser.add_argument(
         "--ground",

@@ -23,6 +23,7 @@ from marker_localizer.bag.play import NODE_NAME as PLAYER_NODE_NAME
 from marker_localizer.bag.play import PlayOptions, PlayReport, play_bag
 from marker_localizer.bag.record import record_flight
 from marker_localizer.bag.replay import format_report, replay_bag
+from marker_localizer.cli.arguments import seed_type
 from marker_localizer.cli.exits import EXIT_INCOMPLETE, PROG
 from marker_localizer.cli.progress import ProgressBar
 from marker_localizer.config import (
@@ -71,7 +72,7 @@ def build_simulate_parser() -> argparse.ArgumentParser:
         default=defaults.n_cameras,
         help="cameras: nadir, forward, backward, left, right, in this order (default: %(default)s)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the world and the noise")
+    parser.add_argument("--seed", type=seed_type, default=0, help="seed of the world and the noise")
     parser.add_argument(
         "--storage",
         choices=tuple(STORAGES),

@@ -19,6 +19,7 @@ import numpy as np
 
 from marker_localizer.bag.record import record_flight
 from marker_localizer.bag.replay import format_report, replay_bag
+from marker_localizer.cli.arguments import seed_type
 from marker_localizer.cli.exits import PROG
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core.pipeline import Detector
@@ -70,6 +71,6 @@ def main(argv: Sequence[str]) -> int:
     )
     parser.add_argument("--out", default="out/demo", help="folder for the annotated frames")
     parser.add_argument("--frames", type=int, default=4, help="frames per camera")
-    parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--seed", type=seed_type, default=7)
     args = parser.parse_args(argv)
     return run(Path(args.out), frames=args.frames, seed=args.seed)
