@@ -35,6 +35,7 @@ With ``clock``, ``/clock`` (rosgraph_msgs/Clock, best effort, keep-last 1 as
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -94,16 +95,17 @@ class PlayOptions:
     min_topic_interval_s: float = 0.1
 
     def __post_init__(self) -> None:
-        if not self.rate > 0:
-            raise ConfigError(f"rate={self.rate!r} must be positive")
-        if not self.clock_hz > 0:
-            raise ConfigError(f"clock_hz={self.clock_hz!r} must be positive")
+        for name in ("rate", "clock_hz"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"{name}={value!r} must be positive and finite")
         if self.qos_depth < 1:
             raise ConfigError(f"qos_depth={self.qos_depth!r} must be at least 1")
-        if min(self.wait_for_subscribers_s, self.ack_timeout_s, self.min_topic_interval_s) < 0:
-            raise ConfigError(
-                "wait_for_subscribers_s, ack_timeout_s and min_topic_interval_s must be >= 0"
-            )
+        for name in ("wait_for_subscribers_s", "ack_timeout_s", "min_topic_interval_s"):
+            value = getattr(self, name)
+            # A NaN wait would never end.
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"{name}={value!r} must be a finite time >= 0 s")
 
 
 @dataclass

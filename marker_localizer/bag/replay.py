@@ -55,7 +55,7 @@ from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from marker_localizer.bag.io import DEFAULT_STORAGE, BagMessage, BagReader, BagWriter
 from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
 from marker_localizer.config import DetectorConfig, TrackerConfig
-from marker_localizer.errors import BagError, ImageError, shorten
+from marker_localizer.errors import BagError, ConfigError, ImageError, shorten
 from marker_localizer.evaluation import (
     DEFAULT_GATE_PX,
     INTERVAL_HEADING,
@@ -454,8 +454,10 @@ def replay_bag(
     Raises:
         BagError: ``bag`` is missing, not a bag, corrupt or truncated, or has
             no ``<cam>/image_raw`` topic; ``out`` exists or cannot be written.
-        ConfigError: ``workers`` < 1.
+        ConfigError: ``workers`` < 1, or ``match_distance_px`` not a positive distance.
     """
+    if not (math.isfinite(match_distance_px) and match_distance_px > 0):
+        raise ConfigError(f"match_distance_px={match_distance_px!r} must be positive and finite")
     defaults = NodeConfig()
     workers = defaults.workers if workers is None else workers
     if worker_processes is None:

@@ -194,16 +194,18 @@ class FlightConfig:
             "supersampling": self.supersampling,
         }
         for name, value in positive.items():
-            if not value > 0:
-                raise ConfigError(f"{name}={value!r} must be positive")
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"{name}={value!r} must be positive and finite")
         if not 1 <= self.n_cameras <= len(CAMERA_NAMES):
             raise ConfigError(f"n_cameras={self.n_cameras!r} must be in [1, {len(CAMERA_NAMES)}]")
         if not 1.0 <= self.horizontal_fov_deg <= 120.0:
             raise ConfigError(f"horizontal_fov_deg={self.horizontal_fov_deg!r} must be in [1, 120]")
         if not 0.0 <= self.tilt_deg <= 45.0:
             raise ConfigError(f"tilt_deg={self.tilt_deg!r} must be in [0, 45]")
-        if self.altitude_m is not None and not self.altitude_m > 0:
-            raise ConfigError(f"altitude_m={self.altitude_m!r} must be positive")
+        if self.altitude_m is not None and not (
+            math.isfinite(self.altitude_m) and self.altitude_m > 0
+        ):
+            raise ConfigError(f"altitude_m={self.altitude_m!r} must be positive and finite")
         if self.marker_spacing_m is not None and not (
             self.marker_spacing_m > 2 * PLATE_HALF_SIDE * self.marker_radius_m
         ):
@@ -224,8 +226,10 @@ class FlightConfig:
             )
         if self.full_well_e is not None and not self.full_well_e > 0:
             raise ConfigError(f"full_well_e={self.full_well_e!r} must be positive or None")
-        if self.speed_mps < 0 or self.exposure_s < 0 or self.attitude_jitter_deg < 0:
-            raise ConfigError("speed_mps, exposure_s and attitude_jitter_deg must be >= 0")
+        for name in ("speed_mps", "exposure_s", "attitude_jitter_deg"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"{name}={value!r} must be finite and >= 0")
         if self.bayer_pattern is not None and self.bayer_pattern not in BAYER_PATTERNS:
             raise ConfigError(
                 f"bayer_pattern={self.bayer_pattern!r} must be one of {BAYER_PATTERNS} or None"

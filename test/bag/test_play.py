@@ -292,4 +292,9 @@ def test_play_options_are_validated(tiny_sqlite_bag):
         PlayOptions(rate=0.0)
     with pytest.raises(ConfigError, match="qos_depth"):
         PlayOptions(qos_depth=0)
+    # A NaN wait never ended: play hung before its first message.
+    with pytest.raises(ConfigError, match="wait_for_subscribers_s=nan"):
+        PlayOptions(wait_for_subscribers_s=float("nan"))
+    with pytest.raises(ConfigError, match="clock_hz=inf"):
+        PlayOptions(clock_hz=float("inf"))
     assert cli(["play", str(tiny_sqlite_bag), "--rate", "-1"]) == 1

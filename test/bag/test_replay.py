@@ -21,7 +21,7 @@ from std_msgs.msg import Header
 from marker_localizer.bag.io import BagReader, BagWriter, typestore
 from marker_localizer.bag.replay import format_report, replay_bag
 from marker_localizer.cli import main as cli
-from marker_localizer.errors import BagError
+from marker_localizer.errors import BagError, ConfigError
 from marker_localizer.ros.conversions import CLOUD_FIELDS, array_to_image, cloud_to_array
 from marker_localizer.synthetic import render_markers
 from marker_localizer.synthetic.scene import MarkerPlacement
@@ -222,6 +222,16 @@ def test_replay_main_reads_sqlite3_with_the_node_params_file_and_prints_both_tab
     assert all_row.split()[1] == "5"  # frames
     with BagReader(out) as replayed_bag:
         assert replayed_bag.message_counts["/cam0/marker_points"] == 1
+
+
+@pytest.mark.parametrize("distance", [-1.0, 0.0, float("nan")])
+def test_replay_refuses_a_match_distance_that_is_not_a_positive_distance(
+    flight_bag, tmp_path, distance
+):
+    """Before, every detection and truth point went unmatched without a word."""
+    with pytest.raises(ConfigError, match=f"match_distance_px={distance!r}"):
+        replay_bag(flight_bag, tmp_path / "out", match_distance_px=distance)
+    assert not (tmp_path / "out").exists()
 
 
 def test_simulate_refuses_an_existing_output_and_a_bad_configuration(tmp_path, capsys):

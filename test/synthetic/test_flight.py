@@ -272,6 +272,11 @@ def test_the_ground_repeats_without_mirrors_so_no_join_is_a_point_of_symmetry():
         ({"frame_gain_range": (0.0, 1.0)}, "frame_gain_range"),
         ({"vignetting": 1.5}, "vignetting"),
         ({"bayer_pattern": "rgbg"}, "bayer_pattern"),
+        # Not finite: a flight at infinite speed left the renderer an empty ground.
+        ({"speed_mps": float("inf")}, "speed_mps=inf"),
+        ({"exposure_s": float("nan")}, "exposure_s=nan"),
+        ({"frame_rate_hz": float("inf")}, "frame_rate_hz=inf"),
+        ({"altitude_m": float("inf")}, "altitude_m=inf"),
     ],
 )
 def test_invalid_flight_config_raises_config_error_naming_the_field(changes, message):
