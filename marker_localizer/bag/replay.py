@@ -261,15 +261,15 @@ def image_cameras(
     """
     counts = message_counts or {}
     cameras: dict[str, str] = {}
-    # Raw last, so that it wins where a camera has both.
+    # Raw last, so that it wins where a camera has both, unless it holds no frame.
     for suffix, message_type in reversed(IMAGE_TRANSPORTS.values()):
         msgtype = f"sensor_msgs/msg/{message_type.__name__}"
         for topic in sorted(t for t, m in topics.items() if m == msgtype):
             camera = topic.removesuffix(f"/{suffix}").lstrip("/")
             if not (topic.endswith(f"/{suffix}") and camera):
                 continue
-            other = cameras.get(camera)
-            if other is None or counts.get(topic, 0) or not counts.get(other, 0):
+            chosen = cameras.get(camera)
+            if chosen is None or counts.get(topic, 0) or not counts.get(chosen, 0):
                 cameras[camera] = topic
     return dict(sorted(cameras.items()))
 
