@@ -67,6 +67,7 @@ from marker_localizer.ros.conversions import (
     ENCODINGS,
     ENCODINGS_TEXT,
     IMAGE_TRANSPORTS,
+    POINTS_SUFFIX,
     cloud_to_array,
 )
 from marker_localizer.ros.diagnostics import bit_depth_warning
@@ -75,7 +76,6 @@ from marker_localizer.ros.parameters import NodeConfig, diagnostic_thresholds
 from marker_localizer.ros.processing import FrameProcessor, stamp_to_ns
 
 CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
-POINTS_SUFFIX = "marker_points"
 DIAGNOSTICS_TOPIC = "/diagnostics"
 
 

@@ -111,6 +111,11 @@ IMAGE_TRANSPORTS: dict[str, tuple[str, type[Image] | type[CompressedImage]]] = {
     "raw": ("image_raw", Image),
     "compressed": ("image_raw/compressed", CompressedImage),
 }
+#: The node's other topics under ``<cam>/``: the markers found, the overlay drawn,
+#: and the camera's calibration it reports.
+POINTS_SUFFIX = "marker_points"
+OVERLAY_SUFFIX = "marker_overlay"
+CAMERA_INFO_SUFFIX = "camera_info"
 
 #: Channel order that turns an RGB(A) image into the BGR(A) order the core reads.
 _TO_BGR = {

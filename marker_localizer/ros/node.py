@@ -38,18 +38,26 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.exceptions import InvalidTopicNameException
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.expand_topic_name import expand_topic_name
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
+from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from marker_localizer.config import DetectorConfig, TrackerConfig
-from marker_localizer.errors import MarkerLocalizerError
+from marker_localizer.errors import ConfigError, MarkerLocalizerError, shorten
 from marker_localizer.ros import diagnostics
-from marker_localizer.ros.conversions import IMAGE_TRANSPORTS
+from marker_localizer.ros.conversions import (
+    CAMERA_INFO_SUFFIX,
+    IMAGE_TRANSPORTS,
+    OVERLAY_SUFFIX,
+    POINTS_SUFFIX,
+)
 from marker_localizer.ros.parameters import (
     LiveParameters,
     NodeConfig,
@@ -98,17 +106,21 @@ class MarkerLocalizerNode(Node):
         super().__init__(node_name, **kwargs)
         self._live = LiveParameters(self, self._on_parameters)
         settings = self._live.node_config
+        suffix, image_type = IMAGE_TRANSPORTS[settings.image_transport]
+        self._check_topic_names(
+            settings.cameras, (POINTS_SUFFIX, OVERLAY_SUFFIX, suffix, CAMERA_INFO_SUFFIX)
+        )
         self._thresholds = diagnostic_thresholds(settings)
         self._camera_info: dict[str, CameraInfo] = {}
         self._last_failure_log: dict[str, float] = {}
         # Per camera: when drops were last logged, and the drop counts logged then.
         self._last_drop_log: dict[str, tuple[float, tuple[int, int]]] = {}
         self._points = {
-            c: self.create_publisher(PointCloud2, f"{c}/marker_points", _OUTPUT_DEPTH)
+            c: self.create_publisher(PointCloud2, f"{c}/{POINTS_SUFFIX}", _OUTPUT_DEPTH)
             for c in settings.cameras
         }
         self._overlays = {
-            c: self.create_publisher(Image, f"{c}/marker_overlay", _OUTPUT_DEPTH)
+            c: self.create_publisher(Image, f"{c}/{OVERLAY_SUFFIX}", _OUTPUT_DEPTH)
             for c in settings.cameras
         }
         self.processor = processor_class(
@@ -124,7 +136,6 @@ class MarkerLocalizerNode(Node):
             stats_window_s=settings.stats_window_s,
             tracker_config=self._live.tracker_config,
         )
-        suffix, image_type = IMAGE_TRANSPORTS[settings.image_transport]
         for camera in settings.cameras:
             self.create_subscription(
                 image_type,
@@ -134,7 +145,10 @@ class MarkerLocalizerNode(Node):
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             )
             self.create_subscription(
-                CameraInfo, f"{camera}/camera_info", partial(self._on_camera_info, camera), 1
+                CameraInfo,
+                f"{camera}/{CAMERA_INFO_SUFFIX}",
+                partial(self._on_camera_info, camera),
+                1,
             )
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", _OUTPUT_DEPTH)
         self.create_timer(settings.diagnostics_period_s, self.publish_diagnostics)
@@ -208,6 +222,24 @@ class MarkerLocalizerNode(Node):
     def _info_text(self, camera: str) -> str:
         info = self._camera_info.get(camera)
         return "none received" if info is None else f"{info.width}x{info.height}"
+
+    def _check_topic_names(self, cameras: Sequence[str], suffixes: Sequence[str]) -> None:
+        """ConfigError naming a camera whose topics ROS refuses under this node's namespace.
+
+        The camera names' own rule holds (:class:`NodeConfig`); what it cannot know is
+        the namespace, under which a long name makes a topic name longer than ROS takes.
+        Checked before the workers start, which a refusal later would leave behind.
+        """
+        for camera in cameras:
+            for suffix in suffixes:
+                name = f"{camera}/{suffix}"
+                try:
+                    validate_full_topic_name(
+                        expand_topic_name(name, self.get_name(), self.get_namespace())
+                    )
+                except InvalidTopicNameException as err:
+                    reason = shorten(" ".join(str(err).split()))
+                    raise ConfigError(f"camera {shorten(repr(camera))}: {reason}") from None
 
     def _deliver(self, camera: str, cloud: PointCloud2, overlay: Image | None) -> None:
         self._points[camera].publish(cloud)

@@ -11,6 +11,7 @@ from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import (
     DescribeParameters,
 )
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
 
 from marker_localizer.cli import main as cli_main
@@ -132,6 +133,14 @@ def test_node_and_cli_refuse_an_unknown_detector_key_and_name_it(ros, tmp_path, 
         cli_main(["detect", str(REPO / "docs" / "detection.jpg"), "--params-file", str(path)]) == 1
     )
     assert "unknown parameter(s): marker_radius_maximum_px" in capsys.readouterr().err
+
+
+def test_a_camera_name_too_long_for_a_topic_under_the_namespace_is_refused_naming_it(ros):
+    """The names' own rule cannot see the namespace; rclpy's topic check does."""
+    cameras = [Parameter("cameras", value=["c" * 200]), Parameter("worker_processes", value=False)]
+    MarkerLocalizerNode("short_ns", namespace="/a", parameter_overrides=cameras).destroy_node()
+    with pytest.raises(ConfigError, match=r"camera 'ccc.*topic length should not exceed"):
+        MarkerLocalizerNode("long_ns", namespace="/" + "n" * 50, parameter_overrides=cameras)
 
 
 def test_atomic_request_with_one_invalid_value_applies_nothing(localizer, tester):
