@@ -592,7 +592,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "speed always uses family (d) 4096x3000",
     )
     parser.add_argument(
-        "--subjects", default=None, help=f"comma-separated subset of {','.join(SUBJECTS)}"
+        "--subjects",
+        type=_subject_keys,
+        default=None,
+        help=f"comma-separated subset of {','.join(SUBJECTS)}",
     )
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
@@ -600,16 +603,23 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+def _subject_keys(text: str) -> tuple[str, ...]:
+    """An argparse ``type``: ``--subjects``' comma-separated keys of :data:`SUBJECTS`."""
+    keys = tuple(key.strip() for key in text.split(",") if key.strip())
+    unknown = sorted(set(keys) - set(SUBJECTS))
+    if unknown:
+        raise argparse.ArgumentTypeError(
+            f"unknown subjects {unknown}; choose from {','.join(SUBJECTS)}"
+        )
+    return keys
+
+
 def options_from(args: argparse.Namespace) -> Options:
     """Turn parsed arguments into :class:`Options`."""
     repeats = args.repeats if args.repeats is not None else (1 if args.quick else 3)
     subjects = None
     if args.subjects:
-        keys = [key.strip() for key in args.subjects.split(",") if key.strip()]
-        unknown = sorted(set(keys) - set(SUBJECTS))
-        if unknown:
-            raise SystemExit(f"unknown subjects {unknown}; choose from {','.join(SUBJECTS)}")
-        subjects = tuple(SUBJECTS[key] for key in keys)
+        subjects = tuple(SUBJECTS[key] for key in args.subjects)
     elif args.quick:
         subjects = tuple(available_subjects(include_ncc=False))
     return Options(

@@ -12,6 +12,10 @@ REFUSED = [
     (["bench", "speed", "--frames", "0"], "--frames: must be at least 1, got 0"),
     (["bench", "speed", "--repeats", "0"], "--repeats: must be at least 1, got 0"),
     (["bench", "speed", "--seed", "x"], "--seed: expected an integer, got 'x'"),
+    (
+        ["bench", "speed", "--subjects", "ours,nope"],
+        "--subjects: unknown subjects ['nope', 'ours']",
+    ),
     (["bench", "bound", "--frames", "0"], "--frames: must be at least 1, got 0"),
     (["bench", "bound", "--first-seed", "-1"], "--first-seed: must be at least 0, got -1"),
     (["bench", "paper", "--seed", "-1"], "--seed: must be at least 0, got -1"),
