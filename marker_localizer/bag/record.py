@@ -47,13 +47,19 @@ from std_msgs.msg import Header
 
 from marker_localizer.bag.io import DEFAULT_STORAGE, BagWriter, typestore
 from marker_localizer.core.result import Detection
-from marker_localizer.ros.conversions import array_to_image, bayer_encoding, detections_to_cloud
+from marker_localizer.ros.conversions import (
+    CAMERA_INFO_SUFFIX,
+    IMAGE_TRANSPORTS,
+    array_to_image,
+    bayer_encoding,
+    detections_to_cloud,
+)
 from marker_localizer.synthetic.flight import FlightSimulator, PinholeCamera
 from marker_localizer.synthetic.scene import MarkerTruth
 
-#: Suffixes of the per-camera topics.
-IMAGE_SUFFIX = "image_raw"
-INFO_SUFFIX = "camera_info"
+#: Suffixes of the per-camera topics: the node's inputs (the raw image transport and
+#: the calibration), and the truth beside them.
+IMAGE_SUFFIX = IMAGE_TRANSPORTS["raw"][0]
 TRUTH_SUFFIX = "marker_points_truth"
 PARTIAL_SUFFIX = "marker_points_partial"
 TF_STATIC_TOPIC = "/tf_static"
@@ -195,7 +201,7 @@ def record_flight(
         bag.add_topic(TF_STATIC_TOPIC, "tf2_msgs/msg/TFMessage", [_TF_STATIC_QOS])
         for name in names:
             bag.add_topic(f"/{name}/{IMAGE_SUFFIX}", "sensor_msgs/msg/Image")
-            bag.add_topic(f"/{name}/{INFO_SUFFIX}", "sensor_msgs/msg/CameraInfo")
+            bag.add_topic(f"/{name}/{CAMERA_INFO_SUFFIX}", "sensor_msgs/msg/CameraInfo")
             bag.add_topic(f"/{name}/{TRUTH_SUFFIX}", "sensor_msgs/msg/PointCloud2")
             bag.add_topic(f"/{name}/{PARTIAL_SUFFIX}", "sensor_msgs/msg/PointCloud2")
         first_ns = simulator.poses[0].stamp_ns
@@ -208,7 +214,7 @@ def record_flight(
                 bag.write(
                     f"/{name}/{IMAGE_SUFFIX}", t_ns, array_to_image(view.image, encoding, header)
                 )
-                bag.write(f"/{name}/{INFO_SUFFIX}", t_ns, camera_info(view.camera, header))
+                bag.write(f"/{name}/{CAMERA_INFO_SUFFIX}", t_ns, camera_info(view.camera, header))
                 bag.write(f"/{name}/{TRUTH_SUFFIX}", t_ns, truth_cloud(header, view.markers))
                 bag.write(f"/{name}/{PARTIAL_SUFFIX}", t_ns, truth_cloud(header, view.partial))
                 truth_markers += len(view.markers)
