@@ -52,7 +52,7 @@ from marker_localizer import evaluation
 from marker_localizer.bench import metrics, peers, real_data
 from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
 from marker_localizer.bench.runner import run_and_save
-from marker_localizer.cli.arguments import count_type, seed_type
+from marker_localizer.cli.arguments import comma_keys, count_type, seed_type
 from marker_localizer.core import symmetry_path
 from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import INTERVAL_HEADING, DetectionTally
@@ -1595,6 +1595,7 @@ def parse_args(argv: list[str] | None) -> tuple[Options, Path | None]:
     parser.add_argument("--seed", type=seed_type, default=0, help="base seed")
     parser.add_argument(
         "--families",
+        type=comma_keys(FAMILY_KEYS, "families"),
         default=",".join(FAMILY_KEYS),
         help=f"comma-separated subset of {','.join(FAMILY_KEYS)}",
     )
@@ -1605,15 +1606,11 @@ def parse_args(argv: list[str] | None) -> tuple[Options, Path | None]:
     )
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
     args = parser.parse_args(argv)
-    chosen = tuple(k.strip() for k in args.families.split(",") if k.strip())
-    unknown = sorted(set(chosen) - set(FAMILY_KEYS))
-    if unknown:
-        parser.error(f"unknown families {unknown}; choose from {','.join(FAMILY_KEYS)}")
     options = Options(
         frames=args.frames,
         quick=args.quick,
         seed=args.seed,
-        families=chosen,
+        families=args.families,
         curvature=not args.no_curvature,
         data_root=real_data.data_root(),
     )

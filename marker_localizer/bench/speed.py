@@ -51,7 +51,7 @@ import numpy as np
 
 from marker_localizer.bench import workers
 from marker_localizer.bench.runner import run_and_save
-from marker_localizer.cli.arguments import count_type, seed_type
+from marker_localizer.cli.arguments import comma_keys, count_type, seed_type
 
 #: Subjects in table order, by the short key ``--subjects`` takes; "ours (symmetry)"
 #: is the row every ratio divides by. "paper" (the paper's pipeline end to end, seconds
@@ -593,7 +593,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--subjects",
-        type=_subject_keys,
+        type=comma_keys(tuple(SUBJECTS), "subjects"),
         default=None,
         help=f"comma-separated subset of {','.join(SUBJECTS)}",
     )
@@ -601,17 +601,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--frames-file", type=Path, default=None, help=argparse.SUPPRESS)
     return parser.parse_args(argv)
-
-
-def _subject_keys(text: str) -> tuple[str, ...]:
-    """An argparse ``type``: ``--subjects``' comma-separated keys of :data:`SUBJECTS`."""
-    keys = tuple(key.strip() for key in text.split(",") if key.strip())
-    unknown = sorted(set(keys) - set(SUBJECTS))
-    if unknown:
-        raise argparse.ArgumentTypeError(
-            f"unknown subjects {unknown}; choose from {','.join(SUBJECTS)}"
-        )
-    return keys
 
 
 def options_from(args: argparse.Namespace) -> Options:

@@ -1,14 +1,15 @@
-"""argparse types of the commands' and benchmarks' numbers, checked where they are read.
+"""argparse types of the commands' and benchmarks' numbers and keys, checked where read.
 
-A count of 0, a negative seed or a run of no seconds is then one usage line (exit 2)
-naming the option, not a traceback from deep inside a run or a table of no figures.
+A count of 0, a negative seed, a run of no seconds or an unknown key is then one usage
+line (exit 2) naming the option, not a traceback from deep inside a run or a table of
+no figures.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 
 def int_at_least(low: int) -> Callable[[str], int]:
@@ -35,6 +36,21 @@ def positive_float(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"must be a finite number above 0, got {text}")
     return value
+
+
+def comma_keys(choices: Sequence[str], what: str) -> Callable[[str], tuple[str, ...]]:
+    """An argparse ``type``: comma-separated keys of ``choices``, refused by ``what`` they are."""
+
+    def parse(text: str) -> tuple[str, ...]:
+        keys = tuple(key.strip() for key in text.split(",") if key.strip())
+        unknown = sorted(set(keys) - set(choices))
+        if unknown:
+            raise argparse.ArgumentTypeError(
+                f"unknown {what} {unknown}; choose from {','.join(choices)}"
+            )
+        return keys
+
+    return parse
 
 
 #: How many of something a run makes or repeats (frames, repeats, workers, pixels).

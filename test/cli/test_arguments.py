@@ -1,4 +1,4 @@
-"""Counts, seeds and durations on the command line: refused where they are read."""
+"""Counts, seeds, durations and keys on the command line: refused where they are read."""
 
 import pytest
 
@@ -16,6 +16,7 @@ REFUSED = [
         ["bench", "speed", "--subjects", "ours,nope"],
         "--subjects: unknown subjects ['nope', 'ours']",
     ),
+    (["bench", "accuracy", "--families", "a,zz"], "--families: unknown families ['zz']"),
     (["bench", "bound", "--frames", "0"], "--frames: must be at least 1, got 0"),
     (["bench", "bound", "--first-seed", "-1"], "--first-seed: must be at least 0, got -1"),
     (["bench", "paper", "--seed", "-1"], "--seed: must be at least 0, got -1"),
