@@ -1,7 +1,7 @@
 """Whether a fitted candidate is a marker: one decision, from evidence that survives the field.
 
 Every candidate that reaches this stage carries a fit of the adaptive template
-over the whole X it shows (:func:`~marker_localizer.core.subpixel.fit_growing_template`).
+over the whole X it shows (:func:`~marker_localizer.core.template_fit.fit_growing_template`).
 The decision reads only what a worn, dirty or half-shadowed marker keeps:
 
 * the geometry: two straight lines that cross at the centre and reach as far on
@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from marker_localizer.core import template, verification
 from marker_localizer.core.noise import NoiseModel
-from marker_localizer.core.subpixel import GrownFit, TemplateFit
+from marker_localizer.core.template_fit import GrownFit, TemplateFit
 
 #: Why a candidate was rejected, in the order the tests run; the pipeline counts
 #: each as ``rejected_<reason>``.

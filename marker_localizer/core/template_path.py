@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from marker_localizer.config import DetectorConfig
-from marker_localizer.core import decision, screening, subpixel, template, verification
+from marker_localizer.core import decision, screening, template, template_fit, verification
 from marker_localizer.core.frame import StageTimer
 from marker_localizer.core.noise import NoiseModel
 from marker_localizer.core.result import DetectionResult, detections_of
@@ -50,7 +50,7 @@ _DECISION_PIXELS = 300
 #: few pixels long (the check upsamples small windows).
 _LINE_WINDOW_MIN_PX = 3.0
 #: The most candidates of a frame whose template fit grows past its first disk
-#: (:func:`subpixel.fit_growing_template`: 3-10 ms each on one core, where texture
+#: (:func:`template_fit.fit_growing_template`: 3-10 ms each on one core, where texture
 #: stops at the first disk for about 0.2 ms). Over it, those whose weakest edge
 #: stands out least are cut, spread over the frame as Eq. (7)'s thinning spreads
 #: them (:class:`_CappedGrowth`), and counted. Twice what real ground grows: at
@@ -190,7 +190,7 @@ class TemplatePath:
 
         Fills ``result``'s detections, counts and verdicts. Each candidate's
         template grows from inside its X out to where the lines end
-        (:func:`subpixel.fit_growing_template`); :func:`decision.decide` reads the
+        (:func:`template_fit.fit_growing_template`); :func:`decision.decide` reads the
         evidence and accepts at the threshold of ``false_points_per_mp``; the
         accepted are fitted again on every pixel of their X for their position.
         """
@@ -200,7 +200,7 @@ class TemplatePath:
             shape = template.TemplateShape.start(xy, angles, _FIT_START_BLUR_PX)
             level = nearest_pixels(gray, xy)
             growth = _CappedGrowth(MAX_GROWN, cfg.entropy_cell_px)
-            grown = subpixel.fit_growing_template(
+            grown = template_fit.fit_growing_template(
                 gray,
                 shape,
                 start_radius,
@@ -215,7 +215,7 @@ class TemplatePath:
             )
             if cut:
                 kept = ~growth.cut
-                grown = subpixel.GrownFit(
+                grown = template_fit.GrownFit(
                     grown.fit.take(kept), grown.extents[kept], grown.grown[kept]
                 )
                 xy, start_radius = xy[kept], start_radius[kept]
@@ -234,7 +234,7 @@ class TemplatePath:
             result.verdicts = decision.Verdicts(grown.fit.shape.xy, verdict, evidence)
         with timer("subpixel"):
             accepted = verdict.accepted
-            fit = subpixel.refit_on_every_pixel(gray, grown, accepted, cfg.marker_radius_max_px)
+            fit = template_fit.refit_on_every_pixel(gray, grown, accepted, cfg.marker_radius_max_px)
             position = fit.shape.xy
             sigma = np.sqrt(np.maximum(fit.covariance[:, 0, 0] + fit.covariance[:, 1, 1], 0.0))
             keep = np.flatnonzero(accepted)
@@ -260,7 +260,7 @@ class TemplatePath:
 class _CappedGrowth:
     """:func:`decision.worth_growing`, for at most ``limit`` of a frame's candidates.
 
-    :func:`subpixel.fit_growing_template` asks it first about every candidate. Of
+    :func:`template_fit.fit_growing_template` asks it first about every candidate. Of
     those worth growing, the ``limit`` it keeps are taken cell by cell, those whose
     weakest edge stands out most first (:func:`screening.even_cap_index`); the rest
     are marked in :attr:`cut`. Later steps ask about the kept alone.
@@ -275,7 +275,7 @@ class _CappedGrowth:
         self._asked = False
 
     def __call__(
-        self, fit: subpixel.TemplateFit, extents: NDArray[np.float64]
+        self, fit: template_fit.TemplateFit, extents: NDArray[np.float64]
     ) -> NDArray[np.bool_]:
         grow = decision.worth_growing(fit, extents)
         if self._asked:

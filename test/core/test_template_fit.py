@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from marker_localizer.core import subpixel, template
+from marker_localizer.core import template, template_fit
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 from marker_localizer.synthetic.scene import CastShadow
 
@@ -72,9 +72,9 @@ def _fit(
     angles: np.ndarray,
     radius: float = 12.0,
     noise: float | None = None,
-) -> subpixel.GrownFit:
+) -> template_fit.GrownFit:
     start = template.TemplateShape.start(xy[None], angles[None], 1.0)
-    return subpixel.fit_growing_template(
+    return template_fit.fit_growing_template(
         image,
         start,
         np.array([4.0]),
@@ -141,10 +141,10 @@ def test_a_point_s_fit_does_not_depend_on_the_sizes_of_the_regions_fitted_beside
     start = template.TemplateShape.start(
         np.array([[41.0, 39.0], [40.0, 40.0]]), np.array([[0.2, 1.9], [0.4, 1.8]]), 1.0
     )
-    small, large = subpixel.disk_region(3.0), subpixel.disk_region(10.0)
-    together = subpixel.fit_template(image, start, [small, large])
+    small, large = template_fit.disk_region(3.0), template_fit.disk_region(10.0)
+    together = template_fit.fit_template(image, start, [small, large])
     for row, region in enumerate((small, large)):
-        alone = subpixel.fit_template(image, start.take(np.array([row])), [region])
+        alone = template_fit.fit_template(image, start.take(np.array([row])), [region])
         np.testing.assert_allclose(together.shape.xy[row], alone.shape.xy[0], atol=1e-12)
         np.testing.assert_allclose(together.levels[row], alone.levels[0], atol=1e-9)
 
@@ -154,8 +154,10 @@ def test_a_refit_on_every_pixel_changes_only_the_accepted_markers():
     start = template.TemplateShape.start(
         np.array([[41.0, 39.0], [41.0, 39.0]]), np.array([[0.2, 1.9], [0.2, 1.9]]), 1.0
     )
-    grown = subpixel.fit_growing_template(image, start, np.array([4.0, 4.0]), 12.0, max_pixels=30)
-    refit = subpixel.refit_on_every_pixel(image, grown, np.array([True, False]), 12.0)
+    grown = template_fit.fit_growing_template(
+        image, start, np.array([4.0, 4.0]), 12.0, max_pixels=30
+    )
+    refit = template_fit.refit_on_every_pixel(image, grown, np.array([True, False]), 12.0)
     np.testing.assert_array_equal(refit.shape.xy[1], grown.fit.shape.xy[1])
     assert np.hypot(*(refit.shape.xy[0] - (40.3, 39.6))) < 0.01
     assert not np.array_equal(refit.shape.xy[0], grown.fit.shape.xy[0])
@@ -207,19 +209,19 @@ def _sharp_x_fit(seed: int) -> tuple[float, float]:
     start = template.TemplateShape.start(
         np.array([[x + 0.4, y - 0.3]]), np.array([[rotation + 0.05, rotation + 1.53]]), 1.0
     )
-    region = subpixel.disk_region(9.0)
-    fit = subpixel.fit_template(image, start, [region])
-    assert np.allclose(fit.shape.blur_px, subpixel._MIN_BLUR_PX)
+    region = template_fit.disk_region(9.0)
+    fit = template_fit.fit_template(image, start, [region])
+    assert np.allclose(fit.shape.blur_px, template_fit._MIN_BLUR_PX)
     pixels = np.round(start.xy)[:, None, :] + region[None]
     values = image[pixels[0, :, 1].astype(int), pixels[0, :, 0].astype(int)][None].astype(float)
     weight = np.ones_like(values)
     # Without a shadow its four parameters stay out of the fit.
     free = np.arange(template.SHAPE_PARAMETERS) < 8
-    lower, upper = subpixel._template_bounds()
+    lower, upper = template_fit._template_bounds()
     params = template.shape_parameters(start)[0]
 
-    def state(geometry: np.ndarray) -> subpixel._TemplateState:
-        return subpixel._template_residuals(
+    def state(geometry: np.ndarray) -> template_fit._TemplateState:
+        return template_fit._template_residuals(
             values, weight, pixels, np.hstack([geometry, params[8:]])[None], free[None]
         )
 
