@@ -51,7 +51,7 @@ class Detector:
     def __init__(self, config: DetectorConfig | None = None) -> None:
         self.config = config or DetectorConfig()
         self._search = CandidateSearch(self.config)
-        self._symmetry = SymmetryPath(self.config)
+        self._symmetry = SymmetryPath(self.config, self._search.shadowed)
         self._template = TemplatePath(self.config)
         self._paper = PaperPath(self.config, self._symmetry, self._template)
 

@@ -37,7 +37,9 @@ class CandidateSearch:
     def __init__(self, config: DetectorConfig) -> None:
         self.config = config
         self._radius_range = (config.marker_radius_min_px, config.marker_radius_max_px)
-        self._shadowed = preprocessing.ShadowedContrast(
+        #: How far the raw contrast floors follow the light into a shadow: the
+        #: screening's threshold, and the later stages' floors (:class:`SymmetryPath`).
+        self.shadowed = preprocessing.ShadowedContrast(
             config.min_contrast_share, config.min_modulation
         )
         first_level = screening.saddle_levels(self._radius_range).start
@@ -184,7 +186,7 @@ class CandidateSearch:
         :meth:`preprocessing.ShadowedContrast.gain` of the local mean there.
         """
         origin = np.asarray(origin_px, np.float64)
-        gain = self._shadowed.gain
+        gain = self.shadowed.gain
         # The gain falls as the mean rises: the darkest means bound it from above.
         return screening.ShadowGain(
             lambda xy: gain(gamma.mean_at(xy + origin)),

@@ -121,7 +121,15 @@ class _RingPassed(NamedTuple):
 class SymmetryPath:
     """The default path's checks, fit and second readings of one detector's config; build once."""
 
-    def __init__(self, config: DetectorConfig) -> None:
+    def __init__(self, config: DetectorConfig, shadowed: preprocessing.ShadowedContrast) -> None:
+        """Build the path for ``config``.
+
+        Args:
+            config: the detector's parameters.
+            shadowed: the screening's :attr:`~search.CandidateSearch.shadowed`: the
+                prescreen's ring floor, the fit's contrast floor and the double-line
+                check follow the light into a shadow as the screening's threshold does.
+        """
         self.config = config
         #: The ring check's ladder of radii (:func:`verification.ring_radii`), px; the
         #: paper's annular check reads the same rings.
@@ -137,9 +145,7 @@ class SymmetryPath:
             config.min_modulation,
             config.template_ncc_min,
         )
-        self._shadowed = preprocessing.ShadowedContrast(
-            config.min_contrast_share, config.min_modulation
-        )
+        self._shadowed = shadowed
 
     def prescreen(self, frame: Frame, candidates: Candidates) -> Candidates:
         """A three-ring centre-symmetry test at each candidate's own scale, before any fit.
