@@ -49,7 +49,6 @@ Guarantees:
 
 from __future__ import annotations
 
-import ctypes
 import multiprocessing
 import os
 import signal
@@ -68,6 +67,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
+from marker_localizer.blas import single_thread_blas
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.core.image import peak_level
 from marker_localizer.core.pipeline import Detector
@@ -106,14 +106,6 @@ _SHARED_MEMORY_DIR = "/dev/shm"
 #: the pages, then takes them back), and Fast DDS's transport shares it; at the
 #: cameras' 4-20 Hz room freed since is still found within seconds.
 NO_ROOM_RETRY_FRAMES = 50
-#: OpenBLAS's setter of its thread count, by build: numpy's and scipy's wheels
-#: (scipy-openblas, 64- and 32-bit integers), older wheels, the distributions' libopenblas.
-_OPENBLAS_SETTERS = (
-    "scipy_openblas_set_num_threads64_",
-    "scipy_openblas_set_num_threads",
-    "openblas_set_num_threads64_",
-    "openblas_set_num_threads",
-)
 
 
 @dataclass(frozen=True)
@@ -124,35 +116,6 @@ class _Frame:
     #: Since when the camera's mailbox has been non-empty: a replacement keeps it,
     #: so a camera whose frames keep being replaced is not pushed back in the queue.
     waiting_since_ns: int
-
-
-def single_thread_blas() -> list[str]:
-    """Limit every OpenBLAS loaded in this process to one thread, from now on.
-
-    The workers are the parallelism, one per core. OpenBLAS's own threads
-    would only compete with them, and they spin while they wait: two workers
-    whose numpy and scipy each ran two BLAS threads did 0.5-0.8x the frames a
-    second of the same workers with one (docs/speed.md, "Worker processes").
-    ``OPENBLAS_NUM_THREADS`` acts only before numpy loads, so the loaded
-    libraries are asked instead. Linux only (the libraries are found in
-    /proc/self/maps); another BLAS (MKL) is left as it is.
-
-    Returns:
-        The paths of the libraries limited.
-    """
-    try:
-        with open("/proc/self/maps") as maps:
-            paths = {line.split()[-1] for line in maps if "openblas" in line.lower()}
-    except OSError:
-        return []
-    limited = []
-    for path in sorted(p for p in paths if p.startswith("/")):
-        library = ctypes.CDLL(path)
-        setter = next((getattr(library, n) for n in _OPENBLAS_SETTERS if hasattr(library, n)), None)
-        if setter is not None:
-            setter(1)
-            limited.append(path)
-    return limited
 
 
 def _reserve_pages(block: shared_memory.SharedMemory) -> None:

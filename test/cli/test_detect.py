@@ -6,6 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from blas_threads import openblas_threads, set_openblas_threads
 
 from marker_localizer.cli import main
 from marker_localizer.synthetic.scene import bayer_gain
@@ -34,6 +35,17 @@ def test_detect_json_prints_one_object_per_image_with_the_contract_keys(x_image,
     assert set(marker) == {"x", "y", "score", "sigma", "angles"}
     assert marker["x"] == pytest.approx(31.5, abs=1e-3) and len(marker["angles"]) == 2
     assert second["markers"] == []
+
+
+def test_detect_runs_on_one_blas_thread(x_image, capsys):
+    """BLAS's threads would spin beside the detector's small products (marker_localizer.blas)."""
+    path, _image = x_image
+    set_openblas_threads(2)
+    threaded = [library for library, count in openblas_threads().items() if count == 2]
+    if not threaded:
+        pytest.skip("no OpenBLAS here takes a second thread")
+    assert main(["detect", str(path)]) == 0
+    assert [openblas_threads()[library] for library in threaded] == [1] * len(threaded)
 
 
 def test_colour_and_16_bit_files_are_converted(x_image, tmp_path, capsys):

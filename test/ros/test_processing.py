@@ -1,7 +1,6 @@
 """FrameProcessor, the node's and replay's worker pool: mailboxes, order, age, failures, stop."""
 
 import array
-import ctypes
 import errno
 import os
 import signal
@@ -27,7 +26,7 @@ from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ImageError
 from marker_localizer.ros import processing
 from marker_localizer.ros.diagnostics import DiagnosticThresholds
-from marker_localizer.ros.processing import FrameProcessor, single_thread_blas
+from marker_localizer.ros.processing import FrameProcessor
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 
 # --------------------------------------------------------------------------- FrameProcessor
@@ -428,22 +427,3 @@ def test_a_worker_asks_shared_memory_for_room_again_after_some_frames(full_tmpfs
     assert asked_with_room_gone == 2
     assert processor.frames_pickled == 6
     assert [sec for _, sec, _ in collect.results] == list(range(1, 9))
-
-
-def test_single_thread_blas_leaves_every_loaded_openblas_one_thread():
-    limited = single_thread_blas()
-    # numpy's and scipy's wheels each bring an OpenBLAS.
-    assert len(limited) >= 2
-    for path in limited:
-        library = ctypes.CDLL(path)
-        getter = next(
-            getattr(library, name)
-            for name in (
-                "scipy_openblas_get_num_threads64_",
-                "scipy_openblas_get_num_threads",
-                "openblas_get_num_threads64_",
-                "openblas_get_num_threads",
-            )
-            if hasattr(library, name)
-        )
-        assert getter() == 1

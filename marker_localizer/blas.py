@@ -1,0 +1,49 @@
+"""One BLAS thread for a process that detects: the detector's matrices are small.
+
+The detector's matrix products and solves are a few hundred rows each. OpenBLAS
+runs them on as many threads as there are cores, and its threads spin while they
+wait for the next one: a detection takes as long on one thread and half the
+processor time (docs/speed.md, "Worker processes" and "One BLAS thread for the
+command line"), and processes detecting side by side compete with each
+other's spinning threads. The node's worker processes and ``marker-localizer
+detect`` take one thread; a program that calls the library decides for itself
+(``OPENBLAS_NUM_THREADS=1`` before numpy loads, or :func:`single_thread_blas`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+
+#: OpenBLAS's setter of its thread count, by build: numpy's and scipy's wheels
+#: (scipy-openblas, 64- and 32-bit integers), older wheels, the distributions' libopenblas.
+_OPENBLAS_SETTERS = (
+    "scipy_openblas_set_num_threads64_",
+    "scipy_openblas_set_num_threads",
+    "openblas_set_num_threads64_",
+    "openblas_set_num_threads",
+)
+
+
+def single_thread_blas() -> list[str]:
+    """Limit every OpenBLAS loaded in this process to one thread, from now on.
+
+    ``OPENBLAS_NUM_THREADS`` acts only before numpy loads, so the loaded
+    libraries are asked instead. Linux only (the libraries are found in
+    /proc/self/maps); another BLAS (MKL) is left as it is.
+
+    Returns:
+        The paths of the libraries limited.
+    """
+    try:
+        with open("/proc/self/maps") as maps:
+            paths = {line.split()[-1] for line in maps if "openblas" in line.lower()}
+    except OSError:
+        return []
+    limited = []
+    for path in sorted(p for p in paths if p.startswith("/")):
+        library = ctypes.CDLL(path)
+        setter = next((getattr(library, n) for n in _OPENBLAS_SETTERS if hasattr(library, n)), None)
+        if setter is not None:
+            setter(1)
+            limited.append(path)
+    return limited
