@@ -36,7 +36,7 @@ def single_thread_blas() -> list[str]:
     """
     try:
         with open("/proc/self/maps") as maps:
-            paths = {line.split()[-1] for line in maps if "openblas" in line.lower()}
+            paths = {_mapped_path(line) for line in maps if "openblas" in line.lower()}
     except OSError:
         return []
     limited = []
@@ -47,3 +47,13 @@ def single_thread_blas() -> list[str]:
             setter(1)
             limited.append(path)
     return limited
+
+
+def _mapped_path(line: str) -> str:
+    """The file a line of /proc/self/maps maps ("" for none): its sixth field, spaces and all.
+
+    Address, permissions, offset, device and inode come first; a venv under a folder
+    whose name holds a space puts spaces in the path.
+    """
+    fields = line.rstrip("\n").split(maxsplit=5)
+    return fields[5] if len(fields) == 6 else ""

@@ -2,14 +2,14 @@
 
 import ctypes
 
-from marker_localizer.blas import _OPENBLAS_SETTERS
+from marker_localizer.blas import _OPENBLAS_SETTERS, _mapped_path
 
 _GETTERS = tuple(name.replace("_set_", "_get_") for name in _OPENBLAS_SETTERS)
 
 
 def _loaded() -> dict[str, ctypes.CDLL]:
     with open("/proc/self/maps") as maps:
-        paths = {line.split()[-1] for line in maps if "openblas" in line.lower()}
+        paths = {_mapped_path(line) for line in maps if "openblas" in line.lower()}
     return {path: ctypes.CDLL(path) for path in sorted(p for p in paths if p.startswith("/"))}
 
 
