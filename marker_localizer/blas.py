@@ -23,6 +23,9 @@ _OPENBLAS_SETTERS = (
     "openblas_set_num_threads",
 )
 
+#: What /proc/self/maps appends to the path of a file deleted since it was mapped.
+_DELETED = " (deleted)"
+
 
 def single_thread_blas() -> list[str]:
     """Limit every OpenBLAS loaded in this process to one thread, from now on.
@@ -41,7 +44,10 @@ def single_thread_blas() -> list[str]:
         return []
     limited = []
     for path in sorted(p for p in paths if p.startswith("/")):
-        library = ctypes.CDLL(path)
+        try:
+            library = ctypes.CDLL(path)
+        except OSError:  # gone or unreadable since it was mapped: nothing to ask
+            continue
         setter = next((getattr(library, n) for n in _OPENBLAS_SETTERS if hasattr(library, n)), None)
         if setter is not None:
             setter(1)
@@ -53,7 +59,11 @@ def _mapped_path(line: str) -> str:
     """The file a line of /proc/self/maps maps ("" for none): its sixth field, spaces and all.
 
     Address, permissions, offset, device and inode come first; a venv under a folder
-    whose name holds a space puts spaces in the path.
+    whose name holds a space puts spaces in the path. A file deleted since it was
+    mapped (a venv reinstalled under a running node) is marked " (deleted)": there
+    is no file left to ask, and it reads as none.
     """
     fields = line.rstrip("\n").split(maxsplit=5)
-    return fields[5] if len(fields) == 6 else ""
+    if len(fields) < 6 or fields[5].endswith(_DELETED):
+        return ""
+    return fields[5]

@@ -6,7 +6,7 @@ import shutil
 import numpy as np
 from blas_threads import openblas_threads, set_openblas_threads
 
-from marker_localizer.blas import single_thread_blas
+from marker_localizer.blas import _mapped_path, single_thread_blas
 
 
 def test_single_thread_blas_leaves_every_loaded_openblas_one_thread():
@@ -31,3 +31,24 @@ def test_an_openblas_under_a_folder_whose_name_holds_spaces_is_limited_too(tmp_p
     set_openblas_threads(2)
     assert str(copy) in single_thread_blas()
     assert openblas_threads()[str(copy)] == 1
+
+
+def test_a_maps_line_gives_its_path_whole_and_a_deleted_file_none():
+    start = "7f1c2a000000-7f1c2a200000 r-xp 00000000 fe:00 1234"
+    spaced = "/home/a b/venv/libopenblas.so"
+    assert _mapped_path(f"{start}    {spaced}\n") == spaced
+    assert _mapped_path(f"{start}    /opt/libopenblas.so (deleted)\n") == ""
+    assert _mapped_path("7f1c2a000000-7f1c2a200000 rw-p 00000000 00:00 0\n") == ""
+
+
+def test_an_openblas_deleted_since_it_was_loaded_is_passed_over(tmp_path):
+    """A venv reinstalled under a running node: a worker started then still maps the old one."""
+    np.ones((64, 64)) @ np.ones((64, 64))
+    numpys = next(path for path in openblas_threads() if "numpy" in path)
+    copy = tmp_path / "libopenblas_gone.so"
+    shutil.copy(numpys, copy)
+    ctypes.CDLL(str(copy))
+    copy.unlink()
+    limited = single_thread_blas()
+    assert numpys in limited
+    assert not any("libopenblas_gone" in path for path in limited)
