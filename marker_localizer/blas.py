@@ -13,6 +13,8 @@ detect`` take one thread; a program that calls the library decides for itself
 from __future__ import annotations
 
 import ctypes
+from collections.abc import Sequence
+from typing import Any
 
 #: OpenBLAS's setter of its thread count, by build: numpy's and scipy's wheels
 #: (scipy-openblas, 64- and 32-bit integers), older wheels, the distributions' libopenblas.
@@ -31,28 +33,43 @@ def single_thread_blas() -> list[str]:
     """Limit every OpenBLAS loaded in this process to one thread, from now on.
 
     ``OPENBLAS_NUM_THREADS`` acts only before numpy loads, so the loaded
-    libraries are asked instead. Linux only (the libraries are found in
-    /proc/self/maps); another BLAS (MKL) is left as it is.
+    libraries are asked instead (:func:`loaded_openblas`); another BLAS (MKL) is
+    left as it is.
 
     Returns:
         The paths of the libraries limited.
+    """
+    limited = []
+    for path, library in loaded_openblas().items():
+        setter = library_function(library, _OPENBLAS_SETTERS)
+        if setter is not None:
+            setter(1)
+            limited.append(path)
+    return limited
+
+
+def loaded_openblas() -> dict[str, ctypes.CDLL]:
+    """Every OpenBLAS mapped into this process that can be opened, by path, in path order.
+
+    Linux only: the libraries are found in /proc/self/maps (none elsewhere).
     """
     try:
         with open("/proc/self/maps") as maps:
             paths = {_mapped_path(line) for line in maps if "openblas" in line.lower()}
     except OSError:
-        return []
-    limited = []
+        return {}
+    libraries = {}
     for path in sorted(p for p in paths if p.startswith("/")):
         try:
-            library = ctypes.CDLL(path)
+            libraries[path] = ctypes.CDLL(path)
         except OSError:  # gone or unreadable since it was mapped: nothing to ask
             continue
-        setter = next((getattr(library, n) for n in _OPENBLAS_SETTERS if hasattr(library, n)), None)
-        if setter is not None:
-            setter(1)
-            limited.append(path)
-    return limited
+    return libraries
+
+
+def library_function(library: ctypes.CDLL, names: Sequence[str]) -> Any | None:
+    """The first of ``names`` that ``library`` exports (builds name their symbols apart)."""
+    return next((getattr(library, name) for name in names if hasattr(library, name)), None)
 
 
 def _mapped_path(line: str) -> str:

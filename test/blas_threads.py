@@ -1,23 +1,15 @@
 """The thread counts of the OpenBLAS libraries loaded in this process, read and set."""
 
-import ctypes
-
-from marker_localizer.blas import _OPENBLAS_SETTERS, _mapped_path
+from marker_localizer.blas import _OPENBLAS_SETTERS, library_function, loaded_openblas
 
 _GETTERS = tuple(name.replace("_set_", "_get_") for name in _OPENBLAS_SETTERS)
-
-
-def _loaded() -> dict[str, ctypes.CDLL]:
-    with open("/proc/self/maps") as maps:
-        paths = {_mapped_path(line) for line in maps if "openblas" in line.lower()}
-    return {path: ctypes.CDLL(path) for path in sorted(p for p in paths if p.startswith("/"))}
 
 
 def openblas_threads() -> dict[str, int]:
     """Each loaded OpenBLAS (that tells) by path: its thread count."""
     counts = {}
-    for path, library in _loaded().items():
-        getter = next((getattr(library, n) for n in _GETTERS if hasattr(library, n)), None)
+    for path, library in loaded_openblas().items():
+        getter = library_function(library, _GETTERS)
         if getter is not None:
             counts[path] = getter()
     return counts
@@ -25,7 +17,7 @@ def openblas_threads() -> dict[str, int]:
 
 def set_openblas_threads(count: int) -> None:
     """Give every loaded OpenBLAS ``count`` threads."""
-    for library in _loaded().values():
-        setter = next((getattr(library, n) for n in _OPENBLAS_SETTERS if hasattr(library, n)), None)
+    for library in loaded_openblas().values():
+        setter = library_function(library, _OPENBLAS_SETTERS)
         if setter is not None:
             setter(count)
