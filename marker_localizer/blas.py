@@ -5,8 +5,9 @@ runs them on as many threads as there are cores, and its threads spin while they
 wait for the next one: a detection takes as long on one thread and half the
 processor time (docs/speed.md, "Worker processes" and "One BLAS thread for the
 command line"), and processes detecting side by side compete with each
-other's spinning threads. The node's worker processes and ``marker-localizer
-detect`` take one thread; a program that calls the library decides for itself
+other's spinning threads. The processes this package owns take one thread: the
+node's (its ``main``) and its worker processes, ``marker-localizer detect`` and
+``replay``; a program that calls the library decides for itself
 (``OPENBLAS_NUM_THREADS=1`` before numpy loads, or :func:`single_thread_blas`).
 """
 

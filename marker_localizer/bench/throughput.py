@@ -16,6 +16,8 @@ The ground is the speed benchmark's clutter (radius 6-40 px), or with
 3 30``: its oblique views hold markers of 4 to 20 px).
 The cameras run in their own process, as camera drivers do: the 12 MB
 messages they build and serialise do not take this process's cores.
+This process takes one BLAS thread, as the node's ``main`` does for its own
+(:mod:`marker_localizer.blas`): with ``--worker-threads`` the detector runs here.
 
 Publishing stops, the frames already in the node are finished, and the run
 reports:
@@ -62,6 +64,7 @@ from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.bench import speed
+from marker_localizer.blas import single_thread_blas
 from marker_localizer.cli.arguments import count_type, positive_float
 from marker_localizer.config import TrackerConfig
 from marker_localizer.ros.conversions import array_to_image
@@ -490,6 +493,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             flush=True,
         )
         grounds = GROUNDS[args.ground](args.width, args.height, Path(directory))
+        # This process runs the node as the node's main() does (worker threads detect here).
+        single_thread_blas()
         rclpy.init()
         try:
             results = []

@@ -23,6 +23,7 @@ from marker_localizer.bag.play import NODE_NAME as PLAYER_NODE_NAME
 from marker_localizer.bag.play import PlayOptions, PlayReport, play_bag
 from marker_localizer.bag.record import record_flight
 from marker_localizer.bag.replay import format_report, replay_bag
+from marker_localizer.blas import single_thread_blas
 from marker_localizer.cli.arguments import seed_type
 from marker_localizer.cli.exits import EXIT_INCOMPLETE, PROG
 from marker_localizer.cli.progress import ProgressBar
@@ -225,6 +226,8 @@ def replay(argv: Sequence[str]) -> int:
         tracking = from_mapping(
             load_params_file(args.params_file, namespace=TRACKER_NAMESPACE), base=tracking
         )
+    # With --worker-threads the detector runs in this process (marker_localizer.blas).
+    single_thread_blas()
     bar = ProgressBar(0, "replay")
     try:
         report = replay_bag(

@@ -49,6 +49,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
+from marker_localizer.blas import single_thread_blas
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ConfigError, MarkerLocalizerError, shorten
 from marker_localizer.ros import diagnostics
@@ -299,6 +300,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="ROS 2 node localising diagonal ground markers; configure it with "
         "--ros-args -p name:=value or --params-file config/marker_localizer.yaml.",
     ).parse_args(own_args)
+    # The process is the node's: with worker threads (worker_processes:=false) the
+    # detector runs here, and BLAS's threads would spin beside its small products.
+    single_thread_blas()
     # rclpy's own handlers would shut the context down before the pool drains;
     # ours only set a flag, so frames in flight are still published.
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)

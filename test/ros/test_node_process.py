@@ -1,5 +1,6 @@
 """The node as a separate process, started as a user starts it: serve, stop on a signal, fail."""
 
+import json
 import os
 import signal
 import subprocess
@@ -76,6 +77,58 @@ def test_node_process_serves_a_frame_and_stops_cleanly_on_signal(ros, launcher, 
     assert process.returncode == 0, stderr
     assert "Traceback" not in stderr + stdout
     assert "stopped" in stderr + stdout
+
+
+#: The node's main() in a process that first gives every OpenBLAS two threads and, at
+#: exit, prints their thread counts as given and as the node left them.
+_BLAS_REPORTING_NODE = f"""
+import atexit, json, sys
+sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r})
+from blas_threads import openblas_threads, set_openblas_threads
+set_openblas_threads(2)
+given = openblas_threads()
+atexit.register(lambda: print(json.dumps({{"given": given, "left": openblas_threads()}})))
+from marker_localizer.ros.node import main
+sys.exit(main())
+"""
+
+
+def test_node_process_serves_worker_threads_on_one_blas_thread(ros):
+    """With worker_processes:=false the detector runs in the node's own process."""
+    process = subprocess.Popen(
+        node_command(
+            [sys.executable, "-c", _BLAS_REPORTING_NODE],
+            "-p",
+            "cameras:=[cam0]",
+            "-p",
+            "workers:=1",
+            "-p",
+            "worker_processes:=false",
+        ),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    tester = Peer("blas_tester", "/")
+    try:
+        rendered = scene(1280, 960, 3, 12)
+        tester.listen("/cam0/marker_points", PointCloud2)
+        frame = tester.frame(rendered.image, frame_id="cam0_optical")
+        tester.publish("/cam0/image_raw", frame)
+        assert_matches_truth(
+            points_xy(tester.result_for("/cam0/marker_points", frame.header, timeout_s=60.0)),
+            rendered.centres,
+        )
+    finally:
+        process.send_signal(signal.SIGINT)
+        stdout, stderr = process.communicate(timeout=TIMEOUT_S)
+        tester.stop()
+    assert process.returncode == 0, stderr
+    threads = json.loads(stdout.strip().splitlines()[-1])
+    threaded = [library for library, count in threads["given"].items() if count == 2]
+    if not threaded:
+        pytest.skip("no OpenBLAS here takes a second thread")
+    assert [threads["left"][library] for library in threaded] == [1] * len(threaded)
 
 
 def test_node_process_exits_with_status_1_on_invalid_configuration():
