@@ -8,6 +8,7 @@ import dataclasses
 import itertools
 import warnings
 from collections.abc import Iterable
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -45,6 +46,11 @@ from marker_localizer.synthetic import (
     render_scene,
 )
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
+
+#: ``<repo>/../shared/data`` beside this checkout: the package under test may be installed
+#: elsewhere (the pinned virtual environments' ``pip install .``), and its own default
+#: would then look beside site-packages.
+SHARED_DATA = real_data.data_root(Path(__file__).resolve().parents[2])
 
 
 def test_the_corner_of_a_2x2_checkerboard_is_exactly_between_the_four_pixels():
@@ -576,12 +582,12 @@ def test_texture_xs_near_their_floor_whose_plate_leaves_most_of_a_quartic_are_re
     assert rejected >= loose_rejected + 4
 
 
-@pytest.mark.skipif(real_data.data_root() is None, reason="../shared/data is absent")
+@pytest.mark.skipif(SHARED_DATA is None, reason="../shared/data is absent")
 def test_chessboard_corners_near_their_floor_are_kept_by_their_neighbours(monkeypatch):
     # pycbd's warped board at 10-80 px: six corners, read at 57 px under squares of
     # 190 px, score just over their floor and have no plate (the squares go on); each
     # has a neighbouring corner within 4 extents, and all are kept.
-    image = real_data.read_gray(real_data.data_root() / "pycbd" / "warped.jpg")
+    image = real_data.read_gray(SHARED_DATA / "pycbd" / "warped.jpg")
     detector = Detector(DetectorConfig(marker_radius_min_px=10.0, marker_radius_max_px=80.0))
 
     def corners() -> set[tuple[float, float]]:
