@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 from scenes import SMALL_SCENE
+from shared_data import SHARED_DATA, needs_shared_data
 
 from marker_localizer import evaluation
 from marker_localizer.bench import accuracy, peers, real_data
@@ -476,13 +477,9 @@ def test_data_root_is_none_without_the_shared_folder(tmp_path):
     assert real_data.data_root(tmp_path / "repo") is None
 
 
-DATA = real_data.data_root()
-needs_data = pytest.mark.skipif(DATA is None, reason="../shared/data is absent")
-
-
-@needs_data
+@needs_shared_data
 def test_validationboof_hand_clicks_agree_with_opencv_after_the_half_pixel_shift():
-    item = next(real_data.iter_validationboof(DATA, limit_per_folder=1))
+    item = next(real_data.iter_validationboof(SHARED_DATA, limit_per_folder=1))
     assert item.boards[0].shape == (6, 4, 2)
     matching = evaluation.match_points(item.opencv, item.reference)
     assert matching.n_matched == 24
@@ -491,12 +488,12 @@ def test_validationboof_hand_clicks_agree_with_opencv_after_the_half_pixel_shift
     assert matching.errors_px.mean() < shifted.errors_px.mean()
 
 
-@needs_data
+@needs_shared_data
 def test_opencvs_reference_boards_are_the_same_from_one_search_to_the_next():
     # Unseeded, OpenCV's sector-based search found one board or two in pycbd's flare
     # and none or one in its warped board, from one call to the next.
     for name in ("flare.jpg", "warped.jpg"):
-        image = real_data.read_gray(DATA / "pycbd" / name)
+        image = real_data.read_gray(SHARED_DATA / "pycbd" / name)
         first = real_data.opencv_boards(image)
         for _ in range(2):
             again = real_data.opencv_boards(image)
@@ -504,9 +501,9 @@ def test_opencvs_reference_boards_are_the_same_from_one_search_to_the_next():
             assert all(np.array_equal(a, b) for a, b in zip(again, first, strict=True)), name
 
 
-@needs_data
+@needs_shared_data
 def test_independent_frames_load_with_their_truth_bound_and_radius_range():
-    frames = list(real_data.iter_independent(DATA, limit_per_family=1))
+    frames = list(real_data.iter_independent(SHARED_DATA, limit_per_family=1))
     assert [f.family for f in frames] == list(accuracy.INDEPENDENT_FAMILIES)
     tiny = next(f for f in frames if f.family == "b")
     assert tiny.radius_range == (2.5, 5.0)
@@ -518,11 +515,11 @@ def test_independent_frames_load_with_their_truth_bound_and_radius_range():
     assert ((tiny.truth >= 0) & (tiny.truth < (width, height))).all()
 
 
-@needs_data
+@needs_shared_data
 def test_family_a_on_real_ground_draws_its_markers_and_their_bounds_on_each_real_frame():
-    family = accuracy.real_ground_family(DATA)
+    family = accuracy.real_ground_family(SHARED_DATA)
     assert family is not None and family.radius_range == (6.0, 40.0)
-    aerial = len(list(real_data.iter_aerial_negatives(DATA)))
+    aerial = len(list(real_data.iter_aerial_negatives(SHARED_DATA)))
     scene = family.render(aerial)  # the first cirn_uas frame, away from its targets
     assert scene.image.shape == (960, 1280) and len(scene.markers) == 12
     assert np.isfinite(scene.crlb_px).all() and (scene.crlb_px > 0).all()
@@ -547,27 +544,27 @@ def test_the_closer_aerial_ground_is_skipped_without_the_real_frames():
     assert printed == []
 
 
-@needs_data
+@needs_shared_data
 def test_the_closer_aerial_ground_is_read_by_the_reference_row_alone():
     printed: list[str] = []
-    options = accuracy.Options(quick=True, families=("negatives",), data_root=DATA)
+    options = accuracy.Options(quick=True, families=("negatives",), data_root=SHARED_DATA)
     figures = accuracy.run_closer_negatives(options, printed.append)
     assert list(figures) == [accuracy.REFERENCE_ROW]
     assert figures[accuracy.REFERENCE_ROW]["fp_per_frame"] >= 0
     assert "half the height" in printed[0]
 
 
-@needs_data
+@needs_shared_data
 def test_each_rendered_family_draws_every_radius_the_independent_family_draws():
     rendered = {f.key: f.radius_range for f in accuracy.families() if not f.variant}
-    for frame in real_data.iter_independent(DATA):
+    for frame in real_data.iter_independent(SHARED_DATA):
         low, high = rendered[frame.family]
         assert low <= frame.radius_range[0] and frame.radius_range[1] <= high, frame.name
 
 
-@needs_data
+@needs_shared_data
 def test_independent_table_scores_every_detector_against_the_frames_bound():
-    frame = next(real_data.iter_independent(DATA, 1, ("a",)))
+    frame = next(real_data.iter_independent(SHARED_DATA, 1, ("a",)))
     ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
     rows = accuracy.evaluate_frames([accuracy.LabelledFrame.independent(frame)], 0, [ours]).rows
     tally = rows[0].tally
@@ -576,9 +573,9 @@ def test_independent_table_scores_every_detector_against_the_frames_bound():
     assert rows[1].refiner and rows[1].tally.n_truth == len(frame.truth)
 
 
-@needs_data
+@needs_shared_data
 def test_independent_markers_are_classed_by_the_snr_their_bound_and_radius_give():
-    frame = next(real_data.iter_independent(DATA, 1, ("b",)))
+    frame = next(real_data.iter_independent(SHARED_DATA, 1, ("b",)))
     assert accuracy.LabelledFrame.independent(frame).split_class.shape == (len(frame.truth), 0)
     model = accuracy.XSnrModel((0.0, -1.0, 1.0), 0.1)  # SNR = radius / bound
     classes = accuracy.LabelledFrame.independent(frame, model).split_class
@@ -586,7 +583,7 @@ def test_independent_markers_are_classed_by_the_snr_their_bound_and_radius_give(
     np.testing.assert_array_equal(classes[:, 0], expected)
 
 
-@needs_data
+@needs_shared_data
 def test_the_given_radius_range_finds_as_many_independent_markers_as_a_wider_one():
     """Issue 12, item 5, on frames no step was tuned on (the independent renderer's).
 
@@ -599,7 +596,7 @@ def test_the_given_radius_range_finds_as_many_independent_markers_as_a_wider_one
     wider = (4.0, 40.0)
     ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
     found: dict[tuple[str, str], int] = {}
-    for frame in real_data.iter_independent(DATA, families=("a", "c", "d", "g")):
+    for frame in real_data.iter_independent(SHARED_DATA, families=("a", "c", "d", "g")):
         assert wider[0] <= frame.radius_range[0] and frame.radius_range[1] <= wider[1]
         for reading, radius_range in (("given", frame.radius_range), ("wider", wider)):
             matched = evaluation.match_points(ours.detect(frame.image, radius_range), frame.truth)
@@ -608,9 +605,9 @@ def test_the_given_radius_range_finds_as_many_independent_markers_as_a_wider_one
         assert found[family, "given"] >= found[family, "wider"], family
 
 
-@needs_data
+@needs_shared_data
 def test_our_detector_finds_the_inner_corners_of_a_real_board():
-    item = next(real_data.iter_validationboof(DATA, limit_per_folder=1))
+    item = next(real_data.iter_validationboof(SHARED_DATA, limit_per_folder=1))
     ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
     found = ours.detect(item.image, accuracy.REAL_RADIUS_RANGES["validationboof"])
     assert evaluation.match_points(found, item.reference).n_matched >= 22

@@ -8,7 +8,6 @@ import dataclasses
 import itertools
 import warnings
 from collections.abc import Iterable
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -21,6 +20,7 @@ from scenes import (
     found_false_errors,
 )
 from scipy.spatial import cKDTree
+from shared_data import SHARED_DATA, needs_shared_data
 
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench import real_data
@@ -46,11 +46,6 @@ from marker_localizer.synthetic import (
     render_scene,
 )
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
-
-#: ``<repo>/../shared/data`` beside this checkout: the package under test may be installed
-#: elsewhere (the pinned virtual environments' ``pip install .``), and its own default
-#: would then look beside site-packages.
-SHARED_DATA = real_data.data_root(Path(__file__).resolve().parents[2])
 
 
 def test_the_corner_of_a_2x2_checkerboard_is_exactly_between_the_four_pixels():
@@ -582,7 +577,7 @@ def test_texture_xs_near_their_floor_whose_plate_leaves_most_of_a_quartic_are_re
     assert rejected >= loose_rejected + 4
 
 
-@pytest.mark.skipif(SHARED_DATA is None, reason="../shared/data is absent")
+@needs_shared_data
 def test_chessboard_corners_near_their_floor_are_kept_by_their_neighbours(monkeypatch):
     # pycbd's warped board at 10-80 px: six corners, read at 57 px under squares of
     # 190 px, score just over their floor and have no plate (the squares go on); each
