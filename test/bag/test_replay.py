@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from blas_threads import openblas_threads, set_openblas_threads
+from blas_threads import openblas_threads, two_threaded_openblas
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
@@ -227,10 +227,7 @@ def test_replay_main_reads_sqlite3_with_the_node_params_file_and_prints_both_tab
 
 def test_replay_with_worker_threads_runs_them_on_one_blas_thread(flight_bag, tmp_path, capsys):
     """The detector then runs in the command's process: BLAS's threads would spin beside it."""
-    set_openblas_threads(2)
-    threaded = [library for library, count in openblas_threads().items() if count == 2]
-    if not threaded:
-        pytest.skip("no OpenBLAS here takes a second thread")
+    threaded = two_threaded_openblas()
     argv = ["replay", str(flight_bag), "--out", str(tmp_path / "out"), "--worker-threads"]
     status = cli([*argv, "--workers", "1"])
     text = capsys.readouterr().out

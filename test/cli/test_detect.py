@@ -6,7 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from blas_threads import openblas_threads, set_openblas_threads
+from blas_threads import openblas_threads, two_threaded_openblas
 
 from marker_localizer.cli import main
 from marker_localizer.synthetic.scene import bayer_gain
@@ -40,10 +40,7 @@ def test_detect_json_prints_one_object_per_image_with_the_contract_keys(x_image,
 def test_detect_runs_on_one_blas_thread(x_image, capsys):
     """BLAS's threads would spin beside the detector's small products (marker_localizer.blas)."""
     path, _image = x_image
-    set_openblas_threads(2)
-    threaded = [library for library, count in openblas_threads().items() if count == 2]
-    if not threaded:
-        pytest.skip("no OpenBLAS here takes a second thread")
+    threaded = two_threaded_openblas()
     assert main(["detect", str(path)]) == 0
     assert [openblas_threads()[library] for library in threaded] == [1] * len(threaded)
 
