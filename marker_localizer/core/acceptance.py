@@ -357,6 +357,7 @@ class MarkerModel:
         score: NDArray[np.float64],
         floors: ScoreFloors,
         cell_px: float,
+        read_plates: bool = True,
     ) -> Judgement:
         """Whether each located X is a marker: the default path's last decision.
 
@@ -375,7 +376,10 @@ class MarkerModel:
           having shown its plate already; of those it asks (:meth:`plate_asked`), at
           most :data:`MAX_PLATE_ASKED` are read, spread over the frame's cells of
           ``cell_px``, those that clear their floor by most first
-          (:func:`screening.even_cap_index`).
+          (:func:`screening.even_cap_index`). Without ``read_plates`` no plate is
+          asked here: the plate is the ground around the X, which the pass that
+          found a tracked marker has judged (the vouch still reads it, as the
+          evidence that stands in for a score under the floor).
 
         Args:
             xy: (N, 2) fitted centres, px.
@@ -384,6 +388,8 @@ class MarkerModel:
             score: (N,) fitted scores.
             floors: the score floors of each extent.
             cell_px: the cells the plate's cap spreads its readings over, px.
+            read_plates: ask the plates (``quartic``); False for markers whose plate
+                a pass has judged.
 
         Returns:
             :class:`Judgement`.
@@ -412,6 +418,9 @@ class MarkerModel:
         explained = self.explains(xy[keep], radius[keep], angles[keep])
         reason[keep[~explained]] = _MISFIT
         keep = keep[explained]
+        unread = np.zeros(len(xy), dtype=bool)
+        if not read_plates:
+            return Judgement(reason, vouched, unread)
         margin = np.where(vouched, np.inf, score - floor)
         asked = self.plate_asked(xy[keep], radius[keep], margin[keep])
         rows = np.flatnonzero(asked)
@@ -420,7 +429,6 @@ class MarkerModel:
         )
         over = np.delete(rows, read)
         asked[over] = False
-        unread = np.zeros(len(xy), dtype=bool)
         unread[keep[over]] = True
         smooth = ~self.plate_not_worse(xy[keep], radius[keep], angles[keep], margin[keep], asked)
         reason[keep[smooth]] = _QUARTIC

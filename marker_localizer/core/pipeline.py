@@ -184,7 +184,9 @@ class Detector:
         evidence the marker had when it was last detected. A position within a
         pixel or so of the centre converges to the centre :meth:`detect` reports
         (to the fit's tolerance, 0.001 px); a marker no longer there fails the
-        fit's residual gate or moves too far.
+        fit's residual gate or moves too far. The ground around a marker, its
+        plate and the lattice test, is what the :meth:`detect` that found it
+        judged, and is not read again.
 
         Args:
             image: the frame, as for :meth:`detect`.

@@ -201,19 +201,28 @@ class SymmetryPath:
         line_angles: NDArray[np.float64],
         evidence: NDArray[np.float64],
     ) -> DetectionResult:
-        """Markers known to be there, confirmed by the fit and its gates alone.
+        """Markers known to be there, confirmed by the fit and the gates that read their X.
 
         The fit, its gates and the score of :meth:`confirm`, with the extent, line
         angles and verification evidence each marker had when it was last detected;
         tiny X's the fit's floors reject are asked for their plate
-        (:meth:`_confirm_plates`).
+        (:meth:`_confirm_plates`). The ground around each marker, its plate and
+        whether it recurs as a lattice's saddle, is not read again: the pass that
+        found it judged it, a camera's motion does not change it, and a full pass
+        judges it again (measured: docs/speed.md, "What a tracked frame judges
+        again").
         """
         result = frame.result
         result.counts["merged_duplicates"] = 0
         known = _RingPassed(xy, radius_px, line_angles, evidence)
         with frame.timer("subpixel"):
             result.detections = self.locate(
-                frame, known.xy, known.radius_px, known.line_angles, known.score
+                frame,
+                known.xy,
+                known.radius_px,
+                known.line_angles,
+                known.score,
+                read_ground=False,
             )
         self._confirm_plates(frame, known)
         result.counts["accepted"] = len(result.detections)
@@ -776,13 +785,16 @@ class SymmetryPath:
         angles: NDArray[np.float64],
         score: NDArray[np.float64],
         check_lines: bool = False,
+        read_ground: bool = True,
     ) -> list[Detection]:
         """Section 3.3: sub-pixel centres and final gates (:func:`subpixel.locate_markers`).
 
         Then the marker's model judges them (:meth:`acceptance.MarkerModel.judge`),
         with ``check_lines`` the double-line check (:meth:`_double_lines`: LSD, ~0.15 ms
         a candidate, so on the few the fit and the floor leave), and the last
-        suppression of duplicates, strongest first.
+        suppression of duplicates, strongest first. Without ``read_ground`` the
+        ground around each X, its plate and the lattice test
+        (:meth:`_standing_alone`), is not read: markers a pass has judged there.
         """
         result = frame.result
         counts = result.counts
@@ -801,6 +813,7 @@ class SymmetryPath:
             fit.score[located],
             self._floors,
             self.config.entropy_cell_px,
+            read_plates=read_ground,
         )
         counts["kept_under_floor"] = counts.get("kept_under_floor", 0) + int(judged.vouched.sum())
         counts["plate_asked_over_cap"] = counts.get("plate_asked_over_cap", 0) + int(
@@ -838,19 +851,23 @@ class SymmetryPath:
                 angles[keep],
                 score[keep],
             ),
+            read_ground,
         )
 
-    def _standing_alone(self, frame: Frame, detections: list[Detection]) -> list[Detection]:
+    def _standing_alone(
+        self, frame: Frame, detections: list[Detection], read_ground: bool
+    ) -> list[Detection]:
         """The detections whose ground does not repeat them, at their final centres and lines.
 
-        :meth:`acceptance.MarkerModel.stands_alone`, where ``lattice_check`` asks for it;
-        counts ``rejected_lattice``. Read
+        :meth:`acceptance.MarkerModel.stands_alone`, where ``lattice_check`` asks for it
+        and ``read_ground`` (see :meth:`locate`); counts ``rejected_lattice``. Read
         along the lines the default path's final fit measured from the edges: a
         chessboard's go on beyond the corner within a pixel or two, where the checks'
         directions, which the paper's refinement reports, may miss them by more.
         """
         alone: NDArray[np.bool_] = np.ones(len(detections), dtype=bool)
-        if self.config.refinement == "symmetry" and self.config.lattice_check and detections:
+        lattice_asked = self.config.refinement == "symmetry" and self.config.lattice_check
+        if lattice_asked and read_ground and detections:
             table = np.array([(d.x, d.y, d.radius_px, d.angle1, d.angle2) for d in detections])
             alone = self._model(frame).stands_alone(table[:, :2], table[:, 2], table[:, 3:])
         counts = frame.result.counts

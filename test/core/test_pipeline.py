@@ -1052,6 +1052,35 @@ def test_a_grid_of_markers_stands_alone_from_three_and_a_half_radii_apart(spacin
         assert len(Detector(config).detect(scene.image)) == 20
 
 
+def test_known_markers_are_located_by_their_x_their_ground_left_to_the_pass_that_found_them():
+    # Tracking confirms the last frame's markers with locate. The ground around a
+    # marker (its plate, whether it recurs as a lattice's saddle) does not change
+    # with the camera's motion: the full pass judged it and judges it again. Here
+    # the grid of markers 3 radii apart that a full pass reads as a lattice (above).
+    radius = 12.0
+    placements = [
+        MarkerPlacement(60 + i * 3.0 * radius, 60 + j * 3.0 * radius, radius, 0.3)
+        for i in range(5)
+        for j in range(4)
+    ]
+    scene = render_markers((228, 264), placements, 0, blur_sigma_px=1.0, noise_sigma_dn=2.0)
+    unjudged = Detector(DetectorConfig(marker_radius_min_px=6.0, lattice_check=False))
+    known = unjudged.detect(scene.image)
+    assert len(known) == 20
+    detector = Detector(DetectorConfig(marker_radius_min_px=6.0))
+    assert detector.detect(scene.image).counts["rejected_lattice"] >= 12
+    xy = known.as_array()[:, :2]
+    tracked = detector.locate(
+        scene.image,
+        xy + 0.3,
+        np.array([d.radius_px for d in known]),
+        np.array([[d.angle1, d.angle2] for d in known]),
+        np.array([d.evidence for d in known]),
+    )
+    assert len(tracked) == 20 and tracked.counts["rejected_lattice"] == 0
+    assert cKDTree(tracked.as_array()[:, :2]).query(xy)[0].max() < 0.01
+
+
 def test_a_shadows_edge_keeps_the_markers_whose_x_alone_leaves_it_unexplained(monkeypatch):
     # Rendered (g) frames of markers of 10-30 px: a hard shadow's edge across a marker
     # is shape the blurred X does not have. With the edge sought nowhere (a reach of
