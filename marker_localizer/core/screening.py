@@ -295,6 +295,13 @@ def _local_maxima(
 #: are reused, where whole-level ones (32 MiB each at 8 MP) go through memory and
 #: fresh pages on every pass. 64-128 rows screen 8 MP real frames fastest.
 _STRIP_ROWS = 64
+#: Fewest pixels of a strip, 64 rows of 512 px: each strip pays a few dozen calls
+#: (~0.1 ms), which a narrow image's strips of 64 rows do not outweigh. A tracked
+#: frame's side band, 33 px wide at half resolution, took 36 such strips, and the
+#: bands' screening 5.6 ms a frame, 3.5 in one strip a level. Wider images keep their
+#: 64 rows: the strips a level's strongest peaks are first sought in
+#: (:func:`saddle_peaks`) are then those of the full-frame passes measured.
+_STRIP_MIN_PIXELS = 64 * 512
 #: Rows beyond a strip that its response and maxima read: the maxima compare with one
 #: row of response either side, which the 5x5 kernels compute from two more.
 _STRIP_HALO_ROWS = 3
@@ -362,30 +369,35 @@ class _Strip(NamedTuple):
         )
 
 
+def _strip_rows(width: int) -> int:
+    """Rows of a strip of an image ``width`` px wide: :data:`_STRIP_ROWS`, or more when narrow."""
+    return max(_STRIP_ROWS, _STRIP_MIN_PIXELS // width)
+
+
 def _strip_peaks(
     image: NDArray[Any],
-    start: int,
+    rows: slice,
     threshold: float | NDArray[np.float32],
     bound: float,
     keep_response: bool = False,
 ) -> _Strip:
-    """The saddle response of a strip of ``image`` from row ``start``, and its peaks.
+    """The saddle response of a strip of ``image``, its ``rows``, and its peaks.
 
     Args:
         image: (H, W) image.
-        start: the strip's first row.
+        rows: the strip's rows (a slice with its start and stop).
         threshold: the squared saddle strength a peak exceeds; or an (H, 1) column.
         bound: only the peaks of at least this response are wanted (0: all).
         keep_response: keep the strip's response in the result.
     """
     height, width = image.shape
-    stop = min(start + _STRIP_ROWS, height)
+    start, stop = rows.start, min(rows.stop, height)
     first, last = max(start - _STRIP_HALO_ROWS, 0), min(stop + _STRIP_HALO_ROWS, height)
     strip = saddle_response(image[first:last])
     # The strip's response with one row either side (none at the image's edges).
     above, below = max(start - 1, 0), min(stop + 1, height)
-    rows = threshold if np.ndim(threshold) == 0 else threshold[above:below]  # type: ignore[index]
-    local, value = _local_maxima(strip[above - first : below - first], _limit(rows, bound))
+    compared = threshold if np.ndim(threshold) == 0 else threshold[above:below]  # type: ignore[index]
+    local, value = _local_maxima(strip[above - first : below - first], _limit(compared, bound))
     # The neighbours the peaks' sub-pixel refinement reads, while the strip is at hand.
     flat = strip[above - first :].reshape(-1)
     neighbours = np.stack([flat[local + step] for step in _neighbour_steps(width)], axis=1)
@@ -467,24 +479,25 @@ def saddle_peaks(
     height, width = image.shape
     if np.ndim(threshold):
         threshold = np.reshape(threshold, (-1, 1)).astype(np.float32)
-    starts = range(0, height, _STRIP_ROWS)
+    step = _strip_rows(width)
+    strip_rows = [slice(start, min(start + step, height)) for start in range(0, height, step)]
     found = {}
     bound = at_least
     if strongest is not None:
-        sampled = starts[::_SAMPLE_STRIP_STRIDE]
-        found = {start: _strip_peaks(image, start, threshold, bound, True) for start in sampled}
-        values = np.concatenate([np.zeros(0, np.float32), *(found[s].values for s in sampled)])
+        sampled = range(0, len(strip_rows), _SAMPLE_STRIP_STRIDE)
+        found = {k: _strip_peaks(image, strip_rows[k], threshold, bound, True) for k in sampled}
+        values = np.concatenate([np.zeros(0, np.float32), *(found[k].values for k in sampled)])
         # At least the sample's strongest, however few are wanted of a frame.
-        rank = max(1, int(_SAMPLE_RANK_MARGIN * strongest * len(sampled) / len(starts)))
+        rank = max(1, int(_SAMPLE_RANK_MARGIN * strongest * len(sampled) / len(strip_rows)))
         if len(values) > rank:
             bound = max(bound, float(np.partition(values, len(values) - rank)[len(values) - rank]))
-            for start in sampled:
-                rows = slice(start, min(start + _STRIP_ROWS, height))
+            for k in sampled:
+                rows = strip_rows[k]
                 own = threshold if np.ndim(threshold) == 0 else threshold[rows]  # type: ignore[index]
-                found[start] = found[start].above(bound, own)
+                found[k] = found[k].above(bound, own)
     strips = [
-        found[start] if start in found else _strip_peaks(image, start, threshold, bound)
-        for start in starts
+        found[k] if k in found else _strip_peaks(image, rows, threshold, bound)
+        for k, rows in enumerate(strip_rows)
     ]
     return SaddlePeaks(
         (height, width),

@@ -331,12 +331,17 @@ def test_local_maxima_are_the_3x3_maxima_with_ties_to_the_first_pixel_on_busy_an
     np.testing.assert_array_equal(values, response.reshape(-1)[peaks])
 
 
-@pytest.mark.parametrize("height", [257, 300])
+@pytest.mark.parametrize(
+    "shape",
+    [(257, 600), (300, 600), (683, 96), (700, 96)],
+    ids=["wide, a last strip of one row", "wide", "narrow, one row", "narrow"],
+)
 @pytest.mark.parametrize("threshold", [40.0**2, 400.0**2], ids=["busy", "quiet"])
-def test_the_response_and_peaks_found_strip_by_strip_are_those_of_the_whole_image(
-    height, threshold
-):
-    noise = np.random.default_rng(4).normal(128, 40, (height + 7, 101))
+def test_the_response_and_peaks_found_strip_by_strip_are_those_of_the_whole_image(shape, threshold):
+    # A narrow image (a tracked frame's side band) takes taller strips, as many pixels.
+    height, width = shape
+    assert 2 * screening._strip_rows(width) < height
+    noise = np.random.default_rng(4).normal(128, 40, (height + 7, width + 5))
     # A crop, as a window is: no strip edge may act as the image's border.
     image = np.clip(noise, 0, 255).astype(np.uint8)[3 : height + 3, 5:]
     found = screening.saddle_peaks(image, threshold)
