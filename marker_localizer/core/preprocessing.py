@@ -387,6 +387,39 @@ class LocalGamma:
         darkest = np.minimum(self._darkest_in_row[first], self._darkest_in_row[first + 1])
         return np.where((y >= y0) & (y < y1), darkest, 0.5)
 
+    def darkest_mean_on_spans(
+        self, y: NDArray[np.float64], x_first: NDArray[np.float64], x_last: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """(N, S) the lowest local mean mu(k) along each image row ``y`` within each span.
+
+        The spans are columns ``x_first`` to ``x_last`` (S,), inclusive. A bound on
+        :meth:`mean_at` at any point of the span, tighter than the whole row's where
+        the light changes across it: the darkest of the four means each point there
+        interpolates between, where one map is measured; the row's
+        (:meth:`darkest_mean_on_rows`) where several are.
+        """
+        if self._darkest_near is None:
+            return np.repeat(self.darkest_mean_on_rows(y)[:, None], len(x_first), axis=1)
+        x0, y0, x1, y1 = self._boxes[0]
+        rows, cols = self._map_shapes[0]
+
+        def cell(position: NDArray[np.float64], origin: int, size: int) -> NDArray[np.intp]:
+            # As _map_position places a point: its mean interpolates from this cell on.
+            local = np.clip((position - origin + 0.5) / self._reduction - 0.5, 0.0, size - 1.001)
+            return np.floor(local).astype(np.intp)
+
+        first, last = cell(x_first, x0, cols), cell(x_last, x0, cols)
+        # Each span's map columns, its last one repeated to the longest span's count.
+        columns = np.minimum(
+            first[:, None] + np.arange(int((last - first).max()) + 1), last[:, None]
+        )
+        map_rows, row_of = np.unique(cell(y, y0, rows), return_inverse=True)
+        darkest = self._darkest_near[map_rows][:, columns].min(axis=2)[row_of]
+        # Outside the measured region mean_at is 0.5.
+        beyond = (x_first < x0) | (x_last >= x1)
+        darkest[:, beyond] = np.minimum(darkest[:, beyond], 0.5)
+        return np.where(((y >= y0) & (y < y1))[:, None], darkest, 0.5)
+
     def darkest_mean_near(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """(N,) a lower bound on :meth:`mean_at` at (N, 2) points, cheaper than it.
 
@@ -477,6 +510,24 @@ class ShadowedContrast:
         with np.errstate(divide="ignore"):
             gain = self.min_contrast / weber
         return np.clip(gain, 1.0, MAX_SHADOW_GAIN)
+
+    def gain_on_spans(
+        self,
+        gamma: LocalGamma,
+        y: NDArray[np.float64],
+        x_first: NDArray[np.float64],
+        x_last: NDArray[np.float64],
+    ) -> NDArray[np.float64]:
+        """(N, S) a bound on :meth:`gain` along each row ``y`` within each span of columns.
+
+        From :meth:`LocalGamma.darkest_mean_on_spans`, read only on the rows that hold
+        a mean that dark (:meth:`LocalGamma.darkest_mean_on_rows`); 1 on the others.
+        """
+        gain = np.ones((len(y), len(x_first)))
+        dark = np.flatnonzero(self.gain(gamma.darkest_mean_on_rows(y)) > 1.0)
+        if len(dark):
+            gain[dark] = self.gain(gamma.darkest_mean_on_spans(y[dark], x_first, x_last))
+        return gain
 
     def gain_at(self, gamma: LocalGamma, xy: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """(N,) :meth:`gain` at ``xy``; None where no surroundings are that dark.

@@ -186,10 +186,13 @@ class CandidateSearch:
         :meth:`preprocessing.ShadowedContrast.gain` of the local mean there.
         """
         origin = np.asarray(origin_px, np.float64)
-        gain = self.shadowed.gain
+        shadowed = self.shadowed
+        gain = shadowed.gain
         # The gain falls as the mean rises: the darkest means bound it from above.
         return screening.ShadowGain(
             lambda xy: gain(gamma.mean_at(xy + origin)),
-            lambda y: gain(gamma.darkest_mean_on_rows(y + origin[1])),
+            lambda y, x_first, x_last: shadowed.gain_on_spans(
+                gamma, y + origin[1], x_first + origin[0], x_last + origin[0]
+            ),
             lambda xy: gain(gamma.darkest_mean_near(xy + origin)),
         )

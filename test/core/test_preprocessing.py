@@ -105,6 +105,28 @@ def test_area_reduced_is_opencvs_area_resize_bit_for_bit(dtype, factor, extra):
     np.testing.assert_array_equal(reduced, expected)
 
 
+def test_the_darkest_mean_on_a_span_of_a_row_bounds_the_local_mean_there_tighter_than_the_row():
+    rng = np.random.default_rng(4)
+    # Light falling from left to right: every row holds a dark stretch.
+    ramp = np.linspace(10, 240, 640)[None, :] * np.linspace(0.6, 1.0, 480)[:, None]
+    image = np.clip(ramp + rng.normal(0, 8, (480, 640)), 0, 255).astype(np.uint8)
+    gamma = preprocessing.LocalGamma(image, 255.0)
+    x_first = np.arange(-16.0, 640.0, 64.0)
+    x_last = x_first + 63.0
+    y = rng.uniform(-8, 488, 300)
+    bound = gamma.darkest_mean_on_spans(y, x_first, x_last)
+    assert bound.shape == (300, len(x_first))
+    for span, (a, b) in enumerate(zip(x_first, x_last, strict=True)):
+        xy = np.stack([rng.uniform(a, b, len(y)), y], axis=1)
+        assert np.all(gamma.mean_at(xy) >= bound[:, span])
+    row = gamma.darkest_mean_on_rows(y)
+    assert np.all(bound >= row[:, None] - 1e-6)
+    # A lit span's bound is far above the row's, whose darkest stretch is on the left
+    # (the last span reaches out of the image, where the local mean is 0.5).
+    inside = (y >= 0) & (y < 480)
+    assert np.all(bound[inside, -2] - row[inside] > 0.4)
+
+
 def test_the_darkest_mean_near_a_point_bounds_the_local_mean_there():
     rng = np.random.default_rng(5)
     # A shadow's soft edge across a lit ramp: the bound follows both.

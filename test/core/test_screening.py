@@ -525,7 +525,10 @@ def _shadow(gain: float) -> screening.ShadowGain:
     def everywhere(points: np.ndarray) -> np.ndarray:
         return np.full(len(points), gain)
 
-    return screening.ShadowGain(everywhere, everywhere, everywhere)
+    def on_spans(y: np.ndarray, x_first: np.ndarray, x_last: np.ndarray) -> np.ndarray:
+        return np.full((len(y), len(x_first)), gain)
+
+    return screening.ShadowGain(everywhere, on_spans, everywhere)
 
 
 def test_a_marker_in_deep_shadow_is_screened_with_the_shadow_gain_and_only_then():
@@ -539,6 +542,32 @@ def test_a_marker_in_deep_shadow_is_screened_with_the_shadow_gain_and_only_then(
     assert np.linalg.norm(shaded.xy - [80.4, 70.6], axis=1).min() < 1.0
 
 
+def test_a_shadow_over_part_of_each_row_gives_the_candidates_of_its_gain_at_every_peak():
+    # The threshold is lowered by a bound on the gain over each span of a row, and every
+    # peak under the open threshold is then held to its own gain: the candidates are
+    # those of a bound over the whole row (the dark stretch on the left of every row).
+    noise = np.random.default_rng(7).normal(0.5, 0.06, (240, 320))
+    image = np.clip(noise + 0.5 * _x_frame(250.3, 120.6, 10.0, (240, 320)), 0, 1).astype(np.float32)
+
+    def at(xy: np.ndarray) -> np.ndarray:
+        return np.where(xy[:, 0] < 100, 4.0, 1.0 + xy[:, 0] / 1000)
+
+    def on_spans(y: np.ndarray, x_first: np.ndarray, x_last: np.ndarray) -> np.ndarray:
+        return np.repeat(np.where(x_first < 100, 4.0, 1.0 + x_last / 1000)[None], len(y), axis=0)
+
+    def on_rows(y: np.ndarray, x_first: np.ndarray, x_last: np.ndarray) -> np.ndarray:
+        return np.full((len(y), len(x_first)), 4.0)
+
+    spans, rows = (
+        screening.saddle_candidates(
+            image, (4.0, 20.0), min_contrast=60 / 255, shadow=screening.ShadowGain(at, bound, at)
+        )
+        for bound in (on_spans, on_rows)
+    )
+    assert len(spans) > 20 and (spans.xy[:, 0] < 100).any() and (spans.xy[:, 0] >= 100).any()
+    assert np.array_equal(spans.xy, rows.xy) and np.array_equal(spans.strength, rows.strength)
+
+
 def test_rows_in_the_open_keep_the_configured_threshold():
     frame = np.clip(_x_frame(50.3, 60.7, 10.0) + _x_frame(140.2, 100.4, 10.0) - 0.45, 0, 1)
     image = frame.astype(np.float32)
@@ -550,7 +579,7 @@ def test_rows_in_the_open_keep_the_configured_threshold():
     # Shadow over the lower rows only: the upper rows' candidates stay exactly as they were.
     lower = screening.ShadowGain(
         lambda xy: np.where(xy[:, 1] >= 80, 4.0, 1.0),
-        lambda y: np.where(y >= 80, 4.0, 1.0),
+        lambda y, x_first, x_last: np.where(y[:, None] >= 80, 4.0, np.ones(len(x_first))),
         lambda xy: np.where(xy[:, 1] >= 80, 4.0, 1.0),
     )
     shaded = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255, shadow=lower)
