@@ -74,6 +74,20 @@ def _point(text: str) -> tuple[float, float]:
     return x, y
 
 
+def _why_values_joined(argv: Sequence[str]) -> list[str]:
+    """``--why X,Y`` as ``--why=X,Y``: argparse takes a value starting with ``-`` for an option.
+
+    A point in the first half pixel of a row or column, or beyond the top or left
+    edge, has a negative coordinate (0 is the centre of the first pixel).
+    """
+    joined: list[str] = []
+    values = iter(argv)
+    for arg in values:
+        value = next(values, None) if arg == "--why" else None
+        joined.append(arg if value is None else f"--why={value}")
+    return joined
+
+
 def _write_table(record: dict[str, Any]) -> None:
     print(
         f"{record['image']}: {len(record['markers'])} marker(s), "
@@ -150,7 +164,7 @@ def main(argv: Sequence[str]) -> int:
     Returns:
         0, or :data:`EXIT_ERROR` when an image could not be read or its overlay written.
     """
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(_why_values_joined(argv))
     detector = Detector(config_module.detector_config(args.params_file, args.param))
     # BLAS's threads spin beside the detector's small products: as fast on one, at half
     # the processor time, and detect commands run side by side do not compete.

@@ -190,6 +190,13 @@ def test_why_says_a_marker_was_found_or_which_test_lost_it(x_image, capsys):
     assert "expected at (5, 58): lost at the screening test" in capsys.readouterr().out
 
 
+def test_why_takes_a_point_off_the_top_left_edge_with_negative_coordinates(x_image, capsys):
+    path, _ = x_image
+    assert main(["detect", str(path), "--why", "-0.5,-5", "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["why"] == [{"x": -0.5, "y": -5.0, "found": False, "lost_at": "screening"}]
+
+
 def test_why_with_a_malformed_point_is_a_usage_error(x_image, capsys):
     path, _ = x_image
     with pytest.raises(SystemExit) as exit_info:
