@@ -344,12 +344,13 @@ def _limit(threshold: float | NDArray[np.float32], bound: float) -> float | NDAr
 def _unexamined(
     response: NDArray[np.float32], threshold: float | NDArray[np.float32], bound: float
 ) -> int:
-    """Pixels of ``response`` above ``threshold`` (per row) but below ``bound``."""
+    """Pixels of ``response`` above ``threshold`` (per row, or row and span) but below ``bound``."""
     if bound <= 0:
         return 0
+    width = response.shape[1]
     return int(
-        np.count_nonzero(response > threshold)
-        - np.count_nonzero(response > _limit(threshold, bound))
+        np.count_nonzero(response > _spread(threshold, width))
+        - np.count_nonzero(response > _spread(_limit(threshold, bound), width))
     )
 
 
@@ -426,7 +427,7 @@ def _strip_peaks(
         local + above * width,
         value,
         neighbours,
-        _unexamined(response, _spread(own, width), bound),
+        _unexamined(response, own, bound),
         response.copy() if keep_response else None,
     )
 
@@ -514,7 +515,7 @@ def saddle_peaks(
             for k in sampled:
                 rows = strip_rows[k]
                 own = threshold if np.ndim(threshold) == 0 else threshold[rows]  # type: ignore[index]
-                found[k] = found[k].above(bound, _spread(own, width))
+                found[k] = found[k].above(bound, own)
     strips = [
         found[k] if k in found else _strip_peaks(image, rows, threshold, bound)
         for k, rows in enumerate(strip_rows)
