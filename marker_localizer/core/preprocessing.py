@@ -382,8 +382,7 @@ class LocalGamma:
         if len(self._boxes) > 1:
             return np.full(len(y), self.darkest_mean)
         (y0, y1), rows = self._boxes[0, 1::2], int(self._map_shapes[0, 0])
-        local = np.clip((y - y0 + 0.5) / self._reduction - 0.5, 0.0, rows - 1.001)
-        first = np.floor(local).astype(np.int64)
+        first = self._map_cell(y, y0, rows)
         darkest = np.minimum(self._darkest_in_row[first], self._darkest_in_row[first + 1])
         return np.where((y >= y0) & (y < y1), darkest, 0.5)
 
@@ -402,23 +401,26 @@ class LocalGamma:
             return np.repeat(self.darkest_mean_on_rows(y)[:, None], len(x_first), axis=1)
         x0, y0, x1, y1 = self._boxes[0]
         rows, cols = self._map_shapes[0]
-
-        def cell(position: NDArray[np.float64], origin: int, size: int) -> NDArray[np.intp]:
-            # As _map_position places a point: its mean interpolates from this cell on.
-            local = np.clip((position - origin + 0.5) / self._reduction - 0.5, 0.0, size - 1.001)
-            return np.floor(local).astype(np.intp)
-
-        first, last = cell(x_first, x0, cols), cell(x_last, x0, cols)
+        first, last = self._map_cell(x_first, x0, cols), self._map_cell(x_last, x0, cols)
         # Each span's map columns, its last one repeated to the longest span's count.
         columns = np.minimum(
             first[:, None] + np.arange(int((last - first).max()) + 1), last[:, None]
         )
-        map_rows, row_of = np.unique(cell(y, y0, rows), return_inverse=True)
+        map_rows, row_of = np.unique(self._map_cell(y, y0, rows), return_inverse=True)
         darkest = self._darkest_near[map_rows][:, columns].min(axis=2)[row_of]
         # Outside the measured region mean_at is 0.5.
         beyond = (x_first < x0) | (x_last >= x1)
         darkest[:, beyond] = np.minimum(darkest[:, beyond], 0.5)
         return np.where(((y >= y0) & (y < y1))[:, None], darkest, 0.5)
+
+    def _map_cell(self, position: NDArray[np.float64], origin: int, size: int) -> NDArray[np.intp]:
+        """The map cell, along one axis, whose mean a point's interpolates from.
+
+        As :meth:`_map_position` places it: image ``position`` in a region starting at
+        ``origin``, on a map ``size`` cells long.
+        """
+        local = np.clip((position - origin + 0.5) / self._reduction - 0.5, 0.0, size - 1.001)
+        return np.floor(local).astype(np.intp)
 
     def darkest_mean_near(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """(N,) a lower bound on :meth:`mean_at` at (N, 2) points, cheaper than it.
