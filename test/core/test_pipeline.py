@@ -1029,11 +1029,8 @@ def test_markers_and_a_chessboards_corners_stand_alone_as_the_lattice_test_reads
                 assert len(result) >= 10 and result.counts["rejected_lattice"] == 0
 
 
-@pytest.mark.parametrize("spacing", [3.0, 3.5])
-def test_a_grid_of_markers_stands_alone_from_three_and_a_half_radii_apart(spacing):
-    # Identical markers in rows recur on both sides of each as a lattice's saddles
-    # do: 3.5 radii apart (centre to centre) each stands alone, at 3 only those at
-    # the grid's edge do.
+def _grid_of_markers(spacing: float) -> np.ndarray:
+    """A frame of 5 x 4 identical markers of radius 12 px, ``spacing`` radii apart."""
     radius = 12.0
     placements = [
         MarkerPlacement(60 + i * spacing * radius, 60 + j * spacing * radius, radius, 0.3)
@@ -1041,15 +1038,23 @@ def test_a_grid_of_markers_stands_alone_from_three_and_a_half_radii_apart(spacin
         for j in range(4)
     ]
     shape = (round(120 + 3 * spacing * radius), round(120 + 4 * spacing * radius))
-    scene = render_markers(shape, placements, 0, blur_sigma_px=1.0, noise_sigma_dn=2.0)
-    result = Detector(DetectorConfig(marker_radius_min_px=6.0)).detect(scene.image)
+    return render_markers(shape, placements, 0, blur_sigma_px=1.0, noise_sigma_dn=2.0).image
+
+
+@pytest.mark.parametrize("spacing", [3.0, 3.5])
+def test_a_grid_of_markers_stands_alone_from_three_and_a_half_radii_apart(spacing):
+    # Identical markers in rows recur on both sides of each as a lattice's saddles
+    # do: 3.5 radii apart (centre to centre) each stands alone, at 3 only those at
+    # the grid's edge do.
+    image = _grid_of_markers(spacing)
+    result = Detector(DetectorConfig(marker_radius_min_px=6.0)).detect(image)
     if spacing >= 3.5:
         assert len(result) == 20 and result.counts["rejected_lattice"] == 0
     else:
         assert result.counts["rejected_lattice"] >= 12
         # A tighter target array turns the test off.
         config = DetectorConfig(marker_radius_min_px=6.0, lattice_check=False)
-        assert len(Detector(config).detect(scene.image)) == 20
+        assert len(Detector(config).detect(image)) == 20
 
 
 def test_known_markers_are_located_by_their_x_their_ground_left_to_the_pass_that_found_them():
@@ -1057,21 +1062,15 @@ def test_known_markers_are_located_by_their_x_their_ground_left_to_the_pass_that
     # marker (its plate, whether it recurs as a lattice's saddle) does not change
     # with the camera's motion: the full pass judged it and judges it again. Here
     # the grid of markers 3 radii apart that a full pass reads as a lattice (above).
-    radius = 12.0
-    placements = [
-        MarkerPlacement(60 + i * 3.0 * radius, 60 + j * 3.0 * radius, radius, 0.3)
-        for i in range(5)
-        for j in range(4)
-    ]
-    scene = render_markers((228, 264), placements, 0, blur_sigma_px=1.0, noise_sigma_dn=2.0)
+    image = _grid_of_markers(3.0)
     unjudged = Detector(DetectorConfig(marker_radius_min_px=6.0, lattice_check=False))
-    known = unjudged.detect(scene.image)
+    known = unjudged.detect(image)
     assert len(known) == 20
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0))
-    assert detector.detect(scene.image).counts["rejected_lattice"] >= 12
+    assert detector.detect(image).counts["rejected_lattice"] >= 12
     xy = known.as_array()[:, :2]
     tracked = detector.locate(
-        scene.image,
+        image,
         xy + 0.3,
         np.array([d.radius_px for d in known]),
         np.array([[d.angle1, d.angle2] for d in known]),
