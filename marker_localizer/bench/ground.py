@@ -185,8 +185,8 @@ def worker_main(name: str, frames_path: Path) -> int:
     """Subprocess entry: one subject, asked for its warm-ups and timings (:func:`workers.serve`).
 
     ``warm G K``: the warm-up detection on ground G's first frame at range K, its
-    ``peak_mb``; ``time G K I``: frame I of ground G at range K, its ``ms`` and
-    ``points``.
+    time ``s``, and the ``peak_mb`` of another (traced, which slows it); ``time G
+    K I``: frame I of ground G at range K, its ``ms`` and ``points``.
     """
     import cv2  # noqa: PLC0415
 
@@ -199,10 +199,14 @@ def worker_main(name: str, frames_path: Path) -> int:
         g, k, *rest = (int(n) for n in numbers)
         radius_range = RANGES[k]
         if verb == "warm":
+            start = time.perf_counter()
+            detector.detect(ground_frames[g][0], radius_range)
+            warm_up_s = time.perf_counter() - start
             return {
+                "s": warm_up_s,
                 "peak_mb": peak_traced_mb(
                     partial(detector.detect, ground_frames[g][0], radius_range)
-                )
+                ),
             }
         start = time.perf_counter()
         points = detector.detect(ground_frames[g][rest[0]], radius_range)
@@ -232,7 +236,9 @@ def run_subjects(
     ``frame_counts``: how many frames each ground of ``frames_path`` has
     (:func:`save_grounds`). Per ground and range every subject warms up, then each
     frame goes to every running subject in turn (:func:`workers.in_turn`) before
-    the next. A subject whose worker fails is reported with its error and no timings.
+    the next; subjects whose warm-up there took over :data:`workers.IN_TURN_MAX_S`
+    after the others (:func:`workers.paced_groups`). A subject whose worker fails
+    is reported with its error and no timings.
     """
     results = [
         SubjectTimings(name, [[GroundTiming() for _ in RANGES] for _ in frame_counts])
@@ -241,17 +247,20 @@ def run_subjects(
     with workers.started("marker_localizer.bench.ground", names, frames_path) as started:
         for g, count in enumerate(frame_counts):
             for k in range(len(RANGES)):
+                warm_up_s = [float("nan")] * len(started)
                 for position in workers.in_turn(started, 0):
                     reply = started[position].ask(f"warm {g} {k}")
                     if reply is not None:
                         results[position].timings[g][k].peak_mb = float(reply["peak_mb"])
-                for i in range(count):
-                    for position in workers.in_turn(started, i):
-                        reply = started[position].ask(f"time {g} {k} {i}")
-                        if reply is not None:
-                            timing = results[position].timings[g][k]
-                            timing.times_ms.append(float(reply["ms"]))
-                            timing.points.append(int(reply["points"]))
+                        warm_up_s[position] = float(reply["s"])
+                for group in workers.paced_groups(warm_up_s):
+                    for i in range(count):
+                        for position in workers.in_turn(started, i, group):
+                            reply = started[position].ask(f"time {g} {k} {i}")
+                            if reply is not None:
+                                timing = results[position].timings[g][k]
+                                timing.times_ms.append(float(reply["ms"]))
+                                timing.points.append(int(reply["points"]))
         for worker, result in zip(started, results, strict=True):
             if worker.error:
                 result.error, result.timings = worker.error, []

@@ -227,6 +227,8 @@ class WorkerResult:
     Attributes:
         name: subject.
         times_ms: wall time of every timed detection, ms.
+        kernel_ms: the kernel's processor time within each (system time: mostly the
+            page faults of the fresh memory a detection writes), ms.
         stages_ms: per-stage times of every timed detection (ours only), ms.
         rss_growth_mb: peak RSS growth around the warm-up detections, MiB.
         error: why the subject could not run ("" when it ran).
@@ -234,6 +236,7 @@ class WorkerResult:
 
     name: str
     times_ms: list[float] = field(default_factory=list)
+    kernel_ms: list[float] = field(default_factory=list)
     stages_ms: list[dict[str, float]] = field(default_factory=list)
     rss_growth_mb: float = float("nan")
     error: str = ""
@@ -280,19 +283,27 @@ def peak_growth_mb(work: Callable[[], object]) -> float:
     return _max_rss_mb() - before
 
 
-def _timed(subject: Subject, frame: np.ndarray) -> tuple[float, dict[str, float]]:
-    """One timed detection: wall time in ms and the stage times ``run`` returns."""
+def _kernel_s() -> float:
+    """System processor time of this process so far, s."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_stime
+
+
+def _timed(subject: Subject, frame: np.ndarray) -> tuple[float, float, dict[str, float]]:
+    """One timed detection: wall time and the kernel's time in it, ms; ``run``'s stage times."""
     image = subject.prepare(frame)
+    kernel = _kernel_s()
     start = time.perf_counter()
     stages = subject.run(image)
-    return (time.perf_counter() - start) * 1000.0, stages
+    elapsed = time.perf_counter() - start
+    return elapsed * 1000.0, (_kernel_s() - kernel) * 1000.0, stages
 
 
 def worker_main(name: str, frames_path: Path) -> int:
     """Subprocess entry: warm up one subject, then time each frame asked for.
 
-    Ready (:func:`workers.serve`): ``rss_growth_mb`` and ``error``; asked a frame
-    index: its ``ms`` and ``stages``.
+    Ready (:func:`workers.serve`): ``rss_growth_mb``, ``warm_up_s`` (a frame's) and
+    ``error``; asked a frame
+    index: its ``ms``, ``kernel_ms`` and ``stages``.
     """
     import cv2  # noqa: PLC0415
 
@@ -306,13 +317,15 @@ def worker_main(name: str, frames_path: Path) -> int:
     except ImportError as err:
         workers.serve({"rss_growth_mb": float("nan"), "error": str(err)}, None)
         return 0
+    start = time.perf_counter()
     grown = peak_growth_mb(lambda: [subject.run(subject.prepare(frame)) for frame in frames])
+    warm_up_s = (time.perf_counter() - start) / len(frames)
 
     def answer(request: str) -> dict[str, Any]:
-        elapsed_ms, stages = _timed(subject, frames[int(request)])
-        return {"ms": elapsed_ms, "stages": stages}
+        elapsed_ms, kernel_ms, stages = _timed(subject, frames[int(request)])
+        return {"ms": elapsed_ms, "kernel_ms": kernel_ms, "stages": stages}
 
-    workers.serve({"rss_growth_mb": grown, "error": ""}, answer)
+    workers.serve({"rss_growth_mb": grown, "warm_up_s": warm_up_s, "error": ""}, answer)
     return 0
 
 
@@ -327,21 +340,26 @@ def run_subjects(
     The workers start (and warm up) one after another; then each round gives
     every frame to every running subject in turn, the subjects' order rotating
     from one frame to the next, so that no subject always follows the same one.
+    Subjects whose warm-up took over :data:`workers.IN_TURN_MAX_S` a frame run
+    their rounds after the others' (:func:`workers.paced_groups`).
     A worker that fails is reported with its error and left out of later rounds.
     """
     results = [WorkerResult(name) for name in names]
     with workers.started("marker_localizer.bench.speed", names, frames_path) as started:
         for worker, result in zip(started, results, strict=True):
             result.rss_growth_mb = float(worker.ready.get("rss_growth_mb", float("nan")))
-        for _ in range(repeats):
-            for index in range(n_frames):
-                for position in workers.in_turn(started, index):
-                    reply = started[position].ask(str(index))
-                    if reply is not None:
-                        result = results[position]
-                        result.times_ms.append(float(reply["ms"]))
-                        if reply["stages"]:
-                            result.stages_ms.append(reply["stages"])
+        warm_up_s = [float(worker.ready.get("warm_up_s", float("nan"))) for worker in started]
+        for group in workers.paced_groups(warm_up_s):
+            for _ in range(repeats):
+                for index in range(n_frames):
+                    for position in workers.in_turn(started, index, group):
+                        reply = started[position].ask(str(index))
+                        if reply is not None:
+                            result = results[position]
+                            result.times_ms.append(float(reply["ms"]))
+                            result.kernel_ms.append(float(reply["kernel_ms"]))
+                            if reply["stages"]:
+                                result.stages_ms.append(reply["stages"])
         for worker, result in zip(started, results, strict=True):
             result.error = worker.error
     return results
@@ -386,8 +404,8 @@ def speed_table(results: Sequence[WorkerResult]) -> str:
     """Format the timing table (ms, MiB) with ratios ours / peer."""
     ours = _reference_times(results)
     header = (
-        f"{'subject':<32}{'median ms':>11}{'p95 ms':>10}{'runs':>6}{'RSS +MiB':>10}"
-        f"{'ours/peer':>11}"
+        f"{'subject':<32}{'median ms':>11}{'p95 ms':>10}{'kernel ms':>11}{'runs':>6}"
+        f"{'RSS +MiB':>10}{'ours/peer':>11}"
     )
     lines = [header, "-" * len(header)]
     for r in results:
@@ -401,7 +419,7 @@ def speed_table(results: Sequence[WorkerResult]) -> str:
         )
         lines.append(
             f"{r.name:<32}{median:>11.1f}{_p95(r.times_ms):>10.1f}"
-            f"{len(r.times_ms):>6}{r.rss_growth_mb:>10.1f}"
+            f"{_median(r.kernel_ms):>11.1f}{len(r.times_ms):>6}{r.rss_growth_mb:>10.1f}"
             f"{'-' if not np.isfinite(ratio) else f'{ratio:.2f}':>11}"
         )
     return "\n".join(lines)
@@ -503,8 +521,10 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         f"Full-frame detection, {options.frames} rendered {FRAME_WIDTH}x{FRAME_HEIGHT} "
         f"cluttered frames x {options.repeats} repeats, one core (cv2.setNumThreads(1), "
         f"OMP/OPENBLAS/MKL threads = 1), radius range {RADIUS_RANGE[0]:g}-"
-        f"{RADIUS_RANGE[1]:g} px; RSS + = peak RSS growth (VmHWM) in a fresh subprocess; "
-        "subjects timed in turn, frame by frame; ours/peer = median of the paired ratios"
+        f"{RADIUS_RANGE[1]:g} px; kernel ms = median system time within a detection (page "
+        "faults on fresh memory, mostly: it moves with the host's free memory); RSS + = "
+        "peak RSS growth (VmHWM) in a fresh subprocess; subjects timed in turn, frame by "
+        "frame; ours/peer = median of the paired ratios"
     )
     report(speed_table(results))
     stages = stages_table(results)
@@ -545,6 +565,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
                 "ours_over_by_frame": workers.paired_ratios_by_frame(ours, r.times_ms, len(frames)),
                 "p95_ms": _p95(r.times_ms),
                 "times_ms": r.times_ms,
+                "kernel_ms": r.kernel_ms,
                 "rss_growth_mb": r.rss_growth_mb,
                 "stages_median_ms": stage_medians(r.stages_ms),
                 "error": r.error,

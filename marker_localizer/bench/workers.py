@@ -4,7 +4,9 @@ Both speed tables (:mod:`~marker_localizer.bench.speed`, :mod:`~marker_localizer
 start one worker per subject, warm it up, then ask each in turn to time one frame:
 every frame goes to every subject before the next frame, so that a change in the
 shared host's load falls on all of them alike, and a ratio between two subjects is
-taken pair by pair (:func:`paired_ratio`). A worker reads one request per line on
+taken pair by pair (:func:`paired_ratio`). Subjects whose warm-up took longer than
+:data:`IN_TURN_MAX_S` are timed in the same way after the others
+(:func:`paced_groups`). A worker reads one request per line on
 its stdin and answers each with one JSON line on its stdout (:func:`serve`); it
 prints one JSON line when it is ready, with ``error`` empty or saying why it
 cannot run.
@@ -32,6 +34,16 @@ THREAD_VARIABLES = (
     "MKL_NUM_THREADS",
     "NUMEXPR_NUM_THREADS",
 )
+#: Longest a subject's warm-up detection may take for it to be timed in turn with the
+#: others, s. Between two detections of one subject pass the others' turns, and a
+#: virtual machine's balloon takes back the guest's memory that stayed free for 2 s
+#: (Linux's free page reporting): a subject that frees its whole-frame arrays after
+#: each detection and allocates them again (the OpenCV Hessian peer, 480 MB a speed
+#: frame) then faults them in from the hypervisor, its kernel time 2-4x. After a 1.7 s
+#: turn of chess-corners' Radon it took 280-320 ms a speed frame, 190-200 ms
+#: otherwise (docs/speed.md). A subject that slow is timed after the others, as a
+#: camera's frames come: well within 2 s of each other.
+IN_TURN_MAX_S = 1.0
 #: How long a worker may take to answer once, s: the slowest subject's warm-up on the
 #: busiest ground takes minutes.
 WORKER_TIMEOUT_S = 3600
@@ -163,14 +175,29 @@ class Worker:
         self.error = f"worker failed: {why}"
 
 
-def in_turn(workers: Sequence[Worker], index: int) -> list[int]:
-    """The positions of the running workers in the order they time frame ``index``.
+def paced_groups(warm_up_s: Sequence[float]) -> list[list[int]]:
+    """The subjects' positions in the groups timed one after the other.
+
+    Those whose warm-up took at most :data:`IN_TURN_MAX_S` (``warm_up_s``, one a
+    subject; NaN for a worker that failed), then the slower ones, each group frame
+    by frame in turn (:func:`in_turn`). Empty groups are left out.
+    """
+    seconds = np.asarray(warm_up_s, float)
+    slow = seconds > IN_TURN_MAX_S
+    groups = [np.flatnonzero(~slow).tolist(), np.flatnonzero(slow).tolist()]
+    return [group for group in groups if group]
+
+
+def in_turn(workers: Sequence[Worker], index: int, group: Sequence[int] | None = None) -> list[int]:
+    """The positions of the running workers of ``group`` in the order they time frame ``index``.
 
     Rotated by one a frame, so that no subject always follows the same one (the
-    cache it leaves, the turbo it wakes).
+    cache it leaves, the turbo it wakes). ``group``: positions in ``workers``
+    (:func:`paced_groups`); None: every worker.
     """
-    turn = index % max(len(workers), 1)
-    order = [*range(turn, len(workers)), *range(turn)]
+    members = list(range(len(workers))) if group is None else list(group)
+    turn = index % max(len(members), 1)
+    order = [*members[turn:], *members[:turn]]
     return [position for position in order if workers[position].running]
 
 

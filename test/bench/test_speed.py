@@ -54,6 +54,30 @@ def test_the_ratio_frame_by_frame_is_the_median_over_the_rounds_of_each_frames_p
     assert np.isnan(workers.paired_ratios_by_frame(ours[:5], peer[:5], 3)).all()
 
 
+class _Answering:
+    """What :func:`workers.in_turn` reads of a worker: whether it still answers."""
+
+    def __init__(self, running: bool = True) -> None:
+        self.running = running
+
+
+def test_subjects_slower_than_a_turn_are_timed_after_the_others():
+    # Radon's 1.7 s between two of the Hessian's detections let a VM's balloon take back
+    # the Hessian's freed pages: the slow subject goes last, the others keep their turns.
+    nan = float("nan")
+    assert workers.paced_groups([0.2, 1.7, 0.3, nan]) == [[0, 2, 3], [1]]
+    assert workers.paced_groups([0.2, 0.3]) == [[0, 1]]
+    assert workers.paced_groups([2.0]) == [[0]]
+
+
+def test_each_groups_turns_rotate_frame_by_frame_over_its_running_workers():
+    started = [_Answering(), _Answering(), _Answering(running=False), _Answering()]
+    assert workers.in_turn(started, 0, [0, 2, 3]) == [0, 3]
+    assert workers.in_turn(started, 1, [0, 2, 3]) == [3, 0]
+    assert workers.in_turn(started, 1, [1]) == [1]
+    assert workers.in_turn(started, 1) == [1, 3, 0]
+
+
 def test_the_ratio_is_not_given_when_the_subjects_timed_different_detections():
     assert np.isnan(workers.paired_ratio([100.0, 300.0], [200.0]))
     assert np.isnan(workers.paired_ratio([], []))
@@ -68,6 +92,10 @@ def test_every_subject_times_every_frame_of_every_round_in_its_own_worker(tmp_pa
     assert (ours.name, hessian.name) == tuple(names)
     assert ours.error == hessian.error == ""
     assert len(ours.times_ms) == len(hessian.times_ms) == 4
+    # The kernel's share of each detection: within its wall time, never negative.
+    for subject in (ours, hessian):
+        assert len(subject.kernel_ms) == 4
+        assert all(0.0 <= k <= t for k, t in zip(subject.kernel_ms, subject.times_ms, strict=True))
     assert len(ours.stages_ms) == 4 and "screening" in ours.stages_ms[0]
     assert hessian.stages_ms == []
     assert np.isfinite(ours.rss_growth_mb) and np.isfinite(hessian.rss_growth_mb)
