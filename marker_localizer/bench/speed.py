@@ -228,7 +228,8 @@ class WorkerResult:
         name: subject.
         times_ms: wall time of every timed detection, ms.
         kernel_ms: the kernel's processor time within each (system time: mostly the
-            page faults of the fresh memory a detection writes), ms.
+            page faults of the fresh memory a detection writes; the kernel splits a
+            process's time between it and user time in ticks of a few ms), ms.
         stages_ms: per-stage times of every timed detection (ours only), ms.
         rss_growth_mb: peak RSS growth around the warm-up detections, MiB.
         error: why the subject could not run ("" when it ran).
@@ -341,7 +342,8 @@ def run_subjects(
     every frame to every running subject in turn, the subjects' order rotating
     from one frame to the next, so that no subject always follows the same one.
     Subjects whose warm-up took over :data:`workers.IN_TURN_MAX_S` a frame run
-    their rounds after the others' (:func:`workers.paced_groups`).
+    their rounds after the others' (:func:`workers.paced_groups`), who take one
+    untimed turn on the first frame before theirs (:func:`workers.settle`).
     A worker that fails is reported with its error and left out of later rounds.
     """
     results = [WorkerResult(name) for name in names]
@@ -349,7 +351,9 @@ def run_subjects(
         for worker, result in zip(started, results, strict=True):
             result.rss_growth_mb = float(worker.ready.get("rss_growth_mb", float("nan")))
         warm_up_s = [float(worker.ready.get("warm_up_s", float("nan"))) for worker in started]
-        for group in workers.paced_groups(warm_up_s):
+        for n, group in enumerate(workers.paced_groups(warm_up_s)):
+            if n == 0:
+                workers.settle(started, group, "0")
             for _ in range(repeats):
                 for index in range(n_frames):
                     for position in workers.in_turn(started, index, group):

@@ -6,10 +6,10 @@ every frame goes to every subject before the next frame, so that a change in the
 shared host's load falls on all of them alike, and a ratio between two subjects is
 taken pair by pair (:func:`paired_ratio`). Subjects whose warm-up took longer than
 :data:`IN_TURN_MAX_S` are timed in the same way after the others
-(:func:`paced_groups`). A worker reads one request per line on
-its stdin and answers each with one JSON line on its stdout (:func:`serve`); it
-prints one JSON line when it is ready, with ``error`` empty or saying why it
-cannot run.
+(:func:`paced_groups`), who take one untimed turn first (:func:`settle`). A
+worker reads one request per line on its stdin and answers each with one JSON
+line on its stdout (:func:`serve`); it prints one JSON line when it is ready,
+with ``error`` empty or saying why it cannot run.
 """
 
 from __future__ import annotations
@@ -186,6 +186,18 @@ def paced_groups(warm_up_s: Sequence[float]) -> list[list[int]]:
     slow = seconds > IN_TURN_MAX_S
     groups = [np.flatnonzero(~slow).tolist(), np.flatnonzero(slow).tolist()]
     return [group for group in groups if group]
+
+
+def settle(workers: Sequence[Worker], group: Sequence[int], request: str) -> None:
+    """One untimed turn of the workers of ``group``, each asked ``request``.
+
+    The workers warm up one after another, and the slower subjects' warm-ups (a
+    few seconds each) may run after those of the group timed first: its subjects
+    then take one turn before their timed ones, so that none is timed after such
+    a wait (:data:`IN_TURN_MAX_S`).
+    """
+    for position in in_turn(workers, 0, group):
+        workers[position].ask(request)
 
 
 def in_turn(workers: Sequence[Worker], index: int, group: Sequence[int] | None = None) -> list[int]:

@@ -55,10 +55,15 @@ def test_the_ratio_frame_by_frame_is_the_median_over_the_rounds_of_each_frames_p
 
 
 class _Answering:
-    """What :func:`workers.in_turn` reads of a worker: whether it still answers."""
+    """What the turns ask of a worker: whether it still answers, and its answers."""
 
     def __init__(self, running: bool = True) -> None:
         self.running = running
+        self.asked: list[str] = []
+
+    def ask(self, request: str) -> dict[str, float]:
+        self.asked.append(request)
+        return {"ms": 1.0}
 
 
 def test_subjects_slower_than_a_turn_are_timed_after_the_others():
@@ -78,6 +83,12 @@ def test_each_groups_turns_rotate_frame_by_frame_over_its_running_workers():
     assert workers.in_turn(started, 1) == [1, 3, 0]
 
 
+def test_the_group_timed_first_takes_an_untimed_turn_after_the_slower_warm_ups():
+    started = [_Answering(), _Answering(running=False), _Answering(), _Answering()]
+    workers.settle(started, [0, 1, 2], "0")
+    assert [w.asked for w in started] == [["0"], [], ["0"], []]
+
+
 def test_the_ratio_is_not_given_when_the_subjects_timed_different_detections():
     assert np.isnan(workers.paired_ratio([100.0, 300.0], [200.0]))
     assert np.isnan(workers.paired_ratio([], []))
@@ -92,10 +103,10 @@ def test_every_subject_times_every_frame_of_every_round_in_its_own_worker(tmp_pa
     assert (ours.name, hessian.name) == tuple(names)
     assert ours.error == hessian.error == ""
     assert len(ours.times_ms) == len(hessian.times_ms) == 4
-    # The kernel's share of each detection: within its wall time, never negative.
-    for subject in (ours, hessian):
-        assert len(subject.kernel_ms) == 4
-        assert all(0.0 <= k <= t for k, t in zip(subject.kernel_ms, subject.times_ms, strict=True))
+    # The kernel's time in each detection (accounted in ticks: it may exceed a tiny
+    # frame's wall time by one).
+    assert len(ours.kernel_ms) == len(hessian.kernel_ms) == 4
+    assert min(ours.kernel_ms + hessian.kernel_ms) >= 0.0
     assert len(ours.stages_ms) == 4 and "screening" in ours.stages_ms[0]
     assert hessian.stages_ms == []
     assert np.isfinite(ours.rss_growth_mb) and np.isfinite(hessian.rss_growth_mb)
