@@ -303,8 +303,7 @@ def worker_main(name: str, frames_path: Path) -> int:
     """Subprocess entry: warm up one subject, then time each frame asked for.
 
     Ready (:func:`workers.serve`): ``rss_growth_mb``, ``warm_up_s`` (a frame's) and
-    ``error``; asked a frame
-    index: its ``ms``, ``kernel_ms`` and ``stages``.
+    ``error``; asked a frame index: its ``ms``, ``kernel_ms`` and ``stages``.
     """
     import cv2  # noqa: PLC0415
 
@@ -525,10 +524,11 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         f"Full-frame detection, {options.frames} rendered {FRAME_WIDTH}x{FRAME_HEIGHT} "
         f"cluttered frames x {options.repeats} repeats, one core (cv2.setNumThreads(1), "
         f"OMP/OPENBLAS/MKL threads = 1), radius range {RADIUS_RANGE[0]:g}-"
-        f"{RADIUS_RANGE[1]:g} px; kernel ms = median system time within a detection (page "
-        "faults on fresh memory, mostly: it moves with the host's free memory); RSS + = "
-        "peak RSS growth (VmHWM) in a fresh subprocess; subjects timed in turn, frame by "
-        "frame; ours/peer = median of the paired ratios"
+        f"{RADIUS_RANGE[1]:g} px; kernel ms = median system time within a detection "
+        "(mostly page faults on memory it allocates afresh); RSS + = peak RSS growth "
+        "(VmHWM) in a fresh subprocess; subjects timed in turn, frame by frame, those "
+        f"over {workers.IN_TURN_MAX_S:g} s a frame after the others; ours/peer = median "
+        "of the paired ratios"
     )
     report(speed_table(results))
     stages = stages_table(results)
