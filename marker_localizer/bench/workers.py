@@ -38,7 +38,7 @@ THREAD_VARIABLES = (
 #: others, s. Between two detections of one subject pass the others' turns, and a
 #: virtual machine's balloon takes back the guest's memory that stayed free for 2 s
 #: (Linux's free page reporting): a subject that frees its whole-frame arrays after
-#: each detection and allocates them again (the OpenCV Hessian peer, 480 MB a speed
+#: each detection and allocates them again (the OpenCV Hessian peer, 490 MB a speed
 #: frame) then faults them in from the hypervisor, its kernel time 2-4x. After a 1.7 s
 #: turn of chess-corners' Radon it took 280-320 ms a speed frame, 190-200 ms
 #: otherwise (docs/speed.md). A subject that slow is timed after the others, as a
