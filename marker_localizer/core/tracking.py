@@ -32,7 +32,9 @@ The rule for full-frame passes, precisely. A frame gets a full-frame pass
 
 * when no marker is tracked (the first frame, after :meth:`MarkerTracker.reset`, and
   after a stamp that does not advance or a frame of another size, which reset);
-* when ``full_frame_every - 1`` frames have been tracked since the last one;
+* when ``full_frame_every - 1`` frames have been tracked since the last one
+  (``phase`` fewer after the first pass that leaves tracks:
+  :attr:`MarkerTracker.phase`);
 * when there are more tracks than one pass takes on to the fit
   (:attr:`Detector.max_fitted`): a tiling of X's, where a tracked frame would
   confirm every track and add what its bands find, so that the tracks, and the
@@ -142,20 +144,32 @@ class MarkerTracker:
         config: the tracking settings (:class:`~marker_localizer.config.TrackerConfig`:
             ``full_frame_every``, ``max_motion_px``, ``match_px``,
             ``max_missed_frames``; see the module's rule).
+        phase: frames by which the first scheduled full pass comes early once a pass
+            has left tracks (at the start, and after a reset), >= 0. A rig's cameras
+            start together, and their full passes, several times a tracked frame's
+            work each, would otherwise fall on the same frames of every camera from
+            then on (:func:`staggered_phase` spreads them).
     """
 
     detector: Detector
     config: TrackerConfig = field(default_factory=TrackerConfig)
+    phase: int = 0
     _tracks: list[_Track] = field(default_factory=list, init=False)
     _frames_since_full: int = field(default=0, init=False)
+    _phase_pending: bool = field(default=True, init=False)
     _last_stamp_s: float = field(default=0.0, init=False)
     _frame_shape: tuple[int, ...] = field(default=(), init=False)
     _fit_motion_skips: int = field(default=0, init=False)
+
+    def __post_init__(self) -> None:
+        if self.phase < 0:
+            raise ValueError(f"phase must be >= 0 frames, got {self.phase}")
 
     def reset(self) -> None:
         """Forget every track (after a jump in time or a parameter change)."""
         self._tracks = []
         self._frames_since_full = 0
+        self._phase_pending = True
         self._fit_motion_skips = 0
 
     def update(self, image: NDArray[Any], stamp_s: float | None = None) -> DetectionResult:
@@ -208,7 +222,8 @@ class MarkerTracker:
         result.counts["full_frame"] = 1
         result.counts["tracked"] = 0
         self._adopt(gray, result, stamp, motion, predicted)
-        self._frames_since_full = 0
+        self._frames_since_full = self.phase if self._phase_pending else 0
+        self._phase_pending = self._phase_pending and not self._tracks
         self._cut_patches(gray)
         return result
 
@@ -607,6 +622,17 @@ class MarkerTracker:
             spread = np.minimum(spread, np.hypot(*(points - points[chosen[-1]]).T))
         for k in chosen:
             candidates[k][0].anchor = True
+
+
+def staggered_phase(camera_index: int, n_cameras: int, full_frame_every: int) -> int:
+    """The :attr:`MarkerTracker.phase` of camera ``camera_index`` of ``n_cameras``.
+
+    The cameras' phases spread evenly over ``full_frame_every``, so that their
+    scheduled full passes fall on different frames: with 5 cameras and a pass
+    every 10 frames, one camera's pass every other frame instead of all five on
+    every tenth.
+    """
+    return camera_index * full_frame_every // max(n_cameras, 1)
 
 
 def _confirmed(track: _Track, detection: Detection, stamp: float) -> _Track:

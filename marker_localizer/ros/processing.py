@@ -72,7 +72,7 @@ from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.core.image import peak_level
 from marker_localizer.core.pipeline import Detector
 from marker_localizer.core.result import CAP_COUNTS, DetectionResult
-from marker_localizer.core.tracking import MarkerTracker
+from marker_localizer.core.tracking import MarkerTracker, staggered_phase
 from marker_localizer.errors import ConfigError
 from marker_localizer.overlay import draw_detections
 from marker_localizer.ros.conversions import (
@@ -553,7 +553,9 @@ class FrameProcessor:
         """The camera's tracker around ``detector`` (a new one after a configuration change)."""
         tracker = self._trackers.get(camera)
         if tracker is None or tracker.detector is not detector or tracker.config is not config:
-            tracker = MarkerTracker(detector, config)
+            cameras = self.cameras
+            phase = staggered_phase(cameras.index(camera), len(cameras), config.full_frame_every)
+            tracker = MarkerTracker(detector, config, phase)
             self._trackers[camera] = tracker
         return tracker
 

@@ -86,6 +86,27 @@ def test_a_full_frame_pass_runs_every_full_frame_every_frames(moving_frames):
     assert passes == [1, 0, 0, 1, 0, 0]
 
 
+def test_a_phase_brings_the_first_scheduled_full_pass_that_many_frames_early(moving_frames):
+    tracker = MarkerTracker(_detector(), TrackerConfig(full_frame_every=4), phase=2)
+    passes = [
+        tracker.update(image, stamp_s=0.1 * k).counts["full_frame"]
+        for k, (image, _) in enumerate(moving_frames)
+    ]
+    assert passes == [1, 0, 1, 0, 0, 0]
+
+
+def test_a_negative_phase_is_refused():
+    with pytest.raises(ValueError, match="phase"):
+        MarkerTracker(_detector(), phase=-1)
+
+
+def test_the_cameras_phases_spread_over_the_full_pass_period():
+    assert [tracking.staggered_phase(k, 5, 10) for k in range(5)] == [0, 2, 4, 6, 8]
+    assert [tracking.staggered_phase(k, 3, 10) for k in range(3)] == [0, 3, 6]
+    # More cameras than frames in a period: they share the frames evenly.
+    assert [tracking.staggered_phase(k, 4, 2) for k in range(4)] == [0, 0, 1, 1]
+
+
 def test_a_stamp_that_does_not_advance_resets_the_tracks(moving_frames):
     tracker = MarkerTracker(_detector())
     image, _ = moving_frames[0]

@@ -250,6 +250,29 @@ def test_worker_processes_find_what_threads_find_and_carry_each_cameras_tracks()
     assert all(r.counts["tracked"] == 3 for r in results[True][2:])
 
 
+@pytest.mark.parametrize("processes", [False, True], ids=["threads", "processes"])
+def test_the_cameras_scheduled_full_passes_fall_on_different_frames(processes):
+    """Two cameras started together, a pass every 4 frames: the second's comes 2 frames early."""
+    config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=20.0)
+    processor = FrameProcessor(
+        ["a", "b"],
+        config,
+        Collector(),
+        workers=1,
+        tracker_config=TrackerConfig(full_frame_every=4),
+        worker_processes=processes,
+    )
+    passes: dict[str, list[int]] = {"a": [], "b": []}
+    try:
+        for k, frame in enumerate(_panning_frames(7)):
+            for camera in ("a", "b"):
+                result = processor.detect(camera, frame, float(k + 1))
+                passes[camera].append(result.counts["full_frame"])
+    finally:
+        assert processor.shutdown(TIMEOUT_S)
+    assert passes == {"a": [1, 0, 0, 0, 1, 0, 0], "b": [1, 0, 1, 0, 0, 0, 1]}
+
+
 def test_worker_processes_and_the_frames_shared_memory_are_gone_after_shutdown():
     before, blocks = _worker_process_ids(), _shared_memory_blocks()
     collect = Collector()
