@@ -237,9 +237,9 @@ def run_subjects(
     (:func:`save_grounds`). Per ground and range every subject warms up, then each
     frame goes to every running subject in turn (:func:`workers.in_turn`) before
     the next; subjects whose warm-up there took over :data:`workers.IN_TURN_MAX_S`
-    after the others (:func:`workers.paced_groups`), who take one untimed turn on
-    the first frame before theirs (:func:`workers.settle`). A subject whose worker
-    fails is reported with its error and no timings.
+    after the others, who take one untimed turn on the first frame before theirs
+    (:func:`workers.settled_groups`). A subject whose worker fails is reported
+    with its error and no timings.
     """
     results = [
         SubjectTimings(name, [[GroundTiming() for _ in RANGES] for _ in frame_counts])
@@ -254,9 +254,7 @@ def run_subjects(
                     if reply is not None:
                         results[position].timings[g][k].peak_mb = float(reply["peak_mb"])
                         warm_up_s[position] = float(reply["s"])
-                for n, group in enumerate(workers.paced_groups(warm_up_s)):
-                    if n == 0:
-                        workers.settle(started, group, f"time {g} {k} 0")
+                for group in workers.settled_groups(started, warm_up_s, f"time {g} {k} 0"):
                     for i in range(count):
                         for position in workers.in_turn(started, i, group):
                             reply = started[position].ask(f"time {g} {k} {i}")

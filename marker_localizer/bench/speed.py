@@ -341,8 +341,8 @@ def run_subjects(
     every frame to every running subject in turn, the subjects' order rotating
     from one frame to the next, so that no subject always follows the same one.
     Subjects whose warm-up took over :data:`workers.IN_TURN_MAX_S` a frame run
-    their rounds after the others' (:func:`workers.paced_groups`), who take one
-    untimed turn on the first frame before theirs (:func:`workers.settle`).
+    their rounds after the others', who take one untimed turn on the first frame
+    before theirs (:func:`workers.settled_groups`).
     A worker that fails is reported with its error and left out of later rounds.
     """
     results = [WorkerResult(name) for name in names]
@@ -350,9 +350,7 @@ def run_subjects(
         for worker, result in zip(started, results, strict=True):
             result.rss_growth_mb = float(worker.ready.get("rss_growth_mb", float("nan")))
         warm_up_s = [float(worker.ready.get("warm_up_s", float("nan"))) for worker in started]
-        for n, group in enumerate(workers.paced_groups(warm_up_s)):
-            if n == 0:
-                workers.settle(started, group, "0")
+        for group in workers.settled_groups(started, warm_up_s, "0"):
             for _ in range(repeats):
                 for index in range(n_frames):
                     for position in workers.in_turn(started, index, group):

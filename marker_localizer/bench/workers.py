@@ -200,6 +200,20 @@ def settle(workers: Sequence[Worker], group: Sequence[int], request: str) -> Non
         workers[position].ask(request)
 
 
+def settled_groups(
+    workers: Sequence[Worker], warm_up_s: Sequence[float], request: str
+) -> list[list[int]]:
+    """The groups to time one after the other (:func:`paced_groups`), the first settled.
+
+    The first group's workers are asked ``request`` once, untimed (:func:`settle`),
+    before the caller times its turns.
+    """
+    groups = paced_groups(warm_up_s)
+    if groups:
+        settle(workers, groups[0], request)
+    return groups
+
+
 def in_turn(workers: Sequence[Worker], index: int, group: Sequence[int] | None = None) -> list[int]:
     """The positions of the running workers of ``group`` in the order they time frame ``index``.
 

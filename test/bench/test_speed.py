@@ -89,6 +89,13 @@ def test_the_group_timed_first_takes_an_untimed_turn_after_the_slower_warm_ups()
     assert [w.asked for w in started] == [["0"], [], ["0"], []]
 
 
+def test_only_the_group_timed_first_is_settled():
+    started = [_Answering(), _Answering(), _Answering()]
+    groups = workers.settled_groups(started, [0.2, 1.7, 0.3], "0")
+    assert groups == [[0, 2], [1]]
+    assert [w.asked for w in started] == [["0"], [], ["0"]]
+
+
 def test_the_ratio_is_not_given_when_the_subjects_timed_different_detections():
     assert np.isnan(workers.paired_ratio([100.0, 300.0], [200.0]))
     assert np.isnan(workers.paired_ratio([], []))
