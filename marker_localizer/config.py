@@ -8,10 +8,13 @@ the CLI parses ``--param key=value`` against it, so nothing is written twice.
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args, overload
+
+import numpy as np
 
 from marker_localizer.core.verification import (
     EQUALISED_MIN_EXTENT_PX,
@@ -385,8 +388,7 @@ class DetectorConfig:
     )
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            _check_field(f, getattr(self, f.name))
+        _check_fields(self)
         if self.marker_radius_min_px > self.marker_radius_max_px:
             raise ConfigError(
                 f"marker_radius_min_px={self.marker_radius_min_px} is larger than "
@@ -468,8 +470,7 @@ class TrackerConfig:
     )
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            _check_field(f, getattr(self, f.name))
+        _check_fields(self)
 
     def replace(self, **changes: Any) -> TrackerConfig:
         """Return a validated copy with ``changes`` applied (unknown keys raise)."""
@@ -497,20 +498,44 @@ def _field_type(f: dataclasses.Field[Any]) -> type:
     return _VALUE_TYPES[field_kind(f)]
 
 
-def _check_field(f: dataclasses.Field[Any], value: Any) -> None:
+def _check_fields(config: DetectorConfig | TrackerConfig) -> None:
+    """Validate every field of a frozen ``config``, each stored as its plain Python value."""
+    for f in dataclasses.fields(config):
+        object.__setattr__(config, f.name, _checked_field(f, getattr(config, f.name)))
+
+
+def _as_kind(value: Any, kind: type) -> Any:
+    """``value`` as a ``kind`` (float, int, bool, str), or None where it is not one.
+
+    Numbers computed with numpy (``np.float32(6.0)``, ``np.int64(12)``) are numbers
+    too; a bool is not a number here, nor a float an int.
+    """
+    if kind is bool:
+        return bool(value) if isinstance(value, bool | np.bool_) else None
+    if isinstance(value, bool | np.bool_):
+        return None
+    if kind is float:
+        return float(value) if isinstance(value, numbers.Real) else None
+    if kind is int:
+        return int(value) if isinstance(value, numbers.Integral) else None
+    return value if isinstance(value, kind) else None
+
+
+def _checked_field(f: dataclasses.Field[Any], value: Any) -> Any:
+    """``value`` of field ``f`` as its plain Python type, once its type and range hold."""
     spec: ParamSpec = f.metadata["spec"]
     kind = _field_type(f)
-    ok_type = isinstance(value, kind) and not (kind is not bool and isinstance(value, bool))
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
-        ok_type = True
-    if not ok_type:
+    checked = _as_kind(value, kind)
+    if checked is None:
         raise ConfigError(f"{f.name}={value!r} must be of type {kind.__name__}")
+    value = checked
     if spec.choices and value not in spec.choices:
         raise ConfigError(f"{f.name}={value!r} must be one of {', '.join(spec.choices)}")
     if spec.low is not None and spec.high is not None and not spec.low <= value <= spec.high:
         raise ConfigError(
             f"{f.name}={value!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}".rstrip()
         )
+    return value
 
 
 def parse_value(name: str, text: str) -> Any:
@@ -545,28 +570,25 @@ def from_mapping(
     unknown = sorted(set(values) - set(specs))
     if unknown:
         raise ConfigError(f"unknown parameter(s): {', '.join(unknown)}")
-    converted: dict[str, Any] = {
-        name: float(value)
-        if _field_type(specs[name][0]) is float
-        and isinstance(value, int)
-        and not isinstance(value, bool)
-        else value
-        for name, value in values.items()
-    }
-    return dataclasses.replace(base or DetectorConfig(), **converted)
+    return dataclasses.replace(base or DetectorConfig(), **values)
 
 
+#: The node's name: its parameters' entry in a ROS 2 parameters file, which the
+#: command line reads too (:func:`load_params_file`).
+NODE_NAME = "marker_localizer"
 DETECTOR_NAMESPACE = "detector"
 TRACKER_NAMESPACE = "tracker"
 
 
 def load_params_file(
-    path: str | Path, node_name: str = "*", namespace: str = DETECTOR_NAMESPACE
+    path: str | Path, node_name: str = NODE_NAME, namespace: str = DETECTOR_NAMESPACE
 ) -> dict[str, Any]:
     """Read the ``<namespace>.*`` parameters (``detector.*`` by default) of a ROS 2 YAML file.
 
-    The file has the node's layout (``node_name: ros__parameters: detector: {...}``);
-    the entry for ``node_name`` or the wildcard ``/**`` is used.
+    The file has the node's layout (``node_name: ros__parameters: detector: {...}``),
+    beside other nodes' entries as a launch file's parameters have them. The entry
+    used is the first of ``node_name`` (bare, ``/node_name`` or ``/**/node_name``),
+    the wildcard ``/**``, or the file's only entry whatever its name.
     """
     import yaml  # noqa: PLC0415 - only this helper needs PyYAML
 
@@ -581,7 +603,8 @@ def load_params_file(
         raise ConfigError(f"{path}: not valid YAML ({where}{problem})") from err
     if not isinstance(document, dict):
         raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
-    entries = [document.get(key) for key in (node_name, f"/{node_name}", "/**", "**")]
+    keys = (node_name, f"/{node_name}", f"/**/{node_name}", "/**", "**")
+    entries = [document.get(key) for key in keys]
     if len(document) == 1:
         entries += list(document.values())
     for entry in entries:
@@ -606,6 +629,10 @@ def detector_config(params_file: str | Path | None, overrides: Sequence[str]) ->
     values: dict[str, Any] = {}
     if params_file:
         values.update(load_params_file(params_file))
+        try:
+            from_mapping(values)
+        except ConfigError as err:
+            raise ConfigError(f"{params_file}: {err}") from err
     for item in overrides:
         key, sep, text = item.partition("=")
         if not sep:

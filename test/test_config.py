@@ -1,11 +1,13 @@
 """The typed configuration shared by library, CLI and node."""
 
+import numpy as np
 import pytest
 
 from marker_localizer.config import (
     TRACKER_NAMESPACE,
     DetectorConfig,
     TrackerConfig,
+    detector_config,
     from_mapping,
     load_params_file,
     param_specs,
@@ -44,6 +46,21 @@ def test_invalid_values_are_rejected_with_the_value_named(change, message):
 
 def test_integers_are_accepted_for_float_fields():
     assert from_mapping({"marker_radius_max_px": 50}).marker_radius_max_px == 50.0
+
+
+def test_numbers_computed_with_numpy_are_accepted_and_kept_as_python_numbers():
+    config = DetectorConfig(
+        marker_radius_min_px=np.int64(6),
+        marker_radius_max_px=np.float32(30.5),
+        bit_depth=np.int64(12),
+    )
+    values = (config.marker_radius_min_px, config.marker_radius_max_px, config.bit_depth)
+    assert values == (6.0, 30.5, 12)
+    assert [type(v) for v in values] == [float, float, int]
+    with pytest.raises(ConfigError, match="must be of type int"):
+        DetectorConfig(bit_depth=np.float64(12.0))
+    with pytest.raises(ConfigError, match="must be of type float"):
+        DetectorConfig(marker_radius_min_px=np.bool_(True))
 
 
 def test_the_derived_settings_follow_the_fields_they_come_from():
@@ -87,6 +104,28 @@ def test_load_params_file_reads_the_detector_section_of_a_node_yaml(tmp_path):
         "marker_radius_min_px": 4.0,
         "line_check": False,
     }
+
+
+def test_load_params_file_finds_the_nodes_entry_beside_other_nodes(tmp_path):
+    # A launch file's parameters: one file, an entry per node.
+    path = tmp_path / "launch.yaml"
+    path.write_text(
+        "camera_driver:\n  ros__parameters:\n    fps: 4.0\n"
+        "marker_localizer:\n  ros__parameters:\n    detector:\n      marker_radius_min_px: 6.0\n"
+    )
+    assert load_params_file(path) == {"marker_radius_min_px": 6.0}
+    path.write_text(
+        "camera_driver:\n  ros__parameters:\n    fps: 4.0\n"
+        "/**/marker_localizer:\n  ros__parameters:\n    detector.line_check: false\n"
+    )
+    assert load_params_file(path) == {"line_check": False}
+
+
+def test_a_bad_value_in_a_params_file_names_the_file(tmp_path):
+    path = tmp_path / "node.yaml"
+    path.write_text("marker_localizer:\n  ros__parameters:\n    detector:\n      bogus: 1\n")
+    with pytest.raises(ConfigError, match=f"^{path}: unknown parameter\\(s\\): bogus$"):
+        detector_config(path, [])
 
 
 def test_load_params_file_reads_the_tracker_section_as_the_node_declares_it(tmp_path):

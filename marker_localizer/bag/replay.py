@@ -54,7 +54,7 @@ from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 
 from marker_localizer.bag.io import DEFAULT_STORAGE, BagMessage, BagReader, BagWriter
 from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
-from marker_localizer.config import DetectorConfig, TrackerConfig
+from marker_localizer.config import NODE_NAME, DetectorConfig, TrackerConfig
 from marker_localizer.errors import BagError, ConfigError, ImageError, shorten
 from marker_localizer.evaluation import (
     DEFAULT_GATE_PX,
@@ -71,7 +71,6 @@ from marker_localizer.ros.conversions import (
     cloud_to_array,
 )
 from marker_localizer.ros.diagnostics import bit_depth_warning
-from marker_localizer.ros.node import NODE_NAME
 from marker_localizer.ros.parameters import NodeConfig, diagnostic_thresholds
 from marker_localizer.ros.processing import FrameProcessor, stamp_to_ns
 

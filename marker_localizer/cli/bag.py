@@ -24,7 +24,7 @@ from marker_localizer.bag.play import PlayOptions, PlayReport, play_bag
 from marker_localizer.bag.record import record_flight
 from marker_localizer.bag.replay import format_report, replay_bag
 from marker_localizer.blas import single_thread_blas
-from marker_localizer.cli.arguments import seed_type
+from marker_localizer.cli.arguments import count_type, seed_type
 from marker_localizer.cli.exits import EXIT_INCOMPLETE, PROG
 from marker_localizer.cli.progress import ProgressBar
 from marker_localizer.config import (
@@ -54,16 +54,19 @@ def build_simulate_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, type=Path, help="bag directory to create")
     parser.add_argument(
         "--frames",
-        type=int,
+        type=count_type,
         default=defaults.n_frames,
         help="frame sets to record (default: %(default)s)",
     )
     parser.add_argument(
-        "--width", type=int, default=defaults.width, help="image width, px (default: %(default)s)"
+        "--width",
+        type=count_type,
+        default=defaults.width,
+        help="image width, px (default: %(default)s)",
     )
     parser.add_argument(
         "--height",
-        type=int,
+        type=count_type,
         default=defaults.height,
         help="image height, px (default: %(default)s)",
     )

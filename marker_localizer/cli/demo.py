@@ -19,10 +19,11 @@ import numpy as np
 
 from marker_localizer.bag.record import record_flight
 from marker_localizer.bag.replay import format_report, replay_bag
-from marker_localizer.cli.arguments import seed_type
+from marker_localizer.cli.arguments import count_type, seed_type
 from marker_localizer.cli.exits import PROG
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core.pipeline import Detector
+from marker_localizer.errors import ConfigError
 from marker_localizer.overlay import draw_detections
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
 
@@ -32,8 +33,15 @@ DEMO_RADIUS_RANGE_PX = (4.0, 30.0)
 
 
 def run(out_dir: Path, frames: int = 4, seed: int = 7, width: int = 1280, height: int = 960) -> int:
-    """Simulate, record, replay, report and draw; every output lands in ``out_dir``."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    """Simulate, record, replay, report and draw; every output lands in ``out_dir``.
+
+    Raises:
+        ConfigError: ``out_dir`` cannot be created (a file of that name, no permission).
+    """
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ConfigError(f"--out {out_dir}: cannot create the folder ({err.strerror})") from err
     flight_bag, result_bag = out_dir / "flight", out_dir / "markers"
     # Both bags belong to the demo, so a second run replaces them.
     for path in (flight_bag, result_bag):
@@ -70,7 +78,7 @@ def main(argv: Sequence[str]) -> int:
         description="Render frames, detect, print accuracy, write overlays.",
     )
     parser.add_argument("--out", default="out/demo", help="folder for the annotated frames")
-    parser.add_argument("--frames", type=int, default=4, help="frames per camera")
+    parser.add_argument("--frames", type=count_type, default=4, help="frames per camera")
     parser.add_argument("--seed", type=seed_type, default=7)
     args = parser.parse_args(argv)
     return run(Path(args.out), frames=args.frames, seed=args.seed)

@@ -16,7 +16,7 @@ import numpy as np
 from marker_localizer import config as config_module
 from marker_localizer import evaluation
 from marker_localizer.blas import single_thread_blas
-from marker_localizer.cli.exits import EXIT_ERROR, PROG
+from marker_localizer.cli.exits import EXIT_ERROR, EXIT_INCOMPLETE, PROG
 from marker_localizer.core.image import (
     BAYER_PATTERNS,
     SHALLOW_PEAK_TEXT,
@@ -162,7 +162,8 @@ def main(argv: Sequence[str]) -> int:
     """``detect``: one result per image; unreadable images are reported and skipped.
 
     Returns:
-        0, or :data:`EXIT_ERROR` when an image could not be read or its overlay written.
+        0; :data:`EXIT_INCOMPLETE` when an image could not be read or its overlay
+        written, but others gave results; :data:`EXIT_ERROR` when none did.
     """
     args = build_parser().parse_args(_why_values_joined(argv))
     detector = Detector(config_module.detector_config(args.params_file, args.param))
@@ -170,7 +171,7 @@ def main(argv: Sequence[str]) -> int:
     # the processor time, and detect commands run side by side do not compete.
     single_thread_blas()
     overlays = _overlay_paths(args.images, args.overlay) if args.overlay else {}
-    failed = 0
+    failed = printed = 0
     for path in args.images:
         try:
             image = read_image_file(path, detector.config.max_pixels)
@@ -191,10 +192,13 @@ def main(argv: Sequence[str]) -> int:
             print(json.dumps(record), flush=True)
         else:
             _write_table(record)
+        printed += 1
         if path in overlays and not _write_overlay(overlays[path], image, result, detector):
             failed += 1
             print(f"{PROG}: error: {overlays[path]}: cannot write the overlay", file=sys.stderr)
-    return EXIT_ERROR if failed else 0
+    if not failed:
+        return 0
+    return EXIT_INCOMPLETE if printed else EXIT_ERROR
 
 
 def _warn_if_shallow(path: str, image: np.ndarray, bit_depth: int) -> None:

@@ -11,11 +11,17 @@ command into its status:
 * 128 + the signal's number (130, 143): SIGINT or SIGTERM. Both interrupt
   the command alike: it unwinds (an unfinished output bag is removed) and one
   line names the signal; a second signal during the unwinding ends the process
-  at once (:mod:`marker_localizer.stopping`).
+  at once (:mod:`marker_localizer.stopping`);
+* 141 (:data:`EXIT_CLOSED_PIPE`, 128 + SIGPIPE): the reader of its output went
+  away (``marker-localizer detect *.png --json | head -1``). It stops, silently,
+  as a tool that SIGPIPE ends does: Python ignores SIGPIPE, and the next write
+  would raise.
 """
 
 from __future__ import annotations
 
+import os
+import select
 import signal
 import sys
 from collections.abc import Callable
@@ -30,6 +36,9 @@ EXIT_ERROR = 1
 #: A command that finished but skipped, failed on or could not read part of its
 #: input, its summary saying what.
 EXIT_INCOMPLETE = 3
+#: The status of a command whose output's reader went away: what a shell reports
+#: for a process SIGPIPE ended.
+EXIT_CLOSED_PIPE = 128 + signal.SIGPIPE
 
 
 class Interrupted(KeyboardInterrupt):
@@ -49,6 +58,13 @@ def _interrupt(signum: int) -> None:
     raise Interrupted(signum)
 
 
+def _output_reader_gone() -> bool:
+    """Whether stdout is a pipe whose reading end is closed (poll reports an error on it)."""
+    poller = select.poll()
+    poller.register(sys.stdout.fileno(), select.POLLERR)
+    return bool(poller.poll(0))
+
+
 def run_command(label: str, body: Callable[[], int]) -> int:
     """Run a command's body and return its exit status (see the module docstring).
 
@@ -58,11 +74,19 @@ def run_command(label: str, body: Callable[[], int]) -> int:
 
     Returns:
         ``body``'s status, :data:`EXIT_ERROR` after a :class:`MarkerLocalizerError`,
-        130 after SIGINT (Ctrl-C), 143 after SIGTERM.
+        130 after SIGINT (Ctrl-C), 143 after SIGTERM, :data:`EXIT_CLOSED_PIPE` after
+        the output's reader went away.
     """
     try:
         with on_stop_signal(_interrupt):
             return body()
+    except BrokenPipeError:
+        if not _output_reader_gone():
+            raise  # another pipe: a worker's, say
+        # What is still buffered cannot reach the reader either: point stdout at
+        # /dev/null, or the interpreter's flush at exit raises again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_CLOSED_PIPE
     except MarkerLocalizerError as err:
         sys.stderr.write(f"{label}: error: {err}\n")
         return EXIT_ERROR

@@ -23,6 +23,11 @@ FLOAT_OVERSHOOT = 0.5
 #: for its markers puts their bright paint over a third of white. Its grey-level
 #: thresholds then ask 16 times the contrast, and most markers are lost.
 SHALLOW_PEAK_SHARE = 1.0 / 16.0
+#: Most of a 16-bit frame's levels (read on :func:`peak_level`'s grid) that may lie
+#: above white at its ``bit_depth``: hot pixels and glints are a few pixels, where a
+#: sensor's bits left-aligned in 16-bit words put every level over 1/16 of white
+#: above it, most of a frame exposed for its markers.
+MAX_ABOVE_WHITE_SHARE = 0.5
 #: :data:`SHALLOW_PEAK_SHARE` as the warnings write it.
 SHALLOW_PEAK_TEXT = f"1/{round(1.0 / SHALLOW_PEAK_SHARE)}"
 #: OpenCV's demosaicing to grey for each Bayer pattern as ROS names it (the colours of
@@ -68,6 +73,7 @@ def to_gray(
             clipped to it.
         rgb: the channels are RGB(A) instead of BGR(A).
         bit_depth: significant bits of uint16 pixels (see :func:`bit_depth_scale`).
+            Byte order is any: a big-endian array is read in the machine's.
 
     Returns:
         (grey, full_scale): the (H, W) image and the value of white in it
@@ -75,12 +81,17 @@ def to_gray(
 
     Raises:
         ImageError: empty image, unsupported shape or dtype, non-finite values, float
-            levels beyond :data:`FLOAT_OVERSHOOT` of [0, 1].
+            levels beyond :data:`FLOAT_OVERSHOOT` of [0, 1], over
+            :data:`MAX_ABOVE_WHITE_SHARE` of the 16-bit levels above white at
+            ``bit_depth`` (read on :func:`peak_level`'s grid).
     """
     if not isinstance(image, np.ndarray):
         raise ImageError(f"expected a numpy array, got {type(image).__name__}")
     if image.size == 0:
         raise ImageError(f"empty image (shape {image.shape})")
+    if not image.dtype.isnative:
+        # A big-endian buffer (a FITS file, a message with is_bigendian): the same levels.
+        image = image.astype(image.dtype.newbyteorder("="))
     if image.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
         raise ImageError(f"unsupported dtype {image.dtype} (expected uint8, uint16 or float)")
     if image.ndim == 3 and image.shape[2] == 1:
@@ -106,7 +117,19 @@ def to_gray(
                 "scale them to it (8-bit levels divided by 255)"
             )
         return np.ascontiguousarray(np.clip(image, 0.0, 1.0), dtype=np.float32), 1.0
-    return np.ascontiguousarray(image), bit_depth_scale(image.dtype, bit_depth)
+    white = bit_depth_scale(image.dtype, bit_depth)
+    if image.dtype == np.uint16 and bit_depth < 16:
+        sample = image[::_PEAK_STRIDE, ::_PEAK_STRIDE]
+        above = np.count_nonzero(sample > white) / sample.size
+        if above > MAX_ABOVE_WHITE_SHARE:
+            # Every threshold would read a frame of saturated levels, and find nothing.
+            raise ImageError(
+                f"{above:.0%} of the levels lie above white at bit_depth {bit_depth} "
+                f"({white:g}), up to {float(sample.max()):g}: the pixels hold more than "
+                f"{bit_depth} bits (a sensor's bits left-aligned in 16-bit words hold 16); "
+                "set bit_depth to the bits they hold"
+            )
+    return np.ascontiguousarray(image), white
 
 
 def bayer_to_grey(mosaic: NDArray[Any], pattern: str) -> NDArray[Any]:

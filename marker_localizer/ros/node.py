@@ -50,7 +50,7 @@ from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from marker_localizer.blas import single_thread_blas
-from marker_localizer.config import DetectorConfig, TrackerConfig
+from marker_localizer.config import NODE_NAME, DetectorConfig, TrackerConfig
 from marker_localizer.errors import ConfigError, MarkerLocalizerError, shorten
 from marker_localizer.ros import diagnostics
 from marker_localizer.ros.conversions import (
@@ -68,7 +68,6 @@ from marker_localizer.ros.parameters import (
 from marker_localizer.ros.processing import FrameProcessor
 from marker_localizer.stopping import on_stop_signal
 
-NODE_NAME = "marker_localizer"
 #: Per camera, at most one log line about failing frames, and one about dropped
 #: frames, in this many seconds: a camera sending bad frames at 10 Hz must not
 #: flood the log, and the diagnostics carry the counts and the last error anyway.

@@ -196,6 +196,14 @@ class FlightConfig:
         for name, value in positive.items():
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"{name}={value!r} must be positive and finite")
+        # The altitude follows from the frame's width; a frame narrower than a marker's
+        # plate at nadir makes a flight of thousands of markers no frame shows whole.
+        plate_px = 2.0 * PLATE_HALF_SIDE * self.nadir_marker_radius_px
+        if min(self.width, self.height) < plate_px:
+            raise ConfigError(
+                f"width x height {self.width}x{self.height} must hold a marker's plate at "
+                f"nadir, {plate_px:g} px (nadir_marker_radius_px={self.nadir_marker_radius_px:g})"
+            )
         if not 1 <= self.n_cameras <= len(CAMERA_NAMES):
             raise ConfigError(f"n_cameras={self.n_cameras!r} must be in [1, {len(CAMERA_NAMES)}]")
         if not 1.0 <= self.horizontal_fov_deg <= 120.0:

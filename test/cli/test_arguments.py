@@ -7,6 +7,9 @@ from marker_localizer.cli import main
 REFUSED = [
     (["demo", "--seed", "-1"], "--seed: must be at least 0, got -1"),
     (["simulate", "--out", "never", "--seed", "-3"], "--seed: must be at least 0, got -3"),
+    (["demo", "--frames", "0"], "--frames: must be at least 1, got 0"),
+    (["simulate", "--out", "never", "--frames", "0"], "--frames: must be at least 1, got 0"),
+    (["simulate", "--out", "never", "--width", "-4"], "--width: must be at least 1, got -4"),
     (["bench", "accuracy", "--frames", "-1"], "--frames: must be at least 1, got -1"),
     (["bench", "accuracy", "--seed", "-1"], "--seed: must be at least 0, got -1"),
     (["bench", "speed", "--frames", "0"], "--frames: must be at least 1, got 0"),

@@ -56,11 +56,11 @@ def test_colour_and_16_bit_files_are_converted(x_image, tmp_path, capsys):
     assert [len(r["markers"]) for r in records] == [1, 1]
 
 
-def test_unreadable_files_give_one_line_naming_the_file_and_exit_1(x_image, tmp_path, capsys):
+def test_unreadable_files_give_one_line_naming_the_file_and_exit_3(x_image, tmp_path, capsys):
     path, _ = x_image
     junk = tmp_path / "junk.png"
     junk.write_bytes(b"not an image")
-    assert main(["detect", str(tmp_path / "missing.png"), str(junk), str(path), "--json"]) == 1
+    assert main(["detect", str(tmp_path / "missing.png"), str(junk), str(path), "--json"]) == 3
     captured = capsys.readouterr()
     errors = captured.err.strip().splitlines()
     assert errors == [
@@ -69,6 +69,11 @@ def test_unreadable_files_give_one_line_naming_the_file_and_exit_1(x_image, tmp_
     ]
     assert "Traceback" not in captured.err
     assert len(captured.out.strip().splitlines()) == 1  # the good image is still processed
+
+
+def test_no_image_giving_a_result_is_exit_1(tmp_path, capsys):
+    assert main(["detect", str(tmp_path / "missing.png")]) == 1
+    assert capsys.readouterr().out == ""
 
 
 def test_a_12_bit_png_read_at_16_bits_is_processed_with_a_warning_naming_its_depth(
@@ -94,7 +99,7 @@ def test_a_float_tiff_of_8_bit_levels_is_one_line_not_a_blank_frame(x_image, tmp
     unit, levels = tmp_path / "unit.tiff", tmp_path / "levels.tiff"
     cv2.imwrite(str(unit), image.astype(np.float32) / 255.0)
     cv2.imwrite(str(levels), image.astype(np.float32))
-    assert main(["detect", str(unit), str(levels), "--json"]) == 1
+    assert main(["detect", str(unit), str(levels), "--json"]) == 3
     captured = capsys.readouterr()
     assert captured.err.strip().splitlines() == [
         f"marker-localizer: error: {levels}: float image levels span 30 to 200, beyond [0, 1] "
@@ -219,7 +224,7 @@ def test_a_raw_bayer_file_is_demosaiced_with_bayer_and_a_colour_one_is_refused(
     raw, colour = tmp_path / "raw.png", tmp_path / "colour.png"
     cv2.imwrite(str(raw), mosaic.round().astype(np.uint8))
     cv2.imwrite(str(colour), cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
-    assert main(["detect", str(raw), str(colour), "--bayer", pattern, "--json"]) == 1
+    assert main(["detect", str(raw), str(colour), "--bayer", pattern, "--json"]) == 3
     captured = capsys.readouterr()
     (record,) = (json.loads(line) for line in captured.out.splitlines())
     assert record["image"] == str(raw)

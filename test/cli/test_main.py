@@ -4,6 +4,8 @@ import importlib
 import subprocess
 import sys
 
+import cv2
+import numpy as np
 import pytest
 
 from marker_localizer.cli import BENCHMARKS, COMMANDS, main
@@ -45,6 +47,15 @@ def test_a_package_error_is_one_line_and_status_1(capsys):
     assert err == "marker-localizer: error: --param expects key=value, got 'marker_radius_min_px'\n"
 
 
+def test_a_demo_folder_that_cannot_be_made_is_one_line(tmp_path, capsys):
+    taken = tmp_path / "afile"
+    taken.write_text("")
+    assert main(["demo", "--out", str(taken)]) == 1
+    assert capsys.readouterr().err == (
+        f"marker-localizer: error: --out {taken}: cannot create the folder (File exists)\n"
+    )
+
+
 def test_a_command_line_argparse_refuses_exits_2_naming_the_command(capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["detect"])
@@ -64,6 +75,23 @@ def test_python_m_runs_the_same_command_line():
     )
     assert result.returncode == 0
     assert result.stdout.startswith("usage: marker-localizer detect")
+
+
+def test_output_whose_reader_went_away_ends_quietly_with_141(tmp_path):
+    """``detect ... | head -1``: no traceback, the status a shell gives a process SIGPIPE ends."""
+    board = np.kron((np.indices((12, 12)).sum(axis=0) % 2) * 170 + 40, np.ones((24, 24)))
+    path = tmp_path / "board.png"
+    cv2.imwrite(str(path), cv2.GaussianBlur(board.astype(np.uint8), (0, 0), 1.0))
+    # Eight records of 121 corners each fill more than a pipe holds (64 KiB), so the
+    # command is still writing when the reader goes away.
+    command = [sys.executable, "-m", "marker_localizer.cli", "detect", *[str(path)] * 8, "--json"]
+    with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE) as process:
+        assert process.stdout is not None and process.stderr is not None
+        assert process.stdout.readline().startswith(b'{"image"')
+        process.stdout.close()
+        err = process.stderr.read()
+        assert process.wait(timeout=120) == 141
+    assert err == b""
 
 
 def test_an_option_a_command_lacks_is_refused_not_read_as_one_it_begins(capsys):

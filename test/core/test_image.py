@@ -117,6 +117,26 @@ def test_bad_input_is_one_error_naming_what_is_wrong(image, message):
         to_gray(image)
 
 
+def test_a_big_endian_array_is_read_as_the_same_levels():
+    levels = np.arange(12, dtype=np.uint16).reshape(3, 4) * 4000
+    grey, white = to_gray(levels.astype(">u2"))
+    assert grey.dtype.isnative and white == 65535.0
+    np.testing.assert_array_equal(grey, levels)
+    unit, _ = to_gray((levels / 65535.0).astype(">f4"))
+    np.testing.assert_allclose(unit, levels / 65535.0, rtol=1e-6)
+
+
+def test_16_bit_levels_above_white_at_the_bit_depth_are_refused_not_saturated():
+    # A 12-bit sensor's bits left-aligned in 16-bit words: told 12 bits, every
+    # threshold would read a saturated frame and find nothing.
+    left_aligned = np.full((8, 8), 200 * 16, np.uint16) * 16
+    refused = r"100% of the levels lie above white at bit_depth 12 \(4095\), up to 51200"
+    with pytest.raises(ImageError, match=refused):
+        to_gray(left_aligned, bit_depth=12)
+    assert to_gray(left_aligned, bit_depth=16)[1] == 65535.0
+    assert to_gray(left_aligned // 16, bit_depth=12)[1] == 4095.0
+
+
 @pytest.mark.parametrize(
     ("peak", "bit_depth", "hint"),
     [
