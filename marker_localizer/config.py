@@ -504,38 +504,54 @@ def _check_fields(config: DetectorConfig | TrackerConfig) -> None:
         object.__setattr__(config, f.name, _checked_field(f, getattr(config, f.name)))
 
 
-def _as_kind(value: Any, kind: type) -> Any:
-    """``value`` as a ``kind`` (float, int, bool, str), or None where it is not one.
+def _as_kind(value: Any, kind: str) -> Any:
+    """``value`` as a ``kind`` (:func:`field_kind`'s names), or None where it is not one.
 
     Numbers computed with numpy (``np.float32(6.0)``, ``np.int64(12)``) are numbers
-    too; a bool is not a number here, nor a float an int.
+    too; a bool is not a number here, nor a float an int; a sequence of strings is a
+    ``tuple[str, ...]`` (ROS gives a list), a string is not.
     """
-    if kind is bool:
+    if kind == "tuple[str, ...]":
+        strings = isinstance(value, list | tuple) and all(isinstance(v, str) for v in value)
+        return tuple(value) if strings else None
+    if kind == "bool":
         return bool(value) if isinstance(value, bool | np.bool_) else None
     if isinstance(value, bool | np.bool_):
         return None
-    if kind is float:
+    if kind == "float":
         return float(value) if isinstance(value, numbers.Real) else None
-    if kind is int:
+    if kind == "int":
         return int(value) if isinstance(value, numbers.Integral) else None
-    return value if isinstance(value, kind) else None
+    return value if isinstance(value, _VALUE_TYPES[kind]) else None
+
+
+def checked_value(name: str, kind: str, spec: ParamSpec, value: Any) -> Any:
+    """``value`` of setting ``name`` as its plain Python type, once its type and range hold.
+
+    Args:
+        name: the setting's name, as the error names it.
+        kind: its type's name (:func:`field_kind`).
+        spec: its range and choices.
+        value: the value given.
+
+    Raises:
+        ConfigError: ``value`` is not of ``kind``, not one of the choices, or out of range.
+    """
+    checked = _as_kind(value, kind)
+    if checked is None:
+        raise ConfigError(f"{name}={value!r} must be of type {kind}")
+    if spec.choices and checked not in spec.choices:
+        raise ConfigError(f"{name}={checked!r} must be one of {', '.join(spec.choices)}")
+    if spec.low is not None and spec.high is not None and not spec.low <= checked <= spec.high:
+        raise ConfigError(
+            f"{name}={checked!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}".rstrip()
+        )
+    return checked
 
 
 def _checked_field(f: dataclasses.Field[Any], value: Any) -> Any:
     """``value`` of field ``f`` as its plain Python type, once its type and range hold."""
-    spec: ParamSpec = f.metadata["spec"]
-    kind = _field_type(f)
-    checked = _as_kind(value, kind)
-    if checked is None:
-        raise ConfigError(f"{f.name}={value!r} must be of type {kind.__name__}")
-    value = checked
-    if spec.choices and value not in spec.choices:
-        raise ConfigError(f"{f.name}={value!r} must be one of {', '.join(spec.choices)}")
-    if spec.low is not None and spec.high is not None and not spec.low <= value <= spec.high:
-        raise ConfigError(
-            f"{f.name}={value!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}".rstrip()
-        )
-    return value
+    return checked_value(f.name, field_kind(f), f.metadata["spec"], value)
 
 
 def parse_value(name: str, text: str) -> Any:

@@ -31,3 +31,7 @@ class ImageError(MarkerLocalizerError, ValueError):
 
 class BagError(MarkerLocalizerError):
     """A bag cannot be read, has no usable topics, or cannot be written."""
+
+
+class WorkerError(MarkerLocalizerError):
+    """A worker process ended while it held a frame (killed: out of memory, a signal)."""

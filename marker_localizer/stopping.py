@@ -26,20 +26,29 @@ def on_stop_signal(action: Callable[[int], None]) -> Iterator[None]:
 
     ``action`` may raise (the exception then unwinds the main thread from where
     it was). Outside the main thread, where Python cannot install handlers,
-    the block runs with the handlers as they are.
+    the block runs with the handlers as they are. The handlers in place before
+    are put back at the block's end unless a signal came: then both keep their
+    default action, for the rest of the process.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
+    stopped = threading.Event()
+
     def first(signum: int, _frame: object) -> None:
         for stop in STOP_SIGNALS:
             signal.signal(stop, signal.SIG_DFL)
+        stopped.set()
         action(signum)
 
     previous = {stop: signal.signal(stop, first) for stop in STOP_SIGNALS}
     try:
         yield
     finally:
-        for stop, handler in previous.items():
-            signal.signal(stop, handler)
+        # After a first signal the defaults stay: the process may still be stopping
+        # after the block (the interpreter's exit waits for a worker pool), and a
+        # second signal must end it there too.
+        if not stopped.is_set():
+            for stop, handler in previous.items():
+                signal.signal(stop, handler)

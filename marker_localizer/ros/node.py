@@ -51,7 +51,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from marker_localizer.blas import single_thread_blas
 from marker_localizer.config import NODE_NAME, DetectorConfig, TrackerConfig
-from marker_localizer.errors import ConfigError, MarkerLocalizerError, shorten
+from marker_localizer.errors import ConfigError, MarkerLocalizerError, WorkerError, shorten
 from marker_localizer.ros import diagnostics
 from marker_localizer.ros.conversions import (
     CAMERA_INFO_SUFFIX,
@@ -251,7 +251,9 @@ class MarkerLocalizerNode(Node):
         if now - self._last_failure_log.get(camera, -_CAMERA_LOG_PERIOD_S) < (_CAMERA_LOG_PERIOD_S):
             return
         self._last_failure_log[camera] = now
-        if isinstance(err, MarkerLocalizerError):
+        if isinstance(err, WorkerError):
+            self.get_logger().error(f"{camera}: frame failed: {err}")
+        elif isinstance(err, MarkerLocalizerError):
             self.get_logger().warning(f"{camera}: frame rejected: {err}")
         else:  # a bug: keep the traceback
             text = "".join(traceback.format_exception(err)).rstrip()

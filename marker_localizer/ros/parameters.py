@@ -48,6 +48,7 @@ from marker_localizer.config import (
     DetectorConfig,
     ParamSpec,
     TrackerConfig,
+    checked_value,
     field_kind,
     from_mapping,
     param_specs,
@@ -186,26 +187,15 @@ class NodeConfig:
     )
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "cameras", tuple(self.cameras))
-        bad = [c for c in self.cameras if not isinstance(c, str) or not _CAMERA_NAME.match(c)]
+        for f in dataclasses.fields(self):
+            value = checked_value(f.name, field_kind(f), f.metadata["spec"], getattr(self, f.name))
+            object.__setattr__(self, f.name, value)
+        bad = [c for c in self.cameras if not _CAMERA_NAME.match(c)]
         if not self.cameras or bad or len(set(self.cameras)) != len(self.cameras):
             raise ConfigError(
                 f"cameras={list(self.cameras)!r} must be non-empty, unique names of letters, "
                 "digits and '_' starting with a letter"
             )
-        for f in dataclasses.fields(self):
-            spec: ParamSpec = f.metadata["spec"]
-            value = getattr(self, f.name)
-            if spec.choices and value not in spec.choices:
-                raise ConfigError(f"{f.name}={value!r} must be one of {', '.join(spec.choices)}")
-            if (
-                spec.low is not None
-                and spec.high is not None
-                and not (spec.low <= value <= spec.high)
-            ):
-                raise ConfigError(
-                    f"{f.name}={value!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}"
-                )
 
 
 def diagnostic_thresholds(settings: NodeConfig) -> DiagnosticThresholds:
@@ -280,10 +270,23 @@ def _declare(
     default: Any,
     overrides: Mapping[str, Parameter],
 ) -> Any:
-    """Declare one field as parameter ``name``; return its start value (override or default)."""
+    """Declare one field as parameter ``name``; return its start value (override or default).
+
+    A start value is checked as a setting first: declared with it, a parameter
+    takes its type (``publish_overlay:=1`` an integer one, which refuses ``false``
+    later; ``cameras:=front`` a string that reads as five cameras).
+
+    Raises:
+        ConfigError: the start value is of another type or out of range, or an empty array.
+    """
     read_only = bool(f.metadata.get("read_only", False))
-    described = descriptor(name, f.metadata["spec"], field_kind(f), read_only=read_only)
-    start = _as_double(field_kind(f), overrides[name].value) if name in overrides else default
+    kind = field_kind(f)
+    described = descriptor(name, f.metadata["spec"], kind, read_only=read_only)
+    start = default
+    if name in overrides:
+        start = checked_value(name, kind, f.metadata["spec"], overrides[name].value)
+        if start == ():
+            raise ConfigError(f"{name}=[] must list at least one value")
     # rclpy infers STRING_ARRAY from a list, not from a tuple.
     ros_start = list(start) if isinstance(start, tuple) else start
     value = node.declare_parameter(name, ros_start, described, ignore_override=True).value
@@ -323,13 +326,12 @@ class LiveParameters:
             )
         overrides = _overrides(node)
         unknown = sorted(
-            name.split(".", 1)[1]
+            name
             for name in overrides
             for kind, namespace in _NAMESPACES.items()
             if name.startswith(f"{namespace}.") and name not in self._names[kind]
         )
         if unknown:
-            # The same words as the CLI's from_mapping.
             raise ConfigError(f"unknown parameter(s): {', '.join(unknown)}")
         try:
             node_values = {

@@ -73,7 +73,7 @@ from marker_localizer.core.image import peak_level
 from marker_localizer.core.pipeline import Detector
 from marker_localizer.core.result import CAP_COUNTS, DetectionResult
 from marker_localizer.core.tracking import MarkerTracker, staggered_phase
-from marker_localizer.errors import ConfigError
+from marker_localizer.errors import ConfigError, WorkerError
 from marker_localizer.overlay import draw_detections
 from marker_localizer.ros.conversions import (
     array_to_image,
@@ -151,6 +151,22 @@ def _start_worker_process() -> None:
     # One worker per core: OpenCV's and BLAS's thread pools would compete with the others.
     cv2.setNumThreads(1)
     single_thread_blas()
+
+
+class _AbandonedError(Exception):
+    """A frame in flight at the shutdown's timeout: its worker process was killed."""
+
+
+def _kill_workers(pool: ProcessPoolExecutor) -> None:
+    """SIGKILL ``pool``'s worker processes (they ignore SIGINT and SIGTERM).
+
+    Left alone, a worker still busy at the shutdown's timeout would finish its frame
+    first, and the interpreter's exit waits for the pool: the node would outlast its
+    ``shutdown_timeout_s`` by the frame's time. The pool's processes are private to
+    it (a public way to end them comes with Python 3.14's ``kill_workers``).
+    """
+    for process in list(getattr(pool, "_processes", {}).values()):
+        process.kill()
 
 
 def _exit_with(parent: multiprocessing.process.BaseProcess) -> None:
@@ -452,7 +468,8 @@ class FrameProcessor:
 
         Returns:
             True if every worker finished; False if some were still busy at
-            the timeout (their results will not be delivered).
+            the timeout (their results will not be delivered, and worker
+            processes still busy are killed).
         """
         with self._cond:
             self._stopping = True
@@ -466,8 +483,9 @@ class FrameProcessor:
         finished = not any(thread.is_alive() for thread in self._threads)
         with self._pool_lock:
             if self._pool is not None:
-                # A process still busy at the timeout finishes its frame and exits.
-                self._pool.shutdown(wait=finished, cancel_futures=True)
+                if not finished:
+                    _kill_workers(self._pool)
+                self._pool.shutdown(wait=True, cancel_futures=True)
             for block in self._frame_blocks:
                 block.close()
                 block.unlink()
@@ -542,12 +560,17 @@ class FrameProcessor:
             frame = _SharedFrame(block.name, pixels.shape, pixels.dtype.str)
             np.ndarray(frame.shape, frame.dtype, buffer=block.buf)[...] = pixels
             return pool.submit(_detect_shared_frame, detector, tracker, frame, stamp_s).result()
-        except BrokenProcessPool:
+        except BrokenProcessPool as err:
             with self._pool_lock:
-                if self._pool is pool and not self._stopping:
+                if self._stopping:
+                    raise _AbandonedError from err
+                if self._pool is pool:
                     pool.shutdown(wait=False, cancel_futures=True)
                     self._pool = self._start_pool(self.workers)
-            raise
+            raise WorkerError(
+                "its worker process ended abruptly (killed: out of memory, a signal); "
+                "a fresh one serves the next frames"
+            ) from err
 
     def _tracker(self, camera: str, detector: Detector, config: TrackerConfig) -> MarkerTracker:
         """The camera's tracker around ``detector`` (a new one after a configuration change)."""
@@ -644,6 +667,8 @@ class FrameProcessor:
                 if not self._gate_open:
                     return
                 self._on_result(frame.camera, cloud, overlay)
+        except _AbandonedError:
+            return  # the shutdown counts and names what it abandoned
         except Exception as err:  # one bad frame must not stop the worker
             stats.frame_failed(self._clock_ns(), f"{type(err).__name__}: {err}")
             if self._on_error is not None:

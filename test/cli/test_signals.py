@@ -133,6 +133,39 @@ def test_the_node_stop_handler_sets_its_flag_once_and_the_second_signal_kills():
     assert result.stdout == "draining\n"
 
 
+def test_after_a_stop_signal_the_second_ends_the_process_past_the_block_too():
+    """The node says "stopped" and returns, and the interpreter's exit may still wait
+    (for a worker pool: here a thread): a second Ctrl-C must end it there too."""
+    script = """
+        import os, signal, threading, time
+        from marker_localizer.stopping import on_stop_signal
+
+        stop = threading.Event()
+        with on_stop_signal(lambda signum: stop.set()):
+            os.kill(os.getpid(), signal.SIGINT)
+            stop.wait(60)
+        print("stopped", flush=True)
+        threading.Thread(target=time.sleep, args=(20,)).start()  # the exit waits for it
+        second = lambda: (time.sleep(0.5), os.kill(os.getpid(), signal.SIGINT))
+        threading.Thread(target=second, daemon=True).start()
+    """
+    result = run_python(script)
+    assert result.returncode == -signal.SIGINT
+    assert result.stdout == "stopped\n"
+
+
+def test_without_a_stop_signal_the_handlers_before_the_block_come_back():
+    script = """
+        import signal
+        from marker_localizer.stopping import on_stop_signal
+
+        with on_stop_signal(lambda signum: None):
+            pass
+        print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+    """
+    assert run_python(script).stdout == "True\n"
+
+
 def test_staging_of_a_killed_run_is_swept_by_the_next_one(tmp_path):
     killed = run_python(SIMULATE_SIGNALLING_ITSELF, tmp_path / "flight", int(signal.SIGKILL), 2)
     assert killed.returncode == -signal.SIGKILL

@@ -127,12 +127,45 @@ def test_a_params_file_keyed_for_any_node_applies_under_a_namespace_and_another_
 def test_node_and_cli_refuse_an_unknown_detector_key_and_name_it(ros, tmp_path, capsys):
     path = tmp_path / "params.yaml"
     path.write_text(PARAMS_ANY_NODE.replace("marker_radius_max_px", "marker_radius_maximum_px"))
-    with pytest.raises(ConfigError, match=r"unknown parameter\(s\): marker_radius_maximum_px"):
+    with pytest.raises(
+        ConfigError, match=r"unknown parameter\(s\): detector.marker_radius_maximum_px$"
+    ):
         MarkerLocalizerNode("typo", cli_args=["--ros-args", "--params-file", str(path)])
     assert (
         cli_main(["detect", str(REPO / "docs" / "detection.jpg"), "--params-file", str(path)]) == 1
     )
     assert "unknown parameter(s): marker_radius_maximum_px" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "message"),
+    [
+        # A string for the camera list read as five cameras, f, r, o, n, t.
+        ("cameras", "front", r"cameras='front' must be of type tuple\[str, \.\.\.\]"),
+        ("cameras", [], r"cameras=\[\] must list at least one value"),
+        ("workers", "two", "workers='two' must be of type int"),
+        ("workers", 2.0, "workers=2.0 must be of type int"),
+        ("workers", 0, r"workers=0 is outside \[1, 64\]"),
+        ("max_frame_age_s", True, "max_frame_age_s=True must be of type float"),
+        # Declared with it, the parameter was an integer one that refused false later.
+        ("publish_overlay", 1, "publish_overlay=1 must be of type bool"),
+        ("detector.line_check", "no", "detector.line_check='no' must be of type bool"),
+        ("tracker.bogus", 1, r"unknown parameter\(s\): tracker.bogus$"),
+    ],
+)
+def test_a_start_value_of_the_wrong_type_or_range_is_refused_naming_it(ros, name, value, message):
+    with pytest.raises(ConfigError, match=message):
+        MarkerLocalizerNode("typed", parameter_overrides=[Parameter(name, value=value)])
+
+
+def test_a_start_value_of_a_double_may_be_an_integer(ros):
+    overrides = [Parameter("max_frame_age_s", value=3), Parameter("worker_processes", value=False)]
+    node = MarkerLocalizerNode("typed", parameter_overrides=overrides)
+    try:
+        assert node.get_parameter("max_frame_age_s").type_ == Parameter.Type.DOUBLE
+        assert node.get_parameter("max_frame_age_s").value == 3.0
+    finally:
+        node.destroy_node()
 
 
 def test_a_camera_name_too_long_for_a_topic_under_the_namespace_is_refused_naming_it(ros):

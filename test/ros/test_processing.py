@@ -1,6 +1,7 @@
 """FrameProcessor, the node's and replay's worker pool: mailboxes, order, age, failures, stop."""
 
 import array
+import contextlib
 import errno
 import os
 import signal
@@ -23,7 +24,7 @@ from node_testing import (
 
 from marker_localizer.bench.throughput import process_table
 from marker_localizer.config import DetectorConfig, TrackerConfig
-from marker_localizer.errors import ImageError
+from marker_localizer.errors import ImageError, WorkerError
 from marker_localizer.ros import processing
 from marker_localizer.ros.diagnostics import DiagnosticThresholds
 from marker_localizer.ros.processing import FrameProcessor
@@ -332,9 +333,47 @@ def test_a_killed_worker_process_fails_its_frame_and_a_fresh_one_serves_the_next
     finally:
         processor.shutdown(TIMEOUT_S)
     assert collect.results == [("cam0", 2, 1)]
-    assert [type(err).__name__ for err in failures] == ["BrokenProcessPool"]
+    (failure,) = failures
+    assert isinstance(failure, WorkerError)  # one line in the node's log, no traceback
+    assert "its worker process ended abruptly" in str(failure)
     snap = processor.snapshots()["cam0"]
     assert (snap.errors, snap.processed) == (1, 1)
+
+
+def test_a_frame_still_in_a_worker_process_at_the_timeout_is_abandoned_with_its_process():
+    """Left alone, the process would finish the frame first, and the node's exit wait for it.
+
+    A stopped worker (SIGSTOP) stands for a frame longer than any timeout.
+    """
+    collect = Collector()
+    failures = []
+    before = _worker_process_ids()
+    processor = FrameProcessor(
+        ["cam0"],
+        DetectorConfig(),
+        collect,
+        workers=1,
+        worker_processes=True,
+        on_error=lambda camera, err: failures.append(err),
+    )
+    (worker,) = _worker_process_ids() - before
+    try:
+        os.kill(worker, signal.SIGSTOP)
+        processor.submit("cam0", stamped(1))
+        wait_until(lambda: processor.in_flight() == ["cam0"], "the frame to reach its worker")
+        finished = []
+        stopper = threading.Thread(
+            target=lambda: finished.append(processor.shutdown(0.1)), daemon=True
+        )
+        stopper.start()
+        stopper.join(TIMEOUT_S)
+        assert finished == [False]
+        assert worker not in _worker_process_ids()
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(worker, signal.SIGKILL)
+    assert collect.results == []
+    assert failures == []  # abandoned, which the shutdown reports, not failed
 
 
 def test_worker_processes_end_with_a_node_that_was_killed():
