@@ -199,6 +199,12 @@ class BagReader:
                 self._scanned_files = self._mcap_files()
         if self._scanned_files:
             self._index_by_scanning()
+            if self._reader is not None:
+                # A recording cut short keeps the metadata of what it had written:
+                # what the scan did not find of that is lost.
+                expected = Counter(_metadata_counts(self.path))
+                expected.subtract(self._scanned_counts)
+                self._note_missing(expected, "its metadata.yaml counts")
         return self
 
     def __exit__(
@@ -265,13 +271,7 @@ class BagReader:
             except StopIteration:
                 # A damaged record length inside a chunk can make rosbags skip the
                 # rest of the chunk without an error: the counts tell.
-                missing = {topic: n for topic, n in unread.items() if n > 0}
-                if missing:
-                    listed = ", ".join(f"{topic} {n}" for topic, n in missing.items())
-                    self.damage.append(
-                        f"{self.path}: {sum(missing.values())} messages its index counts "
-                        f"were not found ({shorten(listed)})"
-                    )
+                self._note_missing(unread, "its index counts")
                 return
             except Exception as err:  # rosbags, zstd, sqlite and struct errors alike
                 note = (
@@ -289,6 +289,16 @@ class BagReader:
             topics_at_last.add(connection.topic)
             unread[connection.topic] -= 1
             yield BagMessage(connection.topic, connection.msgtype, time_ns, bytes(raw))
+
+    def _note_missing(self, unread: Counter[str], counted_by: str) -> None:
+        """A line of :attr:`damage` for the messages ``unread`` still holds, by topic."""
+        missing = {topic: n for topic, n in unread.items() if n > 0}
+        if missing:
+            listed = ", ".join(f"{topic} {n}" for topic, n in missing.items())
+            self.damage.append(
+                f"{self.path}: {sum(missing.values())} messages {counted_by} "
+                f"were not found ({shorten(listed)})"
+            )
 
     def _indexed(self) -> Reader | Ros1Reader:
         reader = self._ros1 if self._ros1 is not None else self._reader
@@ -354,6 +364,20 @@ class BagReader:
                 yield BagMessage(topic, msgtype, time_ns, raw)
             if after is not None:
                 self.damage.extend(state.damage)
+
+
+def _metadata_counts(path: Path) -> dict[str, int]:
+    """Topic -> messages of a bag directory's ``metadata.yaml``; empty where it cannot tell."""
+    import yaml  # noqa: PLC0415 - only a damaged bag's reading needs PyYAML
+
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        return {
+            entry["topic_metadata"]["name"]: int(entry["message_count"])
+            for entry in info["topics_with_message_count"]
+        }
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError):
+        return {}
 
 
 class BagWriter:

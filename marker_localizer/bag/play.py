@@ -51,6 +51,7 @@ from rosgraph_msgs.msg import Clock
 from marker_localizer.bag.io import BagReader, message_class
 from marker_localizer.bag.record import stamp_msg
 from marker_localizer.errors import BagError, ConfigError
+from marker_localizer.ros.conversions import topic_name_problem
 
 NODE_NAME = "marker_localizer_player"
 CLOCK_TOPIC = "/clock"
@@ -115,6 +116,8 @@ class PlayReport:
     Attributes:
         published: Messages published per topic.
         skipped_topics: Topic -> type, for topics whose message package is not installed.
+        invalid_names: Topic -> why ROS 2 refuses its name (a ROS 1 bag's ``/cam-0/image``),
+            for topics skipped for it.
         without_subscribers: Awaited topics that had no subscriber when playing started.
         unacknowledged: Times a wait for acknowledgements ran out (``ack_timeout_s``).
         wall_s: Wall time of the playback, s.
@@ -125,6 +128,7 @@ class PlayReport:
 
     published: dict[str, int] = field(default_factory=dict)
     skipped_topics: dict[str, str] = field(default_factory=dict)
+    invalid_names: dict[str, str] = field(default_factory=dict)
     without_subscribers: list[str] = field(default_factory=list)
     unacknowledged: int = 0
     wall_s: float = 0.0
@@ -277,12 +281,20 @@ def play_bag(
             and not (options.clock and topic == CLOCK_TOPIC)
         }
         report.skipped_topics = {t: m for t, m in selected.items() if message_class(m) is None}
-        playable = {t: m for t, m in selected.items() if t not in report.skipped_topics}
+        report.invalid_names = {
+            t: why for t in selected if (why := topic_name_problem(t)) is not None
+        }
+        playable = {
+            t: m
+            for t, m in selected.items()
+            if t not in report.skipped_topics and t not in report.invalid_names
+        }
         if not playable:
             raise BagError(
                 f"{bag}: nothing to play (topics: {', '.join(sorted(reader.topics)) or 'none'}; "
                 f"asked for: {', '.join(options.topics or ()) or 'all'}; "
-                f"not installed: {', '.join(report.skipped_topics) or 'none'})"
+                f"not installed: {', '.join(report.skipped_topics) or 'none'}; "
+                f"not valid ROS 2 names: {', '.join(report.invalid_names) or 'none'})"
             )
         counts = reader.message_counts
         total = sum(counts.get(t, 0) for t in playable)

@@ -69,6 +69,8 @@ from marker_localizer.ros.conversions import (
     IMAGE_TRANSPORTS,
     POINTS_SUFFIX,
     cloud_to_array,
+    topic_name_problem,
+    unsupported_encoding,
 )
 from marker_localizer.ros.diagnostics import bit_depth_warning
 from marker_localizer.ros.parameters import NodeConfig, diagnostic_thresholds
@@ -95,7 +97,7 @@ class CameraReplay:
         skipped_out_of_order: Frames whose stamp was not newer than the last one.
         failed: Frames the processor rejected or failed on.
         undecodable: Image messages whose bytes do not decode.
-        last_error: Text of the newest failure.
+        last_error: Text of the newest failure (or refusal of an encoding).
         bit_depth_hint: Where every 16-bit frame of the replay's last statistics window
             stayed dim at the configured bit depth, the depth its levels fit
             (:func:`~marker_localizer.core.image.bit_depth_hint`); None otherwise.
@@ -144,6 +146,7 @@ class ReplayReport:
         undecodable: Per topic other than the images (truth), messages whose
             bytes do not decode, or decode to points without x and y.
         damage: What the reader could not read, one line each.
+        unread_topics: Image topics not read, each with why (:func:`unread_image_topics`).
     """
 
     bag: Path
@@ -154,6 +157,7 @@ class ReplayReport:
     cameras: dict[str, CameraReplay]
     undecodable: dict[str, int] = field(default_factory=dict)
     damage: list[str] = field(default_factory=list)
+    unread_topics: dict[str, str] = field(default_factory=dict)
 
     @property
     def complete(self) -> bool:
@@ -211,6 +215,7 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
             lines.append(f"{c.camera}: last failure: {c.last_error}")
         if c.bit_depth_hint is not None:
             lines.append(f"{c.camera}: {bit_depth_warning(c.bit_depth_hint)}")
+    lines += [f"not read: {topic} ({why})" for topic, why in report.unread_topics.items()]
     lines += [f"undecodable {topic}: {n} skipped" for topic, n in report.undecodable.items()]
     lines += [f"damaged storage: {line}" for line in report.damage]
     if not report.complete:
@@ -251,9 +256,10 @@ def image_cameras(
 
     A camera is a namespace with ``<cam>/image_raw`` (sensor_msgs/Image) or
     ``<cam>/image_raw/compressed`` (sensor_msgs/CompressedImage), the node's two
-    ``image_transport`` inputs; where a bag has both, the raw one is read, unless
-    ``message_counts`` (topic -> messages) shows it empty and the compressed one
-    not: a recording may declare a topic that never carried a frame.
+    ``image_transport`` inputs, whose output topics ROS 2 takes as names; where a
+    bag has both, the raw one is read, unless ``message_counts`` (topic ->
+    messages) shows it empty and the compressed one not: a recording may declare
+    a topic that never carried a frame.
 
     Returns:
         Camera name (the topic's namespace without the leading slash) -> image topic.
@@ -264,13 +270,48 @@ def image_cameras(
     for suffix, message_type in reversed(IMAGE_TRANSPORTS.values()):
         msgtype = f"sensor_msgs/msg/{message_type.__name__}"
         for topic in sorted(t for t, m in topics.items() if m == msgtype):
-            camera = topic.removesuffix(f"/{suffix}").lstrip("/")
-            if not (topic.endswith(f"/{suffix}") and camera):
+            camera = _camera_of(topic, suffix)
+            if camera is None or _camera_name_problem(camera) is not None:
                 continue
             chosen = cameras.get(camera)
             if chosen is None or counts.get(topic, 0) or not counts.get(chosen, 0):
                 cameras[camera] = topic
     return dict(sorted(cameras.items()))
+
+
+def unread_image_topics(topics: dict[str, str], cameras: dict[str, str]) -> dict[str, str]:
+    """The bag's image topics (Image, CompressedImage) that replay does not read, each with why.
+
+    Args:
+        topics: topic -> type, every topic of the bag.
+        cameras: what :func:`image_cameras` gave for them.
+    """
+    read = set(cameras.values())
+    unread: dict[str, str] = {}
+    for suffix, message_type in IMAGE_TRANSPORTS.values():
+        msgtype = f"sensor_msgs/msg/{message_type.__name__}"
+        for topic in sorted(t for t, m in topics.items() if m == msgtype and t not in read):
+            camera = _camera_of(topic, suffix)
+            if camera is None and topic.strip("/") == suffix:
+                unread[topic] = f"no camera's namespace: a camera's images are /<cam>/{suffix}"
+            elif camera is None:
+                unread[topic] = f"not /<cam>/{suffix}"
+            elif (problem := _camera_name_problem(camera)) is not None:
+                unread[topic] = f"camera {camera!r}: {problem}"
+            else:
+                unread[topic] = f"camera {camera} is read from {cameras[camera]}"
+    return dict(sorted(unread.items()))
+
+
+def _camera_of(topic: str, suffix: str) -> str | None:
+    """The camera whose ``suffix`` topic ``topic`` is (its namespace); None if none."""
+    camera = topic.removesuffix(f"/{suffix}").lstrip("/")
+    return camera if topic.endswith(f"/{suffix}") and camera else None
+
+
+def _camera_name_problem(camera: str) -> str | None:
+    """Why ROS 2 would refuse ``camera``'s output topic, as the node's publisher would."""
+    return topic_name_problem(f"/{camera}/{POINTS_SUFFIX}")
 
 
 def _xy(cloud: PointCloud2) -> np.ndarray:
@@ -347,11 +388,17 @@ class _Session:
             stats.last_error = shorten(str(err))
             return
         stamp_ns = stamp_to_ns(image.header)
+        # The diagnostics count what is skipped here as the node would: a frame it
+        # received, and for its encoding one that failed.
         if isinstance(image, Image) and image.encoding not in ENCODINGS:
+            refused = unsupported_encoding(image.encoding)
             stats.skipped_encoding += 1
+            stats.last_error = shorten(f"{type(refused).__name__}: {refused}")
+            self.processor.skipped(camera, image, refused)
             return
         if stamp_ns <= self._last_stamp.get(camera, -1):
             stats.skipped_out_of_order += 1
+            self.processor.skipped(camera, image, None)
             return
         self._last_stamp[camera] = stamp_ns
         # Start a frame only when a worker and the camera are free: the pool then
@@ -465,12 +512,14 @@ def replay_bag(
         topics = reader.topics
         counts = reader.message_counts
         cameras = image_cameras(topics, counts)
+        unread = unread_image_topics(topics, cameras)
         if not cameras:
             listed = ", ".join(f"{t} ({m})" for t, m in sorted(topics.items())) or "none"
+            why = "".join(f"; {t}: {reason}" for t, reason in unread.items())
             raise BagError(
-                f"{bag}: no image topics (sensor_msgs/msg/Image on <cam>/image_raw or "
-                f"sensor_msgs/msg/CompressedImage on <cam>/image_raw/compressed); "
-                f"topics: {listed}"
+                f"{bag}: no image topics (sensor_msgs/msg/Image on /<cam>/image_raw or "
+                f"sensor_msgs/msg/CompressedImage on /<cam>/image_raw/compressed); "
+                f"topics: {shorten(listed)}{shorten(why)}"
             )
         truth = _cloud_topics(topics, cameras, TRUTH_SUFFIX)
         partial = _cloud_topics(topics, cameras, PARTIAL_SUFFIX)
@@ -522,7 +571,15 @@ def replay_bag(
             session, clouds[TRUTH_SUFFIX], clouds[PARTIAL_SUFFIX], list(truth), match_distance_px
         )
     return ReplayReport(
-        Path(bag), Path(out), workers, worker_processes, wall_s, session.stats, undecodable, damage
+        Path(bag),
+        Path(out),
+        workers,
+        worker_processes,
+        wall_s,
+        session.stats,
+        undecodable,
+        damage,
+        unread,
     )
 
 

@@ -343,6 +343,10 @@ def format_play_report(bag: Path, report: PlayReport) -> str:
     if report.skipped_topics:
         skipped = ", ".join(f"{t} ({m})" for t, m in sorted(report.skipped_topics.items()))
         lines.append(f"skipped, message package not installed: {skipped}")
+    lines += [
+        f"skipped, not a valid ROS 2 topic name: {topic} ({why})"
+        for topic, why in sorted(report.invalid_names.items())
+    ]
     if report.without_subscribers:
         lines.append(f"no subscriber when playing started: {', '.join(report.without_subscribers)}")
     if report.unacknowledged:

@@ -29,6 +29,8 @@ from typing import Literal, cast
 
 import cv2
 import numpy as np
+from rclpy.exceptions import InvalidTopicNameException
+from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
@@ -172,9 +174,7 @@ def image_to_array(msg: Image, max_pixels: int | None = None) -> np.ndarray:
             ``height * step`` (semi-planar YUV: with its chroma rows).
     """
     if msg.encoding not in ENCODINGS:
-        raise ImageError(
-            f"unsupported encoding {shorten(repr(msg.encoding))} (expected one of {ENCODINGS_TEXT})"
-        )
+        raise unsupported_encoding(msg.encoding)
     dtype, channels = ENCODINGS[msg.encoding]
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height == 0 or width == 0:
@@ -281,7 +281,7 @@ def array_to_image(pixels: np.ndarray, encoding: str, header: Header | None = No
         ImageError: unsupported encoding, or ``pixels`` does not fit it.
     """
     if encoding not in ENCODINGS:
-        raise ImageError(f"unsupported encoding {encoding!r} (expected one of {ENCODINGS_TEXT})")
+        raise unsupported_encoding(encoding)
     dtype, channels = ENCODINGS[encoding]
     got_channels = 1 if pixels.ndim == 2 else pixels.shape[2] if pixels.ndim == 3 else -1
     if pixels.dtype != dtype or got_channels != channels:
@@ -392,3 +392,20 @@ def cloud_to_array(cloud: PointCloud2) -> np.ndarray:
         return np.zeros(0, dtype)
     packed = rows[:, : cloud.width * cloud.point_step].copy()
     return packed.view(dtype).reshape(n_points)
+
+
+def unsupported_encoding(encoding: str) -> ImageError:
+    """The error of an image whose ``encoding`` is not one of :data:`ENCODINGS`."""
+    return ImageError(
+        f"unsupported encoding {shorten(repr(encoding))} (expected one of {ENCODINGS_TEXT})"
+    )
+
+
+def topic_name_problem(topic: str) -> str | None:
+    """Why ROS 2 refuses ``topic`` as a fully qualified topic name; None where it takes it."""
+    try:
+        validate_full_topic_name(topic)
+    except InvalidTopicNameException as err:
+        # Its first line says why; the next two repeat the name and point into it.
+        return shorten(str(err).splitlines()[0].removeprefix("Invalid topic name: ").rstrip(":"))
+    return None

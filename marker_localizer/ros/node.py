@@ -38,7 +38,6 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.exceptions import InvalidTopicNameException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.impl.implementation_singleton import rclpy_implementation
@@ -46,7 +45,6 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
-from rclpy.validate_full_topic_name import validate_full_topic_name
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from marker_localizer.blas import single_thread_blas
@@ -58,6 +56,7 @@ from marker_localizer.ros.conversions import (
     IMAGE_TRANSPORTS,
     OVERLAY_SUFFIX,
     POINTS_SUFFIX,
+    topic_name_problem,
 )
 from marker_localizer.ros.parameters import (
     LiveParameters,
@@ -233,13 +232,11 @@ class MarkerLocalizerNode(Node):
         for camera in cameras:
             for suffix in suffixes:
                 name = f"{camera}/{suffix}"
-                try:
-                    validate_full_topic_name(
-                        expand_topic_name(name, self.get_name(), self.get_namespace())
-                    )
-                except InvalidTopicNameException as err:
-                    reason = shorten(" ".join(str(err).split()))
-                    raise ConfigError(f"camera {shorten(repr(camera))}: {reason}") from None
+                reason = topic_name_problem(
+                    expand_topic_name(name, self.get_name(), self.get_namespace())
+                )
+                if reason is not None:
+                    raise ConfigError(f"camera {shorten(repr(camera))}: {reason}")
 
     def _deliver(self, camera: str, cloud: PointCloud2, overlay: Image | None) -> None:
         self._points[camera].publish(cloud)

@@ -116,6 +116,9 @@ class _Frame:
     #: Since when the camera's mailbox has been non-empty: a replacement keeps it,
     #: so a camera whose frames keep being replaced is not pushed back in the queue.
     waiting_since_ns: int
+    #: The arrival on the monotonic clock, which the latency is measured on: the
+    #: processor's own clock may be a bag's, frozen while a frame is processed.
+    received_monotonic_ns: int
 
 
 def _reserve_pages(block: shared_memory.SharedMemory) -> None:
@@ -235,7 +238,8 @@ class FrameProcessor:
         max_frame_age_s: frames that waited longer than this in the node when a
             worker takes them are dropped, s; 0 disables the check (replay).
         clock_ns: current time in nanoseconds (default: wall clock); arrivals,
-            waits and the statistics' windows are measured on it.
+            waits, clock offsets and the statistics' windows are measured on it,
+            the latency on the monotonic clock.
         publish_overlay: also render an overlay image (bgr8) per frame.
         on_error: called with (camera, exception) when a frame fails, from a
             worker thread.
@@ -389,12 +393,28 @@ class FrameProcessor:
             waiting = self._pending[camera]
             replaced = waiting is not None
             since_ns = now_ns if waiting is None else waiting.waiting_since_ns
-            self._pending[camera] = _Frame(camera, msg, now_ns, since_ns)
+            self._pending[camera] = _Frame(camera, msg, now_ns, since_ns, time.monotonic_ns())
             self._cond.notify_all()
         stats.frame_received(now_ns, stamp_to_ns(msg.header))
         if replaced:
             stats.frame_replaced(now_ns)
         return True
+
+    def skipped(self, camera: str, msg: Image | CompressedImage, err: Exception | None) -> None:
+        """Count a frame its caller did not submit (replay's checks), as the node counts it.
+
+        The statistics see it arrive; with ``err`` (what processing would have
+        raised: an unsupported encoding) it failed too, where the node would have
+        failed it.
+
+        Raises:
+            KeyError: ``camera`` is not one of :attr:`cameras`.
+        """
+        stats = self._stats[camera]
+        now_ns = self._clock_ns()
+        stats.frame_received(now_ns, stamp_to_ns(msg.header))
+        if err is not None:
+            stats.frame_failed(now_ns, f"{type(err).__name__}: {err}")
 
     def wait_idle(self, timeout_s: float | None = None) -> bool:
         """Wait until every mailbox is empty and no frame is in flight.
@@ -677,7 +697,7 @@ class FrameProcessor:
         now_ns = self._clock_ns()
         stats.frame_processed(
             now_ns,
-            latency_ms=(now_ns - frame.received_ns) / 1e6,
+            latency_ms=(time.monotonic_ns() - frame.received_monotonic_ns) / 1e6,
             clock_offset_s=(frame.received_ns - stamp_to_ns(header)) / _NS_PER_S,
             markers=len(detections),
             capped=sum(result.counts.get(key, 0) for key in CAP_COUNTS),

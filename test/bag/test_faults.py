@@ -79,6 +79,11 @@ def test_a_bag_cut_short_gives_every_frame_before_the_cut_and_exit_status_3(
     assert sorted(written) == sorted(whole)  # each good frame once, nothing else
     summary = capsys.readouterr().out
     assert "cannot be opened through its index" in summary
+    # What the cut took: what its metadata.yaml counted, less what can be read.
+    with BagReader(small_flight) as intact, BagReader(bag) as damaged:
+        lost = sum(intact.message_counts.values()) - sum(1 for _ in damaged.messages())
+    assert lost > len(images) - len(whole)  # the frames' camera_info and truth too
+    assert f": {lost} messages its metadata.yaml counts were not found (" in summary
     assert "incomplete: 0 image messages gave no result, the storage is damaged" in summary
 
 

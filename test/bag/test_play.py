@@ -26,12 +26,12 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image, PointCloud2
 
-from marker_localizer.bag.io import BagReader
+from marker_localizer.bag.io import BagReader, BagWriter
 from marker_localizer.bag.play import PlayOptions, play_bag
 from marker_localizer.cli import main as cli
 from marker_localizer.errors import BagError, ConfigError
 from marker_localizer.evaluation import DetectionTally, match_points
-from marker_localizer.ros.conversions import cloud_to_array
+from marker_localizer.ros.conversions import array_to_image, cloud_to_array
 from marker_localizer.ros.node import MarkerLocalizerNode
 
 CAMERAS = ("cam0", "cam1", "cam2", "cam3", "cam4")
@@ -285,6 +285,30 @@ def test_play_with_nothing_to_play_raises_bag_error(context, tiny_sqlite_bag, ca
         player.destroy_node()
     assert cli(["play", str(tiny_sqlite_bag), "--topics", "/tf_static"]) == 1
     assert "not installed: /tf_static" in capsys.readouterr().err
+
+
+def test_topics_ros_2_would_refuse_by_name_are_skipped_and_named_not_a_traceback(
+    context, tmp_path, capsys
+):
+    """A ROS 1 bag's ``/cam-0/image_raw``: rclpy refuses a publisher of that name."""
+    bag = tmp_path / "odd"
+    with BagWriter(bag) as writer:
+        for topic in ("/cam-0/image_raw", "/cam0/image_raw"):
+            writer.add_topic(topic, "sensor_msgs/msg/Image")
+            writer.write(topic, 1, array_to_image(np.zeros((4, 4), np.uint8), "mono8"))
+    player = rclpy.create_node("test_player_names", context=context)
+    try:
+        options = PlayOptions(as_fast_as_possible=True, wait_for_subscribers_s=0.0)
+        report = play_bag(bag, player, options)
+    finally:
+        player.destroy_node()
+    assert report.published == {"/cam0/image_raw": 1}
+    assert report.invalid_names == {
+        "/cam-0/image_raw": "topic name must not contain characters other than "
+        "alphanumerics, '_', or '/'"
+    }
+    assert cli(["play", str(bag), "--wait-for-subscribers", "0"]) == 0
+    assert "skipped, not a valid ROS 2 topic name: /cam-0/image_raw (" in capsys.readouterr().out
 
 
 def test_play_options_are_validated(tiny_sqlite_bag):

@@ -253,10 +253,10 @@ def test_simulate_refuses_an_existing_output_and_a_bad_configuration(tmp_path, c
         cli(["simulate", "--out", str(taken), "--frames", "1", "--width", "64", "--height", "48"])
         == 1
     )
-    assert cli(["simulate", "--out", str(tmp_path / "new"), "--frames", "0"]) == 1
+    assert cli(["simulate", "--out", str(tmp_path / "new"), "--width", "30"]) == 1
     err = capsys.readouterr().err.splitlines()
     assert "taken: output path exists" in err[0]
-    assert "n_frames=0 must be positive" in err[1]
+    assert "must hold a marker's plate at nadir" in err[1]
     assert leftovers(tmp_path) == ["taken"]
 
 
@@ -322,6 +322,48 @@ def test_unknown_encodings_are_counted_and_skipped(tmp_path):
     cam = report.cameras["cam0"]
     assert (cam.frames, cam.skipped_encoding, cam.failed) == (1, 1, 0)
     assert cam.markers == 1
+    assert "cam0: last failure: ImageError: unsupported encoding 'yuv444'" in format_report(report)
+
+
+def test_the_replayed_diagnostics_count_skipped_frames_as_the_node_would(tmp_path):
+    """The node would fail an unsupported encoding and receive a repeated stamp."""
+    pixels = x_marker_frame()
+    yuv = image(pixels, 2)
+    yuv.encoding = "yuv444"
+    frames = [("/cam0/image_raw", 1, image(pixels, 1)), ("/cam0/image_raw", 2, yuv)]
+    frames += [("/cam0/image_raw", 3, image(pixels, 1)), ("/cam0/image_raw", 4, image(pixels, 4))]
+    replay_bag(write_bag(tmp_path / "in", frames), tmp_path / "out", workers=1)
+    with BagReader(tmp_path / "out") as out:
+        (*_, last) = (m.decode() for m in out.messages(["/diagnostics"]))
+    (camera,) = (status for status in last.status if status.name.endswith("cam0"))
+    values = {v.key: v.value for v in camera.values}
+    assert (values["frames received"], values["frames processed"], values["errors"]) == (
+        "4",
+        "2",
+        "1",
+    )
+    assert "unsupported encoding 'yuv444'" in values["last error"]
+    # Submission to result, not the bag time between two frames (1 s here).
+    assert float(values["latency p95 (ms)"]) < 1000.0
+
+
+def test_image_topics_replay_does_not_read_are_named_with_why(tmp_path):
+    pixels = x_marker_frame()
+    frames = [
+        (topic, 1, image(pixels, 1))
+        for topic in ("/cam0/image_raw", "/image_raw", "/cam0/image_color", "/cam-1/image_raw")
+    ]
+    report = replay_bag(write_bag(tmp_path / "in", frames), tmp_path / "out", workers=1)
+    assert list(report.cameras) == ["cam0"]
+    assert report.unread_topics == {
+        "/cam-1/image_raw": "camera 'cam-1': topic name must not contain characters other "
+        "than alphanumerics, '_', or '/'",
+        "/cam0/image_color": "not /<cam>/image_raw",
+        "/image_raw": "no camera's namespace: a camera's images are /<cam>/image_raw",
+    }
+    assert "not read: /image_raw (no camera's namespace" in format_report(report)
+    with pytest.raises(BagError, match=r"/image_raw: no camera's namespace"):
+        replay_bag(write_bag(tmp_path / "alone", frames[1:2]), tmp_path / "out2")
 
 
 def test_worker_processes_and_worker_threads_write_the_same_points(tmp_path):
