@@ -166,6 +166,8 @@ def decode_image(data: Encoded, source: str, max_pixels: int) -> np.ndarray:
     Raises:
         ImageError: too large, not an image, empty, or OpenCV failed on it.
     """
+    if not len(data):
+        raise ImageError(f"{source}: no data (0 bytes)")
     size = image_size(data)
     if size is not None:
         check_pixel_count(*size, max_pixels, source)

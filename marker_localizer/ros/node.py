@@ -38,6 +38,7 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.impl.implementation_singleton import rclpy_implementation
@@ -150,7 +151,13 @@ class MarkerLocalizerNode(Node):
                 1,
             )
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", _OUTPUT_DEPTH)
-        self.create_timer(settings.diagnostics_period_s, self.publish_diagnostics)
+        # On the steady clock: with use_sim_time and no /clock yet (a bag not playing),
+        # a timer on the node's clock would never fire, and nothing would say why.
+        self.create_timer(
+            settings.diagnostics_period_s,
+            self.publish_diagnostics,
+            clock=Clock(clock_type=ClockType.STEADY_TIME),
+        )
         # Declared by now, QoS overrides included: what is left is a typo or another node's.
         unknown = self._live.unknown(self)
         if unknown:

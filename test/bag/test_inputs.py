@@ -86,6 +86,9 @@ def test_a_16_bit_png_stays_16_bit():
 def test_undecodable_data_is_an_image_error_naming_the_format():
     with pytest.raises(ImageError, match=r"compressed image .*jpeg compressed.*not a readable"):
         compressed_to_detector_input(compressed("jpeg", 1, b"\x00" * 64), MAX_PIXELS)
+    # OpenCV's own words for it were "(!buf.empty())".
+    with pytest.raises(ImageError, match=r"compressed image .*: no data \(0 bytes\)$"):
+        compressed_to_detector_input(compressed("jpeg", 1, b""), MAX_PIXELS)
 
 
 def test_cameras_are_found_in_either_form_and_raw_wins_where_both_hold_frames():

@@ -311,6 +311,37 @@ def test_frames_lost_before_the_node_show_in_its_diagnostics_with_the_figure(ros
         assert values_of(status)["lost upstream in window"] == "12"
 
 
+def test_diagnostics_are_published_under_sim_time_before_any_clock(ros):
+    """A bag not playing yet: a timer on the node's simulated clock would never fire."""
+    node = MarkerLocalizerNode(
+        "simtime_localizer",
+        namespace="/simtime",
+        parameter_overrides=[
+            Parameter("use_sim_time", value=True),
+            Parameter("cameras", value=["cam0"]),
+            Parameter("worker_processes", value=False),
+            Parameter("diagnostics_period_s", value=0.2),
+        ],
+    )
+    spinner = Spinner(node)
+    peer = Peer("simtime_peer", "/simtime")
+    try:
+        peer.listen("/diagnostics", DiagnosticArray)
+
+        def silent_camera():
+            for array_msg in peer.messages("/diagnostics"):
+                for status in array_msg.status:
+                    if status.name == "simtime_localizer: cam0":
+                        return status
+            return None
+
+        assert node.get_clock().now().nanoseconds == 0  # no /clock
+        wait_until(silent_camera, "diagnostics without /clock")
+    finally:
+        peer.stop()
+        spinner.stop()
+
+
 @pytest.mark.parametrize("use_sim_time", [False, True])
 def test_frames_stamped_on_another_clock_are_processed_with_their_stamps_copied(ros, use_sim_time):
     """An old bag played without /clock, a camera's device clock, a stamp from the future."""
