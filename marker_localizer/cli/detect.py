@@ -47,19 +47,35 @@ def result_record(
     }
 
 
-def why_record(result: DetectionResult, points: np.ndarray) -> list[dict[str, Any]]:
+#: ``lost_at`` of a point that lies outside the image: no test saw it.
+OUTSIDE_THE_IMAGE = "outside the image"
+
+
+def why_record(
+    result: DetectionResult, points: np.ndarray, shape: tuple[int, ...]
+) -> list[dict[str, Any]]:
     """For each point where a marker is expected: found, or the test that lost it.
 
     A point is found where a detection lies within the benchmark's matching gate
     (:data:`evaluation.DEFAULT_GATE_PX`); otherwise ``lost_at`` names the first test
-    after which no candidate was left near it (:func:`evaluation.tests_that_lost`).
+    after which no candidate was left near it (:func:`evaluation.tests_that_lost`),
+    or :data:`OUTSIDE_THE_IMAGE` for a point beyond the pixels of an image of
+    ``shape`` (H, W, ...).
     """
     distance = evaluation.nearest_distances(points, result.as_array()[:, :2])
     found = distance <= evaluation.DEFAULT_GATE_PX
-    lost = iter(evaluation.tests_that_lost(result.survivors, points[~found]))
+    lost_at: list[str | None] = [None] * len(points)
+    missed = np.flatnonzero(~found)
+    tests = evaluation.tests_that_lost(result.survivors, points[missed])
+    for k, test in zip(missed, tests, strict=True):
+        lost_at[k] = test
+    height, width = shape[:2]
+    centre, half = np.array([width - 1, height - 1]) / 2.0, np.array([width, height]) / 2.0
+    for k in missed[(np.abs(points[missed] - centre) > half).any(axis=1)]:
+        lost_at[k] = OUTSIDE_THE_IMAGE
     return [
-        {"x": float(x), "y": float(y), "found": bool(hit), "lost_at": None if hit else next(lost)}
-        for (x, y), hit in zip(points, found, strict=True)
+        {"x": float(x), "y": float(y), "found": bool(hit), "lost_at": test}
+        for (x, y), hit, test in zip(points, found, lost_at, strict=True)
     ]
 
 
@@ -106,6 +122,8 @@ def _write_table(record: dict[str, Any]) -> None:
                 "every test kept a candidate near it, but the detection is over "
                 f"{evaluation.DEFAULT_GATE_PX:g} px away"
             )
+        elif w["lost_at"] == OUTSIDE_THE_IMAGE:
+            verdict = OUTSIDE_THE_IMAGE
         else:
             verdict = f"lost at the {w['lost_at']} test"
         print(f"  expected at ({w['x']:g}, {w['y']:g}): {verdict}")
@@ -187,7 +205,7 @@ def main(argv: Sequence[str]) -> int:
         _warn_if_shallow(path, image, detector.config.bit_depth)
         record = result_record(path, image, result, elapsed_ms)
         if args.why:
-            record["why"] = why_record(result, np.array(args.why, dtype=np.float64))
+            record["why"] = why_record(result, np.array(args.why, dtype=np.float64), image.shape)
         if args.json:
             print(json.dumps(record), flush=True)
         else:

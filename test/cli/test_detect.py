@@ -197,9 +197,14 @@ def test_why_says_a_marker_was_found_or_which_test_lost_it(x_image, capsys):
 
 def test_why_takes_a_point_off_the_top_left_edge_with_negative_coordinates(x_image, capsys):
     path, _ = x_image
-    assert main(["detect", str(path), "--why", "-0.5,-5", "--json"]) == 0
+    assert main(["detect", str(path), "--why", "-0.5,0", "--why", "-0.6,-5", "--json"]) == 0
     record = json.loads(capsys.readouterr().out)
-    assert record["why"] == [{"x": -0.5, "y": -5.0, "found": False, "lost_at": "screening"}]
+    assert record["why"] == [
+        {"x": -0.5, "y": 0.0, "found": False, "lost_at": "screening"},  # the first pixel's edge
+        {"x": -0.6, "y": -5.0, "found": False, "lost_at": "outside the image"},
+    ]
+    assert main(["detect", str(path), "--why", "1e9,1e9"]) == 0
+    assert "expected at (1e+09, 1e+09): outside the image" in capsys.readouterr().out
 
 
 def test_why_with_a_malformed_point_is_a_usage_error(x_image, capsys):
