@@ -40,7 +40,7 @@ setup(
     entry_points={
         "console_scripts": [
             "marker-localizer = marker_localizer.cli:main",
-            "marker_localizer_node = marker_localizer.ros.node:main",
+            "marker_localizer_node = marker_localizer.node:main",
         ],
     },
 )

@@ -35,3 +35,17 @@ class BagError(MarkerLocalizerError):
 
 class WorkerError(MarkerLocalizerError):
     """A worker process ended while it held a frame (killed: out of memory, a signal)."""
+
+
+#: How a pip venv gets ROS 2 Jazzy's Python packages (README, "Installing").
+ROS_WHEELS = "pip install ros-jazzy-rclpy ros-jazzy-common-interfaces ros-jazzy-rmw-fastrtps-cpp"
+
+
+class RosMissingError(MarkerLocalizerError):
+    """A command needs ROS 2 Jazzy's Python packages (the node, the bag tools), not installed."""
+
+    def __init__(self, missing: ModuleNotFoundError) -> None:
+        super().__init__(
+            f"needs ROS 2 Jazzy's Python packages ({missing}): {ROS_WHEELS}, "
+            "or source a ROS 2 Jazzy install"
+        )

@@ -1,8 +1,25 @@
-"""``python -m marker_localizer.node``: run the ROS 2 node (same as ``marker_localizer_node``)."""
+"""The node's console script (``marker_localizer_node``) and ``python -m marker_localizer.node``.
 
+Without ROS 2 Jazzy's Python packages it says what to install, in one line.
+"""
+
+import importlib.util
 import sys
 
-from marker_localizer.ros.node import main
+
+def main() -> int:
+    """Run the ROS 2 node (:func:`marker_localizer.ros.node.main`); its exit status."""
+    try:
+        from marker_localizer.ros.node import main as run_node  # noqa: PLC0415
+    except ModuleNotFoundError as err:
+        if importlib.util.find_spec("rclpy") is not None:
+            raise
+        from marker_localizer.errors import RosMissingError  # noqa: PLC0415
+
+        sys.stderr.write(f"marker_localizer_node: error: {RosMissingError(err)}\n")
+        return 1
+    return run_node()
+
 
 if __name__ == "__main__":
     sys.exit(main())

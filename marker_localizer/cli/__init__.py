@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import sys
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 from marker_localizer.cli.exits import PROG, run_command
+from marker_localizer.errors import RosMissingError
 
 
 class Command(NamedTuple):
@@ -75,7 +77,13 @@ BENCHMARKS: dict[str, str] = {
 
 
 def _load(module: str, function: str) -> Callable[[list[str]], int]:
-    return getattr(importlib.import_module(module), function)
+    """The command's function; :class:`RosMissingError` where it needs ROS, which is missing."""
+    try:
+        return getattr(importlib.import_module(module), function)
+    except ModuleNotFoundError as err:
+        if importlib.util.find_spec("rclpy") is None:
+            raise RosMissingError(err) from err
+        raise
 
 
 def build_parser() -> argparse.ArgumentParser:

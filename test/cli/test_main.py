@@ -1,6 +1,7 @@
 """The marker-localizer dispatcher: the commands it lists, and how their errors end."""
 
 import importlib
+import re
 import subprocess
 import sys
 
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 from marker_localizer.cli import BENCHMARKS, COMMANDS, main
+from marker_localizer.node import main as node_main
 
 
 def test_bench_help_lists_the_benchmarks_and_exits_0(capsys):
@@ -54,6 +56,43 @@ def test_a_demo_folder_that_cannot_be_made_is_one_line(tmp_path, capsys):
     assert main(["demo", "--out", str(taken)]) == 1
     assert capsys.readouterr().err == (
         f"marker-localizer: error: --out {taken}: cannot create the folder (File exists)\n"
+    )
+
+
+def _without_ros(monkeypatch):
+    """This process as a pip venv without ROS: importing rclpy or a message package fails,
+    and what imported them is imported afresh."""
+    for name in [n for n in sys.modules if re.match(_ROS_MODULE, n)]:
+        monkeypatch.delitem(sys.modules, name)
+    for top in ("rclpy", "builtin_interfaces", "std_msgs", "sensor_msgs", "rcl_interfaces"):
+        monkeypatch.setitem(sys.modules, top, None)
+
+
+#: ROS's modules (as test_packaging finds them), and ours that import them.
+_ROS_MODULE = (
+    r"(rclpy|\w+_msgs|\w+_interfaces)(\.|$)"
+    r"|marker_localizer\.(bag|ros|cli\.bag|cli\.demo)(\.|$)"
+)
+
+
+@pytest.mark.parametrize("command", ["replay", "play", "simulate", "demo"])
+def test_a_command_that_needs_ros_says_what_to_install_where_it_is_missing(
+    command, monkeypatch, capsys
+):
+    """As after a plain ``pip install .``: one line, not an import's traceback."""
+    _without_ros(monkeypatch)
+    assert main([command, "--help"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "error: needs ROS 2 Jazzy's Python packages (" in err
+    assert "pip install ros-jazzy-rclpy ros-jazzy-common-interfaces" in err
+
+
+def test_the_node_says_what_to_install_where_ros_is_missing(monkeypatch, capsys):
+    _without_ros(monkeypatch)
+    assert node_main() == 1
+    assert capsys.readouterr().err.startswith(
+        "marker_localizer_node: error: needs ROS 2 Jazzy's Python packages"
     )
 
 
