@@ -51,7 +51,9 @@ class Detector:
     def __init__(self, config: DetectorConfig | None = None) -> None:
         self.config = config or DetectorConfig()
         self._search = CandidateSearch(self.config)
-        self._symmetry = SymmetryPath(self.config, self._search.shadowed)
+        self._symmetry = SymmetryPath(
+            self.config, self._search.shadowed, self._search.seed_scale_px
+        )
         self._template = TemplatePath(self.config)
         self._paper = PaperPath(self.config, self._symmetry, self._template)
 
@@ -176,24 +178,28 @@ class Detector:
         line_angles: NDArray[np.float64],
         evidence: NDArray[np.float64],
     ) -> DetectionResult:
-        """Section 3.3 alone: sub-pixel centres and final gates of markers known to be there.
+        """Markers known to be near ``xy``: :meth:`detect`'s stages from the centring on.
 
         Tracking mode confirms the markers of the last frame with this instead of
-        screening and verifying them again: the fit, its gates and the score are
-        those of :meth:`detect`, with the extent, line angles and verification
-        evidence the marker had when it was last detected. A position within a
-        pixel or so of the centre converges to the centre :meth:`detect` reports
-        (to the fit's tolerance, 0.001 px); a marker no longer there fails the
-        fit's residual gate or moves too far. The ground around a marker, its
-        plate and the lattice test, is what the :meth:`detect` that found it
-        judged, and is not read again.
+        screening the frame again. On the default path each is read as
+        :meth:`detect` reads a candidate it screened there: the ring check measures
+        its extent and line directions on this frame, and its template, the fit,
+        their gates and the score follow
+        (:meth:`~marker_localizer.core.symmetry_path.SymmetryPath.confirm_tracked`);
+        the extent, line angles and evidence given are not used. On
+        ``refinement=template`` the given extent and line angles start the grown
+        fit. A position within a pixel or so of the centre gives the centre
+        :meth:`detect` reports; a marker no longer there fails a check or the fit.
+        The ground around a marker, its plate and the lattice test, is what the
+        :meth:`detect` that found it judged, and is not read again.
 
         Args:
             image: the frame, as for :meth:`detect`.
             xy: (N, 2) predicted centres.
-            radius_px: (N,) extents (``Detection.radius_px``).
-            line_angles: (N, 2) line directions (``Detection.angle1``, ``angle2``).
-            evidence: (N,) ``Detection.evidence``.
+            radius_px: (N,) extents (``Detection.radius_px``): the template path's start.
+            line_angles: (N, 2) line directions (``Detection.angle1``, ``angle2``): the
+                template path's start.
+            evidence: (N,) ``Detection.evidence`` (checked; not used).
 
         Returns:
             :class:`DetectionResult` of the confirmed markers.
@@ -226,7 +232,7 @@ class Detector:
                 regions=np.hstack([corner, corner + 2]),
             )
         frame = Frame(gray, full_scale, gamma, result, timer)
-        return self._symmetry.confirm_tracked(frame, xy, radius_px, line_angles, evidence)
+        return self._symmetry.confirm_tracked(frame, xy)
 
 
 def _known_markers(

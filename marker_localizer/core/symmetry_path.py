@@ -121,7 +121,12 @@ class _RingPassed(NamedTuple):
 class SymmetryPath:
     """The default path's checks, fit and second readings of one detector's config; build once."""
 
-    def __init__(self, config: DetectorConfig, shadowed: preprocessing.ShadowedContrast) -> None:
+    def __init__(
+        self,
+        config: DetectorConfig,
+        shadowed: preprocessing.ShadowedContrast,
+        seed_scale_px: float,
+    ) -> None:
         """Build the path for ``config``.
 
         Args:
@@ -129,8 +134,12 @@ class SymmetryPath:
             shadowed: the screening's :attr:`~search.CandidateSearch.shadowed`: the
                 prescreen's ring floor, the fit's contrast floor and the double-line
                 check follow the light into a shadow as the screening's threshold does.
+            seed_scale_px: the scale a seeded or tracked marker is centred at, as a
+                candidate of the first pyramid level
+                (:attr:`~search.CandidateSearch.seed_scale_px`), px.
         """
         self.config = config
+        self._seed_scale_px = seed_scale_px
         #: The ring check's ladder of radii (:func:`verification.ring_radii`), px; the
         #: paper's annular check reads the same rings.
         self.ring_radii_px = verification.ring_radii(
@@ -193,38 +202,47 @@ class SymmetryPath:
         result.counts["accepted"] = len(result.detections)
         return result
 
-    def confirm_tracked(
-        self,
-        frame: Frame,
-        xy: NDArray[np.float64],
-        radius_px: NDArray[np.float64],
-        line_angles: NDArray[np.float64],
-        evidence: NDArray[np.float64],
-    ) -> DetectionResult:
-        """Markers known to be there, confirmed by the fit and the gates that read their X.
+    def confirm_tracked(self, frame: Frame, xy: NDArray[np.float64]) -> DetectionResult:
+        """Markers known to be near ``xy``, read again as :meth:`confirm` reads a candidate.
 
-        The fit, its gates and the score of :meth:`confirm`, with the extent, line
-        angles and verification evidence each marker had when it was last detected;
-        tiny X's the fit's floors reject are asked for their plate
-        (:meth:`_confirm_plates`). The ground around each marker, its plate and
-        whether it recurs as a lattice's saddle, is not read again: the pass that
-        found it judged it, a camera's motion does not change it, and a full pass
-        judges it again (measured: docs/speed.md, "What a tracked frame judges
-        again").
+        Each from its centring on: the ring check measures its extent and line
+        directions on this frame, its template and the fit follow, with their gates
+        and score, and the double-line check where :meth:`confirm` asks it after the
+        fit; tiny X's the fit's floors reject are asked for their plate
+        (:meth:`_confirm_plates`). A tracked marker is then located and judged as a
+        full pass would: with its extent and directions as they were when last
+        measured, its centre moved by up to 0.05 px, and an X of texture that a pass
+        let through stayed on the frames after it, where the rings and the template
+        reject it (measured: docs/speed.md, "A tracked marker read again from its
+        centring"). The screening and the prescreen are not asked: their saddle peaks
+        and rings are for finding an X, not judging one found. The ground around each
+        marker, its plate and whether it recurs as a lattice's saddle, is not read
+        again: the pass that found it judged it, a camera's motion does not change
+        it, and a full pass judges it again (measured: docs/speed.md, "What a tracked
+        frame judges again").
         """
         result = frame.result
-        result.counts["merged_duplicates"] = 0
-        known = _RingPassed(xy, radius_px, line_angles, evidence)
+        with frame.timer("centring"):
+            candidates = Candidates(
+                xy, np.full(len(xy), np.inf), np.full(len(xy), self._seed_scale_px)
+            )
+            plain = subpixel.coarse_centre(
+                frame.gray, candidates.xy, candidates.scale_px, self.config.marker_radius_max_px
+            )
+            centred = self._centre(candidates, plain, result)
+        with frame.timer("verification"):
+            centred, radius, angles, score, tiny = self._verify(frame, centred)
         with frame.timer("subpixel"):
             result.detections = self.locate(
                 frame,
-                known.xy,
-                known.radius_px,
-                known.line_angles,
-                known.score,
+                centred.xy,
+                radius,
+                angles,
+                score,
+                check_lines=self._lines_after_fit,
                 read_ground=False,
             )
-        self._confirm_plates(frame, known)
+        self._confirm_plates(frame, tiny)
         result.counts["accepted"] = len(result.detections)
         return result
 
@@ -886,9 +904,8 @@ class SymmetryPath:
     ) -> subpixel.MarkerLocation:
         """The fit whose gates every detection passes (:func:`subpixel.locate_markers`)."""
         cfg = self.config
-        # The prescreen's contrast floor holds for every detection; it matters for a
-        # tracked marker confirmed by the fit alone (see :meth:`locate`), which no ring
-        # has measured on this frame.
+        # The prescreen's contrast floor holds for every detection, those the
+        # prescreen never saw too (a tracked or seeded marker).
         return subpixel.locate_markers(
             frame.gray,
             xy,

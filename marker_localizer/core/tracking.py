@@ -2,25 +2,27 @@
 
 Between full-frame passes the image motion from the last frame is measured on
 the markers. In a steady flight each track's constant-velocity prediction lies
-within reach of the sub-pixel fit, which then confirms the markers and measures
-the motion in one go. When it does not (a jolt of the attitude moves the image
-by tens of pixels), a few anchor markers are found again by matching their grey
+within reach of the detector's reading of a known marker, which then confirms
+the markers and measures the motion in one go. When it does not (a jolt of the
+attitude moves the image by tens of pixels), a few anchor markers are found again
+by matching their grey
 patch from the last frame (normalised cross-correlation within ``max_motion_px``
 of the prediction); after such a frame the patches alone measure the next few
 (a jittery camera's predictions keep missing). Markers lie on the ground, a
 plane, so the motion is a homography; fitted to the markers (a similarity or a
 shift from fewer than four anchors), it maps every track's last position into
 the frame. Each marker is then
-confirmed by the detector's sub-pixel fit alone (:meth:`Detector.locate`),
-started where the motion puts it, with the extent, line angles and verification
-evidence of its last detection: the same fit and gates as a full pass, so its
-position is a full pass's to the fit's tolerance. A marker the fit does not
-confirm is searched for in a small window, only as large as the prediction's
+confirmed by :meth:`Detector.locate`, started where the motion puts it: the
+detector's stages from the centring on, its extent and line directions measured
+on this frame, so that its position and its acceptance are a full pass's but for
+the screening and the ground around it, which the pass that found it judged. A
+marker it does not confirm is searched for in a small window, only as large as
+the prediction's
 error (``match_px``) plus the few pixels a marker's screening candidate may lie
 off its centre; inside a window the detector runs exactly as on a full frame (it
 samples the whole image; a window only bounds where candidates are screened).
 Near the border, where a marker's plate is cut and what a full pass accepts
-depends on the cut, the fit alone does not confirm it: it is seeded at its
+depends on the cut, :meth:`Detector.locate` does not confirm it: it is seeded at its
 prediction into the detector's centring, verification and fit (a
 :class:`SearchPlan`'s seeds). A marker's plate, here, is what the detector's
 checks read around it: :attr:`Detector.support_radii` of its radius.
@@ -289,7 +291,7 @@ class MarkerTracker:
     def _locate_tracks(
         self, gray: NDArray[Any], predicted: NDArray[np.float64], fitted: NDArray[np.bool_]
     ) -> DetectionResult:
-        """The fit alone, started at the ``fitted`` tracks' predictions, with their last extent."""
+        """:meth:`Detector.locate` of the ``fitted`` tracks, at their predictions."""
         known = [t.detection for t, seen in zip(self._tracks, fitted, strict=True) if seen]
         return self.detector.locate(
             gray,
@@ -380,7 +382,7 @@ class MarkerTracker:
             & (corrected[:, 1] <= height - 1)
         )
         bands, interior = self._border_bands(shape, motion)
-        # First the fit alone, from where the motion puts each marker: a fraction of a
+        # First each marker read again from where the motion puts it: about a
         # millisecond per marker, the same centre as a full pass.
         leaving = self._leaving(corrected, shape)
         fitted = ~leaving

@@ -1080,6 +1080,35 @@ def test_known_markers_are_located_by_their_x_their_ground_left_to_the_pass_that
     assert cKDTree(tracked.as_array()[:, :2]).query(xy)[0].max() < 0.01
 
 
+def test_a_known_marker_is_read_as_a_full_pass_reads_it_whatever_extent_and_lines_it_had(
+    cluttered_frames,
+):
+    """Tracking's known markers: their extent and line directions are measured again.
+
+    A tracked marker kept the extent and lines of the pass that found it: a camera
+    that climbs or turns changes both, and the centre moved with them, by up to
+    0.05 px on the flight simulator's frames.
+    """
+    detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
+    scene = cluttered_frames[0]
+    full = detector.detect(scene.image)
+    assert len(full) >= 8
+    xy = full.as_array()[:, :2]
+    stale = detector.locate(
+        scene.image,
+        xy + [0.4, -0.3],
+        np.array([d.radius_px for d in full]) * 1.41,
+        np.array([[d.angle1, d.angle2] for d in full]) + np.deg2rad(12.0),
+        np.array([d.evidence for d in full]),
+    )
+    assert len(stale) == len(full)
+    distance, index = cKDTree(xy).query(stale.as_array()[:, :2])
+    assert distance.max() < 2e-3  # the fit's tolerance, 0.001 px a step
+    for tracked, k in zip(stale, index, strict=True):
+        assert tracked.radius_px == full.detections[k].radius_px
+        assert abs(tracked.angle1 - full.detections[k].angle1) < 1e-3
+
+
 def test_a_shadows_edge_keeps_the_markers_whose_x_alone_leaves_it_unexplained(monkeypatch):
     # Rendered (g) frames of markers of 10-30 px: a hard shadow's edge across a marker
     # is shape the blurred X does not have. With the edge sought nowhere (a reach of
