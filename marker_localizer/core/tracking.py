@@ -49,7 +49,12 @@ The rule for full-frame passes, precisely. A frame gets a full-frame pass
   then not where it was expected, and only a full pass can tell where it is.
 
 The pass runs on the same frame and its detections replace the tracks, so a lost
-marker costs time, not recall. A track that is not confirmed but whose patch is
+marker costs time, not recall. A pass continues the tracks its detections lie
+within ``max_motion_px`` of; where that is fewer than half of them, the common
+shift most detections lie from their tracks by is the motion the prediction
+missed, and the tracks continue from there: a flight that moves farther than
+``max_motion_px`` a frame gets its tracks' velocities from the pass after its
+first, and is tracked from then on. A track that is not confirmed but whose patch is
 found where predicted is a marker in view that the detector rejects on this frame
 (one at the acceptance threshold, which a full pass rejects as well): it costs no
 pass and is searched for on up to ``max_missed_frames`` further frames before it
@@ -533,14 +538,23 @@ class MarkerTracker:
         """
         tracks = [_Track(np.array([d.x, d.y]), None, d, stamp) for d in result]
         if velocity_predicted is not None:
+            found = result.as_array()
             if motion is None:
                 predicted = velocity_predicted
             else:
                 predicted = _transform(motion, np.array([t.xy for t in self._tracks]))
-            found = result.as_array()
-            owner = _associate(
-                found[:, :2], predicted, np.ones(len(predicted), bool), self.config.max_motion_px
-            )
+            everyone = np.ones(len(predicted), bool)
+            owner = _associate(found[:, :2], predicted, everyone, self.config.max_motion_px)
+            if (owner >= 0).sum() < min(len(found), len(predicted)) / 2.0:
+                # The prediction missed by more than max_motion_px: all of the motion,
+                # where the tracks have no velocity yet and a flight moves farther than
+                # that a frame (the anchors' patches then match their neighbours, as
+                # alike as markers are). Only then: on a lattice of X's a shift by its
+                # period would win as many votes.
+                predicted = predicted + _common_shift(
+                    found[:, :2], predicted, self.config.max_motion_px / 2.0
+                )
+                owner = _associate(found[:, :2], predicted, everyone, self.config.max_motion_px)
             # Without a measured motion, a missed track's position is a guess: it ends.
             inside = ~self._leaving(predicted, gray.shape) & (motion is not None)
             for track, index, prediction, keep in zip(
@@ -657,6 +671,33 @@ def _coasting(
         track.patch,
         missed_by_full_pass=missed_by_full_pass,
     )
+
+
+#: Fewest predictions that must agree on a shift for :func:`_common_shift` to take it:
+#: one or two markers meeting others' positions by chance are no image motion.
+_MIN_SHIFT_SUPPORT = 3
+
+
+def _common_shift(
+    points: NDArray[np.float64], predicted: NDArray[np.float64], radius_px: float
+) -> NDArray[np.float64]:
+    """(2,) the image shift most predictions missed their detections by; zero if none does.
+
+    Every displacement from a prediction to a detection is a vote; the shift is the
+    median of the densest cluster of votes (within ``radius_px`` of one of them),
+    taken where at least half the markers of the fewer side (and
+    :data:`_MIN_SHIFT_SUPPORT`) agree on it.
+    """
+    if not len(points) or not len(predicted):
+        return np.zeros(2)
+    votes = (points[None, :, :] - predicted[:, None, :]).reshape(-1, 2)
+    support = cKDTree(votes).query_ball_point(votes, radius_px, return_length=True)
+    best = int(np.argmax(support))
+    if support[best] < max(_MIN_SHIFT_SUPPORT, min(len(points), len(predicted)) / 2.0):
+        return np.zeros(2)
+    near = np.linalg.norm(votes - votes[best], axis=1) <= radius_px
+    shift: NDArray[np.float64] = np.median(votes[near], axis=0)
+    return shift
 
 
 def _associate(

@@ -42,9 +42,9 @@ def _offsets(n_frames: int, step: tuple[float, float], seed: int) -> list[np.nda
 def _assert_same_as_full_frame(tracked: np.ndarray, full: np.ndarray, truth: np.ndarray) -> None:
     """The same markers as a full pass, at its positions; false points only where it has them.
 
-    A tracked marker is located by the same fit over the extent it had when last
-    measured, so its centre agrees with a full pass's to well within 0.01 px. A
-    full pass may find a false point in the interior that tracking does not search.
+    A tracked marker is read by the same stages from its centring on, so its centre
+    agrees with a full pass's to well within 0.01 px. A full pass may find a false
+    point in the interior that tracking does not search.
     """
     on_tracked, on_full = match_points(tracked[:, :2], truth), match_points(full[:, :2], truth)
     assert sorted(on_tracked.truth_index) == sorted(on_full.truth_index)
@@ -194,6 +194,23 @@ def test_a_frame_after_more_tracks_than_one_pass_fits_gets_a_full_pass(monkeypat
     assert any(crowded)
     for before, after in zip(crowded[:-1], results[1:], strict=True):
         assert after.counts["full_frame"] == (1 if before else 0)
+
+
+@pytest.mark.parametrize("seed", [3, 5])
+def test_a_flight_moving_farther_a_frame_than_max_motion_px_is_tracked_from_its_third_frame(seed):
+    """25 px a frame against a 16 px ``max_motion_px``: the second frame's full pass finds
+    every marker that much from its track, their common shift. The tracks get their
+    velocity from it, and the frames after are tracked (each was a full pass: the
+    anchors' patches, searched within 16 px, found none or a neighbour)."""
+    frames = [_frame(offset, k) for k, offset in enumerate(_offsets(5, (-25.0, 0.0), seed))]
+    detector = _detector()
+    tracker = MarkerTracker(detector, TrackerConfig(max_motion_px=16.0, full_frame_every=100))
+    passes = []
+    for k, (image, truth) in enumerate(frames):
+        result = tracker.update(image, stamp_s=0.5 * k)
+        _assert_same_as_full_frame(result.as_array(), detector.detect(image).as_array(), truth)
+        passes.append(result.counts["full_frame"])
+    assert passes == [1, 1, 0, 0, 0]
 
 
 def test_markers_entering_and_leaving_across_the_border_are_tracked_as_full_frames_see_them():
