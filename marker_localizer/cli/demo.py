@@ -77,8 +77,19 @@ def main(argv: Sequence[str]) -> int:
         prog=f"{PROG} demo",
         description="Render frames, detect, print accuracy, write overlays.",
     )
-    parser.add_argument("--out", default="out/demo", help="folder for the annotated frames")
-    parser.add_argument("--frames", type=count_type, default=4, help="frames per camera")
-    parser.add_argument("--seed", type=seed_type, default=7)
+    parser.add_argument(
+        "--out",
+        default="out/demo",
+        help="folder for the two bags and the annotated frames (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--frames", type=count_type, default=4, help="frames per camera (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--seed",
+        type=seed_type,
+        default=7,
+        help="seed of the simulated world and its noise (default: %(default)s)",
+    )
     args = parser.parse_args(argv)
     return run(Path(args.out), frames=args.frames, seed=args.seed)
