@@ -311,9 +311,8 @@ def test_a_larger_frame_gets_a_larger_shared_memory_block_and_the_smaller_one_is
     assert processor.snapshots()["cam0"].errors == 0
 
 
-def test_a_killed_worker_process_fails_its_frame_and_a_fresh_one_serves_the_next():
-    collect = Collector()
-    failures = []
+def _one_worker_process(collect, failures):
+    """A processor of camera cam0 with one worker process, and that process's id."""
     before = _worker_process_ids()
     processor = FrameProcessor(
         ["cam0"],
@@ -323,8 +322,15 @@ def test_a_killed_worker_process_fails_its_frame_and_a_fresh_one_serves_the_next
         worker_processes=True,
         on_error=lambda camera, err: failures.append(err),
     )
+    (worker,) = _worker_process_ids() - before
+    return processor, worker
+
+
+def test_a_killed_worker_process_fails_its_frame_and_a_fresh_one_serves_the_next():
+    collect = Collector()
+    failures = []
+    processor, worker = _one_worker_process(collect, failures)
     try:
-        (worker,) = _worker_process_ids() - before
         os.kill(worker, signal.SIGKILL)  # as the kernel's out-of-memory killer would
         processor.submit("cam0", stamped(1), block=True)
         assert processor.wait_idle(TIMEOUT_S)
@@ -347,16 +353,7 @@ def test_a_frame_still_in_a_worker_process_at_the_timeout_is_abandoned_with_its_
     """
     collect = Collector()
     failures = []
-    before = _worker_process_ids()
-    processor = FrameProcessor(
-        ["cam0"],
-        DetectorConfig(),
-        collect,
-        workers=1,
-        worker_processes=True,
-        on_error=lambda camera, err: failures.append(err),
-    )
-    (worker,) = _worker_process_ids() - before
+    processor, worker = _one_worker_process(collect, failures)
     try:
         os.kill(worker, signal.SIGSTOP)
         processor.submit("cam0", stamped(1))
