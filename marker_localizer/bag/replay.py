@@ -213,6 +213,11 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
     for c in cams:
         if c.last_error:
             lines.append(f"{c.camera}: last failure: {c.last_error}")
+        if c.skipped_out_of_order:
+            lines.append(
+                f"{c.camera}: {c.skipped_out_of_order} frames stamped no later than the one "
+                "before (a driver that leaves header.stamp unset stamps every frame 0)"
+            )
         if c.bit_depth_hint is not None:
             lines.append(f"{c.camera}: {bit_depth_warning(c.bit_depth_hint)}")
     lines += [f"not read: {topic} ({why})" for topic, why in report.unread_topics.items()]
@@ -222,7 +227,7 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
         lines.append(
             f"incomplete: {total.skipped} image messages gave no result"
             + (", the storage is damaged" if report.damage else "")
-            + f"; every frame read is in {report.out}"
+            + f"; every frame that gave a result is in {report.out}"
         )
     overall = report.evaluation
     if overall is None:

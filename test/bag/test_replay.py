@@ -399,6 +399,7 @@ def test_frames_out_of_stamp_order_are_counted_and_skipped(tmp_path):
     report = replay_bag(write_bag(tmp_path / "order", frames), tmp_path / "out", workers=1)
     cam = report.cameras["cam0"]
     assert (cam.frames, cam.skipped_out_of_order) == (2, 2)  # 10 is older, 30 is a repeat
+    assert "cam0: 2 frames stamped no later than the one before" in format_report(report)
     with BagReader(tmp_path / "out") as out:
         times = [m.time_ns for m in out.messages(["/cam0/marker_points"])]
     assert times == [1, 3]
