@@ -39,6 +39,9 @@ from marker_localizer.evaluation import DEFAULT_GATE_PX
 from marker_localizer.ros.parameters import NodeConfig
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
 
+#: What ``replay`` and ``play`` read (:class:`~marker_localizer.bag.io.BagReader`).
+BAG_HELP = "the bag: a rosbag2 (its directory, or a bare .mcap or .db3) or a ROS 1 .bag"
+
 # --------------------------------------------------------------------------- simulate
 
 
@@ -173,11 +176,12 @@ def build_replay_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         allow_abbrev=False,
         prog=f"{PROG} replay",
-        description="Run every <cam>/image_raw frame of a rosbag2 through the node's "
-        "processing (no frame dropped) and write <cam>/marker_points and /diagnostics to a "
-        "new bag; prints per-camera throughput and, when the bag has truth, accuracy.",
+        description="Run every <cam>/image_raw frame of a bag (or <cam>/image_raw/compressed, "
+        "where a camera has no raw frame) through the node's processing (no frame dropped) "
+        "and write <cam>/marker_points and /diagnostics to a new bag; prints per-camera "
+        "throughput and, when the bag has truth, accuracy.",
     )
-    parser.add_argument("bag", type=Path, help="input rosbag2 (directory, .mcap or .db3)")
+    parser.add_argument("bag", type=Path, help=BAG_HELP)
     parser.add_argument("--out", required=True, type=Path, help="output bag directory to create")
     parser.add_argument(
         "--params-file",
@@ -262,7 +266,7 @@ def build_play_parser() -> argparse.ArgumentParser:
         "ROS arguments follow --ros-args.",
     )
     defaults = PlayOptions()
-    parser.add_argument("bag", type=Path, help="rosbag2 to play (directory, .mcap or .db3)")
+    parser.add_argument("bag", type=Path, help=BAG_HELP)
     timing = parser.add_mutually_exclusive_group()
     timing.add_argument(
         "--rate",

@@ -34,7 +34,7 @@ from marker_localizer.image_files import read_image_file
 def result_record(
     path: str, image: np.ndarray, result: DetectionResult, elapsed_ms: float
 ) -> dict[str, Any]:
-    """The JSON-lines record of one image (design.md's CLI contract)."""
+    """The JSON-lines record of one image, the CLI's contract (README, "From the command line")."""
     return {
         "image": path,
         "width": int(image.shape[1]),

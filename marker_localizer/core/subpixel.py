@@ -12,9 +12,9 @@ diagonal marker is point-symmetric about its centre under any homography
 quadrant onto its opposite twin), and stays so under any symmetric blur and any
 monotonic grey-level change, which a template with a fixed edge profile does
 not. Using the whole marker is what brings the error towards the Cramer-Rao
-bound (design.md). The markers that fit judges to be markers are fitted once
-more along their two lines (:func:`refine_along_lines`), where the centre's
-information is.
+bound (docs/accuracy.md, "What the Cramer-Rao bound asks of the fit"). The
+markers that fit judges to be markers are fitted once more along their two lines
+(:func:`refine_along_lines`), where the centre's information is.
 """
 
 from __future__ import annotations
