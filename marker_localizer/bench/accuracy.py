@@ -1274,7 +1274,7 @@ def run_independent(
     """
     root = options.data_root
     if root is None or not (root / "independent" / "truth.json").is_file():
-        report("Independent renderer: ../shared/data/independent not found, skipped.")
+        report(real_data.absent("Independent renderer (its independent/ folder)"))
         return {}
     detectors = _detectors(options)
     results: dict[str, Any] = {}
@@ -1471,7 +1471,7 @@ def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
     """Evaluate the real sets (chessboards, cirn_uas); report each table as it is done."""
     root = options.data_root
     if root is None:
-        report("Real images: ../shared/data not found, skipped.")
+        report(real_data.absent("Real images"))
         return {}
     results: dict[str, Any] = {}
     limit = 1 if options.quick else None

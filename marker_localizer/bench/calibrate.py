@@ -163,6 +163,9 @@ def run(quick: bool, root: Path | None, report: Report) -> dict[str, Any]:
     for image, radius_range, truth in _rendered(quick):
         parts.append(collect(_verdicts(image, radius_range), radius_range[0], truth))
     grounds = _real_ground(root, quick) if root is not None else {}
+    if root is None:
+        # Weights fitted without it are not the package's, and there is no tail to fit.
+        report(real_data.absent("Real ground without markers (the false-alarm tail)"))
     negatives = [p for kind, _ in grounds.values() for p in kind]
     features = np.concatenate([p[0] for p in parts + negatives])
     label = np.concatenate([p[1] for p in parts + negatives])

@@ -112,10 +112,7 @@ def grounds(root: Path | None, seed: int, report: Callable[[str], None]) -> list
     """Every ground of the table; the real ones only where ``root`` (shared data) exists."""
     found: list[Ground] = []
     if root is None:
-        report(
-            "real ground: ../shared/data is absent; only the simulated and worst-case "
-            "grounds are timed"
-        )
+        report(real_data.absent("Real ground (only the simulated and worst-case grounds timed)"))
     else:
         found.append(
             Ground("aerial_negatives", [f.image for f in real_data.iter_aerial_negatives(root)])

@@ -285,6 +285,8 @@ def run(
 ) -> dict[str, Any]:
     """Run the comparison; the table goes to ``report``; returns the figures for JSON."""
     sets = reproduction_sets(quick, seed, data_root)
+    if data_root is None or not (data_root / "independent" / "truth.json").is_file():
+        report(real_data.absent("Independent renderer (its independent/ folder)"))
     rows = evaluate(sets, seed)
     report(reproduction_table(rows))
     verdicts = targets(sets, rows)

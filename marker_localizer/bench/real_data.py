@@ -12,6 +12,7 @@ corner) are shifted by -0.5 px on load.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,15 +49,34 @@ _MAX_BOARDS = 8
 _MAX_BEND = 0.03
 
 
-def data_root(repo_root: Path | None = None) -> Path | None:
-    """The shared data folder ``<repo>/../shared/data``, or None when it is absent.
+#: The environment variable that names the real data folder, where it is not
+#: ``<repo>/../shared/data`` (a copy elsewhere, an installed package).
+DATA_ENV = "MARKER_LOCALIZER_DATA"
+
+
+def data_path(repo_root: Path | None = None) -> Path:
+    """Where the real data folder is looked for: ``$MARKER_LOCALIZER_DATA``, or ``../shared/data``.
+
+    The default is beside the repository this module is installed from.
 
     Args:
         repo_root: repository root; default: the one this module is installed from.
     """
+    if os.environ.get(DATA_ENV):
+        return Path(os.environ[DATA_ENV])
     root = repo_root or Path(__file__).resolve().parents[2]
-    candidate = root.parent / "shared" / "data"
+    return (root.parent / "shared" / "data").resolve()
+
+
+def data_root(repo_root: Path | None = None) -> Path | None:
+    """The real data folder (:func:`data_path`), or None when it is absent."""
+    candidate = data_path(repo_root)
     return candidate if candidate.is_dir() else None
+
+
+def absent(what: str) -> str:
+    """The line a benchmark prints for a set it skips because the real data is absent."""
+    return f"{what}: {data_path()} not found (set {DATA_ENV} to the data folder), skipped."
 
 
 def read_gray(path: Path) -> np.ndarray:

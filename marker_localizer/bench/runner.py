@@ -8,6 +8,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from marker_localizer.errors import ConfigError
+
 Report = Callable[[str], None]
 
 
@@ -26,7 +28,15 @@ def run_and_save(name: str, run: Callable[[Report], dict[str, Any]], json_path: 
 
     Returns:
         The exit status, 0.
+
+    Raises:
+        ConfigError: ``json_path`` cannot be written, found before the run, not after it.
     """
+    if json_path is not None:
+        try:
+            json_path.touch()
+        except OSError as err:
+            raise ConfigError(f"--json {json_path}: cannot write it ({err.strerror})") from err
     start = time.perf_counter()
     results = run(print_report)
     elapsed = time.perf_counter() - start

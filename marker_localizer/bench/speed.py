@@ -132,7 +132,9 @@ def _make_subject(name: str) -> Subject:
         variant = next(v for v in peers.our_variants() if v.name == name)
         detector = variant.detector(RADIUS_RANGE)
         return Subject(lambda image: dict(detector.detect(image).timings_ms))
-    chosen = next(p for p in peers.point_detectors() if p.name == name)
+    chosen = next((p for p in peers.point_detectors() if p.name == name), None)
+    if chosen is None:
+        raise RuntimeError(f"{name}: {'; '.join(peers.unavailable_peers())}")
 
     def run_peer(image: np.ndarray) -> dict[str, float]:
         chosen.detect(image, RADIUS_RANGE)

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from marker_localizer.bench import ground, speed
+from marker_localizer.bench import ground, real_data, speed
 
 
 def _x_frame(size=96):
@@ -31,7 +31,16 @@ def test_without_shared_data_the_real_grounds_are_skipped_with_a_line(monkeypatc
     found = ground.grounds(None, 0, lines.append)
     assert [g.name for g in found] == ["flight simulator", "sensor noise 40 DN", "X tiling 8 px"]
     assert [g.worst_case for g in found] == [False, True, True]
-    assert "../shared/data is absent" in lines[0]
+    assert lines[0].startswith("Real ground (only the simulated and worst-case grounds timed): ")
+    assert lines[0].endswith("not found (set MARKER_LOCALIZER_DATA to the data folder), skipped.")
+
+
+def test_the_real_data_folder_is_where_marker_localizer_data_says(monkeypatch, tmp_path):
+    monkeypatch.setenv(real_data.DATA_ENV, str(tmp_path))
+    assert real_data.data_root() == tmp_path
+    monkeypatch.setenv(real_data.DATA_ENV, str(tmp_path / "missing"))
+    assert real_data.data_root() is None
+    assert str(tmp_path / "missing") in real_data.absent("Real images")
 
 
 def test_every_subject_times_every_frame_of_every_ground_at_every_range_in_turn(tmp_path):
