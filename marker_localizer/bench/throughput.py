@@ -66,7 +66,7 @@ from std_msgs.msg import Header
 from marker_localizer.bench import speed
 from marker_localizer.blas import single_thread_blas
 from marker_localizer.cli.arguments import count_type, positive_float
-from marker_localizer.config import TrackerConfig
+from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.ros.conversions import array_to_image
 from marker_localizer.ros.diagnostics import frames_lost_upstream
 from marker_localizer.ros.node import MarkerLocalizerNode
@@ -486,6 +486,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark and print a table; returns the exit status."""
     args = build_parser().parse_args(argv)
+    # The node refuses a range the configuration refuses: before minutes of rendering.
+    DetectorConfig(
+        marker_radius_min_px=args.radius_range[0], marker_radius_max_px=args.radius_range[1]
+    )
     tracking = not args.full_frame
     # Before rclpy starts; the camera process inherits it. A profile of the user's own
     # (the variable already set) is kept.

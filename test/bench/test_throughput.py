@@ -7,6 +7,7 @@ import sys
 import numpy as np
 
 from marker_localizer.bench import throughput
+from marker_localizer.cli import main as cli_main
 
 # --------------------------------------------------------------------------- benchmark
 
@@ -66,3 +67,10 @@ def test_throughput_benchmark_measures_one_and_two_workers_on_small_frames(ros, 
         ["2", "processes"],
         ["2", "threads"],
     ]
+
+
+def test_a_radius_range_the_node_refuses_is_refused_before_the_grounds_are_rendered(capsys):
+    assert cli_main(["bench", "throughput", "--radius-range", "40", "6", "--seconds", "1"]) == 1
+    captured = capsys.readouterr()
+    assert "rendering" not in captured.out
+    assert "marker_radius_min_px=40.0 is larger than marker_radius_max_px=6.0" in captured.err
