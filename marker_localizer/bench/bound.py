@@ -215,9 +215,14 @@ def main(argv: list[str] | None = None) -> int:
         help=f"comma-separated rendered families, of {','.join(keys)} (default: a,c,d)",
     )
     parser.add_argument(
-        "--first-seed", type=seed_type, default=FIRST_SEED, help="first seed rendered"
+        "--first-seed",
+        type=seed_type,
+        default=FIRST_SEED,
+        help="first seed rendered (default: %(default)s)",
     )
-    parser.add_argument("--frames", type=count_type, default=FRAMES, help="frames per family")
+    parser.add_argument(
+        "--frames", type=count_type, default=FRAMES, help="frames per family (default: %(default)s)"
+    )
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
     args = parser.parse_args(argv)
     chosen = [k.strip() for k in args.families.split(",") if k.strip()]

@@ -439,19 +439,31 @@ def build_parser() -> argparse.ArgumentParser:
         prog="marker-localizer bench throughput",
         description="Frames per second of the node with 1 and 2 workers, five cameras.",
     )
-    parser.add_argument("--width", type=count_type, default=4096, help="frame width, px")
-    parser.add_argument("--height", type=count_type, default=3000, help="frame height, px")
     parser.add_argument(
-        "--seconds", type=positive_float, default=40.0, help="publishing time per worker count, s"
+        "--width", type=count_type, default=4096, help="frame width, px (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--height", type=count_type, default=3000, help="frame height, px (default: %(default)s)"
+    )
+    parser.add_argument(
+        "--seconds",
+        type=positive_float,
+        default=40.0,
+        help="publishing time per worker count, s (default: %(default)s)",
     )
     parser.add_argument(
         "--rate-hz",
         type=positive_float,
         default=4.0,
-        help="frames per second and camera published (20 in all: more than the node takes)",
+        help="frames per second and camera published (default: %(default)s; 20 in all, about "
+        "what two workers take)",
     )
     parser.add_argument(
-        "--workers", type=count_type, nargs="+", default=[1, 2], help="worker counts to run"
+        "--workers",
+        type=count_type,
+        nargs="+",
+        default=[1, 2],
+        help="worker counts to run (default: 1 2)",
     )
     parser.add_argument(
         "--ground",
