@@ -1591,7 +1591,11 @@ def parse_args(argv: list[str] | None) -> tuple[Options, Path | None]:
         default=None,
         help="frames per rendered family (default: per family)",
     )
-    parser.add_argument("--quick", action="store_true", help="small run (< 2 minutes)")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="small run (2-3 minutes on one core of the development host)",
+    )
     parser.add_argument("--seed", type=seed_type, default=0, help="base seed")
     parser.add_argument(
         "--families",
