@@ -388,7 +388,7 @@ class DetectorConfig:
     )
 
     def __post_init__(self) -> None:
-        _check_fields(self)
+        check_fields(self)
         if self.marker_radius_min_px > self.marker_radius_max_px:
             raise ConfigError(
                 f"marker_radius_min_px={self.marker_radius_min_px} is larger than "
@@ -470,7 +470,7 @@ class TrackerConfig:
     )
 
     def __post_init__(self) -> None:
-        _check_fields(self)
+        check_fields(self)
 
     def replace(self, **changes: Any) -> TrackerConfig:
         """Return a validated copy with ``changes`` applied (unknown keys raise)."""
@@ -498,10 +498,18 @@ def _field_type(f: dataclasses.Field[Any]) -> type:
     return _VALUE_TYPES[field_kind(f)]
 
 
-def _check_fields(config: DetectorConfig | TrackerConfig) -> None:
-    """Validate every field of a frozen ``config``, each stored as its plain Python value."""
+def check_fields(config: Any) -> None:
+    """Validate every field of a frozen configuration, each stored as its plain Python value.
+
+    Its fields carry their :class:`ParamSpec` in ``metadata["spec"]``
+    (:class:`DetectorConfig`, :class:`TrackerConfig`, the node's ``NodeConfig``).
+
+    Raises:
+        ConfigError: as :func:`checked_value`, for the first field that fails.
+    """
     for f in dataclasses.fields(config):
-        object.__setattr__(config, f.name, _checked_field(f, getattr(config, f.name)))
+        value = checked_value(f.name, field_kind(f), f.metadata["spec"], getattr(config, f.name))
+        object.__setattr__(config, f.name, value)
 
 
 def _as_kind(value: Any, kind: str) -> Any:
@@ -547,11 +555,6 @@ def checked_value(name: str, kind: str, spec: ParamSpec, value: Any) -> Any:
             f"{name}={checked!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}".rstrip()
         )
     return checked
-
-
-def _checked_field(f: dataclasses.Field[Any], value: Any) -> Any:
-    """``value`` of field ``f`` as its plain Python type, once its type and range hold."""
-    return checked_value(f.name, field_kind(f), f.metadata["spec"], value)
 
 
 def parse_value(name: str, text: str) -> Any:

@@ -7,6 +7,10 @@ text) are quoted through :func:`shorten`, so a hostile 1 MB value never
 becomes a 1 MB log line or diagnostics message.
 """
 
+from __future__ import annotations
+
+import importlib.util
+
 #: Longest text an error message quotes from outside, characters: more than any
 #: real encoding name, path or OpenCV message.
 QUOTE_LIMIT = 200
@@ -15,6 +19,11 @@ QUOTE_LIMIT = 200
 def shorten(text: str, limit: int = QUOTE_LIMIT) -> str:
     """``text`` cut to ``limit`` characters, saying how long it was when cut."""
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def described(err: BaseException) -> str:
+    """``Type: message``: how diagnostics and summaries name a frame's failure."""
+    return f"{type(err).__name__}: {err}"
 
 
 class MarkerLocalizerError(Exception):
@@ -49,3 +58,11 @@ class RosMissingError(MarkerLocalizerError):
             f"needs ROS 2 Jazzy's Python packages ({missing}): {ROS_WHEELS}, "
             "or source a ROS 2 Jazzy install"
         )
+
+    @classmethod
+    def where_missing(cls, failed: ModuleNotFoundError) -> RosMissingError | None:
+        """The error an import's ``failed`` is where rclpy is missing; None where it is there.
+
+        With rclpy there, a module of ours or another package is missing: a bug, not ROS.
+        """
+        return cls(failed) if importlib.util.find_spec("rclpy") is None else None

@@ -3,8 +3,9 @@
 Without ROS 2 Jazzy's Python packages it says what to install, in one line.
 """
 
-import importlib.util
 import sys
+
+from marker_localizer.errors import RosMissingError
 
 
 def main() -> int:
@@ -12,11 +13,10 @@ def main() -> int:
     try:
         from marker_localizer.ros.node import main as run_node  # noqa: PLC0415
     except ModuleNotFoundError as err:
-        if importlib.util.find_spec("rclpy") is not None:
+        missing = RosMissingError.where_missing(err)
+        if missing is None:
             raise
-        from marker_localizer.errors import RosMissingError  # noqa: PLC0415
-
-        sys.stderr.write(f"marker_localizer_node: error: {RosMissingError(err)}\n")
+        sys.stderr.write(f"marker_localizer_node: error: {missing}\n")
         return 1
     return run_node()
 

@@ -55,7 +55,7 @@ from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from marker_localizer.bag.io import DEFAULT_STORAGE, BagMessage, BagReader, BagWriter
 from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
 from marker_localizer.config import NODE_NAME, DetectorConfig, TrackerConfig
-from marker_localizer.errors import BagError, ConfigError, ImageError, shorten
+from marker_localizer.errors import BagError, ConfigError, ImageError, described, shorten
 from marker_localizer.evaluation import (
     DEFAULT_GATE_PX,
     INTERVAL_HEADING,
@@ -398,7 +398,7 @@ class _Session:
         if isinstance(image, Image) and image.encoding not in ENCODINGS:
             refused = unsupported_encoding(image.encoding)
             stats.skipped_encoding += 1
-            stats.last_error = shorten(f"{type(refused).__name__}: {refused}")
+            stats.last_error = shorten(described(refused))
             self.processor.skipped(camera, image, refused)
             return
         if stamp_ns <= self._last_stamp.get(camera, -1):
@@ -446,7 +446,7 @@ class _Session:
             self._in_flight.pop(camera, None)
             stats = self.stats[camera]
             stats.failed += 1
-            stats.last_error = shorten(f"{type(err).__name__}: {err}")
+            stats.last_error = shorten(described(err))
             self._cond.notify_all()
 
     def _write_done(self) -> None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import sys
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
@@ -81,9 +80,10 @@ def _load(module: str, function: str) -> Callable[[list[str]], int]:
     try:
         return getattr(importlib.import_module(module), function)
     except ModuleNotFoundError as err:
-        if importlib.util.find_spec("rclpy") is None:
-            raise RosMissingError(err) from err
-        raise
+        missing = RosMissingError.where_missing(err)
+        if missing is None:
+            raise
+        raise missing from err
 
 
 def build_parser() -> argparse.ArgumentParser:

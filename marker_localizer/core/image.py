@@ -119,7 +119,7 @@ def to_gray(
         return np.ascontiguousarray(np.clip(image, 0.0, 1.0), dtype=np.float32), 1.0
     white = bit_depth_scale(image.dtype, bit_depth)
     if image.dtype == np.uint16 and bit_depth < 16:
-        sample = image[::_PEAK_STRIDE, ::_PEAK_STRIDE]
+        sample = _peak_grid(image)
         above = np.count_nonzero(sample > white) / sample.size
         if above > MAX_ABOVE_WHITE_SHARE:
             # Every threshold would read a frame of saturated levels, and find nothing.
@@ -172,7 +172,12 @@ def bayer_to_grey(mosaic: NDArray[Any], pattern: str) -> NDArray[Any]:
 
 def peak_level(image: NDArray[Any]) -> float:
     """The brightest level of an image, read on every fourth row and column (any channel)."""
-    return float(image[::_PEAK_STRIDE, ::_PEAK_STRIDE].max())
+    return float(_peak_grid(image).max())
+
+
+def _peak_grid(image: NDArray[Any]) -> NDArray[Any]:
+    """The pixels :func:`peak_level` reads: every :data:`_PEAK_STRIDE`-th row and column."""
+    return image[::_PEAK_STRIDE, ::_PEAK_STRIDE]
 
 
 def bit_depth_hint(peak: float, bit_depth: int) -> int | None:

@@ -145,9 +145,7 @@ class Detector:
             result.survivors.append(("screening", candidates.xy))
         # A seed is a tracked marker, perhaps a fraction of a pixel off: it joins the
         # candidates at the first pyramid level's scale, past the prescreen's test.
-        seeded = Candidates(
-            seeds, np.full(len(seeds), np.inf), np.full(len(seeds), self._search.seed_scale_px)
-        )
+        seeded = Candidates.seeded(seeds, self._search.seed_scale_px)
         result.counts["rejected_prescreen"] = result.counts["dropped_over_verification_cap"] = 0
         if noise is not None and cfg.candidate_detector == "saddle":
             # The template path on the saddle screening reads the noise, not the local means.

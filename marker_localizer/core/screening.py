@@ -45,6 +45,14 @@ class Candidates(NamedTuple):
         return cls(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
 
     @classmethod
+    def seeded(cls, xy: NDArray[np.float64], scale_px: float) -> Candidates:
+        """Positions known to hold a marker (a tracked or seeded one), each at ``scale_px``.
+
+        The strongest of candidates: they win every suppression against screened ones.
+        """
+        return cls(xy, np.full(len(xy), np.inf), np.full(len(xy), scale_px))
+
+    @classmethod
     def concat(cls, parts: list[Candidates]) -> Candidates:
         """Join several candidate sets into one."""
         if not parts:

@@ -190,11 +190,7 @@ class SymmetryPath:
     def confirm(self, frame: Frame, candidates: Candidates) -> DetectionResult:
         """Centre, verify and locate the candidates of the saddle path."""
         result = frame.result
-        with frame.timer("centring"):
-            plain = subpixel.coarse_centre(
-                frame.gray, candidates.xy, candidates.scale_px, self.config.marker_radius_max_px
-            )
-            centred = self._centre(candidates, plain, result)
+        plain, centred = self._centring(frame, candidates)
         result.detections, tiny = self._verify_and_locate(frame, centred)
         self._recentre_lost(frame, candidates, plain)
         self._reread_shadowed(frame, candidates)
@@ -222,14 +218,7 @@ class SymmetryPath:
         frame judges again").
         """
         result = frame.result
-        with frame.timer("centring"):
-            candidates = Candidates(
-                xy, np.full(len(xy), np.inf), np.full(len(xy), self._seed_scale_px)
-            )
-            plain = subpixel.coarse_centre(
-                frame.gray, candidates.xy, candidates.scale_px, self.config.marker_radius_max_px
-            )
-            centred = self._centre(candidates, plain, result)
+        _, centred = self._centring(frame, Candidates.seeded(xy, self._seed_scale_px))
         with frame.timer("verification"):
             centred, radius, angles, score, tiny = self._verify(frame, centred)
         with frame.timer("subpixel"):
@@ -448,6 +437,16 @@ class SymmetryPath:
         floor = _RAW_CONTRAST_SHARE * self.config.min_contrast_share * full_scale
         gain = self._shadowed.gain_at(gamma, xy)
         return np.full(len(xy), floor) if gain is None else floor / gain
+
+    def _centring(
+        self, frame: Frame, candidates: Candidates
+    ) -> tuple[tuple[NDArray[np.float64], NDArray[np.bool_]], Candidates]:
+        """The centring stage: :func:`subpixel.coarse_centre`'s fit, and :meth:`_centre`'s."""
+        with frame.timer("centring"):
+            plain = subpixel.coarse_centre(
+                frame.gray, candidates.xy, candidates.scale_px, self.config.marker_radius_max_px
+            )
+            return plain, self._centre(candidates, plain, frame.result)
 
     def _centre(
         self,

@@ -48,6 +48,7 @@ from marker_localizer.config import (
     DetectorConfig,
     ParamSpec,
     TrackerConfig,
+    check_fields,
     checked_value,
     field_kind,
     from_mapping,
@@ -187,9 +188,7 @@ class NodeConfig:
     )
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            value = checked_value(f.name, field_kind(f), f.metadata["spec"], getattr(self, f.name))
-            object.__setattr__(self, f.name, value)
+        check_fields(self)
         bad = [c for c in self.cameras if not _CAMERA_NAME.match(c)]
         if not self.cameras or bad or len(set(self.cameras)) != len(self.cameras):
             raise ConfigError(

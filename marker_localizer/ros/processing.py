@@ -73,7 +73,7 @@ from marker_localizer.core.image import peak_level
 from marker_localizer.core.pipeline import Detector
 from marker_localizer.core.result import CAP_COUNTS, DetectionResult
 from marker_localizer.core.tracking import MarkerTracker, staggered_phase
-from marker_localizer.errors import ConfigError, WorkerError
+from marker_localizer.errors import ConfigError, WorkerError, described
 from marker_localizer.overlay import draw_detections
 from marker_localizer.ros.conversions import (
     array_to_image,
@@ -414,7 +414,7 @@ class FrameProcessor:
         now_ns = self._clock_ns()
         stats.frame_received(now_ns, stamp_to_ns(msg.header))
         if err is not None:
-            stats.frame_failed(now_ns, f"{type(err).__name__}: {err}")
+            stats.frame_failed(now_ns, described(err))
 
     def wait_idle(self, timeout_s: float | None = None) -> bool:
         """Wait until every mailbox is empty and no frame is in flight.
@@ -690,7 +690,7 @@ class FrameProcessor:
         except _AbandonedError:
             return  # the shutdown counts and names what it abandoned
         except Exception as err:  # one bad frame must not stop the worker
-            stats.frame_failed(self._clock_ns(), f"{type(err).__name__}: {err}")
+            stats.frame_failed(self._clock_ns(), described(err))
             if self._on_error is not None:
                 self._on_error(frame.camera, err)
             return
