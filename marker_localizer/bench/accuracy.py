@@ -1273,8 +1273,8 @@ def run_independent(
     Appends (family label, our reference row) to ``summary``.
     """
     root = options.data_root
-    if root is None or not (root / "independent" / "truth.json").is_file():
-        report(real_data.absent("Independent renderer (its independent/ folder)"))
+    if root is None or not real_data.has_independent(root):
+        report(real_data.absent(real_data.INDEPENDENT_SET))
         return {}
     detectors = _detectors(options)
     results: dict[str, Any] = {}

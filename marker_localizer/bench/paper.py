@@ -95,7 +95,7 @@ def reproduction_sets(quick: bool, seed: int, data_root: Path | None) -> list[Re
             for i in range(count)
         ]
         sets.append(ReproductionSet(family.label, frames, kind))
-    if data_root is not None and (data_root / "independent" / "truth.json").is_file():
+    if data_root is not None and real_data.has_independent(data_root):
         independent = real_data.iter_independent(data_root, 1 if quick else None, ("a",))
         sets.append(
             ReproductionSet(
@@ -243,7 +243,7 @@ def check_sets(quick: bool, seed: int, data_root: Path | None) -> dict[str, list
             LabelledFrame.rendered(family.render(seed * 1000 + i), family.radius_range)
             for i in range(count)
         ]
-    if data_root is not None and (data_root / "independent" / "truth.json").is_file():
+    if data_root is not None and real_data.has_independent(data_root):
         for key in ("g", "a"):
             sets[f"independent renderer ({key})"] = [
                 LabelledFrame.independent(f)
@@ -285,8 +285,8 @@ def run(
 ) -> dict[str, Any]:
     """Run the comparison; the table goes to ``report``; returns the figures for JSON."""
     sets = reproduction_sets(quick, seed, data_root)
-    if data_root is None or not (data_root / "independent" / "truth.json").is_file():
-        report(real_data.absent("Independent renderer (its independent/ folder)"))
+    if not real_data.has_independent(data_root):
+        report(real_data.absent(real_data.INDEPENDENT_SET))
     rows = evaluate(sets, seed)
     report(reproduction_table(rows))
     verdicts = targets(sets, rows)

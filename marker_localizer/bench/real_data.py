@@ -357,6 +357,16 @@ class IndependentFrame:
     radius_px: np.ndarray
 
 
+#: What a benchmark's line (:func:`absent`) names when the independent renderer's
+#: frames are absent.
+INDEPENDENT_SET = "Independent renderer (its independent/ folder)"
+
+
+def has_independent(root: Path | None) -> bool:
+    """Whether the data folder ``root`` holds the independent renderer's frames."""
+    return root is not None and (root / "independent" / "truth.json").is_file()
+
+
 def iter_independent(
     root: Path, limit_per_family: int | None = None, families: tuple[str, ...] | None = None
 ) -> Iterator[IndependentFrame]:
