@@ -60,6 +60,9 @@ _TYPESTORE = Stores.ROS2_JAZZY
 #: The ``ros_distro`` of the bags' metadata.yaml: the distro of that typestore,
 #: which is what rosbag2 writes there (the distro it was built for).
 ROS_DISTRO = _TYPESTORE.value.removeprefix("ros2_")
+#: Suffixes of bag files, not of bag directories: an output named with one is
+#: a file name given where rosbag2 makes a directory (``x.mcap/x.mcap.mcap``).
+_BAG_FILE_SUFFIXES = (".mcap", ".db3", ".bag")
 #: First bytes of a ROS 1 bag (format 2.0, the only one rosbags and ROS 1 since 2010 write).
 _ROS1_MAGIC = b"#ROSBAG V2.0\n"
 
@@ -398,18 +401,25 @@ class BagWriter:
     the sqlite3 storage refuses any other.
 
     Args:
-        path: The bag directory to create; must not exist.
+        path: The bag directory to create; must not exist, nor end in ``.mcap``,
+            ``.db3`` or ``.bag`` (the names of bag files, not directories).
         storage: ``"mcap"`` or ``"sqlite3"``.
 
     Raises:
-        BagError: ``path`` exists, its parent cannot be created, or ``storage``
-            is unknown.
+        BagError: ``path`` exists or is named as a bag file, its parent cannot
+            be created, or ``storage`` is unknown.
     """
 
     def __init__(self, path: str | Path, storage: str = DEFAULT_STORAGE) -> None:
         self.path = Path(path)
         if storage not in STORAGES:
             raise BagError(f"unknown storage {storage!r}; choose from {', '.join(STORAGES)}")
+        if self.path.suffix.lower() in _BAG_FILE_SUFFIXES:
+            raise BagError(
+                f"{self.path}: names a bag directory, not a {self.path.suffix} file "
+                f"(a rosbag2 is a directory of its storage file and metadata.yaml); "
+                f"give it without {self.path.suffix}, e.g. {self.path.with_suffix('')}"
+            )
         if self.path.exists() or self.path.is_symlink():
             raise BagError(f"{self.path}: output path exists; remove it or choose another")
         self.storage = storage

@@ -272,6 +272,25 @@ def test_simulate_refuses_an_existing_output_and_a_bad_configuration(tmp_path, c
     assert leftovers(tmp_path) == ["taken"]
 
 
+@pytest.mark.parametrize("name", ["flight.mcap", "flight.db3", "flight.bag", "flight.MCAP"])
+def test_an_output_named_as_a_bag_file_is_refused_in_one_line_that_names_the_directory_to_give(
+    flight_bag, tmp_path, name, capsys
+):
+    """A rosbag2 is a directory: ``--out flight.mcap`` made ``flight.mcap/flight.mcap.mcap``."""
+    out = tmp_path / name
+    assert (
+        cli(["simulate", "--out", str(out), "--frames", "1", "--width", "64", "--height", "48"])
+        == 1
+    )
+    assert cli(["replay", str(flight_bag), "--out", str(out)]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2
+    for line in err:
+        assert f"{name}: names a bag directory" in line
+        assert f"e.g. {tmp_path / 'flight'}" in line
+    assert leftovers(tmp_path) == []
+
+
 # --------------------------------------------------------------------------- bad input
 
 
