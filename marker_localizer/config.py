@@ -444,8 +444,10 @@ class TrackerConfig:
         64.0,
         "Largest error of a constant-velocity prediction (the image motion between two "
         "frames that the velocity does not foresee): how far an anchor's patch is searched "
-        "for, and how far a full pass's detection may lie from a track it continues. 64 px "
-        "is a jolt of ~1 degree of attitude on the rig's 12 MP cameras.",
+        "for (anchors lie this far plus their patch inside the frame, or in its central "
+        "half where this exceeds a quarter frame), and how far a full pass's detection may "
+        "lie from a track it continues. 64 px is a jolt of ~1 degree of attitude on the "
+        "rig's 12 MP cameras.",
         "px",
         1.0,
         1000.0,

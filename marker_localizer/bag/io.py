@@ -38,6 +38,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal, Self
 
+import yaml
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.interfaces import Qos
 from rosbags.rosbag1 import Reader as Ros1Reader
@@ -54,6 +55,14 @@ STORAGES: dict[str, StoragePlugin] = {"mcap": StoragePlugin.MCAP, "sqlite3": Sto
 DEFAULT_STORAGE = "mcap"
 #: rosbag2 metadata version written (Jazzy's).
 _BAG_VERSION: Literal[9] = 9
+#: The typestore whose message definitions and type hashes the bags hold.
+_TYPESTORE = Stores.ROS2_JAZZY
+#: The ``ros_distro`` of the bags' metadata.yaml: the distro of that typestore,
+#: which is what rosbag2 writes there (the distro it was built for).
+ROS_DISTRO = _TYPESTORE.value.removeprefix("ros2_")
+#: Suffixes of bag files, not of bag directories: an output named with one is
+#: a file name given where rosbag2 makes a directory (``x.mcap/x.mcap.mcap``).
+_BAG_FILE_SUFFIXES = (".mcap", ".db3", ".bag")
 #: First bytes of a ROS 1 bag (format 2.0, the only one rosbags and ROS 1 since 2010 write).
 _ROS1_MAGIC = b"#ROSBAG V2.0\n"
 
@@ -61,7 +70,7 @@ _ROS1_MAGIC = b"#ROSBAG V2.0\n"
 @functools.cache
 def typestore() -> Typestore:
     """The ROS 2 Jazzy typestore of rosbags (message definitions and hashes; cached)."""
-    return get_typestore(Stores.ROS2_JAZZY)
+    return get_typestore(_TYPESTORE)
 
 
 @functools.cache
@@ -368,8 +377,6 @@ class BagReader:
 
 def _metadata_counts(path: Path) -> dict[str, int]:
     """Topic -> messages of a bag directory's ``metadata.yaml``; empty where it cannot tell."""
-    import yaml  # noqa: PLC0415 - only a damaged bag's reading needs PyYAML
-
     try:
         info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
         return {
@@ -394,18 +401,25 @@ class BagWriter:
     the sqlite3 storage refuses any other.
 
     Args:
-        path: The bag directory to create; must not exist.
+        path: The bag directory to create; must not exist, nor end in ``.mcap``,
+            ``.db3`` or ``.bag`` (the names of bag files, not directories).
         storage: ``"mcap"`` or ``"sqlite3"``.
 
     Raises:
-        BagError: ``path`` exists, its parent cannot be created, or ``storage``
-            is unknown.
+        BagError: ``path`` exists or is named as a bag file, its parent cannot
+            be created, or ``storage`` is unknown.
     """
 
     def __init__(self, path: str | Path, storage: str = DEFAULT_STORAGE) -> None:
         self.path = Path(path)
         if storage not in STORAGES:
             raise BagError(f"unknown storage {storage!r}; choose from {', '.join(STORAGES)}")
+        if self.path.suffix.lower() in _BAG_FILE_SUFFIXES:
+            raise BagError(
+                f"{self.path}: names a bag directory, not a {self.path.suffix} file "
+                f"(a rosbag2 is a directory of its storage file and metadata.yaml); "
+                f"give it without {self.path.suffix}, e.g. {self.path.with_suffix('')}"
+            )
         if self.path.exists() or self.path.is_symlink():
             raise BagError(f"{self.path}: output path exists; remove it or choose another")
         self.storage = storage
@@ -448,6 +462,7 @@ class BagWriter:
             return
         try:
             writer.close()
+            _write_ros_distro(self._staging / self.path.name / "metadata.yaml")
             (self._staging / self.path.name).rename(self.path)
         except Exception as err:
             raise BagError(f"{self.path}: cannot finish bag ({_storage_error(err)})") from err
@@ -506,6 +521,18 @@ class BagWriter:
         if self._writer is None:
             raise BagError(f"{self.path}: bag is not open (use BagWriter as a context manager)")
         return self._writer
+
+
+def _write_ros_distro(metadata: Path) -> None:
+    """Set :data:`ROS_DISTRO` in a ``metadata.yaml`` rosbags wrote.
+
+    rosbags writes ``ros_distro: rosbags`` and has no setting for it. The copy of
+    the metadata inside the storage file keeps rosbags' word: what a reader given
+    the bare ``.mcap`` or ``.db3`` sees.
+    """
+    info = yaml.safe_load(metadata.read_text())
+    info["rosbag2_bagfile_information"]["ros_distro"] = ROS_DISTRO
+    metadata.write_text(yaml.safe_dump(info, default_flow_style=False))
 
 
 _STAGING = re.compile(r"^\.(?P<name>.+)\.partial-(?P<host>.+)-(?P<pid>\d+)$")

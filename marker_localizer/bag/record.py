@@ -186,7 +186,8 @@ def record_flight(
         What was written.
 
     Raises:
-        BagError: ``out`` exists or cannot be written.
+        BagError: ``out`` exists, is named as a bag file (``.mcap``, ``.db3``,
+            ``.bag``) or cannot be written.
     """
     cameras = simulator.rig
     names = [c.name for c in cameras]

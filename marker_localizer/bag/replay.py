@@ -504,7 +504,8 @@ def replay_bag(
 
     Raises:
         BagError: ``bag`` is missing, not a bag, corrupt or truncated, or has
-            no ``<cam>/image_raw`` topic; ``out`` exists or cannot be written.
+            no ``<cam>/image_raw`` topic; ``out`` exists, is named as a bag file
+            (``.mcap``, ``.db3``, ``.bag``) or cannot be written.
         ConfigError: ``workers`` < 1, or ``match_distance_px`` not a positive distance.
     """
     if not (math.isfinite(match_distance_px) and match_distance_px > 0):

@@ -41,6 +41,8 @@ from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
 
 #: What ``replay`` and ``play`` read (:class:`~marker_localizer.bag.io.BagReader`).
 BAG_HELP = "the bag: a rosbag2 (its directory, or a bare .mcap or .db3) or a ROS 1 .bag"
+#: What ``simulate`` and ``replay`` write (:class:`~marker_localizer.bag.io.BagWriter`).
+OUT_HELP = "the bag directory to create, as ros2 bag record -o makes (no .mcap, .db3 or .bag)"
 
 # --------------------------------------------------------------------------- simulate
 
@@ -54,7 +56,7 @@ def build_simulate_parser() -> argparse.ArgumentParser:
         "rosbag2 with images, camera_info, /tf_static and the exact marker truth.",
     )
     defaults = FlightConfig()
-    parser.add_argument("--out", required=True, type=Path, help="bag directory to create")
+    parser.add_argument("--out", required=True, type=Path, help=OUT_HELP)
     parser.add_argument(
         "--frames",
         type=count_type,
@@ -182,7 +184,7 @@ def build_replay_parser() -> argparse.ArgumentParser:
         "throughput and, when the bag has truth, accuracy.",
     )
     parser.add_argument("bag", type=Path, help=BAG_HELP)
-    parser.add_argument("--out", required=True, type=Path, help="output bag directory to create")
+    parser.add_argument("--out", required=True, type=Path, help=OUT_HELP)
     parser.add_argument(
         "--params-file",
         type=Path,

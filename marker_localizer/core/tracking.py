@@ -111,6 +111,14 @@ _NEAR_MIN_PATCH_NCC = 0.9
 #: what a confirming one does, and the patches find the same markers (docs/speed.md,
 #: "Tracking under the flight simulator's attitude jitter"). Then it is tried again.
 _FIT_MOTION_RETRY_FRAMES = 4
+#: Anchors lie at most this share of the frame's width (height) in from its left
+#: and right (top and bottom) edges, whatever ``max_motion_px``: one set farther in
+#: than ``max_motion_px`` plus its patch would be none at all once that motion
+#: nears half the frame, and tracking would stop at the first frame the fit's
+#: motion fails. In the central half an anchor stays in view after a motion of a
+#: quarter frame in any direction, and after a larger one so do the anchors on
+#: the side the content moves away from.
+_ANCHOR_MARGIN_SHARE = 0.25
 #: A marker's strongest screening candidate lies within this distance of the centre
 #: the detector reports (measured on the speed benchmark's frames: windows of this
 #: half-size around full-frame detections give back every one of them).
@@ -605,9 +613,14 @@ class MarkerTracker:
 
         The anchors are large markers (the most distinct patches) far apart (the
         motion's roll, scale and perspective are then fixed best) whose patches stay
-        in view after the largest unforeseen motion.
+        in view after the largest unforeseen motion, ``max_motion_px``, or that lie
+        in the frame's central half where that motion exceeds a quarter frame
+        (:data:`_ANCHOR_MARGIN_SHARE`).
         """
         height, width = gray.shape
+        motion = math.ceil(self.config.max_motion_px)
+        reach_x = min(motion, int(_ANCHOR_MARGIN_SHARE * width))
+        reach_y = min(motion, int(_ANCHOR_MARGIN_SHARE * height))
         candidates = []
         for track in self._tracks:
             track.anchor = False
@@ -622,8 +635,8 @@ class MarkerTracker:
                 patch = gray[cy - half : cy + half + 1, cx - half : cx + half + 1]
                 # matchTemplate takes 8-bit or float32 images only.
                 track.patch = patch.copy() if patch.dtype == np.uint8 else patch.astype(np.float32)
-            margin = half + int(np.ceil(self.config.max_motion_px))
-            if margin <= cx < width - margin and margin <= cy < height - margin:
+            margin_x, margin_y = half + reach_x, half + reach_y
+            if margin_x <= cx < width - margin_x and margin_y <= cy < height - margin_y:
                 candidates.append((track, cx, cy))
         if not candidates:
             return

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from blas_threads import openblas_threads, two_threaded_openblas
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import Image
@@ -126,6 +127,17 @@ def test_simulated_bag_has_images_camera_info_truth_and_tf_static_per_camera(fli
     assert {t.header.frame_id for t in tf.transforms} == {"base_link"}
     nadir = tf.transforms[0].transform.rotation  # optical z = body -z: 180 deg about an xy axis
     assert abs(nadir.w) < 1e-9
+
+
+def test_the_bags_simulate_and_replay_write_name_ros_2_jazzy_as_their_distro(flight_bag, replayed):
+    """metadata.yaml's ros_distro is the distro of the bag's message definitions, as
+    rosbag2 writes it, not the name of the library that wrote the bag."""
+    _, replayed_bag = replayed
+    for bag in (flight_bag, replayed_bag):
+        metadata = yaml.safe_load((bag / "metadata.yaml").read_text())
+        assert metadata["rosbag2_bagfile_information"]["ros_distro"] == "jazzy"
+        with BagReader(bag) as reader:
+            assert reader.damage == []
 
 
 # --------------------------------------------------------------------------- replay
@@ -258,6 +270,25 @@ def test_simulate_refuses_an_existing_output_and_a_bad_configuration(tmp_path, c
     assert "taken: output path exists" in err[0]
     assert "must hold a marker's plate at nadir" in err[1]
     assert leftovers(tmp_path) == ["taken"]
+
+
+@pytest.mark.parametrize("name", ["flight.mcap", "flight.db3", "flight.bag", "flight.MCAP"])
+def test_an_output_named_as_a_bag_file_is_refused_in_one_line_that_names_the_directory_to_give(
+    flight_bag, tmp_path, name, capsys
+):
+    """A rosbag2 is a directory: ``--out flight.mcap`` made ``flight.mcap/flight.mcap.mcap``."""
+    out = tmp_path / name
+    assert (
+        cli(["simulate", "--out", str(out), "--frames", "1", "--width", "64", "--height", "48"])
+        == 1
+    )
+    assert cli(["replay", str(flight_bag), "--out", str(out)]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2
+    for line in err:
+        assert f"{name}: names a bag directory" in line
+        assert f"e.g. {tmp_path / 'flight'}" in line
+    assert leftovers(tmp_path) == []
 
 
 # --------------------------------------------------------------------------- bad input

@@ -6,7 +6,7 @@ from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench.ground import x_tiling_frame
-from marker_localizer.config import TrackerConfig
+from marker_localizer.config import TrackerConfig, param_specs
 from marker_localizer.core import symmetry_path, tracking
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.evaluation import match_points
@@ -211,6 +211,25 @@ def test_a_flight_moving_farther_a_frame_than_max_motion_px_is_tracked_from_its_
         _assert_same_as_full_frame(result.as_array(), detector.detect(image).as_array(), truth)
         passes.append(result.counts["full_frame"])
     assert passes == [1, 1, 0, 0, 0]
+
+
+def test_at_the_largest_max_motion_px_the_anchors_lie_in_the_frames_central_half(
+    moving_frames,
+):
+    """1000 px on 640 x 480 frames: no marker lies that far plus its patch from every
+    border, so without anchors each frame whose fit misses its prediction (the jitter's
+    3 px) would be a full pass. The anchors come from the frame's central half instead,
+    and the flight is tracked from its second frame."""
+    largest = param_specs(TrackerConfig)["max_motion_px"][1].high
+    assert largest == 1000.0
+    detector = _detector()
+    tracker = MarkerTracker(detector, TrackerConfig(max_motion_px=largest, full_frame_every=100))
+    passes = []
+    for k, (image, truth) in enumerate(moving_frames):
+        result = tracker.update(image, stamp_s=0.1 * k)
+        _assert_same_as_full_frame(result.as_array(), detector.detect(image).as_array(), truth)
+        passes.append(result.counts["full_frame"])
+    assert passes == [1, 0, 0, 0, 0, 0]
 
 
 def test_markers_entering_and_leaving_across_the_border_are_tracked_as_full_frames_see_them():
