@@ -532,7 +532,7 @@ def _write_ros_distro(metadata: Path) -> None:
     """
     info = yaml.safe_load(metadata.read_text())
     info["rosbag2_bagfile_information"]["ros_distro"] = ROS_DISTRO
-    metadata.write_text(yaml.safe_dump(info, default_flow_style=False))
+    metadata.write_text(yaml.safe_dump(info, default_flow_style=False, sort_keys=False))
 
 
 _STAGING = re.compile(r"^\.(?P<name>.+)\.partial-(?P<host>.+)-(?P<pid>\d+)$")
