@@ -44,7 +44,7 @@ import numpy as np
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench.accuracy import bin_labels, families, x_snr_band
 from marker_localizer.bench.runner import Report, run_and_save
-from marker_localizer.cli.arguments import count_type, seed_type
+from marker_localizer.cli.arguments import comma_keys, count_type, seed_type
 from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import render_scene
 from marker_localizer.synthetic.crlb import X_SNR_BANDS, BoundParts
@@ -211,6 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--families",
+        type=comma_keys(keys, "families"),
         default="a,c,d",
         help=f"comma-separated rendered families, of {','.join(keys)} (default: a,c,d)",
     )
@@ -225,12 +226,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
     args = parser.parse_args(argv)
-    chosen = [k.strip() for k in args.families.split(",") if k.strip()]
-    unknown = sorted(set(chosen) - set(keys))
-    if unknown or not chosen:
-        parser.error(f"--families: unknown {', '.join(unknown) or '(none given)'}; of {keys}")
     seeds = range(args.first_seed, args.first_seed + args.frames)
     run_report: Callable[[Report], dict[str, Any]] = lambda report: run(  # noqa: E731
-        chosen, list(seeds), report
+        args.families, list(seeds), report
     )
     return run_and_save("bound", run_report, args.json)

@@ -18,13 +18,34 @@ def print_report(text: str) -> None:
     print(f"\n{text}", flush=True)
 
 
+def _check_writable(json_path: Path) -> bool:
+    """Check before the run that ``json_path`` can be written; whether this created it.
+
+    A file that is there is opened for appending and left as it was; one that is
+    not is created, empty, for the caller to remove if the run fails.
+
+    Raises:
+        ConfigError: it cannot be written.
+    """
+    try:
+        try:
+            json_path.open("x").close()
+        except FileExistsError:
+            json_path.open("a").close()
+            return False
+    except OSError as err:
+        raise ConfigError(f"--json {json_path}: cannot write it ({err.strerror})") from err
+    return True
+
+
 def run_and_save(name: str, run: Callable[[Report], dict[str, Any]], json_path: Path | None) -> int:
     """Run a benchmark, print its tables and its duration, save its figures as JSON.
 
     Args:
         name: what finished, as the last line says it.
         run: the benchmark, given the report function; returns its figures.
-        json_path: where to save the figures (with ``elapsed_s``), or None.
+        json_path: where to save the figures (with ``elapsed_s``), or None. A run
+            that fails leaves it as it was before: not there, or as it read.
 
     Returns:
         The exit status, 0.
@@ -32,16 +53,18 @@ def run_and_save(name: str, run: Callable[[Report], dict[str, Any]], json_path: 
     Raises:
         ConfigError: ``json_path`` cannot be written, found before the run, not after it.
     """
-    if json_path is not None:
-        try:
-            json_path.touch()
-        except OSError as err:
-            raise ConfigError(f"--json {json_path}: cannot write it ({err.strerror})") from err
-    start = time.perf_counter()
-    results = run(print_report)
-    elapsed = time.perf_counter() - start
-    print(f"\n{name} finished in {elapsed:.0f} s", flush=True)
-    if json_path is not None:
-        results["elapsed_s"] = elapsed
-        json_path.write_text(json.dumps(results, indent=2))
+    created = json_path if json_path is not None and _check_writable(json_path) else None
+    try:
+        start = time.perf_counter()
+        results = run(print_report)
+        elapsed = time.perf_counter() - start
+        print(f"\n{name} finished in {elapsed:.0f} s", flush=True)
+        if json_path is not None:
+            results["elapsed_s"] = elapsed
+            json_path.write_text(json.dumps(results, indent=2))
+    except BaseException:
+        # An empty file left by a failed run would read as a run that saved nothing.
+        if created is not None:
+            created.unlink(missing_ok=True)
+        raise
     return 0

@@ -611,12 +611,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--seed", type=seed_type, default=0, help="rendering seed")
     parser.add_argument(
-        "--families",
-        default=None,
-        help="accepted for symmetry with the accuracy benchmark; "
-        "speed always uses family (d) 4096x3000",
-    )
-    parser.add_argument(
         "--subjects",
         type=comma_keys(tuple(SUBJECTS), "subjects"),
         default=None,

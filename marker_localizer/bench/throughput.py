@@ -37,6 +37,8 @@ reports:
   (its worker processes' not included). On a shared machine
   the scaling ratio means little unless the other processes left the second
   core free.
+
+``--json PATH`` saves these figures as well, as the other benchmarks save theirs.
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import rclpy
@@ -64,6 +66,7 @@ from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.bench import speed
+from marker_localizer.bench.runner import Report, run_and_save
 from marker_localizer.blas import single_thread_blas
 from marker_localizer.cli.arguments import count_type, positive_float
 from marker_localizer.config import DetectorConfig, TrackerConfig
@@ -492,16 +495,25 @@ def build_parser() -> argparse.ArgumentParser:
         help="a full-frame detection per frame (tracker.enabled off) instead of the "
         "node's default tracking mode",
     )
+    parser.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help="also save the figures here (default: none saved)",
+    )
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the benchmark and print a table; returns the exit status."""
-    args = build_parser().parse_args(argv)
-    # The node refuses a range the configuration refuses: before minutes of rendering.
-    DetectorConfig(
-        marker_radius_min_px=args.radius_range[0], marker_radius_max_px=args.radius_range[1]
-    )
+def run(args: argparse.Namespace, report: Report) -> dict[str, Any]:
+    """Render the grounds, run the node with each worker count, report the table.
+
+    Args:
+        args: the command line, from :func:`build_parser`.
+        report: prints the table.
+
+    Returns:
+        The figures the table and the lines around it give.
+    """
     tracking = not args.full_frame
     # Before rclpy starts; the camera process inherits it. A profile of the user's own
     # (the variable already set) is kept.
@@ -534,23 +546,54 @@ def main(argv: Sequence[str] | None = None) -> int:
                 )
         finally:
             rclpy.try_shutdown()
+    full_frame_every = TrackerConfig().full_frame_every
     mode = (
-        f"tracking (full frame every {TrackerConfig().full_frame_every} frames)"
+        f"tracking (full frame every {full_frame_every} frames)"
         if tracking
         else "full-frame detection"
     )
-    print(
-        f"\n{len(CAMERAS)} cameras, {args.width}x{args.height} mono8 panning "
+    lines = [
+        f"{len(CAMERAS)} cameras, {args.width}x{args.height} mono8 panning "
         f"{PAN_STEP_PX} px per frame, {args.rate_hz:g} Hz each, {args.seconds:g} s per run, "
         f"{mode}, {args.ground} ground, radius {args.radius_range[0]:g}-"
-        f"{args.radius_range[1]:g} px, {os.cpu_count()} CPUs, DDS profile: {transport}"
-    )
-    print(format_table(results))
+        f"{args.radius_range[1]:g} px, {os.cpu_count()} CPUs, DDS profile: {transport}",
+        format_table(results),
+    ]
     by_workers = {r.workers: r for r in results}
+    scaling = None
     if 1 in by_workers and 2 in by_workers:
-        ratio = by_workers[2].frames_per_s / by_workers[1].frames_per_s
-        print(f"scaling 2 workers / 1 worker: {ratio:.2f}x")
-    return 0
+        scaling = by_workers[2].frames_per_s / by_workers[1].frames_per_s
+        lines.append(f"scaling 2 workers / 1 worker: {scaling:.2f}x")
+    report("\n".join(lines))
+    return {
+        "cameras": len(CAMERAS),
+        "width": args.width,
+        "height": args.height,
+        "pan_step_px": list(PAN_STEP_PX),
+        "rate_hz": args.rate_hz,
+        "seconds": args.seconds,
+        "tracking": tracking,
+        "full_frame_every": full_frame_every if tracking else None,
+        "ground": args.ground,
+        "radius_range": list(args.radius_range),
+        "cpus": os.cpu_count(),
+        "dds_profile": transport,
+        "runs": [
+            {**dataclasses.asdict(r), "dropped_in_transport": r.dropped_in_transport}
+            for r in results
+        ],
+        "scaling_2_over_1": scaling,
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the benchmark, print a table, save its figures with ``--json``; the exit status."""
+    args = build_parser().parse_args(argv)
+    # The node refuses a range the configuration refuses: before minutes of rendering.
+    DetectorConfig(
+        marker_radius_min_px=args.radius_range[0], marker_radius_max_px=args.radius_range[1]
+    )
+    return run_and_save("throughput benchmark", lambda report: run(args, report), args.json)
 
 
 if __name__ == "__main__":

@@ -39,10 +39,15 @@ def positive_float(text: str) -> float:
 
 
 def comma_keys(choices: Sequence[str], what: str) -> Callable[[str], tuple[str, ...]]:
-    """An argparse ``type``: comma-separated keys of ``choices``, refused by ``what`` they are."""
+    """An argparse ``type``: comma-separated keys of ``choices``, refused by ``what`` they are.
+
+    An empty list is refused too: a benchmark would otherwise run none, or all.
+    """
 
     def parse(text: str) -> tuple[str, ...]:
         keys = tuple(key.strip() for key in text.split(",") if key.strip())
+        if not keys:
+            raise argparse.ArgumentTypeError(f"give at least one of: {','.join(choices)}")
         unknown = sorted(set(keys) - set(choices))
         if unknown:
             raise argparse.ArgumentTypeError(

@@ -46,4 +46,4 @@ def test_an_unknown_family_is_refused_on_the_command_line(capsys: pytest.Capture
     with pytest.raises(SystemExit) as exit_info:
         bound.main(["--families", "a,x"])
     assert exit_info.value.code == 2
-    assert "unknown x" in capsys.readouterr().err
+    assert "argument --families: unknown families ['x']" in capsys.readouterr().err

@@ -1,6 +1,7 @@
 """What every benchmark's command line does around its run."""
 
 import json
+import os
 
 import pytest
 
@@ -16,3 +17,26 @@ def test_a_json_path_that_cannot_be_written_is_refused_before_the_run(tmp_path):
     path = tmp_path / "x.json"
     assert run_and_save("x", lambda report: {"figure": 1}, path) == 0
     assert json.loads(path.read_text())["figure"] == 1
+
+
+def _failing_run(report):
+    raise RuntimeError("the benchmark failed")
+
+
+def test_a_failed_run_leaves_no_json_file_behind(tmp_path):
+    """Before, the check before the run left an empty file that read as a run that saved
+    nothing."""
+    path = tmp_path / "x.json"
+    with pytest.raises(RuntimeError, match="the benchmark failed"):
+        run_and_save("x", _failing_run, path)
+    assert not path.exists()
+
+
+def test_a_failed_run_leaves_a_json_file_that_was_there_as_it_was(tmp_path):
+    path = tmp_path / "x.json"
+    path.write_text('{"figure": 1}')
+    os.utime(path, ns=(1_000_000_000, 1_000_000_000))
+    with pytest.raises(RuntimeError, match="the benchmark failed"):
+        run_and_save("x", _failing_run, path)
+    assert path.read_text() == '{"figure": 1}'
+    assert path.stat().st_mtime_ns == 1_000_000_000

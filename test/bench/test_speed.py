@@ -142,3 +142,11 @@ def test_a_worker_that_does_not_answer_in_time_is_stopped_and_reported(tmp_path,
     (ours,) = speed.run_subjects([speed.REFERENCE_SUBJECT], path, n_frames=1, repeats=1)
     assert ours.error == "worker failed: no answer within 0.01 s"
     assert ours.times_ms == []
+
+
+def test_families_is_refused_as_the_speed_benchmark_always_times_the_same_frames(capsys):
+    """Before, ``--families`` was taken and ignored: a run of other frames than asked for."""
+    with pytest.raises(SystemExit) as exit_info:
+        speed.parse_args(["--families", "a"])
+    assert exit_info.value.code == 2
+    assert "unrecognized arguments: --families a" in capsys.readouterr().err

@@ -1,5 +1,6 @@
 """bench throughput: the panning cameras; short runs, 1 and 2 worker processes, 2 threads."""
 
+import json
 import os
 import subprocess
 import sys
@@ -67,6 +68,32 @@ def test_throughput_benchmark_measures_one_and_two_workers_on_small_frames(ros, 
         ["2", "processes"],
         ["2", "threads"],
     ]
+
+
+def test_json_saves_the_figures_the_benchmark_prints(tmp_path):
+    """Before, ``bench throughput`` alone of the benchmarks had no ``--json``."""
+    path = tmp_path / "throughput.json"
+    # A process of its own: the command starts rclpy and sets its DDS profile there.
+    command = [sys.executable, "-m", "marker_localizer.cli", "bench", "throughput"]
+    options = ["--width", "640", "--height", "480", "--workers", "1", "--seconds", "0.5"]
+    printed = subprocess.run(
+        [*command, *options, "--json", str(path)], capture_output=True, text=True, check=True
+    ).stdout
+    figures = json.loads(path.read_text())
+    assert (figures["cameras"], figures["width"], figures["height"]) == (5, 640, 480)
+    assert (figures["seconds"], figures["tracking"], figures["ground"]) == (0.5, True, "cluttered")
+    assert figures["scaling_2_over_1"] is None  # one worker count: no ratio printed either
+    [run] = figures["runs"]
+    [row] = [line.split() for line in printed.splitlines() if line.startswith("      1 ")]
+    assert row[:5] == [
+        "1",
+        "processes",
+        f"{run['frames_per_s']:.3f}",
+        str(run["processed"]),
+        str(run["published"]),
+    ]
+    assert row[5] == str(run["dropped_in_transport"])
+    assert "elapsed_s" in figures
 
 
 def test_a_radius_range_the_node_refuses_is_refused_before_the_grounds_are_rendered(capsys):

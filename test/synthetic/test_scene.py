@@ -6,6 +6,7 @@ Coordinates: x right, y down, (0, 0) at the centre of the top-left pixel.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 
 import cv2
@@ -296,6 +297,23 @@ def test_hard_negatives_are_drawn_clear_of_the_markers():
     # They are painted: the frame is no longer flat away from the marker.
     away = np.hypot(*np.mgrid[:200, :300][::-1] - np.array([100, 100])[:, None, None]) > 40
     assert np.count_nonzero(scene.image[away] != round(255 * 0.45)) > 100
+
+
+def test_hard_negatives_that_do_not_fit_are_counted_in_a_logged_warning_not_on_stdout(
+    caplog, capsys
+):
+    """A benchmark's tables are its stdout: the count goes to the log (stderr), not among them."""
+    marker = MarkerPlacement(100.0, 100.0, 20.0)
+    with caplog.at_level(logging.WARNING, logger="marker_localizer.synthetic.scene"):
+        scene = render_markers(
+            (200, 300), [marker], 0, n_hard_negatives=200, negative_radius_px=(6.0, 15.0)
+        )
+    assert capsys.readouterr().out == ""
+    [record] = caplog.records
+    assert record.levelno == logging.WARNING
+    assert record.getMessage() == (
+        f"placed only {len(scene.negatives)} of 200 hard negatives in a 300x200 frame"
+    )
 
 
 def test_default_scene_holds_many_kinds_of_hard_negatives():
