@@ -51,7 +51,7 @@ import numpy as np
 from marker_localizer import evaluation
 from marker_localizer.bench import metrics, peers, real_data
 from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
-from marker_localizer.bench.runner import run_and_save
+from marker_localizer.bench.runner import add_json_option, run_and_save
 from marker_localizer.cli.arguments import comma_keys, count_type, seed_type
 from marker_localizer.core import symmetry_path
 from marker_localizer.errors import ConfigError
@@ -1596,7 +1596,9 @@ def parse_args(argv: list[str] | None) -> tuple[Options, Path | None]:
         action="store_true",
         help="small run (2-3 minutes on one core of the development host)",
     )
-    parser.add_argument("--seed", type=seed_type, default=0, help="base seed")
+    parser.add_argument(
+        "--seed", type=seed_type, default=0, help="base seed (default: %(default)s)"
+    )
     parser.add_argument(
         "--families",
         type=comma_keys(FAMILY_KEYS, "families"),
@@ -1608,7 +1610,7 @@ def parse_args(argv: list[str] | None) -> tuple[Options, Path | None]:
         action="store_true",
         help="leave out the paper's curvature screening variant",
     )
-    parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
+    add_json_option(parser)
     args = parser.parse_args(argv)
     options = Options(
         frames=args.frames,

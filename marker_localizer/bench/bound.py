@@ -36,14 +36,13 @@ import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench.accuracy import bin_labels, families, x_snr_band
-from marker_localizer.bench.runner import Report, run_and_save
+from marker_localizer.bench.runner import Report, add_json_option, run_and_save
 from marker_localizer.cli.arguments import comma_keys, count_type, seed_type
 from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import render_scene
@@ -224,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--frames", type=count_type, default=FRAMES, help="frames per family (default: %(default)s)"
     )
-    parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
+    add_json_option(parser)
     args = parser.parse_args(argv)
     seeds = range(args.first_seed, args.first_seed + args.frames)
     run_report: Callable[[Report], dict[str, Any]] = lambda report: run(  # noqa: E731

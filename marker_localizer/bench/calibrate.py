@@ -38,7 +38,7 @@ from scipy.spatial import cKDTree
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench import real_data
 from marker_localizer.bench.accuracy import families
-from marker_localizer.bench.runner import Report, run_and_save
+from marker_localizer.bench.runner import Report, add_json_option, run_and_save
 from marker_localizer.core import decision
 
 #: First seed of the rendered training frames: far from ``bench accuracy``'s.
@@ -249,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         description="The decision's score weights and false-alarm rate, from data.",
     )
     parser.add_argument("--quick", action="store_true", help="one frame per set")
-    parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
+    add_json_option(parser)
     args = parser.parse_args(argv)
     run_report: Callable[[Report], dict[str, Any]] = lambda report: run(  # noqa: E731
         args.quick, real_data.data_root(), report

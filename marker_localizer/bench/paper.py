@@ -40,7 +40,7 @@ import numpy as np
 
 from marker_localizer.bench import accuracy, peers, real_data
 from marker_localizer.bench.accuracy import LabelledFrame, Row
-from marker_localizer.bench.runner import run_and_save
+from marker_localizer.bench.runner import add_json_option, run_and_save
 from marker_localizer.cli.arguments import seed_type
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import preprocessing, screening, verification
@@ -319,8 +319,13 @@ def main(argv: list[str] | None = None) -> int:
         description="The paper's pipeline beside the default on the same frames.",
     )
     parser.add_argument("--quick", action="store_true", help="a frame or two per set")
-    parser.add_argument("--seed", type=seed_type, default=0, help="base seed of the rendering")
-    parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
+    parser.add_argument(
+        "--seed",
+        type=seed_type,
+        default=0,
+        help="base seed of the rendering (default: %(default)s)",
+    )
+    add_json_option(parser)
     args = parser.parse_args(argv)
     return run_and_save(
         "paper reproduction",

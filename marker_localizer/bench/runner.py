@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from collections.abc import Callable
@@ -11,6 +12,16 @@ from typing import Any
 from marker_localizer.errors import ConfigError
 
 Report = Callable[[str], None]
+
+
+def add_json_option(parser: argparse.ArgumentParser) -> None:
+    """``--json PATH``, every benchmark's way to save its figures (:func:`run_and_save`)."""
+    parser.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help="also save the figures here, as JSON (default: none saved)",
+    )
 
 
 def print_report(text: str) -> None:

@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 
 from marker_localizer.bench import workers
-from marker_localizer.bench.runner import run_and_save
+from marker_localizer.bench.runner import add_json_option, run_and_save
 from marker_localizer.cli.arguments import comma_keys, count_type, seed_type
 
 #: Subjects in table order, by the short key ``--subjects`` takes; "ours (symmetry)"
@@ -609,14 +609,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--no-ground", action="store_true", help="leave out the real-ground table (several minutes)"
     )
-    parser.add_argument("--seed", type=seed_type, default=0, help="rendering seed")
+    parser.add_argument(
+        "--seed", type=seed_type, default=0, help="rendering seed (default: %(default)s)"
+    )
     parser.add_argument(
         "--subjects",
         type=comma_keys(tuple(SUBJECTS), "subjects"),
         default=None,
         help=f"comma-separated subset of {','.join(SUBJECTS)}",
     )
-    parser.add_argument("--json", type=Path, default=None, help="also save the figures here")
+    add_json_option(parser)
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--frames-file", type=Path, default=None, help=argparse.SUPPRESS)
     return parser.parse_args(argv)

@@ -66,7 +66,7 @@ from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.bench import speed
-from marker_localizer.bench.runner import Report, run_and_save
+from marker_localizer.bench.runner import Report, add_json_option, run_and_save
 from marker_localizer.blas import single_thread_blas
 from marker_localizer.cli.arguments import count_type, positive_float
 from marker_localizer.config import DetectorConfig, TrackerConfig
@@ -495,12 +495,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="a full-frame detection per frame (tracker.enabled off) instead of the "
         "node's default tracking mode",
     )
-    parser.add_argument(
-        "--json",
-        type=Path,
-        default=None,
-        help="also save the figures here (default: none saved)",
-    )
+    add_json_option(parser)
     return parser
 
 

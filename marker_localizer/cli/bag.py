@@ -81,7 +81,12 @@ def build_simulate_parser() -> argparse.ArgumentParser:
         default=defaults.n_cameras,
         help="cameras: nadir, forward, backward, left, right, in this order (default: %(default)s)",
     )
-    parser.add_argument("--seed", type=seed_type, default=0, help="seed of the world and the noise")
+    parser.add_argument(
+        "--seed",
+        type=seed_type,
+        default=0,
+        help="seed of the world and the noise (default: %(default)s)",
+    )
     parser.add_argument(
         "--storage",
         choices=tuple(STORAGES),
