@@ -5,7 +5,8 @@ decode, so the size is read from the header and checked against
 ``DetectorConfig.max_pixels`` before any pixel is decoded. Headers are parsed
 here for PNG, JPEG, TIFF, BMP, WebP and the PNM family (PBM, PGM, PPM, PFM);
 other formats OpenCV reads (OpenEXR, Radiance HDR, JPEG 2000, Sun raster) are
-checked after decoding, within OpenCV's own limit of 2**30 pixels. Every
+checked after decoding, within OpenCV's own limit of 2**30 pixels. A TIFF of
+more than one page is refused: OpenCV would give its first page alone. Every
 failure, an OpenCV exception included, becomes one :class:`ImageError` naming
 the source.
 """
@@ -28,7 +29,13 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 #: JPEG markers without a length field: TEM, RSTn, SOI.
 _JPEG_STANDALONE = frozenset({0x01, *range(0xD0, 0xD9)})
-_TIFF_WIDTH, _TIFF_LENGTH = 256, 257
+_TIFF_SUBFILE_TYPE, _TIFF_WIDTH, _TIFF_LENGTH = 254, 256, 257
+#: Directories a TIFF's page count follows at most: the time a crafted chain of them
+#: can take stays a fraction of a second.
+_TIFF_MAX_DIRECTORIES = 65535
+#: NewSubfileType bits of a directory that is not a page: reduced resolution, transparency mask.
+_TIFF_NOT_A_PAGE = 0b101
+_TIFF_SIGNATURES = (b"II*\x00", b"MM\x00*")
 _PNM_HEADER = re.compile(rb"^P[1-6fF](?:\s+|#[^\n]*\n)+(\d+)(?:\s+|#[^\n]*\n)+(\d+)")
 
 
@@ -102,6 +109,36 @@ def _tiff_size(data: Encoded) -> tuple[int, int] | None:
     return None
 
 
+def tiff_pages(data: Encoded) -> int:
+    """How many full-size images (pages) a TIFF holds; OpenCV decodes only the first.
+
+    Reduced-resolution copies (thumbnails, a GeoTIFF's overviews) and
+    transparency masks are not pages. The count stops at a directory that is
+    cut short or points back to one already read, and at
+    :data:`_TIFF_MAX_DIRECTORIES`.
+
+    Args:
+        data: the encoded TIFF (little- or big-endian; not BigTIFF).
+    """
+    order = "<" if data[:2] == b"II" else ">"
+    pages, seen = 0, set[int]()
+    try:
+        (ifd,) = struct.unpack_from(order + "I", data, 4)
+        while ifd and ifd not in seen and len(seen) < _TIFF_MAX_DIRECTORIES:
+            seen.add(ifd)
+            # Entries are sorted by tag and NewSubfileType's is the lowest TIFF
+            # defines: where it is present it is the first, so a directory costs
+            # the same whatever number of entries it claims.
+            entries, tag, kind = struct.unpack_from(order + "HHH", data, ifd)
+            fmt = "H" if kind == 3 else "I"  # SHORT or LONG, stored in the entry
+            (subfile_type,) = struct.unpack_from(order + fmt, data, ifd + 10)
+            pages += not (tag == _TIFF_SUBFILE_TYPE and subfile_type & _TIFF_NOT_A_PAGE)
+            (ifd,) = struct.unpack_from(order + "I", data, ifd + 2 + 12 * entries)
+    except struct.error:
+        pass  # a directory cut short: the pages before it are counted
+    return pages
+
+
 def _bmp_size(data: Encoded) -> tuple[int, int]:
     (header_size,) = struct.unpack("<I", data[14:18])
     if header_size == 12:  # OS/2 BITMAPCOREHEADER
@@ -132,8 +169,7 @@ def _webp_size(data: Encoded) -> tuple[int, int] | None:
 _HEADER_PARSERS: dict[bytes, Callable[[Encoded], tuple[int, int] | None]] = {
     _PNG_SIGNATURE: _png_size,
     b"\xff\xd8": _jpeg_size,
-    b"II*\x00": _tiff_size,
-    b"MM\x00*": _tiff_size,
+    **dict.fromkeys(_TIFF_SIGNATURES, _tiff_size),
     b"BM": _bmp_size,
     b"RIFF": _webp_size,
     b"P": _pnm_size,
@@ -164,13 +200,15 @@ def decode_image(data: Encoded, source: str, max_pixels: int) -> np.ndarray:
         The image as :func:`cv2.imdecode` with ``IMREAD_UNCHANGED`` gives it.
 
     Raises:
-        ImageError: too large, not an image, empty, or OpenCV failed on it.
+        ImageError: too large, not an image, empty, a TIFF of more than one
+            page, or OpenCV failed on it.
     """
     if not len(data):
         raise ImageError(f"{source}: no data (0 bytes)")
     size = image_size(data)
     if size is not None:
         check_pixel_count(*size, max_pixels, source)
+    _check_whole(data, source)
     buffer = np.frombuffer(data, np.uint8)
     try:
         image = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED)
@@ -184,6 +222,15 @@ def decode_image(data: Encoded, source: str, max_pixels: int) -> np.ndarray:
         raise ImageError(f"{source}: empty image")
     check_pixel_count(image.shape[1], image.shape[0], max_pixels, source)
     return image
+
+
+def _check_whole(data: Encoded, source: str) -> None:
+    """Refuse a file OpenCV would decode only part of, without a word on what it left out."""
+    if data[:4] in _TIFF_SIGNATURES and (pages := tiff_pages(data)) > 1:
+        raise ImageError(
+            f"{source}: a TIFF of {pages} pages; only one-page TIFFs are read (split it "
+            "into one file a page)"
+        )
 
 
 def read_image_file(path: str | Path, max_pixels: int) -> np.ndarray:
