@@ -240,3 +240,53 @@ def test_a_tiffs_pages_leave_out_reduced_resolution_copies_and_count_each_direct
     assert tiff_pages(tiff_looping(data)) == 2
     assert tiff_pages(tiff_with_thumbnail(data)) == 1
     assert decode_image(tiff_with_thumbnail(data), "thumbnailed", 10**6).shape == (40, 50)
+
+
+def jpeg_with_thumbnail(image, thumbnail):
+    """A JPEG of ``image`` whose APP1 segment holds a JPEG of ``thumbnail``, as EXIF's does."""
+    ok, encoded = cv2.imencode(".jpg", image)
+    ok_thumbnail, small = cv2.imencode(".jpg", thumbnail)
+    assert ok and ok_thumbnail
+    body = b"Exif\x00\x00" + small.tobytes()
+    app1 = b"\xff\xe1" + struct.pack(">H", 2 + len(body)) + body
+    return encoded.tobytes()[:2] + app1 + encoded.tobytes()[2:]
+
+
+def test_a_truncated_jpeg_is_one_line_of_ours_naming_the_file(tmp_path, good, capfd):
+    """Cut in its EXIF thumbnail, in its header after the thumbnail's end, or in its scan data."""
+    image = cv2.imread(str(good), cv2.IMREAD_GRAYSCALE)
+    whole = jpeg_with_thumbnail(image, image[::8, ::8])
+    scan = whole.rindex(b"\xff\xda")  # the image's; its thumbnail's comes first
+    thumbnail_end = whole.index(b"\xff\xd9")
+    cuts = {"thumbnail": thumbnail_end // 2, "header": scan - 10, "scan": (scan + len(whole)) // 2}
+    paths = []
+    for name, length in cuts.items():
+        paths.append(tmp_path / f"cut_in_its_{name}.jpg")
+        paths[-1].write_bytes(whole[:length])
+    assert main(["detect", *map(str, paths), str(good), "--json"]) == 3
+    captured = capfd.readouterr()  # libjpeg's and OpenCV's own lines included
+    assert captured.err.splitlines() == [
+        f"marker-localizer: error: {path}: truncated JPEG: its data stop before the "
+        "end-of-image marker (FF D9)"
+        for path in paths
+    ]
+    assert len(captured.out.splitlines()) == 1
+    with pytest.raises(ImageError, match=r"^frame: truncated JPEG"):
+        decode_image(whole[: cuts["scan"]], "frame", DetectorConfig().max_pixels)
+
+
+@pytest.mark.parametrize(
+    "params",
+    [[], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1], [cv2.IMWRITE_JPEG_RST_INTERVAL, 1]],
+    ids=["baseline", "progressive", "restart markers"],
+)
+def test_a_whole_jpeg_is_read_with_or_without_a_thumbnail_and_trailing_bytes(params):
+    image = np.full((48, 64), 90, np.uint8)
+    ok, encoded = cv2.imencode(".jpg", image, params)
+    assert ok
+    for data in (
+        encoded.tobytes(),
+        jpeg_with_thumbnail(image, image[::8, ::8]),
+        encoded.tobytes() + bytes(64),  # padding some cameras write after the image
+    ):
+        assert decode_image(data, "whole", DetectorConfig().max_pixels).shape == (48, 64)
