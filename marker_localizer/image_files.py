@@ -5,9 +5,11 @@ decode, so the size is read from the header and checked against
 ``DetectorConfig.max_pixels`` before any pixel is decoded. Headers are parsed
 here for PNG, JPEG, TIFF, BMP, WebP and the PNM family (PBM, PGM, PPM, PFM);
 other formats OpenCV reads (OpenEXR, Radiance HDR, JPEG 2000, Sun raster) are
-checked after decoding, within OpenCV's own limit of 2**30 pixels. Every
-failure, an OpenCV exception included, becomes one :class:`ImageError` naming
-the source.
+checked after decoding, within OpenCV's own limit of 2**30 pixels. A TIFF of
+more than one page is refused, as OpenCV would give its first page alone, and
+so is a truncated JPEG, which libjpeg would report on stderr without naming
+it. Every failure, an OpenCV exception included, becomes one
+:class:`ImageError` naming the source.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 import mmap
 import re
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import cv2
@@ -28,7 +30,14 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 #: JPEG markers without a length field: TEM, RSTn, SOI.
 _JPEG_STANDALONE = frozenset({0x01, *range(0xD0, 0xD9)})
-_TIFF_WIDTH, _TIFF_LENGTH = 256, 257
+_JPEG_SOI, _JPEG_EOI, _JPEG_SOS = b"\xff\xd8", b"\xff\xd9", 0xDA
+_TIFF_SUBFILE_TYPE, _TIFF_WIDTH, _TIFF_LENGTH = 254, 256, 257
+#: Directories a TIFF's page count follows at most: the time a crafted chain of them
+#: can take stays a fraction of a second.
+_TIFF_MAX_DIRECTORIES = 65535
+#: NewSubfileType bits of a directory that is not a page: reduced resolution, transparency mask.
+_TIFF_NOT_A_PAGE = 0b101
+_TIFF_SIGNATURES = (b"II*\x00", b"MM\x00*")
 _PNM_HEADER = re.compile(rb"^P[1-6fF](?:\s+|#[^\n]*\n)+(\d+)(?:\s+|#[^\n]*\n)+(\d+)")
 
 
@@ -65,25 +74,38 @@ def _pnm_size(data: Encoded) -> tuple[int, int] | None:
     return (int(match[1]), int(match[2])) if match else None
 
 
-def _jpeg_size(data: Encoded) -> tuple[int, int] | None:
+def _jpeg_markers(data: Encoded) -> Iterator[tuple[int, int]]:
+    """(marker, offset) of each marker of a JPEG's header, to its first scan's (SOS) included."""
     at = 2
-    while at + 9 <= len(data):
-        if data[at] != 0xFF:
-            return None
+    while at + 4 <= len(data) and data[at] == 0xFF:
         marker = data[at + 1]
         if marker == 0xFF:  # fill byte
             at += 1
             continue
-        if marker in _JPEG_STANDALONE:
-            at += 2
-            continue
+        yield marker, at
+        if marker == _JPEG_SOS:
+            return
+        at += 2 if marker in _JPEG_STANDALONE else 2 + struct.unpack_from(">H", data, at + 2)[0]
+
+
+def _jpeg_size(data: Encoded) -> tuple[int, int] | None:
+    for marker, at in _jpeg_markers(data):
         if marker in _JPEG_SOF:
-            height, width = struct.unpack(">HH", data[at + 5 : at + 9])
+            height, width = struct.unpack_from(">HH", data, at + 5)
             return (width, height) if height else None  # 0: height set later (DNL)
-        if marker == 0xDA:  # scan data before any frame header
-            return None
-        at += 2 + struct.unpack(">H", data[at + 2 : at + 4])[0]
-    return None
+    return None  # cut short, or scan data before any frame header
+
+
+def _jpeg_truncated(data: Encoded) -> bool:
+    """Whether a JPEG's data stop before the end-of-image marker (FF D9) that closes its scans.
+
+    The marker is looked for after the last header marker read, the first
+    scan's or where the header breaks off: an EXIF thumbnail, in a segment
+    before it, ends in one of its own. Within scan data FF is never followed by
+    D9, so one found there is the image's.
+    """
+    last = max((at for _marker, at in _jpeg_markers(data)), default=0)
+    return data.rfind(_JPEG_EOI, last) < 0
 
 
 def _tiff_size(data: Encoded) -> tuple[int, int] | None:
@@ -100,6 +122,36 @@ def _tiff_size(data: Encoded) -> tuple[int, int] | None:
     if _TIFF_WIDTH in found and _TIFF_LENGTH in found:
         return found[_TIFF_WIDTH], found[_TIFF_LENGTH]
     return None
+
+
+def tiff_pages(data: Encoded) -> int:
+    """How many full-size images (pages) a TIFF holds; OpenCV decodes only the first.
+
+    Reduced-resolution copies (thumbnails, a GeoTIFF's overviews) and
+    transparency masks are not pages. The count stops at a directory that is
+    cut short or points back to one already read, and at
+    :data:`_TIFF_MAX_DIRECTORIES`.
+
+    Args:
+        data: the encoded TIFF (little- or big-endian; not BigTIFF).
+    """
+    order = "<" if data[:2] == b"II" else ">"
+    pages, seen = 0, set[int]()
+    try:
+        (ifd,) = struct.unpack_from(order + "I", data, 4)
+        while ifd and ifd not in seen and len(seen) < _TIFF_MAX_DIRECTORIES:
+            seen.add(ifd)
+            # Entries are sorted by tag and NewSubfileType's is the lowest TIFF
+            # defines: where it is present it is the first, so a directory costs
+            # the same whatever number of entries it claims.
+            entries, tag, kind = struct.unpack_from(order + "HHH", data, ifd)
+            fmt = "H" if kind == 3 else "I"  # SHORT or LONG, stored in the entry
+            (subfile_type,) = struct.unpack_from(order + fmt, data, ifd + 10)
+            pages += not (tag == _TIFF_SUBFILE_TYPE and subfile_type & _TIFF_NOT_A_PAGE)
+            (ifd,) = struct.unpack_from(order + "I", data, ifd + 2 + 12 * entries)
+    except struct.error:
+        pass  # a directory cut short: the pages before it are counted
+    return pages
 
 
 def _bmp_size(data: Encoded) -> tuple[int, int]:
@@ -131,9 +183,8 @@ def _webp_size(data: Encoded) -> tuple[int, int] | None:
 #: Leading bytes of each format -> its header parser.
 _HEADER_PARSERS: dict[bytes, Callable[[Encoded], tuple[int, int] | None]] = {
     _PNG_SIGNATURE: _png_size,
-    b"\xff\xd8": _jpeg_size,
-    b"II*\x00": _tiff_size,
-    b"MM\x00*": _tiff_size,
+    _JPEG_SOI: _jpeg_size,
+    **dict.fromkeys(_TIFF_SIGNATURES, _tiff_size),
     b"BM": _bmp_size,
     b"RIFF": _webp_size,
     b"P": _pnm_size,
@@ -164,13 +215,15 @@ def decode_image(data: Encoded, source: str, max_pixels: int) -> np.ndarray:
         The image as :func:`cv2.imdecode` with ``IMREAD_UNCHANGED`` gives it.
 
     Raises:
-        ImageError: too large, not an image, empty, or OpenCV failed on it.
+        ImageError: too large, not an image, empty, a TIFF of more than one
+            page, a truncated JPEG, or OpenCV failed on it.
     """
     if not len(data):
         raise ImageError(f"{source}: no data (0 bytes)")
     size = image_size(data)
     if size is not None:
         check_pixel_count(*size, max_pixels, source)
+    _check_whole(data, source)
     buffer = np.frombuffer(data, np.uint8)
     try:
         image = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED)
@@ -184,6 +237,22 @@ def decode_image(data: Encoded, source: str, max_pixels: int) -> np.ndarray:
         raise ImageError(f"{source}: empty image")
     check_pixel_count(image.shape[1], image.shape[0], max_pixels, source)
     return image
+
+
+def _check_whole(data: Encoded, source: str) -> None:
+    """Refuse a file OpenCV would decode only part of, without a word on what it left out."""
+    if data[:4] in _TIFF_SIGNATURES and (pages := tiff_pages(data)) > 1:
+        raise ImageError(
+            f"{source}: a TIFF of {pages} pages; only one-page TIFFs are read (split it "
+            "into one file a page)"
+        )
+    # Refused before decoding: OpenCV's readers differ on a cut JPEG (4.12's imdecode
+    # gives nothing; its imread lets libjpeg print a line naming no file and pads the
+    # missing rows grey), and none says what is wrong.
+    if data[:2] == _JPEG_SOI and _jpeg_truncated(data):
+        raise ImageError(
+            f"{source}: truncated JPEG: its data stop before the end-of-image marker (FF D9)"
+        )
 
 
 def read_image_file(path: str | Path, max_pixels: int) -> np.ndarray:

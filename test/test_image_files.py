@@ -13,7 +13,7 @@ import pytest
 from marker_localizer.cli import main
 from marker_localizer.config import DetectorConfig
 from marker_localizer.errors import ImageError
-from marker_localizer.image_files import decode_image, image_size, read_image_file
+from marker_localizer.image_files import decode_image, image_size, read_image_file, tiff_pages
 
 #: Peak memory a decompression bomb may cost the CLI, KiB (ru_maxrss): the issue's 2 GB.
 BOMB_PEAK_LIMIT_KIB = 2 * 1024 * 1024
@@ -172,3 +172,121 @@ def test_decoded_size_is_checked_for_formats_without_a_parsed_header():
     assert decode_image(hdr.tobytes(), "small.hdr", 600).shape == (20, 30, 3)
     with pytest.raises(ImageError, match=r"small\.hdr: 30x20 = 600 px exceeds max_pixels=599"):
         decode_image(hdr.tobytes(), "small.hdr", 599)
+
+
+@pytest.fixture
+def two_page_tiff(tmp_path):
+    """A 2-page TIFF as OpenCV writes one: each page's NewSubfileType says 'a page'."""
+    path = tmp_path / "two.tiff"
+    first = np.full((40, 50), 80, np.uint8)
+    assert cv2.imwritemulti(str(path), [first, 255 - first])
+    return path
+
+
+def tiff_directories(data):
+    """Offsets of a little-endian TIFF's directories (IFDs), as OpenCV writes them here."""
+    offsets = [struct.unpack_from("<I", data, 4)[0]]
+    while True:
+        (entries,) = struct.unpack_from("<H", data, offsets[-1])
+        (after,) = struct.unpack_from("<I", data, offsets[-1] + 2 + 12 * entries)
+        if not after:
+            return offsets
+        offsets.append(after)
+
+
+def tiff_with_thumbnail(data):
+    """``data`` with its second directory's NewSubfileType (tag 254, first entry) set to 1."""
+    data = bytearray(data)
+    entry = tiff_directories(data)[1] + 2
+    assert struct.unpack_from("<H", data, entry)[0] == 254
+    struct.pack_into("<I", data, entry + 8, 1)
+    return bytes(data)
+
+
+def tiff_looping(data):
+    """``data`` with its last directory pointing back to its first."""
+    data = bytearray(data)
+    first, *_, last = tiff_directories(data)
+    (entries,) = struct.unpack_from("<H", data, last)
+    struct.pack_into("<I", data, last + 2 + 12 * entries, first)
+    return bytes(data)
+
+
+def test_a_multi_page_tiff_is_refused_with_its_page_count_not_cut_to_its_first(
+    two_page_tiff, good, capsys
+):
+    assert main(["detect", str(two_page_tiff), str(good), "--json"]) == 3
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [
+        f"marker-localizer: error: {two_page_tiff}: a TIFF of 2 pages; only one-page TIFFs "
+        "are read (split it into one file a page)"
+    ]
+    assert [json.loads(line)["image"] for line in captured.out.splitlines()] == [str(good)]
+    with pytest.raises(ImageError, match=r"two\.tiff: a TIFF of 2 pages"):
+        read_image_file(two_page_tiff, DetectorConfig().max_pixels)
+    with pytest.raises(ImageError, match=r"^message: a TIFF of 2 pages"):
+        decode_image(two_page_tiff.read_bytes(), "message", DetectorConfig().max_pixels)
+
+
+def test_a_tiffs_pages_leave_out_reduced_resolution_copies_and_count_each_directory_once(
+    tmp_path, two_page_tiff
+):
+    """A thumbnail or a GeoTIFF's overview after the image is not a page of its own."""
+    data = two_page_tiff.read_bytes()
+    single = tmp_path / "single.tiff"
+    cv2.imwrite(str(single), np.zeros((8, 8), np.uint8))
+    assert tiff_pages(single.read_bytes()) == 1
+    assert tiff_pages(data) == 2
+    assert tiff_pages(tiff_looping(data)) == 2
+    assert tiff_pages(tiff_with_thumbnail(data)) == 1
+    assert decode_image(tiff_with_thumbnail(data), "thumbnailed", 10**6).shape == (40, 50)
+
+
+def jpeg_with_thumbnail(image, thumbnail):
+    """A JPEG of ``image`` whose APP1 segment holds a JPEG of ``thumbnail``, as EXIF's does."""
+    ok, encoded = cv2.imencode(".jpg", image)
+    ok_thumbnail, small = cv2.imencode(".jpg", thumbnail)
+    assert ok and ok_thumbnail
+    body = b"Exif\x00\x00" + small.tobytes()
+    app1 = b"\xff\xe1" + struct.pack(">H", 2 + len(body)) + body
+    return encoded.tobytes()[:2] + app1 + encoded.tobytes()[2:]
+
+
+def test_a_truncated_jpeg_is_one_line_of_ours_naming_the_file(tmp_path, good, capfd):
+    """Cut in its EXIF thumbnail, in its header after the thumbnail's end, or in its scan data."""
+    image = cv2.imread(str(good), cv2.IMREAD_GRAYSCALE)
+    whole = jpeg_with_thumbnail(image, image[::8, ::8])
+    scan = whole.rindex(b"\xff\xda")  # the image's; its thumbnail's comes first
+    thumbnail_end = whole.index(b"\xff\xd9")
+    cuts = {"thumbnail": thumbnail_end // 2, "header": scan - 10, "scan": (scan + len(whole)) // 2}
+    paths = []
+    for name, length in cuts.items():
+        paths.append(tmp_path / f"cut_in_its_{name}.jpg")
+        paths[-1].write_bytes(whole[:length])
+    assert main(["detect", *map(str, paths), str(good), "--json"]) == 3
+    captured = capfd.readouterr()  # libjpeg's and OpenCV's own lines included
+    assert captured.err.splitlines() == [
+        f"marker-localizer: error: {path}: truncated JPEG: its data stop before the "
+        "end-of-image marker (FF D9)"
+        for path in paths
+    ]
+    assert len(captured.out.splitlines()) == 1
+    with pytest.raises(ImageError, match=r"^frame: truncated JPEG"):
+        decode_image(whole[: cuts["scan"]], "frame", DetectorConfig().max_pixels)
+
+
+@pytest.mark.parametrize(
+    "params",
+    [[], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1], [cv2.IMWRITE_JPEG_RST_INTERVAL, 1]],
+    ids=["baseline", "progressive", "restart markers"],
+)
+def test_a_whole_jpeg_is_read_with_or_without_a_thumbnail_and_trailing_bytes(params):
+    image = np.full((48, 64), 90, np.uint8)
+    ok, encoded = cv2.imencode(".jpg", image, params)
+    assert ok
+    for data in (
+        encoded.tobytes(),
+        jpeg_with_thumbnail(image, image[::8, ::8]),
+        encoded.tobytes() + bytes(64),  # padding some cameras write after the image
+    ):
+        assert decode_image(data, "whole", DetectorConfig().max_pixels).shape == (48, 64)
