@@ -55,6 +55,23 @@ def faint_tilted_markers(seed: int) -> RenderedScene:
 TEMPLATE_DECISION = {"refinement": "template", "min_extent_fraction": 0.6}
 
 
+def panning_frames(n_frames: int) -> list[np.ndarray]:
+    """340x260 textured ground with three 12 px markers, moving 5 px right and 2 px up a frame.
+
+    A steady flight that tracking follows: after the first frame's full pass, every
+    frame until the next scheduled pass is tracked.
+    """
+    frames = []
+    for k in range(n_frames):
+        placements = [
+            MarkerPlacement(x + 5 * k, y - 2 * k, 12.0, 0.4 * i, 15.0, 0.5)
+            for i, (x, y) in enumerate([(90.3, 80.6), (220.8, 150.1), (140.2, 200.7)])
+        ]
+        scene = render_markers((260, 340), placements, k, background="texture", noise_sigma_dn=2.0)
+        frames.append(scene.image)
+    return frames
+
+
 def checker_2x2(size: int = 64, blur: float = 1.0) -> np.ndarray:
     """A 2x2 checkerboard whose corner lies exactly between the four middle pixels."""
     image = np.full((size, size), 200.0, np.float32)

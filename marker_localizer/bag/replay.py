@@ -90,6 +90,9 @@ class CameraReplay:
     Attributes:
         camera: Camera name (the topic prefix, e.g. ``cam0``).
         frames: Frames processed and written.
+        full_frame_passes: Of those, the frames the detector searched whole: every
+            frame without tracking; with it, the scheduled passes and the frames where
+            tracking failed (as the camera's diagnostics count them).
         markers: Markers detected in them.
         processing_ms: Per processed frame: submission to the worker pool to
             the delivered result, ms (conversion, detection, point cloud packing).
@@ -106,6 +109,7 @@ class CameraReplay:
 
     camera: str
     frames: int = 0
+    full_frame_passes: int = 0
     markers: int = 0
     processing_ms: list[float] = field(default_factory=list)
     skipped_encoding: int = 0
@@ -192,12 +196,13 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
         f"replayed {report.bag} -> {report.out}: {report.frames} frames in "
         f"{report.wall_s:.2f} s ({report.frames_per_s:.2f} frames/s, {report.workers} worker "
         f"{'processes' if report.worker_processes else 'threads'})",
-        f"{'camera':<12}{'frames':>8}{'markers/frame':>15}{'ms/frame':>10}"
-        f"{'skipped: encoding':>19}{'order':>7}{'failed':>8}{'undecodable':>13}",
+        f"{'camera':<12}{'frames':>8}{'full-frame passes':>19}{'markers/frame':>15}"
+        f"{'ms/frame':>10}{'skipped: encoding':>19}{'order':>7}{'failed':>8}{'undecodable':>13}",
     ]
     total = CameraReplay(
         "all",
         frames=report.frames,
+        full_frame_passes=sum(c.full_frame_passes for c in cams),
         markers=sum(c.markers for c in cams),
         processing_ms=[ms for c in cams for ms in c.processing_ms],
         skipped_encoding=sum(c.skipped_encoding for c in cams),
@@ -207,7 +212,8 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
     )
     for c in [*cams, total]:
         lines.append(
-            f"{c.camera:<12}{c.frames:>8}{c.markers_per_frame:>15.2f}{c.mean_ms:>10.1f}"
+            f"{c.camera:<12}{c.frames:>8}{c.full_frame_passes:>19}{c.markers_per_frame:>15.2f}"
+            f"{c.mean_ms:>10.1f}"
             f"{c.skipped_encoding:>19}{c.skipped_out_of_order:>7}{c.failed:>8}{c.undecodable:>13}"
         )
     for c in cams:
@@ -424,6 +430,7 @@ class _Session:
             self._cond.wait_for(lambda: not self._in_flight)
         self.processor.wait_idle()
         for camera, snapshot in self.processor.snapshots().items():
+            self.stats[camera].full_frame_passes = snapshot.full_frame_passes
             self.stats[camera].bit_depth_hint = snapshot.bit_depth_hint
         self._write_done()
         if self._next_diagnostics_ns is not None:

@@ -25,6 +25,12 @@ Levels of a camera:
   (:func:`~marker_localizer.core.image.bit_depth_hint`).
 * OK otherwise.
 
+Full-frame passes are counted beside the frames processed, not judged: with
+tracking on, a share that stays high in the window is tracking giving up (attitude
+jitter, a stuck stamp, too few anchors), each pass several times a tracked frame's
+work, which shows otherwise only as latency that grows; without tracking every
+frame is one.
+
 Latency is the time a frame spent in the node, from its arrival to the
 publication of its result. Header stamps are never judged: the clock offset
 (arrival on the node's clock minus the header stamp: transport delay plus the
@@ -99,6 +105,9 @@ class CameraSnapshot:
         camera: camera name.
         received: frames that entered the mailbox since start.
         processed: frames whose result was delivered since start.
+        full_frame_passes: delivered frames the detector searched whole, since start:
+            every frame without tracking; with it, the frames where tracking failed or
+            a scheduled pass fell (:class:`~marker_localizer.core.tracking.MarkerTracker`).
         dropped_mailbox: frames replaced by a newer one before a worker took them.
         dropped_age: frames that waited longer than the age limit in the node.
         errors: frames that failed (bad input or processing exception).
@@ -116,6 +125,8 @@ class CameraSnapshot:
         clock_offset_s: median of arrival time minus header stamp in the window,
             s (NaN: no sample); negative for stamps in the future.
         markers_per_frame: mean markers per delivered frame in the window (NaN: none).
+        full_frame_share: share of the frames delivered in the window that were
+            full-frame passes (NaN: none).
         window_stamps_ns: header stamps of the frames received in the window,
             in order of arrival, ns (their gaps tell the frames lost upstream).
         since_last_frame_s: time since the last frame arrived, or since start
@@ -133,6 +144,7 @@ class CameraSnapshot:
     camera: str
     received: int
     processed: int
+    full_frame_passes: int
     dropped_mailbox: int
     dropped_age: int
     errors: int
@@ -146,6 +158,7 @@ class CameraSnapshot:
     latency_p95_ms: float
     clock_offset_s: float
     markers_per_frame: float
+    full_frame_share: float
     window_stamps_ns: np.ndarray
     since_last_frame_s: float
     any_frame: bool
@@ -169,7 +182,7 @@ class CameraStats:
         self._lock = threading.Lock()
         self._start_ns = start_ns
         self._window_ns = int(window_s * _NS_PER_S)
-        self._received = self._processed = 0
+        self._received = self._processed = self._full_frame_passes = 0
         self._dropped_mailbox = self._dropped_age = self._errors = 0
         self._frames_capped = self._candidates_capped = 0
         self._last_frame_ns: int | None = None
@@ -179,8 +192,8 @@ class CameraStats:
         self._stamps: deque[int] = deque()  # header stamp of each frame in _received_at
         self._dropped_at: deque[int] = deque()
         # (delivery time ns, latency ms, clock offset s, markers, brightest level, bit
-        # depth of a 16-bit frame or 0) per delivered frame.
-        self._results: deque[tuple[int, float, float, int, float, int]] = deque()
+        # depth of a 16-bit frame or 0, 1 for a full-frame pass or 0) per delivered frame.
+        self._results: deque[tuple[int, float, float, int, float, int, int]] = deque()
 
     def frame_received(self, now_ns: int, stamp_ns: int) -> None:
         """Count a frame put into the mailbox; ``stamp_ns`` is its header stamp."""
@@ -211,6 +224,7 @@ class CameraStats:
         capped: int = 0,
         peak: float = math.nan,
         bit_depth: int = 0,
+        full_frame: bool = True,
     ) -> None:
         """Count a delivered result.
 
@@ -224,12 +238,17 @@ class CameraStats:
                 (:func:`~marker_localizer.core.image.peak_level`).
             bit_depth: the configured bit depth where the frame is 16-bit; 0 for an
                 8-bit frame.
+            full_frame: whether the detector searched the whole frame (every frame
+                does without tracking), or tracking confirmed its markers.
         """
         with self._lock:
             self._processed += 1
+            self._full_frame_passes += full_frame
             self._frames_capped += capped > 0
             self._candidates_capped += capped
-            self._results.append((now_ns, latency_ms, clock_offset_s, markers, peak, bit_depth))
+            self._results.append(
+                (now_ns, latency_ms, clock_offset_s, markers, peak, bit_depth, int(full_frame))
+            )
             while len(self._results) > _LATENCY_SAMPLES:
                 self._results.popleft()
 
@@ -258,6 +277,7 @@ class CameraStats:
                 camera=self.camera,
                 received=self._received,
                 processed=self._processed,
+                full_frame_passes=self._full_frame_passes,
                 dropped_mailbox=self._dropped_mailbox,
                 dropped_age=self._dropped_age,
                 errors=self._errors,
@@ -271,6 +291,7 @@ class CameraStats:
                 latency_p95_ms=_percentile(latency, 95),
                 clock_offset_s=_percentile(np.array([r[2] for r in recent]), 50),
                 markers_per_frame=_mean([r[3] for r in recent]),
+                full_frame_share=_mean([r[6] for r in recent]),
                 window_stamps_ns=np.array(self._stamps, dtype=np.int64),
                 since_last_frame_s=max(now_ns - last_frame, 0) / _NS_PER_S,
                 any_frame=self._last_frame_ns is not None,
@@ -285,7 +306,7 @@ class CameraStats:
             )
 
 
-def _peak_share(results: Sequence[tuple[int, float, float, int, float, int]]) -> float:
+def _peak_share(results: Sequence[tuple[int, float, float, int, float, int, int]]) -> float:
     """The brightest level of delivered frames over the newest one's white (NaN: none)."""
     read = [r for r in results if not math.isnan(r[4])]
     if not read:
@@ -452,6 +473,8 @@ def camera_status(
     values = {
         "frames received": str(snapshot.received),
         "frames processed": str(snapshot.processed),
+        "full-frame passes": str(snapshot.full_frame_passes),
+        "full-frame passes in window (%)": f"{100.0 * snapshot.full_frame_share:.1f}",
         "dropped by mailbox": str(snapshot.dropped_mailbox),
         "dropped by age": str(snapshot.dropped_age),
         "dropped in window (%)": f"{dropped_pct:.1f}",

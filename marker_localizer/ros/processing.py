@@ -703,4 +703,6 @@ class FrameProcessor:
             capped=sum(result.counts.get(key, 0) for key in CAP_COUNTS),
             peak=peak_level(pixels),
             bit_depth=self.config.bit_depth if pixels.dtype == np.uint16 else 0,
+            # Without tracking the detector's result counts no "full_frame": every frame is one.
+            full_frame=bool(result.counts.get("full_frame", 1)),
         )

@@ -17,12 +17,14 @@ import pytest
 import yaml
 from blas_threads import openblas_threads, two_threaded_openblas
 from builtin_interfaces.msg import Time
+from scenes import panning_frames
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
 from marker_localizer.bag.io import BagReader, BagWriter, typestore
 from marker_localizer.bag.replay import format_report, replay_bag
 from marker_localizer.cli import main as cli
+from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import BagError, ConfigError
 from marker_localizer.ros.conversions import CLOUD_FIELDS, array_to_image, cloud_to_array
 from marker_localizer.synthetic import render_markers
@@ -32,6 +34,7 @@ REPO = Path(__file__).resolve().parents[2]
 PARAMS_FILE = REPO / "config" / "marker_localizer.yaml"
 CAMERAS = ("cam0", "cam1", "cam2", "cam3", "cam4")
 FRAMES = 3
+S = 1_000_000_000  # ns per s
 #: What replay must reach on the simulated 320 x 240 flight (measured: recall
 #: 0.955 to 0.987 of 157 markers, mean error 0.018 px, no false positive).
 MIN_RECALL = 0.9
@@ -488,6 +491,29 @@ def test_a_12_bit_camera_read_at_16_bits_is_named_in_the_report_with_its_depth(t
     full = [("/cam0/image_raw", n, image(shallow * 16, n, "mono16")) for n in (1, 2)]
     report = replay_bag(write_bag(tmp_path / "full", full), tmp_path / "out2", workers=1)
     assert report.cameras["cam0"].bit_depth_hint is None
+
+
+@pytest.mark.parametrize(("tracking", "full_frame_passes"), [(True, 1), (False, 3)])
+def test_the_summary_counts_each_cameras_full_frame_passes(tmp_path, tracking, full_frame_passes):
+    """With tracking the steady flight's first frame is a full pass; without, every frame."""
+    frames = [
+        ("/cam0/image_raw", (k + 1) * S, image(pixels, (k + 1) * S))
+        for k, pixels in enumerate(panning_frames(3))
+    ]
+    report = replay_bag(
+        write_bag(tmp_path / "panning", frames),
+        tmp_path / "out",
+        config=DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=20.0),
+        tracker_config=TrackerConfig(enabled=tracking),
+        workers=1,
+        worker_processes=False,
+    )
+    assert report.cameras["cam0"].full_frame_passes == full_frame_passes
+    header, row = (
+        line for line in format_report(report).splitlines() if line.startswith(("camera", "cam0"))
+    )
+    assert header.split()[:4] == ["camera", "frames", "full-frame", "passes"]
+    assert row.split()[:3] == ["cam0", "3", str(full_frame_passes)]
 
 
 def test_a_flight_of_bayer_cameras_is_recorded_raw_and_replayed_as_grey(tmp_path):

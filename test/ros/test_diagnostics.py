@@ -298,3 +298,20 @@ def test_header_stamps_that_do_not_advance_warn_with_the_count():
     steady, now = healthy_camera(frames=20)
     steady.frame_received(now + S // 2, stamp_ns=now)
     assert camera_level(steady.snapshot(now + S // 2), LIMITS) == (OK, "ok")
+
+
+def test_full_frame_passes_are_counted_since_start_and_as_a_share_of_the_window():
+    stats = CameraStats("cam0", start_ns=0, window_s=LIMITS.window_s)
+    for k, full_frame in enumerate([True, False, False, False, True, False, False, False]):
+        t = (k + 1) * 2 * S
+        stats.frame_received(t, stamp_ns=t)
+        stats.frame_processed(t, 50.0, 0.01, markers=3, full_frame=full_frame)
+    now = 17 * S  # the 10 s window holds the last five frames: one full pass
+    snap = stats.snapshot(now)
+    assert (snap.processed, snap.full_frame_passes) == (8, 2)
+    assert snap.full_frame_share == pytest.approx(0.2)
+    values = values_of(camera_status("loc", snap, LIMITS))
+    assert values["full-frame passes"] == "2"
+    assert values["full-frame passes in window (%)"] == "20.0"
+    # A count, not a rule: full passes change no level.
+    assert camera_level(snap, LIMITS) == (OK, "ok")

@@ -28,6 +28,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
+from scenes import panning_frames
 from sensor_msgs.msg import PointCloud2
 
 from marker_localizer.ros.diagnostics import ERROR, OK, WARN
@@ -399,3 +400,59 @@ def test_frames_stamped_on_another_clock_are_processed_with_their_stamps_copied(
         ticker.join(TIMEOUT_S)
         peer.stop()
         spinner.stop()
+
+
+# --------------------------------------------------------------------------- tracking
+
+
+#: Frames of the panning flight each tracking test feeds the node.
+PANNING_FRAMES = 5
+
+
+def panning_flight_diagnostics(name, tracking):
+    """cam0's /diagnostics values once the node has processed the whole panning flight.
+
+    Each frame is sent once the last one's result is out, so that none is dropped.
+    """
+    settings = {
+        "cameras": ["cam0"],
+        "worker_processes": False,
+        "diagnostics_period_s": 0.1,
+        "input_timeout_s": 600.0,
+        "max_frame_age_s": 0.0,
+        "detector.marker_radius_min_px": 6.0,
+        "detector.marker_radius_max_px": 20.0,
+        "tracker.enabled": tracking,
+    }
+    with serving(name, settings) as (_, peer):
+        peer.listen("cam0/marker_points", PointCloud2)
+        peer.listen("/diagnostics", DiagnosticArray)
+        for k, pixels in enumerate(panning_frames(PANNING_FRAMES)):
+            frame = peer.frame(pixels, stamp=Time(sec=k + 1))
+            peer.publish("cam0/image_raw", frame)
+            assert peer.result_for("cam0/marker_points", frame.header).width == 3
+
+        def after_the_flight():
+            for array_msg in reversed(peer.messages("/diagnostics")):
+                for status in array_msg.status:
+                    values = values_of(status)
+                    if status.hardware_id == "cam0" and (
+                        values["frames processed"] == str(PANNING_FRAMES)
+                    ):
+                        return values
+            return None
+
+        return wait_until(after_the_flight, "diagnostics of the whole flight")
+
+
+def test_a_tracked_flight_shows_its_full_frame_passes_beside_the_frames_processed(ros):
+    """The first frame is a full pass; the steady flight's next ones are tracked."""
+    values = panning_flight_diagnostics("tracked", tracking=True)
+    assert 1 <= int(values["full-frame passes"]) < PANNING_FRAMES
+    assert float(values["full-frame passes in window (%)"]) < 100.0
+
+
+def test_without_tracking_every_frame_processed_is_a_full_frame_pass(ros):
+    values = panning_flight_diagnostics("untracked", tracking=False)
+    assert values["full-frame passes"] == str(PANNING_FRAMES)
+    assert values["full-frame passes in window (%)"] == "100.0"

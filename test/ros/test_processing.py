@@ -21,6 +21,7 @@ from node_testing import (
     wait_until,
     x_marker_64,
 )
+from scenes import panning_frames
 
 from marker_localizer.bench.throughput import process_table
 from marker_localizer.config import DetectorConfig, TrackerConfig
@@ -28,7 +29,6 @@ from marker_localizer.errors import ImageError, WorkerError
 from marker_localizer.ros import processing
 from marker_localizer.ros.diagnostics import DiagnosticThresholds
 from marker_localizer.ros.processing import FrameProcessor
-from marker_localizer.synthetic import MarkerPlacement, render_markers
 
 # --------------------------------------------------------------------------- FrameProcessor
 
@@ -196,19 +196,6 @@ def test_frame_over_max_pixels_fails_and_the_next_smaller_one_is_served():
 # --------------------------------------------------------------------------- worker processes
 
 
-def _panning_frames(n_frames: int) -> list[np.ndarray]:
-    """Textured ground with three markers, moving 5 px right and 2 px up a frame."""
-    frames = []
-    for k in range(n_frames):
-        placements = [
-            MarkerPlacement(x + 5 * k, y - 2 * k, 12.0, 0.4 * i, 15.0, 0.5)
-            for i, (x, y) in enumerate([(90.3, 80.6), (220.8, 150.1), (140.2, 200.7)])
-        ]
-        scene = render_markers((260, 340), placements, k, background="texture", noise_sigma_dn=2.0)
-        frames.append(scene.image)
-    return frames
-
-
 def _worker_process_ids(node_pid: int | None = None) -> set[int]:
     """Live processes whose parent is a child of the node's: the fork server's workers."""
     parents = {pid: stat.parent for pid, stat in process_table().items() if stat.state != "Z"}
@@ -224,7 +211,7 @@ def _shared_memory_blocks() -> set[str]:
 
 def test_worker_processes_find_what_threads_find_and_carry_each_cameras_tracks():
     config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=20.0)
-    frames = _panning_frames(4)
+    frames = panning_frames(4)
     results = {}
     for processes in (False, True):
         processor = FrameProcessor(
@@ -265,7 +252,7 @@ def test_the_cameras_scheduled_full_passes_fall_on_different_frames(processes):
     )
     passes: dict[str, list[int]] = {"a": [], "b": []}
     try:
-        for k, frame in enumerate(_panning_frames(7)):
+        for k, frame in enumerate(panning_frames(7)):
             for camera in ("a", "b"):
                 result = processor.detect(camera, frame, float(k + 1))
                 passes[camera].append(result.counts["full_frame"])
