@@ -7,8 +7,8 @@ here for PNG, JPEG, TIFF, BMP, WebP and the PNM family (PBM, PGM, PPM, PFM);
 other formats OpenCV reads (OpenEXR, Radiance HDR, JPEG 2000, Sun raster) are
 checked after decoding, within OpenCV's own limit of 2**30 pixels. A TIFF of
 more than one page is refused, as OpenCV would give its first page alone, and
-so is a truncated JPEG, which libjpeg would report on stderr without naming
-it. Every failure, an OpenCV exception included, becomes one
+so is a truncated JPEG or PNG, which libjpeg or libpng would report on stderr
+without naming it. Every failure, an OpenCV exception included, becomes one
 :class:`ImageError` naming the source.
 """
 
@@ -26,6 +26,8 @@ import numpy as np
 from marker_localizer.errors import ImageError
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: The type of the chunk that closes every PNG.
+_PNG_END_CHUNK = b"IEND"
 #: JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic); they carry the size.
 _JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 #: JPEG markers without a length field: TEM, RSTn, SOI.
@@ -253,6 +255,11 @@ def _check_whole(data: Encoded, source: str) -> None:
         raise ImageError(
             f"{source}: truncated JPEG: its data stop before the end-of-image marker (FF D9)"
         )
+    # libpng prints "PNG input buffer is incomplete", naming no file, beside OpenCV's
+    # failure. The chunk's type could occur by chance in compressed data, and a file cut
+    # after it then goes on to OpenCV as before; a whole PNG always ends in it.
+    if data[:8] == _PNG_SIGNATURE and data.rfind(_PNG_END_CHUNK) < 0:
+        raise ImageError(f"{source}: truncated PNG: its data stop before the end chunk (IEND)")
 
 
 def read_image_file(path: str | Path, max_pixels: int) -> np.ndarray:

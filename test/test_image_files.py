@@ -275,6 +275,20 @@ def test_a_truncated_jpeg_is_one_line_of_ours_naming_the_file(tmp_path, good, ca
         decode_image(whole[: cuts["scan"]], "frame", DetectorConfig().max_pixels)
 
 
+def test_a_truncated_png_is_one_line_of_ours_naming_the_file(tmp_path, capfd):
+    noise = np.random.default_rng(3).integers(0, 256, (120, 160), dtype=np.uint8)
+    ok, encoded = cv2.imencode(".png", noise)
+    assert ok
+    whole = encoded.tobytes()
+    cut = tmp_path / "cut.png"
+    cut.write_bytes(whole[: len(whole) // 2])
+    assert main(["detect", str(cut)]) == 1
+    assert capfd.readouterr().err.splitlines() == [
+        f"marker-localizer: error: {cut}: truncated PNG: its data stop before the end chunk (IEND)"
+    ]
+    assert decode_image(whole, "whole", DetectorConfig().max_pixels).shape == (120, 160)
+
+
 @pytest.mark.parametrize(
     "params",
     [[], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1], [cv2.IMWRITE_JPEG_RST_INTERVAL, 1]],
