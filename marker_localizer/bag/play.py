@@ -8,9 +8,9 @@ skipped and listed.
 
 Publishers are reliable, keep-last (``qos_depth``), the QoS camera drivers
 use and the node subscribes with. Before the first message the player waits up
-to ``wait_for_subscribers_s`` until every image topic (every topic if the bag
-has no images) has a subscriber, so the first frames are not lost to
-discovery. Timing:
+to ``wait_for_subscribers_s`` until every image topic (Image or CompressedImage;
+every topic if the bag has no images) has a subscriber, so the first frames are
+not lost to discovery. Timing:
 
 * at the recorded rate (times ``rate``): each message is published when its
   bag time is due on the wall clock;
@@ -55,7 +55,9 @@ from marker_localizer.ros.conversions import topic_name_problem
 
 NODE_NAME = "marker_localizer_player"
 CLOCK_TOPIC = "/clock"
-IMAGE_TYPE = "sensor_msgs/msg/Image"
+#: The image types whose topics the player waits for: raw frames and image_transport's
+#: compressed ones (``<cam>/image_raw/compressed``, how most flights are recorded).
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 _CLOCK_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT
 )
@@ -300,7 +302,7 @@ def play_bag(
         total = sum(counts.get(t, 0) for t in playable)
         player = _Player(node, playable, options, timekeeper)
         try:
-            awaited = [t for t, m in playable.items() if m == IMAGE_TYPE] or list(playable)
+            awaited = [t for t, m in playable.items() if m in IMAGE_TYPES] or list(playable)
             report.without_subscribers = player.wait_for_subscribers(awaited)
             _play(reader, player, playable, report, progress, total)
         finally:

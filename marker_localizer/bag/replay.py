@@ -574,7 +574,7 @@ def replay_bag(
                     if progress is not None:
                         progress(handled, total)
                 session.finish()
-                _require_results(bag, session.stats)
+                _require_results(bag, session.stats, unread)
             finally:
                 session.processor.shutdown()
             wall_s = time.perf_counter() - started
@@ -596,8 +596,14 @@ def replay_bag(
     )
 
 
-def _require_results(bag: str | Path, stats: dict[str, CameraReplay]) -> None:
-    """Raise when no frame gave a result: the output bag is then not kept."""
+def _require_results(
+    bag: str | Path, stats: dict[str, CameraReplay], unread: dict[str, str]
+) -> None:
+    """Raise when no frame gave a result: the output bag is then not kept.
+
+    The error names the image topics not read (``unread``, as the summary would):
+    a camera's compressed copies, say, beside raw frames of an unsupported encoding.
+    """
     if any(c.frames for c in stats.values()):
         return
     skipped_encoding = sum(c.skipped_encoding for c in stats.values())
@@ -605,11 +611,12 @@ def _require_results(bag: str | Path, stats: dict[str, CameraReplay]) -> None:
     undecodable = sum(c.undecodable for c in stats.values())
     failed = [c for c in stats.values() if c.last_error]
     reason = f"; last failure: {failed[-1].last_error}" if failed else ""
+    not_read = "".join(f"; not read: {topic} ({why})" for topic, why in unread.items())
     raise BagError(
         f"{bag}: no frame could be processed ({skipped_encoding} with an unsupported "
         f"encoding, {skipped_order} out of order, {sum(c.failed for c in stats.values())} "
         f"failed, {undecodable} undecodable; supported encodings: {ENCODINGS_TEXT})"
-        f"{reason}"
+        f"{reason}{shorten(not_read)}"
     )
 
 

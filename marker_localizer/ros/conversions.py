@@ -237,19 +237,40 @@ def compressed_to_detector_input(msg: CompressedImage, max_pixels: int) -> np.nd
     """Decode a sensor_msgs/CompressedImage (JPEG or PNG) into the layout the detector reads.
 
     image_transport's compressed plugin encodes colour as BGR and keeps 16-bit
-    grey in PNG, and OpenCV decodes to the same: grey, BGR or 16-bit grey.
+    grey in PNG, and OpenCV decodes to the same: grey, BGR or 16-bit grey. A
+    camera's raw Bayer mosaic it converts to grey for JPEG
+    (``"bayer_rggb8; jpeg compressed mono8"``) but keeps as it is in PNG
+    (``"bayer_rggb8; png compressed "``: no target encoding): that mosaic is
+    demosaiced to grey as the raw image's is (:func:`image_to_detector_input`).
 
     Args:
-        msg: the message; ``format`` (``"bgr8; jpeg compressed bgr8"``) is only
-            named in errors, the data's own header says what it is.
+        msg: the message; ``format`` (``"bgr8; jpeg compressed bgr8"``) tells a
+            kept Bayer mosaic and is named in errors; otherwise the data's own
+            header says what it is.
         max_pixels: refuse a larger width x height, px, before decoding.
 
     Raises:
         ImageError: the data is not an image OpenCV decodes, empty, or too large.
     """
-    return decode_image(
+    pixels = decode_image(
         bytes(msg.data), f"compressed image ({shorten(repr(msg.format))})", max_pixels
     )
+    pattern = _compressed_bayer_pattern(msg.format)
+    return bayer_to_grey(pixels, pattern) if pattern is not None and pixels.ndim == 2 else pixels
+
+
+def _compressed_bayer_pattern(compressed_format: str) -> str | None:
+    """The Bayer pattern of a CompressedImage whose data is its camera's raw mosaic; else None.
+
+    image_transport writes ``"<encoding>; <codec> compressed <target>"``, the target
+    empty where it compressed the pixels as they were.
+    """
+    encoding, _, codec = compressed_format.partition(";")
+    encoding = encoding.strip()
+    target = codec.partition("compressed")[2].strip()
+    if encoding in BAYER_ENCODINGS and target in ("", encoding):
+        return BAYER_ENCODINGS[encoding]
+    return None
 
 
 def message_to_detector_input(msg: Image | CompressedImage, max_pixels: int) -> np.ndarray:

@@ -21,6 +21,7 @@ from std_msgs.msg import Header
 
 from marker_localizer.bag.io import BagReader, BagWriter
 from marker_localizer.bag.replay import image_cameras, replay_bag
+from marker_localizer.core.image import bayer_to_grey
 from marker_localizer.errors import ImageError
 from marker_localizer.ros.conversions import (
     array_to_image,
@@ -238,6 +239,48 @@ def test_replay_reads_a_cameras_raw_bayer_frames_as_grey(tmp_path):
             "cam1": array_to_image((mosaic * 257).round().astype(np.uint16), "bayer_rggb16"),
         },
     )
+
+
+def raw_mosaic() -> np.ndarray:
+    """The 8-bit RGGB mosaic a colour camera gives of :func:`marker_frame`."""
+    frame = marker_frame()
+    return (frame * bayer_gain(frame.shape, "rggb").astype(np.float64)).round().astype(np.uint8)
+
+
+def test_a_bayer_mosaic_kept_in_png_is_demosaiced_and_one_made_grey_for_jpeg_is_not():
+    # image_transport's PNG keeps a Bayer frame's mosaic and names no target encoding;
+    # its JPEG converts the frame to grey first and says so.
+    mosaic = raw_mosaic()
+    png = CompressedImage(format="bayer_rggb8; png compressed ", data=encoded("png", mosaic))
+    np.testing.assert_array_equal(
+        compressed_to_detector_input(png, MAX_PIXELS), bayer_to_grey(mosaic, "rggb")
+    )
+    data = encoded("jpeg", bayer_to_grey(mosaic, "rggb"))
+    jpeg = CompressedImage(format="bayer_rggb8; jpeg compressed mono8", data=data)
+    np.testing.assert_array_equal(
+        compressed_to_detector_input(jpeg, MAX_PIXELS),
+        cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED),
+    )
+
+
+def test_replay_finds_a_bayer_camera_where_its_raw_frames_put_it_from_its_png_frames(tmp_path):
+    """The PNG transport's frames of a Bayer camera give the raw frames' points exactly."""
+    mosaic = raw_mosaic()
+    bag = tmp_path / "bag"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/raw/image_raw", "sensor_msgs/msg/Image")
+        writer.add_topic("/png/image_raw/compressed", "sensor_msgs/msg/CompressedImage")
+        header = Header(stamp=Time(sec=1), frame_id="cam_optical")
+        writer.write("/raw/image_raw", 10**9, array_to_image(mosaic, "bayer_rggb8", header))
+        png = CompressedImage(
+            header=header, format="bayer_rggb8; png compressed ", data=encoded("png", mosaic)
+        )
+        writer.write("/png/image_raw/compressed", 10**9, png)
+    assert replay_bag(bag, tmp_path / "out", workers=1).complete
+    (raw,) = points(tmp_path / "out", "raw")
+    (from_png,) = points(tmp_path / "out", "png")
+    assert raw.shape == (1, 2)
+    np.testing.assert_array_equal(from_png, raw)
 
 
 def test_replay_reads_packed_and_semi_planar_yuv_frames_by_their_luma(tmp_path):

@@ -24,7 +24,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import Image, PointCloud2
+from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
 
 from marker_localizer.bag.io import BagReader, BagWriter
 from marker_localizer.bag.play import PlayOptions, play_bag
@@ -230,6 +230,33 @@ def test_a_keep_last_1_subscriber_receives_every_frame_in_order_from_sqlite3(
             )
             received = [stamp_ns(m.header) for m in listener.messages(topic)]
             assert received == stamps[camera]
+    finally:
+        player.destroy_node()
+        spun.stop()
+
+
+def test_the_player_waits_for_the_subscribers_of_compressed_frames_only(context, tmp_path):
+    """A bag of compressed frames: an image topic, awaited as raw ones are, not every topic."""
+    bag = tmp_path / "compressed"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/cam0/image_raw/compressed", "sensor_msgs/msg/CompressedImage")
+        writer.add_topic("/imu/data", "sensor_msgs/msg/Imu")  # no one subscribes
+        for sec in (1, 2):
+            writer.write("/imu/data", sec * 10**9, Imu())
+            frame = CompressedImage(format="mono8; png compressed mono8", data=b"\x89PNG")
+            writer.write("/cam0/image_raw/compressed", sec * 10**9, frame)
+    listener = Listener(context, {"/cam0/image_raw/compressed": CompressedImage}, KEEP_LAST_1)
+    spun = Spun(context, listener.node)
+    player = rclpy.create_node("test_player_compressed", context=context)
+    try:
+        # Long enough for discovery; the wait must end at the subscriber, not here.
+        options = PlayOptions(as_fast_as_possible=True, wait_for_subscribers_s=20.0)
+        report = play_bag(bag, player, options, timekeeper=CountedWaits())
+        assert report.without_subscribers == []
+        assert report.published == {"/cam0/image_raw/compressed": 2, "/imu/data": 2}
+        wait_until(
+            lambda: len(listener.messages("/cam0/image_raw/compressed")) == 2, "the 2 frames"
+        )
     finally:
         player.destroy_node()
         spun.stop()

@@ -12,13 +12,14 @@ import re
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import yaml
 from blas_threads import openblas_threads, two_threaded_openblas
 from builtin_interfaces.msg import Time
 from scenes import panning_frames
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import Header
 
 from marker_localizer.bag.io import BagReader, BagWriter, typestore
@@ -423,6 +424,30 @@ def test_bag_with_nothing_processable_fails_and_leaves_no_output(tmp_path):
     with pytest.raises(BagError, match=r"no frame could be processed \(1 with an unsupported"):
         replay_bag(bag, tmp_path / "out")
     assert leftovers(tmp_path) == ["yuv"]
+
+
+def test_when_no_frame_can_be_processed_the_image_topics_not_read_are_named(tmp_path):
+    """A driver's 8UC1 frames beside their JPEG copies: the error points at the copies."""
+    raw = array_to_image(x_marker_frame(), "mono8", Header(stamp=stamp(1)))
+    raw.encoding = "8UC1"
+    ok, jpeg = cv2.imencode(".jpg", x_marker_frame())
+    assert ok
+    copy = CompressedImage(
+        header=raw.header, format="8UC1; jpeg compressed mono8", data=jpeg.tobytes()
+    )
+    bag = tmp_path / "bag"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        writer.add_topic("/cam0/image_raw/compressed", "sensor_msgs/msg/CompressedImage")
+        writer.write("/cam0/image_raw", 10**9, raw)
+        writer.write("/cam0/image_raw/compressed", 10**9, copy)
+    with pytest.raises(
+        BagError,
+        match=r"no frame could be processed .*; not read: /cam0/image_raw/compressed "
+        r"\(camera cam0 is read from /cam0/image_raw\)$",
+    ):
+        replay_bag(bag, tmp_path / "out", workers=1)
+    assert leftovers(tmp_path) == ["bag"]
 
 
 def test_frames_out_of_stamp_order_are_counted_and_skipped(tmp_path):
