@@ -88,6 +88,29 @@ def message_class(msgtype: str) -> type | None:
         return None
 
 
+def missing_message_reason(msgtype: str) -> str:
+    """Why :func:`message_class` finds no class for ``msgtype``, in a few words.
+
+    A ROS 1 bag names types ROS 2 Jazzy lacks in packages it has (``/rosout``'s
+    ``rosgraph_msgs/msg/Log``, which ROS 2 moved to ``rcl_interfaces``): saying
+    "not installed" there would send the user to install what is installed.
+    """
+    package = msgtype.partition("/")[0]
+    try:
+        importlib.import_module(package)
+    except (ImportError, ValueError):
+        return f"package {package} not installed"
+    return f"no such type in ROS 2 Jazzy's {package}"
+
+
+def missing_messages_text(skipped: dict[str, str]) -> str:
+    """Topic -> type of the topics without a message class, each with its reason."""
+    return ", ".join(
+        f"{topic} ({msgtype}: {missing_message_reason(msgtype)})"
+        for topic, msgtype in sorted(skipped.items())
+    )
+
+
 @dataclass(frozen=True)
 class BagMessage:
     """One serialised message of a bag.

@@ -48,7 +48,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
-from marker_localizer.bag.io import BagReader, message_class
+from marker_localizer.bag.io import BagReader, message_class, missing_messages_text
 from marker_localizer.bag.record import stamp_msg
 from marker_localizer.errors import BagError, ConfigError
 from marker_localizer.ros.conversions import topic_name_problem
@@ -117,7 +117,8 @@ class PlayReport:
 
     Attributes:
         published: Messages published per topic.
-        skipped_topics: Topic -> type, for topics whose message package is not installed.
+        skipped_topics: Topic -> type, for topics without a message class here (their
+            package not installed, or a ROS 1 type ROS 2 Jazzy lacks).
         invalid_names: Topic -> why ROS 2 refuses its name (a ROS 1 bag's ``/cam-0/image``),
             for topics skipped for it.
         without_subscribers: Awaited topics that had no subscriber when playing started.
@@ -295,7 +296,7 @@ def play_bag(
             raise BagError(
                 f"{bag}: nothing to play (topics: {', '.join(sorted(reader.topics)) or 'none'}; "
                 f"asked for: {', '.join(options.topics or ()) or 'all'}; "
-                f"not installed: {', '.join(report.skipped_topics) or 'none'}; "
+                f"no message class: {missing_messages_text(report.skipped_topics) or 'none'}; "
                 f"not valid ROS 2 names: {', '.join(report.invalid_names) or 'none'})"
             )
         counts = reader.message_counts

@@ -18,7 +18,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.signals import SignalHandlerOptions
 
-from marker_localizer.bag.io import DEFAULT_STORAGE, STORAGES, BagReader
+from marker_localizer.bag.io import DEFAULT_STORAGE, STORAGES, BagReader, missing_messages_text
 from marker_localizer.bag.play import NODE_NAME as PLAYER_NODE_NAME
 from marker_localizer.bag.play import PlayOptions, PlayReport, play_bag
 from marker_localizer.bag.record import record_flight
@@ -352,8 +352,7 @@ def format_play_report(bag: Path, report: PlayReport) -> str:
         f"{report.wall_s:.2f} s (bag time {report.bag_s:.2f} s)"
     ]
     if report.skipped_topics:
-        skipped = ", ".join(f"{t} ({m})" for t, m in sorted(report.skipped_topics.items()))
-        lines.append(f"skipped, message package not installed: {skipped}")
+        lines.append(f"skipped, no message class: {missing_messages_text(report.skipped_topics)}")
     lines += [
         f"skipped, not a valid ROS 2 topic name: {topic} ({why})"
         for topic, why in sorted(report.invalid_names.items())

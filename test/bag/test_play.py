@@ -26,7 +26,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
 
-from marker_localizer.bag.io import BagReader, BagWriter
+from marker_localizer.bag.io import BagReader, BagWriter, missing_message_reason
 from marker_localizer.bag.play import PlayOptions, play_bag
 from marker_localizer.cli import main as cli
 from marker_localizer.errors import BagError, ConfigError
@@ -167,7 +167,7 @@ def test_playing_into_the_running_node_gives_points_at_the_truth_on_sim_time(
         assert status == 0
         summary = capsys.readouterr().out
         assert re.search(r"played 60 messages on 20 topics", summary), summary
-        assert "/tf_static (tf2_msgs/msg/TFMessage)" in summary
+        assert "/tf_static (tf2_msgs/msg/TFMessage: package tf2_msgs not installed)" in summary
         # The newest frame of a camera is never replaced in the node's mailbox.
         for camera in CAMERAS:
             last = stamps[camera][-1]
@@ -311,7 +311,16 @@ def test_play_with_nothing_to_play_raises_bag_error(context, tiny_sqlite_bag, ca
     finally:
         player.destroy_node()
     assert cli(["play", str(tiny_sqlite_bag), "--topics", "/tf_static"]) == 1
-    assert "not installed: /tf_static" in capsys.readouterr().err
+    assert "no message class: /tf_static (tf2_msgs/msg/TFMessage: " in capsys.readouterr().err
+
+
+def test_a_topic_without_a_message_class_is_named_with_why():
+    """A package missing, or a ROS 1 type (``/rosout``'s) that ROS 2 Jazzy's package lacks."""
+    assert missing_message_reason("no_such_msgs/msg/Thing") == "package no_such_msgs not installed"
+    assert (
+        missing_message_reason("rosgraph_msgs/msg/Log")
+        == "no such type in ROS 2 Jazzy's rosgraph_msgs"
+    )
 
 
 def test_topics_ros_2_would_refuse_by_name_are_skipped_and_named_not_a_traceback(
