@@ -5,11 +5,14 @@ import yaml
 from node_testing import (
     PARAMS_FILE,
     REPO,
+    serving,
     x_marker_64,
 )
-from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import (
     DescribeParameters,
+    SetParameters,
 )
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import PointCloud2
@@ -76,6 +79,36 @@ def test_invalid_parameter_values_are_rejected_with_a_reason(
     assert not result.successful
     assert reason in result.reason
     assert tester.get_parameter("/inproc/marker_localizer", name) == before
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "expected"),
+    [
+        (
+            "detector.min_contrast_dn",
+            ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY),
+            "DOUBLE",
+        ),
+        (
+            "detector.max_pixels",
+            ParameterValue(type=ParameterType.PARAMETER_INTEGER_ARRAY),
+            "INTEGER",
+        ),
+    ],
+)
+def test_an_empty_array_for_a_parameter_is_refused_and_the_node_serves_on(
+    ros, name, value, expected
+):
+    """Rebuilt from its value, an empty double array raised in the executor and ended it."""
+    with serving("empty_array", {"worker_processes": False}) as (_, peer):
+        node = "/empty_array/empty_array_localizer"
+        request = SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)])
+        (result,) = peer.call(SetParameters, f"{node}/set_parameters", request).results
+        assert not result.successful
+        assert expected in result.reason
+        # The empty array is named as what it is, not as a byte array.
+        assert "BYTE_ARRAY" not in result.reason
+        assert peer.get_parameter(node, "detector.min_contrast_dn") == 20.0
 
 
 def test_an_integer_is_taken_for_a_double_as_the_cli_takes_it(localizer, tester):
