@@ -5,7 +5,9 @@ import yaml
 from node_testing import (
     PARAMS_FILE,
     REPO,
+    holding,
     serving,
+    wait_until,
     x_marker_64,
 )
 from rcl_interfaces.msg import Parameter as ParameterMsg
@@ -49,6 +51,34 @@ def test_accepted_parameter_change_takes_effect_on_the_next_frame(localizer, tes
     )
     assert result.successful, result.reason
     assert markers_in_next_frame() == 1
+
+
+def test_a_change_during_a_frame_in_flight_applies_from_the_next_frame(ros):
+    """A frame a worker took finishes with the settings it was taken with.
+
+    The held detector stands in for what comes between the take and the detection
+    (decoding a compressed frame: 40-150 ms at 12 MP).
+    """
+    processor_class, release = holding("cam0")
+    settings = {"cameras": ["cam0"], "workers": 1, "worker_processes": False}
+    with serving("in_flight", settings, processor_class) as (node, peer):
+        try:
+            peer.listen("cam0/marker_points", PointCloud2)
+            held = peer.frame(x_marker_64())
+            peer.publish("cam0/image_raw", held)
+            wait_until(lambda: node.processor.in_flight() == ["cam0"], "the frame in flight")
+            (result,) = peer.set_parameters(
+                "/in_flight/in_flight_localizer", [("detector.min_contrast_dn", 255.0)]
+            )
+            assert result.successful, result.reason
+            release.set()
+            assert peer.result_for("cam0/marker_points", held.header).width == 1
+            following = peer.frame(x_marker_64())
+            peer.publish("cam0/image_raw", following)
+            # No marker has 255 DN between its quadrants.
+            assert peer.result_for("cam0/marker_points", following.header).width == 0
+        finally:
+            release.set()
 
 
 @pytest.mark.parametrize(
