@@ -677,7 +677,7 @@ class FrameProcessor:
         # statistics all see the same settings, whatever changes while it is in flight.
         detector = self._detector
         self._taken.settings = (detector, self._tracker_config)
-        config = detector.config
+        config, publish_overlay = detector.config, self.publish_overlay
         try:
             pixels = message_to_detector_input(frame.msg, config.max_pixels)
             result = self.detect(frame.camera, pixels, stamp_to_ns(header) / _NS_PER_S)
@@ -689,7 +689,7 @@ class FrameProcessor:
                     "bgr8",
                     header,
                 )
-                if self.publish_overlay
+                if publish_overlay
                 else None
             )
             with self._deliver_lock:

@@ -17,7 +17,7 @@ from rcl_interfaces.srv import (
     SetParameters,
 )
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import Image, PointCloud2
 
 from marker_localizer.cli import main as cli_main
 from marker_localizer.config import DetectorConfig, TrackerConfig
@@ -64,19 +64,21 @@ def test_a_change_during_a_frame_in_flight_applies_from_the_next_frame(ros):
     with serving("in_flight", settings, processor_class) as (node, peer):
         try:
             peer.listen("cam0/marker_points", PointCloud2)
+            peer.listen("cam0/marker_overlay", Image)
             held = peer.frame(x_marker_64())
             peer.publish("cam0/image_raw", held)
             wait_until(lambda: node.processor.in_flight() == ["cam0"], "the frame in flight")
-            (result,) = peer.set_parameters(
-                "/in_flight/in_flight_localizer", [("detector.min_contrast_dn", 255.0)]
-            )
-            assert result.successful, result.reason
+            changes = [("detector.min_contrast_dn", 255.0), ("publish_overlay", True)]
+            results = peer.set_parameters("/in_flight/in_flight_localizer", changes)
+            assert all(r.successful for r in results), results
             release.set()
             assert peer.result_for("cam0/marker_points", held.header).width == 1
             following = peer.frame(x_marker_64())
             peer.publish("cam0/image_raw", following)
             # No marker has 255 DN between its quadrants.
             assert peer.result_for("cam0/marker_points", following.header).width == 0
+            peer.result_for("cam0/marker_overlay", following.header)
+            assert [m.header for m in peer.messages("cam0/marker_overlay")] == [following.header]
         finally:
             release.set()
 
