@@ -41,7 +41,11 @@ used, to count the frames that never arrived.
 
 All times come from one clock in nanoseconds (the node's ROS clock, so
 ``use_sim_time`` applies); statistics are thread-safe because worker threads
-write them while the executor reads them.
+write them while the executor reads them. A clock that jumps back by more than
+:data:`CLOCK_JUMP_BACK_S` (``use_sim_time`` set live, a bag played again, a
+simulator restarted) restarts a camera's windows from that moment: measured
+against times now in the future, they would never empty, and their rates would
+be counted over a negative span.
 """
 
 from __future__ import annotations
@@ -66,6 +70,10 @@ _NS_PER_S = 1_000_000_000
 #: Results kept per camera for the windowed latency and marker statistics; the
 #: newest 200 within the window bound memory and the sort, and give a stable p95.
 _LATENCY_SAMPLES = 200
+#: A clock going back by more than this restarts the windows, s. Times read by one
+#: thread may reach the statistics after a later time read by another; those stay
+#: far below a second.
+CLOCK_JUMP_BACK_S = 1.0
 #: Fewest stamp gaps from which a camera's frame period is estimated: a second
 #: of a 10 Hz camera; with fewer, nothing is counted as lost.
 _MIN_STAMP_GAPS = 8
@@ -181,6 +189,7 @@ class CameraStats:
         self.camera = camera
         self._lock = threading.Lock()
         self._start_ns = start_ns
+        self._latest_ns = start_ns
         self._window_ns = int(window_s * _NS_PER_S)
         self._received = self._processed = self._full_frame_passes = 0
         self._dropped_mailbox = self._dropped_age = self._errors = 0
@@ -195,9 +204,23 @@ class CameraStats:
         # depth of a 16-bit frame or 0, 1 for a full-frame pass or 0) per delivered frame.
         self._results: deque[tuple[int, float, float, int, float, int, int]] = deque()
 
+    def _follow_clock(self, now_ns: int) -> None:
+        """Under the lock: restart the windows where the clock went back (module docstring)."""
+        if now_ns < self._latest_ns - CLOCK_JUMP_BACK_S * _NS_PER_S:
+            for window in (self._received_at, self._stamps, self._dropped_at, self._results):
+                window.clear()
+            self._start_ns = now_ns
+            if self._last_frame_ns is not None:
+                self._last_frame_ns = min(self._last_frame_ns, now_ns)
+            if self._last_error_ns is not None:
+                self._last_error_ns = min(self._last_error_ns, now_ns)
+            self._latest_ns = now_ns
+        self._latest_ns = max(self._latest_ns, now_ns)
+
     def frame_received(self, now_ns: int, stamp_ns: int) -> None:
         """Count a frame put into the mailbox; ``stamp_ns`` is its header stamp."""
         with self._lock:
+            self._follow_clock(now_ns)
             self._received += 1
             self._last_frame_ns = now_ns
             self._received_at.append(now_ns)
@@ -206,12 +229,14 @@ class CameraStats:
     def frame_replaced(self, now_ns: int) -> None:
         """Count a frame replaced in the mailbox by a newer one."""
         with self._lock:
+            self._follow_clock(now_ns)
             self._dropped_mailbox += 1
             self._dropped_at.append(now_ns)
 
     def frame_too_old(self, now_ns: int) -> None:
         """Count a frame dropped because it exceeded the age limit."""
         with self._lock:
+            self._follow_clock(now_ns)
             self._dropped_age += 1
             self._dropped_at.append(now_ns)
 
@@ -242,6 +267,7 @@ class CameraStats:
                 does without tracking), or tracking confirmed its markers.
         """
         with self._lock:
+            self._follow_clock(now_ns)
             self._processed += 1
             self._full_frame_passes += full_frame
             self._frames_capped += capped > 0
@@ -255,6 +281,7 @@ class CameraStats:
     def frame_failed(self, now_ns: int, message: str) -> None:
         """Count a frame that could not be processed; ``message``, shortened, is the last error."""
         with self._lock:
+            self._follow_clock(now_ns)
             self._errors += 1
             self._last_error = shorten(message)
             self._last_error_ns = now_ns
@@ -262,6 +289,7 @@ class CameraStats:
     def snapshot(self, now_ns: int) -> CameraSnapshot:
         """Freeze the statistics at ``now_ns`` (clock time, ns)."""
         with self._lock:
+            self._follow_clock(now_ns)
             horizon = now_ns - self._window_ns
             while self._received_at and self._received_at[0] < horizon:
                 self._received_at.popleft()

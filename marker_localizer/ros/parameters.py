@@ -255,13 +255,6 @@ def _overrides(node: Node) -> dict[str, Parameter]:
     return dict(getattr(node, "_parameter_overrides", {}))
 
 
-def _as_double(kind: str, value: Any) -> Any:
-    """An integer given for a double parameter, as a float (``4`` for ``4.0``)."""
-    if kind == "float" and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    return value
-
-
 def _declare(
     node: Node,
     name: str,
@@ -360,10 +353,15 @@ class LiveParameters:
         return sorted(name for name in _overrides(node) if not node.has_parameter(name))
 
     def _coerce(self, parameters: list[Parameter]) -> list[Parameter]:
-        """Integers set on double parameters become doubles (``ros2 param set ... 4``)."""
+        """Integers set on double parameters become doubles (``ros2 param set ... 4``).
+
+        Every other parameter passes as it came, its type kept: inferred again from
+        its value, an empty array is a byte array, and an empty double array raises
+        (in the executor, which it would end).
+        """
         return [
-            Parameter(p.name, value=_as_double(self._kinds.get(p.name, ""), p.value))
-            if p.name in self._kinds
+            Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+            if p.type_ == Parameter.Type.INTEGER and self._kinds.get(p.name) == "float"
             else p
             for p in parameters
         ]

@@ -298,6 +298,8 @@ class FrameProcessor:
         # Each thread's block for the frames it hands to a process, and every block
         # made, to unlink at shutdown.
         self._frame_block = threading.local()
+        # Each worker thread's settings of the frame it took: (detector, tracking settings).
+        self._taken = threading.local()
         self._frame_blocks: list[shared_memory.SharedMemory] = []
         self._frames_pickled = 0
         self._pool: ProcessPoolExecutor | None = None
@@ -343,7 +345,7 @@ class FrameProcessor:
 
     def set_config(self, config: DetectorConfig) -> None:
         """Use ``config`` from the next frame a worker takes; frames in flight finish unchanged."""
-        # Rebinding one attribute is atomic: a worker reads it once per frame.
+        # Rebinding one attribute is atomic: a worker reads it once per frame, as it takes it.
         self._detector = Detector(config)
 
     @property
@@ -617,8 +619,9 @@ class FrameProcessor:
                 :func:`~marker_localizer.ros.conversions.image_to_detector_input`).
             stamp_s: the frame's header stamp, s.
         """
-        # Read once: a reconfiguration applies from the next frame.
-        detector, tracking = self._detector, self._tracker_config
+        # Those the frame was taken with: a reconfiguration applies from the next frame.
+        taken: tuple[Detector, TrackerConfig] | None = getattr(self._taken, "settings", None)
+        detector, tracking = taken or (self._detector, self._tracker_config)
         tracker = self._tracker(camera, detector, tracking) if tracking.enabled else None
         if self._pool is None:
             return _detect_frame(detector, tracker, pixels, stamp_s)[0]
@@ -645,6 +648,7 @@ class FrameProcessor:
             try:
                 self._process(frame)
             finally:
+                self._taken.settings = None
                 with self._cond:
                     self._busy.discard(frame.camera)
                     self._cond.notify_all()
@@ -669,18 +673,23 @@ class FrameProcessor:
     def _process(self, frame: _Frame) -> None:
         stats = self._stats[frame.camera]
         header = frame.msg.header
+        # Read once, as the frame is taken: its conversion, detection, overlay and
+        # statistics all see the same settings, whatever changes while it is in flight.
+        detector = self._detector
+        self._taken.settings = (detector, self._tracker_config)
+        config, publish_overlay = detector.config, self.publish_overlay
         try:
-            pixels = message_to_detector_input(frame.msg, self.config.max_pixels)
+            pixels = message_to_detector_input(frame.msg, config.max_pixels)
             result = self.detect(frame.camera, pixels, stamp_to_ns(header) / _NS_PER_S)
             detections = result.detections
             cloud = detections_to_cloud(header, detections)
             overlay = (
                 array_to_image(
-                    draw_detections(pixels, detections, bit_depth=self.config.bit_depth),
+                    draw_detections(pixels, detections, bit_depth=config.bit_depth),
                     "bgr8",
                     header,
                 )
-                if self.publish_overlay
+                if publish_overlay
                 else None
             )
             with self._deliver_lock:
@@ -702,7 +711,7 @@ class FrameProcessor:
             markers=len(detections),
             capped=sum(result.counts.get(key, 0) for key in CAP_COUNTS),
             peak=peak_level(pixels),
-            bit_depth=self.config.bit_depth if pixels.dtype == np.uint16 else 0,
+            bit_depth=config.bit_depth if pixels.dtype == np.uint16 else 0,
             # Without tracking the detector's result counts no "full_frame": every frame is one.
             full_frame=bool(result.counts.get("full_frame", 1)),
         )

@@ -402,6 +402,46 @@ def test_frames_stamped_on_another_clock_are_processed_with_their_stamps_copied(
         spinner.stop()
 
 
+def test_a_clock_that_jumps_back_restarts_the_windows_of_the_diagnostics(ros):
+    """A bag played again: the frames of the first play are no longer in the window.
+
+    Measured against times now in the future, the window never emptied, and its
+    rate was counted over a span of one nanosecond.
+    """
+    settings = {
+        "use_sim_time": True,
+        "cameras": ["cam0"],
+        "worker_processes": False,
+        "max_frame_age_s": 0.0,
+        "stats_window_s": 2.0,
+    }
+    with serving("rewind", settings) as (node, peer):
+        peer.listen("cam0/marker_points", PointCloud2)
+        clock_pub = peer.node.create_publisher(Clock, "/clock", 10)
+
+        def frame_at(ns):
+            stamp = Time(sec=ns // 10**9, nanosec=ns % 10**9)
+
+            def clock_there():
+                clock_pub.publish(Clock(clock=stamp))
+                return node.get_clock().now().nanoseconds == ns
+
+            wait_until(clock_there, f"the node's clock at {ns} ns")
+            frame = peer.frame(x_marker_64(), stamp=stamp)
+            peer.publish("cam0/image_raw", frame)
+            peer.result_for("cam0/marker_points", frame.header)
+
+        for k in range(3):  # the first play, at 10 Hz from t = 1000 s
+            frame_at(1000 * 10**9 + k * 10**8)
+        for k in range(5):  # played again from t = 100 s
+            frame_at(100 * 10**9 + k * 10**8)
+        snapshot = node.processor.snapshots()["cam0"]
+        assert snapshot.received == 8
+        assert snapshot.received_in_window == 5
+        # 5 frames over the 0.4 s since the jump.
+        assert snapshot.input_rate_hz == pytest.approx(12.5)
+
+
 # --------------------------------------------------------------------------- tracking
 
 
