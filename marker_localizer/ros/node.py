@@ -5,7 +5,8 @@ Topics, relative to the node's namespace and remappable as usual:
 * in ``<cam>/image_raw`` (sensor_msgs/Image: one of
   :data:`~marker_localizer.ros.conversions.ENCODINGS`: YUV read as its luma, a raw
   Bayer mosaic as grey), or with ``image_transport`` = ``compressed``,
-  ``<cam>/image_raw/compressed`` (sensor_msgs/CompressedImage, JPEG or PNG). QoS
+  ``<cam>/image_raw/compressed`` (sensor_msgs/CompressedImage, JPEG or PNG), which
+  a remap of ``<cam>/image_raw`` moves with it, as image_transport names it. QoS
   reliable, keep-last 1. Measured on this stack (two processes, default Fast
   DDS): a best-effort subscription receives none of the 1.2 MB or 12 MB images a
   reliable publisher sends, while reliable keep-last 1 receives them, with frames
@@ -139,7 +140,7 @@ class MarkerLocalizerNode(Node):
         for camera in settings.cameras:
             self.create_subscription(
                 image_type,
-                f"{camera}/{suffix}",
+                self._image_topic(camera, suffix),
                 partial(self._on_image, camera),
                 _IMAGE_QOS,
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
@@ -244,6 +245,18 @@ class MarkerLocalizerNode(Node):
                 )
                 if reason is not None:
                     raise ConfigError(f"camera {shorten(repr(camera))}: {reason}")
+
+    def _image_topic(self, camera: str, suffix: str) -> str:
+        """The topic of ``camera``'s frames: a transport's under the remapped raw topic.
+
+        As image_transport (and image_pipeline's nodes) name them: remapping
+        ``<cam>/image_raw`` moves ``<cam>/image_raw/compressed`` with it; a remap of
+        the compressed topic's own name still applies over that.
+        """
+        raw = IMAGE_TRANSPORTS["raw"][0]
+        if suffix == raw:
+            return f"{camera}/{raw}"
+        return self.resolve_topic_name(f"{camera}/{raw}") + suffix.removeprefix(raw)
 
     def _deliver(self, camera: str, cloud: PointCloud2, overlay: Image | None) -> None:
         self._points[camera].publish(cloud)

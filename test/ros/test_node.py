@@ -133,6 +133,41 @@ def test_with_compressed_transport_each_camera_reads_jpeg_and_counts_undecodable
         spinner.stop()
 
 
+def test_compressed_frames_follow_a_remapped_raw_topic_as_image_transport_names_them(ros):
+    """Remapping <cam>/image_raw moves <cam>/image_raw/compressed with it."""
+    node = MarkerLocalizerNode(
+        "remap_localizer",
+        namespace="/remap",
+        cli_args=["--ros-args", "-r", "cam0/image_raw:=/drv/front/image"],
+        parameter_overrides=[
+            Parameter("image_transport", value="compressed"),
+            Parameter("cameras", value=["cam0"]),
+            Parameter("workers", value=1),
+            Parameter("worker_processes", value=False),
+        ],
+    )
+    spinner = Spinner(node)
+    peer = Peer("remap_peer", "/remap")
+    try:
+        peer.listen("cam0/marker_points", PointCloud2)
+        pub = peer.node.create_publisher(CompressedImage, "/drv/front/image/compressed", IMAGE_QOS)
+        wait_until(lambda: pub.get_subscription_count() > 0, "the node subscribing")
+        ok, png = cv2.imencode(".png", x_marker_64())
+        assert ok
+        msg = CompressedImage(
+            header=Header(stamp=Time(sec=3), frame_id="front"),
+            format="mono8; png compressed mono8",
+            data=png.tobytes(),
+        )
+        pub.publish(msg)
+        cloud = peer.result_for("cam0/marker_points", msg.header)
+        assert cloud.header == msg.header
+        np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=1e-3)
+    finally:
+        peer.stop()
+        spinner.stop()
+
+
 def test_overlay_is_published_once_switched_on_live(localizer, tester):
     tester.listen("cam4/marker_points", PointCloud2)
     tester.listen("cam4/marker_overlay", Image)
