@@ -14,7 +14,8 @@ Topics, relative to the node's namespace and remappable as usual:
   the parameter ``qos_overrides./<cam>/image_raw.subscription.reliability`` if your
   driver publishes best effort.
 * in ``<cam>/camera_info`` (sensor_msgs/CameraInfo), cached and reported in
-  the diagnostics when published.
+  the diagnostics when published; best effort, so that reliable and best-effort
+  publishers alike match.
 * out ``<cam>/marker_points`` (sensor_msgs/PointCloud2, layout in
   :mod:`marker_localizer.ros.conversions`): one per processed frame, with the
   input image's header unchanged, empty when no marker was found.
@@ -78,6 +79,12 @@ _SPIN_PERIOD_S = 0.1
 
 _IMAGE_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE
+)
+#: Best effort takes camera_info from reliable publishers and from the drivers that
+#: publish it best effort beside best-effort images (a reliable subscription matches
+#: none of those): it is only cached, and the next one comes with the next frame.
+_CAMERA_INFO_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT
 )
 #: Results: keep a few so that a slow consumer does not lose points.
 _OUTPUT_DEPTH = 10
@@ -149,7 +156,7 @@ class MarkerLocalizerNode(Node):
                 CameraInfo,
                 f"{camera}/{CAMERA_INFO_SUFFIX}",
                 partial(self._on_camera_info, camera),
-                1,
+                _CAMERA_INFO_QOS,
             )
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", _OUTPUT_DEPTH)
         # On the steady clock: with use_sim_time and no /clock yet (a bag not playing),

@@ -19,8 +19,8 @@ from node_testing import (
     x_marker_64,
 )
 from rclpy.parameter import Parameter
-from rclpy.qos import ReliabilityPolicy
-from sensor_msgs.msg import CompressedImage, Image, PointCloud2
+from rclpy.qos import ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.ros.conversions import BAYER_ENCODINGS
@@ -166,6 +166,27 @@ def test_compressed_frames_follow_a_remapped_raw_topic_as_image_transport_names_
     finally:
         peer.stop()
         spinner.stop()
+
+
+def test_camera_info_published_best_effort_is_reported(localizer, tester):
+    """Drivers that publish best-effort images often publish their camera_info so."""
+    tester.listen("/diagnostics", DiagnosticArray)
+    pub = tester.node.create_publisher(CameraInfo, "cam3/camera_info", qos_profile_sensor_data)
+    try:
+        wait_until(lambda: pub.get_subscription_count() > 0, "the node subscribing camera_info")
+
+        def reported():
+            pub.publish(CameraInfo(width=640, height=480))
+            return any(
+                values_of(s)["camera_info"] == "640x480"
+                for array_msg in tester.messages("/diagnostics")
+                for s in array_msg.status
+                if s.name == "marker_localizer: cam3"
+            )
+
+        wait_until(reported, "cam3's camera_info in the diagnostics")
+    finally:
+        tester.node.destroy_publisher(pub)
 
 
 def test_overlay_is_published_once_switched_on_live(localizer, tester):
