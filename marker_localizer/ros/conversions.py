@@ -18,6 +18,9 @@ offset field  meaning
 32     angle1 direction of the first line through the centre, rad in [0, pi)
 40     angle2 direction of the second line, rad in [0, pi)
 ====== ====== =====================================================================
+
+Angles are atan2(dy, dx) in pixel coordinates (y down: clockwise as the image is
+shown); which line comes first is not fixed. An empty cloud keeps the fields.
 """
 
 from __future__ import annotations
