@@ -1,10 +1,12 @@
-"""The README documents what the code does: every parameter, the two commands."""
+"""The README documents what the code does: every parameter, the two commands, what needs ROS."""
 
 from pathlib import Path
 
 import pytest
 
+from marker_localizer.cli import BENCHMARKS, COMMANDS
 from marker_localizer.config import DetectorConfig, TrackerConfig, param_specs
+from marker_localizer.errors import ROS_WHEELS
 
 REPO = Path(__file__).resolve().parents[1]
 README = (REPO / "README.md").read_text()
@@ -23,3 +25,14 @@ def test_readme_lists_every_detector_and_tracker_parameter_with_its_default_and_
 def test_ci_runs_exactly_the_readme_test_command():
     assert "./run test" in README and "./run demo" in README
     assert "./run test" in (REPO / ".ci" / "run").read_text()
+
+
+def test_installing_names_the_commands_that_need_ros_and_the_wheels_that_bring_it():
+    """A plain ``pip install .`` runs ``detect``; the README says what else needs ROS."""
+    installing = README.split("## Installing", 1)[1].split("\n## ", 1)[0]
+    assert ROS_WHEELS in " ".join(installing.split())
+    # The commands whose modules import ROS (as test_main's import check marks them).
+    needs_ros = [name for name, c in COMMANDS.items() if c.module.endswith((".bag", ".demo"))]
+    needs_ros += [f"bench {name}" for name, m in BENCHMARKS.items() if m.endswith(".throughput")]
+    assert sorted(needs_ros) == ["bench throughput", "demo", "play", "replay", "simulate"]
+    assert all(f"`{name}`" in installing for name in needs_ros)
