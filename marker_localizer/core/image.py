@@ -85,6 +85,11 @@ def to_gray(
             :data:`MAX_ABOVE_WHITE_SHARE` of the 16-bit levels above white at
             ``bit_depth`` (read on :func:`peak_level`'s grid).
     """
+    if image is None:
+        # What cv2.imread gives for a file it cannot read, without a word.
+        raise ImageError(
+            "expected a numpy array, got None (cv2.imread's answer to a file it cannot read)"
+        )
     if not isinstance(image, np.ndarray):
         raise ImageError(f"expected a numpy array, got {type(image).__name__}")
     if image.size == 0:

@@ -10,6 +10,7 @@ preprocessing and the screening, and routes a tracking pass's plan.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -38,6 +39,10 @@ from marker_localizer.core.template_path import TemplatePath
 class Detector:
     """Diagonal-marker detector; build once, call :meth:`detect` per frame.
 
+    A detector keeps nothing from one call to the next: threads may share one (the
+    node's worker threads do), each call giving what it gives alone. Its stages are
+    built for :attr:`config`, which is read-only: other settings take a new detector.
+
     Example:
         >>> import cv2, numpy as np
         >>> from marker_localizer import Detector, DetectorConfig
@@ -49,13 +54,33 @@ class Detector:
     """
 
     def __init__(self, config: DetectorConfig | None = None) -> None:
-        self.config = config or DetectorConfig()
+        """Build the detector's stages for ``config`` (None: the defaults).
+
+        Raises:
+            TypeError: ``config`` is not a :class:`DetectorConfig` instance (a mapping
+                of settings, the class itself), which would otherwise be read as the
+                defaults or fail on its first missing attribute.
+        """
+        if config is not None and not isinstance(config, DetectorConfig):
+            hint = " (DetectorConfig(**values) builds one)" if isinstance(config, Mapping) else ""
+            raise TypeError(f"Detector takes a DetectorConfig instance, not {config!r:.80}{hint}")
+        self._config = config if config is not None else DetectorConfig()
         self._search = CandidateSearch(self.config)
         self._symmetry = SymmetryPath(
             self.config, self._search.shadowed, self._search.seed_scale_px
         )
         self._template = TemplatePath(self.config)
         self._paper = PaperPath(self.config, self._symmetry, self._template)
+
+    @property
+    def config(self) -> DetectorConfig:
+        """The settings this detector's stages were built with (read-only).
+
+        Each stage keeps the config it was built with: a config assigned afterwards
+        would reach some of them and not others. ``Detector(detector.config.replace(...))``
+        gives a detector for other settings.
+        """
+        return self._config
 
     @property
     def region_lattice_px(self) -> int:

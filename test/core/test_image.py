@@ -105,6 +105,7 @@ def test_float_images_of_another_scale_are_refused_not_clipped_to_a_blank_frame(
     ("image", "message"),
     [
         ([[1, 2], [3, 4]], "expected a numpy array, got list"),
+        (None, r"got None \(cv2.imread's answer to a file it cannot read\)"),
         (np.zeros((0, 4), np.uint8), r"empty image \(shape \(0, 4\)\)"),
         (np.zeros((4, 4), np.int32), "unsupported dtype int32"),
         (np.zeros((4, 4, 2), np.uint8), "unsupported channel count 2"),

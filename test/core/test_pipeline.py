@@ -6,6 +6,7 @@ template path have their own files (test_paper_path.py, test_template_path.py).
 
 import dataclasses
 import itertools
+import threading
 import warnings
 from collections.abc import Iterable
 
@@ -354,6 +355,44 @@ def test_colour_16_bit_and_float_images_are_converted_not_rejected(convert):
 def test_bad_images_raise_a_clear_image_error(image, message):
     with pytest.raises(ImageError, match=message):
         Detector().detect(image)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [{"marker_radius_min_px": 12.0}, {}, DetectorConfig, 0],
+    ids=["mapping", "empty-mapping", "the-class", "zero"],
+)
+def test_a_detector_refuses_settings_that_are_not_a_detector_config(config):
+    """Not read as the defaults (the class, an empty mapping, 0) nor failing deep inside."""
+    with pytest.raises(TypeError, match="DetectorConfig instance"):
+        Detector(config)
+
+
+def test_a_detectors_config_is_read_only_as_its_stages_keep_theirs():
+    detector = Detector()
+    with pytest.raises(AttributeError):
+        detector.config = DetectorConfig(marker_radius_min_px=12.0)
+    assert detector.config == DetectorConfig()
+
+
+def test_threads_sharing_one_detector_get_what_each_call_gives_alone():
+    frames = [render_scene(SMALL_SCENE, seed).image for seed in (1, 2, 3, 4)]
+    detector = Detector()
+    alone = [detector.detect(frame) for frame in frames]
+    assert sum(len(result) for result in alone) >= len(frames)
+    shared = [None] * len(frames)
+
+    def detect_every_other(first: int) -> None:
+        for k in range(first, len(frames), 2):
+            shared[k] = detector.detect(frames[k])
+
+    threads = [threading.Thread(target=detect_every_other, args=(k,)) for k in (0, 1)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for one, other in zip(alone, shared, strict=True):
+        assert np.array_equal(one.as_array(), other.as_array()) and one.counts == other.counts
 
 
 def _strip_across_an_x(height: int, width: int, seed: int) -> np.ndarray:

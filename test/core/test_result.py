@@ -1,8 +1,13 @@
 """What a detector pass gives back, and where a tracking pass searches."""
 
+import re
+
 import numpy as np
 import pytest
+from scenes import checker_2x2
 
+from marker_localizer import Detector, DetectorConfig
+from marker_localizer.core import decision
 from marker_localizer.core.result import DetectionResult, SearchPlan, detections_of, positions
 
 
@@ -61,3 +66,26 @@ def test_a_search_plan_holds_its_own_typed_copies():
     assert plan.regions.dtype == np.int64 and plan.regions[0, 0] == 0
     assert plan.known.dtype == np.float64 and plan.known.shape == (1, 2)
     assert plan.seeds.shape == (0, 2)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [DetectorConfig(), DetectorConfig(refinement="template"), DetectorConfig(refinement="ncc")],
+    ids=["default", "template", "ncc"],
+)
+def test_every_count_a_pass_reports_is_named_where_the_counts_are_described(config):
+    """``DetectionResult.counts`` is the user's account of each stage: no key unexplained."""
+    image = checker_2x2(96)
+    detector = Detector(config)
+    found = detector.detect(image)
+    tracked = detector.locate(
+        image,
+        found.as_array()[:, :2],
+        found.as_array()[:, 6],
+        found.as_array()[:, 4:6],
+        np.array([d.evidence for d in found]),
+    )
+    assert len(found) == len(tracked) == 1
+    described = set(re.findall(r"``([a-z_]+)``", DetectionResult.__doc__ or ""))
+    described |= {f"rejected_{reason}" for reason in decision.REASONS}
+    assert set(found.counts) | set(tracked.counts) <= described
