@@ -18,6 +18,7 @@ import pytest
 import yaml
 from blas_threads import openblas_threads, two_threaded_openblas
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus
 from scenes import panning_frames
 from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import Header
@@ -367,7 +368,7 @@ def test_the_replayed_diagnostics_count_skipped_frames_as_the_node_would(tmp_pat
     yuv.encoding = "yuv444"
     frames = [("/cam0/image_raw", 1, image(pixels, 1)), ("/cam0/image_raw", 2, yuv)]
     frames += [("/cam0/image_raw", 3, image(pixels, 1)), ("/cam0/image_raw", 4, image(pixels, 4))]
-    replay_bag(write_bag(tmp_path / "in", frames), tmp_path / "out", workers=1)
+    report = replay_bag(write_bag(tmp_path / "in", frames), tmp_path / "out", workers=1)
     with BagReader(tmp_path / "out") as out:
         (*_, last) = (m.decode() for m in out.messages(["/diagnostics"]))
     (camera,) = (status for status in last.status if status.name.endswith("cam0"))
@@ -378,8 +379,14 @@ def test_the_replayed_diagnostics_count_skipped_frames_as_the_node_would(tmp_pat
         "1",
     )
     assert "unsupported encoding 'yuv444'" in values["last error"]
+    assert camera.level == DiagnosticStatus.ERROR
     # Submission to result, not the bag time between two frames (1 s here).
     assert float(values["latency p95 (ms)"]) < 1000.0
+    summary = format_report(report).splitlines()
+    assert any(
+        line.startswith("cam0: last failure: ImageError: unsupported encoding 'yuv444'")
+        for line in summary
+    )
 
 
 def test_image_topics_replay_does_not_read_are_named_with_why(tmp_path):
@@ -513,6 +520,12 @@ def test_a_12_bit_camera_read_at_16_bits_is_named_in_the_report_with_its_depth(t
         "cam0: 16-bit frames under 1/16 of white: a 12-bit camera wants detector.bit_depth 12"
         in (format_report(report).splitlines())
     )
+    # As the node's diagnostics would: the output bag's say the same.
+    with BagReader(tmp_path / "out") as out:
+        (*_, last) = (m.decode() for m in out.messages(["/diagnostics"]))
+    (camera,) = (status for status in last.status if status.name.endswith("cam0"))
+    assert camera.level == DiagnosticStatus.WARN
+    assert "a 12-bit camera wants detector.bit_depth 12" in camera.message
     full = [("/cam0/image_raw", n, image(shallow * 16, n, "mono16")) for n in (1, 2)]
     report = replay_bag(write_bag(tmp_path / "full", full), tmp_path / "out2", workers=1)
     assert report.cameras["cam0"].bit_depth_hint is None

@@ -26,8 +26,14 @@ REFUSED = [
     (["bench", "paper", "--seed", "-1"], "--seed: must be at least 0, got -1"),
     (["bench", "throughput", "--workers", "1", "0"], "--workers: must be at least 1, got 0"),
     (["bench", "throughput", "--width", "0"], "--width: must be at least 1, got 0"),
-    (["bench", "throughput", "--seconds", "0"], "--seconds: must be a finite number above 0"),
-    (["bench", "throughput", "--rate-hz", "nan"], "--rate-hz: must be a finite number above 0"),
+    (
+        ["bench", "throughput", "--seconds", "0"],
+        "--seconds: must be a finite number above 0, got 0",
+    ),
+    (
+        ["bench", "throughput", "--rate-hz", "nan"],
+        "--rate-hz: must be a finite number above 0, got nan",
+    ),
 ]
 
 
