@@ -254,13 +254,14 @@ def test_every_candidate_the_screenings_caps_cut_is_counted_whenever_it_is_cut(m
         assert counts["unexamined_below_floor"] == 0 and counts["candidates"] > 10_000
 
 
-def test_a_frame_cap_of_one_candidate_keeps_one_and_counts_the_rest():
+@pytest.mark.parametrize("cap", [1, 2, 3])
+def test_a_frame_cap_of_one_to_three_candidates_keeps_that_many_and_counts_the_rest(cap):
     """The cap's floor is sought among a sample of the peaks: at least its strongest."""
     noise = np.random.default_rng(4).normal(128, 40, (256, 320))
-    config = DetectorConfig(marker_radius_min_px=3.0, marker_radius_max_px=30.0, max_candidates=1)
+    config = DetectorConfig(marker_radius_min_px=3.0, marker_radius_max_px=30.0, max_candidates=cap)
     counts = Detector(config).detect(np.clip(noise, 0, 255).astype(np.uint8)).counts
-    assert counts["after_suppression"] > 1
-    assert counts["after_suppression"] - counts["dropped_over_cap"] == 1
+    assert counts["after_suppression"] > cap
+    assert counts["after_suppression"] - counts["dropped_over_cap"] == cap
 
 
 def test_more_xs_than_the_costly_checks_take_are_cut_over_the_frame_and_counted():
