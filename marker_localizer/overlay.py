@@ -16,6 +16,8 @@ from marker_localizer.core.result import Detection
 _LINE_BGR = (0, 255, 0)
 _EXTENT_BGR = (0, 255, 255)
 _TRUTH_BGR = (255, 0, 255)
+#: Half the size of a true centre's tilted cross, px.
+_TRUTH_HALF_PX = 3.0
 #: Fixed-point bits for cv2 drawing, so sub-pixel centres are drawn where they are.
 _DRAW_SHIFT = 4
 
@@ -34,6 +36,9 @@ def to_bgr(pixels: np.ndarray, bit_depth: int = 16) -> np.ndarray:
     the copy show on every kind.
     """
     colour = pixels[:, :, :3] if pixels.ndim == 3 else pixels
+    if colour.ndim == 3 and colour.shape[2] == 1:
+        # (H, W, 1) is grey, as to_gray reads it: else an 8-bit one came back one channel.
+        colour = colour[:, :, 0]
     if colour.dtype != np.uint8:
         white = 1.0 if colour.dtype.kind == "f" else bit_depth_scale(colour.dtype, bit_depth)
         colour = cv2.convertScaleAbs(np.ascontiguousarray(colour), alpha=255.0 / white)
@@ -52,10 +57,12 @@ def draw_detections(
     """Draw each marker's two lines and extent circle through its sub-pixel centre.
 
     Args:
-        pixels: (H, W) uint8/uint16 grey or (H, W, 3|4) uint8 BGR(A) frame.
+        pixels: (H, W) or (H, W, 1) grey or (H, W, 3|4) BGR(A) frame: uint8,
+            uint16 or float (white 1).
         detections: markers to draw (pixel coordinates, (0, 0) = centre of the
             top-left pixel).
-        truth: optional (N, 2) true centres, drawn as small magenta crosses.
+        truth: optional (N, 2) true centres, drawn as small magenta crosses
+            through each (sub-pixel) centre.
         bit_depth: significant bits of uint16 pixels (white at 2**bit_depth - 1).
 
     Returns:
@@ -85,12 +92,15 @@ def draw_detections(
             _DRAW_SHIFT,
         )
     for point in np.asarray(truth if truth is not None else np.zeros((0, 2))):
-        cv2.drawMarker(
-            canvas,
-            (round(float(point[0])), round(float(point[1]))),
-            _TRUTH_BGR,
-            cv2.MARKER_TILTED_CROSS,
-            7,
-            1,
-        )
+        # cv2.drawMarker's tilted cross of size 7, at the sub-pixel point (it rounds).
+        for corner in ((_TRUTH_HALF_PX, _TRUTH_HALF_PX), (_TRUTH_HALF_PX, -_TRUTH_HALF_PX)):
+            cv2.line(
+                canvas,
+                _fixed(point - np.array(corner)),
+                _fixed(point + np.array(corner)),
+                _TRUTH_BGR,
+                1,
+                cv2.LINE_AA,
+                _DRAW_SHIFT,
+            )
     return canvas

@@ -15,13 +15,14 @@ MARKER = Detection(
     "frame",
     [
         np.full((16, 16), 100, np.uint8),
+        np.full((16, 16, 1), 100, np.uint8),
         np.full((16, 16, 3), 100, np.uint8),
         np.full((16, 16, 4), 100, np.uint8),
         np.full((16, 16), 25700, np.uint16),
         np.full((16, 16, 3), 25700, np.uint16),
         np.full((16, 16), 100 / 255, np.float32),
     ],
-    ids=["mono8", "bgr8", "bgra8", "mono16", "bgr16", "float"],
+    ids=["mono8", "mono8_one_channel", "bgr8", "bgra8", "mono16", "bgr16", "float"],
 )
 def test_the_overlay_is_an_8_bit_copy_at_the_frames_levels_and_leaves_the_frame_as_it_was(frame):
     before = frame.copy()
@@ -30,3 +31,16 @@ def test_the_overlay_is_an_8_bit_copy_at_the_frames_levels_and_leaves_the_frame_
     assert drawn.dtype == np.uint8 and drawn.shape == (16, 16, 3)
     np.testing.assert_allclose(drawn[0, 15], [100, 100, 100], atol=1)  # away from the lines
     assert (drawn != 100).any()  # the marker was drawn
+
+
+def _centroid(weights):
+    rows, cols = np.nonzero(weights)
+    mass = weights[rows, cols].astype(float)
+    return np.array([cols @ mass, rows @ mass]) / mass.sum()
+
+
+@pytest.mark.parametrize("centre", [(10.3, 11.7), (11.75, 10.25)])
+def test_the_true_centres_cross_is_drawn_at_its_sub_pixel_position(centre):
+    # It was rounded to the pixel: half a pixel off where the demo's errors are hundredths.
+    drawn = draw_detections(np.zeros((24, 24), np.uint8), [], truth=np.array([centre]))
+    np.testing.assert_allclose(_centroid(drawn[:, :, 0]), centre, atol=0.1)

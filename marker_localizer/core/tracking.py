@@ -158,12 +158,18 @@ class MarkerTracker:
         detector: the detector whose settings apply to both kinds of pass.
         config: the tracking settings (:class:`~marker_localizer.config.TrackerConfig`:
             ``full_frame_every``, ``max_motion_px``, ``match_px``,
-            ``max_missed_frames``; see the module's rule).
+            ``max_missed_frames``; see the module's rule). With ``enabled`` false
+            every frame gets a full-frame pass and no track is kept.
         phase: frames by which the first scheduled full pass comes early once a pass
             has left tracks (at the start, and after a reset), >= 0. A rig's cameras
             start together, and their full passes, several times a tracked frame's
             work each, would otherwise fall on the same frames of every camera from
             then on (:func:`staggered_phase` spreads them).
+
+    Raises:
+        TypeError: ``detector`` is not a :class:`Detector` or ``config`` not a
+            :class:`~marker_localizer.config.TrackerConfig` (a dict of settings).
+        ValueError: ``phase`` is negative.
     """
 
     detector: Detector
@@ -177,6 +183,14 @@ class MarkerTracker:
     _fit_motion_skips: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
+        # As Detector's own check: a mapping or a class failed later, on an attribute.
+        if not isinstance(self.detector, Detector):
+            raise TypeError(f"MarkerTracker takes a Detector instance, not {self.detector!r:.80}")
+        if not isinstance(self.config, TrackerConfig):
+            hint = " (TrackerConfig(**values) builds one)" if isinstance(self.config, dict) else ""
+            raise TypeError(
+                f"MarkerTracker takes a TrackerConfig instance, not {self.config!r:.80}{hint}"
+            )
         if self.phase < 0:
             raise ValueError(f"phase must be >= 0 frames, got {self.phase}")
 
@@ -212,6 +226,12 @@ class MarkerTracker:
             raise ValueError(f"stamp_s must be a finite time in seconds, got {stamp_s!r}")
         # Once, not per detector call: a strided view (a crop) is copied here.
         gray, _ = to_gray(image)
+        if not self.config.enabled:
+            self.reset()
+            every = self.detector.detect(gray)
+            every.counts["full_frame"] = 1
+            every.counts["tracked"] = 0
+            return every
         if self._tracks and (stamp <= self._last_stamp_s or gray.shape != self._frame_shape):
             self.reset()
         self._last_stamp_s, self._frame_shape = stamp, gray.shape

@@ -128,7 +128,8 @@ class FlightConfig:
         nadir_marker_radius_px: Marker radius at nadir that sets the default
             altitude, px.
         altitude_m: Flying height above the ground, m; None: from
-            ``nadir_marker_radius_px``.
+            ``nadir_marker_radius_px``. Either way above 0.1 m, the cameras' depth
+            below the aircraft's origin.
         marker_spacing_m: Grid spacing of the markers on the ground, m (each
             jittered by a quarter of it); None: 0.3 times the nadir camera's
             across-track footprint (5 to 9 markers per nadir frame).
@@ -214,6 +215,14 @@ class FlightConfig:
             math.isfinite(self.altitude_m) and self.altitude_m > 0
         ):
             raise ConfigError(f"altitude_m={self.altitude_m!r} must be positive and finite")
+        # The cameras hang below the body origin: at or under the ground they see no
+        # ground (an empty flight) or blur it over more pixels than memory holds.
+        if not self.flight_altitude_m > _MOUNT_DEPTH_M:
+            raise ConfigError(
+                f"flight altitude {self.flight_altitude_m:g} m must exceed the cameras' "
+                f"{_MOUNT_DEPTH_M:g} m below the aircraft's origin (altitude_m="
+                f"{self.altitude_m!r}, marker_radius_m={self.marker_radius_m:g})"
+            )
         if self.marker_spacing_m is not None and not (
             self.marker_spacing_m > 2 * PLATE_HALF_SIDE * self.marker_radius_m
         ):

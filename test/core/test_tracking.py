@@ -100,6 +100,33 @@ def test_a_negative_phase_is_refused():
         MarkerTracker(_detector(), phase=-1)
 
 
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        # A dict of settings failed on the first frame, on a missing attribute.
+        (
+            {"config": {"full_frame_every": 2}},
+            r"TrackerConfig instance.*TrackerConfig\(\*\*values\)",
+        ),
+        ({"config": TrackerConfig}, "TrackerConfig instance"),
+        ({"detector": Detector}, "Detector instance"),
+    ],
+)
+def test_a_config_or_detector_of_another_type_is_refused_at_construction(arguments, message):
+    with pytest.raises(TypeError, match=message):
+        MarkerTracker(**{"detector": _detector(), **arguments})
+
+
+def test_a_disabled_tracker_gives_every_frame_a_full_pass(moving_frames):
+    # TrackerConfig(enabled=False) was ignored: the frames were tracked all the same.
+    detector = _detector()
+    tracker = MarkerTracker(detector, TrackerConfig(enabled=False))
+    for k, (image, _) in enumerate(moving_frames[:3]):
+        result = tracker.update(image, stamp_s=0.1 * k)
+        assert (result.counts["full_frame"], result.counts["tracked"]) == (1, 0)
+        np.testing.assert_array_equal(result.as_array(), detector.detect(image).as_array())
+
+
 def test_the_cameras_phases_spread_over_the_full_pass_period():
     assert [tracking.staggered_phase(k, 5, 10) for k in range(5)] == [0, 2, 4, 6, 8]
     assert [tracking.staggered_phase(k, 3, 10) for k in range(3)] == [0, 3, 6]

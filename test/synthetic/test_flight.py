@@ -280,6 +280,11 @@ def test_the_ground_repeats_without_mirrors_so_no_join_is_a_point_of_symmetry():
         ({"exposure_s": float("nan")}, "exposure_s=nan"),
         ({"frame_rate_hz": float("inf")}, "frame_rate_hz=inf"),
         ({"altitude_m": float("inf")}, "altitude_m=inf"),
+        # The cameras hang 0.1 m below the body: at 0.05 m the ground extent was an
+        # empty array's minimum, at 0.1 m a motion-blur kernel of 74 GiB.
+        ({"altitude_m": 0.05}, "flight altitude 0.05 m must exceed the cameras' 0.1 m"),
+        ({"altitude_m": 0.1}, "flight altitude 0.1 m must exceed"),
+        ({"width": 320, "height": 240, "marker_radius_m": 0.001}, "marker_radius_m=0.001"),
     ],
 )
 def test_invalid_flight_config_raises_config_error_naming_the_field(changes, message):
