@@ -10,6 +10,7 @@ mapped by :func:`~marker_localizer.cli.exits.run_command`.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -35,6 +36,7 @@ from marker_localizer.config import (
     load_params_file,
 )
 from marker_localizer.core.image import BAYER_PATTERNS
+from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import DEFAULT_GATE_PX
 from marker_localizer.ros.parameters import NodeConfig
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
@@ -140,20 +142,46 @@ def build_simulate_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: The ``simulate`` option that sets each :class:`FlightConfig` field it sets.
+_SIMULATE_OPTIONS = {
+    "width": "--width",
+    "height": "--height",
+    "n_frames": "--frames",
+    "n_cameras": "--cameras",
+    "frame_rate_hz": "--fps",
+    "tilt_deg": "--tilt",
+    "marker_radius_m": "--marker-radius",
+    "altitude_m": "--altitude",
+    "speed_mps": "--speed",
+    "bayer_pattern": "--bayer",
+}
+
+
 def config_from_args(args: argparse.Namespace) -> FlightConfig:
-    """The :class:`FlightConfig` a parsed ``simulate`` command line asks for."""
-    return FlightConfig(
-        width=args.width,
-        height=args.height,
-        n_frames=args.frames,
-        n_cameras=args.cameras,
-        frame_rate_hz=args.fps,
-        tilt_deg=args.tilt,
-        marker_radius_m=args.marker_radius,
-        altitude_m=args.altitude,
-        speed_mps=args.speed,
-        bayer_pattern=args.bayer,
-    )
+    """The :class:`FlightConfig` a parsed ``simulate`` command line asks for.
+
+    Raises:
+        ConfigError: as :class:`FlightConfig` does, naming the options, not its fields
+            (``--cameras 0 must be in [1, 5]``, not ``n_cameras=0``).
+    """
+    try:
+        return FlightConfig(
+            width=args.width,
+            height=args.height,
+            n_frames=args.frames,
+            n_cameras=args.cameras,
+            frame_rate_hz=args.fps,
+            tilt_deg=args.tilt,
+            marker_radius_m=args.marker_radius,
+            altitude_m=args.altitude,
+            speed_mps=args.speed,
+            bayer_pattern=args.bayer,
+        )
+    except ConfigError as err:
+        text = str(err)
+        for field, option in _SIMULATE_OPTIONS.items():
+            text = re.sub(rf"\b{field}=", f"{option} ", text)
+        raise ConfigError(text) from err
 
 
 def simulate(argv: Sequence[str]) -> int:

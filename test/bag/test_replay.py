@@ -277,6 +277,22 @@ def test_simulate_refuses_an_existing_output_and_a_bad_configuration(tmp_path, c
     assert leftovers(tmp_path) == ["taken"]
 
 
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        (["--cameras", "0"], "--cameras 0 must be in [1, 5]"),
+        (["--fps", "0"], "--fps 0.0 must be positive and finite"),
+        (["--tilt", "90"], "--tilt 90.0 must be in [0, 45]"),
+    ],
+)
+def test_a_bad_flight_is_refused_naming_the_option_not_the_configs_field(
+    tmp_path, option, message, capsys
+):
+    """Before, ``n_cameras=0``, ``frame_rate_hz=0.0``: names the command line does not take."""
+    assert cli(["simulate", "--out", str(tmp_path / "flight"), *option]) == 1
+    assert capsys.readouterr().err == f"marker-localizer simulate: error: {message}\n"
+
+
 @pytest.mark.parametrize("name", ["flight.mcap", "flight.db3", "flight.bag", "flight.MCAP"])
 def test_an_output_named_as_a_bag_file_is_refused_in_one_line_that_names_the_directory_to_give(
     flight_bag, tmp_path, name, capsys
