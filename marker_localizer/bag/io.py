@@ -452,6 +452,10 @@ class BagWriter:
         self.counts: dict[str, int] = {}
 
     def __enter__(self) -> Self:
+        # mkdir says "File exists" where a file stands in for one of the folders.
+        blocking = next((p for p in self.path.parents if p.exists() and not p.is_dir()), None)
+        if blocking is not None:
+            raise BagError(f"{self.path}: cannot create bag ({blocking} is a file, not a folder)")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             sweep_staging(self.path.parent)

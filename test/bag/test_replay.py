@@ -277,6 +277,20 @@ def test_simulate_refuses_an_existing_output_and_a_bad_configuration(tmp_path, c
     assert leftovers(tmp_path) == ["taken"]
 
 
+def test_an_output_under_a_file_is_refused_naming_the_file(tmp_path, capsys):
+    """Before: ``cannot create bag ([Errno 17] File exists: '.../notes.txt')``."""
+    (tmp_path / "notes.txt").write_text("")
+    out = tmp_path / "notes.txt" / "flight"
+    assert (
+        cli(["simulate", "--out", str(out), "--frames", "1", "--width", "64", "--height", "48"])
+        == 1
+    )
+    assert capsys.readouterr().err == (
+        f"marker-localizer simulate: error: {out}: cannot create bag "
+        f"({tmp_path / 'notes.txt'} is a file, not a folder)\n"
+    )
+
+
 @pytest.mark.parametrize(
     ("option", "message"),
     [
