@@ -98,6 +98,11 @@ class RecordSummary:
     truth_markers: int
     messages: int
 
+    @property
+    def frame_sets(self) -> str:
+        """``"1 frame set"``, ``"4 frame sets"``: how the summaries count them."""
+        return f"{self.frames} frame set{'' if self.frames == 1 else 's'}"
+
 
 def optical_frame(camera: str) -> str:
     """TF frame of a camera's images: ``<cam>_optical``."""

@@ -195,7 +195,7 @@ def simulate(argv: Sequence[str]) -> int:
     finally:
         bar.close()
     sys.stdout.write(
-        f"wrote {summary.path} ({args.storage}): {summary.frames} frame sets x "
+        f"wrote {summary.path} ({args.storage}): {summary.frame_sets} x "
         f"{len(summary.cameras)} cameras at {config.width}x{config.height} px, "
         f"{summary.truth_markers} markers in the truth, {summary.messages} messages; "
         f"altitude {config.flight_altitude_m:.1f} m, focal length {config.focal_px:.1f} px\n"

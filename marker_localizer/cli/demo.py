@@ -51,7 +51,7 @@ def run(out_dir: Path, frames: int = 4, seed: int = 7, width: int = 1280, height
     )
     summary = record_flight(simulator, flight_bag)
     print(
-        f"simulated {summary.frames} frame sets x {len(summary.cameras)} cameras "
+        f"simulated {summary.frame_sets} x {len(summary.cameras)} cameras "
         f"({width}x{height}) with {summary.truth_markers} marker images -> {flight_bag}"
     )
     config = DetectorConfig(
