@@ -142,7 +142,8 @@ def build_simulate_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: The ``simulate`` option that sets each :class:`FlightConfig` field it sets.
+#: The ``simulate`` option that sets each :class:`FlightConfig` field it sets (the
+#: option's argparse destination holds the value).
 _SIMULATE_OPTIONS = {
     "width": "--width",
     "height": "--height",
@@ -164,18 +165,13 @@ def config_from_args(args: argparse.Namespace) -> FlightConfig:
         ConfigError: as :class:`FlightConfig` does, naming the options, not its fields
             (``--cameras 0 must be in [1, 5]``, not ``n_cameras=0``).
     """
+    values = vars(args)
     try:
         return FlightConfig(
-            width=args.width,
-            height=args.height,
-            n_frames=args.frames,
-            n_cameras=args.cameras,
-            frame_rate_hz=args.fps,
-            tilt_deg=args.tilt,
-            marker_radius_m=args.marker_radius,
-            altitude_m=args.altitude,
-            speed_mps=args.speed,
-            bayer_pattern=args.bayer,
+            **{
+                field: values[option.removeprefix("--").replace("-", "_")]
+                for field, option in _SIMULATE_OPTIONS.items()
+            }
         )
     except ConfigError as err:
         text = str(err)
