@@ -9,7 +9,9 @@ becomes a 1 MB log line or diagnostics message.
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
+from types import ModuleType
 
 #: Longest text an error message quotes from outside, characters: more than any
 #: real encoding name, path or OpenCV message.
@@ -59,10 +61,18 @@ class RosMissingError(MarkerLocalizerError):
             "or source a ROS 2 Jazzy install"
         )
 
-    @classmethod
-    def where_missing(cls, failed: ModuleNotFoundError) -> RosMissingError | None:
-        """The error an import's ``failed`` is where rclpy is missing; None where it is there.
 
-        With rclpy there, a module of ours or another package is missing: a bug, not ROS.
-        """
-        return cls(failed) if importlib.util.find_spec("rclpy") is None else None
+def import_needing_ros(name: str) -> ModuleType:
+    """Import the module ``name``, one that imports ROS 2 (the node, the bag tools).
+
+    Raises:
+        RosMissingError: the import failed because rclpy is missing.
+        ModuleNotFoundError: it failed with rclpy there (a module of ours or another
+            package missing: a bug, not ROS).
+    """
+    try:
+        return importlib.import_module(name)
+    except ModuleNotFoundError as err:
+        if importlib.util.find_spec("rclpy") is not None:
+            raise
+        raise RosMissingError(err) from err

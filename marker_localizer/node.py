@@ -5,20 +5,18 @@ Without ROS 2 Jazzy's Python packages it says what to install, in one line.
 
 import sys
 
-from marker_localizer.errors import RosMissingError
+from marker_localizer.errors import RosMissingError, import_needing_ros
 
 
 def main() -> int:
     """Run the ROS 2 node (:func:`marker_localizer.ros.node.main`); its exit status."""
     try:
-        from marker_localizer.ros.node import main as run_node  # noqa: PLC0415
-    except ModuleNotFoundError as err:
-        missing = RosMissingError.where_missing(err)
-        if missing is None:
-            raise
+        node = import_needing_ros("marker_localizer.ros.node")
+    except RosMissingError as missing:
         sys.stderr.write(f"marker_localizer_node: error: {missing}\n")
         return 1
-    return run_node()
+    status: int = node.main()
+    return status
 
 
 if __name__ == "__main__":

@@ -11,13 +11,12 @@ errors and signals become exit statuses.
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 from marker_localizer.cli.exits import PROG, run_command
-from marker_localizer.errors import RosMissingError
+from marker_localizer.errors import import_needing_ros
 
 
 class Command(NamedTuple):
@@ -76,14 +75,8 @@ BENCHMARKS: dict[str, str] = {
 
 
 def _load(module: str, function: str) -> Callable[[list[str]], int]:
-    """The command's function; :class:`RosMissingError` where it needs ROS, which is missing."""
-    try:
-        return getattr(importlib.import_module(module), function)
-    except ModuleNotFoundError as err:
-        missing = RosMissingError.where_missing(err)
-        if missing is None:
-            raise
-        raise missing from err
+    """The command's function (:func:`~marker_localizer.errors.import_needing_ros`)."""
+    return getattr(import_needing_ros(module), function)
 
 
 def build_parser() -> argparse.ArgumentParser:
