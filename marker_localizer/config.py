@@ -500,6 +500,20 @@ def _field_type(f: dataclasses.Field[Any]) -> type:
     return _VALUE_TYPES[field_kind(f)]
 
 
+def require_config(config: object, kind: type, taker: str) -> None:
+    """Refuse a ``config`` that is not a ``kind`` instance, for ``taker`` (who would read it).
+
+    A mapping of settings or the class itself would otherwise be read as the
+    defaults, or fail later on its first missing attribute.
+
+    Raises:
+        TypeError: naming ``taker`` and ``kind``, with how to build one from a mapping.
+    """
+    if not isinstance(config, kind):
+        hint = f" ({kind.__name__}(**values) builds one)" if isinstance(config, Mapping) else ""
+        raise TypeError(f"{taker} takes a {kind.__name__} instance, not {config!r:.80}{hint}")
+
+
 def check_fields(config: Any) -> None:
     """Validate every field of a frozen configuration, each stored as its plain Python value.
 

@@ -10,14 +10,13 @@ preprocessing and the screening, and routes a tracking pass's plan.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from marker_localizer.config import DetectorConfig
+from marker_localizer.config import DetectorConfig, require_config
 from marker_localizer.core import (
     paper_path,
     preprocessing,
@@ -61,9 +60,8 @@ class Detector:
                 of settings, the class itself), which would otherwise be read as the
                 defaults or fail on its first missing attribute.
         """
-        if config is not None and not isinstance(config, DetectorConfig):
-            hint = " (DetectorConfig(**values) builds one)" if isinstance(config, Mapping) else ""
-            raise TypeError(f"Detector takes a DetectorConfig instance, not {config!r:.80}{hint}")
+        if config is not None:
+            require_config(config, DetectorConfig, "Detector")
         self._config = config if config is not None else DetectorConfig()
         self._search = CandidateSearch(self.config)
         self._symmetry = SymmetryPath(

@@ -84,7 +84,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from marker_localizer.config import TrackerConfig
+from marker_localizer.config import TrackerConfig, require_config
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.pipeline import Detector
 from marker_localizer.core.result import Detection, DetectionResult, SearchPlan
@@ -183,14 +183,10 @@ class MarkerTracker:
     _fit_motion_skips: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
-        # As Detector's own check: a mapping or a class failed later, on an attribute.
+        # A mapping or a class failed later, on its first missing attribute.
         if not isinstance(self.detector, Detector):
             raise TypeError(f"MarkerTracker takes a Detector instance, not {self.detector!r:.80}")
-        if not isinstance(self.config, TrackerConfig):
-            hint = " (TrackerConfig(**values) builds one)" if isinstance(self.config, dict) else ""
-            raise TypeError(
-                f"MarkerTracker takes a TrackerConfig instance, not {self.config!r:.80}{hint}"
-            )
+        require_config(self.config, TrackerConfig, "MarkerTracker")
         if self.phase < 0:
             raise ValueError(f"phase must be >= 0 frames, got {self.phase}")
 
