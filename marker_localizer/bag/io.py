@@ -452,10 +452,6 @@ class BagWriter:
         self.counts: dict[str, int] = {}
 
     def __enter__(self) -> Self:
-        # mkdir says "File exists" where a file stands in for one of the folders.
-        blocking = next((p for p in self.path.parents if p.exists() and not p.is_dir()), None)
-        if blocking is not None:
-            raise BagError(f"{self.path}: cannot create bag ({blocking} is a file, not a folder)")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             sweep_staging(self.path.parent)
@@ -470,7 +466,9 @@ class BagWriter:
             self._writer.open()
         except Exception as err:  # OSError or rosbags WriterError
             shutil.rmtree(self._staging, ignore_errors=True)
-            raise BagError(f"{self.path}: cannot create bag ({err})") from err
+            raise BagError(
+                f"{self.path}: cannot create bag ({_file_in_the_way(self.path) or err})"
+            ) from err
         return self
 
     def __exit__(
@@ -548,6 +546,15 @@ class BagWriter:
         if self._writer is None:
             raise BagError(f"{self.path}: bag is not open (use BagWriter as a context manager)")
         return self._writer
+
+
+def _file_in_the_way(path: Path) -> str | None:
+    """Which file stands where a folder above ``path`` is needed; None where none does.
+
+    ``mkdir`` says "File exists" and names the file, not that it should be a folder.
+    """
+    blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+    return None if blocking is None else f"{blocking} is a file, not a folder"
 
 
 def _write_ros_distro(metadata: Path) -> None:
