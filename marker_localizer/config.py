@@ -8,8 +8,10 @@ the CLI parses ``--param key=value`` against it, so nothing is written twice.
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import functools
 import numbers
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args, overload
@@ -67,9 +69,60 @@ def _param(
     return field(default=default, metadata={"spec": spec})
 
 
+def check_names(names: Iterable[Any], kind: type) -> None:
+    """Refuse setting names that the configuration class ``kind`` has no field for.
+
+    A name within a typo of a field's is answered with that field's name.
+
+    Raises:
+        ConfigError: ``unknown parameter(s): a, b`` with a ``did you mean`` for each
+            close name, the same whether a config is built, replaced or read from a
+            mapping.
+    """
+    known = [f.name for f in dataclasses.fields(kind)]
+    unknown = sorted({str(name) for name in names} - set(known))
+    if unknown:
+        raise ConfigError(f"unknown parameter(s): {', '.join(_guessed(n, known) for n in unknown)}")
+
+
+def _guessed(name: str, known: list[str]) -> str:
+    """``name``, followed by the field it is likely a typo of, where one is close."""
+    close = difflib.get_close_matches(name, known, n=1)
+    return f"{name} (did you mean {close[0]}?)" if close else name
+
+
+_Dataclass = TypeVar("_Dataclass")
+
+
+def _refuses_unknown_names(kind: type[_Dataclass]) -> type[_Dataclass]:
+    """Make the dataclass ``kind``'s constructor refuse an unknown name as :class:`ConfigError`.
+
+    The generated ``__init__`` raises a bare ``TypeError`` for one
+    (``DetectorConfig(**values)`` with a misspelt key of a YAML file), where
+    ``replace`` and :func:`from_mapping` raise :class:`ConfigError`: now each gives
+    :func:`check_names`' error. The signature seen by ``help`` and IDEs is the
+    generated one; a call of the wrong shape (too many positional values, a name
+    given twice) is still the ``TypeError`` of any Python call.
+    """
+    generated = kind.__init__
+
+    def checked_init(self: object, *args: Any, **values: Any) -> None:
+        check_names(values, kind)
+        generated(self, *args, **values)
+
+    functools.update_wrapper(checked_init, generated)
+    kind.__init__ = checked_init  # type: ignore[method-assign]
+    return kind
+
+
+@_refuses_unknown_names
 @dataclass(frozen=True)
 class DetectorConfig:
     """Detector settings; validated on construction (raises :class:`ConfigError`).
+
+    A name that is not a field's, a value of the wrong type or out of its range
+    raises the same :class:`ConfigError` (a ``ValueError``) from the constructor,
+    :meth:`replace` and :func:`from_mapping`.
 
     Only the expected marker radius range depends on the mission; every other
     default was chosen on the package's renderer (see README, "Parameters").
@@ -417,12 +470,14 @@ class DetectorConfig:
         return from_mapping(changes, base=self)
 
 
+@_refuses_unknown_names
 @dataclass(frozen=True)
 class TrackerConfig:
     """Tracking-mode settings (:class:`~marker_localizer.core.tracking.MarkerTracker`).
 
-    Validated on construction (raises :class:`ConfigError`). The node and replay
-    declare them as ``tracker.*`` parameters.
+    Validated on construction (raises :class:`ConfigError`, as
+    :class:`DetectorConfig`). The node and replay declare them as ``tracker.*``
+    parameters.
     """
 
     enabled: bool = _param(
@@ -576,8 +631,7 @@ def checked_value(name: str, kind: str, spec: ParamSpec, value: Any) -> Any:
 def parse_value(name: str, text: str) -> Any:
     """Convert the string form of a value (``--param k=v``) to the field's type."""
     specs = param_specs()
-    if name not in specs:
-        raise ConfigError(f"unknown parameter {name!r}")
+    check_names([name], DetectorConfig)
     kind = _field_type(specs[name][0])
     try:
         if kind is bool:
@@ -601,10 +655,7 @@ def from_mapping(
     values: Mapping[str, Any], base: DetectorConfig | TrackerConfig | None = None
 ) -> DetectorConfig | TrackerConfig:
     """Build a validated config from ``values`` over ``base`` (detector defaults if None)."""
-    specs = param_specs(DetectorConfig if base is None else type(base))
-    unknown = sorted(set(values) - set(specs))
-    if unknown:
-        raise ConfigError(f"unknown parameter(s): {', '.join(unknown)}")
+    check_names(values, DetectorConfig if base is None else type(base))
     return dataclasses.replace(base or DetectorConfig(), **values)
 
 

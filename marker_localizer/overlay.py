@@ -5,6 +5,7 @@ Shared by the CLI, the demo and the node's ``marker_overlay`` topic; needs only 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import cv2
@@ -20,12 +21,71 @@ _TRUTH_BGR = (255, 0, 255)
 _TRUTH_HALF_PX = 3.0
 #: Fixed-point bits for cv2 drawing, so sub-pixel centres are drawn where they are.
 _DRAW_SHIFT = 4
+#: Farthest from the frame a drawn line's end or a circle's radius may reach, px:
+#: cv2 takes 32-bit fixed-point coordinates (2**27 px at 4 fractional bits), a
+#: quarter of that leaves room for the frame and the rounding.
+_DRAWABLE_REACH_PX = float(1 << (31 - _DRAW_SHIFT - 2))
+#: Margin around the frame within which a drawn circle or line may still touch
+#: its pixels (antialiased lines spread a pixel), px.
+_VISIBLE_MARGIN_PX = 2.0
 
 
 def _fixed(point: np.ndarray) -> tuple[int, int]:
     scale = 1 << _DRAW_SHIFT
     # cv2 draws pixel centres at integers, like the package's convention.
     return round(float(point[0]) * scale), round(float(point[1]) * scale)
+
+
+def _shows(canvas: np.ndarray, x: float, y: float, reach_px: float) -> bool:
+    """Whether a drawing within ``reach_px`` of (x, y) can touch ``canvas``'s pixels."""
+    height, width = canvas.shape[:2]
+    reach = reach_px + _VISIBLE_MARGIN_PX
+    return -reach <= x <= width - 1 + reach and -reach <= y <= height - 1 + reach
+
+
+def _drawable(canvas: np.ndarray, d: Detection, index: int) -> bool:
+    """Whether detection ``index`` shows on ``canvas``: one off the frame draws nothing.
+
+    Raises:
+        ValueError: its centre, line angles or extent is a NaN or an infinity, its
+            extent is negative or beyond what OpenCV can draw: no drawing means it.
+    """
+    values = {name: getattr(d, name) for name in ("x", "y", "angle1", "angle2", "radius_px")}
+    bad = [f"{name}={float(value)!r}" for name, value in values.items() if not math.isfinite(value)]
+    if bad:
+        raise ValueError(
+            f"draw_detections: detection {index} has {', '.join(bad)}: its centre, "
+            "line angles and extent must be finite"
+        )
+    if not 0.0 <= d.radius_px <= _DRAWABLE_REACH_PX:
+        raise ValueError(
+            f"draw_detections: detection {index} has radius_px={float(d.radius_px)!r}: "
+            f"an extent in [0, {_DRAWABLE_REACH_PX:g}] px is drawn"
+        )
+    return _shows(canvas, d.x, d.y, d.radius_px)
+
+
+def _truth_points(canvas: np.ndarray, truth: np.ndarray | None) -> np.ndarray:
+    """``truth`` as (N, 2) float64, less the points off ``canvas`` (they draw nothing).
+
+    Raises:
+        ValueError: ``truth`` is not (N, 2), or a point holds a NaN or an infinity.
+    """
+    if truth is None:
+        return np.zeros((0, 2))
+    points = np.asarray(truth, np.float64)
+    if points.size == 0:
+        return np.zeros((0, 2))
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise ValueError(f"draw_detections: truth of shape {points.shape} is not (N, 2)")
+    bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
+    if len(bad):
+        raise ValueError(
+            f"draw_detections: truth row {bad[0]} is {tuple(points[bad[0]].tolist())}: "
+            "a true centre must be finite"
+        )
+    shown = [_shows(canvas, x, y, _TRUTH_HALF_PX) for x, y in points]
+    return points[np.array(shown, dtype=bool)]
 
 
 def to_bgr(pixels: np.ndarray, bit_depth: int = 16) -> np.ndarray:
@@ -65,11 +125,21 @@ def draw_detections(
             through each (sub-pixel) centre.
         bit_depth: significant bits of uint16 pixels (white at 2**bit_depth - 1).
 
+    A marker or true centre off the frame draws nothing, however far off.
+
     Returns:
         (H, W, 3) uint8 BGR image.
+
+    Raises:
+        ValueError: naming the first detection whose centre, line angle or extent is
+            a NaN or an infinity (or whose extent is negative), or the first row of
+            ``truth`` that is, or ``truth`` not (N, 2); checked before anything is
+            drawn.
     """
     canvas = to_bgr(pixels, bit_depth)
-    for d in detections:
+    truth_shown = _truth_points(canvas, truth)
+    shown = [d for index, d in enumerate(detections) if _drawable(canvas, d, index)]
+    for d in shown:
         centre = np.array([d.x, d.y])
         for angle in (d.angle1, d.angle2):
             reach = d.radius_px * np.array([np.cos(angle), np.sin(angle)])
@@ -91,7 +161,7 @@ def draw_detections(
             cv2.LINE_AA,
             _DRAW_SHIFT,
         )
-    for point in np.asarray(truth if truth is not None else np.zeros((0, 2))):
+    for point in truth_shown:
         # cv2.drawMarker's tilted cross of size 7, at the sub-pixel point (it rounds).
         for corner in ((_TRUTH_HALF_PX, _TRUTH_HALF_PX), (_TRUTH_HALF_PX, -_TRUTH_HALF_PX)):
             cv2.line(

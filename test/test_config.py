@@ -1,5 +1,7 @@
 """The typed configuration shared by library, CLI and node."""
 
+import inspect
+
 import numpy as np
 import pytest
 
@@ -42,6 +44,67 @@ def test_defaults_are_valid_and_every_field_documents_itself():
 def test_invalid_values_are_rejected_with_the_value_named(change, message):
     with pytest.raises(ConfigError, match=message):
         from_mapping(change)
+
+
+@pytest.mark.parametrize(
+    ("kind", "change", "message"),
+    [
+        (DetectorConfig, {"foo": 1}, r"^unknown parameter\(s\): foo$"),
+        (
+            TrackerConfig,
+            {"match": 1.0},
+            r"^unknown parameter\(s\): match \(did you mean match_px\?\)$",
+        ),
+        (DetectorConfig, {"bit_depth": "8"}, r"^bit_depth='8' must be of type int$"),
+        (TrackerConfig, {"max_missed_frames": 2.0}, "max_missed_frames=2.0 must be of type int"),
+        (DetectorConfig, {"bit_depth": 99}, r"^bit_depth=99 is outside \[8, 16\] bit$"),
+        (TrackerConfig, {"match_px": 0.0}, r"^match_px=0.0 is outside \[0.1, 50\] px$"),
+        (DetectorConfig, {"refinement": "magic"}, "^refinement='magic' must be one of symmetry, "),
+        (DetectorConfig, {"line_check": 1}, "^line_check=1 must be of type bool$"),
+        (DetectorConfig, {"marker_radius_min_px": 50.0}, "^marker_radius_min_px=50.0 is larger"),
+        # An unknown name is named first, whatever else is wrong.
+        (DetectorConfig, {"bit_depth": 99, "bogus": 1}, r"^unknown parameter\(s\): bogus$"),
+    ],
+)
+def test_the_constructor_and_replace_refuse_a_setting_with_the_same_config_error(
+    kind, change, message
+):
+    """``Config(**values)`` (a YAML file's, a ROS node's) is told what ``replace`` is told."""
+    with pytest.raises(ConfigError, match=message) as built:
+        kind(**change)
+    with pytest.raises(ConfigError) as replaced:
+        kind().replace(**change)
+    with pytest.raises(ConfigError) as mapped:
+        from_mapping(change, base=kind())
+    assert str(built.value) == str(replaced.value) == str(mapped.value)
+    assert isinstance(built.value, ValueError)
+
+
+def test_a_misspelt_setting_is_answered_with_the_name_it_is_likely_a_typo_of():
+    message = (
+        r"^unknown parameter\(s\): bogus, marker_radius_mn_px "
+        r"\(did you mean marker_radius_min_px\?\), min_scor \(did you mean min_score\?\)$"
+    )
+    for build in (DetectorConfig, DetectorConfig().replace, from_mapping):
+        with pytest.raises(ConfigError, match=message):
+            if build is from_mapping:
+                build({"min_scor": 0.5, "bogus": 1, "marker_radius_mn_px": 3.0})
+            else:
+                build(min_scor=0.5, bogus=1, marker_radius_mn_px=3.0)
+    with pytest.raises(ConfigError, match=r"min_scor \(did you mean min_score\?\)$"):
+        parse_value("min_scor", "0.5")
+
+
+def test_the_constructor_keeps_its_signature_and_takes_a_mapping_of_settings():
+    values = {"marker_radius_min_px": 6.0, "refinement": "ncc", "line_check": False}
+    assert DetectorConfig(**values) == from_mapping(values)
+    assert DetectorConfig(6.0, 30.0) == DetectorConfig().replace(
+        marker_radius_min_px=6.0, marker_radius_max_px=30.0
+    )
+    assert list(inspect.signature(DetectorConfig).parameters) == list(param_specs())
+    # A call of the wrong shape is any Python call's TypeError, not a setting's error.
+    with pytest.raises(TypeError, match="multiple values"):
+        DetectorConfig(4.0, marker_radius_min_px=3.0)
 
 
 def test_integers_are_accepted_for_float_fields():
@@ -126,6 +189,9 @@ def test_a_bad_value_in_a_params_file_names_the_file(tmp_path):
     path.write_text("marker_localizer:\n  ros__parameters:\n    detector:\n      bogus: 1\n")
     with pytest.raises(ConfigError, match=f"^{path}: unknown parameter\\(s\\): bogus$"):
         detector_config(path, [])
+    # Built straight from the file's values: the same error, not a bare TypeError.
+    with pytest.raises(ConfigError, match=r"^unknown parameter\(s\): bogus$"):
+        DetectorConfig(**load_params_file(path))
 
 
 def test_load_params_file_reads_the_tracker_section_as_the_node_declares_it(tmp_path):

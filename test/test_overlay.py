@@ -1,5 +1,7 @@
 """Annotated frames (overlay.py): drawn on an 8-bit copy, never on the caller's frame."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -44,3 +46,47 @@ def test_the_true_centres_cross_is_drawn_at_its_sub_pixel_position(centre):
     # It was rounded to the pixel: half a pixel off where the demo's errors are hundredths.
     drawn = draw_detections(np.zeros((24, 24), np.uint8), [], truth=np.array([centre]))
     np.testing.assert_allclose(_centroid(drawn[:, :, 0]), centre, atol=0.1)
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"x": np.nan},
+        {"y": np.inf},
+        {"x": -np.inf},
+        {"angle2": np.nan},
+        {"radius_px": np.nan},
+        {"radius_px": -1.0},
+    ],
+    ids=["x-nan", "y-inf", "x-minus-inf", "angle-nan", "radius-nan", "radius-negative"],
+)
+def test_a_detection_that_cannot_be_drawn_is_refused_with_its_index_and_value(change):
+    """Not a bare numpy or OpenCV error from deep inside the drawing, nor half a canvas."""
+    ((name, value),) = change.items()
+    bad = dataclasses.replace(MARKER, **change)
+    message = rf"detection 2 has {name}={value!r}"
+    with pytest.raises(ValueError, match=message):
+        draw_detections(np.zeros((16, 16), np.uint8), [MARKER, MARKER, bad])
+
+
+@pytest.mark.parametrize(
+    "change",
+    [{"x": 1e9}, {"y": -1e300}, {"x": -30.0, "radius_px": 20.0}],
+    ids=["far-right", "far-up", "just-off"],
+)
+def test_a_finite_detection_off_the_frame_draws_nothing_however_far_off(change):
+    frame = np.zeros((16, 16), np.uint8)
+    off = dataclasses.replace(MARKER, **change)
+    np.testing.assert_array_equal(
+        draw_detections(frame, [MARKER, off]), draw_detections(frame, [MARKER])
+    )
+
+
+def test_a_true_centre_that_is_not_finite_is_refused_with_its_row():
+    frame = np.zeros((16, 16), np.uint8)
+    with pytest.raises(ValueError, match=r"truth row 1 is \(nan, 3.0\)"):
+        draw_detections(frame, [MARKER], truth=np.array([[4.0, 4.0], [np.nan, 3.0]]))
+    with pytest.raises(ValueError, match=r"truth of shape \(2, 3\) is not \(N, 2\)"):
+        draw_detections(frame, [MARKER], truth=np.zeros((2, 3)))
+    far = draw_detections(frame, [], truth=np.array([[4.0, 4.0], [1e12, 3.0]]))
+    np.testing.assert_array_equal(far, draw_detections(frame, [], truth=np.array([[4.0, 4.0]])))

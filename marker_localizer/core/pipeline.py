@@ -39,8 +39,13 @@ class Detector:
     """Diagonal-marker detector; build once, call :meth:`detect` per frame.
 
     A detector keeps nothing from one call to the next: threads may share one (the
-    node's worker threads do), each call giving what it gives alone. Its stages are
-    built for :attr:`config`, which is read-only: other settings take a new detector.
+    node's worker threads do), each call giving what it gives alone: what its stages
+    cache across calls is sample grids by radius, which no call changes. It
+    pickles, so worker processes can take it
+    (``ProcessPoolExecutor().map(detector.detect, images)``, with the fork, spawn or
+    forkserver start method): the copy has the same :attr:`config` and gives the
+    same results. Its stages are built for
+    :attr:`config`, which is read-only: other settings take a new detector.
 
     Example:
         >>> import cv2, numpy as np

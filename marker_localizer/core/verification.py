@@ -2227,7 +2227,10 @@ def _recurrence_annulus(span: int, extent: float) -> NDArray[np.bool_]:
     """The offsets of a (2 span + 1)^2 map :data:`RECURRENCE_REACH` extents from its centre."""
     offset = np.hypot(*(np.mgrid[: 2 * span + 1, : 2 * span + 1] - span)) / extent
     near, far = RECURRENCE_REACH
-    return cast("NDArray[np.bool_]", (offset >= near) & (offset <= far))
+    annulus = (offset >= near) & (offset <= far)
+    # Shared by every caller through the cache (and every thread): read-only.
+    annulus.flags.writeable = False
+    return cast("NDArray[np.bool_]", annulus)
 
 
 #: Reach along each of an X's four half-lines, beyond its extent, where

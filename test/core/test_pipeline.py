@@ -6,9 +6,12 @@ template path have their own files (test_paper_path.py, test_template_path.py).
 
 import dataclasses
 import itertools
+import multiprocessing
+import pickle
 import threading
 import warnings
 from collections.abc import Iterable
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -376,24 +379,70 @@ def test_a_detectors_config_is_read_only_as_its_stages_keep_theirs():
     assert detector.config == DetectorConfig()
 
 
-def test_threads_sharing_one_detector_get_what_each_call_gives_alone():
+#: A detector on each of its paths: the default, the template decision, the paper's.
+PATHS = {
+    "default": DetectorConfig(),
+    "template": DetectorConfig(refinement="template"),
+    "curvature": DetectorConfig(candidate_detector="curvature"),
+}
+
+
+def _same_result(one, other) -> bool:
+    """Whether two results hold the same detections, counts and survivors, bit for bit."""
+    return (
+        np.array_equal(one.as_array(), other.as_array())
+        and one.counts == other.counts
+        and [name for name, _ in one.survivors] == [name for name, _ in other.survivors]
+        and all(
+            np.array_equal(a, b)
+            for (_, a), (_, b) in zip(one.survivors, other.survivors, strict=True)
+        )
+    )
+
+
+@pytest.mark.parametrize("config", PATHS.values(), ids=PATHS.keys())
+def test_threads_sharing_one_detector_get_what_each_call_gives_alone(config):
+    """Four threads, each on its own frame, at once and again and again: what each gives alone.
+
+    The detector's stages keep only what their config gives; the sample grids cached
+    across calls (``functools.lru_cache``, thread-safe) are only read.
+    """
     frames = [render_scene(SMALL_SCENE, seed).image for seed in (1, 2, 3, 4)]
-    detector = Detector()
+    detector = Detector(config)
+    together = threading.Barrier(len(frames))
+
+    def detect_again_and_again(k: int) -> list:
+        together.wait()
+        return [detector.detect(frames[k]) for _ in range(3)]
+
     alone = [detector.detect(frame) for frame in frames]
     assert sum(len(result) for result in alone) >= len(frames)
-    shared = [None] * len(frames)
+    with ThreadPoolExecutor(len(frames)) as pool:
+        shared = list(pool.map(detect_again_and_again, range(len(frames))))
+    for one, others in zip(alone, shared, strict=True):
+        assert all(_same_result(one, other) for other in others)
+    # Nor did the threads leave anything behind for the next call.
+    assert all(_same_result(one, detector.detect(f)) for f, one in zip(frames, alone, strict=True))
 
-    def detect_every_other(first: int) -> None:
-        for k in range(first, len(frames), 2):
-            shared[k] = detector.detect(frames[k])
 
-    threads = [threading.Thread(target=detect_every_other, args=(k,)) for k in (0, 1)]
-    for thread in threads:
-        thread.start()
-    for thread in threads:
-        thread.join()
-    for one, other in zip(alone, shared, strict=True):
-        assert np.array_equal(one.as_array(), other.as_array()) and one.counts == other.counts
+@pytest.mark.parametrize("method", ["fork", "spawn", "forkserver"])
+def test_a_detector_sent_to_worker_processes_detects_there_what_it_does_here(method):
+    """``ProcessPoolExecutor(...).map(detector.detect, frames)``: the detector is pickled."""
+    if method not in multiprocessing.get_all_start_methods():
+        pytest.skip(f"no {method} start method on this platform")
+    config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=20.0)
+    detector = Detector(config)
+    frames = [render_scene(SMALL_SCENE, seed).image for seed in (5, 6)]
+    here = [detector.detect(frame) for frame in frames]
+    assert sum(len(result) for result in here) >= len(frames)
+    copy = pickle.loads(pickle.dumps(detector))
+    assert type(copy) is Detector and copy.config == config
+    assert all(_same_result(copy.detect(f), one) for f, one in zip(frames, here, strict=True))
+    context = multiprocessing.get_context(method)
+    with ProcessPoolExecutor(len(frames), mp_context=context) as pool:
+        assert pool.submit(getattr, detector, "config").result() == config
+        there = list(pool.map(detector.detect, frames))
+    assert all(_same_result(one, other) for one, other in zip(here, there, strict=True))
 
 
 def _strip_across_an_x(height: int, width: int, seed: int) -> np.ndarray:
