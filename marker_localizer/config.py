@@ -549,6 +549,10 @@ def _as_kind(value: Any, kind: str) -> Any:
     return value if isinstance(value, _VALUE_TYPES[kind]) else None
 
 
+#: How errors name a value type whose Python name would puzzle a user (a ROS string array).
+_KIND_TEXT = {"tuple[str, ...]": "list of strings"}
+
+
 def checked_value(name: str, kind: str, spec: ParamSpec, value: Any) -> Any:
     """``value`` of setting ``name`` as its plain Python type, once its type and range hold.
 
@@ -562,14 +566,15 @@ def checked_value(name: str, kind: str, spec: ParamSpec, value: Any) -> Any:
         ConfigError: ``value`` is not of ``kind``, not one of the choices, or out of range.
     """
     checked = _as_kind(value, kind)
-    if checked is None:
-        raise ConfigError(f"{name}={value!r} must be of type {kind}")
     if spec.choices and checked not in spec.choices:
-        raise ConfigError(f"{name}={checked!r} must be one of {', '.join(spec.choices)}")
-    if spec.low is not None and spec.high is not None and not spec.low <= checked <= spec.high:
-        raise ConfigError(
-            f"{name}={checked!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}".rstrip()
-        )
+        raise ConfigError(f"{name}={value!r} must be one of {', '.join(spec.choices)}")
+    low, high = spec.low, spec.high
+    allowed = "" if low is None or high is None else f"[{low:g}, {high:g}] {spec.unit}".rstrip()
+    if checked is None:
+        within = f" in {allowed}" if allowed else ""
+        raise ConfigError(f"{name}={value!r} must be of type {_KIND_TEXT.get(kind, kind)}{within}")
+    if low is not None and high is not None and not low <= checked <= high:
+        raise ConfigError(f"{name}={checked!r} is outside {allowed}")
     return checked
 
 

@@ -41,6 +41,7 @@ from typing import Any
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.impl.implementation_singleton import rclpy_implementation
@@ -111,7 +112,11 @@ class MarkerLocalizerNode(Node):
         processor_class: type[FrameProcessor] = FrameProcessor,
         **kwargs: Any,
     ) -> None:
-        super().__init__(node_name, **kwargs)
+        try:
+            super().__init__(node_name, **kwargs)
+        except (InvalidParameterTypeException, InvalidParameterValueException) as err:
+            # A start value of a parameter rclpy declares itself (use_sim_time:=1).
+            raise ConfigError(str(err)) from err
         self._live = LiveParameters(self, self._on_parameters)
         settings = self._live.node_config
         suffix, image_type = IMAGE_TRANSPORTS[settings.image_transport]
