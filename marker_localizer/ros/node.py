@@ -30,6 +30,7 @@ camera's mailbox; worker threads do the rest.
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 import threading
 import time
@@ -154,7 +155,8 @@ class MarkerLocalizerNode(Node):
                 image_type,
                 self._image_topic(camera, suffix),
                 partial(self._on_image, camera),
-                _IMAGE_QOS,
+                # A copy: rclpy writes a camera's QoS overrides into the profile it is given.
+                copy.copy(_IMAGE_QOS),
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             )
             self.create_subscription(

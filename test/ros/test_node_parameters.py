@@ -24,6 +24,7 @@ from rcl_interfaces.srv import (
     SetParameters,
 )
 from rclpy.parameter import Parameter
+from rclpy.qos import ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
 
 from marker_localizer.cli import main as cli_main
@@ -297,6 +298,32 @@ def _workers():
     """The worker processes and threads of every node of this process."""
     threads = {t for t in threading.enumerate() if t.name.startswith("marker_worker_")}
     return set(multiprocessing.active_children()) | threads
+
+
+def test_a_qos_override_applies_to_its_camera_alone_in_any_case(ros):
+    """rclpy wrote the override into the profile it was given, which the cameras after shared."""
+    overrides = [
+        Parameter("cameras", value=["cam0", "cam1", "cam2"]),
+        Parameter(
+            "qos_overrides./qos/cam1/image_raw.subscription.reliability", value="Best_Effort"
+        ),
+        Parameter("worker_processes", value=False),
+    ]
+    node = MarkerLocalizerNode("typed", namespace="/qos", parameter_overrides=overrides)
+    try:
+        reliability = {
+            camera: node.get_subscriptions_info_by_topic(f"/qos/{camera}/image_raw")[
+                0
+            ].qos_profile.reliability
+            for camera in ("cam0", "cam1", "cam2")
+        }
+        assert reliability == {
+            "cam0": ReliabilityPolicy.RELIABLE,
+            "cam1": ReliabilityPolicy.BEST_EFFORT,
+            "cam2": ReliabilityPolicy.RELIABLE,
+        }
+    finally:
+        node.destroy_node()
 
 
 PARAMS_FOR = """\
