@@ -54,6 +54,17 @@ class ParamSpec:
     high: float | None = None
     choices: tuple[str, ...] = ()
 
+    def range_text(self) -> str:
+        """``[low, high]``, each in full (``1073741824``, not ``1.07374e+09``); "" if unbounded."""
+        if self.low is None or self.high is None:
+            return ""
+        return f"[{self.low:.{_RANGE_DIGITS}g}, {self.high:.{_RANGE_DIGITS}g}]"
+
+
+#: Significant digits of a range's bounds as errors and the parameter file write them:
+#: enough for 2**30, where ``:g``'s six round it.
+_RANGE_DIGITS = 12
+
 
 def _param(
     default: Any,
@@ -568,12 +579,12 @@ def checked_value(name: str, kind: str, spec: ParamSpec, value: Any) -> Any:
     checked = _as_kind(value, kind)
     if spec.choices and checked not in spec.choices:
         raise ConfigError(f"{name}={value!r} must be one of {', '.join(spec.choices)}")
-    low, high = spec.low, spec.high
-    allowed = "" if low is None or high is None else f"[{low:g}, {high:g}] {spec.unit}".rstrip()
+    bounds = spec.range_text()
+    allowed = f"{bounds} {spec.unit}".rstrip() if bounds else ""
     if checked is None:
         within = f" in {allowed}" if allowed else ""
         raise ConfigError(f"{name}={value!r} must be of type {_KIND_TEXT.get(kind, kind)}{within}")
-    if low is not None and high is not None and not low <= checked <= high:
+    if spec.low is not None and spec.high is not None and not spec.low <= checked <= spec.high:
         raise ConfigError(f"{name}={checked!r} is outside {allowed}")
     return checked
 

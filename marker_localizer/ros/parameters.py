@@ -501,8 +501,8 @@ def _yaml_entry(indent: int, name: str, spec: ParamSpec, value: Any, read_only: 
     notes = [spec.description]
     if spec.unit:
         notes.append(f"Unit: {spec.unit}.")
-    if spec.low is not None and spec.high is not None:
-        notes.append(f"Range: [{spec.low:g}, {spec.high:g}].")
+    if bounds := spec.range_text():
+        notes.append(f"Range: {bounds}.")
     if spec.choices:
         notes.append(f"One of: {', '.join(spec.choices)}.")
     if read_only:

@@ -230,6 +230,8 @@ def test_node_and_cli_refuse_an_unknown_detector_key_and_name_it(ros, tmp_path, 
             r"marker_radius_min_px='five' must be of type float in \[1.5, 1000\] px$",
         ),
         ("detector.refinement", 1, r"refinement=1 must be one of symmetry, ncc, template$"),
+        # The bound in full, not as :g's 1.07374e+09.
+        ("detector.max_pixels", 2**31, r"max_pixels=2147483648 is outside \[1, 1073741824\] px$"),
         ("max_frame_age_s", True, "max_frame_age_s=True must be of type float"),
         # Declared with it, the parameter was an integer one that refused false later.
         ("publish_overlay", 1, "publish_overlay=1 must be of type bool"),
