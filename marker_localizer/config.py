@@ -56,6 +56,17 @@ class ParamSpec:
     high: float | None = None
     choices: tuple[str, ...] = ()
 
+    def range_text(self) -> str:
+        """``[low, high]``, each in full (``1073741824``, not ``1.07374e+09``); "" if unbounded."""
+        if self.low is None or self.high is None:
+            return ""
+        return f"[{self.low:.{_RANGE_DIGITS}g}, {self.high:.{_RANGE_DIGITS}g}]"
+
+
+#: Significant digits of a range's bounds as errors and the parameter file write them:
+#: enough for 2**30, where ``:g``'s six round it.
+_RANGE_DIGITS = 12
+
 
 def _param(
     default: Any,
@@ -604,6 +615,10 @@ def _as_kind(value: Any, kind: str) -> Any:
     return value if isinstance(value, _VALUE_TYPES[kind]) else None
 
 
+#: How errors name a value type whose Python name would puzzle a user (a ROS string array).
+_KIND_TEXT = {"tuple[str, ...]": "list of strings"}
+
+
 def checked_value(name: str, kind: str, spec: ParamSpec, value: Any) -> Any:
     """``value`` of setting ``name`` as its plain Python type, once its type and range hold.
 
@@ -617,14 +632,15 @@ def checked_value(name: str, kind: str, spec: ParamSpec, value: Any) -> Any:
         ConfigError: ``value`` is not of ``kind``, not one of the choices, or out of range.
     """
     checked = _as_kind(value, kind)
-    if checked is None:
-        raise ConfigError(f"{name}={value!r} must be of type {kind}")
     if spec.choices and checked not in spec.choices:
-        raise ConfigError(f"{name}={checked!r} must be one of {', '.join(spec.choices)}")
+        raise ConfigError(f"{name}={value!r} must be one of {', '.join(spec.choices)}")
+    bounds = spec.range_text()
+    allowed = f"{bounds} {spec.unit}".rstrip() if bounds else ""
+    if checked is None:
+        within = f" in {allowed}" if allowed else ""
+        raise ConfigError(f"{name}={value!r} must be of type {_KIND_TEXT.get(kind, kind)}{within}")
     if spec.low is not None and spec.high is not None and not spec.low <= checked <= spec.high:
-        raise ConfigError(
-            f"{name}={checked!r} is outside [{spec.low:g}, {spec.high:g}] {spec.unit}".rstrip()
-        )
+        raise ConfigError(f"{name}={checked!r} is outside {allowed}")
     return checked
 
 

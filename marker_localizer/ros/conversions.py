@@ -26,6 +26,7 @@ shown); which line comes first is not fixed. An empty cloud keeps the fields.
 from __future__ import annotations
 
 import array
+import re
 import sys
 from collections.abc import Iterable, Sequence
 from typing import Literal, cast
@@ -418,10 +419,22 @@ def cloud_to_array(cloud: PointCloud2) -> np.ndarray:
     return packed.view(dtype).reshape(n_points)
 
 
+#: sensor_msgs' generic OpenCV types (``8UC1``, ``16UC1``, ``32FC1``, ``8UC3``...): arrays
+#: whose values say nothing of grey or colour (depth images, most often), which
+#: cv_bridge converts to no mono encoding either. The refusal says so.
+_GENERIC_ENCODING = re.compile(r"(8U|8S|16U|16S|32S|32F|64F)C[0-9]+")
+
+
 def unsupported_encoding(encoding: str) -> ImageError:
     """The error of an image whose ``encoding`` is not one of :data:`ENCODINGS`."""
+    reason = (
+        ": a generic type, whose values may be anything (depth, most often); a camera's "
+        "grey is mono8 or mono16"
+        if _GENERIC_ENCODING.fullmatch(encoding)
+        else ""
+    )
     return ImageError(
-        f"unsupported encoding {shorten(repr(encoding))} (expected one of {ENCODINGS_TEXT})"
+        f"unsupported encoding {shorten(repr(encoding))}{reason} (expected one of {ENCODINGS_TEXT})"
     )
 
 

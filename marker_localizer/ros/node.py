@@ -30,6 +30,7 @@ camera's mailbox; worker threads do the rest.
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 import threading
 import time
@@ -41,6 +42,7 @@ from typing import Any
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.impl.implementation_singleton import rclpy_implementation
@@ -111,7 +113,11 @@ class MarkerLocalizerNode(Node):
         processor_class: type[FrameProcessor] = FrameProcessor,
         **kwargs: Any,
     ) -> None:
-        super().__init__(node_name, **kwargs)
+        try:
+            super().__init__(node_name, **kwargs)
+        except (InvalidParameterTypeException, InvalidParameterValueException) as err:
+            # A start value of a parameter rclpy declares itself (use_sim_time:=1).
+            raise ConfigError(str(err)) from err
         self._live = LiveParameters(self, self._on_parameters)
         settings = self._live.node_config
         suffix, image_type = IMAGE_TRANSPORTS[settings.image_transport]
@@ -149,7 +155,8 @@ class MarkerLocalizerNode(Node):
                 image_type,
                 self._image_topic(camera, suffix),
                 partial(self._on_image, camera),
-                _IMAGE_QOS,
+                # A copy: rclpy writes a camera's QoS overrides into the profile it is given.
+                copy.copy(_IMAGE_QOS),
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             )
             self.create_subscription(

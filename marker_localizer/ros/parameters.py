@@ -11,6 +11,11 @@ Three configurations back the node's parameters, none written twice:
   ``workers``, ``worker_processes``, ``diagnostics_period_s`` and ``stats_window_s``
   are structural and read-only.
 
+Start values (``-p``, ``--params-file``) are checked as :class:`LiveParameters`
+declares them, before the node starts its workers: types, ranges, unknown
+``detector.*`` and ``tracker.*`` names, and the QoS overrides of the image
+subscriptions, which rclpy itself reads only as it subscribes.
+
 :class:`LiveParameters` validates a change in the on-set callback by building
 the new configurations (a :class:`ConfigError` rejects it with its text as the
 reason, so cross-field rules such as ``marker_radius_min_px <=
@@ -25,10 +30,11 @@ bounds) atomically.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import re
 import sys
 import textwrap
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,6 +47,7 @@ from rcl_interfaces.msg import (
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, ReliabilityPolicy
 
 from marker_localizer.config import (
     DETECTOR_NAMESPACE,
@@ -64,6 +71,14 @@ _NAMESPACES: dict[type[DetectorConfig] | type[TrackerConfig], str] = {
     DetectorConfig: DETECTOR_NAMESPACE,
     TrackerConfig: TRACKER_NAMESPACE,
 }
+#: The start values of the QoS overrides an image subscription reads
+#: (``qos_overrides.<topic>.subscription.<policy>``, rclpy's default policies) that name
+#: a setting, and the names rclpy takes, in any case. ``depth`` is a count.
+_QOS_POLICY_NAMES: dict[str, tuple[str, ...]] = {
+    policy: tuple(m.name.lower() for m in kind if m.name != "UNKNOWN")
+    for policy, kind in (("history", HistoryPolicy), ("reliability", ReliabilityPolicy))
+}
+_QOS_OVERRIDES = "qos_overrides."
 
 
 def _node_param(
@@ -255,6 +270,44 @@ def _overrides(node: Node) -> dict[str, Parameter]:
     return dict(getattr(node, "_parameter_overrides", {}))
 
 
+def _start_value(override: Parameter) -> Any:
+    """An override's value; ``[]`` where it has none (rcl reads an empty YAML list so)."""
+    return [] if override.type_ == Parameter.Type.NOT_SET else override.value
+
+
+def _guessed(name: str, known: Iterable[str], prefix: str = "") -> str:
+    """``name``, followed by the parameter it is likely a typo of, where one is close.
+
+    Args:
+        name: the unknown name.
+        known: the names it may be a typo of, without ``prefix``.
+        prefix: the namespace both are under (``detector.``), which is no likeness.
+    """
+    close = difflib.get_close_matches(name.removeprefix(prefix), list(known), n=1)
+    return f"{name} (did you mean {prefix}{close[0]}?)" if close else name
+
+
+def _check_qos_overrides(overrides: Mapping[str, Parameter]) -> None:
+    """Refuse a QoS override of a subscription that rclpy could not read.
+
+    rclpy reads them as it creates a subscription, after the workers started, and
+    fails with a traceback: a name it does not know (``best-effort``), a value of
+    another type, ``unknown`` or a negative depth (an RCLError from rcl).
+
+    Raises:
+        ConfigError: naming the parameter, its value and what it takes.
+    """
+    for name, override in overrides.items():
+        if not name.startswith(_QOS_OVERRIDES):
+            continue
+        policy, value = name.rpartition(".")[2], _start_value(override)
+        choices = _QOS_POLICY_NAMES.get(policy)
+        if choices is not None and not (isinstance(value, str) and value.lower() in choices):
+            raise ConfigError(f"{name}={value!r} must be one of {', '.join(choices)}")
+        if policy == "depth" and not (type(value) is int and value >= 0):
+            raise ConfigError(f"{name}={value!r} must be an integer >= 0")
+
+
 def _declare(
     node: Node,
     name: str,
@@ -276,7 +329,7 @@ def _declare(
     described = descriptor(name, f.metadata["spec"], kind, read_only=read_only)
     start = default
     if name in overrides:
-        start = checked_value(name, kind, f.metadata["spec"], overrides[name].value)
+        start = checked_value(name, kind, f.metadata["spec"], _start_value(overrides[name]))
         if start == ():
             raise ConfigError(f"{name}=[] must list at least one value")
     # rclpy infers STRING_ARRAY from a list, not from a tuple.
@@ -317,14 +370,18 @@ class LiveParameters:
                 {full: field_kind(param_specs(kind)[name][0]) for full, name in names.items()}
             )
         overrides = _overrides(node)
+        # A value for the namespace itself (``detector: 5``) is refused too, unguessed.
         unknown = sorted(
-            name
+            _guessed(name, self._names[kind].values(), f"{namespace}.")
+            if name != namespace
+            else name
             for name in overrides
             for kind, namespace in _NAMESPACES.items()
-            if name.startswith(f"{namespace}.") and name not in self._names[kind]
+            if name.partition(".")[0] == namespace and name not in self._names[kind]
         )
         if unknown:
             raise ConfigError(f"unknown parameter(s): {', '.join(unknown)}")
+        _check_qos_overrides(overrides)
         try:
             node_values = {
                 name: _declare(node, name, f, f.default, overrides)
@@ -349,8 +406,13 @@ class LiveParameters:
         node.add_post_set_parameters_callback(self._apply)
 
     def unknown(self, node: Node) -> list[str]:
-        """Start values given for parameters the node never declared (typos, other nodes')."""
-        return sorted(name for name in _overrides(node) if not node.has_parameter(name))
+        """Start values given for parameters the node never declared (typos, other nodes').
+
+        Each is named with the parameter it is likely a typo of, where one is close.
+        """
+        return sorted(
+            _guessed(name, self._kinds) for name in _overrides(node) if not node.has_parameter(name)
+        )
 
     def _coerce(self, parameters: list[Parameter]) -> list[Parameter]:
         """Integers set on double parameters become doubles (``ros2 param set ... 4``).
@@ -439,8 +501,8 @@ def _yaml_entry(indent: int, name: str, spec: ParamSpec, value: Any, read_only: 
     notes = [spec.description]
     if spec.unit:
         notes.append(f"Unit: {spec.unit}.")
-    if spec.low is not None and spec.high is not None:
-        notes.append(f"Range: [{spec.low:g}, {spec.high:g}].")
+    if bounds := spec.range_text():
+        notes.append(f"Range: {bounds}.")
     if spec.choices:
         notes.append(f"One of: {', '.join(spec.choices)}.")
     if read_only:

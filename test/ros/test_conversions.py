@@ -182,6 +182,18 @@ def test_image_to_array_raises_naming_the_problem(change, match):
         image_to_array(msg)
 
 
+@pytest.mark.parametrize("encoding", ["8UC1", "16UC1", "8UC3", "32FC1"])
+def test_a_generic_opencv_type_is_refused_saying_why_and_naming_the_grey_ones(encoding):
+    """Its bytes could be read, but not as grey: a 16UC1 frame is a depth image, most often."""
+    msg = array_to_image(pixels_for("mono8"), "mono8", HEADER)
+    msg.encoding = encoding
+    with pytest.raises(ImageError, match=rf"^unsupported encoding '{encoding}': a generic type, "):
+        image_to_detector_input(msg)
+    msg.encoding = "mono 8"
+    with pytest.raises(ImageError, match=r"^unsupported encoding 'mono 8' \(expected one of mono"):
+        image_to_detector_input(msg)
+
+
 def test_an_image_over_max_pixels_is_refused_from_its_width_and_height_alone():
     msg = array_to_image(pixels_for("mono8"), "mono8", HEADER)
     msg.height, msg.width, msg.step = 30000, 30000, 30000  # data is still 35 B

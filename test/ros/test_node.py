@@ -14,6 +14,7 @@ from node_testing import (
     level_of,
     points_xy,
     scene,
+    serving,
     values_of,
     wait_until,
     x_marker_64,
@@ -23,6 +24,7 @@ from rclpy.qos import ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
+from marker_localizer.ros import node as node_module
 from marker_localizer.ros.conversions import BAYER_ENCODINGS
 from marker_localizer.ros.diagnostics import OK, WARN
 from marker_localizer.ros.node import MarkerLocalizerNode
@@ -88,6 +90,30 @@ def test_node_reads_colour_16_bit_yuv_and_raw_bayer_frames(localizer, tester, en
     # Demosaicing weighs the channels differently at each pixel of a Bayer cell.
     tolerance_px = 0.03 if encoding in BAYER_ENCODINGS else 1e-3
     np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=tolerance_px)
+
+
+def test_frames_of_a_refused_encoding_are_each_counted_and_logged_in_one_line(
+    ros, capfd, monkeypatch
+):
+    """A driver publishing depth (16UC1), then other encodings the node cannot read as grey.
+
+    Every frame is an error of its camera; the log says why once, not once a frame
+    (the throttle's window made to span the test however slow the machine).
+    """
+    monkeypatch.setattr(node_module, "_CAMERA_LOG_PERIOD_S", 3600.0)
+    encodings = ["16UC1", "8UC1", "8UC3", "32FC1", "bogus"] * 2
+    with serving("refused", {"cameras": ["cam0"], "worker_processes": False}) as (node, peer):
+        capfd.readouterr()
+        for sent, encoding in enumerate(encodings, 1):
+            frame = peer.frame(x_marker_64())
+            frame.encoding = encoding
+            peer.publish("cam0/image_raw", frame)
+            wait_until(lambda n=sent: node.processor.snapshots()["cam0"].errors == n, "a refusal")
+        snapshot = node.processor.snapshots()["cam0"]
+        assert (snapshot.processed, snapshot.errors) == (0, len(encodings))
+        assert "unsupported encoding 'bogus' (expected one of mono" in snapshot.last_error
+    (logged,) = [line for line in capfd.readouterr().err.splitlines() if "cam0: frame" in line]
+    assert "cam0: frame rejected: unsupported encoding '16UC1': a generic type" in logged
 
 
 def test_with_compressed_transport_each_camera_reads_jpeg_and_counts_undecodable_data(ros):

@@ -1,10 +1,17 @@
 """The node's parameters: live changes, validation, descriptors, the params file."""
 
+import multiprocessing
+import re
+import subprocess
+import sys
+import threading
+
 import pytest
 import yaml
 from node_testing import (
     PARAMS_FILE,
     REPO,
+    TIMEOUT_S,
     holding,
     serving,
     wait_until,
@@ -17,6 +24,7 @@ from rcl_interfaces.srv import (
     SetParameters,
 )
 from rclpy.parameter import Parameter
+from rclpy.qos import ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
 
 from marker_localizer.cli import main as cli_main
@@ -178,7 +186,10 @@ def test_a_params_file_keyed_for_any_node_applies_under_a_namespace_and_another_
         assert (config.marker_radius_min_px, config.marker_radius_max_px) == (5.0, 30.0)
         assert node.get_parameter("detector.marker_radius_min_px").value == 5.0
         # A key no parameter has is named, not silently dropped.
-        assert "ignoring unknown parameter(s): max_frame_age" in capfd.readouterr().err
+        assert (
+            "ignoring unknown parameter(s): max_frame_age (did you mean max_frame_age_s?)"
+            in capfd.readouterr().err
+        )
     finally:
         node.destroy_node()
     assert (
@@ -193,7 +204,9 @@ def test_node_and_cli_refuse_an_unknown_detector_key_and_name_it(ros, tmp_path, 
     path = tmp_path / "params.yaml"
     path.write_text(PARAMS_ANY_NODE.replace("marker_radius_max_px", "marker_radius_maximum_px"))
     with pytest.raises(
-        ConfigError, match=r"unknown parameter\(s\): detector.marker_radius_maximum_px$"
+        ConfigError,
+        match=r"unknown parameter\(s\): detector.marker_radius_maximum_px "
+        r"\(did you mean detector.marker_radius_max_px\?\)$",
     ):
         MarkerLocalizerNode("typo", cli_args=["--ros-args", "--params-file", str(path)])
     assert (
@@ -206,21 +219,192 @@ def test_node_and_cli_refuse_an_unknown_detector_key_and_name_it(ros, tmp_path, 
     ("name", "value", "message"),
     [
         # A string for the camera list read as five cameras, f, r, o, n, t.
-        ("cameras", "front", r"cameras='front' must be of type tuple\[str, \.\.\.\]"),
+        ("cameras", "front", r"cameras='front' must be of type list of strings$"),
         ("cameras", [], r"cameras=\[\] must list at least one value"),
-        ("workers", "two", "workers='two' must be of type int"),
-        ("workers", 2.0, "workers=2.0 must be of type int"),
+        ("workers", "two", r"workers='two' must be of type int in \[1, 64\]$"),
+        ("workers", 2.0, r"workers=2.0 must be of type int in \[1, 64\]$"),
         ("workers", 0, r"workers=0 is outside \[1, 64\]"),
+        (
+            "detector.marker_radius_min_px",
+            "five",
+            r"marker_radius_min_px='five' must be of type float in \[1.5, 1000\] px$",
+        ),
+        ("detector.refinement", 1, r"refinement=1 must be one of symmetry, ncc, template$"),
+        # The bound in full, not as :g's 1.07374e+09.
+        ("detector.max_pixels", 2**31, r"max_pixels=2147483648 is outside \[1, 1073741824\] px$"),
         ("max_frame_age_s", True, "max_frame_age_s=True must be of type float"),
         # Declared with it, the parameter was an integer one that refused false later.
         ("publish_overlay", 1, "publish_overlay=1 must be of type bool"),
         ("detector.line_check", "no", "detector.line_check='no' must be of type bool"),
         ("tracker.bogus", 1, r"unknown parameter\(s\): tracker.bogus$"),
+        (
+            "tracker.match",
+            1.0,
+            r"unknown parameter\(s\): tracker.match \(did you mean tracker.match_px\?\)$",
+        ),
+        # The namespace itself given a value, as a YAML file that lost its indentation does.
+        ("detector", 5, r"unknown parameter\(s\): detector$"),
+        # A parameter rclpy declares itself, before the node's own.
+        ("use_sim_time", 1, r"'use_sim_time' to '1' of type 'INTEGER', expecting type 'BOOL'"),
     ],
 )
 def test_a_start_value_of_the_wrong_type_or_range_is_refused_naming_it(ros, name, value, message):
     with pytest.raises(ConfigError, match=message):
         MarkerLocalizerNode("typed", parameter_overrides=[Parameter(name, value=value)])
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        # rcl reads an empty list as a parameter of no type, no value.
+        (["-p", "cameras:=[]"], r"^cameras=\[\] must list at least one value$"),
+        (
+            ["-p", "detector.marker_radius_min_px:=[]"],
+            r"^detector.marker_radius_min_px=\[\] must be of type float in \[1.5, 1000\] px$",
+        ),
+    ],
+)
+def test_an_empty_list_on_the_command_line_is_named_as_given(ros, arguments, message):
+    with pytest.raises(ConfigError, match=message):
+        MarkerLocalizerNode("empty", cli_args=["--ros-args", *arguments])
+
+
+@pytest.mark.parametrize(
+    ("policy", "value", "message"),
+    [
+        (
+            "reliability",
+            "best-effort",
+            r"reliability='best-effort' must be one of system_default, reliable, best_effort",
+        ),
+        ("reliability", "unknown", r"reliability='unknown' must be one of"),
+        ("reliability", 1, r"reliability=1 must be one of"),
+        ("history", "keep-last", r"history='keep-last' must be one of system_default, keep_last"),
+        ("depth", -1, r"depth=-1 must be an integer >= 0$"),
+        ("depth", "1", r"depth='1' must be an integer >= 0$"),
+    ],
+)
+def test_a_qos_override_rclpy_cannot_read_is_refused_naming_it_before_the_workers_start(
+    ros, policy, value, message
+):
+    """rclpy reads them as it subscribes, after the workers start, and raised a traceback."""
+    subscription = "qos_overrides./qos/cam0/image_raw.subscription."
+    overrides = [Parameter(subscription + policy, value=value)]
+    workers_before = _workers()
+    with pytest.raises(ConfigError, match=f"^{re.escape(subscription)}{message}"):
+        MarkerLocalizerNode("typed", namespace="/qos", parameter_overrides=overrides)
+    assert _workers() <= workers_before  # other modules' nodes may still be stopping theirs
+
+
+def _workers():
+    """The worker processes and threads of every node of this process."""
+    threads = {t for t in threading.enumerate() if t.name.startswith("marker_worker_")}
+    return set(multiprocessing.active_children()) | threads
+
+
+def test_a_qos_override_applies_to_its_camera_alone_in_any_case(ros):
+    """rclpy wrote the override into the profile it was given, which the cameras after shared."""
+    overrides = [
+        Parameter("cameras", value=["cam0", "cam1", "cam2"]),
+        Parameter(
+            "qos_overrides./qos/cam1/image_raw.subscription.reliability", value="Best_Effort"
+        ),
+        Parameter("worker_processes", value=False),
+    ]
+    node = MarkerLocalizerNode("typed", namespace="/qos", parameter_overrides=overrides)
+    try:
+        reliability = {
+            camera: node.get_subscriptions_info_by_topic(f"/qos/{camera}/image_raw")[
+                0
+            ].qos_profile.reliability
+            for camera in ("cam0", "cam1", "cam2")
+        }
+        assert reliability == {
+            "cam0": ReliabilityPolicy.RELIABLE,
+            "cam1": ReliabilityPolicy.BEST_EFFORT,
+            "cam2": ReliabilityPolicy.RELIABLE,
+        }
+    finally:
+        node.destroy_node()
+
+
+PARAMS_FOR = """\
+{key}:
+  ros__parameters:
+    worker_processes: false
+    detector:
+      marker_radius_max_px: 30
+"""
+
+
+@pytest.mark.parametrize(
+    ("key", "namespace", "radius_max_px"),
+    [
+        ("marker_localizer", "/", 30.0),
+        # A name without its namespace is the root namespace's node, as rcl reads it.
+        ("marker_localizer", "/uav1", 40.0),
+        ("/uav1/marker_localizer", "/uav1", 30.0),
+        ("/**/marker_localizer", "/uav1", 30.0),
+        ("/uav1/*", "/uav1", 30.0),
+        ("/uav2/marker_localizer", "/uav1", 40.0),  # another namespace's node: the default
+    ],
+)
+def test_a_params_file_keyed_by_the_nodes_name_or_namespace_applies_to_it_alone(
+    ros, tmp_path, key, namespace, radius_max_px
+):
+    path = tmp_path / "params.yaml"
+    path.write_text(PARAMS_FOR.format(key=key))
+    node = MarkerLocalizerNode(
+        namespace=namespace,
+        cli_args=["--ros-args", "--params-file", str(path), "-p", "worker_processes:=false"],
+    )
+    try:
+        assert node.processor.config.marker_radius_max_px == radius_max_px
+    finally:
+        node.destroy_node()
+
+
+def test_a_value_given_with_p_after_the_params_file_wins(ros, tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text(PARAMS_FOR.format(key="/**"))
+    arguments = ["--params-file", str(path), "-p", "detector.marker_radius_max_px:=35"]
+    node = MarkerLocalizerNode("later", cli_args=["--ros-args", *arguments])
+    try:
+        assert node.processor.config.marker_radius_max_px == 35.0
+        assert node.get_parameter("detector.marker_radius_max_px").value == 35.0
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize(
+    ("parameters", "message"),
+    [
+        (
+            "qos_overrides:\n      /cam0/image_raw:\n        subscription:\n"
+            "          reliability: best-effort",
+            "qos_overrides./cam0/image_raw.subscription.reliability='best-effort' must be one of",
+        ),
+        ("use_sim_time: 1", "Trying to set parameter 'use_sim_time' to '1' of type 'INTEGER'"),
+        (
+            "detector:\n      marker_radius_min_px: five",
+            "detector.marker_radius_min_px='five' must be of type float in [1.5, 1000] px",
+        ),
+    ],
+    ids=["qos-override", "rclpy-parameter", "detector-setting"],
+)
+def test_node_process_refuses_a_bad_params_file_value_in_one_line(tmp_path, parameters, message):
+    path = tmp_path / "params.yaml"
+    path.write_text(f"/**:\n  ros__parameters:\n    {parameters}\n")
+    result = subprocess.run(
+        [sys.executable, "-m", "marker_localizer.node", "--ros-args", "--params-file", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+        check=False,
+    )
+    assert result.returncode == 1
+    (line,) = result.stderr.splitlines()
+    assert f"invalid configuration: {message}" in line
 
 
 def test_a_start_value_of_a_double_may_be_an_integer(ros):
