@@ -93,13 +93,19 @@ def check_names(names: Iterable[Any], kind: type) -> None:
     known = [f.name for f in dataclasses.fields(kind)]
     unknown = sorted({str(name) for name in names} - set(known))
     if unknown:
-        raise ConfigError(f"unknown parameter(s): {', '.join(_guessed(n, known) for n in unknown)}")
+        raise ConfigError(f"unknown parameter(s): {', '.join(guessed(n, known) for n in unknown)}")
 
 
-def _guessed(name: str, known: list[str]) -> str:
-    """``name``, followed by the field it is likely a typo of, where one is close."""
-    close = difflib.get_close_matches(name, known, n=1)
-    return f"{name} (did you mean {close[0]}?)" if close else name
+def guessed(name: str, known: Iterable[str], prefix: str = "") -> str:
+    """``name``, followed by the setting it is likely a typo of, where one is close.
+
+    Args:
+        name: the unknown name.
+        known: the names it may be a typo of, without ``prefix``.
+        prefix: the namespace both are under (``detector.``), which is no likeness.
+    """
+    close = difflib.get_close_matches(name.removeprefix(prefix), list(known), n=1)
+    return f"{name} (did you mean {prefix}{close[0]}?)" if close else name
 
 
 _Dataclass = TypeVar("_Dataclass")

@@ -55,7 +55,11 @@ def test_invalid_values_are_rejected_with_the_value_named(change, message):
             {"match": 1.0},
             r"^unknown parameter\(s\): match \(did you mean match_px\?\)$",
         ),
-        (DetectorConfig, {"bit_depth": "8"}, r"^bit_depth='8' must be of type int$"),
+        (
+            DetectorConfig,
+            {"bit_depth": "8"},
+            r"^bit_depth='8' must be of type int in \[8, 16\] bit$",
+        ),
         (TrackerConfig, {"max_missed_frames": 2.0}, "max_missed_frames=2.0 must be of type int"),
         (DetectorConfig, {"bit_depth": 99}, r"^bit_depth=99 is outside \[8, 16\] bit$"),
         (TrackerConfig, {"match_px": 0.0}, r"^match_px=0.0 is outside \[0.1, 50\] px$"),

@@ -30,11 +30,10 @@ bounds) atomically.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import re
 import sys
 import textwrap
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -59,6 +58,7 @@ from marker_localizer.config import (
     checked_value,
     field_kind,
     from_mapping,
+    guessed,
     param_specs,
 )
 from marker_localizer.errors import ConfigError
@@ -275,18 +275,6 @@ def _start_value(override: Parameter) -> Any:
     return [] if override.type_ == Parameter.Type.NOT_SET else override.value
 
 
-def _guessed(name: str, known: Iterable[str], prefix: str = "") -> str:
-    """``name``, followed by the parameter it is likely a typo of, where one is close.
-
-    Args:
-        name: the unknown name.
-        known: the names it may be a typo of, without ``prefix``.
-        prefix: the namespace both are under (``detector.``), which is no likeness.
-    """
-    close = difflib.get_close_matches(name.removeprefix(prefix), list(known), n=1)
-    return f"{name} (did you mean {prefix}{close[0]}?)" if close else name
-
-
 def _check_qos_overrides(overrides: Mapping[str, Parameter]) -> None:
     """Refuse a QoS override of a subscription that rclpy could not read.
 
@@ -372,7 +360,7 @@ class LiveParameters:
         overrides = _overrides(node)
         # A value for the namespace itself (``detector: 5``) is refused too, unguessed.
         unknown = sorted(
-            _guessed(name, self._names[kind].values(), f"{namespace}.")
+            guessed(name, self._names[kind].values(), f"{namespace}.")
             if name != namespace
             else name
             for name in overrides
@@ -411,7 +399,7 @@ class LiveParameters:
         Each is named with the parameter it is likely a typo of, where one is close.
         """
         return sorted(
-            _guessed(name, self._kinds) for name in _overrides(node) if not node.has_parameter(name)
+            guessed(name, self._kinds) for name in _overrides(node) if not node.has_parameter(name)
         )
 
     def _coerce(self, parameters: list[Parameter]) -> list[Parameter]:
