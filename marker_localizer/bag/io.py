@@ -17,7 +17,9 @@ corrupt or truncated bag, an output that exists) becomes a
 :class:`~marker_localizer.errors.BagError` whose message names the path. A
 :class:`BagWriter` writes into a hidden sibling directory and renames it onto
 the requested path only when the bag was closed cleanly, so an interrupted
-command never leaves a bag that looks complete.
+command never leaves a bag that looks complete. What it writes is laid out as
+``ros2 bag record -o NAME`` lays it out: ``NAME/NAME_0.mcap`` (or ``.db3``) and
+``NAME/metadata.yaml``, both naming ROS 2 Jazzy as their ``ros_distro``.
 """
 
 from __future__ import annotations
@@ -65,6 +67,9 @@ ROS_DISTRO = _TYPESTORE.value.removeprefix("ros2_")
 _BAG_FILE_SUFFIXES = (".mcap", ".db3", ".bag")
 #: First bytes of a ROS 1 bag (format 2.0, the only one rosbags and ROS 1 since 2010 write).
 _ROS1_MAGIC = b"#ROSBAG V2.0\n"
+#: Suffix of the storage file's name: rosbag2 numbers a bag's files from 0
+#: (``NAME/NAME_0.mcap``), and ``ros2 bag reindex`` finds them by that number.
+_FIRST_FILE_SUFFIX = "_0"
 
 
 @functools.cache
@@ -447,6 +452,9 @@ class BagWriter:
             raise BagError(f"{self.path}: output path exists; remove it or choose another")
         self.storage = storage
         self._staging = self.path.parent / _staging_name(self.path.name, os.getpid())
+        # rosbags names the storage file after its directory: this one is renamed
+        # onto ``path`` once complete, so the file is NAME_0.mcap, as rosbag2's.
+        self._bag_dir = self._staging / f"{self.path.name}{_FIRST_FILE_SUFFIX}"
         self._writer: Writer | None = None
         self._connections: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
@@ -458,8 +466,8 @@ class BagWriter:
             if self._staging.exists():  # left by a killed run with the same pid
                 shutil.rmtree(self._staging)
             self._staging.mkdir()
-            self._writer = Writer(
-                self._staging / self.path.name,
+            self._writer = _Writer(
+                self._bag_dir,
                 version=_BAG_VERSION,
                 storage_plugin=STORAGES[self.storage],
             )
@@ -487,8 +495,8 @@ class BagWriter:
             return
         try:
             writer.close()
-            _write_ros_distro(self._staging / self.path.name / "metadata.yaml")
-            (self._staging / self.path.name).rename(self.path)
+            _write_ros_distro(self._bag_dir / "metadata.yaml")
+            self._bag_dir.rename(self.path)
         except Exception as err:
             raise BagError(f"{self.path}: cannot finish bag ({_storage_error(err)})") from err
         finally:
@@ -560,13 +568,51 @@ def _file_in_the_way(path: Path) -> str | None:
 def _write_ros_distro(metadata: Path) -> None:
     """Set :data:`ROS_DISTRO` in a ``metadata.yaml`` rosbags wrote.
 
-    rosbags writes ``ros_distro: rosbags`` and has no setting for it. The copy of
-    the metadata inside the storage file keeps rosbags' word: what a reader given
-    the bare ``.mcap`` or ``.db3`` sees.
+    rosbags writes ``ros_distro: rosbags`` and has no setting for it; the copy
+    inside the storage file is set as it is written (:class:`_Writer`).
     """
     info = yaml.safe_load(metadata.read_text())
     info["rosbag2_bagfile_information"]["ros_distro"] = ROS_DISTRO
     metadata.write_text(yaml.safe_dump(info, default_flow_style=False, sort_keys=False))
+
+
+def _with_ros_distro(metadata: str) -> str:
+    """The metadata YAML a storage embeds, with :data:`ROS_DISTRO` as its ``ros_distro``.
+
+    Text that is not a mapping with a ``ros_distro`` is returned as it is.
+    """
+    info = yaml.safe_load(metadata)
+    if not isinstance(info, dict) or "ros_distro" not in info:
+        return metadata
+    info["ros_distro"] = ROS_DISTRO
+    return yaml.safe_dump(info, default_flow_style=False, sort_keys=False).strip()
+
+
+def _storage_naming_distro(storage: type[Any]) -> type[Any]:
+    """A subclass of a rosbags storage writer whose embedded metadata names :data:`ROS_DISTRO`.
+
+    rosbags' Writer gives its storage the metadata to embed (the MCAP file's
+    ``rosbag2`` metadata record, the sqlite3 file's ``metadata`` table) as YAML
+    text in ``close(version, metadata)``, with ``ros_distro: rosbags`` in it:
+    what rosbag2 reads of a bare ``.mcap`` or ``.db3`` (``ros2 bag info``) and
+    what ``ros2 bag reindex`` copies into a new ``metadata.yaml``.
+    """
+
+    class Storage(storage):
+        def close(self, version: int, metadata: str) -> None:
+            super().close(version, _with_ros_distro(metadata))
+
+    Storage.__name__ = Storage.__qualname__ = storage.__name__
+    return Storage
+
+
+class _Writer(Writer):
+    """rosbags' rosbag2 Writer whose storages embed ROS 2 Jazzy, not ``rosbags``, as the distro."""
+
+    STORAGE_PLUGINS = {  # noqa: RUF012 - a class attribute of rosbags' Writer, read only
+        plugin: _storage_naming_distro(storage)
+        for plugin, storage in Writer.STORAGE_PLUGINS.items()
+    }
 
 
 _STAGING = re.compile(r"^\.(?P<name>.+)\.partial-(?P<host>.+)-(?P<pid>\d+)$")

@@ -9,11 +9,16 @@ skipped and listed.
 Publishers are reliable, keep-last (``qos_depth``), the QoS camera drivers
 use and the node subscribes with. Before the first message the player waits up
 to ``wait_for_subscribers_s`` until every image topic (Image or CompressedImage;
-every topic if the bag has no images) has a subscriber, so the first frames are
-not lost to discovery. Timing:
+every topic if the bag has no images) that holds a message has a subscriber, so
+the first frames are not lost to discovery. A bag whose topics to play hold no
+message is refused (:class:`~marker_localizer.errors.BagError`). Timing:
 
 * at the recorded rate (times ``rate``): each message is published when its
-  bag time is due on the wall clock;
+  bag time is due on the wall clock, counted from the moment the first message
+  was read (not from before the read: a first read slow to come, a 12 MB frame
+  from a cold disk, would otherwise send the frames due meanwhile in a burst);
+  a message late for its time (a slow read) goes out at once and the next keep
+  their times, so the spacing stays the bag's on average;
 * ``as_fast_as_possible``: a message is published once the previous one on
   its topic was acknowledged by every matched subscription
   (``wait_for_all_acked``) and ``min_topic_interval_s`` (0.1 s) has passed
@@ -30,7 +35,11 @@ messages before it destroys its publishers.
 
 With ``clock``, ``/clock`` (rosgraph_msgs/Clock, best effort, keep-last 1 as
 ``ros2 bag play --clock``) carries the bag time: before every message and at
-``clock_hz`` while waiting, so nodes with ``use_sim_time`` follow the bag.
+``clock_hz`` while waiting, so nodes with ``use_sim_time`` follow the bag. It is
+reckoned in integer nanoseconds (a float of a bag time near 2023's 1.7e18 ns is
+off by up to 128 ns), never passes the next message's bag time and never goes
+back, not even for a message older than the last (a bag read front to back
+gives file order): a clock that jumps back makes nodes clear their tf buffers.
 """
 
 from __future__ import annotations
@@ -50,7 +59,7 @@ from rosgraph_msgs.msg import Clock
 
 from marker_localizer.bag.io import BagReader, message_class, missing_messages_text
 from marker_localizer.bag.record import stamp_msg
-from marker_localizer.errors import BagError, ConfigError
+from marker_localizer.errors import BagError, ConfigError, shorten
 from marker_localizer.ros.conversions import topic_name_problem
 
 NODE_NAME = "marker_localizer_player"
@@ -174,6 +183,8 @@ class _Player:
             node.create_publisher(Clock, CLOCK_TOPIC, _CLOCK_QOS) if options.clock else None
         )
         self._last_publish_s: dict[str, float] = {}
+        #: The newest bag time published on /clock, ns.
+        self._clock_ns: int | None = None
 
     def destroy(self) -> None:
         for publisher in self.publishers.values():
@@ -192,23 +203,38 @@ class _Player:
             self.time.sleep(_POLL_S)
 
     def publish_clock(self, time_ns: int) -> None:
+        """Publish ``time_ns`` on /clock (if asked for), or the newest time published if later."""
         if self.clock is not None:
-            self.clock.publish(Clock(clock=stamp_msg(time_ns)))
+            self._clock_ns = time_ns if self._clock_ns is None else max(self._clock_ns, time_ns)
+            self.clock.publish(Clock(clock=stamp_msg(self._clock_ns)))
 
-    def sleep_until(self, due_s: float, bag_ns_at: float, start_s: float) -> None:
-        """Sleep until monotonic time ``due_s``, publishing /clock meanwhile if asked.
+    def due_s(self, time_ns: int, first_ns: int, start_s: float) -> float:
+        """Monotonic time at which the message of bag time ``time_ns`` is due, s.
 
         Args:
-            due_s: Monotonic time to wake up at, s.
-            bag_ns_at: Bag time at monotonic ``start_s``, ns.
-            start_s: Monotonic time the playback started, s.
+            time_ns: The message's bag time, ns.
+            first_ns: Bag time of the first message played, ns.
+            start_s: Monotonic time it was published at, s.
         """
+        return start_s + (time_ns - first_ns) / 1e9 / self.options.rate
+
+    def sleep_until(self, due_ns: int, first_ns: int, start_s: float) -> None:
+        """Sleep until the message of bag time ``due_ns`` is due, with /clock meanwhile if asked.
+
+        Args:
+            due_ns: Bag time of the next message, ns.
+            first_ns: Bag time of the first message played, ns.
+            start_s: Monotonic time it was published at, s.
+        """
+        due_s = self.due_s(due_ns, first_ns, start_s)
         period_s = 1.0 / self.options.clock_hz
         while (remaining := due_s - self.time.monotonic()) > 0:
             self.time.sleep(min(remaining, period_s) if self.clock is not None else remaining)
             if self.clock is not None:
-                elapsed = min(self.time.monotonic(), due_s) - start_s
-                self.publish_clock(round(bag_ns_at + elapsed * self.options.rate * 1e9))
+                elapsed_s = self.time.monotonic() - start_s
+                # The offset in integer ns: the bag time itself is no float's.
+                bag_ns = first_ns + round(elapsed_s * self.options.rate * 1e9)
+                self.publish_clock(min(bag_ns, due_ns))
 
     def pace(self, topic: str) -> bool:
         """Hold the next message on ``topic`` until the consumer can have taken the last one.
@@ -301,9 +327,16 @@ def play_bag(
             )
         counts = reader.message_counts
         total = sum(counts.get(t, 0) for t in playable)
+        if not total:
+            raise BagError(
+                f"{bag}: nothing to play: no message on {shorten(', '.join(sorted(playable)))}"
+            )
         player = _Player(node, playable, options, timekeeper)
         try:
-            awaited = [t for t, m in playable.items() if m in IMAGE_TYPES] or list(playable)
+            # Topics that hold a message: a camera_info beside an empty image topic
+            # needs no wait for the image's subscriber, nor a line about it.
+            holding = {t: m for t, m in playable.items() if counts.get(t, 0)}
+            awaited = [t for t, m in holding.items() if m in IMAGE_TYPES] or list(holding)
             report.without_subscribers = player.wait_for_subscribers(awaited)
             _play(reader, player, playable, report, progress, total)
         finally:
@@ -326,11 +359,12 @@ def _play(
     last_ns = 0
     for done, message in enumerate(reader.messages(topics), start=1):
         if first_ns is None:
+            # The schedule starts when the first message is in hand, not before its read.
+            start_s = player.time.monotonic()
             first_ns = message.time_ns
             player.publish_clock(first_ns)
         if not options.as_fast_as_possible:
-            due_s = start_s + (message.time_ns - first_ns) / 1e9 / options.rate
-            player.sleep_until(due_s, first_ns, start_s)
+            player.sleep_until(message.time_ns, first_ns, start_s)
         elif not player.pace(message.topic):
             report.unacknowledged += 1
         player.publish_clock(message.time_ns)

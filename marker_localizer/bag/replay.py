@@ -574,6 +574,8 @@ def replay_bag(
                     if progress is not None:
                         progress(handled, total)
                 session.finish()
+                if not handled:
+                    _no_frames(bag, list(cameras.values()), counts, unread, reader.damage)
                 _require_results(bag, session.stats, unread)
             finally:
                 session.processor.shutdown()
@@ -593,6 +595,32 @@ def replay_bag(
         undecodable,
         damage,
         unread,
+    )
+
+
+def _no_frames(
+    bag: str | Path,
+    read: list[str],
+    counts: dict[str, int],
+    unread: dict[str, str],
+    damage: list[str],
+) -> None:
+    """Raise for a bag whose image topics read gave no message (declared, never written).
+
+    The error says so and what the bag holds instead (``camera_info`` without
+    frames, say), and the damage where the storage is damaged (a recording cut
+    before its first frame), rather than counting no frame as 0 skipped of each kind.
+    """
+    held = ", ".join(f"{topic} {n}" for topic, n in sorted(counts.items()) if n)
+    not_read = "".join(f"; not read: {topic} ({why})" for topic, why in unread.items())
+    if damage:  # what could be read of a damaged storage, not what it held
+        found = f"read of the bag: {shorten(held)}" if held else "nothing could be read"
+    else:
+        found = f"the bag holds: {shorten(held)}" if held else "the bag holds no message"
+    damaged = f"; damaged storage: {shorten('; '.join(damage))}" if damage else ""
+    raise BagError(
+        f"{bag}: no frame to process: no message on {shorten(', '.join(read))} "
+        f"({found}){shorten(not_read)}{damaged}"
     )
 
 

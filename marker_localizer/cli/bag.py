@@ -370,10 +370,10 @@ def play(argv: Sequence[str]) -> int:
 
 def format_play_report(bag: Path, report: PlayReport) -> str:
     """The summary ``play`` prints: what was published, skipped and damaged."""
-    total = sum(report.published.values())
+    total, topics = sum(report.published.values()), len(report.published)
     lines = [
-        f"played {total} messages on {len(report.published)} topics of {bag} in "
-        f"{report.wall_s:.2f} s (bag time {report.bag_s:.2f} s)"
+        f"played {total} message{'s' * (total != 1)} on {topics} topic{'s' * (topics != 1)} "
+        f"of {bag} in {report.wall_s:.2f} s (bag time {report.bag_s:.2f} s)"
     ]
     if report.skipped_topics:
         lines.append(f"skipped, no message class: {missing_messages_text(report.skipped_topics)}")

@@ -29,7 +29,7 @@ FRAME_ID_LENGTH_AT = 4 + 8
 @pytest.fixture(scope="module")
 def images(small_flight):
     """(camera, bag time) -> (start, end) byte span of the image's CDR in the MCAP file."""
-    data = (small_flight / "flight.mcap").read_bytes()
+    data = (small_flight / "flight_0.mcap").read_bytes()
     spans = {}
     with BagReader(small_flight) as bag:
         for message in bag.messages():
@@ -45,7 +45,7 @@ def damaged_copy(flight, directory, change):
     """A copy of ``flight`` whose MCAP bytes went through ``change``."""
     copy = directory / "damaged"
     shutil.copytree(flight, copy)
-    storage = copy / "flight.mcap"
+    storage = copy / "flight_0.mcap"
     storage.write_bytes(change(storage.read_bytes()))
     return copy
 
@@ -85,6 +85,20 @@ def test_a_bag_cut_short_gives_every_frame_before_the_cut_and_exit_status_3(
     assert lost > len(images) - len(whole)  # the frames' camera_info and truth too
     assert f": {lost} messages its metadata.yaml counts were not found (" in summary
     assert "incomplete: 0 image messages gave no result, the storage is damaged" in summary
+
+
+def test_a_bag_cut_before_its_first_frame_is_one_line_naming_the_damage(
+    small_flight, images, tmp_path, capsys
+):
+    """It said no frame could be processed, 0 of each kind skipped, and listed the encodings."""
+    cut = min(start for start, _ in images.values()) - 1
+    bag = damaged_copy(small_flight, tmp_path, lambda data: data[:cut])
+    assert cli(["replay", str(bag), "--out", str(tmp_path / "out"), "--workers", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "damaged: no frame to process: no message on /cam0/image_raw, /cam1/image_raw" in err
+    assert "; damaged storage: " in err and "cannot be opened through its index" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged"]
 
 
 def test_a_flipped_bit_that_makes_a_frame_undecodable_costs_that_frame_only(
@@ -129,7 +143,7 @@ def test_a_cut_sqlite3_bag_is_one_error_naming_it(tmp_path, capsys):
     bag = tmp_path / "flight_db"
     argv = ["--out", str(bag), "--frames", "1", "--width", "64", "--height", "48"]
     assert cli(["simulate", *argv, "--storage", "sqlite3", "--cameras", "1"]) == 0
-    storage = bag / "flight_db.db3"
+    storage = bag / "flight_db_0.db3"
     storage.write_bytes(storage.read_bytes()[: storage.stat().st_size // 2])
     with pytest.raises(BagError, match="flight_db: cannot open bag, corrupt or truncated"):
         replay_bag(bag, tmp_path / "out")

@@ -19,12 +19,14 @@ import numpy as np
 import pytest
 import rclpy
 import waiting
+from builtin_interfaces.msg import Time
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CompressedImage, Image, Imu, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
+from std_msgs.msg import Header
 
 from marker_localizer.bag.io import BagReader, BagWriter, missing_message_reason
 from marker_localizer.bag.play import PlayOptions, play_bag
@@ -294,6 +296,104 @@ def test_sigterm_while_playing_stops_the_player_cleanly_with_status_143(context,
     assert err == "marker-localizer play: interrupted by SIGTERM\n"
 
 
+# --------------------------------------------------------------------------- pacing
+
+#: A bag time of 2023 (ns): a float of it is 21 ns off, as were the /clock times reckoned in floats.
+LATE_NS = 1_700_000_000_123_456_789
+MS = 1_000_000
+
+
+def imu(time_ns: int) -> Imu:
+    return Imu(header=Header(stamp=Time(sec=time_ns // 10**9, nanosec=time_ns % 10**9)))
+
+
+def imu_bag(path, times_ns, storage="mcap"):
+    with BagWriter(path, storage) as writer:
+        writer.add_topic("/imu/data", "sensor_msgs/msg/Imu")
+        for time_ns in times_ns:
+            writer.write("/imu/data", time_ns, imu(time_ns))
+    return path
+
+
+def test_play_keeps_the_bags_spacing_times_the_rate_into_a_subscriber(context, tmp_path):
+    """0.1 s apart in the bag, at rate 2: received in order about 50 ms apart (the median
+    gap within a factor of 2: a loaded machine delays some, none should come in a burst)."""
+    times_ns = [LATE_NS + k * 100 * MS for k in range(8)]
+    bag = imu_bag(tmp_path / "imu", times_ns)
+    arrivals = []
+    node = rclpy.create_node("pacing_listener", context=context)
+    node.create_subscription(
+        Imu, "/imu/data", lambda msg: arrivals.append((time.monotonic(), stamp_ns(msg.header))), 50
+    )
+    spun = Spun(context, node)
+    player = rclpy.create_node("test_player_pacing", context=context)
+    try:
+        options = PlayOptions(rate=2.0, wait_for_subscribers_s=20.0)
+        report = play_bag(bag, player, options)
+        assert report.without_subscribers == []
+        wait_until(lambda: len(arrivals) == len(times_ns), "every message")
+    finally:
+        player.destroy_node()
+        spun.stop()
+    assert [stamp for _, stamp in arrivals] == times_ns
+    gaps_s = np.diff([at for at, _ in arrivals])
+    assert 0.025 <= float(np.median(gaps_s)) <= 0.1, gaps_s
+    assert report.bag_s == pytest.approx(0.7)
+
+
+class SlowFirstRead(BagReader):
+    """A reader whose first message takes 0.5 s to come (a 12 MB frame from a cold disk)."""
+
+    waits: CountedWaits
+
+    def messages(self, topics=None):
+        for n, message in enumerate(super().messages(topics)):
+            if n == 0:
+                self.waits.now_s += 0.5
+            yield message
+
+
+def test_the_schedule_starts_at_the_first_message_and_clock_never_goes_back(
+    context, tmp_path, monkeypatch
+):
+    """The messages go out at their bag times from the first one (not 0.5 s early: the
+    first read's wait was counted in the schedule, and the frames due meanwhile went in a
+    burst); /clock, at a 2023 bag time, never goes back (two messages 5 ns apart made it
+    go 16 ns back: the bag time was reckoned in floats)."""
+    offsets_ns = [0, 5, 100 * MS, 200 * MS + 7, 300 * MS]
+    times_ns = [LATE_NS + offset for offset in offsets_ns]
+    bag = imu_bag(tmp_path / "imu", times_ns)
+    waits = CountedWaits()
+    SlowFirstRead.waits = waits
+    monkeypatch.setattr("marker_localizer.bag.play.BagReader", SlowFirstRead)
+    listener = Listener(context, {"/clock": Clock})
+    spun = Spun(context, listener.node)
+    player = rclpy.create_node("test_player_schedule", context=context)
+    published_s = []
+    try:
+        wait_until(lambda: player.count_subscribers("/clock"), "the /clock subscriber")
+        options = PlayOptions(rate=2.0, clock=True, wait_for_subscribers_s=0.0)
+        play_bag(
+            bag,
+            player,
+            options,
+            timekeeper=waits,
+            progress=lambda done, total: published_s.append(waits.monotonic()),
+        )
+        wait_until(
+            lambda: LATE_NS + 300 * MS in [time_ns(m.clock) for m in listener.messages("/clock")],
+            "the last message's time on /clock",
+        )
+    finally:
+        player.destroy_node()
+        spun.stop()
+    due_s = [0.5 + (t - LATE_NS) / 1e9 / 2.0 for t in times_ns]
+    assert published_s == pytest.approx(due_s, abs=1e-9)
+    clock = [time_ns(m.clock) for m in listener.messages("/clock")]
+    assert clock == sorted(clock), [c - LATE_NS for c in clock]
+    assert min(clock) >= LATE_NS and max(clock) == times_ns[-1]
+
+
 # --------------------------------------------------------------------------- bad input
 
 
@@ -312,6 +412,48 @@ def test_play_with_nothing_to_play_raises_bag_error(context, tiny_sqlite_bag, ca
         player.destroy_node()
     assert cli(["play", str(tiny_sqlite_bag), "--topics", "/tf_static"]) == 1
     assert "no message class: /tf_static (tf2_msgs/msg/TFMessage: " in capsys.readouterr().err
+
+
+def camera_info_only(path):
+    """A recording whose camera declared its image topic but wrote only camera_info."""
+    with BagWriter(path) as writer:
+        writer.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        writer.add_topic("/cam0/camera_info", "sensor_msgs/msg/CameraInfo")
+        for sec in (1, 2):
+            writer.write("/cam0/camera_info", sec * 10**9, CameraInfo())
+    return path
+
+
+def test_a_bag_of_declared_topics_without_a_message_is_one_line_exit_1(tmp_path, capsys):
+    """It played 0 messages, exit 0, after waiting for the image topic's subscriber."""
+    bag = tmp_path / "declared"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        writer.add_topic("/cam0/camera_info", "sensor_msgs/msg/CameraInfo")
+    assert cli(["play", str(bag)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "declared: nothing to play: no message on /cam0/camera_info, /cam0/image_raw" in err
+    info = camera_info_only(tmp_path / "info")
+    assert cli(["play", str(info), "--topics", "/cam0/image_raw"]) == 1
+    assert "info: nothing to play: no message on /cam0/image_raw" in capsys.readouterr().err
+
+
+def test_an_image_topic_without_a_message_is_not_waited_for(context, tmp_path):
+    """Only camera_info to play: the player waits for its subscriber, not the frames' (it
+    waited the whole 2 s for them and said the image topic had no subscriber)."""
+    listener = Listener(context, {"/cam0/camera_info": CameraInfo})
+    spun = Spun(context, listener.node)
+    player = rclpy.create_node("test_player_info", context=context)
+    try:
+        options = PlayOptions(as_fast_as_possible=True, wait_for_subscribers_s=20.0)
+        report = play_bag(camera_info_only(tmp_path / "info"), player, options)
+        assert report.without_subscribers == []
+        assert report.published == {"/cam0/camera_info": 2}
+        wait_until(lambda: len(listener.messages("/cam0/camera_info")) == 2, "camera_info")
+    finally:
+        player.destroy_node()
+        spun.stop()
 
 
 def test_a_topic_without_a_message_class_is_named_with_why():

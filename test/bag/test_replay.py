@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import os
 import re
+import sqlite3
+import struct
 import sys
 from pathlib import Path
 
@@ -20,7 +22,7 @@ from blas_threads import openblas_threads, two_threaded_openblas
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus
 from scenes import panning_frames
-from sensor_msgs.msg import CompressedImage, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 
 from marker_localizer.bag.io import BagReader, BagWriter, typestore
@@ -145,6 +147,43 @@ def test_the_bags_simulate_and_replay_write_name_ros_2_jazzy_as_their_distro(fli
             assert reader.damage == []
 
 
+def embedded_metadata(storage_file: Path) -> dict:
+    """The copy of the metadata a storage file holds: what rosbag2 reads of a bare file."""
+    if storage_file.suffix == ".db3":
+        with sqlite3.connect(storage_file) as db:
+            (text,) = db.execute("SELECT metadata FROM metadata").fetchone()
+    else:  # the MCAP metadata record "rosbag2": {"serialized_metadata": YAML}
+        data = storage_file.read_bytes()
+        at = data.index(b"serialized_metadata") + len("serialized_metadata")
+        (length,) = struct.unpack_from("<I", data, at)
+        text = data[at + 4 : at + 4 + length].decode()
+    return yaml.safe_load(text)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_bag_is_laid_out_as_ros2_bag_record_and_every_copy_of_its_metadata_names_jazzy(
+    tmp_path, storage
+):
+    """NAME/NAME_0.<ext>, as rosbag2 numbers a bag's files (``ros2 bag reindex`` finds them
+    by that number), and the storage's own copy of the metadata (what ``ros2 bag info``
+    shows of a bare file, and reindex copies) says jazzy as metadata.yaml does."""
+    bag = tmp_path / "flight"
+    with BagWriter(bag, storage) as writer:
+        writer.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        writer.write("/cam0/image_raw", 5, image(np.zeros((4, 4), np.uint8), 5))
+        writer.set_metadata("note", "kept")
+    extension = {"mcap": ".mcap", "sqlite3": ".db3"}[storage]
+    assert sorted(os.listdir(bag)) == sorted([f"flight_0{extension}", "metadata.yaml"])
+    metadata = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert metadata["relative_file_paths"] == [f"flight_0{extension}"]
+    embedded = embedded_metadata(bag / f"flight_0{extension}")
+    assert embedded == metadata
+    assert embedded["ros_distro"] == "jazzy" and embedded["custom_data"] == {"note": "kept"}
+    for path in (bag, bag / f"flight_0{extension}"):
+        with BagReader(path) as reader:
+            assert [m.time_ns for m in reader.messages()] == [5] and reader.damage == []
+
+
 # --------------------------------------------------------------------------- replay
 
 
@@ -215,7 +254,7 @@ def test_replay_main_reads_sqlite3_with_the_node_params_file_and_prints_both_tab
     bag = tmp_path / "flight_sqlite"
     argv = ["--out", str(bag), "--frames", "1", "--width", "320", "--height", "240"]
     assert cli(["simulate", *argv, "--storage", "sqlite3", "--seed", "4"]) == 0
-    assert (bag / "flight_sqlite.db3").exists()
+    assert (bag / "flight_sqlite_0.db3").exists()
     out = tmp_path / "replayed_sqlite"
     status = cli(
         [
@@ -463,6 +502,30 @@ def test_bag_with_nothing_processable_fails_and_leaves_no_output(tmp_path):
     assert leftovers(tmp_path) == ["yuv"]
 
 
+def test_a_bag_whose_image_topics_hold_no_message_is_one_line_saying_so(tmp_path, capsys):
+    """Declared image topics, only camera_info written: it said 0 frames with an unsupported
+    encoding, 0 out of order, 0 failed, 0 undecodable, and listed the encodings."""
+    bag = tmp_path / "info"
+    with BagWriter(bag, "sqlite3") as writer:
+        writer.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        writer.add_topic("/cam0/camera_info", "sensor_msgs/msg/CameraInfo")
+        for sec in (1, 2, 3):
+            writer.write("/cam0/camera_info", sec * S, CameraInfo())
+    assert cli(["replay", str(bag), "--out", str(tmp_path / "out"), "--workers", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err == (
+        f"marker-localizer replay: error: {bag}: no frame to process: no message on "
+        "/cam0/image_raw (the bag holds: /cam0/camera_info 3)\n"
+    )
+    assert leftovers(tmp_path) == ["info"]
+    empty = tmp_path / "empty"
+    with BagWriter(empty) as writer:
+        writer.add_topic("/cam0/image_raw/compressed", "sensor_msgs/msg/CompressedImage")
+    no_message = r"no message on /cam0/image_raw/compressed \(the bag holds no message\)"
+    with pytest.raises(BagError, match=no_message):
+        replay_bag(empty, tmp_path / "out", workers=1)
+
+
 def test_when_no_frame_can_be_processed_the_image_topics_not_read_are_named(tmp_path):
     """A driver's 8UC1 frames beside their JPEG copies: the error points at the copies."""
     raw = array_to_image(x_marker_frame(), "mono8", Header(stamp=stamp(1)))
@@ -536,7 +599,7 @@ def test_writer_in_a_missing_parent_creates_it_and_renames_only_on_success(tmp_p
         bag.add_topic("/x/image_raw", "sensor_msgs/msg/Image")
         bag.write("/x/image_raw", 5, image(np.zeros((4, 4), np.uint8), 5))
     assert leftovers(target.parent) == ["bag"]
-    assert sorted(os.listdir(target)) == ["bag.db3", "metadata.yaml"]
+    assert sorted(os.listdir(target)) == ["bag_0.db3", "metadata.yaml"]
     with BagReader(target) as bag:
         assert [m.time_ns for m in bag.messages()] == [5]
 
