@@ -1,15 +1,28 @@
 """Image files: the size is read from the header before decoding, every failure names the file."""
 
 import json
+import os
 import re
 import struct
 import subprocess
 import sys
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
 import pytest
+from encoded_images import (
+    cut_mid_scan_and_closed,
+    exif_orientation,
+    noise_jpeg,
+    tiff_entries,
+    tiff_of,
+    webp_with_exif_orientation,
+    with_exif_orientation,
+    with_tiff_orientation,
+    zeroed_mid_scan,
+)
 
 from marker_localizer.cli import main
 from marker_localizer.config import DetectorConfig
@@ -307,3 +320,202 @@ def test_a_whole_jpeg_is_read_with_or_without_a_thumbnail_and_trailing_bytes(par
         encoded.tobytes() + bytes(64),  # padding some cameras write after the image
     ):
         assert decode_image(data, "whole", DetectorConfig().max_pixels).shape == (48, 64)
+
+
+def test_a_jpeg_damaged_in_its_scan_is_refused_in_one_line_naming_the_damage(tmp_path, good, capfd):
+    """libjpeg decodes it with grey or smeared blocks and prints a line that names no file."""
+    whole = noise_jpeg()
+    paths = [tmp_path / "cut_and_closed.jpg", tmp_path / "zeroed.jpg"]
+    paths[0].write_bytes(cut_mid_scan_and_closed(whole))
+    paths[1].write_bytes(zeroed_mid_scan(whole))
+    assert main(["detect", *map(str, paths), str(good), "--json"]) == 3
+    captured = capfd.readouterr()  # libjpeg's own line would be here
+    assert captured.err.splitlines() == [
+        f"marker-localizer: error: {path}: damaged JPEG (libjpeg: Corrupt JPEG data: premature "
+        "end of data segment)"
+        for path in paths
+    ]
+    assert [json.loads(line)["image"] for line in captured.out.splitlines()] == [str(good)]
+    with pytest.raises(ImageError, match=r"^frame: damaged JPEG \(libjpeg: Corrupt JPEG data: "):
+        decode_image(cut_mid_scan_and_closed(whole), "frame", DetectorConfig().max_pixels)
+    assert decode_image(whole, "whole", DetectorConfig().max_pixels).shape == (240, 320)
+
+
+def test_a_progressive_jpeg_cut_between_scans_and_closed_is_refused(capfd):
+    """libjpeg decodes it blurred, without a word: the scans it lacks are counted here."""
+    whole = noise_jpeg([cv2.IMWRITE_JPEG_PROGRESSIVE, 1])
+    scans = [m.start() for m in re.finditer(rb"\xff\xda", whole)]
+    assert len(scans) > 2
+    for scan in scans[1:]:  # cut where each later scan starts, closed
+        with pytest.raises(ImageError, match=r"^frame: truncated JPEG: its end-of-image marker "):
+            decode_image(whole[:scan] + b"\xff\xd9", "frame", DetectorConfig().max_pixels)
+    assert capfd.readouterr().err == ""
+    assert decode_image(whole, "whole", DetectorConfig().max_pixels).shape == (240, 320)
+
+
+def test_a_damaged_png_is_one_line_with_libpngs_reason_in_it(tmp_path, capfd):
+    data = bytearray(cv2.imencode(".png", np.full((30, 40), 90, np.uint8))[1].tobytes())
+    data[data.index(b"IDAT") + 8] ^= 0xFF  # the image's data no longer match its checksum
+    damaged = tmp_path / "damaged.png"
+    damaged.write_bytes(data)
+    assert main(["detect", str(damaged)]) == 1
+    (line,) = capfd.readouterr().err.splitlines()  # libpng's reason depends on its version
+    assert re.fullmatch(
+        rf"marker-localizer: error: {re.escape(str(damaged))}: not a readable image "
+        r"\(libpng error: IDAT: [\w ]+\)",
+        line,
+    )
+
+
+def test_stderr_and_opencvs_log_level_are_put_back_whatever_the_decode_gave(tmp_path):
+    stderr_file = os.fstat(2)
+    logging = getattr(cv2.utils, "logging", cv2)  # OpenCV 5 moved it
+    level = logging.getLogLevel()
+    hdr = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 40000 +X 40000\n" + bytes(64)
+    damaged = [cut_mid_scan_and_closed(noise_jpeg()), hdr, b"\x89PNG\r\n\x1a\nIEND", b"junk"]
+    for data in damaged:  # refused by libjpeg's line, by a cv2.error, by OpenCV, unknown
+        with pytest.raises(ImageError):
+            decode_image(data, "frame", 2**30)
+        assert (os.fstat(2).st_dev, os.fstat(2).st_ino) == (stderr_file.st_dev, stderr_file.st_ino)
+        assert logging.getLogLevel() == level
+
+
+def test_what_others_write_to_stderr_during_a_decode_is_passed_on(monkeypatch, capfd):
+    """A line another thread (the node's logger, DDS) writes meanwhile is late, not lost."""
+    decode = cv2.imdecode
+
+    def decode_beside_a_logger(buffer, flags):
+        os.write(2, b"[WARN] [camera_driver]: frame late\n")
+        return decode(buffer, flags)
+
+    monkeypatch.setattr(cv2, "imdecode", decode_beside_a_logger)
+    with pytest.raises(ImageError, match=r"damaged JPEG \(libjpeg: Corrupt JPEG data"):
+        decode_image(cut_mid_scan_and_closed(noise_jpeg()), "frame", DetectorConfig().max_pixels)
+    assert capfd.readouterr().err == "[WARN] [camera_driver]: frame late\n"
+
+
+def test_threads_decoding_at_once_each_get_their_own_verdict(capfd):
+    """stderr's descriptor is the process's: decodes that caught it at once would mix lines."""
+    whole = noise_jpeg()
+    frames = [whole, cut_mid_scan_and_closed(whole), zeroed_mid_scan(whole)] * 64
+
+    def verdict(data):
+        try:
+            return decode_image(data, "frame", DetectorConfig().max_pixels).shape
+        except ImageError as err:
+            return str(err)
+
+    with ThreadPoolExecutor(8) as pool:
+        verdicts = list(pool.map(verdict, frames))
+    damaged = "frame: damaged JPEG (libjpeg: Corrupt JPEG data: premature end of data segment)"
+    assert verdicts == [(240, 320), damaged, damaged] * 64
+    assert capfd.readouterr().err == ""
+
+
+def test_opencvs_warnings_on_a_corrupt_tiff_webp_or_png_header_are_not_printed(tmp_path, capfd):
+    """OpenCV would print "[ WARN:0@...] global grfmt_tiff.cpp ..." or an [ERROR] line."""
+    grey = np.full((30, 40), 90, np.uint8)
+    tiff = bytearray(cv2.imencode(".tiff", grey)[1].tobytes())
+    (entry,) = (at for at in tiff_entries(tiff) if struct.unpack_from("<H", tiff, at)[0] == 262)
+    struct.pack_into("<H", tiff, entry + 8, 0xFFFF)  # PhotometricInterpretation: none known
+    png = bytearray(cv2.imencode(".png", grey)[1].tobytes())
+    png[12:16] = b"IHDX"  # the first chunk is not IHDR
+    webp = cv2.imencode(".webp", cv2.merge([grey] * 3))[1].tobytes()
+    paths = []
+    for name, data in [("bad.tiff", tiff), ("bad.png", png), ("cut.webp", webp[:34])]:
+        paths.append(tmp_path / name)
+        paths[-1].write_bytes(data)
+    assert main(["detect", *map(str, paths)]) == 1
+    lines = capfd.readouterr().err.splitlines()
+    assert lines[0] == f"marker-localizer: error: {paths[0]}: not a readable image"
+    assert lines[1] in {  # OpenCV 4.12 finds it before libpng; 4.6 lets libpng say it
+        f"marker-localizer: error: {paths[1]}: not a readable image",
+        f"marker-localizer: error: {paths[1]}: not a readable image "
+        "(libpng error: IHDX: CRC error)",
+    }
+    assert lines[2:] == [f"marker-localizer: error: {paths[2]}: not a readable image"]
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_a_bigtiff_is_read_its_pages_counted_and_its_size_checked_from_its_header(order):
+    first = np.arange(40 * 50, dtype=np.uint8).reshape(40, 50)
+    single = tiff_of([first], big=True, order=order)
+    assert single[:4] == (b"II+\x00" if order == "<" else b"MM\x00+")
+    assert image_size(single) == (50, 40)
+    assert tiff_pages(single) == 1
+    np.testing.assert_array_equal(decode_image(single, "big", 10**6), first)
+    two = tiff_of([first, 255 - first], big=True, order=order)
+    assert tiff_pages(two) == 2
+    with pytest.raises(ImageError, match=r"^big: a TIFF of 2 pages"):
+        decode_image(two, "big", 10**6)
+    thumbnailed = tiff_of([first[::4, ::4], first], big=True, order=order, first_entries=[(254, 1)])
+    assert tiff_pages(thumbnailed) == 1
+    # A classic TIFF written the same way reads the same.
+    assert tiff_pages(tiff_of([first, first], order=order)) == 2
+    np.testing.assert_array_equal(decode_image(tiff_of([first], order=order), "tiff", 10**6), first)
+
+
+def test_a_bigtiff_bomb_is_refused_from_its_header():
+    bomb = tiff_of([np.zeros((1, 1), np.uint8)], big=True, claimed=(30000, 30000))
+    assert image_size(bomb) == (30000, 30000)
+    with pytest.raises(ImageError, match=r"^bomb: 30000x30000 = 900000000 px exceeds"):
+        decode_image(bomb, "bomb", DetectorConfig().max_pixels)
+
+
+@pytest.fixture
+def corner_block():
+    """A 40x60 image, bright in its top-left 10x20: its stored order shows."""
+    image = np.zeros((40, 60), np.uint8)
+    image[:10, :20] = 250
+    return image
+
+
+def test_an_exif_orientation_is_not_applied_to_a_jpeg_png_or_webp_from_file_or_bytes(
+    tmp_path, corner_block
+):
+    """Pixels stay in stored order, as the sensor gave them (imread's default would turn them)."""
+    variants = {}
+    for name, image in [("grey", corner_block), ("colour", cv2.merge([corner_block] * 3))]:
+        variants[f"{name}.jpg"] = with_exif_orientation(cv2.imencode(".jpg", image)[1].tobytes(), 6)
+    for name, image in [("8bit", corner_block), ("16bit", corner_block.astype(np.uint16) * 257)]:
+        png = cv2.imencode(".png", image)[1].tobytes()
+        end = png.rindex(b"IEND") - 4
+        variants[f"{name}.png"] = png[:end] + png_chunk(b"eXIf", exif_orientation(6)) + png[end:]
+    webp = cv2.imencode(".webp", cv2.merge([corner_block] * 3))[1].tobytes()
+    for data in variants.values():  # as cv2.imread's default would (a WebP too from OpenCV 5)
+        assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR).shape[:2] == (60, 40)
+    variants["colour.webp"] = webp_with_exif_orientation(webp, 60, 40, 6)
+    for name, data in variants.items():
+        (tmp_path / name).write_bytes(data)
+        for image in (
+            decode_image(data, name, DetectorConfig().max_pixels),
+            read_image_file(tmp_path / name, DetectorConfig().max_pixels),
+        ):
+            assert image.shape[:2] == (40, 60), name
+            assert image[:10, :20].min() > 200 and image[10:, 20:].max() < 50, name
+
+
+@pytest.mark.parametrize(
+    "image",
+    [
+        np.arange(6 * 10, dtype=np.uint8).reshape(6, 10),
+        np.arange(6 * 10, dtype=np.uint16).reshape(6, 10) * 1000,
+        np.dstack([np.arange(6 * 10, dtype=np.uint8).reshape(6, 10) + c for c in range(3)]),
+    ],
+    ids=["grey", "16-bit", "colour"],
+)
+def test_a_tiffs_orientation_tag_is_not_applied_either(image):
+    """OpenCV turns a TIFF by its own tag even when asked for it unchanged; not here."""
+    stored = cv2.imencode(".tiff", image)[1].tobytes()
+    for orientation in range(1, 9):
+        data = with_tiff_orientation(stored, orientation)
+        opencvs = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        assert opencvs.shape[:2] == ((10, 6) if orientation > 4 else (6, 10))
+        np.testing.assert_array_equal(decode_image(data, "tiff", 10**6), image)
+
+
+def test_a_bigtiffs_orientation_tag_is_not_applied():
+    image = np.arange(6 * 10, dtype=np.uint8).reshape(6, 10)
+    turned = tiff_of([image], big=True, first_entries=[(274, 6)])
+    assert cv2.imdecode(np.frombuffer(turned, np.uint8), cv2.IMREAD_UNCHANGED).shape == (10, 6)
+    np.testing.assert_array_equal(decode_image(turned, "bigtiff", 10**6), image)

@@ -7,6 +7,13 @@ import cv2
 import numpy as np
 import pytest
 from blas_threads import openblas_threads, two_threaded_openblas
+from encoded_images import (
+    cut_mid_scan_and_closed,
+    noise_jpeg,
+    tiff_entries,
+    with_exif_orientation,
+    with_tiff_orientation,
+)
 
 from marker_localizer.cli import main
 from marker_localizer.synthetic.scene import bayer_gain
@@ -69,6 +76,74 @@ def test_unreadable_files_give_one_line_naming_the_file_and_exit_3(x_image, tmp_
     ]
     assert "Traceback" not in captured.err
     assert len(captured.out.strip().splitlines()) == 1  # the good image is still processed
+
+
+def test_damaged_files_are_one_line_each_and_nothing_from_opencv_or_the_decoders(
+    x_image, tmp_path, capfd
+):
+    """A damaged frame is refused, not detected on: libjpeg decodes this JPEG with grey blocks.
+
+    libjpeg, libpng and OpenCV would each print a line of their own naming no file;
+    what they say varies with the version, so only whose lines these are is checked.
+    """
+    path, _ = x_image
+    grey = np.full((30, 40), 90, np.uint8)
+    tiff = bytearray(cv2.imencode(".tiff", grey)[1].tobytes())
+    (photometric,) = (at for at in tiff_entries(tiff) if tiff[at : at + 2] == b"\x06\x01")
+    tiff[photometric + 8 : photometric + 10] = b"\xff\xff"  # no PhotometricInterpretation known
+    png = bytearray(cv2.imencode(".png", grey)[1].tobytes())
+    png[png.index(b"IDAT") + 8] ^= 0xFF  # its data no longer match their checksum
+    progressive = noise_jpeg([cv2.IMWRITE_JPEG_PROGRESSIVE, 1])
+    damaged = {
+        "scan.jpg": cut_mid_scan_and_closed(noise_jpeg()),
+        "progressive.jpg": progressive[: progressive.rindex(b"\xff\xda")] + b"\xff\xd9",
+        "photometric.tiff": tiff,
+        "idat.png": png,
+        "header.webp": cv2.imencode(".webp", cv2.merge([grey] * 3))[1].tobytes()[:34],
+    }
+    for name, data in damaged.items():
+        (tmp_path / name).write_bytes(data)
+    assert main(["detect", *(str(tmp_path / name) for name in damaged), str(path), "--json"]) == 3
+    captured = capfd.readouterr()
+    errors = captured.err.splitlines()
+    assert [line.split(": ")[:3] for line in errors] == [
+        ["marker-localizer", "error", str(tmp_path / name)] for name in damaged
+    ]
+    assert errors[0].endswith(
+        ": damaged JPEG (libjpeg: Corrupt JPEG data: premature end of data segment)"
+    )
+    assert ": truncated JPEG: " in errors[1]
+    assert [json.loads(line)["image"] for line in captured.out.splitlines()] == [str(path)]
+
+
+def test_marker_coordinates_are_in_the_files_stored_order_whatever_its_orientation_tag(
+    tmp_path, capsys
+):
+    """An EXIF or TIFF Orientation tag (6: turn 90 degrees clockwise to view) is not applied.
+
+    Coordinates are in the sensor's rows and columns, as a camera's calibration has them.
+    """
+    image = np.full((64, 96), 200.0, np.float32)
+    image[:32, :32] = image[32:, 32:] = 30.0
+    image = cv2.GaussianBlur(image, (0, 0), 1.0).round().astype(np.uint8)
+    jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 98])[1].tobytes()
+    tiff = cv2.imencode(".tiff", image)[1].tobytes()
+    files = {
+        "plain.jpg": jpeg,
+        "turned.jpg": with_exif_orientation(jpeg, 6),
+        "plain.tiff": tiff,
+        "turned.tiff": with_tiff_orientation(tiff, 6),
+    }
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    assert main(["detect", *(str(tmp_path / name) for name in files), "--json"]) == 0
+    records = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [(r["width"], r["height"]) for r in records] == [(96, 64)] * 4
+    plain_jpeg, turned_jpeg, plain_tiff, turned_tiff = (
+        [m["x"], m["y"]] for r in records for m in r["markers"]
+    )
+    assert plain_jpeg == turned_jpeg and plain_tiff == turned_tiff
+    assert plain_tiff == pytest.approx([31.5, 31.5], abs=0.05)
 
 
 def test_no_image_giving_a_result_is_exit_1(tmp_path, capsys):
