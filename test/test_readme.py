@@ -1,10 +1,11 @@
 """The README documents what the code does: every parameter, the two commands, what needs ROS."""
 
+import re
 from pathlib import Path
 
 import pytest
 
-from marker_localizer.cli import BENCHMARKS, COMMANDS
+from marker_localizer.cli import BENCHMARKS, COMMANDS, main
 from marker_localizer.config import DetectorConfig, TrackerConfig, param_specs
 from marker_localizer.errors import ROS_WHEELS
 
@@ -36,3 +37,25 @@ def test_installing_names_the_commands_that_need_ros_and_the_wheels_that_bring_i
     needs_ros += [f"bench {name}" for name, m in BENCHMARKS.items() if m.endswith(".throughput")]
     assert sorted(needs_ros) == ["bench throughput", "demo", "play", "replay", "simulate"]
     assert all(f"`{name}`" in installing for name in needs_ros)
+
+
+def _command_lines() -> list[list[str]]:
+    """The README's ``marker-localizer ...`` lines in its bash blocks, as words."""
+    blocks = README.split("```bash\n")[1:]
+    lines = [line for block in blocks for line in block.split("```", 1)[0].splitlines()]
+    return [line.split() for line in lines if line.startswith("marker-localizer ")]
+
+
+def test_every_option_a_readme_command_line_shows_is_in_that_commands_help(capsys):
+    """An option renamed or removed shows here, not to a newcomer who types the line."""
+    pytest.importorskip("rclpy")  # simulate, replay and play load ROS to build their parsers
+    lines = _command_lines()
+    assert {words[1] for words in lines} >= {"detect", "simulate", "replay", "play"}
+    for words in lines:
+        command = words[1:3] if words[1] == "bench" else words[1:2]
+        with pytest.raises(SystemExit) as exited:
+            main([*command, "--help"])
+        assert exited.value.code == 0
+        shown = set(re.findall(r"--[a-z][a-z-]*", capsys.readouterr().out))
+        options = {re.match(r"\[?(--[a-z][a-z-]*)", w).group(1) for w in words if "--" in w}
+        assert options <= shown, f"{' '.join(words[:2])}: {sorted(options - shown)} not in --help"
