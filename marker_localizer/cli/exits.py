@@ -8,10 +8,12 @@ command into its status:
   (a bad value, a missing or damaged file), one line on stderr; only a bug shows
   a traceback;
 * 2: a command line argparse refuses (argparse's own status);
-* 128 + the signal's number (130, 143): SIGINT or SIGTERM. Both interrupt
-  the command alike: it unwinds (an unfinished output bag is removed) and one
-  line names the signal; a second signal during the unwinding ends the process
-  at once (:mod:`marker_localizer.stopping`);
+* 128 + the signal's number (130, 143): SIGINT or SIGTERM, from the moment the
+  command is chosen (its imports included). Both interrupt the command alike: it
+  unwinds (an unfinished output bag is removed) and one line names the signal; a
+  second signal during the unwinding cuts it short where it waits (the frames in
+  flight of a worker pool are abandoned), still one line; a third ends the
+  process at once (:mod:`marker_localizer.stopping`);
 * 141 (:data:`EXIT_CLOSED_PIPE`, 128 + SIGPIPE): the reader of its output went
   away (``marker-localizer detect *.png --json | head -1``). It stops, silently,
   as a tool that SIGPIPE ends does: Python ignores SIGPIPE, and the next write
@@ -27,7 +29,7 @@ import sys
 from collections.abc import Callable
 
 from marker_localizer.errors import MarkerLocalizerError
-from marker_localizer.stopping import on_stop_signal
+from marker_localizer.stopping import run_interruptible
 
 #: The console script's name, the first word of every message.
 PROG = "marker-localizer"
@@ -39,23 +41,6 @@ EXIT_INCOMPLETE = 3
 #: The status of a command whose output's reader went away: what a shell reports
 #: for a process SIGPIPE ended.
 EXIT_CLOSED_PIPE = 128 + signal.SIGPIPE
-
-
-class Interrupted(KeyboardInterrupt):
-    """SIGINT or SIGTERM arrived: unwind (writers remove their staging), then exit.
-
-    A KeyboardInterrupt, so that every ``except KeyboardInterrupt`` and
-    ``finally`` treats SIGTERM (what service managers and ``ros2 launch``
-    send) as it treats Ctrl-C.
-    """
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-def _interrupt(signum: int) -> None:
-    raise Interrupted(signum)
 
 
 def _output_reader_gone() -> bool:
@@ -78,8 +63,7 @@ def run_command(label: str, body: Callable[[], int]) -> int:
         the output's reader went away.
     """
     try:
-        with on_stop_signal(_interrupt):
-            return body()
+        return run_interruptible(label, body)
     except BrokenPipeError:
         if not _output_reader_gone():
             raise  # another pipe: a worker's, say
@@ -90,7 +74,3 @@ def run_command(label: str, body: Callable[[], int]) -> int:
     except MarkerLocalizerError as err:
         sys.stderr.write(f"{label}: error: {err}\n")
         return EXIT_ERROR
-    except KeyboardInterrupt as err:
-        signum = err.signum if isinstance(err, Interrupted) else signal.SIGINT
-        sys.stderr.write(f"{label}: interrupted by {signal.Signals(signum).name}\n")
-        return 128 + signum

@@ -55,6 +55,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from marker_localizer.blas import single_thread_blas
 from marker_localizer.config import NODE_NAME, DetectorConfig, TrackerConfig
 from marker_localizer.errors import ConfigError, MarkerLocalizerError, WorkerError, shorten
+from marker_localizer.node import PROG
 from marker_localizer.ros import diagnostics
 from marker_localizer.ros.conversions import (
     CAMERA_INFO_SUFFIX,
@@ -70,7 +71,7 @@ from marker_localizer.ros.parameters import (
     diagnostic_thresholds,
 )
 from marker_localizer.ros.processing import FrameProcessor
-from marker_localizer.stopping import on_stop_signal
+from marker_localizer.stopping import Interrupted, on_stop_signal, run_interruptible
 
 #: Per camera, at most one log line about failing frames, and one about dropped
 #: frames, in this many seconds: a camera sending bad frames at 10 Hz must not
@@ -120,7 +121,7 @@ class MarkerLocalizerNode(Node):
             raise ConfigError(str(err)) from err
         self._live = LiveParameters(self, self._on_parameters)
         settings = self._live.node_config
-        suffix, image_type = IMAGE_TRANSPORTS[settings.image_transport]
+        suffix = IMAGE_TRANSPORTS[settings.image_transport][0]
         self._check_topic_names(
             settings.cameras, (POINTS_SUFFIX, OVERLAY_SUFFIX, suffix, CAMERA_INFO_SUFFIX)
         )
@@ -137,6 +138,7 @@ class MarkerLocalizerNode(Node):
             c: self.create_publisher(Image, f"{c}/{OVERLAY_SUFFIX}", _OUTPUT_DEPTH)
             for c in settings.cameras
         }
+        inputs = {c: self._input_topics(c, suffix) for c in settings.cameras}
         self.processor = processor_class(
             settings.cameras,
             self._live.detector_config,
@@ -150,20 +152,26 @@ class MarkerLocalizerNode(Node):
             stats_window_s=settings.stats_window_s,
             tracker_config=self._live.tracker_config,
         )
-        for camera in settings.cameras:
+        try:
+            self._start_serving(settings, inputs)
+        except BaseException:  # rclpy refused, or Ctrl-C while starting: end the workers
+            self.processor.shutdown(0.0)
+            raise
+
+    def _start_serving(self, settings: NodeConfig, inputs: Mapping[str, tuple[str, str]]) -> None:
+        """Subscribe each camera's inputs, start the diagnostics, say what is served."""
+        suffix, image_type = IMAGE_TRANSPORTS[settings.image_transport]
+        for camera, (image_topic, info_topic) in inputs.items():
             self.create_subscription(
                 image_type,
-                self._image_topic(camera, suffix),
+                image_topic,
                 partial(self._on_image, camera),
                 # A copy: rclpy writes a camera's QoS overrides into the profile it is given.
                 copy.copy(_IMAGE_QOS),
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             )
             self.create_subscription(
-                CameraInfo,
-                f"{camera}/{CAMERA_INFO_SUFFIX}",
-                partial(self._on_camera_info, camera),
-                _CAMERA_INFO_QOS,
+                CameraInfo, info_topic, partial(self._on_camera_info, camera), _CAMERA_INFO_QOS
             )
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", _OUTPUT_DEPTH)
         # On the steady clock: with use_sim_time and no /clock yet (a bag not playing),
@@ -177,6 +185,14 @@ class MarkerLocalizerNode(Node):
         unknown = self._live.unknown(self)
         if unknown:
             self.get_logger().warning(f"ignoring unknown parameter(s): {', '.join(unknown)}")
+        for camera, topics in inputs.items():
+            read = [self.resolve_topic_name(topic) for topic in topics]
+            unmapped = [
+                self.resolve_topic_name(f"{camera}/{name}", only_expand=True)
+                for name in (suffix, CAMERA_INFO_SUFFIX)
+            ]
+            if read != unmapped:
+                self.get_logger().info(f"{camera}: reading {' and '.join(read)} (remapped)")
         self.get_logger().info(
             f"serving cameras {', '.join(settings.cameras)} with {settings.workers} worker "
             f"{'process' if settings.worker_processes else 'thread'}(s)"
@@ -218,7 +234,9 @@ class MarkerLocalizerNode(Node):
     def destroy_node(self) -> None:
         """Drain the worker pool (frames in flight are published), then destroy the node.
 
-        The drain waits at most ``shutdown_timeout_s`` and says for which cameras.
+        The drain waits at most ``shutdown_timeout_s`` and says for which cameras;
+        after the processor was told to abandon its frames (the second signal), not
+        at all, and silently: the line that names the signal says it.
         """
         timeout_s = self._live.node_config.shutdown_timeout_s
         in_flight = self.processor.in_flight()
@@ -227,7 +245,7 @@ class MarkerLocalizerNode(Node):
                 f"stopping: waiting up to {timeout_s:g} s for the frames in flight "
                 f"({', '.join(in_flight)})"
             )
-        if not self.processor.shutdown(timeout_s):
+        if not self.processor.shutdown(timeout_s) and not self.processor.abandoned:
             self.get_logger().warning(
                 f"stopping: frames still in flight after {timeout_s:g} s were abandoned "
                 f"({', '.join(self.processor.in_flight())})"
@@ -260,17 +278,33 @@ class MarkerLocalizerNode(Node):
                 if reason is not None:
                     raise ConfigError(f"camera {shorten(repr(camera))}: {reason}")
 
-    def _image_topic(self, camera: str, suffix: str) -> str:
-        """The topic of ``camera``'s frames: a transport's under the remapped raw topic.
+    def _input_topics(self, camera: str, suffix: str) -> tuple[str, str]:
+        """The topics of ``camera``'s frames and camera_info, named as image_transport names them.
 
-        As image_transport (and image_pipeline's nodes) name them: remapping
-        ``<cam>/image_raw`` moves ``<cam>/image_raw/compressed`` with it; a remap of
-        the compressed topic's own name still applies over that.
+        The frames: ``<cam>/image_raw``, or a transport's topic under it
+        (``<cam>/image_raw/compressed``), so that remapping ``<cam>/image_raw``
+        moves the compressed topic with it; a remap of the compressed topic's own
+        name still applies over that. The camera_info: the sibling of the (remapped)
+        raw topic, ``camera_info`` in its namespace, as image_transport's camera
+        subscriber (and so image_pipeline's nodes) reads it (``-r
+        cam0/image_raw:=/front/image`` reads ``/front/camera_info``), unless
+        ``<cam>/camera_info`` is remapped itself: that remap wins.
+
+        Raises:
+            ConfigError: the camera_info topic made so is one ROS refuses.
         """
         raw = IMAGE_TRANSPORTS["raw"][0]
-        if suffix == raw:
-            return f"{camera}/{raw}"
-        return self.resolve_topic_name(f"{camera}/{raw}") + suffix.removeprefix(raw)
+        raw_topic = self.resolve_topic_name(f"{camera}/{raw}")
+        image_topic = f"{camera}/{raw}" if suffix == raw else raw_topic + suffix.removeprefix(raw)
+        info_topic = f"{camera}/{CAMERA_INFO_SUFFIX}"
+        if self.resolve_topic_name(info_topic) == self.resolve_topic_name(
+            info_topic, only_expand=True
+        ):
+            info_topic = f"{raw_topic.rpartition('/')[0]}/{CAMERA_INFO_SUFFIX}"
+            reason = topic_name_problem(info_topic)
+            if reason is not None:
+                raise ConfigError(f"camera {shorten(repr(camera))}: {info_topic}: {reason}")
+        return image_topic, info_topic
 
     def _deliver(self, camera: str, cloud: PointCloud2, overlay: Image | None) -> None:
         self._points[camera].publish(cloud)
@@ -311,14 +345,27 @@ class MarkerLocalizerNode(Node):
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the node until SIGINT or SIGTERM.
 
+    The first signal while it serves stops it cleanly (the frames in flight are
+    published, at most ``shutdown_timeout_s`` waited for) with status 0, as a ROS
+    node that was asked to stop; a signal before it serves (while rclpy starts,
+    the workers start) or a second one during the drain interrupts it: one line
+    naming the signal, the frames in flight abandoned, status 128 + its number
+    (:mod:`marker_localizer.stopping`).
+
     Args:
         argv: command-line arguments after the program name (default:
             ``sys.argv[1:]``); ROS arguments follow ``--ros-args`` as for any
             node (``-p name:=value``, ``--params-file FILE``, ``-r from:=to``).
 
     Returns:
-        Exit status: 0 after a clean shutdown, 1 on invalid configuration.
+        Exit status: 0 after a clean shutdown, 1 on invalid configuration, 130 or
+        143 when interrupted.
     """
+    return run_interruptible(PROG, lambda: _start(argv))
+
+
+def _start(argv: Sequence[str] | None) -> int:
+    """Parse the arguments, start rclpy and serve (:func:`main`)."""
     args = [sys.argv[0] if sys.argv else NODE_NAME, *(sys.argv[1:] if argv is None else argv)]
     try:
         own_args = rclpy.utilities.remove_ros_args(args)[1:]
@@ -328,7 +375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return 1
     argparse.ArgumentParser(
-        prog="marker_localizer_node",
+        prog=PROG,
         description="ROS 2 node localising diagonal ground markers; configure it with "
         "--ros-args -p name:=value or --params-file config/marker_localizer.yaml.",
     ).parse_args(own_args)
@@ -338,31 +385,41 @@ def main(argv: Sequence[str] | None = None) -> int:
     # rclpy's own handlers would shut the context down before the pool drains;
     # ours only set a flag, so frames in flight are still published.
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-    with on_stop_signal(lambda _: stop.set()):
-        return _run(stop)
-
-
-def _run(stop: threading.Event) -> int:
-    """Serve until ``stop`` is set, then drain and shut down."""
     try:
         try:
             node = MarkerLocalizerNode()
         except MarkerLocalizerError as err:
             rclpy.logging.get_logger(NODE_NAME).fatal(f"invalid configuration: {err}")
             return 1
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        try:
-            while not stop.is_set() and rclpy.ok():
-                executor.spin_once(timeout_sec=_SPIN_PERIOD_S)
-        finally:
-            executor.remove_node(node)
-            node.destroy_node()
+        stop = threading.Event()
+        again: list[int] = []
+
+        def stop_at_once(signum: int) -> None:
+            # Flags only, no exception: wherever the drain is when it comes, it ends
+            # as at its timeout, worker processes killed and shared memory unlinked.
+            again.append(signum)
+            node.processor.abandon()
+
+        with on_stop_signal(lambda _: stop.set(), again=stop_at_once):
+            _run(node, stop)
+        if again:
+            raise Interrupted(again[0])
         node.get_logger().info("stopped")
         return 0
     finally:
         rclpy.try_shutdown()
+
+
+def _run(node: MarkerLocalizerNode, stop: threading.Event) -> None:
+    """Serve until ``stop`` is set, then drain and destroy the node."""
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=_SPIN_PERIOD_S)
+    finally:
+        executor.remove_node(node)
+        node.destroy_node()
 
 
 if __name__ == "__main__":

@@ -49,13 +49,14 @@ Guarantees:
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import signal
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from multiprocessing import shared_memory
@@ -106,6 +107,9 @@ _SHARED_MEMORY_DIR = "/dev/shm"
 #: the pages, then takes them back), and Fast DDS's transport shares it; at the
 #: cameras' 4-20 Hz room freed since is still found within seconds.
 NO_ROOM_RETRY_FRAMES = 50
+#: How often the shutdown's wait for the frames in flight looks whether it was told
+#: to give up on them (:meth:`FrameProcessor.abandon`), s.
+_ABANDON_POLL_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -116,9 +120,10 @@ class _Frame:
     #: Since when the camera's mailbox has been non-empty: a replacement keeps it,
     #: so a camera whose frames keep being replaced is not pushed back in the queue.
     waiting_since_ns: int
-    #: The arrival on the monotonic clock, which the latency is measured on: the
-    #: processor's own clock may be a bag's, frozen while a frame is processed.
-    received_monotonic_ns: int
+    #: The arrival on the steady clock, which the latency is measured on: the
+    #: processor's own clock may be a bag's, frozen while a frame is processed, or
+    #: gone back since the frame arrived (a bag played again).
+    received_steady_ns: int
 
 
 def _reserve_pages(block: shared_memory.SharedMemory) -> None:
@@ -168,7 +173,8 @@ def _kill_workers(pool: ProcessPoolExecutor) -> None:
     ``shutdown_timeout_s`` by the frame's time. The pool's processes are private to
     it (a public way to end them comes with Python 3.14's ``kill_workers``).
     """
-    for process in list(getattr(pool, "_processes", {}).values()):
+    # None once the pool is shut down.
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
         process.kill()
 
 
@@ -180,6 +186,16 @@ def _exit_with(parent: multiprocessing.process.BaseProcess) -> None:
 
 def _worker_ready() -> None:
     """Nothing: the task whose return shows that a worker process is up."""
+
+
+def _started_pool(workers: int) -> ProcessPoolExecutor:
+    """``workers`` worker processes forked from a fork server, each up and ready."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(_WORKER_PRELOAD)
+    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker_process)
+    for started in [pool.submit(_worker_ready) for _ in range(workers)]:
+        started.result()
+    return pool
 
 
 @dataclass(frozen=True)
@@ -238,8 +254,10 @@ class FrameProcessor:
         max_frame_age_s: frames that waited longer than this in the node when a
             worker takes them are dropped, s; 0 disables the check (replay).
         clock_ns: current time in nanoseconds (default: wall clock); arrivals,
-            waits, clock offsets and the statistics' windows are measured on it,
-            the latency on the monotonic clock.
+            waits, clock offsets and the statistics' windows are measured on it.
+        steady_ns: a clock that never goes back, ns (default: the monotonic
+            clock); the latency is measured on it, and so is a frame's wait where
+            ``clock_ns`` went back since the frame arrived.
         publish_overlay: also render an overlay image (bgr8) per frame.
         on_error: called with (camera, exception) when a frame fails, from a
             worker thread.
@@ -262,6 +280,7 @@ class FrameProcessor:
         workers: int = 2,
         max_frame_age_s: float = 0.0,
         clock_ns: Callable[[], int] = time.time_ns,
+        steady_ns: Callable[[], int] = time.monotonic_ns,
         publish_overlay: bool = False,
         on_error: ErrorCallback | None = None,
         stats_window_s: float = 10.0,
@@ -284,12 +303,15 @@ class FrameProcessor:
         self._on_result = on_result
         self._on_error = on_error
         self._clock_ns = clock_ns
+        self._steady_ns = steady_ns
         start_ns = clock_ns()
         self._stats = {c: CameraStats(c, start_ns, stats_window_s) for c in cameras}
         self._pending: dict[str, _Frame | None] = dict.fromkeys(cameras)
         self._busy: set[str] = set()
         self._cond = threading.Condition()
         self._stopping = False
+        # Set by abandon(), maybe from a signal handler: a plain flag, no lock.
+        self._abandon = False
         # Held while a result is delivered; shutdown takes it to close the gate.
         self._deliver_lock = threading.Lock()
         self._gate_open = True
@@ -395,7 +417,7 @@ class FrameProcessor:
             waiting = self._pending[camera]
             replaced = waiting is not None
             since_ns = now_ns if waiting is None else waiting.waiting_since_ns
-            self._pending[camera] = _Frame(camera, msg, now_ns, since_ns, time.monotonic_ns())
+            self._pending[camera] = _Frame(camera, msg, now_ns, since_ns, self._steady_ns())
             self._cond.notify_all()
         stats.frame_received(now_ns, stamp_to_ns(msg.header))
         if replaced:
@@ -490,38 +512,98 @@ class FrameProcessor:
 
         Returns:
             True if every worker finished; False if some were still busy at
-            the timeout (their results will not be delivered, and worker
-            processes still busy are killed).
+            the timeout or when :meth:`abandon` was called (their results will not
+            be delivered, and worker processes still busy are killed).
+
+        Raises:
+            KeyboardInterrupt: the wait was interrupted (a second Ctrl-C in a
+                command): the frames in flight are abandoned as at the timeout, then
+                it is raised again.
         """
         with self._cond:
             self._stopping = True
             self._pending = dict.fromkeys(self._pending)
             self._cond.notify_all()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        for thread in self._threads:
-            thread.join(None if deadline is None else max(deadline - time.monotonic(), 0.0))
+        try:
+            for thread in self._threads:
+                while thread.is_alive() and not self._abandon:
+                    left_s = _ABANDON_POLL_S if deadline is None else deadline - time.monotonic()
+                    if left_s <= 0:
+                        break
+                    thread.join(min(left_s, _ABANDON_POLL_S))
+            finished = not any(thread.is_alive() for thread in self._threads)
+            self._close(finished)
+        except BaseException:
+            self._close(finished=False)
+            raise
+        return finished
+
+    def abandon(self) -> None:
+        """Have :meth:`shutdown` give up on the frames in flight now, as at its timeout.
+
+        Before or during the shutdown; safe in a signal handler (it sets a flag and
+        takes no lock): the node's second Ctrl-C.
+        """
+        self._abandon = True
+
+    @property
+    def abandoned(self) -> bool:
+        """Whether :meth:`abandon` was called."""
+        return self._abandon
+
+    def _close(self, finished: bool) -> None:
+        """Stop delivering, end the worker processes and free the frames' shared memory.
+
+        Worker processes are killed unless ``finished`` (they may hold a frame).
+        Safe to call again, after an interruption of an earlier call included.
+        """
         with self._deliver_lock:
             self._gate_open = False
-        finished = not any(thread.is_alive() for thread in self._threads)
         with self._pool_lock:
             if self._pool is not None:
                 if not finished:
                     _kill_workers(self._pool)
                 self._pool.shutdown(wait=True, cancel_futures=True)
-            for block in self._frame_blocks:
-                block.close()
+            while self._frame_blocks:
+                block = self._frame_blocks.pop()
                 block.unlink()
-            self._frame_blocks.clear()
-        return finished
+                # A worker thread abandoned while it copies a frame in holds the mapping:
+                # it goes with the thread's view (the name is gone already).
+                with contextlib.suppress(BufferError):
+                    block.close()
 
     def _start_pool(self, workers: int) -> ProcessPoolExecutor:
-        """Worker processes, up and ready."""
-        context = multiprocessing.get_context("forkserver")
-        context.set_forkserver_preload(_WORKER_PRELOAD)
-        pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker_process)
-        for started in [pool.submit(_worker_ready) for _ in range(workers)]:
-            started.result()
-        return pool
+        """Worker processes, up and ready.
+
+        Started in a thread of its own, out of reach of Ctrl-C, which Python handles
+        in the main thread: a launch cut short there leaves the fork server starting
+        a process nobody waits for, which then looks for the pool's semaphores after
+        this process has gone and says so in a traceback. Interrupted, the main thread
+        waits for the launch to end (about a second; a further signal is noted, and a
+        third ends the process), ends the pool and raises the interruption again.
+        """
+        launched: Future[ProcessPoolExecutor] = Future()
+
+        def launch() -> None:
+            try:
+                launched.set_result(_started_pool(workers))
+            except BaseException as err:
+                launched.set_exception(err)
+
+        threading.Thread(target=launch, name="marker_pool_start", daemon=True).start()
+        try:
+            return launched.result()
+        except KeyboardInterrupt as err:
+            interrupted = err
+        while not launched.done():
+            try:
+                launched.exception()
+            except KeyboardInterrupt as err:
+                interrupted = err
+        if launched.exception() is None:
+            launched.result().shutdown(wait=True, cancel_futures=True)
+        raise interrupted
 
     @property
     def frames_pickled(self) -> int:
@@ -663,12 +745,22 @@ class FrameProcessor:
             self._pending[frame.camera] = None
             self._cond.notify_all()
             now_ns = self._clock_ns()
-            if self._max_frame_age_ns and now_ns - frame.received_ns > self._max_frame_age_ns:
+            if self._max_frame_age_ns and self._waited_ns(frame, now_ns) > self._max_frame_age_ns:
                 self._stats[frame.camera].frame_too_old(now_ns)
                 continue
             self._busy.add(frame.camera)
             return frame
         return None
+
+    def _waited_ns(self, frame: _Frame, now_ns: int) -> int:
+        """How long ``frame`` has waited since its arrival, ns, ``now_ns`` on the processor's clock.
+
+        Where that clock went back since the frame arrived (a bag played again with
+        ``use_sim_time``), the difference would be negative and the frame never too
+        old, however long it waited: its wait is then read on the steady clock.
+        """
+        waited_ns = now_ns - frame.received_ns
+        return waited_ns if waited_ns >= 0 else self._steady_ns() - frame.received_steady_ns
 
     def _process(self, frame: _Frame) -> None:
         stats = self._stats[frame.camera]
@@ -706,7 +798,7 @@ class FrameProcessor:
         now_ns = self._clock_ns()
         stats.frame_processed(
             now_ns,
-            latency_ms=(time.monotonic_ns() - frame.received_monotonic_ns) / 1e6,
+            latency_ms=(self._steady_ns() - frame.received_steady_ns) / 1e6,
             clock_offset_s=(frame.received_ns - stamp_to_ns(header)) / _NS_PER_S,
             markers=len(detections),
             capped=sum(result.counts.get(key, 0) for key in CAP_COUNTS),

@@ -17,6 +17,7 @@ import sys
 import textwrap
 
 import pytest
+from signalling import interrupt_while_importing
 
 from marker_localizer.bag.io import BagWriter, sweep_staging
 from marker_localizer.cli import main as cli
@@ -92,7 +93,7 @@ def test_sigterm_during_replay_removes_the_unfinished_output(small_flight, tmp_p
     assert entries(tmp_path) == []
 
 
-def test_a_second_signal_during_the_cleanup_ends_the_process_at_once():
+def test_a_second_signal_during_the_cleanup_cuts_it_short_in_one_line():
     script = """
         import os, signal, sys, time
         from marker_localizer.cli.exits import run_command
@@ -110,8 +111,74 @@ def test_a_second_signal_during_the_cleanup_ends_the_process_at_once():
         sys.exit(run_command("marker-localizer simulate", body))
     """
     result = run_python(script)
-    assert result.returncode == -signal.SIGTERM
+    assert result.returncode == 128 + signal.SIGTERM
     assert result.stdout == "cleaning up\n"
+    assert result.stderr == "marker-localizer simulate: interrupted by SIGTERM\n"
+
+
+def test_a_third_signal_ends_the_process_at_once_where_the_cleanup_still_hangs():
+    script = """
+        import os, signal, sys, time
+        from marker_localizer.cli.exits import run_command
+
+        def body():
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(60)
+            finally:
+                try:
+                    os.kill(os.getpid(), signal.SIGINT)
+                    time.sleep(60)
+                finally:
+                    print("still cleaning up", flush=True)
+                    os.kill(os.getpid(), signal.SIGINT)
+                    time.sleep(60)
+                    print("cleaned up", flush=True)
+
+        sys.exit(run_command("marker-localizer replay", body))
+    """
+    result = run_python(script)
+    assert result.returncode == -signal.SIGINT
+    assert result.stdout == "still cleaning up\n"
+    assert result.stderr == ""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_while_a_command_still_imports_is_one_line_and_128_plus_it(small_flight, signum):
+    """Ctrl-C right after start: replay's imports (numpy, OpenCV, ROS) take seconds."""
+    status, stdout, stderr = interrupt_while_importing(
+        "numpy",
+        "marker_localizer.cli:main",
+        "replay",
+        small_flight,
+        "--out",
+        small_flight.parent / "out",
+        signum=signum,
+    )
+    assert (status, stdout) == (128 + signum, "")
+    assert stderr == f"marker-localizer replay: interrupted by {signum.name}\n"
+    assert not (small_flight.parent / "out").exists()
+
+
+def test_a_second_signal_in_a_nested_block_leaves_the_default_action_past_the_outer_one():
+    """The node serves in a block of its own inside the one that interrupts its start."""
+    script = """
+        import os, signal, threading
+        from marker_localizer.stopping import interrupt, on_stop_signal
+
+        stop = threading.Event()
+        with on_stop_signal(interrupt, again=interrupt):
+            with on_stop_signal(lambda signum: stop.set(), again=interrupt):
+                os.kill(os.getpid(), signal.SIGINT)
+                stop.wait(60)
+            print("stopped", flush=True)
+        print(signal.getsignal(signal.SIGINT) is signal.SIG_DFL, flush=True)
+        os.kill(os.getpid(), signal.SIGINT)
+        print("not reached", flush=True)
+    """
+    result = run_python(script)
+    assert result.returncode == -signal.SIGINT
+    assert result.stdout == "stopped\nTrue\n"
 
 
 def test_the_node_stop_handler_sets_its_flag_once_and_the_second_signal_kills():

@@ -5,6 +5,7 @@ a peer node publishes rendered frames with exact ground truth and listens to
 every output. Waits are polls with generous deadlines, never fixed sleeps.
 """
 
+import os
 import threading
 from collections import defaultdict
 from contextlib import contextmanager
@@ -26,6 +27,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
+from marker_localizer.bench.throughput import process_table
 from marker_localizer.ros.conversions import array_to_image, cloud_to_array
 from marker_localizer.ros.node import MarkerLocalizerNode
 from marker_localizer.ros.processing import FrameProcessor
@@ -265,3 +267,32 @@ def stamped(sec, pixels=None):
 
 def clock_at(seconds):
     return lambda: int(seconds * 1e9)
+
+
+def worker_process_ids(node_pid: int | None = None) -> set[int]:
+    """Live processes whose parent is a child of the node's: the fork server's workers."""
+    parents = {pid: stat.parent for pid, stat in process_table().items() if stat.state != "Z"}
+    node_pid = os.getpid() if node_pid is None else node_pid
+    children = {pid for pid, parent in parents.items() if parent == node_pid}
+    return {pid for pid, parent in parents.items() if parent in children}
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie does not)."""
+    stat = process_table().get(pid)
+    return stat is not None and stat.state != "Z"
+
+
+def shared_memory_blocks() -> set[str]:
+    """Python's shared memory blocks now (its semaphores live in /dev/shm too)."""
+    return {name for name in os.listdir("/dev/shm") if name.startswith("psm_")}
+
+
+def mapped_shared_memory_blocks(pid: int) -> set[str]:
+    """The shared memory blocks of Python's that process ``pid`` has mapped now.
+
+    Unlike :func:`shared_memory_blocks`, blind to the blocks of other processes on
+    the machine (another test run's).
+    """
+    lines = Path(f"/proc/{pid}/maps").read_text().splitlines()
+    return {Path(line.split()[-1]).name for line in lines if "/dev/shm/psm_" in line}

@@ -194,6 +194,69 @@ def test_compressed_frames_follow_a_remapped_raw_topic_as_image_transport_names_
         spinner.stop()
 
 
+def test_camera_info_follows_a_remapped_image_topic_as_image_transport_names_it(ros):
+    """The sibling of the image topic, unless <cam>/camera_info is remapped itself.
+
+    A driver publishes <ns>/image_raw and <ns>/camera_info side by side; one remap of
+    the image puts both where the driver is, for the compressed transport too.
+    """
+    node = MarkerLocalizerNode(
+        "info_localizer",
+        namespace="/info",
+        cli_args=[
+            "--ros-args",
+            "-r",
+            "cam0/image_raw:=/drv/front/image_raw",
+            "-r",
+            "cam1/image_raw:=/drv/rear/image",
+            "-r",
+            "cam1/camera_info:=/calib/rear",
+        ],
+        parameter_overrides=[
+            Parameter("image_transport", value="compressed"),
+            Parameter("cameras", value=["cam0", "cam1", "cam2"]),
+            Parameter("workers", value=1),
+            Parameter("worker_processes", value=False),
+            Parameter("diagnostics_period_s", value=0.1),
+        ],
+    )
+    spinner = Spinner(node)
+    peer = Peer("info_peer", "/info")
+    try:
+        subscribed = {
+            name: [type_name.split("/")[-1] for type_name in types]
+            for name, types in node.get_subscriber_names_and_types_by_node(
+                "info_localizer", "/info"
+            )
+            if not name.startswith("/parameter_events")
+        }
+        assert subscribed == {
+            "/drv/front/image_raw/compressed": ["CompressedImage"],
+            "/drv/front/camera_info": ["CameraInfo"],
+            "/drv/rear/image/compressed": ["CompressedImage"],
+            "/calib/rear": ["CameraInfo"],
+            "/info/cam2/image_raw/compressed": ["CompressedImage"],
+            "/info/cam2/camera_info": ["CameraInfo"],
+        }
+        peer.listen("/diagnostics", DiagnosticArray)
+        pub = peer.node.create_publisher(CameraInfo, "/drv/front/camera_info", 1)
+        wait_until(lambda: pub.get_subscription_count() > 0, "the node subscribing")
+
+        def reported():
+            pub.publish(CameraInfo(width=1280, height=960))
+            return any(
+                values_of(s)["camera_info"] == "1280x960"
+                for array_msg in peer.messages("/diagnostics")
+                for s in array_msg.status
+                if s.name == "info_localizer: cam0"
+            )
+
+        wait_until(reported, "cam0's camera_info in the diagnostics")
+    finally:
+        peer.stop()
+        spinner.stop()
+
+
 def test_camera_info_published_best_effort_is_reported(localizer, tester):
     """Drivers that publish best-effort images often publish their camera_info so."""
     tester.listen("/diagnostics", DiagnosticArray)

@@ -2,21 +2,32 @@
 
 import json
 import os
+import queue
 import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray
 from node_testing import (
     PARAMS_FILE,
     TIMEOUT_S,
     Peer,
     assert_matches_truth,
+    mapped_shared_memory_blocks,
     points_xy,
+    process_alive,
     scene,
+    shared_memory_blocks,
+    values_of,
+    wait_until,
+    worker_process_ids,
+    x_marker_64,
 )
 from sensor_msgs.msg import PointCloud2
+from signalling import interrupt_while_importing
 
 # --------------------------------------------------------------------------- separate process
 
@@ -157,3 +168,100 @@ def test_node_process_with_a_params_file_that_is_not_yaml_exits_1_in_one_line(tm
     assert result.returncode == 1
     (line,) = result.stderr.splitlines()
     assert "invalid ROS arguments: " in line and "Couldn't parse params file" in line
+
+
+@pytest.mark.parametrize("module", ["numpy", "rclpy"])
+def test_ctrl_c_while_the_node_still_imports_is_one_line_and_status_130(module):
+    """Right after start: the detector's imports and ROS's take a second or more."""
+    status, stdout, stderr = interrupt_while_importing(
+        module, "marker_localizer.node:main", "--ros-args", "-p", "cameras:=[cam0]"
+    )
+    assert (status, stdout) == (130, "")
+    assert stderr == "marker_localizer_node: interrupted by SIGINT\n"
+
+
+class _Lines:
+    """The lines a process writes to one of its pipes, read as they come."""
+
+    def __init__(self, pipe):
+        self.lines = queue.Queue()
+        self.seen = []
+        self._thread = threading.Thread(target=self._read, args=(pipe,), daemon=True)
+        self._thread.start()
+
+    def _read(self, pipe):
+        for line in pipe:
+            self.lines.put(line)
+
+    def wait_for(self, text):
+        """The first line (from where the last wait stopped) that holds ``text``."""
+        while True:
+            line = self.lines.get(timeout=TIMEOUT_S)
+            self.seen.append(line)
+            if text in line:
+                return line
+
+    def rest(self):
+        """Every line after the last one waited for, once the pipe is closed."""
+        self._thread.join(TIMEOUT_S)
+        while not self.lines.empty():
+            self.seen.append(self.lines.get())
+        return "".join(self.seen)
+
+
+def test_a_second_ctrl_c_abandons_the_frame_in_flight_and_says_so_in_one_line(ros):
+    """A stopped worker process (SIGSTOP) stands for a frame longer than the drain's wait.
+
+    The first Ctrl-C starts the drain; the second ends it at once: the worker
+    process killed, the frame's shared memory unlinked (nothing left for Python's
+    resource tracker to warn about), one line, status 130.
+    """
+    process = subprocess.Popen(
+        node_command(
+            CONSOLE_SCRIPT,
+            "-p",
+            "cameras:=[cam0]",
+            "-p",
+            "workers:=1",
+            "-p",
+            "shutdown_timeout_s:=600.0",
+            "-p",
+            "diagnostics_period_s:=0.1",
+            "-r",
+            "__ns:=/twice",
+        ),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    err = _Lines(process.stderr)
+    tester = Peer("twice_tester", "/twice")
+    try:
+        err.wait_for("serving cameras cam0")
+        (worker,) = worker_process_ids(process.pid)
+        os.kill(worker, signal.SIGSTOP)
+        tester.listen("/diagnostics", DiagnosticArray)
+        tester.publish("cam0/image_raw", tester.frame(x_marker_64()))
+
+        def frame_in_flight():
+            return any(
+                values_of(status).get("frames in flight") == "1"
+                for array_msg in tester.messages("/diagnostics")
+                for status in array_msg.status
+            )
+
+        wait_until(frame_in_flight, "the frame in its worker process")
+        (block,) = mapped_shared_memory_blocks(process.pid)  # the frame's
+        process.send_signal(signal.SIGINT)
+        err.wait_for("stopping: waiting up to 600 s for the frames in flight (cam0)")
+        process.send_signal(signal.SIGINT)
+        process.wait(TIMEOUT_S)
+    finally:
+        process.kill()
+        tester.stop()
+    assert process.returncode == 130
+    assert err.rest().splitlines()[-1] == "marker_localizer_node: interrupted by SIGINT"
+    assert "Traceback" not in "".join(err.seen)
+    assert "Warning" not in "".join(err.seen)  # the resource tracker's, of leaked memory
+    wait_until(lambda: not process_alive(worker), "the worker process to end")
+    assert block not in shared_memory_blocks()

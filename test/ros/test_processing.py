@@ -17,13 +17,14 @@ from node_testing import (
     TIMEOUT_S,
     Collector,
     clock_at,
+    shared_memory_blocks,
     stamped,
     wait_until,
+    worker_process_ids,
     x_marker_64,
 )
 from scenes import panning_frames
 
-from marker_localizer.bench.throughput import process_table
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ImageError, WorkerError
 from marker_localizer.ros import processing
@@ -99,6 +100,43 @@ def test_frames_that_waited_longer_than_max_age_in_the_node_are_dropped_whatever
     assert collect.results == [("a", 1, 1), ("b", 501, 1)]
     snap = processor.snapshots()["b"]
     assert (snap.dropped_age, snap.processed) == (1, 1)
+
+
+@pytest.mark.parametrize(("waited_s", "dropped"), [(3.0, True), (0.5, False)])
+def test_a_frame_waiting_while_the_clock_goes_back_is_aged_by_its_real_wait(waited_s, dropped):
+    """A bag played again with use_sim_time: on that clock the frame's wait is negative.
+
+    It is measured on the steady clock instead, which the latency is measured on too,
+    so that neither is negative nor the frame judged fresh however long it waited.
+    """
+    collect = Collector()
+    now, steady = [1000 * 10**9], [0]
+    processor = FrameProcessor(
+        ["a", "b"],
+        DetectorConfig(),
+        collect,
+        workers=1,
+        max_frame_age_s=2.0,
+        clock_ns=lambda: now[0],
+        steady_ns=lambda: steady[0],
+    )
+    try:
+        collect.release.clear()
+        processor.submit("a", stamped(1000))
+        wait_until(collect.entered.is_set, "the worker to take a's frame")
+        processor.submit("b", stamped(1000))  # waits behind a's frame
+        now[0] = 100 * 10**9  # played again from its start
+        steady[0] += round(waited_s * 1e9)
+        collect.release.set()
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    snap = processor.snapshots()["b"]
+    assert (snap.dropped_age, snap.processed) == ((1, 0) if dropped else (0, 1))
+    if not dropped:
+        assert snap.latency_p50_ms == pytest.approx(waited_s * 1e3)  # the steady clock stood
+    assert snap.since_last_frame_s >= 0.0
+    assert processor.snapshots()["a"].latency_p50_ms == pytest.approx(waited_s * 1e3)
 
 
 def test_blocking_submit_processes_every_frame_in_order_per_camera():
@@ -196,19 +234,6 @@ def test_frame_over_max_pixels_fails_and_the_next_smaller_one_is_served():
 # --------------------------------------------------------------------------- worker processes
 
 
-def _worker_process_ids(node_pid: int | None = None) -> set[int]:
-    """Live processes whose parent is a child of the node's: the fork server's workers."""
-    parents = {pid: stat.parent for pid, stat in process_table().items() if stat.state != "Z"}
-    node_pid = os.getpid() if node_pid is None else node_pid
-    children = {pid for pid, parent in parents.items() if parent == node_pid}
-    return {pid for pid, parent in parents.items() if parent in children}
-
-
-def _shared_memory_blocks() -> set[str]:
-    """Python's shared memory blocks now (its semaphores live in /dev/shm too)."""
-    return {name for name in os.listdir("/dev/shm") if name.startswith("psm_")}
-
-
 def test_worker_processes_find_what_threads_find_and_carry_each_cameras_tracks():
     config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=20.0)
     frames = panning_frames(4)
@@ -262,34 +287,34 @@ def test_the_cameras_scheduled_full_passes_fall_on_different_frames(processes):
 
 
 def test_worker_processes_and_the_frames_shared_memory_are_gone_after_shutdown():
-    before, blocks = _worker_process_ids(), _shared_memory_blocks()
+    before, blocks = worker_process_ids(), shared_memory_blocks()
     collect = Collector()
     processor = FrameProcessor(["a"], DetectorConfig(), collect, workers=2, worker_processes=True)
-    workers = _worker_process_ids() - before
+    workers = worker_process_ids() - before
     assert len(workers) == 2
     processor.submit("a", stamped(1), block=True)
     assert processor.wait_idle(TIMEOUT_S)
-    assert _shared_memory_blocks() > blocks  # the block the frame went through
+    assert shared_memory_blocks() > blocks  # the block the frame went through
     assert processor.shutdown(TIMEOUT_S)
     assert collect.results == [("a", 1, 1)]
-    assert _shared_memory_blocks() == blocks
-    wait_until(lambda: not workers & _worker_process_ids(), "the worker processes to exit")
+    assert shared_memory_blocks() == blocks
+    wait_until(lambda: not workers & worker_process_ids(), "the worker processes to exit")
 
 
 def test_a_larger_frame_gets_a_larger_shared_memory_block_and_the_smaller_one_is_unlinked():
     collect = Collector()
-    blocks = _shared_memory_blocks()
+    blocks = shared_memory_blocks()
     processor = FrameProcessor(
         ["cam0"], DetectorConfig(), collect, workers=1, worker_processes=True
     )
     try:
         processor.submit("cam0", stamped(1), block=True)
         assert processor.wait_idle(TIMEOUT_S)
-        (small,) = _shared_memory_blocks() - blocks
+        (small,) = shared_memory_blocks() - blocks
         larger = np.pad(x_marker_64(), 32, mode="edge")  # 128 x 128, the X at (63.5, 63.5)
         processor.submit("cam0", stamped(2, larger), block=True)
         assert processor.wait_idle(TIMEOUT_S)
-        (large,) = _shared_memory_blocks() - blocks
+        (large,) = shared_memory_blocks() - blocks
         assert large != small
         assert os.path.getsize(f"/dev/shm/{large}") >= larger.nbytes
     finally:
@@ -300,7 +325,7 @@ def test_a_larger_frame_gets_a_larger_shared_memory_block_and_the_smaller_one_is
 
 def _one_worker_process(collect, failures):
     """A processor of camera cam0 with one worker process, and that process's id."""
-    before = _worker_process_ids()
+    before = worker_process_ids()
     processor = FrameProcessor(
         ["cam0"],
         DetectorConfig(),
@@ -309,7 +334,7 @@ def _one_worker_process(collect, failures):
         worker_processes=True,
         on_error=lambda camera, err: failures.append(err),
     )
-    (worker,) = _worker_process_ids() - before
+    (worker,) = worker_process_ids() - before
     return processor, worker
 
 
@@ -352,7 +377,7 @@ def test_a_frame_still_in_a_worker_process_at_the_timeout_is_abandoned_with_its_
         stopper.start()
         stopper.join(TIMEOUT_S)
         assert finished == [False]
-        assert worker not in _worker_process_ids()
+        assert worker not in worker_process_ids()
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.kill(worker, signal.SIGKILL)
@@ -373,7 +398,7 @@ def test_worker_processes_end_with_a_node_that_was_killed():
         [sys.executable, "-c", node_code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
     )
     try:
-        workers = _worker_process_ids(int(node.stdout.readline()))
+        workers = worker_process_ids(int(node.stdout.readline()))
         assert len(workers) == 2
     finally:
         node.kill()  # no shutdown: as a crash or the kernel's out-of-memory killer ends it
@@ -387,18 +412,18 @@ def test_worker_processes_end_with_a_node_that_was_killed():
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_worker_processes_leave_the_stop_signals_to_the_node(signum):
     collect = Collector()
-    before = _worker_process_ids()
+    before = worker_process_ids()
     processor = FrameProcessor(
         ["cam0"], DetectorConfig(), collect, workers=1, worker_processes=True
     )
     try:
-        (worker,) = _worker_process_ids() - before
+        (worker,) = worker_process_ids() - before
         # What a terminal's Ctrl-C sends to every process of the node's group, and a
         # service manager's stop to every process of its control group.
         os.kill(worker, signum)
         processor.submit("cam0", stamped(1), block=True)
         assert processor.wait_idle(TIMEOUT_S)
-        assert worker in _worker_process_ids()
+        assert worker in worker_process_ids()
     finally:
         processor.shutdown(TIMEOUT_S)
     assert collect.results == [("cam0", 1, 1)]
@@ -430,7 +455,7 @@ def full_tmpfs(monkeypatch):
 
 
 def test_frames_shared_memory_has_no_room_for_go_pickled_and_are_counted(full_tmpfs):
-    blocks = _shared_memory_blocks()
+    blocks = shared_memory_blocks()
     collect = Collector()
     processor = FrameProcessor(
         ["cam0"], DetectorConfig(), collect, workers=1, worker_processes=True
@@ -439,7 +464,7 @@ def test_frames_shared_memory_has_no_room_for_go_pickled_and_are_counted(full_tm
         for sec in (1, 2):
             processor.submit("cam0", stamped(sec), block=True)
         assert processor.wait_idle(TIMEOUT_S)
-        assert _shared_memory_blocks() == blocks
+        assert shared_memory_blocks() == blocks
     finally:
         processor.shutdown(TIMEOUT_S)
     assert collect.results == [("cam0", 1, 1), ("cam0", 2, 1)]
