@@ -55,6 +55,7 @@ import threading
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -70,6 +71,13 @@ _NS_PER_S = 1_000_000_000
 #: Results kept per camera for the windowed latency and marker statistics; the
 #: newest 200 within the window bound memory and the sort, and give a stable p95.
 _LATENCY_SAMPLES = 200
+#: Frames a camera's windows hold at most (arrivals with their stamps, drops,
+#: deliveries): the window is a time, and a clock that stands still (``use_sim_time``
+#: before the first /clock, a simulator paused while the camera runs on) would keep
+#: every frame in it for ever. 2^16 holds an 18 Hz camera over the longest window
+#: (``stats_window_s`` 3600 s) and, at ~80 bytes a frame, is ~5 MB a camera at most.
+#: Where more frames arrive in a window, the window is the span of the newest of them.
+WINDOW_MAX_FRAMES = 1 << 16
 #: A clock going back by more than this restarts the windows, s. Times read by one
 #: thread may reach the statistics after a later time read by another; those stay
 #: far below a second.
@@ -123,7 +131,9 @@ class CameraSnapshot:
             worst case: ``max_candidates``, and the candidates it verifies) cut
             candidates, since start.
         candidates_capped: candidates those caps cut, since start.
-        received_in_window: frames received within the window.
+        received_in_window: frames received within the window (at most
+            :data:`WINDOW_MAX_FRAMES`: where more arrived, the window is the span of
+            the newest that many, and every windowed figure is over that span).
         dropped_in_window: frames dropped (either reason) within the window.
         input_rate_hz: received frames per second over the window.
         processed_rate_hz: delivered results per second over the window.
@@ -176,6 +186,25 @@ class CameraSnapshot:
     bit_depth_hint: int | None = None
 
 
+class _Delivered(NamedTuple):
+    """What the statistics keep of one delivered frame, for its window."""
+
+    #: When its result was delivered, on the statistics' clock, ns.
+    at_ns: int
+    #: Arrival in the mailbox to delivery, ms.
+    latency_ms: float
+    #: Arrival time minus the frame's header stamp, s.
+    clock_offset_s: float
+    #: Markers found in it.
+    markers: int
+    #: Its brightest level (:func:`~marker_localizer.core.image.peak_level`); NaN: not read.
+    peak: float
+    #: The configured bit depth where the frame is 16-bit; 0 for an 8-bit frame.
+    bit_depth: int
+    #: Whether the detector searched the whole frame (else tracking confirmed its markers).
+    full_frame: bool
+
+
 class CameraStats:
     """Thread-safe counters and sliding windows of one camera.
 
@@ -183,9 +212,19 @@ class CameraStats:
         camera: camera name.
         start_ns: clock time at start, ns (the input timeout counts from it).
         window_s: length of the sliding window, s.
+        max_window_frames: most frames the windows hold (:data:`WINDOW_MAX_FRAMES`).
     """
 
-    def __init__(self, camera: str, start_ns: int, window_s: float) -> None:
+    def __init__(
+        self,
+        camera: str,
+        start_ns: int,
+        window_s: float,
+        *,
+        max_window_frames: int = WINDOW_MAX_FRAMES,
+    ) -> None:
+        if max_window_frames < 1:
+            raise ValueError(f"max_window_frames must be at least 1, got {max_window_frames!r}")
         self.camera = camera
         self._lock = threading.Lock()
         self._start_ns = start_ns
@@ -197,17 +236,19 @@ class CameraStats:
         self._last_frame_ns: int | None = None
         self._last_error = ""
         self._last_error_ns: int | None = None
-        self._received_at: deque[int] = deque()
-        self._stamps: deque[int] = deque()  # header stamp of each frame in _received_at
-        self._dropped_at: deque[int] = deque()
-        # (delivery time ns, latency ms, clock offset s, markers, brightest level, bit
-        # depth of a 16-bit frame or 0, 1 for a full-frame pass or 0) per delivered frame.
-        self._results: deque[tuple[int, float, float, int, float, int, int]] = deque()
+        # Bounded by count too (WINDOW_MAX_FRAMES); _received_at and _stamps stay aligned.
+        self._received_at: deque[int] = deque(maxlen=max_window_frames)
+        self._stamps: deque[int] = deque(maxlen=max_window_frames)  # of each in _received_at
+        self._dropped_at: deque[int] = deque(maxlen=max_window_frames)
+        # When each result was delivered: the processed rate (_results keeps only the newest).
+        self._processed_at: deque[int] = deque(maxlen=max_window_frames)
+        self._results: deque[_Delivered] = deque()
 
     def _follow_clock(self, now_ns: int) -> None:
         """Under the lock: restart the windows where the clock went back (module docstring)."""
         if now_ns < self._latest_ns - CLOCK_JUMP_BACK_S * _NS_PER_S:
-            for window in (self._received_at, self._stamps, self._dropped_at, self._results):
+            windows = (self._received_at, self._stamps, self._dropped_at, self._processed_at)
+            for window in (*windows, self._results):
                 window.clear()
             self._start_ns = now_ns
             if self._last_frame_ns is not None:
@@ -272,8 +313,9 @@ class CameraStats:
             self._full_frame_passes += full_frame
             self._frames_capped += capped > 0
             self._candidates_capped += capped
+            self._processed_at.append(now_ns)
             self._results.append(
-                (now_ns, latency_ms, clock_offset_s, markers, peak, bit_depth, int(full_frame))
+                _Delivered(now_ns, latency_ms, clock_offset_s, markers, peak, bit_depth, full_frame)
             )
             while len(self._results) > _LATENCY_SAMPLES:
                 self._results.popleft()
@@ -294,12 +336,16 @@ class CameraStats:
             while self._received_at and self._received_at[0] < horizon:
                 self._received_at.popleft()
                 self._stamps.popleft()
-            while self._dropped_at and self._dropped_at[0] < horizon:
-                self._dropped_at.popleft()
-            recent = [r for r in self._results if r[0] >= horizon]
-            span_s = max(min(now_ns - self._start_ns, self._window_ns), 1) / _NS_PER_S
-            latency = np.array([r[1] for r in recent])
-            deep = [r for r in recent if r[5]]
+            if len(self._received_at) == self._received_at.maxlen:
+                # More frames in the window than are kept: it starts at the oldest kept.
+                horizon = max(horizon, self._received_at[0])
+            for window in (self._dropped_at, self._processed_at):
+                while window and window[0] < horizon:
+                    window.popleft()
+            recent = [r for r in self._results if r.at_ns >= horizon]
+            span_s = max(min(now_ns - self._start_ns, now_ns - horizon), 1) / _NS_PER_S
+            latency = np.array([r.latency_ms for r in recent])
+            deep = [r for r in recent if r.bit_depth]
             last_frame = self._start_ns if self._last_frame_ns is None else self._last_frame_ns
             return CameraSnapshot(
                 camera=self.camera,
@@ -314,12 +360,12 @@ class CameraStats:
                 received_in_window=len(self._received_at),
                 dropped_in_window=len(self._dropped_at),
                 input_rate_hz=len(self._received_at) / span_s,
-                processed_rate_hz=len(recent) / span_s,
+                processed_rate_hz=len(self._processed_at) / span_s,
                 latency_p50_ms=_percentile(latency, 50),
                 latency_p95_ms=_percentile(latency, 95),
-                clock_offset_s=_percentile(np.array([r[2] for r in recent]), 50),
-                markers_per_frame=_mean([r[3] for r in recent]),
-                full_frame_share=_mean([r[6] for r in recent]),
+                clock_offset_s=_percentile(np.array([r.clock_offset_s for r in recent]), 50),
+                markers_per_frame=_mean([r.markers for r in recent]),
+                full_frame_share=_mean([float(r.full_frame) for r in recent]),
                 window_stamps_ns=np.array(self._stamps, dtype=np.int64),
                 since_last_frame_s=max(now_ns - last_frame, 0) / _NS_PER_S,
                 any_frame=self._last_frame_ns is not None,
@@ -328,20 +374,20 @@ class CameraStats:
                 if self._last_error_ns is None
                 else max(now_ns - self._last_error_ns, 0) / _NS_PER_S,
                 peak_share=_peak_share(recent),
-                bit_depth_hint=bit_depth_hint(max(r[4] for r in deep), deep[-1][5])
+                bit_depth_hint=bit_depth_hint(max(r.peak for r in deep), deep[-1].bit_depth)
                 if deep
                 else None,
             )
 
 
-def _peak_share(results: Sequence[tuple[int, float, float, int, float, int, int]]) -> float:
+def _peak_share(results: Sequence[_Delivered]) -> float:
     """The brightest level of delivered frames over the newest one's white (NaN: none)."""
-    read = [r for r in results if not math.isnan(r[4])]
+    read = [r for r in results if not math.isnan(r.peak)]
     if not read:
         return math.nan
-    bit_depth = read[-1][5]
+    bit_depth = read[-1].bit_depth
     white = bit_depth_scale(np.dtype(np.uint16 if bit_depth else np.uint8), bit_depth)
-    return max(r[4] for r in read) / white
+    return max(r.peak for r in read) / white
 
 
 def stalled_stamps(stamps_ns: np.ndarray) -> int:

@@ -11,6 +11,7 @@ from marker_localizer.ros.diagnostics import (
     ERROR,
     OK,
     WARN,
+    WINDOW_MAX_FRAMES,
     CameraStats,
     DiagnosticThresholds,
     camera_level,
@@ -315,3 +316,65 @@ def test_full_frame_passes_are_counted_since_start_and_as_a_share_of_the_window(
     assert values["full-frame passes in window (%)"] == "20.0"
     # A count, not a rule: full passes change no level.
     assert camera_level(snap, LIMITS) == (OK, "ok")
+
+
+def _frames_on_a_clock_standing_still(stats, frames, now_ns):
+    """``frames`` more frames at ``now_ns`` (use_sim_time before any /clock): each
+    received with a stamp of its own, one in ten replaced, the rest delivered."""
+    done = stats.snapshot(now_ns).received
+    for k in range(done, done + frames):
+        stats.frame_received(now_ns, stamp_ns=k * S // 10)
+        if k % 10 == 0:
+            stats.frame_replaced(now_ns)
+        else:
+            stats.frame_processed(now_ns, latency_ms=50.0, clock_offset_s=0.0, markers=1)
+
+
+def test_a_clock_that_stands_still_keeps_a_cameras_windows_bounded():
+    # Measured before the bound: 10 000 and 100 000 frames left 10 000 and 100 000
+    # arrivals and stamps in the window, all copied into every snapshot.
+    n = 10_000
+    stats = CameraStats("cam0", start_ns=0, window_s=10.0)
+    _frames_on_a_clock_standing_still(stats, n, 0)
+    first = stats.snapshot(0)
+    _frames_on_a_clock_standing_still(stats, 9 * n, 0)
+    later = stats.snapshot(0)
+    assert (first.received_in_window, len(first.window_stamps_ns)) == (n, n)
+    assert later.received == 10 * n
+    assert later.received_in_window == len(later.window_stamps_ns) == WINDOW_MAX_FRAMES
+    assert later.dropped_in_window <= WINDOW_MAX_FRAMES
+    # The stamps kept are the newest, in order.
+    assert later.window_stamps_ns[-1] == (10 * n - 1) * S // 10
+    assert (np.diff(later.window_stamps_ns) > 0).all()
+
+
+def test_a_window_holding_more_frames_than_it_keeps_counts_over_the_span_it_keeps():
+    stats = CameraStats("cam0", start_ns=0, window_s=10.0, max_window_frames=256)
+    for i in range(2000):  # 100 Hz: 1000 frames in the 10 s window
+        t = (i + 1) * S // 100
+        stats.frame_received(t, stamp_ns=t)
+        if i % 10 == 0:
+            stats.frame_replaced(t)
+        else:
+            stats.frame_processed(t, latency_ms=50.0, clock_offset_s=0.0, markers=1)
+    snap = stats.snapshot(20 * S)
+    assert snap.received_in_window == 256
+    assert snap.input_rate_hz == pytest.approx(100.0, rel=0.01)
+    assert snap.processed_rate_hz == pytest.approx(90.0, rel=0.02)
+    assert snap.dropped_in_window / snap.received_in_window == pytest.approx(0.1, abs=0.01)
+    with pytest.raises(ValueError, match="max_window_frames must be at least 1, got 0"):
+        CameraStats("cam0", start_ns=0, window_s=10.0, max_window_frames=0)
+
+
+@pytest.mark.parametrize("rate_hz", [10, 30, 60])
+def test_the_processed_rate_counts_every_delivery_of_a_camera_faster_than_20_hz(rate_hz):
+    # The rate was counted on the newest 200 results kept for the latency: 20 Hz at
+    # most over the 10 s window, whatever the camera's rate.
+    stats = CameraStats("cam0", start_ns=0, window_s=10.0)
+    for i in range(20 * rate_hz):
+        t = (i + 1) * S // rate_hz
+        stats.frame_received(t, stamp_ns=t)
+        stats.frame_processed(t, latency_ms=50.0, clock_offset_s=0.0, markers=1)
+    snap = stats.snapshot(20 * S)
+    assert snap.processed_rate_hz == pytest.approx(snap.input_rate_hz)
+    assert snap.processed_rate_hz == pytest.approx(rate_hz, rel=0.02)
