@@ -38,6 +38,13 @@ stamp (minimum total distance, within ``match_distance_px``) and the summary
 adds recall, false positives per frame and the error statistics. Detections on
 a marker listed in ``/<cam>/marker_points_partial`` (cut by the frame border)
 count neither way.
+
+Memory does not grow with the bag's length, but for the accuracy's tallies: results
+go to the output bag as they come, the summary keeps running sums, and a frame is
+matched to its truth as soon as both are in, then forgotten (:class:`TruthMatcher`).
+The tallies keep a few numbers a frame and a marker
+(:class:`~marker_localizer.evaluation.DetectionTally`: the error percentiles and the
+intervals need them), and only where the bag has truth.
 """
 
 from __future__ import annotations
@@ -94,8 +101,9 @@ class CameraReplay:
             frame without tracking; with it, the scheduled passes and the frames where
             tracking failed (as the camera's diagnostics count them).
         markers: Markers detected in them.
-        processing_ms: Per processed frame: submission to the worker pool to
-            the delivered result, ms (conversion, detection, point cloud packing).
+        processing_ms_total: Over the processed frames, the time from submission
+            to the worker pool to the delivered result, ms (conversion, detection,
+            point cloud packing): a sum, not a list, so that a long bag costs no memory.
         skipped_encoding: Frames with an encoding the node does not accept.
         skipped_out_of_order: Frames whose stamp was not newer than the last one.
         failed: Frames the processor rejected or failed on.
@@ -111,7 +119,7 @@ class CameraReplay:
     frames: int = 0
     full_frame_passes: int = 0
     markers: int = 0
-    processing_ms: list[float] = field(default_factory=list)
+    processing_ms_total: float = 0.0
     skipped_encoding: int = 0
     skipped_out_of_order: int = 0
     failed: int = 0
@@ -133,7 +141,7 @@ class CameraReplay:
     @property
     def mean_ms(self) -> float:
         """Mean processing time per frame, ms (NaN if none)."""
-        return float(np.mean(self.processing_ms)) if self.processing_ms else math.nan
+        return self.processing_ms_total / self.frames if self.frames else math.nan
 
 
 @dataclass
@@ -204,7 +212,7 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
         frames=report.frames,
         full_frame_passes=sum(c.full_frame_passes for c in cams),
         markers=sum(c.markers for c in cams),
-        processing_ms=[ms for c in cams for ms in c.processing_ms],
+        processing_ms_total=sum(c.processing_ms_total for c in cams),
         skipped_encoding=sum(c.skipped_encoding for c in cams),
         skipped_out_of_order=sum(c.skipped_out_of_order for c in cams),
         failed=sum(c.failed for c in cams),
@@ -346,11 +354,123 @@ class _InFlight:
     started_s: float
 
 
+#: The kind of a frame's detections among its parts (:meth:`TruthMatcher.add`); its
+#: truth and its partial list are :data:`TRUTH_SUFFIX` and :data:`PARTIAL_SUFFIX`.
+FOUND = "found"
+
+
+class TruthMatcher:
+    """Each frame of the cameras with truth, matched once its parts are in, then forgotten.
+
+    A frame's parts are its detections, its truth and, where the camera has a
+    partial topic, its partial list. They come in any order (results come back from
+    the workers while the reader goes on), and only the frames still waiting for a
+    part are held; a frame stops waiting for a part that can no longer come:
+
+    * its detections, once the camera has a result for a later stamp: a camera's
+      results come in stamp order, and replay skips a frame older than the last;
+    * its truth, once the camera's truth for a later stamp is in: truth is taken to
+      come in stamp order, as ``simulate`` writes it (a frame with no truth, as
+      where truth is given for some frames only, is then not evaluated, as before);
+    * its partial list likewise; the frame is then matched without one.
+
+    So a bag of any length holds a frame or so per camera here, or where only some
+    frames have truth, those between two that have (measured: at most 2 frames
+    on a 3000-frame, five-camera bag with truth, where all were held to the end before).
+
+    Args:
+        truth_cameras: the cameras with a truth topic: each gets a tally.
+        partial_cameras: those of them with a partial topic.
+        match_distance_px: largest detection-to-truth distance of a match, px.
+    """
+
+    def __init__(
+        self,
+        truth_cameras: Collection[str],
+        partial_cameras: Collection[str],
+        match_distance_px: float,
+    ) -> None:
+        #: Per camera with truth, the tally of its frames matched so far.
+        self.tallies = {camera: DetectionTally() for camera in truth_cameras}
+        self._partial_cameras = set(partial_cameras)
+        self._match_distance_px = match_distance_px
+        # camera -> stamp ns -> the parts in so far, by kind.
+        self._waiting: dict[str, dict[int, dict[str, np.ndarray]]] = {
+            camera: {} for camera in truth_cameras
+        }
+        # camera -> kind -> the newest stamp of a part of that kind, ns.
+        self._newest: dict[str, dict[str, int]] = {camera: {} for camera in truth_cameras}
+
+    @property
+    def waiting(self) -> int:
+        """Frames held, waiting for a part."""
+        return sum(len(frames) for frames in self._waiting.values())
+
+    def wants(self, camera: str) -> bool:
+        """Whether ``camera``'s frames are evaluated (it has a truth topic)."""
+        return camera in self.tallies
+
+    def add(self, kind: str, camera: str, stamp_ns: int, xy: np.ndarray) -> None:
+        """One part of a frame; nothing for a camera without truth.
+
+        Args:
+            kind: :data:`FOUND`, :data:`TRUTH_SUFFIX` or :data:`PARTIAL_SUFFIX`.
+            camera: the frame's camera.
+            stamp_ns: its header stamp, ns.
+            xy: (N, 2) the part's points, px. A later part of the same kind replaces
+                an earlier one while the frame waits.
+        """
+        if not self.wants(camera):
+            return
+        frames = self._waiting[camera]
+        frames.setdefault(stamp_ns, {})[kind] = xy
+        newest = self._newest[camera]
+        newest[kind] = max(newest.get(kind, stamp_ns), stamp_ns)
+        for stamp in list(frames):
+            self._settle(camera, stamp, frames[stamp], final=False)
+
+    def finish(self) -> None:
+        """Match the frames still waiting for their partial list, each without it."""
+        for camera, frames in self._waiting.items():
+            for stamp in list(frames):
+                self._settle(camera, stamp, frames[stamp], final=True)
+            frames.clear()
+
+    def _settle(self, camera: str, stamp: int, parts: dict[str, np.ndarray], final: bool) -> None:
+        """Match the frame if it can be, forget it if it can no longer be; else leave it."""
+        newest = self._newest[camera]
+
+        def over(kind: str) -> bool:  # a part of this kind will not come any more
+            return final or newest.get(kind, stamp) > stamp
+
+        if (FOUND not in parts and over(FOUND)) or (
+            TRUTH_SUFFIX not in parts and over(TRUTH_SUFFIX)
+        ):
+            del self._waiting[camera][stamp]
+            return
+        if FOUND not in parts or TRUTH_SUFFIX not in parts:
+            return
+        if not (
+            PARTIAL_SUFFIX in parts or camera not in self._partial_cameras or over(PARTIAL_SUFFIX)
+        ):
+            return
+        del self._waiting[camera][stamp]
+        self.tallies[camera].add(
+            match_points(
+                parts[FOUND],
+                parts[TRUTH_SUFFIX],
+                self._match_distance_px,
+                parts.get(PARTIAL_SUFFIX),
+            )
+        )
+
+
 class _Session:
     """Feeds one bag's frames to a FrameProcessor and writes what comes back.
 
     Worker threads only queue their results; the reading thread writes them
-    (the sqlite3 storage accepts writes only from the thread that opened it).
+    (the sqlite3 storage accepts writes only from the thread that opened it)
+    and hands them to the evaluation.
     """
 
     def __init__(
@@ -361,14 +481,16 @@ class _Session:
         writer: BagWriter,
         workers: int,
         worker_processes: bool,
+        evaluation: TruthMatcher,
     ) -> None:
         self.writer = writer
         self.workers = workers
         self.stats = {c: CameraReplay(c) for c in cameras}
-        self.found: dict[tuple[str, int], np.ndarray] = {}
+        self.evaluation = evaluation
         self._last_stamp: dict[str, int] = {}
         self._in_flight: dict[str, _InFlight] = {}
-        self._done: list[tuple[str, int, PointCloud2]] = []
+        # (camera, header stamp ns, bag time ns, cloud) of each result not yet written.
+        self._done: list[tuple[str, int, int, PointCloud2]] = []
         self._cond = threading.Condition()
         self.now_ns = 0
         settings = NodeConfig()
@@ -435,17 +557,17 @@ class _Session:
         self._write_done()
         if self._next_diagnostics_ns is not None:
             self._write_diagnostics(self.now_ns)
+        self.evaluation.finish()
 
     def _on_result(self, camera: str, cloud: PointCloud2, overlay: Image | None) -> None:
         delivered_s = time.perf_counter()
         with self._cond:
             flight = self._in_flight.pop(camera)
             stats = self.stats[camera]
-            stats.processing_ms.append((delivered_s - flight.started_s) * 1e3)
+            stats.processing_ms_total += (delivered_s - flight.started_s) * 1e3
             stats.frames += 1
             stats.markers += int(cloud.width) * int(cloud.height)
-            self.found[(camera, flight.stamp_ns)] = _xy(cloud)
-            self._done.append((camera, flight.time_ns, cloud))
+            self._done.append((camera, flight.stamp_ns, flight.time_ns, cloud))
             self._cond.notify_all()
 
     def _on_error(self, camera: str, err: Exception) -> None:
@@ -459,8 +581,10 @@ class _Session:
     def _write_done(self) -> None:
         with self._cond:
             done, self._done = self._done, []
-        for camera, time_ns, cloud in done:
+        for camera, stamp_ns, time_ns, cloud in done:
             self.writer.write(f"/{camera}/{POINTS_SUFFIX}", time_ns, cloud)
+            if self.evaluation.wants(camera):
+                self.evaluation.add(FOUND, camera, stamp_ns, _xy(cloud))
 
     def _maybe_write_diagnostics(self) -> None:
         if self._next_diagnostics_ns is None:
@@ -538,10 +662,7 @@ def replay_bag(
         partial = _cloud_topics(topics, cameras, PARTIAL_SUFFIX)
         topic_camera = {topic: cam for cam, topic in cameras.items()}
         total = sum(counts.get(t, 0) for t in cameras.values())
-        clouds: dict[str, dict[tuple[str, int], np.ndarray]] = {
-            TRUTH_SUFFIX: {},
-            PARTIAL_SUFFIX: {},
-        }
+        evaluation = TruthMatcher(truth, partial, match_distance_px)
         cloud_kind = {t: (TRUTH_SUFFIX, c) for c, t in truth.items()}
         cloud_kind |= {t: (PARTIAL_SUFFIX, c) for c, t in partial.items()}
         undecodable: dict[str, int] = {}
@@ -556,6 +677,7 @@ def replay_bag(
                 writer,
                 workers,
                 worker_processes,
+                evaluation,
             )
             started = time.perf_counter()
             handled = 0
@@ -565,7 +687,7 @@ def replay_bag(
                         kind, camera = cloud_kind[message.topic]
                         try:
                             cloud: PointCloud2 = message.decode()
-                            clouds[kind][(camera, stamp_to_ns(cloud.header))] = _xy(cloud)
+                            evaluation.add(kind, camera, stamp_to_ns(cloud.header), _xy(cloud))
                         except (BagError, ImageError):
                             undecodable[message.topic] = undecodable.get(message.topic, 0) + 1
                         continue
@@ -581,10 +703,8 @@ def replay_bag(
                 session.processor.shutdown()
             wall_s = time.perf_counter() - started
         damage = list(reader.damage)
-    if truth:
-        _evaluate(
-            session, clouds[TRUTH_SUFFIX], clouds[PARTIAL_SUFFIX], list(truth), match_distance_px
-        )
+    for camera, tally in evaluation.tallies.items():
+        session.stats[camera].evaluation = tally
     return ReplayReport(
         Path(bag),
         Path(out),
@@ -654,18 +774,3 @@ def _cloud_topics(topics: dict[str, str], cameras: dict[str, str], suffix: str) 
         for camera in cameras
         if topics.get(f"/{camera}/{suffix}") == CLOUD_TYPE
     }
-
-
-def _evaluate(
-    session: _Session,
-    truth: dict[tuple[str, int], np.ndarray],
-    partial: dict[tuple[str, int], np.ndarray],
-    cameras: Collection[str],
-    match_distance_px: float,
-) -> None:
-    """Match every processed frame of ``cameras`` that has truth; others are not evaluated."""
-    for camera in cameras:
-        evaluation = session.stats[camera].evaluation = DetectionTally()
-        for key, found in session.found.items():
-            if key[0] == camera and key in truth:
-                evaluation.add(match_points(found, truth[key], match_distance_px, partial.get(key)))

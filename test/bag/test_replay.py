@@ -25,12 +25,20 @@ from scenes import panning_frames
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 
+from marker_localizer.bag import replay
 from marker_localizer.bag.io import BagReader, BagWriter, typestore
-from marker_localizer.bag.replay import format_report, replay_bag
+from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX
+from marker_localizer.bag.replay import TruthMatcher, format_report, replay_bag
 from marker_localizer.cli import main as cli
 from marker_localizer.config import DetectorConfig, TrackerConfig
+from marker_localizer.core.result import Detection
 from marker_localizer.errors import BagError, ConfigError
-from marker_localizer.ros.conversions import CLOUD_FIELDS, array_to_image, cloud_to_array
+from marker_localizer.ros.conversions import (
+    CLOUD_FIELDS,
+    array_to_image,
+    cloud_to_array,
+    detections_to_cloud,
+)
 from marker_localizer.synthetic import render_markers
 from marker_localizer.synthetic.scene import MarkerPlacement
 
@@ -669,3 +677,95 @@ def test_replay_takes_detector_overrides_over_the_params_file_as_detect_does(
     assert cli([*argv[:3], str(tmp_path / "refused"), "--param", "min_score=2"]) == 1
     assert "min_score=2.0 is outside [0, 1]" in capsys.readouterr().err
     assert not (tmp_path / "refused").exists()
+
+
+# --------------------------------------------------------------------------- long bags
+
+
+def long_bag(path, frames, *, truth_every=0, bad_every=0, cameras=("cam0", "cam1")):
+    """``frames`` frames a camera at 10 Hz of :func:`x_marker_frame`.
+
+    With ``truth_every``, every so many frames carries its truth (the marker's
+    centre) and every frame an empty partial list, at its bag time; with
+    ``bad_every``, every so many frames has an encoding replay skips.
+    """
+    pixels = x_marker_frame()
+    truth = [Detection(x=40.3, y=30.6, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14)]
+    with BagWriter(path) as bag:
+        for camera in cameras:
+            bag.add_topic(f"/{camera}/image_raw", "sensor_msgs/msg/Image")
+            if truth_every:
+                bag.add_topic(f"/{camera}/{TRUTH_SUFFIX}", "sensor_msgs/msg/PointCloud2")
+                bag.add_topic(f"/{camera}/{PARTIAL_SUFFIX}", "sensor_msgs/msg/PointCloud2")
+        for k in range(frames):
+            t = (k + 1) * S // 10
+            for camera in cameras:
+                frame = image(pixels, t)
+                if bad_every and k % bad_every == bad_every - 1:
+                    frame.encoding = "yuv444"
+                bag.write(f"/{camera}/image_raw", t, frame)
+                if truth_every:
+                    header = Header(stamp=stamp(t))
+                    if k % truth_every == 0:
+                        cloud = detections_to_cloud(header, truth)
+                        bag.write(f"/{camera}/{TRUTH_SUFFIX}", t, cloud)
+                    bag.write(f"/{camera}/{PARTIAL_SUFFIX}", t, detections_to_cloud(header, []))
+    return path
+
+
+def test_a_long_replays_summary_keeps_sums_not_a_value_per_frame(tmp_path):
+    """Before: each camera's processing times, one a frame (10 and 100 here)."""
+
+    def held(report):
+        return {
+            name: len(value)
+            for camera in report.cameras.values()
+            for name, value in vars(camera).items()
+            if isinstance(value, list | dict | tuple)
+        }
+
+    short = replay_bag(long_bag(tmp_path / "short", 10), tmp_path / "short_out", workers=2)
+    long = replay_bag(long_bag(tmp_path / "long", 100), tmp_path / "long_out", workers=2)
+    assert [c.frames for c in long.cameras.values()] == [100, 100]
+    assert held(long) == held(short)
+    assert 0 < long.cameras["cam0"].mean_ms < 10_000
+    total = long.cameras["cam0"].processing_ms_total + long.cameras["cam1"].processing_ms_total
+    assert f"{total / 200:>10.1f}" in format_report(long).splitlines()[-1]
+
+
+@pytest.mark.parametrize(
+    ("truth_every", "bad_every"),
+    [(1, 0), (5, 0), (1, 4)],
+    ids=["truth on every frame", "truth on every fifth frame", "every fourth frame skipped"],
+)
+def test_replay_matches_each_frame_to_its_truth_as_it_comes_and_holds_only_those_waiting(
+    tmp_path, monkeypatch, truth_every, bad_every
+):
+    """Before: every frame's detections, truth and partial list held to the end (the
+    2 x 100 frames of the long bag: 200 of each)."""
+    peaks = []
+
+    class Counted(TruthMatcher):
+        def add(self, *args):
+            super().add(*args)
+            peaks[-1] = max(peaks[-1], self.waiting)
+
+    monkeypatch.setattr(replay, "TruthMatcher", Counted)
+    reports = {}
+    for frames in (10, 100):
+        peaks.append(0)
+        bag = long_bag(
+            tmp_path / f"in{frames}", frames, truth_every=truth_every, bad_every=bad_every
+        )
+        reports[frames] = replay_bag(bag, tmp_path / f"out{frames}", workers=2)
+    # However long the bag: a frame or two a camera, or those between two with truth.
+    assert peaks[1] <= peaks[0] + 2
+    assert peaks[1] <= 2 * (truth_every + 2)
+    for frames, report in reports.items():
+        kept = [k for k in range(frames) if not (bad_every and k % bad_every == bad_every - 1)]
+        with_truth = [k for k in kept if k % truth_every == 0]
+        for camera in report.cameras.values():
+            assert camera.frames == len(kept)
+            assert camera.evaluation.frames == len(with_truth)
+            assert camera.evaluation.recall == 1.0
+            assert camera.evaluation.n_false_positives == 0
