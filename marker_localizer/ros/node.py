@@ -193,9 +193,10 @@ class MarkerLocalizerNode(Node):
             ]
             if read != unmapped:
                 self.get_logger().info(f"{camera}: reading {' and '.join(read)} (remapped)")
+        kind = ("process", "processes") if settings.worker_processes else ("thread", "threads")
         self.get_logger().info(
             f"serving cameras {', '.join(settings.cameras)} with {settings.workers} worker "
-            f"{'process' if settings.worker_processes else 'thread'}(s)"
+            f"{kind[settings.workers != 1]}"
         )
 
     def publish_diagnostics(self) -> None:

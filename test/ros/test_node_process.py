@@ -237,7 +237,7 @@ def test_a_second_ctrl_c_abandons_the_frame_in_flight_and_says_so_in_one_line(ro
     err = _Lines(process.stderr)
     tester = Peer("twice_tester", "/twice")
     try:
-        err.wait_for("serving cameras cam0")
+        assert err.wait_for("serving cameras cam0").rstrip().endswith("with 1 worker process")
         (worker,) = worker_process_ids(process.pid)
         os.kill(worker, signal.SIGSTOP)
         tester.listen("/diagnostics", DiagnosticArray)
