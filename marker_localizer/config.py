@@ -111,7 +111,7 @@ def guessed(name: str, known: Iterable[str], prefix: str = "") -> str:
 _Dataclass = TypeVar("_Dataclass")
 
 
-def _refuses_unknown_names(kind: type[_Dataclass]) -> type[_Dataclass]:
+def refuses_unknown_names(kind: type[_Dataclass]) -> type[_Dataclass]:
     """Make the dataclass ``kind``'s constructor refuse an unknown name as :class:`ConfigError`.
 
     The generated ``__init__`` raises a bare ``TypeError`` for one
@@ -132,7 +132,7 @@ def _refuses_unknown_names(kind: type[_Dataclass]) -> type[_Dataclass]:
     return kind
 
 
-@_refuses_unknown_names
+@refuses_unknown_names
 @dataclass(frozen=True)
 class DetectorConfig:
     """Detector settings; validated on construction (raises :class:`ConfigError`).
@@ -487,7 +487,7 @@ class DetectorConfig:
         return from_mapping(changes, base=self)
 
 
-@_refuses_unknown_names
+@refuses_unknown_names
 @dataclass(frozen=True)
 class TrackerConfig:
     """Tracking-mode settings (:class:`~marker_localizer.core.tracking.MarkerTracker`).

@@ -60,6 +60,7 @@ from marker_localizer.config import (
     from_mapping,
     guessed,
     param_specs,
+    refuses_unknown_names,
 )
 from marker_localizer.errors import ConfigError
 from marker_localizer.ros.conversions import IMAGE_TRANSPORTS
@@ -95,6 +96,7 @@ def _node_param(
     return field(default=default, metadata={"spec": spec, "read_only": read_only})
 
 
+@refuses_unknown_names
 @dataclass(frozen=True)
 class NodeConfig:
     """The node's own settings; validated on construction (raises :class:`ConfigError`)."""

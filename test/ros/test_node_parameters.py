@@ -31,7 +31,7 @@ from marker_localizer.cli import main as cli_main
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ConfigError
 from marker_localizer.ros.node import MarkerLocalizerNode
-from marker_localizer.ros.parameters import params_yaml
+from marker_localizer.ros.parameters import NodeConfig, params_yaml
 
 # --------------------------------------------------------------------------- parameters
 
@@ -198,6 +198,15 @@ def test_a_params_file_keyed_for_any_node_applies_under_a_namespace_and_another_
         )
         == 0
     )
+
+
+def test_a_node_config_built_in_python_refuses_an_unknown_name_as_the_detectors_does():
+    """``NodeConfig(workres=2)``: the ConfigError ``DetectorConfig`` gives, not a TypeError."""
+    with pytest.raises(
+        ConfigError, match=r"^unknown parameter\(s\): workres \(did you mean workers\?\)$"
+    ):
+        NodeConfig(workres=2)
+    assert NodeConfig(workers=2).workers == 2
 
 
 def test_node_and_cli_refuse_an_unknown_detector_key_and_name_it(ros, tmp_path, capsys):
