@@ -676,8 +676,11 @@ def from_mapping(values: Mapping[str, Any], base: _Config) -> _Config: ...
 def from_mapping(
     values: Mapping[str, Any], base: DetectorConfig | TrackerConfig | None = None
 ) -> DetectorConfig | TrackerConfig:
-    """Build a validated config from ``values`` over ``base`` (detector defaults if None)."""
-    check_names(values, DetectorConfig if base is None else type(base))
+    """Build a validated config from ``values`` over ``base`` (detector defaults if None).
+
+    An unknown name is refused by the constructor :func:`dataclasses.replace` calls
+    (:func:`refuses_unknown_names`).
+    """
     return dataclasses.replace(base or DetectorConfig(), **values)
 
 
