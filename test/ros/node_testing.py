@@ -6,6 +6,8 @@ every output. Waits are polls with generous deadlines, never fixed sleeps.
 """
 
 import os
+import subprocess
+import sys
 import threading
 from collections import defaultdict
 from contextlib import contextmanager
@@ -40,9 +42,16 @@ TIMEOUT_S = 30.0
 #: Sub-pixel accuracy the node must deliver on rendered frames, px.
 TOLERANCE_PX = 0.1
 IMAGE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+#: The node started as a separate process with ``python -m``, as a user may start it.
+NODE_MODULE = [sys.executable, "-m", "marker_localizer.node"]
 
 
 # --------------------------------------------------------------------------- helpers
+
+
+def run_to_exit(command):
+    """Run ``command`` (a node that refuses its start values, say) to its exit, output as text."""
+    return subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT_S, check=False)
 
 
 def wait_until(predicate, what, timeout_s=TIMEOUT_S):

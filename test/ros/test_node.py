@@ -194,6 +194,19 @@ def test_compressed_frames_follow_a_remapped_raw_topic_as_image_transport_names_
         spinner.stop()
 
 
+def _camera_info_reported(peer, pub, status_name, size):
+    """Publish a CameraInfo of ``size`` (width, height) on ``pub``; whether the diagnostics
+    status ``status_name`` the ``peer`` heard reports that size."""
+    width, height = size
+    pub.publish(CameraInfo(width=width, height=height))
+    return any(
+        values_of(s)["camera_info"] == f"{width}x{height}"
+        for array_msg in peer.messages("/diagnostics")
+        for s in array_msg.status
+        if s.name == status_name
+    )
+
+
 def test_camera_info_follows_a_remapped_image_topic_as_image_transport_names_it(ros):
     """The sibling of the image topic, unless <cam>/camera_info is remapped itself.
 
@@ -241,17 +254,10 @@ def test_camera_info_follows_a_remapped_image_topic_as_image_transport_names_it(
         peer.listen("/diagnostics", DiagnosticArray)
         pub = peer.node.create_publisher(CameraInfo, "/drv/front/camera_info", 1)
         wait_until(lambda: pub.get_subscription_count() > 0, "the node subscribing")
-
-        def reported():
-            pub.publish(CameraInfo(width=1280, height=960))
-            return any(
-                values_of(s)["camera_info"] == "1280x960"
-                for array_msg in peer.messages("/diagnostics")
-                for s in array_msg.status
-                if s.name == "info_localizer: cam0"
-            )
-
-        wait_until(reported, "cam0's camera_info in the diagnostics")
+        wait_until(
+            lambda: _camera_info_reported(peer, pub, "info_localizer: cam0", (1280, 960)),
+            "cam0's camera_info in the diagnostics",
+        )
     finally:
         peer.stop()
         spinner.stop()
@@ -263,17 +269,10 @@ def test_camera_info_published_best_effort_is_reported(localizer, tester):
     pub = tester.node.create_publisher(CameraInfo, "cam3/camera_info", qos_profile_sensor_data)
     try:
         wait_until(lambda: pub.get_subscription_count() > 0, "the node subscribing camera_info")
-
-        def reported():
-            pub.publish(CameraInfo(width=640, height=480))
-            return any(
-                values_of(s)["camera_info"] == "640x480"
-                for array_msg in tester.messages("/diagnostics")
-                for s in array_msg.status
-                if s.name == "marker_localizer: cam3"
-            )
-
-        wait_until(reported, "cam3's camera_info in the diagnostics")
+        wait_until(
+            lambda: _camera_info_reported(tester, pub, "marker_localizer: cam3", (640, 480)),
+            "cam3's camera_info in the diagnostics",
+        )
     finally:
         tester.node.destroy_publisher(pub)
 

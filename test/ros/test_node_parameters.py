@@ -2,17 +2,16 @@
 
 import multiprocessing
 import re
-import subprocess
-import sys
 import threading
 
 import pytest
 import yaml
 from node_testing import (
+    NODE_MODULE,
     PARAMS_FILE,
     REPO,
-    TIMEOUT_S,
     holding,
+    run_to_exit,
     serving,
     wait_until,
     x_marker_64,
@@ -404,13 +403,7 @@ def test_a_value_given_with_p_after_the_params_file_wins(ros, tmp_path):
 def test_node_process_refuses_a_bad_params_file_value_in_one_line(tmp_path, parameters, message):
     path = tmp_path / "params.yaml"
     path.write_text(f"/**:\n  ros__parameters:\n    {parameters}\n")
-    result = subprocess.run(
-        [sys.executable, "-m", "marker_localizer.node", "--ros-args", "--params-file", str(path)],
-        capture_output=True,
-        text=True,
-        timeout=TIMEOUT_S,
-        check=False,
-    )
+    result = run_to_exit([*NODE_MODULE, "--ros-args", "--params-file", str(path)])
     assert result.returncode == 1
     (line,) = result.stderr.splitlines()
     assert f"invalid configuration: {message}" in line

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from node_testing import (
+    NODE_MODULE,
     PARAMS_FILE,
     TIMEOUT_S,
     Peer,
@@ -19,6 +20,7 @@ from node_testing import (
     mapped_shared_memory_blocks,
     points_xy,
     process_alive,
+    run_to_exit,
     scene,
     shared_memory_blocks,
     values_of,
@@ -44,7 +46,7 @@ def installed_script(name):
 
 #: The two ways a user starts the node: the console script setup.py declares, and -m.
 CONSOLE_SCRIPT = [installed_script("marker_localizer_node")]
-MODULE = [sys.executable, "-m", "marker_localizer.node"]
+MODULE = NODE_MODULE
 
 
 def node_command(launcher, *ros_args):
@@ -143,13 +145,7 @@ def test_node_process_serves_worker_threads_on_one_blas_thread(ros):
 
 
 def test_node_process_exits_with_status_1_on_invalid_configuration():
-    result = subprocess.run(
-        node_command(MODULE, "-p", "detector.marker_radius_min_px:=50.0"),
-        capture_output=True,
-        text=True,
-        timeout=TIMEOUT_S,
-        check=False,
-    )
+    result = run_to_exit(node_command(MODULE, "-p", "detector.marker_radius_min_px:=50.0"))
     assert result.returncode == 1
     assert "invalid configuration: marker_radius_min_px=50.0 is larger than" in result.stderr
     assert "Traceback" not in result.stderr
@@ -158,13 +154,7 @@ def test_node_process_exits_with_status_1_on_invalid_configuration():
 def test_node_process_with_a_params_file_that_is_not_yaml_exits_1_in_one_line(tmp_path):
     broken = tmp_path / "broken.yaml"
     broken.write_text("marker_localizer:\n  ros__parameters:\n    workers: [oops\n")
-    result = subprocess.run(
-        [*MODULE, "--ros-args", "--params-file", str(broken)],
-        capture_output=True,
-        text=True,
-        timeout=TIMEOUT_S,
-        check=False,
-    )
+    result = run_to_exit([*MODULE, "--ros-args", "--params-file", str(broken)])
     assert result.returncode == 1
     (line,) = result.stderr.splitlines()
     assert "invalid ROS arguments: " in line and "Couldn't parse params file" in line
