@@ -106,6 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         label = f"{PROG} {argv[0]}" if command.named else PROG
         return run_command(label, lambda: int(_load(command.module, command.function)(argv[1:])))
     if argv[:1] == ["bench"] and len(argv) > 1 and argv[1] in BENCHMARKS:
-        return run_command(PROG, lambda: int(_load(BENCHMARKS[argv[1]], "main")(argv[2:])))
+        label = f"{PROG} bench {argv[1]}"
+        return run_command(label, lambda: int(_load(BENCHMARKS[argv[1]], "main")(argv[2:])))
     build_parser().parse_args(argv)  # --help, or argparse's message and status 2
     return 2

@@ -71,20 +71,29 @@ def _without_ros(monkeypatch):
 #: ROS's modules (as test_packaging finds them), and ours that import them.
 _ROS_MODULE = (
     r"(rclpy|\w+_msgs|\w+_interfaces)(\.|$)"
-    r"|marker_localizer\.(bag|ros|cli\.bag|cli\.demo)(\.|$)"
+    r"|marker_localizer\.(bag|ros|cli\.bag|cli\.demo|bench\.throughput)(\.|$)"
 )
 
 
-@pytest.mark.parametrize("command", ["replay", "play", "simulate", "demo"])
+@pytest.mark.parametrize(
+    ("command", "label"),
+    [
+        ("replay", "marker-localizer replay"),
+        ("play", "marker-localizer play"),
+        ("simulate", "marker-localizer simulate"),
+        ("demo", "marker-localizer"),  # as detect: its messages never named it
+        ("bench throughput", "marker-localizer bench throughput"),
+    ],
+)
 def test_a_command_that_needs_ros_says_what_to_install_where_it_is_missing(
-    command, monkeypatch, capsys
+    command, label, monkeypatch, capsys
 ):
-    """As after a plain ``pip install .``: one line, not an import's traceback."""
+    """As after a plain ``pip install .``: one line, naming the command, not a traceback."""
     _without_ros(monkeypatch)
-    assert main([command, "--help"]) == 1
+    assert main([*command.split(), "--help"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1
-    assert "error: needs ROS 2 Jazzy's Python packages (" in err
+    assert err.startswith(f"{label}: error: needs ROS 2 Jazzy's Python packages (")
     assert "pip install ros-jazzy-rclpy ros-jazzy-common-interfaces" in err
 
 
