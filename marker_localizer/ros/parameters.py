@@ -29,9 +29,23 @@ bounds) atomically.
 
 from __future__ import annotations
 
+if __name__ == "__main__":
+    # ``python -m`` runs the imports below first: a missing rclpy would be their
+    # traceback. Imported as a module instead, it is run_command's one line.
+    import sys
+
+    from marker_localizer.cli.exits import run_command
+    from marker_localizer.errors import import_needing_ros
+
+    def _print_params_yaml() -> int:
+        module = import_needing_ros("marker_localizer.ros.parameters")
+        sys.stdout.write(module.params_yaml())
+        return 0
+
+    sys.exit(run_command("marker_localizer.ros.parameters", _print_params_yaml))
+
 import dataclasses
 import re
-import sys
 import textwrap
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -524,7 +538,3 @@ def changed_fields(old: Any, new: Any) -> Mapping[str, Any]:
         for f in dataclasses.fields(old)
         if getattr(old, f.name) != getattr(new, f.name)
     }
-
-
-if __name__ == "__main__":
-    sys.stdout.write(params_yaml())

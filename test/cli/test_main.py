@@ -2,6 +2,7 @@
 
 import importlib
 import re
+import runpy
 import subprocess
 import sys
 
@@ -103,6 +104,21 @@ def test_the_node_says_what_to_install_where_ros_is_missing(monkeypatch, capsys)
     assert capsys.readouterr().err.startswith(
         "marker_localizer_node: error: needs ROS 2 Jazzy's Python packages"
     )
+
+
+def test_python_m_parameters_says_what_to_install_where_ros_is_missing(monkeypatch, capsys):
+    """``python -m marker_localizer.ros.parameters`` (runpy is what ``-m`` runs) in a venv
+    without ROS: one line and status 1, not the traceback of its imports."""
+    _without_ros(monkeypatch)
+    with pytest.raises(SystemExit) as exit_info:
+        runpy.run_module("marker_localizer.ros.parameters", run_name="__main__")
+    assert exit_info.value.code == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith(
+        "marker_localizer.ros.parameters: error: needs ROS 2 Jazzy's Python packages ("
+    )
+    assert "pip install ros-jazzy-rclpy ros-jazzy-common-interfaces" in err
 
 
 def test_a_command_line_argparse_refuses_exits_2_naming_the_command(capsys):
