@@ -80,8 +80,13 @@ def absent(what: str) -> str:
 
 
 def read_gray(path: Path) -> np.ndarray:
-    """Read an image file as (H, W) uint8 grey (colour and alpha are converted)."""
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    """Read an image file as (H, W) uint8 grey (colour and alpha are converted).
+
+    Pixels come in stored order, as ``marker-localizer detect`` reads a file
+    (:mod:`marker_localizer.image_files`): an EXIF Orientation would otherwise turn
+    the frame, and the benchmark's figures would not be the command's.
+    """
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
     if image is None:
         raise OSError(f"{path}: cannot read image")
     return image
