@@ -33,6 +33,13 @@ message is refused (:class:`~marker_localizer.errors.BagError`). Timing:
 At the end the player waits for every subscriber to acknowledge the last
 messages before it destroys its publishers.
 
+With ``loop`` it plays the bag again from its first message when it reaches
+the last, until it is interrupted (Ctrl-C), as ``ros2 bag play --loop`` does
+(rosbag2's player seeks its reader to the start and jumps its clock back there
+before every pass): each pass sends the recorded bytes unchanged, so headers
+carry their recorded stamps again, its schedule starts at its first message as
+the first pass's did, and ``/clock`` starts again at the bag's first time.
+
 With ``clock``, ``/clock`` (rosgraph_msgs/Clock, best effort, keep-last 1 as
 ``ros2 bag play --clock``) carries the bag time: before every message and at
 ``clock_hz`` while waiting, so nodes with ``use_sim_time`` follow the bag. It is
@@ -40,6 +47,8 @@ reckoned in integer nanoseconds (a float of a bag time near 2023's 1.7e18 ns is
 off by up to 128 ns), never passes the next message's bag time and never goes
 back, not even for a message older than the last (a bag read front to back
 gives file order): a clock that jumps back makes nodes clear their tf buffers.
+It goes back only where ``loop`` starts a pass, and must: the bag's times
+begin again there.
 """
 
 from __future__ import annotations
@@ -83,6 +92,8 @@ class PlayOptions:
         as_fast_as_possible: Ignore the recorded timing; publish each message
             once the previous one on its topic was acknowledged.
         clock: Publish the bag time on ``/clock``.
+        loop: Play the bag again from its start after its last message, until
+            interrupted (``ros2 bag play --loop``); off by default, as there.
         clock_hz: ``/clock`` rate while waiting for the next message, Hz
             (``ros2 bag play``'s default 40).
         topics: Play only these topics (None: all playable).
@@ -99,6 +110,7 @@ class PlayOptions:
     rate: float = 1.0
     as_fast_as_possible: bool = False
     clock: bool = False
+    loop: bool = False
     clock_hz: float = 40.0
     topics: tuple[str, ...] | None = None
     qos_depth: int = 10
@@ -201,6 +213,10 @@ class _Player:
             if not missing or self.time.monotonic() >= deadline:
                 return missing
             self.time.sleep(_POLL_S)
+
+    def restart_clock(self) -> None:
+        """Let /clock go back: a pass of ``loop`` begins the bag's times again."""
+        self._clock_ns = None
 
     def publish_clock(self, time_ns: int) -> None:
         """Publish ``time_ns`` on /clock (if asked for), or the newest time published if later."""
@@ -353,6 +369,31 @@ def _play(
     progress: Callable[[int, int], None] | None,
     total: int,
 ) -> None:
+    start_s, first_ns, last_ns = _play_pass(reader, player, topics, report, progress, total)
+    # A bag whose pass yielded nothing (damaged past reading) has nothing to play again.
+    while player.options.loop and first_ns is not None:
+        player.restart_clock()
+        _play_pass(reader, player, topics, report, progress, total)
+    # Publishers are destroyed next: let the last messages reach their subscribers.
+    report.unacknowledged += player.flush()
+    report.wall_s = player.time.monotonic() - start_s
+    report.bag_s = (last_ns - first_ns) / 1e9 if first_ns is not None else 0.0
+
+
+def _play_pass(
+    reader: BagReader,
+    player: _Player,
+    topics: dict[str, str],
+    report: PlayReport,
+    progress: Callable[[int, int], None] | None,
+    total: int,
+) -> tuple[float, int | None, int]:
+    """Publish the bag's messages once.
+
+    Returns:
+        When the pass started (monotonic, s), its first and last bag time (ns; None
+        for the first where the reader yielded no message).
+    """
     options = player.options
     start_s = player.time.monotonic()
     first_ns: int | None = None
@@ -373,7 +414,4 @@ def _play(
         last_ns = max(last_ns, message.time_ns)
         if progress is not None:
             progress(done, total)
-    # Publishers are destroyed next: let the last messages reach their subscribers.
-    report.unacknowledged += player.flush()
-    report.wall_s = player.time.monotonic() - start_s
-    report.bag_s = (last_ns - first_ns) / 1e9 if first_ns is not None else 0.0
+    return start_s, first_ns, last_ns

@@ -315,6 +315,12 @@ def build_play_parser() -> argparse.ArgumentParser:
         "--clock", action="store_true", help="publish the bag time on /clock (for use_sim_time)"
     )
     parser.add_argument(
+        "--loop",
+        action="store_true",
+        help="play the bag again from its start after its last message, until Ctrl-C "
+        "(as 'ros2 bag play --loop': recorded stamps, /clock back at the start)",
+    )
+    parser.add_argument(
         "--clock-hz",
         type=float,
         default=defaults.clock_hz,
@@ -344,6 +350,7 @@ def play(argv: Sequence[str]) -> int:
         rate=args.rate,
         as_fast_as_possible=args.as_fast_as_possible,
         clock=args.clock,
+        loop=args.loop,
         clock_hz=args.clock_hz,
         topics=tuple(args.topics) if args.topics else None,
         wait_for_subscribers_s=args.wait_for_subscribers,

@@ -394,6 +394,38 @@ def test_the_schedule_starts_at_the_first_message_and_clock_never_goes_back(
     assert min(clock) >= LATE_NS and max(clock) == times_ns[-1]
 
 
+def test_loop_plays_the_bag_again_with_its_stamps_and_clock_from_the_start_until_ctrl_c(
+    context, tmp_path
+):
+    """As ``ros2 bag play --loop``: the recorded messages again (their header stamps as
+    recorded), and /clock back at the bag's first time for each pass; Ctrl-C ends it."""
+    times_ns = [LATE_NS + k * 100 * MS for k in range(3)]
+    bag = imu_bag(tmp_path / "imu", times_ns)
+    listener = Listener(context, {"/imu/data": Imu, "/clock": Clock})
+    spun = Spun(context, listener.node)
+    command = [sys.executable, "-m", "marker_localizer.cli", "play", str(bag), "--loop"]
+    player = subprocess.Popen(
+        [*command, "--clock", "--wait-for-subscribers", str(TIMEOUT_S)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        wait_until(lambda: len(listener.messages("/imu/data")) >= 2 * len(times_ns), "two passes")
+        player.send_signal(signal.SIGINT)
+        _, err = player.communicate(timeout=TIMEOUT_S)
+    finally:
+        player.kill()
+        spun.stop()
+    assert player.returncode == 128 + signal.SIGINT
+    assert err == "marker-localizer play: interrupted by SIGINT\n"
+    stamps = [stamp_ns(m.header) for m in listener.messages("/imu/data")]
+    assert stamps[: 2 * len(times_ns)] == times_ns * 2
+    clock = [time_ns(m.clock) for m in listener.messages("/clock")]
+    end_of_first_pass = clock.index(times_ns[-1])
+    assert times_ns[0] in clock[end_of_first_pass:], [c - LATE_NS for c in clock]
+
+
 # --------------------------------------------------------------------------- bad input
 
 
