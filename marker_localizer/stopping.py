@@ -13,7 +13,8 @@ no second action is given, has the signals' default action: it ends the
 process where it stands, even where the stop hangs; what that leaves behind (a
 bag's staging directory) is swept by the next run. (Python runs the first two
 handlers in the main thread when it next runs Python code: a wait inside a C
-call, such as rclpy's for acknowledgements, delays them; the third is the kernel's.)
+call delays them, so ``play`` waits for acknowledgements in calls of 0.1 s at
+most; the third is the kernel's.)
 
 Ctrl-C before the command is ready (while it imports) is the same single line:
 the entry points install the handlers before their heavy imports.

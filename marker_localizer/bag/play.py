@@ -81,6 +81,11 @@ _CLOCK_QOS = QoSProfile(
 )
 #: How often the subscriber wait looks at the publishers' match counts, s.
 _POLL_S = 0.01
+#: The longest one wait for acknowledgements stays inside rclpy, s: Python runs a
+#: stop signal's handler only between two calls into C, so a wait of
+#: ``ack_timeout_s`` in one call (a subscriber stopped or hung, still matched)
+#: held Ctrl-C back that long. A wait that is acknowledged ends at once anyway.
+_ACK_SLICE_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -268,9 +273,7 @@ class _Player:
         previous = self._last_publish_s.get(topic)
         if previous is None:
             return True
-        acked = publisher.get_subscription_count() == 0 or publisher.wait_for_all_acked(
-            Duration(seconds=self.options.ack_timeout_s)
-        )
+        acked = publisher.get_subscription_count() == 0 or self.acknowledged(publisher)
         remaining = previous + self.options.min_topic_interval_s - self.time.monotonic()
         if remaining > 0:
             self.time.sleep(remaining)
@@ -280,13 +283,24 @@ class _Player:
         self.publishers[topic].publish(raw)
         self._last_publish_s[topic] = self.time.monotonic()
 
+    def acknowledged(self, publisher: Publisher) -> bool:
+        """Wait until every matched subscription acknowledged ``publisher``'s messages.
+
+        Waits up to ``ack_timeout_s`` in all, in calls of at most :data:`_ACK_SLICE_S`.
+
+        Returns:
+            False if the wait ran out.
+        """
+        slices = max(1, math.ceil(self.options.ack_timeout_s / _ACK_SLICE_S))
+        each = Duration(seconds=self.options.ack_timeout_s / slices)
+        return any(publisher.wait_for_all_acked(each) for _ in range(slices))
+
     def flush(self) -> int:
         """Wait until every publisher's messages were acknowledged; return those that were not."""
-        timeout = Duration(seconds=self.options.ack_timeout_s)
         return sum(
             1
             for publisher in self.publishers.values()
-            if publisher.get_subscription_count() and not publisher.wait_for_all_acked(timeout)
+            if publisher.get_subscription_count() and not self.acknowledged(publisher)
         )
 
 

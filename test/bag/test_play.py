@@ -7,6 +7,7 @@ traffic. Waits are polls with deadlines, never fixed sleeps.
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import subprocess
@@ -424,6 +425,88 @@ def test_loop_plays_the_bag_again_with_its_stamps_and_clock_from_the_start_until
     clock = [time_ns(m.clock) for m in listener.messages("/clock")]
     end_of_first_pass = clock.index(times_ns[-1])
     assert times_ns[0] in clock[end_of_first_pass:], [c - LATE_NS for c in clock]
+
+
+#: A subscriber of /cam0/image_raw that says "received" on its first frame.
+_CAM0_SUBSCRIBER = """
+import rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
+
+rclpy.init()
+node = rclpy.create_node("cam0_subscriber")
+qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+node.create_subscription(Image, "/cam0/image_raw", lambda msg: print("received", flush=True), qos)
+rclpy.spin(node)
+"""
+#: Fast DDS drops a participant silent for its lease (20 s by default), and a wait for
+#: its acknowledgements ends with it; with an hour's lease a stopped one stays matched.
+_HOUR_LEASE_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <participant profile_name="hour_lease" is_default_profile="true">
+    <rtps><builtin><discovery_config>
+      <leaseDuration><sec>3600</sec></leaseDuration>
+    </discovery_config></builtin></rtps>
+  </participant>
+</profiles>
+"""
+#: ``marker-localizer play`` waiting up to an hour for acknowledgements.
+_PLAY_WAITING_AN_HOUR_FOR_ACKS = """
+import functools, sys
+import marker_localizer.cli.bag as bag
+bag.PlayOptions = functools.partial(bag.PlayOptions, ack_timeout_s=3600.0)
+from marker_localizer.cli import main
+sys.exit(main(["play", *sys.argv[1:]]))
+"""
+
+
+def test_ctrl_c_stops_play_waiting_for_a_stopped_subscribers_acknowledgement(context, tmp_path):
+    """A subscriber stopped (SIGSTOP) while matched never acknowledges: the player's wait
+    for it at the end, an hour here, gives way to Ctrl-C. Before, the wait was one call
+    into C, and Python ran the signal's handler only after it."""
+    frames = [
+        ("/cam0/image_raw", LATE_NS),
+        ("/cam0/image_raw", LATE_NS + 1000 * MS),
+        ("/cam1/image_raw", LATE_NS + 1001 * MS),
+    ]
+    bag = tmp_path / "two_cameras"
+    with BagWriter(bag, "mcap") as writer:
+        for topic in ("/cam0/image_raw", "/cam1/image_raw"):
+            writer.add_topic(topic, "sensor_msgs/msg/Image")
+        for topic, time_ns in frames:
+            writer.write(topic, time_ns, Image(header=imu(time_ns).header))
+    profile = tmp_path / "hour_lease.xml"
+    profile.write_text(_HOUR_LEASE_PROFILE)
+    listener = Listener(context, {"/cam1/image_raw": Image})
+    spun = Spun(context, listener.node)
+    stopped = subprocess.Popen(
+        [sys.executable, "-c", _CAM0_SUBSCRIBER],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "FASTRTPS_DEFAULT_PROFILES_FILE": str(profile)},
+    )
+    player = subprocess.Popen(
+        [sys.executable, "-c", _PLAY_WAITING_AN_HOUR_FOR_ACKS, str(bag)]
+        + ["--wait-for-subscribers", str(TIMEOUT_S)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        # Stopped after cam0's first frame, a second before its second: that one it never
+        # acknowledges, and the player's last wait begins with cam0's.
+        assert stopped.stdout is not None and stopped.stdout.readline() == "received\n"
+        stopped.send_signal(signal.SIGSTOP)
+        wait_until(lambda: listener.messages("/cam1/image_raw"), "cam1's frame, the last")
+        player.send_signal(signal.SIGINT)
+        _, err = player.communicate(timeout=TIMEOUT_S)
+    finally:
+        player.kill()
+        stopped.kill()
+        stopped.wait(TIMEOUT_S)
+        spun.stop()
+    assert player.returncode == 128 + signal.SIGINT
+    assert err == "marker-localizer play: interrupted by SIGINT\n"
 
 
 # --------------------------------------------------------------------------- bad input
