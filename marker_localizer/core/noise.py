@@ -27,6 +27,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from marker_localizer.core.sampling import nearest_pixels
+
 #: Pixels of the sparse lattice the noise is measured on: enough for a 1 % estimate
 #: per brightness bin, a fixed cost on any frame size.
 _LATTICE_PIXELS = 40_000
@@ -51,6 +53,10 @@ _HALF_NORMAL_MEAN = float(np.sqrt(2.0 / np.pi))
 #: Smallest noise std reported, in grey levels of an 8-bit frame: the quantisation of
 #: a noise-free 8-bit frame (1 / sqrt(12) DN) keeps every statistic finite.
 _QUANTISATION_STD_DN = 1.0 / np.sqrt(12.0)
+#: Half-width of the square around each point whose pixels give the frame's grey step
+#: (:func:`grey_step`), px: an X's two lines cross there, so a 9 x 9 square holds some
+#: 30 pixels of its blurred edges, whose levels lie between the paints'.
+_STEP_WINDOW_HALF_PX = 4
 #: Widest range of an integer frame's five-pixel sums over the lattice that the
 #: quantiles take from histograms (:func:`_smooth_bins_counted`): 8-bit frames and
 #: 16-bit ones of up to ~13 bits of range; wider ones partition as before.
@@ -141,6 +147,32 @@ def estimate_noise(image: NDArray[Any], full_scale: float) -> NoiseModel:
     else:
         gain, read = 0.0, float(variances_a[0])
     return NoiseModel(float(max(read, floor**2)), float(gain), floor)
+
+
+def grey_step(image: NDArray[Any], xy: NDArray[np.float64]) -> float:
+    """The frame's grey-level step q: the smallest difference of two levels around the points.
+
+    A quantiser's step is at most the smallest difference of two levels it wrote:
+    1 on an 8-bit frame of any noise (or on one whose blurred edges take
+    neighbouring levels), 255 on a thresholded one (0 and 255), 85 on a frame of
+    four levels. Read on the squares of :data:`_STEP_WINDOW_HALF_PX` around the
+    points, where their X's edges take the levels between the paints': a frame's
+    flat ground may hold few levels where its markers hold many.
+
+    Args:
+        image: (H, W) grey image, native dtype.
+        xy: (N, 2) points (x, y), px.
+
+    Returns:
+        q in the image's grey units; 0 where the squares hold one level only (no
+        step seen).
+    """
+    offsets = np.arange(-_STEP_WINDOW_HALF_PX, _STEP_WINDOW_HALF_PX + 1, dtype=np.float64)
+    dx, dy = np.meshgrid(offsets, offsets)
+    square = np.stack([dx.reshape(-1), dy.reshape(-1)], axis=1)
+    around = (np.asarray(xy, np.float64)[:, None, :] + square[None, :, :]).reshape(-1, 2)
+    steps = np.diff(np.unique(nearest_pixels(image, around)).astype(np.float64))
+    return float(steps.min()) if len(steps) else 0.0
 
 
 def _smooth_bins_counted(

@@ -29,6 +29,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from marker_localizer.core import shadow, template, uneven
+from marker_localizer.core.noise import grey_step
 from marker_localizer.core.sampling import (
     bilinear,
     bilinear_with_gradient,
@@ -97,9 +98,17 @@ _FINAL_TOLERANCE_PX = 1e-3
 #: A final fit that ends farther than this from its start has not found the X it was
 #: started on, px (the coarse centring leaves a few tenths of a pixel).
 _FINAL_MAX_SHIFT_PX = 1.5
-#: Smallest residual std of the final fit on an integer image, grey levels: the
-#: quantisation of the difference of two samples, sqrt(2 / 12).
-_QUANTISATION_DIFFERENCE_STD = float(np.sqrt(2.0 / 12.0))
+#: Smallest residual std of the final fits, in grey steps q of the frame
+#: (:func:`~marker_localizer.core.noise.grey_step`): what rounding alone leaves in a
+#: residual, so that a noise-free or thresholded frame does not claim a sigma near 0.
+#: A pixel rounded to a step q is off by an error uniform over it, variance q^2 / 12;
+#: a bilinear sample at a uniformly distributed position weighs its four pixels with
+#: squared weights that sum to (2 / 3)^2 on average (per axis, the integral of
+#: (1 - u)^2 + u^2 over a pixel), so it carries 4 / 9 of that, and a pair's difference,
+#: rounded independently, twice: 2 q^2 / 27. On thresholded and 4-16 level frames the
+#: errors then spread as on noisy ones (docs/accuracy.md, "Sigma on quantised and
+#: thresholded frames").
+RESIDUAL_ROUNDING_STEPS = float(np.sqrt(2.0 / 27.0))
 #: Smallest contrast the relative residual divides by, grey levels.
 _MIN_CONTRAST = 1e-6
 #: :func:`refine_along_lines` weighs each sample by exp(-s^2 / (2 b^2)), s its distance
@@ -854,7 +863,7 @@ def refine_along_lines(
         image,
         iterations=_LINE_FIT_ITERATIONS,
         tolerance_px=_FINAL_TOLERANCE_PX,
-        noise_floor=_QUANTISATION_DIFFERENCE_STD if image.dtype.kind in "ui" else 0.0,
+        noise_floor=RESIDUAL_ROUNDING_STEPS * grey_step(image, xy),
         uncertainty=True,
         measure_contrast=False,
     )
@@ -1550,7 +1559,7 @@ def locate_markers(
         tolerance_px=_FINAL_TOLERANCE_PX,
         max_shift_px=_FINAL_MAX_SHIFT_PX,
         model_gain=True,
-        noise_floor=_QUANTISATION_DIFFERENCE_STD if image.dtype.kind in "ui" else 0.0,
+        noise_floor=RESIDUAL_ROUNDING_STEPS * grey_step(image, xy),
         line_angles=line_angles,
     )
     position = fit.xy

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from marker_localizer.core.noise import estimate_noise
+from marker_localizer.core.noise import estimate_noise, grey_step
 
 
 def _quantised(image: np.ndarray) -> np.ndarray:
@@ -40,3 +40,16 @@ def test_texture_and_edges_are_not_taken_for_noise():
 def test_a_noise_free_frame_reports_the_quantisation_of_its_grey_levels():
     image = np.full((100, 100), 128, np.uint8)
     assert float(estimate_noise(image, 255.0).std(128.0)) == pytest.approx(1.0 / np.sqrt(12.0))
+
+
+def test_the_grey_step_is_the_smallest_difference_of_levels_around_the_points():
+    rng = np.random.default_rng(3)
+    noisy = _quantised(rng.normal(100.0, 3.0, (60, 60)))
+    thresholded = np.where(noisy > 100, 255, 0).astype(np.uint8)
+    ramp = np.tile(np.linspace(0.0, 255.0, 60), (60, 1))
+    four_levels = (np.rint(ramp / 85.0) * 85.0).astype(np.uint8)
+    centre = np.array([[30.0, 30.0]])
+    assert grey_step(noisy, centre) == 1.0
+    assert grey_step(thresholded, centre) == 255.0
+    assert grey_step(four_levels, centre) == 85.0
+    assert grey_step(np.full((60, 60), 7, np.uint8), centre) == 0.0

@@ -6,7 +6,9 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
+from marker_localizer import Detector, DetectorConfig
 from marker_localizer.core import shadow, subpixel, template
 from marker_localizer.core.acceptance import MAX_TEMPLATE_MISFIT
 from marker_localizer.core.noise import NoiseModel
@@ -952,3 +954,42 @@ def test_the_model_is_fitted_to_at_most_max_modelled_xs_and_the_rest_are_counted
     # One X keeps its model's centre; the two over the cap keep the levels' fit's.
     same = np.all(np.isclose(every, capped, atol=1e-9), axis=1)
     assert same.sum() == 1
+
+
+def _thresholded_markers(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A noise-free frame of 15 blurred X's (8-24 px), thresholded at mid-grey; their centres."""
+    rng = np.random.default_rng(seed)
+    placements = [
+        MarkerPlacement(
+            70 + 130 * (i % 5) + rng.uniform(-10, 10),
+            70 + 130 * (i // 5) + rng.uniform(-10, 10),
+            rng.uniform(8.0, 24.0),
+            rng.uniform(0, np.pi),
+            rng.uniform(0, 40),
+            rng.uniform(0, np.pi),
+        )
+        for i in range(15)
+    ]
+    scene = render_markers((400, 660), placements, seed, blur_sigma_px=rng.uniform(0.6, 1.4))
+    threshold = 0.5 * (float(scene.image.min()) + float(scene.image.max()))
+    binary = np.where(scene.image > threshold, 255, 0).astype(np.uint8)
+    return binary, np.array([[m.x, m.y] for m in scene.markers])
+
+
+@pytest.mark.parametrize("as_float", [False, True], ids=["uint8", "float"])
+def test_sigma_on_a_thresholded_frame_covers_the_rounding_of_its_edges(as_float):
+    """A 1-bit frame has no noise to measure: its error is the edges' rounding, which
+    sigma must carry (a residual floor of the frame's grey step), or a pose estimator
+    weighs such points hundreds of times too high."""
+    detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=30.0))
+    normalised = []
+    for seed in range(4):
+        binary, centres = _thresholded_markers(seed)
+        image = binary.astype(np.float32) / 255.0 if as_float else binary
+        table = detector.detect(image).as_array()
+        distance, index = cKDTree(table[:, :2]).query(centres, distance_upper_bound=2.0)
+        found = np.isfinite(distance)
+        normalised += (distance[found] / table[index[found], 3]).tolist()
+    assert len(normalised) >= 20
+    assert np.mean(np.less_equal(normalised, 2.0)) >= 0.85
+    assert max(normalised) < 5.0
