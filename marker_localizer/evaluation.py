@@ -9,6 +9,7 @@ arrays of (x, y) pixels, (0, 0) at the centre of the top-left pixel.
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -218,21 +219,24 @@ class DetectionTally:
             estimator) of each matched truth point, px (NaN where unknown),
             aligned with ``errors_px``.
         seconds: wall time spent in the detector, s.
-        found: per truth point, in the order seen, whether it was matched.
+        found: per truth point, in the order seen, 1 where it was matched, else 0.
         line_errors_deg: each matched pair's line-direction error
             (:func:`line_direction_errors_deg`), degrees (NaN where the detector or
             the truth gives no directions), aligned with ``errors_px``.
     """
 
-    truth_per_frame: list[int] = field(default_factory=list)
-    found_per_frame: list[int] = field(default_factory=list)
-    false_per_frame: list[int] = field(default_factory=list)
-    errors_px: list[float] = field(default_factory=list)
-    sigmas_px: list[float] = field(default_factory=list)
-    crlb_px: list[float] = field(default_factory=list)
+    # Typed arrays, not lists: a list holds a float as a pointer to a 24-byte object,
+    # 140 bytes a matched marker in all, 350 MB for an hour of five cameras replayed
+    # with truth; these hold its 8 bytes (the percentiles need every value).
+    truth_per_frame: array[int] = field(default_factory=lambda: array("q"))
+    found_per_frame: array[int] = field(default_factory=lambda: array("q"))
+    false_per_frame: array[int] = field(default_factory=lambda: array("q"))
+    errors_px: array[float] = field(default_factory=lambda: array("d"))
+    sigmas_px: array[float] = field(default_factory=lambda: array("d"))
+    crlb_px: array[float] = field(default_factory=lambda: array("d"))
     seconds: float = 0.0
-    found: list[bool] = field(default_factory=list)
-    line_errors_deg: list[float] = field(default_factory=list)
+    found: array[int] = field(default_factory=lambda: array("b"))
+    line_errors_deg: array[float] = field(default_factory=lambda: array("d"))
 
     def add(
         self,
@@ -258,21 +262,21 @@ class DetectionTally:
         self.truth_per_frame.append(matching.n_truth)
         self.found_per_frame.append(matching.n_matched)
         self.false_per_frame.append(matching.n_false_positives)
-        self.errors_px.extend(matching.errors_px.tolist())
+        self.errors_px.frombytes(np.asarray(matching.errors_px, np.float64).tobytes())
         found = np.zeros(matching.n_truth, dtype=bool)
         found[matching.truth_index] = True
-        self.found.extend(found.tolist())
+        self.found.frombytes(found.astype(np.int8).tobytes())
         self.sigmas_px.extend(_aligned(sigmas_px, matching.detection_index))
         self.crlb_px.extend(_aligned(truth_crlb_px, matching.truth_index))
         self.seconds += seconds
         if line_angles is None or truth_line_angles is None:
             self.line_errors_deg.extend([math.nan] * matching.n_matched)
         else:
-            self.line_errors_deg.extend(
+            self.line_errors_deg.frombytes(
                 line_direction_errors_deg(
                     np.asarray(line_angles, np.float64)[matching.detection_index],
                     np.asarray(truth_line_angles, np.float64)[matching.truth_index],
-                ).tolist()
+                ).tobytes()
             )
 
     @classmethod

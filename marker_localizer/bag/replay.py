@@ -42,9 +42,10 @@ count neither way.
 Memory does not grow with the bag's length, but for the accuracy's tallies: results
 go to the output bag as they come, the summary keeps running sums, and a frame is
 matched to its truth as soon as both are in, then forgotten (:class:`TruthMatcher`).
-The tallies keep a few numbers a frame and a marker
+The tallies keep a few numbers a frame and a matched marker, 8 bytes each
 (:class:`~marker_localizer.evaluation.DetectionTally`: the error percentiles and the
-intervals need them), and only where the bag has truth.
+intervals need them; about 90 MB for an hour of five cameras at 10 Hz with 14
+matched markers a frame), and only where the bag has truth.
 """
 
 from __future__ import annotations

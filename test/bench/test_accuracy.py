@@ -568,7 +568,7 @@ def test_independent_table_scores_every_detector_against_the_frames_bound():
     ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
     rows = accuracy.evaluate_frames([accuracy.LabelledFrame.independent(frame)], 0, [ours]).rows
     tally = rows[0].tally
-    found = np.asarray(tally.found)
+    found = np.asarray(tally.found, dtype=bool)
     assert tally.mean_crlb_px == pytest.approx(frame.crlb_px[found].mean())
     assert rows[1].refiner and rows[1].tally.n_truth == len(frame.truth)
 
