@@ -37,7 +37,9 @@ the detections of each frame are matched one-to-one to the truth of the same
 stamp (minimum total distance, within ``match_distance_px``) and the summary
 adds recall, false positives per frame and the error statistics. Detections on
 a marker listed in ``/<cam>/marker_points_partial`` (cut by the frame border)
-count neither way.
+count neither way. A frame with a result but no truth at its stamp, and truth with
+no result at its stamp (its frame skipped, or stamped otherwise), are counted
+beside the accuracy, not evaluated.
 
 Memory does not grow with the bag's length, but for the accuracy's tallies: results
 go to the output bag as they come, the summary keeps running sums, and a frame is
@@ -114,6 +116,10 @@ class CameraReplay:
             stayed dim at the configured bit depth, the depth its levels fit
             (:func:`~marker_localizer.core.image.bit_depth_hint`); None otherwise.
         evaluation: Against the bag's truth; None without truth topics.
+        without_truth: Of the frames processed, those with no truth at their stamp,
+            not evaluated (where the bag has truth).
+        truth_without_result: Truth messages whose stamp has no processed frame: its
+            frame skipped, or stamped otherwise.
     """
 
     camera: str
@@ -128,6 +134,8 @@ class CameraReplay:
     last_error: str = ""
     bit_depth_hint: int | None = None
     evaluation: DetectionTally | None = None
+    without_truth: int = 0
+    truth_without_result: int = 0
 
     @property
     def skipped(self) -> int:
@@ -235,6 +243,17 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
             )
         if c.bit_depth_hint is not None:
             lines.append(f"{c.camera}: {bit_depth_warning(c.bit_depth_hint)}")
+        if c.without_truth:
+            lines.append(
+                f"{c.camera}: {c.without_truth} frames not evaluated: no "
+                f"{TRUTH_SUFFIX} at their stamp"
+            )
+        if c.truth_without_result:
+            lines.append(
+                f"{c.camera}: {c.truth_without_result} {TRUTH_SUFFIX} messages not "
+                "evaluated: no frame processed at their stamp (skipped, stamped "
+                "otherwise, or its truth out of stamp order)"
+            )
     lines += [f"not read: {topic} ({why})" for topic, why in report.unread_topics.items()]
     lines += [f"undecodable {topic}: {n} skipped" for topic, n in report.undecodable.items()]
     lines += [f"damaged storage: {line}" for line in report.damage]
@@ -375,6 +394,9 @@ class TruthMatcher:
       where truth is given for some frames only, is then not evaluated, as before);
     * its partial list likewise; the frame is then matched without one.
 
+    A frame forgotten with its detections but no truth, or its truth but no
+    detections, is counted (:attr:`without_truth`, :attr:`truth_without_result`).
+
     So a bag of any length holds a frame or so per camera here, or where only some
     frames have truth, those between two that have (measured: at most 2 frames
     on a 3000-frame, five-camera bag with truth, where all were held to the end before).
@@ -393,6 +415,10 @@ class TruthMatcher:
     ) -> None:
         #: Per camera with truth, the tally of its frames matched so far.
         self.tallies = {camera: DetectionTally() for camera in truth_cameras}
+        #: Per camera with truth, its frames forgotten with detections but no truth.
+        self.without_truth = dict.fromkeys(truth_cameras, 0)
+        #: Per camera with truth, its frames forgotten with truth but no detections.
+        self.truth_without_result = dict.fromkeys(truth_cameras, 0)
         self._partial_cameras = set(partial_cameras)
         self._match_distance_px = match_distance_px
         # camera -> stamp ns -> the parts in so far, by kind.
@@ -448,6 +474,10 @@ class TruthMatcher:
             TRUTH_SUFFIX not in parts and over(TRUTH_SUFFIX)
         ):
             del self._waiting[camera][stamp]
+            if FOUND in parts:
+                self.without_truth[camera] += 1
+            elif TRUTH_SUFFIX in parts:
+                self.truth_without_result[camera] += 1
             return
         if FOUND not in parts or TRUTH_SUFFIX not in parts:
             return
@@ -706,6 +736,8 @@ def replay_bag(
         damage = list(reader.damage)
     for camera, tally in evaluation.tallies.items():
         session.stats[camera].evaluation = tally
+        session.stats[camera].without_truth = evaluation.without_truth[camera]
+        session.stats[camera].truth_without_result = evaluation.truth_without_result[camera]
     return ReplayReport(
         Path(bag),
         Path(out),

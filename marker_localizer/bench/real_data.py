@@ -22,7 +22,11 @@ import numpy as np
 
 from marker_localizer.bench.metrics import line_residuals, order_grid
 from marker_localizer.bench.peers import SB_RNG_SEED, corner_subpix
+from marker_localizer.config import DetectorConfig
+from marker_localizer.core.image import to_gray
+from marker_localizer.errors import ImageError
 from marker_localizer.evaluation import DEFAULT_GATE_PX, nearest_distances
+from marker_localizer.image_files import read_image_file
 
 #: ValidationBoof boards: 5 x 7 squares, so 4 x 6 inner corners (columns, rows).
 VALIDATIONBOOF_PATTERN = (4, 6)
@@ -80,16 +84,22 @@ def absent(what: str) -> str:
 
 
 def read_gray(path: Path) -> np.ndarray:
-    """Read an image file as (H, W) uint8 grey (colour and alpha are converted).
+    """Read an image file as (H, W) uint8 grey, as ``marker-localizer detect`` reads it.
 
-    Pixels come in stored order, as ``marker-localizer detect`` reads a file
-    (:mod:`marker_localizer.image_files`): an EXIF Orientation would otherwise turn
-    the frame, and the benchmark's figures would not be the command's.
+    The command's own decoding (:func:`~marker_localizer.image_files.read_image_file`:
+    pixels in stored order, whatever an EXIF Orientation says) and its reduction to
+    grey (:func:`~marker_localizer.core.image.to_gray`: OpenCV's weights on the
+    decoded colour), so that the benchmark's figures are the command's. A JPEG
+    decoded straight to grey is libjpeg's luma instead, up to 13 levels off on the
+    aerial frames.
+
+    Raises:
+        ImageError: naming the file: unreadable, not an image, or not 8 bits deep.
     """
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
-    if image is None:
-        raise OSError(f"{path}: cannot read image")
-    return image
+    grey, _ = to_gray(read_image_file(path, DetectorConfig().max_pixels))
+    if grey.dtype != np.uint8:
+        raise ImageError(f"{path}: {grey.dtype} pixels; the real sets are 8-bit")
+    return grey
 
 
 @dataclass(frozen=True)

@@ -769,3 +769,37 @@ def test_replay_matches_each_frame_to_its_truth_as_it_comes_and_holds_only_those
             assert camera.evaluation.frames == len(with_truth)
             assert camera.evaluation.recall == 1.0
             assert camera.evaluation.n_false_positives == 0
+            # Nothing left out uncounted: a frame without truth, truth without a frame.
+            assert camera.without_truth == len(kept) - len(with_truth)
+            truth_frames = [k for k in range(frames) if k % truth_every == 0]
+            assert camera.truth_without_result == len(truth_frames) - len(with_truth)
+
+
+def test_truth_out_of_stamp_order_is_counted_where_it_is_not_evaluated(tmp_path):
+    """Truth is taken to come in stamp order: a recording whose truth stamps come in
+    pairs swapped (1, 0, 3, 2, ...) cannot be matched frame by frame as it comes, and
+    every frame and every truth message is then either evaluated or counted, and named.
+    Before: those left out were forgotten without a word."""
+    frames = 12
+    pixels = x_marker_frame()
+    truth = [Detection(x=40.3, y=30.6, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14)]
+    path = tmp_path / "swapped"
+    with BagWriter(path) as bag:
+        bag.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        bag.add_topic(f"/cam0/{TRUTH_SUFFIX}", "sensor_msgs/msg/PointCloud2")
+        for k in range(frames):
+            t = (k + 1) * S // 10
+            bag.write("/cam0/image_raw", t, image(pixels, t))
+            swapped = (k ^ 1) + 1  # the stamp of the other frame of its pair
+            cloud = detections_to_cloud(Header(stamp=stamp(swapped * S // 10)), truth)
+            bag.write(f"/cam0/{TRUTH_SUFFIX}", t, cloud)
+    report = replay_bag(path, tmp_path / "out", workers=2)
+    camera = report.cameras["cam0"]
+    evaluated = camera.evaluation.frames
+    assert camera.frames == frames
+    assert camera.without_truth >= frames // 2
+    assert evaluated + camera.without_truth == frames
+    assert evaluated + camera.truth_without_result == frames
+    text = format_report(report)
+    assert f"cam0: {camera.without_truth} frames not evaluated" in text
+    assert f"cam0: {camera.truth_without_result} {TRUTH_SUFFIX} messages not evaluated" in text

@@ -2,10 +2,12 @@
 
 import cv2
 import numpy as np
+import pytest
 from encoded_images import with_exif_orientation
 
 from marker_localizer.bench.real_data import read_gray
 from marker_localizer.config import DetectorConfig
+from marker_localizer.errors import ImageError
 from marker_localizer.image_files import read_image_file
 
 
@@ -20,3 +22,23 @@ def test_read_gray_keeps_the_stored_pixel_order_of_a_jpeg_with_an_exif_orientati
     grey = read_gray(turned)
     assert grey.shape == read_image_file(turned, DetectorConfig().max_pixels).shape[:2]
     np.testing.assert_array_equal(grey, read_gray(plain))
+
+
+def test_read_gray_reduces_a_colour_jpeg_to_grey_as_detect_does(tmp_path):
+    """OpenCV's weights on the decoded colour, not libjpeg's luma: the levels ``detect`` reads."""
+    rng = np.random.default_rng(3)
+    colour = rng.integers(0, 256, (48, 64, 3), np.uint8)
+    path = tmp_path / "colour.jpg"
+    path.write_bytes(cv2.imencode(".jpg", colour, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes())
+    decoded = read_image_file(path, DetectorConfig().max_pixels)
+    as_detect_reads = cv2.cvtColor(decoded, cv2.COLOR_BGR2GRAY)
+    luma = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    assert np.abs(luma.astype(int) - as_detect_reads).max() > 0  # the two readings differ here
+    np.testing.assert_array_equal(read_gray(path), as_detect_reads)
+
+
+def test_read_gray_names_a_file_that_is_not_an_image(tmp_path):
+    path = tmp_path / "notes.jpg"
+    path.write_text("not a picture")
+    with pytest.raises(ImageError, match=r"notes\.jpg"):
+        read_gray(path)
