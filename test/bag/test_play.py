@@ -265,35 +265,37 @@ def test_the_player_waits_for_the_subscribers_of_compressed_frames_only(context,
         spun.stop()
 
 
-def test_sigterm_while_playing_stops_the_player_cleanly_with_status_143(context, small_flight):
-    """The player publishes /clock while it waits between frames: the signal comes then."""
-    listener = Listener(context, {"/clock": Clock})
-    spun = Spun(context, listener.node)
+def interrupted_play(arguments, until, what, signum):
+    """``play ARGUMENTS``, sent ``signum`` once ``until()`` holds: (status, stderr)."""
     player = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "marker_localizer.cli",
-            "play",
-            str(small_flight),
-            "--rate",
-            "0.01",
-            "--clock",
-            "--wait-for-subscribers",
-            "0",
-        ],
+        [sys.executable, "-m", "marker_localizer.cli", "play", *arguments],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
     try:
-        wait_until(lambda: listener.messages("/clock"), "the player playing")
-        player.send_signal(signal.SIGTERM)
+        wait_until(until, what)
+        player.send_signal(signum)
         _, err = player.communicate(timeout=TIMEOUT_S)
     finally:
         player.kill()
+    return player.returncode, err
+
+
+def test_sigterm_while_playing_stops_the_player_cleanly_with_status_143(context, small_flight):
+    """The player publishes /clock while it waits between frames: the signal comes then."""
+    listener = Listener(context, {"/clock": Clock})
+    spun = Spun(context, listener.node)
+    try:
+        status, err = interrupted_play(
+            [str(small_flight), "--rate", "0.01", "--clock", "--wait-for-subscribers", "0"],
+            lambda: listener.messages("/clock"),
+            "the player playing",
+            signal.SIGTERM,
+        )
+    finally:
         spun.stop()
-    assert player.returncode == 128 + signal.SIGTERM
+    assert status == 128 + signal.SIGTERM
     assert err == "marker-localizer play: interrupted by SIGTERM\n"
 
 
@@ -410,21 +412,16 @@ def test_loop_plays_the_bag_again_with_its_stamps_and_clock_from_the_start_until
     bag = imu_bag(tmp_path / "imu", times_ns)
     listener = Listener(context, {"/imu/data": Imu, "/clock": Clock})
     spun = Spun(context, listener.node)
-    command = [sys.executable, "-m", "marker_localizer.cli", "play", str(bag), "--loop"]
-    player = subprocess.Popen(
-        [*command, "--clock", "--wait-for-subscribers", str(TIMEOUT_S)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
     try:
-        wait_until(lambda: len(listener.messages("/imu/data")) >= 2 * len(times_ns), "two passes")
-        player.send_signal(signal.SIGINT)
-        _, err = player.communicate(timeout=TIMEOUT_S)
+        status, err = interrupted_play(
+            [str(bag), "--loop", "--clock", "--wait-for-subscribers", str(TIMEOUT_S)],
+            lambda: len(listener.messages("/imu/data")) >= 2 * len(times_ns),
+            "two passes",
+            signal.SIGINT,
+        )
     finally:
-        player.kill()
         spun.stop()
-    assert player.returncode == 128 + signal.SIGINT
+    assert status == 128 + signal.SIGINT
     assert err == "marker-localizer play: interrupted by SIGINT\n"
     stamps = [stamp_ns(m.header) for m in listener.messages("/imu/data")]
     assert stamps[: 2 * len(times_ns)] == times_ns * 2
