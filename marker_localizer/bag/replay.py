@@ -377,6 +377,9 @@ class _InFlight:
 #: The kind of a frame's detections among its parts (:meth:`TruthMatcher.add`); its
 #: truth and its partial list are :data:`TRUTH_SUFFIX` and :data:`PARTIAL_SUFFIX`.
 FOUND = "found"
+#: The part that says a frame gives no detections: skipped or failed
+#: (:meth:`TruthMatcher.no_result`).
+NO_RESULT = "no result"
 
 
 class TruthMatcher:
@@ -389,6 +392,8 @@ class TruthMatcher:
 
     * its detections, once the camera has a result for a later stamp: a camera's
       results come in stamp order, and replay skips a frame older than the last;
+      or at once where the frame was skipped or failed (:meth:`no_result`), so that
+      a camera whose every frame is skipped holds no truth;
     * its truth, once the camera's truth for a later stamp is in: truth is taken to
       come in stamp order, as ``simulate`` writes it (a frame with no truth, as
       where truth is given for some frames only, is then not evaluated, as before);
@@ -456,6 +461,18 @@ class TruthMatcher:
         for stamp in list(frames):
             self._settle(camera, stamp, frames[stamp], final=False)
 
+    def no_result(self, camera: str, stamp_ns: int) -> None:
+        """The frame of ``camera`` at ``stamp_ns`` gives no detections (skipped, failed).
+
+        Its truth, in or to come, is then not held for detections; where another
+        frame of the same stamp gave some, they are matched as before.
+        """
+        if not self.wants(camera):
+            return
+        parts = self._waiting[camera].setdefault(stamp_ns, {})
+        parts[NO_RESULT] = np.empty((0, 2))
+        self._settle(camera, stamp_ns, parts, final=False)
+
     def finish(self) -> None:
         """Match the frames still waiting for their partial list, each without it."""
         for camera, frames in self._waiting.items():
@@ -470,7 +487,10 @@ class TruthMatcher:
         def over(kind: str) -> bool:  # a part of this kind will not come any more
             return final or newest.get(kind, stamp) > stamp
 
-        if (FOUND not in parts and over(FOUND)) or (
+        skipped_alone = NO_RESULT in parts and not ({FOUND, TRUTH_SUFFIX} & parts.keys())
+        if skipped_alone and not over(TRUTH_SUFFIX):
+            return  # its truth may be still to come: forgotten with it
+        if (FOUND not in parts and (NO_RESULT in parts or over(FOUND))) or (
             TRUTH_SUFFIX not in parts and over(TRUTH_SUFFIX)
         ):
             del self._waiting[camera][stamp]
@@ -522,6 +542,8 @@ class _Session:
         self._in_flight: dict[str, _InFlight] = {}
         # (camera, header stamp ns, bag time ns, cloud) of each result not yet written.
         self._done: list[tuple[str, int, int, PointCloud2]] = []
+        # (camera, header stamp ns) of each failed frame not yet told the evaluation.
+        self._failed: list[tuple[str, int]] = []
         self._cond = threading.Condition()
         self.now_ns = 0
         settings = NodeConfig()
@@ -559,10 +581,12 @@ class _Session:
             stats.skipped_encoding += 1
             stats.last_error = shorten(described(refused))
             self.processor.skipped(camera, image, refused)
+            self.evaluation.no_result(camera, stamp_ns)
             return
         if stamp_ns <= self._last_stamp.get(camera, -1):
             stats.skipped_out_of_order += 1
             self.processor.skipped(camera, image, None)
+            self.evaluation.no_result(camera, stamp_ns)
             return
         self._last_stamp[camera] = stamp_ns
         # Start a frame only when a worker and the camera are free: the pool then
@@ -603,7 +627,9 @@ class _Session:
 
     def _on_error(self, camera: str, err: Exception) -> None:
         with self._cond:
-            self._in_flight.pop(camera, None)
+            flight = self._in_flight.pop(camera, None)
+            if flight is not None:
+                self._failed.append((camera, flight.stamp_ns))
             stats = self.stats[camera]
             stats.failed += 1
             stats.last_error = shorten(described(err))
@@ -612,10 +638,13 @@ class _Session:
     def _write_done(self) -> None:
         with self._cond:
             done, self._done = self._done, []
+            failed, self._failed = self._failed, []
         for camera, stamp_ns, time_ns, cloud in done:
             self.writer.write(f"/{camera}/{POINTS_SUFFIX}", time_ns, cloud)
             if self.evaluation.wants(camera):
                 self.evaluation.add(FOUND, camera, stamp_ns, _xy(cloud))
+        for camera, stamp_ns in failed:
+            self.evaluation.no_result(camera, stamp_ns)
 
     def _maybe_write_diagnostics(self) -> None:
         if self._next_diagnostics_ns is None:

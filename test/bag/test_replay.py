@@ -803,3 +803,41 @@ def test_truth_out_of_stamp_order_is_counted_where_it_is_not_evaluated(tmp_path)
     text = format_report(report)
     assert f"cam0: {camera.without_truth} frames not evaluated" in text
     assert f"cam0: {camera.truth_without_result} {TRUTH_SUFFIX} messages not evaluated" in text
+
+
+def test_a_camera_whose_every_frame_is_skipped_holds_none_of_its_truth(tmp_path, monkeypatch):
+    """Its truth is counted as not evaluated as it comes, not held for detections that
+    never come. Before: every frame's truth of such a camera was held to the end (all 40
+    here; an hour of a camera at 10 Hz, 36 000)."""
+    frames = 40
+    pixels = x_marker_frame()
+    truth = [Detection(x=40.3, y=30.6, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14)]
+    path = tmp_path / "one_camera_skipped"
+    with BagWriter(path) as bag:
+        for camera in ("cam0", "cam1"):
+            bag.add_topic(f"/{camera}/image_raw", "sensor_msgs/msg/Image")
+            bag.add_topic(f"/{camera}/{TRUTH_SUFFIX}", "sensor_msgs/msg/PointCloud2")
+        for k in range(frames):
+            t = (k + 1) * S // 10
+            for camera in ("cam0", "cam1"):
+                frame = image(pixels, t)
+                if camera == "cam1":
+                    frame.encoding = "yuv444"
+                bag.write(f"/{camera}/image_raw", t, frame)
+                cloud = detections_to_cloud(Header(stamp=stamp(t)), truth)
+                bag.write(f"/{camera}/{TRUTH_SUFFIX}", t, cloud)
+    peak = [0]
+
+    class Counted(TruthMatcher):
+        def add(self, *args):
+            super().add(*args)
+            peak[0] = max(peak[0], self.waiting)
+
+    monkeypatch.setattr(replay, "TruthMatcher", Counted)
+    report = replay_bag(path, tmp_path / "out", workers=2)
+    skipped, kept = report.cameras["cam1"], report.cameras["cam0"]
+    assert skipped.skipped_encoding == frames
+    assert skipped.truth_without_result == frames
+    assert kept.evaluation.frames == frames
+    assert kept.evaluation.recall == 1.0
+    assert peak[0] <= 4
