@@ -29,6 +29,7 @@ import array
 import re
 import sys
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Literal, cast
 
 import cv2
@@ -237,6 +238,42 @@ def image_to_detector_input(msg: Image, max_pixels: int | None = None) -> np.nda
     return pixels if order is None else pixels[:, :, order]
 
 
+@dataclass(frozen=True)
+class EncodedFrame:
+    """A sensor_msgs/CompressedImage's bytes and format, decoded where the detector runs.
+
+    A worker process decodes its frames itself (:meth:`decode`): the decoders'
+    output is caught per process (:mod:`marker_localizer.image_files`), so
+    decodes in one process take turns, and in several they do not.
+
+    Attributes:
+        data: the encoded image (JPEG, PNG, ...).
+        format: the message's ``format`` (``"bgr8; jpeg compressed bgr8"``).
+    """
+
+    data: bytes
+    format: str
+
+    @classmethod
+    def of(cls, msg: CompressedImage) -> EncodedFrame:
+        """The message's bytes and format."""
+        return cls(bytes(msg.data), str(msg.format))
+
+    def decode(self, max_pixels: int) -> np.ndarray:
+        """The pixels as :func:`compressed_to_detector_input` gives them.
+
+        Raises:
+            ImageError: as :func:`compressed_to_detector_input`.
+        """
+        pixels = decode_image(
+            self.data, f"compressed image ({shorten(repr(self.format))})", max_pixels
+        )
+        pattern = _compressed_bayer_pattern(self.format)
+        if pattern is None or pixels.ndim != 2:
+            return pixels
+        return bayer_to_grey(pixels, pattern)
+
+
 def compressed_to_detector_input(msg: CompressedImage, max_pixels: int) -> np.ndarray:
     """Decode a sensor_msgs/CompressedImage (JPEG or PNG) into the layout the detector reads.
 
@@ -256,11 +293,7 @@ def compressed_to_detector_input(msg: CompressedImage, max_pixels: int) -> np.nd
     Raises:
         ImageError: the data is not an image OpenCV decodes, empty, or too large.
     """
-    pixels = decode_image(
-        bytes(msg.data), f"compressed image ({shorten(repr(msg.format))})", max_pixels
-    )
-    pattern = _compressed_bayer_pattern(msg.format)
-    return bayer_to_grey(pixels, pattern) if pattern is not None and pixels.ndim == 2 else pixels
+    return EncodedFrame.of(msg).decode(max_pixels)
 
 
 def _compressed_bayer_pattern(compressed_format: str) -> str | None:

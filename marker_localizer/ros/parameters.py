@@ -143,8 +143,9 @@ class NodeConfig:
     worker_processes: bool = _node_param(
         True,
         "Each worker runs the detector in a process of its own (the frame through shared "
-        "memory, the camera's tracks pickled: 6 ms a 12 MP frame); false: in a thread of "
-        "the node's process. Default true: on the 2-core development machine two "
+        "memory, the camera's tracks pickled: 6 ms a 12 MP frame; a compressed frame is "
+        "decoded there); false: in a thread of the node's process, whose decodes take turns. "
+        "Default true: on the 2-core development machine two "
         "processes took 1.5x the frames a second of two threads, which wait for Python's "
         "GIL (five 12 MP cameras, full frames, bench throughput).",
         read_only=True,

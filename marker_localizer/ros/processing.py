@@ -60,6 +60,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from multiprocessing import shared_memory
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -77,6 +78,7 @@ from marker_localizer.core.tracking import MarkerTracker, staggered_phase
 from marker_localizer.errors import ConfigError, WorkerError, described
 from marker_localizer.overlay import draw_detections
 from marker_localizer.ros.conversions import (
+    EncodedFrame,
     array_to_image,
     detections_to_cloud,
     message_to_detector_input,
@@ -95,6 +97,22 @@ from marker_localizer.stopping import STOP_SIGNALS
 ResultCallback = Callable[[str, PointCloud2, Image | None], None]
 #: Receives (camera, the exception a frame failed with).
 ErrorCallback = Callable[[str, Exception], None]
+#: What the detector is handed: the pixels as it reads them, or a compressed frame,
+#: which a worker process decodes itself.
+FrameInput = np.ndarray | EncodedFrame
+
+
+class InputLevels(NamedTuple):
+    """What the diagnostics read of a frame's pixels, wherever they were decoded.
+
+    Attributes:
+        peak: the brightest level (:func:`~marker_localizer.core.image.peak_level`).
+        sixteen_bit: the pixels are 16-bit (their bit depth is then judged).
+    """
+
+    peak: float
+    sixteen_bit: bool
+
 
 _NS_PER_S = 1_000_000_000
 #: What a worker process imports once, in the fork server its workers are forked from,
@@ -200,41 +218,58 @@ def _started_pool(workers: int) -> ProcessPoolExecutor:
 
 @dataclass(frozen=True)
 class _SharedFrame:
-    """A frame in a shared memory block, as a worker process finds it."""
+    """A frame in a shared memory block, as a worker process finds it.
+
+    The block holds the pixels, or where ``compressed_format`` is given, a
+    compressed frame's bytes (``shape`` their count).
+    """
 
     block: str
     shape: tuple[int, ...]
     dtype: str
+    compressed_format: str | None = None
 
-    def read(self) -> np.ndarray:
+    def read(self) -> FrameInput:
         """A copy of the frame, the block left unmapped (a view would pin it open)."""
         block = shared_memory.SharedMemory(self.block)
         try:
-            return np.ndarray(self.shape, self.dtype, buffer=block.buf).copy()
+            copy: np.ndarray = np.ndarray(self.shape, self.dtype, buffer=block.buf).copy()
         finally:
             block.close()
+        if self.compressed_format is None:
+            return copy
+        return EncodedFrame(copy.tobytes(), self.compressed_format)
 
 
 def _detect_shared_frame(
     detector: Detector, tracker: MarkerTracker | None, frame: _SharedFrame, stamp_s: float
-) -> tuple[DetectionResult, MarkerTracker | None]:
+) -> tuple[DetectionResult, MarkerTracker | None, InputLevels]:
     """:func:`_detect_frame` in a worker process, the frame read from shared memory."""
     return _detect_frame(detector, tracker, frame.read(), stamp_s)
 
 
 def _detect_frame(
-    detector: Detector, tracker: MarkerTracker | None, pixels: np.ndarray, stamp_s: float
-) -> tuple[DetectionResult, MarkerTracker | None]:
+    detector: Detector, tracker: MarkerTracker | None, frame: FrameInput, stamp_s: float
+) -> tuple[DetectionResult, MarkerTracker | None, InputLevels]:
     """One frame, in a worker thread or process: the camera's tracker, or a full pass.
+
+    A compressed frame is decoded here first (:meth:`EncodedFrame.decode`, within
+    the detector's ``max_pixels``).
 
     Returns:
         The result without its survivors (the candidates' positions after each
         test, up to a few hundred kB a frame that a process would copy back for
-        nothing: the node publishes the detections and counts), and the tracker,
-        which has moved on by this frame.
+        nothing: the node publishes the detections and counts), the tracker,
+        which has moved on by this frame, and the levels of its pixels.
+
+    Raises:
+        ImageError: a compressed frame that does not decode, or too large.
     """
-    result = detector.detect(pixels) if tracker is None else tracker.update(pixels, stamp_s)
-    return DetectionResult(result.detections, result.counts, result.timings_ms), tracker
+    if isinstance(frame, EncodedFrame):
+        frame = frame.decode(detector.config.max_pixels)
+    result = detector.detect(frame) if tracker is None else tracker.update(frame, stamp_s)
+    levels = InputLevels(peak_level(frame), frame.dtype == np.uint16)
+    return DetectionResult(result.detections, result.counts, result.timings_ms), tracker, levels
 
 
 def stamp_to_ns(header: Header) -> int:
@@ -645,25 +680,31 @@ class FrameProcessor:
         return block
 
     def _in_worker_process(
-        self, detector: Detector, tracker: MarkerTracker | None, pixels: np.ndarray, stamp_s: float
-    ) -> tuple[DetectionResult, MarkerTracker | None]:
+        self, detector: Detector, tracker: MarkerTracker | None, frame: FrameInput, stamp_s: float
+    ) -> tuple[DetectionResult, MarkerTracker | None, InputLevels]:
         """:func:`_detect_frame` in one of the worker processes.
 
         The frame goes through this thread's shared memory block: pickled
         through the pool's pipe, a 12 MP frame's round trip took 49 ms, through
-        the block 6 ms.
+        the block 6 ms. A compressed frame goes as its bytes (2 MB for a 12 MP
+        JPEG of quality 90, not 12 or 36).
         """
         pool = self._pool
         assert pool is not None
-        block = self._frame_block_for(pixels.nbytes)
+        payload, compressed_format = (
+            (np.frombuffer(frame.data, np.uint8), frame.format)
+            if isinstance(frame, EncodedFrame)
+            else (frame, None)
+        )
+        block = self._frame_block_for(payload.nbytes)
         try:
             if block is None:
                 with self._pool_lock:
                     self._frames_pickled += 1
-                return pool.submit(_detect_frame, detector, tracker, pixels, stamp_s).result()
-            frame = _SharedFrame(block.name, pixels.shape, pixels.dtype.str)
-            np.ndarray(frame.shape, frame.dtype, buffer=block.buf)[...] = pixels
-            return pool.submit(_detect_shared_frame, detector, tracker, frame, stamp_s).result()
+                return pool.submit(_detect_frame, detector, tracker, frame, stamp_s).result()
+            shared = _SharedFrame(block.name, payload.shape, payload.dtype.str, compressed_format)
+            np.ndarray(shared.shape, shared.dtype, buffer=block.buf)[...] = payload
+            return pool.submit(_detect_shared_frame, detector, tracker, shared, stamp_s).result()
         except BrokenProcessPool as err:
             with self._pool_lock:
                 if self._stopping:
@@ -686,34 +727,48 @@ class FrameProcessor:
             self._trackers[camera] = tracker
         return tracker
 
-    def detect(self, camera: str, pixels: np.ndarray, stamp_s: float) -> DetectionResult:
+    def detect(self, camera: str, frame: FrameInput, stamp_s: float) -> DetectionResult:
         """The result of one frame: the camera's tracker, or a full pass without tracking.
 
         Every frame meets the detector here, in a worker thread (which hands it
         to its worker process with ``worker_processes``), so a subclass can
         stand in for the detector (the tests hold a camera's frames in it to make
         mailbox drops independent of how fast the detector is). The result
-        carries no survivors (:func:`_detect_frame`).
+        carries no survivors (:func:`_detect_frame`); the levels of the frame's
+        pixels are left in :attr:`taken_levels` for this thread.
 
         Args:
             camera: the frame's camera.
-            pixels: the frame as the detector takes it (see
-                :func:`~marker_localizer.ros.conversions.image_to_detector_input`).
+            frame: the frame as the detector takes it (see
+                :func:`~marker_localizer.ros.conversions.image_to_detector_input`),
+                or a compressed frame, decoded where the detector runs.
             stamp_s: the frame's header stamp, s.
+
+        Raises:
+            ImageError: a compressed frame that does not decode.
         """
         # Those the frame was taken with: a reconfiguration applies from the next frame.
         taken: tuple[Detector, TrackerConfig] | None = getattr(self._taken, "settings", None)
         detector, tracking = taken or (self._detector, self._tracker_config)
         tracker = self._tracker(camera, detector, tracking) if tracking.enabled else None
         if self._pool is None:
-            return _detect_frame(detector, tracker, pixels, stamp_s)[0]
-        result, moved = self._in_worker_process(detector, tracker, pixels, stamp_s)
+            result, _, self._taken.levels = _detect_frame(detector, tracker, frame, stamp_s)
+            return result
+        result, moved, self._taken.levels = self._in_worker_process(
+            detector, tracker, frame, stamp_s
+        )
         if moved is not None:
             # The copy that came back, tied to this side's detector and settings again,
             # which _tracker compares by identity.
             moved.detector, moved.config = detector, tracking
             self._trackers[camera] = moved
         return result
+
+    @property
+    def taken_levels(self) -> InputLevels:
+        """The levels of the pixels of the frame this thread's :meth:`detect` last read."""
+        levels: InputLevels = self._taken.levels
+        return levels
 
     def _idle(self) -> bool:
         return not self._busy and all(frame is None for frame in self._pending.values())
@@ -771,8 +826,15 @@ class FrameProcessor:
         self._taken.settings = (detector, self._tracker_config)
         config, publish_overlay = detector.config, self.publish_overlay
         try:
-            pixels = message_to_detector_input(frame.msg, config.max_pixels)
-            result = self.detect(frame.camera, pixels, stamp_to_ns(header) / _NS_PER_S)
+            # A worker process decodes a compressed frame itself: decodes in one process
+            # take turns (image_files), in several they do not. The overlay is drawn here.
+            in_process = self._pool is not None and not publish_overlay
+            if in_process and isinstance(frame.msg, CompressedImage):
+                taken: FrameInput = EncodedFrame.of(frame.msg)
+            else:
+                taken = pixels = message_to_detector_input(frame.msg, config.max_pixels)
+            result = self.detect(frame.camera, taken, stamp_to_ns(header) / _NS_PER_S)
+            levels = self.taken_levels
             detections = result.detections
             cloud = detections_to_cloud(header, detections)
             overlay = (
@@ -802,8 +864,8 @@ class FrameProcessor:
             clock_offset_s=(frame.received_ns - stamp_to_ns(header)) / _NS_PER_S,
             markers=len(detections),
             capped=sum(result.counts.get(key, 0) for key in CAP_COUNTS),
-            peak=peak_level(pixels),
-            bit_depth=config.bit_depth if pixels.dtype == np.uint16 else 0,
+            peak=levels.peak,
+            bit_depth=config.bit_depth if levels.sixteen_bit else 0,
             # Without tracking the detector's result counts no "full_frame": every frame is one.
             full_frame=bool(result.counts.get("full_frame", 1)),
         )
