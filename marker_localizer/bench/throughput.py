@@ -15,7 +15,10 @@ The ground is the speed benchmark's clutter (radius 6-40 px), or with
 ``--ground flight`` the flight simulator's five cameras (give ``--radius-range
 3 30``: its oblique views hold markers of 4 to 20 px).
 The cameras run in their own process, as camera drivers do: the 12 MB
-messages they build and serialise do not take this process's cores.
+messages they build and serialise do not take this process's cores. With
+``--compressed`` they publish ``<cam>/image_raw/compressed`` instead, JPEG of
+:data:`JPEG_QUALITY` as image_transport's compressed plugin writes it by default,
+encoded before the run (the node's ``image_transport`` is ``compressed``).
 This process takes one BLAS thread, as the node's ``main`` does for its own
 (:mod:`marker_localizer.blas`): with ``--worker-threads`` the detector runs here.
 
@@ -56,13 +59,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import cv2
 import numpy as np
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image, PointCloud2
+from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
 from marker_localizer.bench import speed
@@ -86,6 +90,8 @@ _DRAIN_TIMEOUT_S = 120.0
 #: Longest wait for the camera process to start publishing (imports, DDS discovery), s.
 _CAMERA_START_TIMEOUT_S = 120.0
 _NS_PER_S = 1_000_000_000
+#: JPEG quality of ``--compressed``: image_transport's compressed plugin's default.
+JPEG_QUALITY = 95
 #: The Fast DDS profile for 12 MP images the benchmark runs with (README, "Speed").
 FASTDDS_PROFILE = Path(__file__).resolve().parents[2] / "config" / "fastdds_large_images.xml"
 _PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
@@ -177,11 +183,16 @@ def render_flight_grounds(width: int, height: int, directory: Path, seed: int = 
 GROUNDS = {"cluttered": render_grounds, "flight": render_flight_grounds}
 
 
+def pan_step(frame: int) -> int:
+    """How many :data:`PAN_STEP_PX` steps frame ``frame`` lies along the pan (0..PAN_FRAMES)."""
+    step = frame % (2 * PAN_FRAMES)
+    return step if step <= PAN_FRAMES else 2 * PAN_FRAMES - step
+
+
 def camera_view(ground: np.ndarray, frame: int) -> np.ndarray:
     """Frame ``frame`` of a camera panning over ``ground`` and turning back every PAN_FRAMES."""
     dx, dy = PAN_STEP_PX
-    step = frame % (2 * PAN_FRAMES)
-    k = step if step <= PAN_FRAMES else 2 * PAN_FRAMES - step
+    k = pan_step(frame)
     height = ground.shape[0] - PAN_FRAMES * dy
     width = ground.shape[1] - PAN_FRAMES * dx
     return ground[k * dy : k * dy + height, k * dx : k * dx + width]
@@ -196,6 +207,7 @@ def run_once(
     tracking: bool = True,
     radius_range: tuple[float, float] = speed.RADIUS_RANGE,
     worker_processes: bool = True,
+    compressed: bool = False,
 ) -> RunResult:
     """Start a node with ``workers`` workers, feed it from a camera process, finish, measure.
 
@@ -207,6 +219,8 @@ def run_once(
         tracking: the node's ``tracker.enabled`` parameter.
         radius_range: the node's marker radius range, px.
         worker_processes: the node's ``worker_processes`` parameter.
+        compressed: the cameras publish JPEG (:data:`JPEG_QUALITY`) on
+            ``<cam>/image_raw/compressed``, which the node subscribes.
 
     Returns:
         The run's figures.
@@ -218,6 +232,7 @@ def run_once(
         parameter_overrides=[
             Parameter("workers", value=workers),
             Parameter("worker_processes", value=worker_processes),
+            Parameter("image_transport", value="compressed" if compressed else "raw"),
             Parameter("tracker.enabled", value=tracking),
             # The diagnostics' window over the whole run, to compare their loss count.
             Parameter("stats_window_s", value=min(seconds + _CAMERA_START_TIMEOUT_S, 3600.0)),
@@ -243,7 +258,7 @@ def run_once(
     started, report = context.Event(), context.Queue()
     cameras = context.Process(
         target=_camera_process,
-        args=(str(grounds), namespace, rate_hz, seconds, started, report),
+        args=(str(grounds), namespace, rate_hz, seconds, compressed, started, report),
         name="bench_cameras",
     )
     spinner.start()
@@ -304,6 +319,7 @@ def _camera_process(
     namespace: str,
     rate_hz: float,
     seconds: float,
+    compressed: bool,
     started: multiprocessing.synchronize.Event,
     report: multiprocessing.Queue,
 ) -> None:
@@ -317,6 +333,9 @@ def _camera_process(
     try:
         node = Node("bench_cameras", namespace=namespace)
         qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+        if compressed:
+            _publish_compressed(node, ground, qos, rate_hz, seconds, started, report)
+            return
         publishers = [node.create_publisher(Image, f"{c}/image_raw", qos) for c in CAMERAS]
         _wait(lambda: all(p.get_subscription_count() for p in publishers), "the node")
         # One message per camera, its pixels rewritten in place for every frame: a
@@ -345,6 +364,51 @@ def _camera_process(
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
+
+
+def _publish_compressed(
+    node: Node,
+    ground: np.ndarray,
+    qos: QoSProfile,
+    rate_hz: float,
+    seconds: float,
+    started: multiprocessing.synchronize.Event,
+    report: multiprocessing.Queue,
+) -> None:
+    """:func:`_camera_process`'s cameras as JPEG: every view encoded once, before the run.
+
+    A camera encodes its own frames; here the encoding would take this process's
+    cores, and one camera's views repeat as it pans back and forth.
+    """
+    publishers = [
+        node.create_publisher(CompressedImage, f"{c}/image_raw/compressed", qos) for c in CAMERAS
+    ]
+    views = [
+        [
+            cv2.imencode(".jpg", camera_view(view, k), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[
+                1
+            ].tobytes()
+            for k in range(PAN_FRAMES + 1)
+        ]
+        for view in ground
+    ]
+    messages = [
+        CompressedImage(header=Header(frame_id=c), format="mono8; jpeg compressed mono8")
+        for c in CAMERAS
+    ]
+    _wait(lambda: all(p.get_subscription_count() for p in publishers), "the node")
+    started.set()
+    cpu_start = _cpu_s()
+    start = time.monotonic()
+    ticks = max(1, round(seconds * rate_hz))
+    for tick in range(ticks):
+        for publisher, msg, encoded in zip(publishers, messages, views, strict=True):
+            msg.data = encoded[pan_step(tick)]
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(time.time_ns(), _NS_PER_S)
+            publisher.publish(msg)
+        time.sleep(max(start + (tick + 1) / rate_hz - time.monotonic(), 0.0))
+    report.put((ticks * len(CAMERAS), _cpu_s() - cpu_start))
+    node.destroy_node()
 
 
 def _processed(node: MarkerLocalizerNode) -> int:
@@ -490,6 +554,12 @@ def build_parser() -> argparse.ArgumentParser:
         "instead of processes of their own",
     )
     parser.add_argument(
+        "--compressed",
+        action="store_true",
+        help=f"the cameras publish JPEG (quality {JPEG_QUALITY}) on <cam>/image_raw/compressed "
+        "and the node reads it (image_transport:=compressed) instead of raw mono8",
+    )
+    parser.add_argument(
         "--full-frame",
         action="store_true",
         help="a full-frame detection per frame (tracker.enabled off) instead of the "
@@ -537,6 +607,7 @@ def run(args: argparse.Namespace, report: Report) -> dict[str, Any]:
                         tracking=tracking,
                         radius_range=tuple(args.radius_range),
                         worker_processes=not args.worker_threads,
+                        compressed=args.compressed,
                     )
                 )
         finally:
@@ -548,7 +619,8 @@ def run(args: argparse.Namespace, report: Report) -> dict[str, Any]:
         else "full-frame detection"
     )
     lines = [
-        f"{len(CAMERAS)} cameras, {args.width}x{args.height} mono8 panning "
+        f"{len(CAMERAS)} cameras, {args.width}x{args.height} "
+        f"{f'mono8 JPEG (quality {JPEG_QUALITY})' if args.compressed else 'mono8'} panning "
         f"{PAN_STEP_PX} px per frame, {args.rate_hz:g} Hz each, {args.seconds:g} s per run, "
         f"{mode}, {args.ground} ground, radius {args.radius_range[0]:g}-"
         f"{args.radius_range[1]:g} px, {os.cpu_count()} CPUs, DDS profile: {transport}",
@@ -570,6 +642,7 @@ def run(args: argparse.Namespace, report: Report) -> dict[str, Any]:
         "tracking": tracking,
         "full_frame_every": full_frame_every if tracking else None,
         "ground": args.ground,
+        "compressed": args.compressed,
         "radius_range": list(args.radius_range),
         "cpus": os.cpu_count(),
         "dds_profile": transport,

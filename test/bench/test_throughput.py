@@ -101,3 +101,14 @@ def test_a_radius_range_the_node_refuses_is_refused_before_the_grounds_are_rende
     captured = capsys.readouterr()
     assert "rendering" not in captured.out
     assert "marker_radius_min_px=40.0 is larger than marker_radius_max_px=6.0" in captured.err
+
+
+def test_the_cameras_publish_jpeg_the_node_reads_with_compressed_transport(ros, tmp_path):
+    grounds = throughput.render_grounds(320, 240, directory=tmp_path, markers=1)
+    for processes in (True, False):
+        result = throughput.run_once(
+            grounds, 2, seconds=1.0, rate_hz=10.0, worker_processes=processes, compressed=True
+        )
+        assert result.published == 5 * 10
+        assert result.processed > 0
+        assert result.dropped_mailbox + result.dropped_age + result.processed <= result.received
