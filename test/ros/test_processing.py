@@ -524,7 +524,9 @@ def _decodes_fail_here(monkeypatch):
     def refuse(*args, **kwargs):
         raise ImageError("decoded in the node's process")
 
-    monkeypatch.setattr("marker_localizer.ros.conversions.decode_image", refuse)
+    # In the namespace EncodedFrame.decode reads it from: another test may have had the
+    # ROS modules imported afresh (test_main's "without ROS"), so not by the module's name.
+    monkeypatch.setitem(processing.EncodedFrame.decode.__globals__, "decode_image", refuse)
 
 
 def test_a_worker_process_decodes_its_compressed_frames_itself(monkeypatch):
