@@ -529,12 +529,15 @@ def _decodes_fail_here(monkeypatch):
     monkeypatch.setitem(processing.EncodedFrame.decode.__globals__, "decode_image", refuse)
 
 
-def test_a_worker_process_decodes_its_compressed_frames_itself(monkeypatch):
+@pytest.mark.parametrize("room", [True, False], ids=["shared memory", "pickled"])
+def test_a_worker_process_decodes_its_compressed_frames_itself(monkeypatch, room):
     """Decodes in one process take turns (the decoders' stderr is the process's), in
     several they do not: the frame goes to the worker process as its bytes. Before, the
     node's process decoded every frame, one at a time (48 ms a 12 MP JPEG, with two
     threads as with one)."""
     _decodes_fail_here(monkeypatch)
+    tmpfs = _Tmpfs(monkeypatch)
+    tmpfs.full = not room
     collect = Collector()
     processor = FrameProcessor(
         ["cam0"], DetectorConfig(), collect, workers=1, worker_processes=True
@@ -548,6 +551,7 @@ def test_a_worker_process_decodes_its_compressed_frames_itself(monkeypatch):
         processor.shutdown(TIMEOUT_S)
     assert collect.results == [("cam0", 1, 1), ("cam0", 2, 1)]
     assert snap.errors == 0
+    assert processor.frames_pickled == (0 if room else 2)
     # The frames' brightest level, read where they were decoded (the JPEG's a level off).
     assert snap.peak_share == pytest.approx(x_marker_64().max() / 255.0, abs=2 / 255)
 
