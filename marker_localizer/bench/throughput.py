@@ -18,7 +18,8 @@ The cameras run in their own process, as camera drivers do: the 12 MB
 messages they build and serialise do not take this process's cores. With
 ``--compressed`` they publish ``<cam>/image_raw/compressed`` instead, JPEG of
 :data:`JPEG_QUALITY` as image_transport's compressed plugin writes it by default,
-encoded before the run (the node's ``image_transport`` is ``compressed``).
+encoded before the run (the node's ``image_transport`` is ``compressed``); of mono8,
+or with ``--compressed bgr8`` of a colour camera (the ground in each channel).
 This process takes one BLAS thread, as the node's ``main`` does for its own
 (:mod:`marker_localizer.blas`): with ``--worker-threads`` the detector runs here.
 
@@ -92,6 +93,8 @@ _CAMERA_START_TIMEOUT_S = 120.0
 _NS_PER_S = 1_000_000_000
 #: JPEG quality of ``--compressed``: image_transport's compressed plugin's default.
 JPEG_QUALITY = 95
+#: The cameras' encodings ``--compressed`` takes: a mono camera's, a colour camera's.
+COMPRESSED_ENCODINGS = ("mono8", "bgr8")
 #: The Fast DDS profile for 12 MP images the benchmark runs with (README, "Speed").
 FASTDDS_PROFILE = Path(__file__).resolve().parents[2] / "config" / "fastdds_large_images.xml"
 _PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
@@ -207,7 +210,7 @@ def run_once(
     tracking: bool = True,
     radius_range: tuple[float, float] = speed.RADIUS_RANGE,
     worker_processes: bool = True,
-    compressed: bool = False,
+    compressed: str | None = None,
 ) -> RunResult:
     """Start a node with ``workers`` workers, feed it from a camera process, finish, measure.
 
@@ -219,8 +222,9 @@ def run_once(
         tracking: the node's ``tracker.enabled`` parameter.
         radius_range: the node's marker radius range, px.
         worker_processes: the node's ``worker_processes`` parameter.
-        compressed: the cameras publish JPEG (:data:`JPEG_QUALITY`) on
-            ``<cam>/image_raw/compressed``, which the node subscribes.
+        compressed: the cameras publish JPEG (:data:`JPEG_QUALITY`) of this encoding
+            (:data:`COMPRESSED_ENCODINGS`) on ``<cam>/image_raw/compressed``, which
+            the node subscribes; None: raw mono8 on ``<cam>/image_raw``.
 
     Returns:
         The run's figures.
@@ -232,7 +236,7 @@ def run_once(
         parameter_overrides=[
             Parameter("workers", value=workers),
             Parameter("worker_processes", value=worker_processes),
-            Parameter("image_transport", value="compressed" if compressed else "raw"),
+            Parameter("image_transport", value="raw" if compressed is None else "compressed"),
             Parameter("tracker.enabled", value=tracking),
             # The diagnostics' window over the whole run, to compare their loss count.
             Parameter("stats_window_s", value=min(seconds + _CAMERA_START_TIMEOUT_S, 3600.0)),
@@ -319,7 +323,7 @@ def _camera_process(
     namespace: str,
     rate_hz: float,
     seconds: float,
-    compressed: bool,
+    compressed: str | None,
     started: multiprocessing.synchronize.Event,
     report: multiprocessing.Queue,
 ) -> None:
@@ -333,8 +337,8 @@ def _camera_process(
     try:
         node = Node("bench_cameras", namespace=namespace)
         qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-        if compressed:
-            _publish_compressed(node, ground, qos, rate_hz, seconds, started, report)
+        if compressed is not None:
+            _publish_compressed(node, ground, qos, rate_hz, seconds, compressed, started, report)
             return
         publishers = [node.create_publisher(Image, f"{c}/image_raw", qos) for c in CAMERAS]
         _wait(lambda: all(p.get_subscription_count() for p in publishers), "the node")
@@ -372,10 +376,13 @@ def _publish_compressed(
     qos: QoSProfile,
     rate_hz: float,
     seconds: float,
+    encoding: str,
     started: multiprocessing.synchronize.Event,
     report: multiprocessing.Queue,
 ) -> None:
     """:func:`_camera_process`'s cameras as JPEG: every view encoded once, before the run.
+
+    ``encoding``: ``bgr8`` encodes the ground in each channel, as a colour camera's.
 
     A camera encodes its own frames; here the encoding would take this process's
     cores, and one camera's views repeat as it pans back and forth.
@@ -383,17 +390,15 @@ def _publish_compressed(
     publishers = [
         node.create_publisher(CompressedImage, f"{c}/image_raw/compressed", qos) for c in CAMERAS
     ]
-    views = [
-        [
-            cv2.imencode(".jpg", camera_view(view, k), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[
-                1
-            ].tobytes()
-            for k in range(PAN_FRAMES + 1)
-        ]
-        for view in ground
-    ]
+
+    def jpeg(pixels: np.ndarray) -> bytes:
+        if encoding == "bgr8":
+            pixels = cv2.cvtColor(pixels, cv2.COLOR_GRAY2BGR)
+        return cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()
+
+    views = [[jpeg(camera_view(view, k)) for k in range(PAN_FRAMES + 1)] for view in ground]
     messages = [
-        CompressedImage(header=Header(frame_id=c), format="mono8; jpeg compressed mono8")
+        CompressedImage(header=Header(frame_id=c), format=f"{encoding}; jpeg compressed {encoding}")
         for c in CAMERAS
     ]
     _wait(lambda: all(p.get_subscription_count() for p in publishers), "the node")
@@ -555,9 +560,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--compressed",
-        action="store_true",
+        nargs="?",
+        const=COMPRESSED_ENCODINGS[0],
+        choices=COMPRESSED_ENCODINGS,
+        metavar="ENCODING",
         help=f"the cameras publish JPEG (quality {JPEG_QUALITY}) on <cam>/image_raw/compressed "
-        "and the node reads it (image_transport:=compressed) instead of raw mono8",
+        "and the node reads it (image_transport:=compressed) instead of raw mono8; of "
+        f"{' or '.join(COMPRESSED_ENCODINGS)} (default {COMPRESSED_ENCODINGS[0]}: a colour "
+        "camera's frames are 3x the pixels to decode and convert)",
     )
     parser.add_argument(
         "--full-frame",
@@ -620,7 +630,8 @@ def run(args: argparse.Namespace, report: Report) -> dict[str, Any]:
     )
     lines = [
         f"{len(CAMERAS)} cameras, {args.width}x{args.height} "
-        f"{f'mono8 JPEG (quality {JPEG_QUALITY})' if args.compressed else 'mono8'} panning "
+        f"{f'{args.compressed} JPEG (quality {JPEG_QUALITY})' if args.compressed else 'mono8'} "
+        "panning "
         f"{PAN_STEP_PX} px per frame, {args.rate_hz:g} Hz each, {args.seconds:g} s per run, "
         f"{mode}, {args.ground} ground, radius {args.radius_range[0]:g}-"
         f"{args.radius_range[1]:g} px, {os.cpu_count()} CPUs, DDS profile: {transport}",
