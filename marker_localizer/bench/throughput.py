@@ -66,6 +66,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
@@ -329,6 +330,8 @@ def _camera_process(
 ) -> None:
     """The camera process: publish ``seconds * rate_hz`` panning frames per camera.
 
+    Raw mono8 on ``<cam>/image_raw`` (:func:`_raw_cameras`), or with ``compressed``
+    JPEG of that encoding on ``<cam>/image_raw/compressed`` (:func:`_jpeg_cameras`).
     Sets ``started`` once the node's subscriptions are matched, then puts
     (frames published, CPU seconds used while publishing) on ``report``.
     """
@@ -337,30 +340,19 @@ def _camera_process(
     try:
         node = Node("bench_cameras", namespace=namespace)
         qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-        if compressed is not None:
-            _publish_compressed(node, ground, qos, rate_hz, seconds, compressed, started, report)
-            return
-        publishers = [node.create_publisher(Image, f"{c}/image_raw", qos) for c in CAMERAS]
+        publishers, messages, write_frame = (
+            _raw_cameras(node, ground, qos)
+            if compressed is None
+            else _jpeg_cameras(node, ground, qos, compressed)
+        )
         _wait(lambda: all(p.get_subscription_count() for p in publishers), "the node")
-        # One message per camera, its pixels rewritten in place for every frame: a
-        # camera driver fills its buffer, it does not build a new 12 MB message.
-        messages = [
-            array_to_image(camera_view(view, 0).copy(), "mono8", Header(frame_id=camera))
-            for camera, view in zip(CAMERAS, ground, strict=True)
-        ]
-        pixels = [
-            np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.width)
-            for msg in messages
-        ]
         started.set()
         cpu_start = _cpu_s()
         start = time.monotonic()
         ticks = max(1, round(seconds * rate_hz))
         for tick in range(ticks):
-            for publisher, msg, buffer, view in zip(
-                publishers, messages, pixels, ground, strict=True
-            ):
-                buffer[:] = camera_view(view, tick)
+            for camera, (publisher, msg) in enumerate(zip(publishers, messages, strict=True)):
+                write_frame(camera, tick)
                 msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(time.time_ns(), _NS_PER_S)
                 publisher.publish(msg)
             time.sleep(max(start + (tick + 1) / rate_hz - time.monotonic(), 0.0))
@@ -370,20 +362,39 @@ def _camera_process(
         rclpy.try_shutdown()
 
 
-def _publish_compressed(
-    node: Node,
-    ground: np.ndarray,
-    qos: QoSProfile,
-    rate_hz: float,
-    seconds: float,
-    encoding: str,
-    started: multiprocessing.synchronize.Event,
-    report: multiprocessing.Queue,
-) -> None:
-    """:func:`_camera_process`'s cameras as JPEG: every view encoded once, before the run.
+#: Writes camera ``camera``'s frame ``tick`` (its index in :data:`CAMERAS`) into its message.
+_FrameWriter = Callable[[int, int], None]
+
+
+def _raw_cameras(
+    node: Node, ground: np.ndarray, qos: QoSProfile
+) -> tuple[list[Publisher], list[Image], _FrameWriter]:
+    """The cameras' publishers of ``<cam>/image_raw``, their messages, and their frames' writer.
+
+    One message per camera, its pixels rewritten in place for every frame: a camera
+    driver fills its buffer, it does not build a new 12 MB message.
+    """
+    publishers = [node.create_publisher(Image, f"{c}/image_raw", qos) for c in CAMERAS]
+    messages = [
+        array_to_image(camera_view(view, 0).copy(), "mono8", Header(frame_id=camera))
+        for camera, view in zip(CAMERAS, ground, strict=True)
+    ]
+    pixels = [
+        np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.width) for msg in messages
+    ]
+
+    def write_frame(camera: int, tick: int) -> None:
+        pixels[camera][:] = camera_view(ground[camera], tick)
+
+    return publishers, messages, write_frame
+
+
+def _jpeg_cameras(
+    node: Node, ground: np.ndarray, qos: QoSProfile, encoding: str
+) -> tuple[list[Publisher], list[CompressedImage], _FrameWriter]:
+    """:func:`_raw_cameras` as JPEG on ``<cam>/image_raw/compressed``, every view encoded once.
 
     ``encoding``: ``bgr8`` encodes the ground in each channel, as a colour camera's.
-
     A camera encodes its own frames; here the encoding would take this process's
     cores, and one camera's views repeat as it pans back and forth.
     """
@@ -401,19 +412,11 @@ def _publish_compressed(
         CompressedImage(header=Header(frame_id=c), format=f"{encoding}; jpeg compressed {encoding}")
         for c in CAMERAS
     ]
-    _wait(lambda: all(p.get_subscription_count() for p in publishers), "the node")
-    started.set()
-    cpu_start = _cpu_s()
-    start = time.monotonic()
-    ticks = max(1, round(seconds * rate_hz))
-    for tick in range(ticks):
-        for publisher, msg, encoded in zip(publishers, messages, views, strict=True):
-            msg.data = encoded[pan_step(tick)]
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(time.time_ns(), _NS_PER_S)
-            publisher.publish(msg)
-        time.sleep(max(start + (tick + 1) / rate_hz - time.monotonic(), 0.0))
-    report.put((ticks * len(CAMERAS), _cpu_s() - cpu_start))
-    node.destroy_node()
+
+    def write_frame(camera: int, tick: int) -> None:
+        messages[camera].data = views[camera][pan_step(tick)]
+
+    return publishers, messages, write_frame
 
 
 def _processed(node: MarkerLocalizerNode) -> int:
