@@ -233,12 +233,13 @@ class _SharedFrame:
         """A copy of the frame, the block left unmapped (a view would pin it open)."""
         block = shared_memory.SharedMemory(self.block)
         try:
-            copy: np.ndarray = np.ndarray(self.shape, self.dtype, buffer=block.buf).copy()
+            # No name holds the view: it must be gone before the block closes.
+            if self.compressed_format is None:
+                return np.ndarray(self.shape, self.dtype, buffer=block.buf).copy()
+            data = np.ndarray(self.shape, self.dtype, buffer=block.buf).tobytes()
+            return EncodedFrame(data, self.compressed_format)
         finally:
             block.close()
-        if self.compressed_format is None:
-            return copy
-        return EncodedFrame(copy.tobytes(), self.compressed_format)
 
 
 def _detect_shared_frame(
