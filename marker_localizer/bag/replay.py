@@ -65,6 +65,7 @@ from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from marker_localizer.bag.io import DEFAULT_STORAGE, BagMessage, BagReader, BagWriter
 from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, stamp_msg
 from marker_localizer.config import NODE_NAME, DetectorConfig, TrackerConfig
+from marker_localizer.core.image import underexposed, underexposure_warning
 from marker_localizer.errors import BagError, ConfigError, ImageError, described, shorten
 from marker_localizer.evaluation import (
     DEFAULT_GATE_PX,
@@ -115,6 +116,9 @@ class CameraReplay:
         bit_depth_hint: Where every 16-bit frame of the replay's last statistics window
             stayed dim at the configured bit depth, the depth its levels fit
             (:func:`~marker_localizer.core.image.bit_depth_hint`); None otherwise.
+        peak_share: The brightest level of that window's frames over white (NaN:
+            none read); under a third, the report calls them underexposed
+            (:func:`~marker_localizer.core.image.underexposed`).
         evaluation: Against the bag's truth; None without truth topics.
         without_truth: Of the frames processed, those with no truth at their stamp,
             not evaluated (where the bag has truth).
@@ -133,6 +137,7 @@ class CameraReplay:
     undecodable: int = 0
     last_error: str = ""
     bit_depth_hint: int | None = None
+    peak_share: float = math.nan
     evaluation: DetectionTally | None = None
     without_truth: int = 0
     truth_without_result: int = 0
@@ -243,6 +248,8 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
             )
         if c.bit_depth_hint is not None:
             lines.append(f"{c.camera}: {bit_depth_warning(c.bit_depth_hint)}")
+        elif underexposed(c.peak_share):
+            lines.append(f"{c.camera}: {underexposure_warning(c.peak_share)}")
         if c.without_truth:
             lines.append(
                 f"{c.camera}: {c.without_truth} frames not evaluated: no "
@@ -609,6 +616,7 @@ class _Session:
         for camera, snapshot in self.processor.snapshots().items():
             self.stats[camera].full_frame_passes = snapshot.full_frame_passes
             self.stats[camera].bit_depth_hint = snapshot.bit_depth_hint
+            self.stats[camera].peak_share = snapshot.peak_share
         self._write_done()
         if self._next_diagnostics_ns is not None:
             self._write_diagnostics(self.now_ns)

@@ -24,6 +24,8 @@ from marker_localizer.core.image import (
     bit_depth_hint,
     bit_depth_scale,
     peak_level,
+    underexposed,
+    underexposure_warning,
 )
 from marker_localizer.core.pipeline import Detector
 from marker_localizer.core.result import DetectionResult
@@ -202,7 +204,7 @@ def main(argv: Sequence[str]) -> int:
             failed += 1
             print(f"{PROG}: error: {err}", file=sys.stderr)
             continue
-        _warn_if_shallow(path, image, detector.config.bit_depth)
+        _warn_of_levels(path, image, detector.config.bit_depth)
         record = result_record(path, image, result, elapsed_ms)
         if args.why:
             record["why"] = why_record(result, np.array(args.why, dtype=np.float64), image.shape)
@@ -219,14 +221,26 @@ def main(argv: Sequence[str]) -> int:
     return EXIT_INCOMPLETE if printed else EXIT_ERROR
 
 
-def _warn_if_shallow(path: str, image: np.ndarray, bit_depth: int) -> None:
-    """One line on stderr where a 16-bit file's levels look like a shallower sensor's."""
-    if image.dtype != np.uint16:
+def _warn_of_levels(path: str, image: np.ndarray, bit_depth: int) -> None:
+    """One line on stderr where an integer file's levels look like a shallower sensor's or dim.
+
+    A 16-bit file under 1/16 of white is named with the depth its levels fit
+    (:func:`~marker_localizer.core.image.bit_depth_hint`); otherwise one under a
+    third is underexposed (:func:`~marker_localizer.core.image.underexposed`).
+    A float file is not judged: its levels are whatever its writer scaled to 1.
+    """
+    if image.dtype.kind != "u":
         return
     peak = peak_level(image)
-    hint = bit_depth_hint(peak, bit_depth)
-    if hint is not None:
-        white = bit_depth_scale(image.dtype, bit_depth)
+    white = bit_depth_scale(image.dtype, bit_depth)
+    hint = bit_depth_hint(peak, bit_depth) if image.dtype == np.uint16 else None
+    if hint is None:
+        if underexposed(peak / white):
+            print(
+                f"{PROG}: warning: {path}: {underexposure_warning(peak / white)}",
+                file=sys.stderr,
+            )
+    else:
         print(
             f"{PROG}: warning: {path}: its brightest level, {peak:g}, is under "
             f"{SHALLOW_PEAK_TEXT} of white "

@@ -30,6 +30,17 @@ SHALLOW_PEAK_SHARE = 1.0 / 16.0
 MAX_ABOVE_WHITE_SHARE = 0.5
 #: :data:`SHALLOW_PEAK_SHARE` as the warnings write it.
 SHALLOW_PEAK_TEXT = f"1/{round(1.0 / SHALLOW_PEAK_SHARE)}"
+#: A frame whose brightest level stays under this share of white is underexposed for
+#: its markers. Their white paint is the brightest thing a frame exposed for them
+#: holds, and the grey-level floors (``min_contrast_dn``, the screening's response,
+#: the line detector's gradient) do not follow an exposure down. Family (a) darkened
+#: until its brightest level stands at 0.37, 0.29, 0.22, 0.18 and 0.11 of white finds
+#: 276, 268, 259, 251 and 239 of the 276 markers it finds as rendered (0.73), and
+#: lowering ``min_contrast_dn`` finds fewer, not more (docs/accuracy.md,
+#: "Underexposed frames").
+DIM_PEAK_SHARE = 1.0 / 3.0
+#: :data:`DIM_PEAK_SHARE` as the warnings write it.
+DIM_PEAK_TEXT = f"1/{round(1.0 / DIM_PEAK_SHARE)}"
 #: OpenCV's demosaicing to grey for each Bayer pattern as ROS names it (the colours of
 #: the 2 x 2 cell in raster order). OpenCV names a pattern by the second and third
 #: pixels of its second row, so ROS's ``rggb`` is its ``BayerBG``, as cv_bridge maps them.
@@ -183,6 +194,26 @@ def peak_level(image: NDArray[Any]) -> float:
 def _peak_grid(image: NDArray[Any]) -> NDArray[Any]:
     """The pixels :func:`peak_level` reads: every :data:`_PEAK_STRIDE`-th row and column."""
     return image[::_PEAK_STRIDE, ::_PEAK_STRIDE]
+
+
+def underexposed(peak_share: float) -> bool:
+    """Whether a brightest level of ``peak_share`` of white leaves a frame too dim for its markers.
+
+    Under :data:`DIM_PEAK_SHARE`; a NaN share (nothing read) is not.
+    """
+    return peak_share < DIM_PEAK_SHARE
+
+
+def underexposure_warning(peak_share: float) -> str:
+    """The warning for frames whose brightest level is ``peak_share`` of white, too dim.
+
+    Given where :func:`underexposed` says so.
+    """
+    return (
+        f"frames underexposed: the brightest level is {100.0 * peak_share:.0f} % of white, "
+        f"under {DIM_PEAK_TEXT}; markers fall under the grey-level floors "
+        "(min_contrast_dn): raise the exposure or the gain"
+    )
 
 
 def bit_depth_hint(peak: float, bit_depth: int) -> int | None:

@@ -22,7 +22,10 @@ Levels of a camera:
   stayed under
   :data:`~marker_localizer.core.image.SHALLOW_PEAK_SHARE` of white, as a shallower
   sensor's words read at the configured ``bit_depth`` do
-  (:func:`~marker_localizer.core.image.bit_depth_hint`).
+  (:func:`~marker_localizer.core.image.bit_depth_hint`); or, where that does not
+  say why, every frame delivered in the window stayed under
+  :data:`~marker_localizer.core.image.DIM_PEAK_SHARE` of white: underexposed for
+  its markers (:func:`~marker_localizer.core.image.underexposed`).
 * OK otherwise.
 
 Full-frame passes are counted beside the frames processed, not judged: with
@@ -62,7 +65,13 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Header
 
-from marker_localizer.core.image import SHALLOW_PEAK_TEXT, bit_depth_hint, bit_depth_scale
+from marker_localizer.core.image import (
+    SHALLOW_PEAK_TEXT,
+    bit_depth_hint,
+    bit_depth_scale,
+    underexposed,
+    underexposure_warning,
+)
 from marker_localizer.errors import shorten
 
 OK, WARN, ERROR = 0, 1, 2
@@ -480,6 +489,8 @@ def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> 
         )
     if snapshot.bit_depth_hint is not None:
         warnings.append(bit_depth_warning(snapshot.bit_depth_hint))
+    elif underexposed(snapshot.peak_share):
+        warnings.append(underexposure_warning(snapshot.peak_share))
     if errors:
         return ERROR, "; ".join(errors + warnings)
     if warnings:

@@ -632,6 +632,19 @@ def test_a_12_bit_camera_read_at_16_bits_is_named_in_the_report_with_its_depth(t
     assert report.cameras["cam0"].bit_depth_hint is None
 
 
+def test_an_underexposed_camera_is_named_in_the_report_as_its_diagnostics_name_it(tmp_path):
+    dim = x_marker_frame() // 3  # its white paint at 30 % of white
+    frames = [("/cam0/image_raw", n, image(dim, n)) for n in (1, 2)]
+    report = replay_bag(write_bag(tmp_path / "dim", frames), tmp_path / "out", workers=1)
+    (line,) = (line for line in format_report(report).splitlines() if line.startswith("cam0: "))
+    assert line.startswith("cam0: frames underexposed: the brightest level is 30 % of white")
+    with BagReader(tmp_path / "out") as out:
+        (*_, last) = (m.decode() for m in out.messages(["/diagnostics"]))
+    (camera,) = (status for status in last.status if status.name.endswith("cam0"))
+    assert camera.level == DiagnosticStatus.WARN
+    assert camera.message == line.removeprefix("cam0: ")
+
+
 @pytest.mark.parametrize(("tracking", "full_frame_passes"), [(True, 1), (False, 3)])
 def test_the_summary_counts_each_cameras_full_frame_passes(tmp_path, tracking, full_frame_passes):
     """With tracking the steady flight's first frame is a full pass; without, every frame."""

@@ -169,6 +169,20 @@ def test_a_12_bit_png_read_at_16_bits_is_processed_with_a_warning_naming_its_dep
     assert len(json.loads(captured.out)["markers"]) == 1
 
 
+def test_an_underexposed_image_is_processed_with_a_warning(x_image, tmp_path, capsys):
+    _, image = x_image
+    dim = tmp_path / "dim.png"
+    cv2.imwrite(str(dim), image // 3)  # quadrants at 10 and 66 of 255
+    assert main(["detect", str(dim), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.strip().splitlines() == [
+        f"marker-localizer: warning: {dim}: frames underexposed: the brightest level is "
+        "26 % of white, under 1/3; markers fall under the grey-level floors "
+        "(min_contrast_dn): raise the exposure or the gain"
+    ]
+    assert len(json.loads(captured.out)["markers"]) == 1
+
+
 def test_a_float_tiff_of_8_bit_levels_is_one_line_not_a_blank_frame(x_image, tmp_path, capsys):
     _, image = x_image
     unit, levels = tmp_path / "unit.tiff", tmp_path / "levels.tiff"

@@ -12,6 +12,7 @@ from marker_localizer.core.image import (
     bit_depth_scale,
     peak_level,
     to_gray,
+    underexposed,
 )
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic.scene import RAW_BAYER_GAINS, bayer_gain
@@ -153,6 +154,16 @@ def test_a_16_bit_frame_dimmer_than_a_16th_of_white_is_advised_the_depth_its_lev
     peak, bit_depth, hint
 ):
     assert bit_depth_hint(peak, bit_depth) == hint
+
+
+@pytest.mark.parametrize(
+    ("peak_share", "dim"),
+    [(0.0, True), (0.33, True), (1.0 / 3.0, False), (0.37, False), (float("nan"), False)],
+)
+def test_a_frame_whose_brightest_level_stays_under_a_third_of_white_is_underexposed(
+    peak_share, dim
+):
+    assert underexposed(peak_share) == dim
 
 
 def test_the_peak_level_is_read_on_every_fourth_row_and_column_of_every_channel():

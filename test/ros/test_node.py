@@ -24,6 +24,7 @@ from rclpy.qos import ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
+from marker_localizer.core.image import bit_depth_scale, peak_level
 from marker_localizer.ros import node as node_module
 from marker_localizer.ros.conversions import BAYER_ENCODINGS
 from marker_localizer.ros.diagnostics import OK, WARN
@@ -328,31 +329,62 @@ def test_diagnostics_report_ok_levels_values_and_node_status(localizer, tester):
     assert values_of(node)["worker kind"] == "processes"
 
 
-def test_diagnostics_warn_when_16_bit_frames_look_like_a_shallower_cameras(localizer, tester):
-    tester.listen("/diagnostics", DiagnosticArray)
-    tester.listen("cam1/marker_points", PointCloud2)
-    frame = tester.frame(x_marker_64().astype(np.uint16) * 16, "mono16")  # 12-bit levels
-    tester.publish("cam1/image_raw", frame)
-    tester.result_for("cam1/marker_points", frame.header)
+#: Frames a camera's diagnostics warn of, in 8- and 16-bit words, the warning, and a
+#: frame exposed for its markers.
+_DIM_FRAMES = [
+    pytest.param(
+        (x_marker_64() // 3, "mono8"),
+        "frames underexposed: the brightest level is 26 % of white, under 1/3",
+        (x_marker_64(), "mono8"),
+        id="white paint at a quarter of white",
+    ),
+    pytest.param(
+        (x_marker_64().astype(np.uint16) * 16, "mono16"),
+        "16-bit frames under 1/16 of white: a 12-bit camera wants detector.bit_depth 12",
+        (x_marker_64().astype(np.uint16) * 257, "mono16"),
+        id="a 12-bit camera's words read at 16 bits",
+    ),
+]
 
-    def warned():
-        for array_msg in reversed(tester.messages("/diagnostics")):
-            cam1 = {s.name: s for s in array_msg.status}.get("marker_localizer: cam1")
-            if cam1 is not None and level_of(cam1) == WARN:
-                return cam1
-        return None
 
-    cam1 = wait_until(warned, "cam1's diagnostics warning of its bit depth")
-    assert "a 12-bit camera wants detector.bit_depth 12" in cam1.message
-    assert float(values_of(cam1)["peak level in window (% of white)"]) < 100.0 / 16.0
-    # A frame that uses the whole word clears it (and leaves the node as it found it).
-    bright = tester.frame(x_marker_64().astype(np.uint16) * 257, "mono16")
-    tester.publish("cam1/image_raw", bright)
-    tester.result_for("cam1/marker_points", bright.header)
+@pytest.mark.parametrize(("dim", "warning", "exposed"), _DIM_FRAMES)
+def test_diagnostics_warn_of_a_cameras_dim_frames_until_one_exposed_for_its_markers(
+    ros, dim, warning, exposed
+):
+    # A node of its own: the module's has lit every camera's window.
+    settings = {
+        "cameras": ["cam1"],
+        "diagnostics_period_s": 0.1,
+        "input_timeout_s": 600.0,
+        "latency_warn_ms": 60_000.0,
+    }
+    with serving("levels", settings) as (_, tester):
+        tester.listen("/diagnostics", DiagnosticArray)
+        tester.listen("cam1/marker_points", PointCloud2)
+        frame = tester.frame(*dim)
+        tester.publish("cam1/image_raw", frame)
+        tester.result_for("cam1/marker_points", frame.header)
 
-    def cleared():
-        array_msg = tester.messages("/diagnostics")[-1]
-        cam1 = {s.name: s for s in array_msg.status}["marker_localizer: cam1"]
-        return level_of(cam1) == OK and int(values_of(cam1)["frames processed"]) >= 2
+        def status():
+            """cam1's newest status (the module's node publishes /diagnostics too)."""
+            for array_msg in reversed(tester.messages("/diagnostics")):
+                for camera in array_msg.status:
+                    if camera.name == "levels_localizer: cam1":
+                        return camera
+            return None
 
-    wait_until(cleared, "cam1's diagnostics back to OK after a bright frame")
+        cam1 = wait_until(
+            lambda: (latest := status()) and level_of(latest) == WARN and latest,
+            f"cam1's diagnostics warning: {warning}",
+        )
+        assert cam1.message.startswith(warning)
+        peak = float(values_of(cam1)["peak level in window (% of white)"])
+        white = bit_depth_scale(dim[0].dtype)
+        assert peak == pytest.approx(100.0 * peak_level(dim[0]) / white, abs=0.05)
+        bright = tester.frame(*exposed)
+        tester.publish("cam1/image_raw", bright)
+        tester.result_for("cam1/marker_points", bright.header)
+        wait_until(
+            lambda: (latest := status()) and level_of(latest) == OK,
+            "cam1's diagnostics back to OK after a frame exposed for its markers",
+        )
