@@ -117,7 +117,7 @@ class CameraReplay:
             stayed dim at the configured bit depth, the depth its levels fit
             (:func:`~marker_localizer.core.image.bit_depth_hint`); None otherwise.
         peak_share: The brightest level of that window's frames over white (NaN:
-            none read); under a third, the report calls them underexposed
+            none read); under half, the report calls them underexposed
             (:func:`~marker_localizer.core.image.underexposed`).
         evaluation: Against the bag's truth; None without truth topics.
         without_truth: Of the frames processed, those with no truth at their stamp,

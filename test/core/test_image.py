@@ -158,11 +158,9 @@ def test_a_16_bit_frame_dimmer_than_a_16th_of_white_is_advised_the_depth_its_lev
 
 @pytest.mark.parametrize(
     ("peak_share", "dim"),
-    [(0.0, True), (0.33, True), (1.0 / 3.0, False), (0.37, False), (float("nan"), False)],
+    [(0.0, True), (0.49, True), (0.5, False), (0.73, False), (float("nan"), False)],
 )
-def test_a_frame_whose_brightest_level_stays_under_a_third_of_white_is_underexposed(
-    peak_share, dim
-):
+def test_a_frame_whose_brightest_level_stays_under_half_of_white_is_underexposed(peak_share, dim):
     assert underexposed(peak_share) == dim
 
 

@@ -284,23 +284,23 @@ def test_one_bright_16_bit_frame_in_the_window_and_8_bit_frames_never_warn_of_th
     assert "bit_depth" not in camera_level(snap, LIMITS)[1]
 
 
-def test_frames_all_under_a_third_of_white_warn_that_they_are_underexposed():
+def test_frames_all_under_half_of_white_warn_that_they_are_underexposed():
     stats, now = healthy_camera(frames=2)  # no level reported: not judged
     assert camera_level(stats.snapshot(now), LIMITS) == (OK, "ok")
-    for level in (60.0, 80.0):  # 8-bit frames whose white paint stays under a third of 255
+    for level in (60.0, 80.0):  # 8-bit frames whose white paint stays under half of 255
         stats.frame_processed(now, 50.0, 0.01, markers=1, peak=level, bit_depth=0)
     assert camera_level(stats.snapshot(now), LIMITS) == (
         WARN,
-        "frames underexposed: the brightest level is 31 % of white, under 1/3; markers fall "
+        "frames underexposed: the brightest level is 31 % of white, under 1/2; markers fall "
         "under the grey-level floors (min_contrast_dn): raise the exposure or the gain",
     )
     # One frame exposed for its markers in the window clears it, 16-bit alike.
-    stats.frame_processed(now, 50.0, 0.01, markers=1, peak=86.0, bit_depth=0)
+    stats.frame_processed(now, 50.0, 0.01, markers=1, peak=128.0, bit_depth=0)
     assert camera_level(stats.snapshot(now), LIMITS) == (OK, "ok")
     deep = CameraStats("cam1", start_ns=0, window_s=10.0)
-    deep.frame_processed(S, 50.0, 0.01, markers=1, peak=1300.0, bit_depth=12)
+    deep.frame_processed(S, 50.0, 0.01, markers=1, peak=2000.0, bit_depth=12)
     assert "underexposed" in camera_level(deep.snapshot(S), LIMITS)[1]
-    deep.frame_processed(S, 50.0, 0.01, markers=1, peak=1400.0, bit_depth=12)
+    deep.frame_processed(S, 50.0, 0.01, markers=1, peak=2048.0, bit_depth=12)
     assert camera_level(deep.snapshot(S), LIMITS)[0] == OK
 
 

@@ -334,7 +334,7 @@ def test_diagnostics_report_ok_levels_values_and_node_status(localizer, tester):
 _DIM_FRAMES = [
     pytest.param(
         (x_marker_64() // 3, "mono8"),
-        "frames underexposed: the brightest level is 26 % of white, under 1/3",
+        "frames underexposed: the brightest level is 26 % of white, under 1/2",
         (x_marker_64(), "mono8"),
         id="white paint at a quarter of white",
     ),
