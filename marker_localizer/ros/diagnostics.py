@@ -161,8 +161,8 @@ class CameraSnapshot:
         any_frame: whether a frame ever arrived.
         last_error: text of the newest failure ("" if none).
         since_last_error_s: time since that failure, s (None if none).
-        peak_share: the brightest level of the frames delivered in the window, over
-            the white of the newest (NaN: none).
+        peak_share: the largest share of its own white that the brightest level of
+            a frame delivered in the window reached (NaN: none read).
         bit_depth_hint: the bit depth the 16-bit frames of the window fit, where
             the configured one leaves them all dim
             (:func:`~marker_localizer.core.image.bit_depth_hint`); None otherwise.
@@ -390,13 +390,17 @@ class CameraStats:
 
 
 def _peak_share(results: Sequence[_Delivered]) -> float:
-    """The brightest level of delivered frames over the newest one's white (NaN: none)."""
-    read = [r for r in results if not math.isnan(r.peak)]
-    if not read:
-        return math.nan
-    bit_depth = read[-1].bit_depth
-    white = bit_depth_scale(np.dtype(np.uint16 if bit_depth else np.uint8), bit_depth)
-    return max(r.peak for r in read) / white
+    """The largest share of its own white a delivered frame's brightest level reached (NaN: none).
+
+    Each frame over its own white: a camera switched from 8- to 16-bit words
+    within the window is judged by what each frame held.
+    """
+    shares = [
+        r.peak / bit_depth_scale(np.dtype(np.uint16 if r.bit_depth else np.uint8), r.bit_depth)
+        for r in results
+        if not math.isnan(r.peak)
+    ]
+    return max(shares, default=math.nan)
 
 
 def stalled_stamps(stamps_ns: np.ndarray) -> int:

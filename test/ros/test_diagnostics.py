@@ -304,6 +304,19 @@ def test_frames_all_under_half_of_white_warn_that_they_are_underexposed():
     assert camera_level(deep.snapshot(S), LIMITS)[0] == OK
 
 
+def test_each_frame_is_judged_by_its_own_white_when_a_camera_changes_its_words():
+    # mono8 at 200 of 255, then the driver switches to mono16 of 12-bit levels.
+    stats = CameraStats("cam1", start_ns=0, window_s=10.0)
+    stats.frame_processed(S, 50.0, 0.01, markers=1, peak=200.0, bit_depth=0)
+    stats.frame_processed(S, 50.0, 0.01, markers=1, peak=3200.0, bit_depth=16)
+    snap = stats.snapshot(S)
+    assert snap.peak_share == pytest.approx(200.0 / 255.0)  # not 200 of 65535
+    assert camera_level(snap, LIMITS) == (
+        WARN,
+        "16-bit frames under 1/16 of white: a 12-bit camera wants detector.bit_depth 12",
+    )
+
+
 def test_header_stamps_that_do_not_advance_warn_with_the_count():
     stats = CameraStats("cam0", start_ns=0, window_s=LIMITS.window_s)
     for i in range(8):  # a driver that leaves the stamp unset
