@@ -325,31 +325,49 @@ def _large_noisy_x(seed: int) -> tuple[np.ndarray, np.ndarray]:
     return scene.image, scene.centres[0]
 
 
+def _gated_and_refitted(
+    image: np.ndarray,
+    truth: np.ndarray,
+    radius_px: float,
+    angles: np.ndarray,
+    max_radius_px: float,
+    max_symmetry_residual: float,
+) -> tuple[subpixel.MarkerLocation, np.ndarray, np.ndarray]:
+    """The gating fit from the pixel nearest ``truth``, and the line fit from its centre.
+
+    Returns:
+        (the gating fit, the line fit's (1, 2) centre, its (1,) sigma).
+    """
+    radius = np.array([radius_px])
+    gating = subpixel.locate_markers(
+        image,
+        np.round(truth)[None],
+        radius,
+        angles,
+        np.array([0.9]),
+        max_radius_px=max_radius_px,
+        iterations=12,
+        min_contrast=10.0,
+        max_symmetry_residual=max_symmetry_residual,
+    )
+    refit, sigma, _ = subpixel.refine_along_lines(
+        image,
+        gating.xy,
+        gating.sigma,
+        radius,
+        angles,
+        full_scale=255.0,
+        max_radius_px=max_radius_px,
+    )
+    return gating, refit, sigma
+
+
 def test_the_line_weighted_refit_is_more_precise_than_the_gating_fit_on_large_markers():
     angles = np.array([[0.3, 0.3 + np.pi / 2]])
     gating_error, refit_error = [], []
     for seed in range(16):
         image, truth = _large_noisy_x(seed)
-        gating = subpixel.locate_markers(
-            image,
-            np.round(truth)[None],
-            np.array([30.0]),
-            angles,
-            np.array([0.9]),
-            max_radius_px=40.0,
-            iterations=12,
-            min_contrast=10.0,
-            max_symmetry_residual=0.1,
-        )
-        refit, sigma, _ = subpixel.refine_along_lines(
-            image,
-            gating.xy,
-            gating.sigma,
-            np.array([30.0]),
-            angles,
-            full_scale=255.0,
-            max_radius_px=40.0,
-        )
+        gating, refit, sigma = _gated_and_refitted(image, truth, 30.0, angles, 40.0, 0.1)
         gating_error.append(np.linalg.norm(gating.xy[0] - truth))
         refit_error.append(np.linalg.norm(refit[0] - truth))
         assert 0.0 < sigma[0] < 0.1
@@ -371,26 +389,7 @@ def test_a_tiny_marker_is_located_within_one_and_a_half_times_its_cramer_rao_bou
             (64, 64), [placement], seed, blur_sigma_px=0.8, noise_sigma_dn=3.0, crlb=True
         )
         truth, angles = scene.centres[0], np.array([scene.markers[0].angles])
-        gating = subpixel.locate_markers(
-            scene.image,
-            np.round(truth)[None],
-            np.array([4.0]),
-            angles,
-            np.array([0.9]),
-            max_radius_px=10.0,
-            iterations=12,
-            min_contrast=10.0,
-            max_symmetry_residual=0.2,
-        )
-        refit, _, _ = subpixel.refine_along_lines(
-            scene.image,
-            gating.xy,
-            gating.sigma,
-            np.array([4.0]),
-            angles,
-            full_scale=255.0,
-            max_radius_px=10.0,
-        )
+        _, refit, _ = _gated_and_refitted(scene.image, truth, 4.0, angles, 10.0, 0.2)
         errors.append(np.linalg.norm(refit[0] - truth))
         bounds.append(scene.crlb_px[0])
     assert np.mean(errors) < 1.5 * np.mean(bounds)
