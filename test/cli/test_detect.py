@@ -177,8 +177,7 @@ def test_an_underexposed_image_is_processed_with_a_warning(x_image, tmp_path, ca
     captured = capsys.readouterr()
     assert captured.err.strip().splitlines() == [
         f"marker-localizer: warning: {dim}: frames underexposed: the brightest level is "
-        "26 % of white, under 1/2; markers fall under the grey-level floors "
-        "(min_contrast_dn): raise the exposure or the gain"
+        "26 % of white, under 1/2, where markers are lost: raise the exposure or the gain"
     ]
     assert len(json.loads(captured.out)["markers"]) == 1
 

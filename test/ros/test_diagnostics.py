@@ -291,8 +291,8 @@ def test_frames_all_under_half_of_white_warn_that_they_are_underexposed():
         stats.frame_processed(now, 50.0, 0.01, markers=1, peak=level, bit_depth=0)
     assert camera_level(stats.snapshot(now), LIMITS) == (
         WARN,
-        "frames underexposed: the brightest level is 31 % of white, under 1/2; markers fall "
-        "under the grey-level floors (min_contrast_dn): raise the exposure or the gain",
+        "frames underexposed: the brightest level is 31 % of white, under 1/2, where markers "
+        "are lost: raise the exposure or the gain",
     )
     # One frame exposed for its markers in the window clears it, 16-bit alike.
     stats.frame_processed(now, 50.0, 0.01, markers=1, peak=128.0, bit_depth=0)
