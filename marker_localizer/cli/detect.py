@@ -225,22 +225,17 @@ def _warn_of_levels(path: str, image: np.ndarray, bit_depth: int) -> None:
     """One line on stderr where an integer file's levels look like a shallower sensor's or dim.
 
     A 16-bit file under 1/16 of white is named with the depth its levels fit
-    (:func:`~marker_localizer.core.image.bit_depth_hint`); otherwise one under a
-    third is underexposed (:func:`~marker_localizer.core.image.underexposed`).
-    A float file is not judged: its levels are whatever its writer scaled to 1.
+    (:func:`~marker_localizer.core.image.bit_depth_hint`); otherwise one under
+    :data:`~marker_localizer.core.image.DIM_PEAK_SHARE` of white is underexposed
+    (:func:`~marker_localizer.core.image.underexposed`). A float file is not judged:
+    its levels are whatever its writer scaled to 1.
     """
     if image.dtype.kind != "u":
         return
     peak = peak_level(image)
     white = bit_depth_scale(image.dtype, bit_depth)
     hint = bit_depth_hint(peak, bit_depth) if image.dtype == np.uint16 else None
-    if hint is None:
-        if underexposed(peak / white):
-            print(
-                f"{PROG}: warning: {path}: {underexposure_warning(peak / white)}",
-                file=sys.stderr,
-            )
-    else:
+    if hint is not None:
         print(
             f"{PROG}: warning: {path}: its brightest level, {peak:g}, is under "
             f"{SHALLOW_PEAK_TEXT} of white "
@@ -248,6 +243,8 @@ def _warn_of_levels(path: str, image: np.ndarray, bit_depth: int) -> None:
             f"--param bit_depth={hint}",
             file=sys.stderr,
         )
+    elif underexposed(peak / white):
+        print(f"{PROG}: warning: {path}: {underexposure_warning(peak / white)}", file=sys.stderr)
 
 
 def _overlay_paths(images: Sequence[str], folder: str) -> dict[str, Path]:
