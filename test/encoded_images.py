@@ -1,13 +1,43 @@
 """Encoded images written byte by byte, damaged or tagged as cameras and tools leave them.
 
-For the tests of image files (test_image_files.py) and of ``detect``
-(cli/test_detect.py, which also runs against the lowest and newest OpenCV).
+For the tests of image files (test_image_files.py), of ``detect`` (cli/test_detect.py,
+which also runs against the lowest and newest OpenCV, without ROS) and of the
+compressed frames the node and replay read (:func:`compressed_message`).
 """
 
 import struct
 
 import cv2
 import numpy as np
+
+#: JPEG quality of image_transport's compressed plugin by default.
+TRANSPORT_JPEG_QUALITY = 95
+
+
+def transport_encoded(kind, pixels):
+    """``pixels`` as image_transport's compressed plugin encodes them: ``jpeg`` or ``png``."""
+    ok, data = cv2.imencode(
+        ".jpg" if kind == "jpeg" else ".png",
+        pixels,
+        [cv2.IMWRITE_JPEG_QUALITY, TRANSPORT_JPEG_QUALITY] if kind == "jpeg" else [],
+    )
+    assert ok
+    return data.tobytes()
+
+
+def compressed_message(kind, sec, data, frame_id=""):
+    """What image_transport's compressed plugin publishes for a mono8 camera: ``data``
+    (:func:`transport_encoded`, or bytes cut or damaged), stamped ``sec``."""
+    # Here, not at the top: the detect tests import this module where ROS is not installed.
+    from builtin_interfaces.msg import Time  # noqa: PLC0415
+    from sensor_msgs.msg import CompressedImage  # noqa: PLC0415
+    from std_msgs.msg import Header  # noqa: PLC0415
+
+    return CompressedImage(
+        header=Header(stamp=Time(sec=sec), frame_id=frame_id),
+        format=f"mono8; {kind} compressed mono8",
+        data=data,
+    )
 
 
 def noise_jpeg(params=(), shape=(240, 320)):

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
+from encoded_images import compressed_message, transport_encoded
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2, PointField
@@ -46,22 +47,13 @@ def marker_frame() -> np.ndarray:
 
 
 def encoded(kind: str, pixels: np.ndarray | None = None) -> bytes:
-    ok, data = cv2.imencode(
-        ".jpg" if kind == "jpeg" else ".png",
-        marker_frame() if pixels is None else pixels,
-        [cv2.IMWRITE_JPEG_QUALITY, 95] if kind == "jpeg" else [],
-    )
-    assert ok
-    return data.tobytes()
+    """``pixels`` (the marker frame if None) as the compressed plugin encodes them."""
+    return transport_encoded(kind, marker_frame() if pixels is None else pixels)
 
 
 def compressed(kind: str, sec: int, data: bytes | None = None) -> CompressedImage:
-    """What image_transport's compressed plugin publishes for a mono8 camera."""
-    return CompressedImage(
-        header=Header(stamp=Time(sec=sec), frame_id="cam"),
-        format=f"mono8; {kind} compressed mono8",
-        data=encoded(kind) if data is None else data,
-    )
+    """The marker frame (or ``data``) as the compressed plugin publishes it for camera "cam"."""
+    return compressed_message(kind, sec, encoded(kind) if data is None else data, "cam")
 
 
 def points(replay_out: Path, camera: str) -> list[np.ndarray]:

@@ -1,10 +1,9 @@
 """The node in this process with real rclpy and DDS: rendered frames in, sub-pixel points out."""
 
-import cv2
 import numpy as np
 import pytest
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
+from encoded_images import compressed_message, transport_encoded
 from node_testing import (
     CAMERAS,
     IMAGE_QOS,
@@ -22,7 +21,6 @@ from node_testing import (
 from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
-from std_msgs.msg import Header
 
 from marker_localizer.core.image import bit_depth_scale, peak_level
 from marker_localizer.ros import node as node_module
@@ -132,22 +130,17 @@ def test_with_compressed_transport_each_camera_reads_jpeg_and_counts_undecodable
         peer.listen("cam0/marker_points", PointCloud2)
         pub = peer.node.create_publisher(CompressedImage, "cam0/image_raw/compressed", IMAGE_QOS)
         wait_until(lambda: pub.get_subscription_count() > 0, "the node subscribing")
-        ok, jpeg = cv2.imencode(".jpg", x_marker_64(), [cv2.IMWRITE_JPEG_QUALITY, 95])
-        assert ok
 
         def publish(data, sec):
-            msg = CompressedImage(
-                header=Header(stamp=Time(sec=sec), frame_id="cam0"),
-                format="mono8; jpeg compressed mono8",
-                data=data,
-            )
+            msg = compressed_message("jpeg", sec, data, "cam0")
             pub.publish(msg)
             return msg.header
 
         publish(b"\xff\xd8 cut short", 1)
         wait_until(lambda: node.processor.snapshots()["cam0"].errors == 1, "the error counted")
         assert "truncated JPEG" in node.processor.snapshots()["cam0"].last_error
-        cloud = peer.result_for("cam0/marker_points", publish(jpeg.tobytes(), 2))
+        jpeg = transport_encoded("jpeg", x_marker_64())
+        cloud = peer.result_for("cam0/marker_points", publish(jpeg, 2))
         np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=0.05)
         assert (
             node.get_parameter(
@@ -179,13 +172,7 @@ def test_compressed_frames_follow_a_remapped_raw_topic_as_image_transport_names_
         peer.listen("cam0/marker_points", PointCloud2)
         pub = peer.node.create_publisher(CompressedImage, "/drv/front/image/compressed", IMAGE_QOS)
         wait_until(lambda: pub.get_subscription_count() > 0, "the node subscribing")
-        ok, png = cv2.imencode(".png", x_marker_64())
-        assert ok
-        msg = CompressedImage(
-            header=Header(stamp=Time(sec=3), frame_id="front"),
-            format="mono8; png compressed mono8",
-            data=png.tobytes(),
-        )
+        msg = compressed_message("png", 3, transport_encoded("png", x_marker_64()), "front")
         pub.publish(msg)
         cloud = peer.result_for("cam0/marker_points", msg.header)
         assert cloud.header == msg.header

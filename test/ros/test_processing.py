@@ -10,10 +10,10 @@ import sys
 import threading
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
+from encoded_images import compressed_message, transport_encoded
 from node_testing import (
     TIMEOUT_S,
     Collector,
@@ -25,8 +25,6 @@ from node_testing import (
     x_marker_64,
 )
 from scenes import panning_frames
-from sensor_msgs.msg import CompressedImage
-from std_msgs.msg import Header
 
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.errors import ImageError, WorkerError
@@ -506,16 +504,10 @@ def test_a_worker_asks_shared_memory_for_room_again_after_some_frames(full_tmpfs
 # --------------------------------------------------------------------------- compressed frames
 
 
-def compressed(sec, pixels=None, image_format=".jpg"):
+def compressed(sec, pixels=None, kind="jpeg"):
     """:func:`stamped`'s frame as image_transport's compressed plugin sends it."""
     pixels = x_marker_64() if pixels is None else pixels
-    data = cv2.imencode(image_format, pixels)[1].tobytes()
-    codec = "jpeg" if image_format == ".jpg" else "png"
-    return CompressedImage(
-        header=Header(stamp=Time(sec=sec)),
-        format=f"mono8; {codec} compressed mono8",
-        data=array.array("B", data),
-    )
+    return compressed_message(kind, sec, transport_encoded(kind, pixels))
 
 
 def _decodes_fail_here(monkeypatch):
@@ -544,7 +536,7 @@ def test_a_worker_process_decodes_its_compressed_frames_itself(monkeypatch, room
     )
     try:
         processor.submit("cam0", compressed(1), block=True)
-        processor.submit("cam0", compressed(2, image_format=".png"), block=True)
+        processor.submit("cam0", compressed(2, kind="png"), block=True)
         assert processor.wait_idle(TIMEOUT_S)
         snap = processor.snapshots()["cam0"]
     finally:
