@@ -42,6 +42,11 @@ SHALLOW_PEAK_TEXT = f"1/{round(1.0 / SHALLOW_PEAK_SHARE)}"
 DIM_PEAK_SHARE = 1.0 / 2.0
 #: :data:`DIM_PEAK_SHARE` as the warnings write it.
 DIM_PEAK_TEXT = f"1/{round(1.0 / DIM_PEAK_SHARE)}"
+#: A level at or above this share of white is taken as clipped: the sensor or its
+#: encoder stopped there, and what the scene held beyond is lost. Not 1: a JPEG's
+#: ringing and a demosaicing's weights leave a clipped region a level or two under
+#: white (255 becomes 253-255).
+CLIPPED_SHARE = 0.99
 #: OpenCV's demosaicing to grey for each Bayer pattern as ROS names it (the colours of
 #: the 2 x 2 cell in raster order). OpenCV names a pattern by the second and third
 #: pixels of its second row, so ROS's ``rggb`` is its ``BayerBG``, as cv_bridge maps them.
@@ -227,3 +232,9 @@ def bit_depth_hint(peak: float, bit_depth: int) -> int | None:
     if peak >= SHALLOW_PEAK_SHARE * bit_depth_scale(np.dtype(np.uint16), bit_depth):
         return None
     return max(8, int(np.ceil(np.log2(peak + 1.0))))
+
+
+def clipped(values: NDArray[Any], full_scale: float) -> NDArray[np.bool_]:
+    """Where grey ``values`` (white ``full_scale``) clip: :data:`CLIPPED_SHARE` of white on."""
+    at_white: NDArray[np.bool_] = np.asarray(values) >= CLIPPED_SHARE * full_scale
+    return at_white

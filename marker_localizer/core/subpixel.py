@@ -29,6 +29,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from marker_localizer.core import shadow, template, uneven
+from marker_localizer.core.image import clipped
 from marker_localizer.core.noise import grey_step
 from marker_localizer.core.sampling import (
     bilinear,
@@ -849,7 +850,7 @@ def refine_along_lines(
     """
     if len(xy) == 0:
         return xy, sigma, line_angles
-    line_angles = _measured_directions(image, xy, radius_px, line_angles, max_radius_px)
+    line_angles = _measured_directions(image, xy, radius_px, line_angles, max_radius_px, full_scale)
     radius_px = _reach_all_round(image, xy, line_angles, radius_px, max_radius_px)
     radius = np.clip(_FINAL_RADIUS_FRACTION * radius_px, _FINAL_MIN_RADIUS_PX, max_radius_px)
     # Points sharing a radius (the ring ladder's rungs) share a half-disk; each keeps
@@ -930,6 +931,7 @@ def refine_along_lines(
             key,
             line_angles[rows[levelled_rows]],
             sloped,
+            full_scale,
             slope_prior,
         )
         if len(differ):
@@ -1059,6 +1061,7 @@ def _measured_directions(
     extent_px: NDArray[np.float64],
     line_angles: NDArray[np.float64],
     max_radius_px: float,
+    full_scale: float,
 ) -> NDArray[np.float64]:
     """(N, 2) the lines' directions measured from the edges (:func:`_edge_directions`).
 
@@ -1072,7 +1075,7 @@ def _measured_directions(
     for key in np.unique(disk[wide]):
         rows = np.flatnonzero(wide & (disk == key))
         measured[rows] = _edge_directions(
-            image, xy[rows], float(key), measured[rows], _MEASURED_DIRECTION_STEP_PX
+            image, xy[rows], float(key), measured[rows], full_scale, _MEASURED_DIRECTION_STEP_PX
         )
     return measured
 
@@ -1084,6 +1087,7 @@ def _levels_fit(
     radius_px: float,
     line_angles: NDArray[np.float64],
     sloped: bool,
+    full_scale: float,
     slope_prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[NDArray[np.float64], _SymmetrySolution]:
     """The line fit with the quadrants' own levels, along lines measured from the edges.
@@ -1096,7 +1100,7 @@ def _levels_fit(
     Returns:
         (lines, solution): the (N, 2) directions measured, and the fit.
     """
-    lines = _edge_directions(image, centre, radius_px, line_angles)
+    lines = _edge_directions(image, centre, radius_px, line_angles, full_scale)
     levelled = _line_band(radius_px, lines)
     blur = _step_blur(image, centre, levelled, sloped)
     solution = fit(
@@ -1393,6 +1397,7 @@ def _edge_directions(
     centre: NDArray[np.float64],
     radius_px: float,
     line_angles: NDArray[np.float64],
+    full_scale: float,
     step_px: float = 0.5,
 ) -> NDArray[np.float64]:
     """(N, 2) each X's line directions at ``centre``, from the gradient energy along its lines.
@@ -1406,40 +1411,83 @@ def _edge_directions(
     3 degrees off, a rendered X with a quadrant 0.7 as bright as its opposite is
     located 0.12 px off, with these directions 0.01 px.
 
+    Where the X's disk holds a clipped level (:func:`~marker_localizer.core.image.clipped`)
+    its white paint is cut off at white, and each edge's gradient moves to its
+    dark side: on the two halves of a line, either side of the centre, the dark
+    quadrant lies on opposite sides, so the halves' ridges are parallel and offset
+    in opposite senses, and one axis through both is turned (a chessboard at twice
+    its exposure: 3.7 degrees, median). There each half is taken about its own
+    mean, their moments pooled, and from the second pass each half's wedge is
+    centred on its own offset from the line.
+
     Args:
         image: (H, W) grey image, raw levels.
         centre: (N, 2) the X's centres, px.
         radius_px: the disk read, px.
         line_angles: (N, 2) the directions to start from, radians.
+        full_scale: the image's white level (:func:`~marker_localizer.core.image.to_gray`).
         step_px: the grid's step, px (:func:`symmetric_offsets`).
     """
     disk, _ = symmetric_offsets(radius_px, _LINE_FIT_MAX_SAMPLES, step_px)
     offsets = np.concatenate([disk, -disk])
-    _, gx, gy, valid = bilinear_with_gradient(
+    values, gx, gy, valid = bilinear_with_gradient(
         image, centre[:, 0, None] + offsets[:, 0], centre[:, 1, None] + offsets[:, 1]
     )
     distance = np.hypot(offsets[:, 0], offsets[:, 1])
     energy = (gx**2 + gy**2) * (valid & (distance >= _DIRECTION_INNER_PX))
-    # The moments about the weighted mean from the sums of d and d d^T: one (N, S) x
-    # (S, 5) product a line, not the (N, S, 2) offsets about each mean.
+    wedge = np.sin(_DIRECTION_WEDGE_RAD) * distance
     powers = np.column_stack(
         [offsets, offsets[:, 0] ** 2, offsets[:, 0] * offsets[:, 1], offsets[:, 1] ** 2]
     )
+    halved = np.flatnonzero((clipped(values, full_scale) & valid).any(axis=1))
+    # (M, line, half): each half-line's offset from its line, ahead of the centre first.
+    half_offsets = np.zeros((len(halved), 2, 2))
     angles = np.array(line_angles, np.float64)
     for _ in range(_DIRECTION_ITERATIONS):
         across = template.line_distances(offsets[None, :, 0], offsets[None, :, 1], angles)
         for i, s in enumerate(across):
-            weight = energy * (np.abs(s) <= np.sin(_DIRECTION_WEDGE_RAD) * distance)
-            total = np.maximum(weight.sum(axis=1), 1e-12)
-            sums = weight @ powers
-            mean = sums[:, :2] / total[:, None]
-            moment = np.empty((len(weight), 2, 2))
-            moment[:, 0, 0] = sums[:, 2] - total * mean[:, 0] ** 2
-            moment[:, 0, 1] = moment[:, 1, 0] = sums[:, 3] - total * mean[:, 0] * mean[:, 1]
-            moment[:, 1, 1] = sums[:, 4] - total * mean[:, 1] ** 2
+            _, moment = _moment_about_mean(energy * (np.abs(s) <= wedge), powers)
+            direction = angles[halved, i, None]
+            ahead = np.cos(direction) * offsets[:, 0] + np.sin(direction) * offsets[:, 1] >= 0.0
+            shifted = s[halved] - np.where(ahead, half_offsets[:, i, :1], half_offsets[:, i, 1:])
+            means = []
+            moment[halved] = 0.0
+            for half in (ahead, ~ahead):
+                mean, half_moment = _moment_about_mean(
+                    energy[halved] * (half & (np.abs(shifted) <= wedge)), powers
+                )
+                moment[halved] += half_moment
+                means.append(mean)
             _, axes = np.linalg.eigh(moment)
             angles[:, i] = np.arctan2(axes[:, 1, 1], axes[:, 0, 1])
+            # An axis has no sense; the halved X's keep theirs, so that each half-line's
+            # offset stays with its half from one pass to the next.
+            turned = np.cos(angles[halved, i] - direction[:, 0]) < 0.0
+            angles[halved[turned], i] += np.pi
+            for h, mean in enumerate(means):
+                half_offsets[:, i, h] = template.line_distances(
+                    mean[:, :1], mean[:, 1:], angles[halved]
+                )[i][:, 0]
     return angles
+
+
+def _moment_about_mean(
+    weight: NDArray[np.float64], powers: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(N, 2) weighted means and (N, 2, 2) second moments about them of S positions.
+
+    From the sums of d and d d^T: one (N, S) x (S, 5) product, not the (N, S, 2)
+    positions about each mean. ``weight`` is (N, S); ``powers`` (S, 5) holds each
+    position's x, y, x^2, x y, y^2.
+    """
+    total = np.maximum(weight.sum(axis=1), 1e-12)
+    sums = weight @ powers
+    mean = sums[:, :2] / total[:, None]
+    moment = np.empty((len(weight), 2, 2))
+    moment[:, 0, 0] = sums[:, 2] - total * mean[:, 0] ** 2
+    moment[:, 0, 1] = moment[:, 1, 0] = sums[:, 3] - total * mean[:, 0] * mean[:, 1]
+    moment[:, 1, 1] = sums[:, 4] - total * mean[:, 1] ** 2
+    return mean, moment
 
 
 class _InsideLight(NamedTuple):

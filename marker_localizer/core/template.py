@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import erf
 
+from marker_localizer.core.image import clipped
 from marker_localizer.core.noise import NoiseModel
 from marker_localizer.core.sampling import Normaliser, bilinear, nan_median, pad_patterns
 
@@ -228,6 +229,7 @@ def template_correlation(
     sigmas_px: tuple[float, ...] = (0.6, 1.0, 1.6, 2.5),
     max_samples: int = 300,
     normalise: Normaliser | None = None,
+    full_scale: float | None = None,
 ) -> TemplateMatch:
     """NCC between the image and the adaptive template at a sub-pixel centre (Eqs. 10-12).
 
@@ -262,6 +264,11 @@ def template_correlation(
     Measured: docs/accuracy.md, "Figures the fit's and the detector's docstrings
     carried".
 
+    Given ``full_scale``, clipped samples (:func:`~marker_localizer.core.image.clipped`)
+    are left out: where the white paint clips, the blurred X's bright side is
+    cut off at white, which no level of the template follows, and the match would
+    fall with the share of the disk that clips, however straight the lines.
+
     Args:
         image: (H, W) image (any numeric dtype).
         xy: (N, 2) centres (sub-pixel).
@@ -271,17 +278,22 @@ def template_correlation(
         max_samples: cap on samples per point (the grid coarsens for big disks).
         normalise: applied to each point's samples before the NCC (e.g. the dynamic
             gamma).
+        full_scale: the image's white level, where clipped samples are left out;
+            raw levels only (not with ``normalise``).
 
     Returns:
         :class:`TemplateMatch`.
+
+    Raises:
+        ValueError: ``full_scale`` with ``normalise``.
     """
     n = len(xy)
     if n == 0:
         return TemplateMatch(np.zeros(0), np.zeros(0))
-    disk = _disk_samples(image, xy, line_angles, radius_px, max_samples, normalise)
+    disk = _disk_samples(image, xy, line_angles, radius_px, max_samples, normalise, full_scale)
     values, valid, s1, s2, present = disk.values, disk.valid, disk.s1, disk.s2, disk.present
     padded_width = values.shape[1]
-    count = present.sum(axis=1, keepdims=True)
+    count = np.maximum(present.sum(axis=1, keepdims=True), 1)
     centred = (values - (values * present).sum(axis=1, keepdims=True) / count) * (valid & present)
     norm_i2 = (centred**2).sum(axis=1) + 1e-12
     best_ncc = np.zeros(n)
@@ -336,6 +348,7 @@ def template_misfit(
     ncc: NDArray[np.float64],
     noise: NoiseModel,
     max_samples: int = 300,
+    full_scale: float | None = None,
 ) -> NDArray[np.float64]:
     """(N,) share of the disk's variance the blurred X leaves unexplained beyond the noise.
 
@@ -349,6 +362,12 @@ def template_misfit(
     (a lattice of discs, stones in rows) leaves the curvature of their outlines
     (0.06-0.12), whatever its contrast and however point-symmetric it is.
 
+    Given ``full_scale``, the clipped samples are left out, as
+    :func:`template_correlation` leaves them out of ``ncc``, and the share is of the
+    whole disk's variance (clipped samples included): the samples left are mostly
+    the dark paint and the edges, whose variance is a fraction of the disk's, and
+    their misfit as a share of it would grow with the share of the disk that clips.
+
     Args:
         image: (H, W) image, raw levels.
         xy: (N, 2) centres (sub-pixel).
@@ -358,14 +377,15 @@ def template_misfit(
             same ``max_samples``.
         noise: the frame's noise (:func:`~marker_localizer.core.noise.estimate_noise`).
         max_samples: cap on samples per point (as :func:`template_correlation`).
+        full_scale: the image's white level, where clipped samples are left out (as
+            ``ncc`` left them out).
     """
     if len(xy) == 0:
         return np.zeros(0)
-    disk = _disk_samples(image, xy, line_angles, radius_px, max_samples, None)
+    disk = _disk_samples(image, xy, line_angles, radius_px, max_samples, None, full_scale)
     read = disk.valid & disk.present
     count = np.maximum(read.sum(axis=1), 1)
-    mean = (disk.values * read).sum(axis=1) / count
-    variance = (np.square(disk.values - mean[:, None]) * read).sum(axis=1) / count
+    variance = _variance(disk.values, read, count)
     position = xy[:, None, :] + disk.offsets
     fraction = position - np.floor(position)
     carried = np.prod(np.square(1.0 - fraction) + np.square(fraction), axis=-1)
@@ -373,7 +393,21 @@ def template_misfit(
     misfit: NDArray[np.float64] = (
         1.0 - np.square(ncc) - noise_variance / np.maximum(variance, 1e-12)
     )
+    if disk.clipped.any():
+        whole = disk.valid & (disk.present | disk.clipped)
+        whole_count = np.maximum(whole.sum(axis=1), 1)
+        whole_squares = _variance(disk.values, whole, whole_count) * whole_count
+        misfit *= variance * count / np.maximum(whole_squares, 1e-12)
     return misfit
+
+
+def _variance(
+    values: NDArray[np.float64], read: NDArray[np.bool_], count: NDArray[np.int64]
+) -> NDArray[np.float64]:
+    """(N,) each row's variance of ``values`` about its mean over the ``read`` samples."""
+    mean = (values * read).sum(axis=1) / count
+    variance: NDArray[np.float64] = (np.square(values - mean[:, None]) * read).sum(axis=1) / count
+    return variance
 
 
 def blurred_x(
@@ -455,8 +489,10 @@ class _DiskSamples(NamedTuple):
         valid: (N, K) whether each was read inside the image.
         s1: (N, K) signed distances from line 1, px.
         s2: the same from line 2.
-        present: (N, K) the point's own samples (False: the padding).
+        present: (N, K) the point's own samples (False: the padding, and the clipped
+            samples where they are left out).
         offsets: (N, K, 2) their offsets from the point, px (0 for the padding).
+        clipped: (N, K) the point's own samples left out as clipped.
     """
 
     values: NDArray[np.float64]
@@ -465,6 +501,7 @@ class _DiskSamples(NamedTuple):
     s2: NDArray[np.float64]
     present: NDArray[np.bool_]
     offsets: NDArray[np.float64]
+    clipped: NDArray[np.bool_]
 
 
 def _disk_samples(
@@ -474,14 +511,26 @@ def _disk_samples(
     radius_px: NDArray[np.float64],
     max_samples: int,
     normalise: Normaliser | None,
+    full_scale: float | None = None,
 ) -> _DiskSamples:
-    """The samples of a disk of each point's radius, one pattern per rounded radius."""
+    """The samples of a disk of each point's radius, one pattern per rounded radius.
+
+    Given ``full_scale`` (white, raw levels: not with ``normalise``), the clipped
+    samples are left out of ``present``.
+    """
+    if full_scale is not None and normalise is not None:
+        raise ValueError("clipped samples are told on raw levels, not normalised ones")
     radius_key = np.round(np.asarray(radius_px, dtype=np.float64))
     keys, pattern_of = np.unique(radius_key, return_inverse=True)
     patterns = [_disk_offsets(float(radius), max_samples) for radius in keys]
     padded, in_pattern = pad_patterns(patterns)
     values, valid, s1, s2 = _disk_reads(image, xy, line_angles, patterns, pattern_of, normalise)
-    return _DiskSamples(values, valid, s1, s2, in_pattern[pattern_of], padded[pattern_of])
+    present = in_pattern[pattern_of]
+    left_out = np.zeros_like(present)
+    if full_scale is not None:
+        left_out = present & clipped(values, full_scale)
+        present = present & ~left_out
+    return _DiskSamples(values, valid, s1, s2, present, padded[pattern_of], left_out)
 
 
 def _disk_reads(

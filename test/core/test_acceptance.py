@@ -103,17 +103,56 @@ def test_the_blurred_x_explains_markers_and_not_a_smooth_saddle():
     assert not _model(saddle).explains(np.array([[31.5, 31.5]]), np.array([6.0]), lines)[0]
 
 
-def _chessboard(square_px: int = 24, size_px: int = 240) -> np.ndarray:
-    """A chessboard of 40 and 200 DN, area-integrated, blurred by 1 px, 1 DN of noise."""
+def _chessboard(
+    square_px: int = 24, size_px: int = 240, paints_dn: tuple[float, float] = (200.0, 40.0)
+) -> np.ndarray:
+    """A chessboard of ``paints_dn`` (white, black), area-integrated, blurred by 1 px,
+    1 DN of noise, clipped to 8 bits."""
     supersampling = 4
     fine = np.mgrid[0 : size_px * supersampling, 0 : size_px * supersampling] / supersampling
     squares = np.floor(fine[0] / square_px) + np.floor(fine[1] / square_px)
-    board = np.where(squares % 2 == 0, 200.0, 40.0)
+    board = np.where(squares % 2 == 0, *paints_dn)
     board = board.reshape(size_px, supersampling, size_px, supersampling).mean(axis=(1, 3))
     noisy = cv2.GaussianBlur(board, (0, 0), 1.0) + np.random.default_rng(0).normal(
         0, 1, board.shape
     )
     return np.clip(np.round(noisy), 0, 255).astype(np.uint8)
+
+
+def _inner_corners(square_px: int = 24, size_px: int = 240) -> np.ndarray:
+    """(N, 2) the inner corners of :func:`_chessboard`, px (pixel centres at integers)."""
+    steps = np.arange(square_px, size_px, square_px) - 0.5
+    return np.stack(np.meshgrid(steps, steps), axis=-1).reshape(-1, 2)
+
+
+def test_the_blurred_x_explains_a_corner_whose_white_paint_clips():
+    # Three times the exposure: white paint of 600 DN clips at 255, and the blurred X,
+    # which never clips, would leave a quarter of each true corner's disk unexplained
+    # (the frame's noise is 1 DN). Without the clipped samples it leaves next to nothing.
+    board = _chessboard(paints_dn=(600.0, 120.0))
+    corners = _inner_corners()
+    extent, lines = np.full(len(corners), 12.0), np.tile([0.0, np.pi / 2], (len(corners), 1))
+    model = _model(board)
+    assert model.explains(corners, extent, lines).all()
+    disk = verification.template_radius(extent, _RADIUS_RANGE_PX[1])
+    whole = template.template_correlation(board, corners, lines, disk).ncc
+    uncut = template.template_misfit(board, corners, lines, disk, whole, model.noise())
+    assert (uncut > acceptance.MAX_TEMPLATE_MISFIT).all()
+
+
+def test_where_no_sample_clips_leaving_clipped_samples_out_changes_nothing():
+    board = _chessboard()
+    corners = _inner_corners()
+    lines = np.tile([0.0, np.pi / 2], (len(corners), 1))
+    disk = np.full(len(corners), 7.0)
+    noise = estimate_noise(board, 255.0)
+    plain = template.template_correlation(board, corners, lines, disk).ncc
+    censored = template.template_correlation(board, corners, lines, disk, full_scale=255.0).ncc
+    np.testing.assert_array_equal(censored, plain)
+    np.testing.assert_array_equal(
+        template.template_misfit(board, corners, lines, disk, censored, noise, full_scale=255.0),
+        template.template_misfit(board, corners, lines, disk, plain, noise),
+    )
 
 
 def test_a_chessboard_corner_that_barely_clears_its_floor_stands_only_beside_another():
