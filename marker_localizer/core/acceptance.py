@@ -503,8 +503,8 @@ class MarkerModel:
         bounds the misfit from above, so the frame's noise is estimated only where a
         detection could fail. Both leave clipped samples out (``full_scale``): a
         marker whose white paint clips is cut off at white, which the X does not
-        model either (a chessboard at twice its exposure: 0.09-0.15 at its true
-        corners, 0.001-0.003 without them).
+        model either (chessboards at twice their exposure: 0.11 at their true
+        corners and lines, median, 0.004 without them).
         """
         doubtful = np.flatnonzero(radius >= verification.X_END_MAX_EXTENT_PX)
         disk = verification.template_radius(radius, self.max_radius_px)

@@ -707,7 +707,7 @@ def test_a_chessboard_exposed_twice_over_keeps_its_corners_and_their_lines():
     # At twice the exposure the white squares clip: each edge's gradient moves to its
     # dark side, on a line's two halves to opposite sides, so a line read through the
     # centre is turned (3.7 degrees, median), and the blurred X, which never clips,
-    # leaves 0.09-0.15 of a true corner's disk unexplained. With each half-line read
+    # leaves 0.11 of a true corner's disk unexplained (median). With each half-line read
     # about its own mean and the clipped samples left out of the template, the corners
     # stand (114 of these 300 without).
     family = next(f for f in families() if f.key == "e")
