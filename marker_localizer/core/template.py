@@ -200,10 +200,13 @@ class TemplateMatch(NamedTuple):
         ncc: the largest correlation over the candidate blurs (1 = a perfect X),
             the bright quadrants a level each (the NCC where they are equal).
         sigma_b: the defocus sigma achieving it, px.
+        clipped: whether the disk holds a clipped level (``full_scale`` given): on
+            raw levels, those samples were left out of ``ncc``.
     """
 
     ncc: NDArray[np.float64]
     sigma_b: NDArray[np.float64]
+    clipped: NDArray[np.bool_]
 
 
 @functools.lru_cache(maxsize=256)
@@ -264,10 +267,12 @@ def template_correlation(
     Measured: docs/accuracy.md, "Figures the fit's and the detector's docstrings
     carried".
 
-    Given ``full_scale``, clipped samples (:func:`~marker_localizer.core.image.clipped`)
-    are left out: where the white paint clips, the blurred X's bright side is
-    cut off at white, which no level of the template follows, and the match would
-    fall with the share of the disk that clips, however straight the lines.
+    Given ``full_scale``, the match tells which disks hold a clipped level
+    (:func:`~marker_localizer.core.image.clipped`, on the raw levels), and on raw
+    levels (no ``normalise``) leaves those samples out: where the white paint
+    clips, the blurred X's bright side is cut off at white, which no level of the
+    template follows, and the match would fall with the share of the disk that
+    clips, however straight the lines.
 
     Args:
         image: (H, W) image (any numeric dtype).
@@ -278,18 +283,15 @@ def template_correlation(
         max_samples: cap on samples per point (the grid coarsens for big disks).
         normalise: applied to each point's samples before the NCC (e.g. the dynamic
             gamma).
-        full_scale: the image's white level, where clipped samples are left out;
-            raw levels only (not with ``normalise``).
+        full_scale: the image's white level, where clipped levels are told (and
+            on raw levels left out).
 
     Returns:
         :class:`TemplateMatch`.
-
-    Raises:
-        ValueError: ``full_scale`` with ``normalise``.
     """
     n = len(xy)
     if n == 0:
-        return TemplateMatch(np.zeros(0), np.zeros(0))
+        return TemplateMatch(np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool))
     disk = _disk_samples(image, xy, line_angles, radius_px, max_samples, normalise, full_scale)
     values, valid, s1, s2, present = disk.values, disk.valid, disk.s1, disk.s2, disk.present
     padded_width = values.shape[1]
@@ -337,7 +339,7 @@ def template_correlation(
     contrast = along / model_norm2 - split * overlap
     extra = np.where(np.abs(split) < 2.0 * np.abs(contrast), projected**2 / difference_norm2, 0.0)
     ncc = np.sqrt(np.minimum(ncc**2 + extra / norm_i2, 1.0))
-    return TemplateMatch(ncc, best_sigma)
+    return TemplateMatch(ncc, best_sigma, np.any(disk.clipped, axis=1))
 
 
 def template_misfit(
@@ -492,7 +494,7 @@ class _DiskSamples(NamedTuple):
         present: (N, K) the point's own samples (False: the padding, and the clipped
             samples where they are left out).
         offsets: (N, K, 2) their offsets from the point, px (0 for the padding).
-        clipped: (N, K) the point's own samples left out as clipped.
+        clipped: (N, K) the point's own samples that clip, on the raw levels.
     """
 
     values: NDArray[np.float64]
@@ -515,22 +517,21 @@ def _disk_samples(
 ) -> _DiskSamples:
     """The samples of a disk of each point's radius, one pattern per rounded radius.
 
-    Given ``full_scale`` (white, raw levels: not with ``normalise``), the clipped
-    samples are left out of ``present``.
+    Given ``full_scale`` (white, in raw levels), the clipped samples are told, and
+    read raw (no ``normalise``) left out of ``present``.
     """
-    if full_scale is not None and normalise is not None:
-        raise ValueError("clipped samples are told on raw levels, not normalised ones")
     radius_key = np.round(np.asarray(radius_px, dtype=np.float64))
     keys, pattern_of = np.unique(radius_key, return_inverse=True)
     patterns = [_disk_offsets(float(radius), max_samples) for radius in keys]
     padded, in_pattern = pad_patterns(patterns)
-    values, valid, s1, s2 = _disk_reads(image, xy, line_angles, patterns, pattern_of, normalise)
+    values, valid, s1, s2, at_white = _disk_reads(
+        image, xy, line_angles, patterns, pattern_of, normalise, full_scale
+    )
     present = in_pattern[pattern_of]
-    left_out = np.zeros_like(present)
-    if full_scale is not None:
-        left_out = present & clipped(values, full_scale)
-        present = present & ~left_out
-    return _DiskSamples(values, valid, s1, s2, present, padded[pattern_of], left_out)
+    at_white &= present
+    if normalise is None:
+        present = present & ~at_white
+    return _DiskSamples(values, valid, s1, s2, present, padded[pattern_of], at_white)
 
 
 def _disk_reads(
@@ -540,19 +541,29 @@ def _disk_reads(
     patterns: list[NDArray[np.float64]],
     pattern_of: NDArray[np.intp],
     normalise: Normaliser | None,
-) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
-    """Samples, their validity and line distances at each point's pattern, padded.
+    full_scale: float | None = None,
+) -> tuple[
+    NDArray[np.float64],
+    NDArray[np.bool_],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+]:
+    """Samples, their validity, line distances and clipping at each point's pattern, padded.
 
     The (N, K) stack of :func:`~marker_localizer.core.sampling.pad_patterns`, point
     i at offsets ``patterns[pattern_of[i]]``: each pattern's points are read at
     their own offsets, and a shorter pattern's padding holds what its zero offsets
     would read, the sample and the distances at the centre. So sums over the stack
     are those of the padded offsets, without a read and a gamma per padded entry
-    (most of them where the candidates' extents differ).
+    (most of them where the candidates' extents differ). Samples clip (the last
+    array) where their raw level does (:func:`~marker_localizer.core.image.clipped`),
+    none without ``full_scale``.
     """
     n, width = len(xy), max(len(pattern) for pattern in patterns)
     zero = np.zeros((n, 1))
     centre, centre_valid = bilinear(image, xy[:, 0, None] + zero, xy[:, 1, None] + zero)
+    at_white = np.zeros((n, width), dtype=bool)
     if normalise is not None:
         centre = normalise(centre, xy)
     values, valid = np.repeat(centre, width, axis=1), np.repeat(centre_valid, width, axis=1)
@@ -561,12 +572,14 @@ def _disk_reads(
         rows = np.flatnonzero(pattern_of == index)
         dx, dy = (np.broadcast_to(offset, (len(rows), len(pattern))) for offset in pattern.T)
         read, inside = bilinear(image, xy[rows, 0, None] + dx, xy[rows, 1, None] + dy)
+        if full_scale is not None:
+            at_white[rows, : len(pattern)] = clipped(read, full_scale)
         if normalise is not None:
             read = normalise(read, xy[rows])
         values[rows, : len(pattern)], valid[rows, : len(pattern)] = read, inside
         distances = line_distances(dx, dy, line_angles[rows])
         s1[rows, : len(pattern)], s2[rows, : len(pattern)] = distances
-    return values, valid, s1, s2
+    return values, valid, s1, s2, at_white
 
 
 def template_evidence(

@@ -140,6 +140,29 @@ def test_the_blurred_x_explains_a_corner_whose_white_paint_clips():
     assert (uncut > acceptance.MAX_TEMPLATE_MISFIT).all()
 
 
+def test_the_template_matches_a_corner_whose_white_paint_clips_without_its_clipped_samples():
+    # At three times the exposure the blurred X, which never clips, matches each true
+    # corner under the template's gate; without the clipped samples it matches as
+    # well as the X of a board exposed as it should be.
+    config = DetectorConfig()
+    gates = acceptance.TemplateGates(
+        config.template_offset_px, 6.0, config.min_modulation, config.template_ncc_min
+    )
+    board = _chessboard(paints_dn=(600.0, 120.0))
+    corners = _inner_corners()
+    extent, lines = np.full(len(corners), 12.0), np.tile([0.0, np.pi / 2], (len(corners), 1))
+    disk = verification.template_radius(extent, _RADIUS_RANGE_PX[1])
+    whole = template.template_correlation(board, corners, lines, disk)
+    assert (whole.ncc < config.template_ncc_min).all()
+    assert template.template_correlation(
+        board, corners, lines, disk, full_scale=255.0
+    ).clipped.all()
+    ones, zeros = np.ones(len(corners)), np.zeros(len(corners))
+    match = _model(board).match(corners, extent, lines, ones, zeros, gates)
+    assert (match.reason == acceptance.ACCEPTED).all()
+    assert (match.ncc > 0.99).all()
+
+
 def test_where_no_sample_clips_leaving_clipped_samples_out_changes_nothing():
     board = _chessboard()
     corners = _inner_corners()
@@ -147,7 +170,9 @@ def test_where_no_sample_clips_leaving_clipped_samples_out_changes_nothing():
     disk = np.full(len(corners), 7.0)
     noise = estimate_noise(board, 255.0)
     plain = template.template_correlation(board, corners, lines, disk).ncc
-    censored = template.template_correlation(board, corners, lines, disk, full_scale=255.0).ncc
+    match = template.template_correlation(board, corners, lines, disk, full_scale=255.0)
+    assert not match.clipped.any()
+    censored = match.ncc
     np.testing.assert_array_equal(censored, plain)
     np.testing.assert_array_equal(
         template.template_misfit(board, corners, lines, disk, censored, noise, full_scale=255.0),
