@@ -694,13 +694,7 @@ def _line_errors_deg(detections, truth) -> np.ndarray:
     )
     found = np.array([[d.angle1, d.angle2] for d in detections])
     expected = np.array([truth[k].angles for k in index])
-
-    def off(a, b):
-        return np.abs((a - b + np.pi / 2) % np.pi - np.pi / 2)
-
-    in_order = np.maximum(off(found[:, 0], expected[:, 0]), off(found[:, 1], expected[:, 1]))
-    swapped = np.maximum(off(found[:, 0], expected[:, 1]), off(found[:, 1], expected[:, 0]))
-    return np.degrees(np.minimum(in_order, swapped))
+    return np.degrees(verification.line_pair_difference(found, expected))
 
 
 def test_a_chessboard_exposed_twice_over_keeps_its_corners_and_their_lines():
