@@ -351,7 +351,12 @@ class MarkerModel:
         ncc[rows[clip]] = np.fmax(
             ncc[rows[clip]],
             template.template_correlation(
-                gray, xy[rows[clip]], angles[rows[clip]], disk[clip], full_scale=self.full_scale
+                gray,
+                xy[rows[clip]],
+                angles[rows[clip]],
+                disk[clip],
+                full_scale=self.full_scale,
+                leave_out_clipped=True,
             ).ncc,
         )
         with np.errstate(invalid="ignore"):
@@ -526,6 +531,7 @@ class MarkerModel:
                 angles[doubtful],
                 disk[doubtful],
                 full_scale=self.full_scale,
+                leave_out_clipped=True,
             ).ncc
             could_fail = 1.0 - np.square(ncc) > MAX_TEMPLATE_MISFIT
             doubtful, ncc = doubtful[could_fail], ncc[could_fail]

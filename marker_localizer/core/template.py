@@ -233,6 +233,7 @@ def template_correlation(
     max_samples: int = 300,
     normalise: Normaliser | None = None,
     full_scale: float | None = None,
+    leave_out_clipped: bool = False,
 ) -> TemplateMatch:
     """NCC between the image and the adaptive template at a sub-pixel centre (Eqs. 10-12).
 
@@ -268,9 +269,9 @@ def template_correlation(
     carried".
 
     Given ``full_scale``, the match tells which disks hold a clipped level
-    (:func:`~marker_localizer.core.image.clipped`, on the raw levels), and on raw
-    levels (no ``normalise``) leaves those samples out: where the white paint
-    clips, the blurred X's bright side is cut off at white, which no level of the
+    (:func:`~marker_localizer.core.image.clipped`, on the raw levels), and with
+    ``leave_out_clipped`` leaves those samples out: where the white paint clips,
+    the blurred X's bright side is cut off at white, which no level of the
     template follows, and the match would fall with the share of the disk that
     clips, however straight the lines.
 
@@ -283,16 +284,22 @@ def template_correlation(
         max_samples: cap on samples per point (the grid coarsens for big disks).
         normalise: applied to each point's samples before the NCC (e.g. the dynamic
             gamma).
-        full_scale: the image's white level, where clipped levels are told (and
-            on raw levels left out).
+        full_scale: the image's white level, where clipped levels are told.
+        leave_out_clipped: leave the clipped samples out of the match (raw levels:
+            needs ``full_scale`` and no ``normalise``).
 
     Returns:
         :class:`TemplateMatch`.
+
+    Raises:
+        ValueError: ``leave_out_clipped`` without ``full_scale`` or with ``normalise``.
     """
     n = len(xy)
     if n == 0:
         return TemplateMatch(np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool))
-    disk = _disk_samples(image, xy, line_angles, radius_px, max_samples, normalise, full_scale)
+    disk = _disk_samples(
+        image, xy, line_angles, radius_px, max_samples, normalise, full_scale, leave_out_clipped
+    )
     values, valid, s1, s2, present = disk.values, disk.valid, disk.s1, disk.s2, disk.present
     padded_width = values.shape[1]
     count = np.maximum(present.sum(axis=1, keepdims=True), 1)
@@ -384,7 +391,9 @@ def template_misfit(
     """
     if len(xy) == 0:
         return np.zeros(0)
-    disk = _disk_samples(image, xy, line_angles, radius_px, max_samples, None, full_scale)
+    disk = _disk_samples(
+        image, xy, line_angles, radius_px, max_samples, None, full_scale, full_scale is not None
+    )
     read = disk.valid & disk.present
     count = np.maximum(read.sum(axis=1), 1)
     variance = _variance(disk.values, read, count)
@@ -514,12 +523,15 @@ def _disk_samples(
     max_samples: int,
     normalise: Normaliser | None,
     full_scale: float | None = None,
+    leave_out_clipped: bool = False,
 ) -> _DiskSamples:
     """The samples of a disk of each point's radius, one pattern per rounded radius.
 
     Given ``full_scale`` (white, in raw levels), the clipped samples are told, and
-    read raw (no ``normalise``) left out of ``present``.
+    with ``leave_out_clipped`` (raw levels: no ``normalise``) left out of ``present``.
     """
+    if leave_out_clipped and (full_scale is None or normalise is not None):
+        raise ValueError("clipped samples are left out of raw levels, given their white")
     radius_key = np.round(np.asarray(radius_px, dtype=np.float64))
     keys, pattern_of = np.unique(radius_key, return_inverse=True)
     patterns = [_disk_offsets(float(radius), max_samples) for radius in keys]
@@ -529,7 +541,7 @@ def _disk_samples(
     )
     present = in_pattern[pattern_of]
     at_white &= present
-    if normalise is None:
+    if leave_out_clipped:
         present = present & ~at_white
     return _DiskSamples(values, valid, s1, s2, present, padded[pattern_of], at_white)
 

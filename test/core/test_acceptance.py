@@ -170,7 +170,9 @@ def test_where_no_sample_clips_leaving_clipped_samples_out_changes_nothing():
     disk = np.full(len(corners), 7.0)
     noise = estimate_noise(board, 255.0)
     plain = template.template_correlation(board, corners, lines, disk).ncc
-    match = template.template_correlation(board, corners, lines, disk, full_scale=255.0)
+    match = template.template_correlation(
+        board, corners, lines, disk, full_scale=255.0, leave_out_clipped=True
+    )
     assert not match.clipped.any()
     censored = match.ncc
     np.testing.assert_array_equal(censored, plain)
