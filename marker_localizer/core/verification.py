@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from marker_localizer.core import template
+from marker_localizer.core.image import CLIPPED_SHARE
 from marker_localizer.core.sampling import Normaliser, bilinear, in_blocks, nan_median
 from marker_localizer.core.screening import Candidates, level_scale, parabolic_offset
 
@@ -1588,6 +1589,74 @@ def _nearest_crossings(
     return distance, angles
 
 
+#: Farthest a half-line may pass from the candidate, in ``max_distance_px``, to be paired
+#: with its other half in :func:`_midline_crossing`: clipping moves a blurred edge by up
+#: to about its blur, and the halves of a rendered board three times over-exposed pass
+#: 1.3-2.1 px from their true centre.
+_HALF_LINE_MAX_OFFSETS = 2.0
+
+
+def _midline_crossing(
+    segments: NDArray[np.float64],
+    centre: NDArray[np.float64],
+    max_distance_px: float,
+    min_angle_rad: float,
+) -> tuple[float, NDArray[np.float64]]:
+    """Eq. (9) for an X whose white clips: where the lines midway between each line's halves cross.
+
+    Where the white paint clips, each edge's blurred step is cut off at white and the
+    edge LSD finds moves to its dark side: the two halves of one line move apart in
+    opposite senses, as the X's point symmetry has it, and become two parallel
+    segments on either side of the centre. Halves of different lines then cross
+    sqrt 2 times that offset from the centre (2.1-2.3 px at the true centres of a
+    rendered board three times over-exposed), while the line midway between the two
+    halves of each line passes through it again. Taken as one line's halves: two
+    segments closer to parallel than half ``min_angle_rad`` (nearer each other than
+    any two lines of an X), on either side of the centre along their direction,
+    each passing within :data:`_HALF_LINE_MAX_OFFSETS` times ``max_distance_px`` of
+    it.
+
+    Args:
+        segments: (M, 4) one candidate's LSD segments in image coordinates.
+        centre: (2,) the candidate.
+        max_distance_px: as in :func:`double_line_check`.
+        min_angle_rad: as in :func:`double_line_check`.
+
+    Returns:
+        (distance, line_angles): the distance of the crossing nearest the centre (inf
+        if none) and the two midlines' directions in [0, pi) (NaN if none).
+    """
+    middle = 0.5 * (segments[:, :2] + segments[:, 2:])
+    direction = segments[:, 2:] - segments[:, :2]
+    unit = direction / np.maximum(np.linalg.norm(direction, axis=1), 1e-9)[:, None]
+    offset = unit[:, 0] * (centre[1] - middle[:, 1]) - unit[:, 1] * (centre[0] - middle[:, 0])
+    near = np.abs(offset) <= _HALF_LINE_MAX_OFFSETS * max_distance_px
+    middle, unit = middle[near], unit[near]
+    i, j = np.triu_indices(len(unit), 1)
+    # LSD orients a segment by its gradient's polarity, which an X's line reverses
+    # at the centre: the halves of one line come out pointing opposite ways.
+    sense = np.where(np.sum(unit[i] * unit[j], axis=1) < 0.0, -1.0, 1.0)
+    parallel = np.abs(unit[i, 0] * unit[j, 1] - unit[i, 1] * unit[j, 0]) <= np.sin(
+        0.5 * min_angle_rad
+    )
+    along_i = np.sum(unit[i] * (middle[i] - centre), axis=1)
+    along_j = np.sum(unit[i] * (middle[j] - centre), axis=1)
+    halves = parallel & (along_i * along_j < 0.0)
+    mid_unit = unit[i[halves]] + sense[halves, None] * unit[j[halves]]
+    mid_point = 0.5 * (middle[i[halves]] + middle[j[halves]])
+    if len(mid_point) < 2:
+        return np.inf, np.full(2, np.nan)
+    midlines = np.concatenate([mid_point, mid_point + mid_unit], axis=1)[None]
+    points, a, b, crossing = _segment_intersections(midlines)
+    mid_angle = np.arctan2(mid_unit[:, 1], mid_unit[:, 0]) % np.pi
+    apart = _angle_difference(mid_angle[a], mid_angle[b]) >= min_angle_rad
+    distance = np.where(crossing[0] & apart, np.linalg.norm(points[0] - centre, axis=1), np.inf)
+    best = int(np.argmin(distance))
+    if not np.isfinite(distance[best]):
+        return np.inf, np.full(2, np.nan)
+    return float(distance[best]), np.array([mid_angle[a[best]], mid_angle[b[best]]])
+
+
 def double_line_check(
     image: NDArray[Any],
     xy: NDArray[np.float64],
@@ -1608,7 +1677,9 @@ def double_line_check(
     directions at least ``min_angle_rad`` apart cross within ``max_distance_px``
     of it and within both extended segments. The edges of an X change polarity at
     the centre, so LSD returns up to four half-lines; any two of different
-    direction suffice.
+    direction suffice. Where none cross near enough and the window holds a clipped
+    level (:data:`image.CLIPPED_SHARE` of white), the lines midway between each
+    line's two halves are crossed instead (:func:`_midline_crossing` says why).
 
     LSD reads the raw window, not the dynamic gamma of Eq. (2): with one local
     mean per window that gamma is a monotonic map of the grey levels, which
@@ -1636,6 +1707,8 @@ def double_line_check(
     lsd = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD)
     height, width = image.shape
     windows, zooms, corners = [], [], []
+    clipped_window: list[bool] = []
+    clipped_level = CLIPPED_SHARE * 255.0
     # A loop over candidates (not pixels): each runs LSD on its own small window.
     for k in range(n):
         half = int(np.ceil(max(LSD_WINDOW_RADII * radius_px[k], 6.0)))
@@ -1648,6 +1721,7 @@ def double_line_check(
             levels = window * (gain * 255.0 / full_scale) + 0.5
             window = np.clip(levels, 0, 255).astype(np.uint8)
         windows.append(window)
+        clipped_window.append(bool(window.max(initial=0) >= clipped_level))
         zooms.append(max(1, int(np.ceil(_LSD_MIN_WINDOW_PX / max(min(window.shape), 1)))))
         corners.append((x0, y0))
     for k, (window, zoom, (x0, y0)) in enumerate(
@@ -1664,6 +1738,12 @@ def double_line_check(
             + np.array([x0, y0, x0, y0], dtype=np.float64)
         )
     distance, angles = _nearest_crossings(segments, xy, extend_px, min_angle_rad)
+    for k in np.flatnonzero((distance > max_distance_px) & np.array(clipped_window, bool)):
+        mid_distance, mid_angles = _midline_crossing(
+            segments[k], xy[k], max_distance_px, min_angle_rad
+        )
+        if mid_distance < distance[k]:
+            distance[k], angles[k] = mid_distance, mid_angles
     accepted = distance <= max_distance_px
     angles[~accepted] = np.nan
     return LineCheck(accepted, angles, distance)

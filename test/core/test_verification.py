@@ -94,6 +94,30 @@ def test_double_line_check_accepts_an_x_and_returns_its_two_lines():
     np.testing.assert_allclose(np.sort(lines.line_angles[0]), expected, atol=np.deg2rad(2.0))
 
 
+@pytest.mark.parametrize("kind", ["quarter_disks", "checker"])
+@pytest.mark.parametrize(("blur", "exposure"), [(1.4, 4.0), (2.0, 3.0)])
+def test_double_line_check_finds_the_lines_of_an_x_whose_white_paint_clips(kind, blur, exposure):
+    # Clipped at white, each blurred edge moves to its dark side, a line's two halves
+    # to opposite sides: halves of different lines cross 2.1-2.6 px from the centre.
+    # The lines midway between each line's halves cross at it.
+    image = np.clip(np.round(exposure * _render(kind, blur=blur) * 255), 0, 255).astype(np.uint8)
+    lines = verification.double_line_check(image, CENTRE, np.array([20.0]), max_distance_px=2.0)
+    assert lines.accepted[0]
+    assert lines.distance_px[0] < 0.5
+    expected = np.sort(np.array([0.3, 0.3 + np.pi / 2]) % np.pi)
+    np.testing.assert_allclose(np.sort(lines.line_angles[0]), expected, atol=np.deg2rad(2.0))
+
+
+def test_double_line_check_pairs_a_lines_halves_only_where_its_window_clips():
+    # The same over-exposed X scaled under white: nothing says its edges were moved
+    # by clipping, and halves that miss the centre by 2 px are no X's line.
+    exposed = np.clip(np.round(3.0 * _render("quarter_disks", blur=2.0) * 255), 0, 255)
+    dimmed = np.round(0.97 * exposed).astype(np.uint8)
+    lines = verification.double_line_check(dimmed, CENTRE, np.array([20.0]), max_distance_px=2.0)
+    assert not lines.accepted[0]
+    assert lines.distance_px[0] > 2.0
+
+
 def test_double_line_check_rejects_a_single_straight_edge():
     image = np.full((128, 128), 40, np.uint8)
     image[:, 64:] = 200
