@@ -1038,8 +1038,8 @@ def line_reaches(
         typical = nan_median(np.where(reference, total, np.nan))
         modulation = (plus - minus) / np.maximum(total, _EXTENT_MIN_SUM * typical[:, None])
         step = nan_median(np.where(reference, modulation, np.nan))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(valid, modulation / step[:, None], 0.0)
+        # No step inside (both sides clipped at white, say): nothing to compare with.
+        ratio = np.where(valid, modulation / np.where(step != 0.0, step, np.nan)[:, None], 0.0)
         reach[:, k] = _faded_end(ratio, distance, inner)
     lines = np.minimum(reach[:, :2], reach[:, 2:])
     squares = (lines**2).sum(axis=1)

@@ -176,6 +176,20 @@ def test_an_x_reaches_its_radius_all_round_however_its_rings_read_it():
     assert 10.0 <= reach[0] <= 12.0
 
 
+@pytest.mark.filterwarnings("error")
+def test_an_x_with_no_step_inside_reaches_nowhere_without_a_warning():
+    # White clipped over the X's inside (where each half-line's step is taken as the
+    # reference) leaves no step to compare the paint beyond with: every half-line
+    # has faded where the reading starts (3 px, the first distance past 0.3 extents).
+    placement = MarkerPlacement(40.3, 39.6, 16.0, rotation_rad=0.3)
+    image = _rendered(placement)
+    rows, cols = np.mgrid[: image.shape[0], : image.shape[1]]
+    image[np.hypot(cols - 40.3, rows - 39.6) < 9.0] = image.max()
+    angles = np.array([[0.3, 0.3 + np.pi / 2]])
+    reach = template.line_reaches(image, np.array([[40.3, 39.6]]), angles, np.array([8.49]), 20.0)
+    assert reach[0] <= 3.0
+
+
 def test_a_tilted_x_reaches_all_round_as_far_as_its_ellipse_s_smaller_semi_axis():
     # Tilted 50 degrees, the plate's circle is an ellipse of semi-axes 14 and 14 cos 50;
     # the lines (its conjugate diameters) reach farther than the smaller one.
