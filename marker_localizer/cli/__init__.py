@@ -68,6 +68,7 @@ BENCHMARKS: dict[str, str] = {
     "accuracy": "marker_localizer.bench.accuracy",
     "bound": "marker_localizer.bench.bound",
     "calibrate": "marker_localizer.bench.calibrate",
+    "exposure": "marker_localizer.bench.exposure",
     "paper": "marker_localizer.bench.paper",
     "speed": "marker_localizer.bench.speed",
     "throughput": "marker_localizer.bench.throughput",

@@ -18,7 +18,7 @@ def test_bench_help_lists_the_benchmarks_and_exits_0(capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["bench", "--help"])
     assert exit_info.value.code == 0
-    assert "{accuracy,bound,calibrate,paper,speed,throughput}" in capsys.readouterr().out
+    assert "{accuracy,bound,calibrate,exposure,paper,speed,throughput}" in capsys.readouterr().out
 
 
 def test_help_lists_every_command_and_an_unknown_one_exits_2(capsys):
