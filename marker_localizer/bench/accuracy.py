@@ -1182,7 +1182,7 @@ def _detectors(options: Options) -> list[PointDetector]:
     return [*peers.our_variants(options.curvature), *peers.point_detectors()]
 
 
-def _reference_detectors() -> list[PointDetector]:
+def reference_detectors() -> list[PointDetector]:
     """The reference row's detector alone, for the tables no peer's time is spent on."""
     return [d for d in peers.our_variants(False) if d.name == REFERENCE_ROW]
 
@@ -1240,7 +1240,7 @@ def run_heldout(options: Options, report: Callable[[str], None]) -> dict[str, An
     accuracy.md, "The coins lattice at the renderer's other scales"). The
     chessboards (e) are left out: their table's eight boards hold 800 corners.
     """
-    reference = _reference_detectors()
+    reference = reference_detectors()
     n_frames = options.frames or (2 if options.quick else HELDOUT_FRAMES)
     first = options.seed * 1000 + HELDOUT_SEED_OFFSET
     rows: list[tuple[str, Row]] = []
@@ -1386,7 +1386,7 @@ def run_closer_negatives(options: Options, report: Callable[[str], None]) -> dic
         f"range {_range_text('aerial_negatives')}",
         frames,
         REAL_RADIUS_RANGES["aerial_negatives"],
-        _reference_detectors(),
+        reference_detectors(),
         report,
     )
 

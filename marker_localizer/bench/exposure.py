@@ -31,7 +31,6 @@ import numpy as np
 from marker_localizer.bench import peers, real_data
 from marker_localizer.bench.accuracy import (
     REAL_RADIUS_RANGES,
-    REFERENCE_ROW,
     LabelledFrame,
     Row,
     evaluate_boards,
@@ -39,6 +38,7 @@ from marker_localizer.bench.accuracy import (
     evaluate_negatives,
     evaluate_uas,
     families,
+    reference_detectors,
 )
 from marker_localizer.bench.peers import PointDetector, RadiusRange
 from marker_localizer.bench.runner import add_json_option, run_and_save
@@ -122,11 +122,15 @@ def _false_points(row: Row) -> Figures:
     return {"fp_per_frame": row.extra["fp_per_frame"]}
 
 
+def _exposed_frames(frames: Sequence[Any], gain: float) -> list[Any]:
+    """Copies of the (frozen dataclass) frames, each image :func:`over_exposed` by ``gain``."""
+    return [dataclasses.replace(f, image=over_exposed(f.image, gain)) for f in frames]
+
+
 def _truth_rows(
     frames: Sequence[LabelledFrame], detectors: Sequence[PointDetector], gain: float
 ) -> list[Row]:
-    exposed = [dataclasses.replace(f, image=over_exposed(f.image, gain)) for f in frames]
-    return evaluate_frames(exposed, 0, detectors).rows[: len(detectors)]
+    return evaluate_frames(_exposed_frames(frames, gain), 0, detectors).rows[: len(detectors)]
 
 
 def _real_rows(
@@ -136,8 +140,7 @@ def _real_rows(
     detectors: Sequence[PointDetector],
     gain: float,
 ) -> list[Row]:
-    exposed = [dataclasses.replace(f, image=over_exposed(f.image, gain)) for f in frames]
-    return evaluate(exposed, detectors, radius_range)
+    return evaluate(_exposed_frames(frames, gain), detectors, radius_range)
 
 
 def exposure_sets(
@@ -229,8 +232,7 @@ def exposure_table(
 
 def run(options: Options, report: Report) -> dict[str, Any]:
     """Read every set at every gain; report the table; return the figures."""
-    ours = [d for d in peers.our_variants(False) if d.name == REFERENCE_ROW]
-    detectors = [*ours, *peers.point_detectors()]
+    detectors = [*reference_detectors(), *peers.point_detectors()]
     results: dict[str, dict[str, dict[float, Figures]]] = {}
     for exposure_set in exposure_sets(options, detectors, report):
         by_detector: dict[str, dict[float, Figures]] = {}

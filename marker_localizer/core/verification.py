@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from marker_localizer.core import template
-from marker_localizer.core.image import CLIPPED_SHARE
+from marker_localizer.core.image import clipped
 from marker_localizer.core.sampling import Normaliser, bilinear, in_blocks, nan_median
 from marker_localizer.core.screening import Candidates, level_scale, parabolic_offset
 
@@ -1708,7 +1708,6 @@ def double_line_check(
     height, width = image.shape
     windows, zooms, corners = [], [], []
     clipped_window: list[bool] = []
-    clipped_level = CLIPPED_SHARE * 255.0
     # A loop over candidates (not pixels): each runs LSD on its own small window.
     for k in range(n):
         half = int(np.ceil(max(LSD_WINDOW_RADII * radius_px[k], 6.0)))
@@ -1721,7 +1720,7 @@ def double_line_check(
             levels = window * (gain * 255.0 / full_scale) + 0.5
             window = np.clip(levels, 0, 255).astype(np.uint8)
         windows.append(window)
-        clipped_window.append(bool(window.max(initial=0) >= clipped_level))
+        clipped_window.append(bool(clipped(window, 255.0).any()))
         zooms.append(max(1, int(np.ceil(_LSD_MIN_WINDOW_PX / max(min(window.shape), 1)))))
         corners.append((x0, y0))
     for k, (window, zoom, (x0, y0)) in enumerate(

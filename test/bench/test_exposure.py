@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scenes import SMALL_SCENE
 
-from marker_localizer.bench import accuracy, exposure, peers
+from marker_localizer.bench import accuracy, exposure
 from marker_localizer.synthetic import render_scene
 
 
@@ -46,8 +46,7 @@ def test_at_its_own_exposure_a_frame_reads_as_the_accuracy_benchmark_reads_it(sm
         accuracy.LabelledFrame.rendered(small_rendered.render(i), small_rendered.radius_range)
         for i in range(2)
     ]
-    ours = next(d for d in peers.our_variants(False) if d.name == accuracy.REFERENCE_ROW)
-    tally = accuracy.evaluate_frames(frames, 0, [ours]).rows[0].tally
+    tally = accuracy.evaluate_frames(frames, 0, accuracy.reference_detectors()).rows[0].tally
     read = figures["rendered (t), 2 frames"][accuracy.REFERENCE_ROW]
     assert read["1"] == {"recall": tally.recall, "fp_per_frame": tally.fp_per_frame}
     assert set(read) == {"1", "3"}
