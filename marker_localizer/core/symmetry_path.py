@@ -555,10 +555,8 @@ class SymmetryPath:
         """Whether tiny X's are read with their plate (:meth:`_read_plates`).
 
         Where the smallest expected marker is of texture's size
-        (:data:`verification.X_END_MAX_EXTENT_PX`). Above it, an X that reads that
-        small is a larger marker seen foreshortened, and the marker's model vouches
-        for it where a floor rejects it (:meth:`acceptance.MarkerModel.vouches`),
-        without the plate reading's cost on every frame.
+        (:data:`verification.X_END_MAX_EXTENT_PX`): a larger one whose X reads that
+        small is seen foreshortened, and its plate lies beyond the models' radii.
         """
         return (
             self.config.refinement == "symmetry"
