@@ -30,6 +30,7 @@ import numpy as np
 
 from marker_localizer.bench import peers, real_data
 from marker_localizer.bench.accuracy import (
+    INDEPENDENT_FAMILIES,
     REAL_RADIUS_RANGES,
     LabelledFrame,
     Row,
@@ -161,11 +162,13 @@ def exposure_sets(
         return sets
     limit = 1 if options.quick else None
     if real_data.has_independent(root):
-        for key in sorted({f.family for f in real_data.iter_independent(root)}):
+        for key in INDEPENDENT_FAMILIES:
             frames = [
                 LabelledFrame.independent(f)
                 for f in real_data.iter_independent(root, limit, (key,))
             ]
+            if not frames:
+                continue
             rows_at = partial(_truth_rows, frames, detectors)
             label = f"independent ({key}), {len(frames)} frames"
             sets.append(ExposureSet(label, rows_at, _with_truth))
