@@ -25,6 +25,14 @@ On the candidates of tiny markers the default rejects, the plate model with the
 saddle keeps more than half, and almost no texture saddle (:func:`read_plates`). The plain X with
 four quadrant levels, the same comparison without the plate, explains markers no
 better than texture. Measured: docs/accuracy.md, "The tiny markers' plate".
+
+A marker of 6-9 px seen 50-60 degrees from face on has an X of texture's size
+too: the ring ladder reads its extent up to a rung short of its shortest reach,
+and along its lines it measures up to twice that, beyond the tiny markers'
+radii. Where the tiny model comes near (its coarse search leaves room for the full
+one) and does not explain such an X, its plate is read a rung out at the X's
+scale (:func:`explains_at`), as the wider X's are. Measured: docs/accuracy.md,
+"A small tilted X's plate read a rung out".
 """
 
 from __future__ import annotations
@@ -35,7 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtr
 
-from marker_localizer.core import screening
+from marker_localizer.core import screening, verification
 
 #: Half-side of the square plate that carries a marker, in marker radii: 1.25 on the
 #: package's renderer, 1.25-1.3 on the independent one.
@@ -457,16 +465,49 @@ def plate_explains(evidence: PlateEvidence, saddle: NDArray[np.float64]) -> NDAr
     return explained
 
 
-def explained_at(
+def explains_at(
     image: NDArray[Any],
     xy: NDArray[np.float64],
-    radius_px: NDArray[np.float64],
+    extent_px: NDArray[np.float64],
     line_angles: NDArray[np.float64],
+    saddle: NDArray[np.float64] | None = None,
 ) -> NDArray[np.bool_]:
-    """(N,) where the plate model explains an X at ``xy`` as a marker (:func:`plate_explains`)."""
-    return plate_explains(
-        plate_evidence(image, xy, radius_px, line_angles), centre_saddle(image, xy)
-    )
+    """(N,) where the plate model explains an X of texture's size as a marker.
+
+    The tiny markers' model at the X's extent (:func:`plate_explains`) or, where
+    that model's coarse search came within :data:`COARSE_MAX_TO_QUADRATIC` and the
+    full one explained nothing, the model a ring rung out at the X's scale, each
+    bright quadrant its own level: a larger marker seen foreshortened, whose extent
+    the ring ladder reads short (the module says why).
+
+    Args:
+        image: (H, W) grey image, raw levels.
+        xy: (N, 2) the X's centres, px.
+        extent_px: (N,) their extents (the ring check's), px.
+        line_angles: (N, 2) their line directions, radians.
+        saddle: (N,) :func:`centre_saddle` at ``xy`` where the caller has it.
+    """
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    extent_px = np.asarray(extent_px, np.float64)
+    line_angles = np.asarray(line_angles, np.float64)
+    if saddle is None:
+        saddle = centre_saddle(image, xy)
+    evidence = plate_evidence(image, xy, extent_px, line_angles)
+    explained = plate_explains(evidence, saddle)
+    with np.errstate(invalid="ignore"):
+        near = evidence.to_quadratic <= COARSE_MAX_TO_QUADRATIC
+    short = np.flatnonzero(~explained & near)
+    if len(short):
+        further = plate_evidence(
+            image,
+            xy[short],
+            verification.RING_STEP * extent_px[short],
+            line_angles[short],
+            scale_with_extent=True,
+            quadrant_levels=True,
+        )
+        explained[short] = plate_explains(further, saddle[short])
+    return explained
 
 
 class PlateReading(NamedTuple):
@@ -499,8 +540,8 @@ def read_plates(
     those whose centre is a saddle (:func:`centre_saddle`), at most
     :data:`MAX_PLATE_READ` of them (the strongest ring symmetry ``score`` first,
     spread over the frame's cells of ``cell_px``), are compared as a marker on its
-    plate against smooth surfaces (:func:`plate_evidence`), and kept where it
-    explains them (:func:`plate_explains`).
+    plate against smooth surfaces, and kept where it explains them
+    (:func:`explains_at`).
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -519,5 +560,5 @@ def read_plates(
     kept = screening.even_cap_index(xy[rows], score[rows], MAX_PLATE_READ, cell_px)
     over_cap = len(rows) - len(kept)
     rows = rows[kept]
-    evidence = plate_evidence(image, xy[rows], radius_px[rows], line_angles[rows])
-    return PlateReading(rows, rows[plate_explains(evidence, saddle[rows])], over_cap)
+    explained = explains_at(image, xy[rows], radius_px[rows], line_angles[rows], saddle[rows])
+    return PlateReading(rows, rows[explained], over_cap)

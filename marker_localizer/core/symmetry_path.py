@@ -244,7 +244,7 @@ class SymmetryPath:
         (measured: docs/method.md, "A tiny X is judged by its plate"). Where plates are
         read, the tracked X's of texture's size that :meth:`locate` left without a
         marker are fitted (:meth:`_fit_plates`) and kept where the plate model
-        explains them at the fitted centre (:func:`plate.plate_explains`).
+        explains them at the fitted centre (:func:`plate.explains_at`).
         Counted as ``found_plate``.
         """
         result = frame.result
@@ -257,16 +257,26 @@ class SymmetryPath:
             return
         with frame.timer("subpixel"):
             fitted = self._fit_plates(frame, known, lost)
+        result.counts["found_plate"] = self._join(result, self._plated(frame, fitted))
+
+    def _plated(self, frame: Frame, fitted: list[Detection]) -> list[Detection]:
+        """The fitted tiny X's whose plate explains them at their fitted centre.
+
+        :func:`plate.explains_at` on the fit's centres: a full pass and a tracked
+        frame take the same decision at the same place, wherever their candidates
+        started (a full pass's plate reading, at the ring check's centre, comes within
+        a few hundredths of the bars on a few markers and reads otherwise there).
+        """
         if not fitted:
-            return
+            return []
         with frame.timer("plate"):
-            xy = positions(fitted)
-            extent = np.array([d.radius_px for d in fitted])
-            angles = np.array([[d.angle1, d.angle2] for d in fitted])
-            explained = plate.explained_at(frame.gray, xy, extent, angles)
-        result.counts["found_plate"] = self._join(
-            result, [d for d, ok in zip(fitted, explained, strict=True) if ok]
-        )
+            explained = plate.explains_at(
+                frame.gray,
+                positions(fitted),
+                np.array([d.radius_px for d in fitted]),
+                np.array([[d.angle1, d.angle2] for d in fitted]),
+            )
+        return [d for d, ok in zip(fitted, explained, strict=True) if ok]
 
     def _verify_and_locate(
         self, frame: Frame, candidates: Candidates
@@ -570,7 +580,8 @@ class SymmetryPath:
         The X's of texture's size the ring check passed (``tiny``) that ended farther
         than the merge radius from every detection; those the plate explains are
         fitted as every detection is (the fit's own gates, not the score floors,
-        which the plate's evidence replaces) and join the detections.
+        which the plate's evidence replaces) and join the detections where the plate
+        explains them at their fitted centre too (:meth:`_plated`).
 
         Counts ``plate_read``, the candidates compared, ``found_plate``, the markers
         they added, and ``plate_over_cap``, the saddles over the cap. The survivors
@@ -595,9 +606,8 @@ class SymmetryPath:
             explained = lost[reading.explained]
             if len(explained):
                 with frame.timer("subpixel"):
-                    counts["found_plate"] = self._join(
-                        result, self._fit_plates(frame, tiny, explained)
-                    )
+                    fitted = self._fit_plates(frame, tiny, explained)
+                counts["found_plate"] = self._join(result, self._plated(frame, fitted))
         result.survivors.append(("plate", positions(result.detections)))
 
     def _fit_plates(

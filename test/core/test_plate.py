@@ -128,7 +128,7 @@ def test_a_tiny_marker_seen_up_to_sixty_degrees_from_face_on_is_explained_by_its
     scene = render_markers(
         (80, 80), [placement], seed, blur_sigma_px=1.0, noise_sigma_dn=2.0, background="flat"
     )
-    assert plate.explained_at(
+    assert plate.explains_at(
         scene.image, scene.centres, np.array([_EXTENT_PX]), np.array([scene.markers[0].angles])
     )[0]
 
@@ -151,6 +151,47 @@ def test_a_small_tilted_marker_is_explained_by_its_plate_read_at_its_scale(seed)
     )
     assert scaled.to_quartic[0] <= plate.MAX_TO_QUARTIC
     assert scaled.to_quartic[0] <= 0.5 * tiny.to_quartic[0]
+
+
+@pytest.mark.parametrize("tilt_deg", [55.0, 60.0])
+@pytest.mark.parametrize("seed", range(4))
+def test_a_small_marker_seen_foreshortened_to_textures_size_is_explained_by_its_plate(
+    tilt_deg, seed
+):
+    # A 7 px marker seen 55-60 degrees from face on reaches 3.5-4 px at its
+    # shortest: the rings read an extent of 4 px, and along its lines it measures
+    # 5-7 px, its plate out to 9. The tiny markers' radii (at most 5.25 px) leave
+    # 0.52-0.82 of the quartic's residual on half of these; read a rung out at the
+    # X's scale, 0.07-0.13.
+    placement = MarkerPlacement(
+        60.3, 59.8, 7.0, 0.4 + seed, tilt_deg, kind=("quarter_disks", "checker")[seed % 2]
+    )
+    scene = render_markers(
+        (120, 120), [placement], seed, blur_sigma_px=1.0, noise_sigma_dn=2.0, background="flat"
+    )
+    angles = np.array([scene.markers[0].angles])
+    assert plate.explains_at(scene.image, scene.centres, np.array([4.0]), angles)[0]
+    reading = plate.read_plates(
+        scene.image, scene.centres, np.ones(1), np.array([4.0]), angles, 1e3
+    )
+    assert reading.explained.tolist() == [0]
+
+
+def test_a_smooth_saddle_read_a_rung_out_is_no_plate_either():
+    image = _smooth_saddle(2)
+    centre = np.array([[40.0, 40.0]])
+    lines = np.array([[np.pi / 4, 3 * np.pi / 4]])
+    for extent in (3.0, 4.0):
+        further = plate.plate_evidence(
+            image,
+            centre,
+            np.array([extent * 2**0.5]),
+            lines,
+            scale_with_extent=True,
+            quadrant_levels=True,
+        )
+        assert not plate.plate_explains(further, plate.centre_saddle(image, centre))[0]
+        assert not plate.explains_at(image, centre, np.array([extent]), lines)[0]
 
 
 @pytest.mark.parametrize("seed", range(4))
