@@ -272,9 +272,11 @@ class MarkerModel:
             it takes 3-6 ms on 12 MP; the detector's frame measures it once).
         max_radius_px: the largest expected marker radius, px: the template's disk,
             a shadow's reach and a reading a rung out stay within it.
-        reads_plates: whether tiny X's are read with their plate where no marker
-            was found (:func:`plate.read_plates`):
-            then every detection of texture's size must show its plate.
+        expects_tiny: whether the smallest expected marker is of texture's size
+            (under :data:`verification.X_END_MAX_EXTENT_PX`): then an X of that
+            size under its floor is left to the plate reading that follows the pass
+            (:func:`plate.read_plates`), and every detection of that size must show
+            the tiny markers' plate.
         normalise: what the checks read the frame's levels through (Eq. (2)'s local
             gamma), for the template's NCC in :meth:`match`; None: raw levels.
     """
@@ -283,7 +285,7 @@ class MarkerModel:
     full_scale: float
     noise: Callable[[], NoiseModel]
     max_radius_px: float
-    reads_plates: bool
+    expects_tiny: bool
     normalise: Normaliser | None = None
 
     def match(
@@ -381,8 +383,8 @@ class MarkerModel:
 
         * ``score``: the fitted score reaches the :meth:`~ScoreFloors.lowest` of its
           extent, or the marker's model vouches for it (:meth:`vouches`). Where tiny
-          X's are read with their plate (:attr:`reads_plates`), one of texture's size
-          under its floor is left to that reading instead: on texture the model
+          markers are expected (:attr:`expects_tiny`), one of texture's size
+          under its floor is left to the plate reading instead: on texture the model
           vouches for such X's too.
         * ``x_end``: its X ends where its extent says (:func:`verification.x_ends`).
           One under its :meth:`~ScoreFloors.floor` that the model did not vouch for
@@ -676,10 +678,10 @@ class MarkerModel:
     def read_as_tiny(self, radius: NDArray[np.float64]) -> NDArray[np.bool_]:
         """(N,) the X's the tiny markers' plate reading judges, not the model's vouch.
 
-        Where tiny X's are read with their plate (:attr:`reads_plates`), those of
+        Where tiny markers are expected (:attr:`expects_tiny`), those of
         texture's size (under :data:`verification.X_END_MAX_EXTENT_PX`).
         """
-        tiny: NDArray[np.bool_] = self.reads_plates & (radius < verification.X_END_MAX_EXTENT_PX)
+        tiny: NDArray[np.bool_] = self.expects_tiny & (radius < verification.X_END_MAX_EXTENT_PX)
         return tiny
 
     def plate_asked(
@@ -719,7 +721,7 @@ class MarkerModel:
         What a marker has and texture has not is the plate around its X. Asked are
         (:meth:`plate_asked`):
 
-        * where tiny X's are read with their plate (:attr:`reads_plates`), every
+        * where tiny markers are expected (:attr:`expects_tiny`), every
           detection of texture's size (under :data:`verification.X_END_MAX_EXTENT_PX`):
           the model of a marker on its plate (:func:`plate.plate_evidence`) must explain it at
           least as well as the best quartic (:data:`plate.MAX_TO_QUARTIC_ANY`),

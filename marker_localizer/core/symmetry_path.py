@@ -73,8 +73,8 @@ _JUDGED_TESTS = ("floor", "x_end", "misfit", "quartic")
 #: ``recentring``, the detections once the lost wide candidates are centred again,
 #: and ``shadow``, once they are read again with a shadow's edge divided out: the
 #: two tests that add, :meth:`SymmetryPath._recentre_lost` and
-#: :meth:`SymmetryPath._reread_shadowed`; ``plate``, once tiny X's are read with their
-#: plate, :meth:`SymmetryPath._read_plates`).
+#: :meth:`SymmetryPath._reread_shadowed`; ``plate``, once the X's of texture's size
+#: that found no marker are read with their plate, :meth:`SymmetryPath._read_plates`).
 SURVIVOR_TESTS = (
     "screening",
     "prescreen",
@@ -486,8 +486,7 @@ class SymmetryPath:
         """Section 3.2, geometric checks, and the adaptive-template NCC of section 3.3.1.
 
         Also returns the X's of texture's size (:data:`verification.X_END_MAX_EXTENT_PX`)
-        that passed the ring check and its floor, where such markers are expected,
-        for :meth:`_read_plates`.
+        that passed the ring check and its floor, for :meth:`_read_plates`.
         """
         cfg = self.config
         gray, result = frame.gray, frame.result
@@ -520,7 +519,9 @@ class SymmetryPath:
             ("floor", candidates.xy[keep & ~weak]),
         ]
         passed = keep & ~weak
-        tiny = np.flatnonzero(passed & self._model(frame).read_as_tiny(symmetry.radius_px))
+        tiny = np.flatnonzero(
+            passed & self._reads_plates & (symmetry.radius_px < verification.X_END_MAX_EXTENT_PX)
+        )
         ring_passed = _RingPassed(
             candidates.xy[tiny],
             symmetry.radius_px[tiny],
@@ -551,17 +552,31 @@ class SymmetryPath:
         return candidates, radius, angles, score, ring_passed
 
     @property
-    def _reads_plates(self) -> bool:
-        """Whether tiny X's are read with their plate (:meth:`_read_plates`).
+    def _expects_tiny(self) -> bool:
+        """Whether the smallest expected marker is of texture's size.
 
-        Where the smallest expected marker is of texture's size
-        (:data:`verification.X_END_MAX_EXTENT_PX`): a larger one whose X reads that
-        small is seen foreshortened, and its plate lies beyond the models' radii.
+        Under :data:`verification.X_END_MAX_EXTENT_PX`: the marker's model then leaves
+        an X of that size under its floor to the plate reading (:meth:`_read_plates`)
+        rather than vouching for it, and holds every detection of that size to the
+        tiny markers' plate (:attr:`acceptance.MarkerModel.expects_tiny`).
         """
         return (
             self.config.refinement == "symmetry"
             and self.config.marker_radius_min_px < verification.X_END_MAX_EXTENT_PX
         )
+
+    @property
+    def _reads_plates(self) -> bool:
+        """Whether X's of texture's size that found no marker are read with their plate.
+
+        At every radius range (:meth:`_read_plates`, :meth:`_confirm_plates`): a
+        marker of 6-9 px seen 50-60 degrees from face on has an X of texture's size
+        too, which a range from 6 px expects, and the reading a rung out
+        (:func:`plate.explains_at`) finds it where the X's own tests lose it
+        (measured: docs/accuracy.md, "A small tilted X's plate read a rung out, at
+        every range").
+        """
+        return self.config.refinement == "symmetry"
 
     def _model(self, frame: Frame) -> acceptance.MarkerModel:
         """The marker's model on ``frame``, which the gates set by texture defer to."""
@@ -570,7 +585,7 @@ class SymmetryPath:
             frame.full_scale,
             frame.noise,
             self.config.marker_radius_max_px,
-            self._reads_plates,
+            self._expects_tiny,
             frame.gamma,
         )
 

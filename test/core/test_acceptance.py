@@ -26,7 +26,7 @@ class _CountedNoise:
 
 def _model(image: np.ndarray, noise=None) -> acceptance.MarkerModel:
     return acceptance.MarkerModel(
-        image, 255.0, noise or _CountedNoise(image), _RADIUS_RANGE_PX[1], reads_plates=False
+        image, 255.0, noise or _CountedNoise(image), _RADIUS_RANGE_PX[1], expects_tiny=False
     )
 
 

@@ -549,8 +549,9 @@ def _found_and_counted(detector: Detector, frames: list, count: str) -> tuple[in
 def test_faint_small_markers_the_modulation_gate_rejects_are_kept_by_their_model(monkeypatch):
     # The gate asks the paint for a modulation of 0.3; these markers' is 0.2. Where
     # the X has ended, the blurred X explains the disk and the plate model holds,
-    # they go on (19 of these 30 found, 2 with the gate alone), and the texture
-    # gives no false point more.
+    # they go on (20 of these 30 found; 7 with the gate alone, 6 of them those of
+    # texture's size that their plate finds after the pass), and the texture gives no
+    # false point more.
     frames = [faint_tilted_markers(seed) for seed in (0, 1)]
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
 
@@ -559,7 +560,7 @@ def test_faint_small_markers_the_modulation_gate_rejects_are_kept_by_their_model
     gate_hits, gate_false, gate_kept = _found_and_counted(detector, frames, "kept_faint")
     assert gate_kept == 0
     assert kept >= 15
-    assert hits >= gate_hits + 15
+    assert hits >= gate_hits + 10
     assert false <= gate_false
 
 
@@ -1047,6 +1048,50 @@ def test_tracking_confirms_tiny_markers_by_their_plate_and_nothing_where_they_ar
     assert cKDTree(tracked.as_array()[:, :2]).query(xy)[0].max() < 0.1
     moved = detector.locate(scene.image, xy + [12.0, 7.0], radius, angles, evidence)
     assert len(moved) == 0
+
+
+def _foreshortened_small_marker_scene(seed: int):
+    """24 markers of 6-8 px seen 50-60 degrees from face on, 1.4 px of blur, on ground texture."""
+    rng = np.random.default_rng(seed)
+    placements = [
+        MarkerPlacement(
+            40 + 60 * (i % 6) + rng.uniform(-4, 4),
+            40 + 60 * (i // 6) + rng.uniform(-4, 4),
+            rng.uniform(6.0, 8.0),
+            rng.uniform(0, np.pi),
+            rng.uniform(50, 60),
+            kind=("quarter_disks", "checker")[i % 2],
+        )
+        for i in range(24)
+    ]
+    return render_markers(
+        (280, 400), placements, seed, background="texture", blur_sigma_px=1.4, noise_sigma_dn=2.0
+    )
+
+
+def test_markers_seen_foreshortened_to_textures_size_are_found_by_their_plate_at_any_range():
+    # At a range from 6 px, the rings read some of these X's at texture's size, and
+    # the X's own tests lose 26 of the 96 (70 found before plates were read at every
+    # range); their plate, read a rung out, finds 11 of them and no texture saddle.
+    # A tracked frame confirms what the pass found.
+    detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
+    found = false = added = 0
+    for seed in range(4):
+        scene = _foreshortened_small_marker_scene(seed)
+        result = detector.detect(scene.image)
+        hits, misses, _ = found_false_errors(result.as_array(), scene.centres)
+        found, false = found + hits, false + misses
+        added += result.counts["found_plate"]
+        if seed == 0:
+            xy = result.as_array()[:, :2]
+            radius = np.array([d.radius_px for d in result])
+            angles = np.array([[d.angle1, d.angle2] for d in result])
+            evidence = np.array([d.evidence for d in result])
+            tracked = detector.locate(scene.image, xy + 0.3, radius, angles, evidence)
+            assert len(tracked) == len(result)
+    assert found >= 77
+    assert added >= 7
+    assert false == 0
 
 
 def test_tiny_xs_a_quartic_explains_better_than_their_plate_are_texture(monkeypatch):
