@@ -280,9 +280,9 @@ def _plate_residual(
     normal = np.empty((*shape[:-1], size, size))
     projected = np.empty((*shape[:-1], size))
     for i in range(4):
-        projected[..., i] = np.sum(columns[i] * values[:, None, None, None, :], axis=-1)
+        projected[..., i] = _dot(columns[i], values[:, None, None, None, :])
         for j in range(i + 1):
-            normal[..., i, j] = normal[..., j, i] = np.sum(columns[i] * columns[j], axis=-1)
+            normal[..., i, j] = normal[..., j, i] = _dot(columns[i], columns[j])
     total = np.sum(np.square(values, dtype=np.float64), axis=1)[:, None, None, None]
     # The radii are a grid: each stands for those within half its spacing.
     half_step = 0.5 * float(np.diff(radii).max(initial=0.0))
@@ -297,13 +297,24 @@ def _plate_residual(
         if quadrant_levels:
             paint += [other[0] * disk, other[1] * disk]
         for i, column in enumerate(paint, start=4):
-            projected[..., i] = np.sum(column * values[:, None, None, None, :], axis=-1)
+            projected[..., i] = _dot(column, values[:, None, None, None, :])
             for j, earlier in enumerate(columns + paint[: i - 3]):
-                normal[..., i, j] = normal[..., j, i] = np.sum(column * earlier, axis=-1)
+                normal[..., i, j] = normal[..., j, i] = _dot(column, earlier)
         levels = np.linalg.solve(normal + 1e-6 * np.eye(size), projected[..., None])[..., 0]
         residual = np.where(possible, total - np.sum(levels * projected, axis=-1), np.inf)
         best = np.minimum(best, residual.reshape(len(values), -1).min(axis=1))
     return np.where(crossing < _MIN_CROSSING_SIN, np.nan, best)
+
+
+def _dot(a: NDArray[np.floating[Any]], b: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
+    """Sum of the products along the last axis, the others broadcast.
+
+    One pass without the product's temporary: a third less time for the plate
+    model's Gram matrix than multiplying and summing (docs/speed.md, "The plate
+    read at every range").
+    """
+    total: NDArray[np.float64] = np.einsum("...n,...n->...", a, b).astype(np.float64)
+    return total
 
 
 def seen_within_max_tilt(
