@@ -91,8 +91,9 @@ class DetectionResult:
             (:meth:`SymmetryPath._reread_shadowed`),
             ``uneven_over_cap`` (X's located by their levels' fit, not their model, for
             :data:`subpixel.MAX_MODELLED`),
-            ``plate_read``, ``found_plate``, ``plate_over_cap`` (tiny X's that found no
-            marker judged by their plate, those it added, those over the reading's cap,
+            ``plate_read``, ``found_plate``, ``plate_over_cap`` (X's of texture's size
+            that found no marker judged by their plate, those it added, those over the
+            reading's cap,
             :meth:`SymmetryPath._read_plates`),
             ``accepted``;
             with ``refinement="template"``,
