@@ -993,16 +993,17 @@ def test_the_survivors_narrow_test_by_test_down_to_the_detections():
     assert cKDTree(detections).query(survivors["merging"])[0].max() < 0.5
 
 
-def _tiny_marker_scene(seed: int):
-    """24 markers of 3-4 px under 1.4 px of blur on ground texture, half of them checkers."""
+def _marker_grid_scene(seed: int, radius_px: tuple[float, float], tilt_deg: tuple[float, float]):
+    """24 markers on a grid, radii and tilts drawn in the ranges, under 1.4 px of blur on
+    ground texture, half of them checkers."""
     rng = np.random.default_rng(seed)
     placements = [
         MarkerPlacement(
             40 + 60 * (i % 6) + rng.uniform(-4, 4),
             40 + 60 * (i // 6) + rng.uniform(-4, 4),
-            rng.uniform(3.0, 4.0),
+            rng.uniform(*radius_px),
             rng.uniform(0, np.pi),
-            rng.uniform(0, 30),
+            rng.uniform(*tilt_deg),
             kind=("quarter_disks", "checker")[i % 2],
         )
         for i in range(24)
@@ -1010,6 +1011,11 @@ def _tiny_marker_scene(seed: int):
     return render_markers(
         (280, 400), placements, seed, background="texture", blur_sigma_px=1.4, noise_sigma_dn=2.0
     )
+
+
+def _tiny_marker_scene(seed: int):
+    """24 markers of 3-4 px seen up to 30 degrees from face on (:func:`_marker_grid_scene`)."""
+    return _marker_grid_scene(seed, (3.0, 4.0), (0.0, 30.0))
 
 
 _TINY_CONFIG = DetectorConfig(marker_radius_min_px=2.5, marker_radius_max_px=5.0)
@@ -1051,22 +1057,8 @@ def test_tracking_confirms_tiny_markers_by_their_plate_and_nothing_where_they_ar
 
 
 def _foreshortened_small_marker_scene(seed: int):
-    """24 markers of 6-8 px seen 50-60 degrees from face on, 1.4 px of blur, on ground texture."""
-    rng = np.random.default_rng(seed)
-    placements = [
-        MarkerPlacement(
-            40 + 60 * (i % 6) + rng.uniform(-4, 4),
-            40 + 60 * (i // 6) + rng.uniform(-4, 4),
-            rng.uniform(6.0, 8.0),
-            rng.uniform(0, np.pi),
-            rng.uniform(50, 60),
-            kind=("quarter_disks", "checker")[i % 2],
-        )
-        for i in range(24)
-    ]
-    return render_markers(
-        (280, 400), placements, seed, background="texture", blur_sigma_px=1.4, noise_sigma_dn=2.0
-    )
+    """24 markers of 6-8 px seen 50-60 degrees from face on (:func:`_marker_grid_scene`)."""
+    return _marker_grid_scene(seed, (6.0, 8.0), (50.0, 60.0))
 
 
 def test_markers_seen_foreshortened_to_textures_size_are_found_by_their_plate_at_any_range():
