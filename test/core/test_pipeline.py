@@ -994,8 +994,10 @@ def test_the_survivors_narrow_test_by_test_down_to_the_detections():
 
 
 def _marker_grid_scene(seed: int, radius_px: tuple[float, float], tilt_deg: tuple[float, float]):
-    """24 markers on a grid, radii and tilts drawn in the ranges, under 1.4 px of blur on
-    ground texture, half of them checkers."""
+    """24 markers on a grid on ground texture, radii (px) and tilts (degrees) drawn in the ranges.
+
+    Under 1.4 px of blur and 2 DN of noise, half of them checkers.
+    """
     rng = np.random.default_rng(seed)
     placements = [
         MarkerPlacement(
