@@ -241,18 +241,15 @@ class SymmetryPath:
         A full pass finds many tiny markers by their plate alone
         (:meth:`_read_plates`), under the score floors :meth:`locate` holds a
         tracked marker to, so that tracking alone loses markers a full pass finds
-        (measured: docs/method.md, "A tiny X is judged by its plate"). Where plates are
-        read, the tracked X's of texture's size that :meth:`locate` left without a
-        marker are fitted (:meth:`_fit_plates`) and kept where the plate model
-        explains them at the fitted centre (:func:`plate.explains_at`).
-        Counted as ``found_plate``.
+        (measured: docs/method.md, "A tiny X is judged by its plate"). The tracked X's
+        of texture's size (``known``, :meth:`_verify`'s: none where plates are not
+        read) that :meth:`locate` left without a marker are fitted
+        (:meth:`_fit_plates`) and kept where the plate model explains them at the
+        fitted centre (:func:`plate.explains_at`). Counted as ``found_plate``.
         """
         result = frame.result
         result.counts["found_plate"] = 0
-        if not self._reads_plates:
-            return
         lost = self._far_from_detections(result, known.xy)
-        lost = lost[known.radius_px[lost] < verification.X_END_MAX_EXTENT_PX]
         if not len(lost):
             return
         with frame.timer("subpixel"):
@@ -561,7 +558,7 @@ class SymmetryPath:
         tiny markers' plate (:attr:`acceptance.MarkerModel.expects_tiny`).
         """
         return (
-            self.config.refinement == "symmetry"
+            self._reads_plates
             and self.config.marker_radius_min_px < verification.X_END_MAX_EXTENT_PX
         )
 
