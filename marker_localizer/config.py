@@ -400,6 +400,19 @@ class DetectorConfig:
         "chessboard's. Markers laid out in rows are then found from 3.5 radii apart "
         "(centre to centre); turn it off for a tighter target array.",
     )
+    max_x_chroma_share: float = _param(
+        0.33,
+        "On a colour frame, reject an X of texture's size (extent under "
+        f"{TEXTURE_EXTENT_PX:g} px) whose chromatic contrast exceeds this share of its "
+        "luminance contrast: a marker's paint is black and white, ground texture's X's "
+        "are of coloured materials. Real black-and-white chessboards photographed in "
+        "colour read at most 0.25, a neutral X through a JPEG under a light 1.9 times "
+        "redder than blue about 0.3. Grey frames are not asked; the largest value turns "
+        "the check off.",
+        "",
+        0.0,
+        100.0,
+    )
 
     # Section 3.3: sub-pixel location.
     refinement: Refinement = _param(

@@ -558,10 +558,21 @@ class Row:
 
 
 def _timed_detect(
-    detector: PointDetector, image: np.ndarray, radius_range: RadiusRange
+    detector: PointDetector,
+    image: np.ndarray,
+    radius_range: RadiusRange,
+    colour: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
+    """The points ``detector`` finds, and its seconds.
+
+    ``colour``, a colour file's planes, goes to ours alone: the peers read the grey,
+    as OpenCV users give it them.
+    """
     start = time.perf_counter()
-    points = detector.detect(image, radius_range)
+    if isinstance(detector, OurDetector) and colour is not None:
+        points = detector.detect(image, radius_range, colour)
+    else:
+        points = detector.detect(image, radius_range)
     return points, time.perf_counter() - start
 
 
@@ -772,7 +783,7 @@ def _score_boards(
     row = Row(detector.name)
     complete, t1_errors, grids = 0, [], []
     for item in images:
-        points, seconds = _timed_detect(detector, item.image, radius_range)
+        points, seconds = _timed_detect(detector, item.image, radius_range, item.colour)
         row.tally.add(evaluation.match_points(points, item.reference), seconds=seconds)
         t1_errors.append(evaluation.match_points(points, item.opencv).errors_px)
         for grid in item.boards:
@@ -852,7 +863,7 @@ def evaluate_uas(
         found = np.zeros((len(frames), 2), bool)
         false_positives, seconds = 0, 0.0
         for i, frame in enumerate(frames):
-            points, dt = _timed_detect(detector, frame.image, radius_range)
+            points, dt = _timed_detect(detector, frame.image, radius_range, frame.colour)
             seconds += dt
             to_target = evaluation.nearest_distances(real_data.CIRN_TARGETS, points)
             found[i] = to_target <= real_data.CIRN_FOUND_PX
@@ -895,7 +906,7 @@ def evaluate_negatives(
     for detector in detectors:
         per_frame, seconds = [], 0.0
         for frame in frames:
-            points, dt = _timed_detect(detector, frame.image, radius_range)
+            points, dt = _timed_detect(detector, frame.image, radius_range, frame.colour)
             per_frame.append(len(points))
             seconds += dt
         n, false_points = max(len(frames), 1), sum(per_frame)
@@ -1349,15 +1360,30 @@ def closer_frames(frames: Iterable[real_data.UasFrame], seed: int) -> Iterator[r
     """``frames`` seen from half the height (:data:`CLOSER_MAGNIFICATION`); noise from ``seed``."""
     rng = np.random.default_rng([seed, 2])
     for frame in frames:
-        magnified: np.ndarray = cv2.resize(
-            frame.image.astype(np.float32),
-            None,
-            fx=CLOSER_MAGNIFICATION,
-            fy=CLOSER_MAGNIFICATION,
-            interpolation=cv2.INTER_CUBIC,
-        )
-        magnified = magnified + rng.normal(0.0, CLOSER_READ_NOISE_DN, magnified.shape)
-        yield real_data.UasFrame(frame.name, np.clip(np.rint(magnified), 0, 255).astype(np.uint8))
+        grey = _magnified(frame.image)
+        noise = rng.normal(0.0, CLOSER_READ_NOISE_DN, grey.shape)
+        # The colour planes take the grey's own noise: both show one frame.
+        colour = None
+        if frame.colour is not None:
+            colour = _with_noise(_magnified(frame.colour[..., :3]), noise[..., None])
+        yield real_data.UasFrame(frame.name, _with_noise(grey, noise), colour)
+
+
+def _magnified(image: np.ndarray) -> np.ndarray:
+    """``image`` magnified :data:`CLOSER_MAGNIFICATION` times (cubic), float32."""
+    magnified: np.ndarray = cv2.resize(
+        image.astype(np.float32),
+        None,
+        fx=CLOSER_MAGNIFICATION,
+        fy=CLOSER_MAGNIFICATION,
+        interpolation=cv2.INTER_CUBIC,
+    )
+    return magnified
+
+
+def _with_noise(image: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    """``image`` plus ``noise``, rounded and clipped to 8 bits."""
+    return np.clip(np.rint(image + noise), 0, 255).astype(np.uint8)
 
 
 def run_closer_negatives(options: Options, report: Callable[[str], None]) -> dict[str, Any]:

@@ -151,9 +151,18 @@ class OurDetector:
             self._cache[radius_range] = Detector(config)
         return self._cache[radius_range]
 
-    def detect(self, image_u8: np.ndarray, radius_range: RadiusRange) -> np.ndarray:
-        """Detect; keeps the last call's sigmas, line directions, timings and survivors."""
-        result = self.detector(radius_range).detect(image_u8)
+    def detect(
+        self,
+        image_u8: np.ndarray,
+        radius_range: RadiusRange,
+        colour: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Detect; keeps the last call's sigmas, line directions, timings and survivors.
+
+        ``colour``: the frame's colour planes where ``image_u8`` is their grey, as a
+        colour file gives them to ``marker-localizer detect``.
+        """
+        result = self.detector(radius_range).detect(image_u8, colour=colour)
         table = result.as_array()
         self.last_sigmas = table[:, 3]
         self.last_line_angles = table[:, 4:6]

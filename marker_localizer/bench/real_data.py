@@ -23,6 +23,7 @@ import numpy as np
 from marker_localizer.bench.metrics import line_residuals, order_grid
 from marker_localizer.bench.peers import SB_RNG_SEED, corner_subpix
 from marker_localizer.config import DetectorConfig
+from marker_localizer.core.chroma import is_colour
 from marker_localizer.core.image import to_gray
 from marker_localizer.errors import ImageError
 from marker_localizer.evaluation import DEFAULT_GATE_PX, nearest_distances
@@ -96,10 +97,24 @@ def read_gray(path: Path) -> np.ndarray:
     Raises:
         ImageError: naming the file: unreadable, not an image, or not 8 bits deep.
     """
-    grey, _ = to_gray(read_image_file(path, DetectorConfig().max_pixels))
+    return read_frame(path)[0]
+
+
+def read_frame(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """The image file's grey (:func:`read_gray`) and, for a colour file, its BGR(A) planes.
+
+    What ``marker-localizer detect`` gives the detector is the colour image: its
+    check of small X's drawn in colour (:mod:`~marker_localizer.core.chroma`) reads
+    the planes, its stages the grey.
+
+    Raises:
+        ImageError: as :func:`read_gray`.
+    """
+    decoded = read_image_file(path, DetectorConfig().max_pixels)
+    grey, _ = to_gray(decoded)
     if grey.dtype != np.uint8:
         raise ImageError(f"{path}: {grey.dtype} pixels; the real sets are 8-bit")
-    return grey
+    return grey, decoded if is_colour(decoded) else None
 
 
 @dataclass(frozen=True)
@@ -114,6 +129,7 @@ class BoardImage:
             the hand clicks for ValidationBoof, OpenCV's boards for the others.
         opencv: OpenCV's refined corners of every board it finds (the paper's
             Table 1 reference), (N, 2) px.
+        colour: the file's BGR(A) planes, None for a grey file (:func:`read_frame`).
     """
 
     set_name: str
@@ -121,6 +137,7 @@ class BoardImage:
     image: np.ndarray
     boards: list[np.ndarray]
     opencv: np.ndarray
+    colour: np.ndarray | None = None
 
     @property
     def reference(self) -> np.ndarray:
@@ -158,13 +175,14 @@ def iter_validationboof(root: Path, limit_per_folder: int | None = None) -> Iter
             grid = order_grid(points, VALIDATIONBOOF_PATTERN)
             if grid is None or not image_path.exists():
                 continue
-            image = read_gray(image_path)
+            image, colour = read_frame(image_path)
             yield BoardImage(
                 "validationboof",
                 f"{folder.name}/{image_path.name}",
                 image,
                 [grid],
                 opencv_pattern_corners(image, VALIDATIONBOOF_PATTERN),
+                colour,
             )
 
 
@@ -178,9 +196,9 @@ def iter_unlabelled_boards(
         if p.suffix.lower() in (".png", ".jpg") and p.name not in SKIPPED_IMAGES
     )
     for path in paths[:limit]:
-        image = read_gray(path)
+        image, colour = read_frame(path)
         boards = opencv_boards(image)
-        yield BoardImage(set_name, path.name, image, boards, _stack(boards))
+        yield BoardImage(set_name, path.name, image, boards, _stack(boards), colour)
 
 
 def opencv_pattern_corners(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray:
@@ -337,16 +355,18 @@ class UasFrame:
     Attributes:
         name: file name.
         image: (H, W) uint8 grey image.
+        colour: its BGR(A) planes, None for a grey file (:func:`read_frame`).
     """
 
     name: str
     image: np.ndarray
+    colour: np.ndarray | None = None
 
 
 def iter_cirn_uas(root: Path, limit: int | None = None) -> Iterator[UasFrame]:
     """The cirn_uas frames (3840 x 2160 JPEG, two ground targets each)."""
     for path in sorted((root / "cirn_uas").glob("*.jpg"))[:limit]:
-        yield UasFrame(path.name, read_gray(path))
+        yield UasFrame(path.name, *read_frame(path))
 
 
 @dataclass(frozen=True)
@@ -419,4 +439,4 @@ def iter_independent(
 def iter_aerial_negatives(root: Path, limit: int | None = None) -> Iterator[UasFrame]:
     """The aerial frames without any marker (3264 x 2448 JPEG): every detection is false."""
     for path in sorted((root / "aerial_negatives").glob("*.jpg"))[:limit]:
-        yield UasFrame(path.name, read_gray(path))
+        yield UasFrame(path.name, *read_frame(path))

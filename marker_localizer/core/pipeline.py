@@ -3,7 +3,8 @@
 preprocess (3.1) -> screen candidates (3.2) -> the path the config names: the
 default's grey-level symmetry checks and fit (:mod:`symmetry_path`), the paper's
 checks after its curvature screening (:mod:`paper_path`), or the template fit
-and its calibrated decision (:mod:`template_path`). Every stage is a function or
+and its calibrated decision (:mod:`template_path`) -> on a colour frame, the
+small X's drawn in colour left out (:mod:`chroma`). Every stage is a function or
 class of its own module; this one only chains them, times the input, the
 preprocessing and the screening, and routes a tracking pass's plan.
 """
@@ -18,6 +19,7 @@ from scipy.spatial import cKDTree
 
 from marker_localizer.config import DetectorConfig, require_config
 from marker_localizer.core import (
+    chroma,
     paper_path,
     preprocessing,
     symmetry_path,
@@ -33,6 +35,7 @@ from marker_localizer.core.screening import Candidates
 from marker_localizer.core.search import CandidateSearch
 from marker_localizer.core.symmetry_path import SymmetryPath
 from marker_localizer.core.template_path import TemplatePath
+from marker_localizer.errors import ImageError
 
 
 class Detector:
@@ -119,25 +122,50 @@ class Detector:
             return template_path.MAX_GROWN
         return symmetry_path.MAX_CONFIRMED
 
-    def detect(self, image: NDArray[Any], plan: SearchPlan | None = None) -> DetectionResult:
+    def detect(
+        self,
+        image: NDArray[Any],
+        plan: SearchPlan | None = None,
+        *,
+        colour: NDArray[Any] | None = None,
+    ) -> DetectionResult:
         """Find and locate every diagonal marker in ``image``.
 
         Args:
             image: (H, W) uint8/uint16/float grey image, or BGR(A) colour.
             plan: where to search (tracking mode, :class:`SearchPlan`); None: the
                 whole frame.
+            colour: where ``image`` is the grey of a colour frame (a tracker converts
+                it once), that frame's colour planes, for the check of
+                :mod:`chroma`; a colour ``image`` is its own.
 
         Returns:
             :class:`DetectionResult` (iterable of :class:`Detection`).
 
         Raises:
-            ImageError: the image is empty or of an unsupported type.
+            ImageError: the image is empty or of an unsupported type, or ``colour``
+                is not the colour of a frame of ``image``'s size and dtype.
         """
         result = DetectionResult()
         timer = StageTimer(result.timings_ms)
         cfg = self.config
         with timer("input"):
             gray, full_scale = to_gray(image, bit_depth=cfg.bit_depth)
+            colour = _colour_planes(image, gray, colour)
+        return self._neutral_only(
+            self._detect_grey(gray, full_scale, plan, result, timer), colour, full_scale, timer
+        )
+
+    def _detect_grey(
+        self,
+        gray: NDArray[Any],
+        full_scale: float,
+        plan: SearchPlan | None,
+        result: DetectionResult,
+        timer: StageTimer,
+    ) -> DetectionResult:
+        """:meth:`detect`'s stages on the frame's grey, up to the path's detections."""
+        cfg = self.config
         noise = None
         if cfg.refinement == "template":
             with timer("noise"):
@@ -203,6 +231,8 @@ class Detector:
         radius_px: NDArray[np.float64],
         line_angles: NDArray[np.float64],
         evidence: NDArray[np.float64],
+        *,
+        colour: NDArray[Any] | None = None,
     ) -> DetectionResult:
         """Markers known to be near ``xy``: :meth:`detect`'s stages from the centring on.
 
@@ -226,6 +256,7 @@ class Detector:
             line_angles: (N, 2) line directions (``Detection.angle1``, ``angle2``): the
                 template path's start.
             evidence: (N,) ``Detection.evidence`` (checked; not used).
+            colour: as for :meth:`detect`.
 
         Returns:
             :class:`DetectionResult` of the confirmed markers.
@@ -240,6 +271,25 @@ class Detector:
         timer = StageTimer(result.timings_ms)
         with timer("input"):
             gray, full_scale = to_gray(image, bit_depth=self.config.bit_depth)
+            colour = _colour_planes(image, gray, colour)
+        return self._neutral_only(
+            self._locate_grey(gray, full_scale, xy, radius_px, line_angles, result, timer),
+            colour,
+            full_scale,
+            timer,
+        )
+
+    def _locate_grey(
+        self,
+        gray: NDArray[Any],
+        full_scale: float,
+        xy: NDArray[np.float64],
+        radius_px: NDArray[np.float64],
+        line_angles: NDArray[np.float64],
+        result: DetectionResult,
+        timer: StageTimer,
+    ) -> DetectionResult:
+        """:meth:`locate`'s stages on the frame's grey, up to the path's detections."""
         if self.config.refinement == "template":
             with timer("noise"):
                 noise = estimate_noise(gray, full_scale)
@@ -259,6 +309,70 @@ class Detector:
             )
         frame = Frame(gray, full_scale, gamma, result, timer)
         return self._symmetry.confirm_tracked(frame, xy)
+
+    def _neutral_only(
+        self,
+        result: DetectionResult,
+        colour: NDArray[Any] | None,
+        full_scale: float,
+        timer: StageTimer,
+    ) -> DetectionResult:
+        """``result`` less its X's of texture's size drawn in colour (:func:`chroma.coloured_x`).
+
+        At ``max_x_chroma_share``.
+
+        Counts them as ``rejected_chroma`` (0 on a grey frame) and records the
+        survivors as ``chroma``.
+        """
+        result.counts["rejected_chroma"] = 0
+        if colour is None or not result.detections:
+            return result
+        table = result.as_array()
+        with timer("chroma"):
+            coloured = chroma.coloured_x(
+                colour,
+                full_scale,
+                table[:, :2],
+                table[:, 6],
+                table[:, 4:6],
+                self.config.max_x_chroma_share,
+            )
+        result.counts["rejected_chroma"] = int(coloured.sum())
+        result.detections = [
+            d for d, drop in zip(result.detections, coloured, strict=True) if not drop
+        ]
+        result.counts["accepted"] = len(result.detections)
+        result.survivors.append(("chroma", table[~coloured, :2]))
+        return result
+
+
+def _colour_planes(
+    image: NDArray[Any], gray: NDArray[Any], colour: NDArray[Any] | None
+) -> NDArray[Any] | None:
+    """The colour planes :meth:`Detector.detect` reads for :mod:`chroma`; None for a grey frame.
+
+    ``image`` itself where it is colour; else ``colour``, checked against ``gray``.
+
+    Raises:
+        ImageError: ``colour`` is given beside a colour ``image``, has no three
+            channels, or differs from ``gray`` in size or dtype.
+    """
+    if chroma.is_colour(image):
+        if colour is not None:
+            raise ImageError("colour is for a grey image's colour frame; this image is colour")
+        return image
+    if colour is None:
+        return None
+    if not isinstance(colour, np.ndarray) or not chroma.is_colour(colour):
+        raise ImageError(
+            f"colour must be an (H, W, 3|4) array, got {getattr(colour, 'shape', type(colour))}"
+        )
+    if colour.shape[:2] != gray.shape or colour.dtype != gray.dtype:
+        raise ImageError(
+            f"colour {colour.shape} {colour.dtype} is not the colour of the grey image "
+            f"{gray.shape} {gray.dtype}"
+        )
+    return colour
 
 
 def _known_markers(

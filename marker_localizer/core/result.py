@@ -79,7 +79,9 @@ class DetectionResult:
             (:meth:`acceptance.MarkerModel.plate_not_worse`; of them
             ``plate_asked_over_cap`` unread, over :data:`acceptance.MAX_PLATE_ASKED`),
             ``rejected_lattice``
-            (:meth:`acceptance.MarkerModel.stands_alone`),
+            (:meth:`acceptance.MarkerModel.stands_alone`), ``rejected_chroma`` (on a
+            colour frame, small X's drawn in colour, :func:`chroma.coloured_x`; on
+            every path),
             ``merged_duplicates``, ``recentred``, ``found_recentred``,
             ``kept_faint`` and ``kept_under_floor`` (X's the modulation gate or
             the fit's score floor rejected that the marker's model vouches for,

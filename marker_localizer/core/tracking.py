@@ -85,6 +85,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from marker_localizer.config import TrackerConfig, require_config
+from marker_localizer.core import chroma
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.pipeline import Detector
 from marker_localizer.core.result import Detection, DetectionResult, SearchPlan
@@ -181,6 +182,7 @@ class MarkerTracker:
     _last_stamp_s: float = field(default=0.0, init=False)
     _frame_shape: tuple[int, ...] = field(default=(), init=False)
     _fit_motion_skips: int = field(default=0, init=False)
+    _colour: NDArray[Any] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         # A mapping or a class failed later, on its first missing attribute.
@@ -222,9 +224,18 @@ class MarkerTracker:
             raise ValueError(f"stamp_s must be a finite time in seconds, got {stamp_s!r}")
         # Once, not per detector call: a strided view (a crop) is copied here.
         gray, _ = to_gray(image)
+        # A colour frame's planes go to each detector call for its colour check.
+        self._colour = image if chroma.is_colour(image) else None
+        try:
+            return self._update(gray, stamp)
+        finally:
+            self._colour = None
+
+    def _update(self, gray: NDArray[Any], stamp: float) -> DetectionResult:
+        """:meth:`update` on the frame's grey, its stamp checked."""
         if not self.config.enabled:
             self.reset()
-            every = self.detector.detect(gray)
+            every = self.detector.detect(gray, colour=self._colour)
             every.counts["full_frame"] = 1
             every.counts["tracked"] = 0
             return every
@@ -249,7 +260,7 @@ class MarkerTracker:
                 self._frames_since_full += 1
                 self._cut_patches(gray)
                 return result
-        result = self.detector.detect(gray)
+        result = self.detector.detect(gray, colour=self._colour)
         result.counts["full_frame"] = 1
         result.counts["tracked"] = 0
         self._adopt(gray, result, stamp, motion, predicted)
@@ -328,6 +339,7 @@ class MarkerTracker:
             np.array([d.radius_px for d in known]),
             np.array([[d.angle1, d.angle2] for d in known]).reshape(-1, 2),
             np.array([d.evidence for d in known]),
+            colour=self._colour,
         )
 
     def _register(
@@ -453,6 +465,7 @@ class MarkerTracker:
                 self.detector.detect(
                     gray,
                     SearchPlan(regions, located.as_array()[:, :2], corrected[seeded]),
+                    colour=self._colour,
                 )
             )
         result = _combine(parts, self.detector.config.merge_radius_px)

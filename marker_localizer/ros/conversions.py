@@ -222,8 +222,10 @@ def image_to_detector_input(msg: Image, max_pixels: int | None = None) -> np.nda
         reordered, a Bayer mosaic demosaiced to grey
         (:func:`~marker_localizer.core.image.bayer_to_grey`, as cv_bridge does), packed
         YUV read as its luma (:data:`YUV422_LUMA_BYTE`, :data:`SEMIPLANAR_YUV420`):
-        the markers are black and white, and grey is all the detector reads of a
-        colour frame.
+        the markers are black and white, so the detector's stages read the grey,
+        and a colour frame's planes only for whether a small X is drawn in colour
+        (:mod:`~marker_localizer.core.chroma`), which a mosaic's or a YUV frame's
+        luma does not ask.
 
     Raises:
         ImageError: as :func:`image_to_array`.

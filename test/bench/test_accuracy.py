@@ -538,6 +538,21 @@ def test_real_ground_seen_from_half_the_height_spans_twice_the_pixels_with_its_l
     assert abs(closer.image.mean() - frame.image.mean()) < 0.5
 
 
+def test_a_colour_frame_seen_from_half_the_height_keeps_its_colour_with_the_greys_noise():
+    rng = np.random.default_rng(1)
+    grey = cv2.GaussianBlur(rng.uniform(40, 200, (60, 80)).astype(np.float32), (0, 0), 2.0)
+    colour = np.clip(grey[..., None] * [0.8, 1.0, 1.2], 0, 255).astype(np.uint8)
+    frame = real_data.UasFrame("ground", cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), colour)
+    (closer,) = accuracy.closer_frames([frame], seed=0)
+    (plain,) = accuracy.closer_frames([real_data.UasFrame("ground", frame.image)], seed=0)
+    assert np.array_equal(closer.image, plain.image) and plain.colour is None
+    assert closer.colour.shape == (120, 160, 3) and closer.colour.dtype == np.uint8
+    assert (
+        np.abs(cv2.cvtColor(closer.colour, cv2.COLOR_BGR2GRAY) - closer.image.astype(int)).max()
+        <= 2
+    )
+
+
 def test_the_closer_aerial_ground_is_skipped_without_the_real_frames():
     printed: list[str] = []
     assert accuracy.run_closer_negatives(accuracy.Options(data_root=None), printed.append) == {}

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from encoded_images import with_exif_orientation
 
-from marker_localizer.bench.real_data import read_gray
+from marker_localizer.bench.real_data import read_frame, read_gray
 from marker_localizer.config import DetectorConfig
 from marker_localizer.errors import ImageError
 from marker_localizer.image_files import read_image_file
@@ -35,6 +35,22 @@ def test_read_gray_reduces_a_colour_jpeg_to_grey_as_detect_does(tmp_path):
     luma = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     assert np.abs(luma.astype(int) - as_detect_reads).max() > 0  # the two readings differ here
     np.testing.assert_array_equal(read_gray(path), as_detect_reads)
+
+
+def test_read_frame_gives_a_colour_files_planes_beside_its_grey_and_none_for_a_grey_file(
+    tmp_path,
+):
+    """The planes ``detect`` gives the detector's colour check; the grey its stages read."""
+    colour = np.random.default_rng(4).integers(0, 256, (48, 64, 3), np.uint8)
+    coloured, grey = tmp_path / "colour.png", tmp_path / "grey.png"
+    coloured.write_bytes(cv2.imencode(".png", colour)[1].tobytes())
+    grey.write_bytes(cv2.imencode(".png", colour[..., 1])[1].tobytes())
+    image, planes = read_frame(coloured)
+    np.testing.assert_array_equal(planes, colour)
+    np.testing.assert_array_equal(image, read_gray(coloured))
+    image, planes = read_frame(grey)
+    assert planes is None
+    np.testing.assert_array_equal(image, colour[..., 1])
 
 
 def test_read_gray_names_a_file_that_is_not_an_image(tmp_path):

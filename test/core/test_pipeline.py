@@ -41,6 +41,7 @@ from marker_localizer.core import (
     verification,
 )
 from marker_localizer.core.result import CAP_COUNTS, SearchPlan
+from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import (
     MarkerPlacement,
@@ -345,6 +346,71 @@ def test_an_image_without_markers_gives_no_candidate_and_an_empty_result():
 def test_colour_16_bit_and_float_images_are_converted_not_rejected(convert):
     result = Detector().detect(convert(checker_2x2()))
     assert len(result) == 1 and result[0].x == pytest.approx(31.5, abs=1e-3)
+
+
+def _neutral_and_coloured_xs() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A BGR frame of eight small X's, the first four neutral paint under a warm light,
+    the others two materials (dark brown and pale yellow, as sand's grains), and
+    their (8, 2) centres; with the frame's grey."""
+    places = [
+        MarkerPlacement(40.0 + 60 * (k % 4) + 0.3 * k, 40.0 + 70 * (k // 4) + 0.2 * k, 6.0, 0.2 * k)
+        for k in range(8)
+    ]
+    scene = render_markers(
+        (180, 280), places, 3, reflectances=(0.3, 0.7), blur_sigma_px=0.9, noise_sigma_dn=1.0
+    )
+    grey = scene.image.astype(np.float64)
+    tint = np.broadcast_to(np.array([0.85, 1.0, 1.15]), (*grey.shape, 3)).copy()
+    rows, cols = np.mgrid[: grey.shape[0], : grey.shape[1]]
+    share = (grey - grey.min()) / np.ptp(grey)
+    brown, pale = np.array([0.55, 1.0, 1.45]), np.array([0.85, 1.0, 1.1])
+    for x, y in scene.centres[4:]:
+        plate = np.hypot(cols - x, rows - y) <= 10.0
+        tint[plate] = brown + share[plate, None] * (pale - brown)
+    colour = np.clip(np.rint(grey[..., None] * tint), 0, 255).astype(np.uint8)
+    return colour, cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), scene.centres
+
+
+def test_on_a_colour_frame_small_xs_drawn_in_colour_are_rejected_and_counted():
+    colour, grey, centres = _neutral_and_coloured_xs()
+    detector = Detector(DetectorConfig(marker_radius_min_px=4.0, marker_radius_max_px=12.0))
+    assert _markers_found(detector, grey, centres) == set(range(8))
+    result = detector.detect(colour)
+    assert _markers_found(detector, colour, centres) == {0, 1, 2, 3}
+    assert len(result) == 4 and result.counts["rejected_chroma"] == 4
+    assert result.counts["accepted"] == 4 and result.survivors[-1][0] == "chroma"
+    # The grey given with its colour planes beside it reads as the colour frame.
+    beside = detector.detect(grey, colour=colour)
+    assert [(d.x, d.y) for d in beside] == [(d.x, d.y) for d in result]
+    assert detector.detect(grey).counts["rejected_chroma"] == 0
+    off = Detector(detector.config.replace(max_x_chroma_share=100.0))
+    assert _markers_found(off, colour, centres) == set(range(8))
+
+
+def test_tracked_colour_frames_leave_out_the_small_xs_drawn_in_colour_too():
+    colour, _, centres = _neutral_and_coloured_xs()
+    detector = Detector(DetectorConfig(marker_radius_min_px=4.0, marker_radius_max_px=12.0))
+    tracker = MarkerTracker(detector)
+    for stamp in (1.0, 2.0, 3.0):
+        result = tracker.update(colour, stamp)
+        distance, nearest = cKDTree(centres).query(result.as_array()[:, :2])
+        assert sorted(nearest[distance < 1.0]) == [0, 1, 2, 3] and len(result) == 4
+    assert result.counts["full_frame"] == 0 and result.counts["tracked"] == 4
+
+
+@pytest.mark.parametrize(
+    ("colour", "message"),
+    [
+        (np.zeros((64, 64), np.uint8), "must be an"),
+        (np.zeros((32, 64, 3), np.uint8), "is not the colour of the grey image"),
+        (np.zeros((64, 64, 3), np.uint16), "is not the colour of the grey image"),
+    ],
+)
+def test_colour_planes_that_do_not_belong_to_the_grey_image_raise_a_clear_error(colour, message):
+    with pytest.raises(ImageError, match=message):
+        Detector().detect(checker_2x2(), colour=colour)
+    with pytest.raises(ImageError, match="this image is colour"):
+        Detector().detect(cv2.cvtColor(checker_2x2(), cv2.COLOR_GRAY2BGR), colour=colour)
 
 
 @pytest.mark.parametrize(
