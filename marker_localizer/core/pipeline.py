@@ -319,10 +319,8 @@ class Detector:
     ) -> DetectionResult:
         """``result`` less its X's of texture's size drawn in colour (:func:`chroma.coloured_x`).
 
-        At ``max_x_chroma_share``.
-
-        Counts them as ``rejected_chroma`` (0 on a grey frame) and records the
-        survivors as ``chroma``.
+        Those over ``max_x_chroma_share``; counted as ``rejected_chroma`` (0 on a
+        grey frame), the survivors recorded as ``chroma``.
         """
         result.counts["rejected_chroma"] = 0
         if colour is None or not result.detections:
