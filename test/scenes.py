@@ -85,3 +85,28 @@ def found_false_errors(detections: np.ndarray, truth: np.ndarray) -> tuple[int, 
     distance, index = cKDTree(truth).query(detections[:, :2])
     hit = distance <= 1.5
     return len(np.unique(index[hit])), int((~hit).sum()), distance[hit]
+
+
+def neutral_and_coloured_xs() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(BGR frame, its grey, (8, 2) centres) of eight small X's of 6 px.
+
+    The first four are neutral paint under a warm light, the others two materials
+    (dark brown and pale yellow, as sand's grains): the grey detector finds all eight.
+    """
+    places = [
+        MarkerPlacement(40.0 + 60 * (k % 4) + 0.3 * k, 40.0 + 70 * (k // 4) + 0.2 * k, 6.0, 0.2 * k)
+        for k in range(8)
+    ]
+    scene = render_markers(
+        (180, 280), places, 3, reflectances=(0.3, 0.7), blur_sigma_px=0.9, noise_sigma_dn=1.0
+    )
+    grey = scene.image.astype(np.float64)
+    tint = np.broadcast_to(np.array([0.85, 1.0, 1.15]), (*grey.shape, 3)).copy()
+    rows, cols = np.mgrid[: grey.shape[0], : grey.shape[1]]
+    share = (grey - grey.min()) / np.ptp(grey)
+    brown, pale = np.array([0.55, 1.0, 1.45]), np.array([0.85, 1.0, 1.1])
+    for x, y in scene.centres[4:]:
+        plate = np.hypot(cols - x, rows - y) <= 10.0
+        tint[plate] = brown + share[plate, None] * (pale - brown)
+    colour = np.clip(np.rint(grey[..., None] * tint), 0, 255).astype(np.uint8)
+    return colour, cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), scene.centres

@@ -22,6 +22,7 @@ from scenes import (
     checker_2x2,
     faint_tilted_markers,
     found_false_errors,
+    neutral_and_coloured_xs,
 )
 from scipy.spatial import cKDTree
 from shared_data import SHARED_DATA, needs_shared_data
@@ -348,31 +349,8 @@ def test_colour_16_bit_and_float_images_are_converted_not_rejected(convert):
     assert len(result) == 1 and result[0].x == pytest.approx(31.5, abs=1e-3)
 
 
-def _neutral_and_coloured_xs() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A BGR frame of eight small X's, the first four neutral paint under a warm light,
-    the others two materials (dark brown and pale yellow, as sand's grains), and
-    their (8, 2) centres; with the frame's grey."""
-    places = [
-        MarkerPlacement(40.0 + 60 * (k % 4) + 0.3 * k, 40.0 + 70 * (k // 4) + 0.2 * k, 6.0, 0.2 * k)
-        for k in range(8)
-    ]
-    scene = render_markers(
-        (180, 280), places, 3, reflectances=(0.3, 0.7), blur_sigma_px=0.9, noise_sigma_dn=1.0
-    )
-    grey = scene.image.astype(np.float64)
-    tint = np.broadcast_to(np.array([0.85, 1.0, 1.15]), (*grey.shape, 3)).copy()
-    rows, cols = np.mgrid[: grey.shape[0], : grey.shape[1]]
-    share = (grey - grey.min()) / np.ptp(grey)
-    brown, pale = np.array([0.55, 1.0, 1.45]), np.array([0.85, 1.0, 1.1])
-    for x, y in scene.centres[4:]:
-        plate = np.hypot(cols - x, rows - y) <= 10.0
-        tint[plate] = brown + share[plate, None] * (pale - brown)
-    colour = np.clip(np.rint(grey[..., None] * tint), 0, 255).astype(np.uint8)
-    return colour, cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), scene.centres
-
-
 def test_on_a_colour_frame_small_xs_drawn_in_colour_are_rejected_and_counted():
-    colour, grey, centres = _neutral_and_coloured_xs()
+    colour, grey, centres = neutral_and_coloured_xs()
     detector = Detector(DetectorConfig(marker_radius_min_px=4.0, marker_radius_max_px=12.0))
     assert _markers_found(detector, grey, centres) == set(range(8))
     result = detector.detect(colour)
@@ -388,7 +366,7 @@ def test_on_a_colour_frame_small_xs_drawn_in_colour_are_rejected_and_counted():
 
 
 def test_tracked_colour_frames_leave_out_the_small_xs_drawn_in_colour_too():
-    colour, _, centres = _neutral_and_coloured_xs()
+    colour, _, centres = neutral_and_coloured_xs()
     detector = Detector(DetectorConfig(marker_radius_min_px=4.0, marker_radius_max_px=12.0))
     tracker = MarkerTracker(detector)
     for stamp in (1.0, 2.0, 3.0):

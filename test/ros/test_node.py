@@ -20,6 +20,8 @@ from node_testing import (
 )
 from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy, qos_profile_sensor_data
+from scenes import neutral_and_coloured_xs
+from scipy.spatial import cKDTree
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from marker_localizer.core.image import bit_depth_scale, peak_level
@@ -89,6 +91,23 @@ def test_node_reads_colour_16_bit_yuv_and_raw_bayer_frames(localizer, tester, en
     # Demosaicing weighs the channels differently at each pixel of a Bayer cell.
     tolerance_px = 0.03 if encoding in BAYER_ENCODINGS else 1e-3
     np.testing.assert_allclose(points_xy(cloud), [[31.5, 31.5]], atol=tolerance_px)
+
+
+def test_a_colour_cameras_small_xs_drawn_in_colour_are_not_published(ros):
+    """bgr8 frames through a worker process: the check reads their colour planes."""
+    colour, _, centres = neutral_and_coloured_xs()
+    settings = {
+        "cameras": ["cam0"],
+        "detector.marker_radius_min_px": 4.0,
+        "detector.marker_radius_max_px": 12.0,
+    }
+    with serving("colour", settings) as (_, tester):
+        tester.listen("cam0/marker_points", PointCloud2)
+        frame = tester.frame(colour, "bgr8")
+        tester.publish("cam0/image_raw", frame)
+        found = points_xy(tester.result_for("cam0/marker_points", frame.header))
+    distance, nearest = cKDTree(centres).query(found)
+    assert len(found) == 4 and (distance < 0.5).all() and sorted(nearest) == [0, 1, 2, 3]
 
 
 def test_frames_of_a_refused_encoding_are_each_counted_and_logged_in_one_line(
