@@ -7,10 +7,11 @@ materials, and materials that differ in brightness differ in hue or saturation
 too (dark brown grains between pale sand, shaded and sunlit patches under blue sky
 and yellow sun). On a colour frame each detection's X is read in the logarithm of
 its pixels' channels: their mean over the channels is its luminance, what is left
-its chromaticity (neither depends on the channels' order, BGR or RGB, nor on a gain
-or a gamma common to them). The difference between the two pairs of opposite
-quadrants' means is the X's contrast in each; a neutral X's chromatic contrast is a
-small share of its luminance's (:func:`x_chroma_share`).
+its chromaticity. The difference between the two pairs of opposite quadrants'
+means is the X's contrast in each; a neutral X's chromatic contrast is a small
+share of its luminance's (:func:`x_chroma_share`). The share depends neither on the
+channels' order (BGR or RGB) nor, but for a small offset that steadies the dark
+levels, on a gain or a gamma common to the channels.
 
 The check is asked only of X's of texture's size (:data:`CHROMA_MAX_EXTENT_PX`):
 larger X's are judged by their plate and their lines, and a chessboard printed in a
