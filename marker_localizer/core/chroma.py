@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from marker_localizer.core import template, verification
+from marker_localizer.core.sampling import pixels_at_offsets
 
 #: X's under this extent, px, are asked: the extent up to which ground texture makes
 #: X's that pass the rings (:data:`verification.TEXTURE_EXTENT_PX`).
@@ -81,21 +82,13 @@ def x_chroma_share(
     disk = np.maximum(DISK_SHARE * np.asarray(radius_px, np.float64), MIN_DISK_PX)
     half = int(np.ceil(disk.max())) + 1
     grid = np.arange(-half, half + 1)
-    ox, oy = (a.ravel() for a in np.meshgrid(grid, grid))
-    centre = np.rint(xy).astype(np.intp)
-    height, width = colour.shape[:2]
-    inside = (
-        (centre[:, 0] >= half)
-        & (centre[:, 0] < width - half)
-        & (centre[:, 1] >= half)
-        & (centre[:, 1] < height - half)
-    )
-    cols = np.clip(centre[:, None, 0] + ox, 0, width - 1)
-    rows = np.clip(centre[:, None, 1] + oy, 0, height - 1)
-    logs = np.log(colour[rows, cols, :3].astype(np.float64) + DARK_OFFSET_SHARE * full_scale)
+    offsets = np.stack([a.ravel() for a in np.meshgrid(grid, grid)], axis=1)
+    pixels, inside = pixels_at_offsets(colour[..., :3], xy, offsets)
+    logs = np.log(pixels + DARK_OFFSET_SHARE * full_scale)
     luminance = logs.mean(axis=-1)
     chromaticity = logs - luminance[..., None]
-    dx, dy = cols - xy[:, 0, None], rows - xy[:, 1, None]
+    # Offsets from the sub-pixel centres (a window the border clamps is not read).
+    dx, dy = (np.rint(xy)[:, k, None] + offsets[:, k] - xy[:, k, None] for k in (0, 1))
     s1, s2 = template.line_distances(dx, dy, np.asarray(line_angles, np.float64))
     read = (np.hypot(dx, dy) <= disk[:, None]) & (
         np.minimum(np.abs(s1), np.abs(s2)) >= LINE_MARGIN_PX

@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 from scipy.special import ndtr
 
 from marker_localizer.core import screening, verification
+from marker_localizer.core.sampling import pixels_at_offsets
 
 #: Half-side of the square plate that carries a marker, in marker radii: 1.25 on the
 #: package's renderer, 1.25-1.3 on the independent one.
@@ -150,24 +151,6 @@ def _window_offsets(radius_px: float) -> NDArray[np.int64]:
         stride += 1
 
 
-def _read(
-    image: NDArray[Any], xy: NDArray[np.float64], offsets: NDArray[np.int64]
-) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """(N, n) the pixels at ``offsets`` from each rounded centre, and (N,) which lie inside."""
-    centre = np.rint(xy).astype(np.int64)
-    reach = np.abs(offsets).max(axis=0)
-    height, width = image.shape
-    inside = (
-        (centre[:, 0] >= reach[0])
-        & (centre[:, 0] < width - reach[0])
-        & (centre[:, 1] >= reach[1])
-        & (centre[:, 1] < height - reach[1])
-    )
-    cols = np.clip(centre[:, None, 0] + offsets[None, :, 0], 0, width - 1)
-    rows = np.clip(centre[:, None, 1] + offsets[None, :, 1], 0, height - 1)
-    return image[rows, cols].astype(np.float64), inside
-
-
 def _polynomial_residual(
     values: NDArray[np.float64], offsets: NDArray[np.int64], degree: int
 ) -> NDArray[np.float64]:
@@ -193,7 +176,7 @@ def centre_saddle(image: NDArray[Any], xy: NDArray[np.float64]) -> NDArray[np.fl
     or a ridge. NaN where the disk leaves the image.
     """
     offsets = _disk_offsets(_SADDLE_DISK_PX)
-    values, inside = _read(image, xy, offsets)
+    values, inside = pixels_at_offsets(image, xy, offsets)
     dx, dy = offsets[:, 0].astype(np.float64), offsets[:, 1].astype(np.float64)
     design = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], 1)
     coefficients = values @ np.linalg.pinv(design).T
@@ -399,7 +382,7 @@ def plate_evidence(
     for radius in np.unique(window):
         group = np.flatnonzero(window == radius)
         offsets = _window_offsets(float(radius))
-        values, inside = _read(image, xy[group], offsets)
+        values, inside = pixels_at_offsets(image, xy[group], offsets)
         group, values = group[inside], values[inside]
         if not len(group):
             continue

@@ -167,6 +167,28 @@ def nearest_pixels(image: NDArray[Any], xy: NDArray[np.float64]) -> NDArray[Any]
     ]
 
 
+def pixels_at_offsets(
+    image: NDArray[Any], xy: NDArray[np.float64], offsets: NDArray[np.integer[Any]]
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """(N, n, ...) the pixels at integer ``offsets`` (n, 2) from each rounded centre, float64.
+
+    The trailing axes are the image's channels, if any. Also (N,) which centres have
+    every offset inside the image (the others read the clamped border).
+    """
+    centre = np.rint(xy).astype(np.int64)
+    reach = np.abs(offsets).max(axis=0)
+    height, width = image.shape[:2]
+    inside = (
+        (centre[:, 0] >= reach[0])
+        & (centre[:, 0] < width - reach[0])
+        & (centre[:, 1] >= reach[1])
+        & (centre[:, 1] < height - reach[1])
+    )
+    cols = np.clip(centre[:, None, 0] + offsets[None, :, 0], 0, width - 1)
+    rows = np.clip(centre[:, None, 1] + offsets[None, :, 1], 0, height - 1)
+    return image[rows, cols].astype(np.float64), inside
+
+
 def bilinear(
     image: NDArray[Any], x: NDArray[np.float64], y: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:

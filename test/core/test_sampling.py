@@ -8,6 +8,7 @@ from marker_localizer.core.sampling import (
     bilinear_with_gradient,
     nearest_pixels,
     pad_patterns,
+    pixels_at_offsets,
 )
 
 #: Step of the central differences, px: far below a pixel, so both sides lie in
@@ -111,3 +112,13 @@ def test_the_nearest_pixel_is_the_rounded_position_clamped_to_the_image():
     np.testing.assert_array_equal(
         nearest_pixels(image, xy), [image[1, 1], image[1, 3], image[2, 0]]
     )
+
+
+def test_pixels_at_offsets_reads_each_rounded_centres_window_with_its_channels():
+    image = np.arange(5 * 6 * 3, dtype=np.uint8).reshape(5, 6, 3)
+    offsets = np.array([[0, 0], [1, 0], [0, -1]])
+    values, inside = pixels_at_offsets(image, np.array([[2.4, 2.6], [5.0, 0.0]]), offsets)
+    assert values.dtype == np.float64 and values.shape == (2, 3, 3)
+    np.testing.assert_array_equal(values[0], image[[3, 3, 2], [2, 3, 2]])
+    assert inside.tolist() == [True, False]  # the second window leaves the image: clamped
+    np.testing.assert_array_equal(values[1], image[[0, 0, 0], [5, 5, 5]])
