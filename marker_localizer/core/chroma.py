@@ -13,11 +13,17 @@ share of its luminance's (:func:`x_chroma_share`). The share depends neither on 
 channels' order (BGR or RGB) nor, but for a small offset that steadies the dark
 levels, on a gain or a gamma common to the channels.
 
+A colour camera samples each colour at some of its pixels only (a Bayer mosaic: red
+and blue every second pixel of every second row), and its demosaicing colours the
+pixels along a neutral edge. The chromaticity is therefore read at the colour
+samples' resolution (:data:`CHROMA_SMOOTHING`), and X's too small to reach past
+that colour (:data:`CHROMA_MIN_EXTENT_PX`) are not asked.
+
 The check is asked only of X's of texture's size (:data:`CHROMA_MAX_EXTENT_PX`):
 larger X's are judged by their plate and their lines, and a chessboard printed in a
 colour on white (pycbd's flare board, blue) is X's drawn in colour on purpose. A
 grey frame is not asked. Measured: docs/accuracy.md, "A marker's X is neutral: the
-colour of small X's on real colour frames".
+colour of small X's on real colour frames" and "A colour camera's demosaicing".
 """
 
 from __future__ import annotations
@@ -33,6 +39,10 @@ from marker_localizer.core.sampling import pixels_at_offsets
 #: X's under this extent, px, are asked: the extent up to which ground texture makes
 #: X's that pass the rings (:data:`verification.TEXTURE_EXTENT_PX`).
 CHROMA_MAX_EXTENT_PX = verification.TEXTURE_EXTENT_PX
+#: ... and from this one, px: twice the spacing of a colour sensor's red and blue
+#: samples. A smaller X lies within a sample or two of its lines everywhere, where a
+#: camera's demosaicing colours a neutral X as much as two materials colour theirs.
+CHROMA_MIN_EXTENT_PX = 4.0
 #: The disk read, as a share of the X's extent: the paint, short of the plate's edge
 #: where a ring ladder's extent overshoots it.
 DISK_SHARE = 0.8
@@ -46,6 +56,12 @@ LINE_MARGIN_PX = 0.75
 DARK_OFFSET_SHARE = 2.0 / 255.0
 #: Fewest pixels each pair of opposite quadrants must keep for a reading.
 MIN_QUADRANT_PIXELS = 2
+#: The chromaticity is read through this binomial along rows and columns: a colour
+#: camera's sensor samples red and blue 2 px apart, so what a frame shows of colour
+#: above a quarter cycle a pixel is its demosaicing's false colour along edges, not the
+#: scene's. The 3-tap filter passes half of it at that quarter cycle and none at the
+#: pixel's half cycle; the luminance is read as it is.
+CHROMA_SMOOTHING = np.array([0.25, 0.5, 0.25])
 
 
 def is_colour(image: NDArray[Any]) -> bool:
@@ -65,7 +81,8 @@ def x_chroma_share(
     Over the pixels within :data:`DISK_SHARE` of the extent (at least
     :data:`MIN_DISK_PX`) and :data:`LINE_MARGIN_PX` or more from both lines, with
     L_c = log(channel c + :data:`DARK_OFFSET_SHARE` white): luminance Y = mean_c L_c,
-    chromaticity C_c = L_c - Y. With d(.) the mean over one pair of opposite quadrants
+    chromaticity C_c = L_c - Y, smoothed along rows and columns by
+    :data:`CHROMA_SMOOTHING`. With d(.) the mean over one pair of opposite quadrants
     less that over the other, the share is |d(C)| / |d(Y)|. NaN where the window leaves
     the frame, or a pair keeps under :data:`MIN_QUADRANT_PIXELS`.
 
@@ -81,12 +98,15 @@ def x_chroma_share(
         return share
     disk = np.maximum(DISK_SHARE * np.asarray(radius_px, np.float64), MIN_DISK_PX)
     half = int(np.ceil(disk.max())) + 1
-    grid = np.arange(-half, half + 1)
-    offsets = np.stack([a.ravel() for a in np.meshgrid(grid, grid)], axis=1)
-    pixels, inside = pixels_at_offsets(colour[..., :3], xy, offsets)
-    logs = np.log(pixels + DARK_OFFSET_SHARE * full_scale)
-    luminance = logs.mean(axis=-1)
-    chromaticity = logs - luminance[..., None]
+    # Gathered the smoothing's reach wider all round, which the smoothing takes off.
+    reach = len(CHROMA_SMOOTHING) // 2
+    side = 2 * (half + reach) + 1
+    pixels, inside = pixels_at_offsets(colour[..., :3], xy, _square(half + reach))
+    logs = np.log(pixels + DARK_OFFSET_SHARE * full_scale).reshape(len(xy), side, side, 3)
+    luminance = logs.mean(axis=-1, keepdims=True)
+    chromaticity = _smoothed(logs - luminance).reshape(len(xy), -1, 3)
+    luminance = luminance[:, reach : side - reach, reach : side - reach, 0].reshape(len(xy), -1)
+    offsets = _square(half)
     # Offsets from the sub-pixel centres (a window the border clamps is not read).
     dx, dy = (np.rint(xy)[:, k, None] + offsets[:, k] - xy[:, k, None] for k in (0, 1))
     s1, s2 = template.line_distances(dx, dy, np.asarray(line_angles, np.float64))
@@ -110,6 +130,23 @@ def x_chroma_share(
     return share
 
 
+def _square(half: int) -> NDArray[np.int64]:
+    """(n, 2) the integer offsets (x, y) of a square of side 2 ``half`` + 1, row by row."""
+    grid = np.arange(-half, half + 1)
+    return np.stack([a.ravel() for a in np.meshgrid(grid, grid)], axis=1)
+
+
+def _smoothed(planes: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, h, w, C) planes through :data:`CHROMA_SMOOTHING` along both axes, less its reach."""
+    for axis in (1, 2):
+        length = planes.shape[axis] - len(CHROMA_SMOOTHING) + 1
+        planes = sum(
+            weight * planes.take(np.arange(k, k + length), axis=axis)
+            for k, weight in enumerate(CHROMA_SMOOTHING)
+        )
+    return planes
+
+
 def coloured_x(
     colour: NDArray[Any],
     full_scale: float,
@@ -121,10 +158,11 @@ def coloured_x(
     """(N,) X's of texture's size drawn in colour: :func:`x_chroma_share` over ``max_share``.
 
     ``max_share`` is ``DetectorConfig.max_x_chroma_share``, which says what it rests
-    on. Those of :data:`CHROMA_MAX_EXTENT_PX` and more, and those
-    :func:`x_chroma_share` cannot read, are not.
+    on. Those under :data:`CHROMA_MIN_EXTENT_PX` or of :data:`CHROMA_MAX_EXTENT_PX`
+    and more, and those :func:`x_chroma_share` cannot read, are not.
     """
-    small = np.flatnonzero(np.asarray(radius_px) < CHROMA_MAX_EXTENT_PX)
+    extent = np.asarray(radius_px)
+    small = np.flatnonzero((extent >= CHROMA_MIN_EXTENT_PX) & (extent < CHROMA_MAX_EXTENT_PX))
     coloured = np.zeros(len(xy), bool)
     if len(small):
         share = x_chroma_share(

@@ -6,6 +6,7 @@ import pytest
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import chroma
+from marker_localizer.synthetic.scene import bayer_gain
 
 MAX_SHARE = DetectorConfig().max_x_chroma_share
 
@@ -58,6 +59,45 @@ def test_a_tiny_neutral_x_through_a_colour_jpeg_under_a_warm_light_stays_under_t
     assert _share(cv2.imdecode(encoded, cv2.IMREAD_COLOR), radius_px) < 0.8 * MAX_SHARE
 
 
+def _turned_x(centre_px: tuple[float, float], angle: float, size: int = 33) -> np.ndarray:
+    """(size, size) float grey X (levels 40 and 200, blur 0.8 px), its lines at right
+    angles from ``angle``, area-integrated from 8 x 8 sub-samples a pixel."""
+    fine = (np.arange(8 * size) + 0.5) / 8 - 0.5
+    x, y = np.meshgrid(fine - centre_px[0], fine - centre_px[1])
+    u = np.cos(angle) * x + np.sin(angle) * y
+    v = np.cos(angle) * y - np.sin(angle) * x
+    sharp = np.where(u * v > 0, 200.0, 40.0).astype(np.float32)
+    blurred = cv2.GaussianBlur(sharp, (0, 0), 8 * 0.8)
+    return cv2.resize(blurred, (size, size), interpolation=cv2.INTER_AREA).astype(np.float64)
+
+
+@pytest.mark.parametrize(
+    "demosaicing",
+    [cv2.COLOR_BayerBG2BGR, cv2.COLOR_BayerBG2BGR_VNG, cv2.COLOR_BayerBG2BGR_EA],
+    ids=["bilinear", "vng", "edge-aware"],
+)
+@pytest.mark.parametrize("extent_px", [chroma.CHROMA_MIN_EXTENT_PX, 6.0, 8.5])
+def test_a_small_neutral_x_through_a_cameras_demosaicing_stays_well_under_the_bar(
+    demosaicing, extent_px
+):
+    """A raw mosaic (a raw sensor's colour gains) demosaiced by OpenCV, uncompressed."""
+    shares = []
+    for k in range(16):
+        centre = (16.0 + 0.25 * (k % 4), 16.0 + 0.25 * (k // 4))
+        angle = 0.2 + 0.37 * k
+        grey = _turned_x(centre, angle)
+        raw = np.clip(np.rint(grey * bayer_gain(grey.shape, "rggb")), 0, 255).astype(np.uint8)
+        share = chroma.x_chroma_share(
+            cv2.cvtColor(raw, demosaicing),
+            255.0,
+            np.array([centre]),
+            np.array([extent_px]),
+            np.array([[angle, angle + np.pi / 2]]),
+        )
+        shares.append(float(share[0]))
+    assert max(shares) < 0.5 * MAX_SHARE
+
+
 def test_an_x_of_two_materials_shows_its_colours_through_a_jpeg_too():
     colour = _tinted(_grey_x((90.0, 160.0)), BROWN, PALE)
     ok, encoded = cv2.imencode(".jpg", colour, [cv2.IMWRITE_JPEG_QUALITY, 75])
@@ -81,13 +121,23 @@ def test_an_x_whose_window_leaves_the_frame_is_not_read():
     assert np.isnan(share).all()
 
 
-def test_only_xs_of_textures_size_are_asked():
+def test_only_xs_of_textures_size_and_larger_than_the_colour_samples_reach_are_asked():
     colour = np.zeros((81, 81, 3), np.uint8)
     colour[:, :] = _tinted(_grey_x((90.0, 160.0), size=81), BROWN, PALE)
-    centre = np.array([[40.0, 40.0], [40.0, 40.0]])
-    radius = np.array([chroma.CHROMA_MAX_EXTENT_PX - 1.0, chroma.CHROMA_MAX_EXTENT_PX])
-    lines = np.array([[0.0, np.pi / 2]] * 2)
+    centre = np.array([[40.0, 40.0]] * 4)
+    radius = np.array(
+        [
+            chroma.CHROMA_MIN_EXTENT_PX - 0.5,
+            chroma.CHROMA_MIN_EXTENT_PX,
+            chroma.CHROMA_MAX_EXTENT_PX - 1.0,
+            chroma.CHROMA_MAX_EXTENT_PX,
+        ]
+    )
+    lines = np.array([[0.0, np.pi / 2]] * 4)
+    assert (chroma.x_chroma_share(colour, 255.0, centre, radius, lines) > MAX_SHARE).all()
     assert chroma.coloured_x(colour, 255.0, centre, radius, lines, MAX_SHARE).tolist() == [
+        False,
+        True,
         True,
         False,
     ]

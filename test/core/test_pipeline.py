@@ -52,6 +52,7 @@ from marker_localizer.synthetic import (
     render_scene,
 )
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
+from marker_localizer.synthetic.scene import bayer_gain
 
 
 def test_the_corner_of_a_2x2_checkerboard_is_exactly_between_the_four_pixels():
@@ -363,6 +364,36 @@ def test_on_a_colour_frame_small_xs_drawn_in_colour_are_rejected_and_counted():
     assert detector.detect(grey).counts["rejected_chroma"] == 0
     off = Detector(detector.config.replace(max_x_chroma_share=100.0))
     assert _markers_found(off, colour, centres) == set(range(8))
+
+
+@pytest.mark.parametrize(
+    "demosaicing",
+    [cv2.COLOR_BayerBG2BGR, cv2.COLOR_BayerBG2BGR_VNG, cv2.COLOR_BayerBG2BGR_EA],
+    ids=["bilinear", "vng", "edge-aware"],
+)
+def test_a_colour_cameras_demosaicing_costs_no_tiny_marker(demosaicing):
+    """A raw mosaic demosaiced as image_proc does it, sent uncompressed (bgr8)."""
+    rng = np.random.default_rng(1)
+    places = [
+        MarkerPlacement(
+            30.0 + 40 * (k % 8) + rng.uniform(0, 1),
+            30.0 + 40 * (k // 8) + rng.uniform(0, 1),
+            float(rng.uniform(2.8, 4.6)),
+            float(rng.uniform(0, np.pi)),
+            float(rng.uniform(0, 45)),
+            float(rng.uniform(0, np.pi)),
+        )
+        for k in range(32)
+    ]
+    scene = render_markers(
+        (190, 340), places, 1, reflectances=(0.25, 0.75), blur_sigma_px=0.8, noise_sigma_dn=1.5
+    )
+    raw = scene.image * bayer_gain(scene.image.shape, "rggb")
+    colour = cv2.cvtColor(np.clip(np.rint(raw), 0, 255).astype(np.uint8), demosaicing)
+    detector = Detector(DetectorConfig(marker_radius_min_px=2.5, marker_radius_max_px=5.0))
+    in_grey = _markers_found(detector, cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), scene.centres)
+    assert len(in_grey) >= 28
+    assert _markers_found(detector, colour, scene.centres) == in_grey
 
 
 def test_tracked_colour_frames_leave_out_the_small_xs_drawn_in_colour_too():
