@@ -18,6 +18,7 @@ from typing import Any, Literal, TypeVar, get_args, overload
 
 import numpy as np
 
+from marker_localizer.core.chroma import CHROMA_MIN_EXTENT_PX
 from marker_localizer.core.verification import (
     EQUALISED_MIN_EXTENT_PX,
     SMALL_EXTENT_MAX_RADIUS_PX,
@@ -402,13 +403,15 @@ class DetectorConfig:
     )
     max_x_chroma_share: float = _param(
         0.33,
-        "On a colour frame, reject an X of texture's size (extent under "
-        f"{TEXTURE_EXTENT_PX:g} px) whose chromatic contrast exceeds this share of its "
+        "On a colour frame, reject an X of texture's size (extent from "
+        f"{CHROMA_MIN_EXTENT_PX:g} to under {TEXTURE_EXTENT_PX:g} px) whose chromatic "
+        "contrast, read at a colour sensor's colour resolution, exceeds this share of its "
         "luminance contrast: a marker's paint is black and white, ground texture's X's "
         "are of coloured materials. Real black-and-white chessboards photographed in "
-        "colour read at most 0.25, a neutral X through a JPEG under a light 1.9 times "
-        "redder than blue about 0.3. Grey frames are not asked; the largest value turns "
-        "the check off.",
+        "colour read at most 0.24, a neutral X through a JPEG under a light 1.9 times "
+        "redder than blue about 0.23, small rendered markers through a camera's "
+        "demosaicing, uncompressed, up to 0.28. Grey frames are not asked; the largest "
+        "value turns the check off.",
         "",
         0.0,
         100.0,
