@@ -162,11 +162,9 @@ def coloured_x(
     and more, and those :func:`x_chroma_share` cannot read, are not.
     """
     extent = np.asarray(radius_px)
-    small = np.flatnonzero((extent >= CHROMA_MIN_EXTENT_PX) & (extent < CHROMA_MAX_EXTENT_PX))
+    asked = np.flatnonzero((extent >= CHROMA_MIN_EXTENT_PX) & (extent < CHROMA_MAX_EXTENT_PX))
     coloured = np.zeros(len(xy), bool)
-    if len(small):
-        share = x_chroma_share(
-            colour, full_scale, xy[small], np.asarray(radius_px)[small], line_angles[small]
-        )
-        coloured[small] = share > max_share
+    if len(asked):
+        share = x_chroma_share(colour, full_scale, xy[asked], extent[asked], line_angles[asked])
+        coloured[asked] = share > max_share
     return coloured
