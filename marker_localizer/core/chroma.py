@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from marker_localizer.core import template, verification
-from marker_localizer.core.sampling import pixels_at_offsets
+from marker_localizer.core.sampling import pixels_at_offsets, square_offsets
 
 #: X's under this extent, px, are asked: the extent up to which ground texture makes
 #: X's that pass the rings (:data:`verification.TEXTURE_EXTENT_PX`).
@@ -101,12 +101,12 @@ def x_chroma_share(
     # Gathered the smoothing's reach wider all round, which the smoothing takes off.
     reach = len(CHROMA_SMOOTHING) // 2
     side = 2 * (half + reach) + 1
-    pixels, inside = pixels_at_offsets(colour[..., :3], xy, _square(half + reach))
+    pixels, inside = pixels_at_offsets(colour[..., :3], xy, square_offsets(half + reach))
     logs = np.log(pixels + DARK_OFFSET_SHARE * full_scale).reshape(len(xy), side, side, 3)
     luminance = logs.mean(axis=-1, keepdims=True)
     chromaticity = _smoothed(logs - luminance).reshape(len(xy), -1, 3)
     luminance = luminance[:, reach : side - reach, reach : side - reach, 0].reshape(len(xy), -1)
-    offsets = _square(half)
+    offsets = square_offsets(half)
     # Offsets from the sub-pixel centres (a window the border clamps is not read).
     dx, dy = (np.rint(xy)[:, k, None] + offsets[:, k] - xy[:, k, None] for k in (0, 1))
     s1, s2 = template.line_distances(dx, dy, np.asarray(line_angles, np.float64))
@@ -128,12 +128,6 @@ def x_chroma_share(
     with np.errstate(divide="ignore", invalid="ignore"):
         share[readable] = (chroma_contrast / luminance_contrast)[readable]
     return share
-
-
-def _square(half: int) -> NDArray[np.int64]:
-    """(n, 2) the integer offsets (x, y) of a square of side 2 ``half`` + 1, row by row."""
-    grid = np.arange(-half, half + 1)
-    return np.stack([a.ravel() for a in np.meshgrid(grid, grid)], axis=1)
 
 
 def _smoothed(planes: NDArray[np.float64]) -> NDArray[np.float64]:

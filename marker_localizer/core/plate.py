@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from scipy.special import ndtr
 
 from marker_localizer.core import screening, verification
-from marker_localizer.core.sampling import pixels_at_offsets
+from marker_localizer.core.sampling import pixels_at_offsets, square_offsets
 
 #: Half-side of the square plate that carries a marker, in marker radii: 1.25 on the
 #: package's renderer, 1.25-1.3 on the independent one.
@@ -130,10 +130,8 @@ class PlateEvidence(NamedTuple):
 
 def _disk_offsets(radius_px: float) -> NDArray[np.int64]:
     """(n, 2) integer (dx, dy) offsets within ``radius_px`` of the origin."""
-    half = int(np.ceil(radius_px))
-    dy, dx = np.mgrid[-half : half + 1, -half : half + 1]
-    inside = np.hypot(dx, dy) <= radius_px
-    return np.stack([dx[inside], dy[inside]], 1).astype(np.int64)
+    square = square_offsets(int(np.ceil(radius_px)))
+    return square[np.hypot(square[:, 0], square[:, 1]) <= radius_px]
 
 
 def _window_offsets(radius_px: float) -> NDArray[np.int64]:

@@ -167,6 +167,16 @@ def nearest_pixels(image: NDArray[Any], xy: NDArray[np.float64]) -> NDArray[Any]
     ]
 
 
+def square_offsets(half: int) -> NDArray[np.int64]:
+    """(n, 2) the integer offsets (dx, dy) of a square of side 2 ``half`` + 1, row by row.
+
+    Row by row, so that pixels gathered at them (:func:`pixels_at_offsets`) reshape to
+    (..., 2 half + 1, 2 half + 1) windows.
+    """
+    grid = np.arange(-half, half + 1, dtype=np.int64)
+    return np.stack([a.ravel() for a in np.meshgrid(grid, grid)], axis=1)
+
+
 def pixels_at_offsets(
     image: NDArray[Any], xy: NDArray[np.float64], offsets: NDArray[np.integer[Any]]
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:

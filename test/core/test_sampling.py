@@ -9,6 +9,7 @@ from marker_localizer.core.sampling import (
     nearest_pixels,
     pad_patterns,
     pixels_at_offsets,
+    square_offsets,
 )
 
 #: Step of the central differences, px: far below a pixel, so both sides lie in
@@ -122,3 +123,10 @@ def test_pixels_at_offsets_reads_each_rounded_centres_window_with_its_channels()
     np.testing.assert_array_equal(values[0], image[[3, 3, 2], [2, 3, 2]])
     assert inside.tolist() == [True, False]  # the second window leaves the image: clamped
     np.testing.assert_array_equal(values[1], image[[0, 0, 0], [5, 5, 5]])
+
+
+def test_pixels_at_square_offsets_reshape_to_the_window_around_the_centre():
+    image = np.arange(7 * 9, dtype=np.uint8).reshape(7, 9)
+    values, inside = pixels_at_offsets(image, np.array([[4.2, 2.8]]), square_offsets(2))
+    assert inside.tolist() == [True]
+    np.testing.assert_array_equal(values.reshape(5, 5), image[1:6, 2:7])
