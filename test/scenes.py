@@ -5,6 +5,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from marker_localizer.synthetic import MarkerPlacement, RenderedScene, SceneConfig, render_markers
+from marker_localizer.synthetic.scene import bayer_gain
 
 #: A small frame with four 8-16 px markers tilted at most 30 degrees and four
 #: look-alikes: every benchmark path runs on it in a fraction of a second.
@@ -110,3 +111,10 @@ def neutral_and_coloured_xs() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         tint[plate] = brown + share[plate, None] * (pale - brown)
     colour = np.clip(np.rint(grey[..., None] * tint), 0, 255).astype(np.uint8)
     return colour, cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), scene.centres
+
+
+def through_demosaicing(grey: np.ndarray, demosaicing: int) -> np.ndarray:
+    """BGR of a grey scene as a colour camera sends it uncompressed: its raw mosaic
+    (``rggb``, a raw sensor's colour gains) demosaiced by OpenCV (``COLOR_BayerBG2BGR*``)."""
+    raw = np.clip(np.rint(grey * bayer_gain(grey.shape, "rggb")), 0, 255).astype(np.uint8)
+    return cv2.cvtColor(raw, demosaicing)

@@ -3,10 +3,11 @@
 import cv2
 import numpy as np
 import pytest
+from scenes import through_demosaicing
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import chroma
-from marker_localizer.synthetic.scene import bayer_gain
+from marker_localizer.synthetic import MarkerPlacement, render_markers
 
 MAX_SHARE = DetectorConfig().max_x_chroma_share
 
@@ -59,18 +60,6 @@ def test_a_tiny_neutral_x_through_a_colour_jpeg_under_a_warm_light_stays_under_t
     assert _share(cv2.imdecode(encoded, cv2.IMREAD_COLOR), radius_px) < 0.8 * MAX_SHARE
 
 
-def _turned_x(centre_px: tuple[float, float], angle: float, size: int = 33) -> np.ndarray:
-    """(size, size) float grey X (levels 40 and 200, blur 0.8 px), its lines at right
-    angles from ``angle``, area-integrated from 8 x 8 sub-samples a pixel."""
-    fine = (np.arange(8 * size) + 0.5) / 8 - 0.5
-    x, y = np.meshgrid(fine - centre_px[0], fine - centre_px[1])
-    u = np.cos(angle) * x + np.sin(angle) * y
-    v = np.cos(angle) * y - np.sin(angle) * x
-    sharp = np.where(u * v > 0, 200.0, 40.0).astype(np.float32)
-    blurred = cv2.GaussianBlur(sharp, (0, 0), 8 * 0.8)
-    return cv2.resize(blurred, (size, size), interpolation=cv2.INTER_AREA).astype(np.float64)
-
-
 @pytest.mark.parametrize(
     "demosaicing",
     [cv2.COLOR_BayerBG2BGR, cv2.COLOR_BayerBG2BGR_VNG, cv2.COLOR_BayerBG2BGR_EA],
@@ -84,15 +73,15 @@ def test_a_small_neutral_x_through_a_cameras_demosaicing_stays_well_under_the_ba
     shares = []
     for k in range(16):
         centre = (16.0 + 0.25 * (k % 4), 16.0 + 0.25 * (k // 4))
-        angle = 0.2 + 0.37 * k
-        grey = _turned_x(centre, angle)
-        raw = np.clip(np.rint(grey * bayer_gain(grey.shape, "rggb")), 0, 255).astype(np.uint8)
+        # A marker wider than the X read, so that only its lines are in the disk.
+        marker = MarkerPlacement(*centre, radius_px=14.0, rotation_rad=0.2 + 0.37 * k)
+        scene = render_markers((33, 33), [marker], 0, reflectances=(0.16, 0.78), blur_sigma_px=0.8)
         share = chroma.x_chroma_share(
-            cv2.cvtColor(raw, demosaicing),
+            through_demosaicing(scene.image, demosaicing),
             255.0,
             np.array([centre]),
             np.array([extent_px]),
-            np.array([[angle, angle + np.pi / 2]]),
+            np.array([scene.markers[0].angles]),
         )
         shares.append(float(share[0]))
     assert max(shares) < 0.5 * MAX_SHARE

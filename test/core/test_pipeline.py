@@ -23,6 +23,7 @@ from scenes import (
     faint_tilted_markers,
     found_false_errors,
     neutral_and_coloured_xs,
+    through_demosaicing,
 )
 from scipy.spatial import cKDTree
 from shared_data import SHARED_DATA, needs_shared_data
@@ -52,7 +53,6 @@ from marker_localizer.synthetic import (
     render_scene,
 )
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
-from marker_localizer.synthetic.scene import bayer_gain
 
 
 def test_the_corner_of_a_2x2_checkerboard_is_exactly_between_the_four_pixels():
@@ -392,8 +392,7 @@ def test_a_colour_cameras_demosaicing_costs_no_tiny_marker(demosaicing):
     scene = render_markers(
         (190, 340), places, 1, reflectances=(0.25, 0.75), blur_sigma_px=0.8, noise_sigma_dn=1.5
     )
-    raw = scene.image * bayer_gain(scene.image.shape, "rggb")
-    colour = cv2.cvtColor(np.clip(np.rint(raw), 0, 255).astype(np.uint8), demosaicing)
+    colour = through_demosaicing(scene.image, demosaicing)
     detector = Detector(DetectorConfig(marker_radius_min_px=2.5, marker_radius_max_px=5.0))
     in_grey = _markers_found(detector, cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), scene.centres)
     assert len(in_grey) >= 28
