@@ -35,12 +35,15 @@ reports:
   still waiting in the mailboxes grow old and are dropped by age (up to one
   per camera): the end of the feed, not a steady-state loss;
 * latency p50/p95 from the header stamp to the result's arrival at a subscriber;
+* the full-frame passes among the frames processed: with tracking, a frame is
+  searched whole where a pass is scheduled or the tracker lost a marker, and
+  frames a mailbox drops leave the tracker longer steps to follow;
 * CPU use of the node's process with its worker processes and of the camera
-  process (100 % = one core busy), CPU used meanwhile by any other process on
-  the machine (from /proc/stat), and the node process's peak resident memory
-  (its worker processes' not included). On a shared machine
-  the scaling ratio means little unless the other processes left the second
-  core free.
+  process (100 % = one core busy), the node's CPU time per frame processed, CPU
+  used meanwhile by any other process on the machine (from /proc/stat), and the
+  node process's peak resident memory (its worker processes' not included). On
+  a shared machine the scaling ratio means little unless the other processes
+  left the second core free.
 
 ``--json PATH`` saves these figures as well, as the other benchmarks save theirs.
 """
@@ -119,7 +122,11 @@ class RunResult:
     frames_per_s: float
     latency_p50_ms: float
     latency_p95_ms: float
+    #: Frames processed that the detector searched whole (the camera statistics' count).
+    full_frame_passes: int
     cpu_percent: float
+    #: CPU time of the node's process and its worker processes per frame processed, ms.
+    cpu_ms_per_frame: float
     camera_cpu_percent: float
     others_cpu_percent: float
     peak_rss_mb: float
@@ -311,7 +318,9 @@ def run_once(
         frames_per_s=len(arrivals) * rate_hz * len(CAMERAS) / max(published, 1),
         latency_p50_ms=float(np.percentile(latency_ms, 50)) if arrivals else float("nan"),
         latency_p95_ms=float(np.percentile(latency_ms, 95)) if arrivals else float("nan"),
+        full_frame_passes=sum(s.full_frame_passes for s in snaps),
         cpu_percent=100.0 * cpu_s / span_s,
+        cpu_ms_per_frame=1000.0 * cpu_s / len(arrivals) if arrivals else float("nan"),
         camera_cpu_percent=100.0 * camera_cpu_s / span_s,
         others_cpu_percent=100.0 * max(machine_s - cpu_s - camera_cpu_s, 0.0) / span_s,
         # ru_maxrss is in KiB on Linux.
@@ -492,7 +501,8 @@ def format_table(results: Sequence[RunResult]) -> str:
     header = (
         f"{'workers':>7} {'kind':>9} {'frames/s':>9} {'processed':>9} {'published':>9} "
         f"{'drop DDS':>8} {'diag lost':>9} {'drop mbox':>9} {'drop age':>8} {'lat p50 ms':>10} "
-        f"{'lat p95 ms':>10} {'CPU %':>6} {'cameras %':>9} {'others %':>8} {'peak MB':>8}"
+        f"{'lat p95 ms':>10} {'full':>5} {'CPU %':>6} {'CPU ms/fr':>9} {'cameras %':>9} "
+        f"{'others %':>8} {'peak MB':>8}"
     )
     rows = [header, "-" * len(header)]
     for r in results:
@@ -501,7 +511,8 @@ def format_table(results: Sequence[RunResult]) -> str:
             f"{r.frames_per_s:>9.3f} {r.processed:>9} {r.published:>9} "
             f"{r.dropped_in_transport:>8} {r.lost_by_stamps:>9} {r.dropped_mailbox:>9} "
             f"{r.dropped_age:>8} "
-            f"{r.latency_p50_ms:>10.0f} {r.latency_p95_ms:>10.0f} {r.cpu_percent:>6.0f} "
+            f"{r.latency_p50_ms:>10.0f} {r.latency_p95_ms:>10.0f} {r.full_frame_passes:>5} "
+            f"{r.cpu_percent:>6.0f} {r.cpu_ms_per_frame:>9.0f} "
             f"{r.camera_cpu_percent:>9.0f} {r.others_cpu_percent:>8.0f} {r.peak_rss_mb:>8.0f}"
         )
     return "\n".join(rows)

@@ -60,14 +60,25 @@ def test_throughput_benchmark_measures_one_and_two_workers_on_small_frames(ros, 
         assert result.published == 5 * 10
         assert result.dropped_mailbox + result.dropped_age + result.processed <= result.received
         assert result.latency_p95_ms >= result.latency_p50_ms > 0
+        # Tracking: each camera's first frame at least is searched whole.
+        assert 0 < result.full_frame_passes <= result.processed
+        assert result.cpu_ms_per_frame > 0
     table = throughput.format_table(results).splitlines()
     assert table[0].split()[:3] == ["workers", "kind", "frames/s"]
     assert "cameras %" in table[0]  # the camera process's CPU apart
+    assert "full" in table[0].split() and "CPU ms/fr" in table[0]
     assert [row.split()[:2] for row in table[2:]] == [
         ["1", "processes"],
         ["2", "processes"],
         ["2", "threads"],
     ]
+
+
+def test_without_tracking_every_frame_processed_is_a_full_frame_pass(ros, tmp_path):
+    grounds = throughput.render_grounds(320, 240, directory=tmp_path, markers=1)
+    result = throughput.run_once(grounds, 1, seconds=1.0, rate_hz=10.0, tracking=False)
+    assert result.processed > 0
+    assert result.full_frame_passes == result.processed
 
 
 def test_json_saves_the_figures_the_benchmark_prints(tmp_path):
