@@ -58,6 +58,7 @@ from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import INTERVAL_HEADING, DetectionTally
 from marker_localizer.synthetic import RenderedScene, SceneConfig, render_checkerboard, render_scene
 from marker_localizer.synthetic.crlb import X_SNR_BANDS
+from marker_localizer.synthetic.scene import MAX_ILLUMINATION_STRENGTH
 from marker_localizer.synthetic.textures import GROUND_REFLECTANCE_LIMITS, warped_texture
 
 #: The row every peer is compared with ("peer/ours" = peer mean error / this row's).
@@ -423,6 +424,21 @@ def families() -> list[Family]:
             ),
             splits=(X_SNR_SPLIT,),
             variant="4096x3000",
+        ),
+        Family(
+            "d",
+            "(d) cluttered 1280x960 in the independent renderer's light: (d)'s frames with "
+            "the light's gain 0.05-1 across a frame (its blurred light 4-10 to 1, the "
+            "independent clutter frames' 6-20 to 1)",
+            CLUTTER_RADIUS_PX,
+            8,
+            1,
+            **_scene(
+                **{**_BASE, **_CLUTTER, "illumination_strength": MAX_ILLUMINATION_STRENGTH},
+                n_hard_negatives=110,
+            ),
+            splits=(X_SNR_SPLIT,),
+            variant="strong light",
         ),
         Family(
             "g",

@@ -633,6 +633,13 @@ class CastShadow:
         gain[r0:r1, c0:c1] *= (1.0 - self.darkening * shade).astype(np.float32)
 
 
+#: Strongest light field :func:`illumination_field` draws: a gain from 0.05 to 1, 20 to
+#: 1 across a frame, the widest the independent renderer's clutter frames show (their
+#: light, blurred by 60 px, spans 6-20 to 1: docs/accuracy.md, "The independent
+#: renderer's light on (d)").
+MAX_ILLUMINATION_STRENGTH = 1.9
+
+
 @dataclass(frozen=True)
 class ImagingConditions:
     """Light, optics and sensor of one frame; applied by :func:`apply_imaging`.
@@ -641,8 +648,9 @@ class ImagingConditions:
         blur_sigma_px: Sigma of the Gaussian PSF, px (0: none).
         motion_blur_px: Length of the linear motion blur, px (0: none).
         motion_blur_angle_rad: Direction of the motion, radians from +x to +y.
-        illumination_strength: 0 = uniform light; 1 = a smooth gain field
-            (linear gradient plus random bumps) spanning 0.5 to 1.0.
+        illumination_strength: 0 = uniform light; s > 0 = a smooth gain field
+            (linear gradient plus random bumps) spanning 1 - s / 2 to 1.0: 0.5 to
+            1.0 at 1, 0.05 to 1.0 at :data:`MAX_ILLUMINATION_STRENGTH`.
         n_shadows: Number of soft-edged shadow polygons (gain 0.4 to 0.7).
         vignetting: Fraction of light lost in the frame corners (0: none).
         gamma: Display gamma; the encoded signal is radiance ** (1 / gamma).
@@ -673,7 +681,7 @@ class ImagingConditions:
         checks = {
             "blur_sigma_px": self.blur_sigma_px >= 0,
             "motion_blur_px": self.motion_blur_px >= 0,
-            "illumination_strength": 0 <= self.illumination_strength <= 1,
+            "illumination_strength": 0 <= self.illumination_strength <= MAX_ILLUMINATION_STRENGTH,
             "n_shadows": self.n_shadows >= 0,
             "vignetting": 0 <= self.vignetting < 1,
             "gamma": self.gamma > 0,
@@ -948,7 +956,8 @@ def illumination_field(
 
     Args:
         shape: (height, width), px.
-        strength: 0 gives a gain of 1 everywhere; 1 spans the gain 0.5 to 1.0.
+        strength: 0 gives a gain of 1 everywhere; s spans the gain 1 - s / 2 to 1.0
+            (at most :data:`MAX_ILLUMINATION_STRENGTH`).
         rng: Source of randomness.
 
     Returns:
@@ -1757,7 +1766,8 @@ def render_markers(
         blur_sigma_px: Gaussian PSF sigma, px.
         motion_blur_px: Length of the linear, centred motion blur, px.
         motion_blur_angle_rad: Its direction, radians from +x towards +y.
-        illumination_strength: 0 (uniform) to 1 (gain 0.5 to 1.0).
+        illumination_strength: 0 (uniform) to 1 (gain 0.5 to 1.0), at most
+            :data:`MAX_ILLUMINATION_STRENGTH` (gain 0.05 to 1.0).
         n_shadows: Number of soft shadow polygons.
         cast_shadows: Hard cast shadows (:class:`CastShadow`).
         vignetting: Fraction of light lost in the frame corners.
@@ -1865,7 +1875,8 @@ class SceneConfig:
         marker_kinds: Marker kinds to draw from (:data:`MARKER_KINDS`).
         background: ``"texture"`` or ``"flat"``.
         n_hard_negatives: Hard negatives to scatter (fewer if they do not fit).
-        illumination_strength: 0 = uniform light, 1 = strong gradients/bumps.
+        illumination_strength: 0 = uniform light, 1 = strong gradients/bumps (a gain
+            of 0.5 to 1), up to :data:`MAX_ILLUMINATION_STRENGTH` (0.05 to 1).
         n_shadows: Number of soft shadow polygons.
         gamma: Display gamma range (per frame).
         supersampling: S, samples per pixel along each axis.

@@ -111,7 +111,8 @@ def test_every_issue_family_is_defined_with_its_true_radius_range():
     assert sorted(by_key) == ["a", "b", "c", "d", "e", "g"]
     assert by_key["b"][0].radius_range == (2.5, 5.0)
     assert by_key["g"][0].radius_range == (5.0, 30.0)
-    assert len(by_key["d"]) == 2
+    # (d) at 1280x960, at 4096x3000, and in the independent renderer's light.
+    assert [f.variant for f in by_key["d"]] == ["", "4096x3000", "strong light"]
     assert by_key["e"][0].board_pattern == (10, 10)
 
 
@@ -317,11 +318,15 @@ def test_held_out_frames_are_other_seeds_of_the_chosen_families_read_by_ours_alo
     )
 
 
-def test_held_out_frames_of_d_include_its_12_mp_variant():
+def test_held_out_frames_of_d_include_its_12_mp_and_strong_light_variants():
     options = accuracy.Options(frames=1, families=("d", "heldout"), curvature=False)
     printed: list[str] = []
     held_out = accuracy.run_heldout(options, printed.append)
-    assert set(held_out) == {"rendered (d)", "rendered (d) 4096x3000"}
+    assert set(held_out) == {
+        "rendered (d)",
+        "rendered (d) 4096x3000",
+        "rendered (d) strong light",
+    }
     assert held_out["rendered (d) 4096x3000"]["truth"] == 24
     assert "rendered (d) 4096x3000" in printed[0]
 

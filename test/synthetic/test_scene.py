@@ -33,7 +33,11 @@ from marker_localizer.synthetic import (
     render_scene,
     texture_background,
 )
-from marker_localizer.synthetic.scene import illumination_field, shadow_field
+from marker_localizer.synthetic.scene import (
+    MAX_ILLUMINATION_STRENGTH,
+    illumination_field,
+    shadow_field,
+)
 from marker_localizer.synthetic.textures import periodic_component
 
 DARK, BRIGHT = 0.1, 0.9
@@ -400,6 +404,20 @@ def test_light_fields_are_smooth_gains_in_their_documented_ranges():
     shadows = shadow_field((240, 320), 3, rng)
     assert shadows.min() >= 0.4**3 - 1e-6 and shadows.max() <= 1.0 + 1e-6
     assert shadows.min() < 0.75
+
+
+def test_the_strongest_light_spans_up_to_ten_to_one_as_the_independent_clutter_frames_do():
+    # The independent renderer's clutter frames: light 6-20 to 1 across a frame.
+    gains = [
+        illumination_field((120, 160), MAX_ILLUMINATION_STRENGTH, np.random.default_rng(seed))
+        for seed in range(8)
+    ]
+    assert min(g.min() for g in gains) >= 1.0 - MAX_ILLUMINATION_STRENGTH / 2 - 1e-6
+    assert max(g.max() for g in gains) <= 1.0 + 1e-6
+    spans = sorted(float(g.max() / g.min()) for g in gains)
+    assert spans[0] > 3.0 and spans[-1] > 9.0
+    with pytest.raises(ValueError, match="illumination_strength"):
+        SceneConfig(illumination_strength=MAX_ILLUMINATION_STRENGTH + 0.05)
 
 
 def test_uniform_light_leaves_the_scene_untouched():
