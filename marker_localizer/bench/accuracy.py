@@ -428,8 +428,8 @@ def families() -> list[Family]:
         Family(
             "d",
             "(d) cluttered 1280x960 in the independent renderer's light: (d)'s frames with "
-            "the light's gain 0.05-1 across a frame (its blurred light 4-10 to 1, the "
-            "independent clutter frames' 6-20 to 1)",
+            f"the light's gain {1.0 - MAX_ILLUMINATION_STRENGTH / 2:g}-1 across a frame (its "
+            "blurred light 4-10 to 1, the independent clutter frames' 6-20 to 1)",
             CLUTTER_RADIUS_PX,
             8,
             1,

@@ -144,7 +144,8 @@ class FlightConfig:
         full_well_e: Full-well capacity for shot noise, electrons; None: none.
         vignetting: Fraction of light lost in the frame corners.
         illumination_strength: Depth of the smooth world illumination field
-            (clouds), 0 to 1 (gain 1 - strength / 2 at its darkest).
+            (clouds), 0 to :data:`~marker_localizer.synthetic.scene.MAX_ILLUMINATION_STRENGTH`
+            (gain 1 - strength / 2 at its darkest).
         n_shadows: Soft-edged shadows on the ground (world-fixed).
         frame_gain_range: (min, max) global light gain per frame set (sun
             and exposure changes).

@@ -649,8 +649,8 @@ class ImagingConditions:
         motion_blur_px: Length of the linear motion blur, px (0: none).
         motion_blur_angle_rad: Direction of the motion, radians from +x to +y.
         illumination_strength: 0 = uniform light; s > 0 = a smooth gain field
-            (linear gradient plus random bumps) spanning 1 - s / 2 to 1.0: 0.5 to
-            1.0 at 1, 0.05 to 1.0 at :data:`MAX_ILLUMINATION_STRENGTH`.
+            (linear gradient plus random bumps) spanning 1 - s / 2 to 1.0, s at
+            most :data:`MAX_ILLUMINATION_STRENGTH`.
         n_shadows: Number of soft-edged shadow polygons (gain 0.4 to 0.7).
         vignetting: Fraction of light lost in the frame corners (0: none).
         gamma: Display gamma; the encoded signal is radiance ** (1 / gamma).
@@ -1766,8 +1766,8 @@ def render_markers(
         blur_sigma_px: Gaussian PSF sigma, px.
         motion_blur_px: Length of the linear, centred motion blur, px.
         motion_blur_angle_rad: Its direction, radians from +x towards +y.
-        illumination_strength: 0 (uniform) to 1 (gain 0.5 to 1.0), at most
-            :data:`MAX_ILLUMINATION_STRENGTH` (gain 0.05 to 1.0).
+        illumination_strength: 0 (uniform) to :data:`MAX_ILLUMINATION_STRENGTH`
+            (:func:`illumination_field`: a gain of 1 - strength / 2 to 1.0).
         n_shadows: Number of soft shadow polygons.
         cast_shadows: Hard cast shadows (:class:`CastShadow`).
         vignetting: Fraction of light lost in the frame corners.
@@ -1876,7 +1876,7 @@ class SceneConfig:
         background: ``"texture"`` or ``"flat"``.
         n_hard_negatives: Hard negatives to scatter (fewer if they do not fit).
         illumination_strength: 0 = uniform light, 1 = strong gradients/bumps (a gain
-            of 0.5 to 1), up to :data:`MAX_ILLUMINATION_STRENGTH` (0.05 to 1).
+            of 0.5 to 1), up to :data:`MAX_ILLUMINATION_STRENGTH`.
         n_shadows: Number of soft shadow polygons.
         gamma: Display gamma range (per frame).
         supersampling: S, samples per pixel along each axis.
