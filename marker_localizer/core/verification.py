@@ -8,6 +8,9 @@ concentric rings and, because the edges of an X are straight lines through the
 centre, also requires the sector boundaries to keep their angles from ring to
 ring (which rejects bars, blobs and plus signs that pass a single ring).
 :func:`double_line_check` tests (2) with OpenCV's LSD.
+
+What the constants here rest on, measured: docs/accuracy.md, "What the geometric
+checks' constants rest on".
 """
 
 from __future__ import annotations
@@ -39,8 +42,8 @@ _HALF_TURN = N_ANGLES // 2
 #: but a ring centred off the X sees them turned from it.
 _OPPOSITE_TOLERANCE_RAD = np.deg2rad(30.0)
 #: Paper's annular check: a derivative extremum is an edge from this fraction of the
-#: ring's strongest. A bright sector dulled to 0.45 of the other keeps edges of about
-#: 0.4 of the strongest; ground texture's wiggles mostly stay below a third.
+#: ring's strongest: under the edges of a dulled bright sector, over most of ground
+#: texture's wiggles.
 EDGE_FRACTION = 0.3
 #: Largest departure of an edge pair from 180 degrees: a candidate 1 px off the centre
 #: moves the crossings of a 6 px ring by ~10 degrees each.
@@ -55,33 +58,31 @@ RECENTRE_MAX_PX = 3.0
 #: ... and the largest departure from 180 degrees when the crossings are paired only to
 #: find where the lines cross (a line 1.5 px off the centre of a 3 px ring: 60 degrees).
 RECENTRE_PHASE_ERROR_RAD = np.deg2rad(60.0)
-#: Largest change of a line's angle between the rings of one run: on the renderer's
-#: families the first three rings of a marker's run agree within 6 degrees (99 %).
+#: Largest change of a line's angle between the rings of one run: over the spread of a
+#: marker's own rings.
 MAX_LINE_DRIFT_RAD = np.deg2rad(8.0)
-#: Rings of a run see at least this fraction of the candidate's best ring contrast: a
-#: marker's rings keep 0.6 of it and more (99 %, blur and tilt included). A ring under it
-#: lies on the marker's outline or past it (:func:`_past_a_dim_ring`).
+#: Rings of a run see at least this fraction of the candidate's best ring contrast,
+#: under what a marker's rings keep, blur and tilt included. A ring under it lies on
+#: the marker's outline or past it (:func:`_past_a_dim_ring`).
 RING_CONTRAST_FRACTION = 0.5
 #: The prescreen's 180-degree self-correlation threshold: lenient, the candidate may
 #: sit a fraction of its scale off the centre.
 PRESCREEN_SYMMETRY = 0.5
 #: Prescreen ring radii in units of the candidate's scale, the likeliest ring first. The
-#: outermost is 0.6, not 0.7: a level answers to markers whose major radius matches its
-#: scale, and a 60-degree tilt halves the minor one; a ring at 0.7 ran past the X of a
-#: tilted 14 px checker of family (d) (minor semi-axis 7.1 px, its candidate 1.15 px
-#: off at scale 16) onto its plate.
+#: outermost stays at 0.6: a level answers to markers whose major radius matches its
+#: scale, and a 60-degree tilt halves the minor one, so a wider ring runs past a
+#: tilted X onto its plate.
 PRESCREEN_RINGS = (0.5, 0.35, 0.6)
 #: Smallest prescreen ring radius, px. A nearest-pixel ring of 1.4 px (0.35 of the
 #: first level's 4 px scale) visits only the eight neighbours; around a candidate up to
 #: half a pixel off the centre (the level's parabolic peak) that misplaces each sector
 #: boundary by ~20 degrees and fails the four-sector test on sharp, aliased chessboard
-#: corners (two of ValidationBoof's image 38). Rings of 1.7-2.0 px keep them with the
-#: same recall elsewhere (1.75 lost two libcbdetect corners: rings this small are
-#: sensitive to the exact radius, so the floor is not set any closer).
+#: corners. Rings this small are sensitive to the exact radius, so the floor sits
+#: inside the span that keeps the real boards' corners, not at its edge.
 PRESCREEN_MIN_RING_PX = 1.8
 #: ... but never beyond this fraction of the smallest expected radius: in frames of
-#: 2.5-5 px markers (family (b)) the 1.4 px ring lies well inside the smallest marker,
-#: and raising it there let one more texture saddle through per 8 frames.
+#: tiny markers the 1.4 px ring lies well inside the smallest one, and a larger ring
+#: there lets texture saddles through.
 PRESCREEN_MIN_RING_FRACTION = 0.5
 #: Prescreen rings (of three) that must show the X: all of them. Each marker has a
 #: candidate close enough to its centre at some level for all three to pass, while
@@ -104,31 +105,25 @@ TEMPLATE_RADIUS_FRACTION = 0.6
 #: ... over a disk of at least this radius, px: a smaller one holds too few samples of
 #: each sector for the NCC to tell an X.
 TEMPLATE_MIN_RADIUS_PX = 2.5
-#: The LSD pair's line directions replace the rings' where both agree this closely. On
-#: family (a) the rings' angles err by 1.8 degrees (median) and at most 10; LSD's by
-#: 1.1 when right. 5 degrees keeps the median at 1.1 and the worst at the rings' 10.
+#: The LSD pair's line directions replace the rings' where both agree this closely:
+#: LSD's are the more precise where right, and the rings' stand where LSD is wrong.
 LINE_ANGLE_AGREEMENT_RAD = np.deg2rad(5.0)
 #: Sector levels sampled closer than this to the centre are mixed by the blur, px.
 MODULATION_MIN_OFFSET_PX = 2.5
 #: ... and from this distance on they are clear of it for any expected blur, px.
 MODULATION_FREE_OFFSET_PX = 3.0
-#: Ground texture makes saddles that pass the geometric checks up to this extent
-#: (px; at most 8.5 px on the renderer's families (b) and (d)). Below it the
-#: modulation gate applies, a detection needs the score floor of its extent from
-#: :data:`TEXTURE_SCORE_FLOORS` and, where it is also no larger than the smallest
-#: expected marker, ``min_score_small`` (:func:`minimum_score`).
+#: Ground texture makes saddles that pass the geometric checks up to this extent, px.
+#: Below it the modulation gate applies, a detection needs the score floor of its
+#: extent from :data:`TEXTURE_SCORE_FLOORS` and, where it is also no larger than the
+#: smallest expected marker, ``min_score_small`` (:func:`minimum_score`).
 TEXTURE_EXTENT_PX = 9.0
-#: (extent below, px; lowest score): texture saddles score up to 0.93 below 6 px
-#: and up to 0.87 at 6-9 px; markers of those extents score 0.92 and more on the
-#: simulated flights (where 0.88 let 1 texture point per frame through) and the
-#: renderer's families, but for 8 % of the tiny ones of family (b).
+#: (extent below, px; lowest score): each band's floor lies over what ground
+#: texture's saddles of those extents score, and under most markers of them.
 TEXTURE_SCORE_FLOORS = ((6.0, 0.92), (TEXTURE_EXTENT_PX, 0.88))
 #: Smallest extent, px, at which rings read with their bright sectors equalised
 #: (:func:`equalise_bright_sectors`) count as an X: equalised, texture saddles pass
-#: out to 6 px (on the renderer's (a) and (c) and on real aerial ground, with the
-#: ring ladder's 6 px rung); a dull marker's rings, 7.07 px and more (the ladder's
-#: next rungs at 5-30 and 6-40 px: 7.07 and 8.49). A rung lower, at 6, the false
-#: points come back (measured: docs/accuracy.md, the summary's "Uneven light (g)").
+#: out to the ring ladder's 6 px rung, and a dull marker's rings reach the next rungs
+#: (7.07 px at 5-30 px, 8.49 at 6-40 px).
 EQUALISED_MIN_EXTENT_PX = 7.0
 #: ... and a rung under it, the smallest where a candidate read again from the light
 #: slope's centre counts, if the marker's model vouches for it too (a dull quadrant
@@ -139,12 +134,10 @@ DULL_MIN_EXTENT_PX = 5.0
 #: for the ring ladder's rounding), or than :data:`SMALL_EXTENT_MAX_RADIUS_PX` where that
 #: is smaller, are small markers.
 SMALL_EXTENT_FACTOR = 1.05
-#: px: ground texture makes saddles of this extent and less that score up to 0.944
-#: (the simulated flights, ``min_score_small``), rarely larger ones. The rule follows
-#: the ground here, not the radius range: were it to follow a larger
-#: ``marker_radius_min_px``, a tighter, correct range would demand more of the same
-#: marker (on the renderer's (a) and (d), 6-40 px found 3 fewer than 4-40 px, each a
-#: tilted 6 px marker under the floor).
+#: px: ground texture makes saddles of this extent and less that score up to
+#: ``min_score_small``, rarely larger ones. The rule follows the ground here, not the
+#: radius range: were it to follow a larger ``marker_radius_min_px``, a tighter,
+#: correct range would demand more of the same marker.
 SMALL_EXTENT_MAX_RADIUS_PX = 4.0
 # Indices of each angle's neighbours and opposite on the ring: a gather along the
 # last axis costs a fraction of np.roll's slicing and concatenation, which the small
@@ -153,8 +146,8 @@ _PREVIOUS = np.roll(np.arange(N_ANGLES), 1)
 _NEXT = np.roll(np.arange(N_ANGLES), -1)
 _OPPOSITE = np.roll(np.arange(N_ANGLES), -_HALF_TURN)
 #: Row m: each sample's index counted from the half turn before sample m, as 8-bit
-#: integers (:func:`equalise_bright_sectors`: a row per ring, looked up, where a
-#: 64-bit modulo of every sample took 0.3 ms of a call on 4000 rings).
+#: integers (:func:`equalise_bright_sectors`: a row per ring, looked up rather than a
+#: 64-bit modulo of every sample).
 _TURNED_FROM = (
     (np.arange(N_ANGLES)[None, :] - np.arange(N_ANGLES)[:, None] + _HALF_TURN) % N_ANGLES
 ).astype(np.int8)
@@ -464,9 +457,7 @@ def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64
 
 #: Candidates the prescreen's cascade takes at a time (:func:`~marker_localizer.core.
 #: sampling.in_blocks`): its (candidates, 36) float32 rings are smaller than the
-#: check's, and each block pays the cascade's calls. The 20 000 candidates of an
-#: aerial_negatives frame at 3-30 px take 30 ms in blocks of 2048 or 4096, 33 in
-#: blocks of 1024, 36 at once.
+#: check's, and each block pays the cascade's calls.
 _CASCADE_BLOCK = 4096
 
 
@@ -718,14 +709,12 @@ def ring_radii(radius_range_px: tuple[float, float]) -> NDArray[np.float64]:
 
 
 #: Rings :func:`centre_symmetry_check` reads first beyond those a run may start at: the
-#: runs of ground texture's saddles end within them (96-99 % of those accepted on
-#: aerial_negatives and cirn_uas at 3-30 and 6-40 px), and only the runs still going on
+#: runs of ground texture's saddles end within them, and only the runs still going on
 #: their last are read further.
 _RINGS_READ_BEYOND_START = 2
 #: Candidates :func:`centre_symmetry_check` takes at a time (:func:`~marker_localizer.
 #: core.sampling.in_blocks`): with 512, its (candidates, 4 rings, 36) temporaries stay
-#: in a core's cache; 3200 candidates of an aerial_negatives frame at 3-30 px take
-#: 31 ms in blocks of 512 and of 256, 39 in blocks of 1024, 44 at once.
+#: in a core's cache.
 _CHECK_BLOCK = 512
 
 
@@ -2035,12 +2024,11 @@ def modulation_gate(
     are tested only when they also fall short of the expected radius, as texture
     saddles do (a small marker in a frame of small markers is not suspect). X's
     wider than texture's rings reach even equalised (:data:`EQUALISED_MIN_EXTENT_PX`)
-    are not tested: dim real boards (black level, haze) modulate as little as 0.18,
-    and so do markers of the lowest contrast the renderers draw (0.35: 0.21). Up to
-    :data:`TEXTURE_EXTENT_PX` instead, the gate lost 1 marker on the renderer's (a),
-    2 on (c), 1 on (d) and 1 on its 12 MP frames, and kept out no false point there,
-    on the independent renderer's frames, the real aerial frames or the disc
-    lattice (the flight simulator's ground, mirrored then, gave 2 in 100 frames).
+    are not tested: dim real boards (black level, haze) modulate as little as
+    markers of the lowest contrast the renderers draw, under the gate; tested up to
+    :data:`TEXTURE_EXTENT_PX` instead, the gate loses markers and keeps out no
+    false point more (docs/accuracy.md, "What the geometric checks' constants rest
+    on").
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -2070,28 +2058,21 @@ X_END_RINGS = (1.5, 1.75, 2.0)
 #: ... against the ring at this share of the extent, inside the X.
 X_END_INSIDE = 0.6
 #: Largest modulation of the X's sectors on :data:`X_END_RINGS` over that inside it
-#: (:func:`modulation_beyond_extent`) of an X that has ended: 94 % of the rendered
-#: tiny markers measure less (223 of them, radius 2.5-5 px, on the frames of ``bench
-#: accuracy``'s (b) and of seeds 200-215). Of real marker-free aerial ground's
-#: texture saddles that :func:`x_must_end` asks (1026 of them at radius 3-30 px,
-#: whatever their score), 45 % measure less: the gate takes 55 % of the texture
-#: that passes the score floors there, 0.083 false points per megapixel to 0.037.
-#: ``false_points_per_mp``'s 0.025 would need 0.37, and lose 11 % of those markers.
+#: (:func:`modulation_beyond_extent`) of an X that has ended: over nearly every tiny
+#: marker's, under half of real marker-free ground's texture saddles'.
 MAX_MODULATION_BEYOND = 0.5
 #: An X that has clearly ended, at most this (:func:`modulation_beyond_extent`), may
-#: score up to :data:`ENDED_SCORE_ALLOWANCE` under its floor: 60 % of the rendered
-#: tiny markers measure 0.15 or less, 4 % of real aerial ground's texture saddles.
+#: score up to :data:`ENDED_SCORE_ALLOWANCE` under its floor: most tiny markers end
+#: this clearly, few of ground texture's saddles.
 CLEARLY_ENDED = 0.15
 #: ... how far under, set on the benchmark's (b) frames and real aerial ground, whose
 #: false points it leaves as they were (measured: docs/method.md, "A small X must end
 #: where its extent does").
 ENDED_SCORE_ALLOWANCE = 0.02
-#: X's measured under this extent, px, are asked to end (:func:`x_must_end`): on the
-#: real aerial frames at radius 3-30 px the texture saddles that reach the score
-#: floors measure 3 and 4.24 px (the ring ladder's rungs), none wider. Wider X's are
-#: not asked: a dull quadrant or a tilt of 60 degrees leaves a marker's rings at
-#: half its radius, its X going on beyond them (rendered (g): a marker of 8.8 px
-#: measured at 5 px, its sector pattern 0.66 of the inside's beyond that).
+#: X's measured under this extent, px, are asked to end (:func:`x_must_end`): the
+#: texture saddles of real ground that reach the score floors are no wider. Wider X's
+#: are not asked: a dull quadrant or a tilt of 60 degrees leaves a marker's rings at
+#: half its radius, its X going on beyond them.
 X_END_MAX_EXTENT_PX = 4.5
 #: Samples on each of those rings: 5 degrees apart.
 _X_END_SAMPLES = 72
