@@ -15,6 +15,9 @@ not. Using the whole marker is what brings the error towards the Cramer-Rao
 bound (docs/accuracy.md, "What the Cramer-Rao bound asks of the fit"). The
 markers that fit judges to be markers are fitted once more along their two lines
 (:func:`refine_along_lines`), where the centre's information is.
+
+What the constants here rest on, measured: docs/accuracy.md, "What the fit's
+constants rest on".
 """
 
 from __future__ import annotations
@@ -45,9 +48,8 @@ from marker_localizer.core.verification import TEMPLATE_RADIUS_FRACTION
 _NCC_MIN_HALF_PX = 3
 _NCC_MAX_HALF_PX = 15
 #: Paper path: smallest NCC (Eq. 12) at the peak of the adaptive template's surface for
-#: a marker. Markers of the renderer's families and of the independent frames peak at
-#: 0.93 and more (99 %), the ground-texture saddles that pass every check before it
-#: mostly below (median 0.82-0.89).
+#: a marker: under nearly every marker's peak, over most of the ground-texture saddles
+#: that pass every check before it.
 NCC_PEAK_MIN = 0.93
 #: Ratio of the observed error to the WLS fit's sigma of the NCC extremum, measured on
 #: the renderer's families (a), (c), (d) with the paper's pipeline: the errors of the
@@ -73,9 +75,7 @@ _COARSE_TOLERANCE_PX = 0.05
 _COARSE_MIN_RADIUS_PX = 2.0
 #: Points a fit without uncertainty (the coarse centring) takes at a time
 #: (:func:`~marker_localizer.core.sampling.in_blocks`): their (points, samples)
-#: temporaries stay in a core's cache. The 3200 candidates of an aerial_negatives
-#: frame at 3-30 px are centred in 23 ms in blocks of 512, 24 in blocks of 256, 25 in
-#: blocks of 1024, 36 at once.
+#: temporaries stay in a core's cache.
 _COARSE_BLOCK = 512
 #: A candidate moves at most this share of its disk's radius, plus
 #: :data:`COARSE_SHIFT_PX`, to the centre it is fitted to: farther, the fit has found
@@ -117,23 +117,19 @@ _MIN_CONTRAST = 1e-6
 #: its blurred edges (blur sigma 0.5-1.5 px); inside a quadrant a pair of samples holds
 #: only noise, which the bilinear interpolant turns into a cost that wanders with the
 #: centre, more so the larger the marker. 2.5 px also covers the verification's line
-#: directions being a degree off (0.5 px at 30 px). Measured with 1.5, 2.5 and 4 px on
-#: the renderer's families (a), (c), (d): 2.5 and 4 px alike, 1.5 px worse.
+#: directions being a degree off (0.5 px at 30 px); a narrower band reads too few of
+#: the edges' pairs.
 LINE_BAND_PX = 2.5
 #: Samples of :func:`refine_along_lines` farther than this many :data:`LINE_BAND_PX`
-#: from both lines weigh under 5 % and are left out (a fifth of the time, no change
-#: in the error measured).
+#: from both lines weigh under 5 % and are left out.
 _LINE_BAND_REACH = 2.5
 #: Samples per point :func:`refine_along_lines` may read before its grid coarsens from
 #: half a pixel: enough for a half disk of 40 px (pi 40^2 / 2 / 0.5^2 = 10 053). A
-#: coarser grid loses a third of the precision (1 px against 0.5 px: error over the
-#: Cramer-Rao bound 3.5 against 2.4 on the renderer's family (a)).
+#: coarser grid loses a third of the precision.
 _LINE_FIT_MAX_SAMPLES = 10_100
 #: Pairs per point :func:`refine_along_lines` fits at most: those nearest the lines.
-#: The time is the pairs' (about 0.5 us per pair and iteration): a 4032 x 3024
-#: chessboard of 130 corners of extent 34 px took 175 ms more with every pair of the
-#: band, 63 ms more with 1000, 16 ms less than that again with 600 but the error on
-#: the renderer's (a), (d) rose by 10-15 %; 1000 costs 1-5 % of it.
+#: The time is the pairs' (about 0.5 us per pair and iteration): every pair of the
+#: band costs frames of many large corners a lot, and fewer pairs cost precision.
 _LINE_FIT_MAX_PAIRS = 1000
 #: Gauss-Newton iterations of :func:`refine_along_lines` at most: from the gating
 #: fit's centre it stops after 2-4.
@@ -143,29 +139,27 @@ _LINE_FIT_ITERATIONS = 10
 _LINE_FIT_MAX_SHIFT_PX = 0.5
 #: Blur of the edge steps in :func:`refine_along_lines`'s model of an X whose
 #: quadrants have levels of their own, px: the middle of the blurs met (0.5-1.5 px);
-#: the steps shape only the pairs within a blur width of a line, and 0.8-1.2 px fit a
-#: rendered X of blur 1 px alike (residual 3.4 / 1.1 / 1.4 grey levels against 66
-#: without the steps).
+#: the steps shape only the pairs within a blur width of a line, and a step blur a
+#: fifth off fits an X about as well.
 EDGE_STEP_BLUR_PX = 1.0
 #: The blurs among which :func:`_step_blur` picks the steps of the quadrants' own
 #: levels in :func:`refine_along_lines`, px: across the optics' 0.5-1.5 px met.
 EDGE_STEP_BLURS_PX = (0.6, 0.8, 1.0, 1.2, 1.5)
 #: The score statistic (chi-square, 2 degrees of freedom) from which
 #: :func:`refine_along_lines` fits the quadrants' own levels. On markers whose
-#: quadrants match it follows the noise (median 2-3) but for model errors the noise
-#: does not make (JPEG, the blur's shape): at most 80 on the 322 markers found of the
-#: renderer's families (a), (c) and (d), where 14 of the 18 found of (g), whose
-#: every marker has a dull quadrant, score 200-2800 (median 580). Above the
-#: markers' largest, because the levels of a marker that does not need them cost it
-#: precision (measured: docs/accuracy.md, "Figures the fit's and the detector's
-#: docstrings carried").
+#: quadrants match it follows the noise but for model errors the noise does not make
+#: (JPEG, the blur's shape), and stays far under what a dull quadrant gives. Above
+#: the even-paint markers' largest, because the levels of a marker that does not need
+#: them cost it precision (measured: docs/accuracy.md, "Figures the fit's and the
+#: detector's docstrings carried").
 EDGE_STEP_MIN_CHI2 = 100.0
 #: The same statistic from which :func:`refine_along_lines` fits the quadrants' own
 #: levels: lower than the gating's :data:`EDGE_STEP_MIN_CHI2`, since with the lines'
 #: directions measured afresh (:func:`_edge_directions`) the levels cost a marker
-#: of even paint nothing measured down to 45, and markers a shadow edge crosses
-#: score 10-140 while the symmetric fit leaves them 0.1-0.6 px off (measured:
-#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried").
+#: of even paint nothing measured down to it, and markers a shadow edge crosses,
+#: which the symmetric fit leaves tenths of a pixel off, score about as low
+#: (measured: docs/accuracy.md, "Figures the fit's and the detector's docstrings
+#: carried").
 LEVELS_REFIT_MIN_CHI2 = 45.0
 #: The same statistic from which :func:`refine_along_lines` fits the quadrants' own
 #: levels under :data:`LEVELS_REFIT_MIN_CHI2` too, and moves the symmetric fit's
@@ -210,51 +204,43 @@ INSIDE_LINE_DISTANCE_PX = 3.0
 #: spacing, fixes the slope).
 _INSIDE_MAX_SAMPLES = 2000
 #: Farther than this from the gating fit's centre, px, a fit with the quadrants' own
-#: levels has slipped: the gating fit is point-symmetric in grey levels, and a bright
-#: quadrant 0.45 as bright as its opposite pulls it 0.3-0.6 px (rendered, tilt 20 deg).
+#: levels has slipped: the gating fit is point-symmetric in grey levels, and a dull
+#: bright quadrant pulls it by less than this.
 EDGE_STEP_MAX_SHIFT_PX = 1.0
 #: Largest RMS residual, as a share of the contrast, that the gating fit may leave
 #: with the quadrants' own levels for those levels to judge a candidate
 #: (:func:`locate_markers`): an X whose quadrants differ must then be as clean as
-#: one of even paint. The even-paint markers found on the renderer's families (a),
-#: (c) and (d) leave at most 0.071 without them (0.061 for 99 of 100; 321 markers);
-#: the gaps between look-alike discs of unequal brightness, whose edges curve,
-#: keep 0.083-0.099 with them.
+#: one of even paint, and the gaps between look-alike discs of unequal brightness,
+#: whose edges curve, are not.
 LEVELLED_MAX_RESIDUAL = 0.07
 #: :func:`_edge_directions` reads each line's gradient energy within this angle of
-#: it, radians: wide enough for the ring check's directions, 2-4 degrees off on
-#: rendered markers (up to 7.5 on a dull tilted one), narrow enough to leave the other
-#: line out. 8 and 15 degrees measured alike on rendered (g).
+#: it, radians: wide enough for the ring check's directions, a few degrees off, more
+#: on a dull tilted X; narrow enough to leave the other line out.
 _DIRECTION_WEDGE_RAD = float(np.radians(15.0))
 #: ... beyond this distance from the centre, px: nearer, the two lines' blurred
 #: edges overlap (blur sigma up to 1.5 px).
 _DIRECTION_INNER_PX = 2.0
-#: ... in this many passes, each centring the wedges on the last directions (a
-#: third and fourth pass changed nothing measured).
+#: ... in this many passes, each centring the wedges on the last directions.
 _DIRECTION_ITERATIONS = 2
 #: :func:`refine_along_lines` measures the lines' directions from the edges, before
 #: anything else, on X's of this extent and more, px, and only these X's are located
 #: by their model (:func:`uneven.locate_uneven`, with a cast shadow's edge tried;
-#: :func:`locate_in_shadow`). The ring check's directions are
-#: 1.9-3.1 degrees off (median; 5-8 at the 90th percentile) on the renderer's (a),
-#: (c), (d) and (g), the edges' 0.6-0.9 (2.5-4.2); off, the lines' band holds the
-#: wrong pairs, and the quadrants' levels' statistic (:data:`LEVELS_REFIT_MIN_CHI2`)
-#: does not see a dull quadrant or a shadow (0.8 on a shadowed X of 18 px whose
-#: levels, on its true lines, score 57). On the tiny markers of (b), 2.5-5 px, the
-#: edges' directions are worse than the rings' (median 4.1 degrees against 3.3) and
-#: their model takes shadows' edges where there are none. Under it the model reads
-#: its tone curve and wedges on too few pixels. Measured: docs/accuracy.md, "The
+#: :func:`locate_in_shadow`). The edges' directions are the more precise there; off,
+#: the lines' band holds the wrong pairs, and the quadrants' levels' statistic
+#: (:data:`LEVELS_REFIT_MIN_CHI2`) does not see a dull quadrant or a shadow. On tiny
+#: markers the edges' directions are worse than the rings' and their model takes
+#: shadows' edges where there are none. Under it the model reads its tone curve and
+#: wedges on too few pixels. Measured: docs/accuracy.md, "The
 #: lines measured from the edges, and the shadow's edge tried in the model" and "The
 #: model wherever it converges on a marker found in a shadow, and never under 6 px".
 MEASURED_MIN_EXTENT_PX = 6.0
 #: ... there the gradient is read on a grid of this step, px: at half a pixel, as
-#: the quadrants' levels' fit reads it (:func:`_levels_fit`), the final fit takes
-#: 6-10 ms more on each of the speed benchmark's frames, at a whole pixel 2-4 ms.
+#: the quadrants' levels' fit reads it (:func:`_levels_fit`), it costs the final fit
+#: several times more.
 _MEASURED_DIRECTION_STEP_PX = 1.0
 #: Ratio of the observed error of :func:`refine_along_lines` to its covariance's
-#: prediction, measured like :data:`SIGMA_CALIBRATION`: with it 95.7 % of the errors
-#: on family (a) (96-98 % on (b), (c), (d) and the independent renderer's) fall
-#: within 2 sigma.
+#: prediction, measured like :data:`SIGMA_CALIBRATION`: with it some 95 % of the
+#: errors fall within 2 sigma.
 LINE_FIT_SIGMA_CALIBRATION = 2.0
 
 
