@@ -53,16 +53,13 @@ from marker_localizer.core.sampling import Normaliser
 #: (:meth:`MarkerModel.shadow_crosses`).
 MAX_TEMPLATE_MISFIT = 0.08
 #: Lowest recurrence (:func:`verification.disk_recurrence`) of a lattice's saddle: its
-#: disk found again on both sides of it. A marker's ground does not repeat its X: the
-#: 1 161 markers the default finds on development frames of the renderer's (a), (b),
-#: (c), (d) and (g) read 0.45 (median), 0.66 (99th percentile), 0.70 at most; the
-#: rendered disc lattice's 2 992 false points 0.84 (median), 87 % of them 0.75 or
-#: more (docs/accuracy.md, "A marker stands alone").
+#: disk found again on both sides of it. A marker's ground does not repeat its X, and
+#: a lattice's saddles mostly read over this (docs/accuracy.md, "A marker stands
+#: alone").
 MIN_LATTICE_RECURRENCE = 0.75
 #: Smallest continuation (:func:`verification.line_continuation`) of a chessboard
-#: corner's lines beyond its extent, which a lattice's saddle does not reach: the
-#: real boards' 1 615 corners the default finds (ValidationBoof, libcbdetect, pycbd)
-#: read 0.59 and more, the disc lattice's false points that recur 0.14 at most.
+#: corner's lines beyond its extent, which a lattice's saddle does not reach: between
+#: what real boards' corners read and what a disc lattice's saddles do.
 MIN_BOARD_CONTINUATION = 0.3
 #: A detection that clears its score floor by less than this must show its plate
 #: (:meth:`MarkerModel.plate_not_worse`), unless it is a tiny X the tiny markers' plate
@@ -71,10 +68,9 @@ MIN_BOARD_CONTINUATION = 0.3
 PLATE_DOUBT_MARGIN = 0.03
 #: Most of the best quartic's residual the plate model may leave on such a detection
 #: (:func:`plate.plate_evidence` at its extent or a rung out, the better of the two).
-#: Near their floors, markers leave at most 0.7 on the development frames unless a cast
-#: shadow's edge crosses them (the model leaves shadows out); texture's false points
-#: leave 0.87-1.07, all but one. Measured: docs/accuracy.md, "A plate that leaves
-#: most of a quartic's residual near the floor".
+#: Near their floors, markers leave less unless a cast shadow's edge crosses them (the
+#: model leaves shadows out), texture's false points more. Measured: docs/accuracy.md,
+#: "A plate that leaves most of a quartic's residual near the floor".
 PLATE_DOUBT_MAX_TO_QUARTIC = 0.8
 #: Every other detection under this extent, px, shows a plate no worse than a quartic
 #: (:data:`plate.MAX_TO_QUARTIC_ANY`), as the tiny markers' plate reading asks of
@@ -91,11 +87,8 @@ BOARD_NEIGHBOUR_EXTENTS = 4.0
 #: Detections whose plate one :meth:`MarkerModel.judge` reads at most (1-1.5 ms each,
 #: up to four windows), spread over the frame's cells, those that clear their floor
 #: by most first; the rest are rejected unread and counted (:attr:`Judgement.unread`).
-#: Frames ask 0-15 (real aerial ground, cirn_uas and boards 0-4; the flight simulator
-#: and the rendered families up to 15), real sand seen from half the height up to 80
-#: a 32 MP frame; a frame tiled with X's, thinned by the detector's caps so that no
-#: corner has a neighbour near, asks 760-790 (docs/speed.md, "The plate asked of a
-#: frame tiled with X's").
+#: Above what real and rendered frames ask, under what a frame tiled with X's does
+#: (docs/speed.md, "The plate asked of a frame tiled with X's").
 MAX_PLATE_ASKED = 128
 #: A candidate of texture's size whose paint the modulation gate, or whose fitted
 #: score its floor, does not vouch for (:meth:`MarkerModel.vouches`) must match

@@ -37,19 +37,14 @@ from marker_localizer.core.screening import Candidates
 #: The most prescreened candidates of a frame that go on to the centring, verification
 #: and fit (0.25-0.5 ms each on one core), spread over the frame as Eq. (7) spreads
 #: them: a safety net above every real frame measured, which bounds pathological ones
-#: (a 12 MP tiling of X's, whose 20 000 candidates all pass the prescreen, took 12.6 s).
-#: The busiest real ground, aerial_negatives' sand (8 MP), leaves up to 3193, 4216 and
-#: 2354 at radius 3-30, 4-40 and 6-40 px; libcbdetect's e5 1571 for its 503 corners.
-#: A cap of 2000 lost one of 233 markers planted on aerial_negatives and cirn_uas.
+#: (a 12 MP tiling of X's, whose candidates all pass the prescreen).
 MAX_VERIFIED = 5000
 #: The most candidates of a frame that pass the ring checks, the template NCC, the
 #: modulation gate and their score floor and go on to the double-line check and the fit
 #: (0.3-0.5 ms each on one core); the template is matched cell by cell, the best ring
 #: symmetry first, only until this many have passed (:meth:`SymmetryPath._match_templates`).
-#: Real ground never reaches it: at most 531 passed on the 50 real board images
-#: (libcbdetect's e5, 503 corners), the rendered families, the independent frames,
-#: cirn_uas and aerial_negatives (up to 266 on sand at radius 2-30 px); a 12 MP tiling
-#: of X's passes all 5000 of the prescreen's cap (2.5 s per frame without this cap).
+#: Real ground never reaches it; a 12 MP tiling of X's passes all of the prescreen's
+#: cap.
 MAX_CONFIRMED = 800
 #: Fewest candidates matched at once while the cap is not reached: fewer calls.
 _MIN_TEMPLATE_BATCH = 256
