@@ -32,7 +32,8 @@ and along its lines it measures up to twice that, beyond the tiny markers'
 radii. Where the tiny model comes near (its coarse search leaves room for the full
 one) and does not explain such an X, its plate is read a rung out at the X's
 scale (:func:`explains_at`), as the wider X's are. Measured: docs/accuracy.md,
-"A small tilted X's plate read a rung out".
+"A small tilted X's plate read a rung out". What the constants here rest on:
+docs/accuracy.md, "What the plate reading's constants and the paths' caps rest on".
 """
 
 from __future__ import annotations
@@ -68,9 +69,8 @@ MODEL_EXTENT_PX = 3.5
 COARSE_RADII_PX = (2.25, 3.75, 5.25)
 COARSE_BLURS_PX = (0.8, 1.4)
 #: Most the coarse search may leave of the quadratic's residual for the full search to
-#: run. Every development candidate the full search explains leaves 0.4 or less
-#: (0.3 loses 7 of 163); 17-24 % of the tiny markers' frames' saddles, 28 % of real
-#: aerial ground's, leave as little.
+#: run: over what the candidates the full search explains leave, under what most
+#: saddles of texture do.
 COARSE_MAX_TO_QUADRATIC = 0.4
 #: Most pixels a window is read at. A larger window (an X wider than 6 px: its
 #: plate reaches 12 px and more) is read on a grid of every k-th pixel, the least k
@@ -82,12 +82,10 @@ MAX_WINDOW_PIXELS = 480
 #: the plate's corners lie at 1.77 radii, and a marker's extent reads up to a rung
 #: (sqrt 2) short of its radius.
 WINDOW_EXTENTS = 2.0
-#: Most the plate model may leave of what the best quadratic surface leaves. On the
-#: candidates of the development frames: markers the default finds 0.03-0.17 (10-90
-#: %), those it rejects 0.06-0.26, texture saddles 0.40-0.67.
+#: Most the plate model may leave of what the best quadratic surface leaves: over
+#: what most tiny markers leave, well under texture saddles.
 MAX_TO_QUADRATIC = 0.2
-#: ... and of what the best quartic leaves: markers the default finds 0.07-0.33,
-#: those it rejects 0.16-0.78, texture 0.95-2.25 (a quartic bends with the ground).
+#: ... and of what the best quartic leaves (a quartic bends with the ground).
 MAX_TO_QUARTIC = 0.6
 #: Most of the quartic's residual the plate model may leave on any detection of
 #: texture's size, whatever found it: the plate model holds the marker, a smooth
@@ -96,14 +94,12 @@ MAX_TO_QUARTIC = 0.6
 #: (1.5-2.0).
 MAX_TO_QUARTIC_ANY = 1.0
 #: Least ratio of the weaker to the stronger curvature at the centre, of opposite
-#: signs: an X's centre is a saddle. Markers the plate model keeps: 0.14 and more
-#: (0.28 at the 10th percentile); the texture and look-alike blobs it would keep:
-#: -0.15-0.1 but for three.
+#: signs: an X's centre is a saddle, and the blobs of texture and look-alikes the
+#: plate model would keep are not.
 MIN_SADDLE = 0.2
 #: Tiny X's whose plate :func:`read_plates` reads per frame at most (1-2 ms each), the
 #: strongest ring symmetry first, spread over the frame as Eq. (7)'s thinning spreads
-#: them: real aerial ground at 3-30 px leaves 60-200 a frame that the centre's saddle
-#: passes, the rendered tiny markers' frames 10-60.
+#: them: over what a frame of tiny markers offers, under what real ground does.
 MAX_PLATE_READ = 64
 #: Radius of the disk whose quadratic surface gives the centre's curvatures, px.
 _SADDLE_DISK_PX = 2.0

@@ -53,11 +53,8 @@ _LINE_WINDOW_MIN_PX = 3.0
 #: (:func:`template_fit.fit_growing_template`: 3-10 ms each on one core, where texture
 #: stops at the first disk for about 0.2 ms). Over it, those whose weakest edge
 #: stands out least are cut, spread over the frame as Eq. (7)'s thinning spreads
-#: them (:class:`_CappedGrowth`), and counted. Twice what real ground grows: at
-#: most 2 480 on a real aerial frame (sand, 8 MP) and 1 187 on libcbdetect's e5
-#: (its 501 corners found) at radius 4-40 px; 1 578 and 1 089 at 3-30 px. A frame
-#: tiled with X's grows every one without it: 3 648 on a 640 x 480 chessboard of
-#: 12 px squares took 38 s.
+#: them (:class:`_CappedGrowth`), and counted. Twice what real ground grows; a frame
+#: tiled with X's grows every one without it.
 MAX_GROWN = 5000
 
 
