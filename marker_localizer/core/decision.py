@@ -45,9 +45,8 @@ MODEL_MISMATCH = 0.05
 #: blur give under 2; soft texture saddles fit as wider.
 MAX_BLUR_PX = 2.5
 #: The shorter half of either line must reach at least this share of the longer: an X
-#: seen under an affine view has equal halves; perspective, blur and the measurement
-#: leave 98 % of the rendered markers above 0.8, while a texture saddle's edges end
-#: where they please.
+#: seen under an affine view has equal halves, nearly so under perspective, blur and
+#: the measurement, while a texture saddle's edges end where they please.
 MIN_EXTENT_BALANCE = 0.75
 #: The weakest edge's step must be at least this share of the strongest: a bright
 #: quadrant 0.45 as bright as the other, in a shadow 65 % deep, still gives 0.15;

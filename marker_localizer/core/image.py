@@ -32,13 +32,9 @@ MAX_ABOVE_WHITE_SHARE = 0.5
 SHALLOW_PEAK_TEXT = f"1/{round(1.0 / SHALLOW_PEAK_SHARE)}"
 #: A frame whose brightest level stays under this share of white is underexposed for
 #: its markers: their white paint is the brightest thing a frame exposed for them
-#: holds. Family (a) rendered with its white at lower levels, the sensor's noise as it
-#: is, finds 276, 275, 268, 259, 249 and 152 of 288 markers where its frames'
-#: brightest level is 0.73, 0.54, 0.45, 0.38, 0.34 and 0.20 of white (medians). Most
-#: of that is the noise, which only the camera's exposure or gain brings back: a
-#: digital gain before the detector (its grey-level floors as if they followed the
-#: exposure) finds 178 at 0.20, and lowering ``min_contrast_dn`` finds fewer
-#: (docs/accuracy.md, "Underexposed frames").
+#: holds. Under it the detector loses markers, most of them to the noise, which only
+#: the camera's exposure or gain brings back (docs/accuracy.md, "Underexposed
+#: frames").
 DIM_PEAK_SHARE = 1.0 / 2.0
 #: :data:`DIM_PEAK_SHARE` as the warnings write it.
 DIM_PEAK_TEXT = f"1/{round(1.0 / DIM_PEAK_SHARE)}"

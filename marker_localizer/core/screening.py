@@ -304,11 +304,10 @@ def _local_maxima(
 #: fresh pages on every pass. 64-128 rows screen 8 MP real frames fastest.
 _STRIP_ROWS = 64
 #: Fewest pixels of a strip, 64 rows of 512 px: each strip pays a few dozen calls
-#: (~0.1 ms), which a narrow image's strips of 64 rows do not outweigh. A tracked
-#: frame's side band, 33 px wide at half resolution, took 36 such strips, and the
-#: bands' screening 5.6 ms a frame, 3.5 in one strip a level. Wider images keep their
-#: 64 rows: the strips a level's strongest peaks are first sought in
-#: (:func:`saddle_peaks`) are then those of the full-frame passes measured.
+#: (~0.1 ms), which a narrow image's strips of 64 rows do not outweigh (a tracked
+#: frame's side bands). Wider images keep their 64 rows: the strips a level's
+#: strongest peaks are first sought in (:func:`saddle_peaks`) are then those of the
+#: full-frame passes measured.
 _STRIP_MIN_PIXELS = 64 * 512
 #: Rows beyond a strip that its response and maxima read: the maxima compare with one
 #: row of response either side, which the 5x5 kernels compute from two more.

@@ -56,10 +56,9 @@ _STEP_READ_PX = 1.5
 #: ... at this many points along it, within the reach.
 _STEP_SAMPLES = 41
 #: Least share of the pairs' variance, the quadrants' own levels taken out, that
-#: the edge must explain. Shadowed markers the default misses on the renderer's
-#: (g) explain 0.6-0.9; texture's asymmetry often fits a half-plane about as well,
-#: hence the depth and the step after this one. This and the two after were set
-#: on (g)'s seeds 100-123 and checked on its held-out seeds and on real ground.
+#: the edge must explain: under what a shadowed marker's edge explains; texture's
+#: asymmetry often fits a half-plane about as well, hence the depth and the step
+#: after this one.
 MIN_EXPLAINED = 0.5
 #: Deepest shadow the fit allows, log of the raw levels: 95 % of the light taken, a
 #: marker's white under it as dark as its black in the open.

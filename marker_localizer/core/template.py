@@ -24,10 +24,8 @@ from marker_localizer.core.sampling import Normaliser, bilinear, nan_median, pad
 
 _SUPERSAMPLING = 4  # template pixels are area-integrated from 4x4 sub-samples
 #: Paper path: annular score a template NCC above its minimum is worth, per unit of
-#: NCC. Markers reach template NCCs of 0.95-1.00 with annular scores of 0.65-0.95;
-#: ground-texture saddles that pass the annular check (extents of 4-12 px) reach
-#: 0.95-0.98 with scores of 0.7-0.9: neither alone separates them, and trading 0.01
-#: of NCC for 0.08 of score does best on the renderer's families (a), (c), (d).
+#: NCC: markers and the ground-texture saddles that pass the annular check overlap in
+#: either alone, and together this trade parts them best.
 NCC_EVIDENCE_WEIGHT = 8.0
 
 

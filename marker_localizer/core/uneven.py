@@ -71,14 +71,12 @@ MAX_SHIFT_PX = 1.0
 #: A fit that leaves more than this many times the RMS residual per pixel that the
 #: quadrants' levels' fit leaves at the same X (``reference_rms``,
 #: :func:`~marker_localizer.core.subpixel.refine_along_lines`) models something else
-#: than one X: a chessboard corner, whose disk takes in the next squares (the
-#: renderer's (e) boards' corners the model was asked about leave 11-12x, and are
-#: located worse than by point symmetry), or clutter. Markers leave 0.5-2.6x, their
-#: frames written as JPEG or not (seeds 100-123 of (a), (c), (d), (g); a tiny one of
-#: (b) 3.5x, its model not wanted there). Against the sensor's noise instead, JPEG's
-#: error along the edges, which the noise measured on smooth ground does not hold,
-#: made (g)'s markers on JPEG frames leave 3-7x, their model never taken. 4: the
-#: geometric middle of the two kinds.
+#: than one X: a chessboard corner, whose disk takes in the next squares and is
+#: located worse by the model than by point symmetry, or clutter. Markers leave a few
+#: times less, their frames written as JPEG or not; the limit is the geometric middle
+#: of the two kinds. It is read against the levels' fit, not the sensor's noise:
+#: JPEG's error along the edges, which the noise measured on smooth ground does not
+#: hold, would keep JPEG frames' markers from their model.
 MAX_MISFIT_RATIO = 4.0
 #: A cast shadow's edge has a penumbra of a few tenths of a pixel (the renderers'
 #: 1 px from 10 to 90 %): it starts here, px, and is fitted.
