@@ -42,9 +42,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import ndtr
 
 from marker_localizer.core import screening, verification
+from marker_localizer.core.normal import tabulated_cdf
 from marker_localizer.core.sampling import pixels_at_offsets, square_offsets
 
 #: Half-side of the square plate that carries a marker, in marker radii: 1.25 on the
@@ -231,8 +231,8 @@ def _plate_residual(
     g = gain[:, None, None, :, :]
     side_a = PLATE_HALF_SIDE * r1
     side_b = PLATE_HALF_SIDE * r2
-    plate = (ndtr((a + side_a) * g) - ndtr((a - side_a) * g)) * (
-        ndtr((b + side_b) * g) - ndtr((b - side_b) * g)
+    plate = (tabulated_cdf((a + side_a) * g) - tabulated_cdf((a - side_a) * g)) * (
+        tabulated_cdf((b + side_b) * g) - tabulated_cdf((b - side_b) * g)
     )
     # The ellipse's signed distance depends on the radii alone: once per (r1, r2).
     u, v = a[..., 0, :] / r1[..., 0, :], b[..., 0, :] / r2[..., 0, :]
@@ -244,8 +244,8 @@ def _plate_residual(
     # At the very centre rho's gradient vanishes (a cone's tip): deep inside, the edge far.
     slope = np.hypot(s1 * d_alpha - s0 * d_beta, c0 * d_beta - c1 * d_alpha)
     distance = (1.0 - rho) / np.maximum(slope, np.float32(1e-6))
-    disk = ndtr(distance[..., None, :] / spread[None, None, None, :, None])
-    step_a, step_b = ndtr(a * g), ndtr(b * g)
+    disk = tabulated_cdf(distance[..., None, :] / spread[None, None, None, :, None])
+    step_a, step_b = tabulated_cdf(a * g), tabulated_cdf(b * g)
     # Least squares on the columns ground, ground x, ground y, plate, paint (and each
     # other quarter disk): the Gram matrix entry by entry (the first four are the same
     # for both quadrant pairs).

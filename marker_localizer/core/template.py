@@ -20,6 +20,7 @@ from scipy.special import erf
 
 from marker_localizer.core.image import clipped
 from marker_localizer.core.noise import NoiseModel
+from marker_localizer.core.normal import tabulated_erf
 from marker_localizer.core.sampling import Normaliser, bilinear, nan_median, pad_patterns
 
 _SUPERSAMPLING = 4  # template pixels are area-integrated from 4x4 sub-samples
@@ -451,7 +452,7 @@ def blurred_x(
     """
     width = np.sqrt(np.square(blur_px) + PIXEL_VARIANCE_PX2)
     h, k = s1 / width, s2 / width
-    product: NDArray[np.float64] = erf(h / np.sqrt(2.0)) * erf(k / np.sqrt(2.0))
+    product: NDArray[np.float64] = tabulated_erf(h / np.sqrt(2.0)) * tabulated_erf(k / np.sqrt(2.0))
     span = np.arcsin(np.clip(np.broadcast_to(crossing_cos, np.shape(h)[:-1] + (1,)), -1.0, 1.0))
     # The nodes first, so that every pass runs along the samples; in float32, whose
     # exponential costs half as much: the term keeps 4e-8 of the contrast.
@@ -476,7 +477,7 @@ def edge_step(
         blur_px: the optics' blur sigma, px (or one per point, broadcast with the distances).
     """
     scale = 1.0 / np.sqrt(2.0 * (blur_px**2 + PIXEL_VARIANCE_PX2))
-    step: NDArray[np.float64] = erf(distance_px * scale)
+    step: NDArray[np.float64] = tabulated_erf(distance_px * scale)
     return step
 
 
