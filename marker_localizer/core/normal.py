@@ -5,7 +5,7 @@ square, the quarter disks' arc, the X's two lines, a cast shadow's edge. SciPy's
 ``ndtr`` and ``erf`` evaluate it to double precision at about 13 ns a value, a
 tenth of a 12 MP frame's detection on the models' grids of shapes and blurs. A
 table of the function every :data:`STEPS_PER_UNIT`-th of a unit, read by linear
-interpolation, gives it to within :data:`MAX_ERROR` in 40-60 % of that time,
+interpolation, gives it to within :data:`MAX_ERROR` in 55-70 % of that time,
 far under the noise the models are compared with (a thousandth of the contrast
 and more) and under float32's own rounding of values near 1.
 
