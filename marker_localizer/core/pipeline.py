@@ -42,7 +42,9 @@ class Detector:
     """Diagonal-marker detector; build once, call :meth:`detect` per frame.
 
     A detector keeps nothing from one call to the next: threads may share one (the
-    node's worker threads do), each call giving what it gives alone: what its stages
+    node's worker threads do), each call giving what it gives alone (to the last bit
+    but where a multithreaded BLAS, called from several threads at once, sums in
+    another order): what its stages
     cache across calls is sample grids by radius, which no call changes. It
     pickles, so worker processes can take it
     (``ProcessPoolExecutor().map(detector.detect, images)``, with the fork, spawn or
