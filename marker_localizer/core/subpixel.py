@@ -31,7 +31,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
-from marker_localizer.core import shadow, template, uneven, verification
+from marker_localizer.core import shadow, template, uneven
 from marker_localizer.core.image import clipped
 from marker_localizer.core.noise import grey_step
 from marker_localizer.core.sampling import (
@@ -40,6 +40,7 @@ from marker_localizer.core.sampling import (
     in_blocks,
     pad_patterns,
 )
+from marker_localizer.core.verification import TEMPLATE_RADIUS_FRACTION
 
 #: Template half-size of :func:`ncc_refine`, px: the marker's radius, at least 3 (a
 #: 7 x 7 template still holds the four sectors of a 3 px marker) and at most 15 (the
@@ -212,12 +213,6 @@ EDGE_STEP_MAX_SHIFT_PX = 1.0
 #: one of even paint, and the gaps between look-alike discs of unequal brightness,
 #: whose edges curve, are not.
 LEVELLED_MAX_RESIDUAL = 0.07
-#: From this levels' statistic (the chi-square's 0.1 % point, where chance alone
-#: passes once in a thousand) up to :data:`EDGE_STEP_MIN_CHI2`, the quadrants' own
-#: levels judge a candidate in :func:`locate_markers` where its edges are two straight
-#: lines through its centre (:func:`verification.radial_junction`): a dull quadrant's
-#: statistic there can be chance or texture, the geometry of its edges not.
-JUNCTION_MIN_CHI2 = 13.8
 #: :func:`_edge_directions` reads each line's gradient energy within this angle of
 #: it, radians: wide enough for the ring check's directions, a few degrees off, more
 #: on a dull tilted X; narrow enough to leave the other line out.
@@ -429,7 +424,7 @@ def ncc_refine(
 
     Per marker: the grey levels of its sector pairs from 3x3 windows on the
     bisectors (:func:`template.sample_grey_levels`, ``offset_px`` from the centre or
-    :data:`verification.TEMPLATE_RADIUS_FRACTION` of the radius if less), the defocus sigma_b
+    :data:`TEMPLATE_RADIUS_FRACTION` of the radius if less), the defocus sigma_b
     from the steepest gradient in the window (:func:`template.estimate_defocus_sigma`),
     the X template with the
     line angles phi1, phi2 (Eq. 10's two polarities, the closer in L1 kept), then
@@ -483,7 +478,7 @@ def ncc_refine(
             image,
             c.astype(np.float64),
             line_angles[group],
-            np.minimum(offset_px, verification.TEMPLATE_RADIUS_FRACTION * radius_px[group]),
+            np.minimum(offset_px, TEMPLATE_RADIUS_FRACTION * radius_px[group]),
         )
         peak_gradient = gradient[rows, cols].reshape(len(group), -1).max(axis=1)
         sigma_b = template.estimate_defocus_sigma(peak_gradient, levels.positive - levels.negative)
@@ -1569,10 +1564,8 @@ def locate_markers(
     quadrants' levels differ (a dull bright quadrant, a shadow edge) the grey levels
     are not point-symmetric and that residual holds the difference; where the
     score statistic of the quadrants' own levels passes :data:`EDGE_STEP_MIN_CHI2`
-    (or :data:`JUNCTION_MIN_CHI2` where the X's edges are two straight lines through
-    its centre, :func:`verification.radial_junction`) and they leave an X as clean as
-    even paint (:data:`LEVELLED_MAX_RESIDUAL`), the residual they leave gates and
-    scores it instead. The position stays the
+    and they leave an X as clean as even paint (:data:`LEVELLED_MAX_RESIDUAL`),
+    the residual they leave gates and scores it instead. The position stays the
     symmetric fit's (:func:`refine_along_lines` moves it). With
     ``ncc_offset_px`` the reported position is the paper's NCC extremum
     (:func:`ncc_refine`), and its distance from the symmetry centre is added to
@@ -1614,10 +1607,9 @@ def locate_markers(
         discrepancy = np.where(located, np.sum((position - fit.xy) ** 2, axis=1), 0.0)
     sigma = calibrated_sigma(fit.covariance, discrepancy)
     contrast = np.maximum(fit.contrast, _MIN_CONTRAST)
-    clean = fit.levelled_residual <= LEVELLED_MAX_RESIDUAL * contrast
-    levelled = clean & (fit.step_chi2 > EDGE_STEP_MIN_CHI2)
-    asked = np.flatnonzero(clean & ~levelled & (fit.step_chi2 > JUNCTION_MIN_CHI2))
-    levelled[asked] = verification.radial_junction(image, fit.xy[asked], radius_px[asked])
+    levelled = (fit.step_chi2 > EDGE_STEP_MIN_CHI2) & (
+        fit.levelled_residual <= LEVELLED_MAX_RESIDUAL * contrast
+    )
     relative_residual = np.where(levelled, fit.levelled_residual, fit.residual) / contrast
     score = evidence * np.clip(1.0 - relative_residual, 0.0, 1.0)
     faint = fit.contrast < min_contrast

@@ -26,14 +26,7 @@ from numpy.typing import NDArray
 
 from marker_localizer.core import template
 from marker_localizer.core.image import clipped
-from marker_localizer.core.sampling import (
-    Normaliser,
-    bilinear,
-    in_blocks,
-    nan_median,
-    pixels_at_offsets,
-    square_offsets,
-)
+from marker_localizer.core.sampling import Normaliser, bilinear, in_blocks, nan_median
 from marker_localizer.core.screening import Candidates, level_scale, parabolic_offset
 
 N_ANGLES = 36  # the paper's 10-degree sampling of the annulus
@@ -1295,117 +1288,6 @@ def _edge_rings(
     return analyse_ring_edges(
         profiles, min_contrast=min_contrast, max_phase_error_rad=max_phase_error_rad
     )
-
-
-#: :func:`radial_junction` reads an X's edges over this share of its extent: inside
-#: the X, short of the plate's edges, which do not run through the centre.
-JUNCTION_WINDOW_EXTENTS = 0.9
-#: ... from this share of that window outwards: nearer the centre the two lines'
-#: blurred edges merge, and a pixel's ray from the centre is a pixel or two long.
-JUNCTION_INNER_SHARE = 0.25
-#: ... and over no less than this window, px.
-JUNCTION_MIN_WINDOW_PX = 3.0
-#: Most of the gradients' energy along the rays from the centre that an X's window
-#: may hold: edges through the centre hold none but what the blur, the pixels and
-#: the noise put there (the markers (g)'s development frames find: median 0.10);
-#: texture holds about a half, and its junctions reach down to this at their 5th
-#: percentile (docs/accuracy.md, "(g)'s large markers, and a junction read from the
-#: gradients' directions").
-JUNCTION_MAX_RADIAL_SHARE = 0.15
-#: A direction's tangential step counts as an edge from this share of the strongest.
-JUNCTION_MIN_PEAK_SHARE = 0.25
-#: Opposite half-lines of one straight line lie within this many angle bins of half a
-#: turn apart (2 x 10 degrees: a blurred edge's peak and the bins' width).
-JUNCTION_OPPOSITE_BINS = 2
-
-
-def radial_junction(
-    image: NDArray[Any], xy: NDArray[np.float64], extent_px: NDArray[np.float64]
-) -> NDArray[np.bool_]:
-    """(N,) where an X's edges are two straight lines through its centre, whatever its levels.
-
-    A dull quadrant or a shadow over two of them changes the steps across an X's
-    edges, not where the edges run: along rays from the centre, so that every
-    edge pixel's gradient is normal to its ray (the lines through the pixels along
-    their edges cross at the centre, Forstner's junction). Over the annulus from
-    :data:`JUNCTION_INNER_SHARE` to :data:`JUNCTION_WINDOW_EXTENTS` of the extent
-    (Sobel gradients of the [1, 2, 1]-smoothed pixels), the share of the gradients'
-    energy along the rays is at most :data:`JUNCTION_MAX_RADIAL_SHARE`, and the
-    signed step across the rays, summed in :data:`N_ANGLES` directions, has four
-    peaks (from :data:`JUNCTION_MIN_PEAK_SHARE` of the strongest) of alternating
-    sign, each pair of the same sign half a turn apart (two straight lines): an L
-    or a T junction has two or three, a crossing of two bright bars eight.
-
-    Args:
-        image: (H, W) grey image, raw levels.
-        xy: (N, 2) centres, px.
-        extent_px: (N,) the X's extents, px.
-    """
-    xy = np.asarray(xy, np.float64).reshape(-1, 2)
-    window = np.maximum(
-        JUNCTION_WINDOW_EXTENTS * np.asarray(extent_px, np.float64), JUNCTION_MIN_WINDOW_PX
-    )
-    passed = np.zeros(len(xy), dtype=bool)
-    for radius in np.unique(window):
-        rows = np.flatnonzero(window == radius)
-        passed[rows] = _radial_junction(image, xy[rows], float(radius))
-    return passed
-
-
-def _radial_junction(
-    image: NDArray[Any], xy: NDArray[np.float64], radius_px: float
-) -> NDArray[np.bool_]:
-    """:func:`radial_junction` of points that share one window radius, px."""
-    # Two pixels beyond the window: one for the smoothing, one for the gradient.
-    half = int(np.ceil(radius_px)) + 2
-    side = 2 * half + 1
-    pixels, inside = pixels_at_offsets(image, xy, square_offsets(half))
-    window = pixels.reshape(-1, side, side)
-    smooth = window[:, :-2] + 2.0 * window[:, 1:-1] + window[:, 2:]
-    smooth = smooth[:, :, :-2] + 2.0 * smooth[:, :, 1:-1] + smooth[:, :, 2:]
-    across = smooth[:, :, 2:] - smooth[:, :, :-2]
-    down = smooth[:, 2:] - smooth[:, :-2]
-    gx = across[:, :-2] + 2.0 * across[:, 1:-1] + across[:, 2:]
-    gy = down[:, :, :-2] + 2.0 * down[:, :, 1:-1] + down[:, :, 2:]
-    grid = np.arange(-(half - 2), half - 1, dtype=np.float64)
-    shift = np.rint(xy) - xy
-    dx = grid[None, None, :] + shift[:, 0, None, None]
-    dy = grid[None, :, None] + shift[:, 1, None, None]
-    distance = np.hypot(dx, dy)
-    annulus = (distance <= radius_px) & (distance >= JUNCTION_INNER_SHARE * radius_px)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ray_x, ray_y = dx / distance, dy / distance
-    along = np.where(annulus, gx * ray_x + gy * ray_y, 0.0)
-    tangential = np.where(annulus, gy * ray_x - gx * ray_y, 0.0)
-    energy = np.sum(np.where(annulus, gx * gx + gy * gy, 0.0), axis=(1, 2))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        radial_share = np.sum(along * along, axis=(1, 2)) / energy
-    # The signed step across the rays in each of N_ANGLES directions.
-    direction = np.floor(np.mod(np.arctan2(dy, dx), 2.0 * np.pi) * (N_ANGLES / (2.0 * np.pi)))
-    bins = (
-        np.minimum(direction, N_ANGLES - 1).astype(np.intp)
-        + N_ANGLES * np.arange(len(xy))[:, None, None]
-    )
-    summed = np.bincount(bins.ravel(), tangential.ravel(), N_ANGLES * len(xy))
-    steps = _circular_smooth(cast("NDArray[np.float64]", summed).reshape(-1, N_ANGLES))
-    strength = np.abs(steps)
-    peak = (
-        (strength >= JUNCTION_MIN_PEAK_SHARE * strength.max(axis=1, keepdims=True))
-        & (strength >= np.roll(strength, 1, axis=1))
-        & (strength >= np.roll(strength, -1, axis=1))
-        & (strength > 0.0)
-    )
-    four = np.flatnonzero(peak.sum(axis=1) == 4)
-    lines = np.zeros(len(xy), dtype=bool)
-    if len(four):
-        where = np.nonzero(peak[four])[1].reshape(-1, 4)
-        sign = np.sign(np.take_along_axis(steps[four], where, axis=1))
-        alternating = np.all(sign != np.roll(sign, 1, axis=1), axis=1)
-        apart = np.abs(np.mod(where[:, 2:] - where[:, :2], N_ANGLES) - N_ANGLES // 2)
-        lines[four] = alternating & np.all(apart <= JUNCTION_OPPOSITE_BINS, axis=1)
-    with np.errstate(invalid="ignore"):
-        passed: NDArray[np.bool_] = inside & lines & (radial_share <= JUNCTION_MAX_RADIAL_SHARE)
-    return passed
 
 
 def line_crossing_centres(

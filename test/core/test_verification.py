@@ -214,44 +214,6 @@ def test_a_dull_bright_sector_and_a_shadow_edge_keep_the_edge_phases_not_the_gre
     assert (verification.analyse_rings(rings).symmetry[:, 0] < 0.8).all()
 
 
-@pytest.mark.parametrize("kind", ["quarter_disks", "checker"])
-@pytest.mark.parametrize(("tilt", "dull_factor"), [(0.0, 1.0), (40.0, 0.45), (55.0, 0.6)])
-def test_an_xs_edges_run_through_its_centre_whatever_its_quadrants_levels(kind, tilt, dull_factor):
-    marker = MarkerPlacement(*CENTRE[0], 16.0, 0.3, tilt, 0.7, kind, dull_factor=dull_factor)
-    scene = render_markers((128, 128), [marker], 0, blur_sigma_px=1.0, noise_sigma_dn=2.0)
-    assert verification.radial_junction(scene.image, scene.centres, np.array([10.0]))[0]
-
-
-def test_an_xs_edges_run_through_its_centre_and_no_point_two_pixels_and_a_half_off():
-    scene = render_markers(
-        (128, 128),
-        [MarkerPlacement(*CENTRE[0], 16.0, 0.3)],
-        0,
-        blur_sigma_px=1.0,
-        noise_sigma_dn=2.0,
-    )
-    off = scene.centres + np.array([[2.5, 0.0], [0.0, -2.5], [1.8, 1.8]])
-    assert not verification.radial_junction(scene.image, off, np.full(3, 10.0)).any()
-
-
-@pytest.mark.parametrize(
-    "kind", ["l_corner", "quarter_disk", "t_junction", "bar", "blob", "plus", "triangle", "disc"]
-)
-def test_no_look_alike_is_a_junction_of_two_straight_lines(kind):
-    look_alike = MarkerPlacement(*CENTRE[0], 16.0, 0.3, 0.0, 0.7, kind)
-    scene = render_markers((128, 128), [look_alike], 0, blur_sigma_px=1.0, noise_sigma_dn=2.0)
-    assert not verification.radial_junction(scene.image, scene.centres, np.array([10.0]))[0]
-
-
-def test_a_junction_is_not_read_where_its_window_leaves_the_image():
-    scene = render_markers(
-        (128, 128), [MarkerPlacement(*CENTRE[0], 16.0, 0.3)], 0, blur_sigma_px=1.0
-    )
-    near_border = np.array([[4.0, 64.0]])
-    assert not verification.radial_junction(scene.image, near_border, np.array([10.0]))[0]
-    assert verification.radial_junction(scene.image, np.zeros((0, 2)), np.zeros(0)).shape == (0,)
-
-
 def test_the_chords_of_an_xs_lines_cross_at_its_centre_seen_from_off_centre():
     centre = np.array([10.0, 20.0])
     ring_centre = centre + [0.8, -0.6]
