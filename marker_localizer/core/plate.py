@@ -190,6 +190,8 @@ def _plate_residual(
     radii_px: tuple[float, ...] = MODEL_RADII_PX,
     blurs_px: tuple[float, ...] = MODEL_BLURS_PX,
     quadrant_levels: bool = False,
+    *,
+    tilt_allowance_px: float,
 ) -> NDArray[np.float64]:
     """(N,) the least residual sum of squares of the blurred plate model over its shapes.
 
@@ -203,9 +205,10 @@ def _plate_residual(
     blurred edge a product of blurred steps (the blurred ellipse by its signed
     distance). Levels by least squares; r1, r2, the blur and which quadrant pair
     holds the paint by search, over the shapes a plate seen within
-    :data:`MAX_TILT_RAD` of face on makes (:func:`seen_within_max_tilt`; inf where
-    none does). With ``quadrant_levels`` each of the other pair's quarter disks has
-    a level of its own too (a dull bright quadrant: wear, dirt, sheen).
+    :data:`MAX_TILT_RAD` of face on makes (:func:`seen_within_max_tilt`, each radius
+    standing for those within ``tilt_allowance_px`` of it; inf where none does). With ``quadrant_levels`` each of the other pair's
+    quarter disks has a level of its own too (a dull bright quadrant: wear, dirt,
+    sheen).
     """
     cos, sin = np.cos(line_angles), np.sin(line_angles)
     det = cos[:, 0] * sin[:, 1] - cos[:, 1] * sin[:, 0]
@@ -261,9 +264,7 @@ def _plate_residual(
         for j in range(i + 1):
             normal[..., i, j] = normal[..., j, i] = _dot(columns[i], columns[j])
     total = np.sum(np.square(values, dtype=np.float64), axis=1)[:, None, None, None]
-    # The radii are a grid: each stands for those within half its spacing.
-    half_step = 0.5 * float(np.diff(radii).max(initial=0.0))
-    possible = seen_within_max_tilt(radii, crossing, half_step)[..., None]
+    possible = seen_within_max_tilt(radii, crossing, tilt_allowance_px)[..., None]
     best = np.full(len(values), np.inf)
     quarters = (
         (step_a * step_b, (1.0 - step_a) * (1.0 - step_b)),
@@ -388,6 +389,11 @@ def plate_evidence(
         scale = radius / WINDOW_EXTENTS / MODEL_EXTENT_PX if scale_with_extent else 1.0
         coarse_radii = tuple(scale * r for r in COARSE_RADII_PX)
         model_radii = tuple(scale * r for r in MODEL_RADII_PX)
+        # Each of the full grid's radii stands for those within half its spacing. The
+        # coarse search's least residual enters the reading (below), so it holds its
+        # shapes to the tilt as the full grid reads it: with half its own spacing,
+        # twice as wide, it took shapes the full grid refuses.
+        allowance = 0.5 * float(np.diff(model_radii).max())
         coarse = np.concatenate(
             [
                 _plate_residual(
@@ -398,6 +404,7 @@ def plate_evidence(
                     coarse_radii,
                     COARSE_BLURS_PX,
                     quadrant_levels,
+                    tilt_allowance_px=allowance,
                 )
                 for s in _blocks(len(group))
             ]
@@ -421,6 +428,7 @@ def plate_evidence(
                     model_radii,
                     MODEL_BLURS_PX,
                     quadrant_levels,
+                    tilt_allowance_px=allowance,
                 )
                 for s in _blocks(len(full))
             ]

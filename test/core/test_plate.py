@@ -258,6 +258,22 @@ def test_read_plates_compares_at_most_the_cap_spread_over_the_cells(monkeypatch)
     assert reading.over_cap == 1
 
 
+
+@pytest.mark.parametrize(("tilt_deg", "explained"), [(60.0, True), (66.0, False)])
+def test_a_plate_seen_more_steeply_than_sixty_degrees_takes_no_coarse_shape_either(
+    tilt_deg, explained
+):
+    """The coarse search's least residual enters the reading, so its shapes are held to
+    the tilt as the full grid reads it; with half its own spacing as each radius's reach
+    it explained this 4.5 px marker seen 66 degrees from face on (0.18 of the quadratic)."""
+    placement = MarkerPlacement(40.3, 39.8, 4.5, 1.2, tilt_deg, kind="quarter_disks")
+    scene = render_markers(
+        (80, 80), [placement], 3, blur_sigma_px=0.8, noise_sigma_dn=2.0, background="flat"
+    )
+    angles = np.array([scene.markers[0].angles])
+    evidence = plate.plate_evidence(scene.image, scene.centres, np.array([_EXTENT_PX]), angles)
+    assert (evidence.to_quadratic[0] <= plate.MAX_TO_QUADRATIC) == explained
+
 def _markers_and_saddles() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Four tiny markers and two smooth saddles side by side: image, centres, line angles."""
     tiles, centres, angles = [], [], []
