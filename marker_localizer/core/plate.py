@@ -206,9 +206,9 @@ def _plate_residual(
     distance). Levels by least squares; r1, r2, the blur and which quadrant pair
     holds the paint by search, over the shapes a plate seen within
     :data:`MAX_TILT_RAD` of face on makes (:func:`seen_within_max_tilt`, each radius
-    standing for those within ``tilt_allowance_px`` of it; inf where none does). With ``quadrant_levels`` each of the other pair's
-    quarter disks has a level of its own too (a dull bright quadrant: wear, dirt,
-    sheen).
+    standing for those within ``tilt_allowance_px`` of it; inf where none does).
+    With ``quadrant_levels`` each of the other pair's quarter disks has a level of
+    its own too (a dull bright quadrant: wear, dirt, sheen).
     """
     cos, sin = np.cos(line_angles), np.sin(line_angles)
     det = cos[:, 0] * sin[:, 1] - cos[:, 1] * sin[:, 0]
@@ -390,9 +390,9 @@ def plate_evidence(
         coarse_radii = tuple(scale * r for r in COARSE_RADII_PX)
         model_radii = tuple(scale * r for r in MODEL_RADII_PX)
         # Each of the full grid's radii stands for those within half its spacing. The
-        # coarse search's least residual enters the reading (below), so it holds its
-        # shapes to the tilt as the full grid reads it: with half its own spacing,
-        # twice as wide, it took shapes the full grid refuses.
+        # coarse search's least residual enters the reading (below), so its shapes are
+        # held to the tilt as the full grid reads it, not with half its own spacing
+        # (twice as wide), which takes plates the full grid refuses as too steep.
         allowance = 0.5 * float(np.diff(model_radii).max())
         coarse = np.concatenate(
             [

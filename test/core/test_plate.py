@@ -258,7 +258,6 @@ def test_read_plates_compares_at_most_the_cap_spread_over_the_cells(monkeypatch)
     assert reading.over_cap == 1
 
 
-
 @pytest.mark.parametrize(("tilt_deg", "explained"), [(60.0, True), (66.0, False)])
 def test_a_plate_seen_more_steeply_than_sixty_degrees_takes_no_coarse_shape_either(
     tilt_deg, explained
@@ -273,6 +272,7 @@ def test_a_plate_seen_more_steeply_than_sixty_degrees_takes_no_coarse_shape_eith
     angles = np.array([scene.markers[0].angles])
     evidence = plate.plate_evidence(scene.image, scene.centres, np.array([_EXTENT_PX]), angles)
     assert (evidence.to_quadratic[0] <= plate.MAX_TO_QUADRATIC) == explained
+
 
 def _markers_and_saddles() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Four tiny markers and two smooth saddles side by side: image, centres, line angles."""
