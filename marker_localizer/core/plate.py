@@ -307,9 +307,9 @@ def seen_within_max_tilt(
     (Apollonius). So b / a + a / b = (k + 1 / k) / |sin|, k = r1 / r2, and a circle
     seen t from face on shows b / a = cos t: the shape is a marker's where that sum
     is at most cos t + 1 / cos t at :data:`MAX_TILT_RAD`. A model's radius stands for
-    those within ``half_step_px`` of it (half its grid's spacing), so k is taken as
-    near 1 as that allows. (Over a plate of a few pixels the perspective is an
-    affine map.)
+    those within ``half_step_px`` of it (half the full grid's spacing, for the coarse
+    search too: :func:`plate_evidence`), so k is taken as near 1 as that allows.
+    (Over a plate of a few pixels the perspective is an affine map.)
 
     Args:
         radii_px: (R,) the models' radii along each line, px.
