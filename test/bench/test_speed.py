@@ -54,6 +54,16 @@ def test_the_ratio_frame_by_frame_is_the_median_over_the_rounds_of_each_frames_p
     assert np.isnan(workers.paired_ratios_by_frame(ours[:5], peer[:5], 3)).all()
 
 
+def test_the_ratio_without_the_kernels_time_leaves_out_each_sides_page_faults():
+    # The peer's second frame spent a third of its time in the kernel, ours none.
+    ours = speed.WorkerResult(speed.REFERENCE_SUBJECT, [100.0, 120.0], [0.0, 0.0])
+    peer = speed.WorkerResult(speed.HESSIAN_SUBJECT, [200.0, 360.0], [0.0, 120.0])
+    assert workers.paired_ratio(ours.times_ms, peer.times_ms) == pytest.approx(5 / 12)
+    line = speed.ratio_without_kernel([ours, peer])
+    assert line.startswith("ours/Hessian with each side's kernel time left out: 0.50 ")
+    assert speed.ratio_without_kernel([ours]) == ""
+
+
 class _Answering:
     """What the turns ask of a worker: whether it still answers, and its answers."""
 
