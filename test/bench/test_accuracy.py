@@ -461,6 +461,28 @@ def test_uas_scoring_counts_both_targets_and_far_detections():
     assert row.extra["fp_per_frame"] == 1.0
 
 
+class _SmallXsFromThreePixels(FixedDetector):
+    """Finds the targets, and a texture X more wherever its range reaches down to 3 px."""
+
+    def detect(self, image_u8: np.ndarray, radius_range: peers.RadiusRange) -> np.ndarray:
+        return self.points if radius_range[0] > 3.0 else np.vstack([self.points, [[9.0, 9.0]]])
+
+
+def test_cirn_uas_is_read_at_its_targets_range_and_at_real_aerial_grounds():
+    frame = real_data.UasFrame("blank", np.zeros((8, 8), np.uint8))
+    detector = _SmallXsFromThreePixels("fixed", real_data.CIRN_TARGETS + 1.0)
+    printed: list[str] = []
+    results = accuracy.run_uas([frame], [detector], printed.append)
+    assert list(results) == list(accuracy.CIRN_RANGES)
+    assert (
+        accuracy.CIRN_RANGES["cirn_uas_ground_range"]
+        == (accuracy.REAL_RADIUS_RANGES["aerial_negatives"])
+    )
+    assert results["cirn_uas"]["fixed"]["fp_per_frame"] == 0.0
+    assert results["cirn_uas_ground_range"]["fixed"]["fp_per_frame"] == 1.0
+    assert "radius range 6-24 px" in printed[0] and "radius range 3-30 px" in printed[1]
+
+
 def test_board_scoring_counts_complete_boards_and_residuals():
     grid = np.stack(np.meshgrid(np.arange(4) * 20.0 + 50, np.arange(3) * 20.0 + 40), axis=-1)
     item = real_data.BoardImage(
