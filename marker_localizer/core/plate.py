@@ -187,10 +187,9 @@ def _plate_residual(
     dx: NDArray[np.float64],
     dy: NDArray[np.float64],
     line_angles: NDArray[np.float64],
-    radii_px: tuple[float, ...] = MODEL_RADII_PX,
-    blurs_px: tuple[float, ...] = MODEL_BLURS_PX,
-    quadrant_levels: bool = False,
-    *,
+    radii_px: tuple[float, ...],
+    blurs_px: tuple[float, ...],
+    quadrant_levels: bool,
     tilt_allowance_px: float,
 ) -> NDArray[np.float64]:
     """(N,) the least residual sum of squares of the blurred plate model over its shapes.
@@ -404,7 +403,7 @@ def plate_evidence(
                     coarse_radii,
                     COARSE_BLURS_PX,
                     quadrant_levels,
-                    tilt_allowance_px=allowance,
+                    allowance,
                 )
                 for s in _blocks(len(group))
             ]
@@ -428,7 +427,7 @@ def plate_evidence(
                     model_radii,
                     MODEL_BLURS_PX,
                     quadrant_levels,
-                    tilt_allowance_px=allowance,
+                    allowance,
                 )
                 for s in _blocks(len(full))
             ]
