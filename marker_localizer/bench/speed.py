@@ -393,9 +393,15 @@ def stage_medians(stages: Sequence[dict[str, float]]) -> dict[str, float]:
     return {stage: _median([s.get(stage, float("nan")) for s in stages]) for stage in names}
 
 
-def _reference_times(results: Sequence[WorkerResult]) -> list[float]:
-    """Our detector's frame times, ms, in the order timed (empty where it did not run)."""
-    return next((r.times_ms for r in results if r.name == REFERENCE_SUBJECT), [])
+def _reference_times(
+    results: Sequence[WorkerResult],
+    times: Callable[[WorkerResult], list[float]] = lambda r: r.times_ms,
+) -> list[float]:
+    """Our detector's frame times (``times`` of its result), ms, in the order timed.
+
+    Empty where it did not run.
+    """
+    return next((times(r) for r in results if r.name == REFERENCE_SUBJECT), [])
 
 
 def _subject_times(results: Sequence[WorkerResult]) -> dict[str, list[float]]:
@@ -585,7 +591,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
     # frame, over the rounds (workers.paired_ratios_by_frame); "ours_over_without_kernel"
     # the first with each side's kernel time taken out (ratio_without_kernel).
     ours = _reference_times(results)
-    ours_user = next((_without_kernel(r) for r in results if r.name == REFERENCE_SUBJECT), [])
+    ours_user = _reference_times(results, _without_kernel)
     return {
         "frames": options.frames,
         "repeats": options.repeats,
