@@ -89,9 +89,9 @@ MAX_TO_QUADRATIC = 0.2
 MAX_TO_QUARTIC = 0.6
 #: Most of the quartic's residual the plate model may leave on any detection of
 #: texture's size, whatever found it: the plate model holds the marker, a smooth
-#: surface does not. Development frames ((b) 200-215, 300-315, (d) 100-123): 2 of the
-#: 477 tiny markers found leave more (99 % under 0.68), 4 of the 7 false points
-#: (1.5-2.0).
+#: surface does not, so a plate no better than a quartic is no marker's (the tiny
+#: markers' and texture's ratios: docs/accuracy.md, "A plate that leaves most of a
+#: quartic's residual near the floor").
 MAX_TO_QUARTIC_ANY = 1.0
 #: Least ratio of the weaker to the stronger curvature at the centre, of opposite
 #: signs: an X's centre is a saddle, and the blobs of texture and look-alikes the

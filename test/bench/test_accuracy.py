@@ -475,8 +475,8 @@ def test_cirn_uas_is_read_at_its_targets_range_and_at_real_aerial_grounds():
     results = accuracy.run_uas([frame], [detector], printed.append)
     assert list(results) == list(accuracy.CIRN_RANGES)
     assert (
-        accuracy.CIRN_RANGES["cirn_uas_ground_range"]
-        == (accuracy.REAL_RADIUS_RANGES["aerial_negatives"])
+        accuracy.CIRN_RANGES["cirn_uas_ground_range"].radius_range
+        == accuracy.REAL_RADIUS_RANGES["aerial_negatives"]
     )
     assert results["cirn_uas"]["fixed"]["fp_per_frame"] == 0.0
     assert results["cirn_uas_ground_range"]["fixed"]["fp_per_frame"] == 1.0
