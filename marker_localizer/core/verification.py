@@ -2297,8 +2297,17 @@ def _recurrence_annulus(span: int, extent: float) -> NDArray[np.bool_]:
 #: :func:`line_continuation` reads the step across it, in extents.
 CONTINUATION_REACH = (1.1, 1.9)
 #: Distance of the two samples either side of the line, px: clear of a blurred
-#: edge's middle, within a pixel or two of the line a small angle error moves.
+#: edge's middle, within a pixel or two of the line a small angle error moves ...
 _CONTINUATION_SIDE_PX = 1.5
+#: ... and, further out, within the angle a measured line's direction may be off (the
+#: median is under a degree) or a bent board's edge bends away from it: beyond 29
+#: px along the line the samples lie this angle either side of it.
+_CONTINUATION_SIDE_ANGLE_RAD = np.deg2rad(3.0)
+#: Half-lines of a chessboard's corner that go on as edges, at least: all four
+#: inside the board, three on its outer rows, two at its outermost inner corners. A
+#: lattice's saddle may have one, along a row of discs (docs/accuracy.md, "A board's
+#: corner goes on along two half-lines").
+CONTINUING_HALF_LINES = 2
 
 
 def line_continuation(
@@ -2311,9 +2320,10 @@ def line_continuation(
 
     On each of the four half-lines, the median absolute step across it at
     :data:`CONTINUATION_REACH` extents, over the X's modulation inside
-    (:data:`X_END_INSIDE`); the largest of the four. A chessboard's corners are
-    joined by straight edges; a marker's lines end on its plate, and the outlines
-    of a lattice's discs bend away from the lines their saddles show.
+    (:data:`X_END_INSIDE`); the second largest of the four
+    (:data:`CONTINUING_HALF_LINES`). A chessboard's corners are joined by straight
+    edges; a marker's lines end on its plate, and the outlines of a lattice's discs
+    bend away from the lines their saddles show.
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -2326,10 +2336,12 @@ def line_continuation(
     along = np.cos(directions), np.sin(directions)
     rho = radius_px[:, None, None] * np.linspace(*CONTINUATION_REACH, 9)[None, None, :]
     x, y = xy[:, 0, None, None] + rho * along[0], xy[:, 1, None, None] + rho * along[1]
-    side_x, side_y = -_CONTINUATION_SIDE_PX * along[1], _CONTINUATION_SIDE_PX * along[0]
+    side = np.maximum(_CONTINUATION_SIDE_PX, np.tan(_CONTINUATION_SIDE_ANGLE_RAD) * rho)
+    side_x, side_y = -side * along[1], side * along[0]
     left, _ = bilinear(image, x + side_x, y + side_y)
     right, _ = bilinear(image, x - side_x, y - side_y)
-    step = np.median(np.abs(left - right), axis=2).max(axis=1)
+    steps = np.sort(np.median(np.abs(left - right), axis=2), axis=1)
+    step = steps[:, -CONTINUING_HALF_LINES]
     return cast("NDArray[np.float64]", step / np.maximum(inside, 1e-12))
 
 

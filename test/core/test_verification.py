@@ -633,6 +633,43 @@ def _corner_image(board: bool) -> np.ndarray:
     return cv2.GaussianBlur((40.0 + 160.0 * paint).astype(np.float32), (0, 0), 1.0)
 
 
+def test_a_boards_outermost_inner_corner_goes_on_along_two_half_lines_a_lone_edge_along_one():
+    """A board's outermost inner corner continues on two half-lines: it counts as a board's.
+
+    An X whose one half-line runs on as an edge (a lattice's saddle by a row of discs
+    does this) does not: a chessboard's corner has at least two.
+    """
+    y, x = np.mgrid[:161, :161] - 80.0
+    centre, extent, lines = np.array([[80.0, 80.0]]), np.array([16.0]), np.array([[0.0, np.pi / 2]])
+    checker = (np.floor(x / 16.0) + np.floor(y / 16.0)) % 2
+    # The board's squares start one square up and left of the corner: its margin beyond.
+    board_corner = np.where((x >= -16.0) & (y >= -16.0), checker, 1.0)
+    # A lone X, and one edge running on from it to the right: a band, dark above it.
+    lone = np.where(np.hypot(x, y) <= 16.0, (x * y > 0).astype(float), 0.5)
+    one_edge = np.where((x > 16.0) & (np.abs(y) <= 8.0), (y > 0).astype(float), lone)
+    blurred = [
+        cv2.GaussianBlur((40.0 + 160.0 * paint).astype(np.float32), (0, 0), 1.0)
+        for paint in (board_corner, one_edge)
+    ]
+    board, edge = (verification.line_continuation(b, centre, extent, lines)[0] for b in blurred)
+    assert board > 0.5
+    assert edge < 0.1
+
+
+def test_a_large_boards_corner_goes_on_with_its_lines_read_three_degrees_off():
+    """Far out along a line a small error in its direction (or a bent board) moves it off
+    the samples; they are read within that angle either side of it."""
+    y, x = np.mgrid[:321, :321] - 160.0
+    paint = (np.floor(x / 40.0) + np.floor(y / 40.0)) % 2
+    board = cv2.GaussianBlur((40.0 + 160.0 * paint).astype(np.float32), (0, 0), 1.0)
+    off = np.deg2rad(3.0)
+    lines = np.array([[off, np.pi / 2 + off]])
+    continuation = verification.line_continuation(
+        board, np.array([[160.0, 160.0]]), np.array([40.0]), lines
+    )
+    assert continuation[0] > 0.5
+
+
 def test_a_chessboard_repeats_its_corner_and_joins_it_by_its_lines_and_a_lone_x_neither():
     centre, extent, lines = np.array([[80.0, 80.0]]), np.array([16.0]), np.array([[0.0, np.pi / 2]])
     board, lone = _corner_image(board=True), _corner_image(board=False)
