@@ -393,9 +393,19 @@ def stage_medians(stages: Sequence[dict[str, float]]) -> dict[str, float]:
     return {stage: _median([s.get(stage, float("nan")) for s in stages]) for stage in names}
 
 
+def _wall_times(result: WorkerResult) -> list[float]:
+    """A subject's frame times on the wall clock, ms."""
+    return result.times_ms
+
+
+def _without_kernel(result: WorkerResult) -> list[float]:
+    """A subject's frame times less the kernel's time within each, ms (at least 0)."""
+    return [max(t - k, 0.0) for t, k in zip(result.times_ms, result.kernel_ms, strict=True)]
+
+
 def _reference_times(
     results: Sequence[WorkerResult],
-    times: Callable[[WorkerResult], list[float]] = lambda r: r.times_ms,
+    times: Callable[[WorkerResult], list[float]] = _wall_times,
 ) -> list[float]:
     """Our detector's frame times (``times`` of its result), ms, in the order timed.
 
@@ -404,9 +414,15 @@ def _reference_times(
     return next((times(r) for r in results if r.name == REFERENCE_SUBJECT), [])
 
 
-def _subject_times(results: Sequence[WorkerResult]) -> dict[str, list[float]]:
-    """Each subject's frame times, ms, in the order timed; subjects that failed are left out."""
-    return {r.name: r.times_ms for r in results if not r.error}
+def _subject_times(
+    results: Sequence[WorkerResult],
+    times: Callable[[WorkerResult], list[float]] = _wall_times,
+) -> dict[str, list[float]]:
+    """Each subject's frame times (``times`` of its result), ms, in the order timed.
+
+    Subjects that failed are left out.
+    """
+    return {r.name: times(r) for r in results if not r.error}
 
 
 def speed_table(results: Sequence[WorkerResult]) -> str:
@@ -490,11 +506,6 @@ def ratio_by_frame(results: Sequence[WorkerResult], n_frames: int) -> str:
     return f"ours/Hessian frame by frame (median over the rounds): {cells}"
 
 
-def _without_kernel(result: WorkerResult) -> list[float]:
-    """A subject's frame times less the kernel's time within each, ms (at least 0)."""
-    return [max(t - k, 0.0) for t, k in zip(result.times_ms, result.kernel_ms, strict=True)]
-
-
 def ratio_without_kernel(results: Sequence[WorkerResult]) -> str:
     """One line: ours over the Hessian peer with each side's kernel time taken out.
 
@@ -505,12 +516,10 @@ def ratio_without_kernel(results: Sequence[WorkerResult]) -> str:
     (measured: docs/speed.md, "Two runs on unchanged code"). This one shows by how
     much.
     """
-    by_name = {r.name: r for r in results if not r.error}
-    if REFERENCE_SUBJECT not in by_name or HESSIAN_SUBJECT not in by_name:
+    times = _subject_times(results, _without_kernel)
+    if REFERENCE_SUBJECT not in times or HESSIAN_SUBJECT not in times:
         return ""
-    ratio = workers.paired_ratio(
-        _without_kernel(by_name[REFERENCE_SUBJECT]), _without_kernel(by_name[HESSIAN_SUBJECT])
-    )
+    ratio = workers.paired_ratio(times[REFERENCE_SUBJECT], times[HESSIAN_SUBJECT])
     return (
         f"ours/Hessian with each side's kernel time left out: {ratio:.2f} "
         "(the target is the wall clock's ratio above)"

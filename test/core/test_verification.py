@@ -623,6 +623,11 @@ def test_an_x_of_textures_scale_that_the_plain_rings_show_wide_is_read_equalised
     assert reading.equalised_x[0]
 
 
+def _painted(paint: np.ndarray) -> np.ndarray:
+    """A paint map (0 dark, 1 bright) as an image: levels 40-200, blurred by 1 px."""
+    return cv2.GaussianBlur((40.0 + 160.0 * paint).astype(np.float32), (0, 0), 1.0)
+
+
 def _corner_image(board: bool) -> np.ndarray:
     """An X of 16 px at (80, 80), its lines the axes: a chessboard's corner or a lone X."""
     y, x = np.mgrid[:161, :161] - 80.0
@@ -630,7 +635,7 @@ def _corner_image(board: bool) -> np.ndarray:
         paint = (np.floor(x / 16.0) + np.floor(y / 16.0)) % 2
     else:
         paint = np.where(np.hypot(x, y) <= 16.0, (x * y > 0).astype(float), 0.5)
-    return cv2.GaussianBlur((40.0 + 160.0 * paint).astype(np.float32), (0, 0), 1.0)
+    return _painted(paint)
 
 
 def test_a_boards_outermost_inner_corner_goes_on_along_two_half_lines_a_lone_edge_along_one():
@@ -647,11 +652,10 @@ def test_a_boards_outermost_inner_corner_goes_on_along_two_half_lines_a_lone_edg
     # A lone X, and one edge running on from it to the right: a band, dark above it.
     lone = np.where(np.hypot(x, y) <= 16.0, (x * y > 0).astype(float), 0.5)
     one_edge = np.where((x > 16.0) & (np.abs(y) <= 8.0), (y > 0).astype(float), lone)
-    blurred = [
-        cv2.GaussianBlur((40.0 + 160.0 * paint).astype(np.float32), (0, 0), 1.0)
+    board, edge = (
+        verification.line_continuation(_painted(paint), centre, extent, lines)[0]
         for paint in (board_corner, one_edge)
-    ]
-    board, edge = (verification.line_continuation(b, centre, extent, lines)[0] for b in blurred)
+    )
     assert board > 0.5
     assert edge < 0.1
 
@@ -664,7 +668,7 @@ def test_a_large_boards_corner_goes_on_with_its_lines_read_three_degrees_off():
     """
     y, x = np.mgrid[:321, :321] - 160.0
     paint = (np.floor(x / 40.0) + np.floor(y / 40.0)) % 2
-    board = cv2.GaussianBlur((40.0 + 160.0 * paint).astype(np.float32), (0, 0), 1.0)
+    board = _painted(paint)
     off = np.deg2rad(3.0)
     lines = np.array([[off, np.pi / 2 + off]])
     continuation = verification.line_continuation(
