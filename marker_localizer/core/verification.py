@@ -23,6 +23,7 @@ from typing import Any, NamedTuple, cast
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy import special
 
 from marker_localizer.core import template
 from marker_localizer.core.image import clipped
@@ -61,6 +62,10 @@ RECENTRE_PHASE_ERROR_RAD = np.deg2rad(60.0)
 #: Largest change of a line's angle between the rings of one run: over the spread of a
 #: marker's own rings.
 MAX_LINE_DRIFT_RAD = np.deg2rad(8.0)
+#: Widest blur (Gaussian sigma, px) that may dim the innermost rings of an X's run
+#: (:func:`blurred_contrast_share`): optics of up to 1.5 px (the package's renderer and
+#: the independent one), with a 4 px motion blur's 1.2 px along it, 1.9 px.
+RING_BLUR_SIGMA_PX = 2.0
 #: Rings of a run see at least this fraction of the candidate's best ring contrast,
 #: under what a marker's rings keep, blur and tilt included. A ring under it lies on
 #: the marker's outline or past it (:func:`_past_a_dim_ring`).
@@ -739,7 +744,9 @@ def centre_symmetry_check(
     good ring inside it was dim (:func:`_past_a_dim_ring`: a dim ring may end a
     run, not carry it on). A candidate passes when a run of at least two
     consecutive good rings starts at one of the ``max_first_ring`` innermost rings
-    (the X must reach the centre).
+    (the X must reach the centre). Blur dims those rings most: where none of them
+    has the contrast, one that keeps the share of the brightest ring's that the
+    widest blur leaves (:func:`blurred_contrast_share`) may start the run.
 
     Args:
         image: (H, W) float image.
@@ -970,6 +977,21 @@ def _centre_symmetry_check(
     return check.with_rows(further, full)
 
 
+def blurred_contrast_share(radii_px: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(J,) the share of an X's contrast a ring of each radius keeps under the widest blur.
+
+    On a ring of radius rho about an X of two perpendicular lines blurred by a
+    Gaussian of sigma, the brightest and darkest samples lie midway between the
+    lines, at erf(rho / (2 sigma))^2 of the paint's levels either side of their
+    mean: at :data:`RING_BLUR_SIGMA_PX`, 0.27 at 2 px, 0.47 at 2.8, 0.71 at 4. A
+    junction of texture whose centre is flat keeps less: its blobs' edges do not
+    run on to the centre.
+    """
+    return cast(
+        "NDArray[np.float64]", special.erf(np.asarray(radii_px) / (2.0 * RING_BLUR_SIGMA_PX)) ** 2
+    )
+
+
 def _past_a_dim_ring(good: NDArray[np.bool_], contrast: NDArray[np.float64]) -> NDArray[np.bool_]:
     """(N, J) the rings past a dim one, where a run of good rings must end.
 
@@ -1002,7 +1024,17 @@ def _ring_runs(
         The check, and (N,) True where a candidate's run goes on to the last ring.
     """
     n, n_rings = rings.contrast.shape
-    good = rings.good(min_contrast, min_symmetry)
+    ring_index = np.arange(n_rings)[None, :]
+    shape = rings.good(0.0, min_symmetry)
+    plain = shape & (rings.contrast >= min_contrast)
+    # The X's contrast is its brightest ring's at the floor; blur dims its innermost
+    # rings to a share of it, not texture's blurred junctions to less.
+    x_contrast = np.where(plain, rings.contrast, 0.0).max(axis=1, keepdims=True)
+    blurred = shape & (rings.contrast >= blurred_contrast_share(radii_px) * x_contrast)
+    blurred &= (ring_index < max_first_ring) & (x_contrast > 0.0)
+    # A run starts at a ring the blur dims only where no ring at the floor starts one:
+    # a run's score reads its innermost rings, and a dimmed ring's is the lower.
+    good = plain | (blurred & ~plain[:, :max_first_ring].any(axis=1, keepdims=True))
     good &= ~_past_a_dim_ring(good, rings.contrast)
     first = np.argmax(good[:, :max_first_ring], axis=1)
     has_first = good[np.arange(n), first] & good[:, :max_first_ring].any(axis=1)
@@ -1010,7 +1042,6 @@ def _ring_runs(
     # Lines may come out in either order on different rings: compare both pairings.
     drift_same, drift_swap = _pairing_differences(rings.line_angles, reference[:, None, :])
     good &= np.minimum(drift_same, drift_swap) <= max_angle_drift_rad
-    ring_index = np.arange(n_rings)[None, :]
     after_first = ring_index >= first[:, None]
     # The run continues while rings stay good: the first bad ring after `first` ends it.
     broken = np.cumsum(~good & after_first, axis=1) > 0

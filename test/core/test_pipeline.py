@@ -149,6 +149,40 @@ def _found_only_at_the_looser_range(
     return lost
 
 
+@pytest.mark.parametrize("seed", range(2))
+def test_faint_markers_blurred_past_their_innermost_rings_floor_are_found(seed):
+    """Paint 0.14 apart on dull ground, blurred by 1.8 px, as in a frame's dim corner.
+
+    The rings at 2 and 2.8 px, where a run of rings must start, see less than the
+    20 DN floor; the blur explains it, and the rings past them clear it.
+    """
+    rng = np.random.default_rng(seed)
+    placements = [
+        MarkerPlacement(
+            50 + 100 * (i % 4),
+            50 + 100 * (i // 4),
+            rng.uniform(12.0, 24.0),
+            rng.uniform(0.0, np.pi),
+            rng.uniform(0.0, 30.0),
+            0.7,
+            ("checker", "quarter_disks")[i % 2],
+        )
+        for i in range(8)
+    ]
+    scene = render_markers(
+        (200, 400),
+        placements,
+        seed,
+        reflectances=(0.22, 0.36),
+        blur_sigma_px=1.8,
+        noise_sigma_dn=1.0,
+        background_level=0.3,
+    )
+    detector = Detector(DetectorConfig(marker_radius_min_px=4.0, marker_radius_max_px=40.0))
+    found, false, _ = found_false_errors(detector.detect(scene.image).as_array(), scene.centres)
+    assert (found, false) == (8, 0)
+
+
 def test_a_tighter_correct_radius_range_never_loses_a_marker():
     """Issue 12, item 5: family (a)'s markers (6-40 px) given 6-40 px instead of 4-40 px.
 

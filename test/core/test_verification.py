@@ -69,6 +69,46 @@ def test_an_xs_run_of_rings_ends_at_its_first_dim_ring():
     assert extent[0.6] == radii[-1]
 
 
+def _faint_x(blur_px: float, centre_share: float = 1.0) -> np.ndarray:
+    """An X of contrast 0.14 (under twice the 20 DN floor), within 3.5 px ``centre_share`` of it."""
+    y, x = np.mgrid[:128, :128] - CENTRE[0, ::-1, None, None]
+    sign = np.sign(np.cos(2.0 * (np.arctan2(y, x) - 0.3)))
+    contrast = np.where(np.hypot(x, y) < 3.5, centre_share * 0.14, 0.14)
+    return cv2.GaussianBlur((0.3 + 0.5 * contrast * sign).astype(np.float32), (0, 0), blur_px)
+
+
+def test_a_faint_xs_innermost_rings_dimmed_by_its_blur_still_start_its_run():
+    # Blurred by 1.8 px, the X's rings at 2 and 2.8 px, where a run must start,
+    # keep 0.36 and 0.6 of its contrast, under the floor; the rings past them clear it.
+    image = _faint_x(1.8)
+    radii = verification.ring_radii((4.0, 40.0))
+    contrast = verification.analyse_rings(
+        verification.annular_profiles(image, CENTRE, radii[:3])
+    ).contrast[0]
+    assert (contrast[:2] < 20 / 255).all() and contrast[2] > 20 / 255
+    check = verification.centre_symmetry_check(
+        image, CENTRE, radii, min_contrast=20 / 255, min_symmetry=0.8
+    )
+    assert check.accepted[0]
+    assert check.radius_px[0] == radii[-1]
+
+
+def test_a_junction_whose_centre_is_fainter_than_blur_makes_it_starts_no_run():
+    # Texture's blurred junctions: four blobs meet round a flat centre, softer than
+    # the widest blur leaves an X's (verification.blurred_contrast_share).
+    accepted = {
+        share: verification.centre_symmetry_check(
+            _faint_x(1.0, share),
+            CENTRE,
+            verification.ring_radii((4.0, 40.0)),
+            min_contrast=20 / 255,
+            min_symmetry=0.8,
+        ).accepted[0]
+        for share in (0.0, 1.0)
+    }
+    assert accepted == {0.0: False, 1.0: True}
+
+
 def test_symmetry_check_measures_the_line_angles():
     rotation = 0.3
     check = _check(_render("checker", rotation=rotation, blur=0.8))
