@@ -985,7 +985,8 @@ def blurred_contrast_share(radii_px: NDArray[np.float64]) -> NDArray[np.float64]
     lines, at erf(rho / (2 sigma))^2 of the paint's levels either side of their
     mean: at :data:`RING_BLUR_SIGMA_PX`, 0.27 at 2 px, 0.47 at 2.8, 0.71 at 4. A
     junction of texture whose centre is flat keeps less: its blobs' edges do not
-    run on to the centre.
+    run on to the centre (measured: docs/accuracy.md, "A faint X's innermost rings,
+    dimmed by its blur").
     """
     return cast(
         "NDArray[np.float64]", special.erf(np.asarray(radii_px) / (2.0 * RING_BLUR_SIGMA_PX)) ** 2
