@@ -79,7 +79,7 @@ def _faint_x(blur_px: float, centre_share: float = 1.0) -> np.ndarray:
 
 def test_a_faint_xs_innermost_rings_dimmed_by_its_blur_still_start_its_run():
     # Blurred by 1.8 px, the X's rings at 2 and 2.8 px, where a run must start,
-    # keep 0.36 and 0.6 of its contrast, under the floor; the rings past them clear it.
+    # keep 0.3 and 0.5 of its contrast, under the floor; the rings past them clear it.
     image = _faint_x(1.8)
     radii = verification.ring_radii((4.0, 40.0))
     contrast = verification.analyse_rings(
