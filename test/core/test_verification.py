@@ -46,12 +46,18 @@ def test_symmetry_check_rejects_look_alikes(kind):
     assert not _check(_render(kind)).accepted[0]
 
 
-def _x_fading_at(outline_px: float, contrast_past: float) -> np.ndarray:
-    """An X of contrast 0.6 out to ``outline_px`` and of ``contrast_past`` beyond it."""
+def _x_fading_at(
+    outline_px: float,
+    contrast_past: float,
+    contrast_inside: float = 0.6,
+    blur_px: float = 1.0,
+    mean: float = 0.5,
+) -> np.ndarray:
+    """An X about ``mean``: ``contrast_inside`` to ``outline_px``, ``contrast_past`` beyond."""
     y, x = np.mgrid[:128, :128] - CENTRE[0, ::-1, None, None]
     sign = np.sign(np.cos(2.0 * (np.arctan2(y, x) - 0.3)))
-    contrast = np.where(np.hypot(x, y) <= outline_px, 0.6, contrast_past)
-    return cv2.GaussianBlur((0.5 + 0.5 * contrast * sign).astype(np.float32), (0, 0), 1.0)
+    contrast = np.where(np.hypot(x, y) <= outline_px, contrast_inside, contrast_past)
+    return cv2.GaussianBlur((mean + 0.5 * contrast * sign).astype(np.float32), (0, 0), blur_px)
 
 
 def test_an_xs_run_of_rings_ends_at_its_first_dim_ring():
@@ -71,10 +77,7 @@ def test_an_xs_run_of_rings_ends_at_its_first_dim_ring():
 
 def _faint_x(blur_px: float, centre_share: float = 1.0) -> np.ndarray:
     """An X of contrast 0.14 (under twice the 20 DN floor), within 3.5 px ``centre_share`` of it."""
-    y, x = np.mgrid[:128, :128] - CENTRE[0, ::-1, None, None]
-    sign = np.sign(np.cos(2.0 * (np.arctan2(y, x) - 0.3)))
-    contrast = np.where(np.hypot(x, y) < 3.5, centre_share * 0.14, 0.14)
-    return cv2.GaussianBlur((0.3 + 0.5 * contrast * sign).astype(np.float32), (0, 0), blur_px)
+    return _x_fading_at(3.5, 0.14, centre_share * 0.14, blur_px, mean=0.3)
 
 
 def test_a_faint_xs_innermost_rings_dimmed_by_its_blur_still_start_its_run():
