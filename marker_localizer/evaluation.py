@@ -33,6 +33,14 @@ LOSS_RADIUS_PX = 3.0
 #: :func:`tests_that_lost`'s answer for a marker that every test kept a candidate
 #: near: its detection ended farther from it than the matching gate.
 ASTRAY = "astray"
+#: A detection lies this close to its own place in a survivor list when
+#: :func:`readings_that_added` looks for the reading that added it, px: the lists hold
+#: the detections' very positions, and no two detections lie within a merge radius
+#: (1.5 px by default) of each other.
+ADDED_RADIUS_PX = 0.5
+#: :func:`readings_that_added`'s answer for a detection no reading's list holds (a
+#: detector whose survivors name other readings).
+UNLISTED = "unlisted"
 #: Coverage of the intervals beside a recall and a false-point rate
 #: (:func:`recall_interval`, :func:`rate_interval`): the benchmark's sets hold
 #: 36-600 markers and 3-24 frames, where those figures move by several points from
@@ -164,6 +172,42 @@ def tests_that_lost(
             lost[k] = test
         alive &= near
     return lost
+
+
+def readings_that_added(
+    survivors: Sequence[tuple[str, np.ndarray]],
+    detections: np.ndarray,
+    readings: Sequence[str],
+    radius_px: float = ADDED_RADIUS_PX,
+) -> list[str]:
+    """For each detection, the first of the ``readings`` whose survivor list holds it.
+
+    A detector that reads a frame more than once (a first pass, then second readings
+    of what it lost) closes each reading with the list of its detections so far; the
+    first list that holds a detection names the reading that added it.
+
+    Args:
+        survivors: (test, (K, 2) positions of the candidates that passed it), in
+            the order the tests ran (a detector's ``DetectionResult.survivors``).
+        detections: (M, 2) the detections reported, px.
+        readings: the names of the survivor lists that close a reading, in the order
+            the readings run.
+        radius_px: how near a listed position must lie to be the detection's, px.
+
+    Returns:
+        M reading names; :data:`UNLISTED` where no reading's list holds the detection.
+    """
+    points = np.asarray(detections, dtype=np.float64).reshape(-1, 2)
+    added = [UNLISTED] * len(points)
+    unclaimed = np.ones(len(points), dtype=bool)
+    for name, xy in survivors:
+        if name not in readings:
+            continue
+        listed = unclaimed & (nearest_distances(points, xy) <= radius_px)
+        for k in np.flatnonzero(listed):
+            added[k] = name
+        unclaimed &= ~listed
+    return added
 
 
 @dataclass(frozen=True)

@@ -259,6 +259,28 @@ def test_a_candidate_further_than_the_loss_radius_is_not_the_markers():
     assert evaluation.tests_that_lost(survivors, np.array([[10.0, 10.0]])) == ["screening"]
 
 
+def test_a_detection_is_added_by_the_first_reading_whose_list_holds_it():
+    first_pass, recentred, plated = [10.0, 10.0], [50.0, 50.0], [90.0, 90.0]
+    survivors = [
+        # A test's list inside a reading claims nothing: only the readings' lists do.
+        ("fit", np.array([first_pass, recentred])),
+        ("lattice", np.array([first_pass])),
+        ("recentring", np.array([first_pass, recentred])),
+        ("plate", np.array([first_pass, recentred, plated])),
+    ]
+    detections = np.array([plated, first_pass, recentred, [200.0, 5.0]])
+    readings = ("lattice", "recentring", "shadow", "plate")
+    added = evaluation.readings_that_added(survivors, detections, readings)
+    assert added == ["plate", "lattice", "recentring", evaluation.UNLISTED]
+
+
+def test_a_listed_position_further_than_the_added_radius_is_not_the_detections():
+    listed = [10.0 + evaluation.ADDED_RADIUS_PX + 0.1, 10.0]
+    survivors = [("lattice", np.array([listed])), ("plate", np.array([[10.0, 10.0]]))]
+    detection = np.array([[10.0, 10.0]])
+    assert evaluation.readings_that_added(survivors, detection, ("lattice", "plate")) == ["plate"]
+
+
 def test_a_tally_keeps_a_matched_marker_in_at_most_40_bytes():
     """replay of an hour of five cameras with truth keeps every error for its percentiles:
     8-byte values (before, Python floats in lists: 140 bytes a matched marker)."""

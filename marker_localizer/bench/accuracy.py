@@ -583,6 +583,9 @@ class Row:
         extra: further figures of real-data tables, by column name.
         lost_at: for this package's detector, how many of the markers it missed
             each test lost (:func:`evaluation.tests_that_lost`).
+        found_by: for this package's detector, how many of the markers it found
+            each reading added (:data:`symmetry_path.READINGS`' names).
+        false_by: ... and how many of its false points.
     """
 
     name: str
@@ -590,6 +593,8 @@ class Row:
     refiner: bool = False
     extra: dict[str, float] = field(default_factory=dict)
     lost_at: Counter[str] = field(default_factory=Counter)
+    found_by: Counter[str] = field(default_factory=Counter)
+    false_by: Counter[str] = field(default_factory=Counter)
 
 
 def _timed_detect(
@@ -626,6 +631,19 @@ def _count_losses(
     if isinstance(detector, OurDetector):
         missed = np.setdiff1d(np.arange(len(truth)), matching.truth_index)
         row.lost_at.update(evaluation.tests_that_lost(detector.last_survivors, truth[missed]))
+
+
+def _count_readings(
+    row: Row, detector: PointDetector, matching: evaluation.Matching, points: np.ndarray
+) -> None:
+    """Add to ``row.found_by`` / ``row.false_by`` the readings that added the points found."""
+    if isinstance(detector, OurDetector):
+        added = evaluation.readings_that_added(
+            detector.last_survivors, points, tuple(symmetry_path.READINGS)
+        )
+        labels = [symmetry_path.READINGS.get(name, name) for name in added]
+        row.found_by.update(labels[k] for k in matching.detection_index)
+        row.false_by.update(labels[k] for k in matching.unmatched_detections)
 
 
 def subpix_starts(
@@ -744,6 +762,7 @@ def evaluate_frames(
                 frame.truth_line_angles,
             )
             _count_losses(row, detector, matching, frame.truth)
+            _count_readings(row, detector, matching, points)
         refiner = peers.CornerSubPixRefiner(peers.subpix_half_window(frame.radius_range))
         start = time.perf_counter()
         refined = refiner.refine(frame.image, subpix_starts(frame.truth, rng))
@@ -1150,6 +1169,33 @@ def losses_table(results: Sequence[tuple[str, Row]]) -> str:
     return "\n".join(lines)
 
 
+def readings_table(results: Sequence[tuple[str, Row]], heading: str) -> str:
+    """One line per family: the reference row's markers and false points by the reading adding them.
+
+    The readings in the order they run (:data:`~marker_localizer.core.symmetry_path.READINGS`):
+    what each second reading adds, and what it lets in with it. ``heading`` names
+    the frames.
+    """
+    readings = [
+        *symmetry_path.READINGS.values(),
+        *sorted(
+            {k for _, row in results for k in (*row.found_by, *row.false_by)}
+            - set(symmetry_path.READINGS.values())
+        ),
+    ]
+    header = f"{'family':<44}" + "".join(f"{name:>14}" for name in readings)
+    lines = [
+        f"{heading}: markers found / false points of {REFERENCE_ROW}, by the reading that "
+        "added them",
+        header,
+        "-" * len(header),
+    ]
+    for label, row in results:
+        cells = (f"{row.found_by[name]} / {row.false_by[name]}" for name in readings)
+        lines.append(f"{label:<44}" + "".join(f"{cell:>14}" for cell in cells))
+    return "\n".join(lines)
+
+
 def _finite_pair(bounds: tuple[float, float]) -> list[float] | None:
     """An interval for JSON: [low, high], or None where it is undefined."""
     return [float(b) for b in bounds] if all(math.isfinite(b) for b in bounds) else None
@@ -1182,6 +1228,8 @@ def row_record(row: Row) -> dict[str, Any]:
     record.update(row.extra)
     if row.lost_at:
         record["lost_at"] = dict(row.lost_at)
+    if row.found_by or row.false_by:
+        record["found_by"], record["false_by"] = dict(row.found_by), dict(row.false_by)
     return {
         k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in record.items()
     }
@@ -1308,6 +1356,7 @@ def run_heldout(options: Options, report: Callable[[str], None]) -> dict[str, An
                 "median error of the line directions reported (degrees)",
             )
         )
+        report(readings_table(rows, "Held-out frames"))
     return {label: row_record(row) for label, row in rows}
 
 
@@ -1647,6 +1696,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
     if summary:
         report(summary_table(summary))
         report(losses_table(summary))
+        report(readings_table(summary, "Rendered and independent frames"))
         results["summary"] = {label: row_record(row) for label, row in summary}
     return results
 

@@ -93,6 +93,17 @@ SURVIVOR_TESTS = (
     "shadow",
     "plate",
 )
+#: The readings that add detections, by the survivor list that closes each, in the
+#: order they run: the first pass ends with ``lattice``; the second readings each list
+#: every detection once theirs have joined (:meth:`SymmetryPath._join`), and move none
+#: of the earlier ones. :func:`~marker_localizer.evaluation.readings_that_added` finds
+#: which of them added a detection.
+READINGS = {
+    "lattice": "first pass",
+    "recentring": "recentring",
+    "shadow": "shadow",
+    "plate": "plate",
+}
 #: Candidates centred closer than this to a stronger one have found its X, px.
 _CENTRED_DUPLICATE_PX = 1.5
 

@@ -18,6 +18,7 @@ from shared_data import SHARED_DATA, needs_shared_data
 
 from marker_localizer import evaluation
 from marker_localizer.bench import accuracy, peers, real_data
+from marker_localizer.core import symmetry_path
 from marker_localizer.errors import ConfigError
 from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
 from marker_localizer.synthetic.crlb import X_SNR_BANDS
@@ -258,6 +259,24 @@ def test_a_marker_missed_on_flat_ground_is_counted_as_lost_at_the_screening():
     assert "screening" in table and "prescreen" not in table
 
 
+def test_markers_and_false_points_are_put_down_to_the_reading_that_added_them():
+    scene = render_scene(SMALL_SCENE, 5)
+    found = accuracy.LabelledFrame.rendered(scene, (8.0, 16.0))
+    # The same frame with its truth 40 px away: every detection is a false point.
+    moved = replace(found, truth=scene.centres + 40.0)
+    ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
+    (row, _) = accuracy.evaluate_frames([found, moved], 0, [ours]).rows
+    tally = row.tally
+    assert tally.n_matched > 0 and tally.n_false_positives >= tally.n_matched
+    assert row.found_by.total() == tally.n_matched
+    assert row.false_by.total() == tally.n_false_positives
+    assert set(row.found_by) | set(row.false_by) <= set(symmetry_path.READINGS.values())
+    table = accuracy.readings_table([("small", row)], "Rendered frames")
+    first_pass = f"{row.found_by['first pass']} / {row.false_by['first pass']}"
+    assert "first pass" in table.splitlines()[1] and first_pass in table.splitlines()[-1]
+    assert accuracy.row_record(row)["found_by"] == dict(row.found_by)
+
+
 def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path, capsys):
     out = tmp_path / "accuracy.json"
     assert (
@@ -268,6 +287,7 @@ def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path,
     assert "Family (g) uneven light" in printed
     assert "err/CRLB" in printed and "Summary, ours (symmetry)" in printed
     assert "Markers ours (symmetry) missed, by the test" in printed
+    assert "by the reading that added them" in printed
     assert "Family (g) recall by the dull quadrant's lead over the dark paint" in printed
     assert f"Family (g) {accuracy.X_SNR_SPLIT.title}" in printed
     saved = json.loads(out.read_text())

@@ -4,6 +4,7 @@ Also the default path's checks and second readings; the paper's path and the
 template path have their own files (test_paper_path.py, test_template_path.py).
 """
 
+import collections
 import dataclasses
 import itertools
 import multiprocessing
@@ -28,7 +29,7 @@ from scenes import (
 from scipy.spatial import cKDTree
 from shared_data import SHARED_DATA, needs_shared_data
 
-from marker_localizer import Detector, DetectorConfig
+from marker_localizer import Detector, DetectorConfig, evaluation
 from marker_localizer.bench import real_data
 from marker_localizer.bench.accuracy import Family, disc_lattice_frame, families
 from marker_localizer.bench.ground import x_tiling_frame
@@ -1159,6 +1160,35 @@ def test_tiny_markers_the_blur_nearly_merges_are_found_by_their_plate():
     assert found >= 34
     assert added >= 10
     assert false == 0
+
+
+def test_each_detection_is_put_down_to_the_reading_that_counts_it(uneven_light_frames):
+    # The readings' survivor lists say which added each detection, as their counts do:
+    # the first pass, the lost wide candidates centred again, those read with a
+    # shadow's edge divided out, and the tiny X's judged by their plate.
+    (low, high), frames = uneven_light_frames
+    detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
+    tiny = Detector(_TINY_CONFIG)
+    added = collections.Counter()
+    for result in [detector.detect(s.image) for s in frames] + [
+        tiny.detect(_tiny_marker_scene(seed).image) for seed in (0, 1)
+    ]:
+        readings = collections.Counter(
+            evaluation.readings_that_added(
+                result.survivors, result.as_array()[:, :2], tuple(symmetry_path.READINGS)
+            )
+        )
+        counts = result.counts
+        assert readings == collections.Counter(
+            {
+                "lattice": len(dict(result.survivors)["lattice"]),
+                "recentring": counts["found_recentred"],
+                "shadow": counts["found_shadowed"],
+                "plate": counts["found_plate"],
+            }
+        )
+        added += readings
+    assert all(added[name] > 0 for name in symmetry_path.READINGS)
 
 
 def test_tracking_confirms_tiny_markers_by_their_plate_and_nothing_where_they_are_not():
