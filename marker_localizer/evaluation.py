@@ -35,8 +35,8 @@ LOSS_RADIUS_PX = 3.0
 ASTRAY = "astray"
 #: A detection lies this close to its own place in a survivor list when
 #: :func:`readings_that_added` looks for the reading that added it, px: the lists hold
-#: the detections' very positions, and no two detections lie within a merge radius
-#: (1.5 px by default) of each other.
+#: the detections' very positions, and no two detections lie within the detector's
+#: merge radius (``DetectorConfig.merge_radius_px``) of each other.
 ADDED_RADIUS_PX = 0.5
 #: :func:`readings_that_added`'s answer for a detection no reading's list holds (a
 #: detector whose survivors name other readings).
