@@ -633,15 +633,22 @@ def _count_losses(
         row.lost_at.update(evaluation.tests_that_lost(detector.last_survivors, truth[missed]))
 
 
+def _readings(detector: PointDetector, points: np.ndarray) -> list[str]:
+    """The reading that added each of the points ``detector`` just found; none for a peer."""
+    if not isinstance(detector, OurDetector):
+        return []
+    added = evaluation.readings_that_added(
+        detector.last_survivors, points, tuple(symmetry_path.READINGS)
+    )
+    return [symmetry_path.READINGS.get(name, name) for name in added]
+
+
 def _count_readings(
     row: Row, detector: PointDetector, matching: evaluation.Matching, points: np.ndarray
 ) -> None:
     """Add to ``row.found_by`` / ``row.false_by`` the readings that added the points found."""
-    if isinstance(detector, OurDetector):
-        added = evaluation.readings_that_added(
-            detector.last_survivors, points, tuple(symmetry_path.READINGS)
-        )
-        labels = [symmetry_path.READINGS.get(name, name) for name in added]
+    labels = _readings(detector, points)
+    if labels:
         row.found_by.update(labels[k] for k in matching.detection_index)
         row.false_by.update(labels[k] for k in matching.unmatched_detections)
 
@@ -953,16 +960,19 @@ def evaluate_negatives(
     ``Row.extra``: ``fp_per_frame`` and its interval (``fp_per_frame_low``,
     ``fp_per_frame_high``: :func:`evaluation.frame_rate_interval`, widened by the
     frames' spread), ``fp_per_megapixel``
-    (over all the frames' pixels), ``seconds`` (per frame).
+    (over all the frames' pixels), ``seconds`` (per frame); for this package's
+    detector, ``Row.false_by``: the false points by the reading that added them.
     """
     megapixels = sum(f.image.size for f in frames) / 1e6
     rows = []
     for detector in detectors:
         per_frame, seconds = [], 0.0
+        false_by: Counter[str] = Counter()
         for frame in frames:
             points, dt = _timed_detect(detector, frame.image, radius_range, frame.colour)
             per_frame.append(len(points))
             seconds += dt
+            false_by.update(_readings(detector, points))
         n, false_points = max(len(frames), 1), sum(per_frame)
         low, high = evaluation.frame_rate_interval(per_frame)
         rows.append(
@@ -975,6 +985,7 @@ def evaluate_negatives(
                     "fp_per_megapixel": false_points / megapixels if megapixels else math.nan,
                     "seconds": seconds / n,
                 },
+                false_by=false_by,
             )
         )
     return rows
@@ -1103,15 +1114,24 @@ def uas_table(title: str, rows: Sequence[Row]) -> str:
 
 
 def negatives_table(title: str, rows: Sequence[Row]) -> str:
-    """Format the table of real frames without markers (every detection is false)."""
-    header = f"{'detector':<34}{'FP/frame':>11}{INTERVAL_HEADING:>20}{'FP/MP':>10}{'s/frame':>9}"
+    """Format the table of real frames without markers (every detection is false).
+
+    The last column gives this package's false points by the reading that added
+    them (:data:`~marker_localizer.core.symmetry_path.READINGS`).
+    """
+    header = (
+        f"{'detector':<34}{'FP/frame':>11}{INTERVAL_HEADING:>20}{'FP/MP':>10}{'s/frame':>9}"
+        "  by reading"
+    )
     lines = [title, header, "-" * len(header)]
     for row in rows:
         e = row.extra
+        by_reading = ", ".join(f"{name} {count}" for name, count in row.false_by.items() if count)
         lines.append(
             f"{row.name:<34}{_fmt(e['fp_per_frame'], 2):>11}"
             f"{evaluation.interval_text((e['fp_per_frame_low'], e['fp_per_frame_high'])):>20}"
             f"{_fmt(e['fp_per_megapixel'], 3):>10}{_fmt(e['seconds'], 2):>9}"
+            f"  {by_reading or '-'}"
         )
     return "\n".join(lines)
 
@@ -1511,9 +1531,13 @@ def _run_frames_without_markers(
     """``detectors`` on ``frames`` (no marker in them): the table reported, its figures."""
     rows = evaluate_negatives(frames, detectors, radius_range)
     report(negatives_table(title, rows))
-    return {
+    figures: dict[str, dict[str, Any]] = {
         r.name: {k: (v if math.isfinite(v) else None) for k, v in r.extra.items()} for r in rows
     }
+    for row in rows:
+        if row.false_by:
+            figures[row.name]["false_by"] = dict(row.false_by)
+    return figures
 
 
 #: The disc lattice: the ``coins`` photograph (coins in rows on a dark cloth) shrunk

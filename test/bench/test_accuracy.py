@@ -366,6 +366,17 @@ def test_negatives_count_every_detection_per_frame_and_per_megapixel():
     assert "FP/MP" in table and f"{interval[0]:.2f}-{interval[1]:.2f}" in table
 
 
+def test_our_points_on_negatives_are_listed_by_the_reading_that_added_them():
+    # A frame with markers read as one without: every detection counts as false.
+    scene = render_scene(SMALL_SCENE, 5)
+    frames = [real_data.UasFrame("markers", scene.image)]
+    ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
+    (row,) = accuracy.evaluate_negatives(frames, [ours], (8.0, 16.0))
+    assert row.false_by.total() == row.extra["fp_per_frame"] > 0
+    table = accuracy.negatives_table("t", [row])
+    assert "by reading" in table and f"first pass {row.false_by['first pass']}" in table
+
+
 class _OneFrameOfTexture:
     """A peer that returns ``count`` points on the frame whose top-left pixel is 1."""
 
