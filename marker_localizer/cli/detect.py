@@ -17,6 +17,7 @@ from marker_localizer import config as config_module
 from marker_localizer import evaluation
 from marker_localizer.blas import single_thread_blas
 from marker_localizer.cli.exits import EXIT_ERROR, EXIT_INCOMPLETE, PROG
+from marker_localizer.core import symmetry_path
 from marker_localizer.core.image import (
     BAYER_PATTERNS,
     SHALLOW_PEAK_TEXT,
@@ -36,15 +37,30 @@ from marker_localizer.image_files import read_image_file
 def result_record(
     path: str, image: np.ndarray, result: DetectionResult, elapsed_ms: float
 ) -> dict[str, Any]:
-    """The JSON-lines record of one image, the CLI's contract (README, "From the command line")."""
+    """The JSON-lines record of one image, the CLI's contract (README, "From the command line").
+
+    Each marker's ``reading`` names the reading that added it (the first pass or a
+    second reading, :data:`symmetry_path.READINGS`; :data:`evaluation.UNLISTED` on a
+    path that closes none of them): where a point you did not expect came from.
+    """
+    added = evaluation.readings_that_added(
+        result.survivors, result.as_array()[:, :2], tuple(symmetry_path.READINGS)
+    )
     return {
         "image": path,
         "width": int(image.shape[1]),
         "height": int(image.shape[0]),
         "elapsed_ms": round(elapsed_ms, 3),
         "markers": [
-            {"x": d.x, "y": d.y, "score": d.score, "sigma": d.sigma, "angles": [d.angle1, d.angle2]}
-            for d in result
+            {
+                "x": d.x,
+                "y": d.y,
+                "score": d.score,
+                "sigma": d.sigma,
+                "angles": [d.angle1, d.angle2],
+                "reading": symmetry_path.READINGS.get(name, name),
+            }
+            for d, name in zip(result, added, strict=True)
         ],
     }
 
@@ -114,7 +130,7 @@ def _write_table(record: dict[str, Any]) -> None:
     for m in record["markers"]:
         print(
             f"  x={m['x']:10.4f}  y={m['y']:10.4f}  sigma={m['sigma']:.4f} px  "
-            f"score={m['score']:.3f}"
+            f"score={m['score']:.3f}  reading={m['reading']}"
         )
     for w in record.get("why", []):
         if w["found"]:

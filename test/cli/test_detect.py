@@ -39,9 +39,17 @@ def test_detect_json_prints_one_object_per_image_with_the_contract_keys(x_image,
     assert set(first) == {"image", "width", "height", "elapsed_ms", "markers"}
     assert (first["width"], first["height"]) == (64, 64)
     marker = first["markers"][0]
-    assert set(marker) == {"x", "y", "score", "sigma", "angles"}
+    assert set(marker) == {"x", "y", "score", "sigma", "angles", "reading"}
     assert marker["x"] == pytest.approx(31.5, abs=1e-3) and len(marker["angles"]) == 2
+    assert marker["reading"] == "first pass"
     assert second["markers"] == []
+
+
+def test_the_table_names_each_markers_reading(x_image, capsys):
+    path, _image = x_image
+    assert main(["detect", str(path)]) == 0
+    printed = capsys.readouterr().out
+    assert "1 marker(s), 64x64" in printed and "reading=first pass" in printed
 
 
 def test_detect_runs_on_one_blas_thread(x_image, capsys):
