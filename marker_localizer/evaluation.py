@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from array import array
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -177,10 +177,10 @@ def tests_that_lost(
 def readings_that_added(
     survivors: Sequence[tuple[str, np.ndarray]],
     detections: np.ndarray,
-    readings: Sequence[str],
+    readings: Mapping[str, str],
     radius_px: float = ADDED_RADIUS_PX,
 ) -> list[str]:
-    """For each detection, the first of the ``readings`` whose survivor list holds it.
+    """For each detection, the reading whose survivor list holds it first, by its name.
 
     A detector that reads a frame more than once (a first pass, then second readings
     of what it lost) closes each reading with the list of its detections so far; the
@@ -190,8 +190,9 @@ def readings_that_added(
         survivors: (test, (K, 2) positions of the candidates that passed it), in
             the order the tests ran (a detector's ``DetectionResult.survivors``).
         detections: (M, 2) the detections reported, px.
-        readings: the names of the survivor lists that close a reading, in the order
-            the readings run.
+        readings: the names of the survivor lists that close a reading, each with
+            the name to give the reading (the detector's own, e.g.
+            ``symmetry_path.READINGS``).
         radius_px: how near a listed position must lie to be the detection's, px.
 
     Returns:
@@ -205,7 +206,7 @@ def readings_that_added(
             continue
         listed = unclaimed & (nearest_distances(points, xy) <= radius_px)
         for k in np.flatnonzero(listed):
-            added[k] = name
+            added[k] = readings[name]
         unclaimed &= ~listed
     return added
 

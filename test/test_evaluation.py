@@ -269,16 +269,17 @@ def test_a_detection_is_added_by_the_first_reading_whose_list_holds_it():
         ("plate", np.array([first_pass, recentred, plated])),
     ]
     detections = np.array([plated, first_pass, recentred, [200.0, 5.0]])
-    readings = ("lattice", "recentring", "shadow", "plate")
+    readings = {"lattice": "first pass", "recentring": "recentring", "plate": "plate"}
     added = evaluation.readings_that_added(survivors, detections, readings)
-    assert added == ["plate", "lattice", "recentring", evaluation.UNLISTED]
+    assert added == ["plate", "first pass", "recentring", evaluation.UNLISTED]
 
 
 def test_a_listed_position_further_than_the_added_radius_is_not_the_detections():
     listed = [10.0 + evaluation.ADDED_RADIUS_PX + 0.1, 10.0]
     survivors = [("lattice", np.array([listed])), ("plate", np.array([[10.0, 10.0]]))]
     detection = np.array([[10.0, 10.0]])
-    assert evaluation.readings_that_added(survivors, detection, ("lattice", "plate")) == ["plate"]
+    readings = {"lattice": "first pass", "plate": "plate"}
+    assert evaluation.readings_that_added(survivors, detection, readings) == ["plate"]
 
 
 def test_a_tally_keeps_a_matched_marker_in_at_most_40_bytes():

@@ -637,10 +637,7 @@ def _readings(detector: PointDetector, points: np.ndarray) -> list[str]:
     """The reading that added each of the points ``detector`` just found; none for a peer."""
     if not isinstance(detector, OurDetector):
         return []
-    added = evaluation.readings_that_added(
-        detector.last_survivors, points, tuple(symmetry_path.READINGS)
-    )
-    return [symmetry_path.READINGS.get(name, name) for name in added]
+    return evaluation.readings_that_added(detector.last_survivors, points, symmetry_path.READINGS)
 
 
 def _count_readings(

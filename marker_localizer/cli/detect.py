@@ -44,7 +44,7 @@ def result_record(
     path that closes none of them): where a point you did not expect came from.
     """
     added = evaluation.readings_that_added(
-        result.survivors, result.as_array()[:, :2], tuple(symmetry_path.READINGS)
+        result.survivors, result.as_array()[:, :2], symmetry_path.READINGS
     )
     return {
         "image": path,
@@ -58,9 +58,9 @@ def result_record(
                 "score": d.score,
                 "sigma": d.sigma,
                 "angles": [d.angle1, d.angle2],
-                "reading": symmetry_path.READINGS.get(name, name),
+                "reading": reading,
             }
-            for d, name in zip(result, added, strict=True)
+            for d, reading in zip(result, added, strict=True)
         ],
     }
 

@@ -1175,20 +1175,20 @@ def test_each_detection_is_put_down_to_the_reading_that_counts_it(uneven_light_f
     ]:
         readings = collections.Counter(
             evaluation.readings_that_added(
-                result.survivors, result.as_array()[:, :2], tuple(symmetry_path.READINGS)
+                result.survivors, result.as_array()[:, :2], symmetry_path.READINGS
             )
         )
         counts = result.counts
         assert readings == collections.Counter(
             {
-                "lattice": len(dict(result.survivors)["lattice"]),
+                "first pass": len(dict(result.survivors)["lattice"]),
                 "recentring": counts["found_recentred"],
                 "shadow": counts["found_shadowed"],
                 "plate": counts["found_plate"],
             }
         )
         added += readings
-    assert all(added[name] > 0 for name in symmetry_path.READINGS)
+    assert all(added[name] > 0 for name in symmetry_path.READINGS.values())
 
 
 def test_tracking_confirms_tiny_markers_by_their_plate_and_nothing_where_they_are_not():
