@@ -16,7 +16,7 @@ import pytest
 from scenes import SMALL_SCENE
 from shared_data import SHARED_DATA, needs_shared_data
 
-from marker_localizer import evaluation
+from marker_localizer import Detector, DetectorConfig, evaluation
 from marker_localizer.bench import accuracy, peers, real_data
 from marker_localizer.core import symmetry_path
 from marker_localizer.errors import ConfigError
@@ -277,6 +277,53 @@ def test_markers_and_false_points_are_put_down_to_the_reading_that_added_them():
     assert accuracy.row_record(row)["found_by"] == dict(row.found_by)
 
 
+def test_the_reference_row_counts_the_markers_only_a_wider_radius_range_finds():
+    """Issue 12, item 5, in the benchmark: each frame read again at a range a quarter
+    wider either way. (d)'s seeds 106 and 107 at 4-40 px against 3.2-50, where the
+    pipeline's tests expect item 5 to fail."""
+    family = next(f for f in accuracy.families() if f.key == "d" and not f.variant)
+    scenes = [family.render(seed) for seed in (106, 107)]
+    frames = [accuracy.LabelledFrame.rendered(s, family.radius_range) for s in scenes]
+    ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
+    (row, _) = accuracy.evaluate_frames(frames, 0, [ours]).rows
+    assert accuracy.wider_range(family.radius_range) == pytest.approx((3.2, 50.0))
+    only_wider = only_own = 0
+    for scene in scenes:
+        own, wider = (
+            _found(
+                Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high)), scene
+            )
+            for low, high in (family.radius_range, (3.2, 50.0))
+        )
+        only_wider, only_own = only_wider + len(wider - own), only_own + len(own - wider)
+    assert row.range_checked
+    assert (row.found_only_wider, row.found_only_own) == (only_wider, only_own)
+    table = accuracy.wider_range_table([("(d)", row)], "Rendered frames").splitlines()
+    assert table[-1].split()[-2:] == [str(only_wider), str(only_own)]
+    record = accuracy.row_record(row)
+    assert (record["found_only_wider_range"], record["found_only_own_range"]) == (
+        only_wider,
+        only_own,
+    )
+
+
+def test_peers_and_our_other_variants_are_not_read_at_a_wider_range():
+    frame = accuracy.LabelledFrame.rendered(render_scene(SMALL_SCENE, 5), (8.0, 16.0))
+    detectors = [
+        peers.OurDetector("ours (ncc, paper)", {"refinement": "ncc"}),
+        *peers.point_detectors()[:1],
+    ]
+    rows = accuracy.evaluate_frames([frame], 0, detectors).rows
+    assert not any(row.range_checked for row in rows)
+    assert all("found_only_wider_range" not in accuracy.row_record(row) for row in rows)
+
+
+def _found(detector: Detector, scene) -> set[int]:
+    """Indices of the scene's markers with a detection within 2 px."""
+    points = detector.detect(scene.image).as_array()[:, :2]
+    return set(evaluation.match_points(points, scene.centres).truth_index.tolist())
+
+
 def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path, capsys):
     out = tmp_path / "accuracy.json"
     assert (
@@ -288,6 +335,7 @@ def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path,
     assert "err/CRLB" in printed and "Summary, ours (symmetry)" in printed
     assert "Markers ours (symmetry) missed, by the test" in printed
     assert "by the reading that added them" in printed
+    assert "times wider either way" in printed
     assert "Family (g) recall by the dull quadrant's lead over the dark paint" in printed
     assert f"Family (g) {accuracy.X_SNR_SPLIT.title}" in printed
     saved = json.loads(out.read_text())
