@@ -287,24 +287,28 @@ def test_the_reference_row_counts_the_markers_only_a_wider_radius_range_finds():
     ours = peers.OurDetector(accuracy.REFERENCE_ROW, {})
     (row, _) = accuracy.evaluate_frames(frames, 0, [ours]).rows
     assert accuracy.wider_range(family.radius_range) == pytest.approx((3.2, 50.0))
-    only_wider = only_own = 0
+    only_wider = only_own = false_wider = 0
     for scene in scenes:
-        own, wider = (
+        (own, _), (wider, false) = (
             _found(
                 Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high)), scene
             )
             for low, high in (family.radius_range, (3.2, 50.0))
         )
         only_wider, only_own = only_wider + len(wider - own), only_own + len(own - wider)
+        false_wider += false
     assert row.range_checked
-    assert (row.found_only_wider, row.found_only_own) == (only_wider, only_own)
-    table = accuracy.wider_range_table([("(d)", row)], "Rendered frames").splitlines()
-    assert table[-1].split()[-2:] == [str(only_wider), str(only_own)]
-    record = accuracy.row_record(row)
-    assert (record["found_only_wider_range"], record["found_only_own_range"]) == (
+    assert (row.found_only_wider, row.found_only_own, row.false_wider) == (
         only_wider,
         only_own,
+        false_wider,
     )
+    table = accuracy.wider_range_table([("(d)", row)], "Rendered frames").splitlines()
+    counts = [only_wider, only_own, row.tally.n_false_positives, false_wider]
+    assert table[-1].split()[-4:] == [str(n) for n in counts]
+    record = accuracy.row_record(row)
+    keys = ("found_only_wider_range", "found_only_own_range", "false_points_wider_range")
+    assert [record[k] for k in keys] == [only_wider, only_own, false_wider]
 
 
 def test_peers_and_our_other_variants_are_not_read_at_a_wider_range():
@@ -318,10 +322,11 @@ def test_peers_and_our_other_variants_are_not_read_at_a_wider_range():
     assert all("found_only_wider_range" not in accuracy.row_record(row) for row in rows)
 
 
-def _found(detector: Detector, scene) -> set[int]:
-    """Indices of the scene's markers with a detection within 2 px."""
+def _found(detector: Detector, scene) -> tuple[set[int], int]:
+    """Indices of the scene's markers with a detection within 2 px, and the false points."""
     points = detector.detect(scene.image).as_array()[:, :2]
-    return set(evaluation.match_points(points, scene.centres).truth_index.tolist())
+    matching = evaluation.match_points(points, scene.centres)
+    return set(matching.truth_index.tolist()), matching.n_false_positives
 
 
 def test_main_prints_the_uneven_light_family_its_bound_and_the_summary(tmp_path, capsys):
