@@ -213,7 +213,7 @@ _WIDER_RANGE_FINDS = [
     ),
     pytest.param(
         ("b", (21,)),
-        id="(b) seed 21: a 3.8 px marker, lost at 2.5-5's prescreen, found at 2-6.25 (4.2 px)",
+        id="(b) seed 21: a 3.8 px marker, lost at 2.5-5's prescreen, found from level 1 at 2-6.25",
     ),
     pytest.param(
         ("c", (7,)),
@@ -232,7 +232,7 @@ _WIDER_RANGE_FINDS = [
 
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 12, item 5: the radius range sets the ring ladder's rungs and the first level",
+    reason="issue 12, item 5: the range sets the ring ladder's rungs and the levels searched",
 )
 @pytest.mark.parametrize("view", _WIDER_RANGE_FINDS)
 def test_a_tighter_correct_radius_range_keeps_every_marker_a_wider_one_finds(view):
@@ -241,15 +241,16 @@ def test_a_tighter_correct_radius_range_keeps_every_marker_a_wider_one_finds(vie
 
     Not yet true. The ring ladder starts at half the smallest radius, so the two
     ranges read a marker on different rungs, and the extent read sets its score
-    floor and whether it is a tiny X for the plate reading; the smallest radius also
-    sets the first pyramid level searched. A marker near a gate crosses it on one
-    ladder and not the other, either way: on development seeds 0-23 the own range
-    finds 4, 2, 3, 11 and 9 markers of (a), (b), (c), (d) and (g) that the wider one
-    does not, and loses 1, 1, 3, 2 and 7 that it finds (docs/accuracy.md, "Item 5
-    on every family"). (d)'s seed 106 marker (8.4 px, 5.0 at its shortest) reads
-    4.0 px at 4-40, a small marker's floor, and 6.4 px at 3.2-50; seed 107's reads
-    5.66 px at 4-40, where the modulation gate reads its paint and fails it, and
-    4.53 px at 3.2-50. Strict: the fix that makes a view pass removes it here.
+    floor and whether it is a tiny X for the plate reading; the smallest radius
+    also sets the first pyramid level searched, and the largest the last ((b)'s
+    6.25 px adds level 1). A marker near a gate crosses it on one ladder and not
+    the other, either way: on development seeds 0-23 the own range finds 4, 2, 3,
+    11 and 9 markers of (a), (b), (c), (d) and (g) that the wider one does not,
+    and loses 1, 1, 3, 2 and 7 that it finds (docs/accuracy.md, "Item 5 on every
+    family"). (d)'s seed 106 marker (8.4 px, 5.0 at its shortest) reads 4.0 px at
+    4-40, a small marker's floor, and 6.4 px at 3.2-50; seed 107's reads 5.66 px
+    at 4-40, where the modulation gate reads its paint and fails it, and 4.53 px
+    at 3.2-50. Strict: the fix that makes a view pass removes it here.
     """
     key, seeds = view
     family = next(f for f in families() if f.key == key and not f.variant)
