@@ -216,8 +216,8 @@ _WIDER_RANGE_FINDS = [
         id="(b) seed 21: a 3.8 px marker, lost at 2.5-5's prescreen, found from level 1 at 2-6.25",
     ),
     pytest.param(
-        ("c", (7,)),
-        id="(c) seed 7: a 6.1 px marker seen edge-on, lost at 6-40's prescreen (level 1)",
+        ("c", (8, 18)),
+        id="(c) seeds 8, 18: under the floor and the gate at 6-40, found at 4.8-50 (9.6, 4.8 px)",
     ),
     pytest.param(
         ("d", (106, 107)),
