@@ -2398,7 +2398,10 @@ def small_marker(radius_px: NDArray[np.float64], min_radius_px: float) -> NDArra
 
     Such detections are in the regime of ground texture's saddles (stones meeting),
     and need ``min_score_small`` (:func:`minimum_score`). Texture's size bounds the
-    rule, so a larger ``min_radius_px`` never asks more of the same marker.
+    rule, so from a smallest radius of :data:`SMALL_EXTENT_MAX_RADIUS_PX` on a larger
+    ``min_radius_px`` asks no more of the same marker; under it the rule moves with
+    the range (read at 4-40 px as 3.2-50 reads it, it changes none of the markers
+    (d)'s seeds 0-23 find: docs/accuracy.md, "Item 5 on every family").
 
     Args:
         radius_px: (N,) extents of the X, px.
