@@ -209,7 +209,7 @@ def test_a_tighter_correct_radius_range_never_loses_a_marker(view):
 _WIDER_RANGE_FINDS = [
     pytest.param(
         ("a", (16,)),
-        id="(a) seed 16: a 14.4 px marker, under its floor at 6-40, found at 4.8-50 (9.6 px)",
+        id="(a) seed 16: a 14.4 px marker, under its floor at 6-40, found from level 0 at 4.8-50",
     ),
     pytest.param(
         ("b", (21,)),
@@ -217,7 +217,7 @@ _WIDER_RANGE_FINDS = [
     ),
     pytest.param(
         ("c", (8, 18)),
-        id="(c) seeds 8, 18: under the floor and the gate at 6-40, found at 4.8-50 (9.6, 4.8 px)",
+        id="(c) seeds 8, 18: lost at 6-40, found at 4.8-50 from level 0 and on a 4.8 px rung",
     ),
     pytest.param(
         ("d", (106, 107)),
