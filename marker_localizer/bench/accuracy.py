@@ -681,8 +681,9 @@ def _compare_wider_range(
     """
     if not (isinstance(detector, OurDetector) and detector.name == REFERENCE_ROW):
         return
-    points, _ = _timed_detect(detector, frame.image, wider_range(frame.radius_range))
-    at_wider = evaluation.match_points(points, frame.truth)
+    at_wider = evaluation.match_points(
+        detector.detect(frame.image, wider_range(frame.radius_range)), frame.truth
+    )
     own, wider = set(matching.truth_index.tolist()), set(at_wider.truth_index.tolist())
     row.range_checked = True
     row.found_only_wider += len(wider - own)
