@@ -40,7 +40,7 @@ from marker_localizer.core.sampling import (
     in_blocks,
     pad_patterns,
 )
-from marker_localizer.core.verification import TEMPLATE_RADIUS_FRACTION
+from marker_localizer.core.verification import TEMPLATE_RADIUS_FRACTION, X_END_MAX_EXTENT_PX
 
 #: Template half-size of :func:`ncc_refine`, px: the marker's radius, at least 3 (a
 #: 7 x 7 template still holds the four sectors of a 3 px marker) and at most 15 (the
@@ -145,19 +145,21 @@ EDGE_STEP_BLUR_PX = 1.0
 #: The blurs among which :func:`_step_blur` picks the steps of the quadrants' own
 #: levels in :func:`refine_along_lines`, px: across the optics' 0.5-1.5 px met.
 EDGE_STEP_BLURS_PX = (0.6, 0.8, 1.0, 1.2, 1.5)
-#: The score statistic (chi-square, 2 degrees of freedom) from which
-#: :func:`refine_along_lines` fits the quadrants' own levels. On markers whose
-#: quadrants match it follows the noise but for model errors the noise does not make
-#: (JPEG, the blur's shape), and stays far under what a dull quadrant gives. Above
-#: the even-paint markers' largest, because the levels of a marker that does not need
-#: them cost it precision (measured: docs/accuracy.md, "Figures the fit's and the
-#: detector's docstrings carried").
-EDGE_STEP_MIN_CHI2 = 100.0
-#: The same statistic from which :func:`refine_along_lines` fits the quadrants' own
-#: levels: lower than the gating's :data:`EDGE_STEP_MIN_CHI2`, since with the lines'
-#: directions measured afresh (:func:`_edge_directions`) the levels cost a marker
-#: of even paint nothing measured down to it, and markers a shadow edge crosses,
-#: which the symmetric fit leaves tenths of a pixel off, score about as low
+#: The score statistic of the bright pair's own level (:func:`_bright_pair_step`,
+#: chi-square with 1 degree of freedom on an X of even paint) from which
+#: :func:`locate_markers` judges an X by the residual that level leaves: its 1 %
+#: point, where chance alone takes an X of even paint there once in a hundred, and its
+#: residual then falls by no more than the noise's share. The statistic is no
+#: threshold on the X: the residual the level leaves
+#: (:data:`LEVELLED_MAX_RESIDUAL`) is (the renderer's (g) gains the same markers
+#: from the 10 % point to the 0.1 %: docs/accuracy.md, "The gating score's bright
+#: pair").
+LEVELLED_MIN_CHI2 = 6.63
+#: The score statistic (chi-square, 2 degrees of freedom) of the quadrants' own
+#: levels (:func:`_edge_steps`) from which :func:`refine_along_lines` fits them: with
+#: the lines' directions measured afresh (:func:`_edge_directions`) the levels cost a
+#: marker of even paint nothing measured down to it, and markers a shadow edge
+#: crosses, which the symmetric fit leaves tenths of a pixel off, score about as low
 #: (measured: docs/accuracy.md, "Figures the fit's and the detector's docstrings
 #: carried").
 LEVELS_REFIT_MIN_CHI2 = 45.0
@@ -501,9 +503,10 @@ class SymmetryFit(NamedTuple):
         contrast: (N,) spread of the grey levels in the disk (90th - 10th percentile).
         converged: (N,) True where the last step was below tolerance and the
             point stayed within ``max_shift_px`` of its start.
-        step_chi2: (N,) the score statistic of the quadrants' own levels
-            (:func:`_edge_step_chi2`); NaN unless the line directions were given.
-        levelled_residual: (N,) the RMS residual those levels would leave, image
+        step_chi2: (N,) the score statistic of the bright pair's own level
+            (:func:`_bright_pair_step`, :func:`_edge_step_chi2`); NaN unless the line
+            directions were given.
+        levelled_residual: (N,) the RMS residual that level would leave, image
             units; NaN unless the line directions were given.
     """
 
@@ -593,7 +596,7 @@ def refine_point_symmetry(
             a third of the fit; the samples at the last step's end point, for the
             residual alone, a tenth more on busy ground).
         line_angles: (N, 2) the X's line directions, radians: with the uncertainty,
-            also weigh the quadrants' own levels at the end (:func:`_edge_step_chi2`).
+            also weigh the bright pair's own level at the end (:func:`_bright_pair_step`).
 
     Returns:
         :class:`SymmetryFit`.
@@ -639,7 +642,9 @@ def refine_point_symmetry(
     else:
         disk = offsets[pattern_of]
         s1, s2 = template.line_distances(disk[..., 0], disk[..., 1], line_angles)
-        solution = fit(*per_point, test_steps=_edge_steps(s1, s2, EDGE_STEP_BLUR_PX))
+        solution = fit(
+            *per_point, test_steps=_edge_steps(s1, s2, EDGE_STEP_BLUR_PX), bright_pair_only=True
+        )
     moved = np.linalg.norm(solution.centre - start, axis=1)
     return SymmetryFit(
         solution.centre,
@@ -1563,9 +1568,15 @@ def locate_markers(
     the default position, and its residual gates and scores every point. Where the
     quadrants' levels differ (a dull bright quadrant, a shadow edge) the grey levels
     are not point-symmetric and that residual holds the difference; where the
-    score statistic of the quadrants' own levels passes :data:`EDGE_STEP_MIN_CHI2`
-    and they leave an X as clean as even paint (:data:`LEVELLED_MAX_RESIDUAL`),
-    the residual they leave gates and scores it instead. The position stays the
+    score statistic of the bright pair's own level (:func:`_bright_pair_step`)
+    passes :data:`LEVELLED_MIN_CHI2` and that level leaves an X as clean as even
+    paint (:data:`LEVELLED_MAX_RESIDUAL`), the residual it leaves gates and scores
+    it instead. The dark pair keeps one level, as in the template's match: black
+    paint stays black under wear, dirt or sheen, while the dark gaps of a texture
+    saddle differ as its stones do. X's of texture's size
+    (under :data:`verification.X_END_MAX_EXTENT_PX`) keep the plain residual: texture
+    saddles of that size reach their floors with a level of their own, and where
+    such an X ends is what judges it. The position stays the
     symmetric fit's (:func:`refine_along_lines` moves it). With
     ``ncc_offset_px`` the reported position is the paper's NCC extremum
     (:func:`ncc_refine`), and its distance from the symmetry centre is added to
@@ -1607,8 +1618,10 @@ def locate_markers(
         discrepancy = np.where(located, np.sum((position - fit.xy) ** 2, axis=1), 0.0)
     sigma = calibrated_sigma(fit.covariance, discrepancy)
     contrast = np.maximum(fit.contrast, _MIN_CONTRAST)
-    levelled = (fit.step_chi2 > EDGE_STEP_MIN_CHI2) & (
-        fit.levelled_residual <= LEVELLED_MAX_RESIDUAL * contrast
+    levelled = (
+        (fit.step_chi2 > LEVELLED_MIN_CHI2)
+        & (radius_px >= X_END_MAX_EXTENT_PX)
+        & (fit.levelled_residual <= LEVELLED_MAX_RESIDUAL * contrast)
     )
     relative_residual = np.where(levelled, fit.levelled_residual, fit.residual) / contrast
     score = evidence * np.clip(1.0 - relative_residual, 0.0, 1.0)
@@ -1719,6 +1732,28 @@ def _edge_steps(
     return np.stack([template.edge_step(s1, blur_px), template.edge_step(s2, blur_px)], axis=-1)
 
 
+def _bright_pair_step(
+    steps: NDArray[np.float64], samples: NDArray[np.float64], weight: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """(N, K, 1) the step of the bright pair's own level among :func:`_edge_steps`' two.
+
+    The pairs' residual is (L_a - L_c)(E1 + E2) / 2 + (L_b - L_d)(E1 - E2) / 2 for
+    quadrants a, b, c, d in turn (:func:`_edge_steps`); the pair a, c lies where
+    E1 E2 > 0. Which pair is the bright one is read from the pairs' sums
+    I(c + d) + I(c - d) (``samples``, (N, 2K), at the fit's end), weighted by
+    ``weight`` (N, K): their correlation with the blurred X E1 E2 is positive
+    where a and c are bright.
+    """
+    k = steps.shape[1]
+    x = steps[..., 0] * steps[..., 1]
+    total = samples[:, :k] + samples[:, k:]
+    mean = (weight * total).sum(axis=1, keepdims=True) / np.maximum(
+        weight.sum(axis=1, keepdims=True), 1e-12
+    )
+    polarity = np.where((weight * (total - mean) * x).sum(axis=1) >= 0.0, 1.0, -1.0)
+    return (0.5 * (steps[..., 0] + polarity[:, None] * steps[..., 1]))[..., None]
+
+
 def _edge_step_chi2(
     residual: NDArray[np.float64],
     weight: NDArray[np.float64],
@@ -1727,17 +1762,18 @@ def _edge_step_chi2(
     steps: NDArray[np.float64],
     cell: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(N,) score statistics of the quadrants' own levels, and the (N,) RMS residual they leave.
+    """(N,) score statistics of the levels of ``steps``, and the (N,) RMS residual they leave.
 
     Where a symmetric fit ended: the drop in the weighted squared residual that
-    fitting the levels of :func:`_edge_steps` too would give, to first order (the
+    fitting the levels of ``steps`` (N, K, S) too would give, to first order (the
     steps orthogonalised against the fit's columns), over the residual variance
-    with them: chi-square with 2 degrees of freedom where the quadrants match.
+    with them: chi-square with S degrees of freedom where the quadrants match
+    (:func:`_edge_steps`' two, or :func:`_bright_pair_step`'s one).
     ``residual``, ``weight`` (N, K), the ``weighted`` Jacobian (N, K, P) and the
     ``normal`` matrix are the fit's at its end; ``cell`` (N,) is the area a sample
     stands for, px^2 (samples closer than a pixel share their noise).
     """
-    weighted_steps = np.stack([steps[..., 0] * weight, steps[..., 1] * weight], axis=-1)
+    weighted_steps = steps * weight[..., None]
     cross = weighted.transpose(0, 2, 1) @ steps
     projected = np.linalg.solve(normal + 1e-9 * np.eye(normal.shape[-1]), cross)
     reduced = weighted_steps.transpose(0, 2, 1) @ steps - cross.transpose(0, 2, 1) @ projected
@@ -1786,11 +1822,13 @@ def _gauss_newton_symmetry(
     slope_prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
     groups: NDArray[np.intp] | None = None,
     measure_contrast: bool = True,
+    bright_pair_only: bool = False,
 ) -> _SymmetrySolution:
     # ``groups`` (N,): points fitted together that end as separate calls, one per
     # group, would (a group stops when all its steps do); None: one group. Without
     # ``measure_contrast`` the contrast is NaN: the line fit reads none, and its sort
-    # of every sample cost a tenth of that fit.
+    # of every sample cost a tenth of that fit. With ``bright_pair_only`` the
+    # ``test_steps`` weigh the bright pair's level alone (:func:`_bright_pair_step`).
     n_params = 2 + 2 * model_gain + 2 * (edge_steps is not None)
     # The slope's prior (:func:`_light_inside`: its mean, and its information per square
     # pixel) enters the normal equations as pairs on this fit's grid would.
@@ -1889,6 +1927,8 @@ def _gauss_newton_symmetry(
     levelled_rms: NDArray[np.float64] = np.full(n, np.nan)
     if test_steps is not None:
         # From the pairs alone, the prior left out: the statistic its thresholds were set on.
+        if bright_pair_only:
+            test_steps = _bright_pair_step(test_steps, samples, weight)
         step_chi2, levelled_rms = _edge_step_chi2(
             residual, weight, weighted, normal, test_steps, cell[:, 0, 0]
         )

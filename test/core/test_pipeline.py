@@ -39,6 +39,7 @@ from marker_localizer.core import (
     plate,
     second_reading,
     shadow,
+    subpixel,
     symmetry_path,
     template_path,
     verification,
@@ -757,6 +758,30 @@ def test_an_x_over_its_floor_whose_paint_alone_the_gate_doubts_is_vouched_for_at
     found_at_floor_bars, false_at_floor_bars = found_and_false()
     assert found and not found_at_floor_bars
     assert false <= false_at_floor_bars
+
+
+@pytest.mark.parametrize(("seed", "marker"), [(109, 3), (119, 4)])
+def test_a_dull_bright_quadrant_is_scored_with_its_own_level(monkeypatch, seed: int, marker: int):
+    # Family (g) at 5-30 px: markers of 16 px with a bright quadrant 0.44-0.57 as
+    # bright as its opposite, no shadow. The gating fit's grey-level symmetry leaves
+    # the dull quadrant in its residual and scores them under their floor; with the
+    # bright pair's own level they score as even paint and are found. The frame
+    # gains no false point.
+    family = next(f for f in families() if f.key == "g" and not f.variant)
+    frame = family.render(seed)
+    detector = _family_detector(family)
+
+    def found_and_false() -> tuple[bool, int]:
+        matching = evaluation.match_points(
+            detector.detect(frame.image).as_array()[:, :2], frame.centres
+        )
+        return bool(marker in matching.truth_index), matching.n_false_positives
+
+    found, false = found_and_false()
+    monkeypatch.setattr(subpixel, "LEVELLED_MIN_CHI2", np.inf)
+    found_plain, false_plain = found_and_false()
+    assert found and not found_plain
+    assert false <= false_plain
 
 
 def test_small_tilted_markers_under_their_score_floor_are_kept_by_their_model(monkeypatch):

@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from marker_localizer import Detector, DetectorConfig
-from marker_localizer.core import shadow, subpixel, template
+from marker_localizer.core import shadow, subpixel, template, verification
 from marker_localizer.core.acceptance import MAX_TEMPLATE_MISFIT
 from marker_localizer.core.noise import NoiseModel
 from marker_localizer.synthetic import MarkerPlacement, render_markers
@@ -495,14 +495,13 @@ def test_the_quadrants_own_levels_lie_on_the_lines_found_from_the_edges(dull_fac
     assert np.mean(refit_error) < 0.04
 
 
-def test_a_slightly_dull_quadrant_gets_its_own_level_under_the_gating_threshold():
+def test_a_slightly_dull_quadrant_gets_its_own_level_in_the_line_fit():
     # A bright quadrant 0.975 as bright scores 45-130: the refit gives it its level
     # (the symmetric fit leaves it 0.0075 px off on average).
     refit_error = []
     for seed in range(6):
         image, truth, angles = _dull_x(seed, 0.975)
         refit_error.append(np.linalg.norm(_gate_and_refit(image, truth, angles)[1] - truth))
-    assert subpixel.LEVELS_REFIT_MIN_CHI2 < subpixel.EDGE_STEP_MIN_CHI2
     assert np.mean(refit_error) < 0.005
 
 
@@ -690,8 +689,8 @@ def test_a_symmetric_fit_that_slipped_is_not_weighed_in_with_the_levels(monkeypa
 
 
 def test_the_quadrant_level_statistic_follows_the_noise_where_the_quadrants_match():
-    # Near a chi-square of 2 degrees of freedom on an even X (2-19 here: the model's
-    # own errors add to the noise's), far above the threshold on a dull one.
+    # Near a chi-square of 2 degrees of freedom on an even X (1-15 here: the model's
+    # own errors add to the noise's), far above the line fit's threshold on a dull one.
     def statistic(image, centre, angles):
         band = subpixel._line_band(12.0, angles)
         fit = subpixel._gauss_newton_symmetry(
@@ -701,8 +700,8 @@ def test_the_quadrant_level_statistic_follows_the_noise_where_the_quadrants_matc
 
     even = [statistic(*_dull_x(seed, 1.0)) for seed in range(12)]
     dull = [statistic(*_dull_x(seed, 0.7)) for seed in range(12)]
-    assert max(even) < subpixel.EDGE_STEP_MIN_CHI2 / 4
-    assert min(dull) > subpixel.EDGE_STEP_MIN_CHI2
+    assert max(even) < subpixel.LEVELS_REFIT_MIN_CHI2
+    assert min(dull) > subpixel.LEVELS_REFIT_MIN_CHI2
 
 
 def _gate(image, start, angles):
@@ -742,10 +741,65 @@ def test_the_quadrants_own_levels_judge_only_an_x_they_leave_as_clean_as_even_pa
     fit = subpixel.refine_point_symmetry(
         noisy, start[None], np.array([0.9 * 13.0]), max_shift_px=1.5, line_angles=angles
     )
-    assert fit.step_chi2[0] > subpixel.EDGE_STEP_MIN_CHI2
+    assert fit.step_chi2[0] > subpixel.LEVELLED_MIN_CHI2
     assert fit.levelled_residual[0] > subpixel.LEVELLED_MAX_RESIDUAL * fit.contrast[0]
     gate = _gate(noisy, start, angles)
     assert gate.score[0] == pytest.approx(1.0 - fit.residual[0] / fit.contrast[0])
+
+
+def _grey_dark_quadrant(seed, lift):
+    """An even X of 16 px with one dark quadrant ``lift`` of the contrast greyer, as a
+    texture saddle's gaps differ; and its centre and lines."""
+    image, truth, angles = _dull_x(seed, 1.0)
+    rows, cols = np.mgrid[: image.shape[0], : image.shape[1]].astype(float)
+    s1, s2 = template.line_distances(cols - truth[0], rows - truth[1], angles[0])
+    e1, e2 = template.edge_step(s1, 1.0), template.edge_step(s2, 1.0)
+    quadrants = [(1 + a * e1) * (1 + b * e2) / 4 for a in (1, -1) for b in (1, -1)]
+    dark = min(quadrants, key=lambda q: (q * image).sum() / q.sum())
+    inside = np.hypot(cols - truth[0], rows - truth[1]) < 14.0
+    contrast = np.percentile(image[inside], 90) - np.percentile(image[inside], 10)
+    return image + lift * contrast * dark * inside, truth, angles
+
+
+def test_the_gating_fit_gives_the_bright_pair_its_own_level_not_the_dark_pair():
+    # Black paint stays black: a dark quadrant greyer than its opposite is not read
+    # as paint, and the plain residual, which the grey quadrant raises, scores it.
+    for seed in range(3):
+        image, truth, angles = _grey_dark_quadrant(seed, 0.4)
+        start = truth + [0.3, -0.2]
+        fit = subpixel.refine_point_symmetry(
+            image, start[None], np.array([0.9 * 13.0]), max_shift_px=1.5, line_angles=angles
+        )
+        gate = _gate(image, start, angles)
+        even = _gate(*_dull_x(seed, 1.0)[:1], start, angles)
+        assert fit.step_chi2[0] < subpixel.LEVELLED_MIN_CHI2
+        assert gate.score[0] == pytest.approx(1.0 - fit.residual[0] / fit.contrast[0])
+        assert gate.score[0] < even.score[0] - 0.05
+
+
+def test_an_x_of_textures_size_is_scored_by_its_plain_residual():
+    # Under verification.X_END_MAX_EXTENT_PX the bright pair's level does not judge:
+    # texture saddles that small reach their floors with a level of their own.
+    image, truth, angles = _dull_x(0, 0.5)
+    start = truth + [0.3, -0.2]
+    extent = verification.X_END_MAX_EXTENT_PX - 0.5
+    fit = subpixel.refine_point_symmetry(
+        image, start[None], np.array([0.9 * extent]), max_shift_px=1.5, line_angles=angles
+    )
+    small = subpixel.locate_markers(
+        image,
+        start[None],
+        np.array([extent]),
+        angles,
+        np.array([1.0]),
+        max_radius_px=30.0,
+        iterations=10,
+        min_contrast=1.0,
+        max_symmetry_residual=1.0,
+    )
+    assert fit.step_chi2[0] > subpixel.LEVELLED_MIN_CHI2
+    assert fit.levelled_residual[0] < fit.residual[0] / 2
+    assert small.score[0] == pytest.approx(1.0 - fit.residual[0] / fit.contrast[0])
 
 
 def _four_xs(seed, dull_factor=1.0):
