@@ -732,6 +732,16 @@ def test_faint_small_markers_the_modulation_gate_rejects_are_kept_by_their_model
     assert false <= gate_false
 
 
+def _found_and_false(detector: Detector, frame, marker: int) -> tuple[bool, int]:
+    """Whether ``marker`` of a rendered ``frame`` is found, and the frame's false points.
+
+    Matched as the benchmark matches, within its 2 px (:func:`evaluation.match_points`).
+    """
+    found = detector.detect(frame.image).as_array()[:, :2]
+    matching = evaluation.match_points(found, frame.centres)
+    return bool(marker in matching.truth_index), matching.n_false_positives
+
+
 @pytest.mark.parametrize(("key", "seed", "marker"), [("a", 114, 11), ("c", 230, 7)])
 def test_an_x_over_its_floor_whose_paint_alone_the_gate_doubts_is_vouched_for_at_looser_bars(
     monkeypatch, key: str, seed: int, marker: int
@@ -745,17 +755,10 @@ def test_an_x_over_its_floor_whose_paint_alone_the_gate_doubts_is_vouched_for_at
     frame = family.render(seed)
     detector = _family_detector(family)
 
-    def found_and_false() -> tuple[bool, int]:
-        # Matched as the benchmark matches, within its 2 px.
-        matching = evaluation.match_points(
-            detector.detect(frame.image).as_array()[:, :2], frame.centres
-        )
-        return bool(marker in matching.truth_index), matching.n_false_positives
-
-    found, false = found_and_false()
+    found, false = _found_and_false(detector, frame, marker)
     monkeypatch.setattr(acceptance, "GATE_MIN_NCC", acceptance.FAINT_MIN_NCC)
     monkeypatch.setattr(acceptance, "GATE_MAX_MISFIT", acceptance.FAINT_MAX_MISFIT)
-    found_at_floor_bars, false_at_floor_bars = found_and_false()
+    found_at_floor_bars, false_at_floor_bars = _found_and_false(detector, frame, marker)
     assert found and not found_at_floor_bars
     assert false <= false_at_floor_bars
 
@@ -771,15 +774,9 @@ def test_a_dull_bright_quadrant_is_scored_with_its_own_level(monkeypatch, seed: 
     frame = family.render(seed)
     detector = _family_detector(family)
 
-    def found_and_false() -> tuple[bool, int]:
-        matching = evaluation.match_points(
-            detector.detect(frame.image).as_array()[:, :2], frame.centres
-        )
-        return bool(marker in matching.truth_index), matching.n_false_positives
-
-    found, false = found_and_false()
+    found, false = _found_and_false(detector, frame, marker)
     monkeypatch.setattr(subpixel, "LEVELLED_MIN_CHI2", np.inf)
-    found_plain, false_plain = found_and_false()
+    found_plain, false_plain = _found_and_false(detector, frame, marker)
     assert found and not found_plain
     assert false <= false_plain
 

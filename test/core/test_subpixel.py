@@ -704,17 +704,17 @@ def test_the_quadrant_level_statistic_follows_the_noise_where_the_quadrants_matc
     assert min(dull) > subpixel.LEVELS_REFIT_MIN_CHI2
 
 
-def _gate(image, start, angles):
+def _gate(image, start, angles, extent_px=13.0, max_symmetry_residual=0.1):
     return subpixel.locate_markers(
         image,
         start[None],
-        np.array([13.0]),
+        np.array([extent_px]),
         angles,
         np.array([1.0]),
         max_radius_px=30.0,
         iterations=10,
         min_contrast=1.0,
-        max_symmetry_residual=0.1,
+        max_symmetry_residual=max_symmetry_residual,
     )
 
 
@@ -786,17 +786,7 @@ def test_an_x_of_textures_size_is_scored_by_its_plain_residual():
     fit = subpixel.refine_point_symmetry(
         image, start[None], np.array([0.9 * extent]), max_shift_px=1.5, line_angles=angles
     )
-    small = subpixel.locate_markers(
-        image,
-        start[None],
-        np.array([extent]),
-        angles,
-        np.array([1.0]),
-        max_radius_px=30.0,
-        iterations=10,
-        min_contrast=1.0,
-        max_symmetry_residual=1.0,
-    )
+    small = _gate(image, start, angles, extent, max_symmetry_residual=1.0)
     assert fit.step_chi2[0] > subpixel.LEVELLED_MIN_CHI2
     assert fit.levelled_residual[0] < fit.residual[0] / 2
     assert small.score[0] == pytest.approx(1.0 - fit.residual[0] / fit.contrast[0])
