@@ -31,7 +31,13 @@ from shared_data import SHARED_DATA, needs_shared_data
 
 from marker_localizer import Detector, DetectorConfig, evaluation
 from marker_localizer.bench import real_data
-from marker_localizer.bench.accuracy import Family, disc_lattice_frame, families, wider_range
+from marker_localizer.bench.accuracy import (
+    DISC_LATTICE_RADIUS_RANGE,
+    Family,
+    disc_lattice_frame,
+    families,
+    wider_range,
+)
 from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.core import (
     acceptance,
@@ -763,22 +769,32 @@ def test_an_x_over_its_floor_whose_paint_alone_the_gate_doubts_is_vouched_for_at
     assert false <= false_at_floor_bars
 
 
-@pytest.mark.parametrize(("seed", "marker"), [(109, 3), (119, 4)])
-def test_a_dull_bright_quadrant_is_scored_with_its_own_level(monkeypatch, seed: int, marker: int):
-    # Family (g) at 5-30 px: markers of 16 px with a bright quadrant 0.44-0.57 as
-    # bright as its opposite, no shadow. The gating fit's grey-level symmetry leaves
-    # the dull quadrant in its residual and scores them under their floor; with the
-    # bright pair's own level they score as even paint and are found. The frame
-    # gains no false point.
-    family = next(f for f in families() if f.key == "g" and not f.variant)
-    frame = family.render(seed)
+def test_a_saddle_whose_dark_gaps_differ_is_not_scored_as_a_dull_marker(monkeypatch):
+    # Family (a)'s seed 603 at 6-40 px and the disc lattice's frame 7: a saddle of 12
+    # px between stones, and a gap between discs, whose dark pair differs as its
+    # bright pair does. Scored with both pairs' own levels each clears its floor and
+    # is a false point; with the bright pair's alone (black paint stays black)
+    # neither is, and no marker is lost.
+    family = next(f for f in families() if f.key == "a" and not f.variant)
+    frame = family.render(603)
     detector = _family_detector(family)
+    lattice = disc_lattice_frame(7)
+    low, high = DISC_LATTICE_RADIUS_RANGE
+    on_discs = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
 
-    found, false = _found_and_false(detector, frame, marker)
-    monkeypatch.setattr(subpixel, "LEVELLED_MIN_CHI2", np.inf)
-    found_plain, false_plain = _found_and_false(detector, frame, marker)
-    assert found and not found_plain
-    assert false <= false_plain
+    def read() -> tuple[int, int, int]:
+        matching = evaluation.match_points(
+            detector.detect(frame.image).as_array()[:, :2], frame.centres
+        )
+        found = len(matching.truth_index)
+        return found, matching.n_false_positives, len(on_discs.detect(lattice.image))
+
+    found, false, lattice_false = read()
+    monkeypatch.setattr(subpixel, "_bright_pair_step", lambda steps, samples, weight: steps)
+    found_both, false_both, lattice_false_both = read()
+    assert found == found_both
+    assert false < false_both
+    assert lattice_false < lattice_false_both
 
 
 def test_small_tilted_markers_under_their_score_floor_are_kept_by_their_model(monkeypatch):
