@@ -738,13 +738,15 @@ def test_faint_small_markers_the_modulation_gate_rejects_are_kept_by_their_model
     assert false <= gate_false
 
 
-def _found_and_false(detector: Detector, frame, marker: int) -> tuple[bool, int]:
-    """Whether ``marker`` of a rendered ``frame`` is found, and the frame's false points.
+def _matching(detector: Detector, frame) -> evaluation.Matching:
+    """A rendered ``frame``'s detections matched to its markers as the benchmark matches
+    them, within its 2 px (:func:`evaluation.match_points`)."""
+    return evaluation.match_points(detector.detect(frame.image).as_array()[:, :2], frame.centres)
 
-    Matched as the benchmark matches, within its 2 px (:func:`evaluation.match_points`).
-    """
-    found = detector.detect(frame.image).as_array()[:, :2]
-    matching = evaluation.match_points(found, frame.centres)
+
+def _found_and_false(detector: Detector, frame, marker: int) -> tuple[bool, int]:
+    """Whether ``marker`` of a rendered ``frame`` is found, and the frame's false points."""
+    matching = _matching(detector, frame)
     return bool(marker in matching.truth_index), matching.n_false_positives
 
 
@@ -783,9 +785,7 @@ def test_a_saddle_whose_dark_gaps_differ_is_not_scored_as_a_dull_marker(monkeypa
     on_discs = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
 
     def read() -> tuple[int, int, int]:
-        matching = evaluation.match_points(
-            detector.detect(frame.image).as_array()[:, :2], frame.centres
-        )
+        matching = _matching(detector, frame)
         found = len(matching.truth_index)
         return found, matching.n_false_positives, len(on_discs.detect(lattice.image))
 
