@@ -2259,8 +2259,16 @@ def disk_recurrence(
     each offset :data:`RECURRENCE_REACH` extents away; at each offset the lower of
     it and the NCC at the opposite offset (to a pixel), and the highest of those.
     A lattice repeats its saddles in opposite pairs along its rows, and a
-    marker's ground does not repeat its X. Offsets whose copy, or the opposite
-    one, leaves the image are not read; 0 where none is left.
+    marker's ground does not repeat its X. Offsets whose copy leaves the image
+    are not read; 0 where none is left.
+
+    By the frame's border most offsets' opposite copies are cut off, and a
+    lattice's saddle read on the few offsets left (along the border) passes for a
+    marker. Where an offset's opposite copy is cut off, the copy one period
+    further on the side in view (at twice the offset, to a pixel) stands in for
+    it: two copies in a row, as two opposite ones are. One copy alone is what a
+    marker's ground makes by chance (docs/accuracy.md, "A lattice cut by the
+    frame's border").
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -2272,42 +2280,80 @@ def disk_recurrence(
     far = RECURRENCE_REACH[1]
     for k, ((x, y), radius) in enumerate(zip(xy, radius_px, strict=True)):
         shrink = min(1.0, _RECURRENCE_RADIUS_PX / radius)
-        disk = max(1, round(radius * shrink))
-        reach = round((far + 1.0) * radius * shrink)
-        # The neighbourhood area-reduced about the X's centre, as far as the image goes.
+        extent = float(radius * shrink)
         column, row = round(x * shrink), round(y * shrink)
-        low = (max(0, column - reach), max(0, row - reach))
-        corner = np.floor(np.array(low) / shrink).astype(int)
-        end = np.ceil((np.array([column, row]) + reach + 1) / shrink).astype(int)
-        crop = image[corner[1] : min(end[1], height), corner[0] : min(end[0], width)]
-        window: NDArray[Any] = crop.astype(np.float32)
-        if shrink < 1.0:
-            size = (round(crop.shape[1] * shrink), round(crop.shape[0] * shrink))
-            window = cv2.resize(window, size, interpolation=cv2.INTER_AREA)
-        centre = (column - low[0], row - low[1])
-        if not (
-            disk <= centre[0] < window.shape[1] - disk
-            and disk <= centre[1] < window.shape[0] - disk
-        ):
-            continue
-        patch = window[
-            centre[1] - disk : centre[1] + disk + 1, centre[0] - disk : centre[0] + disk + 1
-        ]
-        ncc = np.nan_to_num(cv2.matchTemplate(window, patch, cv2.TM_CCOEFF_NORMED), nan=-1.0)
-        # The map on a square about the X's own position, -1 where it was not read,
-        # so that turning it half round gives each offset's opposite.
-        span = reach - disk
-        full = np.full((2 * span + 1, 2 * span + 1), -1.0, np.float32)
-        top, left = span - (centre[1] - disk), span - (centre[0] - disk)
-        rows, columns = (
-            min(ncc.shape[0], full.shape[0] - top),
-            min(ncc.shape[1], full.shape[1] - left),
+        reach = round((far + 1.0) * extent)
+        cut = not (
+            reach <= column
+            and reach <= row
+            and np.ceil((column + reach + 1) / shrink) <= width
+            and np.ceil((row + reach + 1) / shrink) <= height
         )
-        full[top : top + rows, left : left + columns] = ncc[:rows, :columns]
-        opposite = cv2.dilate(np.ascontiguousarray(full[::-1, ::-1]), _OPPOSITE_SLACK)
-        both = np.minimum(full, opposite)[_recurrence_annulus(span, float(radius * shrink))]
-        recurrence[k] = max(float(both.max(initial=0.0)), 0.0)
+        if cut:
+            reach = round((2.0 * far + 1.0) * extent)
+        read = _recurrence_map(image, (column, row), reach, max(1, round(extent)), shrink)
+        if read is None:
+            continue
+        ncc, inside = read
+        span = ncc.shape[0] // 2
+        rows, columns = _recurrence_offsets(span, extent)
+        # A copy's partner may lie a pixel off where it is expected: a lattice is warped.
+        partner = cv2.dilate(ncc, _OPPOSITE_SLACK)
+        partner_read = cv2.dilate(inside, _OPPOSITE_SLACK) > 0
+        opposite = (span - rows, span - columns)
+        pairs = np.where(partner_read[opposite], partner[opposite], -1.0)
+        if cut:
+            # Offsets whose double lies off the map have no copy one period further.
+            on_map = 2 * np.maximum(np.abs(rows), np.abs(columns)) <= span
+            twice = (span + 2 * rows * on_map, span + 2 * columns * on_map)
+            further = np.where(on_map & partner_read[twice], partner[twice], -1.0)
+            pairs = np.where(partner_read[opposite], pairs, further)
+        copies = np.minimum(ncc[span + rows, span + columns], pairs)
+        recurrence[k] = max(float(copies.max(initial=0.0)), 0.0)
     return recurrence
+
+
+def _recurrence_map(
+    image: NDArray[Any], centre: tuple[int, int], reach: int, disk: int, shrink: float
+) -> tuple[NDArray[np.float32], NDArray[np.uint8]] | None:
+    """The NCC of an X's disk about it, on a square map centred on it, and where it was read.
+
+    ``centre``, ``reach`` and ``disk`` are in the area-reduced image's pixels
+    (``shrink`` of the image's): the map's offsets go out to ``reach`` less ``disk``
+    either way, as far as the image goes, -1 (and not read) beyond it. None where
+    the X's own disk leaves the image.
+    """
+    height, width = image.shape[:2]
+    column, row = centre
+    # The neighbourhood area-reduced about the X's centre, as far as the image goes.
+    low = (max(0, column - reach), max(0, row - reach))
+    corner = np.floor(np.array(low) / shrink).astype(int)
+    end = np.ceil((np.array([column, row]) + reach + 1) / shrink).astype(int)
+    crop = image[corner[1] : min(end[1], height), corner[0] : min(end[0], width)]
+    window: NDArray[Any] = crop.astype(np.float32)
+    if shrink < 1.0:
+        size = (round(crop.shape[1] * shrink), round(crop.shape[0] * shrink))
+        window = cv2.resize(window, size, interpolation=cv2.INTER_AREA)
+    inner = (column - low[0], row - low[1])
+    if not (
+        disk <= inner[0] < window.shape[1] - disk and disk <= inner[1] < window.shape[0] - disk
+    ):
+        return None
+    patch = window[inner[1] - disk : inner[1] + disk + 1, inner[0] - disk : inner[0] + disk + 1]
+    ncc = np.nan_to_num(cv2.matchTemplate(window, patch, cv2.TM_CCOEFF_NORMED), nan=-1.0)
+    # On a square about the X's own position, so that an offset's opposite is its
+    # mirror through the centre.
+    span = reach - disk
+    full = np.full((2 * span + 1, 2 * span + 1), -1.0, np.float32)
+    inside = np.zeros(full.shape, np.uint8)
+    top, left = span - (inner[1] - disk), span - (inner[0] - disk)
+    rows, columns = (
+        min(ncc.shape[0], full.shape[0] - top),
+        min(ncc.shape[1], full.shape[1] - left),
+    )
+    full[top : top + rows, left : left + columns] = ncc[:rows, :columns]
+    inside[top : top + rows, left : left + columns] = 1
+    return full, inside
 
 
 #: The opposite offset's reach, a pixel either way: a lattice is warped.
@@ -2315,14 +2361,15 @@ _OPPOSITE_SLACK = np.ones((3, 3), np.uint8)
 
 
 @functools.lru_cache(maxsize=256)
-def _recurrence_annulus(span: int, extent: float) -> NDArray[np.bool_]:
-    """The offsets of a (2 span + 1)^2 map :data:`RECURRENCE_REACH` extents from its centre."""
+def _recurrence_offsets(span: int, extent: float) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """(rows, columns) of a (2 span + 1)^2 map's offsets :data:`RECURRENCE_REACH` extents out."""
     offset = np.hypot(*(np.mgrid[: 2 * span + 1, : 2 * span + 1] - span)) / extent
     near, far = RECURRENCE_REACH
-    annulus = (offset >= near) & (offset <= far)
+    rows, columns = np.nonzero((offset >= near) & (offset <= far))
+    rows, columns = rows - span, columns - span
     # Shared by every caller through the cache (and every thread): read-only.
-    annulus.flags.writeable = False
-    return cast("NDArray[np.bool_]", annulus)
+    rows.flags.writeable = columns.flags.writeable = False
+    return rows, columns
 
 
 #: Reach along each of an X's four half-lines, beyond its extent, where

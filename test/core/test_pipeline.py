@@ -772,29 +772,23 @@ def test_an_x_over_its_floor_whose_paint_alone_the_gate_doubts_is_vouched_for_at
 
 
 def test_a_saddle_whose_dark_gaps_differ_is_not_scored_as_a_dull_marker(monkeypatch):
-    # Family (a)'s seed 603 at 6-40 px and the disc lattice's frame 7: a saddle of 12
-    # px between stones, and a gap between discs, whose dark pair differs as its
-    # bright pair does. Scored with both pairs' own levels each clears its floor and
-    # is a false point; with the bright pair's alone (black paint stays black)
-    # neither is, and no marker is lost.
+    # Family (a)'s seed 603 at 6-40 px: a saddle of 12 px between stones whose dark
+    # pair differs as its bright pair does. Scored with both pairs' own levels it
+    # clears its floor and is a false point; with the bright pair's alone (black
+    # paint stays black) it is not, and no marker is lost.
     family = next(f for f in families() if f.key == "a" and not f.variant)
     frame = family.render(603)
     detector = _family_detector(family)
-    lattice = disc_lattice_frame(7)
-    low, high = DISC_LATTICE_RADIUS_RANGE
-    on_discs = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
 
-    def read() -> tuple[int, int, int]:
+    def read() -> tuple[int, int]:
         matching = _matching(detector, frame)
-        found = len(matching.truth_index)
-        return found, matching.n_false_positives, len(on_discs.detect(lattice.image))
+        return len(matching.truth_index), matching.n_false_positives
 
-    found, false, lattice_false = read()
+    found, false = read()
     monkeypatch.setattr(subpixel, "_bright_pair_step", lambda steps, samples, weight: steps)
-    found_both, false_both, lattice_false_both = read()
+    found_both, false_both = read()
     assert found == found_both
     assert false < false_both
-    assert lattice_false < lattice_false_both
 
 
 def test_small_tilted_markers_under_their_score_floor_are_kept_by_their_model(monkeypatch):
@@ -1441,6 +1435,35 @@ def test_a_lattice_of_flat_discs_is_ground_its_saddles_repeated_not_a_field_of_m
     assert unasked >= 40
     assert sum(len(result) for result in results) <= unasked // 4
     assert sum(result.counts["rejected_lattice"] for result in results) >= unasked // 2
+
+
+def test_a_lattice_cut_by_the_frames_border_is_ground_along_the_border_too():
+    # Rendered disc lattices (seeds no benchmark table renders) whose saddles by the
+    # border, their opposite copies cut off, passed for markers (four on these
+    # frames); read two copies in a row on the side in view, they are the lattice's.
+    # Its saddles within the frame that pass (seed 112's three) recur too little.
+    low, high = DISC_LATTICE_RADIUS_RANGE
+    detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
+    for seed in (107, 112):
+        image = disc_lattice_frame(seed).image
+        height, width = image.shape
+        for detection in detector.detect(image):
+            # Where the recurrence's window reaches the border.
+            reach = (verification.RECURRENCE_REACH[1] + 1.0) * detection.radius_px
+            x, y = detection.x, detection.y
+            assert min(x, y, width - 1 - x, height - 1 - y) > reach
+
+
+def test_a_marker_by_the_frames_border_stands_alone_though_its_ground_repeats_it_once():
+    # Family (a) seed 123: a marker of 15 px, its centre 31 px from the top, above
+    # a crossing of bright lines that repeats its X once (NCC 0.8); its copy one
+    # period further is not there, and the opposite one is cut off.
+    family = next(f for f in families() if f.key == "a" and f.variant == "")
+    scene = family.render(123)
+    result = _family_detector(family).detect(scene.image)
+    matching = evaluation.match_points(result.as_array()[:, :2], scene.centres)
+    assert 6 in matching.truth_index
+    assert scene.centres[6, 1] < 32.0
 
 
 def test_markers_and_a_chessboards_corners_stand_alone_as_the_lattice_test_reads_them():

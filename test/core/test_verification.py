@@ -731,3 +731,24 @@ def test_a_chessboard_repeats_its_corner_and_joins_it_by_its_lines_and_a_lone_x_
     # whose own disk leaves the image has none.
     assert verification.disk_recurrence(board, np.array([[20.0, 80.0]]), extent)[0] > 0.9
     assert verification.disk_recurrence(board, np.array([[4.0, 80.0]]), extent)[0] == 0.0
+
+
+def test_by_the_border_a_lattice_recurs_twice_in_a_row_where_its_opposite_copies_are_cut_off():
+    """Where the frame cuts an offset's opposite copy, the copy one period further stands in.
+
+    At a board's corner two squares from the image's corner every offset's opposite
+    copy is cut off; its copies at one and two periods inward are read. A lone X by
+    the border whose ground repeats it once (one copy, nothing a period further) is
+    no lattice: a marker's ground makes one copy by chance, not two in a row.
+    """
+    extent = np.array([16.0])
+    board = _corner_image(board=True)
+    assert verification.disk_recurrence(board, np.array([[32.0, 32.0]]), extent)[0] > 0.9
+    y, x = np.mgrid[:161, :161] - 80.0
+    lone = np.where(np.hypot(x + 56.0, y) <= 16.0, ((x + 56.0) * y > 0).astype(float), 0.5)
+    copied = np.where(np.hypot(x + 16.0, y) <= 16.0, ((x + 16.0) * y > 0).astype(float), lone)
+    by_border = np.array([[24.0, 80.0]])
+    assert verification.disk_recurrence(_painted(copied), by_border, extent)[0] < 0.3
+    # The same X and copy with a second copy a period further: a row of three.
+    row = np.where(np.hypot(x - 24.0, y) <= 16.0, ((x - 24.0) * y > 0).astype(float), copied)
+    assert verification.disk_recurrence(_painted(row), by_border, extent)[0] > 0.9
