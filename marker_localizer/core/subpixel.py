@@ -152,9 +152,9 @@ EDGE_STEP_BLURS_PX = (0.6, 0.8, 1.0, 1.2, 1.5)
 #: percentile and 37-142 at most, the model's errors adding to the noise's), and the
 #: bar both pairs' levels had. Lower bars find more of the renderer's dull markers
 #: (12 of 1 152 (g) markers at 45, which score 54-94), and let in the gaps of a
-#: lattice of discs of unequal brightness (8-62) and, through them, their
-#: neighbours, read as a board's corners and spared their plate (docs/accuracy.md,
-#: "The gating score's bright pair").
+#: lattice of discs of unequal brightness (8-62), most of those the lattice test
+#: rejects but by the frame's border (docs/accuracy.md, "The gating score's bright
+#: pair", "A lattice cut by the frame's border").
 LEVELLED_MIN_CHI2 = 100.0
 #: The score statistic (chi-square, 2 degrees of freedom) of the quadrants' own
 #: levels (:func:`_edge_steps`) from which :func:`refine_along_lines` fits them: with

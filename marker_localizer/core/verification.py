@@ -2283,12 +2283,8 @@ def disk_recurrence(
         extent = float(radius * shrink)
         column, row = round(x * shrink), round(y * shrink)
         reach = round((far + 1.0) * extent)
-        cut = not (
-            reach <= column
-            and reach <= row
-            and np.ceil((column + reach + 1) / shrink) <= width
-            and np.ceil((row + reach + 1) / shrink) <= height
-        )
+        low, end = _recurrence_window((column, row), reach, shrink)
+        cut = min(low) < 0 or end[0] > width or end[1] > height
         if cut:
             reach = round((2.0 * far + 1.0) * extent)
         read = _recurrence_map(image, (column, row), reach, max(1, round(extent)), shrink)
@@ -2305,12 +2301,29 @@ def disk_recurrence(
         if cut:
             # Offsets whose double lies off the map have no copy one period further.
             on_map = 2 * np.maximum(np.abs(rows), np.abs(columns)) <= span
-            twice = (span + 2 * rows * on_map, span + 2 * columns * on_map)
+            twice = (
+                np.where(on_map, span + 2 * rows, span),
+                np.where(on_map, span + 2 * columns, span),
+            )
             further = np.where(on_map & partner_read[twice], partner[twice], -1.0)
             pairs = np.where(partner_read[opposite], pairs, further)
         copies = np.minimum(ncc[span + rows, span + columns], pairs)
         recurrence[k] = max(float(copies.max(initial=0.0)), 0.0)
     return recurrence
+
+
+def _recurrence_window(
+    centre: tuple[int, int], reach: int, shrink: float
+) -> tuple[tuple[int, int], tuple[int, int]]:
+    """Where :func:`_recurrence_map` reads, before the image's border cuts it.
+
+    ``centre`` and ``reach`` in the area-reduced image's pixels. Returns the
+    window's first column and row there, and its end (exclusive) in the image's own
+    pixels.
+    """
+    column, row = centre
+    end = np.ceil((np.array([column, row]) + reach + 1) / shrink).astype(int)
+    return (column - reach, row - reach), (int(end[0]), int(end[1]))
 
 
 def _recurrence_map(
@@ -2326,9 +2339,9 @@ def _recurrence_map(
     height, width = image.shape[:2]
     column, row = centre
     # The neighbourhood area-reduced about the X's centre, as far as the image goes.
-    low = (max(0, column - reach), max(0, row - reach))
+    unclipped, end = _recurrence_window(centre, reach, shrink)
+    low = (max(0, unclipped[0]), max(0, unclipped[1]))
     corner = np.floor(np.array(low) / shrink).astype(int)
-    end = np.ceil((np.array([column, row]) + reach + 1) / shrink).astype(int)
     crop = image[corner[1] : min(end[1], height), corner[0] : min(end[0], width)]
     window: NDArray[Any] = crop.astype(np.float32)
     if shrink < 1.0:

@@ -1460,9 +1460,7 @@ def test_a_marker_by_the_frames_border_stands_alone_though_its_ground_repeats_it
     # period further is not there, and the opposite one is cut off.
     family = next(f for f in families() if f.key == "a" and f.variant == "")
     scene = family.render(123)
-    result = _family_detector(family).detect(scene.image)
-    matching = evaluation.match_points(result.as_array()[:, :2], scene.centres)
-    assert 6 in matching.truth_index
+    assert 6 in _matching(_family_detector(family), scene).truth_index
     assert scene.centres[6, 1] < 32.0
 
 

@@ -745,10 +745,15 @@ def test_by_the_border_a_lattice_recurs_twice_in_a_row_where_its_opposite_copies
     board = _corner_image(board=True)
     assert verification.disk_recurrence(board, np.array([[32.0, 32.0]]), extent)[0] > 0.9
     y, x = np.mgrid[:161, :161] - 80.0
-    lone = np.where(np.hypot(x + 56.0, y) <= 16.0, ((x + 56.0) * y > 0).astype(float), 0.5)
-    copied = np.where(np.hypot(x + 16.0, y) <= 16.0, ((x + 16.0) * y > 0).astype(float), lone)
+
+    def x_at(column: float, ground: np.ndarray | float) -> np.ndarray:
+        """An X of 16 px centred at ``column`` on row 80, its lines the axes, on ``ground``."""
+        dx = x - (column - 80.0)
+        return np.where(np.hypot(dx, y) <= 16.0, (dx * y > 0).astype(float), ground)
+
+    copied = x_at(64.0, x_at(24.0, 0.5))
     by_border = np.array([[24.0, 80.0]])
     assert verification.disk_recurrence(_painted(copied), by_border, extent)[0] < 0.3
     # The same X and copy with a second copy a period further: a row of three.
-    row = np.where(np.hypot(x - 24.0, y) <= 16.0, ((x - 24.0) * y > 0).astype(float), copied)
+    row = x_at(104.0, copied)
     assert verification.disk_recurrence(_painted(row), by_border, extent)[0] > 0.9
