@@ -26,6 +26,15 @@ _Float = TypeVar("_Float", np.float32, np.float64)
 #: The local mean of Eq. (2) is measured on the frame reduced by this fraction of the
 #: window's side: the mean over a window is smooth at that scale.
 _LOCAL_MEAN_REDUCTION = 8
+#: (low, high) clip of Eq. (2)'s gamma. The paper sets none; a clip keeps black ground
+#: from collapsing to a flat field (gamma -> 0). The low end is a square root, the power
+#: under which shot noise is even across the levels (read noise is even under a power
+#: of 1): a camera's noise lies between the two, and a power under 1/2 magnifies the
+#: dark quadrants' noise past the bright ones' whatever the camera. At 1/4 (the clip
+#: until 2026-12-06) a marker's black paint at 0-10 DN under a dark surround read 0-0.44
+#: of white, and the innermost rings about its centre lines 30 degrees off
+#: (docs/accuracy.md, "Eq. (2)'s gamma no stronger than a square root").
+GAMMA_LIMITS = (0.5, 4.0)
 #: Standard deviation of a normal distribution per unit of median absolute deviation.
 MAD_TO_STD = 1.4826
 #: :meth:`StructureComponents.quantile` reads every this-many-th pixel in each direction:
@@ -106,13 +115,13 @@ def dynamic_gamma(
     image: FloatImage,
     alpha: float = 2.0,
     window_px: int = 65,
-    gamma_limits: tuple[float, float] = (0.25, 4.0),
+    gamma_limits: tuple[float, float] = GAMMA_LIMITS,
 ) -> FloatImage:
     """Per-pixel gamma correction driven by the local mean luminance, Eq. (2).
 
     L' = L ** gamma with gamma = alpha * mu(k): dark surroundings get gamma < 1
     (brightened), bright ones gamma > 1. The gamma is clipped to ``gamma_limits``
-    so that black ground does not collapse to a flat field.
+    (:data:`GAMMA_LIMITS`).
 
     Args:
         image: (H, W) float32 in [0, 1], the illumination layer L.
@@ -318,7 +327,7 @@ class LocalGamma:
         full_scale: float,
         alpha: float = 2.0,
         window_px: int = 65,
-        gamma_limits: tuple[float, float] = (0.25, 4.0),
+        gamma_limits: tuple[float, float] = GAMMA_LIMITS,
         regions: NDArray[np.integer[Any]] | None = None,
     ) -> None:
         self._reduction = local_mean_lattice_px(window_px)

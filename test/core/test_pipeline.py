@@ -191,6 +191,42 @@ def test_faint_markers_blurred_past_their_innermost_rings_floor_are_found(seed):
     assert (found, false) == (8, 0)
 
 
+@pytest.mark.parametrize("seed", range(2))
+def test_markers_in_a_dark_surround_whose_black_paint_sits_at_the_sensors_floor_are_found(seed):
+    """White paint at 18 % of full scale, black at none, on ground at 10 %, 3.5 DN of noise.
+
+    An underexposed corner of a frame: its black paint reads 0-10 DN, noise and the
+    floor of the sensor's range. Eq. (2) brightens the dark surround; a power
+    stronger than a square root would spread those levels over half the range and
+    turn the lines the innermost rings read (with a clip of 1/4: 0-2 of 8 found).
+    """
+    rng = np.random.default_rng(seed)
+    placements = [
+        MarkerPlacement(
+            60 + 120 * (i % 4),
+            60 + 120 * (i // 4),
+            rng.uniform(12.0, 30.0),
+            rng.uniform(0.0, np.pi),
+            rng.uniform(0.0, 30.0),
+            1.0,
+            ("checker", "quarter_disks")[i % 2],
+        )
+        for i in range(8)
+    ]
+    scene = render_markers(
+        (240, 480),
+        placements,
+        seed,
+        reflectances=(0.0, 0.18),
+        blur_sigma_px=0.7,
+        noise_sigma_dn=3.5,
+        background_level=0.1,
+    )
+    detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
+    found, false, _ = found_false_errors(detector.detect(scene.image).as_array(), scene.centres)
+    assert (found, false) == (8, 0)
+
+
 @pytest.mark.parametrize(
     "view",
     [

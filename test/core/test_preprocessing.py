@@ -41,6 +41,22 @@ def test_dynamic_gamma_leaves_mid_grey_alone_and_brightens_dark_surroundings():
     assert (preprocessing.dynamic_gamma(bright, alpha=2.0, window_px=9) < 0.8).all()
 
 
+def test_eq_2_stretches_a_dark_surround_no_further_than_a_square_root():
+    """The power that evens shot noise; a stronger one magnifies the dark paint's noise.
+
+    Ground at 4 % of white asks Eq. (2) for a gamma of 0.08; the frame and the
+    samples the checks read both get the square root.
+    """
+    dark = np.full((40, 40), 0.04, np.float32)
+    np.testing.assert_allclose(
+        preprocessing.dynamic_gamma(dark, alpha=2.0, window_px=9), 0.2, rtol=1e-5
+    )
+    image = np.full((200, 200), 0.04 * 255.0, np.float32)
+    samples = np.array([[0.0, 0.04 * 255.0, 0.16 * 255.0]])
+    read = preprocessing.LocalGamma(image, 255.0)(samples, np.array([[100.0, 100.0]]))
+    np.testing.assert_allclose(read, np.sqrt(samples / 255.0).clip(1e-3), rtol=1e-4)
+
+
 def test_structure_map_follows_eq_3_for_a_known_local_std():
     # Alternating rows of 0 and 1: every 3x3 window holds 3 or 6 ones, std sqrt(2)/3.
     image = np.zeros((30, 30), np.float32)
