@@ -14,8 +14,11 @@ _PAPER = dict(candidate_detector="curvature", refinement="ncc")
 
 
 def test_the_papers_curvature_screening_is_selectable():
-    result = Detector(DetectorConfig(candidate_detector="curvature")).detect(checker_2x2(96))
-    assert len(result) == 1 and result[0].x == pytest.approx(47.5, abs=0.01)
+    # Four flat quadrants and nothing else: the curvature's thresholds, read from the
+    # frame's own edges, depend on its size. The corner passes at 64, 80, 112 and 128
+    # px, not at 96 (at 160 px before Eq. (2) was held to a square root).
+    result = Detector(DetectorConfig(candidate_detector="curvature")).detect(checker_2x2(64))
+    assert len(result) == 1 and result[0].x == pytest.approx(31.5, abs=0.01)
 
 
 def test_the_papers_pipeline_finds_the_markers_of_rendered_frames(cluttered_frames):
