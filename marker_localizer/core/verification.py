@@ -2294,18 +2294,19 @@ def disk_recurrence(
         span = ncc.shape[0] // 2
         rows, columns = _recurrence_offsets(span, extent)
         # A copy's partner may lie a pixel off where it is expected: a lattice is warped.
+        # (Where no partner was read the map holds -1, and so does its dilation.)
         partner = cv2.dilate(ncc, _OPPOSITE_SLACK)
-        partner_read = cv2.dilate(inside, _OPPOSITE_SLACK) > 0
         opposite = (span - rows, span - columns)
-        pairs = np.where(partner_read[opposite], partner[opposite], -1.0)
+        pairs = partner[opposite]
         if cut:
+            partner_read = cv2.dilate(inside, _OPPOSITE_SLACK) > 0
             # Offsets whose double lies off the map have no copy one period further.
             on_map = 2 * np.maximum(np.abs(rows), np.abs(columns)) <= span
             twice = (
                 np.where(on_map, span + 2 * rows, span),
                 np.where(on_map, span + 2 * columns, span),
             )
-            further = np.where(on_map & partner_read[twice], partner[twice], -1.0)
+            further = np.where(on_map, partner[twice], -1.0)
             pairs = np.where(partner_read[opposite], pairs, further)
         copies = np.minimum(ncc[span + rows, span + columns], pairs)
         recurrence[k] = max(float(copies.max(initial=0.0)), 0.0)
