@@ -511,35 +511,40 @@ class ShadowedContrast:
     min_contrast: float
     min_modulation: float
 
+    def weight(self, mean: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        """How much a contrast under the local mean ``mean`` weighs against the floor's.
+
+        The floor over 2 m L: a print's contrast over what the least modulation gives
+        under that light (Weber), at most :data:`MAX_SHADOW_GAIN`. Over 1 where the
+        light is dim (a mean under 33 DN at the defaults), under 1 where it is bright.
+        """
+        weber = 2.0 * self.min_modulation * np.asarray(mean, np.float64)
+        with np.errstate(divide="ignore"):
+            weight = self.min_contrast / weber
+        return np.minimum(weight, MAX_SHADOW_GAIN)
+
     def gain(self, mean: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """How far the raw contrast floors are lowered where the local mean is ``mean``.
 
         Where 2 m L falls below the floor (a mean under 33 DN at the defaults) the
-        floors follow it down, at most :data:`MAX_SHADOW_GAIN`-fold; elsewhere they
-        stay (gain 1), and with them the time on ordinary ground.
+        floors follow it down, at most :data:`MAX_SHADOW_GAIN`-fold: the :meth:`weight`
+        there; elsewhere they stay (gain 1), and with them the time on ordinary ground.
         """
-        weber = 2.0 * self.min_modulation * np.asarray(mean, np.float64)
-        with np.errstate(divide="ignore"):
-            gain = self.min_contrast / weber
-        return np.clip(gain, 1.0, MAX_SHADOW_GAIN)
+        return np.maximum(self.weight(mean), 1.0)
 
-    def gain_on_spans(
+    def weight_on_spans(
         self,
         gamma: LocalGamma,
         y: NDArray[np.float64],
         x_first: NDArray[np.float64],
         x_last: NDArray[np.float64],
     ) -> NDArray[np.float64]:
-        """(N, S) a bound on :meth:`gain` along each row ``y`` within each span of columns.
+        """(N, S) a bound on :meth:`weight` along each row ``y`` within each span of columns.
 
-        From :meth:`LocalGamma.darkest_mean_on_spans`, read only on the rows that hold
-        a mean that dark (:meth:`LocalGamma.darkest_mean_on_rows`); 1 on the others.
+        From :meth:`LocalGamma.darkest_mean_on_spans`: the weight falls as the mean
+        rises, so the darkest mean bounds it from above.
         """
-        gain = np.ones((len(y), len(x_first)))
-        dark = np.flatnonzero(self.gain(gamma.darkest_mean_on_rows(y)) > 1.0)
-        if len(dark):
-            gain[dark] = self.gain(gamma.darkest_mean_on_spans(y[dark], x_first, x_last))
-        return gain
+        return self.weight(gamma.darkest_mean_on_spans(y, x_first, x_last))
 
     def gain_at(self, gamma: LocalGamma, xy: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """(N,) :meth:`gain` at ``xy``; None where no surroundings are that dark.

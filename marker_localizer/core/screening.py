@@ -331,10 +331,17 @@ def _spread(threshold: float | NDArray[np.float32], width: int) -> float | NDArr
     return threshold
 
 
-def _limit(threshold: float | NDArray[np.float32], bound: float) -> float | NDArray[np.float32]:
+def _limit(
+    threshold: float | NDArray[np.float32],
+    bound: float,
+    lift: NDArray[np.float32] | None = None,
+) -> float | NDArray[np.float32]:
     """What a response must exceed to pass ``threshold`` and reach ``bound`` (0: none).
 
     ``threshold`` is one value, a column of one per row, or one per row and span.
+    ``lift``: (h, S) a bound on the squared weight of the light on each row and span
+    (:class:`ShadowGain`), or None (1): ``bound`` is on the weighed response, which
+    a raw one reaches from ``bound`` over that weight up.
     """
     if np.ndim(threshold) and threshold.min() == threshold.max():  # type: ignore[union-attr]
         # Rows of one bound (in the open, or evenly dark) compare with a scalar.
@@ -343,21 +350,30 @@ def _limit(threshold: float | NDArray[np.float32], bound: float) -> float | NDAr
         return threshold
     # At least the bound is more than the float32 just below it.
     below = float(np.nextafter(np.float32(bound), np.float32(0)))
+    if lift is not None:
+        weighed = (below * _LIFT_BOUND_SLACK / lift).astype(np.float32)
+        return np.maximum(threshold, weighed)
     return (
         np.maximum(threshold, below) if np.ndim(threshold) else max(cast(float, threshold), below)
     )
 
 
 def _unexamined(
-    response: NDArray[np.float32], threshold: float | NDArray[np.float32], bound: float
+    response: NDArray[np.float32],
+    threshold: float | NDArray[np.float32],
+    bound: float,
+    lift: NDArray[np.float32] | None = None,
 ) -> int:
-    """Pixels of ``response`` above ``threshold`` (per row, or row and span) but below ``bound``."""
+    """Pixels of ``response`` above ``threshold`` (per row, or row and span) but below ``bound``.
+
+    ``lift`` as for :func:`_limit`.
+    """
     if bound <= 0:
         return 0
     width = response.shape[1]
     return int(
         np.count_nonzero(response > _spread(threshold, width))
-        - np.count_nonzero(response > _spread(_limit(threshold, bound), width))
+        - np.count_nonzero(response > _spread(_limit(threshold, bound, lift), width))
     )
 
 
@@ -374,6 +390,8 @@ class _Strip(NamedTuple):
         response: the strip's own rows of response, where kept (a sampled strip's,
             to count them again); None: dropped, so that the next strip reuses the
             memory while it is in the cache.
+        lift: (N,) the bound on the light's squared weight at each peak, which the
+            bound is compared with its value times; None: 1 (:class:`SaddlePeaks`).
     """
 
     flat_index: NDArray[np.intp]
@@ -381,16 +399,30 @@ class _Strip(NamedTuple):
     neighbours: NDArray[np.float32]
     unexamined: int
     response: NDArray[np.float32] | None
+    lift: NDArray[np.float32] | None = None
 
-    def above(self, bound: float, threshold: float | NDArray[np.float32]) -> _Strip:
-        """These peaks of at least ``bound`` (the response kept); ``threshold`` the strip's."""
-        strong = self.values >= bound
+    def weighed(self) -> NDArray[np.float32]:
+        """(N,) the peaks' responses times their ``lift``: what bounds are compared with."""
+        return self.values if self.lift is None else self.values * self.lift
+
+    def above(
+        self,
+        bound: float,
+        threshold: float | NDArray[np.float32],
+        lift: NDArray[np.float32] | None = None,
+    ) -> _Strip:
+        """These peaks of at least ``bound`` (the response kept).
+
+        ``threshold`` and ``lift`` are the strip's rows' (:func:`_strip_peaks`).
+        """
+        strong = self.weighed() >= bound
         return _Strip(
             self.flat_index[strong],
             self.values[strong],
             self.neighbours[strong],
-            _unexamined(cast("NDArray[np.float32]", self.response), threshold, bound),
+            _unexamined(cast("NDArray[np.float32]", self.response), threshold, bound, lift),
             None,
+            None if self.lift is None else self.lift[strong],
         )
 
 
@@ -405,6 +437,7 @@ def _strip_peaks(
     threshold: float | NDArray[np.float32],
     bound: float,
     keep_response: bool = False,
+    lift: NDArray[np.float32] | None = None,
 ) -> _Strip:
     """The saddle response of a strip of ``image``, its ``rows``, and its peaks.
 
@@ -413,8 +446,11 @@ def _strip_peaks(
         rows: the strip's rows (a slice with its start and stop).
         threshold: the squared saddle strength a peak exceeds; or an (H, 1) column, or
             (H, S) one per row and span of :data:`_SHADOW_SPAN_PX` columns.
-        bound: only the peaks of at least this response are wanted (0: all).
+        bound: only the peaks of at least this response (times ``lift``) are wanted
+            (0: all).
         keep_response: keep the strip's response in the result.
+        lift: (H, S) the bound on the light's squared weight on each row and span
+            (:class:`ShadowGain`); None: 1.
     """
     height, width = image.shape
     start, stop = rows.start, min(rows.stop, height)
@@ -423,19 +459,26 @@ def _strip_peaks(
     # The strip's response with one row either side (none at the image's edges).
     above, below = max(start - 1, 0), min(stop + 1, height)
     compared = threshold if np.ndim(threshold) == 0 else threshold[above:below]  # type: ignore[index]
-    limit = _spread(_limit(compared, bound), width)
+    near = None if lift is None else lift[above:below]
+    limit = _spread(_limit(compared, bound, near), width)
     local, value = _local_maxima(strip[above - first : below - first], limit)
     # The neighbours the peaks' sub-pixel refinement reads, while the strip is at hand.
     flat = strip[above - first :].reshape(-1)
     neighbours = np.stack([flat[local + step] for step in _neighbour_steps(width)], axis=1)
     own = threshold if np.ndim(threshold) == 0 else threshold[start:stop]  # type: ignore[index]
+    own_lift = None if lift is None else lift[start:stop]
+    peak_lift = None
+    if near is not None:
+        row, column = np.divmod(local, width)
+        peak_lift = near[row, column // _SHADOW_SPAN_PX]
     response = strip[start - first : stop - first]
     return _Strip(
         local + above * width,
         value,
         neighbours,
-        _unexamined(response, own, bound),
+        _unexamined(response, own, bound, own_lift),
         response.copy() if keep_response else None,
+        peak_lift,
     )
 
 
@@ -457,9 +500,12 @@ class SaddlePeaks(NamedTuple):
         values: (N,) their responses.
         neighbours: (N, 8) float32 responses of the pixels around each, in the
             order of :data:`_NEIGHBOURS`.
-        bound: every peak of at least this response is listed (0: every peak).
+        bound: every peak of at least this response (times ``lift``) is listed (0:
+            every peak).
         unexamined: pixels above the threshold but below the bound, never
             compared with their neighbours.
+        lift: (N,) the bound on the light's squared weight at each peak
+            (:class:`ShadowGain`); None: 1.
     """
 
     shape: tuple[int, int]
@@ -468,6 +514,7 @@ class SaddlePeaks(NamedTuple):
     neighbours: NDArray[np.float32]
     bound: float
     unexamined: int
+    lift: NDArray[np.float32] | None = None
 
 
 def saddle_peaks(
@@ -476,6 +523,7 @@ def saddle_peaks(
     *,
     strongest: int | None = None,
     at_least: float = 0.0,
+    lift: NDArray[np.float32] | None = None,
 ) -> SaddlePeaks:
     """The saddle response of ``image`` and its 3x3 maxima above ``threshold``.
 
@@ -498,6 +546,9 @@ def saddle_peaks(
         strongest: how many of the strongest peaks are wanted (about 1.5 times as
             many are listed); None: all.
         at_least: only peaks of at least this response are wanted.
+        lift: (H, S) a bound on the light's squared weight on each row and span of
+            :data:`_SHADOW_SPAN_PX` columns (:class:`ShadowGain`): the strongest
+            peaks and ``at_least`` are those of the responses times it; None: 1.
 
     Returns:
         :class:`SaddlePeaks` (the response itself is not kept: the refinement of
@@ -507,14 +558,18 @@ def saddle_peaks(
     height, width = image.shape
     if np.ndim(threshold):
         threshold = np.asarray(threshold, np.float32).reshape(height, -1)
+    if lift is not None:
+        lift = np.asarray(lift, np.float32).reshape(height, -1)
     step = _strip_rows(width)
     strip_rows = [slice(start, min(start + step, height)) for start in range(0, height, step)]
     found = {}
     bound = at_least
     if strongest is not None:
         sampled = range(0, len(strip_rows), _SAMPLE_STRIP_STRIDE)
-        found = {k: _strip_peaks(image, strip_rows[k], threshold, bound, True) for k in sampled}
-        values = np.concatenate([np.zeros(0, np.float32), *(found[k].values for k in sampled)])
+        found = {
+            k: _strip_peaks(image, strip_rows[k], threshold, bound, True, lift) for k in sampled
+        }
+        values = np.concatenate([np.zeros(0, np.float32), *(found[k].weighed() for k in sampled)])
         # At least the sample's strongest, however few are wanted of a frame.
         rank = max(1, int(_SAMPLE_RANK_MARGIN * strongest * len(sampled) / len(strip_rows)))
         if len(values) > rank:
@@ -522,9 +577,9 @@ def saddle_peaks(
             for k in sampled:
                 rows = strip_rows[k]
                 own = threshold if np.ndim(threshold) == 0 else threshold[rows]  # type: ignore[index]
-                found[k] = found[k].above(bound, own)
+                found[k] = found[k].above(bound, own, None if lift is None else lift[rows])
     strips = [
-        found[k] if k in found else _strip_peaks(image, rows, threshold, bound)
+        found[k] if k in found else _strip_peaks(image, rows, threshold, bound, lift=lift)
         for k, rows in enumerate(strip_rows)
     ]
     return SaddlePeaks(
@@ -536,6 +591,14 @@ def saddle_peaks(
         ),
         bound,
         sum(strip.unexamined for strip in strips),
+        None
+        if lift is None
+        else np.concatenate(
+            [
+                np.zeros(0, np.float32),
+                *(cast("NDArray[np.float32]", strip.lift) for strip in strips),
+            ]
+        ),
     )
 
 
@@ -739,26 +802,33 @@ _FLOOR_SAMPLE_STRIDE = 4
 _FLOOR_BOUND_MARGIN = 1e-6
 
 
-#: Relative slack of a peak's test against the shadow gain's bound: the bound's
-#: arithmetic rounds otherwise than the gain's own, which it must never fall below.
-_GAIN_BOUND_SLACK = 1.0 - 1e-9
+#: Relative slack of a bound turned into a raw response over the light's weight: the
+#: float32 division may round up, and the bound must list a few more peaks, never fewer.
+_LIFT_BOUND_SLACK = 1.0 - 1e-6
 
 
 class ShadowGain(NamedTuple):
-    """How far the screening's threshold is lowered under dark surroundings.
+    """The light's weight on the saddle screening (:meth:`preprocessing.ShadowedContrast.weight`).
+
+    A print's contrast scales with the light on it, and so does an X's saddle
+    response, by the square. Each peak's response counts times its weight squared
+    wherever peaks are ranked (the cells' and the frame's caps, their floors, the
+    candidates' ``strength``): a marker under dim light weighs as one in the open,
+    and bright ground texture no more than its contrast over its light. The
+    threshold is lowered by the gain, the weight where it is over 1 (under dark
+    surroundings), so that the contrast floor holds after Eq. (2) as in the checks
+    that follow.
 
     Attributes:
-        at: (N,) the factor, at least 1, at (N, 2) points of the screened image.
-        on_spans: (N, S) its largest value on each of the (N,) rows y of the image
-            within each of the spans of columns x_first to x_last (S,), inclusive.
-        at_most: (N,) a bound on it from above at (N, 2) points, cheaper than ``at``.
+        at: (N,) the weight at (N, 2) points of the screened image.
+        on_spans: (N, S) a bound on it from above on each of the (N,) rows y of the
+            image within each of the spans of columns x_first to x_last (S,), inclusive.
     """
 
     at: Callable[[NDArray[np.float64]], NDArray[np.float64]]
     on_spans: Callable[
         [NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]
     ]
-    at_most: Callable[[NDArray[np.float64]], NDArray[np.float64]]
 
 
 class _LevelPeaks(NamedTuple):
@@ -778,31 +848,24 @@ class _LevelPeaks(NamedTuple):
     expected: float
     scale_px: float
 
-    def lit_or_in_shadow(
-        self, threshold: float, shadow: ShadowGain, dark_rows: NDArray[np.bool_]
-    ) -> _LevelPeaks:
-        """The peaks above ``threshold``, and the weaker ones above it over the shadow gain.
+    def weighed_by_light(self, threshold: float, shadow: ShadowGain) -> _LevelPeaks:
+        """The peaks above ``threshold`` over their own gain, each weighed by its light.
 
-        Found with a lower threshold on the ``dark_rows`` of the response, whose
-        peaks alone are looked at.
+        Listed with the threshold lowered by the gain's bound on each span, and the
+        bounds compared with the weight's bound (:class:`ShadowGain`); here each
+        peak's own weight at its pixel decides. Its response and its neighbours',
+        which refine it, are weighed alike: the refinement reads their ratios.
         """
-        in_dark = np.flatnonzero(dark_rows[self.peaks.flat_index // self.peaks.shape[1]])
-        weak = in_dark[self.peaks.values[in_dark] <= threshold * threshold]
-        xy = self.pixel_xy(self.peaks.flat_index[weak])
-        # Only those the gain's bound lifts over the threshold can pass, and only their
-        # gain is looked up (1-7 % of them, by level, on a frame half in shadow).
-        bound = (threshold / shadow.at_most(xy)) ** 2 * _GAIN_BOUND_SLACK
-        lifted = np.flatnonzero(self.peaks.values[weak] > bound)
-        gain = shadow.at(xy[lifted])
-        keep = np.ones(len(self.peaks.flat_index), dtype=bool)
-        keep[weak] = False
-        keep[weak[lifted]] = self.peaks.values[weak[lifted]] > (threshold / gain) ** 2
         peaks = self.peaks
+        weight = shadow.at(self.pixel_xy()).astype(np.float32)
+        squared = weight * weight
+        keep = peaks.values * np.maximum(squared, np.float32(1.0)) > np.float32(threshold**2)
         return self._replace(
             peaks=peaks._replace(
                 flat_index=peaks.flat_index[keep],
-                values=peaks.values[keep],
-                neighbours=peaks.neighbours[keep],
+                values=(peaks.values * squared)[keep],
+                neighbours=(peaks.neighbours * squared[:, None])[keep],
+                lift=None,
             )
         )
 
@@ -926,7 +989,7 @@ def _level_peaks(
     image: NDArray[Any],
     threshold: float | NDArray[np.float32],
     place: tuple[int, tuple[int, int], float, float],
-    in_shadow: tuple[float, ShadowGain, NDArray[np.bool_]] | None,
+    light: tuple[float, ShadowGain, NDArray[np.float32]] | None,
     strongest: int | None,
     at_least: float,
 ) -> tuple[_LevelPeaks, int]:
@@ -938,16 +1001,16 @@ def _level_peaks(
             span of :data:`_SHADOW_SPAN_PX` columns.
         place: the level's ``level``, ``offset``, ``expected`` and ``scale_px``
             (:class:`_LevelPeaks`).
-        in_shadow: (the threshold in the open, the shadow gain, (h,) the rows
-            where it is lowered), or None: none is.
+        light: (the threshold in the open, the light's weight, (h, S) its bound
+            squared on each row and span), or None: every peak weighs 1.
         strongest: how many of the strongest peaks are wanted (None: all).
-        at_least: only peaks of at least this response are wanted.
+        at_least: only peaks of at least this response (weighed) are wanted.
     """
-    found = saddle_peaks(image, threshold, strongest=strongest, at_least=at_least)
+    lift = None if light is None else light[2]
+    found = saddle_peaks(image, threshold, strongest=strongest, at_least=at_least, lift=lift)
     peaks = _LevelPeaks(found, *place)
-    if in_shadow is not None and found.bound <= in_shadow[0] ** 2:
-        # Peaks listed above the unlowered threshold need no look at their shadow.
-        peaks = peaks.lit_or_in_shadow(*in_shadow)
+    if light is not None:
+        peaks = peaks.weighed_by_light(light[0], light[1])
     return peaks, found.unexamined
 
 
@@ -1001,14 +1064,15 @@ def saddle_candidates(
             ``"unexamined"`` (pixels above the threshold that the floor's bound
             spared the look for peaks, :func:`saddle_peaks`) are added to.
             Split-peak midpoints are formed from the peaks kept only.
-        shadow: if given, under dark surroundings the threshold is divided by
-            this gain, so that ``min_contrast`` holds after Eq. (2) as in the
-            checks that follow; the candidates' ``strength`` stays that of the raw
-            response.
+        shadow: if given, each peak's response is weighed by its light, and
+            under dark surroundings the threshold is divided by the gain there, so
+            that ``min_contrast`` holds after Eq. (2) as in the checks that follow
+            (:class:`ShadowGain`).
 
     Returns:
         Candidates in full-resolution coordinates; ``scale_px`` is 4 * 2**L and
-        ``strength`` the response relative to the expected one.
+        ``strength`` the response relative to the expected one (weighed by its
+        light, with ``shadow``).
     """
     levels = saddle_levels(radius_range_px)
     parts = []
@@ -1035,28 +1099,28 @@ def saddle_candidates(
         threshold = relative_threshold * expected
         u0, v0, u1, v1 = _level_window(window, level, level_image.shape)
         squared: float | NDArray[np.float32] = threshold**2
-        in_shadow = None
+        light = None
         if shadow is not None:
             # Rows and spans of columns of the level (window) at full resolution, as
             # _LevelPeaks maps them.
             first = np.arange(u0, u1, _SHADOW_SPAN_PX)
             last = np.minimum(first + _SHADOW_SPAN_PX, u1) - 1
-            gain = shadow.on_spans(
+            weight = shadow.on_spans(
                 (np.arange(v0, v1) + 0.5) * 2**level - 0.5,
                 (first + 0.5) * 2**level - 0.5,
                 (last + 0.5) * 2**level - 0.5,
             )
-            dark = gain > 1.0
-            if dark.any():
+            gain = np.maximum(weight, 1.0)
+            if (gain > 1.0).any():
                 # float32 as the response: lit spans keep exactly the scalar's bound.
                 squared = np.float32(threshold**2) / (gain * gain).astype(np.float32)
-                in_shadow = (threshold, shadow, np.any(dark, axis=1))
+            light = (threshold, shadow, (weight * weight).astype(np.float32))
         level_peaks = functools.partial(
             _level_peaks,
             level_image[v0:v1, u0:u1],
             squared,
             (level, (u0, v0), expected, candidate_scale(level, radius_range_px)),
-            in_shadow,
+            light,
         )
         if cell_cap is None:
             peaks, _ = level_peaks(None, 0.0)

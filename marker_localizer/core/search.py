@@ -181,18 +181,15 @@ class CandidateSearch:
     def _screening_shadow(
         self, gamma: preprocessing.LocalGamma, origin_px: tuple[int, int]
     ) -> screening.ShadowGain:
-        """The shadow's gain for screening an image whose pixel (0, 0) is ``origin_px``.
+        """The light's weight for screening an image whose pixel (0, 0) is ``origin_px``.
 
-        :meth:`preprocessing.ShadowedContrast.gain` of the local mean there.
+        :meth:`preprocessing.ShadowedContrast.weight` of the local mean there.
         """
         origin = np.asarray(origin_px, np.float64)
         shadowed = self.shadowed
-        gain = shadowed.gain
-        # The gain falls as the mean rises: the darkest means bound it from above.
         return screening.ShadowGain(
-            lambda xy: gain(gamma.mean_at(xy + origin)),
-            lambda y, x_first, x_last: shadowed.gain_on_spans(
+            lambda xy: shadowed.weight(gamma.mean_at(xy + origin)),
+            lambda y, x_first, x_last: shadowed.weight_on_spans(
                 gamma, y + origin[1], x_first + origin[0], x_last + origin[0]
             ),
-            lambda xy: gain(gamma.darkest_mean_near(xy + origin)),
         )

@@ -1221,6 +1221,31 @@ def test_markers_in_deep_shadow_are_found_as_in_the_open(white_share):
     assert false == 0
 
 
+@pytest.mark.parametrize("max_candidates", [50, 400])
+def test_a_marker_under_dim_light_beside_bright_busy_ground_is_within_the_frames_cap(
+    max_candidates,
+):
+    """The caps rank saddles by their contrast over their light (screening.ShadowGain).
+
+    Bright textured ground (150 grey levels, 60 of texture) fills the frame's cap with
+    saddles whose raw responses beat a marker's 36 levels under light of 20 levels;
+    over their light they are texture's contrast, and the marker's paint is a print's.
+    """
+    rng = np.random.default_rng(3)
+    texture = cv2.GaussianBlur(rng.normal(0, 1, (240, 480)).astype(np.float32), (0, 0), 2.0)
+    image = 150 + 60 * texture / texture.std()
+    marker = render_markers((240, 240), [MarkerPlacement(120.3, 120.6, 14.0)], 0, blur_sigma_px=0.8)
+    image[:, 240:] = 4 + marker.image.astype(np.float32) * (40 / 255)
+    image = np.clip(np.round(image + rng.normal(0, 1.0, image.shape)), 0, 255).astype(np.uint8)
+    config = DetectorConfig(
+        marker_radius_min_px=6.0, marker_radius_max_px=40.0, max_candidates=max_candidates
+    )
+    result = Detector(config).detect(image)
+    assert result.counts["dropped_over_cap"] > 100
+    hits, misses, _ = found_false_errors(result.as_array(), np.array([[360.3, 120.6]]))
+    assert (hits, misses) == (1, 0)
+
+
 def test_on_stony_ground_small_xs_that_do_not_end_are_texture_and_are_counted(monkeypatch):
     # Three frames of family (b) (tiny markers) whose ground makes many saddles that
     # score like them; seeds no benchmark table renders. Of the 10 false points

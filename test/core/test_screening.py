@@ -521,14 +521,14 @@ def test_the_even_order_lists_points_as_the_even_cap_keeps_them_so_any_cap_keeps
     assert len(set(cells[order[:16]])) == 16
 
 
-def _shadow(gain: float) -> screening.ShadowGain:
+def _shadow(weight: float) -> screening.ShadowGain:
     def everywhere(points: np.ndarray) -> np.ndarray:
-        return np.full(len(points), gain)
+        return np.full(len(points), weight)
 
     def on_spans(y: np.ndarray, x_first: np.ndarray, x_last: np.ndarray) -> np.ndarray:
-        return np.full((len(y), len(x_first)), gain)
+        return np.full((len(y), len(x_first)), weight)
 
-    return screening.ShadowGain(everywhere, on_spans, everywhere)
+    return screening.ShadowGain(everywhere, on_spans)
 
 
 def test_a_marker_in_deep_shadow_is_screened_with_the_shadow_gain_and_only_then():
@@ -560,12 +560,46 @@ def test_a_shadow_over_part_of_each_row_gives_the_candidates_of_its_gain_at_ever
 
     spans, rows = (
         screening.saddle_candidates(
-            image, (4.0, 20.0), min_contrast=60 / 255, shadow=screening.ShadowGain(at, bound, at)
+            image, (4.0, 20.0), min_contrast=60 / 255, shadow=screening.ShadowGain(at, bound)
         )
         for bound in (on_spans, on_rows)
     )
     assert len(spans) > 20 and (spans.xy[:, 0] < 100).any() and (spans.xy[:, 0] >= 100).any()
     assert np.array_equal(spans.xy, rows.xy) and np.array_equal(spans.strength, rows.strength)
+
+
+def test_the_frames_cap_keeps_the_saddle_of_most_contrast_over_its_light():
+    # The same print under two lights: an X of 30 levels where the light weighs 2 (a
+    # dim stretch) and one of 90 levels where it weighs a quarter (bright ground). The
+    # bright one's response is nine times the dim one's; over its light, a sixteenth.
+    image = 0.3 + 0.1 * (_x_frame(50.3, 80.6, 12.0, (160, 200)) - 0.5)
+    image += 0.3 * (_x_frame(150.2, 80.4, 12.0, (160, 200)) - 0.5)
+    image = np.clip(image, 0, 1).astype(np.float32)
+    light = screening.ShadowGain(
+        lambda xy: np.where(xy[:, 0] < 100, 2.0, 0.25),
+        lambda y, x_first, x_last: np.repeat(
+            np.where(x_first < 100, 2.0, 0.25)[None], len(y), axis=0
+        ),
+    )
+    cap = screening.CellCap(64, 48, max_total=1)
+    plain = screening.saddle_candidates(image, (6.0, 20.0), 20 / 255, cell_cap=cap)
+    weighed = screening.saddle_candidates(image, (6.0, 20.0), 20 / 255, cell_cap=cap, shadow=light)
+    assert np.linalg.norm(plain.xy - [150.2, 80.4], axis=1).min() < 1.0
+    assert len(weighed) == 1 and np.linalg.norm(weighed.xy[0] - [50.3, 80.6]) < 1.0
+
+
+def test_a_peak_counts_its_response_times_its_lights_weight_squared():
+    image = np.clip(_x_frame(80.4, 70.6, 12.0) - 0.2, 0, 1).astype(np.float32)
+    plain = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255)
+    for weight in (0.25, 0.5, 1.0):
+        # A weight under 1 (bright light) leaves the threshold as it is: the same peaks
+        # pass, their strength weighed (their refinement, on responses weighed alike,
+        # moves by float rounding alone).
+        weighed = screening.saddle_candidates(
+            image, (6.0, 20.0), min_contrast=20 / 255, shadow=_shadow(weight)
+        )
+        np.testing.assert_allclose(weighed.xy, plain.xy, atol=1e-6)
+        np.testing.assert_allclose(weighed.strength, weight * plain.strength, rtol=1e-6)
 
 
 def test_rows_in_the_open_keep_the_configured_threshold():
@@ -580,7 +614,6 @@ def test_rows_in_the_open_keep_the_configured_threshold():
     lower = screening.ShadowGain(
         lambda xy: np.where(xy[:, 1] >= 80, 4.0, 1.0),
         lambda y, x_first, x_last: np.where(y[:, None] >= 80, 4.0, np.ones(len(x_first))),
-        lambda xy: np.where(xy[:, 1] >= 80, 4.0, 1.0),
     )
     shaded = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255, shadow=lower)
     upper = plain.xy[:, 1] < 70
