@@ -456,8 +456,9 @@ class DetectorConfig:
     )
     max_candidates: int = _param(
         20000,
-        "Cap on candidates per frame after screening; the weakest are cut "
-        "and counted, which bounds the time of a frame full of clutter.",
+        "Cap on candidates per frame after screening; the weakest over their light (the "
+        "saddle response weighed by the local mean, as a print's contrast scales with the "
+        "light on it) are cut and counted, which bounds the time of a frame full of clutter.",
         "",
         1,
         10_000_000,
