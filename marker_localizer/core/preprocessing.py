@@ -501,7 +501,10 @@ class ShadowedContrast:
     A print's contrast scales with the light on it: a marker of modulation m under a
     mean level L has contrast 2 m L. After Eq. (2) such a marker keeps its contrast,
     which the symmetry check measures; in raw grey levels, which the screening, the
-    prescreen and the fit's floor read, it does not.
+    prescreen and the fit's floor read, it does not. So the floors follow the light
+    down (:meth:`gain`), and the screening's caps rank saddles by their contrast
+    over their light (:meth:`weight`), not by their raw response, in which bright
+    ground's texture outweighs a marker under dim light.
 
     Attributes:
         min_contrast: the contrast floor in the open, a share of white.
