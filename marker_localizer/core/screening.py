@@ -313,7 +313,7 @@ _STRIP_MIN_PIXELS = 64 * 512
 #: row of response either side, which the 5x5 kernels compute from two more.
 _STRIP_HALO_ROWS = 3
 #: Columns of a level (or its window) that share one threshold lowered by the shadow's
-#: gain, px: the gain's bound over such a span (:attr:`ShadowGain.on_spans`) instead
+#: gain, px: the gain's bound over such a span (:attr:`LightWeight.on_spans`) instead
 #: of over the whole row. Where the light falls across the frame every row holds a
 #: dark stretch: speed frame 2's first level listed 53 218 peaks to keep 3 040 with
 #: one threshold a row, 4 422 with one a span of 64 px.
@@ -340,7 +340,7 @@ def _limit(
 
     ``threshold`` is one value, a column of one per row, or one per row and span.
     ``lift``: (h, S) a bound on the squared weight of the light on each row and span
-    (:class:`ShadowGain`), or None (1): ``bound`` is on the weighed response, which
+    (:class:`LightWeight`), or None (1): ``bound`` is on the weighed response, which
     a raw one reaches from ``bound`` over that weight up.
     """
     if np.ndim(threshold) and threshold.min() == threshold.max():  # type: ignore[union-attr]
@@ -450,7 +450,7 @@ def _strip_peaks(
             (0: all).
         keep_response: keep the strip's response in the result.
         lift: (H, S) the bound on the light's squared weight on each row and span
-            (:class:`ShadowGain`); None: 1.
+            (:class:`LightWeight`); None: 1.
     """
     height, width = image.shape
     start, stop = rows.start, min(rows.stop, height)
@@ -505,7 +505,7 @@ class SaddlePeaks(NamedTuple):
         unexamined: pixels above the threshold but below the bound, never
             compared with their neighbours.
         lift: (N,) the bound on the light's squared weight at each peak
-            (:class:`ShadowGain`); None: 1.
+            (:class:`LightWeight`); None: 1.
     """
 
     shape: tuple[int, int]
@@ -547,7 +547,7 @@ def saddle_peaks(
             many are listed); None: all.
         at_least: only peaks of at least this response are wanted.
         lift: (H, S) a bound on the light's squared weight on each row and span of
-            :data:`_SHADOW_SPAN_PX` columns (:class:`ShadowGain`): the strongest
+            :data:`_SHADOW_SPAN_PX` columns (:class:`LightWeight`): the strongest
             peaks and ``at_least`` are those of the responses times it; None: 1.
 
     Returns:
@@ -807,7 +807,7 @@ _FLOOR_BOUND_MARGIN = 1e-6
 _LIFT_BOUND_SLACK = 1.0 - 1e-6
 
 
-class ShadowGain(NamedTuple):
+class LightWeight(NamedTuple):
     """The light's weight on the saddle screening (:meth:`preprocessing.ShadowedContrast.weight`).
 
     A print's contrast scales with the light on it, and so does an X's saddle
@@ -848,16 +848,16 @@ class _LevelPeaks(NamedTuple):
     expected: float
     scale_px: float
 
-    def weighed_by_light(self, threshold: float, shadow: ShadowGain) -> _LevelPeaks:
+    def weighed_by_light(self, threshold: float, light: LightWeight) -> _LevelPeaks:
         """The peaks above ``threshold`` over their own gain, each weighed by its light.
 
         Listed with the threshold lowered by the gain's bound on each span, and the
-        bounds compared with the weight's bound (:class:`ShadowGain`); here each
+        bounds compared with the weight's bound (:class:`LightWeight`); here each
         peak's own weight at its pixel decides. Its response and its neighbours',
         which refine it, are weighed alike: the refinement reads their ratios.
         """
         peaks = self.peaks
-        weight = shadow.at(self.pixel_xy()).astype(np.float32)
+        weight = light.at(self.pixel_xy()).astype(np.float32)
         squared = weight * weight
         keep = peaks.values * np.maximum(squared, np.float32(1.0)) > np.float32(threshold**2)
         return self._replace(
@@ -989,7 +989,7 @@ def _level_peaks(
     image: NDArray[Any],
     threshold: float | NDArray[np.float32],
     place: tuple[int, tuple[int, int], float, float],
-    light: tuple[float, ShadowGain, NDArray[np.float32]] | None,
+    light: tuple[float, LightWeight, NDArray[np.float32]] | None,
     strongest: int | None,
     at_least: float,
 ) -> tuple[_LevelPeaks, int]:
@@ -1023,7 +1023,7 @@ def saddle_candidates(
     window: tuple[int, int, int, int] | None = None,
     cell_cap: CellCap | None = None,
     tally: dict[str, int] | None = None,
-    shadow: ShadowGain | None = None,
+    light: LightWeight | None = None,
 ) -> Candidates:
     """Saddle points over an image pyramid covering the expected marker radii.
 
@@ -1064,15 +1064,15 @@ def saddle_candidates(
             ``"unexamined"`` (pixels above the threshold that the floor's bound
             spared the look for peaks, :func:`saddle_peaks`) are added to.
             Split-peak midpoints are formed from the peaks kept only.
-        shadow: if given, each peak's response is weighed by its light, and
+        light: if given, each peak's response is weighed by its light, and
             under dark surroundings the threshold is divided by the gain there, so
             that ``min_contrast`` holds after Eq. (2) as in the checks that follow
-            (:class:`ShadowGain`).
+            (:class:`LightWeight`).
 
     Returns:
         Candidates in full-resolution coordinates; ``scale_px`` is 4 * 2**L and
         ``strength`` the response relative to the expected one (weighed by its
-        light, with ``shadow``).
+        light, with ``light``).
     """
     levels = saddle_levels(radius_range_px)
     parts = []
@@ -1099,13 +1099,13 @@ def saddle_candidates(
         threshold = relative_threshold * expected
         u0, v0, u1, v1 = _level_window(window, level, level_image.shape)
         squared: float | NDArray[np.float32] = threshold**2
-        light = None
-        if shadow is not None:
+        weighing = None
+        if light is not None:
             # Rows and spans of columns of the level (window) at full resolution, as
             # _LevelPeaks maps them.
             first = np.arange(u0, u1, _SHADOW_SPAN_PX)
             last = np.minimum(first + _SHADOW_SPAN_PX, u1) - 1
-            weight = shadow.on_spans(
+            weight = light.on_spans(
                 (np.arange(v0, v1) + 0.5) * 2**level - 0.5,
                 (first + 0.5) * 2**level - 0.5,
                 (last + 0.5) * 2**level - 0.5,
@@ -1114,13 +1114,13 @@ def saddle_candidates(
             if (gain > 1.0).any():
                 # float32 as the response: lit spans keep exactly the scalar's bound.
                 squared = np.float32(threshold**2) / (gain * gain).astype(np.float32)
-            light = (threshold, shadow, (weight * weight).astype(np.float32))
+            weighing = (threshold, light, (weight * weight).astype(np.float32))
         level_peaks = functools.partial(
             _level_peaks,
             level_image[v0:v1, u0:u1],
             squared,
             (level, (u0, v0), expected, candidate_scale(level, radius_range_px)),
-            light,
+            weighing,
         )
         if cell_cap is None:
             peaks, _ = level_peaks(None, 0.0)

@@ -57,8 +57,8 @@ class CandidateSearch:
     ) -> Candidates:
         """Section 3.2, first layers: candidates, suppression, grid-entropy thinning, cap.
 
-        With ``gamma``, the saddle screening's threshold is lowered in shadow
-        (:class:`preprocessing.ShadowedContrast`).
+        With ``gamma``, the saddle screening weighs each peak by its light and lowers
+        its threshold in shadow (:class:`preprocessing.ShadowedContrast`).
         """
         cfg = self.config
         # Cut inside the screening by the same caps as below, before any work per point.
@@ -97,7 +97,8 @@ class CandidateSearch:
 
         ``origin_px`` is where ``gray``'s pixel (0, 0) lies in the frame; ``cut``
         counts what the saddle screening's caps cut (:func:`screening.saddle_candidates`);
-        ``gamma``, if given, lowers its threshold in shadow.
+        ``gamma``, if given, weighs its peaks by their light and lowers its threshold
+        in shadow.
         """
         cfg = self.config
         if cfg.candidate_detector == "curvature":
@@ -134,7 +135,7 @@ class CandidateSearch:
                 cfg.entropy_cell_px, cfg.max_candidates_per_cell, cfg.max_candidates, origin_px
             ),
             tally=cut,
-            shadow=None if gamma is None else self._screening_shadow(gamma, origin_px),
+            light=None if gamma is None else self._screening_light(gamma, origin_px),
         )
 
     def _find_in_regions(
@@ -178,16 +179,16 @@ class CandidateSearch:
             parts.append(Candidates(xy, found.strength, found.scale_px).take(inside))
         return Candidates.concat(parts)
 
-    def _screening_shadow(
+    def _screening_light(
         self, gamma: preprocessing.LocalGamma, origin_px: tuple[int, int]
-    ) -> screening.ShadowGain:
+    ) -> screening.LightWeight:
         """The light's weight for screening an image whose pixel (0, 0) is ``origin_px``.
 
         :meth:`preprocessing.ShadowedContrast.weight` of the local mean there.
         """
         origin = np.asarray(origin_px, np.float64)
         shadowed = self.shadowed
-        return screening.ShadowGain(
+        return screening.LightWeight(
             lambda xy: shadowed.weight(gamma.mean_at(xy + origin)),
             lambda y, x_first, x_last: shadowed.weight_on_spans(
                 gamma, y + origin[1], x_first + origin[0], x_last + origin[0]

@@ -1225,7 +1225,7 @@ def test_markers_in_deep_shadow_are_found_as_in_the_open(white_share):
 def test_a_marker_under_dim_light_beside_bright_busy_ground_is_within_the_frames_cap(
     max_candidates,
 ):
-    """The caps rank saddles by their contrast over their light (screening.ShadowGain).
+    """The caps rank saddles by their contrast over their light (screening.LightWeight).
 
     Bright textured ground (150 grey levels, 60 of texture) fills the frame's cap with
     saddles whose raw responses beat a marker's 36 levels under light of 20 levels;

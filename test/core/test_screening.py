@@ -521,14 +521,14 @@ def test_the_even_order_lists_points_as_the_even_cap_keeps_them_so_any_cap_keeps
     assert len(set(cells[order[:16]])) == 16
 
 
-def _shadow(weight: float) -> screening.ShadowGain:
+def _light(weight: float) -> screening.LightWeight:
     def everywhere(points: np.ndarray) -> np.ndarray:
         return np.full(len(points), weight)
 
     def on_spans(y: np.ndarray, x_first: np.ndarray, x_last: np.ndarray) -> np.ndarray:
         return np.full((len(y), len(x_first)), weight)
 
-    return screening.ShadowGain(everywhere, on_spans)
+    return screening.LightWeight(everywhere, on_spans)
 
 
 def test_a_marker_in_deep_shadow_is_screened_with_the_shadow_gain_and_only_then():
@@ -536,7 +536,7 @@ def test_a_marker_in_deep_shadow_is_screened_with_the_shadow_gain_and_only_then(
     dark = (5 + 12 * _x_frame(80.4, 70.6, 12.0)).astype(np.float32) / 255.0
     alone = screening.saddle_candidates(dark, (6.0, 20.0), min_contrast=20 / 255)
     shaded = screening.saddle_candidates(
-        dark, (6.0, 20.0), min_contrast=20 / 255, shadow=_shadow(4.0)
+        dark, (6.0, 20.0), min_contrast=20 / 255, light=_light(4.0)
     )
     assert len(alone) == 0
     assert np.linalg.norm(shaded.xy - [80.4, 70.6], axis=1).min() < 1.0
@@ -560,7 +560,7 @@ def test_a_shadow_over_part_of_each_row_gives_the_candidates_of_its_gain_at_ever
 
     spans, rows = (
         screening.saddle_candidates(
-            image, (4.0, 20.0), min_contrast=60 / 255, shadow=screening.ShadowGain(at, bound)
+            image, (4.0, 20.0), min_contrast=60 / 255, light=screening.LightWeight(at, bound)
         )
         for bound in (on_spans, on_rows)
     )
@@ -575,7 +575,7 @@ def test_the_frames_cap_keeps_the_saddle_of_most_contrast_over_its_light():
     image = 0.3 + 0.1 * (_x_frame(50.3, 80.6, 12.0, (160, 200)) - 0.5)
     image += 0.3 * (_x_frame(150.2, 80.4, 12.0, (160, 200)) - 0.5)
     image = np.clip(image, 0, 1).astype(np.float32)
-    light = screening.ShadowGain(
+    light = screening.LightWeight(
         lambda xy: np.where(xy[:, 0] < 100, 2.0, 0.25),
         lambda y, x_first, x_last: np.repeat(
             np.where(x_first < 100, 2.0, 0.25)[None], len(y), axis=0
@@ -583,7 +583,7 @@ def test_the_frames_cap_keeps_the_saddle_of_most_contrast_over_its_light():
     )
     cap = screening.CellCap(64, 48, max_total=1)
     plain = screening.saddle_candidates(image, (6.0, 20.0), 20 / 255, cell_cap=cap)
-    weighed = screening.saddle_candidates(image, (6.0, 20.0), 20 / 255, cell_cap=cap, shadow=light)
+    weighed = screening.saddle_candidates(image, (6.0, 20.0), 20 / 255, cell_cap=cap, light=light)
     assert np.linalg.norm(plain.xy - [150.2, 80.4], axis=1).min() < 1.0
     assert len(weighed) == 1 and np.linalg.norm(weighed.xy[0] - [50.3, 80.6]) < 1.0
 
@@ -596,7 +596,7 @@ def test_a_peak_counts_its_response_times_its_lights_weight_squared():
         # pass, their strength weighed (their refinement, on responses weighed alike,
         # moves by float rounding alone).
         weighed = screening.saddle_candidates(
-            image, (6.0, 20.0), min_contrast=20 / 255, shadow=_shadow(weight)
+            image, (6.0, 20.0), min_contrast=20 / 255, light=_light(weight)
         )
         np.testing.assert_allclose(weighed.xy, plain.xy, atol=1e-6)
         np.testing.assert_allclose(weighed.strength, weight * plain.strength, rtol=1e-6)
@@ -606,16 +606,14 @@ def test_rows_in_the_open_keep_the_configured_threshold():
     frame = np.clip(_x_frame(50.3, 60.7, 10.0) + _x_frame(140.2, 100.4, 10.0) - 0.45, 0, 1)
     image = frame.astype(np.float32)
     plain = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255)
-    lit = screening.saddle_candidates(
-        image, (6.0, 20.0), min_contrast=20 / 255, shadow=_shadow(1.0)
-    )
+    lit = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255, light=_light(1.0))
     assert np.array_equal(plain.xy, lit.xy) and np.array_equal(plain.strength, lit.strength)
     # Shadow over the lower rows only: the upper rows' candidates stay exactly as they were.
-    lower = screening.ShadowGain(
+    lower = screening.LightWeight(
         lambda xy: np.where(xy[:, 1] >= 80, 4.0, 1.0),
         lambda y, x_first, x_last: np.where(y[:, None] >= 80, 4.0, np.ones(len(x_first))),
     )
-    shaded = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255, shadow=lower)
+    shaded = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255, light=lower)
     upper = plain.xy[:, 1] < 70
     assert np.array_equal(plain.xy[upper], shaded.xy[shaded.xy[:, 1] < 70])
     assert len(shaded) >= len(plain)
