@@ -569,9 +569,9 @@ def test_a_shadow_over_part_of_each_row_gives_the_candidates_of_its_gain_at_ever
 
 
 def test_the_frames_cap_keeps_the_saddle_of_most_contrast_over_its_light():
-    # The same print under two lights: an X of 30 levels where the light weighs 2 (a
-    # dim stretch) and one of 90 levels where it weighs a quarter (bright ground). The
-    # bright one's response is nine times the dim one's; over its light, a sixteenth.
+    # The same print under two lights: an X of 0.1 of white where the light weighs 2 (a
+    # dim stretch) and one of 0.3 where it weighs a quarter (bright ground). The bright
+    # one's response is nine times the dim one's; over its light, 9 / 64 of it.
     image = 0.3 + 0.1 * (_x_frame(50.3, 80.6, 12.0, (160, 200)) - 0.5)
     image += 0.3 * (_x_frame(150.2, 80.4, 12.0, (160, 200)) - 0.5)
     image = np.clip(image, 0, 1).astype(np.float32)
