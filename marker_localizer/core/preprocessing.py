@@ -432,18 +432,6 @@ class LocalGamma:
         local = np.clip((position - origin + 0.5) / self._reduction - 0.5, 0.0, size - 1.001)
         return np.floor(local).astype(np.intp)
 
-    def darkest_mean_near(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
-        """(N,) a lower bound on :meth:`mean_at` at (N, 2) points, cheaper than it.
-
-        The darkest of the four means each point's mean interpolates between, where
-        one map is measured; the darkest mean along its row where several are.
-        """
-        if self._darkest_near is None:
-            return self.darkest_mean_on_rows(xy[:, 1])
-        _, x, y, inside = self._map_position(xy)
-        darkest = self._darkest_near[np.floor(y).astype(np.intp), np.floor(x).astype(np.intp)]
-        return np.where(inside, darkest, 0.5)
-
     def mean_at(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """Local mean luminance mu(k) in [0, 1] at (N, 2) points (0.5 outside every region)."""
         owner, x, y, inside = self._map_position(xy)

@@ -391,7 +391,7 @@ class _Strip(NamedTuple):
             to count them again); None: dropped, so that the next strip reuses the
             memory while it is in the cache.
         lift: (N,) the bound on the light's squared weight at each peak, which the
-            bound is compared with its value times; None: 1 (:class:`SaddlePeaks`).
+            bound is compared with its value times; None: 1 (:func:`saddle_peaks`).
     """
 
     flat_index: NDArray[np.intp]
@@ -500,12 +500,10 @@ class SaddlePeaks(NamedTuple):
         values: (N,) their responses.
         neighbours: (N, 8) float32 responses of the pixels around each, in the
             order of :data:`_NEIGHBOURS`.
-        bound: every peak of at least this response (times ``lift``) is listed (0:
-            every peak).
+        bound: every peak of at least this response (times the ``lift`` it was
+            listed with, :func:`saddle_peaks`) is listed (0: every peak).
         unexamined: pixels above the threshold but below the bound, never
             compared with their neighbours.
-        lift: (N,) the bound on the light's squared weight at each peak
-            (:class:`LightWeight`); None: 1.
     """
 
     shape: tuple[int, int]
@@ -514,7 +512,6 @@ class SaddlePeaks(NamedTuple):
     neighbours: NDArray[np.float32]
     bound: float
     unexamined: int
-    lift: NDArray[np.float32] | None = None
 
 
 def saddle_peaks(
@@ -591,14 +588,6 @@ def saddle_peaks(
         ),
         bound,
         sum(strip.unexamined for strip in strips),
-        None
-        if lift is None
-        else np.concatenate(
-            [
-                np.zeros(0, np.float32),
-                *(cast("NDArray[np.float32]", strip.lift) for strip in strips),
-            ]
-        ),
     )
 
 
@@ -865,7 +854,6 @@ class _LevelPeaks(NamedTuple):
                 flat_index=peaks.flat_index[keep],
                 values=(peaks.values * squared)[keep],
                 neighbours=(peaks.neighbours * squared[:, None])[keep],
-                lift=None,
             )
         )
 

@@ -143,22 +143,6 @@ def test_the_darkest_mean_on_a_span_of_a_row_bounds_the_local_mean_there_tighter
     assert np.all(bound[inside, -2] - row[inside] > 0.4)
 
 
-def test_the_darkest_mean_near_a_point_bounds_the_local_mean_there():
-    rng = np.random.default_rng(5)
-    # A shadow's soft edge across a lit ramp: the bound follows both.
-    yy, xx = np.mgrid[0:600, 0:800]
-    light = 40 + 200 * xx / 800 - 150 / (1 + np.exp(-(yy - 0.4 * xx - 200) / 30))
-    image = np.clip(light + rng.normal(0, 6, light.shape), 0, 255).astype(np.uint8)
-    gamma = preprocessing.LocalGamma(image, 255.0)
-    xy = rng.uniform([-20, -20], [820, 620], (5000, 2))
-    near = gamma.darkest_mean_near(xy)
-    assert np.all(gamma.mean_at(xy) >= near)
-    # Tighter than the row's darkest mean on most of the frame.
-    assert np.median(gamma.mean_at(xy) - near) < 0.5 * np.median(
-        gamma.mean_at(xy) - gamma.darkest_mean_on_rows(xy[:, 1])
-    )
-
-
 def test_the_contrast_floors_follow_the_light_down_by_webers_law_and_no_further_than_the_cap():
     shadowed = preprocessing.ShadowedContrast(min_contrast=20.0 / 255.0, min_modulation=0.3)
     # A marker of modulation 0.3 under a mean L has contrast 0.6 L: at L 1/3 of white
