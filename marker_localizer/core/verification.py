@@ -62,23 +62,6 @@ RECENTRE_PHASE_ERROR_RAD = np.deg2rad(60.0)
 #: Largest change of a line's angle between the rings of one run: over the spread of a
 #: marker's own rings.
 MAX_LINE_DRIFT_RAD = np.deg2rad(8.0)
-#: Blur widens a tilted X's narrow sectors on its innermost rings: on a ring of radius
-#: r, a blur of sigma turns its two lines by equal and opposite angles, nearer a right
-#: angle, and leaves their bisector in place (read at the mid level, a 60-degree X
-#: under 1.5 px: 17.7 degrees wider on the 3 px ring, 6.8 on the 4.24 px ring, 1.3 on
-#: the 6 px ring). The run's drift limit on each line spends one budget on that and on
-#: the lines' common turn (a centre a little off, a steep view); a ring also joins a
-#: run where their common turn alone keeps within the limit and it crosses at most
-#: this much more acutely than the run's first ring, radians (:func:`_blur_widened`):
-#: 25 degrees gains no marker more and costs one false point (docs/accuracy.md, "The
-#: rings' drift split into the lines' common turn and their crossing angle").
-MAX_BLUR_WIDENING_RAD = np.deg2rad(14.0)
-#: ... where that first ring is this far out at least, px: closer in, a blur leaves any
-#: X crossing near a right angle, and tiny X's runs read so go on into the ground
-#: ((b) 400-423 loses 2-9 of 576 markers from its 1.5 px ring). And only on rings
-#: under :data:`TEXTURE_EXTENT_PX`: a run that reaches it gets the wide X's floor,
-#: where texture's runs read so go on too ((g) 200-223: 4-5 false points more).
-BLUR_WIDENING_MIN_FIRST_RING_PX = 2.5
 #: Widest blur (Gaussian sigma, px) that may dim the innermost rings of an X's run
 #: (:func:`blurred_contrast_share`): optics of up to 1.5 px (the package's renderer and
 #: the independent one), with a 4 px motion blur's 1.2 px along it, 1.9 px.
@@ -1059,12 +1042,7 @@ def _ring_runs(
     reference = rings.line_angles[np.arange(n), first]  # (N, 2)
     # Lines may come out in either order on different rings: compare both pairings.
     drift_same, drift_swap = _pairing_differences(rings.line_angles, reference[:, None, :])
-    widened = _blur_widened(
-        rings.line_angles, reference, drift_same <= drift_swap, max_angle_drift_rad
-    )
-    widened &= (radii_px[first] >= BLUR_WIDENING_MIN_FIRST_RING_PX)[:, None]
-    widened &= (radii_px < TEXTURE_EXTENT_PX)[None, :]
-    good &= (np.minimum(drift_same, drift_swap) <= max_angle_drift_rad) | widened
+    good &= np.minimum(drift_same, drift_swap) <= max_angle_drift_rad
     after_first = ring_index >= first[:, None]
     # The run continues while rings stay good: the first bad ring after `first` ends it.
     broken = np.cumsum(~good & after_first, axis=1) > 0
@@ -1092,35 +1070,6 @@ def _ring_runs(
     )
     contrast = rings.contrast[np.arange(n), first]
     return SymmetryCheck(accepted, score, radii_px[last], line_angles, contrast), in_run[:, -1]
-
-
-def _crossing_angle(line_angles: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(...,) the acute angle between two lines (..., 2), radians in [0, pi / 2]."""
-    return np.abs(_wrapped(2.0 * (line_angles[..., 1] - line_angles[..., 0]))) / 2.0
-
-
-def _blur_widened(
-    line_angles: NDArray[np.float64],
-    reference: NDArray[np.float64],
-    same_order: NDArray[np.bool_],
-    max_turn_rad: float,
-) -> NDArray[np.bool_]:
-    """(N, J) the rings whose lines differ from the first ring's as a turn and its blur make them.
-
-    The two lines (N, J, 2), paired with the ``reference`` (N, 2) as given where
-    ``same_order`` (N, J) and swapped elsewhere, turn together (their bisector) by at
-    most ``max_turn_rad``, and cross at most :data:`MAX_BLUR_WIDENING_RAD` more
-    acutely than the reference's and at most ``max_turn_rad`` less so: blur only ever
-    widens the inner ring's narrow sectors.
-    """
-    paired = np.where(same_order[..., None], line_angles, line_angles[..., ::-1])
-    turn = _wrapped(2.0 * (paired - reference[:, None, :])) / 2.0
-    common = np.abs(turn.sum(axis=-1)) / 2.0
-    narrowed = _crossing_angle(reference)[:, None] - _crossing_angle(line_angles)
-    widened: NDArray[np.bool_] = (
-        (common <= max_turn_rad) & (narrowed >= -max_turn_rad) & (narrowed <= MAX_BLUR_WIDENING_RAD)
-    )
-    return widened
 
 
 class EdgePhaseRings(NamedTuple):
