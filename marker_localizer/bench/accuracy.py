@@ -1209,13 +1209,16 @@ def summary_table(results: Sequence[tuple[str, Row]], title: str | None = None) 
 def losses_table(results: Sequence[tuple[str, Row]]) -> str:
     """One line per family: how many markers the reference row missed, by the test that lost them.
 
-    The tests in the order they run (:data:`~marker_localizer.core.symmetry_path.SURVIVOR_TESTS`;
-    ``floor`` is the score floor wherever it is applied), then those that passed
-    every test but ended off their marker (:data:`evaluation.ASTRAY`).
+    The tests in the order they run (:data:`~marker_localizer.core.symmetry_path.SURVIVOR_TESTS`),
+    then those that passed every test but ended off their marker
+    (:data:`evaluation.ASTRAY`); each column as wide as its name.
     """
-    tests = list(dict.fromkeys([*symmetry_path.SURVIVOR_TESTS, evaluation.ASTRAY]))
+    tests = [*symmetry_path.SURVIVOR_TESTS, evaluation.ASTRAY]
     shown = [t for t in tests if any(row.lost_at[t] for _, row in results)]
-    header = f"{'family':<44}{'missed':>7}" + "".join(f"{t:>11}" for t in shown)
+    widths = [max(len(t), 8) + 1 for t in shown]
+    header = f"{'family':<44}{'missed':>7}" + "".join(
+        f"{t:>{w}}" for t, w in zip(shown, widths, strict=True)
+    )
     lines = [
         f"Markers {REFERENCE_ROW} missed, by the test after which no candidate was left "
         f"within {evaluation.LOSS_RADIUS_PX:g} px of them",
@@ -1224,7 +1227,10 @@ def losses_table(results: Sequence[tuple[str, Row]]) -> str:
     ]
     for label, row in results:
         missed = row.tally.n_truth - row.tally.n_matched
-        lines.append(f"{label:<44}{missed:>7}" + "".join(f"{row.lost_at[t]:>11}" for t in shown))
+        lines.append(
+            f"{label:<44}{missed:>7}"
+            + "".join(f"{row.lost_at[t]:>{w}}" for t, w in zip(shown, widths, strict=True))
+        )
     return "\n".join(lines)
 
 

@@ -54,35 +54,40 @@ _MIN_TEMPLATE_BATCH = 256
 _RAW_CONTRAST_SHARE = 0.5
 #: :data:`SURVIVOR_TESTS`' names of :meth:`acceptance.MarkerModel.judge`'s tests, in
 #: the order of :data:`acceptance.JUDGED_REASONS`.
-_JUDGED_TESTS = ("floor", "x_end", "misfit", "quartic")
+_JUDGED_TESTS = ("fit_floor", "x_end", "misfit", "quartic")
 #: The tests of the default path in the order :attr:`DetectionResult.survivors` lists
-#: them (``floor``, the score floor, runs on the ring symmetry, on it times the
-#: template's NCC, and on the fitted score; ``cap`` is a cap on the candidates;
-#: ``x_end``, that a small X ends where its extent does (:func:`verification.x_ends`);
-#: ``misfit``, that the blurred X explains the detection
-#: (:meth:`acceptance.MarkerModel.explains`); ``quartic``, that the plate model of a
-#: tiny X, or of one that barely clears its floor, explains it no worse than a smooth
-#: surface (:meth:`acceptance.MarkerModel.plate_not_worse`); ``lattice``, after the
-#: last suppression, that the ground does not repeat the detection
-#: (:meth:`acceptance.MarkerModel.stands_alone`);
-#: ``recentring``, the detections once the lost wide candidates are centred again,
-#: and ``shadow``, once they are read again with a shadow's edge divided out: the
-#: two tests that add, :meth:`SymmetryPath._recentre_lost` and
-#: :meth:`SymmetryPath._reread_shadowed`; ``plate``, once the X's of texture's size
-#: that found no marker are read with their plate, :meth:`SymmetryPath._read_plates`).
+#: them, each name once, so that where a marker was lost names one test
+#: (:func:`~marker_localizer.evaluation.tests_that_lost`). ``prescreen_cap`` and
+#: ``fit_cap`` cap the candidates the prescreen passes and those the fit takes (both
+#: counted as ``dropped_over_verification_cap``); the score floor of an X's extent
+#: (:class:`acceptance.ScoreFloors`) runs three times: ``symmetry_floor`` on the ring
+#: symmetry, ``template_floor`` on it times the template's NCC and ``fit_floor`` on
+#: the fitted score (all three counted as ``rejected_score``); ``x_end``, that a small
+#: X ends where its extent does (:func:`verification.x_ends`); ``misfit``, that the
+#: blurred X explains the detection (:meth:`acceptance.MarkerModel.explains`);
+#: ``quartic``, that the plate model of a tiny X, or of one that barely clears its
+#: floor, explains it no worse than a smooth surface
+#: (:meth:`acceptance.MarkerModel.plate_not_worse`); ``lattice``, after the last
+#: suppression, that the ground does not repeat the detection
+#: (:meth:`acceptance.MarkerModel.stands_alone`); ``recentring``, the detections once
+#: the lost wide candidates are centred again, and ``shadow``, once they are read
+#: again with a shadow's edge divided out: the two tests that add,
+#: :meth:`SymmetryPath._recentre_lost` and :meth:`SymmetryPath._reread_shadowed`;
+#: ``plate``, once the X's of texture's size that found no marker are read with their
+#: plate, :meth:`SymmetryPath._read_plates`).
 SURVIVOR_TESTS = (
     "screening",
     "prescreen",
-    "cap",
+    "prescreen_cap",
     "centring",
     "symmetry",
-    "floor",
+    "symmetry_floor",
     "modulation",
     "template",
-    "floor",
-    "cap",
+    "template_floor",
+    "fit_cap",
     "fit",
-    "floor",
+    "fit_floor",
     "x_end",
     "misfit",
     "quartic",
@@ -190,7 +195,7 @@ class SymmetryPath:
         passed = candidates.take(keep)
         capped = screening.even_cap(passed, MAX_VERIFIED, self.config.entropy_cell_px)
         result.counts["dropped_over_verification_cap"] = len(passed) - len(capped)
-        result.survivors += [("prescreen", passed.xy), ("cap", capped.xy)]
+        result.survivors += [("prescreen", passed.xy), ("prescreen_cap", capped.xy)]
         return capped
 
     def confirm(self, frame: Frame, candidates: Candidates) -> DetectionResult:
@@ -519,7 +524,7 @@ class SymmetryPath:
         counts["rejected_score"] = int(weak.sum())
         result.survivors += [
             ("symmetry", candidates.xy[keep]),
-            ("floor", candidates.xy[keep & ~weak]),
+            ("symmetry_floor", candidates.xy[keep & ~weak]),
         ]
         passed = keep & ~weak
         tiny = np.flatnonzero(
@@ -815,10 +820,10 @@ class SymmetryPath:
         for test, kept in (
             ("modulation", modulated),
             ("template", correlated_too),
-            ("floor", matched),
+            ("template_floor", matched),
         ):
             result.survivors.append((test, xy[np.concatenate([np.zeros(0, np.intp), *kept])]))
-        result.survivors.append(("cap", xy[chosen]))
+        result.survivors.append(("fit_cap", xy[chosen]))
         ascending = np.argsort(chosen)
         return chosen[ascending], ncc[ascending]
 

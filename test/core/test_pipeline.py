@@ -1283,6 +1283,8 @@ def test_the_survivors_narrow_test_by_test_down_to_the_detections():
     tests = [test for test, _ in result.survivors]
     sizes = [len(xy) for _, xy in result.survivors]
     assert tuple(tests) == symmetry_path.SURVIVOR_TESTS
+    # Each named once: a marker lost at a floor or a cap says which one.
+    assert len(set(tests)) == len(tests)
     # Each test keeps a subset of what reached it (the centring moves candidates and
     # merges duplicates, so it keeps no more than it was given); the last three, the
     # second readings of the lost wide candidates and of the tiny X's plates, only
