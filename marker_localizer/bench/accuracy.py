@@ -94,7 +94,7 @@ class CirnReading(NamedTuple):
 #: The ranges cirn_uas is read at: the one its targets ask, and the one real aerial
 #: ground is held to (aerial_negatives'). Its ground away from the two targets is real
 #: ground too, and texture X's of 2-4 px show there only from the smaller radii
-#: (docs/accuracy.md, "The coarse plate search held to the full grid's tilt").
+#: (docs/accuracy-journal.md, "The coarse plate search held to the full grid's tilt").
 CIRN_RANGES: dict[str, CirnReading] = {
     "cirn_uas": CirnReading(REAL_RADIUS_RANGES["cirn_uas"], "its targets'"),
     "cirn_uas_ground_range": CirnReading(
@@ -323,7 +323,7 @@ class XSnrModel(NamedTuple):
     (the independent renderer's ``truth.json``). Both follow the X's contrast over
     the noise, the bound inversely: log SNR = c0 + c1 log bound + c2 log radius,
     fitted on this renderer's markers of the same family, holds them to within a
-    fifth (``residual_sd``, in the log; measured: docs/accuracy.md, "What an ideal
+    fifth (``residual_sd``, in the log; measured: docs/accuracy-journal.md, "What an ideal
     detector could find"). Recall on those frames can then be split by the SNR
     their markers would have.
 
@@ -1575,7 +1575,7 @@ def run_closer_negatives(options: Options, report: Callable[[str], None]) -> dic
     their ground at the one scale they show it. Seen from half the height, their sand
     spans twice the pixels and is a little softer: what a camera flying lower meets.
     Only the reference row reads them (the peers' points run to tens of thousands a
-    frame there too, docs/accuracy.md, "Real sand seen closer, and every X of
+    frame there too, docs/accuracy-journal.md, "Real sand seen closer, and every X of
     texture's size asked for its plate").
     """
     root = options.data_root

@@ -51,7 +51,7 @@ from marker_localizer.synthetic.crlb import X_SNR_BANDS, BoundParts
 #: Share of a marker's radius whose pixels the inner bounds read (see the module).
 INNER_SHARE = 0.8
 #: First seed rendered, and frames per family: the development frames of the
-#: measurements in docs/accuracy.md.
+#: measurements in docs/accuracy-journal.md.
 FIRST_SEED = 100
 FRAMES = 12
 #: The heading of those bands' rows.

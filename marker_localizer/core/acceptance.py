@@ -28,7 +28,7 @@ with its reason:
 The detector (:class:`~marker_localizer.core.pipeline.Detector`) chains them with
 the fit between, caps, counts and records them.
 
-What the constants here rest on, measured: docs/accuracy.md, "What the marker
+What the constants here rest on, measured: docs/accuracy-journal.md, "What the marker
 model's constants rest on".
 """
 
@@ -54,7 +54,7 @@ from marker_localizer.core.sampling import Normaliser
 MAX_TEMPLATE_MISFIT = 0.08
 #: Lowest recurrence (:func:`verification.disk_recurrence`) of a lattice's saddle: its
 #: disk found again on both sides of it. A marker's ground does not repeat its X, and
-#: a lattice's saddles mostly read over this (docs/accuracy.md, "A marker stands
+#: a lattice's saddles mostly read over this (docs/accuracy-journal.md, "A marker stands
 #: alone").
 MIN_LATTICE_RECURRENCE = 0.75
 #: Smallest continuation (:func:`verification.line_continuation`) of a chessboard
@@ -77,7 +77,7 @@ PLATE_DOUBT_MAX_TO_QUARTIC = 0.8
 #: its own, whatever its score: texture makes saddles up to this extent
 #: (:data:`verification.TEXTURE_EXTENT_PX`), and real sand blurred a little more
 #: than the aerial frames' own makes them score 0.92-0.96, clear of every floor.
-#: Measured: docs/accuracy.md, "Real sand seen closer, and every X of texture's size
+#: Measured: docs/accuracy-journal.md, "Real sand seen closer, and every X of texture's size
 #: asked for its plate".
 PLATE_ASKED_MAX_EXTENT_PX = verification.TEXTURE_EXTENT_PX
 #: ... unless another detection lies within this many of its extents: a chessboard's
@@ -105,7 +105,7 @@ FAINT_MAX_MISFIT = 0.02
 #: paint match at 0.95-0.997 and leave up to 0.04; with the X's end and the plate, no
 #: texture candidate the gate rejected on the development frames passes them. The NCC
 #: stays at 0.97: at 0.96 as many markers pass, and the plate, the costliest test, is
-#: read for twice the texture (docs/accuracy.md, "The gate's vouch at looser bars than
+#: read for twice the texture (docs/accuracy-journal.md, "The gate's vouch at looser bars than
 #: the floor's").
 GATE_MIN_NCC = 0.97
 GATE_MAX_MISFIT = 0.04
@@ -313,7 +313,7 @@ class MarkerModel:
           levels without them: a marker whose white paint clips is cut off at
           white, which the template does not model (chessboards at two and a half
           times their exposure: 694 of 800 corners found, 647 with the first alone;
-          docs/accuracy.md, "The template's match without the clipped samples");
+          docs/accuracy-journal.md, "The template's match without the clipped samples");
         * ``score``: its ring symmetry times that NCC, which the fit's score can only
           lower, reaches the ``lowest`` score of its extent
           (:meth:`ScoreFloors.lowest`).

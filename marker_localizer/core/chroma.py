@@ -22,7 +22,7 @@ that colour (:data:`CHROMA_MIN_EXTENT_PX`) are not asked.
 The check is asked only of X's of texture's size (:data:`CHROMA_MAX_EXTENT_PX`):
 larger X's are judged by their plate and their lines, and a chessboard printed in a
 colour on white (pycbd's flare board, blue) is X's drawn in colour on purpose. A
-grey frame is not asked. Measured: docs/accuracy.md, "A marker's X is neutral: the
+grey frame is not asked. Measured: docs/accuracy-journal.md, "A marker's X is neutral: the
 colour of small X's on real colour frames" and "A colour camera's demosaicing".
 """
 

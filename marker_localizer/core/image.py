@@ -33,7 +33,7 @@ SHALLOW_PEAK_TEXT = f"1/{round(1.0 / SHALLOW_PEAK_SHARE)}"
 #: A frame whose brightest level stays under this share of white is underexposed for
 #: its markers: their white paint is the brightest thing a frame exposed for them
 #: holds. Under it the detector loses markers, most of them to the noise, which only
-#: the camera's exposure or gain brings back (docs/accuracy.md, "Underexposed
+#: the camera's exposure or gain brings back (docs/accuracy-journal.md, "Underexposed
 #: frames").
 DIM_PEAK_SHARE = 1.0 / 2.0
 #: :data:`DIM_PEAK_SHARE` as the warnings write it.
@@ -159,7 +159,7 @@ def bayer_to_grey(mosaic: NDArray[Any], pattern: str) -> NDArray[Any]:
     channel gains. A filter that weighs the colours alike
     everywhere (the 3 x 3 binomial, the luminance of a linear demosaicing) moves no
     centre, but its blur lets ground texture pass as X's: re-mosaicked real aerial
-    ground gave 27 false points in 3 frames against this one's 6 (docs/accuracy.md,
+    ground gave 27 false points in 3 frames against this one's 6 (docs/accuracy-journal.md,
     "A camera's raw Bayer mosaic").
 
     Args:

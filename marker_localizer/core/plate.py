@@ -24,16 +24,16 @@ small elongated blob as two paint lobes merged by the blur).
 On the candidates of tiny markers the default rejects, the plate model with the
 saddle keeps more than half, and almost no texture saddle (:func:`read_plates`). The plain X with
 four quadrant levels, the same comparison without the plate, explains markers no
-better than texture. Measured: docs/accuracy.md, "The tiny markers' plate".
+better than texture. Measured: docs/accuracy-journal.md, "The tiny markers' plate".
 
 A marker of 6-9 px seen 50-60 degrees from face on has an X of texture's size
 too: the ring ladder reads its extent up to a rung short of its shortest reach,
 and along its lines it measures up to twice that, beyond the tiny markers'
 radii. Where the tiny model comes near (its coarse search leaves room for the full
 one) and does not explain such an X, its plate is read a rung out at the X's
-scale (:func:`explains_at`), as the wider X's are. Measured: docs/accuracy.md,
+scale (:func:`explains_at`), as the wider X's are. Measured: docs/accuracy-journal.md,
 "A small tilted X's plate read a rung out". What the constants here rest on:
-docs/accuracy.md, "What the plate reading's constants and the paths' caps rest on".
+docs/accuracy-journal.md, "What the plate reading's constants and the paths' caps rest on".
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ MAX_TO_QUARTIC = 0.6
 #: Most of the quartic's residual the plate model may leave on any detection of
 #: texture's size, whatever found it: the plate model holds the marker, a smooth
 #: surface does not, so a plate no better than a quartic is no marker's (the tiny
-#: markers' and texture's ratios: docs/accuracy.md, "A plate that leaves most of a
+#: markers' and texture's ratios: docs/accuracy-journal.md, "A plate that leaves most of a
 #: quartic's residual near the floor").
 MAX_TO_QUARTIC_ANY = 1.0
 #: Least ratio of the weaker to the stronger curvature at the centre, of opposite

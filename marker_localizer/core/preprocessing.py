@@ -33,7 +33,7 @@ _LOCAL_MEAN_REDUCTION = 8
 #: dark quadrants' noise past the bright ones' whatever the camera. At 1/4 (the clip
 #: until 2026-12-06) a marker's black paint at 0-10 DN under a dark surround read
 #: 0.03-0.44 of white: a DN of noise there weighed 6 times one on the white paint (3.4
-#: times at 1/2), and its rings failed (docs/accuracy.md, "Eq. (2)'s gamma no stronger
+#: times at 1/2), and its rings failed (docs/accuracy-journal.md, "Eq. (2)'s gamma no stronger
 #: than a square root").
 GAMMA_LIMITS = (0.5, 4.0)
 #: Standard deviation of a normal distribution per unit of median absolute deviation.

@@ -646,7 +646,7 @@ def saddle_levels(radius_range_px: tuple[float, float]) -> range:
     one. A range of tiny markers (a largest radius of 6 px or less) is searched at
     full resolution only: level 1 as well finds 3 more of family (b)'s 1 152
     markers on development frames, and takes 60-75 % longer on real aerial ground
-    at 2.5-5 px (docs/accuracy.md, "Item 5 on every family").
+    at 2.5-5 px (docs/accuracy-journal.md, "Item 5 on every family").
     """
     r_min, r_max = radius_range_px
     foreshortened = 0.5 * r_min

@@ -27,7 +27,7 @@ The detector (:class:`~marker_localizer.core.pipeline.Detector`) chains these wi
 its checks and fit, counts and times them. Measured: docs/method.md, "A second
 centring, with the light's slope, for the wide candidates that found no marker" and
 "A cast shadow's edge, found and divided out, for the wide candidates still lost";
-docs/accuracy.md, the run at 21bc646, "Evidence measured and not taken" and
+docs/accuracy-journal.md, the run at 21bc646, "Evidence measured and not taken" and
 "Figures the fit's and the detector's docstrings carried"; docs/speed.md, "Earlier
 runs" and "The second readings on the speed frames, and a gate on the recentring".
 """
@@ -46,7 +46,7 @@ from marker_localizer.core.screening import Candidates
 #: Candidates screened at this scale or wider, px (the saddle pyramid's second level
 #: on where the search starts at the first; a range whose search starts at the second,
 #: such as 6-40 px, labels that level's candidates with the smallest radius, under
-#: this: docs/accuracy.md, "(c)'s losses at the prescreen"), get second readings
+#: this: docs/accuracy-journal.md, "(c)'s losses at the prescreen"), get second readings
 #: where the first found no X: the plain rings' rejects are
 #: read again with the bright sectors equalised, and where the X's lines cross
 #: (:func:`verification.ring_check`); those that end as no marker are centred again
@@ -56,7 +56,7 @@ from marker_localizer.core.screening import Candidates
 #: :data:`verification.EQUALISED_MIN_EXTENT_PX`); the scale only spares the cost:
 #: texture responds at the first level (4 px), and on the real aerial and cirn_uas
 #: frames this re-reads ~15 candidates a frame at 3-30 px, ~200 at 6-40 px (measured:
-#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried").
+#: docs/accuracy-journal.md, "Figures the fit's and the detector's docstrings carried").
 WIDE_SCALE_PX = 8.0
 #: A lost wide candidate is read again (:func:`recentred`) where the light's slope
 #: moves its centre this far, px: less moves the rings' crossings, read every 10
@@ -65,12 +65,12 @@ RECENTRE_MIN_SHIFT_PX = 0.25
 #: Lost wide candidates centred again per frame at most, the strongest spread over the
 #: frame as Eq. (7)'s thinning spreads them (:func:`screening.even_cap_index`): markers
 #: are among a frame's strongest saddles, and each costs about 0.1-0.2 ms (measured:
-#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried";
+#: docs/accuracy-journal.md, "Figures the fit's and the detector's docstrings carried";
 #: docs/speed.md, "Real ground, the radius range and the worst case").
 MAX_RECENTRED = 64
 #: ... and those whose shadow's edge is sought after the recentring (:func:`shadowed`,
 #: 0.1 ms each, and a reading again of those a shadow crosses): the 32 strongest hold
-#: nearly every marker the 64 strongest give (measured: docs/accuracy.md, "Figures the
+#: nearly every marker the 64 strongest give (measured: docs/accuracy-journal.md, "Figures the
 #: fit's and the detector's docstrings carried").
 MAX_SHADOW_READ = 32
 #: A lost candidate's shadow edge is sought within this many of its screening scales,
@@ -81,7 +81,7 @@ SHADOW_REACH_SCALES = 2.0
 #: checks' rings and the fit read the X out to its extent, and the X-end rings beyond.
 SHADOW_DISK_REACHES = 1.5
 #: Candidates :func:`read_dull` reads again per frame at most, the strongest spread
-#: over the frame: most frames hold fewer (measured: docs/accuracy.md, "Small X's with
+#: over the frame: most frames hold fewer (measured: docs/accuracy-journal.md, "Small X's with
 #: a dull quadrant, read again from the light slope's centre" and "Figures the fit's
 #: and the detector's docstrings carried").
 MAX_DULL_READ = 64
@@ -143,7 +143,7 @@ def read_dull(
     and the marker's model vouches for it (:meth:`acceptance.MarkerModel.vouches`,
     as for a faint X): at that extent, a rung under
     :data:`verification.EQUALISED_MIN_EXTENT_PX`, texture passes the rings too
-    (measured: docs/accuracy.md, "Small X's with a dull quadrant, read again from
+    (measured: docs/accuracy-journal.md, "Small X's with a dull quadrant, read again from
     the light slope's centre").
 
     Args:

@@ -10,7 +10,7 @@ That is the evidence :func:`find_edges` reads, on the quadrants' insides where
 the X's own edges are not; :func:`divided_out` then gives the checks the frame
 with the shadow taken back out of it. The division must be close: a pixel or a few
 degrees off, it loses much of what an exact one gives back (measured:
-docs/accuracy.md, "Evidence measured and not taken").
+docs/accuracy-journal.md, "Evidence measured and not taken").
 """
 
 from __future__ import annotations
@@ -88,7 +88,7 @@ DETECTION_REACH_EXTENTS = 1.5
 #: A located X's model tries the edge :func:`find_edges` fits best within this many
 #: of its extents (the line fit's reach, ``subpixel._reach_all_round``): the ground
 #: beyond the plate bends the fit of the edge in the pairs, and the model, which
-#: reads the X alone, is what decides (measured: docs/accuracy.md, "Figures the fit's
+#: reads the X alone, is what decides (measured: docs/accuracy-journal.md, "Figures the fit's
 #: and the detector's docstrings carried").
 HYPOTHESIS_REACH_EXTENTS = 1.0
 
@@ -280,7 +280,7 @@ def find_edges(
     markers that their model, fitted with those edges, locates better. The depth
     stays: a shallower shadow is a light's slope, which the model fits anyway, and
     X's under no cast shadow keep shallow edges, at a cost in time. Measured:
-    docs/accuracy.md, "The lines measured from the edges, and the shadow's edge
+    docs/accuracy-journal.md, "The lines measured from the edges, and the shadow's edge
     tried in the model" and "Figures the fit's and the detector's docstrings
     carried".
 

@@ -12,11 +12,11 @@ diagonal marker is point-symmetric about its centre under any homography
 quadrant onto its opposite twin), and stays so under any symmetric blur and any
 monotonic grey-level change, which a template with a fixed edge profile does
 not. Using the whole marker is what brings the error towards the Cramer-Rao
-bound (docs/accuracy.md, "What the Cramer-Rao bound asks of the fit"). The
+bound (docs/accuracy-journal.md, "What the Cramer-Rao bound asks of the fit"). The
 markers that fit judges to be markers are fitted once more along their two lines
 (:func:`refine_along_lines`), where the centre's information is.
 
-What the constants here rest on, measured: docs/accuracy.md, "What the fit's
+What the constants here rest on, measured: docs/accuracy-journal.md, "What the fit's
 constants rest on".
 """
 
@@ -153,7 +153,7 @@ EDGE_STEP_BLURS_PX = (0.6, 0.8, 1.0, 1.2, 1.5)
 #: bar both pairs' levels had. Lower bars find more of the renderer's dull markers
 #: (12 of 1 152 (g) markers at 45, which score 54-94), and let in the gaps of a
 #: lattice of discs of unequal brightness (8-62), most of those the lattice test
-#: rejects but by the frame's border (docs/accuracy.md, "The gating score's bright
+#: rejects but by the frame's border (docs/accuracy-journal.md, "The gating score's bright
 #: pair", "A lattice cut by the frame's border").
 LEVELLED_MIN_CHI2 = 100.0
 #: The score statistic (chi-square, 2 degrees of freedom) of the quadrants' own
@@ -161,14 +161,14 @@ LEVELLED_MIN_CHI2 = 100.0
 #: the lines' directions measured afresh (:func:`_edge_directions`) the levels cost a
 #: marker of even paint nothing measured down to it, and markers a shadow edge
 #: crosses, which the symmetric fit leaves tenths of a pixel off, score about as low
-#: (measured: docs/accuracy.md, "Figures the fit's and the detector's docstrings
+#: (measured: docs/accuracy-journal.md, "Figures the fit's and the detector's docstrings
 #: carried").
 LEVELS_REFIT_MIN_CHI2 = 45.0
 #: The same statistic from which :func:`refine_along_lines` fits the quadrants' own
 #: levels under :data:`LEVELS_REFIT_MIN_CHI2` too, and moves the symmetric fit's
 #: centre towards theirs by the share of their difference that is bias, not noise
 #: (:func:`_blended_with_levels`): the chi-square's 0.1 % point, where chance alone
-#: passes once in a thousand (measured: docs/accuracy.md, "The levels' fit weighed in
+#: passes once in a thousand (measured: docs/accuracy-journal.md, "The levels' fit weighed in
 #: by its bias").
 LEVELS_BLEND_MIN_CHI2 = 13.8
 #: Where the levels' statistic does not say alone that the levels differ (under
@@ -183,7 +183,7 @@ LEVELS_BLEND_MIN_CHI2 = 13.8
 #: stays wherever the model cannot tell it is biased. A shadow's edge that the levels'
 #: statistic misses pulls it 0.1-0.4 px (the rings stop short at the edge, the disk
 #: read is small, and the pairs show no step that is the quadrants' own). Measured:
-#: docs/accuracy.md, "The model where it rejects the line fit's centre".
+#: docs/accuracy-journal.md, "The model where it rejects the line fit's centre".
 MODEL_MIN_CENTRE_CHI2 = 13.8
 #: X's of one call that :func:`refine_along_lines` locates by their model at most,
 #: those whose levels' statistic is highest first: a frame holds 10-20 markers, while
@@ -197,7 +197,7 @@ MAX_MODELLED = 32
 #: d (I(c + d) + I(c - d)) with short lever arms, share much of what the centre's
 #: say: they cost more precision than the bias they take away. From 8 px on, the
 #: markers whose quadrants' levels differ lose: they need the slope (measured:
-#: docs/accuracy.md, "Figures the fit's and the detector's docstrings carried").
+#: docs/accuracy-journal.md, "Figures the fit's and the detector's docstrings carried").
 GAIN_MIN_RADIUS_PX = 6.0
 #: :func:`_light_inside` reads the quadrants' insides from this distance to both
 #: lines, px: twice the widest blur sigma met (1.5 px), where an edge has levelled out.
@@ -233,7 +233,7 @@ _DIRECTION_ITERATIONS = 2
 #: (:data:`LEVELS_REFIT_MIN_CHI2`) does not see a dull quadrant or a shadow. On tiny
 #: markers the edges' directions are worse than the rings' and their model takes
 #: shadows' edges where there are none. Under it the model reads its tone curve and
-#: wedges on too few pixels. Measured: docs/accuracy.md, "The
+#: wedges on too few pixels. Measured: docs/accuracy-journal.md, "The
 #: lines measured from the edges, and the shadow's edge tried in the model" and "The
 #: model wherever it converges on a marker found in a shadow, and never under 6 px".
 MEASURED_MIN_EXTENT_PX = 6.0
@@ -815,7 +815,7 @@ def refine_along_lines(
     frames written as JPEG the error along the edges exceeds the noise measured on
     smooth ground.
 
-    Measured: docs/method.md, "Point-symmetry refinement"; docs/accuracy.md, "The
+    Measured: docs/method.md, "Point-symmetry refinement"; docs/accuracy-journal.md, "The
     levels' fit weighed in by its bias", "The uneven X's model, and what bounds the
     fit", "The uneven model judged against the levels' fit, not the frame's noise"
     and "Figures the fit's and the detector's docstrings carried".
@@ -1123,7 +1123,7 @@ def _blended_with_levels(
     (s_l + s_s)^2, s each fit's calibrated sigma (:func:`_line_fit_sigma`: the
     covariances predict half the errors' spread): with var(d) from the covariances
     as they are, the levels and a light's slope trade off, and the slope then costs
-    the centre precision (measured: docs/accuracy.md, "The levels' fit weighed in by
+    the centre precision (measured: docs/accuracy-journal.md, "The levels' fit weighed in by
     its bias"). w is 0 where the levels' fit did not converge or slipped
     (:data:`EDGE_STEP_MAX_SHIFT_PX`). The covariance becomes
     Cov(c_s) + w^2 (Cov(c_l) - Cov(c_s)).
@@ -1255,7 +1255,7 @@ def locate_in_shadow(
     edge must explain of the pairs to be proposed) is not asked: it turns away X's
     the model puts closer to the truth, and does not tell a slide from them. Under
     6 px the model reads its tone curve and wedges on too few pixels. Measured:
-    docs/accuracy.md, "The model wherever it converges on a marker found in a
+    docs/accuracy-journal.md, "The model wherever it converges on a marker found in a
     shadow, and never under 6 px" and "The model where it rejects the line fit's
     centre".
 
@@ -1366,7 +1366,7 @@ def _step_blur(
     full fits, one per blur, kept by their residual, cost five times the refit and
     do no better; eleven blurs 0.5-1.6 px by this profile neither (the more choices,
     the more the noise picks). Measured: docs/method.md,
-    "Point-symmetry refinement"; docs/accuracy.md, "Figures the fit's and the
+    "Point-symmetry refinement"; docs/accuracy-journal.md, "Figures the fit's and the
     detector's docstrings carried".
     """
     residual, weight, jacobian, _, _ = _symmetry_terms(

@@ -581,7 +581,7 @@ class SymmetryPath:
         marker of 6-9 px seen 50-60 degrees from face on has an X of texture's size
         too, which a range from 6 px expects, and the reading a rung out
         (:func:`plate.explains_at`) finds it where the X's own tests lose it
-        (measured: docs/accuracy.md, "A small tilted X's plate read a rung out, at
+        (measured: docs/accuracy-journal.md, "A small tilted X's plate read a rung out, at
         every range").
         """
         return self.config.refinement == "symmetry"

@@ -251,7 +251,8 @@ def template_correlation(
     product over a disk of 3 px at 0.967, itself at 0.999. A smooth saddle, the
     quadratic surface ground texture makes between stones, matches the product at
     its centre whatever the angle (0.996 for zero lines 50 degrees apart), and the
-    X at that angle at 0.910 (the figures on the families: docs/accuracy.md).
+    X at that angle at 0.910 (the figures on the families:
+    docs/accuracy-journal.md, "The template's X at its own crossing angle").
 
     The paper's template has two grey levels; a dull bright quadrant (wear, dirt,
     sheen: 0.45-0.8 as bright as its opposite) makes three, and its NCC falls to
@@ -264,7 +265,7 @@ def template_correlation(
     saddle differ as its stones do. And the duller bright quadrant must still stand
     above the dark pair, or the second level is left out (an L corner is one bright
     quadrant of three dark ones, not an X with a quadrant dulled to black).
-    Measured: docs/accuracy.md, "Figures the fit's and the detector's docstrings
+    Measured: docs/accuracy-journal.md, "Figures the fit's and the detector's docstrings
     carried".
 
     Given ``full_scale``, the match tells which disks hold a clipped level

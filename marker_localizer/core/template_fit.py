@@ -118,7 +118,7 @@ def fit_template(
     where ``start`` has one), the four quadrant levels being solved linearly at
     each step (variable projection). The pixels are read once, at their centres,
     with no interpolation; a model of the whole X over the whole marker is what
-    approaches the Cramer-Rao bound (docs/accuracy.md, "What the Cramer-Rao bound asks
+    approaches the Cramer-Rao bound (docs/accuracy-journal.md, "What the Cramer-Rao bound asks
     of the fit").
 
     Args:

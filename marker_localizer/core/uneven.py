@@ -15,7 +15,7 @@ the usual one are not:
   quadrant and its opposite, which point symmetry would cancel: an X of 20 px
   with a quadrant 0.6 as bright as its opposite, blur 1 px, gamma 0.8, is
   located 0.057 px off by four linear levels, and to 2.2x the Cramer-Rao bound
-  with the tone curve in the model (40 renders, ``docs/accuracy.md``).
+  with the tone curve in the model (40 renders, ``docs/accuracy-journal.md``).
 * **The wedges' blur.** Under a Gaussian blur a point's distances from the two
   lines are jointly normal with the cosine of the lines' angle as their
   correlation, so a quadrant's blurred weight is a bivariate normal

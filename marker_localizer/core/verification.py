@@ -9,7 +9,7 @@ centre, also requires the sector boundaries to keep their angles from ring to
 ring (which rejects bars, blobs and plus signs that pass a single ring).
 :func:`double_line_check` tests (2) with OpenCV's LSD.
 
-What the constants here rest on, measured: docs/accuracy.md, "What the geometric
+What the constants here rest on, measured: docs/accuracy-journal.md, "What the geometric
 checks' constants rest on".
 """
 
@@ -705,7 +705,7 @@ def ring_radii(radius_range_px: tuple[float, float]) -> NDArray[np.float64]:
     :data:`SMALL_EXTENT_FACTOR`, :data:`EQUALISED_MIN_EXTENT_PX`) lie between the
     rungs of the ranges they were set on, and on such a grid at or next to a rung,
     where each rung's side trades texture's false points against markers
-    (docs/accuracy.md, "Two more grids").
+    (docs/accuracy-journal.md, "Two more grids").
     """
     r_min, r_max = radius_range_px
     start = max(1.5, 0.5 * r_min)
@@ -856,7 +856,7 @@ def ring_check(
     phases only, which the levels leave in place), and move there where the X
     shows out to that extent. Measured: docs/method.md, "Equalised rings for X's
     wider than texture's" and "The lines' crossing, not grey-level symmetry, for
-    a dull X's centre"; docs/accuracy.md, "Figures the fit's and the detector's
+    a dull X's centre"; docs/accuracy-journal.md, "Figures the fit's and the detector's
     docstrings carried".
 
     Args:
@@ -985,7 +985,7 @@ def blurred_contrast_share(radii_px: NDArray[np.float64]) -> NDArray[np.float64]
     lines, at erf(rho / (2 sigma))^2 of the paint's levels either side of their
     mean: at :data:`RING_BLUR_SIGMA_PX`, 0.27 at 2 px, 0.47 at 2.8, 0.71 at 4. A
     junction of texture whose centre is flat keeps less: its blobs' edges do not
-    run on to the centre (measured: docs/accuracy.md, "A faint X's innermost rings,
+    run on to the centre (measured: docs/accuracy-journal.md, "A faint X's innermost rings,
     dimmed by its blur").
     """
     return cast(
@@ -1002,7 +1002,7 @@ def _past_a_dim_ring(good: NDArray[np.bool_], contrast: NDArray[np.float64]) -> 
     Rings past it that still show an X read the dark quadrants going on into dark
     ground: on a steeply seen marker a fifth to a quarter of its contrast, out to
     rings well past its shortest reach, where the template of that extent does not
-    match it (docs/accuracy.md, "The rings' run ends at a dim ring").
+    match it (docs/accuracy-journal.md, "The rings' run ends at a dim ring").
     """
     brightest = np.maximum.accumulate(np.where(good, contrast, 0.0), axis=1)
     dim = good & (contrast < RING_CONTRAST_FRACTION * brightest)
@@ -2059,7 +2059,7 @@ def modulation_gate(
     are not tested: dim real boards (black level, haze) modulate as little as
     markers of the lowest contrast the renderers draw, under the gate; tested up to
     :data:`TEXTURE_EXTENT_PX` instead, the gate loses markers and keeps out no
-    false point more (docs/accuracy.md, "What the geometric checks' constants rest
+    false point more (docs/accuracy-journal.md, "What the geometric checks' constants rest
     on").
 
     Args:
@@ -2143,7 +2143,7 @@ def x_ends(
     reach, more in clutter or under a tilt, so an X that goes on at its extent is
     read once more a rung out, where that reach is wider than texture's saddles
     (:data:`X_END_MAX_EXTENT_PX`) and a marker could reach that far
-    (``max_radius_px``). Measured: docs/accuracy.md, "An X whose rings stop short
+    (``max_radius_px``). Measured: docs/accuracy-journal.md, "An X whose rings stop short
     of its reach" and "Figures the fit's and the detector's docstrings carried".
 
     Args:
@@ -2267,7 +2267,7 @@ def disk_recurrence(
     marker. Where an offset's opposite copy is cut off, the copy one period
     further on the side in view (at twice the offset, to a pixel) stands in for
     it: two copies in a row, as two opposite ones are. One copy alone is what a
-    marker's ground makes by chance (docs/accuracy.md, "A lattice cut by the
+    marker's ground makes by chance (docs/accuracy-journal.md, "A lattice cut by the
     frame's border").
 
     Args:
@@ -2398,7 +2398,7 @@ _CONTINUATION_SIDE_PX = 1.5
 _CONTINUATION_SIDE_ANGLE_RAD = np.deg2rad(3.0)
 #: Half-lines of a chessboard's corner that go on as edges, at least: all four
 #: inside the board, three on its outer rows, two at its outermost inner corners. A
-#: lattice's saddle may have one, along a row of discs (docs/accuracy.md, "A board's
+#: lattice's saddle may have one, along a row of discs (docs/accuracy-journal.md, "A board's
 #: corner goes on along two half-lines").
 CONTINUING_HALF_LINES = 2
 
@@ -2462,7 +2462,7 @@ def small_marker(radius_px: NDArray[np.float64], min_radius_px: float) -> NDArra
     rule, so from a smallest radius of :data:`SMALL_EXTENT_MAX_RADIUS_PX` on a larger
     ``min_radius_px`` asks no more of the same marker; under it the rule moves with
     the range (read at 4-40 px as 3.2-50 reads it, it changes none of the markers
-    (d)'s seeds 0-23 find: docs/accuracy.md, "Item 5 on every family").
+    (d)'s seeds 0-23 find: docs/accuracy-journal.md, "Item 5 on every family").
 
     Args:
         radius_px: (N,) extents of the X, px.
@@ -2502,7 +2502,7 @@ def prescreen_ring_radii(
     half-resolution level's candidates are given 6 px, not 8: the inner ring of
     :data:`PRESCREEN_RINGS` at 6 px (2.1 px) failed on strong tilted markers whose
     candidate lay up to 0.9 px off, where the one at the level's own 8 px (2.8 px)
-    shows their X (docs/accuracy.md, "The prescreen's rings at the level's own
+    shows their X (docs/accuracy-journal.md, "The prescreen's rings at the level's own
     scale").
 
     Args:

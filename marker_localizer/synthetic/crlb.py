@@ -204,7 +204,7 @@ def crlb_mean_abs_error(information: np.ndarray) -> float:
 #: Edges of the bands of the X's signal-to-noise ratio (:func:`x_snr`) that recall is
 #: split by: octaves from 8, about where a matched filter searching a 12 MP frame for
 #: an X of any position, lines and blur starts to find it at a fraction of a false
-#: point a frame (its threshold on noise alone: docs/accuracy.md, "What an ideal
+#: point a frame (its threshold on noise alone: docs/accuracy-journal.md, "What an ideal
 #: detector could find").
 X_SNR_BANDS = (8.0, 16.0, 32.0, 64.0, 128.0, 256.0, 512.0)
 
@@ -226,7 +226,7 @@ def x_snr(turned: Sequence[np.ndarray], variance: np.ndarray) -> float:
 
     the known-signal limit: a detector that estimates the X's position, lines and
     blur, or that must tell it from ground texture rather than from noise, needs
-    more (docs/accuracy.md, "What an ideal detector could find").
+    more (docs/accuracy-journal.md, "What an ideal detector could find").
 
     Args:
         turned: Four (H, W) noise-free images of the marker turned 0, 1, 2 and 3

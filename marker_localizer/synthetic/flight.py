@@ -525,7 +525,7 @@ class _GroundMosaic:
     instead, the ground would be symmetric about every join and point-symmetric
     where two cross (the mosaic's corner lies at the world's origin, under every
     flight): an exact X to a detector that reads grey-level point symmetry, and
-    each ground feature near the corner seen four times (measured: docs/accuracy.md,
+    each ground feature near the corner seen four times (measured: docs/accuracy-journal.md,
     "The flight simulator's ground repeated without mirrors").
     """
 

@@ -635,7 +635,7 @@ class CastShadow:
 
 #: Strongest light field :func:`illumination_field` draws: a gain from 0.05 to 1, 20 to
 #: 1 across a frame, the widest the independent renderer's clutter frames show (their
-#: light, blurred by 60 px, spans 6-20 to 1: docs/accuracy.md, "The independent
+#: light, blurred by 60 px, spans 6-20 to 1: docs/accuracy-journal.md, "The independent
 #: renderer's light on (d)").
 MAX_ILLUMINATION_STRENGTH = 1.9
 

@@ -221,7 +221,7 @@ def test_a_families_snr_model_follows_its_markers_the_bound_inversely():
     (tiny,) = [f for f in accuracy.families() if f.key == "b"]
     model = accuracy.x_snr_model(tiny, 1)
     # Both follow the X's contrast over the noise: the SNR about as the bound's inverse,
-    # within a fifth or so in the log (docs/accuracy.md). On one frame's 24 markers the
+    # within a fifth or so in the log (docs/accuracy-journal.md). On one frame's 24 markers the
     # radius's own share is not yet pinned down.
     assert -1.3 < model.coefficients[1] < -0.7
     assert model.residual_sd < 0.3

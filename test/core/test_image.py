@@ -194,7 +194,8 @@ def test_a_marker_seen_through_a_bayer_mosaic_keeps_its_centre_to_three_hundredt
     pattern, dtype, gains
 ):
     # The demosaicing weighs the channels differently at each pixel of the cell, so a
-    # sharp X's centre moves, here by 0.004-0.021 px (docs/accuracy.md).
+    # sharp X's centre moves, here by 0.004-0.021 px (docs/accuracy-journal.md, "A camera's
+    # raw Bayer mosaic").
     scene = cv2.GaussianBlur(_x_marker_12_bit().astype(np.float32) / 16, (0, 0), 0.5)
     if dtype == np.uint16:
         scene *= 257

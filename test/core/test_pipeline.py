@@ -292,7 +292,7 @@ def test_a_tighter_correct_radius_range_keeps_every_marker_a_wider_one_finds(vie
     6.25 px adds level 1). A marker near a gate crosses it on one ladder and not
     the other, either way: on development seeds 0-23 the own range finds 4, 2, 3,
     11 and 9 markers of (a), (b), (c), (d) and (g) that the wider one does not,
-    and loses 1, 1, 3, 2 and 7 that it finds (docs/accuracy.md, "Item 5 on every
+    and loses 1, 1, 3, 2 and 7 that it finds (docs/accuracy-journal.md, "Item 5 on every
     family"). (d)'s seed 106 marker (8.4 px, 5.0 at its shortest) reads 4.0 px at
     4-40, a small marker's floor, and 6.4 px at 3.2-50; seed 107's reads 5.66 px
     at 4-40, where the modulation gate reads its paint and fails it, and 4.53 px
