@@ -855,20 +855,26 @@ def evaluate_boards(
     Figures per detector (``Row.extra``): ``boards_complete`` (share of boards
     with every reference corner found), ``t1_max`` / ``t1_mean`` / ``t1_fine``
     (the paper's Table 1: deviation from OpenCV's refined corners, px, and share
-    within 0.1 px), ``line_rms`` / ``spacing_rms`` / ``line_points`` (row/column
-    residuals over the detector's own corners, px) and the same on the corners
-    every detector with recall >= :data:`COMMON_MIN_RECALL` found
-    (``common_line_rms``, ``common_spacing_rms``, ``common_points``): only
-    there do detectors compare on the same points. ``Row.tally`` holds recall
-    against the reference corners.
+    within 0.1 px), ``line_rms`` / ``spacing_rms`` / ``lens_rms`` / ``line_points``
+    (row/column residuals and the residual about each board's lens model,
+    :func:`metrics.lens_model_residuals`, over the detector's own corners, px)
+    and the same on the corners every detector with recall >=
+    :data:`COMMON_MIN_RECALL` found (``common_line_rms``, ``common_spacing_rms``,
+    ``common_lens_rms``, ``common_points``): only there do detectors compare on
+    the same points. ``Row.tally`` holds recall against the reference corners.
     """
     rows, placed = [], {}
     for detector in detectors:
         row, grids = _score_boards(images, detector, radius_range)
         rows.append(row)
         placed[detector.name] = grids
-    _add_common_residuals(rows, placed)
+    _add_common_residuals(rows, placed, _board_image_shapes(images))
     return rows
+
+
+def _board_image_shapes(images: Sequence[real_data.BoardImage]) -> list[tuple[int, ...]]:
+    """Each board's image shape, in the order the boards' grids are listed."""
+    return [item.image.shape for item in images for _ in item.boards]
 
 
 #: Detectors below this recall on a set are left out of its common-corner comparison
@@ -900,16 +906,24 @@ def _score_boards(
         "t1_fine": t1.within_fine,
         "line_rms": own.straight_rms_px,
         "spacing_rms": own.spacing_rms_px,
+        "lens_rms": metrics.pool_lens_model_residuals(grids, _board_image_shapes(images)).rms_px,
         "line_points": float(own.n_points),
     }
     return row, grids
 
 
-def _add_common_residuals(rows: Sequence[Row], placed: dict[str, list[np.ndarray]]) -> None:
+def _add_common_residuals(
+    rows: Sequence[Row], placed: dict[str, list[np.ndarray]], image_shapes: list[tuple[int, ...]]
+) -> None:
     """Residuals of every qualifying detector on the corners all of them found."""
     members = [r for r in rows if r.tally.recall >= COMMON_MIN_RECALL]
     for row in rows:
-        row.extra.update(common_line_rms=math.nan, common_spacing_rms=math.nan, common_points=0.0)
+        row.extra.update(
+            common_line_rms=math.nan,
+            common_spacing_rms=math.nan,
+            common_lens_rms=math.nan,
+            common_points=0.0,
+        )
     if not members:
         return
     n_boards = len(placed[members[0].name])
@@ -926,6 +940,7 @@ def _add_common_residuals(rows: Sequence[Row], placed: dict[str, list[np.ndarray
         row.extra.update(
             common_line_rms=common.straight_rms_px,
             common_spacing_rms=common.spacing_rms_px,
+            common_lens_rms=metrics.pool_lens_model_residuals(grids, image_shapes).rms_px,
             common_points=float(common.n_points),
         )
 
@@ -933,15 +948,16 @@ def _add_common_residuals(rows: Sequence[Row], placed: dict[str, list[np.ndarray
 def reference_residual_row(images: Sequence[real_data.BoardImage], label: str) -> Row:
     """Row/column residuals of the reference grids themselves (hand clicks or OpenCV)."""
     row = Row(label)
-    pooled = metrics.pool_line_residuals(
-        [metrics.line_residuals(g) for item in images for g in item.boards]
-    )
+    grids = [g for item in images for g in item.boards]
+    pooled = metrics.pool_line_residuals([metrics.line_residuals(g) for g in grids])
     row.extra = {
         "line_rms": pooled.straight_rms_px,
         "spacing_rms": pooled.spacing_rms_px,
+        "lens_rms": metrics.pool_lens_model_residuals(grids, _board_image_shapes(images)).rms_px,
         "line_points": float(pooled.n_points),
         "common_line_rms": math.nan,
         "common_spacing_rms": math.nan,
+        "common_lens_rms": math.nan,
         "common_points": 0.0,
     }
     return row
@@ -1118,8 +1134,8 @@ def boards_table(title: str, rows: Sequence[Row]) -> str:
     """Format a real chessboard set's table (errors and residuals in px)."""
     header = (
         f"{'detector':<34}{'recall':>8}{'boards':>8}{'T1 max':>8}{'T1 mean':>8}"
-        f"{'T1<=0.1':>8}{'line':>7}{'spacing':>8}{'pts':>6}{'line=':>7}{'spac=':>7}"
-        f"{'pts=':>6}{'s/img':>7}"
+        f"{'T1<=0.1':>8}{'line':>7}{'spacing':>8}{'lens':>7}{'pts':>6}{'line=':>7}{'spac=':>7}"
+        f"{'lens=':>7}{'pts=':>6}{'s/img':>7}"
     )
     lines = [title, header, "-" * len(header)]
     for row in rows:
@@ -1128,9 +1144,9 @@ def boards_table(title: str, rows: Sequence[Row]) -> str:
             f"{row.name:<34}{_pct(t.recall):>8}{_pct(e.get('boards_complete', math.nan)):>8}"
             f"{_fmt(e.get('t1_max', math.nan), 2):>8}{_fmt(e.get('t1_mean', math.nan)):>8}"
             f"{_pct(e.get('t1_fine', math.nan)):>8}{_fmt(e['line_rms']):>7}"
-            f"{_fmt(e['spacing_rms']):>8}{int(e['line_points']):>6}"
+            f"{_fmt(e['spacing_rms']):>8}{_fmt(e['lens_rms']):>7}{int(e['line_points']):>6}"
             f"{_fmt(e['common_line_rms']):>7}{_fmt(e['common_spacing_rms']):>7}"
-            f"{int(e['common_points']):>6}"
+            f"{_fmt(e['common_lens_rms']):>7}{int(e['common_points']):>6}"
             f"{_fmt(t.seconds / t.frames if t.frames else math.nan, 2):>7}"
         )
     return "\n".join(lines)
@@ -1749,8 +1765,10 @@ _BOARD_LEGEND = (
     "recall: reference corners with a detection within 2 px; boards: share with every corner; "
     "T1: deviation from OpenCV's refined corners (paper's Table 1), px;\n"
     "line / spacing: RMS straight-line / projective-spacing residual of the board rows and "
-    "columns, px, over own corners (pts); line= / spac= / pts=: on the corners found by every "
-    f"detector with recall >= {COMMON_MIN_RECALL:.0%}"
+    "columns, px;\nlens: RMS residual about each board's homography and radial lens model "
+    "(a planar board through a radial lens: the corners' error), px;\nover own corners (pts); "
+    "line= / spac= / lens= / pts=: on the corners found by every detector with recall >= "
+    f"{COMMON_MIN_RECALL:.0%}"
 )
 
 

@@ -577,11 +577,14 @@ def test_board_scoring_counts_complete_boards_and_residuals():
     rows = accuracy.evaluate_boards([item], [full, partial], (5.0, 40.0))
     assert rows[0].extra["boards_complete"] == 1.0
     assert rows[0].extra["line_rms"] == pytest.approx(0.0, abs=1e-9)
+    assert rows[0].extra["lens_rms"] == pytest.approx(0.0, abs=1e-6)
     assert rows[1].tally.recall == pytest.approx(5 / 12)
     assert rows[1].extra["boards_complete"] == 0.0
     # Only detectors with recall >= 50 % share the common-corner comparison.
     assert rows[0].extra["common_points"] == 2 * 12
     assert np.isnan(rows[1].extra["common_line_rms"])
+    assert np.isnan(rows[1].extra["common_lens_rms"])
+    assert rows[0].extra["common_lens_rms"] == pytest.approx(0.0, abs=1e-6)
 
 
 def test_data_root_is_none_without_the_shared_folder(tmp_path):
