@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from marker_localizer.bench import metrics
+from marker_localizer import Detector, DetectorConfig
+from marker_localizer.bench import accuracy, metrics
 from marker_localizer.bench.peers import parse_mrgingham, subpix_half_window
 
 
@@ -109,6 +110,20 @@ def test_boards_with_fewer_corners_than_the_lens_model_has_parameters_are_left_o
     assert len(metrics.lens_model_residuals(small, _IMAGE_SHAPE)) == 0
     pooled = metrics.pool_lens_model_residuals([small], [_IMAGE_SHAPE])
     assert math.isnan(pooled.rms_px) and pooled.n_boards == 0
+
+
+def test_on_a_rendered_chessboard_the_residual_about_the_lens_model_is_our_rms_error():
+    """A pinhole view of a planar board: the model holds, and what it leaves is the error."""
+    (family,) = [f for f in accuracy.families() if f.key == "e"]
+    scene = family.render(0)
+    truth = scene.centres.reshape(10, 10, 2)
+    low, high = family.radius_range
+    detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
+    found = metrics.grid_positions(truth, detector.detect(scene.image).as_array()[:, :2])
+    error = np.linalg.norm(found - truth, axis=2)
+    assert np.isfinite(error).all()
+    pooled = metrics.pool_lens_model_residuals([found], [scene.image.shape])
+    assert pooled.rms_px == pytest.approx(np.sqrt(np.mean(error**2)), rel=0.1)
 
 
 def test_grid_positions_places_each_detection_at_its_corner():
