@@ -568,7 +568,7 @@ def test_cirn_uas_is_read_at_its_targets_range_and_at_real_aerial_grounds():
 
 
 def test_board_scoring_counts_complete_boards_and_residuals():
-    grid = np.stack(np.meshgrid(np.arange(4) * 20.0 + 50, np.arange(3) * 20.0 + 40), axis=-1)
+    grid = np.stack(np.meshgrid(np.arange(4) * 20.0 + 50, np.arange(4) * 20.0 + 40), axis=-1)
     item = real_data.BoardImage(
         "set", "img", np.zeros((8, 8), np.uint8), [grid], grid.reshape(-1, 2)
     )
@@ -578,10 +578,10 @@ def test_board_scoring_counts_complete_boards_and_residuals():
     assert rows[0].extra["boards_complete"] == 1.0
     assert rows[0].extra["line_rms"] == pytest.approx(0.0, abs=1e-9)
     assert rows[0].extra["lens_rms"] == pytest.approx(0.0, abs=1e-6)
-    assert rows[1].tally.recall == pytest.approx(5 / 12)
+    assert rows[1].tally.recall == pytest.approx(5 / 16)
     assert rows[1].extra["boards_complete"] == 0.0
     # Only detectors with recall >= 50 % share the common-corner comparison.
-    assert rows[0].extra["common_points"] == 2 * 12
+    assert rows[0].extra["common_points"] == 2 * 16
     assert np.isnan(rows[1].extra["common_line_rms"])
     assert np.isnan(rows[1].extra["common_lens_rms"])
     assert rows[0].extra["common_lens_rms"] == pytest.approx(0.0, abs=1e-6)
