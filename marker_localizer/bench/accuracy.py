@@ -1765,8 +1765,9 @@ _BOARD_LEGEND = (
     "recall: reference corners with a detection within 2 px; boards: share with every corner; "
     "T1: deviation from OpenCV's refined corners (paper's Table 1), px;\n"
     "line / spacing: RMS straight-line / projective-spacing residual of the board rows and "
-    "columns, px;\nlens: RMS residual about each board's homography and radial lens model "
-    "(a planar board through a radial lens: the corners' error), px;\nover own corners (pts); "
+    "columns, px;\nlens: RMS residual about each board's homography through OpenCV's lens "
+    "distortion (k1-k3, p1, p2; where the board is planar: the corners' error), px;\n"
+    "over own corners (pts); "
     "line= / spac= / lens= / pts=: on the corners found by every detector with recall >= "
     f"{COMMON_MIN_RECALL:.0%}"
 )
