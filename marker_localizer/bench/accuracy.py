@@ -864,11 +864,12 @@ def evaluate_boards(
     the same points. ``Row.tally`` holds recall against the reference corners.
     """
     rows, placed = [], {}
+    image_shapes = _board_image_shapes(images)
     for detector in detectors:
-        row, grids = _score_boards(images, detector, radius_range)
+        row, grids = _score_boards(images, image_shapes, detector, radius_range)
         rows.append(row)
         placed[detector.name] = grids
-    _add_common_residuals(rows, placed, _board_image_shapes(images))
+    _add_common_residuals(rows, placed, image_shapes)
     return rows
 
 
@@ -883,7 +884,10 @@ COMMON_MIN_RECALL = 0.5
 
 
 def _score_boards(
-    images: Sequence[real_data.BoardImage], detector: PointDetector, radius_range: RadiusRange
+    images: Sequence[real_data.BoardImage],
+    image_shapes: list[tuple[int, ...]],
+    detector: PointDetector,
+    radius_range: RadiusRange,
 ) -> tuple[Row, list[np.ndarray]]:
     """One detector on every board: its row and its corners placed in each reference grid."""
     row = Row(detector.name)
@@ -906,7 +910,7 @@ def _score_boards(
         "t1_fine": t1.within_fine,
         "line_rms": own.straight_rms_px,
         "spacing_rms": own.spacing_rms_px,
-        "lens_rms": metrics.pool_lens_model_residuals(grids, _board_image_shapes(images)).rms_px,
+        "lens_rms": metrics.pool_lens_model_residuals(grids, image_shapes).rms_px,
         "line_points": float(own.n_points),
     }
     return row, grids
@@ -946,7 +950,7 @@ def _add_common_residuals(
 
 
 def reference_residual_row(images: Sequence[real_data.BoardImage], label: str) -> Row:
-    """Row/column residuals of the reference grids themselves (hand clicks or OpenCV)."""
+    """Row/column and lens-model residuals of the reference grids (hand clicks or OpenCV)."""
     row = Row(label)
     grids = [g for item in images for g in item.boards]
     pooled = metrics.pool_line_residuals([metrics.line_residuals(g) for g in grids])
