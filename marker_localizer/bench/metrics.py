@@ -187,12 +187,13 @@ def lens_model_residuals(grid: np.ndarray, image_shape: tuple[int, ...]) -> np.n
 
     Returns:
         (N, 2) residuals of the N corners present, px; empty where N is under
-        :data:`LENS_MODEL_MIN_CORNERS`.
+        :data:`LENS_MODEL_MIN_CORNERS` or the corners lie along one row or column.
     """
     present = np.isfinite(grid).all(axis=2)
-    if present.sum() < LENS_MODEL_MIN_CORNERS:
-        return np.empty((0, 2))
     row, col = np.nonzero(present)
+    # Corners along one row or column give no homography: the plane is not seen.
+    if len(row) < LENS_MODEL_MIN_CORNERS or len(set(row)) < 2 or len(set(col)) < 2:
+        return np.empty((0, 2))
     plane = np.column_stack([col, row, np.ones(len(row))]).astype(np.float64)
     corners = grid[present].astype(np.float64)
     height, width = image_shape[:2]

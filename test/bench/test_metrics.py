@@ -112,6 +112,12 @@ def test_boards_with_fewer_corners_than_the_lens_model_has_parameters_are_left_o
     assert math.isnan(pooled.rms_px) and pooled.n_boards == 0
 
 
+def test_a_board_seen_only_along_one_row_is_left_out_of_the_lens_model():
+    grid = board_in_view(3, 16, (100.0, 200.0))
+    grid[[0, 2]] = np.nan
+    assert len(metrics.lens_model_residuals(grid, _IMAGE_SHAPE)) == 0
+
+
 def test_on_a_rendered_chessboard_the_residual_about_the_lens_model_is_our_rms_error():
     """A pinhole view of a planar board: the model holds, and what it leaves is the error."""
     (family,) = [f for f in accuracy.families() if f.key == "e"]
