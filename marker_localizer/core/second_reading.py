@@ -46,9 +46,11 @@ from marker_localizer.core.screening import Candidates
 #: Candidates screened at this scale or wider, px (the saddle pyramid's second level
 #: on where the search starts at the first; a range whose search starts at the second,
 #: such as 6-40 px, labels that level's candidates with the smallest radius, under
-#: this: docs/accuracy-journal.md, "(c)'s losses at the prescreen"), get second readings
-#: where the first found no X: the plain rings' rejects are
-#: read again with the bright sectors equalised, and where the X's lines cross
+#: this: docs/accuracy-journal.md, "(c)'s losses at the prescreen"; a small X with a
+#: dull quadrant is lost there, and reading that level's candidates as wide reads the
+#: ground's texture again at a high price: "Small markers with a dull quadrant from a
+#: 6-8 px minimum"), get second readings where the first found no X: the plain rings'
+#: rejects are read again with the bright sectors equalised, and where the X's lines cross
 #: (:func:`verification.ring_check`); those that end as no marker are centred again
 #: with the light's slope (:func:`recentred`) and read with a shadow's edge divided
 #: out (:func:`shadowed`).
