@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 
 from marker_localizer import evaluation
-from marker_localizer.bench import metrics, peers, real_data
+from marker_localizer.bench import dull, metrics, peers, real_data
 from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
 from marker_localizer.bench.runner import add_json_option, run_and_save
 from marker_localizer.cli.arguments import comma_keys, count_type, seed_type
@@ -101,10 +101,11 @@ CIRN_RANGES: dict[str, CirnReading] = {
         REAL_RADIUS_RANGES["aerial_negatives"], "real aerial ground's, as aerial_negatives'"
     ),
 }
-#: What ``--families`` can choose: the rendered families, the rendered markers on
-#: real ground, the independent renderer's frames, the real sets with reference
-#: points, the real negatives, the held-out frames of the rendered families
-#: (:func:`run_heldout`).
+#: What ``--families`` can choose: the rendered families, markers with a dull
+#: quadrant alone at several radius ranges (:mod:`~marker_localizer.bench.dull`), the
+#: rendered markers on real ground, the independent renderer's frames, the real sets
+#: with reference points, the real negatives, the held-out frames of the rendered
+#: families (:func:`run_heldout`).
 FAMILY_KEYS = (
     "a",
     "b",
@@ -112,6 +113,7 @@ FAMILY_KEYS = (
     "d",
     "e",
     "g",
+    "dull",
     "ground",
     "independent",
     "real",
@@ -1699,6 +1701,23 @@ def run_disc_lattice(options: Options, report: Callable[[str], None]) -> dict[st
     )
 
 
+def run_dull(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
+    """Markers with a dull quadrant alone, read by ours at each range (:mod:`.dull`); the table.
+
+    A quick run reads one frame a cell of :data:`dull.QUICK_RADII_PX` and
+    :data:`dull.QUICK_DULL_FACTORS`.
+    """
+    detector = reference_detectors()[0]
+    if options.quick:
+        figures = dull.measure(
+            detector, options.seed, 1, dull.QUICK_RADII_PX, dull.QUICK_DULL_FACTORS
+        )
+    else:
+        figures = dull.measure(detector, options.seed)
+    report(dull.table(figures))
+    return figures
+
+
 def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
     """Evaluate the real sets (chessboards, cirn_uas); report each table as it is done."""
     root = options.data_root
@@ -1808,6 +1827,8 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
     results: dict[str, Any] = {"seed": options.seed, "quick": options.quick}
     summary: list[tuple[str, Row]] = []
     results["synthetic"] = run_synthetic(options, report, summary)
+    if "dull" in options.families:
+        results["dull"] = run_dull(options, report)
     if "heldout" in options.families:
         results["heldout"] = run_heldout(options, report)
     if "independent" in options.families:

@@ -17,7 +17,7 @@ from scenes import SMALL_SCENE
 from shared_data import SHARED_DATA, needs_shared_data
 
 from marker_localizer import Detector, DetectorConfig, evaluation
-from marker_localizer.bench import accuracy, peers, real_data
+from marker_localizer.bench import accuracy, dull, peers, real_data
 from marker_localizer.core import symmetry_path
 from marker_localizer.errors import ConfigError
 from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
@@ -525,6 +525,22 @@ def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
     saved = json.loads(out.read_text())
     (table,) = saved["synthetic"].values()
     assert table[accuracy.REFERENCE_ROW]["recall"] == 1.0
+
+
+def test_markers_with_a_dull_quadrant_are_read_at_each_range_with_even_paint_as_control():
+    printed: list[str] = []
+    figures = accuracy.run_dull(accuracy.Options(quick=True, families=("dull",)), printed.append)
+    ranges = [f"{low:g}-{high:g}" for low, high in dull.RANGES_PX]
+    assert list(figures["found"]) == ranges
+    assert figures["markers"] == {"8/1": dull.MARKERS_PER_FRAME, "8/0.7": dull.MARKERS_PER_FRAME}
+    # Even paint, alone and clearly visible, is found at every range.
+    assert [figures["found"][key]["8/1"] for key in ranges] == [dull.MARKERS_PER_FRAME] * 3
+    (table,) = printed
+    rows = {tuple(line.split()[:2]): line.split()[2:] for line in table.splitlines()[3:-1]}
+    assert rows[("8", "0.7")] == [str(dull.MARKERS_PER_FRAME)] + [
+        str(figures["found"][key]["8/0.7"]) for key in ranges
+    ]
+    assert table.splitlines()[-1].split()[-3:] == [str(figures["false"][key]) for key in ranges]
 
 
 def test_family_a_on_real_ground_says_it_is_skipped_without_the_real_frames():
