@@ -27,8 +27,8 @@ from marker_localizer.synthetic import MarkerPlacement, RenderedScene, render_ma
 #: marker's rings reach past the first level searched.
 RADII_PX = (6.0, 7.0, 8.0, 10.0, 14.0)
 #: Brightness of the dull quadrant over its opposite's: even paint (the control),
-#: then duller; at 0.6 of the bright paint the quadrant still leads the dark paint by
-#: a third of the contrast (an X, not an L corner).
+#: then duller; at 0.6 the quadrant still leads the dark paint by 0.31 of the bright
+#: paint (an X: family (g) calls a lead under 0.2 an L corner).
 DULL_FACTORS = (1.0, 0.8, 0.7, 0.6)
 #: Radius ranges every frame is read at, px, each correct for every radius of the
 #: grid: the default's smallest radius, one from 5 px and one from 6 px (the first
@@ -48,15 +48,15 @@ FRAMES = 2
 #: A quick run's grid: one frame of markers of 8 px (lost from 6 px at 0.7), even and at 0.7.
 QUICK_RADII_PX = (8.0,)
 QUICK_DULL_FACTORS = (1.0, 0.7)
-#: Space between neighbouring markers' outlines, px: a marker stands alone.
+#: Neighbouring markers' centres lie four radii and this much apart, px: each stands alone.
 _GAP_PX = 20.0
 
 
 def dull_frame(radius_px: float, dull_factor: float, seed: int) -> RenderedScene:
     """:data:`MARKERS_PER_FRAME` markers of ``radius_px``, each with a dull quadrant.
 
-    On a grid :data:`_GAP_PX` apart, each turned and tilted its own way and a
-    fraction of a pixel off the grid, on the ground photographs.
+    On a grid (:data:`_GAP_PX`), each turned and tilted its own way and a fraction
+    of a pixel off the grid, on the ground photographs.
     """
     rng = np.random.default_rng(seed)
     height, width = FRAME_SHAPE
