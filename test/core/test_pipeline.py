@@ -1142,8 +1142,8 @@ def test_a_range_from_6_px_keeps_the_small_dull_markers_one_from_5_px_finds(tigh
     the reading where their lines cross, and a dull quadrant under the rings' mid
     level leaves them two sectors, not four (8 of these 24 found at 6-40 and 6-24,
     24 at 5-40). Counting that level's candidates as wide finds 24, but reads the
-    first level's texture as wide too: 14-25 % more time on the speed benchmark's
-    frames, 70-90 % more on the real aerial frames at 6-40 px (docs/accuracy-journal.md,
+    first level's texture as wide too: 11-25 % more time on the speed benchmark's
+    frames, 80 % more on the real aerial frames at 6-40 px (docs/accuracy-journal.md,
     "Small markers with a dull quadrant from a 6-8 px minimum"). Strict: the fix
     that makes it pass removes it here.
     """
