@@ -99,8 +99,8 @@ def measure(
     """Markers found, and false points, of every cell at every range.
 
     Returns:
-        ``{"markers": per cell, "found": {range: per cell}, "false": {range: total}}``,
-        a range keyed ``"4-40"``, a cell ``"<radius>/<factor>"``.
+        ``{"frames": all cells', "markers": per cell, "found": {range: per cell},
+        "false": {range: total}}``, a range keyed ``"4-40"``, a cell ``"<radius>/<factor>"``.
     """
     found: dict[str, dict[str, int]] = {_range_key(r): {} for r in ranges_px}
     false = dict.fromkeys(found, 0)
@@ -119,13 +119,12 @@ def measure(
                 matching = evaluation.match_points(points[:, :2], scene.centres)
                 found[key][cell] += len(matching.truth_index)
                 false[key] += len(matching.unmatched_detections)
-    return {"markers": markers, "found": found, "false": false}
+    return {"frames": frames * len(markers), "markers": markers, "found": found, "false": false}
 
 
 def table(figures: dict[str, Any]) -> str:
     """The grid as text: a row per radius and dull factor, a column per range."""
     keys = list(figures["found"])
-    frames = sum(figures["markers"].values()) // MARKERS_PER_FRAME
     lines = [
         "Markers with a dull quadrant, alone on the ground photographs, "
         f"{MARKERS_PER_FRAME} a {FRAME_SHAPE[1]}x{FRAME_SHAPE[0]} frame (paint "
@@ -143,7 +142,7 @@ def table(figures: dict[str, Any]) -> str:
             + "".join(f"  {figures['found'][key][cell]:>9}" for key in keys)
         )
     lines.append(
-        f"{'false points in the ' + str(frames) + ' frames':>25}  "
+        f"{'false points in the ' + str(figures['frames']) + ' frames':>25}  "
         + "".join(f"  {figures['false'][key]:>9}" for key in keys)
     )
     return "\n".join(lines)

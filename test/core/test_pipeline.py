@@ -1108,10 +1108,10 @@ def test_small_markers_with_a_dull_quadrant_are_read_again_from_the_light_slopes
     assert false == unread_false == 0
 
 
-#: Markers of 7-9 px, one bright quadrant 0.6-0.75 as bright as the other, tilted up to
-#: 30 degrees, on flat ground: seeds, dull factors, radii (px) and largest tilt (degrees)
-#: of :func:`_wide_dull_markers`, whose range is given apart.
-_SMALL_DULL = (range(4), (0.6, 0.75), (7.0, 9.0))
+def _small_dull_markers(radius_range):
+    """Found and false points: 24 markers of 7-9 px, one bright quadrant 0.6-0.75 as bright
+    as the other, tilted up to 30 degrees, on flat ground, read at ``radius_range``."""
+    return _wide_dull_markers(range(4), (0.6, 0.75), (7.0, 9.0), radius_range, 30.0)
 
 
 @pytest.mark.parametrize("radius_range", [(4.0, 40.0), (5.0, 40.0), (8.0, 40.0)])
@@ -1122,7 +1122,7 @@ def test_small_markers_with_a_dull_quadrant_are_found_where_their_level_counts_a
     # half-resolution level's candidates are labelled 8 px; from 8 px that level's are
     # labelled 8 px too: screened wide, they are read with the bright sectors
     # equalised and where their lines cross (24 of these 24 found at 5-40 and 8-40).
-    found, false = _wide_dull_markers(*_SMALL_DULL, radius_range, 30.0)
+    found, false = _small_dull_markers(radius_range)
     assert found >= 23
     assert false == 0
 
@@ -1147,8 +1147,8 @@ def test_a_range_from_6_px_keeps_the_small_dull_markers_one_from_5_px_finds(tigh
     "Small markers with a dull quadrant from a 6-8 px minimum"). Strict: the fix
     that makes it pass removes it here.
     """
-    at_5, _ = _wide_dull_markers(*_SMALL_DULL, (5.0, tighter[1]), 30.0)
-    at_tighter, false = _wide_dull_markers(*_SMALL_DULL, tighter, 30.0)
+    at_5, _ = _small_dull_markers((5.0, tighter[1]))
+    at_tighter, false = _small_dull_markers(tighter)
     assert at_tighter >= at_5
     assert false == 0
 
