@@ -1129,15 +1129,15 @@ def test_small_markers_with_a_dull_quadrant_are_found_where_their_level_counts_a
 
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 12, items 3 and 5: from a 6-8 px minimum the first level's candidates "
-    "are labelled with it, under the wide readings' 8 px",
+    reason="issue 12, items 3 and 5: from a minimum of 6 px up to under 8 the first "
+    "level's candidates are labelled with it, under the wide readings' 8 px",
 )
 @pytest.mark.parametrize("tighter", [(6.0, 40.0), (6.0, 24.0)])
 def test_a_range_from_6_px_keeps_the_small_dull_markers_one_from_5_px_finds(tighter):
     """Issue 12, items 3 and 5, where they do not hold yet.
 
-    From a smallest radius of 6-8 px the search starts at the half-resolution level
-    and labels its candidates with that radius, under
+    From a smallest radius of 6 px up to under 8 the search starts at the
+    half-resolution level and labels its candidates with that radius, under
     :data:`second_reading.WIDE_SCALE_PX`: they get neither the equalised rings nor
     the reading where their lines cross, and a dull quadrant under the rings' mid
     level leaves them two sectors, not four (8 of these 24 found at 6-40 and 6-24,
