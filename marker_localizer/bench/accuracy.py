@@ -50,7 +50,7 @@ import numpy as np
 
 from marker_localizer import evaluation
 from marker_localizer.bench import dull, metrics, peers, real_data
-from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange
+from marker_localizer.bench.peers import OurDetector, PointDetector, RadiusRange, range_text
 from marker_localizer.bench.runner import add_json_option, run_and_save
 from marker_localizer.cli.arguments import comma_keys, count_type, seed_type
 from marker_localizer.core import symmetry_path
@@ -1508,7 +1508,7 @@ def run_independent(
         title = (
             f"Independent renderer, family ({key}) {description}; {len(frames)} frames, "
             f"{rows[0].tally.n_truth} markers, radius range given to every detector "
-            + ", ".join(f"{low:g}-{high:g}" for low, high in ranges)
+            + ", ".join(range_text(r) for r in ranges)
             + " px (truth.json); CRLB: truth.json's"
         )
         report(family_table(title, rows))
@@ -1542,7 +1542,7 @@ def run_negatives(options: Options, report: Callable[[str], None]) -> dict[str, 
     return _run_frames_without_markers(
         f"Real aerial frames without markers: aerial_negatives; {len(frames)} frames "
         f"({', '.join(shapes)}, {megapixels:.1f} MP in all); every detection is a false point; "
-        f"radius range {_range_text(REAL_RADIUS_RANGES['aerial_negatives'])}",
+        f"radius range {range_text(REAL_RADIUS_RANGES['aerial_negatives'])} px",
         frames,
         REAL_RADIUS_RANGES["aerial_negatives"],
         _detectors(options),
@@ -1613,7 +1613,7 @@ def run_closer_negatives(options: Options, report: Callable[[str], None]) -> dic
         f"The same real aerial frames seen from half the height ({REFERENCE_ROW} alone): "
         f"resized {CLOSER_MAGNIFICATION:g} times (bicubic), {CLOSER_READ_NOISE_DN:g} DN of "
         f"read noise added; {len(frames)} frames, {megapixels:.1f} MP in all; radius "
-        f"range {_range_text(REAL_RADIUS_RANGES['aerial_negatives'])}",
+        f"range {range_text(REAL_RADIUS_RANGES['aerial_negatives'])} px",
         frames,
         REAL_RADIUS_RANGES["aerial_negatives"],
         reference_detectors(),
@@ -1687,13 +1687,13 @@ def run_disc_lattice(options: Options, report: Callable[[str], None]) -> dict[st
         disc_lattice_frame(options.seed + k)
         for k in range(1 if options.quick else DISC_LATTICE_FRAMES)
     ]
-    low, high = DISC_LATTICE_RADIUS_RANGE
     return _run_frames_without_markers(
         f"Rendered ground without markers: a lattice of bright discs (the coins photograph "
         f"at {DISC_LATTICE_SCALES[0]:g}-{DISC_LATTICE_SCALES[1]:g} px per photograph px, its "
         f"contrast stretched {DISC_LATTICE_STRETCH[0]:g}-{DISC_LATTICE_STRETCH[1]:g} times), "
         f"{len(frames)} frames "
-        f"(1280x960); every detection is a false point; radius range {low:g}-{high:g} px",
+        f"(1280x960); every detection is a false point; radius range "
+        f"{range_text(DISC_LATTICE_RADIUS_RANGE)} px",
         frames,
         DISC_LATTICE_RADIUS_RANGE,
         _detectors(options),
@@ -1776,7 +1776,7 @@ def run_uas(
                 f"Real UAV frames: cirn_uas; {len(frames)} frames (3840x2160); targets "
                 f"found within {real_data.CIRN_FOUND_PX:g} px, FP = farther than "
                 f"{real_data.CIRN_FALSE_PX:g} px from both; radius range "
-                f"{_range_text(radius_range)} ({whose})",
+                f"{range_text(radius_range)} px ({whose})",
                 rows,
             )
         )
@@ -1803,12 +1803,8 @@ def _real_board_peers(set_name: str) -> list[PointDetector]:
     return peers.board_detectors(real_data.VALIDATIONBOOF_PATTERN)
 
 
-def _range_text(radius_range: RadiusRange) -> str:
-    return f"{radius_range[0]:g}-{radius_range[1]:g} px"
-
-
 def _real_note(set_name: str) -> str:
-    radius = _range_text(REAL_RADIUS_RANGES[set_name])
+    radius = f"{range_text(REAL_RADIUS_RANGES[set_name])} px"
     if set_name == "validationboof":
         return (
             f"reference = hand clicks - 0.5 px; radius range {radius}; "

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from marker_localizer import evaluation
-from marker_localizer.bench.peers import PointDetector, RadiusRange
+from marker_localizer.bench.peers import PointDetector, RadiusRange, range_text
 from marker_localizer.synthetic import MarkerPlacement, RenderedScene, render_markers
 
 #: Marker radii of the grid, px: from the smallest a range of 6 px reads to where a
@@ -102,7 +102,7 @@ def measure(
         ``{"frames": all cells', "markers": per cell, "found": {range: per cell},
         "false": {range: total}}``, a range keyed ``"4-40"``, a cell ``"<radius>/<factor>"``.
     """
-    found: dict[str, dict[str, int]] = {_range_key(r): {} for r in ranges_px}
+    found: dict[str, dict[str, int]] = {range_text(r): {} for r in ranges_px}
     false = dict.fromkeys(found, 0)
     markers: dict[str, int] = {}
     for index, (radius, factor) in enumerate(itertools.product(radii_px, dull_factors)):
@@ -112,7 +112,7 @@ def measure(
         scenes = [dull_frame(radius, factor, first + k) for k in range(frames)]
         markers[cell] = sum(len(s.markers) for s in scenes)
         for radius_range in ranges_px:
-            key = _range_key(radius_range)
+            key = range_text(radius_range)
             found[key][cell] = 0
             for scene in scenes:
                 points = detector.detect(scene.image, radius_range)
@@ -146,7 +146,3 @@ def table(figures: dict[str, Any]) -> str:
         + "".join(f"  {figures['false'][key]:>9}" for key in keys)
     )
     return "\n".join(lines)
-
-
-def _range_key(radius_range: RadiusRange) -> str:
-    return f"{radius_range[0]:g}-{radius_range[1]:g}"

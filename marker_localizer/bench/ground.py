@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from marker_localizer.bench import real_data, workers
+from marker_localizer.bench.peers import range_text
 from marker_localizer.bench.speed import REFERENCE_SUBJECT
 
 #: Radius ranges timed on every ground, px: markers from 3 px (the issue's real-ground
@@ -274,10 +275,6 @@ def save_grounds(found: Sequence[Ground], path: Path) -> None:
     np.savez(path, **arrays)
 
 
-def _range_text(radius_range: tuple[float, float]) -> str:
-    return f"{radius_range[0]:g}-{radius_range[1]:g}"
-
-
 def ground_table(found: Sequence[Ground], results: Sequence[SubjectTimings]) -> str:
     """Median and slowest frame per ground and range, ms; ours over each peer, frame by frame."""
     ours = next((r for r in results if r.name == REFERENCE_SUBJECT and not r.error), None)
@@ -298,7 +295,7 @@ def ground_table(found: Sequence[Ground], results: Sequence[SubjectTimings]) -> 
     ]
     for g, ground in enumerate(found):
         for k, radius_range in enumerate(RANGES):
-            row = f"{ground.label:<30}{len(ground.frames):>7}{_range_text(radius_range):>11}"
+            row = f"{ground.label:<30}{len(ground.frames):>7}{range_text(radius_range):>11}"
             if ours is None:
                 row += f"{'not run':>11}"
             else:
@@ -387,7 +384,7 @@ def run(
             "error": r.error,
             "grounds": {
                 ground.label: {
-                    _range_text(rr): r.timings[g][k].__dict__ for k, rr in enumerate(RANGES)
+                    range_text(rr): r.timings[g][k].__dict__ for k, rr in enumerate(RANGES)
                 }
                 for g, ground in enumerate(found)
             }

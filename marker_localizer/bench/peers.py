@@ -30,6 +30,12 @@ from marker_localizer.core.pipeline import Detector
 
 RadiusRange = tuple[float, float]
 
+
+def range_text(radius_range: RadiusRange) -> str:
+    """A radius range as the benchmarks' tables and JSON keys name it: ``"6-40"``."""
+    return f"{radius_range[0]:g}-{radius_range[1]:g}"
+
+
 #: cornerSubPix stops after this many iterations or when a step is below
 #: _SUBPIX_EPS_PX; OpenCV's own samples use (30, 0.001), we iterate a bit longer.
 _SUBPIX_MAX_ITER = 40
