@@ -272,7 +272,7 @@ def save_grounds(found: Sequence[Ground], path: Path) -> None:
     for g, ground in enumerate(found):
         for i, frame in enumerate(ground.frames):
             arrays[f"ground{g:02d}_{i:02d}"] = frame
-    np.savez(path, **arrays)
+    workers.save_frames(path, arrays)
 
 
 def ground_table(found: Sequence[Ground], results: Sequence[SubjectTimings]) -> str:

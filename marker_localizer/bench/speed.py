@@ -559,7 +559,7 @@ def run(options: Options, report: Callable[[str], None] = print) -> dict[str, An
         arrays = {f"frame{i:02d}": f for i, f in enumerate(frames)}
         if SUBJECTS["tracking"] in names:
             arrays["tracking_base"] = render_tracking_base(options.seed)
-        np.savez(frames_path, **arrays)
+        workers.save_frames(frames_path, arrays)
         results = run_subjects(names, frames_path, len(frames), options.repeats)
     report_load(load_before, report)
     report(

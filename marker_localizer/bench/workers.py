@@ -21,7 +21,7 @@ import select
 import subprocess
 import sys
 import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -54,6 +54,13 @@ def single_thread_env() -> dict[str, str]:
     env = dict(os.environ)
     env.update(dict.fromkeys(THREAD_VARIABLES, "1"))
     return env
+
+
+def save_frames(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """Write the frames the workers read to one ``.npz`` file, each array under its name."""
+    # numpy's stubs take a ``**`` mapping of arrays for savez's ``allow_pickle: bool``.
+    named: dict[str, Any] = dict(arrays)
+    np.savez(path, **named)
 
 
 def paired_ratio(ours: Sequence[float], peer: Sequence[float]) -> float:
