@@ -249,7 +249,15 @@ class Detector:
         fit. A position within a pixel or so of the centre gives the centre
         :meth:`detect` reports; a marker no longer there fails a check or the fit.
         The ground around a marker, its plate and the lattice test, is what the
-        :meth:`detect` that found it judged, and is not read again.
+        :meth:`detect` that found it judged, and is not read again. Each marker is
+        read as a candidate of the first pyramid level, without the second readings:
+        one that :meth:`detect` found as a wide candidate with a dull quadrant or a
+        shadow's edge across it (by its equalised rings, the lines' crossing, the
+        recentring or the shadow's reading) may fail here.
+        :class:`~marker_localizer.core.tracking.MarkerTracker` searches a window
+        around each marker this does not confirm with :meth:`detect`, which reads
+        them as a full pass does (measured: docs/speed.md, "A tracked marker of a wide
+        X read again as a full pass reads it").
 
         Args:
             image: the frame, as for :meth:`detect`.
