@@ -530,7 +530,7 @@ def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
 def test_markers_with_a_dull_quadrant_are_read_at_each_range_with_even_paint_as_control():
     printed: list[str] = []
     figures = accuracy.run_dull(accuracy.Options(quick=True, families=("dull",)), printed.append)
-    ranges = [f"{low:g}-{high:g}" for low, high in dull.RANGES_PX]
+    ranges = [peers.range_text(r) for r in dull.RANGES_PX]
     assert list(figures["found"]) == ranges
     assert figures["markers"] == {"8/1": dull.MARKERS_PER_FRAME, "8/0.7": dull.MARKERS_PER_FRAME}
     # Even paint, alone and clearly visible, is found at every range.
