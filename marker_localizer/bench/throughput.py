@@ -311,7 +311,9 @@ def run_once(
         processed=len(arrivals),
         dropped_mailbox=sum(s.dropped_mailbox for s in snaps),
         dropped_age=sum(s.dropped_age for s in snaps),
-        lost_by_stamps=sum(frames_lost_upstream(s.window_stamps_ns)[0] for s in snaps),
+        lost_by_stamps=sum(
+            frames_lost_upstream(s.window_stamps_ns, s.window_arrivals_ns)[0] for s in snaps
+        ),
         # Per second of the stream the cameras offered (their ticks at rate_hz): divided
         # by the span to the last result, a run's ends made it read above the offered
         # rate (20.35 of 20 in 4 s; about 0.1 more in 30 s, before 2026-12-02).

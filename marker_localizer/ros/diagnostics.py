@@ -15,11 +15,12 @@ Levels of a camera:
   more than that fraction of the frames the camera sent in the window never
   arrived (lost upstream: in DDS, in the camera driver, on the network), as the
   gaps between consecutive header stamps tell against the camera's own rate
-  (:func:`frames_lost_upstream`); or the latency p95 exceeds ``latency_warn_ms``;
-  or more than ``drop_warn_fraction`` of the window's frames did not advance the
-  header stamp (an unset or stuck stamp: a tracker restarts with a full pass on
-  each, :func:`stalled_stamps`); or every 16-bit frame delivered in the window
-  stayed under
+  (:func:`frames_lost_upstream`; a jump of the stamps' clock counts none); or
+  the latency p95 exceeds ``latency_warn_ms``; or more than
+  ``drop_warn_fraction`` of the window's frames did not advance the header stamp
+  (an unset or stuck stamp: a tracker restarts with a full pass on each,
+  :func:`stalled_stamps`); or every 16-bit frame delivered in the window stayed
+  under
   :data:`~marker_localizer.core.image.SHALLOW_PEAK_SHARE` of white, as a shallower
   sensor's words read at the configured ``bit_depth`` do
   (:func:`~marker_localizer.core.image.bit_depth_hint`); or, where that does not
@@ -98,6 +99,12 @@ _MIN_STAMP_GAPS = 8
 #: period apart: stamps of a free-running camera jitter by far less than half a
 #: period, and the 10th percentile is still one period with up to 90 % lost.
 _SINGLE_PERIOD_GAP = 1.5
+#: A stamp gap longer than its arrival gap by more than this is the stamps' clock
+#: jumping, not frames lost, s: an unset stamp (0) between set ones, one frame
+#: stamped ahead, stamps stepping back and then on again. A frame's delay on its
+#: way to the node changes from one frame to the next by far less: the
+#: subscription holds one frame, transport and the executor take milliseconds.
+STAMP_JUMP_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -156,6 +163,7 @@ class CameraSnapshot:
             full-frame passes (NaN: none).
         window_stamps_ns: header stamps of the frames received in the window,
             in order of arrival, ns (their gaps tell the frames lost upstream).
+        window_arrivals_ns: when each of those frames arrived, on the node's clock, ns.
         since_last_frame_s: time since the last frame arrived, or since start
             if none did, s.
         any_frame: whether a frame ever arrived.
@@ -187,6 +195,7 @@ class CameraSnapshot:
     markers_per_frame: float
     full_frame_share: float
     window_stamps_ns: np.ndarray
+    window_arrivals_ns: np.ndarray
     since_last_frame_s: float
     any_frame: bool
     last_error: str
@@ -376,6 +385,7 @@ class CameraStats:
                 markers_per_frame=_mean([r.markers for r in recent]),
                 full_frame_share=_mean([float(r.full_frame) for r in recent]),
                 window_stamps_ns=np.array(self._stamps, dtype=np.int64),
+                window_arrivals_ns=np.array(self._received_at, dtype=np.int64),
                 since_last_frame_s=max(now_ns - last_frame, 0) / _NS_PER_S,
                 any_frame=self._last_frame_ns is not None,
                 last_error=self._last_error,
@@ -408,26 +418,30 @@ def stalled_stamps(stamps_ns: np.ndarray) -> int:
     return int(np.count_nonzero(np.diff(stamps_ns) <= 0))
 
 
-def frames_lost_upstream(stamps_ns: np.ndarray, rate_hz: float = 0.0) -> tuple[int, float]:
+def frames_lost_upstream(
+    stamps_ns: np.ndarray, arrivals_ns: np.ndarray, rate_hz: float = 0.0
+) -> tuple[int, float]:
     """Frames a camera sent but the node never received, from the gaps between its stamps.
 
     A gap of k frame periods (rounded) means k - 1 frames lost; gaps that are
-    not positive (a repeated or an older stamp) count nothing. The period is
-    ``1 / rate_hz`` when the rate is known; otherwise the median of the gaps one
-    period long (those under 1.5x the 10th-percentile gap), which sees random
-    loss (DDS losing samples) but takes a camera of which every other frame is
-    lost for one at half the rate.
+    not positive (a repeated or an older stamp) count nothing, nor do gaps longer
+    than the frames' arrival gap by more than :data:`STAMP_JUMP_S` (the stamps'
+    clock jumped). The period is ``1 / rate_hz`` when the rate is known;
+    otherwise the median of the gaps one period long (those under 1.5x the
+    10th-percentile gap), which sees random loss (DDS losing samples) but takes a
+    camera of which every other frame is lost for one at half the rate.
 
     Args:
         stamps_ns: header stamps in order of arrival, ns.
+        arrivals_ns: when each frame arrived, ns (any clock the node keeps).
         rate_hz: the camera's frame rate, Hz; 0 measures it from the gaps.
 
     Returns:
         (frames lost, the rate used in Hz); (0, NaN) when measuring and there
-        are fewer than ``_MIN_STAMP_GAPS`` positive gaps.
+        are fewer than ``_MIN_STAMP_GAPS`` gaps to measure from.
     """
     gaps = np.diff(stamps_ns)
-    gaps = gaps[gaps > 0]
+    gaps = gaps[(gaps > 0) & (gaps - np.diff(arrivals_ns) <= STAMP_JUMP_S * _NS_PER_S)]
     if rate_hz > 0:
         period_ns = _NS_PER_S / rate_hz
     elif gaps.size >= _MIN_STAMP_GAPS:
@@ -473,7 +487,9 @@ def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> 
     ):
         share = 100.0 * snapshot.dropped_in_window / snapshot.received_in_window
         warnings.append(f"{share:.0f} % of frames dropped")
-    lost, rate_hz = frames_lost_upstream(snapshot.window_stamps_ns, thresholds.expected_rate_hz)
+    lost, rate_hz = frames_lost_upstream(
+        snapshot.window_stamps_ns, snapshot.window_arrivals_ns, thresholds.expected_rate_hz
+    )
     sent = snapshot.received_in_window + lost
     if lost > thresholds.drop_warn_fraction * sent:
         warnings.append(
@@ -553,7 +569,9 @@ def camera_status(
         Status named ``"<node name>: <camera>"`` with ``hardware_id`` = camera.
     """
     level, message = camera_level(snapshot, thresholds)
-    lost, rate_hz = frames_lost_upstream(snapshot.window_stamps_ns, thresholds.expected_rate_hz)
+    lost, rate_hz = frames_lost_upstream(
+        snapshot.window_stamps_ns, snapshot.window_arrivals_ns, thresholds.expected_rate_hz
+    )
     dropped_pct = (
         100.0 * snapshot.dropped_in_window / snapshot.received_in_window
         if snapshot.received_in_window

@@ -111,14 +111,44 @@ def test_frames_lost_upstream_are_counted_from_the_gaps_between_stamps():
     period_ns = S // 10
     rng = np.random.default_rng(4)
     sent = np.arange(1000) * period_ns + rng.normal(0, 0.05 * period_ns, 1000).astype(np.int64)
+    arrived = sent + 30_000_000  # 30 ms on the way
     kept = np.sort(rng.choice(1000, 540, replace=False))  # 46 % lost, as measured on DDS
-    lost, rate_hz = frames_lost_upstream(sent[kept])
+    lost, rate_hz = frames_lost_upstream(sent[kept], arrived[kept])
     assert lost == kept[-1] - kept[0] + 1 - len(kept)
     assert rate_hz == pytest.approx(10.0, rel=0.01)
-    assert frames_lost_upstream(sent) == (0, pytest.approx(10.0, rel=0.01))
-    assert frames_lost_upstream(sent[kept], rate_hz=10.0)[0] == lost
-    assert frames_lost_upstream(sent[:5])[0] == 0  # too few gaps to know the rate
-    assert frames_lost_upstream(sent[::-1])[0] == 0  # stamps going back count nothing
+    assert frames_lost_upstream(sent, arrived) == (0, pytest.approx(10.0, rel=0.01))
+    assert frames_lost_upstream(sent[kept], arrived[kept], rate_hz=10.0)[0] == lost
+    assert frames_lost_upstream(sent[:5], arrived[:5])[0] == 0  # too few gaps to know the rate
+    assert frames_lost_upstream(sent[::-1], arrived)[0] == 0  # stamps going back count nothing
+
+
+def test_frames_lost_in_a_queue_are_counted_though_the_rest_arrive_at_once():
+    # The node stalled: what the queue kept arrives 1 ms apart, two frames lost in it.
+    period_ns = S // 10
+    sent = np.arange(30) * period_ns
+    arrived = sent + 20_000_000
+    arrived[20:] = arrived[20] + np.arange(10) * 1_000_000
+    kept = np.delete(np.arange(30), [24, 25])
+    assert frames_lost_upstream(sent[kept], arrived[kept])[0] == 2
+
+
+@pytest.mark.parametrize(
+    "glitch",
+    ["an unset stamp (0)", "a stamp an hour ahead", "stamps 5 s back, then on again"],
+)
+def test_a_jump_of_the_stamps_clock_is_no_frame_lost(glitch):
+    # Every frame of a 10 Hz camera arrives; only the stamps' clock misbehaves.
+    sent = 1_700_000_000 * S + np.arange(30) * (S // 10)
+    arrived = sent + 30_000_000
+    stamps = sent.copy()
+    if glitch == "an unset stamp (0)":
+        stamps[15] = 0
+    elif glitch == "a stamp an hour ahead":
+        stamps[15] += 3600 * S
+    else:
+        stamps[10:20] -= 5 * S
+    assert frames_lost_upstream(stamps, arrived) == (0, pytest.approx(10.0))
+    assert frames_lost_upstream(stamps, arrived, rate_hz=10.0)[0] == 0
 
 
 def lossy_camera(keep):
