@@ -27,7 +27,7 @@ from marker_localizer.core.verification import (
     TEXTURE_EXTENT_PX,
     TEXTURE_SCORE_FLOORS,
 )
-from marker_localizer.errors import ConfigError
+from marker_localizer.errors import ConfigError, shorten
 
 #: How candidates are found and checked (``candidate_detector``).
 CandidateDetector = Literal["saddle", "curvature"]
@@ -721,9 +721,12 @@ def load_params_file(
     import yaml  # noqa: PLC0415 - only this helper needs PyYAML
 
     try:
-        document = yaml.safe_load(Path(path).read_text())
+        document = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
     except OSError as err:
         raise ConfigError(f"{path}: cannot read parameters file ({err.strerror})") from err
+    except UnicodeDecodeError as err:
+        # ROS reads parameter files as UTF-8 too.
+        raise ConfigError(f"{path}: not valid YAML (not UTF-8 text)") from err
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
@@ -739,6 +742,11 @@ def load_params_file(
         if isinstance(entry, dict) and "ros__parameters" in entry:
             prefix = f"{namespace}."
             flat = _flatten(entry["ros__parameters"] or {}, path)
+            if namespace in flat:  # the node refuses a value for the section itself too
+                raise ConfigError(
+                    f"{path}: ros__parameters.{namespace} must be a mapping of parameters,"
+                    f" got {shorten(repr(flat[namespace]))}"
+                )
             return {k[len(prefix) :]: v for k, v in flat.items() if k.startswith(prefix)}
     raise ConfigError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
 
@@ -757,16 +765,35 @@ def detector_config(params_file: str | Path | None, overrides: Sequence[str]) ->
     values: dict[str, Any] = {}
     if params_file:
         values.update(load_params_file(params_file))
-        try:
-            from_mapping(values)
-        except ConfigError as err:
-            raise ConfigError(f"{params_file}: {err}") from err
+        _from_params_file(params_file, DETECTOR_NAMESPACE, values, DetectorConfig())
     for item in overrides:
         key, sep, text = item.partition("=")
-        if not sep:
+        if not sep or not key.strip():
             raise ConfigError(f"--param expects key=value, got {item!r}")
         values[key.strip()] = parse_value(key.strip(), text)
     return from_mapping(values)
+
+
+def tracker_config(params_file: str | Path | None) -> TrackerConfig:
+    """The tracker's config from a node parameter YAML's ``tracker.*`` values (``replay``).
+
+    Raises:
+        ConfigError: an unreadable file, an unknown name or a value outside its range.
+    """
+    if not params_file:
+        return TrackerConfig()
+    values = load_params_file(params_file, namespace=TRACKER_NAMESPACE)
+    return _from_params_file(params_file, TRACKER_NAMESPACE, values, TrackerConfig())
+
+
+def _from_params_file(
+    path: str | Path, namespace: str, values: Mapping[str, Any], base: _Config
+) -> _Config:
+    """``values`` of a file's ``namespace`` section over ``base``; an error names both."""
+    try:
+        return from_mapping(values, base=base)
+    except ConfigError as err:
+        raise ConfigError(f"{path} ({namespace}): {err}") from err
 
 
 def _flatten(params: Any, path: str | Path, prefix: str = "") -> dict[str, Any]:

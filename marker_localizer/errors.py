@@ -44,6 +44,10 @@ class BagError(MarkerLocalizerError):
     """A bag cannot be read, has no usable topics, or cannot be written."""
 
 
+class OutputError(MarkerLocalizerError):
+    """The command's output (stdout) cannot be written: a full disk, a device gone."""
+
+
 class WorkerError(MarkerLocalizerError):
     """A worker process ended while it held a frame (killed: out of memory, a signal)."""
 

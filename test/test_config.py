@@ -14,6 +14,7 @@ from marker_localizer.config import (
     load_params_file,
     param_specs,
     parse_value,
+    tracker_config,
 )
 from marker_localizer.errors import ConfigError
 
@@ -191,7 +192,9 @@ def test_load_params_file_finds_the_nodes_entry_beside_other_nodes(tmp_path):
 def test_a_bad_value_in_a_params_file_names_the_file(tmp_path):
     path = tmp_path / "node.yaml"
     path.write_text("marker_localizer:\n  ros__parameters:\n    detector:\n      bogus: 1\n")
-    with pytest.raises(ConfigError, match=f"^{path}: unknown parameter\\(s\\): bogus$"):
+    with pytest.raises(
+        ConfigError, match=f"^{path} \\(detector\\): unknown parameter\\(s\\): bogus$"
+    ):
         detector_config(path, [])
     # Built straight from the file's values: the same error, not a bare TypeError.
     with pytest.raises(ConfigError, match=r"^unknown parameter\(s\): bogus$"):
@@ -223,6 +226,8 @@ def test_a_tracker_setting_out_of_its_range_is_refused_with_its_name():
         ("a: [", "not valid YAML"),
         ("- 1\n- 2\n", "expected a mapping"),
         ("other:\n  x: 1\n", "no ros__parameters"),
+        ("/**:\n  ros__parameters:\n    detector: 5\n", "ros__parameters.detector must be a map"),
+        ("/**:\n  ros__parameters:\n    detector:\n", "ros__parameters.detector must be a map"),
     ],
 )
 def test_load_params_file_explains_what_is_wrong(tmp_path, text, message):
@@ -230,6 +235,23 @@ def test_load_params_file_explains_what_is_wrong(tmp_path, text, message):
     path.write_text(text)
     with pytest.raises(ConfigError, match=message):
         load_params_file(path)
+
+
+def test_a_params_file_that_is_not_utf8_text_is_refused_as_such(tmp_path):
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("/**:\n  ros__parameters:\n    detector: {}  # café\n".encode("latin-1"))
+    with pytest.raises(ConfigError, match=r"not valid YAML \(not UTF-8 text\)"):
+        load_params_file(path)
+
+
+def test_a_bad_tracker_value_in_a_params_file_names_the_file_and_its_section(tmp_path):
+    path = tmp_path / "node.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    tracker:\n      enabled: 0\n      foo: 1\n")
+    with pytest.raises(ConfigError, match=f"^{path} \\(tracker\\): unknown parameter\\(s\\): foo"):
+        tracker_config(path)
+    path.write_text("/**:\n  ros__parameters:\n    tracker:\n      match_px: 2.0\n")
+    assert tracker_config(path).match_px == 2.0
+    assert tracker_config(None) == TrackerConfig()
 
 
 def test_load_params_file_names_a_missing_file(tmp_path):

@@ -28,13 +28,7 @@ from marker_localizer.blas import single_thread_blas
 from marker_localizer.cli.arguments import count_type, seed_type
 from marker_localizer.cli.exits import EXIT_INCOMPLETE, PROG
 from marker_localizer.cli.progress import ProgressBar
-from marker_localizer.config import (
-    TRACKER_NAMESPACE,
-    TrackerConfig,
-    detector_config,
-    from_mapping,
-    load_params_file,
-)
+from marker_localizer.config import detector_config, tracker_config
 from marker_localizer.core.image import BAYER_PATTERNS
 from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import DEFAULT_GATE_PX
@@ -259,11 +253,10 @@ def build_replay_parser() -> argparse.ArgumentParser:
 def replay(argv: Sequence[str]) -> int:
     """Run ``marker-localizer replay``; 0, or EXIT_INCOMPLETE when a frame gave no result."""
     args = build_replay_parser().parse_args(argv)
-    config, tracking = detector_config(args.params_file, args.param), TrackerConfig()
-    if args.params_file is not None:
-        tracking = from_mapping(
-            load_params_file(args.params_file, namespace=TRACKER_NAMESPACE), base=tracking
-        )
+    config, tracking = (
+        detector_config(args.params_file, args.param),
+        tracker_config(args.params_file),
+    )
     # With --worker-threads the detector runs in this process (marker_localizer.blas).
     single_thread_blas()
     bar = ProgressBar(0, "replay")

@@ -1,6 +1,7 @@
 """``marker-localizer detect``: the JSON-lines contract, overlays and error handling."""
 
 import json
+import sys
 from pathlib import Path
 
 import cv2
@@ -203,6 +204,21 @@ def test_a_float_tiff_of_8_bit_levels_is_one_line_not_a_blank_frame(x_image, tmp
     ]
     (record,) = (json.loads(line) for line in captured.out.splitlines())
     assert record["image"] == str(unit) and len(record["markers"]) == 1
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+@pytest.mark.parametrize("json_lines", [True, False], ids=["--json", "table"])
+def test_an_output_that_cannot_be_written_is_one_line_and_status_1(
+    x_image, monkeypatch, capsys, json_lines
+):
+    # /dev/full fails every write as a full disk does: `detect --json > results.jsonl`.
+    path, _ = x_image
+    with open("/dev/full", "w") as full:
+        monkeypatch.setattr(sys, "stdout", full)
+        assert main(["detect", str(path), *(["--json"] if json_lines else [])]) == 1
+    assert capsys.readouterr().err == (
+        "marker-localizer: error: cannot write the output (No space left on device)\n"
+    )
 
 
 def test_param_overrides_and_params_file_are_validated(x_image, tmp_path, capsys):

@@ -44,10 +44,11 @@ def test_every_registered_command_and_benchmark_names_a_function_that_exists(mod
     assert callable(getattr(importlib.import_module(module), function))
 
 
-def test_a_package_error_is_one_line_and_status_1(capsys):
-    assert main(["detect", "any.png", "--param", "marker_radius_min_px"]) == 1
+@pytest.mark.parametrize("param", ["marker_radius_min_px", "=3", " =3"])
+def test_a_package_error_is_one_line_and_status_1(capsys, param):
+    assert main(["detect", "any.png", "--param", param]) == 1
     err = capsys.readouterr().err
-    assert err == "marker-localizer: error: --param expects key=value, got 'marker_radius_min_px'\n"
+    assert err == f"marker-localizer: error: --param expects key=value, got {param!r}\n"
 
 
 def test_a_demo_folder_that_cannot_be_made_is_one_line(tmp_path, capsys):
