@@ -346,6 +346,12 @@ def unread_image_topics(topics: dict[str, str], cameras: dict[str, str]) -> dict
                 unread[topic] = f"camera {camera!r}: {problem}"
             else:
                 unread[topic] = f"camera {camera} is read from {cameras[camera]}"
+    # A camera's input name holding another type (a String on /cam0/image_raw, say).
+    for suffix, message_type in IMAGE_TRANSPORTS.values():
+        msgtype = f"sensor_msgs/msg/{message_type.__name__}"
+        for topic, other in topics.items():
+            if topic.endswith(f"/{suffix}") and other != msgtype and topic not in unread:
+                unread[topic] = f"holds {other}, not {msgtype}"
     return dict(sorted(unread.items()))
 
 

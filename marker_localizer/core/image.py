@@ -171,14 +171,18 @@ def bayer_to_grey(mosaic: NDArray[Any], pattern: str) -> NDArray[Any]:
         (H, W) grey levels of the same dtype: white stays white.
 
     Raises:
-        ImageError: ``mosaic`` is not one channel of uint8 or uint16 pixels, or the
-            pattern is not one of :data:`BAYER_PATTERNS`.
+        ImageError: ``mosaic`` is not one channel of uint8 or uint16 pixels, smaller
+            than one 2 x 2 cell, or the pattern is not one of :data:`BAYER_PATTERNS`.
     """
     if mosaic.ndim != 2 or mosaic.dtype not in (np.uint8, np.uint16):
         raise ImageError(
             "a Bayer mosaic is one channel of 8- or 16-bit pixels, "
             f"not {'x'.join(map(str, mosaic.shape))} {mosaic.dtype}"
         )
+    if min(mosaic.shape) < 2:
+        # OpenCV demosaics a row or a column to zeros, which would read as a black frame.
+        height, width = mosaic.shape
+        raise ImageError(f"a Bayer mosaic holds at least one 2x2 cell, not {width}x{height} pixels")
     if pattern not in _BAYER_TO_GREY:
         raise ImageError(f"unknown Bayer pattern {pattern!r} (expected one of {BAYER_PATTERNS})")
     if not mosaic.flags.aligned:

@@ -485,6 +485,21 @@ def test_image_topics_replay_does_not_read_are_named_with_why(tmp_path):
         replay_bag(write_bag(tmp_path / "alone", frames[1:2]), tmp_path / "out2")
 
 
+def test_a_cameras_image_topic_holding_another_type_is_named_not_read(tmp_path):
+    from std_msgs.msg import String  # noqa: PLC0415 - only this test writes one
+
+    with BagWriter(tmp_path / "in", "mcap") as bag:
+        bag.add_topic("/cam0/image_raw", "std_msgs/msg/String")
+        bag.write("/cam0/image_raw", 1, String(data="not a frame"))
+        bag.add_topic("/cam1/image_raw", "sensor_msgs/msg/Image")
+        bag.write("/cam1/image_raw", 1, image(x_marker_frame(), 1))
+    report = replay_bag(tmp_path / "in", tmp_path / "out", workers=1)
+    assert list(report.cameras) == ["cam1"]
+    assert report.unread_topics == {
+        "/cam0/image_raw": "holds std_msgs/msg/String, not sensor_msgs/msg/Image"
+    }
+
+
 def test_worker_processes_and_worker_threads_write_the_same_points(tmp_path):
     frames = [("/cam0/image_raw", t, image(x_marker_frame(), t)) for t in (1, 2, 3)]
     bag = write_bag(tmp_path / "in", frames)

@@ -210,3 +210,6 @@ def test_a_bayer_reading_refuses_what_is_not_one_mosaic_of_a_known_pattern():
         bayer_to_grey(np.zeros((4, 4, 3), np.uint8), "rggb")
     with pytest.raises(ImageError, match="unknown Bayer pattern 'rgbg'"):
         bayer_to_grey(np.zeros((4, 4), np.uint8), "rgbg")
+    for height, width in ((1, 1), (1, 200), (200, 1)):
+        with pytest.raises(ImageError, match=f"at least one 2x2 cell, not {width}x{height}"):
+            bayer_to_grey(np.full((height, width), 200, np.uint8), "rggb")
