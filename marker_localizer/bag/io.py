@@ -168,7 +168,8 @@ class BagReader:
     has none) or that fails part-way is read front to back
     (:mod:`marker_localizer.bag.mcap_scan`), so every whole message is still
     returned; so is a bag directory without ``metadata.yaml`` that holds MCAP
-    files (a recording that did not finish). What could not be read is listed
+    files (a recording that did not finish), or one sqlite3 file, read on its own
+    as a bare ``.db3`` is. What could not be read is listed
     in :attr:`damage`, one line each. Every other rosbags or storage error is a
     :class:`BagError` naming the path.
 
@@ -195,20 +196,24 @@ class BagReader:
         if self.path.is_file() and is_ros1_bag(self.path):
             self._ros1 = Ros1Reader(self.path)
             return
+        storage = self.path
         if self.path.is_dir() and not (self.path / "metadata.yaml").exists():
-            if not self._mcap_files():
+            unfinished = f"{self.path}: no metadata.yaml (a recording that did not finish)"
+            sqlite = sorted(self.path.glob("*.db3"))
+            if self._mcap_files():
+                self.damage.append(f"{unfinished}; its MCAP files read front to back")
+                self._scanned_files = self._mcap_files()
+                return
+            if len(sqlite) != 1:
                 raise BagError(
                     f"{self.path}: not a rosbag2 directory (no metadata.yaml; "
                     "an unfinished recording?)"
                 )
-            self.damage.append(
-                f"{self.path}: no metadata.yaml (a recording that did not finish); "
-                "its MCAP files read front to back"
-            )
-            self._scanned_files = self._mcap_files()
-            return
+            # A bare .db3 is a bag of its own (rosbags reads its schema from it).
+            self.damage.append(f"{unfinished}; {sqlite[0].name} read on its own")
+            storage = sqlite[0]
         try:
-            self._reader = Reader(self.path)
+            self._reader = Reader(storage)
         except Exception as err:  # rosbags raises ReaderError or OSError
             raise BagError(f"{self.path}: not a rosbag2 ({err})") from err
 

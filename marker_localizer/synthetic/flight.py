@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from marker_localizer.config import DetectorConfig
 from marker_localizer.core.image import BAYER_PATTERNS
 from marker_localizer.errors import ConfigError
 from marker_localizer.synthetic.scene import (
@@ -205,6 +206,13 @@ class FlightConfig:
             raise ConfigError(
                 f"width x height {self.width}x{self.height} must hold a marker's plate at "
                 f"nadir, {plate_px:g} px (nadir_marker_radius_px={self.nadir_marker_radius_px:g})"
+            )
+        if self.width * self.height > DetectorConfig.max_pixels:
+            # Frames the node and replay refuse at their default, and memory for the
+            # render (OpenCV's warp fails at some 10^10 px without saying why).
+            raise ConfigError(
+                f"width x height {self.width}x{self.height} is over the "
+                f"{DetectorConfig.max_pixels} px the detector takes (max_pixels)"
             )
         if not 1 <= self.n_cameras <= len(CAMERA_NAMES):
             raise ConfigError(f"n_cameras={self.n_cameras!r} must be in [1, {len(CAMERA_NAMES)}]")

@@ -139,6 +139,19 @@ def test_a_recording_that_did_not_finish_is_read_front_to_back(small_flight, ima
     )
 
 
+def test_a_sqlite3_recording_without_its_metadata_is_read_from_its_storage_file(tmp_path):
+    bag = tmp_path / "flight_db"
+    argv = ["--out", str(bag), "--frames", "2", "--width", "64", "--height", "48"]
+    assert cli(["simulate", *argv, "--storage", "sqlite3", "--cameras", "1"]) == 0
+    (bag / "metadata.yaml").unlink()
+    report = replay_bag(bag, tmp_path / "out", workers=1)
+    assert sum(c.frames for c in report.cameras.values()) == 2
+    assert report.damage == [
+        f"{bag}: no metadata.yaml (a recording that did not finish); "
+        "flight_db_0.db3 read on its own"
+    ]
+
+
 def test_a_cut_sqlite3_bag_is_one_error_naming_it(tmp_path, capsys):
     bag = tmp_path / "flight_db"
     argv = ["--out", str(bag), "--frames", "1", "--width", "64", "--height", "48"]
