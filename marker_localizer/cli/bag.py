@@ -28,7 +28,7 @@ from marker_localizer.blas import single_thread_blas
 from marker_localizer.cli.arguments import count_type, seed_type
 from marker_localizer.cli.exits import EXIT_INCOMPLETE, PROG
 from marker_localizer.cli.progress import ProgressBar
-from marker_localizer.config import detector_config, tracker_config
+from marker_localizer.config import DetectorConfig, detector_config, tracker_config
 from marker_localizer.core.image import BAYER_PATTERNS
 from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import DEFAULT_GATE_PX
@@ -190,6 +190,13 @@ def simulate(argv: Sequence[str]) -> int:
         f"{summary.truth_markers} markers in the truth, {summary.messages} messages; "
         f"altitude {config.flight_altitude_m:.1f} m, focal length {config.focal_px:.1f} px\n"
     )
+    smallest = DetectorConfig.marker_radius_min_px
+    if config.marker_radius_at_nadir_px < smallest:
+        sys.stderr.write(
+            f"{PROG}: warning: markers are {config.marker_radius_at_nadir_px:.2g} px in radius "
+            f"at nadir, under the detector's smallest radius by default ({smallest:g} px): "
+            "replay finds them only with a smaller marker_radius_min_px\n"
+        )
     return 0
 
 

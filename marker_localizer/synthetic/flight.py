@@ -288,6 +288,11 @@ class FlightConfig:
         return self.marker_radius_m * self.focal_px / self.nadir_marker_radius_px
 
     @property
+    def marker_radius_at_nadir_px(self) -> float:
+        """A marker's radius in the nadir camera at the flying height, px."""
+        return self.marker_radius_m / self.ground_sample_m
+
+    @property
     def ground_sample_m(self) -> float:
         """Ground distance covered by one nadir pixel at the flying height, m."""
         return self.flight_altitude_m / self.focal_px

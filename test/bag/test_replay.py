@@ -324,6 +324,18 @@ def test_simulate_refuses_an_existing_output_and_a_bad_configuration(tmp_path, c
     assert leftovers(tmp_path) == ["taken"]
 
 
+def test_simulate_warns_where_its_markers_are_smaller_than_the_detector_looks_for(tmp_path, capsys):
+    argv = ["--frames", "1", "--width", "64", "--height", "48", "--cameras", "1"]
+    assert cli(["simulate", "--out", str(tmp_path / "low"), *argv]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert cli(["simulate", "--out", str(tmp_path / "high"), *argv, "--altitude", "100"]) == 0
+    assert capsys.readouterr().err == (
+        "marker-localizer: warning: markers are 0.28 px in radius at nadir, under the "
+        "detector's smallest radius by default (4 px): replay finds them only with a "
+        "smaller marker_radius_min_px\n"
+    )
+
+
 def test_an_output_under_a_file_is_refused_naming_the_file(tmp_path, capsys):
     """Before: ``cannot create bag ([Errno 17] File exists: '.../notes.txt')``."""
     (tmp_path / "notes.txt").write_text("")
