@@ -102,7 +102,10 @@ def x_chroma_share(
     reach = len(CHROMA_SMOOTHING) // 2
     side = 2 * (half + reach) + 1
     pixels, inside = pixels_at_offsets(colour[..., :3], xy, square_offsets(half + reach))
-    logs = np.log(pixels + DARK_OFFSET_SHARE * full_scale).reshape(len(xy), side, side, 3)
+    # A float frame's levels may undershoot 0 a little (image.FLOAT_OVERSHOOT), which
+    # image.to_gray clips in the grey: clipped here too, or the log is NaN.
+    levels = np.maximum(pixels, 0.0) + DARK_OFFSET_SHARE * full_scale
+    logs = np.log(levels).reshape(len(xy), side, side, 3)
     luminance = logs.mean(axis=-1, keepdims=True)
     chromaticity = _smoothed(logs - luminance).reshape(len(xy), -1, 3)
     luminance = luminance[:, reach : side - reach, reach : side - reach, 0].reshape(len(xy), -1)

@@ -375,12 +375,21 @@ def _colour_planes(
         raise ImageError(
             f"colour must be an (H, W, 3|4) array, got {getattr(colour, 'shape', type(colour))}"
         )
-    if colour.shape[:2] != gray.shape or colour.dtype != gray.dtype:
+    if colour.shape[:2] != gray.shape or _level_scale(colour.dtype) != _level_scale(gray.dtype):
         raise ImageError(
             f"colour {colour.shape} {colour.dtype} is not the colour of the grey image "
             f"{gray.shape} {gray.dtype}"
         )
     return colour
+
+
+def _level_scale(dtype: np.dtype[Any]) -> np.dtype[Any]:
+    """The dtype whose levels ``dtype``'s are read as: byte order aside, float32 as float64.
+
+    :func:`image.to_gray` makes a frame's grey native and float32, its colour planes
+    stay as given.
+    """
+    return np.dtype(np.float64) if dtype.kind == "f" else dtype.newbyteorder("=")
 
 
 def _known_markers(
@@ -395,12 +404,19 @@ def _known_markers(
         ValueError: they do not describe the same N points, hold a NaN or an infinity,
             or an extent is not positive.
     """
-    arrays = {
-        "xy": np.asarray(xy, np.float64).reshape(-1, 2),
-        "radius_px": np.asarray(radius_px, np.float64).reshape(-1),
-        "line_angles": np.asarray(line_angles, np.float64).reshape(-1, 2),
-        "evidence": np.asarray(evidence, np.float64).reshape(-1),
-    }
+    arrays = {}
+    for name, values, columns in (
+        ("xy", xy, 2),
+        ("radius_px", radius_px, 0),
+        ("line_angles", line_angles, 2),
+        ("evidence", evidence, 0),
+    ):
+        array = np.asarray(values, np.float64)
+        # One point's (2,) row is taken; a (2, N) transpose is not.
+        if array.ndim > (2 if columns else 1) or (columns and array.shape[-1] != columns):
+            shape = f"(N, {columns})" if columns else "(N,)"
+            raise ValueError(f"locate's {name} must be {shape}, got shape {array.shape}")
+        arrays[name] = array.reshape(-1, columns) if columns else array.reshape(-1)
     counts = {name: len(array) for name, array in arrays.items()}
     if len(set(counts.values())) > 1:
         raise ValueError(f"locate needs one row per marker in each array, got {counts}")

@@ -61,7 +61,9 @@ class Detection:
     evidence: float = 1.0
 
 
-@dataclass
+# Compared by identity: a dataclass's == would compare the survivors' arrays, which
+# have no one truth value.
+@dataclass(eq=False)
 class DetectionResult:
     """Detections of one frame, with per-stage counts and timings.
 
@@ -153,7 +155,7 @@ class DetectionResult:
         ).reshape(-1, 7)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # arrays: compared and hashed by identity
 class SearchPlan:
     """Where :meth:`Detector.detect` searches on one frame: tracking mode's seam.
 
@@ -182,7 +184,7 @@ class SearchPlan:
     def __post_init__(self) -> None:
         for name, columns in (("regions", 4), ("known", 2), ("seeds", 2)):
             value = np.asarray(getattr(self, name))
-            if value.size % columns:
+            if value.size and (value.ndim > 2 or value.shape[-1] != columns):
                 raise ValueError(f"SearchPlan.{name} of shape {value.shape} is not (N, {columns})")
             if name != "regions" and not np.isfinite(value).all():
                 raise ValueError(f"SearchPlan.{name} holds a NaN or infinite position")

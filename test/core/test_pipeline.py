@@ -483,6 +483,15 @@ def test_on_a_colour_frame_small_xs_drawn_in_colour_are_rejected_and_counted():
     beside = detector.detect(grey, colour=colour)
     assert [(d.x, d.y) for d in beside] == [(d.x, d.y) for d in result]
     assert detector.detect(grey).counts["rejected_chroma"] == 0
+    # Float levels, float64 or undershooting 0 a little (clipped in the grey), and
+    # big-endian words read the same.
+    levels = colour / 255.0
+    for same in (levels, levels - 0.03, (colour.astype(np.uint16) * 257).astype(">u2")):
+        assert _markers_found(detector, same, centres) == {0, 1, 2, 3}
+        tracked = MarkerTracker(detector).update(same, 1.0)
+        assert tracked.counts["rejected_chroma"] == 4 and len(tracked) == 4
+    grey_levels = detector.detect(grey / 255.0, colour=levels)
+    assert grey_levels.counts["rejected_chroma"] == 4 and len(grey_levels) == 4
     off = Detector(detector.config.replace(max_x_chroma_share=100.0))
     assert _markers_found(off, colour, centres) == set(range(8))
 
@@ -1210,6 +1219,10 @@ def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_cou
         (lambda a: {**a, "evidence": a["evidence"] + np.inf}, "evidence holds a NaN"),
         (lambda a: {**a, "radius_px": a["radius_px"] * 0}, "locate's radius_px must be positive"),
         (lambda a: {**a, "radius_px": -a["radius_px"]}, "locate's radius_px must be positive"),
+        # Read as rows, a (2, N) transpose or an (N, 3) array was N or 3N/2 points.
+        (lambda a: {**a, "xy": np.zeros((2, 3))}, r"xy must be \(N, 2\), got shape \(2, 3\)"),
+        (lambda a: {**a, "line_angles": np.zeros((2, 2, 1))}, r"line_angles must be \(N, 2\)"),
+        (lambda a: {**a, "evidence": np.ones((2, 1))}, r"evidence must be \(N,\), got shape"),
     ],
 )
 def test_markers_to_locate_not_n_finite_rows_of_positive_extent_are_refused_with_what_is_wrong(

@@ -57,6 +57,18 @@ def test_a_search_plan_of_the_wrong_shape_is_refused_with_its_name():
         SearchPlan(regions=np.array([0, 0, 8]))
     with pytest.raises(ValueError, match=r"SearchPlan.seeds holds a NaN or infinite position"):
         SearchPlan(seeds=np.array([[np.nan, 3.0]]))
+    # Its size a multiple of the columns, a transpose or a 3-D array was read as rows.
+    with pytest.raises(ValueError, match=r"SearchPlan.known of shape \(2, 4\) is not \(N, 2\)"):
+        SearchPlan(known=np.zeros((2, 4)))
+    with pytest.raises(ValueError, match=r"SearchPlan.seeds of shape \(1, 2, 2\)"):
+        SearchPlan(seeds=np.zeros((1, 2, 2)))
+
+
+def test_plans_and_results_compare_by_identity_not_by_their_arrays():
+    # A dataclass's == compared the arrays and raised on their truth value.
+    plan, result = SearchPlan(), DetectionResult()
+    assert plan == plan and plan != SearchPlan() and hash(plan) == hash(plan)
+    assert result == result and result != DetectionResult()
 
 
 def test_a_search_plan_holds_its_own_typed_copies():
