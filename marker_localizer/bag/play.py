@@ -38,7 +38,9 @@ the last, until it is interrupted (Ctrl-C), as ``ros2 bag play --loop`` does
 (rosbag2's player seeks its reader to the start and jumps its clock back there
 before every pass): each pass sends the recorded bytes unchanged, so headers
 carry their recorded stamps again, its schedule starts at its first message as
-the first pass's did, and ``/clock`` starts again at the bag's first time.
+the first pass's did, and ``/clock`` starts again at the bag's first time. A
+pass starts once the last one's last messages were taken, as
+``as_fast_as_possible`` paces a topic (a keep-last-1 subscriber lost them).
 
 With ``clock``, ``/clock`` (rosgraph_msgs/Clock, best effort, keep-last 1 as
 ``ros2 bag play --clock``) carries the bag time: before every message and at
@@ -104,7 +106,9 @@ class PlayOptions:
         topics: Play only these topics (None: all playable).
         qos_depth: History depth of the reliable publishers.
         wait_for_subscribers_s: Longest wait for the image topics' subscribers
-            before the first message, s.
+            before the first message, s; it ends as they match. A node started
+            beside the player took 0.1-2.6 s to match it on a 2-core host
+            (2026-12-06), and at 2 s a third of the plays lost their first frames.
         ack_timeout_s: Longest wait for a message's acknowledgement, s
             (``as_fast_as_possible``, and for the last messages at the end).
         min_topic_interval_s: ``as_fast_as_possible`` only: least time between
@@ -119,7 +123,7 @@ class PlayOptions:
     clock_hz: float = 40.0
     topics: tuple[str, ...] | None = None
     qos_depth: int = 10
-    wait_for_subscribers_s: float = 2.0
+    wait_for_subscribers_s: float = 10.0
     ack_timeout_s: float = 10.0
     min_topic_interval_s: float = 0.1
 
@@ -147,6 +151,7 @@ class PlayReport:
             package not installed, or a ROS 1 type ROS 2 Jazzy lacks).
         invalid_names: Topic -> why ROS 2 refuses its name (a ROS 1 bag's ``/cam-0/image``),
             for topics skipped for it.
+        absent_topics: Topics ``topics`` asked for that the bag does not hold.
         without_subscribers: Awaited topics that had no subscriber when playing started.
         unacknowledged: Times a wait for acknowledgements ran out (``ack_timeout_s``).
         wall_s: Wall time of the playback, s.
@@ -158,6 +163,7 @@ class PlayReport:
     published: dict[str, int] = field(default_factory=dict)
     skipped_topics: dict[str, str] = field(default_factory=dict)
     invalid_names: dict[str, str] = field(default_factory=dict)
+    absent_topics: list[str] = field(default_factory=list)
     without_subscribers: list[str] = field(default_factory=list)
     unacknowledged: int = 0
     wall_s: float = 0.0
@@ -339,6 +345,7 @@ def play_bag(
             if (options.topics is None or topic in options.topics)
             and not (options.clock and topic == CLOCK_TOPIC)
         }
+        report.absent_topics = sorted(set(options.topics or ()) - set(reader.topics))
         report.skipped_topics = {t: m for t, m in selected.items() if message_class(m) is None}
         report.invalid_names = {
             t: why for t in selected if (why := topic_name_problem(t)) is not None
@@ -386,6 +393,9 @@ def _play(
     start_s, first_ns, last_ns = _play_pass(reader, player, topics, report, progress, total)
     # A bag whose pass yielded nothing (damaged past reading) has nothing to play again.
     while player.options.loop and first_ns is not None:
+        # Each topic's last message taken before the pass's first follows it: at once,
+        # a keep-last-1 subscriber (the node's images) lost it on every pass, uncounted.
+        report.unacknowledged += sum(not player.pace(topic) for topic in topics)
         player.restart_clock()
         _play_pass(reader, player, topics, report, progress, total)
     # Publishers are destroyed next: let the last messages reach their subscribers.

@@ -32,7 +32,7 @@ from marker_localizer.config import DetectorConfig, detector_config, tracker_con
 from marker_localizer.core.image import BAYER_PATTERNS
 from marker_localizer.errors import ConfigError
 from marker_localizer.evaluation import DEFAULT_GATE_PX
-from marker_localizer.ros.parameters import NodeConfig
+from marker_localizer.ros.parameters import NodeConfig, own_arguments
 from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
 
 #: What ``replay`` and ``play`` read (:class:`~marker_localizer.bag.io.BagReader`).
@@ -345,7 +345,7 @@ def play(argv: Sequence[str]) -> int:
     ROS arguments (``--ros-args ...``) go to rclpy, the rest to the parser.
     """
     ros_argv = [PLAYER_NODE_NAME, *argv]
-    args = build_play_parser().parse_args(rclpy.utilities.remove_ros_args(ros_argv)[1:])
+    args = build_play_parser().parse_args(own_arguments(ros_argv))
     options = PlayOptions(
         rate=args.rate,
         as_fast_as_possible=args.as_fast_as_possible,
@@ -388,6 +388,8 @@ def format_play_report(bag: Path, report: PlayReport) -> str:
         f"skipped, not a valid ROS 2 topic name: {topic} ({why})"
         for topic, why in sorted(report.invalid_names.items())
     ]
+    if report.absent_topics:
+        lines.append(f"not in the bag: {', '.join(report.absent_topics)}")
     if report.without_subscribers:
         lines.append(f"no subscriber when playing started: {', '.join(report.without_subscribers)}")
     if report.unacknowledged:

@@ -154,8 +154,9 @@ class CameraSnapshot:
             :data:`WINDOW_MAX_FRAMES`: where more arrived, the window is the span of
             the newest that many, and every windowed figure is over that span).
         dropped_in_window: frames dropped (either reason) within the window.
-        input_rate_hz: received frames per second over the window.
-        processed_rate_hz: delivered results per second over the window.
+        input_rate_hz: received frames per second over the window (NaN where the
+            clock stood still: ``use_sim_time`` without /clock).
+        processed_rate_hz: delivered results per second over the window (the same).
         latency_p50_ms: median time from arrival in the mailbox to publish in
             the window, ms (NaN: no sample).
         latency_p95_ms: 95th percentile of the same, ms (NaN: no sample).
@@ -288,12 +289,19 @@ class CameraStats:
             self._received_at.append(now_ns)
             self._stamps.append(stamp_ns)
 
-    def frame_replaced(self, now_ns: int) -> None:
-        """Count a frame replaced in the mailbox by a newer one."""
+    def frame_replaced(self, now_ns: int, received_ns: int | None = None) -> None:
+        """Count a frame replaced in the mailbox by a newer one.
+
+        ``received_ns``: when the replaced frame arrived. One that arrived before
+        the clock went back (``play --loop`` starting a pass with ``/clock``) is
+        counted, but not in the windows restarted since: there, beside the one
+        frame received, it read as 100 % dropped.
+        """
         with self._lock:
             self._follow_clock(now_ns)
             self._dropped_mailbox += 1
-            self._dropped_at.append(now_ns)
+            if received_ns is None or self._start_ns <= received_ns <= now_ns:
+                self._dropped_at.append(now_ns)
 
     def frame_too_old(self, now_ns: int) -> None:
         """Count a frame dropped because it exceeded the age limit."""
@@ -364,7 +372,6 @@ class CameraStats:
                 while window and window[0] < horizon:
                     window.popleft()
             recent = [r for r in self._results if r.at_ns >= horizon]
-            span_s = max(min(now_ns - self._start_ns, now_ns - horizon), 1) / _NS_PER_S
             latency = np.array([r.latency_ms for r in recent])
             deep = [r for r in recent if r.bit_depth]
             last_frame = self._start_ns if self._last_frame_ns is None else self._last_frame_ns
@@ -380,8 +387,8 @@ class CameraStats:
                 candidates_capped=self._candidates_capped,
                 received_in_window=len(self._received_at),
                 dropped_in_window=len(self._dropped_at),
-                input_rate_hz=len(self._received_at) / span_s,
-                processed_rate_hz=len(self._processed_at) / span_s,
+                input_rate_hz=_rate_hz(self._received_at, now_ns, self._window_ns),
+                processed_rate_hz=_rate_hz(self._processed_at, now_ns, self._window_ns),
                 latency_p50_ms=_percentile(latency, 50),
                 latency_p95_ms=_percentile(latency, 95),
                 clock_offset_s=_percentile(np.array([r.clock_offset_s for r in recent]), 50),
@@ -400,6 +407,21 @@ class CameraStats:
                 if deep
                 else None,
             )
+
+
+def _rate_hz(times: Sequence[int], now_ns: int, window_ns: int) -> float:
+    """Events a second in a window of their times: the intervals since its oldest.
+
+    (count - 1) over the time since the oldest, so that a window younger than its
+    length (a camera that started late, a bag replayed at its own times) is read
+    over the time it holds: counted over the window's length, replay's first ten
+    seconds read a 2 Hz camera at 0.3-0.6 Hz. NaN where no time passed (a clock
+    standing still: ``use_sim_time`` without /clock, where it read 10^9 Hz).
+    """
+    if len(times) < 2:
+        return len(times) * _NS_PER_S / window_ns
+    span_ns = now_ns - times[0]
+    return (len(times) - 1) * _NS_PER_S / span_ns if span_ns > 0 else math.nan
 
 
 def _peak_share(results: Sequence[_Delivered]) -> float:

@@ -45,7 +45,6 @@ from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.expand_topic_name import expand_topic_name
-from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -69,6 +68,7 @@ from marker_localizer.ros.parameters import (
     NodeConfig,
     changed_fields,
     diagnostic_thresholds,
+    own_arguments,
 )
 from marker_localizer.ros.processing import FrameProcessor
 from marker_localizer.stopping import Interrupted, on_stop_signal, run_interruptible
@@ -369,11 +369,9 @@ def _start(argv: Sequence[str] | None) -> int:
     """Parse the arguments, start rclpy and serve (:func:`main`)."""
     args = [sys.argv[0] if sys.argv else NODE_NAME, *(sys.argv[1:] if argv is None else argv)]
     try:
-        own_args = rclpy.utilities.remove_ros_args(args)[1:]
-    except rclpy_implementation.RCLError as err:  # a params file that is not YAML, ...
-        rclpy.logging.get_logger(NODE_NAME).fatal(
-            f"invalid ROS arguments: {' '.join(str(err).split())}"
-        )
+        own_args = own_arguments(args)
+    except ConfigError as err:
+        rclpy.logging.get_logger(NODE_NAME).fatal(str(err))
         return 1
     argparse.ArgumentParser(
         prog=PROG,

@@ -51,6 +51,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import rclpy.utilities
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -58,6 +59,7 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, ReliabilityPolicy
@@ -539,3 +541,22 @@ def changed_fields(old: Any, new: Any) -> Mapping[str, Any]:
         for f in dataclasses.fields(old)
         if getattr(old, f.name) != getattr(new, f.name)
     }
+
+
+def own_arguments(argv: Sequence[str]) -> list[str]:
+    """``argv`` (the program's name first) less its ROS arguments: the command's own.
+
+    Raises:
+        ConfigError: the ROS arguments do not parse (``-p name`` without a value,
+            an unknown option such as ``--param-file``): rclpy's own error is a
+            traceback.
+    """
+    try:
+        return list(rclpy.utilities.remove_ros_args(list(argv))[1:])
+    except rclpy_implementation.UnknownROSArgsError as err:
+        raise ConfigError(
+            f"unknown ROS arguments {err} (after --ros-args: -p name:=value, "
+            "--params-file FILE, -r from:=to, --log-level LEVEL)"
+        ) from err
+    except rclpy_implementation.RCLError as err:  # a rule that does not parse, ...
+        raise ConfigError(f"invalid ROS arguments: {' '.join(str(err).split())}") from err

@@ -451,13 +451,12 @@ class FrameProcessor:
                 return False
             now_ns = self._clock_ns()
             waiting = self._pending[camera]
-            replaced = waiting is not None
             since_ns = now_ns if waiting is None else waiting.waiting_since_ns
             self._pending[camera] = _Frame(camera, msg, now_ns, since_ns, self._steady_ns())
             self._cond.notify_all()
         stats.frame_received(now_ns, stamp_to_ns(msg.header))
-        if replaced:
-            stats.frame_replaced(now_ns)
+        if waiting is not None:
+            stats.frame_replaced(now_ns, waiting.received_ns)
         return True
 
     def skipped(self, camera: str, msg: Image | CompressedImage, err: Exception | None) -> None:

@@ -407,10 +407,12 @@ def test_loop_plays_the_bag_again_with_its_stamps_and_clock_from_the_start_until
     context, tmp_path
 ):
     """As ``ros2 bag play --loop``: the recorded messages again (their header stamps as
-    recorded), and /clock back at the bag's first time for each pass; Ctrl-C ends it."""
+    recorded), and /clock back at the bag's first time for each pass; Ctrl-C ends it.
+    Each of them reaches a keep-last-1 subscriber, as the node's images subscribe: a
+    pass's last one, followed at once by the next pass's first, was lost there."""
     times_ns = [LATE_NS + k * 100 * MS for k in range(3)]
     bag = imu_bag(tmp_path / "imu", times_ns)
-    listener = Listener(context, {"/imu/data": Imu, "/clock": Clock})
+    listener = Listener(context, {"/imu/data": Imu, "/clock": Clock}, qos=1)
     spun = Spun(context, listener.node)
     try:
         status, err = interrupted_play(
@@ -521,6 +523,15 @@ def test_play_of_a_missing_bag_exits_1_with_one_line(tmp_path, capsys):
     assert err.count("\n") == 1 and "gone: no such bag" in err
 
 
+def test_play_with_unknown_ros_arguments_exits_1_with_one_line(tiny_sqlite_bag, capsys):
+    # rclpy's UnknownROSArgsError was a traceback.
+    assert cli(["play", str(tiny_sqlite_bag), "--ros-args", "--bogus"]) == 1
+    assert capsys.readouterr().err == (
+        "marker-localizer play: error: unknown ROS arguments ['--bogus'] (after --ros-args: "
+        "-p name:=value, --params-file FILE, -r from:=to, --log-level LEVEL)\n"
+    )
+
+
 def test_play_with_nothing_to_play_raises_bag_error(context, tiny_sqlite_bag, capsys):
     player = rclpy.create_node("test_player_nothing", context=context)
     try:
@@ -555,6 +566,16 @@ def test_a_bag_of_declared_topics_without_a_message_is_one_line_exit_1(tmp_path,
     info = camera_info_only(tmp_path / "info")
     assert cli(["play", str(info), "--topics", "/cam0/image_raw"]) == 1
     assert "info: nothing to play: no message on /cam0/image_raw" in capsys.readouterr().err
+
+
+def test_topics_asked_for_that_the_bag_does_not_hold_are_named(tmp_path, capsys):
+    # A typo in --topics played the other topics without a word.
+    info = camera_info_only(tmp_path / "info")
+    asked = ["/cam0/camera_info", "/cam0/camera_inf"]
+    assert cli(["play", str(info), "--topics", *asked, "--wait-for-subscribers", "0"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("played 2 messages on 1 topic")
+    assert "not in the bag: /cam0/camera_inf\n" in out
 
 
 def test_an_image_topic_without_a_message_is_not_waited_for(context, tmp_path):

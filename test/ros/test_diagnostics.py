@@ -416,12 +416,41 @@ def test_a_clock_that_stands_still_keeps_a_cameras_windows_bounded():
     _frames_on_a_clock_standing_still(stats, 9 * n, 0)
     later = stats.snapshot(0)
     assert (first.received_in_window, len(first.window_stamps_ns)) == (n, n)
+    # No time passed: no rate (over a span of 1 ns it read 10^13 Hz).
+    assert np.isnan(first.input_rate_hz) and np.isnan(first.processed_rate_hz)
     assert later.received == 10 * n
     assert later.received_in_window == len(later.window_stamps_ns) == WINDOW_MAX_FRAMES
     assert later.dropped_in_window <= WINDOW_MAX_FRAMES
     # The stamps kept are the newest, in order.
     assert later.window_stamps_ns[-1] == (10 * n - 1) * S // 10
     assert (np.diff(later.window_stamps_ns) > 0).all()
+
+
+def test_a_frame_replaced_after_the_clock_went_back_is_no_drop_of_the_restarted_window():
+    # play --loop --clock: the last pass's last frame, still in the mailbox, is replaced
+    # by the next pass's first, whose arrival restarts the windows (the clock went back).
+    stats = CameraStats("cam0", start_ns=0, window_s=10.0)
+    for t in (S, 2 * S, 3 * S):
+        stats.frame_received(t, stamp_ns=t)
+    stats.frame_received(S // 2, stamp_ns=S // 2)
+    stats.frame_replaced(S // 2, received_ns=3 * S)
+    snap = stats.snapshot(S // 2)
+    assert (snap.dropped_mailbox, snap.received_in_window, snap.dropped_in_window) == (1, 1, 0)
+    assert camera_level(snap, LIMITS) == (OK, "ok")  # was WARN "100 % of frames dropped"
+
+
+@pytest.mark.parametrize("first_frame_s", [0.5, 30.0, 1.7e9], ids=["at start", "late", "a bag"])
+def test_the_rates_of_a_camera_younger_than_the_window_are_read_over_its_frames(first_frame_s):
+    # Counted over the window's length, a bag replayed at its own times (stats from
+    # 0, frames from 1.7e9 s) read a 2 Hz camera at 0.6 Hz after 2.5 s.
+    stats = CameraStats("cam0", start_ns=0, window_s=10.0)
+    first = int(first_frame_s * S)
+    for i in range(6):
+        t = first + i * S // 2
+        stats.frame_received(t, stamp_ns=t)
+        stats.frame_processed(t, latency_ms=50.0, clock_offset_s=0.0, markers=1)
+    snap = stats.snapshot(first + 5 * S // 2)
+    assert snap.input_rate_hz == pytest.approx(2.0) and snap.processed_rate_hz == pytest.approx(2.0)
 
 
 def test_a_window_holding_more_frames_than_it_keeps_counts_over_the_span_it_keeps():

@@ -438,8 +438,8 @@ def test_a_clock_that_jumps_back_restarts_the_windows_of_the_diagnostics(ros):
         snapshot = node.processor.snapshots()["cam0"]
         assert snapshot.received == 8
         assert snapshot.received_in_window == 5
-        # 5 frames over the 0.4 s since the jump.
-        assert snapshot.input_rate_hz == pytest.approx(12.5)
+        # 5 frames, 4 periods in the 0.4 s since the jump: the camera's 10 Hz.
+        assert snapshot.input_rate_hz == pytest.approx(10.0)
 
 
 # --------------------------------------------------------------------------- tracking

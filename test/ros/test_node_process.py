@@ -160,6 +160,14 @@ def test_node_process_with_a_params_file_that_is_not_yaml_exits_1_in_one_line(tm
     assert "invalid ROS arguments: " in line and "Couldn't parse params file" in line
 
 
+def test_node_process_with_an_unknown_ros_argument_exits_1_in_one_line():
+    # --param-file for --params-file: rclpy's UnknownROSArgsError was a traceback.
+    result = run_to_exit([*MODULE, "--ros-args", "--param-file", "x.yaml"])
+    assert result.returncode == 1
+    (line,) = result.stderr.splitlines()
+    assert "unknown ROS arguments ['--param-file', 'x.yaml'] (after --ros-args: " in line
+
+
 @pytest.mark.parametrize("module", ["numpy", "rclpy"])
 def test_ctrl_c_while_the_node_still_imports_is_one_line_and_status_130(module):
     """Right after start: the detector's imports and ROS's take a second or more."""
