@@ -1489,7 +1489,7 @@ def run_independent(
     """
     root = options.data_root
     if root is None or not real_data.has_independent(root):
-        report(real_data.absent(real_data.INDEPENDENT_SET))
+        report(real_data.absent(real_data.INDEPENDENT_SET, "independent"))
         return {}
     detectors = _detectors(options)
     results: dict[str, Any] = {}
@@ -1531,10 +1531,7 @@ def run_negatives(options: Options, report: Callable[[str], None]) -> dict[str, 
     """Evaluate the real frames without markers; report the table."""
     root = options.data_root
     if root is None or not (root / "aerial_negatives").is_dir():
-        report(
-            "Real aerial frames without markers: ../shared/data/aerial_negatives not "
-            "found, skipped."
-        )
+        report(real_data.absent("Real aerial frames without markers", "aerial_negatives"))
         return {}
     frames = list(real_data.iter_aerial_negatives(root, 1 if options.quick else None))
     megapixels = sum(f.image.size for f in frames) / 1e6
@@ -1735,6 +1732,9 @@ def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
         "pycbd": list(real_data.iter_unlabelled_boards(root, "pycbd", limit)),
     }
     for name, images in board_sets.items():
+        if not images:
+            report(real_data.absent(f"Real chessboards: {name}", name))
+            continue
         rows = evaluate_boards(
             images, [*detectors, *_real_board_peers(name)], REAL_RADIUS_RANGES[name]
         )
@@ -1758,7 +1758,10 @@ def run_real(options: Options, report: Callable[[str], None]) -> dict[str, Any]:
         )
         results[name] = {r.name: row_record(r) for r in rows}
     frames = list(real_data.iter_cirn_uas(root, limit))
-    results.update(run_uas(frames, detectors, report))
+    if frames:
+        results.update(run_uas(frames, detectors, report))
+    else:
+        report(real_data.absent("Real UAV frames: cirn_uas", "cirn_uas"))
     return results
 
 

@@ -134,6 +134,12 @@ def fit_logistic(features: np.ndarray, label: np.ndarray) -> tuple[np.ndarray, f
     return coefficients, float(w[0] - np.sum(w[1:] * mean / std))
 
 
+#: The kinds of real ground :func:`_real_ground` reads ...
+AERIAL_GROUND, BOARD_BACKGROUNDS = "real aerial frames", "real boards' backgrounds"
+#: ... and the folder of the data each is read from.
+_REAL_GROUND_FOLDERS = {AERIAL_GROUND: "aerial_negatives", BOARD_BACKGROUNDS: "validationboof"}
+
+
 def _real_ground(
     root: Path, quick: bool
 ) -> dict[str, tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray]], float]]:
@@ -152,8 +158,8 @@ def _real_ground(
         verdicts = _verdicts(board.image, CALIBRATION_RADIUS_PX)
         backgrounds.append(collect(verdicts, CALIBRATION_RADIUS_PX[0], np.zeros((0, 2)), area))
     return {
-        "real aerial frames": (aerial, aerial_mp),
-        "real boards' backgrounds": (backgrounds, backgrounds_mp),
+        AERIAL_GROUND: (aerial, aerial_mp),
+        BOARD_BACKGROUNDS: (backgrounds, backgrounds_mp),
     }
 
 
@@ -166,6 +172,10 @@ def run(quick: bool, root: Path | None, report: Report) -> dict[str, Any]:
     if root is None:
         # Weights fitted without it are not the package's, and there is no tail to fit.
         report(real_data.absent("Real ground without markers (the false-alarm tail)"))
+    for ground, folder in _REAL_GROUND_FOLDERS.items():
+        if root is not None and not grounds[ground][0]:
+            report(real_data.absent(f"Real ground without markers: {ground}", folder))
+    grounds = {ground: read for ground, read in grounds.items() if read[0]}
     negatives = [p for kind, _ in grounds.values() for p in kind]
     features = np.concatenate([p[0] for p in parts + negatives])
     label = np.concatenate([p[1] for p in parts + negatives])

@@ -173,13 +173,16 @@ def exposure_sets(
             label = f"independent ({key}), {len(frames)} frames"
             sets.append(ExposureSet(label, rows_at, _with_truth))
     else:
-        report(real_data.absent(real_data.INDEPENDENT_SET))
+        report(real_data.absent(real_data.INDEPENDENT_SET, "independent"))
     for name in BOARD_SETS:
         images = (
             list(real_data.iter_validationboof(root, limit))
             if name == "validationboof"
             else list(real_data.iter_unlabelled_boards(root, name, limit))
         )
+        if not images:
+            report(real_data.absent(name, name))
+            continue
         rows_at = partial(_real_rows, evaluate_boards, images, REAL_RADIUS_RANGES[name], detectors)
         label = f"{name}, {sum(len(i.reference) for i in images)} corners"
         sets.append(ExposureSet(label, rows_at, _board_corners))
@@ -188,6 +191,9 @@ def exposure_sets(
         ("aerial_negatives", evaluate_negatives, real_data.iter_aerial_negatives, _false_points),
     ):
         uas = list(read(root, limit))
+        if not uas:
+            report(real_data.absent(name, name))
+            continue
         rows_at = partial(_real_rows, evaluate, uas, REAL_RADIUS_RANGES[name], detectors)
         sets.append(ExposureSet(f"{name}, {len(uas)} frames", rows_at, figures))
     return sets

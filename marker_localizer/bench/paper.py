@@ -286,7 +286,7 @@ def run(
     """Run the comparison; the table goes to ``report``; returns the figures for JSON."""
     sets = reproduction_sets(quick, seed, data_root)
     if not real_data.has_independent(data_root):
-        report(real_data.absent(real_data.INDEPENDENT_SET))
+        report(real_data.absent(real_data.INDEPENDENT_SET, "independent"))
     rows = evaluate(sets, seed)
     report(reproduction_table(rows))
     verdicts = targets(sets, rows)

@@ -79,9 +79,9 @@ def data_root(repo_root: Path | None = None) -> Path | None:
     return candidate if candidate.is_dir() else None
 
 
-def absent(what: str) -> str:
-    """The line a benchmark prints for a set it skips because the real data is absent."""
-    return f"{what}: {data_path()} not found (set {DATA_ENV} to the data folder), skipped."
+def absent(what: str, folder: str = "") -> str:
+    """The line a benchmark prints for a set it skips: its ``folder`` of the data is absent."""
+    return f"{what}: {data_path() / folder} not found (set {DATA_ENV} to the data folder), skipped."
 
 
 def read_gray(path: Path) -> np.ndarray:
@@ -166,6 +166,8 @@ def iter_validationboof(root: Path, limit_per_folder: int | None = None) -> Iter
     The reference grid is the hand clicks (good to ~0.2 px), arranged into rows
     and columns by :func:`order_grid`.
     """
+    if not (root / "validationboof").is_dir():
+        return
     for folder in sorted((root / "validationboof").iterdir()):
         if not folder.is_dir():
             continue
@@ -190,6 +192,8 @@ def iter_unlabelled_boards(
     root: Path, set_name: str, limit: int | None = None
 ) -> Iterator[BoardImage]:
     """Images of the libcbdetect or pycbd set, with OpenCV's boards as the reference."""
+    if not (root / set_name).is_dir():
+        return
     paths = sorted(
         p
         for p in (root / set_name).iterdir()

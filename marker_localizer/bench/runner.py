@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from marker_localizer.errors import ConfigError
+from marker_localizer.errors import ConfigError, OutputError
 
 Report = Callable[[str], None]
 
@@ -27,6 +28,27 @@ def add_json_option(parser: argparse.ArgumentParser) -> None:
 def print_report(text: str) -> None:
     """Print one table of a benchmark as soon as it is done, a blank line before it."""
     print(f"\n{text}", flush=True)
+
+
+def _save_whole(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` whole or not at all.
+
+    Through a file beside it, renamed onto it: written in place, a full disk left
+    an earlier run's figures cut short. A path that is no regular file
+    (``/dev/stdout``, a pipe) is written as it is.
+
+    Raises:
+        OutputError: it cannot be written (a full disk, a file size limit).
+    """
+    partial = path if path.exists() and not path.is_file() else path.with_name(f".{path.name}~")
+    try:
+        partial.write_text(text)
+        if partial != path:
+            os.replace(partial, path)
+    except OSError as err:
+        if partial != path:
+            partial.unlink(missing_ok=True)
+        raise OutputError(f"--json {path}: cannot write it ({err.strerror})") from err
 
 
 def _check_writable(json_path: Path) -> bool:
@@ -72,7 +94,7 @@ def run_and_save(name: str, run: Callable[[Report], dict[str, Any]], json_path: 
         print(f"\n{name} finished in {elapsed:.0f} s", flush=True)
         if json_path is not None:
             results["elapsed_s"] = elapsed
-            json_path.write_text(json.dumps(results, indent=2))
+            _save_whole(json_path, json.dumps(results, indent=2))
     except BaseException:
         # An empty file left by a failed run would read as a run that saved nothing.
         if created is not None:

@@ -683,6 +683,22 @@ def test_a_colour_frame_seen_from_half_the_height_keeps_its_colour_with_the_grey
     )
 
 
+def test_a_data_folder_without_a_set_skips_that_set_with_a_line_naming_its_folder(
+    tmp_path, monkeypatch
+):
+    # A folder missing validationboof/ was a FileNotFoundError traceback, and the
+    # aerial frames' line named ../shared/data whatever the folder read.
+    monkeypatch.setenv(real_data.DATA_ENV, str(tmp_path))
+    printed: list[str] = []
+    options = accuracy.Options(quick=True, data_root=tmp_path)
+    assert accuracy.run_real(options, printed.append) == {}
+    assert accuracy.run_negatives(options, printed.append) == {}
+    assert accuracy.run_independent(options, printed.append, []) == {}
+    folders = ["validationboof", "libcbdetect", "pycbd", "cirn_uas", "aerial_negatives"]
+    for line, folder in zip(printed, [*folders, "independent"], strict=True):
+        assert f"{tmp_path / folder} not found (set MARKER_LOCALIZER_DATA" in line
+
+
 def test_the_closer_aerial_ground_is_skipped_without_the_real_frames():
     printed: list[str] = []
     assert accuracy.run_closer_negatives(accuracy.Options(data_root=None), printed.append) == {}
