@@ -1477,6 +1477,11 @@ def run_heldout(options: Options, report: Callable[[str], None]) -> dict[str, An
         )
         report(readings_table(rows, "Held-out frames"))
         report(wider_range_table(rows, "Held-out frames"))
+    else:
+        report(
+            "Held-out frames: none, as none of the rendered families they are drawn from "
+            "was chosen (--families a,heldout reads (a)'s)."
+        )
     return {label: row_record(row) for label, row in rows}
 
 

@@ -79,6 +79,7 @@ from marker_localizer.bench.runner import Report, add_json_option, run_and_save
 from marker_localizer.blas import single_thread_blas
 from marker_localizer.cli.arguments import count_type, positive_float
 from marker_localizer.config import DetectorConfig, TrackerConfig
+from marker_localizer.errors import ConfigError
 from marker_localizer.ros.conversions import array_to_image
 from marker_localizer.ros.diagnostics import frames_lost_upstream
 from marker_localizer.ros.node import MarkerLocalizerNode
@@ -616,7 +617,15 @@ def run(args: argparse.Namespace, report: Report) -> dict[str, Any]:
             f"rendering {len(CAMERAS)} grounds for {args.width}x{args.height} frames ...",
             flush=True,
         )
-        grounds = GROUNDS[args.ground](args.width, args.height, Path(directory))
+        try:
+            grounds = GROUNDS[args.ground](args.width, args.height, Path(directory))
+        except ConfigError as err:
+            # The renderer names its own settings, which are no options of this command.
+            raise ConfigError(
+                f"--width {args.width} --height {args.height}: frames too small for the "
+                f"{args.ground} ground's markers (the renderer could not place them all "
+                "without overlap); 640x480 and larger hold them"
+            ) from err
         # This process runs the node as the node's main() does (worker threads detect here).
         single_thread_blas()
         rclpy.init()

@@ -699,6 +699,16 @@ def test_a_data_folder_without_a_set_skips_that_set_with_a_line_naming_its_folde
         assert f"{tmp_path / folder} not found (set MARKER_LOCALIZER_DATA" in line
 
 
+def test_held_out_frames_without_a_family_to_draw_them_from_say_so():
+    printed: list[str] = []
+    options = accuracy.Options(quick=True, families=("heldout",), curvature=False)
+    assert accuracy.run_heldout(options, printed.append) == {}
+    assert printed == [  # it printed nothing at all
+        "Held-out frames: none, as none of the rendered families they are drawn from "
+        "was chosen (--families a,heldout reads (a)'s)."
+    ]
+
+
 def test_the_closer_aerial_ground_is_skipped_without_the_real_frames():
     printed: list[str] = []
     assert accuracy.run_closer_negatives(accuracy.Options(data_root=None), printed.append) == {}
