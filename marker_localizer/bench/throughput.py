@@ -55,6 +55,7 @@ import dataclasses
 import multiprocessing
 import os
 import resource
+import signal
 import tempfile
 import threading
 import time
@@ -71,6 +72,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CompressedImage, Image, PointCloud2
 from std_msgs.msg import Header
 
@@ -347,8 +349,12 @@ def _camera_process(
     Sets ``started`` once the node's subscriptions are matched, then puts
     (frames published, CPU seconds used while publishing) on ``report``.
     """
+    # The bench ends this process (terminate: SIGTERM's default action) on the end of a
+    # run and on Ctrl-C, which the terminal sends to it too: neither is a traceback here,
+    # nor an RCLError from rclpy's handler shutting the context under a publish.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     ground = np.load(grounds)
-    rclpy.init()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = Node("bench_cameras", namespace=namespace)
         qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
@@ -628,7 +634,9 @@ def run(args: argparse.Namespace, report: Report) -> dict[str, Any]:
             ) from err
         # This process runs the node as the node's main() does (worker threads detect here).
         single_thread_blas()
-        rclpy.init()
+        # As the node's main(): rclpy's own handler would shut the context down under
+        # the frames in flight on Ctrl-C, which the node's drain then fails to publish.
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         try:
             results = []
             for workers in args.workers:
