@@ -39,7 +39,7 @@ the last, until it is interrupted (Ctrl-C), as ``ros2 bag play --loop`` does
 before every pass): each pass sends the recorded bytes unchanged, so headers
 carry their recorded stamps again, its schedule starts at its first message as
 the first pass's did, and ``/clock`` starts again at the bag's first time. A
-pass starts once the last one's last messages were taken, as
+pass starts once the last one's last frames (the awaited topics') were taken, as
 ``as_fast_as_possible`` paces a topic (a keep-last-1 subscriber lost them).
 
 With ``clock``, ``/clock`` (rosgraph_msgs/Clock, best effort, keep-last 1 as
@@ -108,7 +108,8 @@ class PlayOptions:
         wait_for_subscribers_s: Longest wait for the image topics' subscribers
             before the first message, s; it ends as they match. A node started
             beside the player took 0.1-2.6 s to match it on a 2-core host
-            (2026-12-06), and at 2 s a third of the plays lost their first frames.
+            (2026-12-06), and at 2 s a third of the plays lost their first frames;
+            twice that, for a player whose image topics are not all subscribed.
         ack_timeout_s: Longest wait for a message's acknowledgement, s
             (``as_fast_as_possible``, and for the last messages at the end).
         min_topic_interval_s: ``as_fast_as_possible`` only: least time between
@@ -123,7 +124,7 @@ class PlayOptions:
     clock_hz: float = 40.0
     topics: tuple[str, ...] | None = None
     qos_depth: int = 10
-    wait_for_subscribers_s: float = 10.0
+    wait_for_subscribers_s: float = 5.0
     ack_timeout_s: float = 10.0
     min_topic_interval_s: float = 0.1
 
@@ -375,7 +376,7 @@ def play_bag(
             holding = {t: m for t, m in playable.items() if counts.get(t, 0)}
             awaited = [t for t, m in holding.items() if m in IMAGE_TYPES] or list(holding)
             report.without_subscribers = player.wait_for_subscribers(awaited)
-            _play(reader, player, playable, report, progress, total)
+            _play(reader, player, playable, awaited, report, progress, total)
         finally:
             player.destroy()
         report.damage = list(reader.damage)
@@ -386,6 +387,7 @@ def _play(
     reader: BagReader,
     player: _Player,
     topics: dict[str, str],
+    awaited: Sequence[str],
     report: PlayReport,
     progress: Callable[[int, int], None] | None,
     total: int,
@@ -393,9 +395,11 @@ def _play(
     start_s, first_ns, last_ns = _play_pass(reader, player, topics, report, progress, total)
     # A bag whose pass yielded nothing (damaged past reading) has nothing to play again.
     while player.options.loop and first_ns is not None:
-        # Each topic's last message taken before the pass's first follows it: at once,
-        # a keep-last-1 subscriber (the node's images) lost it on every pass, uncounted.
-        report.unacknowledged += sum(not player.pace(topic) for topic in topics)
+        # The last pass's last frames taken before the next pass's first follow them:
+        # at once, a keep-last-1 subscriber (the node's images) lost them on every pass,
+        # uncounted. The awaited topics only: a camera_info's acknowledgement can wait
+        # for the writer's heartbeat, 2.4 s here, on every pass.
+        report.unacknowledged += sum(not player.pace(topic) for topic in awaited)
         player.restart_clock()
         _play_pass(reader, player, topics, report, progress, total)
     # Publishers are destroyed next: let the last messages reach their subscribers.
