@@ -22,8 +22,9 @@ a parameter change reaches the next frame as with threads, and the
 mailboxes, scheduling and guarantees below are the same either way. The
 processes are forked from a fork server that imported the detector once (a
 new one starts in milliseconds); a process that dies (killed for memory, a
-crash in native code) fails the frames it had, counted as failures, and the
-next frames go to fresh processes; a worker whose node died (however it died)
+crash in native code) fails the frames in flight, counted as failures, and the
+next frames go to fresh processes (the processes share one pool, which a
+death breaks: the frames the other processes had fail with it); a worker whose node died (however it died)
 exits. The worker processes ignore SIGINT and SIGTERM: the node stops them.
 
 Guarantees:
