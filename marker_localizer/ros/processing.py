@@ -24,8 +24,9 @@ processes are forked from a fork server that imported the detector once (a
 new one starts in milliseconds); a process that dies (killed for memory, a
 crash in native code) fails the frames in flight, counted as failures, and the
 next frames go to fresh processes (the processes share one pool, which a
-death breaks: the frames the other processes had fail with it); a worker whose node died (however it died)
-exits. The worker processes ignore SIGINT and SIGTERM: the node stops them.
+death breaks: the frames the other processes had fail with it); a worker whose
+node died (however it died) exits. The worker processes ignore SIGINT and
+SIGTERM: the node stops them.
 
 Guarantees:
 
