@@ -22,11 +22,11 @@ a parameter change reaches the next frame as with threads, and the
 mailboxes, scheduling and guarantees below are the same either way. The
 processes are forked from a fork server that imported the detector once (a
 new one starts in milliseconds); a process that dies (killed for memory, a
-crash in native code) fails the frames in flight, counted as failures, and the
-next frames go to fresh processes (the processes share one pool, which a
-death breaks: the frames the other processes had fail with it); a worker whose
-node died (however it died) exits. The worker processes ignore SIGINT and
-SIGTERM: the node stops them.
+crash in native code) fails the frame it had, counted as a failure, and the
+next frames go to a fresh one (each process is a pool of its own, which its
+death alone breaks: the others' frames go on); a worker whose node died
+(however it died) exits. The worker processes ignore SIGINT and SIGTERM: the
+node stops them.
 
 Guarantees:
 
@@ -208,14 +208,21 @@ def _worker_ready() -> None:
     """Nothing: the task whose return shows that a worker process is up."""
 
 
-def _started_pool(workers: int) -> ProcessPoolExecutor:
-    """``workers`` worker processes forked from a fork server, each up and ready."""
+def _started_pools(count: int) -> list[ProcessPoolExecutor]:
+    """``count`` pools of one worker process each, forked from a fork server, up and ready.
+
+    A pool a process: concurrent.futures breaks a whole pool when one of its processes
+    dies, and every frame its other processes had in flight failed with it.
+    """
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(_WORKER_PRELOAD)
-    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker_process)
-    for started in [pool.submit(_worker_ready) for _ in range(workers)]:
+    pools = [
+        ProcessPoolExecutor(1, mp_context=context, initializer=_start_worker_process)
+        for _ in range(count)
+    ]
+    for started in [pool.submit(_worker_ready) for pool in pools]:
         started.result()
-    return pool
+    return pools
 
 
 @dataclass(frozen=True)
@@ -353,7 +360,7 @@ class FrameProcessor:
         # Held while a result is delivered; shutdown takes it to close the gate.
         self._deliver_lock = threading.Lock()
         self._gate_open = True
-        # Replaced when one of its processes dies (_in_worker_process).
+        # Held to replace a pool whose process died (_in_worker_process), and to close.
         self._pool_lock = threading.Lock()
         # Each thread's block for the frames it hands to a process, and every block
         # made, to unlink at shutdown.
@@ -362,11 +369,12 @@ class FrameProcessor:
         self._taken = threading.local()
         self._frame_blocks: list[shared_memory.SharedMemory] = []
         self._frames_pickled = 0
-        self._pool: ProcessPoolExecutor | None = None
+        # Worker thread i's process, a pool of its own (_started_pools).
+        self._pools: list[ProcessPoolExecutor] | None = None
         if worker_processes:
-            self._pool = self._start_pool(workers)
+            self._pools = self._start_pools(workers)
         self._threads = [
-            threading.Thread(target=self._work, name=f"marker_worker_{i}", daemon=True)
+            threading.Thread(target=self._work, args=(i,), name=f"marker_worker_{i}", daemon=True)
             for i in range(workers)
         ]
         for thread in self._threads:
@@ -385,7 +393,7 @@ class FrameProcessor:
     @property
     def worker_processes(self) -> bool:
         """Whether the workers run the detector in processes of their own."""
-        return self._pool is not None
+        return self._pools is not None
 
     @property
     def max_frame_age_s(self) -> float:
@@ -598,10 +606,10 @@ class FrameProcessor:
         with self._deliver_lock:
             self._gate_open = False
         with self._pool_lock:
-            if self._pool is not None:
+            for pool in self._pools or []:
                 if not finished:
-                    _kill_workers(self._pool)
-                self._pool.shutdown(wait=True, cancel_futures=True)
+                    _kill_workers(pool)
+                pool.shutdown(wait=True, cancel_futures=True)
             while self._frame_blocks:
                 block = self._frame_blocks.pop()
                 block.unlink()
@@ -610,8 +618,8 @@ class FrameProcessor:
                 with contextlib.suppress(BufferError):
                     block.close()
 
-    def _start_pool(self, workers: int) -> ProcessPoolExecutor:
-        """Worker processes, up and ready.
+    def _start_pools(self, count: int) -> list[ProcessPoolExecutor]:
+        """``count`` worker processes, up and ready, a pool each (:func:`_started_pools`).
 
         Started in a thread of its own, out of reach of Ctrl-C, which Python handles
         in the main thread: a launch cut short there leaves the fork server starting
@@ -620,11 +628,11 @@ class FrameProcessor:
         waits for the launch to end (about a second; a further signal is noted, and a
         third ends the process), ends the pool and raises the interruption again.
         """
-        launched: Future[ProcessPoolExecutor] = Future()
+        launched: Future[list[ProcessPoolExecutor]] = Future()
 
         def launch() -> None:
             try:
-                launched.set_result(_started_pool(workers))
+                launched.set_result(_started_pools(count))
             except BaseException as err:
                 launched.set_exception(err)
 
@@ -639,7 +647,8 @@ class FrameProcessor:
             except KeyboardInterrupt as err:
                 interrupted = err
         if launched.exception() is None:
-            launched.result().shutdown(wait=True, cancel_futures=True)
+            for pool in launched.result():
+                pool.shutdown(wait=True, cancel_futures=True)
         raise interrupted
 
     @property
@@ -691,8 +700,9 @@ class FrameProcessor:
         the block 6 ms. A compressed frame goes as its bytes (2 MB for a 12 MP
         JPEG of quality 90, not 12 or 36).
         """
-        pool = self._pool
-        assert pool is not None
+        assert self._pools is not None
+        slot = getattr(self._taken, "slot", 0)
+        pool = self._pools[slot]
         payload, compressed_format = (
             (np.frombuffer(frame.data, np.uint8), frame.format)
             if isinstance(frame, EncodedFrame)
@@ -711,9 +721,9 @@ class FrameProcessor:
             with self._pool_lock:
                 if self._stopping:
                     raise _AbandonedError from err
-                if self._pool is pool:
+                if self._pools[slot] is pool:
                     pool.shutdown(wait=False, cancel_futures=True)
-                    self._pool = self._start_pool(self.workers)
+                    self._pools[slot] = self._start_pools(1)[0]
             raise WorkerError(
                 "its worker process ended abruptly (killed: out of memory, a signal); "
                 "a fresh one serves the next frames"
@@ -753,7 +763,7 @@ class FrameProcessor:
         taken: tuple[Detector, TrackerConfig] | None = getattr(self._taken, "settings", None)
         detector, tracking = taken or (self._detector, self._tracker_config)
         tracker = self._tracker(camera, detector, tracking) if tracking.enabled else None
-        if self._pool is None:
+        if self._pools is None:
             result, _, self._taken.levels = _detect_frame(detector, tracker, frame, stamp_s)
             return result
         result, moved, self._taken.levels = self._in_worker_process(
@@ -775,7 +785,8 @@ class FrameProcessor:
     def _idle(self) -> bool:
         return not self._busy and all(frame is None for frame in self._pending.values())
 
-    def _work(self) -> None:
+    def _work(self, slot: int) -> None:
+        self._taken.slot = slot  # its process: self._pools[slot]
         while True:
             with self._cond:
                 frame = self._take()
@@ -830,7 +841,7 @@ class FrameProcessor:
         try:
             # A worker process decodes a compressed frame itself: decodes in one process
             # take turns (image_files), in several they do not. The overlay is drawn here.
-            in_process = self._pool is not None and not publish_overlay
+            in_process = self._pools is not None and not publish_overlay
             if in_process and isinstance(frame.msg, CompressedImage):
                 taken: FrameInput = EncodedFrame.of(frame.msg)
             else:

@@ -359,6 +359,43 @@ def test_a_killed_worker_process_fails_its_frame_and_a_fresh_one_serves_the_next
     assert (snap.errors, snap.processed) == (1, 1)
 
 
+def test_a_killed_worker_process_fails_its_own_frame_not_the_other_workers():
+    """Both workers hold a frame (stopped, SIGSTOP); one is killed, the other goes on.
+
+    With one pool for both processes, the death broke the pool: the other camera's
+    frame failed too, and both cameras showed ERROR (a soak, 2026-12-06).
+    """
+    collect, failures = Collector(), []
+    before = worker_process_ids()
+    processor = FrameProcessor(
+        ["cam0", "cam1"],
+        DetectorConfig(),
+        collect,
+        workers=2,
+        worker_processes=True,
+        on_error=lambda camera, err: failures.append((camera, err)),
+    )
+    killed, going_on = sorted(worker_process_ids() - before)
+    try:
+        for worker in (killed, going_on):
+            os.kill(worker, signal.SIGSTOP)
+        processor.submit("cam0", stamped(1))
+        processor.submit("cam1", stamped(1))
+        wait_until(lambda: processor.in_flight() == ["cam0", "cam1"], "a frame in each worker")
+        os.kill(killed, signal.SIGKILL)
+        os.kill(going_on, signal.SIGCONT)
+        assert processor.wait_idle(TIMEOUT_S)
+        assert going_on in worker_process_ids()  # the other process was not replaced
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(going_on, signal.SIGCONT)
+        processor.shutdown(TIMEOUT_S)
+    ((failed, failure),) = failures
+    assert isinstance(failure, WorkerError)
+    (other,) = {"cam0", "cam1"} - {failed}
+    assert [result[:2] for result in collect.results] == [(other, 1)]
+
+
 def test_a_frame_still_in_a_worker_process_at_the_timeout_is_abandoned_with_its_process():
     """Left alone, the process would finish the frame first, and the node's exit wait for it.
 
