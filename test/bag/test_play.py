@@ -407,12 +407,10 @@ def test_loop_plays_the_bag_again_with_its_stamps_and_clock_from_the_start_until
     context, tmp_path
 ):
     """As ``ros2 bag play --loop``: the recorded messages again (their header stamps as
-    recorded), and /clock back at the bag's first time for each pass; Ctrl-C ends it.
-    Each of them reaches a keep-last-1 subscriber, as the node's images subscribe: a
-    pass's last one, followed at once by the next pass's first, was lost there."""
+    recorded), and /clock back at the bag's first time for each pass; Ctrl-C ends it."""
     times_ns = [LATE_NS + k * 100 * MS for k in range(3)]
     bag = imu_bag(tmp_path / "imu", times_ns)
-    listener = Listener(context, {"/imu/data": Imu, "/clock": Clock}, qos=1)
+    listener = Listener(context, {"/imu/data": Imu, "/clock": Clock})
     spun = Spun(context, listener.node)
     try:
         status, err = interrupted_play(
@@ -430,6 +428,33 @@ def test_loop_plays_the_bag_again_with_its_stamps_and_clock_from_the_start_until
     clock = [time_ns(m.clock) for m in listener.messages("/clock")]
     end_of_first_pass = clock.index(times_ns[-1])
     assert times_ns[0] in clock[end_of_first_pass:], [c - LATE_NS for c in clock]
+
+
+def test_a_pass_of_loop_starts_once_the_last_passs_last_message_can_have_been_taken(
+    context, tmp_path
+):
+    """Published at once after it, the next pass's first message replaced the last pass's
+    last in a keep-last-1 subscriber's history (the node's images): lost on every pass."""
+    times_ns = [LATE_NS + k * 100 * MS for k in range(3)]
+    bag = imu_bag(tmp_path / "imu", times_ns)
+    waits = CountedWaits()
+    published_s: list[float] = []
+
+    def until_the_second_pass_begins(done, total):
+        published_s.append(waits.monotonic())
+        if len(published_s) == len(times_ns) + 1:
+            raise KeyboardInterrupt
+
+    player = rclpy.create_node("test_player_loop_gap", context=context)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            options = PlayOptions(loop=True, wait_for_subscribers_s=0.0)
+            play_bag(bag, player, options, timekeeper=waits, progress=until_the_second_pass_begins)
+    finally:
+        player.destroy_node()
+    gap_s = published_s[-1] - published_s[-2]
+    assert gap_s >= PlayOptions().min_topic_interval_s
+    assert published_s[:3] == pytest.approx([0.0, 0.1, 0.2], abs=1e-9)
 
 
 #: A subscriber of /cam0/image_raw that says "received" on its first frame.
