@@ -199,11 +199,11 @@ class BagReader:
         storage = self.path
         if self.path.is_dir() and not (self.path / "metadata.yaml").exists():
             unfinished = f"{self.path}: no metadata.yaml (a recording that did not finish)"
-            sqlite = sorted(self.path.glob("*.db3"))
-            if self._mcap_files():
+            self._scanned_files = self._mcap_files()
+            if self._scanned_files:
                 self.damage.append(f"{unfinished}; its MCAP files read front to back")
-                self._scanned_files = self._mcap_files()
                 return
+            sqlite = sorted(self.path.glob("*.db3"))
             if len(sqlite) != 1:
                 raise BagError(
                     f"{self.path}: not a rosbag2 directory (no metadata.yaml; "

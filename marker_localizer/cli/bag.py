@@ -260,10 +260,8 @@ def build_replay_parser() -> argparse.ArgumentParser:
 def replay(argv: Sequence[str]) -> int:
     """Run ``marker-localizer replay``; 0, or EXIT_INCOMPLETE when a frame gave no result."""
     args = build_replay_parser().parse_args(argv)
-    config, tracking = (
-        detector_config(args.params_file, args.param),
-        tracker_config(args.params_file),
-    )
+    config = detector_config(args.params_file, args.param)
+    tracking = tracker_config(args.params_file)
     # With --worker-threads the detector runs in this process (marker_localizer.blas).
     single_thread_blas()
     bar = ProgressBar(0, "replay")

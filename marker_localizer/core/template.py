@@ -710,7 +710,7 @@ def _phi(z: NDArray[np.float64]) -> NDArray[np.float64]:
     return phi
 
 
-def _density(z: NDArray[np.float64]) -> NDArray[np.float64]:
+def normal_density(z: NDArray[np.float64]) -> NDArray[np.float64]:
     """The standard normal's density."""
     density: NDArray[np.float64] = np.exp(-0.5 * z**2) / _SQRT_2PI
     return density
@@ -800,16 +800,16 @@ def template_jacobian(
     paint += l3 * p1 * (1.0 - p2)
     gain = terms.gain
     # d(paint)/d(side_i) times each side's density in s_i, times the light.
-    d_s1 = ((l0 - l1) * p2 + (l3 - l2) * (1.0 - p2)) * _density(terms.s1 / terms.width1)
+    d_s1 = ((l0 - l1) * p2 + (l3 - l2) * (1.0 - p2)) * normal_density(terms.s1 / terms.width1)
     d_s1 *= gain / terms.width1
-    d_s2 = ((l0 - l3) * p1 + (l1 - l2) * (1.0 - p1)) * _density(terms.s2 / terms.width2)
+    d_s2 = ((l0 - l3) * p1 + (l1 - l2) * (1.0 - p1)) * normal_density(terms.s2 / terms.width2)
     d_s2 *= gain / terms.width2
     a1, a2 = shape.line_angles[:, 0:1], shape.line_angles[:, 1:2]
     g = shape.gain
     blur2 = shape.blur_px**2
     normal, _, depth, width = (shape.shadow[:, k : k + 1] for k in range(4))
     # d(shade)/d(shadow_z) times paint and gradient: the shadow's own terms.
-    d_shadow = -depth * _density(terms.shadow_z) * paint * terms.light
+    d_shadow = -depth * normal_density(terms.shadow_z) * paint * terms.light
     jacobian = np.empty(terms.s1.shape + (SHAPE_PARAMETERS,))
     # Every offset d = p - c moves by -dc when the centre moves by +dc.
     jacobian[..., 0] = -(d_s1 * np.sin(a1) + d_s2 * np.sin(a2))

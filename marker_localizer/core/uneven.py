@@ -45,7 +45,7 @@ from numpy.typing import NDArray
 from scipy.special import ndtr
 
 from marker_localizer.core.shadow import ShadowEdges
-from marker_localizer.core.template import PIXEL_VARIANCE_PX2, line_distances
+from marker_localizer.core.template import PIXEL_VARIANCE_PX2, line_distances, normal_density
 
 #: The disk fitted, as a share of the X's extent: beyond ~0.85 the plate's end
 #: (the quarter disks' arcs, the checker squares' outer edges, blurred) enters the
@@ -139,9 +139,6 @@ _GIVE_UP_DAMPING = 1e8
 _START_DAMPING = 1e-3
 #: ... plus this times the identity, for parameters the pixels say nothing of.
 _FLOOR_DAMPING = 1e-9
-
-
-_SQRT_2PI = float(np.sqrt(2.0 * np.pi))
 
 
 class UnevenFit(NamedTuple):
@@ -277,8 +274,8 @@ def _bivariate_with_derivatives(
     By x, phi(x) times Phi of y given x; by rho, the density phi2.
     """
     one_less = np.sqrt(np.maximum(1.0 - rho * rho, _MIN_ONE_LESS))
-    by_x = np.exp(-0.5 * x * x) / _SQRT_2PI * ndtr((y - rho * x) / one_less)
-    by_y = np.exp(-0.5 * y * y) / _SQRT_2PI * ndtr((x - rho * y) / one_less)
+    by_x = normal_density(x) * ndtr((y - rho * x) / one_less)
+    by_y = normal_density(y) * ndtr((x - rho * y) / one_less)
     return _bivariate(x, y, rho), by_x, by_y, _density2(x, y, rho)
 
 
@@ -341,8 +338,7 @@ def trivariate_normal(
         s_ij, s_ik = np.sqrt(1.0 - r_ij * r_ij), np.sqrt(1.0 - r_ik * r_ik)
         partial = (r_jk - r_ij * r_ik) / (s_ij * s_ik)
         by_h.append(
-            np.exp(-0.5 * hi * hi)
-            / _SQRT_2PI
+            normal_density(hi)
             * _bivariate((hj - r_ij * hi) / s_ij, (hk - r_ik * hi) / s_ik, partial)
         )
     by_r = [
@@ -383,7 +379,7 @@ def _model(
     h1, h2 = s1 / width, s2 / width
     r12 = np.cos(a1 - a2)
     p1, p2 = ndtr(h1), ndtr(h2)
-    d1, d2 = np.exp(-0.5 * h1 * h1) / _SQRT_2PI, np.exp(-0.5 * h2 * h2) / _SQRT_2PI
+    d1, d2 = normal_density(h1), normal_density(h2)
     wedge, wedge_h1, wedge_h2, wedge_r = wedge_correction(h1, h2, r12)
     alternate = np.array(_ALTERNATE)
     weights = np.stack([p1 * p2, (1 - p1) * p2, (1 - p1) * (1 - p2), p1 * (1 - p2)], axis=-1)
@@ -473,7 +469,7 @@ def _shadow_terms(
         c_whole * whole_h[2]
         + c_along1 * along1_h3
         + c_along2 * along2_h3
-        + level[2] * np.exp(-0.5 * h3 * h3) / _SQRT_2PI
+        + level[2] * normal_density(h3)
     )
     t_r12 = c_whole * whole_r[0]
     t_r13 = c_whole * whole_r[1] + c_along1 * along1_r
