@@ -37,8 +37,11 @@ from marker_localizer.image_files import read_image_file
 def result_record(
     path: str, image: np.ndarray, result: DetectionResult, elapsed_ms: float
 ) -> dict[str, Any]:
-    """The JSON-lines record of one image, the CLI's contract (README, "From the command line").
+    r"""The JSON-lines record of one image, the CLI's contract (README, "From the command line").
 
+    ``image`` is the path as given, its bytes that are not UTF-8 written as ``\xNN``
+    (:func:`printable_path`): JSON holds Unicode text, and the lone surrogates
+    Python reads such bytes into are not text another reader can decode.
     Each marker's ``reading`` names the reading that added it (the first pass or a
     second reading, :data:`symmetry_path.READINGS`; :data:`evaluation.UNLISTED` on a
     path that closes none of them): where a point you did not expect came from.
@@ -47,7 +50,7 @@ def result_record(
         result.survivors, result.as_array()[:, :2], symmetry_path.READINGS
     )
     return {
-        "image": path,
+        "image": printable_path(path),
         "width": int(image.shape[1]),
         "height": int(image.shape[0]),
         "elapsed_ms": round(elapsed_ms, 3),
@@ -63,6 +66,11 @@ def result_record(
             for d, reading in zip(result, added, strict=True)
         ],
     }
+
+
+def printable_path(path: str) -> str:
+    r"""``path`` as Unicode text: the bytes of a file name that are not UTF-8 as ``\xNN``."""
+    return path.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 #: ``lost_at`` of a point that lies outside the image: no test saw it.

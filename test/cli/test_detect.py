@@ -1,6 +1,7 @@
 """``marker-localizer detect``: the JSON-lines contract, overlays and error handling."""
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -44,6 +45,20 @@ def test_detect_json_prints_one_object_per_image_with_the_contract_keys(x_image,
     assert marker["x"] == pytest.approx(31.5, abs=1e-3) and len(marker["angles"]) == 2
     assert marker["reading"] == "first pass"
     assert second["markers"] == []
+
+
+def test_a_file_name_that_is_not_utf8_is_written_as_text_with_its_bytes_escaped(
+    x_image, tmp_path, capsys
+):
+    """JSON holds Unicode text: a lone surrogate in "image" is no name a reader can decode."""
+    path, _image = x_image
+    renamed = os.fsdecode(os.fsencode(tmp_path) + b"/bad\xff.png")
+    os.rename(path, renamed)
+    assert main(["detect", renamed, "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["image"].endswith("bad\\xff.png")
+    record["image"].encode("utf-8")
+    assert len(record["markers"]) == 1
 
 
 def test_the_table_names_each_markers_reading(x_image, capsys):
