@@ -235,6 +235,8 @@ class MarkerLocalizerNode(Node):
     def destroy_node(self) -> None:
         """Drain the worker pool (frames in flight are published), then destroy the node.
 
+        The frames still waiting for a worker are not processed; a line names their cameras.
+
         The drain waits at most ``shutdown_timeout_s`` and says for which cameras;
         after the processor was told to abandon its frames (the second signal), not
         at all, and silently: the line that names the signal says it.
@@ -250,6 +252,11 @@ class MarkerLocalizerNode(Node):
             self.get_logger().warning(
                 f"stopping: frames still in flight after {timeout_s:g} s were abandoned "
                 f"({', '.join(self.processor.in_flight())})"
+            )
+        if self.processor.discarded:
+            self.get_logger().info(
+                "stopping: the frames waiting for a worker were not processed "
+                f"({', '.join(self.processor.discarded)})"
             )
         super().destroy_node()
 

@@ -79,6 +79,7 @@ def test_dropped_frames_are_logged_with_their_reason(ros, capfd):
 
 
 def test_shutdown_waits_at_most_shutdown_timeout_for_frames_in_flight_and_names_them(ros, capfd):
+    """And names the cameras whose frame waiting behind it is not processed."""
     processor_class, release = holding("cam0")
     node = MarkerLocalizerNode(
         "drain_localizer",
@@ -94,11 +95,14 @@ def test_shutdown_waits_at_most_shutdown_timeout_for_frames_in_flight_and_names_
     try:
         peer.publish("cam0/image_raw", peer.frame(x_marker_64()))
         wait_until(lambda: node.processor.in_flight() == ["cam0"], "cam0's frame held")
+        peer.publish("cam0/image_raw", peer.frame(x_marker_64()))
+        wait_until(lambda: node.processor.snapshots()["cam0"].received == 2, "one waiting")
         spinner.stop()  # destroys the node: the drain gives up on the held frame
         assert node.processor.in_flight() == ["cam0"]
         err = capfd.readouterr().err
         assert "stopping: waiting up to 0.2 s for the frames in flight (cam0)" in err
         assert "stopping: frames still in flight after 0.2 s were abandoned (cam0)" in err
+        assert "stopping: the frames waiting for a worker were not processed (cam0)" in err
     finally:
         release.set()
         peer.stop()

@@ -75,6 +75,68 @@ def test_camera_waiting_longest_is_served_first_even_if_its_frame_was_replaced()
     assert [(c, s) for c, s, _ in collect.results] == [("a", 1), ("b", 5), ("c", 3), ("a", 4)]
 
 
+class OneAtATime(Collector):
+    """Result callback that holds each frame's worker until :meth:`let_one_go`."""
+
+    def __init__(self):
+        super().__init__()
+        self._permits = threading.Semaphore(0)
+        self._entered = threading.Condition()
+
+    def __call__(self, camera, cloud, overlay):
+        with self._entered:
+            self.results.append((camera, cloud.header.stamp.sec, cloud.width))
+            self._entered.notify_all()
+        self._permits.acquire(timeout=TIMEOUT_S)
+
+    def let_one_go(self):
+        self._permits.release()
+
+    def wait_for(self, count):
+        with self._entered:
+            assert self._entered.wait_for(lambda: len(self.results) >= count, TIMEOUT_S)
+
+
+def test_the_camera_served_least_recently_goes_first_though_its_frame_arrived_later():
+    """Synchronised cameras' frames arrive in one order; served in it, the first gain.
+
+    a is served, then b, then c; b's next frame arrives before a's. a has waited
+    since its last turn longer than b has: a goes first.
+    """
+    collect = OneAtATime()
+    now = [0]
+    processor = FrameProcessor(
+        ["a", "b", "c"], DetectorConfig(), collect, workers=1, clock_ns=lambda: now[0]
+    )
+
+    def submit(camera, sec):
+        now[0] += 1
+        processor.submit(camera, stamped(sec))
+
+    try:
+        submit("a", 1)
+        collect.wait_for(1)
+        submit("b", 2)
+        submit("c", 3)
+        for served in (2, 3):
+            collect.let_one_go()
+            collect.wait_for(served)
+        submit("b", 4)
+        submit("a", 5)
+        for _ in range(5):
+            collect.let_one_go()
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown()
+    assert [(c, s) for c, s, _ in collect.results] == [
+        ("a", 1),
+        ("b", 2),
+        ("c", 3),
+        ("a", 5),
+        ("b", 4),
+    ]
+
+
 def test_frames_that_waited_longer_than_max_age_in_the_node_are_dropped_whatever_their_stamp():
     collect = Collector()
     now = [100 * 10**9]
@@ -394,6 +456,25 @@ def test_a_killed_worker_process_fails_its_own_frame_not_the_other_workers():
     assert isinstance(failure, WorkerError)
     (other,) = {"cam0", "cam1"} - {failed}
     assert [result[:2] for result in collect.results] == [(other, 1)]
+
+
+def test_shutdown_names_the_cameras_whose_waiting_frame_it_discarded():
+    collect = Collector()
+    processor = FrameProcessor(["a", "b", "c"], DetectorConfig(), collect, workers=1)
+    collect.release.clear()
+    processor.submit("a", stamped(1))
+    wait_until(collect.entered.is_set, "the worker to take a's frame")
+    processor.submit("c", stamped(2))
+    processor.submit("a", stamped(3))
+    assert processor.discarded == []
+    finished = []
+    stopper = threading.Thread(target=lambda: finished.append(processor.shutdown(TIMEOUT_S)))
+    stopper.start()
+    wait_until(lambda: processor.discarded == ["a", "c"], "the shutdown to discard them")
+    collect.release.set()
+    stopper.join(TIMEOUT_S)
+    assert finished == [True]
+    assert collect.results == [("a", 1, 1)]
 
 
 def test_a_frame_still_in_a_worker_process_at_the_timeout_is_abandoned_with_its_process():
