@@ -103,8 +103,28 @@ JPEG_QUALITY = 95
 #: The cameras' encodings ``--compressed`` takes: a mono camera's, a colour camera's.
 COMPRESSED_ENCODINGS = ("mono8", "bgr8")
 #: The Fast DDS profile for 12 MP images the benchmark runs with (README, "Speed").
-FASTDDS_PROFILE = Path(__file__).resolve().parents[2] / "config" / "fastdds_large_images.xml"
+FASTDDS_PROFILE_NAME = "fastdds_large_images.xml"
 _PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
+
+
+def fastdds_profile(module: Path = Path(__file__)) -> Path | None:
+    """Where :data:`FASTDDS_PROFILE_NAME` is, for a checkout or an install; None: nowhere.
+
+    ``config/`` beside the sources (a checkout, an editable install, colcon's
+    ``--symlink-install``), else ``share/marker_localizer/config/`` under the
+    install prefix, where ``setup.py``'s data files go (a wheel, colcon without
+    ``--symlink-install``): the prefix holds ``lib/pythonX.Y/site-packages``.
+
+    Args:
+        module: this module's file, ``PACKAGE/bench/throughput.py``.
+    """
+    parents = module.resolve().parents
+    places = [parents[2] / "config"]
+    if len(parents) > 5:
+        places.append(parents[5] / "share" / "marker_localizer" / "config")
+    return next(
+        (p / FASTDDS_PROFILE_NAME for p in places if (p / FASTDDS_PROFILE_NAME).is_file()), None
+    )
 
 
 @dataclass(frozen=True)
@@ -615,9 +635,12 @@ def run(args: argparse.Namespace, report: Report) -> dict[str, Any]:
     tracking = not args.full_frame
     # Before rclpy starts; the camera process inherits it. A profile of the user's own
     # (the variable already set) is kept.
-    if _PROFILE_VARIABLE not in os.environ and FASTDDS_PROFILE.is_file():
-        os.environ[_PROFILE_VARIABLE] = str(FASTDDS_PROFILE)
-    transport = os.environ.get(_PROFILE_VARIABLE, "Fast DDS defaults")
+    profile = fastdds_profile()
+    if _PROFILE_VARIABLE not in os.environ and profile is not None:
+        os.environ[_PROFILE_VARIABLE] = str(profile)
+    transport = os.environ.get(
+        _PROFILE_VARIABLE, f"Fast DDS defaults ({FASTDDS_PROFILE_NAME} not installed)"
+    )
     with tempfile.TemporaryDirectory(prefix="marker_bench_") as directory:
         print(
             f"rendering {len(CAMERAS)} grounds for {args.width}x{args.height} frames ...",

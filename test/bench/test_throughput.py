@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from marker_localizer.bench import throughput
 from marker_localizer.cli import main as cli_main
@@ -123,3 +124,32 @@ def test_the_cameras_publish_jpeg_the_node_reads_with_compressed_transport(ros, 
         assert result.published == 5 * 10
         assert result.processed > 0
         assert result.dropped_mailbox + result.dropped_age + result.processed <= result.received
+
+
+@pytest.mark.parametrize(
+    ("module", "profile"),
+    [
+        ("repo/marker_localizer/bench/throughput.py", "repo/config"),
+        (
+            "prefix/lib/python3.12/site-packages/marker_localizer/bench/throughput.py",
+            "prefix/share/marker_localizer/config",
+        ),
+    ],
+    ids=["checkout or editable install", "wheel or colcon install"],
+)
+def test_the_dds_profile_is_found_beside_the_sources_or_under_the_install_prefix(
+    tmp_path, module, profile
+):
+    """A wheel puts config/ under PREFIX/share: looked for beside the sources alone, missed."""
+    (tmp_path / module).parent.mkdir(parents=True)
+    (tmp_path / module).touch()
+    assert throughput.fastdds_profile(tmp_path / module) is None
+    (tmp_path / profile).mkdir(parents=True)
+    (tmp_path / profile / throughput.FASTDDS_PROFILE_NAME).touch()
+    assert throughput.fastdds_profile(tmp_path / module) == (
+        tmp_path / profile / throughput.FASTDDS_PROFILE_NAME
+    )
+
+
+def test_the_dds_profile_of_the_package_under_test_is_found():
+    assert throughput.fastdds_profile() is not None
