@@ -27,7 +27,7 @@ from marker_localizer.core.verification import (
     TEXTURE_EXTENT_PX,
     TEXTURE_SCORE_FLOORS,
 )
-from marker_localizer.errors import ConfigError, shorten
+from marker_localizer.errors import ConfigError, missing_dependency, shorten
 
 #: How candidates are found and checked (``candidate_detector``).
 CandidateDetector = Literal["saddle", "curvature"]
@@ -718,7 +718,10 @@ def load_params_file(
     used is the first of ``node_name`` (bare, ``/node_name`` or ``/**/node_name``),
     the wildcard ``/**``, or the file's only entry whatever its name.
     """
-    import yaml  # noqa: PLC0415 - only this helper needs PyYAML
+    try:
+        import yaml  # noqa: PLC0415 - only this helper needs PyYAML
+    except ModuleNotFoundError as err:
+        raise missing_dependency(err) from err
 
     try:
         document = yaml.safe_load(Path(path).read_text(encoding="utf-8"))

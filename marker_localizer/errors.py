@@ -10,7 +10,6 @@ becomes a 1 MB log line or diagnostics message.
 from __future__ import annotations
 
 import importlib
-import importlib.util
 from types import ModuleType
 
 #: Longest text an error message quotes from outside, characters: more than any
@@ -66,17 +65,54 @@ class RosMissingError(MarkerLocalizerError):
         )
 
 
+#: The pip distribution of each imported module whose name differs from its module's.
+_DISTRIBUTIONS = {"cv2": "opencv-python-headless", "skimage": "scikit-image", "yaml": "PyYAML"}
+
+
+class DependencyMissingError(MarkerLocalizerError):
+    """A command needs a Python package that is not installed, one pip installs (not ROS)."""
+
+    def __init__(self, missing: ModuleNotFoundError) -> None:
+        module = (missing.name or "").partition(".")[0]
+        distribution = _DISTRIBUTIONS.get(module, module)
+        super().__init__(
+            f"needs the Python package {distribution} ({missing}): pip install {distribution}"
+        )
+
+
+def is_ros_module(name: str) -> bool:
+    """Whether the module ``name`` is ROS 2's: rclpy and what it loads, a message package."""
+    top = name.partition(".")[0]
+    return (
+        top in {"rclpy", "rpyutils", "ament_index_python"}
+        or top.startswith(("rosidl", "rmw"))
+        or top.endswith(("_msgs", "_interfaces"))
+    )
+
+
+def missing_dependency(missing: ModuleNotFoundError) -> MarkerLocalizerError:
+    """The error that says what to install for a module that was not found.
+
+    Raises:
+        ModuleNotFoundError: ``missing`` itself, where the module is one of ours or
+            unnamed: a bug, not an installation's gap.
+    """
+    name = missing.name or ""
+    if not name or name.partition(".")[0] == "marker_localizer":
+        raise missing
+    return RosMissingError(missing) if is_ros_module(name) else DependencyMissingError(missing)
+
+
 def import_needing_ros(name: str) -> ModuleType:
     """Import the module ``name``, one that imports ROS 2 (the node, the bag tools).
 
     Raises:
-        RosMissingError: the import failed because rclpy is missing.
-        ModuleNotFoundError: it failed with rclpy there (a module of ours or another
-            package missing: a bug, not ROS).
+        RosMissingError: the import failed because one of ROS 2's modules is missing.
+        DependencyMissingError: it failed because another package is (rosbags,
+            scikit-image for a benchmark): the line names that package, not ROS.
+        ModuleNotFoundError: a module of ours is missing (a bug).
     """
     try:
         return importlib.import_module(name)
     except ModuleNotFoundError as err:
-        if importlib.util.find_spec("rclpy") is not None:
-            raise
-        raise RosMissingError(err) from err
+        raise missing_dependency(err) from err

@@ -70,6 +70,9 @@ def _without_ros(monkeypatch):
         monkeypatch.setitem(sys.modules, top, None)
 
 
+#: Our modules that import a benchmark's or the bag tools' packages.
+_OURS = r"marker_localizer\.(bag|bench|synthetic|cli\.bag|cli\.demo)(\.|$)"
+
 #: ROS's modules (as test_packaging finds them), and ours that import them.
 _ROS_MODULE = (
     r"(rclpy|\w+_msgs|\w+_interfaces)(\.|$)"
@@ -97,6 +100,39 @@ def test_a_command_that_needs_ros_says_what_to_install_where_it_is_missing(
     assert err.count("\n") == 1
     assert err.startswith(f"{label}: error: needs ROS 2 Jazzy's Python packages (")
     assert "pip install ros-jazzy-rclpy ros-jazzy-common-interfaces" in err
+
+
+@pytest.mark.parametrize(
+    ("command", "module", "distribution"),
+    [
+        ("bench accuracy", "skimage", "scikit-image"),
+        ("replay", "rosbags", "rosbags"),
+    ],
+)
+def test_a_command_missing_another_package_names_that_package_not_ros(
+    command, module, distribution, monkeypatch, capsys
+):
+    """As where rosdep could not pip install rosbags: installing ROS would not help."""
+    for name in [n for n in sys.modules if re.match(rf"{module}(\.|$)|{_OURS}", n)]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, module, None)
+    assert main([*command.split(), "--help"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith(f"marker-localizer {command}: error: needs the Python package ")
+    assert err.endswith(f"pip install {distribution}\n")
+
+
+def test_a_params_file_without_pyyaml_names_pyyaml(tmp_path, monkeypatch, capsys):
+    """The core's commands need no ROS; a params file needs PyYAML, which pip gives."""
+    image, params = tmp_path / "flat.png", tmp_path / "params.yaml"
+    cv2.imwrite(str(image), np.full((40, 50), 80, np.uint8))
+    params.write_text("marker_localizer:\n  ros__parameters:\n    detector: {}\n")
+    monkeypatch.setitem(sys.modules, "yaml", None)
+    assert main(["detect", str(image), "--params-file", str(params)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith("marker-localizer: error: needs the Python package PyYAML (")
 
 
 def test_the_node_says_what_to_install_where_ros_is_missing(monkeypatch, capsys):
