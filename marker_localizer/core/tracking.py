@@ -62,7 +62,10 @@ is dropped, so a marker that flickers at the threshold is found again when it
 comes back. A full pass keeps the tracks it misses inside the frame in the same
 way, whatever their patch shows (a marker at a shadow's edge, under glare), and
 they are not lost again: the pass has shown that they cannot be detected there
-now. A track predicted outside the frame or within its plate's half-width of the
+now. Such a track is not confirmed by :meth:`Detector.locate`, which reads no
+screening and no ground around it (a texture saddle that one pass accepted would
+be confirmed frame after frame): the detector judges it in its window, as the pass
+did. A track predicted outside the frame or within its plate's half-width of the
 border that is not confirmed has left the view and ends without a pass.
 
 What tracking cannot see until the next scheduled pass: a marker that becomes
@@ -314,9 +317,7 @@ class MarkerTracker:
         confirmed within ``match_px`` of their prediction; else the prediction is
         off (a jolt, a turn) and the anchors' patches measure the motion.
         """
-        # Where a full pass would see the whole plate: nearer the border what it
-        # accepts depends on the cut, which seeding the detector reproduces (_track).
-        fitted = ~self._leaving(predicted, gray.shape)
+        fitted = self._fitted(predicted, gray.shape)
         if fitted.sum() < 4:
             return None, None
         located = self._locate_tracks(gray, predicted, fitted)
@@ -327,6 +328,20 @@ class MarkerTracker:
         sources = np.array([t.xy for t in self._tracks])[confirmed]
         targets = located.as_array()[owner[confirmed], :2]
         return _frame_motion(sources, targets, self.config.match_px), located
+
+    def _fitted(self, predicted: NDArray[np.float64], shape: tuple[int, ...]) -> NDArray[np.bool_]:
+        """(N,) the tracks :meth:`Detector.locate` may confirm at their predictions.
+
+        Not those near the border, where a full pass would not see the whole plate
+        and what it accepts depends on the cut (:meth:`_track` seeds the detector
+        there); nor those the last full pass missed: the fit reads no screening and
+        no ground around a marker, so a texture saddle the pass accepted once and
+        then rejected would be confirmed by it frame after frame. The detector
+        judges those in their windows, as a full pass does.
+        """
+        missed_by_full_pass = np.array([t.missed_by_full_pass for t in self._tracks], dtype=bool)
+        fitted: NDArray[np.bool_] = ~self._leaving(predicted, shape) & ~missed_by_full_pass
+        return fitted
 
     def _locate_tracks(
         self, gray: NDArray[Any], predicted: NDArray[np.float64], fitted: NDArray[np.bool_]
@@ -426,15 +441,16 @@ class MarkerTracker:
         # First each marker read again from where the motion puts it: about a
         # millisecond per marker, the same centre as a full pass.
         leaving = self._leaving(corrected, shape)
-        fitted = ~leaving
+        fitted = self._fitted(corrected, shape)
         if located is None:
             located = self._locate_tracks(gray, corrected, fitted)
         confirmed = (
             _associate(located.as_array()[:, :2], corrected, fitted, self.config.match_px) >= 0
         )
         # Then the detector in a window around each marker the fit did not confirm
-        # (a prediction off by more than the fit's reach, or a marker changed).
-        retry = inside & fitted & ~confirmed
+        # (a prediction off by more than the fit's reach, or a marker changed) or was
+        # not started on (one the last full pass missed).
+        retry = inside & ~leaving & ~confirmed
         # A marker whose plate the border cuts is not fitted: what a full pass accepts
         # there depends on the cut. It takes the full pass's stages from the centring
         # on, seeded at its prediction, unless a band screens it anyway.
@@ -472,7 +488,7 @@ class MarkerTracker:
         found = result.as_array()
         owner = _associate(found[:, :2], corrected, inside, self.config.match_px)
         missed = owner < 0
-        kept = self._kept(gray, corrected, missed & fitted)
+        kept = self._kept(gray, corrected, missed & ~leaving)
         excused = np.array([t.missed_by_full_pass for t in self._tracks])
         if (missed & ~leaving & ~kept & ~excused).any():
             return None  # a marker is lost

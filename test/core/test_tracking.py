@@ -189,6 +189,39 @@ def test_a_marker_in_view_but_rejected_on_one_frame_costs_no_full_pass_and_is_fo
     assert cKDTree(frames[4][1]).query(results[4].as_array()[:, :2])[0].max() < 0.1
 
 
+class _RejectingNear(Detector):
+    """A detector whose full passes and windows reject any X near ``rejected``, but not
+    :meth:`Detector.locate`: as a test it does not read (the screening, the ground
+    around an X) rejects a texture saddle that one pass accepted."""
+
+    rejected: np.ndarray | None = None
+
+    def detect(self, image, plan=None, colour=None):
+        result = super().detect(image, plan, colour=colour)
+        if self.rejected is not None:
+            result.detections = [
+                d for d in result.detections if np.hypot(*(self.rejected - (d.x, d.y))) > 3.0
+            ]
+        return result
+
+
+def test_an_x_the_full_passes_reject_is_not_confirmed_again_by_the_fit_alone():
+    """Kept for ``max_missed_frames`` after the pass that missed it, it was confirmed by
+    :meth:`Detector.locate` on the next frame, and missed and confirmed again after every
+    pass: a false point reported for ever. The detector judges it in its window instead."""
+    frames = [_frame(offset, k) for k, offset in enumerate(_offsets(8, (6.0, -3.0), 7))]
+    detector = _RejectingNear(_detector().config)
+    tracker = MarkerTracker(detector, TrackerConfig(full_frame_every=3, max_missed_frames=2))
+    reported, passes = [], []
+    for k, (image, truth) in enumerate(frames):
+        detector.rejected = truth[1] if k >= 3 else None
+        result = tracker.update(image, stamp_s=0.5 * k)
+        passes.append(result.counts["full_frame"])
+        reported.append(len(result))
+    assert passes == [1, 0, 0, 1, 0, 0, 1, 0]
+    assert reported == [4, 4, 4, 3, 3, 3, 3, 3]
+
+
 def test_a_marker_that_disappears_is_lost_and_gets_a_full_pass_on_the_same_frame():
     offsets = _offsets(5, (6.0, -3.0), 8)
     frames = [
