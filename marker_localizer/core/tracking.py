@@ -597,17 +597,18 @@ class MarkerTracker:
             else:
                 predicted = _transform(motion, np.array([t.xy for t in self._tracks]))
             everyone = np.ones(len(predicted), bool)
+            shift_radius = self.config.max_motion_px / 2.0
+            near = _associate(found[:, :2], predicted, everyone, shift_radius)
+            if (near >= 0).sum() < min(len(found), len(predicted)) / 2.0:
+                # The prediction missed most markers by more than the shift's vote radius:
+                # all of the motion, where the tracks have no velocity yet and a flight
+                # moves farther than max_motion_px a frame (the anchors' patches then
+                # match their neighbours, as alike as markers are), and the patches'
+                # motion is wrong too: markers twice that motion apart still meet a
+                # prediction within max_motion_px. Only then: on a lattice of X's a shift
+                # by its period would win as many votes.
+                predicted = predicted + _common_shift(found[:, :2], predicted, shift_radius)
             owner = _associate(found[:, :2], predicted, everyone, self.config.max_motion_px)
-            if (owner >= 0).sum() < min(len(found), len(predicted)) / 2.0:
-                # The prediction missed by more than max_motion_px: all of the motion,
-                # where the tracks have no velocity yet and a flight moves farther than
-                # that a frame (the anchors' patches then match their neighbours, as
-                # alike as markers are). Only then: on a lattice of X's a shift by its
-                # period would win as many votes.
-                predicted = predicted + _common_shift(
-                    found[:, :2], predicted, self.config.max_motion_px / 2.0
-                )
-                owner = _associate(found[:, :2], predicted, everyone, self.config.max_motion_px)
             # Without a measured motion, a missed track's position is a guess: it ends.
             inside = ~self._leaving(predicted, gray.shape) & (motion is not None)
             for track, index, prediction, keep in zip(

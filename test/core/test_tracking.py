@@ -256,15 +256,32 @@ def test_a_frame_after_more_tracks_than_one_pass_fits_gets_a_full_pass(monkeypat
         assert after.counts["full_frame"] == (1 if before else 0)
 
 
-@pytest.mark.parametrize("seed", [3, 5])
-def test_a_flight_moving_farther_a_frame_than_max_motion_px_is_tracked_from_its_third_frame(seed):
+#: Markers 75 px apart: under twice a motion of 40 px a frame.
+GRID = np.array([[160.3 + 75.0 * i, 90.6 + 75.0 * j] for i in range(6) for j in range(4)])
+
+
+@pytest.mark.parametrize(
+    ("seed", "centres", "step_px", "max_motion_px"),
+    [(3, CENTRES, 25.0, 16.0), (5, CENTRES, 25.0, 16.0), (3, GRID, 40.0, 32.0)],
+    ids=["sparse, seed 3", "sparse, seed 5", "markers under twice the motion apart"],
+)
+def test_a_flight_moving_farther_a_frame_than_max_motion_px_is_tracked_from_its_third_frame(
+    seed, centres, step_px, max_motion_px
+):
     """25 px a frame against a 16 px ``max_motion_px``: the second frame's full pass finds
     every marker that much from its track, their common shift. The tracks get their
     velocity from it, and the frames after are tracked (each was a full pass: the
-    anchors' patches, searched within 16 px, found none or a neighbour)."""
-    frames = [_frame(offset, k) for k, offset in enumerate(_offsets(5, (-25.0, 0.0), seed))]
+    anchors' patches, searched within 16 px, found none or a neighbour). Where the
+    markers lie under twice the motion apart, a neighbour's patch gives a wrong motion
+    that still puts most predictions within ``max_motion_px`` of some marker: the common
+    shift was not sought, and every frame was a full pass."""
+    frames = [
+        _frame(offset, k, centres) for k, offset in enumerate(_offsets(5, (-step_px, 0.0), seed))
+    ]
     detector = _detector()
-    tracker = MarkerTracker(detector, TrackerConfig(max_motion_px=16.0, full_frame_every=100))
+    tracker = MarkerTracker(
+        detector, TrackerConfig(max_motion_px=max_motion_px, full_frame_every=100)
+    )
     passes = []
     for k, (image, truth) in enumerate(frames):
         result = tracker.update(image, stamp_s=0.5 * k)
