@@ -113,6 +113,8 @@ def test_a_command_missing_another_package_names_that_package_not_ros(
     command, module, distribution, monkeypatch, capsys
 ):
     """As where rosdep could not pip install rosbags: installing ROS would not help."""
+    if command == "replay":
+        pytest.importorskip("rclpy")  # without it, the first module replay misses is rclpy
     for name in [n for n in sys.modules if re.match(rf"{module}(\.|$)|{_OURS}", n)]:
         monkeypatch.delitem(sys.modules, name)
     monkeypatch.setitem(sys.modules, module, None)
