@@ -116,6 +116,15 @@ def missing_messages_text(skipped: dict[str, str]) -> str:
     )
 
 
+def _recording_order(path: Path) -> tuple[int, str]:
+    """Where a split recording's file ``NAME_N`` comes: by N, which its name alone misorders.
+
+    rosbag2 numbers the files from 0; by name ``NAME_10`` would come before ``NAME_2``.
+    """
+    split = re.search(r"_(\d+)$", path.stem)
+    return (int(split[1]) if split else -1, path.name)
+
+
 @dataclass(frozen=True)
 class BagMessage:
     """One serialised message of a bag.
@@ -370,7 +379,7 @@ class BagReader:
 
     def _mcap_files(self) -> list[Path]:
         if self.path.is_dir():
-            return sorted(self.path.glob("*.mcap"))
+            return sorted(self.path.glob("*.mcap"), key=_recording_order)
         return [self.path] if self.path.suffix == ".mcap" else []
 
     def _index_by_scanning(self) -> None:

@@ -12,8 +12,9 @@ from __future__ import annotations
 import shutil
 
 import pytest
+from std_msgs.msg import String
 
-from marker_localizer.bag.io import BagReader
+from marker_localizer.bag.io import BagReader, BagWriter
 from marker_localizer.bag.replay import replay_bag
 from marker_localizer.cli import main as cli
 from marker_localizer.cli.exits import EXIT_INCOMPLETE
@@ -137,6 +138,21 @@ def test_a_recording_that_did_not_finish_is_read_front_to_back(small_flight, ima
     assert report.damage[0].endswith(
         "no metadata.yaml (a recording that did not finish); its MCAP files read front to back"
     )
+
+
+def test_an_unfinished_split_recordings_files_are_read_in_the_order_they_were_written(tmp_path):
+    """rosbag2 numbers them NAME_0 ... NAME_11; read by name, NAME_10 came before NAME_2,
+    and replay skipped the frames of NAME_2 ... NAME_9 as out of order."""
+    recording = tmp_path / "flight"
+    recording.mkdir()
+    for k in range(12):
+        with BagWriter(tmp_path / f"part{k}") as part:
+            part.add_topic("/note", "std_msgs/msg/String")
+            part.write("/note", (k + 1) * 10**9, String(data=str(k)))
+        (tmp_path / f"part{k}" / f"part{k}_0.mcap").rename(recording / f"flight_{k}.mcap")
+    with BagReader(recording) as bag:
+        times = [message.time_ns for message in bag.messages()]
+    assert times == [(k + 1) * 10**9 for k in range(12)]
 
 
 def test_a_sqlite3_recording_without_its_metadata_is_read_from_its_storage_file(tmp_path):
