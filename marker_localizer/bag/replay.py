@@ -244,7 +244,8 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
         if c.skipped_out_of_order:
             lines.append(
                 f"{c.camera}: {c.skipped_out_of_order} frames stamped no later than the one "
-                "before (a driver that leaves header.stamp unset stamps every frame 0)"
+                "before (a message recorded twice; a driver that leaves header.stamp unset "
+                "stamps every frame 0)"
             )
         if c.bit_depth_hint is not None:
             lines.append(f"{c.camera}: {bit_depth_warning(c.bit_depth_hint)}")
@@ -405,8 +406,8 @@ class TruthMatcher:
 
     * its detections, once the camera has a result for a later stamp: a camera's
       results come in stamp order, and replay skips a frame older than the last;
-      or at once where the frame was skipped or failed (:meth:`no_result`), so that
-      a camera whose every frame is skipped holds no truth;
+      or at once where the frame was skipped for its encoding or failed
+      (:meth:`no_result`), so that a camera whose every frame is skipped holds no truth;
     * its truth, once the camera's truth for a later stamp is in: truth is taken to
       come in stamp order, as ``simulate`` writes it (a frame with no truth, as
       where truth is given for some frames only, is then not evaluated, as before);
@@ -599,7 +600,9 @@ class _Session:
         if stamp_ns <= self._last_stamp.get(camera, -1):
             stats.skipped_out_of_order += 1
             self.processor.skipped(camera, image, None)
-            self.evaluation.no_result(camera, stamp_ns)
+            # No no_result: a frame of this stamp may be in flight (a message recorded
+            # twice), whose truth would be forgotten before its result came. The
+            # camera's next result settles an older stamp anyway.
             return
         self._last_stamp[camera] = stamp_ns
         # Start a frame only when a worker and the camera are free: the pool then

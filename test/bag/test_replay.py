@@ -845,6 +845,29 @@ def test_truth_out_of_stamp_order_is_counted_where_it_is_not_evaluated(tmp_path)
     assert f"cam0: {camera.truth_without_result} {TRUTH_SUFFIX} messages not evaluated" in text
 
 
+def test_a_frame_recorded_twice_is_skipped_once_and_evaluated_against_its_truth(tmp_path):
+    """The copy, skipped as no later than the frame before, said that stamp had no result
+    while the frame was still in a worker: its truth was forgotten as without a result, and
+    then its result as without truth (each image here twice: 12 frames, none evaluated)."""
+    frames = 12
+    pixels = x_marker_frame()
+    truth = [Detection(x=40.3, y=30.6, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14)]
+    path = tmp_path / "recorded_twice"
+    with BagWriter(path) as bag:
+        bag.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        bag.add_topic(f"/cam0/{TRUTH_SUFFIX}", "sensor_msgs/msg/PointCloud2")
+        for k in range(frames):
+            t = (k + 1) * S // 10
+            bag.write("/cam0/image_raw", t, image(pixels, t))
+            bag.write("/cam0/image_raw", t + S // 1000, image(pixels, t))
+            cloud = detections_to_cloud(Header(stamp=stamp(t)), truth)
+            bag.write(f"/cam0/{TRUTH_SUFFIX}", t + S // 1000, cloud)
+    camera = replay_bag(path, tmp_path / "out", workers=2).cameras["cam0"]
+    assert (camera.frames, camera.skipped_out_of_order) == (frames, frames)
+    assert camera.evaluation.frames == frames and camera.evaluation.recall == 1.0
+    assert (camera.without_truth, camera.truth_without_result) == (0, 0)
+
+
 def test_a_camera_whose_every_frame_is_skipped_holds_none_of_its_truth(tmp_path, monkeypatch):
     """Its truth is counted as not evaluated as it comes, not held for detections that
     never come. Before: every frame's truth of such a camera was held to the end (all 40
