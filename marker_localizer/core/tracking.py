@@ -339,9 +339,12 @@ class MarkerTracker:
         then rejected would be confirmed by it frame after frame. The detector
         judges those in their windows, as a full pass does.
         """
-        missed_by_full_pass = np.array([t.missed_by_full_pass for t in self._tracks], dtype=bool)
-        fitted: NDArray[np.bool_] = ~self._leaving(predicted, shape) & ~missed_by_full_pass
+        fitted: NDArray[np.bool_] = ~self._leaving(predicted, shape) & ~self._missed_by_full_pass()
         return fitted
+
+    def _missed_by_full_pass(self) -> NDArray[np.bool_]:
+        """(N,) the tracks a full pass has missed since they were last confirmed."""
+        return np.array([t.missed_by_full_pass for t in self._tracks], dtype=bool)
 
     def _locate_tracks(
         self, gray: NDArray[Any], predicted: NDArray[np.float64], fitted: NDArray[np.bool_]
@@ -489,7 +492,7 @@ class MarkerTracker:
         owner = _associate(found[:, :2], corrected, inside, self.config.match_px)
         missed = owner < 0
         kept = self._kept(gray, corrected, missed & ~leaving)
-        excused = np.array([t.missed_by_full_pass for t in self._tracks])
+        excused = self._missed_by_full_pass()
         if (missed & ~leaving & ~kept & ~excused).any():
             return None  # a marker is lost
         tracks = []
