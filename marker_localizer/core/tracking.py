@@ -77,6 +77,7 @@ border).
 from __future__ import annotations
 
 import math
+import numbers
 import time
 from dataclasses import dataclass, field
 from typing import Any, cast
@@ -173,7 +174,7 @@ class MarkerTracker:
     Raises:
         TypeError: ``detector`` is not a :class:`Detector` or ``config`` not a
             :class:`~marker_localizer.config.TrackerConfig` (a dict of settings).
-        ValueError: ``phase`` is negative.
+        ValueError: ``phase`` is not a whole number of frames, or is negative.
     """
 
     detector: Detector
@@ -192,8 +193,12 @@ class MarkerTracker:
         if not isinstance(self.detector, Detector):
             raise TypeError(f"MarkerTracker takes a Detector instance, not {self.detector!r:.80}")
         require_config(self.config, TrackerConfig, "MarkerTracker")
+        # A NaN passed "< 0" and then counted frames; 2.5 frames is no frame.
+        if isinstance(self.phase, bool) or not isinstance(self.phase, numbers.Integral):
+            raise ValueError(f"phase must be a whole number of frames, got {self.phase!r:.80}")
         if self.phase < 0:
             raise ValueError(f"phase must be >= 0 frames, got {self.phase}")
+        self.phase = int(self.phase)
 
     def reset(self) -> None:
         """Forget every track (after a jump in time or a parameter change)."""

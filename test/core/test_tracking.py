@@ -95,9 +95,15 @@ def test_a_phase_brings_the_first_scheduled_full_pass_that_many_frames_early(mov
     assert passes == [1, 0, 1, 0, 0, 0]
 
 
-def test_a_negative_phase_is_refused():
+@pytest.mark.parametrize("phase", [-1, float("nan"), 2.5, "3", True])
+def test_a_phase_that_is_not_a_whole_number_of_frames_from_0_is_refused(phase):
+    """NaN passed the test of a negative phase, and brought an extra full pass."""
     with pytest.raises(ValueError, match="phase"):
-        MarkerTracker(_detector(), phase=-1)
+        MarkerTracker(_detector(), phase=phase)
+
+
+def test_a_phase_of_numpys_integer_type_is_taken_as_an_int():
+    assert MarkerTracker(_detector(), phase=np.int64(3)).phase == 3
 
 
 @pytest.mark.parametrize(
