@@ -199,6 +199,9 @@ class FlightConfig:
         for name, value in positive.items():
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"{name}={value!r} must be positive and finite")
+        if self.frame_rate_hz > _NS_PER_S:
+            # Stamps are whole nanoseconds: two frame sets would share one.
+            raise ConfigError(f"frame_rate_hz={self.frame_rate_hz!r} must be at most 1e9")
         # The altitude follows from the frame's width; a frame narrower than a marker's
         # plate at nadir makes a flight of thousands of markers no frame shows whole.
         plate_px = 2.0 * PLATE_HALF_SIDE * self.nadir_marker_radius_px
@@ -802,7 +805,7 @@ class FlightSimulator:
             xy = projected[..., :2] / depth[..., None]
         low, high = -0.5, np.array([cfg.width - 0.5, cfg.height - 0.5])
         inside = np.all((xy >= low) & (xy <= high), axis=(1, 2))
-        touches = np.all(xy.max(axis=1) >= low, axis=1) & np.all(xy.min(axis=1) <= high, axis=1)
+        touches = _quad_meets_rectangle(xy, np.array([low, low]), high)
         full = np.flatnonzero(in_front & inside)
         partial = np.flatnonzero(in_front & touches & ~inside)
         return full.tolist(), partial.tolist()
@@ -834,3 +837,24 @@ class FlightSimulator:
             noise_sigma_dn=cfg.noise_sigma_dn,
             shot_noise_gain_dn=cfg.shot_noise_gain_dn,
         )
+
+
+def _quad_meets_rectangle(quads: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """(M,) whether each convex quadrilateral (M, 4, 2) overlaps the rectangle [low, high].
+
+    Separating axes: the rectangle's two (its box against the quad's) and the quad's
+    four edge normals. The boxes alone took a tilted plate whose box, not the plate,
+    reached into the frame.
+    """
+    boxes_meet = np.all(quads.max(axis=1) >= low, axis=1) & np.all(
+        quads.min(axis=1) <= high, axis=1
+    )
+    corners = np.array([[low[0], low[1]], [high[0], low[1]], [high[0], high[1]], [low[0], high[1]]])
+    edges = np.roll(quads, -1, axis=1) - quads
+    normals = np.stack([edges[..., 1], -edges[..., 0]], axis=-1)
+    # Which side of each edge the quad lies on, from its centre.
+    inward = np.sign(np.einsum("mkd,mkd->mk", normals, quads.mean(axis=1)[:, None] - quads))
+    # (M, 4 edges, 4 rectangle corners): each corner's side of each edge.
+    sides = np.einsum("mkd,mkcd->mkc", normals, corners[None, None] - quads[:, :, None])
+    separated = np.any(np.all(sides * inward[..., None] < 0, axis=2), axis=1)
+    return boxes_meet & ~separated

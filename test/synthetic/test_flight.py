@@ -157,6 +157,25 @@ def test_truth_lists_only_markers_whose_plate_is_wholly_inside_the_frame(small_f
             assert not inside.all()
 
 
+def test_partly_drawn_markers_are_those_whose_plate_meets_the_frame():
+    """Low over the ground plates are large and tilted: the box of one reached into the
+    frame where the plate did not (4 of 75 listed, up to 38 px off the frame)."""
+    config = FlightConfig(width=640, height=480, n_frames=4, altitude_m=3.0)
+    simulator = FlightSimulator(config, seed=0)
+    plate = PLATE_HALF_SIDE * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=float)
+    w, h = config.width - 0.5, config.height - 0.5
+    frame_rectangle = np.array([[-0.5, -0.5], [w, -0.5], [w, h], [-0.5, h]], np.float32)
+    listed = 0
+    for index in range(config.n_frames):
+        for view in simulator.render(index).cameras:
+            for truth in view.partial:
+                corners = project(truth.homography, plate).astype(np.float32)
+                overlap, _ = cv2.intersectConvexConvex(corners, frame_rectangle)
+                assert overlap > 0
+                listed += 1
+    assert listed > 50
+
+
 def test_markers_appear_with_radii_of_4_to_30_px_in_every_camera(small_flight):
     _, frame = small_flight
     radii = [t.radius_px for view in frame.cameras for t in view.markers]
@@ -281,6 +300,8 @@ def test_the_ground_repeats_without_mirrors_so_no_join_is_a_point_of_symmetry():
         ({"speed_mps": float("inf")}, "speed_mps=inf"),
         ({"exposure_s": float("nan")}, "exposure_s=nan"),
         ({"frame_rate_hz": float("inf")}, "frame_rate_hz=inf"),
+        # Stamps are whole nanoseconds: at 3e9 Hz two frame sets shared one.
+        ({"frame_rate_hz": 3e9}, "frame_rate_hz=3000000000.0 must be at most 1e9"),
         ({"altitude_m": float("inf")}, "altitude_m=inf"),
         # The cameras hang 0.1 m below the body: at 0.05 m the ground extent was an
         # empty array's minimum, at 0.1 m a motion-blur kernel of 74 GiB.
