@@ -19,7 +19,8 @@ Once, at the first stamp: ``/tf_static`` (tf2_msgs/TFMessage, offered
 transient-local) with each ``base_link -> <cam>_optical`` extrinsic. tf2_msgs
 has no wheel here, so that message is serialised with rosbags' typestore
 instead of rclpy; the flight configuration and seed are stored in the bag's
-``custom_data`` (``marker_localizer.flight``) so the world can be rebuilt.
+``custom_data`` (``marker_localizer.flight``) so the world can be rebuilt
+(:func:`recorded_flight`: the aircraft's poses and the markers' world positions).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from builtin_interfaces.msg import Time
 from rosbags.interfaces import (
     Qos,
@@ -47,6 +49,7 @@ from std_msgs.msg import Header
 
 from marker_localizer.bag.io import DEFAULT_STORAGE, BagWriter, typestore
 from marker_localizer.core.result import Detection
+from marker_localizer.errors import BagError, described, shorten
 from marker_localizer.ros.conversions import (
     CAMERA_INFO_SUFFIX,
     IMAGE_TRANSPORTS,
@@ -54,7 +57,7 @@ from marker_localizer.ros.conversions import (
     bayer_encoding,
     detections_to_cloud,
 )
-from marker_localizer.synthetic.flight import FlightSimulator, PinholeCamera
+from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator, PinholeCamera
 from marker_localizer.synthetic.scene import MarkerTruth
 
 #: Suffixes of the per-camera topics: the node's inputs (the raw image transport and
@@ -228,3 +231,30 @@ def record_flight(
                 progress(done)
         messages = sum(bag.counts.values())
     return RecordSummary(Path(out), len(simulator), names, truth_markers, messages)
+
+
+def recorded_flight(bag: str | Path) -> FlightSimulator:
+    """The simulator that recorded ``bag`` (:func:`record_flight`), rebuilt from its metadata.
+
+    What a pose estimator fed the bag is checked against: its ``poses``, the
+    aircraft's at each frame set (``stamp_ns`` the images' header stamps; the
+    cameras' extrinsics are the bag's ``/tf_static``), and its ``markers``, their
+    centres on the ground plane (``x_m``, ``y_m``; z = 0), indexed as
+    ``render(k).cameras[c].marker_ids`` gives them.
+
+    Raises:
+        BagError: ``bag`` is no bag directory that ``simulate`` wrote.
+    """
+    metadata = Path(bag) / "metadata.yaml"
+    try:
+        info = yaml.safe_load(metadata.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        flight = json.loads(info["custom_data"][FLIGHT_METADATA_KEY])
+        # JSON gives the tuples back as lists.
+        fields: dict[str, Any] = {
+            k: tuple(v) if isinstance(v, list) else v for k, v in flight["config"].items()
+        }
+        return FlightSimulator(FlightConfig(**fields), seed=flight["seed"])
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as err:
+        raise BagError(
+            f"{bag}: no flight that simulate recorded ({shorten(described(err))})"
+        ) from err

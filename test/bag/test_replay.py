@@ -22,12 +22,14 @@ from blas_threads import openblas_threads, two_threaded_openblas
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus
 from scenes import panning_frames
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 
 from marker_localizer.bag import replay
 from marker_localizer.bag.io import BagReader, BagWriter, typestore
-from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX
+from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, recorded_flight
 from marker_localizer.bag.replay import TruthMatcher, format_report, replay_bag
 from marker_localizer.cli import main as cli
 from marker_localizer.config import DetectorConfig, TrackerConfig
@@ -142,6 +144,45 @@ def test_simulated_bag_has_images_camera_info_truth_and_tf_static_per_camera(fli
     assert {t.header.frame_id for t in tf.transforms} == {"base_link"}
     nadir = tf.transforms[0].transform.rotation  # optical z = body -z: 180 deg about an xy axis
     assert abs(nadir.w) < 1e-9
+
+
+def test_the_recorded_flights_poses_and_markers_project_through_the_bags_calibration_onto_its_truth(
+    flight_bag,
+):
+    """What a pose estimator fed the bag is checked against: the aircraft's pose at each
+    frame and the markers' world positions, through /tf_static and camera_info alone."""
+    flight = recorded_flight(flight_bag)
+    with BagReader(flight_bag) as bag:
+        messages = list(bag.messages())
+    tf_raw = next(m for m in messages if m.topic == "/tf_static").raw
+    [extrinsic] = [
+        t.transform
+        for t in typestore().deserialize_cdr(tf_raw, "tf2_msgs/msg/TFMessage").transforms
+        if t.child_frame_id == "cam2_optical"
+    ]
+    q, v = extrinsic.rotation, extrinsic.translation
+    rotation_body_camera = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    k = np.reshape(next(m for m in messages if m.topic == "/cam2/camera_info").decode().k, (3, 3))
+    world = np.array([[m.x_m, m.y_m, 0.0] for m in flight.markers])
+    truths = [m for m in messages if m.topic == f"/cam2/{TRUTH_SUFFIX}"]
+    assert [p.stamp_ns for p in flight.poses] == [m.time_ns for m in truths]
+    for pose, truth in zip(flight.poses, truths, strict=True):
+        rotation = pose.rotation_world_body @ rotation_body_camera
+        centre = pose.position_m + pose.rotation_world_body @ [v.x, v.y, v.z]
+        in_camera = (world - centre) @ rotation
+        ahead = in_camera[:, 2] > 0
+        pixels = (in_camera[ahead] / in_camera[ahead, 2:]) @ k.T
+        points = cloud_to_array(truth.decode())
+        xy = np.column_stack([points["x"], points["y"]])
+        assert len(xy) > 3
+        assert cKDTree(pixels[:, :2]).query(xy)[0].max() < 1e-6
+
+
+def test_a_bag_simulate_did_not_write_has_no_recorded_flight(tmp_path):
+    with BagWriter(tmp_path / "other") as bag:
+        bag.add_topic("/note", "std_msgs/msg/String")
+    with pytest.raises(BagError, match="no flight that simulate recorded"):
+        recorded_flight(tmp_path / "other")
 
 
 def test_the_bags_simulate_and_replay_write_name_ros_2_jazzy_as_their_distro(flight_bag, replayed):
