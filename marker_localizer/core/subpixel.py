@@ -77,6 +77,11 @@ _COARSE_MIN_RADIUS_PX = 2.0
 #: (:func:`~marker_localizer.core.sampling.in_blocks`): their (points, samples)
 #: temporaries stay in a core's cache.
 _COARSE_BLOCK = 512
+#: X's whose line directions :func:`_edge_directions` measures at a time: each holds
+#: some ten (points, samples) arrays of up to 2 x 10 100 samples
+#: (:data:`_LINE_FIT_MAX_SAMPLES`), 1.1 GiB for the 652 X's of one extent on a
+#: 12 MP frame of chessboards under flare, 110 MiB for 64.
+_DIRECTION_BLOCK = 64
 #: A candidate moves at most this share of its disk's radius, plus
 #: :data:`COARSE_SHIFT_PX`, to the centre it is fitted to: farther, the fit has found
 #: another X, or none.
@@ -1420,6 +1425,24 @@ def _edge_directions(
         full_scale: the image's white level (:func:`~marker_localizer.core.image.to_gray`).
         step_px: the grid's step, px (:func:`symmetric_offsets`).
     """
+
+    def directions(
+        centre: NDArray[np.float64], line_angles: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        return _edge_directions_of(image, centre, radius_px, line_angles, full_scale, step_px)
+
+    return in_blocks(directions, _DIRECTION_BLOCK, centre, line_angles)
+
+
+def _edge_directions_of(
+    image: NDArray[Any],
+    centre: NDArray[np.float64],
+    radius_px: float,
+    line_angles: NDArray[np.float64],
+    full_scale: float,
+    step_px: float,
+) -> NDArray[np.float64]:
+    """:func:`_edge_directions` of the X's of one block."""
     disk, _ = symmetric_offsets(radius_px, _LINE_FIT_MAX_SAMPLES, step_px)
     offsets = np.concatenate([disk, -disk])
     values, gx, gy, valid = bilinear_with_gradient(
