@@ -90,6 +90,13 @@ BOARD_NEIGHBOUR_EXTENTS = 4.0
 #: Above what real and rendered frames ask, under what a frame tiled with X's does
 #: (docs/speed.md, "The plate asked of a frame tiled with X's").
 MAX_PLATE_ASKED = 128
+#: X's whose plate :meth:`MarkerModel.vouches` reads, for the modulation gate's
+#: rejects, in one pass of the checks at most (a frame's, or one of its second
+#: readings'; 1-1.5 ms each), those of the strongest rings first;
+#: the rest are not vouched for, and counted (:attr:`Match.unread`). Real, rendered and
+#: the speed benchmark's frames ask for at most 4 a frame; a 12 MP chessboard of 4 px
+#: squares asked for 4 772 (4.3 s of its 5.2 at 4-40 px).
+MAX_VOUCH_PLATES = 128
 #: A candidate of texture's size whose fitted score its floor does not vouch for
 #: (:meth:`MarkerModel.vouches`) must match the blurred X at least this well, on raw
 #: levels: faint and tilted markers match at 0.99 (median), texture the gate rejects
@@ -158,15 +165,28 @@ class Match(NamedTuple):
         faint: the modulation gate rejected it and the marker's model vouched for it
             (:meth:`MarkerModel.vouches`).
         ncc: the template's NCC; NaN where the paint failed first.
+        unread: the modulation gate rejected it, and its plate, which the model
+            would have read, was over the frame's :data:`MAX_VOUCH_PLATES`.
+        plates_read: how many plates the model read for the gate's rejects.
     """
 
     reason: NDArray[np.int8]
     faint: NDArray[np.bool_]
     ncc: NDArray[np.float64]
+    unread: NDArray[np.bool_]
+    plates_read: int
 
     def passed(self, test: str) -> NDArray[np.bool_]:
         """(N,) the X's that passed ``test`` (of :data:`MATCHED_REASONS`) and every one before."""
         return _passed(self.reason, MATCHED_REASONS, test)
+
+
+class _Vouched(NamedTuple):
+    """What :meth:`MarkerModel._vouch` decided: vouched for, left unread over the cap; (N,)."""
+
+    kept: NDArray[np.bool_]
+    unread: NDArray[np.bool_]
+    plates_read: int
 
 
 @dataclass(frozen=True)
@@ -299,6 +319,7 @@ class MarkerModel:
         ring_score: NDArray[np.float64],
         lowest: NDArray[np.float64],
         gates: TemplateGates,
+        plate_budget: int = MAX_VOUCH_PLATES,
     ) -> Match:
         """Whether the paint and the blurred X bear out each X the rings passed (Sec. 3.3.1).
 
@@ -325,6 +346,9 @@ class MarkerModel:
             ring_score: (N,) their ring symmetry.
             lowest: (N,) the lowest score of each extent.
             gates: the gates' settings.
+            plate_budget: plates the model may still read on this frame for the
+                modulation gate's rejects (:data:`MAX_VOUCH_PLATES` a frame), for the
+                X's of the strongest rings first (``ring_score``).
 
         Returns:
             :class:`Match`.
@@ -341,10 +365,13 @@ class MarkerModel:
             gates.min_modulation,
         )
         faint = np.zeros(len(xy), dtype=bool)
+        unread = np.zeros(len(xy), dtype=bool)
         doubted = np.flatnonzero(~modulates)
-        faint[doubted] = self.vouches(
-            xy[doubted], radius[doubted], angles[doubted], over_floor=True
+        doubted = doubted[np.argsort(-ring_score[doubted], kind="stable")]
+        vouched = self._vouch(
+            xy[doubted], radius[doubted], angles[doubted], over_floor=True, plate_cap=plate_budget
         )
+        faint[doubted], unread[doubted] = vouched.kept, vouched.unread
         read = modulates | faint
         reason[~read] = _MODULATION
         ncc = np.full(len(xy), np.nan)
@@ -370,7 +397,7 @@ class MarkerModel:
             fits = ncc >= gates.min_ncc
         reason[read & ~fits] = _TEMPLATE
         reason[fits & (ring_score * ncc < lowest)] = _MATCHED_SCORE
-        return Match(reason, faint, ncc)
+        return Match(reason, faint, ncc, unread, vouched.plates_read)
 
     def judge(
         self,
@@ -491,17 +518,37 @@ class MarkerModel:
         doubted (the modulation gate's): the blurred X is held to the looser
         :data:`GATE_MIN_NCC` and :data:`GATE_MAX_MISFIT`.
         """
+        return self._vouch(xy, radius, angles, over_floor=over_floor).kept
+
+    def _vouch(
+        self,
+        xy: NDArray[np.float64],
+        radius: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        *,
+        over_floor: bool = False,
+        plate_cap: int | None = None,
+    ) -> _Vouched:
+        """:meth:`vouches`; the plate read for the first ``plate_cap`` X's that get so far.
+
+        Those after them are not vouched for, and marked unread; None: no cap.
+        """
         min_ncc, max_misfit = (
             (GATE_MIN_NCC, GATE_MAX_MISFIT) if over_floor else (FAINT_MIN_NCC, FAINT_MAX_MISFIT)
         )
         gray = self.gray
         kept = np.zeros(len(xy), dtype=bool)
+        unread = np.zeros(len(xy), dtype=bool)
         beyond = verification.modulation_beyond_extent(gray, xy, radius, angles)
         passing = np.flatnonzero(beyond <= verification.MAX_MODULATION_BEYOND)
         disk = verification.template_radius(radius[passing], self.max_radius_px)
         ncc = template.template_correlation(gray, xy[passing], angles[passing], disk).ncc
         matched = ncc >= min_ncc
         passing, disk, ncc = passing[matched], disk[matched], ncc[matched]
+        if plate_cap is not None and len(passing) > plate_cap:
+            unread[passing[plate_cap:]] = True
+            passing, disk, ncc = passing[:plate_cap], disk[:plate_cap], ncc[:plate_cap]
+        plates_read = len(passing)
         plated = self.plate_at_scale(
             xy[passing], radius[passing], angles[passing], plate.MAX_TO_QUARTIC
         )
@@ -515,7 +562,7 @@ class MarkerModel:
                 gray, xy[passing], angles[passing], disk, ncc, self.noise()
             )
             kept[passing] = misfit <= max_misfit
-        return kept
+        return _Vouched(kept, unread, plates_read)
 
     def explains(
         self,

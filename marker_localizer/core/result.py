@@ -19,10 +19,16 @@ from marker_localizer.core import decision
 #: bounded worst case (``max_candidates`` after screening,
 #: :data:`symmetry_path.MAX_VERIFIED` after the prescreen,
 #: :data:`symmetry_path.MAX_CONFIRMED` after the template,
-#: :data:`acceptance.MAX_PLATE_ASKED` at the plate's test; on the other paths
+#: :data:`acceptance.MAX_PLATE_ASKED` at the plate's test,
+#: :data:`acceptance.MAX_VOUCH_PLATES` for the modulation gate's rejects; on the other paths
 #: :data:`template_path.MAX_GROWN` and :data:`paper_path.MAX_LOCATED`): the node's
 #: diagnostics show their sum.
-CAP_COUNTS = ("dropped_over_cap", "dropped_over_verification_cap", "plate_asked_over_cap")
+CAP_COUNTS = (
+    "dropped_over_cap",
+    "dropped_over_verification_cap",
+    "plate_asked_over_cap",
+    "vouch_over_cap",
+)
 
 
 @dataclass(frozen=True)
@@ -116,7 +122,9 @@ class DetectionResult:
             on the other paths those over :data:`template_path.MAX_GROWN` and
             :data:`paper_path.MAX_LOCATED`;
             ``plate_asked_over_cap`` the located X's rejected unread at the
-            plate's test; :data:`CAP_COUNTS` are the caps' cuts.
+            plate's test; ``vouch_over_cap`` the modulation gate's rejects whose
+            plate the marker's model left unread, over
+            :data:`acceptance.MAX_VOUCH_PLATES`; :data:`CAP_COUNTS` are the caps' cuts.
         timings_ms: wall time per stage in milliseconds.
         verdicts: with ``refinement="template"``, every candidate the decision saw:
             where its fit ended, whether it was accepted and why not, its score and

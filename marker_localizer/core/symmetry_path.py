@@ -785,7 +785,9 @@ class SymmetryPath:
         found = start = 0
         counts.setdefault("rejected_template", 0)
         counts.setdefault("kept_faint", 0)
+        counts.setdefault("vouch_over_cap", 0)
         model = self._model(frame)
+        plate_budget = acceptance.MAX_VOUCH_PLATES
         while start < len(order) and found < MAX_CONFIRMED:
             batch = order[start : start + max(MAX_CONFIRMED - found, _MIN_TEMPLATE_BATCH)]
             start += len(batch)
@@ -796,8 +798,11 @@ class SymmetryPath:
                 symmetry.score[batch],
                 lowest[batch],
                 self._template_gates,
+                plate_budget,
             )
+            plate_budget -= match.plates_read
             counts["kept_faint"] += int(match.faint.sum())
+            counts["vouch_over_cap"] += int(match.unread.sum())
             counts["rejected_template"] += int((~match.passed("template")).sum())
             counts["rejected_score"] += int(
                 (match.reason == acceptance.MATCHED_REASONS.index("score")).sum()

@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 from scenes import faint_tilted_markers
 
+from marker_localizer import Detector
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import acceptance, template, verification
 from marker_localizer.core.noise import NoiseModel, estimate_noise
@@ -391,3 +392,27 @@ def test_past_the_frames_cap_on_plates_an_x_fails_that_test_unread(monkeypatch):
     assert capped.unread.sum() == asked - 2
     assert (capped.reason[capped.unread] == acceptance.JUDGED_REASONS.index("quartic")).all()
     assert (capped.reason[~capped.unread] == whole.reason[~capped.unread]).all()
+
+
+def _fine_chessboard(square_px: int = 4) -> np.ndarray:
+    """640 x 480 of squares of 4 px, blurred: X's of texture's size the paint's gate doubts."""
+    y, x = np.indices((480, 640))
+    board = cv2.GaussianBlur(40.0 + 170.0 * ((x // square_px + y // square_px) % 2), (0, 0), 1.2)
+    noise = np.random.default_rng(0).normal(0.0, 2.0, board.shape)
+    return np.clip(board + noise, 0, 255).astype(np.uint8)
+
+
+def test_the_plates_read_for_the_modulation_gates_rejects_stop_at_their_cap(monkeypatch):
+    """A 12 MP chessboard of 4 px squares asked for 4 772 plates, 4.3 s of its 5.2."""
+    reads = []
+    vouch = acceptance.MarkerModel._vouch
+
+    def counted(self, *args, **kwargs):
+        vouched = vouch(self, *args, **kwargs)
+        reads.append(vouched.plates_read)
+        return vouched
+
+    monkeypatch.setattr(acceptance.MarkerModel, "_vouch", counted)
+    result = Detector(DetectorConfig()).detect(_fine_chessboard())
+    assert sum(reads) == acceptance.MAX_VOUCH_PLATES
+    assert result.counts["vouch_over_cap"] > 1000
