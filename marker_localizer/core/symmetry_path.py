@@ -40,11 +40,14 @@ from marker_localizer.core.screening import Candidates
 #: (a 12 MP tiling of X's, whose candidates all pass the prescreen).
 MAX_VERIFIED = 5000
 #: The most candidates of a frame that pass the ring checks, the template NCC, the
-#: modulation gate and their score floor and go on to the double-line check and the fit
-#: (0.3-0.5 ms each on one core); the template is matched cell by cell, the best ring
-#: symmetry first, only until this many have passed (:meth:`SymmetryPath._match_templates`).
-#: Real ground never reaches it; a 12 MP tiling of X's passes all of the prescreen's
-#: cap.
+#: modulation gate and their score floor and go on to the double-line check, the fit
+#: and the judgement of the ground around them; the template is matched cell by cell,
+#: the best ring symmetry first, only until this many have passed
+#: (:meth:`SymmetryPath._match_templates`). Real ground never reaches it; a 12 MP tiling
+#: of X's passes all of the prescreen's cap. What it bounds is 2-5 ms each on one core
+#: for X's of 12-40 px (the fit over their disks, the lattice test): a 12 MP frame filled
+#: with a chessboard of such squares, 800 corners, takes 2.4-4.7 s on a loaded host; an
+#: aerial marker field holds far fewer, and a lower cap would cut a large one's.
 MAX_CONFIRMED = 800
 #: Fewest candidates matched at once while the cap is not reached: fewer calls.
 _MIN_TEMPLATE_BATCH = 256
