@@ -88,6 +88,12 @@ def x_marker_frame(centre=(40.3, 30.6)) -> np.ndarray:
     return scene.image
 
 
+#: The truth of :func:`x_marker_frame`'s marker.
+X_MARKER_TRUTH = [
+    Detection(x=40.3, y=30.6, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14)
+]
+
+
 def write_bag(path: Path, frames, storage: str = "mcap") -> Path:
     """A bag of ``(topic, stamp_ns, Image)``; bag time = stamp."""
     with BagWriter(path, storage) as bag:
@@ -771,7 +777,6 @@ def long_bag(path, frames, *, truth_every=0, bad_every=0, cameras=("cam0", "cam1
     ``bad_every``, every so many frames has an encoding replay skips.
     """
     pixels = x_marker_frame()
-    truth = [Detection(x=40.3, y=30.6, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14)]
     with BagWriter(path) as bag:
         for camera in cameras:
             bag.add_topic(f"/{camera}/image_raw", "sensor_msgs/msg/Image")
@@ -788,7 +793,7 @@ def long_bag(path, frames, *, truth_every=0, bad_every=0, cameras=("cam0", "cam1
                 if truth_every:
                     header = Header(stamp=stamp(t))
                     if k % truth_every == 0:
-                        cloud = detections_to_cloud(header, truth)
+                        cloud = detections_to_cloud(header, X_MARKER_TRUTH)
                         bag.write(f"/{camera}/{TRUTH_SUFFIX}", t, cloud)
                     bag.write(f"/{camera}/{PARTIAL_SUFFIX}", t, detections_to_cloud(header, []))
     return path
@@ -863,7 +868,6 @@ def test_truth_out_of_stamp_order_is_counted_where_it_is_not_evaluated(tmp_path)
     Before: those left out were forgotten without a word."""
     frames = 12
     pixels = x_marker_frame()
-    truth = [Detection(x=40.3, y=30.6, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14)]
     path = tmp_path / "swapped"
     with BagWriter(path) as bag:
         bag.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
@@ -872,7 +876,7 @@ def test_truth_out_of_stamp_order_is_counted_where_it_is_not_evaluated(tmp_path)
             t = (k + 1) * S // 10
             bag.write("/cam0/image_raw", t, image(pixels, t))
             swapped = (k ^ 1) + 1  # the stamp of the other frame of its pair
-            cloud = detections_to_cloud(Header(stamp=stamp(swapped * S // 10)), truth)
+            cloud = detections_to_cloud(Header(stamp=stamp(swapped * S // 10)), X_MARKER_TRUTH)
             bag.write(f"/cam0/{TRUTH_SUFFIX}", t, cloud)
     report = replay_bag(path, tmp_path / "out", workers=2)
     camera = report.cameras["cam0"]
@@ -892,7 +896,6 @@ def test_a_frame_recorded_twice_is_skipped_once_and_evaluated_against_its_truth(
     then its result as without truth (each image here twice: 12 frames, none evaluated)."""
     frames = 12
     pixels = x_marker_frame()
-    truth = [Detection(x=40.3, y=30.6, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14)]
     path = tmp_path / "recorded_twice"
     with BagWriter(path) as bag:
         bag.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
@@ -901,7 +904,7 @@ def test_a_frame_recorded_twice_is_skipped_once_and_evaluated_against_its_truth(
             t = (k + 1) * S // 10
             bag.write("/cam0/image_raw", t, image(pixels, t))
             bag.write("/cam0/image_raw", t + S // 1000, image(pixels, t))
-            cloud = detections_to_cloud(Header(stamp=stamp(t)), truth)
+            cloud = detections_to_cloud(Header(stamp=stamp(t)), X_MARKER_TRUTH)
             bag.write(f"/cam0/{TRUTH_SUFFIX}", t + S // 1000, cloud)
     camera = replay_bag(path, tmp_path / "out", workers=2).cameras["cam0"]
     assert (camera.frames, camera.skipped_out_of_order) == (frames, frames)
@@ -915,7 +918,6 @@ def test_a_camera_whose_every_frame_is_skipped_holds_none_of_its_truth(tmp_path,
     here; an hour of a camera at 10 Hz, 36 000)."""
     frames = 40
     pixels = x_marker_frame()
-    truth = [Detection(x=40.3, y=30.6, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14)]
     path = tmp_path / "one_camera_skipped"
     with BagWriter(path) as bag:
         for camera in ("cam0", "cam1"):
@@ -928,7 +930,7 @@ def test_a_camera_whose_every_frame_is_skipped_holds_none_of_its_truth(tmp_path,
                 if camera == "cam1":
                     frame.encoding = "yuv444"
                 bag.write(f"/{camera}/image_raw", t, frame)
-                cloud = detections_to_cloud(Header(stamp=stamp(t)), truth)
+                cloud = detections_to_cloud(Header(stamp=stamp(t)), X_MARKER_TRUTH)
                 bag.write(f"/{camera}/{TRUTH_SUFFIX}", t, cloud)
     peak = [0]
 
