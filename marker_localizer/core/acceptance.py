@@ -166,7 +166,7 @@ class Match(NamedTuple):
             (:meth:`MarkerModel.vouches`).
         ncc: the template's NCC; NaN where the paint failed first.
         unread: the modulation gate rejected it, and its plate, which the model
-            would have read, was over the frame's :data:`MAX_VOUCH_PLATES`.
+            would have read, was over the pass's :data:`MAX_VOUCH_PLATES`.
         plates_read: how many plates the model read for the gate's rejects.
     """
 
@@ -346,9 +346,9 @@ class MarkerModel:
             ring_score: (N,) their ring symmetry.
             lowest: (N,) the lowest score of each extent.
             gates: the gates' settings.
-            plate_budget: plates the model may still read on this frame for the
-                modulation gate's rejects (:data:`MAX_VOUCH_PLATES` a frame), for the
-                X's of the strongest rings first (``ring_score``).
+            plate_budget: plates the model may still read in this pass of the checks
+                for the modulation gate's rejects (:data:`MAX_VOUCH_PLATES` a pass), for
+                the X's of the strongest rings first (``ring_score``).
 
         Returns:
             :class:`Match`.

@@ -322,7 +322,7 @@ class MarkerTracker:
         confirmed within ``match_px`` of their prediction; else the prediction is
         off (a jolt, a turn) and the anchors' patches measure the motion.
         """
-        fitted = self._fitted(predicted, gray.shape)
+        fitted = self._fitted(self._leaving(predicted, gray.shape))
         if fitted.sum() < 4:
             return None, None
         located = self._locate_tracks(gray, predicted, fitted)
@@ -334,8 +334,10 @@ class MarkerTracker:
         targets = located.as_array()[owner[confirmed], :2]
         return _frame_motion(sources, targets, self.config.match_px), located
 
-    def _fitted(self, predicted: NDArray[np.float64], shape: tuple[int, ...]) -> NDArray[np.bool_]:
+    def _fitted(self, leaving: NDArray[np.bool_]) -> NDArray[np.bool_]:
         """(N,) the tracks :meth:`Detector.locate` may confirm at their predictions.
+
+        ``leaving``: where the prediction lies within its plate of the border (:meth:`_leaving`).
 
         Not those near the border, where a full pass would not see the whole plate
         and what it accepts depends on the cut (:meth:`_track` seeds the detector
@@ -344,7 +346,7 @@ class MarkerTracker:
         then rejected would be confirmed by it frame after frame. The detector
         judges those in their windows, as a full pass does.
         """
-        fitted: NDArray[np.bool_] = ~self._leaving(predicted, shape) & ~self._missed_by_full_pass()
+        fitted: NDArray[np.bool_] = ~leaving & ~self._missed_by_full_pass()
         return fitted
 
     def _missed_by_full_pass(self) -> NDArray[np.bool_]:
@@ -449,7 +451,7 @@ class MarkerTracker:
         # First each marker read again from where the motion puts it: about a
         # millisecond per marker, the same centre as a full pass.
         leaving = self._leaving(corrected, shape)
-        fitted = self._fitted(corrected, shape)
+        fitted = self._fitted(leaving)
         if located is None:
             located = self._locate_tracks(gray, corrected, fitted)
         confirmed = (
