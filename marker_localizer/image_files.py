@@ -6,14 +6,15 @@ decode, so the size is read from the header and checked against
 here for PNG, JPEG, TIFF (BigTIFF included), BMP, WebP and the PNM family (PBM,
 PGM, PPM, PFM); other formats OpenCV reads (OpenEXR, Radiance HDR, JPEG 2000,
 Sun raster) are checked after decoding, within OpenCV's own limit of 2**30
-pixels. A TIFF of more than one page is refused, as OpenCV would give its first
-page alone, and so is a truncated JPEG or PNG, which libjpeg or libpng would
-report on stderr without naming it, a progressive JPEG cut between two scans
-(decoded blurred, without a word), and a JPEG that libjpeg finds corrupt while
-decoding it (decoded with grey or smeared blocks). Every failure, an OpenCV
-exception included, becomes one :class:`ImageError` naming the source; what
-OpenCV, libjpeg and libpng would print on stderr is kept off it (see
-:func:`decode_image`).
+pixels; a PNG whose header chunk fails its checksum is left to libpng to name. A
+TIFF of more than one page is refused, as OpenCV would give its first page
+alone, and so is an animated PNG, WebP or GIF (OpenCV gives one frame), a
+truncated JPEG or PNG, which libjpeg or libpng would report on stderr without
+naming it, a progressive JPEG cut between two scans (decoded blurred, without a
+word), and a JPEG that libjpeg finds corrupt while decoding it (decoded with
+grey or smeared blocks). Every failure, an OpenCV exception included, becomes
+one :class:`ImageError` naming the source; what OpenCV, libjpeg and libpng would
+print on stderr is kept off it (see :func:`decode_image`).
 
 Pixels come in the order the file stores them: neither an EXIF Orientation (JPEG,
 PNG, WebP) nor a TIFF's own Orientation tag turns them, so a marker's pixel
@@ -27,10 +28,12 @@ import contextlib
 import mmap
 import os
 import re
+import stat
 import struct
 import sys
 import tempfile
 import threading
+import zlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, NamedTuple
@@ -43,6 +46,17 @@ from marker_localizer.errors import ImageError, shorten
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: The type of the chunk that closes every PNG.
 _PNG_END_CHUNK = b"IEND"
+#: A PNG's largest width or height (its specification: 2**31 - 1).
+_PNG_MAX_SIDE = (1 << 31) - 1
+#: Chunks of a PNG read at most for an animation's control chunk (acTL), which comes
+#: before the image data: a crafted file of many empty chunks costs no more than this.
+_PNG_MAX_HEADER_CHUNKS = 4096
+#: GIF's signatures, and the bytes that open each of its blocks: an image (one
+#: frame), an extension, the trailer.
+_GIF_SIGNATURES = (b"GIF87a", b"GIF89a")
+_GIF_IMAGE, _GIF_EXTENSION, _GIF_TRAILER = 0x2C, 0x21, 0x3B
+#: A WebP's extended header's flag for an animation.
+_WEBP_ANIMATED = 0x02
 #: JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic); they carry the size.
 _JPEG_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 #: Start-of-frame markers of a progressive JPEG (Huffman, arithmetic coded): each scan
@@ -133,8 +147,21 @@ def image_size(data: Encoded) -> tuple[int, int] | None:
     return None
 
 
-def _png_size(data: Encoded) -> tuple[int, int]:
-    width, height = struct.unpack(">II", data[16:24])  # IHDR, always the first chunk
+def _png_size(data: Encoded) -> tuple[int, int] | None:
+    """The size in IHDR, always the first chunk; None where that chunk is damaged.
+
+    A damaged header is left to libpng to name: a flipped bit in a width would
+    otherwise be read as an image too large for ``max_pixels``.
+    """
+    length, kind = struct.unpack(">I4s", data[8:16])
+    if kind != b"IHDR" or length != 13:
+        return None
+    (crc,) = struct.unpack(">I", data[29:33])
+    if zlib.crc32(data[12:29]) != crc:
+        return None
+    width, height = struct.unpack(">II", data[16:24])
+    if not (0 < width <= _PNG_MAX_SIDE and 0 < height <= _PNG_MAX_SIDE):
+        return None
     return width, height
 
 
@@ -336,6 +363,72 @@ def tiff_pages(data: Encoded) -> int:
     except struct.error:
         pass  # a directory cut short: the pages before it are counted
     return pages
+
+
+def animation_frames(data: Encoded) -> int:
+    """How many frames an animated PNG, WebP or GIF holds; OpenCV decodes one of them.
+
+    An animated PNG says so in its animation control chunk (acTL) before its
+    image data, an animated WebP in its extended header's flags and one ANMF
+    chunk a frame; a GIF's frames are its image blocks. A count stops where the
+    data are cut short.
+
+    Args:
+        data: the encoded image; 1 for a still one and for other formats.
+    """
+    try:
+        if data[:8] == _PNG_SIGNATURE:
+            return _apng_frames(data)
+        if data[:4] == b"RIFF" and data[8:16] == b"WEBPVP8X" and data[20] & _WEBP_ANIMATED:
+            return _webp_frames(data)
+        if data[:6] in _GIF_SIGNATURES:
+            return _gif_frames(data)
+    except (struct.error, IndexError):
+        pass
+    return 1
+
+
+def _apng_frames(data: Encoded) -> int:
+    at = len(_PNG_SIGNATURE)
+    for _ in range(_PNG_MAX_HEADER_CHUNKS):
+        length, kind = struct.unpack_from(">I4s", data, at)
+        if kind == b"acTL":
+            return max(1, struct.unpack_from(">I", data, at + 8)[0])
+        if kind in (b"IDAT", _PNG_END_CHUNK):
+            break
+        at += 12 + length  # length, type, data, CRC
+    return 1
+
+
+def _webp_frames(data: Encoded) -> int:
+    frames, at = 0, 12
+    while at + 8 <= len(data):
+        kind, size = struct.unpack_from("<4sI", data, at)
+        frames += kind == b"ANMF"
+        at += 8 + size + (size & 1)  # chunks are padded to an even size
+    return max(frames, 1)
+
+
+def _gif_frames(data: Encoded) -> int:
+    """The image blocks of a GIF, up to its trailer (GIF89a's specification, sections 17-27)."""
+    packed = data[10]
+    at = 13 + (3 << ((packed & 0x07) + 1) if packed & 0x80 else 0)  # a global colour table
+    frames = 0
+    with contextlib.suppress(IndexError):  # cut short: the frames before are counted
+        while data[at] != _GIF_TRAILER:
+            if data[at] == _GIF_IMAGE:
+                frames += 1
+                packed = data[at + 9]
+                at += 10 + (3 << ((packed & 0x07) + 1) if packed & 0x80 else 0)
+                at += 1  # the LZW code size
+            elif data[at] == _GIF_EXTENSION:
+                at += 2
+            else:
+                break
+            while data[at]:  # data sub-blocks, each led by its size, to an empty one
+                at += 1 + data[at]
+            at += 1
+    return max(frames, 1)
 
 
 def _in_stored_order(data: Encoded) -> Encoded:
@@ -554,6 +647,11 @@ def _check_whole(data: Encoded, source: str) -> None:
             f"{source}: a TIFF of {pages} pages; only one-page TIFFs are read (split it "
             "into one file a page)"
         )
+    if (frames := animation_frames(data)) > 1:
+        raise ImageError(
+            f"{source}: an animation of {frames} frames; only still images are read (OpenCV "
+            "would give one frame alone: save the frame wanted as a still image)"
+        )
     # Refused before decoding: OpenCV's readers differ on a cut JPEG (4.12's imdecode
     # gives nothing; its imread lets libjpeg print a line naming no file and pads the
     # missing rows grey), and none says what is wrong.
@@ -582,7 +680,12 @@ def read_image_file(path: str | Path, max_pixels: int) -> np.ndarray:
     """
     try:
         with Path(path).open("rb") as file:
-            if not Path(path).stat().st_size:
+            info = os.fstat(file.fileno())
+            if not stat.S_ISREG(info.st_mode):
+                # A pipe or a device (`detect <(...)`, /dev/stdin): it has no size and
+                # cannot be mapped, so it is read whole.
+                return decode_image(file.read(), str(path), max_pixels)
+            if not info.st_size:
                 raise ImageError(f"{path}: empty file")
             with mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
                 return decode_image(data, str(path), max_pixels)

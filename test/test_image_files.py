@@ -1,5 +1,6 @@
 """Image files: the size is read from the header before decoding, every failure names the file."""
 
+import io
 import json
 import os
 import re
@@ -27,7 +28,13 @@ from encoded_images import (
 from marker_localizer.cli import main
 from marker_localizer.config import DetectorConfig
 from marker_localizer.errors import ImageError
-from marker_localizer.image_files import decode_image, image_size, read_image_file, tiff_pages
+from marker_localizer.image_files import (
+    animation_frames,
+    decode_image,
+    image_size,
+    read_image_file,
+    tiff_pages,
+)
 
 #: Peak memory a decompression bomb may cost the CLI, KiB (ru_maxrss): the issue's 2 GB.
 BOMB_PEAK_LIMIT_KIB = 2 * 1024 * 1024
@@ -351,6 +358,56 @@ def test_a_progressive_jpeg_cut_between_scans_and_closed_is_refused(capfd):
             decode_image(whole[:scan] + b"\xff\xd9", "frame", DetectorConfig().max_pixels)
     assert capfd.readouterr().err == ""
     assert decode_image(whole, "whole", DetectorConfig().max_pixels).shape == (240, 320)
+
+
+@pytest.mark.parametrize("suffix", [".png", ".webp", ".gif"])
+def test_an_animation_is_refused_with_its_frame_count_not_cut_to_one_frame(tmp_path, suffix):
+    image = pytest.importorskip("PIL.Image")
+    # The markers may be in any frame but the one OpenCV gives.
+    frames = [image.fromarray(np.full((24, 32), level, np.uint8)) for level in (40, 90, 160)]
+    animated, still = tmp_path / f"animated{suffix}", tmp_path / f"still{suffix}"
+    frames[0].save(animated, save_all=True, append_images=frames[1:], duration=100, loop=0)
+    frames[0].save(still)
+    assert animation_frames(animated.read_bytes()) == 3
+    assert animation_frames(still.read_bytes()) == 1
+    refused = rf"animated\{suffix}: an animation of 3 frames; only still images are read"
+    with pytest.raises(ImageError, match=refused):
+        read_image_file(animated, DetectorConfig().max_pixels)
+
+
+def test_an_animation_cut_short_counts_the_frames_before_the_cut():
+    image = pytest.importorskip("PIL.Image")
+    frames = [image.fromarray(np.full((24, 32), level, np.uint8)) for level in (40, 90, 160)]
+    gif = io.BytesIO()
+    frames[0].save(gif, format="GIF", save_all=True, append_images=frames[1:])
+    data = gif.getvalue()
+    assert animation_frames(data[:-1]) == 3  # without its trailer
+    assert animation_frames(data[: data.rindex(b"\x2c")]) == 2  # cut before the last frame
+
+
+def test_a_png_whose_header_chunk_is_damaged_is_named_by_libpng_not_as_too_large(tmp_path, capfd):
+    data = bytearray(cv2.imencode(".png", np.full((30, 40), 90, np.uint8))[1].tobytes())
+    data[16] ^= 0x80  # the width's top bit: 2**31 + 40 px, if the header were believed
+    assert image_size(bytes(data)) is None
+    damaged = tmp_path / "damaged.png"
+    damaged.write_bytes(data)
+    assert main(["detect", str(damaged), "--param", "max_pixels=1073741824"]) == 1
+    (line,) = capfd.readouterr().err.splitlines()
+    assert "max_pixels" not in line
+    assert re.fullmatch(
+        rf"marker-localizer: error: {re.escape(str(damaged))}: not a readable image.*", line
+    )
+
+
+def test_an_image_given_through_a_pipe_is_read_whole(tmp_path):
+    data = cv2.imencode(".png", np.full((30, 40), 90, np.uint8))[1].tobytes()
+    fifo = tmp_path / "frame.png"
+    os.mkfifo(fifo)
+    with ThreadPoolExecutor(1) as writer:
+        writer.submit(fifo.write_bytes, data)
+        image = read_image_file(fifo, DetectorConfig().max_pixels)
+    assert image.shape == (30, 40)
+    assert (image == 90).all()
 
 
 def test_a_damaged_png_is_one_line_with_libpngs_reason_in_it(tmp_path, capfd):

@@ -193,13 +193,18 @@ def bayer_to_grey(mosaic: NDArray[Any], pattern: str) -> NDArray[Any]:
 
 
 def peak_level(image: NDArray[Any]) -> float:
-    """The brightest level of an image, read on every fourth row and column (any channel)."""
+    """The brightest level of an image, read on every fourth row and column (any colour plane)."""
     return float(_peak_grid(image).max())
 
 
 def _peak_grid(image: NDArray[Any]) -> NDArray[Any]:
-    """The pixels :func:`peak_level` reads: every :data:`_PEAK_STRIDE`-th row and column."""
-    return image[::_PEAK_STRIDE, ::_PEAK_STRIDE]
+    """The levels :func:`peak_level` reads: every :data:`_PEAK_STRIDE`-th row and column.
+
+    Of a colour image's colour planes: an alpha plane, opaque at white, says nothing
+    of the exposure, and the grey the detector reads leaves it out too.
+    """
+    grid = image[::_PEAK_STRIDE, ::_PEAK_STRIDE]
+    return grid[..., :3] if grid.ndim == 3 and grid.shape[2] == 4 else grid
 
 
 def underexposed(peak_share: float) -> bool:

@@ -164,11 +164,19 @@ def test_a_frame_whose_brightest_level_stays_under_half_of_white_is_underexposed
     assert underexposed(peak_share) == dim
 
 
-def test_the_peak_level_is_read_on_every_fourth_row_and_column_of_every_channel():
+def test_the_peak_level_is_read_on_every_fourth_row_and_column_of_every_colour_plane():
     image = np.zeros((9, 9, 3), np.uint16)
     image[4, 8, 2] = 4000
     image[5, 5, 0] = 60000  # between the rows read
     assert peak_level(image) == 4000.0
+
+
+def test_an_opaque_alpha_plane_neither_hides_an_underexposed_frame_nor_lies_above_white():
+    colour = np.zeros((9, 9, 3), np.uint16)
+    colour[4, 4] = 1000  # a 12-bit sensor's dim frame
+    with_alpha = np.dstack([colour, np.full((9, 9), 65535, np.uint16)])
+    assert peak_level(with_alpha) == peak_level(colour) == 1000.0
+    assert to_gray(with_alpha, bit_depth=12)[1] == 4095.0
 
 
 def _bayer(grey: np.ndarray, pattern: str, gains=RAW_BAYER_GAINS) -> np.ndarray:
