@@ -104,7 +104,7 @@ def to_bgr(pixels: np.ndarray, bit_depth: int = 16) -> np.ndarray:
         colour = cv2.convertScaleAbs(np.ascontiguousarray(colour), alpha=255.0 / white)
     elif colour.ndim == 3:
         # Drawn on next: never the caller's frame (nor a view of it).
-        return np.array(colour)
+        return np.array(colour, order="C")  # cv2 draws on C order only (RGB reordered is not)
     return cv2.cvtColor(colour, cv2.COLOR_GRAY2BGR) if colour.ndim == 2 else colour
 
 

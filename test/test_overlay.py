@@ -35,6 +35,15 @@ def test_the_overlay_is_an_8_bit_copy_at_the_frames_levels_and_leaves_the_frame_
     assert (drawn != 100).any()  # the marker was drawn
 
 
+def test_a_colour_frame_in_any_memory_layout_is_drawn_as_its_c_ordered_copy():
+    # An rgb8 message's channels reordered to BGR by fancy indexing, a Fortran-order
+    # array: cv2 draws on neither as they are.
+    frame = np.random.default_rng(0).integers(0, 255, (16, 16, 3), dtype=np.uint8)
+    expected = draw_detections(frame, [MARKER])
+    for layout in (frame[:, :, [2, 1, 0]][:, :, [2, 1, 0]], np.asfortranarray(frame)):
+        np.testing.assert_array_equal(draw_detections(layout, [MARKER]), expected)
+
+
 def _centroid(weights):
     rows, cols = np.nonzero(weights)
     mass = weights[rows, cols].astype(float)

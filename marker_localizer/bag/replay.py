@@ -631,7 +631,7 @@ class _Session:
             self._write_diagnostics(self.now_ns)
         self.evaluation.finish()
 
-    def _on_result(self, camera: str, cloud: PointCloud2, overlay: Image | None) -> None:
+    def _on_result(self, camera: str, cloud: PointCloud2) -> None:
         delivered_s = time.perf_counter()
         with self._cond:
             flight = self._in_flight.pop(camera)

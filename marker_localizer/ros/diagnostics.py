@@ -146,6 +146,8 @@ class CameraSnapshot:
         dropped_mailbox: frames replaced by a newer one before a worker took them.
         dropped_age: frames that waited longer than the age limit in the node.
         errors: frames that failed (bad input or processing exception).
+        overlays_failed: processed frames (their clouds published) whose overlay
+            could not be drawn or published.
         frames_capped: processed frames of which the detector's caps (its bounded
             worst case: ``max_candidates``, and the candidates it verifies) cut
             candidates, since start.
@@ -187,6 +189,7 @@ class CameraSnapshot:
     dropped_mailbox: int
     dropped_age: int
     errors: int
+    overlays_failed: int
     frames_capped: int
     candidates_capped: int
     received_in_window: int
@@ -253,7 +256,7 @@ class CameraStats:
         self._latest_ns = start_ns
         self._window_ns = int(window_s * _NS_PER_S)
         self._received = self._processed = self._full_frame_passes = 0
-        self._dropped_mailbox = self._dropped_age = self._errors = 0
+        self._dropped_mailbox = self._dropped_age = self._errors = self._overlays_failed = 0
         self._frames_capped = self._candidates_capped = 0
         self._last_frame_ns: int | None = None
         self._last_error = ""
@@ -357,6 +360,14 @@ class CameraStats:
             self._last_error = shorten(message)
             self._last_error_ns = now_ns
 
+    def overlay_failed(self, now_ns: int, message: str) -> None:
+        """Count a processed frame whose overlay failed; it becomes the last error."""
+        with self._lock:
+            self._follow_clock(now_ns)
+            self._overlays_failed += 1
+            self._last_error = shorten(f"its overlay failed: {message}")
+            self._last_error_ns = now_ns
+
     def snapshot(self, now_ns: int) -> CameraSnapshot:
         """Freeze the statistics at ``now_ns`` (clock time, ns)."""
         with self._lock:
@@ -383,6 +394,7 @@ class CameraStats:
                 dropped_mailbox=self._dropped_mailbox,
                 dropped_age=self._dropped_age,
                 errors=self._errors,
+                overlays_failed=self._overlays_failed,
                 frames_capped=self._frames_capped,
                 candidates_capped=self._candidates_capped,
                 received_in_window=len(self._received_at),
@@ -630,6 +642,7 @@ def camera_status(
         "camera rate from stamps (Hz)": f"{rate_hz:.3g}",
         "time since last frame (s)": f"{snapshot.since_last_frame_s:.2f}",
         "errors": str(snapshot.errors),
+        "overlays failed": str(snapshot.overlays_failed),
         "frames capped": str(snapshot.frames_capped),
         "candidates capped": str(snapshot.candidates_capped),
         "last error": snapshot.last_error,

@@ -142,12 +142,13 @@ class MarkerLocalizerNode(Node):
         self.processor = processor_class(
             settings.cameras,
             self._live.detector_config,
-            self._deliver,
+            self._deliver_points,
             workers=settings.workers,
             worker_processes=settings.worker_processes,
             max_frame_age_s=settings.max_frame_age_s,
             clock_ns=lambda: self.get_clock().now().nanoseconds,
             publish_overlay=settings.publish_overlay,
+            on_overlay=self._deliver_overlay,
             on_error=self._frame_failed,
             stats_window_s=settings.stats_window_s,
             tracker_config=self._live.tracker_config,
@@ -314,10 +315,11 @@ class MarkerLocalizerNode(Node):
                 raise ConfigError(f"camera {shorten(repr(camera))}: {info_topic}: {reason}")
         return image_topic, info_topic
 
-    def _deliver(self, camera: str, cloud: PointCloud2, overlay: Image | None) -> None:
+    def _deliver_points(self, camera: str, cloud: PointCloud2) -> None:
         self._points[camera].publish(cloud)
-        if overlay is not None:
-            self._overlays[camera].publish(overlay)
+
+    def _deliver_overlay(self, camera: str, overlay: Image) -> None:
+        self._overlays[camera].publish(overlay)
 
     def _frame_failed(self, camera: str, err: Exception) -> None:
         now = time.monotonic()
@@ -336,18 +338,19 @@ class MarkerLocalizerNode(Node):
         self, settings: NodeConfig, config: DetectorConfig, tracking: TrackerConfig
     ) -> None:
         self.processor.max_frame_age_s = settings.max_frame_age_s
-        self.processor.publish_overlay = settings.publish_overlay
         self._thresholds = diagnostic_thresholds(settings)
         changes = changed_fields(self.processor.config, config)
-        if changes:
-            self.processor.set_config(config)
-            listed = ", ".join(f"{k}={v!r}" for k, v in changes.items())
-            self.get_logger().info(f"detector reconfigured for the next frames: {listed}")
         tracker_changes = changed_fields(self.processor.tracker_config, tracking)
-        if tracker_changes:
-            self.processor.set_tracker_config(tracking)
-            listed = ", ".join(f"{k}={v!r}" for k, v in tracker_changes.items())
-            self.get_logger().info(f"tracker reconfigured for the next frames: {listed}")
+        # One swap: no frame is taken with part of an atomic change.
+        self.processor.reconfigure(
+            config if changes else None,
+            tracking if tracker_changes else None,
+            settings.publish_overlay,
+        )
+        for what, changed in (("detector", changes), ("tracker", tracker_changes)):
+            if changed:
+                listed = ", ".join(f"{k}={v!r}" for k, v in changed.items())
+                self.get_logger().info(f"{what} reconfigured for the next frames: {listed}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

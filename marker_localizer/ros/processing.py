@@ -79,7 +79,7 @@ from marker_localizer.blas import single_thread_blas
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.core.image import peak_level
 from marker_localizer.core.pipeline import Detector
-from marker_localizer.core.result import CAP_COUNTS, DetectionResult
+from marker_localizer.core.result import CAP_COUNTS, Detection, DetectionResult
 from marker_localizer.core.tracking import MarkerTracker, staggered_phase
 from marker_localizer.errors import ConfigError, WorkerError, described
 from marker_localizer.overlay import draw_detections
@@ -99,8 +99,10 @@ from marker_localizer.ros.diagnostics import (
 )
 from marker_localizer.stopping import STOP_SIGNALS
 
-#: Receives (camera, marker cloud, overlay image or None); both carry the input's header.
-ResultCallback = Callable[[str, PointCloud2, Image | None], None]
+#: Receives (camera, marker cloud); the cloud carries the input's header.
+ResultCallback = Callable[[str, PointCloud2], None]
+#: Receives (camera, overlay image), after the frame's cloud; it carries the input's header.
+OverlayCallback = Callable[[str, Image], None]
 #: Receives (camera, the exception a frame failed with).
 ErrorCallback = Callable[[str, Exception], None]
 #: What the detector is handed: the pixels as it reads them, or a compressed frame,
@@ -230,6 +232,15 @@ def _started_pools(count: int) -> list[ProcessPoolExecutor]:
 
 
 @dataclass(frozen=True)
+class _Settings:
+    """What a frame is processed with, swapped whole: a frame sees all of a change or none."""
+
+    detector: Detector
+    tracker_config: TrackerConfig
+    publish_overlay: bool
+
+
+@dataclass(frozen=True)
 class _SharedFrame:
     """A frame in a shared memory block, as a worker process finds it.
 
@@ -297,8 +308,8 @@ class FrameProcessor:
     Args:
         cameras: camera names; :meth:`submit` accepts only these.
         config: detector configuration of the first frames.
-        on_result: called with (camera, PointCloud2, overlay or None) for every
-            processed frame, from a worker thread; both messages carry the input's header.
+        on_result: called with (camera, PointCloud2) for every processed frame,
+            from a worker thread; the cloud carries the input's header.
         workers: number of worker threads (>= 1).
         max_frame_age_s: frames that waited longer than this in the node when a
             worker takes them are dropped, s; 0 disables the check (replay).
@@ -307,7 +318,10 @@ class FrameProcessor:
         steady_ns: a clock that never goes back, ns (default: the monotonic
             clock); the latency is measured on it, and so is a frame's wait where
             ``clock_ns`` went back since the frame arrived.
-        publish_overlay: also render an overlay image (bgr8) per frame.
+        publish_overlay: also render an overlay image (bgr8) per frame, handed to
+            ``on_overlay`` once the frame's cloud is out.
+        on_overlay: called with (camera, overlay) where ``publish_overlay``, from a
+            worker thread; the overlay carries the input's header.
         on_error: called with (camera, exception) when a frame fails, from a
             worker thread.
         stats_window_s: sliding window of the per-camera statistics, s.
@@ -331,6 +345,7 @@ class FrameProcessor:
         clock_ns: Callable[[], int] = time.time_ns,
         steady_ns: Callable[[], int] = time.monotonic_ns,
         publish_overlay: bool = False,
+        on_overlay: OverlayCallback | None = None,
         on_error: ErrorCallback | None = None,
         stats_window_s: float = 10.0,
         tracker_config: TrackerConfig | None = None,
@@ -343,13 +358,14 @@ class FrameProcessor:
         if stats_window_s <= 0:
             raise ConfigError(f"stats_window_s={stats_window_s!r} must be positive")
         self.max_frame_age_s = max_frame_age_s
-        self.publish_overlay = publish_overlay
-        self._detector = Detector(config)
-        self._tracker_config = tracker_config or TrackerConfig()
+        self._settings = _Settings(
+            Detector(config), tracker_config or TrackerConfig(), publish_overlay
+        )
         # One tracker per camera (a camera is processed by one worker at a time), built
         # for the detector in use and rebuilt when the configuration changes.
         self._trackers: dict[str, MarkerTracker] = {}
         self._on_result = on_result
+        self._on_overlay = on_overlay
         self._on_error = on_error
         self._clock_ns = clock_ns
         self._steady_ns = steady_ns
@@ -417,21 +433,37 @@ class FrameProcessor:
     @property
     def config(self) -> DetectorConfig:
         """Configuration of the detector the next frame will use."""
-        return self._detector.config
-
-    def set_config(self, config: DetectorConfig) -> None:
-        """Use ``config`` from the next frame a worker takes; frames in flight finish unchanged."""
-        # Rebinding one attribute is atomic: a worker reads it once per frame, as it takes it.
-        self._detector = Detector(config)
+        return self._settings.detector.config
 
     @property
     def tracker_config(self) -> TrackerConfig:
         """Tracking settings the next frame will use."""
-        return self._tracker_config
+        return self._settings.tracker_config
 
-    def set_tracker_config(self, config: TrackerConfig) -> None:
-        """Use ``config`` from the next frame a worker takes; the cameras' tracks start over."""
-        self._tracker_config = config
+    @property
+    def publish_overlay(self) -> bool:
+        """Whether the next frame's overlay is drawn and handed to ``on_overlay``."""
+        return self._settings.publish_overlay
+
+    def reconfigure(
+        self,
+        config: DetectorConfig | None = None,
+        tracker_config: TrackerConfig | None = None,
+        publish_overlay: bool | None = None,
+    ) -> None:
+        """Use these settings from the next frame a worker takes; frames in flight finish unchanged.
+
+        Those given change together: no frame is processed with some of them (a
+        parameter change set atomically). A new ``tracker_config`` starts the
+        cameras' tracks over.
+        """
+        now = self._settings
+        # Rebinding one attribute is atomic: a worker reads it once per frame, as it takes it.
+        self._settings = _Settings(
+            now.detector if config is None else Detector(config),
+            now.tracker_config if tracker_config is None else tracker_config,
+            now.publish_overlay if publish_overlay is None else publish_overlay,
+        )
 
     def submit(
         self,
@@ -775,8 +807,8 @@ class FrameProcessor:
             ImageError: a compressed frame that does not decode.
         """
         # Those the frame was taken with: a reconfiguration applies from the next frame.
-        taken: tuple[Detector, TrackerConfig] | None = getattr(self._taken, "settings", None)
-        detector, tracking = taken or (self._detector, self._tracker_config)
+        settings: _Settings = getattr(self._taken, "settings", None) or self._settings
+        detector, tracking = settings.detector, settings.tracker_config
         tracker = self._tracker(camera, detector, tracking) if tracking.enabled else None
         if self._pools is None:
             result, _, self._taken.levels = _detect_frame(detector, tracker, frame, stamp_s)
@@ -857,34 +889,24 @@ class FrameProcessor:
         header = frame.msg.header
         # Read once, as the frame is taken: its conversion, detection, overlay and
         # statistics all see the same settings, whatever changes while it is in flight.
-        detector = self._detector
-        self._taken.settings = (detector, self._tracker_config)
-        config, publish_overlay = detector.config, self.publish_overlay
+        settings = self._taken.settings = self._settings
+        config = settings.detector.config
         try:
             # A worker process decodes a compressed frame itself: decodes in one process
-            # take turns (image_files), in several they do not. The overlay is drawn here.
-            in_process = self._pools is not None and not publish_overlay
-            if in_process and isinstance(frame.msg, CompressedImage):
+            # take turns (image_files), in several they do not.
+            if self._pools is not None and isinstance(frame.msg, CompressedImage):
                 taken: FrameInput = EncodedFrame.of(frame.msg)
             else:
-                taken = pixels = message_to_detector_input(frame.msg, config.max_pixels)
+                taken = message_to_detector_input(frame.msg, config.max_pixels)
             result = self.detect(frame.camera, taken, stamp_to_ns(header) / _NS_PER_S)
             levels = self.taken_levels
             detections = result.detections
             cloud = detections_to_cloud(header, detections)
-            overlay = (
-                array_to_image(
-                    draw_detections(pixels, detections, bit_depth=config.bit_depth),
-                    "bgr8",
-                    header,
-                )
-                if publish_overlay
-                else None
-            )
             with self._deliver_lock:
                 if not self._gate_open:
                     return
-                self._on_result(frame.camera, cloud, overlay)
+                self._on_result(frame.camera, cloud)
+            delivered_steady_ns = self._steady_ns()
         except _AbandonedError:
             return  # the shutdown counts and names what it abandoned
         except Exception as err:  # one bad frame must not stop the worker
@@ -895,7 +917,7 @@ class FrameProcessor:
         now_ns = self._clock_ns()
         stats.frame_processed(
             now_ns,
-            latency_ms=(self._steady_ns() - frame.received_steady_ns) / 1e6,
+            latency_ms=(delivered_steady_ns - frame.received_steady_ns) / 1e6,
             clock_offset_s=(frame.received_ns - stamp_to_ns(header)) / _NS_PER_S,
             markers=len(detections),
             capped=sum(result.counts.get(key, 0) for key in CAP_COUNTS),
@@ -904,3 +926,38 @@ class FrameProcessor:
             # Without tracking the detector's result counts no "full_frame": every frame is one.
             full_frame=bool(result.counts.get("full_frame", 1)),
         )
+        if settings.publish_overlay and self._on_overlay is not None:
+            # Drawn once the cloud is out: a pose estimator does not wait for a picture.
+            self._publish_overlay(frame, taken, detections, config, self._on_overlay)
+
+    def _publish_overlay(
+        self,
+        frame: _Frame,
+        taken: FrameInput,
+        detections: Sequence[Detection],
+        config: DetectorConfig,
+        on_overlay: OverlayCallback,
+    ) -> None:
+        """Draw ``frame``'s detections on its pixels and hand them to ``on_overlay``.
+
+        A compressed frame a worker process decoded is decoded again here. A failure
+        is counted and named in the camera's statistics: its cloud is out already.
+        """
+        try:
+            pixels = (
+                message_to_detector_input(frame.msg, config.max_pixels)
+                if isinstance(taken, EncodedFrame)
+                else taken
+            )
+            overlay = array_to_image(
+                draw_detections(pixels, detections, bit_depth=config.bit_depth),
+                "bgr8",
+                frame.msg.header,
+            )
+            with self._deliver_lock:
+                if self._gate_open:
+                    on_overlay(frame.camera, overlay)
+        except Exception as err:  # the frame's cloud is published: count, do not fail it
+            self._stats[frame.camera].overlay_failed(self._clock_ns(), described(err))
+            if self._on_error is not None:
+                self._on_error(frame.camera, err)

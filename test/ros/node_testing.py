@@ -263,7 +263,7 @@ class Collector:
         self.release.set()
         self.entered = threading.Event()
 
-    def __call__(self, camera, cloud, overlay):
+    def __call__(self, camera, cloud):
         self.entered.set()
         self.release.wait(TIMEOUT_S)
         self.results.append((camera, cloud.header.stamp.sec, cloud.width))

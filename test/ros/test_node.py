@@ -293,10 +293,17 @@ def test_overlay_is_published_once_switched_on_live(localizer, tester):
         frame = tester.frame(x_marker_64(), frame_id="cam4_optical")
         tester.publish("cam4/image_raw", frame)
         overlay = tester.result_for("cam4/marker_overlay", frame.header)
+        # An rgb8 camera's channels come to the overlay reordered, not in C order.
+        colour = tester.frame(np.dstack([x_marker_64()] * 3), "rgb8", frame_id="cam4_optical")
+        tester.publish("cam4/image_raw", colour)
+        colour_overlay = tester.result_for("cam4/marker_overlay", colour.header)
+        (points,) = [m for m in tester.messages("cam4/marker_points") if m.header == colour.header]
     finally:
         tester.set_parameters("/inproc/marker_localizer", [("publish_overlay", False)])
     assert overlay.header == frame.header
     assert (overlay.encoding, overlay.width, overlay.height) == ("bgr8", 64, 64)
+    assert colour_overlay.data == overlay.data
+    assert points.width == 1
 
 
 def test_image_subscriptions_are_reliable_keep_last_one_and_overridable(localizer, tester):

@@ -27,6 +27,7 @@ from node_testing import (
 from scenes import panning_frames
 
 from marker_localizer.config import DetectorConfig, TrackerConfig
+from marker_localizer.core.result import DetectionResult
 from marker_localizer.errors import ImageError, WorkerError
 from marker_localizer.ros import processing
 from marker_localizer.ros.diagnostics import DiagnosticThresholds
@@ -83,7 +84,7 @@ class OneAtATime(Collector):
         self._permits = threading.Semaphore(0)
         self._entered = threading.Condition()
 
-    def __call__(self, camera, cloud, overlay):
+    def __call__(self, camera, cloud):
         with self._entered:
             self.results.append((camera, cloud.header.stamp.sec, cloud.width))
             self._entered.notify_all()
@@ -666,13 +667,8 @@ def test_a_worker_process_decodes_its_compressed_frames_itself(monkeypatch, room
     assert snap.peak_share == pytest.approx(x_marker_64().max() / 255.0, abs=2 / 255)
 
 
-@pytest.mark.parametrize(
-    ("processes", "overlay"),
-    [(False, False), (True, True)],
-    ids=["worker threads", "worker processes, the overlay published"],
-)
-def test_compressed_frames_are_decoded_in_the_nodes_process_where_it_detects_or_draws_them(
-    monkeypatch, processes, overlay
+def test_compressed_frames_are_decoded_in_the_nodes_process_where_worker_threads_detect_them(
+    monkeypatch,
 ):
     _decodes_fail_here(monkeypatch)
     collect, failures = Collector(), []
@@ -681,10 +677,8 @@ def test_compressed_frames_are_decoded_in_the_nodes_process_where_it_detects_or_
         DetectorConfig(),
         collect,
         workers=1,
-        worker_processes=processes,
         on_error=lambda camera, err: failures.append(str(err)),
     )
-    processor.publish_overlay = overlay
     try:
         processor.submit("cam0", compressed(1), block=True)
         assert processor.wait_idle(TIMEOUT_S)
@@ -692,6 +686,65 @@ def test_compressed_frames_are_decoded_in_the_nodes_process_where_it_detects_or_
         processor.shutdown(TIMEOUT_S)
     assert collect.results == []
     assert failures == ["decoded in the node's process"]
+
+
+def test_a_frame_is_processed_with_the_whole_of_a_reconfiguration_or_none_of_it():
+    # The node applies an atomic parameter change (a detector and a tracker setting)
+    # in one reconfigure: no frame may be taken between the two.
+    seen = []
+
+    class Recording(FrameProcessor):
+        def detect(self, camera, frame, stamp_s):
+            taken = self._taken.settings
+            seen.append((taken.detector.config.min_score, taken.tracker_config.match_px))
+            return DetectionResult([], {}, {})
+
+    pairs = [
+        (DetectorConfig(min_score=score), TrackerConfig(match_px=px))
+        for score, px in ((0.8, 1.5), (0.6, 2.5))
+    ]
+    processor = Recording(["cam0"], pairs[0][0], Collector(), workers=1, tracker_config=pairs[0][1])
+    try:
+        for step in range(400):
+            processor.submit("cam0", stamped(step + 1))
+            processor.reconfigure(*pairs[step % 2])
+        assert processor.wait_idle(TIMEOUT_S)
+    finally:
+        processor.shutdown(TIMEOUT_S)
+    assert seen
+    assert set(seen) <= {(0.8, 1.5), (0.6, 2.5)}
+
+
+def test_the_overlay_is_drawn_after_the_cloud_is_out_and_its_failure_costs_only_itself(
+    monkeypatch,
+):
+    # A worker process decodes the frame for the detector; the overlay, drawn in the
+    # node's process, decodes it again there, after the frame's cloud is handed over.
+    _decodes_fail_here(monkeypatch)
+    events, failures = [], []
+    processor = FrameProcessor(
+        ["cam0"],
+        DetectorConfig(),
+        lambda camera, cloud: events.append(("cloud", cloud.header.stamp.sec)),
+        workers=1,
+        worker_processes=True,
+        publish_overlay=True,
+        on_overlay=lambda camera, overlay: events.append(("overlay", overlay.header.stamp.sec)),
+        on_error=lambda camera, err: failures.append(str(err)),
+    )
+    try:
+        processor.submit("cam0", compressed(1), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+        monkeypatch.undo()
+        processor.submit("cam0", compressed(2), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+        snap = processor.snapshots()["cam0"]
+    finally:
+        processor.shutdown(TIMEOUT_S)
+    assert events == [("cloud", 1), ("cloud", 2), ("overlay", 2)]
+    assert failures == ["decoded in the node's process"]
+    assert (snap.processed, snap.errors, snap.overlays_failed) == (2, 0, 1)
+    assert snap.last_error == "its overlay failed: ImageError: decoded in the node's process"
 
 
 def test_a_compressed_frame_a_worker_process_cannot_decode_fails_with_the_decoders_reason():
