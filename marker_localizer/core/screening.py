@@ -174,6 +174,9 @@ _SADDLE_PER_CONTRAST = 1.0 / np.pi
 _EXPECTED_BLUR_PX = 1.5
 
 
+#: The shorter side of a pyramid level under which it is not reduced further, px: a
+#: coarser level would hold a few of its filters' widths.
+_MIN_REDUCED_SIDE_PX = 32
 #: Farthest apart two saddle peaks of a split response may be, in units of the level's
 #: candidate scale: a 6 px marker tilted 48 degrees shows its peaks 10.6 px apart at
 #: scale 6; 2.5 scales keeps the like of it at every first level.
@@ -1012,6 +1015,7 @@ def saddle_candidates(
     cell_cap: CellCap | None = None,
     tally: dict[str, int] | None = None,
     light: LightWeight | None = None,
+    frame_shape: tuple[int, int] | None = None,
 ) -> Candidates:
     """Saddle points over an image pyramid covering the expected marker radii.
 
@@ -1056,6 +1060,9 @@ def saddle_candidates(
             under dark surroundings the threshold is divided by the gain there, so
             that ``min_contrast`` holds after Eq. (2) as in the checks that follow
             (:class:`LightWeight`).
+        frame_shape: (H, W) of the frame ``image`` is cut from (a tracking
+            window's crop): the pyramid goes as deep as the frame's. Default:
+            ``image``'s.
 
     Returns:
         Candidates in full-resolution coordinates; ``scale_px`` is 4 * 2**L and
@@ -1067,11 +1074,15 @@ def saddle_candidates(
     floor = 0.0
     cut_in_cells = cut_below_floor = unexamined = 0
     level_image = image
+    frame_side = min(frame_shape or image.shape[:2])
     for level in range(levels.stop):
         if level > 0:
             height, width = level_image.shape
-            if min(height, width) < 32:
+            # The frame's size, not a crop's, decides how deep the pyramid goes: a
+            # tracking window is screened at every level the frame is.
+            if frame_side < _MIN_REDUCED_SIDE_PX:
                 break
+            frame_side //= 2
             # An even crop makes INTER_AREA average exact 2 x 2 blocks; from an odd
             # size it would stretch the grid, and windows would see other pixels than
             # the full frame does.

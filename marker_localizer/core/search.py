@@ -92,10 +92,12 @@ class CandidateSearch:
         origin_px: tuple[int, int] = (0, 0),
         cut: dict[str, int] | None = None,
         gamma: preprocessing.LocalGamma | None = None,
+        frame_shape: tuple[int, int] | None = None,
     ) -> Candidates:
         """Screening candidates; ``window`` (x0, y0, x1, y1) bounds where they are wanted.
 
-        ``origin_px`` is where ``gray``'s pixel (0, 0) lies in the frame; ``cut``
+        ``origin_px`` is where ``gray``'s pixel (0, 0) lies in the frame, of
+        ``frame_shape`` (H, W) (default: ``gray``'s); ``cut``
         counts what the saddle screening's caps cut (:func:`screening.saddle_candidates`);
         ``gamma``, if given, weighs its peaks by their light and lowers its threshold
         in shadow.
@@ -136,6 +138,7 @@ class CandidateSearch:
             ),
             tally=cut,
             light=None if gamma is None else self._screening_light(gamma, origin_px),
+            frame_shape=frame_shape,
         )
 
     def _find_in_regions(
@@ -173,6 +176,7 @@ class CandidateSearch:
                 (cx0, cy0),
                 cut,
                 gamma,
+                (height, width),
             )
             xy = found.xy + [cx0, cy0]
             inside = (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)

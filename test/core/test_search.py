@@ -32,6 +32,23 @@ def test_a_regions_candidates_lie_inside_it(frame):
     assert np.all((part.xy >= [256, 192]) & (part.xy < [768, 576]))
 
 
+def test_a_small_region_is_screened_at_every_pyramid_level_the_frame_is(frame):
+    # A tracking window a few pixels wide, as the tracker asks around a marker its fit
+    # missed: its crop is too small to be reduced as often as the frame, but the
+    # frame's coarsest level finds its candidates there too (before, a dull marker's
+    # only candidate that passes the prescreen, at that level, was missing).
+    gray, white = frame
+    search = CandidateSearch(DetectorConfig())
+    full = search.screen(gray, white, {})
+    coarsest = full.scale_px.max()
+    assert coarsest > full.scale_px.min()
+    for x, y in full.xy[full.scale_px == coarsest][:20]:
+        x0, y0 = int(x) - 4, int(y) - 4
+        part = search.screen(gray, white, {}, np.array([[x0, y0, x0 + 8, y0 + 8]]))
+        same_level = part.xy[part.scale_px == coarsest]
+        assert len(same_level) and np.hypot(*(same_level - [x, y]).T).min() < 0.01
+
+
 @pytest.mark.parametrize(
     "region",
     [[-20, -20, -15, -15], [-50, 100, -1, 200], [2000, 100, 2100, 200]],

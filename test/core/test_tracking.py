@@ -195,6 +195,46 @@ def test_a_marker_in_view_but_rejected_on_one_frame_costs_no_full_pass_and_is_fo
     assert cKDTree(frames[4][1]).query(results[4].as_array()[:, :2])[0].max() < 0.1
 
 
+def test_markers_with_a_dull_quadrant_are_tracked_as_the_full_passes_find_them():
+    """Their fit at the prediction misses them, and the detector in a window around
+    each found only the finest level's candidate, which the prescreen rejects: tracked
+    frames reported none of the 13 markers the full passes found on them."""
+    detector = Detector(DetectorConfig(marker_radius_min_px=6, marker_radius_max_px=24))
+    tracker = MarkerTracker(detector)
+    sites = [
+        (80.3, 70.6, 10),
+        (200.8, 140.1, 14),
+        (130.2, 200.7, 9),
+        (260.4, 60.3, 12),
+        (60.7, 190.2, 16),
+    ]
+    for k in range(5):
+        placements = [
+            MarkerPlacement(
+                x + 4 * k,
+                y + 1.5 * k,
+                r,
+                0.5 * i + 0.2,
+                20.0,
+                0.3,
+                "quarter_disks",
+                False,
+                0.4,
+                i % 2,
+            )
+            for i, (x, y, r) in enumerate(sites)
+        ]
+        scene = render_markers(
+            (280, 360), placements, k, background="texture", noise_sigma_dn=2.0, blur_sigma_px=0.8
+        )
+        tracked = tracker.update(scene.image, float(k))
+        full = detector.detect(scene.image)
+        assert tracked.counts["full_frame"] == (k == 0)
+        assert len(full) >= 2
+        same = match_points(tracked.as_array()[:, :2], full.as_array()[:, :2], gate_px=0.01)
+        assert len(same.truth_index) == len(full) == len(tracked)
+
+
 class _RejectingNear(Detector):
     """A detector whose full passes and windows reject any X near ``rejected``, but not
     :meth:`Detector.locate`: as a test it does not read (the screening, the ground
