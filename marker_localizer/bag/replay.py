@@ -574,6 +574,7 @@ class _Session:
             clock_ns=lambda: self.now_ns,
             on_error=self._on_error,
             stats_window_s=settings.stats_window_s,
+            steady_silence=False,
             tracker_config=tracker_config,
         )
 

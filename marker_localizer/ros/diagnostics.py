@@ -171,7 +171,8 @@ class CameraSnapshot:
             in order of arrival, ns (their gaps tell the frames lost upstream).
         window_arrivals_ns: when each of those frames arrived, on the node's clock, ns.
         since_last_frame_s: time since the last frame arrived, or since start
-            if none did, s.
+            if none did, s; read on the steady clock too where one is given, and
+            the longer taken (a ``use_sim_time`` clock stands still without /clock).
         any_frame: whether a frame ever arrived.
         last_error: text of the newest failure ("" if none).
         since_last_error_s: time since that failure, s (None if none).
@@ -237,6 +238,9 @@ class CameraStats:
         camera: camera name.
         start_ns: clock time at start, ns (the input timeout counts from it).
         window_s: length of the sliding window, s.
+        start_steady_ns: steady clock time at start, ns, where the time since the
+            last frame is read on the steady clock too (:meth:`frame_received`,
+            :meth:`snapshot`); None: on the clock alone (replay, on its bag's times).
         max_window_frames: most frames the windows hold (:data:`WINDOW_MAX_FRAMES`).
     """
 
@@ -246,6 +250,7 @@ class CameraStats:
         start_ns: int,
         window_s: float,
         *,
+        start_steady_ns: int | None = None,
         max_window_frames: int = WINDOW_MAX_FRAMES,
     ) -> None:
         if max_window_frames < 1:
@@ -259,6 +264,7 @@ class CameraStats:
         self._dropped_mailbox = self._dropped_age = self._errors = self._overlays_failed = 0
         self._frames_capped = self._candidates_capped = 0
         self._last_frame_ns: int | None = None
+        self._last_frame_steady_ns = start_steady_ns
         self._last_error = ""
         self._last_error_ns: int | None = None
         # Bounded by count too (WINDOW_MAX_FRAMES); _received_at and _stamps stay aligned.
@@ -283,12 +289,17 @@ class CameraStats:
             self._latest_ns = now_ns
         self._latest_ns = max(self._latest_ns, now_ns)
 
-    def frame_received(self, now_ns: int, stamp_ns: int) -> None:
-        """Count a frame put into the mailbox; ``stamp_ns`` is its header stamp."""
+    def frame_received(self, now_ns: int, stamp_ns: int, steady_ns: int | None = None) -> None:
+        """Count a frame put into the mailbox; ``stamp_ns`` is its header stamp.
+
+        ``steady_ns``: the steady clock's time, where the statistics read it.
+        """
         with self._lock:
             self._follow_clock(now_ns)
             self._received += 1
             self._last_frame_ns = now_ns
+            if self._last_frame_steady_ns is not None and steady_ns is not None:
+                self._last_frame_steady_ns = steady_ns
             self._received_at.append(now_ns)
             self._stamps.append(stamp_ns)
 
@@ -368,8 +379,8 @@ class CameraStats:
             self._last_error = shorten(f"its overlay failed: {message}")
             self._last_error_ns = now_ns
 
-    def snapshot(self, now_ns: int) -> CameraSnapshot:
-        """Freeze the statistics at ``now_ns`` (clock time, ns)."""
+    def snapshot(self, now_ns: int, steady_ns: int | None = None) -> CameraSnapshot:
+        """Freeze the statistics at ``now_ns`` (clock time) and ``steady_ns`` (steady clock), ns."""
         with self._lock:
             self._follow_clock(now_ns)
             horizon = now_ns - self._window_ns
@@ -386,6 +397,11 @@ class CameraStats:
             latency = np.array([r.latency_ms for r in recent])
             deep = [r for r in recent if r.bit_depth]
             last_frame = self._start_ns if self._last_frame_ns is None else self._last_frame_ns
+            since_last_frame_ns = max(now_ns - last_frame, 0)
+            if self._last_frame_steady_ns is not None and steady_ns is not None:
+                since_last_frame_ns = max(
+                    since_last_frame_ns, steady_ns - self._last_frame_steady_ns
+                )
             return CameraSnapshot(
                 camera=self.camera,
                 received=self._received,
@@ -408,7 +424,7 @@ class CameraStats:
                 full_frame_share=_mean([float(r.full_frame) for r in recent]),
                 window_stamps_ns=np.array(self._stamps, dtype=np.int64),
                 window_arrivals_ns=np.array(self._received_at, dtype=np.int64),
-                since_last_frame_s=max(now_ns - last_frame, 0) / _NS_PER_S,
+                since_last_frame_s=since_last_frame_ns / _NS_PER_S,
                 any_frame=self._last_frame_ns is not None,
                 last_error=self._last_error,
                 since_last_error_s=None

@@ -325,6 +325,10 @@ class FrameProcessor:
         on_error: called with (camera, exception) when a frame fails, from a
             worker thread.
         stats_window_s: sliding window of the per-camera statistics, s.
+        steady_silence: a camera's time since its last frame (its input timeout)
+            is read on ``steady_ns`` too, the longer taken: under ``use_sim_time`` the
+            node's clock stands still while no /clock comes (a bag not playing, or
+            ended). Replay, whose clock is its bag's, reads it on that alone.
         tracker_config: tracking-mode settings of the first frames.
         worker_processes: each worker thread runs the detector in a process of
             its own (see the module's docstring); blocks until they are up.
@@ -348,6 +352,7 @@ class FrameProcessor:
         on_overlay: OverlayCallback | None = None,
         on_error: ErrorCallback | None = None,
         stats_window_s: float = 10.0,
+        steady_silence: bool = True,
         tracker_config: TrackerConfig | None = None,
         worker_processes: bool = False,
     ) -> None:
@@ -370,7 +375,11 @@ class FrameProcessor:
         self._clock_ns = clock_ns
         self._steady_ns = steady_ns
         start_ns = clock_ns()
-        self._stats = {c: CameraStats(c, start_ns, stats_window_s) for c in cameras}
+        start_steady_ns = steady_ns() if steady_silence else None
+        self._stats = {
+            c: CameraStats(c, start_ns, stats_window_s, start_steady_ns=start_steady_ns)
+            for c in cameras
+        }
         self._pending: dict[str, _Frame | None] = dict.fromkeys(cameras)
         self._busy: set[str] = set()
         self._discarded: list[str] = []
@@ -502,9 +511,10 @@ class FrameProcessor:
             now_ns = self._clock_ns()
             waiting = self._pending[camera]
             since_ns = now_ns if waiting is None else waiting.waiting_since_ns
-            self._pending[camera] = _Frame(camera, msg, now_ns, since_ns, self._steady_ns())
+            steady_ns = self._steady_ns()
+            self._pending[camera] = _Frame(camera, msg, now_ns, since_ns, steady_ns)
             self._cond.notify_all()
-        stats.frame_received(now_ns, stamp_to_ns(msg.header))
+        stats.frame_received(now_ns, stamp_to_ns(msg.header), steady_ns)
         if waiting is not None:
             stats.frame_replaced(now_ns, waiting.received_ns)
         return True
@@ -521,7 +531,7 @@ class FrameProcessor:
         """
         stats = self._stats[camera]
         now_ns = self._clock_ns()
-        stats.frame_received(now_ns, stamp_to_ns(msg.header))
+        stats.frame_received(now_ns, stamp_to_ns(msg.header), self._steady_ns())
         if err is not None:
             stats.frame_failed(now_ns, described(err))
 
@@ -547,8 +557,8 @@ class FrameProcessor:
 
     def snapshots(self) -> dict[str, CameraSnapshot]:
         """Statistics of every camera, now."""
-        now_ns = self._clock_ns()
-        return {camera: stats.snapshot(now_ns) for camera, stats in self._stats.items()}
+        now_ns, steady_ns = self._clock_ns(), self._steady_ns()
+        return {camera: stats.snapshot(now_ns, steady_ns) for camera, stats in self._stats.items()}
 
     def diagnostics(
         self,

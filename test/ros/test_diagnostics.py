@@ -95,6 +95,23 @@ def test_camera_that_never_sent_a_frame_is_error_after_the_timeout_only():
     assert camera_level(stats.snapshot(8 * S), LIMITS) == (ERROR, "no frame since start, 3.0 s")
 
 
+def test_a_camera_silent_while_a_sim_time_clock_stands_still_is_error_on_the_steady_clock():
+    # use_sim_time without /clock (a bag not playing, or ended): the node's clock stays
+    # at its last value however long no frame comes.
+    clock = 7 * S
+    stats = CameraStats("cam0", start_ns=clock, window_s=10.0, start_steady_ns=100 * S)
+    assert camera_level(stats.snapshot(clock, 109 * S), LIMITS) == (
+        ERROR,
+        "no frame since start, 9.0 s",
+    )
+    stats.frame_received(clock, stamp_ns=clock, steady_ns=110 * S)
+    assert camera_level(stats.snapshot(clock, 111 * S), LIMITS)[0] == OK
+    assert camera_level(stats.snapshot(clock, 117 * S), LIMITS) == (ERROR, "no frame for 7.0 s")
+    # Read on the clock alone (replay, on its bag's times), as before.
+    replayed = CameraStats("cam0", start_ns=clock, window_s=10.0)
+    assert camera_level(replayed.snapshot(clock, 117 * S), LIMITS)[0] == OK
+
+
 def test_failed_frame_keeps_the_camera_at_error_for_one_window():
     stats, now = healthy_camera()
     stats.frame_failed(now, "ImageError: unsupported encoding 'nv24'")
