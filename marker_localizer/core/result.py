@@ -29,6 +29,19 @@ CAP_COUNTS = (
     "plate_asked_over_cap",
     "vouch_over_cap",
 )
+#: The counts of :class:`DetectionResult` that say what the second readings' caps left
+#: unread: candidates the checks rejected, read again another way, at most so many a
+#: frame (:meth:`~marker_localizer.core.symmetry_path.SymmetryPath._recentre_lost`, its
+#: shadow reading, :data:`subpixel.MAX_MODELLED`, the plates of texture's size,
+#: :data:`second_reading.MAX_DULL_READ`). Busy ground fills them on every frame; the
+#: node's diagnostics show their sum apart.
+SECOND_READING_CAP_COUNTS = (
+    "recentring_over_cap",
+    "shadow_over_cap",
+    "uneven_over_cap",
+    "plate_over_cap",
+    "dull_over_cap",
+)
 
 
 @dataclass(frozen=True)
@@ -95,7 +108,8 @@ class DetectionResult:
             the fit's score floor rejected that the marker's model vouches for,
             :meth:`acceptance.MarkerModel.vouches`), ``dull_read`` and ``kept_dull`` (X's
             the ring check rejected that were read again from the light slope's
-            centre, and those of them it took, :func:`second_reading.read_dull`),
+            centre, and those of them it took, :func:`second_reading.read_dull`;
+            ``dull_over_cap`` those over :data:`second_reading.MAX_DULL_READ`),
             ``recentring_over_cap`` (:meth:`SymmetryPath._recentre_lost`), ``shadow_read``,
             ``found_shadowed``, ``located_in_shadow``, ``shadow_over_cap``
             (:meth:`SymmetryPath._reread_shadowed`),

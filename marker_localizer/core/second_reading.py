@@ -97,12 +97,14 @@ class DullReading(NamedTuple):
         xy: (R, 2) their centres with the light's slope.
         rings: their equalised rings there (R rows).
         kept: (K,) which of them replace the first reading, as positions in ``read``.
+        over_cap: the candidates asked that :data:`MAX_DULL_READ` left unread.
     """
 
     read: NDArray[np.intp]
     xy: NDArray[np.float64]
     rings: verification.SymmetryCheck
     kept: NDArray[np.intp]
+    over_cap: int = 0
 
     def moved(
         self, candidates: Candidates, ring: verification.SymmetryCheck
@@ -163,15 +165,16 @@ def read_dull(
         :class:`DullReading`.
     """
     weak = ~ring.accepted | (ring.score < floors.floor(ring.radius_px))
-    read = np.flatnonzero(weak & equalised_x & screened_wide(candidates))
-    read = read[
+    asked = np.flatnonzero(weak & equalised_x & screened_wide(candidates))
+    read = asked[
         screening.even_cap_index(
-            candidates.xy[read], candidates.strength[read], MAX_DULL_READ, cell_px
+            candidates.xy[asked], candidates.strength[asked], MAX_DULL_READ, cell_px
         )
     ]
+    over_cap = len(asked) - len(read)
     if not len(read):
         nothing = verification.SymmetryCheck._make(field[read] for field in ring)
-        return DullReading(read, np.zeros((0, 2)), nothing, read)
+        return DullReading(read, np.zeros((0, 2)), nothing, read, over_cap)
     centred, inside = _centred_with_slope(gray, candidates.take(read), max_radius_px)
     xy = centred.xy
     there = rings(xy, equalise=True)
@@ -182,7 +185,7 @@ def read_dull(
         & (there.score >= floors.floor(there.radius_px))
     )
     kept = kept[model.vouches(xy[kept], there.radius_px[kept], there.line_angles[kept])]
-    return DullReading(read, xy, there, kept)
+    return DullReading(read, xy, there, kept, over_cap)
 
 
 def screened_wide(candidates: Candidates) -> NDArray[np.bool_]:

@@ -681,15 +681,15 @@ class SymmetryPath:
         """Small X's with a dull quadrant, read again from the light slope's centre.
 
         :func:`second_reading.read_dull`, in the first reading alone: a second one's
-        candidates are centred with the light's slope already. Counts ``dull_read``
-        and ``kept_dull``.
+        candidates are centred with the light's slope already. Counts ``dull_read``,
+        ``kept_dull`` and ``dull_over_cap``.
 
         Returns:
             The candidates (those read again and kept moved) and their check.
         """
         counts = frame.result.counts
-        counts["dull_read"] = counts.get("dull_read", 0)
-        counts["kept_dull"] = counts.get("kept_dull", 0)
+        for key in ("dull_read", "kept_dull", "dull_over_cap"):
+            counts[key] = counts.get(key, 0)
         if frame.slope_centred:
             return candidates, ring
         reading = second_reading.read_dull(
@@ -705,6 +705,7 @@ class SymmetryPath:
         )
         counts["dull_read"] += len(reading.read)
         counts["kept_dull"] += len(reading.kept)
+        counts["dull_over_cap"] += reading.over_cap
         return reading.moved(candidates, ring)
 
     @property

@@ -152,6 +152,9 @@ class CameraSnapshot:
             worst case: ``max_candidates``, and the candidates it verifies) cut
             candidates, since start.
         candidates_capped: candidates those caps cut, since start.
+        rereads_capped: rejected candidates the second readings' caps left
+            unread (:data:`~marker_localizer.core.result.SECOND_READING_CAP_COUNTS`),
+            since start.
         received_in_window: frames received within the window (at most
             :data:`WINDOW_MAX_FRAMES`: where more arrived, the window is the span of
             the newest that many, and every windowed figure is over that span).
@@ -193,6 +196,7 @@ class CameraSnapshot:
     overlays_failed: int
     frames_capped: int
     candidates_capped: int
+    rereads_capped: int
     received_in_window: int
     dropped_in_window: int
     input_rate_hz: float
@@ -262,7 +266,7 @@ class CameraStats:
         self._window_ns = int(window_s * _NS_PER_S)
         self._received = self._processed = self._full_frame_passes = 0
         self._dropped_mailbox = self._dropped_age = self._errors = self._overlays_failed = 0
-        self._frames_capped = self._candidates_capped = 0
+        self._frames_capped = self._candidates_capped = self._rereads_capped = 0
         self._last_frame_ns: int | None = None
         self._last_frame_steady_ns = start_steady_ns
         self._last_error = ""
@@ -331,6 +335,7 @@ class CameraStats:
         clock_offset_s: float,
         markers: int,
         capped: int = 0,
+        rereads_capped: int = 0,
         peak: float = math.nan,
         bit_depth: int = 0,
         full_frame: bool = True,
@@ -343,6 +348,7 @@ class CameraStats:
             clock_offset_s: arrival time minus the frame's header stamp, s.
             markers: markers found in the frame.
             capped: candidates the detector's caps cut in the frame.
+            rereads_capped: rejected candidates its second readings' caps left unread.
             peak: the frame's brightest level
                 (:func:`~marker_localizer.core.image.peak_level`).
             bit_depth: the configured bit depth where the frame is 16-bit; 0 for an
@@ -356,6 +362,7 @@ class CameraStats:
             self._full_frame_passes += full_frame
             self._frames_capped += capped > 0
             self._candidates_capped += capped
+            self._rereads_capped += rereads_capped
             self._processed_at.append(now_ns)
             self._results.append(
                 _Delivered(now_ns, latency_ms, clock_offset_s, markers, peak, bit_depth, full_frame)
@@ -413,6 +420,7 @@ class CameraStats:
                 overlays_failed=self._overlays_failed,
                 frames_capped=self._frames_capped,
                 candidates_capped=self._candidates_capped,
+                rereads_capped=self._rereads_capped,
                 received_in_window=len(self._received_at),
                 dropped_in_window=len(self._dropped_at),
                 input_rate_hz=_rate_hz(self._received_at, now_ns, self._window_ns),
@@ -661,6 +669,7 @@ def camera_status(
         "overlays failed": str(snapshot.overlays_failed),
         "frames capped": str(snapshot.frames_capped),
         "candidates capped": str(snapshot.candidates_capped),
+        "second readings capped": str(snapshot.rereads_capped),
         "last error": snapshot.last_error,
         "window (s)": f"{thresholds.window_s:g}",
         **(extra or {}),

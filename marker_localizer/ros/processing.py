@@ -79,7 +79,12 @@ from marker_localizer.blas import single_thread_blas
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.core.image import peak_level
 from marker_localizer.core.pipeline import Detector
-from marker_localizer.core.result import CAP_COUNTS, Detection, DetectionResult
+from marker_localizer.core.result import (
+    CAP_COUNTS,
+    SECOND_READING_CAP_COUNTS,
+    Detection,
+    DetectionResult,
+)
 from marker_localizer.core.tracking import MarkerTracker, staggered_phase
 from marker_localizer.errors import ConfigError, WorkerError, described
 from marker_localizer.overlay import draw_detections
@@ -931,6 +936,7 @@ class FrameProcessor:
             clock_offset_s=(frame.received_ns - stamp_to_ns(header)) / _NS_PER_S,
             markers=len(detections),
             capped=sum(result.counts.get(key, 0) for key in CAP_COUNTS),
+            rereads_capped=sum(result.counts.get(key, 0) for key in SECOND_READING_CAP_COUNTS),
             peak=levels.peak,
             bit_depth=config.bit_depth if levels.sixteen_bit else 0,
             # Without tracking the detector's result counts no "full_frame": every frame is one.

@@ -7,8 +7,16 @@ import pytest
 from scenes import checker_2x2
 
 from marker_localizer import Detector, DetectorConfig
-from marker_localizer.core import decision
-from marker_localizer.core.result import DetectionResult, SearchPlan, detections_of, positions
+from marker_localizer.core import decision, second_reading
+from marker_localizer.core.result import (
+    CAP_COUNTS,
+    SECOND_READING_CAP_COUNTS,
+    DetectionResult,
+    SearchPlan,
+    detections_of,
+    positions,
+)
+from marker_localizer.synthetic import SceneConfig, render_scene
 
 
 def test_detections_are_built_row_by_row_in_the_order_given():
@@ -101,3 +109,13 @@ def test_every_count_a_pass_reports_is_named_where_the_counts_are_described(conf
     described = set(re.findall(r"``([a-z_]+)``", DetectionResult.__doc__ or ""))
     described |= {f"rejected_{reason}" for reason in decision.REASONS}
     assert set(found.counts) | set(tracked.counts) <= described
+
+
+def test_every_cap_a_pass_reports_is_summed_where_the_diagnostics_show_the_caps():
+    """Nothing a cap leaves unread goes without a figure: busy ground fills the caps of
+    the screening, of the checks and of the second readings (the dull reading's too)."""
+    counts = Detector(DetectorConfig()).detect(render_scene(SceneConfig(), 1).image).counts
+    caps = {key for key in counts if "_over_" in key and key.endswith("cap")}
+    assert caps == set(CAP_COUNTS) | set(SECOND_READING_CAP_COUNTS)
+    assert counts["dull_read"] == second_reading.MAX_DULL_READ
+    assert counts["dull_over_cap"] > 0

@@ -715,6 +715,24 @@ def test_a_frame_is_processed_with_the_whole_of_a_reconfiguration_or_none_of_it(
     assert set(seen) <= {(0.8, 1.5), (0.6, 2.5)}
 
 
+def test_the_caps_cuts_and_the_second_readings_unread_are_summed_apart():
+    class Capped(FrameProcessor):
+        def detect(self, camera, frame, stamp_s):
+            self._taken.levels = processing.InputLevels(255.0, False)
+            counts = {"dropped_over_cap": 3, "vouch_over_cap": 1, "shadow_over_cap": 5}
+            return DetectionResult([], {**counts, "dull_over_cap": 2}, {})
+
+    processor = Capped(["cam0"], DetectorConfig(), Collector(), workers=1)
+    try:
+        for sec in (1, 2):
+            processor.submit("cam0", stamped(sec), block=True)
+        assert processor.wait_idle(TIMEOUT_S)
+        snap = processor.snapshots()["cam0"]
+    finally:
+        processor.shutdown(TIMEOUT_S)
+    assert (snap.frames_capped, snap.candidates_capped, snap.rereads_capped) == (2, 8, 14)
+
+
 def test_the_overlay_is_drawn_after_the_cloud_is_out_and_its_failure_costs_only_itself(
     monkeypatch,
 ):
