@@ -11,6 +11,7 @@ import dataclasses
 import difflib
 import functools
 import numbers
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -585,10 +586,6 @@ def field_kind(f: dataclasses.Field[Any]) -> str:
     return _VALUE_TYPES[name].__name__ if name in _VALUE_TYPES else name
 
 
-def _field_type(f: dataclasses.Field[Any]) -> type:
-    return _VALUE_TYPES[field_kind(f)]
-
-
 def require_config(config: object, kind: type, taker: str) -> None:
     """Refuse a ``config`` that is not a ``kind`` instance, for ``taker`` (who would read it).
 
@@ -668,19 +665,55 @@ def checked_value(name: str, kind: str, spec: ParamSpec, value: Any) -> Any:
 
 
 def parse_value(name: str, text: str) -> Any:
-    """Convert the string form of a value (``--param k=v``) to the field's type."""
-    specs = param_specs()
+    """The value ``text`` (``--param k=v``) spells, read as a parameters file reads it.
+
+    A YAML scalar (:func:`_yaml_scalar`): ``--param`` and ``--params-file`` take and
+    refuse the same spellings (``true``, ``6``, ``1e-6``), and the error names the
+    setting's type, range and unit.
+
+    Raises:
+        ConfigError: an unknown name, or a value its setting refuses.
+    """
     check_names([name], DetectorConfig)
-    kind = _field_type(specs[name][0])
+    field, spec = param_specs()[name]
+    return checked_value(name, field_kind(field), spec, _yaml_scalar(text))
+
+
+def _yaml() -> Any:
+    """PyYAML, or the one line saying how to install it."""
     try:
-        if kind is bool:
-            lowered = text.strip().lower()
-            if lowered not in ("true", "false", "1", "0"):
-                raise ValueError(text)
-            return lowered in ("true", "1")
-        return kind(text)
-    except ValueError as err:
-        raise ConfigError(f"{name}={text!r} is not a valid {kind.__name__}") from err
+        import yaml  # noqa: PLC0415 - only the parameters' text needs PyYAML
+    except ModuleNotFoundError as err:
+        raise missing_dependency(err) from err
+    return yaml
+
+
+#: A float as YAML 1.2 and ROS's parameter parser (rcl_yaml_param_parser) read it: with
+#: an exponent and no decimal point too (``1e-6``), which YAML 1.1 (PyYAML) reads as a
+#: string.
+_YAML_12_FLOAT = re.compile(r"^[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$")
+
+
+def _ros_yaml_loader() -> type:
+    """PyYAML's safe loader that reads a float as ROS's parameters file does (``1e-6``)."""
+    yaml = _yaml()
+
+    class RosYamlLoader(yaml.SafeLoader):  # type: ignore[name-defined]
+        pass
+
+    RosYamlLoader.add_implicit_resolver(
+        "tag:yaml.org,2002:float", _YAML_12_FLOAT, list("-+0123456789.")
+    )
+    return RosYamlLoader
+
+
+def _yaml_scalar(text: str) -> Any:
+    """The value a parameters file's scalar ``text`` gives: a bool, int, float or string."""
+    yaml = _yaml()
+    try:
+        return yaml.load(text, _ros_yaml_loader())
+    except yaml.YAMLError:
+        return text
 
 
 _Config = TypeVar("_Config", DetectorConfig, TrackerConfig)
@@ -714,17 +747,15 @@ def load_params_file(
     """Read the ``<namespace>.*`` parameters (``detector.*`` by default) of a ROS 2 YAML file.
 
     The file has the node's layout (``node_name: ros__parameters: detector: {...}``),
-    beside other nodes' entries as a launch file's parameters have them. The entry
-    used is the first of ``node_name`` (bare, ``/node_name`` or ``/**/node_name``),
-    the wildcard ``/**``, or the file's only entry whatever its name.
+    beside other nodes' entries as a launch file's parameters have them. Every entry
+    that names the node applies, as the node reads the file: ``node_name`` (bare,
+    ``/node_name`` or ``/**/node_name``) and the wildcard ``/**``, a later entry's
+    values over an earlier one's; where none names it, the file's only entry,
+    whatever its name. Scalars are read as ROS reads them (``1e-6`` is a float).
     """
+    yaml = _yaml()
     try:
-        import yaml  # noqa: PLC0415 - only this helper needs PyYAML
-    except ModuleNotFoundError as err:
-        raise missing_dependency(err) from err
-
-    try:
-        document = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        document = yaml.load(Path(path).read_text(encoding="utf-8"), _ros_yaml_loader())
     except OSError as err:
         raise ConfigError(f"{path}: cannot read parameters file ({err.strerror})") from err
     except UnicodeDecodeError as err:
@@ -737,21 +768,27 @@ def load_params_file(
         raise ConfigError(f"{path}: not valid YAML ({where}{problem})") from err
     if not isinstance(document, dict):
         raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
-    keys = (node_name, f"/{node_name}", f"/**/{node_name}", "/**", "**")
-    entries = [document.get(key) for key in keys]
-    if len(document) == 1:
-        entries += list(document.values())
+    names = {node_name, f"/{node_name}", f"/**/{node_name}", "/**", "**"}
+    entries = [
+        entry
+        for key, entry in document.items()
+        if key in names and isinstance(entry, dict) and "ros__parameters" in entry
+    ]
+    if not entries and len(document) == 1:
+        entries = [e for e in document.values() if isinstance(e, dict) and "ros__parameters" in e]
+    if not entries:
+        raise ConfigError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
+    prefix = f"{namespace}."
+    values: dict[str, Any] = {}
     for entry in entries:
-        if isinstance(entry, dict) and "ros__parameters" in entry:
-            prefix = f"{namespace}."
-            flat = _flatten(entry["ros__parameters"] or {}, path)
-            if namespace in flat:  # the node refuses a value for the section itself too
-                raise ConfigError(
-                    f"{path}: ros__parameters.{namespace} must be a mapping of parameters,"
-                    f" got {shorten(repr(flat[namespace]))}"
-                )
-            return {k[len(prefix) :]: v for k, v in flat.items() if k.startswith(prefix)}
-    raise ConfigError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
+        flat = _flatten(entry["ros__parameters"] or {}, path)
+        if namespace in flat:  # the node refuses a value for the section itself too
+            raise ConfigError(
+                f"{path}: ros__parameters.{namespace} must be a mapping of parameters,"
+                f" got {shorten(repr(flat[namespace]))}"
+            )
+        values.update({k[len(prefix) :]: v for k, v in flat.items() if k.startswith(prefix)})
+    return values
 
 
 def detector_config(params_file: str | Path | None, overrides: Sequence[str]) -> DetectorConfig:
@@ -768,13 +805,33 @@ def detector_config(params_file: str | Path | None, overrides: Sequence[str]) ->
     values: dict[str, Any] = {}
     if params_file:
         values.update(load_params_file(params_file))
-        _from_params_file(params_file, DETECTOR_NAMESPACE, values, DetectorConfig())
+        # Each value on its own here, named with its file; the settings together (a
+        # minimum radius over the maximum) once the overrides are in, as the node does.
+        try:
+            check_names(values, DetectorConfig)
+            specs = param_specs()
+            for name, value in values.items():
+                field, spec = specs[name]
+                checked_value(name, field_kind(field), spec, value)
+        except ConfigError as err:
+            raise ConfigError(f"{params_file} ({DETECTOR_NAMESPACE}): {err}") from err
     for item in overrides:
         key, sep, text = item.partition("=")
         if not sep or not key.strip():
             raise ConfigError(f"--param expects key=value, got {item!r}")
+        if key.strip().startswith(f"{TRACKER_NAMESPACE}."):
+            raise ConfigError(
+                f"--param {key.strip()}: tracking settings are read from --params-file "
+                f"(its {TRACKER_NAMESPACE}: section), not --param"
+            )
         values[key.strip()] = parse_value(key.strip(), text)
-    return from_mapping(values)
+    if not params_file:
+        return from_mapping(values)
+    try:
+        return from_mapping(values)
+    except ConfigError as err:
+        given = " and --param" if overrides else ""
+        raise ConfigError(f"{params_file} ({DETECTOR_NAMESPACE}){given}: {err}") from err
 
 
 def tracker_config(params_file: str | Path | None) -> TrackerConfig:

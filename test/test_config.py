@@ -151,15 +151,66 @@ def test_replace_returns_a_validated_copy():
         ("line_check", "false", False),
         ("gdwgif_radius_px", "3", 3),
         ("refinement", "ncc", "ncc"),
+        ("gdwgif_lambda", "1e-6", 1e-6),  # a float to ROS's parameters file, not to YAML 1.1
+        ("min_score", "8e-1", 0.8),
+        ("line_check", "yes", True),
     ],
 )
-def test_parse_value_converts_command_line_text(name, text, value):
-    assert parse_value(name, text) == value
+def test_parse_value_reads_command_line_text_as_a_parameters_file_reads_it(name, text, value):
+    parsed = parse_value(name, text)
+    assert parsed == value and type(parsed) is type(value)
 
 
-def test_parse_value_rejects_text_of_the_wrong_type():
-    with pytest.raises(ConfigError, match="not a valid int"):
-        parse_value("gdwgif_radius_px", "two")
+@pytest.mark.parametrize(
+    ("name", "text", "refused"),
+    [
+        ("gdwgif_radius_px", "two", r"gdwgif_radius_px='two' must be of type int in \[1, 8\] px"),
+        ("gdwgif_radius_px", "2.0", r"must be of type int"),
+        ("line_check", "1", r"line_check=1 must be of type bool"),  # as the file, the node
+        ("min_score", "1.5", r"min_score=1.5 is outside \[0, 1\]"),
+    ],
+)
+def test_parse_value_refuses_what_the_file_and_the_node_refuse_naming_type_and_range(
+    name, text, refused
+):
+    with pytest.raises(ConfigError, match=refused):
+        parse_value(name, text)
+
+
+def test_every_entry_naming_the_node_applies_a_later_ones_values_over_an_earlier_ones(tmp_path):
+    # As rcl applies a launch file's merged parameters: the wildcard and the node's name.
+    path = tmp_path / "params.yaml"
+    path.write_text(
+        "marker_localizer:\n  ros__parameters:\n    detector:\n"
+        "      min_score: 0.6\n      min_contrast_dn: 30.0\n"
+        "other_node:\n  ros__parameters:\n    detector:\n      min_score: 0.1\n"
+        "/**:\n  ros__parameters:\n    detector:\n"
+        "      min_score: 0.5\n      marker_radius_max_px: 60.0\n"
+    )
+    assert load_params_file(path) == {
+        "min_score": 0.5,
+        "min_contrast_dn": 30.0,
+        "marker_radius_max_px": 60.0,
+    }
+
+
+def test_a_files_values_are_checked_together_with_the_command_lines_overrides(tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    detector:\n      marker_radius_min_px: 50.0\n")
+    config = detector_config(path, ["marker_radius_max_px=60"])
+    assert (config.marker_radius_min_px, config.marker_radius_max_px) == (50.0, 60.0)
+    with pytest.raises(
+        ConfigError,
+        match=r"params\.yaml \(detector\): marker_radius_min_px=50\.0 is larger than",
+    ):
+        detector_config(path, [])
+    with pytest.raises(ConfigError, match=r"params\.yaml \(detector\) and --param: "):
+        detector_config(path, ["marker_radius_max_px=45"])
+
+
+def test_a_tracking_setting_given_as_a_param_names_the_file_it_belongs_in():
+    with pytest.raises(ConfigError, match=r"tracker\.enabled: tracking settings are read from"):
+        detector_config(None, ["tracker.enabled=false"])
 
 
 def test_load_params_file_reads_the_detector_section_of_a_node_yaml(tmp_path):
