@@ -204,8 +204,10 @@ class DetectorConfig:
     )
     illumination_window_px: int = _param(
         65,
-        "Side of the box that measures the local mean luminance of Eq. (2); "
-        "larger than the largest marker so a marker does not correct itself.",
+        "Side of the box that measures the local mean luminance of Eq. (2). Near a "
+        "marker's centre, where the checks and the fit read, a box of any size averages "
+        "its four quadrants alike, so a marker does not correct itself; 65 px holds a "
+        "marker of radius 32 px whole.",
         "px",
         3,
         1001,
@@ -262,7 +264,13 @@ class DetectorConfig:
         10.0,
     )
     min_peak_separation_px: float = _param(
-        5.0, "Minimum distance between two candidate peaks (the paper's 5 px).", "px", 1.0, 100.0
+        5.0,
+        "Minimum distance between two candidate peaks on the paper's path (the paper's "
+        "5 px). On the saddle path, detections closer than half of it are one marker, "
+        "and a tracking pass skips the candidates this close to a marker it knows.",
+        "px",
+        1.0,
+        100.0,
     )
     density_sigma_px: float = _param(
         2.0,
@@ -356,7 +364,9 @@ class DetectorConfig:
         f"{TEXTURE_EXTENT_PX:g} px and more); smaller ones need at least "
         f"{TEXTURE_SCORE_FLOORS[1][1]:g} (under {TEXTURE_SCORE_FLOORS[0][0]:g} px: "
         f"{TEXTURE_SCORE_FLOORS[0][1]:g}), where the best texture saddles score 0.87-0.93. "
-        "Real chessboard corners under lens blur score 0.80-1.0.",
+        "Real chessboard corners under lens blur score 0.80-1.0. "
+        + "Not read by refinement='template' (its one decision) nor on the paper's path as "
+        "published (candidate_detector='curvature' with refinement='ncc').",
         low=0.0,
         high=1.0,
     )
@@ -368,7 +378,9 @@ class DetectorConfig:
         "never asks more of a marker): the regime of ground-texture saddles "
         "(stones meeting). "
         "On the simulated flights those scored up to 0.944 and markers of that extent "
-        "0.946 and more (a thin margin: see the README).",
+        "0.946 and more (a thin margin: see the README). "
+        + "Not read by refinement='template' (its one decision) nor on the paper's path as "
+        "published (candidate_detector='curvature' with refinement='ncc').",
         low=0.0,
         high=1.0,
     )
@@ -376,7 +388,9 @@ class DetectorConfig:
         0.1,
         "Largest RMS point-symmetry residual of the final fit, as a fraction of the "
         "marker contrast: markers stay below 0.03 with 4 DN noise, clutter rarely "
-        "below 0.1.",
+        "below 0.1. "
+        + "Not read by refinement='template' (its one decision) nor on the paper's path as "
+        "published (candidate_detector='curvature' with refinement='ncc').",
         low=0.0,
         high=1.0,
     )
@@ -450,7 +464,11 @@ class DetectorConfig:
         50.0,
     )
     ncc_search_px: int = _param(
-        2, "Half-size of the NCC search window around the coarse position.", "px", 1, 10
+        2,
+        "refinement='ncc': half-size of the NCC search window around the coarse position.",
+        "px",
+        1,
+        10,
     )
     refinement_max_iterations: int = _param(
         12, "Gauss-Newton iterations of the symmetry fit; it converges in 3-5.", "", 1, 100
