@@ -64,7 +64,7 @@ _TYPESTORE = Stores.ROS2_JAZZY
 ROS_DISTRO = _TYPESTORE.value.removeprefix("ros2_")
 #: Suffixes of bag files, not of bag directories: an output named with one is
 #: a file name given where rosbag2 makes a directory (``x.mcap/x.mcap.mcap``).
-_BAG_FILE_SUFFIXES = (".mcap", ".db3", ".bag")
+BAG_FILE_SUFFIXES = (".mcap", ".db3", ".bag")
 #: First bytes of a ROS 1 bag (format 2.0, the only one rosbags and ROS 1 since 2010 write).
 _ROS1_MAGIC = b"#ROSBAG V2.0\n"
 #: Suffix of the storage file's name: rosbag2 numbers a bag's files from 0
@@ -456,7 +456,7 @@ class BagWriter:
         self.path = Path(path)
         if storage not in STORAGES:
             raise BagError(f"unknown storage {storage!r}; choose from {', '.join(STORAGES)}")
-        if self.path.suffix.lower() in _BAG_FILE_SUFFIXES:
+        if self.path.suffix.lower() in BAG_FILE_SUFFIXES:
             raise BagError(
                 f"{self.path}: names a bag directory, not a {self.path.suffix} file "
                 f"(a rosbag2 is a directory of its storage file and metadata.yaml); "

@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from marker_localizer.bag.io import BAG_FILE_SUFFIXES
 from marker_localizer.bag.record import record_flight
 from marker_localizer.bag.replay import format_report, replay_bag
 from marker_localizer.cli.arguments import count_type, seed_type
@@ -36,14 +37,22 @@ def run(out_dir: Path, frames: int = 4, seed: int = 7, width: int = 1280, height
     """Simulate, record, replay, report and draw; every output lands in ``out_dir``.
 
     Raises:
-        ConfigError: ``out_dir`` cannot be created (a file of that name, no permission).
+        ConfigError: ``out_dir`` cannot be created (a file of that name, no permission),
+            or holds a ``flight`` or ``markers`` that is not a bag (a second run
+            replaces the bags of the first, nothing else).
     """
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise ConfigError(f"--out {out_dir}: cannot create the folder ({err.strerror})") from err
     flight_bag, result_bag = out_dir / "flight", out_dir / "markers"
-    # Both bags belong to the demo, so a second run replaces them.
+    # A second run replaces the bags of the first; anything else there is the user's.
+    in_the_way = [p for p in (flight_bag, result_bag) if p.exists() and not _is_bag(p)]
+    if in_the_way:
+        raise ConfigError(
+            f"--out {out_dir}: {in_the_way[0]} is not a bag the demo wrote; move it, or "
+            "give another --out"
+        )
     for path in (flight_bag, result_bag):
         shutil.rmtree(path, ignore_errors=True)
     simulator = FlightSimulator(
@@ -62,12 +71,24 @@ def run(out_dir: Path, frames: int = 4, seed: int = 7, width: int = 1280, height
     detector = Detector(config)
     first = simulator.render(0)
     for view in first.cameras:
-        truth = np.array([(m.x, m.y) for m in view.markers]).reshape(-1, 2)
+        # Those the border cuts too: the report excuses their detections, and so
+        # must the picture.
+        truth = np.array([(m.x, m.y) for m in (*view.markers, *view.partial)]).reshape(-1, 2)
         drawn = draw_detections(view.image, detector.detect(view.image).detections, truth)
         path = out_dir / f"{view.camera.name}_frame0.png"
         cv2.imwrite(str(path), drawn)
     print(f"annotated frames: {out_dir}/cam*_frame0.png")
     return 0
+
+
+def _is_bag(path: Path) -> bool:
+    """Whether ``path`` is a closed rosbag2 folder: its metadata and storage files alone."""
+    if not (path / "metadata.yaml").is_file():
+        return False
+    return all(
+        child.is_file() and (child.name == "metadata.yaml" or child.suffix in BAG_FILE_SUFFIXES)
+        for child in path.iterdir()
+    )
 
 
 def main(argv: Sequence[str]) -> int:

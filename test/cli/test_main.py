@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from marker_localizer.cli import BENCHMARKS, COMMANDS, main
+from marker_localizer.errors import ConfigError
 from marker_localizer.node import main as node_main
 
 
@@ -59,6 +60,21 @@ def test_a_demo_folder_that_cannot_be_made_is_one_line(tmp_path, capsys):
     assert capsys.readouterr().err == (
         f"marker-localizer: error: --out {taken}: cannot create the folder (File exists)\n"
     )
+
+
+def test_a_demo_replaces_its_own_bags_and_refuses_to_remove_anything_else(tmp_path, capsys):
+    pytest.importorskip("rclpy")
+    from marker_localizer.cli import demo  # noqa: PLC0415 - needs ROS
+
+    assert demo.run(tmp_path, frames=1, width=320, height=240) == 0
+    assert demo.run(tmp_path, frames=1, width=320, height=240) == 0  # its bags replaced
+    mine = tmp_path / "mine"
+    (mine / "flight").mkdir(parents=True)
+    (mine / "flight" / "keep.txt").write_text("the user's")
+    with pytest.raises(ConfigError, match=r"mine/flight is not a bag the demo wrote"):
+        demo.run(mine, frames=1, width=320, height=240)
+    assert (mine / "flight" / "keep.txt").read_text() == "the user's"
+    assert not (mine / "markers").exists()
 
 
 def _without_ros(monkeypatch):
