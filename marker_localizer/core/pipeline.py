@@ -318,6 +318,12 @@ class Detector:
                 regions=np.hstack([corner, corner + 2]),
             )
         frame = Frame(gray, full_scale, gamma, result, timer)
+        if self.config.candidate_detector == "curvature":
+            # The paper's checks and location, as its full passes read the markers:
+            # another estimator would give another sigma and score on tracked frames.
+            return self._paper.confirm(
+                frame, None, Candidates.seeded(xy, self._search.seed_scale_px)
+            )
         return self._symmetry.confirm_tracked(frame, xy)
 
     def _neutral_only(

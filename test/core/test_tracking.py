@@ -77,6 +77,25 @@ def test_tracking_finds_what_full_frame_detection_finds_at_the_same_positions(mo
     assert full_passes == [1, 0, 0, 0, 0, 0]
 
 
+@pytest.mark.parametrize("refinement", ["ncc", "symmetry"])
+def test_the_papers_path_tracks_with_its_own_location_and_sigma(moving_frames, refinement):
+    # Its tracked frames were located by the default path's fit: sigma 0.476 px on a
+    # full pass, 0.028 px on the tracked frame after it, and back again.
+    config = _detector().config.replace(candidate_detector="curvature", refinement=refinement)
+    detector = Detector(config)
+    tracker = MarkerTracker(detector)
+    for k, (image, _) in enumerate(moving_frames[:4]):
+        tracked, full = tracker.update(image, stamp_s=0.1 * k), detector.detect(image)
+        assert tracked.counts["full_frame"] == (k == 0)
+        pairs = match_points(tracked.as_array()[:, :2], full.as_array()[:, :2], gate_px=0.01)
+        assert len(pairs.truth_index) == len(full) == len(tracked) > 0
+        np.testing.assert_allclose(
+            tracked.as_array()[pairs.detection_index, 3],
+            full.as_array()[pairs.truth_index, 3],
+            rtol=0.05,
+        )
+
+
 def test_a_full_frame_pass_runs_every_full_frame_every_frames(moving_frames):
     tracker = MarkerTracker(_detector(), TrackerConfig(full_frame_every=3))
     passes = [
