@@ -73,6 +73,8 @@ class PaperPath:
             )
             counts["rejected_symmetry"] = int((~keep).sum())
             xy, radius = check.xy[keep], check.radius_px[keep]
+            survivors = frame.result.survivors
+            survivors.append(("symmetry", xy))
             angles, score = check.line_angles[keep], check.score[keep]
             unique = screening.non_maximum_suppression(xy, score, self.config.merge_radius_px)
             counts["merged_duplicates"] = int((~unique).sum())
@@ -87,6 +89,7 @@ class PaperPath:
             ok = template.template_evidence(score, ncc, cfg.template_ncc_min)
             counts["rejected_template"] = int((~ok).sum())
             xy, radius, angles = xy[ok], radius[ok], angles[ok]
+            survivors.append(("template", xy))
             # The default fit's score floors were set on its ring symmetry x NCC; the
             # annular score of edge phases runs lower on markers, so the fit takes the
             # template NCC alone as the checks' evidence.
@@ -104,6 +107,7 @@ class PaperPath:
                 counts["rejected_lines"] = int((~ok).sum())
                 xy, radius, angles, score = xy[ok], radius[ok], angles[ok], score[ok]
                 angles = verification.agreed_line_angles(lines.line_angles[ok], angles)
+                survivors.append(("lines", xy))
             else:
                 counts["rejected_lines"] = 0
             capped = screening.even_cap_index(xy, score, MAX_LOCATED, cfg.entropy_cell_px)
@@ -111,6 +115,7 @@ class PaperPath:
                 counts.get("dropped_over_verification_cap", 0) + len(xy) - len(capped)
             )
             xy, radius, angles, score = xy[capped], radius[capped], angles[capped], score[capped]
+            survivors.append(("fit_cap", xy))
         if noise is not None:
             start = self._template_fit.fit_start(radius)
             self._template_fit.fit_and_decide(gray, noise, xy, angles, start, result, timer)
@@ -131,6 +136,8 @@ class PaperPath:
             located, matched = subpixel.ncc_gates(fit)
             counts["rejected_refinement"] = int((~located).sum())
             counts["rejected_score"] = int((located & ~matched).sum())
+            survivors.append(("refinement", fit.offset[located]))
+            survivors.append(("score", fit.offset[matched]))
             order = np.flatnonzero(matched)
             order = order[np.argsort(-score[order])]
             result.detections = detections_of(

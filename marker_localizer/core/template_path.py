@@ -90,6 +90,7 @@ class TemplatePath:
                 candidates, angles = self.straight_edges(
                     gray, full_scale, candidates, angles, result.counts
                 )
+                result.survivors.append(("lines", candidates.xy))
         if len(seeded):
             candidates = Candidates.concat([candidates, seeded])
             angles = np.vstack(
@@ -229,6 +230,7 @@ class TemplatePath:
             for index, reason in enumerate(decision.REASONS):
                 counts[f"rejected_{reason}"] = int((verdict.reason == index).sum())
             result.verdicts = decision.Verdicts(grown.fit.shape.xy, verdict, evidence)
+            result.survivors.append(("decision", grown.fit.shape.xy[verdict.accepted]))
         with timer("subpixel"):
             accepted = verdict.accepted
             fit = template_fit.refit_on_every_pixel(gray, grown, accepted, cfg.marker_radius_max_px)

@@ -17,6 +17,7 @@ from encoded_images import (
     with_tiff_orientation,
 )
 
+from marker_localizer import Detector, DetectorConfig
 from marker_localizer.cli import main
 from marker_localizer.synthetic.scene import bayer_gain
 
@@ -320,6 +321,30 @@ def test_why_says_a_marker_was_found_or_which_test_lost_it(x_image, capsys):
     ]
     assert main(["detect", str(path), "--why", "5,58"]) == 0
     assert "expected at (5, 58): lost at the screening test" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("params", "lost_at"),
+    [
+        (["template_ncc_min=0.9999"], "template"),
+        (["candidate_detector=curvature", "refinement=ncc", "template_ncc_min=0.9999"], "template"),
+    ],
+    ids=["default", "paper's path"],
+)
+def test_why_names_the_test_that_lost_a_marker_on_every_path(x_image, capsys, params, lost_at):
+    # The paper's and the template's paths listed no survivor after their first test:
+    # a marker a later test rejected read "every test kept a candidate near it".
+    path, _ = x_image
+    args = ["detect", str(path), "--why", "31.5,31.5", "--json"]
+    assert main([*args, *(arg for p in params for arg in ("--param", p))]) in (0, 1)
+    (why,) = json.loads(capsys.readouterr().out)["why"]
+    assert why == {"x": 31.5, "y": 31.5, "found": False, "lost_at": lost_at}
+
+
+def test_the_template_decisions_path_lists_what_passed_each_of_its_tests(x_image):
+    found = Detector(DetectorConfig(refinement="template")).detect(x_image[1])
+    assert [test for test, _ in found.survivors] == ["screening", "prescreen", "lines", "decision"]
+    assert len(found) == 1  # two candidates passed the decision, merged into one marker
 
 
 def test_why_takes_a_point_off_the_top_left_edge_with_negative_coordinates(x_image, capsys):
