@@ -712,17 +712,17 @@ def _yaml() -> Any:
 _YAML_12_FLOAT = re.compile(r"^[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$")
 
 
+@functools.cache
 def _ros_yaml_loader() -> type:
     """PyYAML's safe loader that reads a float as ROS's parameters file does (``1e-6``)."""
     yaml = _yaml()
 
-    class RosYamlLoader(yaml.SafeLoader):  # type: ignore[name-defined]
-        pass
-
-    RosYamlLoader.add_implicit_resolver(
+    # A subclass of its own: the resolver would otherwise join every SafeLoader's.
+    loader: type = type("RosYamlLoader", (yaml.SafeLoader,), {})
+    loader.add_implicit_resolver(  # type: ignore[attr-defined]
         "tag:yaml.org,2002:float", _YAML_12_FLOAT, list("-+0123456789.")
     )
-    return RosYamlLoader
+    return loader
 
 
 def _yaml_scalar(text: str) -> Any:
