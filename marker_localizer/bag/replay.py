@@ -173,6 +173,7 @@ class ReplayReport:
             bytes do not decode, or decode to points without x and y.
         damage: What the reader could not read, one line each.
         unread_topics: Image topics not read, each with why (:func:`unread_image_topics`).
+        match_distance_px: the largest detection-to-truth distance of a match, px.
     """
 
     bag: Path
@@ -184,6 +185,7 @@ class ReplayReport:
     undecodable: dict[str, int] = field(default_factory=dict)
     damage: list[str] = field(default_factory=list)
     unread_topics: dict[str, str] = field(default_factory=dict)
+    match_distance_px: float = DEFAULT_GATE_PX
 
     @property
     def complete(self) -> bool:
@@ -211,7 +213,7 @@ class ReplayReport:
         return DetectionTally.merged(parts) if parts else None
 
 
-def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_PX) -> str:
+def format_report(report: ReplayReport) -> str:
     """The summary tables replay prints: throughput per camera, then accuracy if truth exists."""
     cams = list(report.cameras.values())
     lines = [
@@ -275,7 +277,8 @@ def format_report(report: ReplayReport, match_distance_px: float = DEFAULT_GATE_
     if overall is None:
         return "\n".join(lines)
     lines += [
-        f"accuracy against {TRUTH_SUFFIX} (one-to-one matches within {match_distance_px:g} px; "
+        f"accuracy against {TRUTH_SUFFIX} (one-to-one matches within "
+        f"{report.match_distance_px:g} px; "
         f"{INTERVAL_HEADING} intervals widened by the spread between frames):",
         f"{'camera':<12}{'truth':>7}{'recall':>8}{INTERVAL_HEADING:>13}{'FP/frame':>10}"
         f"{INTERVAL_HEADING:>12}"
@@ -795,6 +798,7 @@ def replay_bag(
         undecodable,
         damage,
         unread,
+        match_distance_px,
     )
 
 

@@ -279,7 +279,7 @@ def replay(argv: Sequence[str]) -> int:
         )
     finally:
         bar.close()
-    sys.stdout.write(format_report(report, args.match_distance) + "\n")
+    sys.stdout.write(format_report(report) + "\n")
     return 0 if report.complete else EXIT_INCOMPLETE
 
 

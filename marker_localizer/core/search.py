@@ -145,7 +145,7 @@ class CandidateSearch:
         self,
         gray: NDArray[Any],
         full_scale: float,
-        regions: NDArray[np.float64],
+        regions: NDArray[np.int64],
         cut: dict[str, int],
         gamma: preprocessing.LocalGamma | None,
     ) -> Candidates:

@@ -739,7 +739,7 @@ class SymmetryPath:
                 xy,
                 radius,
                 extend_px=cfg.line_extend_px,
-                max_distance_px=max(cfg.line_max_distance_px, 0.0),
+                max_distance_px=cfg.line_max_distance_px,
                 full_scale=frame.full_scale,
                 stretch=self._shadowed.gain_at(frame.gamma, xy),
             )

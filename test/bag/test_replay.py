@@ -357,6 +357,11 @@ def test_replay_refuses_a_match_distance_that_is_not_a_positive_distance(
     assert not (tmp_path / "out").exists()
 
 
+def test_the_report_names_the_match_distance_the_replay_used(flight_bag, tmp_path):
+    report = replay_bag(flight_bag, tmp_path / "out", match_distance_px=5.0, workers=1)
+    assert "one-to-one matches within 5 px" in format_report(report)
+
+
 def test_simulate_refuses_an_existing_output_and_a_bad_configuration(tmp_path, capsys):
     taken = tmp_path / "taken"
     taken.mkdir()

@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
+from marker_localizer.config import DetectorConfig
 from marker_localizer.core import verification
 from marker_localizer.core.screening import Candidates
 from marker_localizer.synthetic import MarkerPlacement, render_markers
@@ -128,9 +129,16 @@ def test_analyse_rings_counts_four_sectors_only_on_an_x():
     assert rings.symmetry[0, 0] > 0.99 > rings.symmetry[1, 0]
 
 
+#: The double line check as the detector runs it, at the configuration's defaults.
+LINE_CHECK = {
+    "extend_px": DetectorConfig().line_extend_px,
+    "max_distance_px": DetectorConfig().line_max_distance_px,
+}
+
+
 def test_double_line_check_accepts_an_x_and_returns_its_two_lines():
     image = np.clip(_render("checker", rotation=0.3) * 255, 0, 255).astype(np.uint8)
-    lines = verification.double_line_check(image, CENTRE, np.array([20.0]))
+    lines = verification.double_line_check(image, CENTRE, np.array([20.0]), **LINE_CHECK)
     assert lines.accepted[0]
     assert lines.distance_px[0] < 1.0
     expected = np.sort(np.array([0.3, 0.3 + np.pi / 2]) % np.pi)
@@ -144,7 +152,7 @@ def test_double_line_check_finds_the_lines_of_an_x_whose_white_paint_clips(kind,
     # to opposite sides: halves of different lines cross 2.1-2.6 px from the centre.
     # The lines midway between each line's halves cross at it.
     image = np.clip(np.round(exposure * _render(kind, blur=blur) * 255), 0, 255).astype(np.uint8)
-    lines = verification.double_line_check(image, CENTRE, np.array([20.0]), max_distance_px=2.0)
+    lines = verification.double_line_check(image, CENTRE, np.array([20.0]), **LINE_CHECK)
     assert lines.accepted[0]
     assert lines.distance_px[0] < 0.5
     expected = np.sort(np.array([0.3, 0.3 + np.pi / 2]) % np.pi)
@@ -156,7 +164,7 @@ def test_double_line_check_pairs_a_lines_halves_only_where_its_window_clips():
     # by clipping, and halves that miss the centre by 2 px are no X's line.
     exposed = np.clip(np.round(3.0 * _render("quarter_disks", blur=2.0) * 255), 0, 255)
     dimmed = np.round(0.97 * exposed).astype(np.uint8)
-    lines = verification.double_line_check(dimmed, CENTRE, np.array([20.0]), max_distance_px=2.0)
+    lines = verification.double_line_check(dimmed, CENTRE, np.array([20.0]), **LINE_CHECK)
     assert not lines.accepted[0]
     assert lines.distance_px[0] > 2.0
 
@@ -164,7 +172,7 @@ def test_double_line_check_pairs_a_lines_halves_only_where_its_window_clips():
 def test_double_line_check_rejects_a_single_straight_edge():
     image = np.full((128, 128), 40, np.uint8)
     image[:, 64:] = 200
-    lines = verification.double_line_check(image, CENTRE, np.array([20.0]))
+    lines = verification.double_line_check(image, CENTRE, np.array([20.0]), **LINE_CHECK)
     assert not lines.accepted[0]
 
 
