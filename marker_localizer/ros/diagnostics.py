@@ -92,6 +92,10 @@ WINDOW_MAX_FRAMES = 1 << 16
 #: thread may reach the statistics after a later time read by another; those stay
 #: far below a second.
 CLOCK_JUMP_BACK_S = 1.0
+#: A clock that read 0 and then reads more than this had not started, s: ``use_sim_time``
+#: before the first /clock reads 0, and a bag's clock then starts at its recording's
+#: date. A simulator's own clock starting from 0 moves on without such a jump.
+CLOCK_START_JUMP_S = 3600.0
 #: Fewest stamp gaps from which a camera's frame period is estimated: a second
 #: of a 10 Hz camera; with fewer, nothing is counted as lost.
 _MIN_STAMP_GAPS = 8
@@ -280,16 +284,22 @@ class CameraStats:
         self._results: deque[_Delivered] = deque()
 
     def _follow_clock(self, now_ns: int) -> None:
-        """Under the lock: restart the windows where the clock went back (module docstring)."""
-        if now_ns < self._latest_ns - CLOCK_JUMP_BACK_S * _NS_PER_S:
+        """Under the lock: restart the windows where the clock went back (module docstring).
+
+        Or where it starts: a clock that read 0 had not started (``use_sim_time``
+        before the first /clock), and its first time, a bag's, is a jump forward of
+        decades, after which every frame before it would have waited that long.
+        """
+        started = self._latest_ns == 0 and now_ns > CLOCK_START_JUMP_S * _NS_PER_S
+        if started or now_ns < self._latest_ns - CLOCK_JUMP_BACK_S * _NS_PER_S:
             windows = (self._received_at, self._stamps, self._dropped_at, self._processed_at)
             for window in (*windows, self._results):
                 window.clear()
             self._start_ns = now_ns
             if self._last_frame_ns is not None:
-                self._last_frame_ns = min(self._last_frame_ns, now_ns)
+                self._last_frame_ns = now_ns if started else min(self._last_frame_ns, now_ns)
             if self._last_error_ns is not None:
-                self._last_error_ns = min(self._last_error_ns, now_ns)
+                self._last_error_ns = now_ns if started else min(self._last_error_ns, now_ns)
             self._latest_ns = now_ns
         self._latest_ns = max(self._latest_ns, now_ns)
 
@@ -523,6 +533,8 @@ def frames_lost_upstream(
 
 
 def _percentile(values: np.ndarray, q: float) -> float:
+    """The ``q``-th percentile of the values that are not NaN (NaN: none)."""
+    values = values[~np.isnan(values)]
     return float(np.percentile(values, q)) if values.size else math.nan
 
 

@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import math
 import multiprocessing
 import os
 import signal
@@ -95,6 +96,7 @@ from marker_localizer.ros.conversions import (
     message_to_detector_input,
 )
 from marker_localizer.ros.diagnostics import (
+    CLOCK_START_JUMP_S,
     CameraSnapshot,
     CameraStats,
     DiagnosticThresholds,
@@ -894,10 +896,14 @@ class FrameProcessor:
 
         Where that clock went back since the frame arrived (a bag played again with
         ``use_sim_time``), the difference would be negative and the frame never too
-        old, however long it waited: its wait is then read on the steady clock.
+        old, however long it waited; where it had not started (``use_sim_time``
+        before the first /clock reads 0), the difference would be decades. Its wait
+        is then read on the steady clock.
         """
         waited_ns = now_ns - frame.received_ns
-        return waited_ns if waited_ns >= 0 else self._steady_ns() - frame.received_steady_ns
+        if waited_ns < 0 or (frame.received_ns == 0 and waited_ns > CLOCK_START_JUMP_S * _NS_PER_S):
+            return self._steady_ns() - frame.received_steady_ns
+        return waited_ns
 
     def _process(self, frame: _Frame) -> None:
         stats = self._stats[frame.camera]
@@ -933,7 +939,10 @@ class FrameProcessor:
         stats.frame_processed(
             now_ns,
             latency_ms=(delivered_steady_ns - frame.received_steady_ns) / 1e6,
-            clock_offset_s=(frame.received_ns - stamp_to_ns(header)) / _NS_PER_S,
+            # NaN before the clock started (use_sim_time before the first /clock: 0).
+            clock_offset_s=(frame.received_ns - stamp_to_ns(header)) / _NS_PER_S
+            if frame.received_ns
+            else math.nan,
             markers=len(detections),
             capped=sum(result.counts.get(key, 0) for key in CAP_COUNTS),
             rereads_capped=sum(result.counts.get(key, 0) for key in SECOND_READING_CAP_COUNTS),

@@ -112,6 +112,24 @@ def test_a_camera_silent_while_a_sim_time_clock_stands_still_is_error_on_the_ste
     assert camera_level(replayed.snapshot(clock, 117 * S), LIMITS)[0] == OK
 
 
+def test_a_sim_time_clock_that_starts_at_a_bags_date_restarts_the_windows_from_there():
+    # use_sim_time before the first /clock reads 0; the bag's clock then starts at its
+    # recording's date, decades later.
+    bag_start = 1_700_000_000 * S
+    stats = CameraStats("cam0", start_ns=0, window_s=10.0)
+    stats.frame_received(0, stamp_ns=bag_start)
+    stats.frame_processed(bag_start + S // 10, 30.0, float("nan"), 1)
+    snap = stats.snapshot(bag_start + S)
+    assert snap.since_last_frame_s == 0.9 and snap.received == 1  # from the first /clock
+    assert camera_level(snap, LIMITS)[0] == OK
+    silent = CameraStats("cam1", start_ns=0, window_s=10.0)
+    assert camera_level(silent.snapshot(bag_start), LIMITS)[0] == OK  # the start, not 1970
+    assert camera_level(silent.snapshot(bag_start + 3 * S), LIMITS) == (
+        ERROR,
+        "no frame since start, 3.0 s",
+    )
+
+
 def test_failed_frame_keeps_the_camera_at_error_for_one_window():
     stats, now = healthy_camera()
     stats.frame_failed(now, "ImageError: unsupported encoding 'nv24'")

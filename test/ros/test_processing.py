@@ -715,6 +715,34 @@ def test_a_frame_is_processed_with_the_whole_of_a_reconfiguration_or_none_of_it(
     assert set(seen) <= {(0.8, 1.5), (0.6, 2.5)}
 
 
+def test_a_frame_that_arrived_before_a_sim_time_clock_started_is_not_too_old_when_it_does():
+    bag_start = 1_700_000_000 * 10**9
+    now = [0]
+    collect = Collector()
+    processor = FrameProcessor(
+        ["cam0"],
+        DetectorConfig(),
+        collect,
+        workers=1,
+        max_frame_age_s=2.0,
+        clock_ns=lambda: now[0],
+    )
+    try:
+        collect.release.clear()
+        processor.submit("cam0", stamped(1))  # taken by the worker, held
+        wait_until(collect.entered.is_set, "the worker to take frame 1")
+        processor.submit("cam0", stamped(2))  # waits, at clock 0
+        now[0] = bag_start  # the first /clock
+        collect.release.set()
+        assert processor.wait_idle(TIMEOUT_S)
+        snap = processor.snapshots()["cam0"]
+    finally:
+        processor.shutdown(TIMEOUT_S)
+    assert [sec for _, sec, _ in collect.results] == [1, 2]
+    assert snap.dropped_age == 0
+    assert np.isnan(snap.clock_offset_s)
+
+
 def test_the_caps_cuts_and_the_second_readings_unread_are_summed_apart():
     class Capped(FrameProcessor):
         def detect(self, camera, frame, stamp_s):
