@@ -1,13 +1,14 @@
-"""SIGINT and SIGTERM stop every long-running command the same way; a second one stops it at once.
+"""SIGINT, SIGTERM and SIGHUP stop every long-running command alike; a second stops it at once.
 
 Service managers and ``ros2 launch`` send SIGTERM (launch: SIGINT, then SIGTERM
-5 s later, then SIGKILL 5 s after that), a user presses Ctrl-C: the first of
-either starts a clean stop (the node drains its frames in flight, a bag
-command removes its unfinished output). A second one, while that stop is under
-way, stops at once: it interrupts whatever the stop is waiting for (the frames
-in flight are abandoned, their worker processes ended), the process still
-tidies up what is its own (shared memory, worker processes: nothing is left for
-Python's resource tracker to warn about) and exits 128 + the signal's number
+5 s later, then SIGKILL 5 s after that), a user presses Ctrl-C, a closed terminal
+or a dropped ssh session sends SIGHUP: the first of any starts a clean stop (the
+node drains its frames in flight, a bag command removes its unfinished output).
+A second one, while that stop is under way, stops at once: it interrupts
+whatever the stop is waiting for (the frames in flight are abandoned, their
+worker processes ended), the process still tidies up what is its own (shared
+memory, worker processes: nothing is left for Python's resource tracker to warn
+about) and exits 128 + the signal's number
 with one line naming it (:func:`run_interruptible`). A third, or a second where
 no second action is given, has the signals' default action: it ends the
 process where it stands, even where the stop hangs; what that leaves behind (a
@@ -29,8 +30,10 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import NoReturn
 
-#: The signals that stop a command.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: The signals that stop a command. SIGHUP's default action would end the process
+#: without a stop, and with the worker processes' resource tracker, their shared
+#: memory left in /dev/shm for good.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 #: Stop signals handled in this process so far, by any :func:`on_stop_signal` block
 #: (a block nested in another tells the outer one so).
@@ -38,7 +41,7 @@ _handled = [0]
 
 
 class Interrupted(KeyboardInterrupt):
-    """SIGINT or SIGTERM arrived: unwind (writers remove their staging), then exit.
+    """A stop signal arrived: unwind (writers remove their staging), then exit.
 
     A KeyboardInterrupt, so that every ``except KeyboardInterrupt`` and
     ``finally`` treats SIGTERM (what service managers and ``ros2 launch``

@@ -64,7 +64,9 @@ SIMULATE_SIGNALLING_ITSELF = """
 """
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+@pytest.mark.parametrize(
+    "signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=["SIGTERM", "SIGINT", "SIGHUP"]
+)
 def test_a_signal_during_simulate_removes_the_unfinished_bag_and_exits_128_plus_it(
     tmp_path, signum
 ):
