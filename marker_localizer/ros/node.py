@@ -240,11 +240,21 @@ class MarkerLocalizerNode(Node):
 
         The drain waits at most ``shutdown_timeout_s`` and says for which cameras;
         after the processor was told to abandon its frames (the second signal), not
-        at all, and silently: the line that names the signal says it.
+        at all, and silently: the line that names the signal says it. Where the ROS
+        context is shut down already (rclpy's own Ctrl-C handling, in a program that
+        spins the node itself), the frames in flight are abandoned, in one line.
         """
         timeout_s = self._live.node_config.shutdown_timeout_s
         in_flight = self.processor.in_flight()
-        if in_flight:
+        if in_flight and not self.context.ok():
+            # rclpy's own Ctrl-C handling shut the context down first (spin, then
+            # destroy_node, in a program of the user's): nothing can be published.
+            self.processor.abandon()
+            self.get_logger().info(
+                "stopping: the ROS context is shut down, the frames in flight cannot be "
+                f"published and are abandoned ({', '.join(in_flight)})"
+            )
+        elif in_flight:
             self.get_logger().info(
                 f"stopping: waiting up to {timeout_s:g} s for the frames in flight "
                 f"({', '.join(in_flight)})"

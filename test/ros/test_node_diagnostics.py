@@ -9,6 +9,7 @@ import threading
 
 import numpy as np
 import pytest
+import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from node_testing import (
@@ -106,6 +107,33 @@ def test_shutdown_waits_at_most_shutdown_timeout_for_frames_in_flight_and_names_
     finally:
         release.set()
         peer.stop()
+
+
+def test_a_node_destroyed_after_its_context_shut_down_abandons_its_frames_in_one_line(capfd):
+    """rclpy's own Ctrl-C handling (spin, then destroy_node, in a user's program) shuts
+    the context down first: the drain published into it, and each frame in flight failed
+    with an RCLError traceback."""
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    processor_class, release = holding("cam0")
+    node = MarkerLocalizerNode(
+        "gone_localizer",
+        context=context,
+        processor_class=processor_class,
+        parameter_overrides=[Parameter("cameras", value=["cam0"])],
+    )
+    try:
+        node.processor.submit("cam0", stamped(1))
+        wait_until(lambda: node.processor.in_flight() == ["cam0"], "cam0's frame held")
+        context.shutdown()
+        node.destroy_node()
+        assert node.processor.abandoned
+    finally:
+        release.set()
+        context.try_shutdown()
+    err = capfd.readouterr().err
+    assert "the ROS context is shut down, the frames in flight cannot be published" in err
+    assert "Traceback" not in err and "frame failed" not in err
 
 
 def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros, capfd):
