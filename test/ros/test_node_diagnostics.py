@@ -120,7 +120,11 @@ def test_a_node_destroyed_after_its_context_shut_down_abandons_its_frames_in_one
         "gone_localizer",
         context=context,
         processor_class=processor_class,
-        parameter_overrides=[Parameter("cameras", value=["cam0"])],
+        # Threads: the stand-in holds the frame before it would reach a worker process.
+        parameter_overrides=[
+            Parameter("cameras", value=["cam0"]),
+            Parameter("worker_processes", value=False),
+        ],
     )
     try:
         node.processor.submit("cam0", stamped(1))
