@@ -20,6 +20,8 @@ from typing import Any, Literal, TypeVar, get_args, overload
 import numpy as np
 
 from marker_localizer.core.chroma import CHROMA_MIN_EXTENT_PX
+from marker_localizer.core.preprocessing import MAX_SHADOW_GAIN
+from marker_localizer.core.screening import EXPECTED_BLUR_PX
 from marker_localizer.core.verification import (
     EQUALISED_MIN_EXTENT_PX,
     SMALL_EXTENT_MAX_RADIUS_PX,
@@ -249,7 +251,8 @@ class DetectorConfig:
     saddle_threshold: float = _param(
         1.5,
         "Saddle screening keeps Hessian saddles stronger than this multiple of what an "
-        "X of contrast min_contrast_dn blurred by 1.5 px gives. On the renderer every "
+        f"X of contrast min_contrast_dn blurred by {EXPECTED_BLUR_PX:g} px gives. On the "
+        "renderer every "
         "marker scored above 2.3 (3-5 px markers) and 3.2 (6-40 px, motion blur).",
         low=0.05,
         high=20.0,
@@ -324,7 +327,8 @@ class DetectorConfig:
         "texture saddles mostly stay below 20 DN. The raw-level floors (screening, "
         "prescreen, fit, line detection) follow the light down where the local mean is "
         "too dark for a marker of min_modulation to reach it (under 33 DN at the "
-        "defaults), at most 4-fold. From 1 DN, a grey level: the screening measures each "
+        f"defaults), at most {MAX_SHADOW_GAIN:g}-fold. From 1 DN, a grey level: the "
+        "screening measures each "
         "saddle against the response of an X of this contrast.",
         unit="DN",
         low=1.0,

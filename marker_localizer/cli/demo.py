@@ -33,7 +33,17 @@ from marker_localizer.synthetic.flight import FlightConfig, FlightSimulator
 DEMO_RADIUS_RANGE_PX = (4.0, 30.0)
 
 
-def run(out_dir: Path, frames: int = 4, seed: int = 7, width: int = 1280, height: int = 960) -> int:
+#: The demo's flight: frames per camera, and the seed of its world and noise.
+DEMO_FRAMES, DEMO_SEED = 4, 7
+
+
+def run(
+    out_dir: Path,
+    frames: int = DEMO_FRAMES,
+    seed: int = DEMO_SEED,
+    width: int = 1280,
+    height: int = 960,
+) -> int:
     """Simulate, record, replay, report and draw; every output lands in ``out_dir``.
 
     Raises:
@@ -104,12 +114,15 @@ def main(argv: Sequence[str]) -> int:
         help="folder for the two bags and the annotated frames (default: %(default)s)",
     )
     parser.add_argument(
-        "--frames", type=count_type, default=4, help="frames per camera (default: %(default)s)"
+        "--frames",
+        type=count_type,
+        default=DEMO_FRAMES,
+        help="frames per camera (default: %(default)s)",
     )
     parser.add_argument(
         "--seed",
         type=seed_type,
-        default=7,
+        default=DEMO_SEED,
         help="seed of the simulated world and its noise (default: %(default)s)",
     )
     args = parser.parse_args(argv)

@@ -171,7 +171,7 @@ _BINOMIAL_3 = np.array([1.0, 2.0, 1.0], np.float32)
 _SADDLE_PER_CONTRAST = 1.0 / np.pi
 #: The optics blur the markers are expected to carry (full-resolution px): at level L
 #: it is 2**L times smaller, so the expected response grows with the level.
-_EXPECTED_BLUR_PX = 1.5
+EXPECTED_BLUR_PX = 1.5
 
 
 #: The shorter side of a pyramid level under which it is not reduced further, px: a
@@ -1093,7 +1093,7 @@ def saddle_candidates(
             )
         if level < levels.start:
             continue
-        blur_sq = (_EXPECTED_BLUR_PX / 2**level) ** 2
+        blur_sq = (EXPECTED_BLUR_PX / 2**level) ** 2
         expected = _SOBEL5_GAIN * _SADDLE_PER_CONTRAST * min_contrast / (1.0 + blur_sq)
         threshold = relative_threshold * expected
         u0, v0, u1, v1 = _level_window(window, level, level_image.shape)
