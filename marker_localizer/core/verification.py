@@ -59,9 +59,15 @@ RECENTRE_MAX_PX = 3.0
 #: ... and the largest departure from 180 degrees when the crossings are paired only to
 #: find where the lines cross (a line 1.5 px off the centre of a 3 px ring: 60 degrees).
 RECENTRE_PHASE_ERROR_RAD = np.deg2rad(60.0)
-#: Largest change of a line's angle between the rings of one run: over the spread of a
+#: Largest change of a line's angle between the rings of one run of the paper's
+#: annular check by edge phase (:func:`edge_phase_check`): over the spread of a
 #: marker's own rings.
 MAX_LINE_DRIFT_RAD = np.deg2rad(8.0)
+#: The same for the default path's ring check (:func:`centre_symmetry_check`), whose
+#: line directions come from the rings' symmetric profiles, not their edge phases.
+MAX_RING_LINE_DRIFT_RAD = np.deg2rad(15.0)
+#: A run of good rings starts on one of this many innermost rings.
+MAX_FIRST_RING = 2
 #: Widest blur (Gaussian sigma, px) that may dim the innermost rings of an X's run
 #: (:func:`blurred_contrast_share`): optics of up to 1.5 px (the package's renderer and
 #: the independent one), with a 4 px motion blur's 1.2 px along it, 1.9 px.
@@ -97,10 +103,9 @@ PRESCREEN_GOOD_RINGS = 3
 #: its last ring that shows the X, reads up to this factor short of its shortest reach.
 RING_STEP = float(np.sqrt(2.0))
 #: Rings that say where an X's lines cross (:func:`line_crossing_centres`): those a
-#: run of good rings may start on and the next (:func:`centre_symmetry_check`'s
-#: ``max_first_ring`` of 2, plus one), so among those the check reads for every point
-#: first, whose samples they take.
-LINE_CROSSING_RINGS = 3
+#: run of good rings may start on and the next (:data:`MAX_FIRST_RING`, plus one), so
+#: among those the check reads for every point first, whose samples they take.
+LINE_CROSSING_RINGS = MAX_FIRST_RING + 1
 #: Slack of the extent test, px: the ring ladder's radii are products of floats, and a
 #: ring exactly at the required extent passes.
 _EXTENT_SLACK_PX = 1e-9
@@ -730,8 +735,8 @@ def centre_symmetry_check(
     *,
     min_contrast: float,
     min_symmetry: float,
-    max_angle_drift_rad: float = np.deg2rad(15.0),
-    max_first_ring: int = 2,
+    max_angle_drift_rad: float = MAX_RING_LINE_DRIFT_RAD,
+    max_first_ring: int = MAX_FIRST_RING,
     normalise: Normaliser | None = None,
     equalise: bool = False,
     inner_profiles: NDArray[np.float64] | None = None,
@@ -908,7 +913,7 @@ def centre_symmetry_inner_profiles(
     xy: NDArray[np.float64],
     radii_px: NDArray[np.float64],
     *,
-    max_first_ring: int = 2,
+    max_first_ring: int = MAX_FIRST_RING,
     normalise: Normaliser | None = None,
 ) -> NDArray[np.float64]:
     """(N, K, 36) the rings :func:`centre_symmetry_check` reads first for every point.
@@ -1381,7 +1386,7 @@ def edge_phase_check(
     *,
     min_contrast: float,
     max_angle_drift_rad: float = MAX_LINE_DRIFT_RAD,
-    max_first_ring: int = 2,
+    max_first_ring: int = MAX_FIRST_RING,
     max_phase_error_rad: float = MAX_PHASE_ERROR_RAD,
     recentre_px: float = RECENTRE_MAX_PX,
     normalise: Normaliser | None = None,
