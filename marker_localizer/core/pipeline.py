@@ -245,8 +245,9 @@ class Detector:
         their gates and the score follow
         (:meth:`~marker_localizer.core.symmetry_path.SymmetryPath.confirm_tracked`);
         the extent, line angles and evidence given are not used. On
-        ``refinement=template`` the given extent and line angles start the grown
-        fit. A position within a pixel or so of the centre gives the centre
+        ``refinement=template`` the given line angles and a start from the given
+        extent (:meth:`~marker_localizer.core.template_path.TemplatePath.tracked_fit_start`)
+        begin the grown fit. A position within a pixel or so of the centre gives the centre
         :meth:`detect` reports; a marker no longer there fails a check or the fit.
         The ground around a marker, its plate and the lattice test, is what the
         :meth:`detect` that found it judged, and is not read again. Each marker is
@@ -303,9 +304,8 @@ class Detector:
         if self.config.refinement == "template":
             with timer("noise"):
                 noise = estimate_noise(gray, full_scale)
-            self._template.fit_and_decide(
-                gray, noise, xy, line_angles, self._template.fit_start(radius_px), result, timer
-            )
+            start = self._template.tracked_fit_start(radius_px)
+            self._template.fit_and_decide(gray, noise, xy, line_angles, start, result, timer)
             return result
         with timer("preprocessing"):
             # The local means of Eq. (2) at the markers alone, for the fit's contrast floor.

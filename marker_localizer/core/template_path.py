@@ -174,6 +174,21 @@ class TemplatePath:
             _FIT_START_SCALE * scale_px, _FIT_MIN_START_PX, self.config.marker_radius_max_px
         )
 
+    def tracked_fit_start(self, extent_px: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The fit's first region radius for a tracked marker of this extent, px.
+
+        That of a candidate of the pyramid level whose scale is the largest not over
+        the extent, as a full pass screens such a marker. From the extent itself, the
+        region started wider than any candidate's, and under sharp optics the fit
+        found a second minimum 0.08-0.18 px off on tracked frames (mean error 0.020-
+        0.027 px against the full passes' 0.005-0.011 on the same frames; from the
+        level's scale 0.005-0.009: docs/reliability.md).
+        """
+        level = np.floor(
+            np.log2(np.maximum(extent_px, screening.LEVEL_SCALE_PX) / screening.LEVEL_SCALE_PX)
+        )
+        return self.fit_start(screening.LEVEL_SCALE_PX * 2.0**level)
+
     def fit_and_decide(
         self,
         gray: NDArray[Any],
