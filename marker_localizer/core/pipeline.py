@@ -244,11 +244,14 @@ class Detector:
         its extent and line directions on this frame, and its template, the fit,
         their gates and the score follow
         (:meth:`~marker_localizer.core.symmetry_path.SymmetryPath.confirm_tracked`);
-        the extent, line angles and evidence given are not used. On
+        on the paper's path (``candidate_detector=curvature``) its checks and
+        location read it (:meth:`~marker_localizer.core.paper_path.PaperPath.confirm`).
+        On both the extent, line angles and evidence given are not used. On
         ``refinement=template`` the given line angles and a start from the given
-        extent (:meth:`~marker_localizer.core.template_path.TemplatePath.tracked_fit_start`)
-        begin the grown fit. A position within a pixel or so of the centre gives the centre
-        :meth:`detect` reports; a marker no longer there fails a check or the fit.
+        extent
+        (:meth:`~marker_localizer.core.template_path.TemplatePath.tracked_fit_start`)
+        begin the grown fit. A position within a pixel or so of the centre gives the
+        centre :meth:`detect` reports; a marker no longer there fails a check or the fit.
         The ground around a marker, its plate and the lattice test, is what the
         :meth:`detect` that found it judged, and is not read again. Each marker is
         read as a candidate of the first pyramid level, without the second readings:
