@@ -49,7 +49,7 @@ import re
 import textwrap
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import rclpy.utilities
 from rcl_interfaces.msg import (
@@ -408,8 +408,8 @@ class LiveParameters:
         except (InvalidParameterValueException, InvalidParameterTypeException) as err:
             raise ConfigError(str(err)) from err
         self.node_config = NodeConfig(**node_values)
-        self.detector_config = from_mapping(values[DetectorConfig])
-        self.tracker_config = from_mapping(values[TrackerConfig], base=TrackerConfig())
+        self.detector_config = _namespaced(values[DetectorConfig], DetectorConfig())
+        self.tracker_config = _namespaced(values[TrackerConfig], TrackerConfig())
         node.add_pre_set_parameters_callback(self._coerce)
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._apply)
@@ -451,8 +451,8 @@ class LiveParameters:
                 node_changes[p.name] = p.value
         return (
             dataclasses.replace(self.node_config, **node_changes),
-            from_mapping(changes[DetectorConfig], base=self.detector_config),
-            from_mapping(changes[TrackerConfig], base=self.tracker_config),
+            _namespaced(changes[DetectorConfig], self.detector_config),
+            _namespaced(changes[TrackerConfig], self.tracker_config),
         )
 
     def _validate(self, parameters: list[Parameter]) -> SetParametersResult:
@@ -465,6 +465,19 @@ class LiveParameters:
     def _apply(self, parameters: list[Parameter]) -> None:
         self.node_config, self.detector_config, self.tracker_config = self._merged(parameters)
         self._on_change(self.node_config, self.detector_config, self.tracker_config)
+
+
+_Settings = TypeVar("_Settings", DetectorConfig, TrackerConfig)
+
+
+def _namespaced(changes: dict[str, Any], base: _Settings) -> _Settings:
+    """:func:`from_mapping`, its error naming each setting as the node does (``detector.x``)."""
+    try:
+        return from_mapping(changes, base=base)
+    except ConfigError as err:
+        namespace = _NAMESPACES[type(base)]
+        names = "|".join(re.escape(name) for name in param_specs(type(base)))
+        raise ConfigError(re.sub(rf"\b({names})=", rf"{namespace}.\1=", str(err))) from err
 
 
 _YAML_WIDTH = 96

@@ -97,7 +97,7 @@ def test_a_change_during_a_frame_in_flight_applies_from_the_next_frame(ros):
         (
             "detector.marker_radius_min_px",
             50.0,
-            "marker_radius_min_px=50.0 is larger than marker_radius_max_px=40.0",
+            "detector.marker_radius_min_px=50.0 is larger than detector.marker_radius_max_px=40.0",
         ),
         ("detector.refinement", "magic", "refinement='magic' must be one of symmetry, ncc"),
         ("detector.marker_radius_max_px", "big", "Wrong parameter type"),
@@ -434,7 +434,10 @@ def test_atomic_request_with_one_invalid_value_applies_nothing(localizer, tester
         atomically=True,
     )
     assert not result.successful
-    assert "marker_radius_min_px=70.0 is larger than marker_radius_max_px=60.0" in result.reason
+    assert (
+        "detector.marker_radius_min_px=70.0 is larger than detector.marker_radius_max_px=60.0"
+        in result.reason
+    )
     assert tester.get_parameter("/inproc/marker_localizer", "detector.marker_radius_max_px") == 40.0
     assert localizer.processor.config.marker_radius_max_px == 40.0
 
@@ -448,8 +451,9 @@ def test_non_atomic_request_applies_each_parameter_on_its_own_in_order(localizer
         )
         assert first.successful  # valid alone: applied before the second is looked at
         assert not second.successful
-        assert "marker_radius_min_px=70.0 is larger than marker_radius_max_px=60.0" in (
-            second.reason
+        assert (
+            "detector.marker_radius_min_px=70.0 is larger than detector.marker_radius_max_px=60.0"
+            in (second.reason)
         )
         assert tester.get_parameter(node, "detector.marker_radius_max_px") == 60.0
         assert tester.get_parameter(node, "detector.marker_radius_min_px") == 4.0
