@@ -147,7 +147,9 @@ def test_node_process_serves_worker_threads_on_one_blas_thread(ros):
 def test_node_process_exits_with_status_1_on_invalid_configuration():
     result = run_to_exit(node_command(MODULE, "-p", "detector.marker_radius_min_px:=50.0"))
     assert result.returncode == 1
-    assert "invalid configuration: marker_radius_min_px=50.0 is larger than" in result.stderr
+    assert (
+        "invalid configuration: detector.marker_radius_min_px=50.0 is larger than" in result.stderr
+    )
     assert "Traceback" not in result.stderr
 
 
