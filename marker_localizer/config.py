@@ -136,6 +136,13 @@ def refuses_unknown_names(kind: type[_Dataclass]) -> type[_Dataclass]:
     return kind
 
 
+#: What the default path's score gates say of the other paths, which do not read them.
+_NOT_READ_BY_TEMPLATE_OR_PAPER = (
+    "Not read by refinement='template' (its one decision) nor on the paper's path as "
+    "published (candidate_detector='curvature' with refinement='ncc')."
+)
+
+
 @refuses_unknown_names
 @dataclass(frozen=True)
 class DetectorConfig:
@@ -368,9 +375,7 @@ class DetectorConfig:
         f"{TEXTURE_EXTENT_PX:g} px and more); smaller ones need at least "
         f"{TEXTURE_SCORE_FLOORS[1][1]:g} (under {TEXTURE_SCORE_FLOORS[0][0]:g} px: "
         f"{TEXTURE_SCORE_FLOORS[0][1]:g}), where the best texture saddles score 0.87-0.93. "
-        "Real chessboard corners under lens blur score 0.80-1.0. "
-        + "Not read by refinement='template' (its one decision) nor on the paper's path as "
-        "published (candidate_detector='curvature' with refinement='ncc').",
+        "Real chessboard corners under lens blur score 0.80-1.0. " + _NOT_READ_BY_TEMPLATE_OR_PAPER,
         low=0.0,
         high=1.0,
     )
@@ -382,9 +387,7 @@ class DetectorConfig:
         "never asks more of a marker): the regime of ground-texture saddles "
         "(stones meeting). "
         "On the simulated flights those scored up to 0.944 and markers of that extent "
-        "0.946 and more (a thin margin: see the README). "
-        + "Not read by refinement='template' (its one decision) nor on the paper's path as "
-        "published (candidate_detector='curvature' with refinement='ncc').",
+        "0.946 and more (a thin margin: see the README). " + _NOT_READ_BY_TEMPLATE_OR_PAPER,
         low=0.0,
         high=1.0,
     )
@@ -392,9 +395,7 @@ class DetectorConfig:
         0.1,
         "Largest RMS point-symmetry residual of the final fit, as a fraction of the "
         "marker contrast: markers stay below 0.03 with 4 DN noise, clutter rarely "
-        "below 0.1. "
-        + "Not read by refinement='template' (its one decision) nor on the paper's path as "
-        "published (candidate_detector='curvature' with refinement='ncc').",
+        "below 0.1. " + _NOT_READ_BY_TEMPLATE_OR_PAPER,
         low=0.0,
         high=1.0,
     )
@@ -697,8 +698,13 @@ def parse_value(name: str, text: str) -> Any:
         ConfigError: an unknown name, or a value its setting refuses.
     """
     check_names([name], DetectorConfig)
+    return _checked_setting(name, _yaml_scalar(text))
+
+
+def _checked_setting(name: str, value: Any) -> Any:
+    """:func:`checked_value` of the detector setting ``name`` (a known one)."""
     field, spec = param_specs()[name]
-    return checked_value(name, field_kind(field), spec, _yaml_scalar(text))
+    return checked_value(name, field_kind(field), spec, value)
 
 
 def _yaml() -> Any:
@@ -791,13 +797,9 @@ def load_params_file(
     if not isinstance(document, dict):
         raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
     names = {node_name, f"/{node_name}", f"/**/{node_name}", "/**", "**"}
-    entries = [
-        entry
-        for key, entry in document.items()
-        if key in names and isinstance(entry, dict) and "ros__parameters" in entry
-    ]
+    entries = [e for key, e in document.items() if key in names and _holds_parameters(e)]
     if not entries and len(document) == 1:
-        entries = [e for e in document.values() if isinstance(e, dict) and "ros__parameters" in e]
+        entries = [e for e in document.values() if _holds_parameters(e)]
     if not entries:
         raise ConfigError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
     prefix = f"{namespace}."
@@ -811,6 +813,11 @@ def load_params_file(
             )
         values.update({k[len(prefix) :]: v for k, v in flat.items() if k.startswith(prefix)})
     return values
+
+
+def _holds_parameters(entry: Any) -> bool:
+    """Whether a parameters file's entry is a node's: a mapping with ``ros__parameters``."""
+    return isinstance(entry, dict) and "ros__parameters" in entry
 
 
 def detector_config(params_file: str | Path | None, overrides: Sequence[str]) -> DetectorConfig:
@@ -831,27 +838,26 @@ def detector_config(params_file: str | Path | None, overrides: Sequence[str]) ->
         # minimum radius over the maximum) once the overrides are in, as the node does.
         try:
             check_names(values, DetectorConfig)
-            specs = param_specs()
             for name, value in values.items():
-                field, spec = specs[name]
-                checked_value(name, field_kind(field), spec, value)
+                _checked_setting(name, value)
         except ConfigError as err:
             raise ConfigError(f"{params_file} ({DETECTOR_NAMESPACE}): {err}") from err
     for item in overrides:
         key, sep, text = item.partition("=")
-        if not sep or not key.strip():
+        name = key.strip()
+        if not sep or not name:
             raise ConfigError(f"--param expects key=value, got {item!r}")
-        if key.strip().startswith(f"{TRACKER_NAMESPACE}."):
+        if name.startswith(f"{TRACKER_NAMESPACE}."):
             raise ConfigError(
-                f"--param {key.strip()}: tracking settings are read from --params-file "
+                f"--param {name}: tracking settings are read from --params-file "
                 f"(its {TRACKER_NAMESPACE}: section), not --param"
             )
-        values[key.strip()] = parse_value(key.strip(), text)
-    if not params_file:
-        return from_mapping(values)
+        values[name] = parse_value(name, text)
     try:
         return from_mapping(values)
     except ConfigError as err:
+        if not params_file:
+            raise
         given = " and --param" if overrides else ""
         raise ConfigError(f"{params_file} ({DETECTOR_NAMESPACE}){given}: {err}") from err
 

@@ -411,15 +411,13 @@ def _webp_frames(data: Encoded) -> int:
 
 def _gif_frames(data: Encoded) -> int:
     """The image blocks of a GIF, up to its trailer (GIF89a's specification, sections 17-27)."""
-    packed = data[10]
-    at = 13 + (3 << ((packed & 0x07) + 1) if packed & 0x80 else 0)  # a global colour table
+    at = 13 + _gif_colour_table_bytes(data[10])  # the global colour table
     frames = 0
     with contextlib.suppress(IndexError):  # cut short: the frames before are counted
         while data[at] != _GIF_TRAILER:
             if data[at] == _GIF_IMAGE:
                 frames += 1
-                packed = data[at + 9]
-                at += 10 + (3 << ((packed & 0x07) + 1) if packed & 0x80 else 0)
+                at += 10 + _gif_colour_table_bytes(data[at + 9])  # and its local table
                 at += 1  # the LZW code size
             elif data[at] == _GIF_EXTENSION:
                 at += 2
@@ -429,6 +427,11 @@ def _gif_frames(data: Encoded) -> int:
                 at += 1 + data[at]
             at += 1
     return max(frames, 1)
+
+
+def _gif_colour_table_bytes(packed: int) -> int:
+    """Bytes of the colour table a GIF descriptor's packed field announces (0: none)."""
+    return 3 << ((packed & 0x07) + 1) if packed & 0x80 else 0
 
 
 def _in_stored_order(data: Encoded) -> Encoded:

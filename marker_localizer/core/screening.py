@@ -697,6 +697,16 @@ def candidate_scale(level: int, radius_range_px: tuple[float, float]) -> float:
     return cast("float", scale)
 
 
+def level_scale_within(extent_px: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N,) the scale 4 * 2**L of the coarsest level whose scale is not over ``extent_px``, px.
+
+    Where a full pass screens a marker of that extent (an extent under the full
+    resolution's scale: that scale).
+    """
+    octaves = np.floor(np.log2(np.maximum(extent_px, LEVEL_SCALE_PX) / LEVEL_SCALE_PX))
+    return cast("NDArray[np.float64]", LEVEL_SCALE_PX * 2.0**octaves)
+
+
 def level_scale(scale_px: NDArray[np.float64]) -> NDArray[np.float64]:
     """(N,) the scale 4 * 2**L of the level that found candidates of ``scale_px``, px.
 

@@ -689,7 +689,7 @@ class SymmetryPath:
         """
         counts = frame.result.counts
         for key in ("dull_read", "kept_dull", "dull_over_cap"):
-            counts[key] = counts.get(key, 0)
+            counts.setdefault(key, 0)
         if frame.slope_centred:
             return candidates, ring
         reading = second_reading.read_dull(

@@ -184,10 +184,7 @@ class TemplatePath:
         0.027 px against the full passes' 0.005-0.011 on the same frames; from the
         level's scale 0.005-0.009: docs/reliability.md).
         """
-        level = np.floor(
-            np.log2(np.maximum(extent_px, screening.LEVEL_SCALE_PX) / screening.LEVEL_SCALE_PX)
-        )
-        return self.fit_start(screening.LEVEL_SCALE_PX * 2.0**level)
+        return self.fit_start(screening.level_scale_within(extent_px))
 
     def fit_and_decide(
         self,

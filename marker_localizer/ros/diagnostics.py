@@ -96,6 +96,13 @@ CLOCK_JUMP_BACK_S = 1.0
 #: before the first /clock reads 0, and a bag's clock then starts at its recording's
 #: date. A simulator's own clock starting from 0 moves on without such a jump.
 CLOCK_START_JUMP_S = 3600.0
+
+
+def clock_started_since(then_ns: int, now_ns: int) -> bool:
+    """Whether a clock that read ``then_ns`` had not started then (:data:`CLOCK_START_JUMP_S`)."""
+    return then_ns == 0 and now_ns > CLOCK_START_JUMP_S * _NS_PER_S
+
+
 #: Fewest stamp gaps from which a camera's frame period is estimated: a second
 #: of a 10 Hz camera; with fewer, nothing is counted as lost.
 _MIN_STAMP_GAPS = 8
@@ -290,7 +297,7 @@ class CameraStats:
         before the first /clock), and its first time, a bag's, is a jump forward of
         decades, after which every frame before it would have waited that long.
         """
-        started = self._latest_ns == 0 and now_ns > CLOCK_START_JUMP_S * _NS_PER_S
+        started = clock_started_since(self._latest_ns, now_ns)
         if started or now_ns < self._latest_ns - CLOCK_JUMP_BACK_S * _NS_PER_S:
             windows = (self._received_at, self._stamps, self._dropped_at, self._processed_at)
             for window in (*windows, self._results):

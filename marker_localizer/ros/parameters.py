@@ -467,10 +467,10 @@ class LiveParameters:
         self._on_change(self.node_config, self.detector_config, self.tracker_config)
 
 
-_Settings = TypeVar("_Settings", DetectorConfig, TrackerConfig)
+_Config = TypeVar("_Config", DetectorConfig, TrackerConfig)
 
 
-def _namespaced(changes: dict[str, Any], base: _Settings) -> _Settings:
+def _namespaced(changes: dict[str, Any], base: _Config) -> _Config:
     """:func:`from_mapping`, its error naming each setting as the node does (``detector.x``)."""
     try:
         return from_mapping(changes, base=base)

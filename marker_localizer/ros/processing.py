@@ -96,11 +96,11 @@ from marker_localizer.ros.conversions import (
     message_to_detector_input,
 )
 from marker_localizer.ros.diagnostics import (
-    CLOCK_START_JUMP_S,
     CameraSnapshot,
     CameraStats,
     DiagnosticThresholds,
     camera_status,
+    clock_started_since,
     diagnostic_array,
     node_status,
 )
@@ -901,7 +901,7 @@ class FrameProcessor:
         is then read on the steady clock.
         """
         waited_ns = now_ns - frame.received_ns
-        if waited_ns < 0 or (frame.received_ns == 0 and waited_ns > CLOCK_START_JUMP_S * _NS_PER_S):
+        if waited_ns < 0 or clock_started_since(frame.received_ns, now_ns):
             return self._steady_ns() - frame.received_steady_ns
         return waited_ns
 
