@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 from rclpy.exceptions import InvalidTopicNameException
 from rclpy.validate_full_topic_name import validate_full_topic_name
-from sensor_msgs.msg import CompressedImage, Image, PointCloud2, PointField
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from marker_localizer.core.image import BAYER_PATTERNS, bayer_to_grey
@@ -471,6 +471,22 @@ def unsupported_encoding(encoding: str) -> ImageError:
     return ImageError(
         f"unsupported encoding {shorten(repr(encoding))}{reason} (expected one of {ENCODINGS_TEXT})"
     )
+
+
+def camera_info_image_size(info: CameraInfo) -> tuple[int, int] | None:
+    """The (width, height) of the images ``info`` describes, px; None where it gives no size.
+
+    Its ``width`` x ``height`` is the sensor's at calibration; a region of interest
+    (``roi``, in those unbinned pixels) cuts the images to its size, and binning
+    divides them (``binning_x`` 2: half as wide), as sensor_msgs/CameraInfo defines
+    both (0 in each is the full sensor, unbinned). A driver of an uncalibrated camera
+    publishes 0 x 0.
+    """
+    if not info.width or not info.height:
+        return None
+    width = info.roi.width or info.width
+    height = info.roi.height or info.height
+    return width // max(info.binning_x, 1), height // max(info.binning_y, 1)
 
 
 def topic_name_problem(topic: str) -> str | None:

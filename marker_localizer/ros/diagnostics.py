@@ -26,7 +26,9 @@ Levels of a camera:
   (:func:`~marker_localizer.core.image.bit_depth_hint`); or, where that does not
   say why, every frame delivered in the window stayed under
   :data:`~marker_localizer.core.image.DIM_PEAK_SHARE` of white: underexposed for
-  its markers (:func:`~marker_localizer.core.image.underexposed`).
+  its markers (:func:`~marker_localizer.core.image.underexposed`); or the camera's
+  camera_info describes images of another size than its frames (a pose estimator
+  would project with intrinsics for other pixels: :func:`camera_info_mismatch`).
 * OK otherwise.
 
 Full-frame passes are counted beside the frames processed, not judged: with
@@ -195,6 +197,7 @@ class CameraSnapshot:
         bit_depth_hint: the bit depth the 16-bit frames of the window fit, where
             the configured one leaves them all dim
             (:func:`~marker_localizer.core.image.bit_depth_hint`); None otherwise.
+        frame_size: (width, height) of the newest processed frame, px (None: none yet).
     """
 
     camera: str
@@ -225,6 +228,7 @@ class CameraSnapshot:
     since_last_error_s: float | None
     peak_share: float = math.nan
     bit_depth_hint: int | None = None
+    frame_size: tuple[int, int] | None = None
 
 
 class _Delivered(NamedTuple):
@@ -282,6 +286,7 @@ class CameraStats:
         self._last_frame_steady_ns = start_steady_ns
         self._last_error = ""
         self._last_error_ns: int | None = None
+        self._frame_size: tuple[int, int] | None = None
         # Bounded by count too (WINDOW_MAX_FRAMES); _received_at and _stamps stay aligned.
         self._received_at: deque[int] = deque(maxlen=max_window_frames)
         self._stamps: deque[int] = deque(maxlen=max_window_frames)  # of each in _received_at
@@ -356,6 +361,7 @@ class CameraStats:
         peak: float = math.nan,
         bit_depth: int = 0,
         full_frame: bool = True,
+        frame_size: tuple[int, int] | None = None,
     ) -> None:
         """Count a delivered result.
 
@@ -372,10 +378,12 @@ class CameraStats:
                 8-bit frame.
             full_frame: whether the detector searched the whole frame (every frame
                 does without tracking), or tracking confirmed its markers.
+            frame_size: the frame's (width, height), px (None: not read).
         """
         with self._lock:
             self._follow_clock(now_ns)
             self._processed += 1
+            self._frame_size = frame_size or self._frame_size
             self._full_frame_passes += full_frame
             self._frames_capped += capped > 0
             self._candidates_capped += capped
@@ -459,6 +467,7 @@ class CameraStats:
                 bit_depth_hint=bit_depth_hint(max(r.peak for r in deep), deep[-1].bit_depth)
                 if deep
                 else None,
+                frame_size=self._frame_size,
             )
 
 
@@ -549,12 +558,18 @@ def _mean(values: Sequence[float]) -> float:
     return float(np.mean(values)) if values else math.nan
 
 
-def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> tuple[int, str]:
+def camera_level(
+    snapshot: CameraSnapshot,
+    thresholds: DiagnosticThresholds,
+    camera_info_size: tuple[int, int] | None = None,
+) -> tuple[int, str]:
     """Level (OK, WARN or ERROR) and a one-line reason for one camera.
 
     Args:
         snapshot: the camera's statistics.
         thresholds: limits; see the module docstring for the rules.
+        camera_info_size: the (width, height) of the images the camera's camera_info
+            describes, px (:func:`camera_info_mismatch`); None: none received.
 
     Returns:
         (level, message); every rule that fires is named in the message,
@@ -600,11 +615,40 @@ def camera_level(snapshot: CameraSnapshot, thresholds: DiagnosticThresholds) -> 
         warnings.append(bit_depth_warning(snapshot.bit_depth_hint))
     elif underexposed(snapshot.peak_share):
         warnings.append(underexposure_warning(snapshot.peak_share))
+    mismatch = camera_info_mismatch(snapshot.frame_size, camera_info_size)
+    if mismatch is not None:
+        warnings.append(mismatch)
     if errors:
         return ERROR, "; ".join(errors + warnings)
     if warnings:
         return WARN, "; ".join(warnings)
     return OK, "ok"
+
+
+def camera_info_mismatch(
+    frame_size: tuple[int, int] | None, camera_info_size: tuple[int, int] | None
+) -> str | None:
+    """The warning for frames of another size than their camera_info describes (None: none).
+
+    The points are pixels of the frames; a consumer that projects them with this
+    camera_info would use intrinsics calibrated for other pixels (a driver
+    publishing its full-resolution calibration beside binned or scaled images).
+
+    Args:
+        frame_size: (width, height) of the camera's newest processed frame, px.
+        camera_info_size: (width, height) of the images its camera_info describes, px
+            (:func:`~marker_localizer.ros.conversions.camera_info_image_size`).
+    """
+    if frame_size is None or camera_info_size is None or frame_size == camera_info_size:
+        return None
+    return (
+        f"camera_info is for {_size_text(camera_info_size)} images, the frames are "
+        f"{_size_text(frame_size)}: its intrinsics do not fit the points"
+    )
+
+
+def _size_text(size: tuple[int, int] | None) -> str:
+    return "none processed" if size is None else f"{size[0]}x{size[1]}"
 
 
 def bit_depth_warning(hint: int) -> str:
@@ -645,6 +689,7 @@ def camera_status(
     snapshot: CameraSnapshot,
     thresholds: DiagnosticThresholds,
     extra: Mapping[str, str] | None = None,
+    camera_info_size: tuple[int, int] | None = None,
 ) -> DiagnosticStatus:
     """Build the DiagnosticStatus of one camera.
 
@@ -653,11 +698,13 @@ def camera_status(
         snapshot: the camera's statistics.
         thresholds: limits that decide the level.
         extra: further key/value pairs to append (e.g. camera_info size).
+        camera_info_size: the image size its camera_info describes, px, which the
+            frames' must be (:func:`camera_level`).
 
     Returns:
         Status named ``"<node name>: <camera>"`` with ``hardware_id`` = camera.
     """
-    level, message = camera_level(snapshot, thresholds)
+    level, message = camera_level(snapshot, thresholds, camera_info_size)
     lost, rate_hz = frames_lost_upstream(
         snapshot.window_stamps_ns, snapshot.window_arrivals_ns, thresholds.expected_rate_hz
     )
@@ -679,6 +726,7 @@ def camera_status(
         "latency p50 (ms)": f"{snapshot.latency_p50_ms:.1f}",
         "latency p95 (ms)": f"{snapshot.latency_p95_ms:.1f}",
         "clock offset p50 (s)": f"{snapshot.clock_offset_s:.3f}",
+        "frame size": _size_text(snapshot.frame_size),
         "markers per frame": f"{snapshot.markers_per_frame:.2f}",
         "peak level in window (% of white)": f"{100.0 * snapshot.peak_share:.1f}",
         "lost upstream in window": str(lost),

@@ -14,7 +14,8 @@ Topics, relative to the node's namespace and remappable as usual:
   the parameter ``qos_overrides./<cam>/image_raw.subscription.reliability`` if your
   driver publishes best effort.
 * in ``<cam>/camera_info`` (sensor_msgs/CameraInfo), cached and reported in
-  the diagnostics when published; best effort, so that reliable and best-effort
+  the diagnostics when published, a WARN where it describes images of another
+  size than the camera's frames; best effort, so that reliable and best-effort
   publishers alike match.
 * out ``<cam>/marker_points`` (sensor_msgs/PointCloud2, layout in
   :mod:`marker_localizer.ros.conversions`): one per processed frame, with the
@@ -61,6 +62,7 @@ from marker_localizer.ros.conversions import (
     IMAGE_TRANSPORTS,
     OVERLAY_SUFFIX,
     POINTS_SUFFIX,
+    camera_info_image_size,
     topic_name_problem,
 )
 from marker_localizer.ros.parameters import (
@@ -212,6 +214,9 @@ class MarkerLocalizerNode(Node):
                 self._thresholds,
                 snapshots=snapshots,
                 camera_values={c: {"camera_info": self._info_text(c)} for c in snapshots},
+                camera_info_sizes={
+                    c: camera_info_image_size(info) for c, info in self._camera_info.items()
+                },
             )
         )
 

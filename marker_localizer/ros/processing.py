@@ -123,10 +123,13 @@ class InputLevels(NamedTuple):
     Attributes:
         peak: the brightest level (:func:`~marker_localizer.core.image.peak_level`).
         sixteen_bit: the pixels are 16-bit (their bit depth is then judged).
+        size: the frame's (width, height), px, which its camera_info must describe;
+            None: not read.
     """
 
     peak: float
     sixteen_bit: bool
+    size: tuple[int, int] | None = None
 
 
 _NS_PER_S = 1_000_000_000
@@ -300,7 +303,9 @@ def _detect_frame(
     if isinstance(frame, EncodedFrame):
         frame = frame.decode(detector.config.max_pixels)
     result = detector.detect(frame) if tracker is None else tracker.update(frame, stamp_s)
-    levels = InputLevels(peak_level(frame), frame.dtype == np.uint16)
+    levels = InputLevels(
+        peak_level(frame), frame.dtype == np.uint16, (frame.shape[1], frame.shape[0])
+    )
     return DetectionResult(result.detections, result.counts, result.timings_ms), tracker, levels
 
 
@@ -575,6 +580,7 @@ class FrameProcessor:
         *,
         snapshots: Mapping[str, CameraSnapshot] | None = None,
         camera_values: Mapping[str, Mapping[str, str]] | None = None,
+        camera_info_sizes: Mapping[str, tuple[int, int] | None] | None = None,
         node_values: Mapping[str, str] | None = None,
     ) -> DiagnosticArray:
         """The /diagnostics content of this pool: a status per camera and one for the node.
@@ -588,12 +594,17 @@ class FrameProcessor:
             thresholds: limits that decide each camera's level.
             snapshots: the cameras' statistics (default: :meth:`snapshots`, now).
             camera_values: per camera, further key/value pairs of its status.
+            camera_info_sizes: per camera, the image size its camera_info describes
+                (:func:`~marker_localizer.ros.conversions.camera_info_image_size`),
+                which its frames' must be; a camera missing here is not judged.
             node_values: further key/value pairs of the node's status.
         """
         snapshots = self.snapshots() if snapshots is None else snapshots
-        extra = camera_values or {}
+        extra, info_sizes = camera_values or {}, camera_info_sizes or {}
         statuses = [
-            camera_status(node_name, snapshot, thresholds, extra.get(camera))
+            camera_status(
+                node_name, snapshot, thresholds, extra.get(camera), info_sizes.get(camera)
+            )
             for camera, snapshot in snapshots.items()
         ]
         config = self.config
@@ -950,6 +961,7 @@ class FrameProcessor:
             bit_depth=config.bit_depth if levels.sixteen_bit else 0,
             # Without tracking the detector's result counts no "full_frame": every frame is one.
             full_frame=bool(result.counts.get("full_frame", 1)),
+            frame_size=levels.size,
         )
         if settings.publish_overlay and self._on_overlay is not None:
             # Drawn once the cloud is out: a pose estimator does not wait for a picture.

@@ -30,7 +30,7 @@ from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from scenes import panning_frames
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from marker_localizer.ros.diagnostics import ERROR, OK, WARN
 from marker_localizer.ros.node import MarkerLocalizerNode
@@ -302,6 +302,45 @@ def test_a_flood_of_bad_frames_costs_no_good_frame_and_keeps_diagnostics_small(r
         finally:
             stop.set()
             flooder.join(TIMEOUT_S)
+
+
+def test_a_camera_info_for_another_frame_size_is_a_warning_naming_both_sizes(ros):
+    """A pose estimator would project the 64x64 frames' points with 128x128 intrinsics.
+
+    The camera's status says its frames' size; a camera_info of the same sensor whose
+    binning halves its 128x128 describes them.
+    """
+    settings = {"cameras": ["cam0"], "diagnostics_period_s": 0.1, "input_timeout_s": 600.0}
+    with serving("caminfo", settings) as (node, peer):
+        peer.listen("/diagnostics", DiagnosticArray)
+        info_publisher = peer.node.create_publisher(CameraInfo, "cam0/camera_info", 1)
+        wait_until(lambda: info_publisher.get_subscription_count() > 0, "the node on camera_info")
+        frame = peer.frame(x_marker_64())
+        peer.publish("cam0/image_raw", frame)
+        wait_until(lambda: node.processor.snapshots()["cam0"].processed == 1, "the frame")
+
+        for binning, level, message in [
+            (0, WARN, "camera_info is for 128x128 images, the frames are 64x64"),
+            (2, OK, "ok"),
+        ]:
+            info = CameraInfo(header=frame.header, width=128, height=128)
+            info.binning_x = info.binning_y = binning
+
+            def status_at(level=level, info=info):
+                info_publisher.publish(info)  # best effort: the node keeps the newest
+                for array_msg in reversed(peer.messages("/diagnostics")[-3:]):
+                    for status in array_msg.status:
+                        values = values_of(status)
+                        if (status.hardware_id, values.get("camera_info")) == (
+                            "cam0",
+                            "128x128",
+                        ) and (level_of(status) == level):
+                            return status
+                return None
+
+            status = wait_until(status_at, f"cam0 at level {level}, binning {binning}")
+            assert status.message.startswith(message)
+            assert values_of(status)["frame size"] == "64x64"
 
 
 def test_frames_lost_before_the_node_show_in_its_diagnostics_with_the_figure(ros):
