@@ -1,9 +1,15 @@
 """Per-camera statistics and /diagnostics messages in diagnostic_updater's conventions.
 
 diagnostic_updater is not available as a wheel, so this module reproduces its
-conventions: one DiagnosticStatus per task named ``"<node name>: <task>"``, here
-one per camera (``hardware_id`` = camera name) plus one for the node, values as
-KeyValue strings whose keys carry their units (``"latency p95 (ms)"``).
+conventions: one DiagnosticStatus per task named ``"<node>: <task>"``, here
+one per camera plus one for the node, values as KeyValue strings whose keys carry
+their units (``"latency p95 (ms)"``). ``<node>`` is the node's fully qualified
+name without its leading slash (:func:`qualified_name`), as ROS 1's updater named
+it: ``marker_localizer`` in the root namespace, which is ROS 2's updater's name
+too, and ``uav1/marker_localizer`` under ``/uav1``, where ROS 2's (without its
+``use_fqn``) names the nodes of every namespace alike, and an aggregator merges
+them. A camera's ``hardware_id`` is the camera qualified the same way (``cam0``,
+``uav1/cam0``), the node's its qualified name.
 
 Levels of a camera:
 
@@ -684,25 +690,36 @@ def drop_report(
     return f"{snapshot.camera}: {replaced + waited} frame(s) dropped: {'; '.join(reasons)}"
 
 
+def qualified_name(namespace: str, name: str) -> str:
+    """``name`` in ``namespace``, without a leading slash: the statuses' names and ids.
+
+    ``("/", "cam0")`` is ``cam0``, ``("/uav1", "cam0")`` is ``uav1/cam0``.
+    """
+    return f"{namespace.strip('/')}/{name}".lstrip("/")
+
+
 def camera_status(
     node_name: str,
     snapshot: CameraSnapshot,
     thresholds: DiagnosticThresholds,
     extra: Mapping[str, str] | None = None,
     camera_info_size: tuple[int, int] | None = None,
+    namespace: str = "/",
 ) -> DiagnosticStatus:
     """Build the DiagnosticStatus of one camera.
 
     Args:
-        node_name: node name without namespace (diagnostic_updater's prefix).
+        node_name: node name without namespace.
         snapshot: the camera's statistics.
         thresholds: limits that decide the level.
         extra: further key/value pairs to append (e.g. camera_info size).
         camera_info_size: the image size its camera_info describes, px, which the
             frames' must be (:func:`camera_level`).
+        namespace: the node's namespace.
 
     Returns:
-        Status named ``"<node name>: <camera>"`` with ``hardware_id`` = camera.
+        Status named ``"<node>: <camera>"``, ``hardware_id`` the camera, each
+        qualified by the namespace (:func:`qualified_name`).
     """
     level, message = camera_level(snapshot, thresholds, camera_info_size)
     lost, rate_hz = frames_lost_upstream(
@@ -741,11 +758,16 @@ def camera_status(
         "window (s)": f"{thresholds.window_s:g}",
         **(extra or {}),
     }
-    return _status(level, f"{node_name}: {snapshot.camera}", message, snapshot.camera, values)
+    node = qualified_name(namespace, node_name)
+    camera = qualified_name(namespace, snapshot.camera)
+    return _status(level, f"{node}: {snapshot.camera}", message, camera, values)
 
 
 def node_status(
-    node_name: str, cameras: Sequence[DiagnosticStatus], values: Mapping[str, str]
+    node_name: str,
+    cameras: Sequence[DiagnosticStatus],
+    values: Mapping[str, str],
+    namespace: str = "/",
 ) -> DiagnosticStatus:
     """Build the node's own status: the worst camera level and which cameras cause it.
 
@@ -753,9 +775,11 @@ def node_status(
         node_name: node name without namespace.
         cameras: the camera statuses built by :func:`camera_status`.
         values: node-wide key/value pairs (workers, frames in flight, ...).
+        namespace: the node's namespace.
 
     Returns:
-        Status named ``"<node name>: node"`` with ``hardware_id`` = node name.
+        Status named ``"<node>: node"`` with ``hardware_id`` ``<node>``, the node's
+        name qualified by the namespace (:func:`qualified_name`).
     """
     level = max((_level_of(s) for s in cameras), default=OK)
     problems = [
@@ -764,7 +788,8 @@ def node_status(
         if _level_of(s) != OK
     ]
     message = "; ".join(problems) if problems else f"all {len(cameras)} cameras ok"
-    return _status(level, f"{node_name}: node", message, node_name, values)
+    node = qualified_name(namespace, node_name)
+    return _status(level, f"{node}: node", message, node, values)
 
 
 def diagnostic_array(stamp: Time, statuses: Sequence[DiagnosticStatus]) -> DiagnosticArray:

@@ -204,12 +204,11 @@ class MarkerLocalizerNode(Node):
 
     def publish_diagnostics(self) -> None:
         """Publish one DiagnosticArray: a status per camera and one for the node."""
-        name = self.get_name()
         snapshots = self.processor.snapshots()
         self._log_drops(snapshots)
         self._diagnostics.publish(
             self.processor.diagnostics(
-                name,
+                self.get_name(),
                 self.get_clock().now().to_msg(),
                 self._thresholds,
                 snapshots=snapshots,
@@ -217,6 +216,7 @@ class MarkerLocalizerNode(Node):
                 camera_info_sizes={
                     c: camera_info_image_size(info) for c, info in self._camera_info.items()
                 },
+                namespace=self.get_namespace(),
             )
         )
 

@@ -582,6 +582,7 @@ class FrameProcessor:
         camera_values: Mapping[str, Mapping[str, str]] | None = None,
         camera_info_sizes: Mapping[str, tuple[int, int] | None] | None = None,
         node_values: Mapping[str, str] | None = None,
+        namespace: str = "/",
     ) -> DiagnosticArray:
         """The /diagnostics content of this pool: a status per camera and one for the node.
 
@@ -589,7 +590,7 @@ class FrameProcessor:
         report the same figures under the same keys.
 
         Args:
-            node_name: node name without namespace (the statuses' prefix).
+            node_name: node name without namespace.
             stamp: the array's header stamp.
             thresholds: limits that decide each camera's level.
             snapshots: the cameras' statistics (default: :meth:`snapshots`, now).
@@ -598,12 +599,19 @@ class FrameProcessor:
                 (:func:`~marker_localizer.ros.conversions.camera_info_image_size`),
                 which its frames' must be; a camera missing here is not judged.
             node_values: further key/value pairs of the node's status.
+            namespace: the node's namespace, which qualifies the statuses' names and
+                ids (:func:`~marker_localizer.ros.diagnostics.qualified_name`).
         """
         snapshots = self.snapshots() if snapshots is None else snapshots
         extra, info_sizes = camera_values or {}, camera_info_sizes or {}
         statuses = [
             camera_status(
-                node_name, snapshot, thresholds, extra.get(camera), info_sizes.get(camera)
+                node_name,
+                snapshot,
+                thresholds,
+                extra.get(camera),
+                info_sizes.get(camera),
+                namespace,
             )
             for camera, snapshot in snapshots.items()
         ]
@@ -620,7 +628,7 @@ class FrameProcessor:
         }
         if self.worker_processes:
             values["frames pickled (no room in shared memory)"] = str(self.frames_pickled)
-        statuses.append(node_status(node_name, statuses, values))
+        statuses.append(node_status(node_name, statuses, values, namespace))
         return diagnostic_array(stamp, statuses)
 
     def shutdown(self, timeout_s: float | None = None) -> bool:

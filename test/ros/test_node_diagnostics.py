@@ -196,9 +196,9 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros,
         def levels_reached():
             for array_msg in reversed(tester.messages("/diagnostics")[-5:]):
                 statuses = {
-                    s.hardware_id: s
+                    s.name.removeprefix("diag/diag_localizer: "): s
                     for s in array_msg.status
-                    if s.name.startswith("diag_localizer: ")
+                    if s.name.startswith("diag/diag_localizer: ")
                 }
                 last.update(statuses)
                 if all(
@@ -230,7 +230,7 @@ def test_diagnostics_levels_ok_warn_on_drops_error_on_silence_and_bad_input(ros,
         assert statuses["cam2"].message.startswith("no frame since start")
         assert "unsupported encoding 'nv24'" in statuses["cam3"].message
         assert "data holds 2048 B" in values_of(statuses["cam4"])["last error"]
-        node_status = statuses["diag_localizer"]
+        node_status = statuses["node"]
         assert level_of(node_status) == ERROR
         assert "cam3 ERROR" in node_status.message
 
@@ -290,14 +290,15 @@ def test_a_flood_of_bad_frames_costs_no_good_frame_and_keeps_diagnostics_small(r
             def flooded_status():
                 for array_msg in reversed(peer.messages("/diagnostics")[-3:]):
                     statuses = {s.hardware_id: s for s in array_msg.status}
-                    if "cam1" in statuses and int(values_of(statuses["cam1"])["errors"]) >= 30:
+                    cam1 = statuses.get("flood/cam1")
+                    if cam1 is not None and int(values_of(cam1)["errors"]) >= 30:
                         return array_msg
                 return None
 
             array_msg = wait_until(flooded_status, "diagnostics of the flood")
             size = len(serialize_message(array_msg))
             assert size < 8_000, size  # a 1 MB encoding string made 3 MB every second
-            cam1 = next(s for s in array_msg.status if s.hardware_id == "cam1")
+            cam1 = next(s for s in array_msg.status if s.hardware_id == "flood/cam1")
             assert level_of(cam1) == ERROR
         finally:
             stop.set()
@@ -331,16 +332,55 @@ def test_a_camera_info_for_another_frame_size_is_a_warning_naming_both_sizes(ros
                 for array_msg in reversed(peer.messages("/diagnostics")[-3:]):
                     for status in array_msg.status:
                         values = values_of(status)
-                        if (status.hardware_id, values.get("camera_info")) == (
-                            "cam0",
-                            "128x128",
-                        ) and (level_of(status) == level):
+                        camera_info = (status.hardware_id, values.get("camera_info"))
+                        if camera_info == ("caminfo/cam0", "128x128") and level_of(status) == level:
                             return status
                 return None
 
             status = wait_until(status_at, f"cam0 at level {level}, binning {binning}")
             assert status.message.startswith(message)
             assert values_of(status)["frame size"] == "64x64"
+
+
+def test_nodes_of_one_name_in_two_namespaces_publish_statuses_an_aggregator_tells_apart(ros):
+    """/uav1/marker_localizer and /uav2/marker_localizer, each with a cam0: each status
+    name and hardware_id is qualified by its namespace, as ROS 1's diagnostic_updater
+    named them; a node in the root namespace keeps ROS 2's updater's names."""
+    overrides = [
+        Parameter("cameras", value=["cam0"]),
+        Parameter("workers", value=1),
+        Parameter("worker_processes", value=False),
+        Parameter("diagnostics_period_s", value=0.1),
+    ]
+    nodes = [
+        MarkerLocalizerNode(namespace=namespace, parameter_overrides=overrides)
+        for namespace in ("/uav1", "/uav2", "/")
+    ]
+    spinners = [Spinner(node) for node in nodes]
+    peer = Peer("namespaces_peer", "/")
+    try:
+        peer.listen("/diagnostics", DiagnosticArray)
+        expected = {
+            ("uav1/marker_localizer: cam0", "uav1/cam0"),
+            ("uav1/marker_localizer: node", "uav1/marker_localizer"),
+            ("uav2/marker_localizer: cam0", "uav2/cam0"),
+            ("uav2/marker_localizer: node", "uav2/marker_localizer"),
+            ("marker_localizer: cam0", "cam0"),
+            ("marker_localizer: node", "marker_localizer"),
+        }
+
+        def heard():
+            return {
+                (status.name, status.hardware_id)
+                for array_msg in peer.messages("/diagnostics")
+                for status in array_msg.status
+            }
+
+        wait_until(lambda: expected <= heard(), f"statuses {sorted(expected)}")
+    finally:
+        peer.stop()
+        for spinner in spinners:
+            spinner.stop()
 
 
 def test_frames_lost_before_the_node_show_in_its_diagnostics_with_the_figure(ros):
@@ -374,7 +414,7 @@ def test_frames_lost_before_the_node_show_in_its_diagnostics_with_the_figure(ros
         def warned():
             for array_msg in reversed(peer.messages("/diagnostics")):
                 for status in array_msg.status:
-                    if status.name == "loss_localizer: cam0" and (
+                    if status.name == "loss/loss_localizer: cam0" and (
                         values_of(status)["frames received"] == str(sent)
                     ):
                         return status
@@ -408,7 +448,7 @@ def test_diagnostics_are_published_under_sim_time_before_any_clock(ros):
         def silent_camera():
             for array_msg in peer.messages("/diagnostics"):
                 for status in array_msg.status:
-                    if status.name == "simtime_localizer: cam0":
+                    if status.name == "simtime/simtime_localizer: cam0":
                         return status
             return None
 
@@ -463,7 +503,7 @@ def test_frames_stamped_on_another_clock_are_processed_with_their_stamps_copied(
             for array_msg in reversed(peer.messages("/diagnostics")):
                 for status in array_msg.status:
                     values = values_of(status)
-                    if status.hardware_id == "cam0" and values["frames processed"] == "3":
+                    if status.hardware_id == "clocks/cam0" and values["frames processed"] == "3":
                         return status, float(values["clock offset p50 (s)"])
             return None
 
@@ -552,7 +592,7 @@ def panning_flight_diagnostics(name, tracking):
             for array_msg in reversed(peer.messages("/diagnostics")):
                 for status in array_msg.status:
                     values = values_of(status)
-                    if status.hardware_id == "cam0" and (
+                    if status.hardware_id == f"{name}/cam0" and (
                         values["frames processed"] == str(PANNING_FRAMES)
                     ):
                         return values
