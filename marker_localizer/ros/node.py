@@ -81,6 +81,14 @@ from marker_localizer.stopping import Interrupted, on_stop_signal, run_interrupt
 _CAMERA_LOG_PERIOD_S = 5.0
 #: How often the main loop looks at the stop flag set by SIGINT/SIGTERM, s.
 _SPIN_PERIOD_S = 0.1
+#: The ROS options that take a value: what follows them is not an option
+#: (:func:`logger_name`).
+_ROS_OPTIONS_WITH_VALUE = frozenset(
+    {"-p", "--param", "--params-file", "-r", "--remap", "-e", "--enclave", "--log-level"}
+    | {"--log-file-name", "--log-config-file"}
+)
+#: The remap rules' names for the node's name and namespace, as rcl's lexer reads them.
+_NAME_KEYS, _NAMESPACE_KEY = ("__node", "__name"), "__ns"
 
 _IMAGE_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE
@@ -390,13 +398,58 @@ def main(argv: Sequence[str] | None = None) -> int:
     return run_interruptible(PROG, lambda: _start(argv))
 
 
+def logger_name(args: Sequence[str], node_name: str = NODE_NAME) -> str:
+    """The name of the logger rclpy gives the node ``node_name`` started with ``args``.
+
+    The fatal lines of a start that is refused (a params file, a start value) come
+    before the node exists, and rclpy names no logger before: they carry this one,
+    as the node's own lines do (``uav1.front`` under ``-r __ns:=/uav1 -r
+    __node:=front``). As rcl reads the remap rules after ``--ros-args`` (up to
+    ``--``), and the rules outside it that it still applies with a deprecation
+    warning: the first that renames the node (``__node:=`` or ``__name:=``, for
+    every node or prefixed with its name, ``marker_localizer:__node:=``) names it,
+    the first that moves it (``__ns:=``) puts it in a namespace, whose parts
+    precede the name, joined by dots.
+
+    Args:
+        args: the program's arguments, ROS arguments included.
+        node_name: the node's name before the rules.
+    """
+    name, namespace = node_name, "/"
+    renamed = moved = in_ros_args = False
+    words = iter(args)
+    for word in words:
+        if word in ("--ros-args", "--"):
+            in_ros_args = word == "--ros-args"
+            continue
+        if in_ros_args:
+            if word not in _ROS_OPTIONS_WITH_VALUE:
+                continue
+            rule = next(words, "")
+            if word not in ("-r", "--remap"):
+                continue
+        else:
+            rule = word  # a rule outside --ros-args: deprecated, which rcl still applies
+        target, is_rule, replacement = rule.partition(":=")
+        prefix, _, key = target.rpartition(":")
+        if not is_rule or prefix not in ("", node_name):
+            continue
+        if key in _NAME_KEYS and not renamed:
+            name, renamed = replacement, True
+        elif key == _NAMESPACE_KEY and not moved:
+            namespace, moved = replacement, True
+    return ".".join([*filter(None, namespace.split("/")), name])
+
+
 def _start(argv: Sequence[str] | None) -> int:
     """Parse the arguments, start rclpy and serve (:func:`main`)."""
     args = [sys.argv[0] if sys.argv else NODE_NAME, *(sys.argv[1:] if argv is None else argv)]
+    # The node's logger, for the lines before the node exists.
+    logger = rclpy.logging.get_logger(logger_name(args))
     try:
         own_args = own_arguments(args)
     except ConfigError as err:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(err))
+        logger.fatal(str(err))
         return 1
     argparse.ArgumentParser(
         prog=PROG,
@@ -413,7 +466,7 @@ def _start(argv: Sequence[str] | None) -> int:
         try:
             node = MarkerLocalizerNode()
         except MarkerLocalizerError as err:
-            rclpy.logging.get_logger(NODE_NAME).fatal(f"invalid configuration: {err}")
+            logger.fatal(f"invalid configuration: {err}")
             return 1
         stop = threading.Event()
         again: list[int] = []

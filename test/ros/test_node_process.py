@@ -10,6 +10,7 @@ import threading
 from pathlib import Path
 
 import pytest
+import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from node_testing import (
     NODE_MODULE,
@@ -30,6 +31,9 @@ from node_testing import (
 )
 from sensor_msgs.msg import PointCloud2
 from signalling import interrupt_while_importing
+
+from marker_localizer.config import NODE_NAME
+from marker_localizer.ros.node import logger_name
 
 # --------------------------------------------------------------------------- separate process
 
@@ -151,6 +155,48 @@ def test_node_process_exits_with_status_1_on_invalid_configuration():
         "invalid configuration: detector.marker_radius_min_px=50.0 is larger than" in result.stderr
     )
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize(
+    "remaps",
+    [
+        [],
+        ["-r", "__ns:=/uav1", "-r", "__node:=front"],
+        ["--remap", "__ns:=/uav1/left", "-r", "__name:=front"],
+        ["-r", "marker_localizer:__node:=front", "-r", "other:__node:=rear"],
+        ["-r", "__node:=front", "-r", "__node:=rear", "--ros-args", "-r", "__ns:=/uav2"],
+        ["-p", "workers:=1", "-r", "__ns:=/"],
+        ["-r", "__ns:=/uav1", "--", "-r", "__node:=rear"],
+    ],
+    ids=[
+        "none",
+        "node-and-namespace",
+        "nested-namespace",
+        "by-name",
+        "first-wins",
+        "root",
+        "deprecated-rule-outside-ros-args",
+    ],
+)
+def test_the_logger_named_before_the_node_exists_is_the_one_rclpy_gives_it(remaps):
+    args = ["marker_localizer_node", "--ros-args", *remaps]
+    context = rclpy.Context()
+    rclpy.init(args=args, context=context)
+    try:
+        node = rclpy.create_node(NODE_NAME, context=context)
+        assert logger_name(args) == node.get_logger().name
+        node.destroy_node()
+    finally:
+        context.try_shutdown()
+
+
+def test_a_refused_start_value_is_logged_under_the_remapped_node_name():
+    """The fatal line comes before the node exists, whose logger rclpy would name."""
+    result = run_to_exit(
+        [*MODULE, "--ros-args", "-r", "__ns:=/uav1", "-r", "__node:=front", "-p", "workers:=0"]
+    )
+    assert result.returncode == 1
+    assert "[uav1.front]: invalid configuration: workers=0 is outside [1, 64]" in result.stderr
 
 
 def test_node_process_with_a_params_file_that_is_not_yaml_exits_1_in_one_line(tmp_path):
