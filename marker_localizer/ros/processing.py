@@ -66,7 +66,7 @@ from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
-from multiprocessing import shared_memory
+from multiprocessing import resource_tracker, shared_memory
 from typing import NamedTuple
 
 import cv2
@@ -224,12 +224,32 @@ def _worker_ready() -> None:
     """Nothing: the task whose return shows that a worker process is up."""
 
 
+def _start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker deaf to SIGHUP, unless it runs already.
+
+    The tracker ignores SIGINT and SIGTERM, which reach the whole process group
+    (Ctrl-C, a service manager), but not SIGHUP, which a closed terminal sends the
+    group too: it died, the node's first unlink started a fresh one, and that one,
+    told to forget shared memory and semaphores it never knew, wrote a KeyError
+    traceback for each. Started from a thread that blocks SIGHUP, it keeps it
+    blocked (it unblocks only the two it ignores), and ends with the node as it
+    does on SIGINT: its pipe closes.
+    """
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
 def _started_pools(count: int) -> list[ProcessPoolExecutor]:
     """``count`` pools of one worker process each, forked from a fork server, up and ready.
 
     A pool a process: concurrent.futures breaks a whole pool when one of its processes
     dies, and every frame its other processes had in flight failed with it.
     """
+    # Before the fork server, which would start it as it is.
+    _start_resource_tracker()
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(_WORKER_PRELOAD)
     pools = [

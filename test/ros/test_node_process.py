@@ -311,3 +311,41 @@ def test_a_second_ctrl_c_abandons_the_frame_in_flight_and_says_so_in_one_line(ro
     assert "Warning" not in "".join(err.seen)  # the resource tracker's, of leaked memory
     wait_until(lambda: not process_alive(worker), "the worker process to end")
     assert block not in shared_memory_blocks()
+
+
+def test_a_sighup_to_the_process_group_stops_the_node_as_quietly_as_ctrl_c(ros):
+    """A closed terminal sends SIGHUP to the node, its fork server and the resource tracker.
+
+    The tracker ignores SIGINT and SIGTERM but died of SIGHUP; a fresh one, started by
+    the node's first unlink, wrote a KeyError traceback for each block and semaphore
+    the node then unlinked.
+    """
+    process = subprocess.Popen(
+        node_command(
+            CONSOLE_SCRIPT, "-p", "cameras:=[cam0]", "-p", "workers:=1", "-r", "__ns:=/hup"
+        ),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, as a terminal's
+    )
+    err = _Lines(process.stderr)
+    tester = Peer("hup_tester", "/hup")
+    try:
+        err.wait_for("serving cameras cam0")
+        tester.listen("cam0/marker_points", PointCloud2)
+        frame = tester.frame(x_marker_64())
+        tester.publish("cam0/image_raw", frame)
+        tester.result_for("cam0/marker_points", frame.header)
+        (block,) = mapped_shared_memory_blocks(process.pid)  # the worker's frame block
+        os.killpg(process.pid, signal.SIGHUP)
+        process.wait(TIMEOUT_S)
+    finally:
+        process.kill()
+        tester.stop()
+    assert process.returncode == 0
+    lines = err.rest()
+    assert "stopped" in lines
+    for word in ("Traceback", "KeyError", "relaunching"):
+        assert word not in lines
+    assert block not in shared_memory_blocks()
