@@ -427,6 +427,8 @@ class FrameProcessor:
         self._gate_open = True
         # Held to replace a pool whose process died (_in_worker_process), and to close.
         self._pool_lock = threading.Lock()
+        # Under _pool_lock: the pools are shut down and the blocks unlinked (_close).
+        self._closed = False
         # Each thread's block for the frames it hands to a process, and every block
         # made, to unlink at shutdown.
         self._frame_block = threading.local()
@@ -709,6 +711,7 @@ class FrameProcessor:
         with self._deliver_lock:
             self._gate_open = False
         with self._pool_lock:
+            self._closed = True
             for pool in self._pools or []:
                 if not finished:
                     _kill_workers(pool)
@@ -776,6 +779,8 @@ class FrameProcessor:
             self._frame_block.frames_before_retry = waiting - 1
             return None
         with self._pool_lock:
+            if self._closed:  # a block made now would never be unlinked
+                raise _AbandonedError
             if block is not None:
                 self._frame_blocks.remove(block)
                 block.close()
@@ -811,8 +816,8 @@ class FrameProcessor:
             if isinstance(frame, EncodedFrame)
             else (frame, None)
         )
-        block = self._frame_block_for(payload.nbytes)
         try:
+            block = self._frame_block_for(payload.nbytes)
             if block is None:
                 with self._pool_lock:
                     self._frames_pickled += 1
@@ -831,6 +836,13 @@ class FrameProcessor:
                 "its worker process ended abruptly (killed: out of memory, a signal); "
                 "a fresh one serves the next frames"
             ) from err
+        except RuntimeError as err:
+            # A frame held past the shutdown's wait meets the pool it shut down
+            # ("cannot schedule new futures after shutdown"): the shutdown named it.
+            with self._pool_lock:
+                if self._closed:
+                    raise _AbandonedError from err
+            raise
 
     def _tracker(self, camera: str, detector: Detector, config: TrackerConfig) -> MarkerTracker:
         """The camera's tracker around ``detector`` (a new one after a configuration change)."""
