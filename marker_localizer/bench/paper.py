@@ -195,7 +195,12 @@ def compare_checks(frames: Sequence[LabelledFrame], seed: int) -> dict[str, Chec
         radii = verification.ring_radii(frame.radius_range)
         angle = rng.uniform(0.0, 2.0 * np.pi, len(frame.truth))
         shifted = frame.truth + CHECK_OFFSET_PX * np.column_stack([np.cos(angle), np.sin(angle)])
-        found = screening.saddle_candidates(frame.image, frame.radius_range, config.min_contrast_dn)
+        found = screening.saddle_candidates(
+            frame.image,
+            frame.radius_range,
+            config.min_contrast_dn,
+            relative_threshold=config.saddle_threshold,
+        )
         # One point per place: the pyramid levels find a saddle several times.
         saddles = found.xy[
             screening.non_maximum_suppression(found.xy, found.strength, CHECK_NEGATIVE_DISTANCE_PX)

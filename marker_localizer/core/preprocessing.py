@@ -80,7 +80,7 @@ def noise_sigma(image: NDArray[Any]) -> float:
     return MAD_TO_STD * float(np.median(difference)) / float(np.sqrt(2.0))
 
 
-def gdwgif(image: FloatImage, radius_px: int = 2, regularisation: float = 0.01) -> FloatImage:
+def gdwgif(image: FloatImage, radius_px: int, regularisation: float) -> FloatImage:
     """Self-guided gradient-domain weighted guided filter, Eq. (1).
 
     Minimises, per window Omega_k, sum (a_k I_i + b_k - q_i)^2 + lambda / T(k) (a_k - psi_k)^2
@@ -114,8 +114,8 @@ def gdwgif(image: FloatImage, radius_px: int = 2, regularisation: float = 0.01) 
 
 def dynamic_gamma(
     image: FloatImage,
-    alpha: float = 2.0,
-    window_px: int = 65,
+    alpha: float,
+    window_px: int,
     gamma_limits: tuple[float, float] = GAMMA_LIMITS,
 ) -> FloatImage:
     """Per-pixel gamma correction driven by the local mean luminance, Eq. (2).
@@ -153,7 +153,7 @@ def apply_gamma(
 
 
 def structure_map(
-    image: FloatImage, diameters_px: tuple[int, ...] = (3, 5, 9), xi: float = 0.04, t: float = 1.5
+    image: FloatImage, xi: float, t: float, diameters_px: tuple[int, ...] = (3, 5, 9)
 ) -> FloatImage:
     """Multi-scale structural component map, Eq. (3).
 
@@ -162,9 +162,9 @@ def structure_map(
 
     Args:
         image: (H, W) float32 in [0, 1].
-        diameters_px: neighbourhood diameters d.
         xi: scale of the local standard deviation.
         t: structural sensitivity exponent.
+        diameters_px: neighbourhood diameters d.
 
     Returns:
         (H, W) float32 in [0, 1).
@@ -187,17 +187,17 @@ class StructureComponents:
 
     Args:
         image: (H, W) float32 in [0, 1].
-        diameters_px: neighbourhood diameters d (odd).
         xi: scale of the local standard deviation.
         t: structural sensitivity exponent.
+        diameters_px: neighbourhood diameters d (odd).
     """
 
     def __init__(
         self,
         image: FloatImage,
+        xi: float,
+        t: float,
         diameters_px: tuple[int, ...] = (3, 5, 9),
-        xi: float = 0.04,
-        t: float = 1.5,
     ) -> None:
         sums = cv2.integral2(image, sdepth=cv2.CV_64F)
         self._sum, self._square_sum = cast(tuple[NDArray[np.float64], NDArray[np.float64]], sums)
@@ -326,8 +326,8 @@ class LocalGamma:
         self,
         image: NDArray[Any],
         full_scale: float,
-        alpha: float = 2.0,
-        window_px: int = 65,
+        alpha: float,
+        window_px: int,
         gamma_limits: tuple[float, float] = GAMMA_LIMITS,
         regions: NDArray[np.integer[Any]] | None = None,
     ) -> None:

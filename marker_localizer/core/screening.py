@@ -1020,7 +1020,7 @@ def saddle_candidates(
     radius_range_px: tuple[float, float],
     min_contrast: float,
     *,
-    relative_threshold: float = 1.5,
+    relative_threshold: float,
     window: tuple[int, int, int, int] | None = None,
     cell_cap: CellCap | None = None,
     tally: dict[str, int] | None = None,
@@ -1414,11 +1414,11 @@ def curvature_candidates(
     structure: StructureComponents,
     radius_range_px: tuple[float, float],
     min_contrast: float,
-    threshold_std: float = 3.0,
-    separation_px: float = 5.0,
-    keep_fraction: float = 0.7,
-    density_sigma_px: float = 2.0,
-    mean_shift_h_px: float = 2.0,
+    threshold_std: float,
+    separation_px: float,
+    keep_fraction: float,
+    density_sigma_px: float,
+    mean_shift_h_px: float,
 ) -> Candidates:
     """The paper's primary screening: curvature peaks of contours (section 3.2, Eq. 4).
 

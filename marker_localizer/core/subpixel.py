@@ -425,8 +425,8 @@ def ncc_refine(
     radius_px: NDArray[np.float64],
     line_angles: NDArray[np.float64],
     *,
-    offset_px: float = 5.0,
-    search_px: int = 2,
+    offset_px: float,
+    search_px: int,
 ) -> NccPeak:
     """The paper's sub-pixel location (section 3.3): adaptive template, NCC surface, extremum.
 

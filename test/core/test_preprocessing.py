@@ -4,7 +4,18 @@ import cv2
 import numpy as np
 import pytest
 
+from marker_localizer import DetectorConfig
 from marker_localizer.core import preprocessing
+
+#: The detector's settings: the stages are specified as the detector runs them.
+_DEFAULTS = DetectorConfig()
+
+
+def _local_gamma(image: np.ndarray) -> preprocessing.LocalGamma:
+    """Eq. (2) at the detector's alpha and window, on an 8-bit frame."""
+    return preprocessing.LocalGamma(
+        image, 255.0, _DEFAULTS.gamma_alpha, _DEFAULTS.illumination_window_px
+    )
 
 
 def _noisy_step(noise: float = 0.03, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -26,7 +37,7 @@ def test_gdwgif_smooths_flat_noise_and_keeps_the_edge():
 
 def test_gdwgif_returns_float32_of_the_input_shape():
     _, noisy = _noisy_step()
-    out = preprocessing.gdwgif(noisy)
+    out = preprocessing.gdwgif(noisy, _DEFAULTS.gdwgif_radius_px, _DEFAULTS.gdwgif_lambda)
     assert out.shape == noisy.shape and out.dtype == np.float32
 
 
@@ -53,7 +64,7 @@ def test_eq_2_stretches_a_dark_surround_no_further_than_a_square_root():
     )
     image = np.full((200, 200), 0.04 * 255.0, np.float32)
     samples = np.array([[0.0, 0.04 * 255.0, 0.16 * 255.0]])
-    read = preprocessing.LocalGamma(image, 255.0)(samples, np.array([[100.0, 100.0]]))
+    read = _local_gamma(image)(samples, np.array([[100.0, 100.0]]))
     np.testing.assert_allclose(read, np.sqrt(samples / 255.0).clip(1e-3), rtol=1e-4)
 
 
@@ -68,7 +79,9 @@ def test_structure_map_follows_eq_3_for_a_known_local_std():
 
 
 def test_structure_map_is_zero_on_flat_ground():
-    s = preprocessing.structure_map(np.full((20, 20), 0.4, np.float32))
+    s = preprocessing.structure_map(
+        np.full((20, 20), 0.4, np.float32), _DEFAULTS.structure_xi, _DEFAULTS.structure_t
+    )
     assert s.max() == pytest.approx(0.0, abs=1e-3)
 
 
@@ -96,7 +109,7 @@ def test_the_darkest_mean_along_a_row_bounds_the_local_mean_at_every_point_of_it
     rng = np.random.default_rng(3)
     ramp = np.linspace(10, 240, 640)[None, :] * np.linspace(0.2, 1.0, 480)[:, None]
     image = np.clip(ramp + rng.normal(0, 8, (480, 640)), 0, 255).astype(np.uint8)
-    gamma = preprocessing.LocalGamma(image, 255.0)
+    gamma = _local_gamma(image)
     xy = rng.uniform([0, 0], [640, 480], (2000, 2))
     bound = gamma.darkest_mean_on_rows(xy[:, 1])
     assert np.all(gamma.mean_at(xy) >= bound - 1e-6)
@@ -126,7 +139,7 @@ def test_the_darkest_mean_on_a_span_of_a_row_bounds_the_local_mean_there_tighter
     # Light falling from left to right: every row holds a dark stretch.
     ramp = np.linspace(10, 240, 640)[None, :] * np.linspace(0.6, 1.0, 480)[:, None]
     image = np.clip(ramp + rng.normal(0, 8, (480, 640)), 0, 255).astype(np.uint8)
-    gamma = preprocessing.LocalGamma(image, 255.0)
+    gamma = _local_gamma(image)
     x_first = np.arange(-16.0, 640.0, 64.0)
     x_last = x_first + 63.0
     y = rng.uniform(-8, 488, 300)
@@ -158,8 +171,8 @@ def test_the_shadow_gain_is_looked_up_only_where_the_surroundings_are_dark():
     image = np.full((300, 400), 200, np.uint8)
     shadowed = preprocessing.ShadowedContrast(min_contrast=20.0 / 255.0, min_modulation=0.3)
     xy = np.array([[50.0, 50.0], [350.0, 250.0]])
-    assert shadowed.gain_at(preprocessing.LocalGamma(image, 255.0), xy) is None
+    assert shadowed.gain_at(_local_gamma(image), xy) is None
     image[:, 200:] = 8
-    gain = shadowed.gain_at(preprocessing.LocalGamma(image, 255.0), xy)
+    gain = shadowed.gain_at(_local_gamma(image), xy)
     assert gain is not None
     assert gain[0] == 1.0 and gain[1] > 1.0

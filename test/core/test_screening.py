@@ -4,9 +4,14 @@ import cv2
 import numpy as np
 import pytest
 
+from marker_localizer import DetectorConfig
 from marker_localizer.core import screening
 from marker_localizer.core.preprocessing import StructureComponents
 from marker_localizer.synthetic import MarkerPlacement, render_markers
+
+#: The detector's settings: the screening is specified as the detector runs it.
+_DEFAULTS = DetectorConfig()
+_SADDLE_THRESHOLD = _DEFAULTS.saddle_threshold
 
 
 def test_contour_curvature_is_zero_on_a_line_and_one_at_a_right_angle():
@@ -32,7 +37,10 @@ def _x_frame(x: float, y: float, radius: float, shape=(160, 200)) -> np.ndarray:
 def test_saddle_candidates_find_small_and_large_markers_within_a_pixel():
     image = _x_frame(50.3, 60.7, 4.0) + _x_frame(140.2, 90.4, 30.0) - 0.45
     found = screening.saddle_candidates(
-        np.clip(image, 0, 1).astype(np.float32), (3.0, 40.0), min_contrast=20 / 255
+        np.clip(image, 0, 1).astype(np.float32),
+        (3.0, 40.0),
+        min_contrast=20 / 255,
+        relative_threshold=_SADDLE_THRESHOLD,
     )
     # The small one answers at full resolution, the large one at a coarse level.
     for truth, tolerance in (([50.3, 60.7], 1.0), ([140.2, 90.4], 4.0)):
@@ -66,7 +74,9 @@ def test_a_tilted_marker_whose_saddle_peak_splits_gets_a_candidate_at_its_centre
     assert level == 1
     half = cv2.resize(scene.image, (48, 48), interpolation=cv2.INTER_AREA)
     assert screening.saddle_response(half)[24, 24] < 0  # (u, v) = (23.9, 23.55): no saddle
-    found = screening.saddle_candidates(scene.image, (6.0, 40.0), min_contrast=5.0)
+    found = screening.saddle_candidates(
+        scene.image, (6.0, 40.0), min_contrast=5.0, relative_threshold=_SADDLE_THRESHOLD
+    )
     assert np.linalg.norm(found.xy - [48.3, 47.6], axis=1).min() < 0.5
 
 
@@ -204,8 +214,17 @@ def test_curvature_candidates_put_a_point_near_the_centre_of_an_x(radius, tilt):
         (160, 200), [MarkerPlacement(80.4, 70.6, radius, 0.4, tilt)], 0, blur_sigma_px=1.0
     )
     image = scene.image.astype(np.float32) / 255.0
+    structure = StructureComponents(image, _DEFAULTS.structure_xi, _DEFAULTS.structure_t)
     found = screening.curvature_candidates(
-        image, StructureComponents(image), (6.0, 30.0), min_contrast=20 / 255
+        image,
+        structure,
+        (6.0, 30.0),
+        20 / 255,
+        _DEFAULTS.curvature_threshold_std,
+        _DEFAULTS.min_peak_separation_px,
+        _DEFAULTS.structure_keep_fraction,
+        _DEFAULTS.density_sigma_px,
+        _DEFAULTS.mean_shift_h_px,
     )
     assert np.linalg.norm(found.xy - [80.4, 70.6], axis=1).min() < 1.5
 
@@ -411,9 +430,15 @@ def test_the_cell_cap_bounds_busy_ground_per_level_and_keeps_what_the_frames_cap
     marker = _x_frame(120.3, 80.6, 8.0, shape=(256, 320)) * 180 + 40
     noisy = marker + np.random.default_rng(5).normal(0, 40, marker.shape)
     image = np.clip(noisy, 0, 255).astype(np.uint8)
-    uncapped = screening.saddle_candidates(image, (3.0, 30.0), 20.0)
+    uncapped = screening.saddle_candidates(
+        image, (3.0, 30.0), 20.0, relative_threshold=_SADDLE_THRESHOLD
+    )
     capped = screening.saddle_candidates(
-        image, (3.0, 30.0), 20.0, cell_cap=screening.CellCap(64, 48)
+        image,
+        (3.0, 30.0),
+        20.0,
+        cell_cap=screening.CellCap(64, 48),
+        relative_threshold=_SADDLE_THRESHOLD,
     )
     levels = len(screening.saddle_levels((3.0, 30.0)))
     cells = (256 // 64) * (320 // 64)
@@ -432,10 +457,16 @@ def test_a_window_caps_its_cells_on_the_frames_grid():
     """A window's candidates are capped in the frame's cells, as a full pass caps them."""
     image = np.clip(np.random.default_rng(6).normal(128, 40, (192, 256)), 0, 255).astype(np.uint8)
     cap = screening.CellCap(64, 8)
-    full = screening.saddle_candidates(image, (6.0, 30.0), 20.0, cell_cap=cap)
+    full = screening.saddle_candidates(
+        image, (6.0, 30.0), 20.0, cell_cap=cap, relative_threshold=_SADDLE_THRESHOLD
+    )
     x0, y0 = 32, 64  # the crop starts mid-cell in x
     part = screening.saddle_candidates(
-        image[y0:, x0:], (6.0, 30.0), 20.0, cell_cap=cap._replace(origin_px=(x0, y0))
+        image[y0:, x0:],
+        (6.0, 30.0),
+        20.0,
+        cell_cap=cap._replace(origin_px=(x0, y0)),
+        relative_threshold=_SADDLE_THRESHOLD,
     )
     inside = (full.xy[:, 0] >= x0 + 16) & (full.xy[:, 1] >= y0 + 16)
     wanted = {tuple(p) for p in full.xy[inside].round(6)}
@@ -447,8 +478,12 @@ def test_the_floor_of_the_frames_cap_leaves_what_both_caps_keep_unchanged():
     image = np.clip(np.random.default_rng(7).normal(128, 40, (256, 320)), 0, 255).astype(np.uint8)
     cells = screening.CellCap(64, 48)
     both = cells._replace(max_total=300)
-    without = screening.saddle_candidates(image, (3.0, 30.0), 20.0, cell_cap=cells)
-    floored = screening.saddle_candidates(image, (3.0, 30.0), 20.0, cell_cap=both)
+    without = screening.saddle_candidates(
+        image, (3.0, 30.0), 20.0, cell_cap=cells, relative_threshold=_SADDLE_THRESHOLD
+    )
+    floored = screening.saddle_candidates(
+        image, (3.0, 30.0), 20.0, cell_cap=both, relative_threshold=_SADDLE_THRESHOLD
+    )
     assert len(floored) < len(without) / 5
     kept = [
         {tuple(p) for p in screening.grid_entropy_thinning(c, 64, 48).strongest(300).xy}
@@ -534,9 +569,15 @@ def _light(weight: float) -> screening.LightWeight:
 def test_a_marker_in_deep_shadow_is_screened_with_the_shadow_gain_and_only_then():
     # An X of 12 grey levels on ground 5 levels bright: 20 levels of contrast in the open.
     dark = (5 + 12 * _x_frame(80.4, 70.6, 12.0)).astype(np.float32) / 255.0
-    alone = screening.saddle_candidates(dark, (6.0, 20.0), min_contrast=20 / 255)
+    alone = screening.saddle_candidates(
+        dark, (6.0, 20.0), min_contrast=20 / 255, relative_threshold=_SADDLE_THRESHOLD
+    )
     shaded = screening.saddle_candidates(
-        dark, (6.0, 20.0), min_contrast=20 / 255, light=_light(4.0)
+        dark,
+        (6.0, 20.0),
+        min_contrast=20 / 255,
+        light=_light(4.0),
+        relative_threshold=_SADDLE_THRESHOLD,
     )
     assert len(alone) == 0
     assert np.linalg.norm(shaded.xy - [80.4, 70.6], axis=1).min() < 1.0
@@ -560,7 +601,11 @@ def test_a_shadow_over_part_of_each_row_gives_the_candidates_of_its_gain_at_ever
 
     spans, rows = (
         screening.saddle_candidates(
-            image, (4.0, 20.0), min_contrast=60 / 255, light=screening.LightWeight(at, bound)
+            image,
+            (4.0, 20.0),
+            min_contrast=60 / 255,
+            light=screening.LightWeight(at, bound),
+            relative_threshold=_SADDLE_THRESHOLD,
         )
         for bound in (on_spans, on_rows)
     )
@@ -582,21 +627,36 @@ def test_the_frames_cap_keeps_the_saddle_of_most_contrast_over_its_light():
         ),
     )
     cap = screening.CellCap(64, 48, max_total=1)
-    plain = screening.saddle_candidates(image, (6.0, 20.0), 20 / 255, cell_cap=cap)
-    weighed = screening.saddle_candidates(image, (6.0, 20.0), 20 / 255, cell_cap=cap, light=light)
+    plain = screening.saddle_candidates(
+        image, (6.0, 20.0), 20 / 255, cell_cap=cap, relative_threshold=_SADDLE_THRESHOLD
+    )
+    weighed = screening.saddle_candidates(
+        image,
+        (6.0, 20.0),
+        20 / 255,
+        cell_cap=cap,
+        light=light,
+        relative_threshold=_SADDLE_THRESHOLD,
+    )
     assert np.linalg.norm(plain.xy - [150.2, 80.4], axis=1).min() < 1.0
     assert len(weighed) == 1 and np.linalg.norm(weighed.xy[0] - [50.3, 80.6]) < 1.0
 
 
 def test_a_peak_counts_its_response_times_its_lights_weight_squared():
     image = np.clip(_x_frame(80.4, 70.6, 12.0) - 0.2, 0, 1).astype(np.float32)
-    plain = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255)
+    plain = screening.saddle_candidates(
+        image, (6.0, 20.0), min_contrast=20 / 255, relative_threshold=_SADDLE_THRESHOLD
+    )
     for weight in (0.25, 0.5, 1.0):
         # A weight under 1 (bright light) leaves the threshold as it is: the same peaks
         # pass, their strength weighed (their refinement, on responses weighed alike,
         # moves by float rounding alone).
         weighed = screening.saddle_candidates(
-            image, (6.0, 20.0), min_contrast=20 / 255, light=_light(weight)
+            image,
+            (6.0, 20.0),
+            min_contrast=20 / 255,
+            light=_light(weight),
+            relative_threshold=_SADDLE_THRESHOLD,
         )
         np.testing.assert_allclose(weighed.xy, plain.xy, atol=1e-6)
         np.testing.assert_allclose(weighed.strength, weight * plain.strength, rtol=1e-6)
@@ -605,15 +665,25 @@ def test_a_peak_counts_its_response_times_its_lights_weight_squared():
 def test_rows_in_the_open_keep_the_configured_threshold():
     frame = np.clip(_x_frame(50.3, 60.7, 10.0) + _x_frame(140.2, 100.4, 10.0) - 0.45, 0, 1)
     image = frame.astype(np.float32)
-    plain = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255)
-    lit = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255, light=_light(1.0))
+    plain = screening.saddle_candidates(
+        image, (6.0, 20.0), min_contrast=20 / 255, relative_threshold=_SADDLE_THRESHOLD
+    )
+    lit = screening.saddle_candidates(
+        image,
+        (6.0, 20.0),
+        min_contrast=20 / 255,
+        light=_light(1.0),
+        relative_threshold=_SADDLE_THRESHOLD,
+    )
     assert np.array_equal(plain.xy, lit.xy) and np.array_equal(plain.strength, lit.strength)
     # Shadow over the lower rows only: the upper rows' candidates stay exactly as they were.
     lower = screening.LightWeight(
         lambda xy: np.where(xy[:, 1] >= 80, 4.0, 1.0),
         lambda y, x_first, x_last: np.where(y[:, None] >= 80, 4.0, np.ones(len(x_first))),
     )
-    shaded = screening.saddle_candidates(image, (6.0, 20.0), min_contrast=20 / 255, light=lower)
+    shaded = screening.saddle_candidates(
+        image, (6.0, 20.0), min_contrast=20 / 255, light=lower, relative_threshold=_SADDLE_THRESHOLD
+    )
     upper = plain.xy[:, 1] < 70
     assert np.array_equal(plain.xy[upper], shaded.xy[shaded.xy[:, 1] < 70])
     assert len(shaded) >= len(plain)
