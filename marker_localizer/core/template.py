@@ -198,13 +198,11 @@ class TemplateMatch(NamedTuple):
     Attributes:
         ncc: the largest correlation over the candidate blurs (1 = a perfect X),
             the bright quadrants a level each (the NCC where they are equal).
-        sigma_b: the defocus sigma achieving it, px.
         clipped: whether the disk holds a clipped level (``full_scale`` given): on
             raw levels, those samples were left out of ``ncc``.
     """
 
     ncc: NDArray[np.float64]
-    sigma_b: NDArray[np.float64]
     clipped: NDArray[np.bool_]
 
 
@@ -296,7 +294,7 @@ def template_correlation(
     """
     n = len(xy)
     if n == 0:
-        return TemplateMatch(np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool))
+        return TemplateMatch(np.zeros(0), np.zeros(0, dtype=bool))
     disk = _disk_samples(
         image, xy, line_angles, radius_px, max_samples, normalise, full_scale, leave_out_clipped
     )
@@ -346,7 +344,7 @@ def template_correlation(
     contrast = along / model_norm2 - split * overlap
     extra = np.where(np.abs(split) < 2.0 * np.abs(contrast), projected**2 / difference_norm2, 0.0)
     ncc = np.sqrt(np.minimum(ncc**2 + extra / norm_i2, 1.0))
-    return TemplateMatch(ncc, best_sigma, np.any(disk.clipped, axis=1))
+    return TemplateMatch(ncc, np.any(disk.clipped, axis=1))
 
 
 def template_misfit(

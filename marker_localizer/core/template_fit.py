@@ -55,7 +55,6 @@ class TemplateFit(NamedTuple):
             :data:`~marker_localizer.core.template.QUADRANT_SIDES`.
         level_covariance: (N, 4, 4) covariance of the levels.
         covariance: (N, 2, 2) covariance of the centre, px^2.
-        line_angle_std: (N, 2) standard error of the two line directions, radians.
         residual_rms: (N,) RMS residual of the fit, image units.
         n_pixels: (N,) pixels the fit used.
         converged: (N,) True where the fit stopped with a step below the tolerance.
@@ -65,7 +64,6 @@ class TemplateFit(NamedTuple):
     levels: NDArray[np.float64]
     level_covariance: NDArray[np.float64]
     covariance: NDArray[np.float64]
-    line_angle_std: NDArray[np.float64]
     residual_rms: NDArray[np.float64]
     n_pixels: NDArray[np.float64]
     converged: NDArray[np.bool_]
@@ -142,7 +140,6 @@ def fit_template(
             np.zeros((0, 4)),
             np.zeros((0, 4, 4)),
             np.zeros((0, 2, 2)),
-            np.zeros((0, 2)),
             np.zeros(0),
             np.zeros(0),
             np.zeros(0, bool),
@@ -252,13 +249,11 @@ def _fit_template_batch(
     level_covariance = np.linalg.pinv(state.level_normal) * variance[:, None, None]
     shape = template.shape_from_parameters(params)
     shape = shape._replace(line_angles=shape.line_angles % np.pi)
-    angle_variance = parameter_covariance[:, [2, 3], [2, 3]]
     return TemplateFit(
         shape,
         state.levels,
         level_covariance,
         parameter_covariance[:, :2, :2],
-        np.sqrt(np.maximum(angle_variance, 0.0)),
         np.sqrt(variance),
         n_pixels,
         converged & np.isfinite(params).all(axis=1),
