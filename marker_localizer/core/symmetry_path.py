@@ -55,9 +55,14 @@ _MIN_TEMPLATE_BATCH = 256
 #: ``min_contrast_dn`` in raw (not gamma-corrected) grey levels: lenient, as the rings
 #: may sit off the centre and gamma stretches dark ground.
 _RAW_CONTRAST_SHARE = 0.5
-#: :data:`SURVIVOR_TESTS`' names of :meth:`acceptance.MarkerModel.judge`'s tests, in
-#: the order of :data:`acceptance.JUDGED_REASONS`.
-_JUDGED_TESTS = ("fit_floor", "x_end", "misfit", "quartic")
+#: The judged reasons whose test :data:`SURVIVOR_TESTS` names otherwise: the fitted
+#: score's floor is the third of the floors.
+_JUDGED_TEST_NAMES = {"score": "fit_floor"}
+#: :data:`SURVIVOR_TESTS`' names of :meth:`acceptance.MarkerModel.judge`'s tests, one per
+#: :data:`acceptance.JUDGED_REASONS`, in its order.
+_JUDGED_TESTS = tuple(
+    _JUDGED_TEST_NAMES.get(reason, reason) for reason in acceptance.JUDGED_REASONS
+)
 #: The tests of the default path in the order :attr:`DetectionResult.survivors` lists
 #: them, each name once, so that where a marker was lost names one test
 #: (:func:`~marker_localizer.evaluation.tests_that_lost`). ``prescreen_cap`` and
@@ -90,10 +95,7 @@ SURVIVOR_TESTS = (
     "template_floor",
     "fit_cap",
     "fit",
-    "fit_floor",
-    "x_end",
-    "misfit",
-    "quartic",
+    *_JUDGED_TESTS,
     "lines",
     "merging",
     "lattice",
