@@ -17,7 +17,7 @@ from marker_localizer.config import DetectorConfig
 from marker_localizer.core import screening, subpixel, template, verification
 from marker_localizer.core.frame import Frame
 from marker_localizer.core.noise import NoiseModel
-from marker_localizer.core.result import DetectionResult, detections_of
+from marker_localizer.core.result import DetectionResult, detections_of, strongest_first
 from marker_localizer.core.screening import Candidates
 from marker_localizer.core.symmetry_path import SymmetryPath
 from marker_localizer.core.template_path import TemplatePath
@@ -138,8 +138,7 @@ class PaperPath:
             counts["rejected_score"] = int((located & ~matched).sum())
             survivors.append(("refinement", fit.offset[located]))
             survivors.append(("score", fit.offset[matched]))
-            order = np.flatnonzero(matched)
-            order = order[np.argsort(-score[order])]
+            order = strongest_first(np.flatnonzero(matched), score)
             result.detections = detections_of(
                 fit.offset[order],
                 score[order],

@@ -15,13 +15,13 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from marker_localizer.config import DetectorConfig, require_config
 from marker_localizer.core import (
     chroma,
     paper_path,
     preprocessing,
+    search,
     symmetry_path,
     template_path,
     verification,
@@ -30,7 +30,13 @@ from marker_localizer.core.frame import Frame, StageTimer
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.noise import estimate_noise
 from marker_localizer.core.paper_path import PaperPath
-from marker_localizer.core.result import DetectionResult, SearchPlan
+from marker_localizer.core.result import (
+    DetectionResult,
+    SearchPlan,
+    extents,
+    line_directions,
+    positions,
+)
 from marker_localizer.core.screening import Candidates
 from marker_localizer.core.search import CandidateSearch
 from marker_localizer.core.symmetry_path import SymmetryPath
@@ -176,28 +182,19 @@ class Detector:
         seeds = np.zeros((0, 2)) if plan is None else plan.seeds
         gamma = None
         with timer("preprocessing"):
-            measured = regions
-            if regions is not None and len(seeds):
-                # The local means of Eq. (2) are looked up at each candidate's centre.
-                corner = np.floor(seeds).astype(np.int64)
-                seed_boxes = np.hstack([corner, corner + 2])
-                measured = np.vstack([np.reshape(regions, (-1, 4)), seed_boxes])
             if noise is None or cfg.candidate_detector == "curvature":
                 gamma = preprocessing.LocalGamma(
                     gray,
                     full_scale,
                     cfg.gamma_alpha,
                     cfg.illumination_window_px,
-                    regions=measured,
+                    regions=preprocessing.regions_and_points(regions, seeds),
                 )
         with timer("screening"):
             candidates = self._search.screen(gray, full_scale, result.counts, regions, gamma)
             result.counts["skipped_known"] = 0
-            if plan is not None and len(plan.known) and len(candidates):
-                distance, _ = cKDTree(plan.known).query(
-                    candidates.xy, distance_upper_bound=cfg.min_peak_separation_px
-                )
-                near = np.isfinite(distance)
+            if plan is not None:
+                near = search.near_known(candidates.xy, plan.known, cfg.min_peak_separation_px)
                 result.counts["skipped_known"] = int(near.sum())
                 candidates = candidates.take(~near)
             result.survivors.append(("screening", candidates.xy))
@@ -312,13 +309,12 @@ class Detector:
             return result
         with timer("preprocessing"):
             # The local means of Eq. (2) at the markers alone, for the fit's contrast floor.
-            corner = np.floor(xy).astype(np.int64)
             gamma = preprocessing.LocalGamma(
                 gray,
                 full_scale,
                 self.config.gamma_alpha,
                 self.config.illumination_window_px,
-                regions=np.hstack([corner, corner + 2]),
+                regions=preprocessing.point_windows(xy),
             )
         frame = Frame(gray, full_scale, gamma, result, timer)
         if self.config.candidate_detector == "curvature":
@@ -344,14 +340,14 @@ class Detector:
         result.counts["rejected_chroma"] = 0
         if colour is None or not result.detections:
             return result
-        table = result.as_array()
+        centres = positions(result.detections)
         with timer("chroma"):
             coloured = chroma.coloured_x(
                 colour,
                 full_scale,
-                table[:, :2],
-                table[:, 6],
-                table[:, 4:6],
+                centres,
+                extents(result.detections),
+                line_directions(result.detections),
                 self.config.max_x_chroma_share,
             )
         result.counts["rejected_chroma"] = int(coloured.sum())
@@ -359,7 +355,7 @@ class Detector:
             d for d, drop in zip(result.detections, coloured, strict=True) if not drop
         ]
         result.counts["accepted"] = len(result.detections)
-        result.survivors.append(("chroma", table[~coloured, :2]))
+        result.survivors.append(("chroma", centres[~coloured]))
         return result
 
 

@@ -301,6 +301,30 @@ def local_mean_lattice_px(window_px: int) -> int:
     return max(1, window_px // _LOCAL_MEAN_REDUCTION)
 
 
+def point_windows(xy: NDArray[np.float64]) -> NDArray[np.int64]:
+    """(N, 4) windows (x0, y0, x1, y1), end-exclusive, of the 2 x 2 pixels around each point.
+
+    Given to :class:`LocalGamma` as ``regions``, they are where it reads the local
+    means of Eq. (2) at (N, 2) points ``xy`` and nowhere else.
+    """
+    corner = np.floor(xy).astype(np.int64)
+    return np.hstack([corner, corner + 2])
+
+
+def regions_and_points(
+    regions: NDArray[np.integer[Any]] | None, xy: NDArray[np.float64]
+) -> NDArray[np.integer[Any]] | None:
+    """:class:`LocalGamma`'s ``regions`` where a pass searches ``regions`` and reads at ``xy``.
+
+    A tracking pass's seeds (:attr:`~marker_localizer.core.result.SearchPlan.seeds`)
+    lie anywhere; the local means of Eq. (2) are looked up at each one's centre, so
+    their :func:`point_windows` join the regions. None (the whole frame) stays None.
+    """
+    if regions is None or not len(xy):
+        return regions
+    return np.vstack([np.reshape(regions, (-1, 4)), point_windows(xy)])
+
+
 class LocalGamma:
     """Eq. (2) evaluated only where the detector samples the image.
 

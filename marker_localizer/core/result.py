@@ -219,6 +219,25 @@ def positions(detections: list[Detection]) -> NDArray[np.float64]:
     return np.array([[d.x, d.y] for d in detections], dtype=np.float64).reshape(-1, 2)
 
 
+def extents(detections: list[Detection]) -> NDArray[np.float64]:
+    """(N,) the detections' ``radius_px``."""
+    return np.array([d.radius_px for d in detections], dtype=np.float64)
+
+
+def line_directions(detections: list[Detection]) -> NDArray[np.float64]:
+    """(N, 2) the detections' line directions, ``angle1`` and ``angle2``, radians."""
+    return np.array([[d.angle1, d.angle2] for d in detections], dtype=np.float64).reshape(-1, 2)
+
+
+def strongest_first(rows: NDArray[np.intp], score: NDArray[np.float64]) -> NDArray[np.intp]:
+    """``rows`` (indices into ``score``) by their score, highest first.
+
+    The order of :attr:`DetectionResult.detections`.
+    """
+    ordered: NDArray[np.intp] = rows[np.argsort(-score[rows])]
+    return ordered
+
+
 def detections_of(
     xy: NDArray[np.float64],
     score: NDArray[np.float64],

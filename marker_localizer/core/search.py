@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core import preprocessing, screening
@@ -29,6 +30,27 @@ _REGION_MARGIN_PX = 4
 #: A search region with its context narrower than this holds no candidate, px: the
 #: screening's 5x5 filters need that much image.
 _REGION_MIN_PX = 8
+
+
+def near_known(
+    xy: NDArray[np.float64], known: NDArray[np.float64], separation_px: float
+) -> NDArray[np.bool_]:
+    """(N,) the candidates at ``xy`` closer than ``separation_px`` to a known marker.
+
+    A tracking pass knows the markers it has located
+    (:attr:`~marker_localizer.core.result.SearchPlan.known`); a screening candidate
+    that near one is that marker's, and is not verified again.
+
+    Args:
+        xy: (N, 2) candidate positions, px.
+        known: (M, 2) the known markers' centres, px.
+        separation_px: ``min_peak_separation_px``.
+    """
+    if not len(known) or not len(xy):
+        return np.zeros(len(xy), dtype=bool)
+    distance, _ = cKDTree(known).query(xy, distance_upper_bound=separation_px)
+    near: NDArray[np.bool_] = np.isfinite(distance)
+    return near
 
 
 class CandidateSearch:

@@ -31,7 +31,13 @@ from marker_localizer.core import (
     verification,
 )
 from marker_localizer.core.frame import Frame
-from marker_localizer.core.result import Detection, DetectionResult, detections_of, positions
+from marker_localizer.core.result import (
+    Detection,
+    DetectionResult,
+    detections_of,
+    positions,
+    strongest_first,
+)
 from marker_localizer.core.screening import Candidates
 
 #: The most prescreened candidates of a frame that go on to the centring, verification
@@ -900,7 +906,7 @@ class SymmetryPath:
         counts["merged_duplicates"] += int((~unique).sum())
         keep = keep[unique]
         result.survivors.append(("merging", fit.xy[keep]))
-        keep = keep[np.argsort(-fit.score[keep])]
+        keep = strongest_first(keep, fit.score)
         return self._standing_alone(
             frame,
             self._detections(

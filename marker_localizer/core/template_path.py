@@ -20,7 +20,7 @@ from marker_localizer.config import DetectorConfig
 from marker_localizer.core import decision, screening, template, template_fit, verification
 from marker_localizer.core.frame import StageTimer
 from marker_localizer.core.noise import NoiseModel
-from marker_localizer.core.result import DetectionResult, detections_of
+from marker_localizer.core.result import DetectionResult, detections_of, strongest_first
 from marker_localizer.core.sampling import nearest_pixels
 from marker_localizer.core.screening import Candidates
 
@@ -254,7 +254,7 @@ class TemplatePath:
             )
             counts["merged_duplicates"] = counts.get("merged_duplicates", 0) + int((~unique).sum())
             keep = keep[unique]
-            keep = keep[np.argsort(-verdict.score[keep])]
+            keep = strongest_first(keep, verdict.score)
             counts["accepted"] = len(keep)
             confidence = decision.confidence(verdict.score)
             line_angles = fit.shape.line_angles

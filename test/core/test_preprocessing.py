@@ -176,3 +176,34 @@ def test_the_shadow_gain_is_looked_up_only_where_the_surroundings_are_dark():
     gain = shadowed.gain_at(_local_gamma(image), xy)
     assert gain is not None
     assert gain[0] == 1.0 and gain[1] > 1.0
+
+
+def test_a_points_window_is_the_two_by_two_pixels_around_it():
+    xy = np.array([[3.4, 7.9], [2.0, 5.0], [-0.5, 10.25]])
+    np.testing.assert_array_equal(
+        preprocessing.point_windows(xy), [[3, 7, 5, 9], [2, 5, 4, 7], [-1, 10, 1, 12]]
+    )
+
+
+def test_the_local_means_at_points_are_read_from_their_windows_alone():
+    image = np.full((200, 300), 30, np.uint8)
+    xy = np.array([[40.3, 50.7], [250.0, 150.5]])
+    gamma = preprocessing.LocalGamma(
+        image,
+        255.0,
+        _DEFAULTS.gamma_alpha,
+        _DEFAULTS.illumination_window_px,
+        regions=preprocessing.point_windows(xy),
+    )
+    # Outside every region the map would read no mean (0.5 stands in).
+    np.testing.assert_allclose(gamma.mean_at(xy), 30 / 255, rtol=1e-5)
+
+
+def test_a_passs_regions_take_its_points_windows_and_the_whole_frame_stays_whole():
+    regions = np.array([[0, 0, 64, 64]])
+    seeds = np.array([[100.5, 20.2]])
+    np.testing.assert_array_equal(
+        preprocessing.regions_and_points(regions, seeds), [[0, 0, 64, 64], [100, 20, 102, 22]]
+    )
+    assert preprocessing.regions_and_points(regions, np.zeros((0, 2))) is regions
+    assert preprocessing.regions_and_points(None, seeds) is None

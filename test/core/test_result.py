@@ -14,7 +14,10 @@ from marker_localizer.core.result import (
     DetectionResult,
     SearchPlan,
     detections_of,
+    extents,
+    line_directions,
     positions,
+    strongest_first,
 )
 from marker_localizer.synthetic import SceneConfig, render_scene
 
@@ -34,6 +37,16 @@ def test_detections_are_built_row_by_row_in_the_order_given():
     assert (second.x, second.y, second.evidence) == (3.0, 4.0, 0.8)
     assert all(type(value) is float for value in vars(first).values())
     np.testing.assert_array_equal(positions(detections), [[10.5, 20.25], [3.0, 4.0]])
+    np.testing.assert_array_equal(extents(detections), [12.0, 6.0])
+    np.testing.assert_array_equal(line_directions(detections), [[0.1, 1.7], [0.2, 1.8]])
+    assert positions([]).shape == line_directions([]).shape == (0, 2)
+    assert extents([]).shape == (0,)
+
+
+def test_the_rows_kept_come_strongest_first():
+    score = np.array([0.2, 0.9, 0.5, 0.7])
+    np.testing.assert_array_equal(strongest_first(np.array([0, 2, 3]), score), [3, 2, 0])
+    assert strongest_first(np.zeros(0, np.intp), score).shape == (0,)
 
 
 def test_arrays_of_unequal_rows_are_refused():

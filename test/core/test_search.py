@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from marker_localizer.config import DetectorConfig
+from marker_localizer.core import search
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.search import CandidateSearch
 from marker_localizer.synthetic import SceneConfig, render_scene
@@ -60,3 +61,13 @@ def test_a_region_wholly_beyond_the_frame_holds_no_candidate(frame, region):
     counts: dict[str, int] = {}
     found = CandidateSearch(DetectorConfig()).screen(gray, white, counts, np.array([region]))
     assert len(found) == 0 and counts["candidates"] == 0
+
+
+def test_a_candidate_closer_than_the_separation_to_a_known_marker_is_that_markers():
+    known = np.array([[100.0, 100.0], [300.0, 50.0]])
+    xy = np.array([[103.0, 100.0], [100.0, 104.9], [100.0, 105.1], [300.0, 45.0], [10.0, 10.0]])
+    np.testing.assert_array_equal(
+        search.near_known(xy, known, separation_px=5.0), [True, True, False, False, False]
+    )
+    assert search.near_known(xy, np.zeros((0, 2)), 5.0).tolist() == [False] * 5
+    assert search.near_known(np.zeros((0, 2)), known, 5.0).shape == (0,)
