@@ -28,6 +28,27 @@ _SUPERSAMPLING = 4  # template pixels are area-integrated from 4x4 sub-samples
 #: NCC: markers and the ground-texture saddles that pass the annular check overlap in
 #: either alone, and together this trade parts them best.
 NCC_EVIDENCE_WEIGHT = 8.0
+#: (low, high) clip of the defocus sigma_b read from an edge's slope
+#: (:func:`estimate_defocus_sigma`), px: an edge imaged by pixels is never sharper
+#: than a pixel's own spread, 1/sqrt(12) = 0.29 px, and a blur over 5 px is wider than
+#: the half-size of the smallest templates (3 px), whose edges it would leave flat.
+DEFOCUS_SIGMA_LIMITS_PX = (0.3, 5.0)
+#: sigma_b where an edge shows neither contrast nor slope (0 / 0), px: the template
+#: then has no contrast to blur, so any value within the limits gives the same one.
+_DEFOCUS_SIGMA_UNREAD_PX = 1.0
+#: The defocus blurs :func:`template_correlation` tries, px, each about 1.6 times the
+#: last: from twice a pixel's own spread to 2.5 px. The match is the best over them, so
+#: a blur between two of them reads a little low.
+CORRELATION_BLURS_PX = (0.6, 1.0, 1.6, 2.5)
+#: Samples of the disk :func:`template_correlation` and :func:`template_misfit` read at
+#: most per point: a disk of up to 4.9 px radius is read every half pixel, one of up to
+#: 9.8 px every pixel or closer, a wider one on a grid coarse enough to keep this cost.
+DISK_MAX_SAMPLES = 300
+#: Sine of the lines' crossing angle :func:`_first_clear_of_other_line` takes at least
+#: (sin 11.5 degrees, under the double-line check's
+#: :data:`~marker_localizer.core.verification.LINE_MIN_ANGLE_RAD`): it bounds the
+#: distance at 6 side offsets for lines nearer parallel than an X's.
+_MIN_CROSSING_SINE = 0.2
 
 
 def line_distances(
@@ -133,11 +154,13 @@ def estimate_defocus_sigma(
         contrast: (N,) step height in the same units.
 
     Returns:
-        (N,) sigma_b in pixels, clipped to [0.3, 5].
+        (N,) sigma_b in pixels, clipped to :data:`DEFOCUS_SIGMA_LIMITS_PX`.
     """
+    low, high = DEFOCUS_SIGMA_LIMITS_PX
     with np.errstate(divide="ignore", invalid="ignore"):
         sigma = np.abs(contrast) / (np.sqrt(2.0 * np.pi) * gradient_magnitude_peak)
-    clipped: NDArray[np.float64] = np.clip(np.nan_to_num(sigma, nan=1.0, posinf=5.0), 0.3, 5.0)
+    read = np.nan_to_num(sigma, nan=_DEFOCUS_SIGMA_UNREAD_PX, posinf=high)
+    clipped: NDArray[np.float64] = np.clip(read, low, high)
     return clipped
 
 
@@ -226,8 +249,8 @@ def template_correlation(
     xy: NDArray[np.float64],
     line_angles: NDArray[np.float64],
     radius_px: NDArray[np.float64],
-    sigmas_px: tuple[float, ...] = (0.6, 1.0, 1.6, 2.5),
-    max_samples: int = 300,
+    sigmas_px: tuple[float, ...] = CORRELATION_BLURS_PX,
+    max_samples: int = DISK_MAX_SAMPLES,
     normalise: Normaliser | None = None,
     full_scale: float | None = None,
     leave_out_clipped: bool = False,
@@ -354,7 +377,7 @@ def template_misfit(
     radius_px: NDArray[np.float64],
     ncc: NDArray[np.float64],
     noise: NoiseModel,
-    max_samples: int = 300,
+    max_samples: int = DISK_MAX_SAMPLES,
     full_scale: float | None = None,
 ) -> NDArray[np.float64]:
     """(N,) share of the disk's variance the blurred X leaves unexplained beyond the noise.
@@ -969,7 +992,7 @@ def _first_clear_of_other_line(
     """(N,) the distance along a line from which samples ``side_px`` beside it clear the other."""
     sine = np.abs(np.sin(line_angles[:, 0] - line_angles[:, 1]))
     first: NDArray[np.float64] = side_px * (
-        np.sqrt(np.maximum(1.0 - sine**2, 0.0)) / np.maximum(sine, 0.2) + 1.0
+        np.sqrt(np.maximum(1.0 - sine**2, 0.0)) / np.maximum(sine, _MIN_CROSSING_SINE) + 1.0
     )
     return first
 

@@ -37,6 +37,15 @@ _LSD_MIN_WINDOW_PX = 24
 #: LSD window half-width in marker radii: the X and a margin for its blurred edges,
 #: but not the plate's outline, whose segments would only add crossings to test.
 LSD_WINDOW_RADII = 1.25
+#: Smallest half-width of an LSD window, px, before the enlargement to
+#: :data:`_LSD_MIN_WINDOW_PX`: at :data:`LSD_WINDOW_RADII` alone a 3 px X's window
+#: would be 9 x 9 pixels, its blurred edges cut a pixel beyond its extent; this widens
+#: the windows of X's under 4.8 px.
+_LSD_MIN_HALF_WINDOW_PX = 6.0
+#: Smallest angle between the double-line check's two lines: a right-angled X seen 80
+#: degrees off its normal still shows about 20 degrees (2 atan(cos 80 degrees)); the
+#: crossing of lines nearer parallel moves far with a small error in either's direction.
+LINE_MIN_ANGLE_RAD = float(np.deg2rad(20.0))
 _HALF_TURN = N_ANGLES // 2
 #: A centrally symmetric X's opposite sector boundaries lie half a turn apart within
 #: this, radians (three of the annulus' 10-degree samples): a tilt keeps them opposite,
@@ -102,6 +111,13 @@ PRESCREEN_GOOD_RINGS = 3
 #: Ratio of consecutive rings of the annular scan (:func:`ring_radii`): an X's extent,
 #: its last ring that shows the X, reads up to this factor short of its shortest reach.
 RING_STEP = float(np.sqrt(2.0))
+#: The annular scan's first ring (:func:`ring_radii`): this share of the smallest
+#: radius, so each radius range reads its own rungs ...
+FIRST_RING_RADIUS_SHARE = 0.5
+#: ... and this far from the centre at least, px: a sample on a sector's bisector lies
+#: 0.71 of its ring's radius from either line, and on a nearer ring within a blur
+#: width (about 1 px) of both, where little of the X's modulation is left.
+FIRST_RING_MIN_PX = 1.5
 #: Rings that say where an X's lines cross (:func:`line_crossing_centres`): those a
 #: run of good rings may start on and the next (:data:`MAX_FIRST_RING`, plus one), so
 #: among those the check reads for every point first, whose samples they take.
@@ -704,16 +720,17 @@ def with_equalised(
 def ring_radii(radius_range_px: tuple[float, float]) -> NDArray[np.float64]:
     """Ring radii of the annular scan: a :data:`RING_STEP` progression across the expected radii.
 
-    It starts at half the smallest radius (1.5 px at least), so each range reads
-    its own rungs. On one grid for every range, a tighter range would read a subset
-    of a looser one's rungs; but the extent edges (:data:`TEXTURE_SCORE_FLOORS`,
+    It starts at :data:`FIRST_RING_RADIUS_SHARE` of the smallest radius
+    (:data:`FIRST_RING_MIN_PX` at least), so each range reads its own rungs. On one
+    grid for every range, a tighter range would read a subset of a looser one's
+    rungs; but the extent edges (:data:`TEXTURE_SCORE_FLOORS`,
     :data:`SMALL_EXTENT_FACTOR`, :data:`EQUALISED_MIN_EXTENT_PX`) lie between the
     rungs of the ranges they were set on, and on such a grid at or next to a rung,
     where each rung's side trades texture's false points against markers
     (docs/accuracy-journal.md, "Two more grids").
     """
     r_min, r_max = radius_range_px
-    start = max(1.5, 0.5 * r_min)
+    start = max(FIRST_RING_MIN_PX, FIRST_RING_RADIUS_SHARE * r_min)
     count = int(np.floor(np.log(max(r_max, start) / start) / np.log(RING_STEP))) + 1
     return cast("NDArray[np.float64]", start * RING_STEP ** np.arange(count))
 
@@ -1690,7 +1707,7 @@ def double_line_check(
     *,
     extend_px: float,
     max_distance_px: float,
-    min_angle_rad: float = np.deg2rad(20.0),
+    min_angle_rad: float = LINE_MIN_ANGLE_RAD,
     full_scale: float = 255.0,
     stretch: NDArray[np.float64] | None = None,
 ) -> LineCheck:
@@ -1736,7 +1753,7 @@ def double_line_check(
     clipped_window: list[bool] = []
     # A loop over candidates (not pixels): each runs LSD on its own small window.
     for k in range(n):
-        half = int(np.ceil(max(LSD_WINDOW_RADII * radius_px[k], 6.0)))
+        half = int(np.ceil(max(LSD_WINDOW_RADII * radius_px[k], _LSD_MIN_HALF_WINDOW_PX)))
         cx, cy = int(round(xy[k, 0])), int(round(xy[k, 1]))
         x0, y0 = max(cx - half, 0), max(cy - half, 0)
         x1, y1 = min(cx + half + 1, width), min(cy + half + 1, height)
@@ -2394,6 +2411,9 @@ def _recurrence_offsets(span: int, extent: float) -> tuple[NDArray[np.intp], NDA
 #: Reach along each of an X's four half-lines, beyond its extent, where
 #: :func:`line_continuation` reads the step across it, in extents.
 CONTINUATION_REACH = (1.1, 1.9)
+#: Places along each half-line over :data:`CONTINUATION_REACH` where the step across it
+#: is read: every tenth of the extent.
+_CONTINUATION_SAMPLES = 9
 #: Distance of the two samples either side of the line, px: clear of a blurred
 #: edge's middle, within a pixel or two of the line a small angle error moves ...
 _CONTINUATION_SIDE_PX = 1.5
@@ -2432,7 +2452,10 @@ def line_continuation(
     inside = np.abs(_sector_modulation(image, xy, radius_px, line_angles, (X_END_INSIDE,))[:, 0])
     directions = np.concatenate([line_angles, line_angles + np.pi], axis=1)[:, :, None]
     along = np.cos(directions), np.sin(directions)
-    rho = radius_px[:, None, None] * np.linspace(*CONTINUATION_REACH, 9)[None, None, :]
+    rho = (
+        radius_px[:, None, None]
+        * np.linspace(*CONTINUATION_REACH, _CONTINUATION_SAMPLES)[None, None, :]
+    )
     x, y = xy[:, 0, None, None] + rho * along[0], xy[:, 1, None, None] + rho * along[1]
     side = np.maximum(_CONTINUATION_SIDE_PX, np.tan(_CONTINUATION_SIDE_ANGLE_RAD) * rho)
     side_x, side_y = -side * along[1], side * along[0]
