@@ -10,9 +10,10 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import functools
+import math
 import numbers
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args, overload
@@ -716,23 +717,102 @@ def _yaml() -> Any:
     return yaml
 
 
-#: A float as YAML 1.2 and ROS's parameter parser (rcl_yaml_param_parser) read it: with
-#: an exponent and no decimal point too (``1e-6``), which YAML 1.1 (PyYAML) reads as a
-#: string.
-_YAML_12_FLOAT = re.compile(r"^[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?$")
+#: The plain scalars ROS's parameter parser (rcl_yaml_param_parser, ``get_value``) reads
+#: as booleans: YAML 1.1's words and the one-letter ``y`` and ``n``, each in three cases.
+_RCL_TRUE, _RCL_FALSE = (
+    frozenset(f(word) for word in words for f in (str.lower, str.capitalize, str.upper))
+    for words in (("y", "yes", "true", "on"), ("n", "no", "false", "off"))
+)
+#: An integer as the parser's ``strtol(text, 0)`` reads it whole: decimal, ``0x`` hex or
+#: ``0`` octal, no ``_`` between digits (YAML 1.1's ``50_000_000`` is a string there).
+_RCL_INT = re.compile(r"[-+]?(?:0[xX][0-9a-fA-F]+|0[0-7]*|[1-9][0-9]*)")
+#: A float as its ``strtod`` reads it whole: decimal with or without a point or an
+#: exponent (``1e-6``, ``08``), ``inf``/``infinity``/``nan`` in any case and YAML's
+#: ``.inf``/``.nan``; hexadecimal floats (``0x1p4``) are read by :func:`float.fromhex`.
+_RCL_FLOAT = re.compile(r"[-+]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf(?:inity)?|nan)", re.I)
+_RCL_HEX_FLOAT = re.compile(
+    r"[-+]?0[xX](?:[0-9a-fA-F]+\.?[0-9a-fA-F]*|\.[0-9a-fA-F]+)(?:[pP][-+]?\d+)?"
+)
+#: YAML's spellings of infinity and NaN, which the parser reads before ``strtod``.
+_RCL_YAML_FLOATS = frozenset(
+    f"{sign}.{word}" for sign in ("", "+", "-") for word in ("inf", "Inf", "INF")
+) | frozenset({".nan", ".NaN", ".NAN"})
+#: The int64 a parameter holds: ``strtol`` overflows beyond it, and the text is read as a float.
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
+#: The tag this module's loader gives every scalar without one of its own (see
+#: :func:`rcl_scalar`): YAML's own resolution (PyYAML's 1.1) reads many otherwise.
+_RCL_SCALAR_TAG = "tag:marker_localizer,2026:rcl-scalar"
+_YAML_STR_TAG = "tag:yaml.org,2002:str"
+
+
+def rcl_scalar(text: str) -> bool | int | float | str:
+    """The value an unquoted scalar ``text`` of a ROS 2 parameters file gives the node.
+
+    As rcl_yaml_param_parser reads it (``get_value``): a boolean word (``y``, ``on``,
+    ``false``), then a whole integer (``strtol``; ``0x10``, ``017``), then a whole float
+    (``strtod``; ``1e-6``, ``inf``), else the text itself. YAML 1.1's other forms are
+    strings to it: ``50_000_000``, ``1:30``, ``0b101``, ``null``, ``~``, ``2001-12-14``.
+    A quoted scalar, or one tagged ``!!str``, is a string (not read here).
+    """
+    if text in _RCL_TRUE:
+        return True
+    if text in _RCL_FALSE:
+        return False
+    if _RCL_INT.fullmatch(text):
+        digits = text.lstrip("+-")
+        base = 16 if digits[:2] in ("0x", "0X") else 8 if digits[:1] == "0" else 10
+        integer = int(text, base)
+        if _INT64_MIN <= integer <= _INT64_MAX:  # beyond, strtol overflows and strtod reads it
+            return integer
+    if text in _RCL_YAML_FLOATS:
+        return float(text.replace(".", ""))
+    if _RCL_FLOAT.fullmatch(text) or _RCL_HEX_FLOAT.fullmatch(text):
+        number = float(text) if _RCL_FLOAT.fullmatch(text) else float.fromhex(text)
+        # strtod overflows (1e999) to an error, and the parser keeps the text.
+        if not math.isinf(number) or "inf" in text.lower():
+            return number
+    return text
 
 
 @functools.cache
 def _ros_yaml_loader() -> type:
-    """PyYAML's safe loader that reads a float as ROS's parameters file does (``1e-6``)."""
+    """PyYAML's safe loader reading scalars and keys as ROS's parameters file does.
+
+    Every scalar without a tag of its own goes to :func:`rcl_scalar` unless quoted
+    (YAML 1.1's resolution would read ``y`` as a string and ``50_000_000`` as an int,
+    where the node reads a bool and a string), a key is its text (``on:`` names a
+    parameter ``on``), and an alias (``*name``) is refused, as the node refuses it.
+    """
     yaml = _yaml()
 
-    # A subclass of its own: the resolver would otherwise join every SafeLoader's.
-    loader: type = type("RosYamlLoader", (yaml.SafeLoader,), {})
-    loader.add_implicit_resolver(  # type: ignore[attr-defined]
-        "tag:yaml.org,2002:float", _YAML_12_FLOAT, list("-+0123456789.")
-    )
-    return loader
+    class RosYamlLoader(yaml.SafeLoader):  # type: ignore[name-defined]
+        def resolve(self, kind: Any, value: str, implicit: tuple[bool, bool]) -> str:
+            if kind is yaml.ScalarNode:
+                return _RCL_SCALAR_TAG
+            return str(super().resolve(kind, value, implicit))
+
+        def compose_node(self, parent: Any, index: Any) -> Any:
+            if self.check_event(yaml.AliasEvent):
+                raise yaml.composer.ComposerError(
+                    None,
+                    None,
+                    "an alias (*name), which ROS's parser refuses",
+                    self.peek_event().start_mark,
+                )
+            return super().compose_node(parent, index)
+
+        def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
+            for key, _ in node.value:
+                if isinstance(key, yaml.ScalarNode) and key.tag == _RCL_SCALAR_TAG:
+                    key.tag = _YAML_STR_TAG
+            return dict(super().construct_mapping(node, deep=deep))
+
+    def construct_rcl_scalar(loader: Any, node: Any) -> Any:
+        text = loader.construct_scalar(node)
+        return text if node.style in ("'", '"') else rcl_scalar(text)
+
+    RosYamlLoader.add_constructor(_RCL_SCALAR_TAG, construct_rcl_scalar)
+    return RosYamlLoader
 
 
 def _yaml_scalar(text: str) -> Any:
@@ -742,6 +822,50 @@ def _yaml_scalar(text: str) -> Any:
         return yaml.load(text, _ros_yaml_loader())
     except yaml.YAMLError:
         return text
+
+
+def _load_ros_yaml(text: str, path: str | Path) -> Any:
+    """The document of a parameters file's ``text``, read as the node reads it.
+
+    Raises:
+        ConfigError: a value left empty (``key:`` with nothing after it), anywhere in
+            the file, named with its line: the node refuses the whole file for it
+            (rcl: "No value at line N").
+        yaml.YAMLError: the text is not YAML.
+    """
+    loader = _ros_yaml_loader()(text)
+    try:
+        root = loader.get_single_node()
+        if root is None:
+            return None
+        for name, line in _empty_values(root):
+            # A parameter by the name the node gives it (detector.min_contrast_dn).
+            named = name.partition("ros__parameters.")[2] or name
+            raise ConfigError(
+                f"{path}: line {line}: {named} has no value (give one, or delete the line)"
+            )
+        return loader.construct_document(root)
+    finally:
+        loader.dispose()
+
+
+def _empty_values(node: Any, name: str = "") -> Iterator[tuple[str, int]]:
+    """(name, line) of each unquoted scalar left empty under ``node``, named by its keys' path.
+
+    The path from the file's top, keys joined by dots, a list item by its index:
+    ``/**.ros__parameters.detector.min_contrast_dn``, ``other.ros__parameters.cameras[1]``.
+    """
+    yaml = _yaml()
+    if isinstance(node, yaml.ScalarNode):
+        if node.style is None and node.value == "":
+            yield name, node.start_mark.line + 1
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            yield from _empty_values(item, f"{name}[{index}]")
+    elif isinstance(node, yaml.MappingNode):
+        for key, value in node.value:
+            text = str(key.value) if isinstance(key, yaml.ScalarNode) else "?"
+            yield from _empty_values(value, f"{name}.{text}" if name else text)
 
 
 _Config = TypeVar("_Config", DetectorConfig, TrackerConfig)
@@ -783,7 +907,7 @@ def load_params_file(
     """
     yaml = _yaml()
     try:
-        document = yaml.load(Path(path).read_text(encoding="utf-8"), _ros_yaml_loader())
+        document = _load_ros_yaml(Path(path).read_text(encoding="utf-8"), path)
     except OSError as err:
         raise ConfigError(f"{path}: cannot read parameters file ({err.strerror})") from err
     except UnicodeDecodeError as err:

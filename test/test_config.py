@@ -278,7 +278,7 @@ def test_a_tracker_setting_out_of_its_range_is_refused_with_its_name():
         ("- 1\n- 2\n", "expected a mapping"),
         ("other:\n  x: 1\n", "no ros__parameters"),
         ("/**:\n  ros__parameters:\n    detector: 5\n", "ros__parameters.detector must be a map"),
-        ("/**:\n  ros__parameters:\n    detector:\n", "ros__parameters.detector must be a map"),
+        ("/**:\n  ros__parameters:\n    detector:\n", "line 3: detector has no value"),
     ],
 )
 def test_load_params_file_explains_what_is_wrong(tmp_path, text, message):
@@ -308,3 +308,105 @@ def test_a_bad_tracker_value_in_a_params_file_names_the_file_and_its_section(tmp
 def test_load_params_file_names_a_missing_file(tmp_path):
     with pytest.raises(ConfigError, match="cannot read parameters file"):
         load_params_file(tmp_path / "missing.yaml")
+
+
+# The spellings below were read by the node itself (python -m marker_localizer.node
+# --ros-args --params-file f.yaml, its get_parameters service or its fatal line;
+# rclpy 7.1.5, Jazzy, 2026-12-07); test/ros/test_params_file_spellings.py starts it.
+
+
+def _params_file(tmp_path, name, spelling):
+    path = tmp_path / "params.yaml"
+    path.write_text(f"/**:\n  ros__parameters:\n    detector:\n      {name}: {spelling}\n")
+    return path
+
+
+def test_an_integer_written_with_underscores_is_text_to_the_file_as_to_the_node(tmp_path):
+    """``max_pixels: 50_000_000``: the node stops on ``detector.max_pixels='50_000_000' must
+    be of type int in [1, 1073741824] px`` (rcl's strtol reads no underscores), where
+    PyYAML's YAML 1.1 read 50000000 and ``detect`` ran."""
+    path = _params_file(tmp_path, "max_pixels", "50_000_000")
+    assert load_params_file(path) == {"max_pixels": "50_000_000"}
+    with pytest.raises(
+        ConfigError, match=r"max_pixels='50_000_000' must be of type int in \[1, 1073741824\] px$"
+    ):
+        detector_config(path, [])
+
+
+@pytest.mark.parametrize(
+    ("spelling", "value"),
+    [
+        ("y", True),
+        ("Y", True),
+        ("n", False),
+        ("N", False),
+        ("yes", True),
+        ("on", True),
+        ("off", False),
+    ],
+)
+def test_yaml_1_1_booleans_are_booleans_to_the_file_as_to_the_node(tmp_path, spelling, value):
+    """``line_check: y`` (and ``Y``, ``n``, ``N``): the node serves with ``detector.line_check``
+    True (False for ``n``); PyYAML read ``y`` and ``n`` as strings, and ``detect`` refused
+    them. ``yes``, ``on``, ``off`` were booleans to both, and still are."""
+    path = _params_file(tmp_path, "line_check", spelling)
+    assert load_params_file(path) == {"line_check": value}
+    assert detector_config(path, []).line_check is value
+
+
+def test_an_empty_value_stops_the_file_naming_the_parameter_as_it_stops_the_node(tmp_path):
+    """``min_contrast_dn:`` with nothing: the node does not start (``Couldn't parse params
+    file ... No value at line 4``), where PyYAML read None and the refusal was of a type."""
+    path = _params_file(tmp_path, "min_contrast_dn", "")
+    with pytest.raises(
+        ConfigError, match=r"params\.yaml: line 4: detector\.min_contrast_dn has no value"
+    ):
+        load_params_file(path)
+    # Anywhere in the file: the node refuses it for another node's empty value too.
+    path.write_text(
+        "camera:\n  ros__parameters:\n    fps:\n"
+        "/**:\n  ros__parameters:\n    detector:\n      min_score: 0.5\n"
+    )
+    with pytest.raises(ConfigError, match=r"line 3: fps has no value"):
+        load_params_file(path)
+
+
+@pytest.mark.parametrize(
+    ("name", "spelling", "value"),
+    [
+        ("min_contrast_dn", "~", "~"),  # PyYAML: None
+        ("min_contrast_dn", "null", "null"),  # PyYAML: None
+        ("max_pixels", "1:30", "1:30"),  # PyYAML: 90 (base 60)
+        ("max_pixels", "0b101", "0b101"),  # PyYAML: 5
+        ("refinement", "2001-12-14", "2001-12-14"),  # PyYAML: a date
+        ("min_contrast_dn", "0x1p4", 16.0),  # strtod's hexadecimal float; PyYAML: text
+        ("max_pixels", "08", 8.0),  # not octal, so strtod's float; PyYAML: 8.0 too
+        ("max_pixels", "017", 15),  # octal to both
+        ("min_contrast_dn", "'30'", "30"),  # quoted: text to both
+        ("max_pixels", "!!str 5000", "5000"),
+        ("max_pixels", "|-\n        5000", 5000),  # a block scalar is read as a plain one
+    ],
+)
+def test_other_scalars_read_as_the_nodes_parser_reads_them(tmp_path, name, spelling, value):
+    """Each as rcl's parser gave it to an rclpy node declaring the file's parameters."""
+    parsed = load_params_file(_params_file(tmp_path, name, spelling))[name]
+    assert parsed == value and type(parsed) is type(value)
+
+
+def test_a_key_is_its_text_and_an_alias_is_refused_as_the_node_does(tmp_path):
+    """rcl names a parameter ``on`` (PyYAML: True) and stops on ``*name`` (``Will not support
+    aliasing at line 5``)."""
+    path = _params_file(tmp_path, "on", "3")
+    assert load_params_file(path) == {"on": 3}
+    path.write_text(
+        "/**:\n  ros__parameters:\n    detector:\n"
+        "      max_pixels: &pixels 5000\n      max_candidates: *pixels\n"
+    )
+    with pytest.raises(ConfigError, match=r"line 5, column 23: an alias"):
+        load_params_file(path)
+
+
+def test_a_param_on_the_command_line_reads_y_as_the_file_does():
+    assert parse_value("line_check", "y") is True
+    with pytest.raises(ConfigError, match=r"max_pixels='50_000_000' must be of type int"):
+        parse_value("max_pixels", "50_000_000")
