@@ -678,6 +678,9 @@ def _check_whole(data: Encoded, source: str) -> None:
 def read_image_file(path: str | Path, max_pixels: int) -> np.ndarray:
     """Read an image file as stored; see :func:`decode_image`.
 
+    Its dtype and levels are the file's: a float TIFF's samples are not rescaled
+    (the detector reads a float image's white at 1, :func:`~marker_localizer.core.image.to_gray`).
+
     Raises:
         ImageError: naming the file: missing, unreadable, too large, not an image.
     """

@@ -33,6 +33,15 @@ from marker_localizer.core.result import DetectionResult
 from marker_localizer.errors import ConfigError, ImageError
 from marker_localizer.image_files import read_image_file
 
+#: A float image's brightest level under one 8-bit step of its white (1): no exposure
+#: leaves every level there, so its levels were scaled for another white (0-1 levels
+#: divided by 255 once more), and the detector reads a black frame.
+_FLOAT_MIN_PEAK = 1.0 / 255.0
+#: :data:`_FLOAT_MIN_PEAK` as the warning writes it.
+_FLOAT_MIN_PEAK_TEXT = "1/255"
+#: White in a float image (core.image.to_gray), as the warnings name it.
+_FLOAT_WHITE_TEXT = "1 in a float image, whose levels are read in [0, 1]"
+
 
 def result_record(
     path: str, image: np.ndarray, result: DetectionResult, elapsed_ms: float
@@ -246,17 +255,20 @@ def main(argv: Sequence[str]) -> int:
 
 
 def _warn_of_levels(path: str, image: np.ndarray, bit_depth: int) -> None:
-    """One line on stderr where an integer file's levels look like a shallower sensor's or dim.
+    """One line on stderr where a file's levels look shallower, scaled otherwise, or dim.
 
     A 16-bit file under 1/16 of white is named with the depth its levels fit
-    (:func:`~marker_localizer.core.image.bit_depth_hint`); otherwise one under
+    (:func:`~marker_localizer.core.image.bit_depth_hint`); a float file, white at 1,
+    whose brightest level is under :data:`_FLOAT_MIN_PEAK` or over 1 (clipped to it)
+    is named as scaled for another white; otherwise one under
     :data:`~marker_localizer.core.image.DIM_PEAK_SHARE` of white is underexposed
-    (:func:`~marker_localizer.core.image.underexposed`). A float file is not judged:
-    its levels are whatever its writer scaled to 1.
+    (:func:`~marker_localizer.core.image.underexposed`). Levels as
+    :func:`~marker_localizer.core.image.peak_level` reads them.
     """
-    if image.dtype.kind != "u":
-        return
     peak = peak_level(image)
+    if image.dtype.kind == "f":
+        _warn_of_float_levels(path, peak)
+        return
     white = bit_depth_scale(image.dtype, bit_depth)
     hint = bit_depth_hint(peak, bit_depth) if image.dtype == np.uint16 else None
     if hint is not None:
@@ -269,6 +281,25 @@ def _warn_of_levels(path: str, image: np.ndarray, bit_depth: int) -> None:
         )
     elif underexposed(peak / white):
         print(f"{PROG}: warning: {path}: {underexposure_warning(peak / white)}", file=sys.stderr)
+
+
+def _warn_of_float_levels(path: str, peak: float) -> None:
+    """:func:`_warn_of_levels` for a float file whose brightest level is ``peak`` (white 1)."""
+    if peak < _FLOAT_MIN_PEAK:
+        problem = f"under {_FLOAT_MIN_PEAK_TEXT} of white ({_FLOAT_WHITE_TEXT})"
+        advice = "scale them so that white is 1"
+    elif peak > 1.0:
+        problem = f"over white ({_FLOAT_WHITE_TEXT})"
+        advice = "the levels above it are clipped to it"
+    elif underexposed(peak):
+        print(f"{PROG}: warning: {path}: {underexposure_warning(peak)}", file=sys.stderr)
+        return
+    else:
+        return
+    print(
+        f"{PROG}: warning: {path}: its brightest level, {peak:g}, is {problem}: {advice}",
+        file=sys.stderr,
+    )
 
 
 def _overlay_paths(images: Sequence[str], folder: str) -> dict[str, Path]:

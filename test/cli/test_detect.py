@@ -222,6 +222,49 @@ def test_a_float_tiff_of_8_bit_levels_is_one_line_not_a_blank_frame(x_image, tmp
     assert record["image"] == str(unit) and len(record["markers"]) == 1
 
 
+@pytest.mark.parametrize(
+    ("scale", "warning"),
+    [
+        (
+            1.0 / 255.0**2,  # 0-1 levels divided by 255 once more
+            "its brightest level, 0.00307574, is under 1/255 of white (1 in a float image, "
+            "whose levels are read in [0, 1]): scale them so that white is 1",
+        ),
+        (
+            1.2 / 200.0,  # clipped within the overshoot core.image allows
+            "its brightest level, 1.2, is over white (1 in a float image, whose levels are "
+            "read in [0, 1]): the levels above it are clipped to it",
+        ),
+        (
+            0.4 / 200.0,
+            "frames underexposed: the brightest level is 40 % of white, under 1/2, where "
+            "markers are lost: raise the exposure or the gain",
+        ),
+    ],
+    ids=["scaled-twice", "over-white", "underexposed"],
+)
+def test_a_float_tiff_whose_levels_cannot_be_right_is_processed_with_a_warning(
+    x_image, tmp_path, capsys, scale, warning
+):
+    _, image = x_image
+    path = tmp_path / "float.tiff"
+    cv2.imwrite(str(path), image.astype(np.float32) * np.float32(scale))
+    assert main(["detect", str(path), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.strip().splitlines() == [f"marker-localizer: warning: {path}: {warning}"]
+    assert json.loads(captured.out)["image"] == str(path)
+
+
+def test_a_float_tiff_of_levels_in_0_1_is_read_without_a_word(x_image, tmp_path, capsys):
+    _, image = x_image
+    path = tmp_path / "unit.tiff"
+    cv2.imwrite(str(path), image.astype(np.float32) / np.float32(255.0))
+    assert main(["detect", str(path), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""
+    assert len(json.loads(captured.out)["markers"]) == 1
+
+
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
 @pytest.mark.parametrize("json_lines", [True, False], ids=["--json", "table"])
 def test_an_output_that_cannot_be_written_is_one_line_and_status_1(
