@@ -17,8 +17,8 @@ from marker_localizer.core.result import Detection
 _LINE_BGR = (0, 255, 0)
 _EXTENT_BGR = (0, 255, 255)
 _TRUTH_BGR = (255, 0, 255)
-#: Half the size of a true centre's tilted cross, px.
-_TRUTH_HALF_PX = 3.0
+#: Half the size of a true centre's tilted cross, px: cv2.drawMarker's size 7.
+TRUTH_HALF_PX = 3.0
 #: Fixed-point bits for cv2 drawing, so sub-pixel centres are drawn where they are.
 _DRAW_SHIFT = 4
 #: Farthest from the frame a drawn line's end or a circle's radius may reach, px:
@@ -65,7 +65,7 @@ def _drawable(canvas: np.ndarray, d: Detection, index: int) -> bool:
     return _shows(canvas, d.x, d.y, d.radius_px)
 
 
-def _truth_points(canvas: np.ndarray, truth: np.ndarray | None) -> np.ndarray:
+def _truth_points(canvas: np.ndarray, truth: np.ndarray | None, half_px: float) -> np.ndarray:
     """``truth`` as (N, 2) float64, less the points off ``canvas`` (they draw nothing).
 
     Raises:
@@ -84,7 +84,7 @@ def _truth_points(canvas: np.ndarray, truth: np.ndarray | None) -> np.ndarray:
             f"draw_detections: truth row {bad[0]} is {tuple(points[bad[0]].tolist())}: "
             "a true centre must be finite"
         )
-    shown = [_shows(canvas, x, y, _TRUTH_HALF_PX) for x, y in points]
+    shown = [_shows(canvas, x, y, half_px) for x, y in points]
     return points[np.array(shown, dtype=bool)]
 
 
@@ -113,6 +113,7 @@ def draw_detections(
     detections: Sequence[Detection],
     truth: np.ndarray | None = None,
     bit_depth: int = 16,
+    truth_half_px: float = TRUTH_HALF_PX,
 ) -> np.ndarray:
     """Draw each marker's two lines and extent circle through its sub-pixel centre.
 
@@ -124,6 +125,8 @@ def draw_detections(
         truth: optional (N, 2) true centres, drawn as small magenta crosses
             through each (sub-pixel) centre.
         bit_depth: significant bits of uint16 pixels (white at 2**bit_depth - 1).
+        truth_half_px: half the size of a true centre's cross, px (larger on a
+            magnified frame, where the default is a fraction of a frame pixel).
 
     A marker or true centre off the frame draws nothing, however far off.
 
@@ -137,7 +140,7 @@ def draw_detections(
             drawn.
     """
     canvas = to_bgr(pixels, bit_depth)
-    truth_shown = _truth_points(canvas, truth)
+    truth_shown = _truth_points(canvas, truth, truth_half_px)
     shown = [d for index, d in enumerate(detections) if _drawable(canvas, d, index)]
     for d in shown:
         centre = np.array([d.x, d.y])
@@ -162,8 +165,8 @@ def draw_detections(
             _DRAW_SHIFT,
         )
     for point in truth_shown:
-        # cv2.drawMarker's tilted cross of size 7, at the sub-pixel point (it rounds).
-        for corner in ((_TRUTH_HALF_PX, _TRUTH_HALF_PX), (_TRUTH_HALF_PX, -_TRUTH_HALF_PX)):
+        # A tilted cross as cv2.drawMarker's, at the sub-pixel point (drawMarker rounds).
+        for corner in ((truth_half_px, truth_half_px), (truth_half_px, -truth_half_px)):
             cv2.line(
                 canvas,
                 _fixed(point - np.array(corner)),
