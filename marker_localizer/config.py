@@ -784,35 +784,39 @@ def _ros_yaml_loader() -> type:
     parameter ``on``), and an alias (``*name``) is refused, as the node refuses it.
     """
     yaml = _yaml()
+    safe = yaml.SafeLoader
 
-    class RosYamlLoader(yaml.SafeLoader):  # type: ignore[name-defined]
-        def resolve(self, kind: Any, value: str, implicit: tuple[bool, bool]) -> str:
-            if kind is yaml.ScalarNode:
-                return _RCL_SCALAR_TAG
-            return str(super().resolve(kind, value, implicit))
+    def resolve(loader: Any, kind: Any, value: str, implicit: tuple[bool, bool]) -> str:
+        if kind is yaml.ScalarNode:
+            return _RCL_SCALAR_TAG
+        return str(safe.resolve(loader, kind, value, implicit))
 
-        def compose_node(self, parent: Any, index: Any) -> Any:
-            if self.check_event(yaml.AliasEvent):
-                raise yaml.composer.ComposerError(
-                    None,
-                    None,
-                    "an alias (*name), which ROS's parser refuses",
-                    self.peek_event().start_mark,
-                )
-            return super().compose_node(parent, index)
+    def compose_node(loader: Any, parent: Any, index: Any) -> Any:
+        if loader.check_event(yaml.AliasEvent):
+            mark = loader.peek_event().start_mark
+            problem = "an alias (*name), which ROS's parser refuses"
+            raise yaml.composer.ComposerError(None, None, problem, mark)
+        return safe.compose_node(loader, parent, index)
 
-        def construct_mapping(self, node: Any, deep: bool = False) -> dict[Any, Any]:
-            for key, _ in node.value:
-                if isinstance(key, yaml.ScalarNode) and key.tag == _RCL_SCALAR_TAG:
-                    key.tag = _YAML_STR_TAG
-            return dict(super().construct_mapping(node, deep=deep))
+    def construct_mapping(loader: Any, node: Any, deep: bool = False) -> dict[Any, Any]:
+        for key, _ in node.value:
+            if isinstance(key, yaml.ScalarNode) and key.tag == _RCL_SCALAR_TAG:
+                key.tag = _YAML_STR_TAG
+        return dict(safe.construct_mapping(loader, node, deep=deep))
 
     def construct_rcl_scalar(loader: Any, node: Any) -> Any:
         text = loader.construct_scalar(node)
         return text if node.style in ("'", '"') else rcl_scalar(text)
 
-    RosYamlLoader.add_constructor(_RCL_SCALAR_TAG, construct_rcl_scalar)
-    return RosYamlLoader
+    # A subclass of its own: the constructor would otherwise join every SafeLoader's.
+    methods = {
+        "resolve": resolve,
+        "compose_node": compose_node,
+        "construct_mapping": construct_mapping,
+    }
+    loader: type = type("RosYamlLoader", (safe,), methods)
+    loader.add_constructor(_RCL_SCALAR_TAG, construct_rcl_scalar)  # type: ignore[attr-defined]
+    return loader
 
 
 def _yaml_scalar(text: str) -> Any:
