@@ -44,6 +44,7 @@ from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench.accuracy import bin_labels, families, x_snr_band
 from marker_localizer.bench.runner import Report, add_json_option, run_and_save
 from marker_localizer.cli.arguments import comma_keys, count_type, seed_type
+from marker_localizer.core.result import positions
 from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import render_scene
 from marker_localizer.synthetic.crlb import X_SNR_BANDS, BoundParts
@@ -165,7 +166,7 @@ def family_bounds(key: str, seeds: Sequence[int]) -> FamilyBounds:
     parts: list[np.ndarray] = []
     for seed in seeds:
         scene = render_scene(family.scene, seed, bound_parts_within=INNER_SHARE)
-        detections = detector.detect(scene.image).as_array()[:, :2]
+        detections = positions(detector.detect(scene.image))
         matching = match_points(detections, scene.centres)
         snr.append(np.array([m.x_snr for m in scene.markers], dtype=np.float64))
         found.append(np.isin(np.arange(len(scene.markers)), matching.truth_index))

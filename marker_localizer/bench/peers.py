@@ -27,6 +27,7 @@ import numpy as np
 
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core.pipeline import Detector
+from marker_localizer.core.result import line_directions, positions, sigmas
 
 RadiusRange = tuple[float, float]
 
@@ -169,12 +170,11 @@ class OurDetector:
         colour file gives them to ``marker-localizer detect``.
         """
         result = self.detector(radius_range).detect(image_u8, colour=colour)
-        table = result.as_array()
-        self.last_sigmas = table[:, 3]
-        self.last_line_angles = table[:, 4:6]
+        self.last_sigmas = sigmas(result)
+        self.last_line_angles = line_directions(result)
         self.last_timings_ms = dict(result.timings_ms)
         self.last_survivors = result.survivors
-        return table[:, :2]
+        return positions(result)
 
 
 #: The paper's pipeline as published: its screening and checks, its sub-pixel location.

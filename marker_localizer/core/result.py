@@ -7,7 +7,7 @@ detections with what each stage counted, timed and left standing;
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,6 +42,12 @@ SECOND_READING_CAP_COUNTS = (
     "plate_over_cap",
     "dull_over_cap",
 )
+#: The :class:`Detection` fields of :meth:`DetectionResult.as_array`, one column each in
+#: this order (``evidence`` is not one): the one place the table's layout is written.
+#: Code outside this module reads a frame's detections by field, through
+#: :func:`positions`, :func:`scores`, :func:`sigmas`, :func:`line_directions` and
+#: :func:`extents`, not the table by column number.
+TABLE_COLUMNS = ("x", "y", "score", "sigma", "angle1", "angle2", "radius_px")
 
 
 @dataclass(frozen=True)
@@ -167,14 +173,8 @@ class DetectionResult:
         return self.detections[index]
 
     def as_array(self) -> NDArray[np.float64]:
-        """(N, 7) float64: x, y, score, sigma, angle1, angle2, radius_px."""
-        return np.array(
-            [
-                [d.x, d.y, d.score, d.sigma, d.angle1, d.angle2, d.radius_px]
-                for d in self.detections
-            ],
-            dtype=np.float64,
-        ).reshape(-1, 7)
+        """(N, 7) float64: x, y, score, sigma, angle1, angle2, radius_px (:data:`TABLE_COLUMNS`)."""
+        return _fields(self.detections, TABLE_COLUMNS)
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared and hashed by identity
@@ -214,19 +214,36 @@ class SearchPlan:
             object.__setattr__(self, name, value.astype(dtype).reshape(-1, columns))
 
 
-def positions(detections: list[Detection]) -> NDArray[np.float64]:
-    """(N, 2) the detections' centres."""
-    return np.array([[d.x, d.y] for d in detections], dtype=np.float64).reshape(-1, 2)
+def _fields(detections: Iterable[Detection], names: tuple[str, ...]) -> NDArray[np.float64]:
+    """(N, len(names)) float64: the named fields of each detection, a row each."""
+    return np.array(
+        [[getattr(d, name) for name in names] for d in detections], dtype=np.float64
+    ).reshape(-1, len(names))
 
 
-def extents(detections: list[Detection]) -> NDArray[np.float64]:
+def positions(detections: Iterable[Detection]) -> NDArray[np.float64]:
+    """(N, 2) the detections' centres, ``x`` and ``y``, px."""
+    return _fields(detections, ("x", "y"))
+
+
+def scores(detections: Iterable[Detection]) -> NDArray[np.float64]:
+    """(N,) the detections' ``score``."""
+    return _fields(detections, ("score",)).reshape(-1)
+
+
+def sigmas(detections: Iterable[Detection]) -> NDArray[np.float64]:
+    """(N,) the detections' ``sigma``, px."""
+    return _fields(detections, ("sigma",)).reshape(-1)
+
+
+def extents(detections: Iterable[Detection]) -> NDArray[np.float64]:
     """(N,) the detections' ``radius_px``."""
-    return np.array([d.radius_px for d in detections], dtype=np.float64)
+    return _fields(detections, ("radius_px",)).reshape(-1)
 
 
-def line_directions(detections: list[Detection]) -> NDArray[np.float64]:
+def line_directions(detections: Iterable[Detection]) -> NDArray[np.float64]:
     """(N, 2) the detections' line directions, ``angle1`` and ``angle2``, radians."""
-    return np.array([[d.angle1, d.angle2] for d in detections], dtype=np.float64).reshape(-1, 2)
+    return _fields(detections, ("angle1", "angle2"))
 
 
 def strongest_first(rows: NDArray[np.intp], score: NDArray[np.float64]) -> NDArray[np.intp]:

@@ -35,7 +35,11 @@ from marker_localizer.core.result import (
     Detection,
     DetectionResult,
     detections_of,
+    extents,
+    line_directions,
     positions,
+    scores,
+    sigmas,
     strongest_first,
 )
 from marker_localizer.core.screening import Candidates
@@ -292,8 +296,8 @@ class SymmetryPath:
             explained = plate.explains_at(
                 frame.gray,
                 positions(fitted),
-                np.array([d.radius_px for d in fitted]),
-                np.array([[d.angle1, d.angle2] for d in fitted]),
+                extents(fitted),
+                line_directions(fitted),
             )
         return [d for d, ok in zip(fitted, explained, strict=True) if ok]
 
@@ -402,9 +406,9 @@ class SymmetryPath:
                 xy, sigma, located = second_reading.located_in_shadow(
                     gray,
                     positions(found),
-                    np.array([d.sigma for d in found]),
-                    np.array([(d.angle1, d.angle2) for d in found]),
-                    np.array([d.radius_px for d in found]),
+                    sigmas(found),
+                    line_directions(found),
+                    extents(found),
                     frame.full_scale,
                     reading,
                 )
@@ -447,7 +451,7 @@ class SymmetryPath:
         unique = second_reading.new_points(
             positions(result.detections),
             positions(added),
-            np.array([d.score for d in added]),
+            scores(added),
             self.config.merge_radius_px,
         )
         result.counts["merged_duplicates"] += int((~unique).sum())
@@ -935,8 +939,9 @@ class SymmetryPath:
         alone: NDArray[np.bool_] = np.ones(len(detections), dtype=bool)
         lattice_asked = self.config.refinement == "symmetry" and self.config.lattice_check
         if lattice_asked and read_ground and detections:
-            table = np.array([(d.x, d.y, d.radius_px, d.angle1, d.angle2) for d in detections])
-            alone = self._model(frame).stands_alone(table[:, :2], table[:, 2], table[:, 3:])
+            alone = self._model(frame).stands_alone(
+                positions(detections), extents(detections), line_directions(detections)
+            )
         counts = frame.result.counts
         counts["rejected_lattice"] = counts.get("rejected_lattice", 0) + int((~alone).sum())
         kept = [detection for detection, keep in zip(detections, alone, strict=True) if keep]

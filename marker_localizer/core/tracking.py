@@ -92,7 +92,15 @@ from marker_localizer.config import TrackerConfig, require_config
 from marker_localizer.core import chroma
 from marker_localizer.core.image import to_gray
 from marker_localizer.core.pipeline import Detector
-from marker_localizer.core.result import Detection, DetectionResult, SearchPlan
+from marker_localizer.core.result import (
+    Detection,
+    DetectionResult,
+    SearchPlan,
+    extents,
+    line_directions,
+    positions,
+    scores,
+)
 from marker_localizer.core.screening import non_maximum_suppression, parabolic_offset
 
 #: Anchors whose patches measure the image motion: four fix a homography, the
@@ -326,12 +334,13 @@ class MarkerTracker:
         if fitted.sum() < 4:
             return None, None
         located = self._locate_tracks(gray, predicted, fitted)
-        owner = _associate(located.as_array()[:, :2], predicted, fitted, self.config.match_px)
+        centres = positions(located)
+        owner = _associate(centres, predicted, fitted, self.config.match_px)
         confirmed = owner >= 0
         if confirmed.sum() < max(4, fitted.sum() / 2):
             return None, None
         sources = np.array([t.xy for t in self._tracks])[confirmed]
-        targets = located.as_array()[owner[confirmed], :2]
+        targets = centres[owner[confirmed]]
         return _frame_motion(sources, targets, self.config.match_px), located
 
     def _fitted(self, leaving: NDArray[np.bool_]) -> NDArray[np.bool_]:
@@ -361,8 +370,8 @@ class MarkerTracker:
         return self.detector.locate(
             gray,
             predicted[fitted],
-            np.array([d.radius_px for d in known]),
-            np.array([[d.angle1, d.angle2] for d in known]).reshape(-1, 2),
+            extents(known),
+            line_directions(known),
             np.array([d.evidence for d in known]),
             colour=self._colour,
         )
@@ -454,9 +463,7 @@ class MarkerTracker:
         fitted = self._fitted(leaving)
         if located is None:
             located = self._locate_tracks(gray, corrected, fitted)
-        confirmed = (
-            _associate(located.as_array()[:, :2], corrected, fitted, self.config.match_px) >= 0
-        )
+        confirmed = _associate(positions(located), corrected, fitted, self.config.match_px) >= 0
         # Then the detector in a window around each marker the fit did not confirm
         # (a prediction off by more than the fit's reach, or a marker changed) or was
         # not started on (one the last full pass missed).
@@ -490,13 +497,13 @@ class MarkerTracker:
             parts.append(
                 self.detector.detect(
                     gray,
-                    SearchPlan(regions, located.as_array()[:, :2], corrected[seeded]),
+                    SearchPlan(regions, positions(located), corrected[seeded]),
                     colour=self._colour,
                 )
             )
         result = _combine(parts, self.detector.config.merge_radius_px)
-        found = result.as_array()
-        owner = _associate(found[:, :2], corrected, inside, self.config.match_px)
+        found = positions(result)
+        owner = _associate(found, corrected, inside, self.config.match_px)
         missed = owner < 0
         kept = self._kept(gray, corrected, missed & ~leaving)
         excused = self._missed_by_full_pass()
@@ -513,7 +520,7 @@ class MarkerTracker:
         claimed = np.zeros(len(found), dtype=bool)
         claimed[owner[owner >= 0]] = True
         tracks += [
-            _Track(found[k, :2].copy(), None, result.detections[k], stamp)
+            _Track(found[k].copy(), None, result.detections[k], stamp)
             for k in np.flatnonzero(~claimed)
         ]
         self._tracks = tracks
@@ -601,14 +608,14 @@ class MarkerTracker:
         """
         tracks = [_Track(np.array([d.x, d.y]), None, d, stamp) for d in result]
         if velocity_predicted is not None:
-            found = result.as_array()
+            found = positions(result)
             if motion is None:
                 predicted = velocity_predicted
             else:
                 predicted = _transform(motion, np.array([t.xy for t in self._tracks]))
             everyone = np.ones(len(predicted), bool)
             shift_radius = self.config.max_motion_px / 2.0
-            near = _associate(found[:, :2], predicted, everyone, shift_radius)
+            near = _associate(found, predicted, everyone, shift_radius)
             if (near >= 0).sum() < min(len(found), len(predicted)) / 2.0:
                 # The prediction missed most markers by more than the shift's vote radius:
                 # all of the motion, where the tracks have no velocity yet and a flight
@@ -617,8 +624,8 @@ class MarkerTracker:
                 # motion is wrong too: markers twice that motion apart still meet a
                 # prediction within max_motion_px. Only then: on a lattice of X's a shift
                 # by its period would win as many votes.
-                predicted = predicted + _common_shift(found[:, :2], predicted, shift_radius)
-            owner = _associate(found[:, :2], predicted, everyone, self.config.max_motion_px)
+                predicted = predicted + _common_shift(found, predicted, shift_radius)
+            owner = _associate(found, predicted, everyone, self.config.max_motion_px)
             # Without a measured motion, a missed track's position is a guess: it ends.
             inside = ~self._leaving(predicted, gray.shape) & (motion is not None)
             for track, index, prediction, keep in zip(
@@ -829,12 +836,12 @@ def _combine(results: list[DetectionResult], separation_px: float) -> DetectionR
             combined.counts[key] = combined.counts.get(key, 0) + count
         for stage, ms in part.timings_ms.items():
             combined.timings_ms[stage] = combined.timings_ms.get(stage, 0.0) + ms
-    found = combined.as_array()
-    keep = non_maximum_suppression(found[:, :2], found[:, 2], separation_px)
+    score = scores(combined)
+    keep = non_maximum_suppression(positions(combined), score, separation_px)
     combined.counts["merged_duplicates"] = combined.counts.get("merged_duplicates", 0) + int(
         (~keep).sum()
     )
-    order = np.flatnonzero(keep)[np.argsort(-found[keep, 2], kind="stable")]
+    order = np.flatnonzero(keep)[np.argsort(-score[keep], kind="stable")]
     combined.detections = [combined.detections[k] for k in order]
     combined.counts["accepted"] = len(combined.detections)
     return combined

@@ -11,12 +11,15 @@ from marker_localizer.core import decision, second_reading
 from marker_localizer.core.result import (
     CAP_COUNTS,
     SECOND_READING_CAP_COUNTS,
+    TABLE_COLUMNS,
     DetectionResult,
     SearchPlan,
     detections_of,
     extents,
     line_directions,
     positions,
+    scores,
+    sigmas,
     strongest_first,
 )
 from marker_localizer.synthetic import SceneConfig, render_scene
@@ -39,8 +42,10 @@ def test_detections_are_built_row_by_row_in_the_order_given():
     np.testing.assert_array_equal(positions(detections), [[10.5, 20.25], [3.0, 4.0]])
     np.testing.assert_array_equal(extents(detections), [12.0, 6.0])
     np.testing.assert_array_equal(line_directions(detections), [[0.1, 1.7], [0.2, 1.8]])
+    np.testing.assert_array_equal(scores(detections), [0.9, 0.7])
+    np.testing.assert_array_equal(sigmas(detections), [0.01, 0.02])
     assert positions([]).shape == line_directions([]).shape == (0, 2)
-    assert extents([]).shape == (0,)
+    assert extents([]).shape == scores([]).shape == sigmas([]).shape == (0,)
 
 
 def test_the_rows_kept_come_strongest_first():
@@ -69,8 +74,24 @@ def test_a_result_iterates_and_tabulates_its_detections():
     )
     assert len(result) == 1 and result[0].x == 1.0 and [d.y for d in result] == [2.0]
     np.testing.assert_array_equal(result.as_array(), [[1.0, 2.0, 0.5, 0.1, 0.0, 1.5, 7.0]])
+    assert TABLE_COLUMNS == ("x", "y", "score", "sigma", "angle1", "angle2", "radius_px")
     assert DetectionResult().as_array().shape == (0, 7)
     assert positions([]).shape == (0, 2)
+
+
+def test_the_named_readers_take_a_result_and_read_the_columns_of_its_table():
+    """Code reads a result by field, not by column number: the two agree."""
+    result = Detector(DetectorConfig()).detect(checker_2x2(96))
+    assert len(result) == 1
+    table = result.as_array()
+    column = {name: table[:, k] for k, name in enumerate(TABLE_COLUMNS)}
+    np.testing.assert_array_equal(positions(result), np.c_[column["x"], column["y"]])
+    np.testing.assert_array_equal(scores(result), column["score"])
+    np.testing.assert_array_equal(sigmas(result), column["sigma"])
+    np.testing.assert_array_equal(
+        line_directions(result), np.c_[column["angle1"], column["angle2"]]
+    )
+    np.testing.assert_array_equal(extents(result), column["radius_px"])
 
 
 def test_a_search_plan_of_the_wrong_shape_is_refused_with_its_name():
@@ -113,9 +134,9 @@ def test_every_count_a_pass_reports_is_named_where_the_counts_are_described(conf
     found = detector.detect(image)
     tracked = detector.locate(
         image,
-        found.as_array()[:, :2],
-        found.as_array()[:, 6],
-        found.as_array()[:, 4:6],
+        positions(found),
+        extents(found),
+        line_directions(found),
         np.array([d.evidence for d in found]),
     )
     assert len(found) == len(tracked) == 1
