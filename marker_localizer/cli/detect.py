@@ -29,7 +29,7 @@ from marker_localizer.core.image import (
     underexposure_warning,
 )
 from marker_localizer.core.pipeline import Detector
-from marker_localizer.core.result import DetectionResult
+from marker_localizer.core.result import DetectionResult, positions
 from marker_localizer.errors import ConfigError, ImageError
 from marker_localizer.image_files import read_image_file
 
@@ -56,7 +56,7 @@ def result_record(
     path that closes none of them): where a point you did not expect came from.
     """
     added = evaluation.readings_that_added(
-        result.survivors, result.as_array()[:, :2], symmetry_path.READINGS
+        result.survivors, positions(result), symmetry_path.READINGS
     )
     return {
         "image": printable_path(path),
@@ -97,7 +97,7 @@ def why_record(
     or :data:`OUTSIDE_THE_IMAGE` for a point beyond the pixels of an image of
     ``shape`` (H, W, ...).
     """
-    distance = evaluation.nearest_distances(points, result.as_array()[:, :2])
+    distance = evaluation.nearest_distances(points, positions(result))
     found = distance <= evaluation.DEFAULT_GATE_PX
     lost_at: list[str | None] = [None] * len(points)
     missed = np.flatnonzero(~found)

@@ -132,7 +132,8 @@ def to_gray(
         if darkest < -FLOAT_OVERSHOOT or brightest > 1.0 + FLOAT_OVERSHOOT:
             raise ImageError(
                 f"float image levels span {darkest:g} to {brightest:g}, beyond [0, 1] (white 1): "
-                "scale them to it (8-bit levels divided by 255)"
+                "divide them by the camera's white level (255 for 8-bit levels, 4095 for "
+                "12-bit, 65535 for 16-bit)"
             )
         return np.ascontiguousarray(np.clip(image, 0.0, 1.0), dtype=np.float32), 1.0
     white = bit_depth_scale(image.dtype, bit_depth)

@@ -216,7 +216,8 @@ def test_a_float_tiff_of_8_bit_levels_is_one_line_not_a_blank_frame(x_image, tmp
     captured = capsys.readouterr()
     assert captured.err.strip().splitlines() == [
         f"marker-localizer: error: {levels}: float image levels span 30 to 200, beyond [0, 1] "
-        "(white 1): scale them to it (8-bit levels divided by 255)"
+        "(white 1): divide them by the camera's white level (255 for 8-bit levels, 4095 "
+        "for 12-bit, 65535 for 16-bit)"
     ]
     (record,) = (json.loads(line) for line in captured.out.splitlines())
     assert record["image"] == str(unit) and len(record["markers"]) == 1

@@ -98,7 +98,9 @@ def test_float_images_overshooting_0_1_a_little_are_clipped_to_it():
 @pytest.mark.parametrize("levels", [(0.0, 255.0), (-1.0, 1.0)])
 def test_float_images_of_another_scale_are_refused_not_clipped_to_a_blank_frame(levels):
     image = np.array([levels], np.float32)
-    with pytest.raises(ImageError, match=r"beyond \[0, 1\] \(white 1\): scale them"):
+    with pytest.raises(
+        ImageError, match=r"beyond \[0, 1\] \(white 1\): divide them by the camera.s white level"
+    ):
         to_gray(image)
 
 
