@@ -16,7 +16,8 @@ Topics, relative to the node's namespace and remappable as usual:
 * in ``<cam>/camera_info`` (sensor_msgs/CameraInfo), cached and reported in
   the diagnostics when published, a WARN where it describes images of another
   size than the camera's frames; best effort, so that reliable and best-effort
-  publishers alike match.
+  publishers alike match (its QoS overrides take durability too, for a driver that
+  latches it).
 * out ``<cam>/marker_points`` (sensor_msgs/PointCloud2, layout in
   :mod:`marker_localizer.ros.conversions`): one per processed frame, with the
   input image's header unchanged, empty when no marker was found.
@@ -47,7 +48,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.expand_topic_name import expand_topic_name
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
@@ -98,6 +99,17 @@ _IMAGE_QOS = QoSProfile(
 #: none of those): it is only cached, and the next one comes with the next frame.
 _CAMERA_INFO_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT
+)
+#: What a camera_info subscription's QoS overrides may set: with durability too, as a
+#: driver that publishes camera_info once, latched (reliable, transient local), is
+#: heard only by a subscription asking the same, which matches no other publisher.
+_CAMERA_INFO_OVERRIDABLE = QoSOverridingOptions(
+    policy_kinds=(
+        QoSPolicyKind.HISTORY,
+        QoSPolicyKind.DEPTH,
+        QoSPolicyKind.RELIABILITY,
+        QoSPolicyKind.DURABILITY,
+    )
 )
 #: Results: keep a few so that a slow consumer does not lose points.
 _OUTPUT_DEPTH = 10
@@ -182,7 +194,11 @@ class MarkerLocalizerNode(Node):
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             )
             self.create_subscription(
-                CameraInfo, info_topic, partial(self._on_camera_info, camera), _CAMERA_INFO_QOS
+                CameraInfo,
+                info_topic,
+                partial(self._on_camera_info, camera),
+                copy.copy(_CAMERA_INFO_QOS),
+                qos_overriding_options=_CAMERA_INFO_OVERRIDABLE,
             )
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", _OUTPUT_DEPTH)
         # On the steady clock: with use_sim_time and no /clock yet (a bag not playing),

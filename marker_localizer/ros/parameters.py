@@ -62,7 +62,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
 
 from marker_localizer.config import (
     DETECTOR_NAMESPACE,
@@ -88,12 +88,17 @@ _NAMESPACES: dict[type[DetectorConfig] | type[TrackerConfig], str] = {
     DetectorConfig: DETECTOR_NAMESPACE,
     TrackerConfig: TRACKER_NAMESPACE,
 }
-#: The start values of the QoS overrides an image subscription reads
-#: (``qos_overrides.<topic>.subscription.<policy>``, rclpy's default policies) that name
-#: a setting, and the names rclpy takes, in any case. ``depth`` is a count.
+#: The start values of the QoS overrides the subscriptions read
+#: (``qos_overrides.<topic>.subscription.<policy>``: rclpy's default policies, and a
+#: camera_info's durability) that name a setting, and the names rclpy takes, in any
+#: case. ``depth`` is a count.
 _QOS_POLICY_NAMES: dict[str, tuple[str, ...]] = {
     policy: tuple(m.name.lower() for m in kind if m.name != "UNKNOWN")
-    for policy, kind in (("history", HistoryPolicy), ("reliability", ReliabilityPolicy))
+    for policy, kind in (
+        ("history", HistoryPolicy),
+        ("reliability", ReliabilityPolicy),
+        ("durability", DurabilityPolicy),
+    )
 }
 _QOS_OVERRIDES = "qos_overrides."
 

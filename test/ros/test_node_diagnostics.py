@@ -26,7 +26,7 @@ from node_testing import (
     x_marker_64,
 )
 from rclpy.parameter import Parameter
-from rclpy.qos import ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 from scenes import panning_frames
@@ -346,6 +346,46 @@ def test_a_camera_info_for_another_frame_size_is_a_warning_naming_both_sizes(ros
             status = wait_until(status_at, f"cam0 at level {level}, binning {binning}")
             assert status.message.startswith(message)
             assert values_of(status)["frame size"] == "64x64"
+
+
+def test_a_camera_info_published_once_latched_is_heard_where_its_qos_is_overridden_to_match(
+    ros,
+):
+    """A driver publishes camera_info once, reliable and transient local, before the node
+    starts. The node's best-effort, volatile subscription never hears it; overridden to
+    the driver's QoS, it does."""
+    driver = rclpy.create_node("latched_driver", namespace="/latched")
+    latched = QoSProfile(
+        depth=1,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    driver.create_publisher(CameraInfo, "cam0/camera_info", latched).publish(
+        CameraInfo(width=64, height=64)
+    )
+    subscription = "qos_overrides./latched/cam0/camera_info.subscription."
+    settings = {
+        "cameras": ["cam0"],
+        "diagnostics_period_s": 0.1,
+        "input_timeout_s": 600.0,
+        subscription + "durability": "transient_local",
+        subscription + "reliability": "reliable",
+    }
+    try:
+        with serving("latched", settings) as (_, peer):
+            peer.listen("/diagnostics", DiagnosticArray)
+
+            def heard():
+                return any(
+                    status.hardware_id == "latched/cam0"
+                    and values_of(status).get("camera_info") == "64x64"
+                    for array_msg in peer.messages("/diagnostics")
+                    for status in array_msg.status
+                )
+
+            wait_until(heard, "cam0's latched camera_info in the diagnostics")
+    finally:
+        driver.destroy_node()
 
 
 def test_nodes_of_one_name_in_two_namespaces_publish_statuses_an_aggregator_tells_apart(ros):
