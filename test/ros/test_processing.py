@@ -18,6 +18,7 @@ from node_testing import (
     TIMEOUT_S,
     Collector,
     clock_at,
+    serving,
     shared_memory_blocks,
     stamped,
     wait_until,
@@ -688,31 +689,72 @@ def test_compressed_frames_are_decoded_in_the_nodes_process_where_worker_threads
     assert failures == ["decoded in the node's process"]
 
 
+class SettingsRecorded(FrameProcessor):
+    """A FrameProcessor that keeps every value its settings were given, and counts its
+    :meth:`reconfigure` calls.
+
+    A worker reads the settings once as it takes a frame, so a change made in two
+    assignments lets a frame be taken between them; whether one is, depends on the
+    threads' timing. The assignments themselves do not.
+    """
+
+    def __init__(self, *args, **kwargs):
+        self.assigned = []
+        self.reconfigured = 0
+        super().__init__(*args, **kwargs)
+
+    @property
+    def _settings(self):
+        return self._settings_now
+
+    @_settings.setter
+    def _settings(self, settings):
+        self.assigned.append(settings)
+        self._settings_now = settings
+
+    def reconfigure(self, *args, **kwargs):
+        self.reconfigured += 1
+        super().reconfigure(*args, **kwargs)
+
+
 def test_a_frame_is_processed_with_the_whole_of_a_reconfiguration_or_none_of_it():
     # The node applies an atomic parameter change (a detector and a tracker setting)
-    # in one reconfigure: no frame may be taken between the two.
-    seen = []
-
-    class Recording(FrameProcessor):
-        def detect(self, camera, frame, stamp_s):
-            taken = self._taken.settings
-            seen.append((taken.detector.config.min_score, taken.tracker_config.match_px))
-            return DetectionResult([], {}, {})
-
-    pairs = [
-        (DetectorConfig(min_score=score), TrackerConfig(match_px=px))
-        for score, px in ((0.8, 1.5), (0.6, 2.5))
-    ]
-    processor = Recording(["cam0"], pairs[0][0], Collector(), workers=1, tracker_config=pairs[0][1])
+    # in one reconfigure, which must swap the settings in one assignment.
+    processor = SettingsRecorded(
+        ["cam0"],
+        DetectorConfig(min_score=0.8),
+        Collector(),
+        workers=1,
+        tracker_config=TrackerConfig(match_px=1.5),
+    )
     try:
-        for step in range(400):
-            processor.submit("cam0", stamped(step + 1))
-            processor.reconfigure(*pairs[step % 2])
+        processor.assigned.clear()
+        change = (DetectorConfig(min_score=0.6), TrackerConfig(match_px=2.5))
+        processor.reconfigure(*change)
+        (settings,) = processor.assigned
+        assert (settings.detector.config, settings.tracker_config) == change
+        assert not settings.publish_overlay  # the setting not given is kept
+        processor.submit("cam0", stamped(1), block=True)
         assert processor.wait_idle(TIMEOUT_S)
     finally:
         processor.shutdown(TIMEOUT_S)
-    assert seen
-    assert set(seen) <= {(0.8, 1.5), (0.6, 2.5)}
+    assert processor.snapshots()["cam0"].processed == 1
+
+
+def test_one_atomic_parameter_request_reconfigures_the_processor_once_with_all_of_it(ros):
+    """A detector.* and a tracker.* parameter set atomically through the parameter service."""
+    settings = {"cameras": ["cam0"], "workers": 1, "worker_processes": False}
+    with serving("atomic", settings, SettingsRecorded) as (node, peer):
+        node.processor.assigned.clear()
+        node.processor.reconfigured = 0
+        change = [("detector.min_score", 0.6), ("tracker.match_px", 2.5)]
+        (result,) = peer.set_parameters("/atomic/atomic_localizer", change, atomically=True)
+        assert result.successful, result.reason
+        # The service answers once its callbacks have run.
+        reconfigured, assigned = node.processor.reconfigured, list(node.processor.assigned)
+    assert reconfigured == 1
+    (applied,) = assigned
+    assert (applied.detector.config.min_score, applied.tracker_config.match_px) == (0.6, 2.5)
 
 
 def test_a_frame_that_arrived_before_a_sim_time_clock_started_is_not_too_old_when_it_does():
