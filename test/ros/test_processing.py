@@ -18,6 +18,7 @@ from node_testing import (
     TIMEOUT_S,
     Collector,
     clock_at,
+    mapped_shared_memory_blocks,
     serving,
     shared_memory_blocks,
     stamped,
@@ -351,36 +352,44 @@ def test_the_cameras_scheduled_full_passes_fall_on_different_frames(processes):
     assert passes == {"a": [1, 0, 0, 0, 1, 0, 0], "b": [1, 0, 1, 0, 0, 0, 1]}
 
 
+def blocks_mapped_here() -> set[str]:
+    """The shared memory blocks this test process has mapped: its processors', none of
+    the blocks another process on the machine makes and frees meanwhile."""
+    return mapped_shared_memory_blocks(os.getpid())
+
+
 def test_worker_processes_and_the_frames_shared_memory_are_gone_after_shutdown():
-    before, blocks = worker_process_ids(), shared_memory_blocks()
+    before, mapped = worker_process_ids(), blocks_mapped_here()
     collect = Collector()
     processor = FrameProcessor(["a"], DetectorConfig(), collect, workers=2, worker_processes=True)
     workers = worker_process_ids() - before
     assert len(workers) == 2
     processor.submit("a", stamped(1), block=True)
     assert processor.wait_idle(TIMEOUT_S)
-    assert shared_memory_blocks() > blocks  # the block the frame went through
+    (block,) = blocks_mapped_here() - mapped  # the block the frame went through
     assert processor.shutdown(TIMEOUT_S)
     assert collect.results == [("a", 1, 1)]
-    assert shared_memory_blocks() == blocks
+    assert block not in shared_memory_blocks()
+    assert block not in blocks_mapped_here()
     wait_until(lambda: not workers & worker_process_ids(), "the worker processes to exit")
 
 
 def test_a_larger_frame_gets_a_larger_shared_memory_block_and_the_smaller_one_is_unlinked():
     collect = Collector()
-    blocks = shared_memory_blocks()
+    mapped = blocks_mapped_here()
     processor = FrameProcessor(
         ["cam0"], DetectorConfig(), collect, workers=1, worker_processes=True
     )
     try:
         processor.submit("cam0", stamped(1), block=True)
         assert processor.wait_idle(TIMEOUT_S)
-        (small,) = shared_memory_blocks() - blocks
+        (small,) = blocks_mapped_here() - mapped
         larger = np.pad(x_marker_64(), 32, mode="edge")  # 128 x 128, the X at (63.5, 63.5)
         processor.submit("cam0", stamped(2, larger), block=True)
         assert processor.wait_idle(TIMEOUT_S)
-        (large,) = shared_memory_blocks() - blocks
+        (large,) = blocks_mapped_here() - mapped
         assert large != small
+        assert small not in shared_memory_blocks()
         assert os.path.getsize(f"/dev/shm/{large}") >= larger.nbytes
     finally:
         processor.shutdown(TIMEOUT_S)
@@ -552,17 +561,22 @@ def test_worker_processes_leave_the_stop_signals_to_the_node(signum):
 
 
 class _Tmpfs:
-    """``os.posix_fallocate`` patched: while ``full``, each reservation fails (ENOSPC)."""
+    """``os.posix_fallocate`` patched: while ``full``, each reservation fails (ENOSPC).
+
+    ``refused`` holds the names of the blocks whose reservation failed.
+    """
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
         self.full = True
         self.asked = 0
+        self.refused: set[str] = set()
         reserve = os.posix_fallocate
 
         def fallocate(descriptor: int, offset: int, length: int) -> None:
             if not self.full:
                 return reserve(descriptor, offset, length)
             self.asked += 1
+            self.refused.add(Path(os.readlink(f"/proc/self/fd/{descriptor}")).name)
             raise OSError(errno.ENOSPC, "No space left on device")
 
         monkeypatch.setattr(os, "posix_fallocate", fallocate)
@@ -576,7 +590,7 @@ def full_tmpfs(monkeypatch):
 
 
 def test_frames_shared_memory_has_no_room_for_go_pickled_and_are_counted(full_tmpfs):
-    blocks = shared_memory_blocks()
+    mapped = blocks_mapped_here()
     collect = Collector()
     processor = FrameProcessor(
         ["cam0"], DetectorConfig(), collect, workers=1, worker_processes=True
@@ -585,7 +599,10 @@ def test_frames_shared_memory_has_no_room_for_go_pickled_and_are_counted(full_tm
         for sec in (1, 2):
             processor.submit("cam0", stamped(sec), block=True)
         assert processor.wait_idle(TIMEOUT_S)
-        assert shared_memory_blocks() == blocks
+        # The block whose pages tmpfs had no room for is gone, and no other was made.
+        assert len(full_tmpfs.refused) == 1
+        assert not full_tmpfs.refused & shared_memory_blocks()
+        assert blocks_mapped_here() == mapped
     finally:
         processor.shutdown(TIMEOUT_S)
     assert collect.results == [("cam0", 1, 1), ("cam0", 2, 1)]
