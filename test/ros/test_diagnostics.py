@@ -69,6 +69,7 @@ def test_dropped_frames_leave_the_window_and_the_warning_clears():
     stats, now = healthy_camera(frames=10)
     stats.frame_replaced(now)
     stats.frame_replaced(now)
+    assert camera_level(stats.snapshot(now), LIMITS) == (WARN, "20 % of frames dropped")
     later = now + 11 * S
     for i in range(4):
         t = later - (3 - i) * S // 2
