@@ -62,11 +62,14 @@ def _read(tables: dict[type, tuple[NDArray[Any], NDArray[Any]]], x: NDArray[Any]
     )
     position += LIMIT
     position *= STEPS_PER_UNIT
+    # The whole steps in the positions' own dtype (they are >= 0: the floor is the cast's
+    # truncation), so the fraction is taken without integers cast to float64 and back.
+    whole: NDArray[np.floating[Any]] = np.floor(position)
     # A NaN's index is whatever the cast makes of it, clipped into the table by the
     # reads: its fraction stays NaN, and so does the value.
     with np.errstate(invalid="ignore"):
-        index = position.astype(np.intp)
-    position -= index
+        index = whole.astype(np.intp)
+    position -= whole
     # Three arrays a call, the fraction's taking the entries in turn: a frame's arrays
     # of 10^5 values and more come fresh from the kernel, page by page.
     result = steps.take(index, mode="clip")

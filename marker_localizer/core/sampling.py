@@ -33,11 +33,20 @@ def corners(
         Four float64 arrays: differences of uint8/uint16 samples would wrap around.
     """
     # The gathers are fresh arrays: a float64 image's need no copy.
+    if not isinstance(stride, int):
+        return (
+            flat[base].astype(np.float64, copy=False),
+            flat[base + 1].astype(np.float64, copy=False),
+            flat[base + stride].astype(np.float64, copy=False),
+            flat[base + stride + 1].astype(np.float64, copy=False),
+        )
+    # One row length: the other three pixels are those at ``base`` of the image
+    # shifted by their offsets (views), without three passes of index arithmetic.
     return (
         flat[base].astype(np.float64, copy=False),
-        flat[base + 1].astype(np.float64, copy=False),
-        flat[base + stride].astype(np.float64, copy=False),
-        flat[base + stride + 1].astype(np.float64, copy=False),
+        flat[1:][base].astype(np.float64, copy=False),
+        flat[stride:][base].astype(np.float64, copy=False),
+        flat[stride + 1 :][base].astype(np.float64, copy=False),
     )
 
 
@@ -151,10 +160,18 @@ def _neighbours(
     height, width = image.shape
     x0 = np.floor(x)
     y0 = np.floor(y)
-    valid = (x0 >= 0) & (y0 >= 0) & (x0 <= width - 2) & (y0 <= height - 2)
-    ix = np.clip(x0, 0, width - 2).astype(np.intp)
-    iy = np.clip(y0, 0, height - 2).astype(np.intp)
-    v00, v01, v10, v11 = corners(image.reshape(-1), iy * width + ix, width)
+    column = np.clip(x0, 0, width - 2)
+    row = np.clip(y0, 0, height - 2).astype(np.float64, copy=False)
+    # A pixel is inside where the clamp left it; a NaN's clamp is NaN, unequal too.
+    valid = column == x0
+    valid &= row == y0
+    # The flat index formed in float64 (exact below 2^53): one conversion to integers.
+    row *= width
+    row += column
+    v00, v01, v10, v11 = corners(image.reshape(-1), row.astype(np.intp), width)
+    # The fractions over the floors, which are done with (arrays but for a 0-d x).
+    if x0.ndim:
+        return v00, v01, v10, v11, np.subtract(x, x0, out=x0), np.subtract(y, y0, out=y0), valid
     return v00, v01, v10, v11, x - x0, y - y0, valid
 
 
@@ -215,7 +232,20 @@ def bilinear(
         is then taken from the clamped border and must not be trusted).
     """
     v00, v01, v10, v11, fx, fy, valid = _neighbours(image, x, y)
-    return interpolate(v00, v01, v10, v11, fx, fy), valid
+    if not v00.ndim:
+        return interpolate(v00, v01, v10, v11, fx, fy), valid
+    # interpolate's sums and products in the gathers' own arrays, fresh from _neighbours
+    # (a + b is b + a to the bit): the same values without temporaries.
+    top = np.subtract(v01, v00, out=v01)
+    top *= fx
+    top += v00
+    bottom = np.subtract(v11, v10, out=v11)
+    bottom *= fx
+    bottom += v10
+    bottom -= top
+    bottom *= fy
+    bottom += top
+    return bottom, valid
 
 
 def bilinear_with_gradient(
@@ -231,16 +261,18 @@ def bilinear_with_gradient(
         (values, d_dx, d_dy, valid), each of the shape of ``x``.
     """
     v00, v01, v10, v11, fx, fy, valid = _neighbours(image, x, y)
-    # The differences along each row serve the samples and d/dx alike; in place where
-    # a temporary is done with (the same sums and products, fewer passes).
-    top_step, bottom_step = v01 - v00, v11 - v10
+    # The differences along each row serve the samples and d/dx alike. Each result is
+    # written over an array of _neighbours' (all fresh) that is done with: the same
+    # sums and products (a + b is b + a to the bit), two new arrays instead of seven.
+    top_step = np.subtract(v01, v00, out=v01)
+    bottom_step = np.subtract(v11, v10, out=v11)
     top = top_step * fx
     top += v00
     bottom = bottom_step * fx
     bottom += v10
-    d_dy = bottom - top
-    d_dx = np.multiply(top_step, 1.0 - fy, out=top_step)
-    d_dx += np.multiply(bottom_step, fy, out=bottom_step)
-    value = d_dy * fy
+    d_dy = np.subtract(bottom, top, out=v10)
+    value = np.multiply(d_dy, fy, out=bottom)
     value += top
+    d_dx = np.multiply(top_step, np.subtract(1.0, fy, out=fx), out=top_step)
+    d_dx += np.multiply(bottom_step, fy, out=v00)
     return value, d_dx, d_dy, valid
