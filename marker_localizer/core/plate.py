@@ -38,6 +38,7 @@ docs/accuracy-journal.md, "What the plate reading's constants and the paths' cap
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -130,6 +131,10 @@ def _disk_offsets(radius_px: float) -> NDArray[np.int64]:
     return square[np.hypot(square[:, 0], square[:, 1]) <= radius_px]
 
 
+# The windows, their bases and the saddle's fit depend on the radius alone, and a frame
+# asks for a few rungs of the extents' ladder, each many times: built once (~2 ms a
+# 12 MP frame). Shared by every caller through the caches (and every thread): read-only.
+@functools.lru_cache(maxsize=256)
 def _window_offsets(radius_px: float) -> NDArray[np.int64]:
     """The disk's offsets (:func:`_disk_offsets`), every k-th row and column of them.
 
@@ -141,21 +146,33 @@ def _window_offsets(radius_px: float) -> NDArray[np.int64]:
     while True:
         on_grid = offsets[np.all(offsets % stride == 0, axis=1)]
         if len(on_grid) <= MAX_WINDOW_PIXELS:
+            on_grid.flags.writeable = False
             return on_grid
         stride += 1
 
 
-def _polynomial_residual(
-    values: NDArray[np.float64], offsets: NDArray[np.int64], degree: int
-) -> NDArray[np.float64]:
-    """(N,) residual sum of squares of each row's best polynomial surface of ``degree``.
+@functools.lru_cache(maxsize=256)
+def _polynomial_basis(radius_px: float, degree: int) -> NDArray[np.float64]:
+    """(n, m) an orthonormal basis of the polynomials of ``degree`` on :func:`_window_offsets`.
 
     A polynomial of the offsets from the rounded centre spans the same surfaces as
-    one of the offsets from the sub-pixel centre, so one basis serves every row.
+    one of the offsets from the sub-pixel centre, so one basis serves every centre.
     """
+    offsets = _window_offsets(radius_px)
     dx, dy = offsets[:, 0].astype(np.float64), offsets[:, 1].astype(np.float64)
     design = np.stack([dx**i * dy**j for i in range(degree + 1) for j in range(degree + 1 - i)], 1)
-    basis, _ = np.linalg.qr(design)
+    basis: NDArray[np.float64] = np.linalg.qr(design)[0]
+    basis.flags.writeable = False
+    return basis
+
+
+def _polynomial_residual(
+    values: NDArray[np.float64], basis: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """(N,) residual sum of squares of each row's best surface in ``basis``'s span.
+
+    ``values`` (N, n) and the orthonormal ``basis`` (n, m) (:func:`_polynomial_basis`).
+    """
     explained = values @ basis
     residual: NDArray[np.float64] = np.sum(values**2, axis=1) - np.sum(explained**2, axis=1)
     return residual
@@ -169,17 +186,26 @@ def centre_saddle(image: NDArray[Any], xy: NDArray[np.float64]) -> NDArray[np.fl
     centre lies): in (0, 1] for a saddle (1: a right-angled X), <= 0 for an extremum
     or a ridge. NaN where the disk leaves the image.
     """
-    offsets = _disk_offsets(_SADDLE_DISK_PX)
+    offsets, fit = _saddle_fit()
     values, inside = pixels_at_offsets(image, xy, offsets)
-    dx, dy = offsets[:, 0].astype(np.float64), offsets[:, 1].astype(np.float64)
-    design = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], 1)
-    coefficients = values @ np.linalg.pinv(design).T
+    coefficients = values @ fit.T
     hxx, hxy, hyy = 2.0 * coefficients[:, 3], coefficients[:, 4], 2.0 * coefficients[:, 5]
     half_trace, root = 0.5 * (hxx + hyy), np.hypot(0.5 * (hxx - hyy), hxy)
     low, high = half_trace - root, half_trace + root
     strongest = np.maximum(np.maximum(np.abs(low), np.abs(high)), 1e-12)
     ratio: NDArray[np.float64] = np.where(inside, -low * high / strongest**2, np.nan)
     return ratio
+
+
+@functools.lru_cache(maxsize=1)
+def _saddle_fit() -> tuple[NDArray[np.int64], NDArray[np.floating[Any]]]:
+    """The offsets :func:`centre_saddle` reads and (6, n) the pseudo-inverse of their quadratic."""
+    offsets = _disk_offsets(_SADDLE_DISK_PX)
+    dx, dy = offsets[:, 0].astype(np.float64), offsets[:, 1].astype(np.float64)
+    design = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], 1)
+    fit = np.linalg.pinv(design)
+    offsets.flags.writeable = fit.flags.writeable = False
+    return offsets, fit
 
 
 def _plate_residual(
@@ -380,7 +406,7 @@ def plate_evidence(
         group, values = group[inside], values[inside]
         if not len(group):
             continue
-        quadratic = _polynomial_residual(values, offsets, 2)
+        quadratic = _polynomial_residual(values, _polynomial_basis(float(radius), 2))
         shift = np.rint(xy[group]) - xy[group]
         dx = offsets[None, :, 0] + shift[:, 0, None]
         dy = offsets[None, :, 1] + shift[:, 1, None]
@@ -408,7 +434,7 @@ def plate_evidence(
                 for s in _blocks(len(group))
             ]
         )
-        quartic = _polynomial_residual(values, offsets, 4)
+        quartic = _polynomial_residual(values, _polynomial_basis(float(radius), 4))
         to_quadratic[group], to_quartic[group] = coarse / quadratic, coarse / quartic
         with np.errstate(invalid="ignore"):
             full = np.flatnonzero(
