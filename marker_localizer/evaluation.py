@@ -399,15 +399,23 @@ class DetectionTally:
 
     @property
     def mean_crlb_px(self) -> float:
-        """Mean Cramer-Rao bound of the truth points found, px (NaN if any is unknown)."""
+        """Mean Cramer-Rao bound of the truth points found, px.
+
+        NaN if any is unknown; inf if any is inf (a marker whose information is
+        singular: :func:`~marker_localizer.synthetic.crlb.crlb_mean_abs_error`).
+        """
         bounds = np.asarray(self.crlb_px, dtype=np.float64)
         return float(bounds.mean()) if len(bounds) else math.nan
 
     @property
     def error_over_crlb(self) -> float:
-        """Mean error over the mean Cramer-Rao bound of the same points: 1 is efficient."""
+        """Mean error over the mean Cramer-Rao bound of the same points.
+
+        NaN where the mean bound is not a finite positive number: an infinite one
+        would give 0, as if the detector erred infinitely less than its bound.
+        """
         bound = self.mean_crlb_px
-        return self.stats.mean / bound if bound > 0 else math.nan
+        return self.stats.mean / bound if math.isfinite(bound) and bound > 0 else math.nan
 
     @property
     def median_line_error_deg(self) -> float:

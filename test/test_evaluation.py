@@ -303,3 +303,18 @@ def test_a_tally_keeps_a_matched_marker_in_at_most_40_bytes():
     assert tally.n_matched == 14 * frames
     assert kept / tally.n_matched <= 40
     assert tally.stats.mean == pytest.approx(float(np.mean(matching.errors_px)))
+
+
+def test_an_infinite_bound_gives_no_error_over_bound_rather_than_zero():
+    # crlb_mean_abs_error gives inf for singular information; the mean bound is then
+    # inf, and err/CRLB has no value (printed "-"), not 0.00.
+    tally = evaluation.DetectionTally()
+    matching = evaluation.Matching(
+        np.array([0, 1]), np.array([0, 1]), np.array([0.05, 0.04]), 2, 2
+    )
+    tally.add(matching, truth_crlb_px=np.array([0.01, np.inf]))
+    assert tally.mean_crlb_px == math.inf
+    assert math.isnan(tally.error_over_crlb)
+    finite = evaluation.DetectionTally()
+    finite.add(matching, truth_crlb_px=np.array([0.01, 0.03]))
+    assert finite.error_over_crlb == pytest.approx(0.045 / 0.02)
