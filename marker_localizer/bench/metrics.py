@@ -22,24 +22,56 @@ from scipy.optimize import least_squares
 
 from marker_localizer.evaluation import DEFAULT_GATE_PX, match_points
 
+#: Parameters a row's or column's straight line takes from its points: its direction
+#: and its offset. A line of N points leaves N - 2 residual degrees of freedom.
+LINE_PARAMETERS = 2
+#: Parameters of the 1-D projective map from grid index to position along a line,
+#: (a k + b) / (c k + 1): a line of N points leaves N - 3 (its place along the line is
+#: the map's b, its direction the straight line's).
+SPACING_PARAMETERS = 3
+
 
 @dataclass(frozen=True)
 class LineResiduals:
     """Reference-free precision of corners on a planar grid.
 
+    Both figures are corrected for the parameters fitted, as the lens model's is
+    (:class:`LensModelResiduals`): the root of the summed squared residuals over the
+    residual degrees of freedom. Where the corners err by sigma on each axis,
+    independently, both estimate sigma (a row of four points keeps only two of its
+    four squared errors across the line, one of four along it).
+
     Attributes:
         straight_rms_px: RMS distance of the points from their row's or column's
-            total-least-squares line, px (each point counts once per line).
+            total-least-squares line, px, over N - :data:`LINE_PARAMETERS` degrees of
+            freedom a line of N points.
         spacing_rms_px: RMS residual of the positions along each line against the
-            best 1-D projective map from grid index to line coordinate, px.
+            best 1-D projective map from grid index to line coordinate, px, over
+            N - :data:`SPACING_PARAMETERS` degrees of freedom a line of N points.
         n_points: points that took part (each counted once per line).
         n_lines: rows and columns with at least three points.
+        straight_freedom: residual degrees of freedom of the straight lines.
+        spacing_freedom: residual degrees of freedom of the spacing (lines of four
+            points or more).
     """
 
     straight_rms_px: float
     spacing_rms_px: float
     n_points: int
     n_lines: int
+    straight_freedom: int
+    spacing_freedom: int
+
+    @property
+    def straight_plain_rms_px(self) -> float:
+        """The straight lines' RMS residual over the points, uncorrected, px.
+
+        The points' distances from lines fitted to them, as a measure of a grid's
+        bend (``real_data``'s planarity test was set on it), not of the corners' error.
+        """
+        if not self.n_points:
+            return math.nan
+        return self.straight_rms_px * math.sqrt(self.straight_freedom / self.n_points)
 
 
 def fit_line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -109,33 +141,48 @@ def line_residuals(grid: np.ndarray) -> LineResiduals:
             if ok.sum() >= 4:
                 spacing.append(projective_spacing_residuals(np.flatnonzero(ok), line[ok]))
     if not straight:
-        return LineResiduals(math.nan, math.nan, 0, 0)
-    s = np.concatenate(straight)
-    p = np.concatenate(spacing) if spacing else np.array([math.nan])
+        return LineResiduals(math.nan, math.nan, 0, 0, 0, 0)
+    straight_freedom = sum(len(r) - LINE_PARAMETERS for r in straight)
+    spacing_freedom = sum(len(r) - SPACING_PARAMETERS for r in spacing)
     return LineResiduals(
-        float(np.sqrt(np.mean(s**2))), float(np.sqrt(np.mean(p**2))), len(s), len(straight)
+        _rms_over(straight, straight_freedom),
+        _rms_over(spacing, spacing_freedom),
+        sum(len(r) for r in straight),
+        len(straight),
+        straight_freedom,
+        spacing_freedom,
     )
 
 
+def _rms_over(residuals: Sequence[np.ndarray], freedom: int) -> float:
+    """sqrt(sum of squared ``residuals`` / ``freedom``), px; NaN without freedom."""
+    if freedom <= 0:
+        return math.nan
+    return math.sqrt(sum(float((r**2).sum()) for r in residuals) / freedom)
+
+
 def pool_line_residuals(parts: Sequence[LineResiduals]) -> LineResiduals:
-    """Combine per-board residuals into one, weighting each board by its point count."""
+    """Combine per-board residuals into one, pooled over their degrees of freedom."""
     used = [p for p in parts if p.n_points]
     if not used:
-        return LineResiduals(math.nan, math.nan, 0, 0)
-    weights = np.array([p.n_points for p in used], dtype=np.float64)
+        return LineResiduals(math.nan, math.nan, 0, 0, 0, 0)
 
-    def pooled(values: list[float]) -> float:
-        v = np.asarray(values)
-        ok = np.isfinite(v)
-        if not ok.any():
+    def pooled(rms: list[float], freedom: list[int]) -> float:
+        total = sum(f for r, f in zip(rms, freedom, strict=True) if f > 0)
+        if not total:
             return math.nan
-        return float(np.sqrt(np.sum(weights[ok] * v[ok] ** 2) / weights[ok].sum()))
+        squares = sum(f * r * r for r, f in zip(rms, freedom, strict=True) if f > 0)
+        return math.sqrt(squares / total)
 
+    straight_freedom = [p.straight_freedom for p in used]
+    spacing_freedom = [p.spacing_freedom for p in used]
     return LineResiduals(
-        pooled([p.straight_rms_px for p in used]),
-        pooled([p.spacing_rms_px for p in used]),
-        int(weights.sum()),
+        pooled([p.straight_rms_px for p in used], straight_freedom),
+        pooled([p.spacing_rms_px for p in used], spacing_freedom),
+        sum(p.n_points for p in used),
         sum(p.n_lines for p in used),
+        sum(straight_freedom),
+        sum(spacing_freedom),
     )
 
 

@@ -298,8 +298,10 @@ def _is_planar_grid(grid: np.ndarray) -> bool:
     for corner precision. Lens distortion over a whole 12 MP board (pycbd flare)
     stays below 3 % of the spacing.
     """
+    # The plain RMS, uncorrected for the lines' fitted parameters: the bend measured
+    # to set _MAX_BEND.
     residuals = line_residuals(grid)
-    return bool(residuals.straight_rms_px <= _MAX_BEND * _median_spacing(grid))
+    return bool(residuals.straight_plain_rms_px <= _MAX_BEND * _median_spacing(grid))
 
 
 def _median_spacing(grid: np.ndarray) -> float:

@@ -56,12 +56,31 @@ def test_missing_corners_are_skipped_and_short_lines_do_not_count():
     assert result.n_lines == 1  # only the first column keeps three points
 
 
-def test_pooled_residuals_weight_boards_by_their_points():
-    a = metrics.LineResiduals(1.0, 1.0, 30, 3)
-    b = metrics.LineResiduals(0.0, 0.0, 10, 1)
+def test_pooled_residuals_weight_boards_by_their_degrees_of_freedom():
+    a = metrics.LineResiduals(1.0, 1.0, 30, 3, 24, 21)
+    b = metrics.LineResiduals(0.0, 0.0, 10, 1, 8, 7)
     pooled = metrics.pool_line_residuals([a, b])
-    assert pooled.straight_rms_px == pytest.approx(math.sqrt(30 / 40))
+    assert pooled.straight_rms_px == pytest.approx(math.sqrt(24 / 32))
+    assert pooled.spacing_rms_px == pytest.approx(math.sqrt(21 / 28))
     assert pooled.n_points == 40
+    assert (pooled.straight_freedom, pooled.spacing_freedom) == (32, 28)
+
+
+def test_line_and_spacing_residuals_recover_the_corners_noise_on_a_perfect_grid():
+    # A 4x6 board (ValidationBoof's) seen square on, each corner off by sigma on each
+    # axis: a row of four keeps two of its four squared errors across its line and one
+    # along it, so the plain RMS read 0.76 and 0.61 sigma; over the residual degrees of
+    # freedom both read sigma, as the lens model's does.
+    rng = np.random.default_rng(0)
+    columns, rows = np.meshgrid(40.0 * np.arange(4) + 100.0, 40.0 * np.arange(6) + 50.0)
+    board = np.stack([columns, rows], axis=-1)
+    sigma = 0.1
+    pooled = metrics.pool_line_residuals(
+        [metrics.line_residuals(board + rng.normal(0.0, sigma, board.shape)) for _ in range(500)]
+    )
+    assert pooled.straight_rms_px == pytest.approx(sigma, rel=0.03)
+    assert pooled.spacing_rms_px == pytest.approx(sigma, rel=0.03)
+    assert pooled.straight_plain_rms_px == pytest.approx(sigma * math.sqrt(28 / 48), rel=0.03)
 
 
 # --------------------------------------------------------------------------- lens model
