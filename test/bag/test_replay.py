@@ -30,7 +30,12 @@ from std_msgs.msg import Header
 from marker_localizer.bag import replay
 from marker_localizer.bag.io import BagReader, BagWriter, typestore
 from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, recorded_flight
-from marker_localizer.bag.replay import TruthMatcher, format_report, replay_bag
+from marker_localizer.bag.replay import (
+    RECALL_INTERVAL_ASSUMES,
+    TruthMatcher,
+    format_report,
+    replay_bag,
+)
 from marker_localizer.cli import main as cli
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.core.result import Detection
@@ -271,6 +276,18 @@ def test_replays_accuracy_table_gives_each_recall_and_false_point_rate_its_inter
     assert f"{overall.recall:.3f}{f'{low:.3f}-{high:.3f}':>13}" in row
     assert f"{overall.fp_per_frame:.2f}" in row
     assert "-".join(f"{b:.2f}" for b in overall.fp_per_frame_interval) in row
+
+
+def test_replays_accuracy_table_says_its_recall_interval_takes_each_frames_markers_as_new(
+    replayed,
+):
+    # The truth clouds name no marker, so the interval cannot cluster by marker; a
+    # flight sees the same markers frame after frame, and the report says what the
+    # interval assumes rather than pass it off as the recall of a flight over others.
+    report, _ = replayed
+    heading = next(line for line in format_report(report).splitlines() if "accuracy" in line)
+    assert RECALL_INTERVAL_ASSUMES in heading
+    assert "same markers seen again it is too narrow" in heading
 
 
 def test_replay_writes_points_with_the_input_header_at_the_input_bag_time(flight_bag, replayed):
