@@ -268,9 +268,11 @@ class DetectionTally:
         errors_px: errors of all matched pairs, px.
         sigmas_px: reported 1-sigma of each matched pair, px (NaN where the
             detector reports none), aligned with ``errors_px``.
-        crlb_px: Cramer-Rao bound (expected |error| of an efficient unbiased
-            estimator) of each matched truth point, px (NaN where unknown),
-            aligned with ``errors_px``.
+        crlb_px: Cramer-Rao bound of each matched truth point, px (NaN where
+            unknown), aligned with ``errors_px``: the expected |error| of an
+            efficient unbiased estimator of the pixels the bound sums over (the
+            X's, in both renderers: an estimator that reads the whole window can
+            go under it).
         seconds: wall time spent in the detector, s.
         found: per truth point, in the order seen, 1 where it was matched, else 0.
         line_errors_deg: each matched pair's line-direction error

@@ -7,9 +7,10 @@ in ``<repo>/../shared/data`` (skipped when absent):
 * rendered families (exact truth): recall, false positives per frame, error
   mean / RMS / p95 / max / share within 0.1 px, share within 2 reported sigma,
   the mean Cramer-Rao bound of the markers each detector found and its mean
-  error over that bound ("err/CRLB", 1 = efficient), and each peer's mean
-  error over ours ("peer/ours", ours = the default ``refinement="symmetry"``
-  variant). Every detector gets the family's true radius range;
+  error over that bound ("err/CRLB"; 1 is efficient for an estimator that reads
+  the X's pixels alone, and one that reads the whole window can go under it), and
+  each peer's mean error over ours ("peer/ours", ours = the default
+  ``refinement="symmetry"`` variant). Every detector gets the family's true radius range;
   ``cv2.cornerSubPix`` starts from the truth moved by a random offset of up to
   1 px (seeded) and measures refinement only. The bound is the renderer's own
   (:mod:`marker_localizer.synthetic.crlb`).

@@ -6,13 +6,21 @@ Gaussian noise of variance var_i, the Fisher information of the centre is
 
     F = sum_i grad mu_i grad mu_i^T / var_i,
 
-and F^-1 bounds the covariance of every unbiased estimator of (x, y). The
-renderer (:func:`~marker_localizer.synthetic.scene.render_scene` with
-``crlb=True``) takes the gradients by central differences of the noise-free
-frame with the marker moved, and sums over the pixels of the X.
+and F^-1 bounds the covariance of every unbiased estimator of (x, y) that reads
+those pixels. The renderer (:func:`~marker_localizer.synthetic.scene.render_scene`
+with ``crlb=True``) takes the gradients by central differences of the noise-free
+frame with the marker moved, and sums over the pixels of the X alone: the
+independent renderer's definition (its ``truth.json``), kept so that the two
+compare. It is the bound of an estimator that reads the X's pixels, not of one
+that reads the whole window: the arcs and the plate's outline against the ground
+carry information too, and a maximum-likelihood fit of the whole window, every
+parameter but the centre known, reached 0.71-0.82 of it on three markers (and
+1.01-1.05 of it over the X's pixels; docs/accuracy-journal.md, "The Cramer-Rao
+bound is the X's pixels'").
 
 A bound is reported as the expected Euclidean error of an efficient unbiased
-estimator, E|e| for e ~ N(0, F^-1): with the eigenvalues l1 >= l2 of F^-1,
+estimator of those pixels, E|e| for e ~ N(0, F^-1): with the eigenvalues
+l1 >= l2 of F^-1,
 
     E|e| = sqrt(2 / pi) sqrt(l1) E(m),  m = 1 - l2 / l1,
 
@@ -188,7 +196,7 @@ def expected_radial_error(covariance: np.ndarray) -> float:
 
 
 def crlb_mean_abs_error(information: np.ndarray) -> float:
-    """The expected Euclidean error of an efficient unbiased estimator, px (inf if F is singular).
+    """Expected Euclidean error of an efficient unbiased estimator given F, px (inf if singular).
 
     Args:
         information: (2, 2) Fisher information of the position, px^-2.

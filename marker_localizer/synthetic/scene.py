@@ -460,8 +460,10 @@ class MarkerTruth:
         angles: Image directions, radians in [0, pi), of the two lines through
             the centre: the images of the plane's u and v axes.
         crlb_mean_abs_error_px: Expected Euclidean error of an efficient
-            unbiased estimator of the centre (Cramer-Rao bound over the X,
-            :mod:`~marker_localizer.synthetic.crlb`), px; NaN when not computed.
+            unbiased estimator of the centre that reads the X's pixels alone
+            (Cramer-Rao bound over the X, the independent renderer's definition,
+            :mod:`~marker_localizer.synthetic.crlb`; one that reads the whole
+            window can go under it), px; NaN when not computed.
         dull_margin: How far the dull bright quadrant's paint stands above the
             dark paint, as a share of the other bright quadrant's lead, (dull x
             bright - dark) / (bright - dark): 1 without a dull quadrant; near 0 or
@@ -1351,7 +1353,11 @@ def _marker_crlb(
     frame's light, optics, gamma and exposure but without noise or JPEG; the
     central differences and :meth:`ImagingConditions.pixel_variance_dn2` of
     the unmoved signal give the Fisher information over the pixels whose
-    centres lie inside the X (:func:`~marker_localizer.synthetic.crlb.fisher_information`).
+    centres lie inside the X (:func:`~marker_localizer.synthetic.crlb.fisher_information`),
+    as the independent renderer's ``truth.json`` sums it: the bound of an estimator
+    that reads the X's pixels alone. The arcs and the plate's outline carry more; a
+    maximum-likelihood fit of the whole window goes under it (0.71-0.82 of it measured,
+    :mod:`~marker_localizer.synthetic.crlb`).
     The same frame with the marker turned by quarters in its plane gives its X's
     signal-to-noise ratio (:func:`~marker_localizer.synthetic.crlb.x_snr`).
 
