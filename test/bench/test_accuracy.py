@@ -412,9 +412,10 @@ def test_negatives_count_every_detection_per_frame_and_per_megapixel():
     assert row.extra["fp_per_frame"] == 3.0
     assert row.extra["fp_per_megapixel"] == pytest.approx(6.0)
     # Six false points in two frames, three on each: the exact Poisson interval of 3
-    # a frame (counts that agree show no spread beyond Poisson's).
+    # a frame (counts that agree show no spread beyond Poisson's), read with Student's
+    # t on the two frames' one degree of freedom.
     interval = (row.extra["fp_per_frame_low"], row.extra["fp_per_frame_high"])
-    assert interval == evaluation.rate_interval(6, 2)
+    assert interval == evaluation.rate_interval(6, 2, frames=2)
     table = accuracy.negatives_table("t", [row])
     assert "FP/MP" in table and f"{interval[0]:.2f}-{interval[1]:.2f}" in table
 
@@ -448,8 +449,8 @@ def test_false_points_gathered_on_one_negative_frame_widen_their_interval():
     assert row.extra["fp_per_frame"] == 2.0
     # 0, 0 and 6: variance 12 over a mean of 2, six times Poisson's spread.
     interval = (row.extra["fp_per_frame_low"], row.extra["fp_per_frame_high"])
-    assert interval == pytest.approx(evaluation.rate_interval(6, 3, dispersion=6.0))
-    assert interval[1] > evaluation.rate_interval(6, 3)[1]
+    assert interval == pytest.approx(evaluation.rate_interval(6, 3, dispersion=6.0, frames=3))
+    assert interval[1] > evaluation.rate_interval(6, 3, frames=3)[1]
 
 
 def test_the_disc_lattice_is_ground_alone_between_its_two_levels_with_a_lattice_of_saddles():
