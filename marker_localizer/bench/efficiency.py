@@ -157,8 +157,7 @@ def check_efficiency(
 def _x_pixels(target: scene.PlanarTarget, size: int) -> np.ndarray:
     """(size, size) the pixels whose centres lie inside the target's X, as the bound sums."""
     y, x = np.mgrid[0:size, 0:size].astype(np.float64)
-    mapped = np.linalg.inv(target.homography) @ np.stack([x.ravel(), y.ravel(), np.ones(x.size)])
-    u, v = (mapped[:2] / mapped[2]).reshape(2, size, size)
+    u, v = scene.to_plane(np.linalg.inv(target.homography), x, y)
     inside = target.pattern.x_extent
     assert inside is not None, "a marker kind's pattern has an X"
     return np.asarray(inside(u, v), dtype=bool)

@@ -783,7 +783,7 @@ def _pixel_box(
     return (r0, r1, c0, c1) if r0 < r1 and c0 < c1 else None
 
 
-def _to_plane(g: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def to_plane(g: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Map image points through the image -> plane homography ``g``."""
     w = g[2, 0] * x + g[2, 1] * y + g[2, 2]
     return (g[0, 0] * x + g[0, 1] * y + g[0, 2]) / w, (g[1, 0] * x + g[1, 1] * y + g[1, 2]) / w
@@ -902,7 +902,7 @@ def composite_target(
     r0, r1, c0, c1 = box
     g = np.linalg.inv(h)
     y, x = np.mgrid[r0:r1, c0:c1].astype(np.float64)
-    u, v = _to_plane(g, x, y)
+    u, v = to_plane(g, x, y)
     distance = target.pattern.edge_distance(u, v)
     if target.on_plate:
         distance = np.minimum(distance, _plate_distance(target, u, v))
@@ -1414,7 +1414,7 @@ def _marker_crlb(
     d_mu_dy = (signal(0.0, step) - signal(0.0, -step)) / (2.0 * step)
     y, x = np.mgrid[r0:r1, c0:c1].astype(np.float64)
     homography = _normalised(target.homography)
-    u, v = _to_plane(np.linalg.inv(homography), x, y)
+    u, v = to_plane(np.linalg.inv(homography), x, y)
     still = signal()
     variance = imaging.pixel_variance_dn2(still)
     inside = x_extent(u, v)
