@@ -278,6 +278,10 @@ class DetectionTally:
         line_errors_deg: each matched pair's line-direction error
             (:func:`line_direction_errors_deg`), degrees (NaN where the detector or
             the truth gives no directions), aligned with ``errors_px``.
+        marker_ids: per truth point that names its marker, its identity (the same
+            marker seen in several frames, by several cameras, has one). Aligned with
+            ``found`` where every truth point names one; frames whose truth names none
+            add nothing here.
     """
 
     # Typed arrays, not lists: a list holds a float as a pointer to a 24-byte object,
@@ -292,6 +296,8 @@ class DetectionTally:
     seconds: float = 0.0
     found: array[int] = field(default_factory=lambda: array("b"))
     line_errors_deg: array[float] = field(default_factory=lambda: array("d"))
+    # uint32, the truth cloud's type: 4 bytes a truth point, not 8.
+    marker_ids: array[int] = field(default_factory=lambda: array("I"))
 
     def add(
         self,
@@ -301,6 +307,7 @@ class DetectionTally:
         truth_crlb_px: np.ndarray | None = None,
         line_angles: np.ndarray | None = None,
         truth_line_angles: np.ndarray | None = None,
+        truth_marker_ids: np.ndarray | None = None,
     ) -> None:
         """Add one frame's matching.
 
@@ -313,6 +320,11 @@ class DetectionTally:
                 None: none reported.
             truth_line_angles: (N, 2) every truth point's line directions, radians
                 (NaN or None: unknown).
+            truth_marker_ids: (N,) every truth point's marker identity, a uint32;
+                None: the truth names no marker.
+
+        Raises:
+            ValueError: ``truth_marker_ids`` not one per truth point.
         """
         self.truth_per_frame.append(matching.n_truth)
         self.found_per_frame.append(matching.n_matched)
@@ -321,6 +333,14 @@ class DetectionTally:
         found = np.zeros(matching.n_truth, dtype=bool)
         found[matching.truth_index] = True
         self.found.frombytes(found.astype(np.int8).tobytes())
+        if truth_marker_ids is not None:
+            if len(truth_marker_ids) != matching.n_truth:
+                raise ValueError(
+                    f"{len(truth_marker_ids)} marker ids for {matching.n_truth} truth points"
+                )
+            self.marker_ids.frombytes(
+                np.asarray(truth_marker_ids).astype(self.marker_ids.typecode).tobytes()
+            )
         self.sigmas_px.extend(_aligned(sigmas_px, matching.detection_index))
         self.crlb_px.extend(_aligned(truth_crlb_px, matching.truth_index))
         self.seconds += seconds
@@ -348,6 +368,7 @@ class DetectionTally:
             total.seconds += part.seconds
             total.found.extend(part.found)
             total.line_errors_deg.extend(part.line_errors_deg)
+            total.marker_ids.extend(part.marker_ids)
         return total
 
     @property
@@ -381,9 +402,17 @@ class DetectionTally:
         return self.n_false_positives / self.frames if self.frames else math.nan
 
     @property
+    def clustered_by_marker(self) -> bool:
+        """Whether the recall's interval clusters by marker: every truth point names one."""
+        return 0 < len(self.found) == len(self.marker_ids)
+
+    @property
     def recall_design_effect(self) -> float:
-        """:func:`frame_design_effect` of the frames' counts: at least 1."""
-        return frame_design_effect(self.found_per_frame, self.truth_per_frame)
+        """:func:`frame_design_effect` of the recall's clusters: at least 1.
+
+        The markers' counts where :attr:`clustered_by_marker`, else the frames'.
+        """
+        return frame_design_effect(*self._recall_clusters())
 
     @property
     def fp_dispersion(self) -> float:
@@ -392,15 +421,23 @@ class DetectionTally:
 
     @property
     def recall_interval(self) -> tuple[float, float]:
-        """:func:`frame_recall_interval` of the recall: widened by the frames' spread.
+        """The recall's interval, widened by the spread between its clusters.
 
-        Each frame is taken as a cluster of its own markers: a frame's markers share
-        its light and ground, but the frames are taken as showing other markers.
-        Where they show the same markers frame after frame (a flight), a marker
-        found once is found again, and the interval is narrower than the recall's
-        spread from one flight over other markers to the next.
+        Where every truth point names its marker (:attr:`clustered_by_marker`),
+        :func:`marker_recall_interval`: a marker seen in many frames is one cluster,
+        found again where it was found before. Else :func:`frame_recall_interval`:
+        each frame is taken as a cluster of its own markers, which share its light
+        and ground, and the frames as showing other markers; where they show the
+        same markers frame after frame (a flight), the interval is then narrower
+        than the recall's spread from one flight over other markers to the next.
         """
-        return frame_recall_interval(self.found_per_frame, self.truth_per_frame)
+        return frame_recall_interval(*self._recall_clusters())
+
+    def _recall_clusters(self) -> tuple[Sequence[int], Sequence[int]]:
+        """(found, truth) per cluster of the recall: per marker if all are named, else per frame."""
+        if not self.clustered_by_marker:
+            return self.found_per_frame, self.truth_per_frame
+        return marker_counts(np.asarray(self.found, bool), np.asarray(self.marker_ids))
 
     @property
     def fp_per_frame_interval(self) -> tuple[float, float]:
@@ -508,7 +545,8 @@ def frame_recall_interval(
     """:func:`recall_interval` of the recall from each frame's counts, widened by their spread.
 
     The design effect is :func:`frame_design_effect`'s, read from the frames that
-    hold truth.
+    hold truth. Nothing in it is particular to frames: given each marker's counts
+    instead, it clusters by marker (:func:`marker_recall_interval`).
     """
     return recall_interval(
         int(sum(found_per_frame)),
@@ -517,6 +555,37 @@ def frame_recall_interval(
         design_effect=frame_design_effect(found_per_frame, truth_per_frame),
         frames=int(np.count_nonzero(np.asarray(truth_per_frame))),
     )
+
+
+def marker_recall_interval(
+    found: Sequence[bool] | np.ndarray,
+    marker_ids: Sequence[int] | np.ndarray,
+    level: float = INTERVAL_LEVEL,
+) -> tuple[float, float]:
+    """:func:`recall_interval` of the recall of truth points that name their marker.
+
+    Each marker is a cluster of its sightings (every frame and camera that held it
+    as truth): a flight sees the same markers frame after frame, and a marker's
+    size, contrast and ground make it found, or missed, again. The interval is
+    :func:`frame_recall_interval`'s on the markers' counts (:func:`marker_counts`):
+    the design effect of their spread, Student's t on markers - 1 degrees of freedom.
+
+    Args:
+        found: (N,) per truth point, whether it was matched.
+        marker_ids: (N,) per truth point, its marker's identity.
+        level: the interval's coverage.
+    """
+    return frame_recall_interval(
+        *marker_counts(np.asarray(found, bool), np.asarray(marker_ids)), level
+    )
+
+
+def marker_counts(found: np.ndarray, marker_ids: np.ndarray) -> tuple[list[int], list[int]]:
+    """(found, truth) per marker: its sightings matched, and all of them, in id order."""
+    _, marker = np.unique(marker_ids, return_inverse=True)
+    seen = np.bincount(marker)
+    hits = np.bincount(marker, weights=found.astype(np.float64), minlength=len(seen))
+    return hits.astype(np.int64).tolist(), seen.tolist()
 
 
 def frame_design_effect(found_per_frame: Sequence[int], truth_per_frame: Sequence[int]) -> float:
