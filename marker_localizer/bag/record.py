@@ -11,9 +11,12 @@ header stamp = the frame's mid-exposure time:
 * ``/<cam>/marker_points_truth``: sensor_msgs/PointCloud2 in the layout of the
   node's ``marker_points`` (:mod:`marker_localizer.ros.conversions`): the exact
   centre of every marker whose plate lies wholly inside the frame, sigma 0,
-  score 1, the two line angles of the truth;
-* ``/<cam>/marker_points_partial``: the same for markers the frame border cuts;
-  an evaluation ignores detections there rather than counting them false.
+  score 1, the two line angles of the truth, and a ``marker_id`` field (uint32):
+  the marker's index in the flight, the same in every frame and camera that sees it,
+  so that an evaluation can tell a marker seen again from another one;
+* ``/<cam>/marker_points_partial``: the same for markers the frame border cuts,
+  without ``marker_id``; an evaluation ignores detections there rather than
+  counting them false.
 
 Once, at the first stamp: ``/tf_static`` (tf2_msgs/TFMessage, offered
 transient-local) with each ``base_link -> <cam>_optical`` extrinsic. tf2_msgs
@@ -131,8 +134,14 @@ def camera_info(camera: PinholeCamera, header: Header) -> CameraInfo:
     return info
 
 
-def truth_cloud(header: Header, truths: Sequence[MarkerTruth]) -> Any:
-    """Truth as the node's PointCloud2: exact centre, sigma 0, score 1, truth angles."""
+def truth_cloud(
+    header: Header, truths: Sequence[MarkerTruth], marker_ids: Sequence[int] | None = None
+) -> Any:
+    """Truth as the node's PointCloud2: exact centre, sigma 0, score 1, truth angles.
+
+    With ``marker_ids`` (one per truth, :attr:`CameraFrame.marker_ids`), the truth
+    cloud's ``marker_id`` field too (:func:`detections_to_cloud`).
+    """
     points = [
         Detection(
             x=t.x,
@@ -145,7 +154,7 @@ def truth_cloud(header: Header, truths: Sequence[MarkerTruth]) -> Any:
         )
         for t in truths
     ]
-    return detections_to_cloud(header, points)
+    return detections_to_cloud(header, points, marker_ids)
 
 
 def _tf_static(cameras: Sequence[PinholeCamera], stamp_ns: int) -> bytes:
@@ -224,7 +233,11 @@ def record_flight(
                     f"/{name}/{IMAGE_SUFFIX}", t_ns, array_to_image(view.image, encoding, header)
                 )
                 bag.write(f"/{name}/{CAMERA_INFO_SUFFIX}", t_ns, camera_info(view.camera, header))
-                bag.write(f"/{name}/{TRUTH_SUFFIX}", t_ns, truth_cloud(header, view.markers))
+                bag.write(
+                    f"/{name}/{TRUTH_SUFFIX}",
+                    t_ns,
+                    truth_cloud(header, view.markers, view.marker_ids),
+                )
                 bag.write(f"/{name}/{PARTIAL_SUFFIX}", t_ns, truth_cloud(header, view.partial))
                 truth_markers += len(view.markers)
             if progress is not None:

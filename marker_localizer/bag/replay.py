@@ -35,7 +35,10 @@ summary says what), 1 when nothing could be processed.
 When the bag carries ``/<cam>/marker_points_truth`` (as ``simulate`` writes),
 the detections of each frame are matched one-to-one to the truth of the same
 stamp (minimum total distance, within ``match_distance_px``) and the summary
-adds recall, false positives per frame and the error statistics. Detections on
+adds recall, false positives per frame and the error statistics. The recall's
+interval clusters by marker where the truth names its markers (``simulate``'s
+``marker_id`` field: a marker seen in many frames is one cluster), else by frame,
+and the report says which. Detections on
 a marker listed in ``/<cam>/marker_points_partial`` (cut by the frame border)
 count neither way. A frame with a result but no truth at its stamp, and truth with
 no result at its stamp (its frame skipped, or stamped otherwise), are counted
@@ -44,10 +47,11 @@ beside the accuracy, not evaluated.
 Memory does not grow with the bag's length, but for the accuracy's tallies: results
 go to the output bag as they come, the summary keeps running sums, and a frame is
 matched to its truth as soon as both are in, then forgotten (:class:`TruthMatcher`).
-The tallies keep a few numbers a frame and a matched marker, 8 bytes each
+The tallies keep a few numbers a frame and a matched marker, 8 bytes each, and a
+truth point's marker id, 4 bytes
 (:class:`~marker_localizer.evaluation.DetectionTally`: the error percentiles and the
-intervals need them; about 90 MB for an hour of five cameras at 10 Hz with 14
-matched markers a frame), and only where the bag has truth.
+intervals need them; about 100 MB for an hour of five cameras at 10 Hz with 14
+matched markers of 15 a frame), and only where the bag has truth.
 """
 
 from __future__ import annotations
@@ -78,6 +82,7 @@ from marker_localizer.ros.conversions import (
     ENCODINGS,
     ENCODINGS_TEXT,
     IMAGE_TRANSPORTS,
+    MARKER_ID_FIELD,
     POINTS_SUFFIX,
     cloud_to_array,
     topic_name_problem,
@@ -89,14 +94,21 @@ from marker_localizer.ros.processing import FrameProcessor, stamp_to_ns
 
 CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
 DIAGNOSTICS_TOPIC = "/diagnostics"
-#: What the recall's interval in the report assumes: the truth messages name no marker
-#: (x, y, sigma, score and angles only), so the interval clusters by frame alone; on a
+#: What the recall's interval in the report assumes where the truth names no marker
+#: (truth recorded without :data:`MARKER_ID_FIELD`): it clusters by frame alone; on a
 #: flight that sees the same markers frame after frame it is narrower than the recall's
 #: spread from one flight over other markers to the next (a seeded model of such
 #: flights, scratch ``/tmp/s120/evalaudit/replay_deff.py``: 0.26 of the intervals held it).
 RECALL_INTERVAL_ASSUMES = (
     "the recall's takes each frame's markers as other markers than the last frame's "
     "(the truth names none): for the same markers seen again it is too narrow"
+)
+#: What it does where every truth point names its marker (``simulate``'s truth): each
+#: marker is one cluster of all its sightings, the same marker seen by several cameras
+#: too (the truth's ids are the flight's).
+RECALL_INTERVAL_BY_MARKER = (
+    f"the recall's clusters by the truth's {MARKER_ID_FIELD}: a marker seen in many frames "
+    "counts as one"
 )
 
 
@@ -285,17 +297,18 @@ def format_report(report: ReplayReport) -> str:
     overall = report.evaluation
     if overall is None:
         return "\n".join(lines)
+    rows = [(c.camera, c.evaluation) for c in cams if c.evaluation is not None]
+    rows.append(("all", overall))
     lines += [
         f"accuracy against {TRUTH_SUFFIX} (one-to-one matches within "
         f"{report.match_distance_px:g} px; "
         f"{INTERVAL_HEADING} intervals widened by the spread between frames; "
-        f"{RECALL_INTERVAL_ASSUMES}):",
+        f"{_recall_interval_note(rows)}):",
         f"{'camera':<12}{'truth':>7}{'recall':>8}{INTERVAL_HEADING:>13}{'FP/frame':>10}"
         f"{INTERVAL_HEADING:>12}"
         f"{'mean px':>9}{'RMS px':>9}{'p95 px':>9}{'max px':>9}",
     ]
-    rows = [(c.camera, c.evaluation) for c in cams if c.evaluation is not None]
-    for name, evaluation in [*rows, ("all", overall)]:
+    for name, evaluation in rows:
         stats = evaluation.stats
         lines.append(
             f"{name:<12}{evaluation.n_truth:>7}{evaluation.recall:>8.3f}"
@@ -304,6 +317,20 @@ def format_report(report: ReplayReport) -> str:
             f"{stats.mean:>9.4f}{stats.rms:>9.4f}{stats.p95:>9.4f}{stats.max:>9.4f}"
         )
     return "\n".join(lines)
+
+
+def _recall_interval_note(rows: Sequence[tuple[str, DetectionTally]]) -> str:
+    """What the accuracy table's recall intervals cluster by; the rows named where they differ."""
+    by_marker = [name for name, tally in rows if tally.clustered_by_marker]
+    by_frame = [name for name, tally in rows if not tally.clustered_by_marker]
+    if not by_frame:
+        return RECALL_INTERVAL_BY_MARKER
+    if not by_marker:
+        return RECALL_INTERVAL_ASSUMES
+    return (
+        f"{RECALL_INTERVAL_BY_MARKER} ({', '.join(by_marker)}); "
+        f"{RECALL_INTERVAL_ASSUMES} ({', '.join(by_frame)})"
+    )
 
 
 # --------------------------------------------------------------------------- replay
@@ -380,18 +407,37 @@ def _camera_name_problem(camera: str) -> str | None:
     return topic_name_problem(f"/{camera}/{POINTS_SUFFIX}")
 
 
-def _xy(cloud: PointCloud2) -> np.ndarray:
-    """(N, 2) the points' x and y; ImageError for points without those fields.
+def _points(cloud: PointCloud2) -> tuple[np.ndarray, np.ndarray | None]:
+    """(N, 2) the points' x and y, and (N,) their marker ids where the cloud names them.
 
-    A cloud of no points is no markers, whatever fields it declares.
+    The ids are the truth's :data:`MARKER_ID_FIELD` (None: a cloud without it, as
+    truth recorded before it was written, and the node's detections). A cloud of no
+    points is no markers, whatever fields it declares.
+
+    Raises:
+        ImageError: points without x and y, or marker ids that are no uint32
+            values (the tallies keep them so).
     """
     points = cloud_to_array(cloud)
+    names = points.dtype.names or ()
+    ids = None
+    if MARKER_ID_FIELD in names:
+        ids = points[MARKER_ID_FIELD]
+        uint32 = np.iinfo(np.uint32)
+        if not np.issubdtype(ids.dtype, np.integer) or (
+            len(ids) and not uint32.min <= ids.min() <= ids.max() <= uint32.max
+        ):
+            raise ImageError(
+                f"point field {MARKER_ID_FIELD!r} of {ids.dtype} holds no marker ids "
+                f"(integers {uint32.min}-{uint32.max})"
+            )
+        ids = ids.astype(np.uint32)
     if not len(points):
-        return np.empty((0, 2))
-    if not {"x", "y"} <= set(points.dtype.names or ()):
-        fields = ", ".join(map(repr, points.dtype.names or ())) or "none"
+        return np.empty((0, 2)), ids
+    if not {"x", "y"} <= set(names):
+        fields = ", ".join(map(repr, names)) or "none"
         raise ImageError(f"points without fields 'x' and 'y' (their fields: {shorten(fields)})")
-    return np.column_stack([points["x"], points["y"]])
+    return np.column_stack([points["x"], points["y"]]), ids
 
 
 @dataclass
@@ -407,6 +453,8 @@ FOUND = "found"
 #: The part that says a frame gives no detections: skipped or failed
 #: (:meth:`TruthMatcher.no_result`).
 NO_RESULT = "no result"
+#: The part beside a frame's truth that names its markers, where the truth does.
+TRUTH_MARKER_IDS = "truth marker ids"
 
 
 class TruthMatcher:
@@ -469,7 +517,14 @@ class TruthMatcher:
         """Whether ``camera``'s frames are evaluated (it has a truth topic)."""
         return camera in self.tallies
 
-    def add(self, kind: str, camera: str, stamp_ns: int, xy: np.ndarray) -> None:
+    def add(
+        self,
+        kind: str,
+        camera: str,
+        stamp_ns: int,
+        xy: np.ndarray,
+        marker_ids: np.ndarray | None = None,
+    ) -> None:
         """One part of a frame; nothing for a camera without truth.
 
         Args:
@@ -478,11 +533,18 @@ class TruthMatcher:
             stamp_ns: its header stamp, ns.
             xy: (N, 2) the part's points, px. A later part of the same kind replaces
                 an earlier one while the frame waits.
+            marker_ids: (N,) for the truth, each point's marker, where the truth names
+                them (the recall's interval then clusters by marker); else None.
         """
         if not self.wants(camera):
             return
         frames = self._waiting[camera]
-        frames.setdefault(stamp_ns, {})[kind] = xy
+        parts = frames.setdefault(stamp_ns, {})
+        parts[kind] = xy
+        if kind == TRUTH_SUFFIX and marker_ids is not None:
+            parts[TRUTH_MARKER_IDS] = marker_ids
+        elif kind == TRUTH_SUFFIX:
+            parts.pop(TRUTH_MARKER_IDS, None)
         newest = self._newest[camera]
         newest[kind] = max(newest.get(kind, stamp_ns), stamp_ns)
         for stamp in list(frames):
@@ -539,7 +601,8 @@ class TruthMatcher:
                 parts[TRUTH_SUFFIX],
                 self._match_distance_px,
                 parts.get(PARTIAL_SUFFIX),
-            )
+            ),
+            truth_marker_ids=parts.get(TRUTH_MARKER_IDS),
         )
 
 
@@ -673,7 +736,7 @@ class _Session:
         for camera, stamp_ns, time_ns, cloud in done:
             self.writer.write(f"/{camera}/{POINTS_SUFFIX}", time_ns, cloud)
             if self.evaluation.wants(camera):
-                self.evaluation.add(FOUND, camera, stamp_ns, _xy(cloud))
+                self.evaluation.add(FOUND, camera, stamp_ns, _points(cloud)[0])
         for camera, stamp_ns in failed:
             self.evaluation.no_result(camera, stamp_ns)
 
@@ -778,7 +841,7 @@ def replay_bag(
                         kind, camera = cloud_kind[message.topic]
                         try:
                             cloud: PointCloud2 = message.decode()
-                            evaluation.add(kind, camera, stamp_to_ns(cloud.header), _xy(cloud))
+                            evaluation.add(kind, camera, stamp_to_ns(cloud.header), *_points(cloud))
                         except (BagError, ImageError):
                             undecodable[message.topic] = undecodable.get(message.topic, 0) + 1
                         continue

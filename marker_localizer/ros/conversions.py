@@ -21,6 +21,18 @@ offset field  meaning
 
 Angles are atan2(dy, dx) in pixel coordinates (y down: clockwise as the image is
 shown); which line comes first is not fixed. An empty cloud keeps the fields.
+
+A truth cloud (``simulate``'s ``marker_points_truth``: :func:`detections_to_cloud`
+given ``marker_ids``) adds one field after these, and its ``point_step`` is 56 bytes:
+
+====== ========= ==================================================================
+offset field     meaning
+====== ========= ==================================================================
+48     marker_id uint32: which marker of the flight this is, the same in every
+                 frame and camera that sees it (``FlightSimulator.markers``' index)
+====== ========= ==================================================================
+
+and 4 bytes of padding, so that every point's float64 start on an 8-byte boundary.
 """
 
 from __future__ import annotations
@@ -135,6 +147,12 @@ _TO_BGR = {
 CLOUD_FIELDS: tuple[str, ...] = ("x", "y", "sigma", "score", "angle1", "angle2")
 #: Bytes per marker in the point cloud: six float64.
 CLOUD_POINT_STEP = 8 * len(CLOUD_FIELDS)
+#: The truth cloud's field after :data:`CLOUD_FIELDS`, uint32: the marker's identity in
+#: the flight, so that an evaluation can tell a marker seen again from another one.
+MARKER_ID_FIELD = "marker_id"
+#: Bytes per marker in a truth cloud: :data:`CLOUD_POINT_STEP`, the uint32 identity and
+#: 4 bytes of padding that keep the next point's float64 on an 8-byte boundary.
+TRUTH_CLOUD_POINT_STEP = CLOUD_POINT_STEP + 8
 
 #: numpy type of each sensor_msgs/PointField datatype.
 _POINT_FIELD_DTYPES: dict[int, np.dtype] = {
@@ -362,31 +380,67 @@ def array_to_image(pixels: np.ndarray, encoding: str, header: Header | None = No
     return msg
 
 
-def detections_to_cloud(header: Header, detections: Sequence[Detection]) -> PointCloud2:
+def detections_to_cloud(
+    header: Header, detections: Sequence[Detection], marker_ids: Sequence[int] | None = None
+) -> PointCloud2:
     """Pack detections into the marker PointCloud2 (layout in the module docstring).
 
     Args:
         header: copied unchanged (stamp and frame_id of the input image).
         detections: markers of one frame; may be empty.
+        marker_ids: for a truth cloud, each marker's identity in the flight, aligned
+            with ``detections`` (the :data:`MARKER_ID_FIELD` field); None: the node's
+            layout, without it.
 
     Returns:
         PointCloud2 with ``width`` = number of detections.
+
+    Raises:
+        ValueError: ``marker_ids`` not one per detection, or outside uint32.
     """
-    points = np.array(
-        [[d.x, d.y, d.sigma, d.score, d.angle1, d.angle2] for d in detections],
-        dtype="<f8",
-    ).reshape(-1, len(CLOUD_FIELDS))
+    fields = [(name, "<f8") for name in CLOUD_FIELDS]
+    if marker_ids is not None:
+        if len(marker_ids) != len(detections):
+            raise ValueError(
+                f"{len(marker_ids)} marker ids for {len(detections)} detections: one each"
+            )
+        if len(marker_ids) and not 0 <= min(marker_ids) <= max(marker_ids) <= 2**32 - 1:
+            raise ValueError(
+                f"marker ids {min(marker_ids)}-{max(marker_ids)} outside uint32 (0-{2**32 - 1})"
+            )
+        fields.append((MARKER_ID_FIELD, "<u4"))
+    point_step = CLOUD_POINT_STEP if marker_ids is None else TRUTH_CLOUD_POINT_STEP
+    points = np.zeros(
+        len(detections),
+        np.dtype(
+            {
+                "names": [name for name, _ in fields],
+                "formats": [scalar for _, scalar in fields],
+                "offsets": [8 * i for i in range(len(fields))],
+                "itemsize": point_step,
+            }
+        ),
+    )
+    for name in CLOUD_FIELDS:
+        points[name] = [getattr(d, name) for d in detections]
+    if marker_ids is not None:
+        points[MARKER_ID_FIELD] = marker_ids
     cloud = PointCloud2()
     cloud.header = header
     cloud.height = 1
     cloud.width = len(points)
     cloud.fields = [
-        PointField(name=name, offset=8 * i, datatype=PointField.FLOAT64, count=1)
-        for i, name in enumerate(CLOUD_FIELDS)
+        PointField(
+            name=name,
+            offset=8 * i,
+            datatype=PointField.FLOAT64 if scalar == "<f8" else PointField.UINT32,
+            count=1,
+        )
+        for i, (name, scalar) in enumerate(fields)
     ]
     cloud.is_bigendian = False
-    cloud.point_step = CLOUD_POINT_STEP
-    cloud.row_step = CLOUD_POINT_STEP * len(points)
+    cloud.point_step = point_step
+    cloud.row_step = point_step * len(points)
     cloud.is_dense = True
     cloud.data = array.array("B", points.tobytes())
     return cloud

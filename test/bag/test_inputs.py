@@ -23,11 +23,13 @@ from std_msgs.msg import Header
 from marker_localizer.bag.io import BagReader, BagWriter
 from marker_localizer.bag.replay import image_cameras, replay_bag
 from marker_localizer.core.image import bayer_to_grey
+from marker_localizer.core.result import Detection
 from marker_localizer.errors import ImageError
 from marker_localizer.ros.conversions import (
     array_to_image,
     cloud_to_array,
     compressed_to_detector_input,
+    detections_to_cloud,
 )
 from marker_localizer.synthetic import render_markers
 from marker_localizer.synthetic.scene import MarkerPlacement, bayer_gain
@@ -153,6 +155,35 @@ def test_replay_counts_truth_clouds_without_x_and_y_and_reads_an_empty_one_as_no
     # The second frame's truth holds no marker: its detection is a false point.
     evaluation = report.cameras["cam0"].evaluation
     assert (evaluation.frames, evaluation.n_truth, evaluation.n_false_positives) == (1, 0, 1)
+
+
+def test_replay_counts_truth_whose_marker_ids_are_no_uint32_and_reads_the_rest(tmp_path):
+    """A marker_id field of float64 (a foreign truth's) names no marker: that truth is
+    counted undecodable, not clustered by ids cast from fractions; uint32 ids are read."""
+    fields = ["x", "y", "marker_id"]
+    foreign = PointCloud2(header=Header(stamp=Time(sec=1)), height=1, width=1, point_step=24)
+    foreign.fields = [
+        PointField(name=name, offset=8 * i, datatype=PointField.FLOAT64, count=1)
+        for i, name in enumerate(fields)
+    ]
+    foreign.row_step, foreign.data = 24, np.array([*CENTRE, 2.5]).tobytes()
+    truth = Detection(*CENTRE, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14.0)
+    named = detections_to_cloud(Header(stamp=Time(sec=2)), [truth], marker_ids=[3])
+    bag = tmp_path / "truth"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        writer.add_topic("/cam0/marker_points_truth", "sensor_msgs/msg/PointCloud2")
+        for sec, cloud in ((1, foreign), (2, named)):
+            header = Header(stamp=Time(sec=sec), frame_id="cam0_optical")
+            writer.write(
+                "/cam0/image_raw", sec * 10**9, array_to_image(marker_frame(), "mono8", header)
+            )
+            writer.write("/cam0/marker_points_truth", sec * 10**9, cloud)
+    report = replay_bag(bag, tmp_path / "out", workers=1)
+    assert report.undecodable == {"/cam0/marker_points_truth": 1}
+    evaluation = report.cameras["cam0"].evaluation
+    assert (evaluation.frames, evaluation.n_matched, list(evaluation.marker_ids)) == (1, 1, [3])
+    assert evaluation.clustered_by_marker
 
 
 def test_replay_reads_a_ros1_bag_raw_and_compressed(tmp_path):

@@ -7,6 +7,7 @@ simulator keeps markers at 4 to 20 px radius at any frame size).
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import sqlite3
@@ -24,14 +25,17 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from scenes import panning_frames
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
+from scipy.stats import t as student_t
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from std_msgs.msg import Header
 
+from marker_localizer import evaluation
 from marker_localizer.bag import replay
 from marker_localizer.bag.io import BagReader, BagWriter, typestore
 from marker_localizer.bag.record import PARTIAL_SUFFIX, TRUTH_SUFFIX, recorded_flight
 from marker_localizer.bag.replay import (
     RECALL_INTERVAL_ASSUMES,
+    RECALL_INTERVAL_BY_MARKER,
     TruthMatcher,
     format_report,
     replay_bag,
@@ -40,8 +44,10 @@ from marker_localizer.cli import main as cli
 from marker_localizer.config import DetectorConfig, TrackerConfig
 from marker_localizer.core.result import Detection
 from marker_localizer.errors import BagError, ConfigError
+from marker_localizer.evaluation import interval_text
 from marker_localizer.ros.conversions import (
     CLOUD_FIELDS,
+    MARKER_ID_FIELD,
     array_to_image,
     cloud_to_array,
     detections_to_cloud,
@@ -147,7 +153,8 @@ def test_simulated_bag_has_images_camera_info_truth_and_tf_static_per_camera(fli
     np.testing.assert_array_equal(info.d, np.zeros(5))
     np.testing.assert_array_equal(np.reshape(info.r, (3, 3)), np.eye(3))
     points = cloud_to_array(truth)
-    assert points.dtype.names == CLOUD_FIELDS and len(points) > 3
+    assert points.dtype.names == (*CLOUD_FIELDS, MARKER_ID_FIELD) and len(points) > 3
+    assert points.dtype[MARKER_ID_FIELD] == np.uint32
     assert (points["sigma"] == 0).all() and (points["score"] == 1).all()
     tf_raw = next(m for m in messages if m.topic == "/tf_static").raw
     tf = typestore().deserialize_cdr(tf_raw, "tf2_msgs/msg/TFMessage")
@@ -161,7 +168,8 @@ def test_the_recorded_flights_poses_and_markers_project_through_the_bags_calibra
     flight_bag,
 ):
     """What a pose estimator fed the bag is checked against: the aircraft's pose at each
-    frame and the markers' world positions, through /tf_static and camera_info alone."""
+    frame and the markers' world positions, through /tf_static and camera_info alone;
+    each truth point names the marker that projects onto it (its marker_id)."""
     flight = recorded_flight(flight_bag)
     with BagReader(flight_bag) as bag:
         messages = list(bag.messages())
@@ -186,7 +194,9 @@ def test_the_recorded_flights_poses_and_markers_project_through_the_bags_calibra
         points = cloud_to_array(truth.decode())
         xy = np.column_stack([points["x"], points["y"]])
         assert len(xy) > 3
-        assert cKDTree(pixels[:, :2]).query(xy)[0].max() < 1e-6
+        distance, nearest = cKDTree(pixels[:, :2]).query(xy)
+        assert distance.max() < 1e-6
+        assert np.flatnonzero(ahead)[nearest].tolist() == points[MARKER_ID_FIELD].tolist()
 
 
 def test_a_bag_simulate_did_not_write_has_no_recorded_flight(tmp_path):
@@ -278,15 +288,79 @@ def test_replays_accuracy_table_gives_each_recall_and_false_point_rate_its_inter
     assert "-".join(f"{b:.2f}" for b in overall.fp_per_frame_interval) in row
 
 
-def test_replays_accuracy_table_says_its_recall_interval_takes_each_frames_markers_as_new(
-    replayed,
-):
-    # The truth clouds name no marker, so the interval cannot cluster by marker; a
-    # flight sees the same markers frame after frame, and the report says what the
-    # interval assumes rather than pass it off as the recall of a flight over others.
+def test_replay_clusters_a_simulated_flights_recall_interval_by_marker_and_says_so(replayed):
+    # simulate's truth names its markers, and a flight sees them frame after frame: the
+    # interval counts a marker seen again as the same one, every camera's and all.
     report, _ = replayed
     heading = next(line for line in format_report(report).splitlines() if "accuracy" in line)
-    assert RECALL_INTERVAL_ASSUMES in heading
+    assert RECALL_INTERVAL_BY_MARKER in heading and RECALL_INTERVAL_ASSUMES not in heading
+    overall = report.evaluation
+    assert overall.clustered_by_marker
+    assert all(c.evaluation.clustered_by_marker for c in report.cameras.values())
+    assert overall.recall_interval == evaluation.marker_recall_interval(
+        overall.found, overall.marker_ids
+    )
+
+
+#: A truth point on the blank ground of :func:`x_marker_frame`: never found.
+BLANK_TRUTH = Detection(x=10.0, y=52.0, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14)
+
+
+def seen_again_bag(path: Path, named: bool) -> Path:
+    """Four frames of one camera: its marker (id 7) in each, found, and a truth point on
+    blank ground, missed: id 9 in the first two frames, 11 in the last two. ``named``:
+    the truth names its markers (marker_id), else the layout recorded before it did."""
+    pixels = x_marker_frame()
+    with BagWriter(path) as bag:
+        bag.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        bag.add_topic(f"/cam0/{TRUTH_SUFFIX}", "sensor_msgs/msg/PointCloud2")
+        for k, missed in enumerate([9, 9, 11, 11]):
+            t = (k + 1) * S // 10
+            bag.write("/cam0/image_raw", t, image(pixels, t))
+            ids = [7, missed] if named else None
+            cloud = detections_to_cloud(Header(stamp=stamp(t)), [*X_MARKER_TRUTH, BLANK_TRUTH], ids)
+            bag.write(f"/cam0/{TRUTH_SUFFIX}", t, cloud)
+    return path
+
+
+def _wilson(found: int, total: int, design_effect: float, quantile: float) -> tuple[float, float]:
+    """Wilson's score interval on total / design_effect trials, written out."""
+    n, p, z2 = total / design_effect, found / total, quantile**2
+    centre = (p + z2 / (2 * n)) / (1 + z2 / n)
+    half = math.sqrt(z2 * (p * (1 - p) / n + z2 / (4 * n * n))) / (1 + z2 / n)
+    return centre - half, centre + half
+
+
+def test_a_bag_whose_truth_names_its_markers_gives_the_marker_clustered_recall_interval(
+    tmp_path,
+):
+    report = replay_bag(seen_again_bag(tmp_path / "named", True), tmp_path / "out", workers=1)
+    tally = report.cameras["cam0"].evaluation
+    assert (tally.n_matched, tally.n_truth) == (4, 8)
+    # Per marker (found, truth): 7 (4, 4), 9 (0, 2), 11 (0, 2). Residuals 2, -1, -1 give
+    # 3 / 2 x 6 / 8^2 against 0.25 / 8: a design effect of 4.5, t on 3 - 1 freedoms.
+    assert list(tally.marker_ids) == [7, 9, 7, 9, 7, 11, 7, 11]
+    assert tally.recall_design_effect == pytest.approx(4.5)
+    expected = _wilson(4, 8, 4.5, student_t.ppf(0.975, 2))
+    assert tally.recall_interval == pytest.approx(expected, abs=1e-12)
+    text = format_report(report)
+    assert RECALL_INTERVAL_BY_MARKER in text and RECALL_INTERVAL_ASSUMES not in text
+    assert f"{interval_text(expected, 3):>13}" in text
+
+
+def test_a_bag_whose_truth_names_no_marker_still_gives_the_frame_clustered_interval_and_says_so(
+    tmp_path,
+):
+    # Truth recorded before it named its markers: each frame finds one of its two, so
+    # the frames do not spread (t on 4 - 1 freedoms), and the report says what that assumes.
+    report = replay_bag(seen_again_bag(tmp_path / "old", False), tmp_path / "out", workers=1)
+    tally = report.cameras["cam0"].evaluation
+    assert (tally.n_matched, tally.n_truth) == (4, 8)
+    assert not tally.clustered_by_marker
+    expected = _wilson(4, 8, 1.0, student_t.ppf(0.975, 3))
+    assert tally.recall_interval == pytest.approx(expected, abs=1e-12)
+    heading = next(line for line in format_report(report).splitlines() if "accuracy" in line)
+    assert RECALL_INTERVAL_ASSUMES in heading and RECALL_INTERVAL_BY_MARKER not in heading
     assert "same markers seen again it is too narrow" in heading
 
 

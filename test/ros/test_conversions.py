@@ -20,6 +20,7 @@ from marker_localizer.ros.conversions import (
     BAYER_ENCODINGS,
     CLOUD_FIELDS,
     ENCODINGS,
+    MARKER_ID_FIELD,
     SEMIPLANAR_YUV420,
     YUV422_LUMA_BYTE,
     array_to_image,
@@ -242,6 +243,26 @@ def test_detections_to_cloud_has_the_documented_layout():
         (name, 8 * i, PointField.FLOAT64, 1) for i, name in enumerate(CLOUD_FIELDS)
     ]
     assert len(cloud.data) == 144
+
+
+def test_a_truth_cloud_names_each_marker_in_a_uint32_after_the_nodes_fields():
+    detections = make_detections(3)
+    cloud = detections_to_cloud(HEADER, detections, marker_ids=[7, 0, 2**32 - 1])
+    assert (cloud.width, cloud.point_step, cloud.row_step, len(cloud.data)) == (3, 56, 168, 168)
+    assert [(f.name, f.offset, f.datatype, f.count) for f in cloud.fields] == [
+        *((name, 8 * i, PointField.FLOAT64, 1) for i, name in enumerate(CLOUD_FIELDS)),
+        (MARKER_ID_FIELD, 48, PointField.UINT32, 1),
+    ]
+    points = cloud_to_array(deserialize_message(serialize_message(cloud), PointCloud2))
+    assert points[MARKER_ID_FIELD].tolist() == [7, 0, 2**32 - 1]
+    # The node's fields hold what they hold without the ids, byte for byte.
+    plain = cloud_to_array(detections_to_cloud(HEADER, detections))
+    for name in CLOUD_FIELDS:
+        np.testing.assert_array_equal(points[name], plain[name])
+    with pytest.raises(ValueError, match="2 marker ids for 3 detections"):
+        detections_to_cloud(HEADER, detections, marker_ids=[1, 2])
+    with pytest.raises(ValueError, match="outside uint32"):
+        detections_to_cloud(HEADER, detections, marker_ids=[1, 2, -1])
 
 
 def test_cloud_round_trips_through_serialisation():
