@@ -431,7 +431,9 @@ class DetectionTally:
         same markers frame after frame (a flight), the interval is then narrower
         than the recall's spread from one flight over other markers to the next.
         """
-        return frame_recall_interval(*self._recall_clusters())
+        if self.clustered_by_marker:
+            return marker_recall_interval(np.asarray(self.found, bool), self.marker_ids)
+        return frame_recall_interval(self.found_per_frame, self.truth_per_frame)
 
     def _recall_clusters(self) -> tuple[Sequence[int], Sequence[int]]:
         """(found, truth) per cluster of the recall: per marker if all are named, else per frame."""
@@ -570,14 +572,19 @@ def marker_recall_interval(
     :func:`frame_recall_interval`'s on the markers' counts (:func:`marker_counts`):
     the design effect of their spread, Student's t on markers - 1 degrees of freedom.
 
+    One marker is one trial however often it was seen (its sightings share
+    everything that makes it found), as two markers or more are each one cluster:
+    the spread between markers cannot be read from one.
+
     Args:
         found: (N,) per truth point, whether it was matched.
         marker_ids: (N,) per truth point, its marker's identity.
         level: the interval's coverage.
     """
-    return frame_recall_interval(
-        *marker_counts(np.asarray(found, bool), np.asarray(marker_ids)), level
-    )
+    hits, seen = marker_counts(np.asarray(found, bool), np.asarray(marker_ids))
+    if len(seen) == 1:
+        return recall_interval(hits[0], seen[0], level, design_effect=seen[0])
+    return frame_recall_interval(hits, seen, level)
 
 
 def marker_counts(found: np.ndarray, marker_ids: np.ndarray) -> tuple[list[int], list[int]]:

@@ -458,6 +458,19 @@ def test_a_marker_seen_in_many_frames_is_one_cluster_of_the_recall_interval():
     assert low < by_frame.recall_interval[0] and high > by_frame.recall_interval[1]
 
 
+def test_one_marker_seen_in_many_frames_is_one_trial_of_the_recall_interval():
+    """A landing pad seen in 10 frames and found in 9: one marker, however often seen,
+    not 10 independent trials (Wilson's interval of 9 of 10 is 0.60-0.98)."""
+    tally = evaluation.DetectionTally()
+    truth = np.array([[70.0, 0.0]])
+    for frame in range(10):
+        found = truth[:0] if frame == 3 else truth
+        tally.add(evaluation.match_points(found, truth), truth_marker_ids=np.array([7]))
+    expected = _wilson(9, 10, 10.0, stats.norm.ppf(0.975))
+    assert tally.recall_interval == pytest.approx(expected, abs=1e-12)
+    assert expected[1] - expected[0] > 0.7
+
+
 def test_tallies_merged_cluster_by_marker_only_where_every_truth_point_names_one():
     # Two cameras that see marker 7: one cluster in the merged tally.
     cam0, cam1, unnamed = (evaluation.DetectionTally() for _ in range(3))

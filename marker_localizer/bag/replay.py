@@ -97,8 +97,8 @@ DIAGNOSTICS_TOPIC = "/diagnostics"
 #: What the recall's interval in the report assumes where the truth names no marker
 #: (truth recorded without :data:`MARKER_ID_FIELD`): it clusters by frame alone; on a
 #: flight that sees the same markers frame after frame it is narrower than the recall's
-#: spread from one flight over other markers to the next (a seeded model of such
-#: flights, scratch ``/tmp/s120/evalaudit/replay_deff.py``: 0.26 of the intervals held it).
+#: spread from one flight over other markers to the next (measured in seeded model
+#: flights: ``test_evaluation``'s marker-clustered coverage test beside it).
 RECALL_INTERVAL_ASSUMES = (
     "the recall's takes each frame's markers as other markers than the last frame's "
     "(the truth names none): for the same markers seen again it is too narrow"
@@ -302,7 +302,7 @@ def format_report(report: ReplayReport) -> str:
     lines += [
         f"accuracy against {TRUTH_SUFFIX} (one-to-one matches within "
         f"{report.match_distance_px:g} px; "
-        f"{INTERVAL_HEADING} intervals widened by the spread between frames; "
+        f"{INTERVAL_HEADING} intervals widened by the spread between their clusters; "
         f"{_recall_interval_note(rows)}):",
         f"{'camera':<12}{'truth':>7}{'recall':>8}{INTERVAL_HEADING:>13}{'FP/frame':>10}"
         f"{INTERVAL_HEADING:>12}"

@@ -26,7 +26,7 @@ import numpy as np
 from marker_localizer.cli.arguments import seed_type
 from marker_localizer.config import DetectorConfig
 from marker_localizer.core.pipeline import Detector
-from marker_localizer.core.result import Detection
+from marker_localizer.core.result import Detection, positions
 from marker_localizer.evaluation import match_points
 from marker_localizer.overlay import draw_detections
 from marker_localizer.synthetic import SceneConfig, render_scene
@@ -96,7 +96,7 @@ def render_picture(
     """
     scene = render_scene(scene_config or SceneConfig(), seed)
     detections = Detector(DetectorConfig()).detect(scene.image).detections
-    found = np.array([(d.x, d.y) for d in detections], dtype=np.float64).reshape(-1, 2)
+    found = positions(detections)
     matching = match_points(found, scene.centres)
     half = ZOOM_WINDOW_PX / 2
     height, width = scene.image.shape[:2]

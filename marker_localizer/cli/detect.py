@@ -38,7 +38,7 @@ from marker_localizer.image_files import read_image_file
 #: divided by 255 once more), and the detector reads a black frame.
 _FLOAT_MIN_PEAK = 1.0 / 255.0
 #: :data:`_FLOAT_MIN_PEAK` as the warning writes it.
-_FLOAT_MIN_PEAK_TEXT = "1/255"
+_FLOAT_MIN_PEAK_TEXT = f"1/{round(1.0 / _FLOAT_MIN_PEAK)}"
 #: White in a float image (core.image.to_gray), as the warnings name it.
 _FLOAT_WHITE_TEXT = "1 in a float image, whose levels are read in [0, 1]"
 

@@ -130,10 +130,17 @@ def to_gray(
         if not (np.isfinite(darkest) and np.isfinite(brightest)):
             raise ImageError("image contains NaN or infinite values")
         if darkest < -FLOAT_OVERSHOOT or brightest > 1.0 + FLOAT_OVERSHOOT:
+            # Levels above white are a camera's counts; levels under black a signed
+            # (zero-centred) image, whose white no division finds.
+            advice = (
+                "shift and scale them into it"
+                if darkest < -FLOAT_OVERSHOOT
+                else "divide them by the camera's white level (255 for 8-bit levels, 4095 "
+                "for 12-bit, 65535 for 16-bit)"
+            )
             raise ImageError(
-                f"float image levels span {darkest:g} to {brightest:g}, beyond [0, 1] (white 1): "
-                "divide them by the camera's white level (255 for 8-bit levels, 4095 for "
-                "12-bit, 65535 for 16-bit)"
+                f"float image levels span {darkest:g} to {brightest:g}, beyond [0, 1] "
+                f"(white 1): {advice}"
             )
         return np.ascontiguousarray(np.clip(image, 0.0, 1.0), dtype=np.float32), 1.0
     white = bit_depth_scale(image.dtype, bit_depth)

@@ -153,7 +153,7 @@ def apply_gamma(
 
 
 def structure_map(
-    image: FloatImage, xi: float, t: float, diameters_px: tuple[int, ...] = (3, 5, 9)
+    image: FloatImage, diameters_px: tuple[int, ...] = (3, 5, 9), *, xi: float, t: float
 ) -> FloatImage:
     """Multi-scale structural component map, Eq. (3).
 
@@ -195,9 +195,10 @@ class StructureComponents:
     def __init__(
         self,
         image: FloatImage,
+        diameters_px: tuple[int, ...] = (3, 5, 9),
+        *,
         xi: float,
         t: float,
-        diameters_px: tuple[int, ...] = (3, 5, 9),
     ) -> None:
         sums = cv2.integral2(image, sdepth=cv2.CV_64F)
         self._sum, self._square_sum = cast(tuple[NDArray[np.float64], NDArray[np.float64]], sums)

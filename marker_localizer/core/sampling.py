@@ -156,8 +156,13 @@ def _neighbours(
     NDArray[np.float64],
     NDArray[np.bool_],
 ]:
-    """The four pixels around each (x, y) as float64, the fractions, and validity."""
+    """The four pixels around each (x, y) as float64, the fractions, and validity.
+
+    ``x`` and ``y`` broadcast against each other and are read as float64: the floors
+    and fractions below are fresh arrays of their common shape, written in place.
+    """
     height, width = image.shape
+    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
     x0 = np.floor(x)
     y0 = np.floor(y)
     column = np.clip(x0, 0, width - 2)
@@ -222,9 +227,9 @@ def bilinear(
     """Sample ``image`` at (x, y) with bilinear interpolation.
 
     Args:
-        image: (H, W) image of any numeric dtype.
-        x: float64 array of column positions (any shape), 0 = centre of column 0.
-        y: float64 array of row positions, same shape as ``x``.
+        image: (H, W) image of any numeric dtype, H and W at least 2.
+        x: column positions (any shape, read as float64), 0 = centre of column 0.
+        y: row positions, broadcastable with ``x``.
 
     Returns:
         (values, valid): float64 samples of the shape of ``x`` and a boolean mask

@@ -41,8 +41,9 @@ _DEFOCUS_SIGMA_UNREAD_PX = 1.0
 #: a blur between two of them reads a little low.
 CORRELATION_BLURS_PX = (0.6, 1.0, 1.6, 2.5)
 #: Samples of the disk :func:`template_correlation` and :func:`template_misfit` read at
-#: most per point: a disk of up to 4.9 px radius is read every half pixel, one of up to
-#: 9.8 px every pixel or closer, a wider one on a grid coarse enough to keep this cost.
+#: most per point: a disk of radius under sqrt(this / 4 pi) px (about 4.9) is read every
+#: half pixel, one under sqrt(this / pi) px (about 9.8) every pixel or closer, a wider
+#: one on a grid coarse enough to keep this cost.
 DISK_MAX_SAMPLES = 300
 #: Sine of the lines' crossing angle :func:`_first_clear_of_other_line` takes at least
 #: (sin 11.5 degrees, under the double-line check's

@@ -1,5 +1,7 @@
 """Input normalisation (core/image.py): one channel in its own dtype, white from the bit depth."""
 
+import re
+
 import cv2
 import numpy as np
 import pytest
@@ -95,12 +97,16 @@ def test_float_images_overshooting_0_1_a_little_are_clipped_to_it():
     assert full_scale == 1.0
 
 
-@pytest.mark.parametrize("levels", [(0.0, 255.0), (-1.0, 1.0)])
-def test_float_images_of_another_scale_are_refused_not_clipped_to_a_blank_frame(levels):
+@pytest.mark.parametrize(
+    ("levels", "advice"),
+    [
+        ((0.0, 255.0), "divide them by the camera's white level"),
+        ((-1.0, 1.0), "shift and scale them into it"),
+    ],
+)
+def test_float_images_of_another_scale_are_refused_not_clipped_to_a_blank_frame(levels, advice):
     image = np.array([levels], np.float32)
-    with pytest.raises(
-        ImageError, match=r"beyond \[0, 1\] \(white 1\): divide them by the camera.s white level"
-    ):
+    with pytest.raises(ImageError, match=r"beyond \[0, 1\] \(white 1\): " + re.escape(advice)):
         to_gray(image)
 
 

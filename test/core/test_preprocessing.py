@@ -80,7 +80,7 @@ def test_structure_map_follows_eq_3_for_a_known_local_std():
 
 def test_structure_map_is_zero_on_flat_ground():
     s = preprocessing.structure_map(
-        np.full((20, 20), 0.4, np.float32), _DEFAULTS.structure_xi, _DEFAULTS.structure_t
+        np.full((20, 20), 0.4, np.float32), xi=_DEFAULTS.structure_xi, t=_DEFAULTS.structure_t
     )
     assert s.max() == pytest.approx(0.0, abs=1e-3)
 

@@ -214,7 +214,7 @@ def test_curvature_candidates_put_a_point_near_the_centre_of_an_x(radius, tilt):
         (160, 200), [MarkerPlacement(80.4, 70.6, radius, 0.4, tilt)], 0, blur_sigma_px=1.0
     )
     image = scene.image.astype(np.float32) / 255.0
-    structure = StructureComponents(image, _DEFAULTS.structure_xi, _DEFAULTS.structure_t)
+    structure = StructureComponents(image, xi=_DEFAULTS.structure_xi, t=_DEFAULTS.structure_t)
     found = screening.curvature_candidates(
         image,
         structure,

@@ -352,8 +352,8 @@ def test_a_camera_info_published_once_latched_is_heard_where_its_qos_is_overridd
     ros,
 ):
     """A driver publishes camera_info once, reliable and transient local, before the node
-    starts. The node's best-effort, volatile subscription never hears it; overridden to
-    the driver's QoS, it does."""
+    starts: overridden to the driver's QoS, the node's subscription hears it (by default
+    best effort and volatile, it is sent no earlier message)."""
     driver = rclpy.create_node("latched_driver", namespace="/latched")
     latched = QoSProfile(
         depth=1,

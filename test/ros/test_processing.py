@@ -734,7 +734,7 @@ class SettingsRecorded(FrameProcessor):
         super().reconfigure(*args, **kwargs)
 
 
-def test_a_frame_is_processed_with_the_whole_of_a_reconfiguration_or_none_of_it():
+def test_a_reconfiguration_is_swapped_in_whole_in_one_assignment():
     # The node applies an atomic parameter change (a detector and a tracker setting)
     # in one reconfigure, which must swap the settings in one assignment.
     processor = SettingsRecorded(
