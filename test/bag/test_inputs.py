@@ -139,16 +139,7 @@ def test_replay_counts_truth_clouds_without_x_and_y_and_reads_an_empty_one_as_no
     foreign = PointCloud2(header=Header(stamp=Time(sec=1)), height=1, width=1, point_step=8)
     foreign.fields = [PointField(name="u", offset=0, datatype=PointField.FLOAT64, count=1)]
     foreign.row_step, foreign.data = 8, bytes(8)
-    bag = tmp_path / "truth"
-    with BagWriter(bag) as writer:
-        writer.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
-        writer.add_topic("/cam0/marker_points_truth", "sensor_msgs/msg/PointCloud2")
-        for sec, truth in ((1, foreign), (2, PointCloud2(header=Header(stamp=Time(sec=2))))):
-            header = Header(stamp=Time(sec=sec), frame_id="cam0_optical")
-            writer.write(
-                "/cam0/image_raw", sec * 10**9, array_to_image(marker_frame(), "mono8", header)
-            )
-            writer.write("/cam0/marker_points_truth", sec * 10**9, truth)
+    bag = _bag_with_truth(tmp_path, [foreign, PointCloud2(header=Header(stamp=Time(sec=2)))])
     report = replay_bag(bag, tmp_path / "out", workers=1)
     assert report.undecodable == {"/cam0/marker_points_truth": 1}
     assert report.cameras["cam0"].frames == 2
@@ -169,16 +160,7 @@ def test_replay_counts_truth_whose_marker_ids_are_no_uint32_and_reads_the_rest(t
     foreign.row_step, foreign.data = 24, np.array([*CENTRE, 2.5]).tobytes()
     truth = Detection(*CENTRE, score=1.0, sigma=0.0, angle1=0.4, angle2=2.0, radius_px=14.0)
     named = detections_to_cloud(Header(stamp=Time(sec=2)), [truth], marker_ids=[3])
-    bag = tmp_path / "truth"
-    with BagWriter(bag) as writer:
-        writer.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
-        writer.add_topic("/cam0/marker_points_truth", "sensor_msgs/msg/PointCloud2")
-        for sec, cloud in ((1, foreign), (2, named)):
-            header = Header(stamp=Time(sec=sec), frame_id="cam0_optical")
-            writer.write(
-                "/cam0/image_raw", sec * 10**9, array_to_image(marker_frame(), "mono8", header)
-            )
-            writer.write("/cam0/marker_points_truth", sec * 10**9, cloud)
+    bag = _bag_with_truth(tmp_path, [foreign, named])
     report = replay_bag(bag, tmp_path / "out", workers=1)
     assert report.undecodable == {"/cam0/marker_points_truth": 1}
     evaluation = report.cameras["cam0"].evaluation
@@ -319,3 +301,18 @@ def test_replay_reads_packed_and_semi_planar_yuv_frames_by_their_luma(tmp_path):
             "cam2": array_to_image(luma, "nv21"),
         },
     )
+
+
+def _bag_with_truth(tmp_path, clouds):
+    """A bag of cam0's marker frame at 1, 2, ... s, each beside its truth cloud."""
+    bag = tmp_path / "truth"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        writer.add_topic("/cam0/marker_points_truth", "sensor_msgs/msg/PointCloud2")
+        for sec, cloud in enumerate(clouds, start=1):
+            header = Header(stamp=Time(sec=sec), frame_id="cam0_optical")
+            writer.write(
+                "/cam0/image_raw", sec * 10**9, array_to_image(marker_frame(), "mono8", header)
+            )
+            writer.write("/cam0/marker_points_truth", sec * 10**9, cloud)
+    return bag
