@@ -140,17 +140,23 @@ def test_the_camera_served_least_recently_goes_first_though_its_frame_arrived_la
     ]
 
 
-def test_frames_that_waited_longer_than_max_age_in_the_node_are_dropped_whatever_their_stamp():
-    collect = Collector()
-    now = [100 * 10**9]
-    processor = FrameProcessor(
-        ["a", "b"],
+def _aging_processor(cameras, collect, now, **clocks):
+    """One worker, frames older than 2 s dropped, on the injected clock ``now[0]`` (ns)."""
+    return FrameProcessor(
+        cameras,
         DetectorConfig(),
         collect,
         workers=1,
         max_frame_age_s=2.0,
         clock_ns=lambda: now[0],
+        **clocks,
     )
+
+
+def test_frames_that_waited_longer_than_max_age_in_the_node_are_dropped_whatever_their_stamp():
+    collect = Collector()
+    now = [100 * 10**9]
+    processor = _aging_processor(["a", "b"], collect, now)
     try:
         collect.release.clear()
         processor.submit("a", stamped(1))  # stamped 99 s before it arrives: taken at once
@@ -177,15 +183,7 @@ def test_a_frame_waiting_while_the_clock_goes_back_is_aged_by_its_real_wait(wait
     """
     collect = Collector()
     now, steady = [1000 * 10**9], [0]
-    processor = FrameProcessor(
-        ["a", "b"],
-        DetectorConfig(),
-        collect,
-        workers=1,
-        max_frame_age_s=2.0,
-        clock_ns=lambda: now[0],
-        steady_ns=lambda: steady[0],
-    )
+    processor = _aging_processor(["a", "b"], collect, now, steady_ns=lambda: steady[0])
     try:
         collect.release.clear()
         processor.submit("a", stamped(1000))
@@ -778,14 +776,7 @@ def test_a_frame_that_arrived_before_a_sim_time_clock_started_is_not_too_old_whe
     bag_start = 1_700_000_000 * 10**9
     now = [0]
     collect = Collector()
-    processor = FrameProcessor(
-        ["cam0"],
-        DetectorConfig(),
-        collect,
-        workers=1,
-        max_frame_age_s=2.0,
-        clock_ns=lambda: now[0],
-    )
+    processor = _aging_processor(["cam0"], collect, now)
     try:
         collect.release.clear()
         processor.submit("cam0", stamped(1))  # taken by the worker, held
