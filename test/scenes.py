@@ -1,9 +1,12 @@
 """Rendered scenes, and the scoring against their truth, that the tests share."""
 
+from collections.abc import Iterable
+
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from marker_localizer.core.result import Detection, positions
 from marker_localizer.synthetic import MarkerPlacement, RenderedScene, SceneConfig, render_markers
 from marker_localizer.synthetic.scene import bayer_gain
 
@@ -81,9 +84,11 @@ def checker_2x2(size: int = 64, blur: float = 1.0) -> np.ndarray:
     return cv2.GaussianBlur(image, (0, 0), blur).round().astype(np.uint8)
 
 
-def found_false_errors(detections: np.ndarray, truth: np.ndarray) -> tuple[int, int, np.ndarray]:
+def found_false_errors(
+    detections: Iterable[Detection], truth: np.ndarray
+) -> tuple[int, int, np.ndarray]:
     """Markers found within 1.5 px, false points, and the found detections' errors, px."""
-    distance, index = cKDTree(truth).query(detections[:, :2])
+    distance, index = cKDTree(truth).query(positions(detections))
     hit = distance <= 1.5
     return len(np.unique(index[hit])), int((~hit).sum()), distance[hit]
 

@@ -19,6 +19,7 @@ from shared_data import SHARED_DATA, needs_shared_data
 from marker_localizer import Detector, DetectorConfig, evaluation
 from marker_localizer.bench import accuracy, dull, peers, real_data
 from marker_localizer.core import symmetry_path
+from marker_localizer.core.result import positions
 from marker_localizer.errors import ConfigError
 from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
 from marker_localizer.synthetic.crlb import X_SNR_BANDS
@@ -324,7 +325,7 @@ def test_peers_and_our_other_variants_are_not_read_at_a_wider_range():
 
 def _found(detector: Detector, scene) -> tuple[set[int], int]:
     """Indices of the scene's markers with a detection within 2 px, and the false points."""
-    points = detector.detect(scene.image).as_array()[:, :2]
+    points = positions(detector.detect(scene.image))
     matching = evaluation.match_points(points, scene.centres)
     return set(matching.truth_index.tolist()), matching.n_false_positives
 

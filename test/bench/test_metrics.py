@@ -10,6 +10,7 @@ import pytest
 from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench import accuracy, metrics
 from marker_localizer.bench.peers import parse_mrgingham, subpix_half_window
+from marker_localizer.core.result import positions
 
 
 def projective_grid(rows: int, cols: int, shift: tuple[float, float] = (100.0, 80.0)) -> np.ndarray:
@@ -136,7 +137,7 @@ def test_on_a_rendered_chessboard_the_residual_about_the_lens_model_is_our_rms_e
     truth = scene.centres.reshape(10, 10, 2)
     low, high = family.radius_range
     detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
-    found = metrics.grid_positions(truth, detector.detect(scene.image).as_array()[:, :2])
+    found = metrics.grid_positions(truth, positions(detector.detect(scene.image)))
     error = np.linalg.norm(found - truth, axis=2)
     assert np.isfinite(error).all()
     pooled = metrics.pool_lens_model_residuals([found], [scene.image.shape])

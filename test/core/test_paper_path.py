@@ -28,7 +28,7 @@ def test_the_papers_pipeline_finds_the_markers_of_rendered_frames(cluttered_fram
     )
     found = false = total = 0
     for scene in cluttered_frames:
-        hits, misses, _ = found_false_errors(detector.detect(scene.image).as_array(), scene.centres)
+        hits, misses, _ = found_false_errors(detector.detect(scene.image), scene.centres)
         found, false, total = found + hits, false + misses, total + len(scene.centres)
     assert found / total >= 0.9
     assert false / len(cluttered_frames) <= 0.5
@@ -51,9 +51,7 @@ def test_the_papers_pipeline_locates_chessboard_corners_as_its_table_1_claims():
     detector = Detector(
         DetectorConfig(marker_radius_min_px=25.0, marker_radius_max_px=40.0, **_PAPER)
     )
-    hits, misses, errors = found_false_errors(
-        detector.detect(board.image).as_array(), board.centres
-    )
+    hits, misses, errors = found_false_errors(detector.detect(board.image), board.centres)
     assert hits / len(board.centres) >= 0.97
     assert misses == 0
     assert np.mean(errors) <= 0.03

@@ -51,7 +51,7 @@ from marker_localizer.core import (
     template_path,
     verification,
 )
-from marker_localizer.core.result import CAP_COUNTS, SearchPlan
+from marker_localizer.core.result import CAP_COUNTS, SearchPlan, extents, positions
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.errors import ImageError
 from marker_localizer.synthetic import (
@@ -91,9 +91,7 @@ def test_cluttered_frames_meet_the_core_targets():
     found = false = total = 0
     errors = []
     for scene in frames:
-        hits, misses, err = found_false_errors(
-            detector.detect(scene.image).as_array(), scene.centres
-        )
+        hits, misses, err = found_false_errors(detector.detect(scene.image), scene.centres)
         found, false, total = found + hits, false + misses, total + len(scene.centres)
         errors.extend(err)
     assert found / total >= 0.95
@@ -107,7 +105,7 @@ def test_reported_line_directions_follow_the_markers_lines(cluttered_frames):
     worst = []
     for scene in cluttered_frames:
         found = detector.detect(scene.image)
-        distance, index = cKDTree(scene.centres).query(found.as_array()[:, :2])
+        distance, index = cKDTree(scene.centres).query(positions(found))
         for detection, d, i in zip(found, distance, index, strict=True):
             if d > 1.5:
                 continue
@@ -123,11 +121,11 @@ def test_the_papers_ncc_refinement_is_selectable_and_less_precise(cluttered_fram
     scene = cluttered_frames[0]
     base = dict(marker_radius_min_px=6.0, marker_radius_max_px=40.0)
     _, _, paper = found_false_errors(
-        Detector(DetectorConfig(refinement="ncc", **base)).detect(scene.image).as_array(),
+        Detector(DetectorConfig(refinement="ncc", **base)).detect(scene.image),
         scene.centres,
     )
     _, _, ours = found_false_errors(
-        Detector(DetectorConfig(**base)).detect(scene.image).as_array(), scene.centres
+        Detector(DetectorConfig(**base)).detect(scene.image), scene.centres
     )
     assert len(paper) >= 0.9 * len(scene.centres)
     assert np.mean(paper) < 0.25
@@ -137,7 +135,7 @@ def test_the_papers_ncc_refinement_is_selectable_and_less_precise(cluttered_fram
 def _markers_found(detector: Detector, image: np.ndarray, centres: np.ndarray) -> set[int]:
     """Indices of the ``centres`` with a detection within 2 px (the benchmark's match)."""
     distance, index = cKDTree(centres).query(
-        detector.detect(image).as_array()[:, :2], distance_upper_bound=2.0
+        positions(detector.detect(image)), distance_upper_bound=2.0
     )
     return set(index[np.isfinite(distance)].tolist())
 
@@ -184,7 +182,7 @@ def _two_rows_of_four_found(
     detector = Detector(
         DetectorConfig(marker_radius_min_px=min_radius_px, marker_radius_max_px=40.0)
     )
-    found, false, _ = found_false_errors(detector.detect(scene.image).as_array(), scene.centres)
+    found, false, _ = found_false_errors(detector.detect(scene.image), scene.centres)
     return found, false
 
 
@@ -396,7 +394,7 @@ def test_more_xs_than_the_costly_checks_take_are_cut_over_the_frame_and_counted(
     image = x_tiling_frame(seed=1, shape=(400, 900))
     detector = Detector(DetectorConfig(marker_radius_min_px=3.0, marker_radius_max_px=30.0))
     result = detector.detect(image)
-    found = result.as_array()
+    found = positions(result)
     # Each of the cap's X's is a marker but for a few whose neighbours' sectors
     # carry their pattern on beyond their extent: those the X-end gate counts.
     assert len(found) + result.counts["rejected_x_end"] == symmetry_path.MAX_CONFIRMED
@@ -425,12 +423,12 @@ def test_markers_already_located_are_not_searched_again_but_the_others_are(clutt
     """Tracking mode passes the markers the fit confirmed as ``known``."""
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
     image = cluttered_frames[0].image
-    full = detector.detect(image).as_array()[:, :2]
+    full = positions(detector.detect(image))
     known, others = full[::2], full[1::2]
     height, width = image.shape[:2]
     plan = SearchPlan(regions=np.array([[0, 0, width, height]]), known=known)
     result = detector.detect(image, plan)
-    found = result.as_array()[:, :2]
+    found = positions(result)
     assert result.counts["skipped_known"] >= len(known)
     assert len(found) == len(others)
     assert np.abs(np.sort(found, axis=0) - np.sort(others, axis=0)).max() < 1e-9
@@ -440,11 +438,11 @@ def test_seeded_markers_take_the_full_passs_stages_and_end_at_its_centres(clutte
     """Tracking mode seeds markers the border cuts at their predicted centres."""
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0))
     image = cluttered_frames[1].image
-    full = detector.detect(image).as_array()[:, :2]
+    full = positions(detector.detect(image))
     texture = np.array([[5.0, 5.0], [600.0, 20.0]])  # no marker there
     seeds = np.vstack([full + [0.4, -0.3], texture])
     result = detector.detect(image, SearchPlan(seeds=seeds))
-    found = result.as_array()[:, :2]
+    found = positions(result)
     distance, index = cKDTree(found).query(full)
     assert len(found) == len(full)
     assert distance.max() < 0.005
@@ -535,7 +533,7 @@ def test_tracked_colour_frames_leave_out_the_small_xs_drawn_in_colour_too():
     tracker = MarkerTracker(detector)
     for stamp in (1.0, 2.0, 3.0):
         result = tracker.update(colour, stamp)
-        distance, nearest = cKDTree(centres).query(result.as_array()[:, :2])
+        distance, nearest = cKDTree(centres).query(positions(result))
         assert sorted(nearest[distance < 1.0]) == [0, 1, 2, 3] and len(result) == 4
     assert result.counts["full_frame"] == 0 and result.counts["tracked"] == 4
 
@@ -721,7 +719,7 @@ def _recall_and_false(config: DetectorConfig, frames) -> tuple[float, float]:
     detector = Detector(config)
     found = false = total = 0
     for scene in frames:
-        hits, misses, _ = found_false_errors(detector.detect(scene.image).as_array(), scene.centres)
+        hits, misses, _ = found_false_errors(detector.detect(scene.image), scene.centres)
         found, false, total = found + hits, false + misses, total + len(scene.centres)
     return found / total, false / len(frames)
 
@@ -751,9 +749,7 @@ def _wide_dull_markers(
         config = DetectorConfig(
             marker_radius_min_px=radius_range[0], marker_radius_max_px=radius_range[1]
         )
-        hits, misses, _ = found_false_errors(
-            Detector(config).detect(scene.image).as_array(), scene.centres
-        )
+        hits, misses, _ = found_false_errors(Detector(config).detect(scene.image), scene.centres)
         found, false = found + hits, false + misses
     return found, false
 
@@ -771,9 +767,7 @@ def _family_detector(family) -> Detector:
 def _found_and_counted(detector: Detector, frames: list, count: str) -> tuple[int, int, int]:
     """Markers found, false points, and the detector's ``count`` summed over ``frames``."""
     results = [detector.detect(scene.image) for scene in frames]
-    scores = [
-        found_false_errors(r.as_array(), s.centres) for r, s in zip(results, frames, strict=True)
-    ]
+    scores = [found_false_errors(r, s.centres) for r, s in zip(results, frames, strict=True)]
     hits = sum(found for found, _, _ in scores)
     false = sum(false for _, false, _ in scores)
     return hits, false, sum(r.counts[count] for r in results)
@@ -800,7 +794,7 @@ def test_faint_small_markers_the_modulation_gate_rejects_are_kept_by_their_model
 def _matching(detector: Detector, frame) -> evaluation.Matching:
     """A rendered ``frame``'s detections matched to its markers as the benchmark matches
     them, within its 2 px (:func:`evaluation.match_points`)."""
-    return evaluation.match_points(detector.detect(frame.image).as_array()[:, :2], frame.centres)
+    return evaluation.match_points(positions(detector.detect(frame.image)), frame.centres)
 
 
 def _found_and_false(detector: Detector, frame, marker: int) -> tuple[bool, int]:
@@ -879,8 +873,8 @@ def test_where_no_tiny_marker_is_expected_a_tiny_x_under_its_floor_is_a_tilted_m
     detector = _family_detector(family)
 
     result = detector.detect(frame.image)
-    near = cKDTree(frame.centres).query(result.as_array()[:, :2])[0] <= 2.0
-    tiny = result.as_array()[:, 6] < verification.X_END_MAX_EXTENT_PX
+    near = cKDTree(frame.centres).query(positions(result))[0] <= 2.0
+    tiny = extents(result) < verification.X_END_MAX_EXTENT_PX
     assert result.counts["kept_under_floor"] >= 1
     assert (near & tiny).sum() >= 2 and not (~near).any()
     monkeypatch.setattr(acceptance, "FAINT_MIN_NCC", 1.1)
@@ -898,8 +892,8 @@ def test_a_marker_whose_rings_stop_a_rung_short_of_its_x_is_not_taken_for_textur
     for seed, marker in ((214, 7), (221, 9), (205, 10), (206, 8)):
         frame = family.render(seed)
         assert frame.markers[marker].radius_px > 7.0
-        found = detector.detect(frame.image).as_array()
-        assert np.hypot(*(found[:, :2] - frame.centres[marker]).T).min() <= 2.0
+        found = positions(detector.detect(frame.image))
+        assert np.hypot(*(found - frame.centres[marker]).T).min() <= 2.0
 
 
 def test_texture_xs_that_barely_clear_their_floor_and_show_no_plate_are_rejected(monkeypatch):
@@ -1002,7 +996,7 @@ def test_an_over_exposed_chessboard_keeps_its_corners_and_their_lines(exposure, 
         exposed = np.clip(np.round(exposure * scene.image.astype(np.float64)), 0, 255)
         exposed = exposed.astype(np.uint8)
         result = detector.detect(exposed)
-        hits, _, _ = found_false_errors(result.as_array(), scene.centres)
+        hits, _, _ = found_false_errors(result, scene.centres)
         found += hits
         errors.append(_line_errors_deg(list(result), scene.markers))
     assert found >= least_found
@@ -1047,7 +1041,7 @@ def test_lost_wide_candidates_read_again_are_counted_and_add_only_new_markers(
         shadowed += counts["found_shadowed"]
         first = dict(result.survivors)["merging"]
         assert len(result) == len(first) + counts["found_recentred"] + counts["found_shadowed"]
-        distance = cKDTree(result.as_array()[:, :2]).query(result.as_array()[:, :2], k=2)[0]
+        distance = cKDTree(positions(result)).query(positions(result), k=2)[0]
         assert len(result) < 2 or distance[:, 1].min() > detector.config.merge_radius_px
     assert recentred > 0 and shadowed > 0
 
@@ -1061,14 +1055,10 @@ def test_markers_a_shadows_edge_crosses_are_found_with_the_shadow_divided_out(mo
     detector = Detector(DetectorConfig(marker_radius_min_px=low, marker_radius_max_px=high))
     scene = dataclasses.replace(family.scene, radius_px=(10.0, 30.0))
     frames = [render_scene(scene, seed) for seed in (2, 11)]
-    with_edges = [
-        found_false_errors(detector.detect(s.image).as_array(), s.centres)[:2] for s in frames
-    ]
+    with_edges = [found_false_errors(detector.detect(s.image), s.centres)[:2] for s in frames]
     added = sum(detector.detect(s.image).counts["found_shadowed"] for s in frames)
     monkeypatch.setattr(shadow, "MIN_EXPLAINED", 1.1)
-    without = [
-        found_false_errors(detector.detect(s.image).as_array(), s.centres)[:2] for s in frames
-    ]
+    without = [found_false_errors(detector.detect(s.image), s.centres)[:2] for s in frames]
     assert sum(f for f, _ in with_edges) - sum(f for f, _ in without) == added >= 3
     assert sum(m for _, m in with_edges) == sum(m for _, m in without) == 0
 
@@ -1207,7 +1197,7 @@ def test_the_verification_cap_takes_the_strongest_prescreened_candidates_and_cou
         counts["rejected_prescreen"] + counts["dropped_over_verification_cap"] + 10
     )
     # The ten are corners the full pass found, at the same positions.
-    distance, _ = cKDTree(everything.as_array()[:, :2]).query(capped.as_array()[:, :2])
+    distance, _ = cKDTree(positions(everything)).query(positions(capped))
     assert np.all(distance < 1e-6)
 
 
@@ -1264,7 +1254,7 @@ def test_markers_in_deep_shadow_are_found_as_in_the_open(white_share):
     for seed in range(4):
         scene = render_scene(scene_config, seed)
         result = detector.detect(scene.image)
-        hits, misses, _ = found_false_errors(result.as_array(), scene.centres)
+        hits, misses, _ = found_false_errors(result, scene.centres)
         found, false, total = found + hits, false + misses, total + len(scene.centres)
         # Tracking confirms them by the fit alone, whose contrast floor follows the light too.
         tracked = detector.locate(
@@ -1300,7 +1290,7 @@ def test_a_marker_under_dim_light_beside_bright_busy_ground_is_within_the_frames
     )
     result = Detector(config).detect(image)
     assert result.counts["dropped_over_cap"] > 100
-    hits, misses, _ = found_false_errors(result.as_array(), np.array([[360.3, 120.6]]))
+    hits, misses, _ = found_false_errors(result, np.array([[360.3, 120.6]]))
     assert (hits, misses) == (1, 0)
 
 
@@ -1319,7 +1309,7 @@ def test_on_stony_ground_small_xs_that_do_not_end_are_texture_and_are_counted(mo
     def false_and_true(results):
         false = true = 0
         for scene, result in zip(scenes, results, strict=True):
-            near = cKDTree(scene.centres).query(result.as_array()[:, :2])[0] <= 2.0
+            near = cKDTree(scene.centres).query(positions(result))[0] <= 2.0
             false, true = false + int((~near).sum()), true + int(near.sum())
         return false, true
 
@@ -1350,7 +1340,7 @@ def test_the_survivors_narrow_test_by_test_down_to_the_detections():
     assert all(later <= earlier for earlier, later in itertools.pairwise(sizes[:-3]))
     assert sizes[-4] <= sizes[-3] <= sizes[-2] <= sizes[-1] == len(result) > 0
     survivors = dict(result.survivors)
-    detections = result.as_array()[:, :2]
+    detections = positions(result)
     assert np.allclose(np.sort(survivors["plate"], axis=0), np.sort(detections, axis=0))
     assert cKDTree(detections).query(survivors["merging"])[0].max() < 0.5
 
@@ -1393,7 +1383,7 @@ def test_tiny_markers_the_blur_nearly_merges_are_found_by_their_plate():
     for seed in (0, 1):
         scene = _tiny_marker_scene(seed)
         result = Detector(_TINY_CONFIG).detect(scene.image)
-        hits, misses, _ = found_false_errors(result.as_array(), scene.centres)
+        hits, misses, _ = found_false_errors(result, scene.centres)
         found, false = found + hits, false + misses
         added += result.counts["found_plate"]
     assert found >= 34
@@ -1414,7 +1404,7 @@ def test_each_detection_is_put_down_to_the_reading_that_counts_it(read_again_fra
     ]:
         readings = collections.Counter(
             evaluation.readings_that_added(
-                result.survivors, result.as_array()[:, :2], symmetry_path.READINGS
+                result.survivors, positions(result), symmetry_path.READINGS
             )
         )
         counts = result.counts
@@ -1437,14 +1427,14 @@ def test_tracking_confirms_tiny_markers_by_their_plate_and_nothing_where_they_ar
     scene = _tiny_marker_scene(0)
     detector = Detector(_TINY_CONFIG)
     result = detector.detect(scene.image)
-    xy = result.as_array()[:, :2]
+    xy = positions(result)
     radius = np.array([d.radius_px for d in result])
     angles = np.array([[d.angle1, d.angle2] for d in result])
     evidence = np.array([d.evidence for d in result])
     assert result.counts["found_plate"] >= 5
     tracked = detector.locate(scene.image, xy + 0.3, radius, angles, evidence)
     assert len(tracked) == len(result)
-    assert cKDTree(tracked.as_array()[:, :2]).query(xy)[0].max() < 0.1
+    assert cKDTree(positions(tracked)).query(xy)[0].max() < 0.1
     moved = detector.locate(scene.image, xy + [12.0, 7.0], radius, angles, evidence)
     assert len(moved) == 0
 
@@ -1464,11 +1454,11 @@ def test_markers_seen_foreshortened_to_textures_size_are_found_by_their_plate_at
     for seed in range(4):
         scene = _foreshortened_small_marker_scene(seed)
         result = detector.detect(scene.image)
-        hits, misses, _ = found_false_errors(result.as_array(), scene.centres)
+        hits, misses, _ = found_false_errors(result, scene.centres)
         found, false = found + hits, false + misses
         added += result.counts["found_plate"]
         if seed == 0:
-            xy = result.as_array()[:, :2]
+            xy = positions(result)
             radius = np.array([d.radius_px for d in result])
             angles = np.array([[d.angle1, d.angle2] for d in result])
             evidence = np.array([d.evidence for d in result])
@@ -1493,9 +1483,7 @@ def test_tiny_xs_a_quartic_explains_better_than_their_plate_are_texture(monkeypa
     def true_and_false() -> tuple[int, int]:
         true = false = 0
         for scene in scenes:
-            hits, misses, _ = found_false_errors(
-                detector.detect(scene.image).as_array(), scene.centres
-            )
+            hits, misses, _ = found_false_errors(detector.detect(scene.image), scene.centres)
             true, false = true + hits, false + misses
         return true, false
 
@@ -1534,9 +1522,7 @@ def test_faint_paint_beyond_textures_reach_is_not_held_to_the_modulation_gate():
             reflectances=(0.6, 0.95),
         )
         config = DetectorConfig(marker_radius_min_px=6.0, marker_radius_max_px=40.0)
-        hits, misses, _ = found_false_errors(
-            Detector(config).detect(scene.image).as_array(), scene.centres
-        )
+        hits, misses, _ = found_false_errors(Detector(config).detect(scene.image), scene.centres)
         found, false = found + hits, false + misses
     assert found >= 14
     assert false == 0
@@ -1649,7 +1635,7 @@ def test_known_markers_are_located_by_their_x_their_ground_left_to_the_pass_that
     assert len(known) == 20
     detector = Detector(DetectorConfig(marker_radius_min_px=6.0))
     assert detector.detect(image).counts["rejected_lattice"] >= 12
-    xy = known.as_array()[:, :2]
+    xy = positions(known)
     tracked = detector.locate(
         image,
         xy + 0.3,
@@ -1658,7 +1644,7 @@ def test_known_markers_are_located_by_their_x_their_ground_left_to_the_pass_that
         np.array([d.evidence for d in known]),
     )
     assert len(tracked) == 20 and tracked.counts["rejected_lattice"] == 0
-    assert cKDTree(tracked.as_array()[:, :2]).query(xy)[0].max() < 0.01
+    assert cKDTree(positions(tracked)).query(xy)[0].max() < 0.01
 
 
 def test_a_known_marker_is_read_as_a_full_pass_reads_it_whatever_extent_and_lines_it_had(
@@ -1674,7 +1660,7 @@ def test_a_known_marker_is_read_as_a_full_pass_reads_it_whatever_extent_and_line
     scene = cluttered_frames[0]
     full = detector.detect(scene.image)
     assert len(full) >= 8
-    xy = full.as_array()[:, :2]
+    xy = positions(full)
     stale = detector.locate(
         scene.image,
         xy + [0.4, -0.3],
@@ -1683,7 +1669,7 @@ def test_a_known_marker_is_read_as_a_full_pass_reads_it_whatever_extent_and_line
         np.array([d.evidence for d in full]),
     )
     assert len(stale) == len(full)
-    distance, index = cKDTree(xy).query(stale.as_array()[:, :2])
+    distance, index = cKDTree(xy).query(positions(stale))
     assert distance.max() < 2e-3  # the fit's tolerance, 0.001 px a step
     for tracked, k in zip(stale, index, strict=True):
         assert tracked.radius_px == full.detections[k].radius_px
@@ -1705,8 +1691,7 @@ def test_a_shadows_edge_keeps_the_markers_whose_x_alone_leaves_it_unexplained(mo
     def found() -> int:
         results = [detector.detect(scene.image) for scene in scenes]
         return sum(
-            found_false_errors(r.as_array(), s.centres)[0]
-            for r, s in zip(results, scenes, strict=True)
+            found_false_errors(r, s.centres)[0] for r, s in zip(results, scenes, strict=True)
         )
 
     kept = found()

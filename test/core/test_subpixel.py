@@ -13,6 +13,7 @@ from marker_localizer import Detector, DetectorConfig
 from marker_localizer.core import shadow, subpixel, template, verification
 from marker_localizer.core.acceptance import MAX_TEMPLATE_MISFIT
 from marker_localizer.core.noise import NoiseModel
+from marker_localizer.core.result import positions, sigmas
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 from marker_localizer.synthetic.scene import CastShadow
 
@@ -1032,10 +1033,10 @@ def test_sigma_on_a_thresholded_frame_covers_the_rounding_of_its_edges(as_float)
     for seed in range(4):
         binary, centres = _thresholded_markers(seed)
         image = binary.astype(np.float32) / 255.0 if as_float else binary
-        table = detector.detect(image).as_array()
-        distance, index = cKDTree(table[:, :2]).query(centres, distance_upper_bound=2.0)
+        result = detector.detect(image)
+        distance, index = cKDTree(positions(result)).query(centres, distance_upper_bound=2.0)
         found = np.isfinite(distance)
-        normalised += (distance[found] / table[index[found], 3]).tolist()
+        normalised += (distance[found] / sigmas(result)[index[found]]).tolist()
     assert len(normalised) >= 20
     assert np.mean(np.less_equal(normalised, 2.0)) >= 0.85
     assert max(normalised) < 5.0

@@ -8,7 +8,7 @@ from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.config import TrackerConfig
 from marker_localizer.core import decision, template_path
-from marker_localizer.core.result import DetectionResult
+from marker_localizer.core.result import DetectionResult, positions
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 
@@ -25,7 +25,7 @@ def test_the_template_decision_gives_every_candidate_it_saw_one_verdict(cluttere
     assert result.counts["accepted"] + result.counts["merged_duplicates"] == int(
         verdicts.decision.accepted.sum()
     )
-    hits, misses, errors = found_false_errors(result.as_array(), cluttered_frames[0].centres)
+    hits, misses, errors = found_false_errors(result, cluttered_frames[0].centres)
     assert hits >= 0.9 * len(cluttered_frames[0].centres)
     assert misses <= 1
     assert np.mean(errors) <= 0.05
@@ -37,8 +37,8 @@ def test_a_lower_false_alarm_rate_raises_the_threshold_and_keeps_a_subset(clutte
     radius = {"marker_radius_min_px": 6.0, "marker_radius_max_px": 40.0}
     lenient = Detector(DetectorConfig(**radius, **TEMPLATE_DECISION, false_points_per_mp=1.0))
     strict = Detector(DetectorConfig(**radius, **TEMPLATE_DECISION, false_points_per_mp=0.001))
-    kept = lenient.detect(image).as_array()[:, :2]
-    stricter = strict.detect(image).as_array()[:, :2]
+    kept = positions(lenient.detect(image))
+    stricter = positions(strict.detect(image))
     assert len(stricter) <= len(kept)
     assert len(stricter) == 0 or cKDTree(kept).query(stricter)[0].max() < 1e-6
 
@@ -50,7 +50,7 @@ def test_tracking_confirms_markers_half_a_pixel_off_by_the_template_decision(clu
     detector = Detector(config)
     scene = cluttered_frames[0]
     detected = detector.detect(scene.image)
-    on_marker = cKDTree(scene.centres).query(detected.as_array()[:, :2])[0] < 0.1
+    on_marker = cKDTree(scene.centres).query(positions(detected))[0] < 0.1
     full = [d for d, hit in zip(detected, on_marker, strict=True) if hit]
     assert len(full) >= 0.9 * len(scene.centres)
 
@@ -70,7 +70,7 @@ def test_tracking_confirms_markers_half_a_pixel_off_by_the_template_decision(clu
     in_place, off = located((0.0, 0.0)), located((0.4, -0.3))
     assert len(in_place) >= len(full) - 1
     assert len(off) == len(in_place)
-    distance, _ = cKDTree([(d.x, d.y) for d in full]).query(off.as_array()[:, :2])
+    distance, _ = cKDTree([(d.x, d.y) for d in full]).query(positions(off))
     # Not to the fit's tolerance: its pixels reach as far as the extent measured from
     # each start, and a few pixels more or less move the optimum by hundredths.
     assert distance.max() < 0.03
@@ -118,5 +118,5 @@ def test_tracked_markers_under_sharp_optics_are_located_where_full_passes_locate
         tracked, full = tracker.update(scene.image, float(k)), detector.detect(scene.image)
         assert tracked.counts["full_frame"] == (k == 0)
         assert len(tracked) == len(full) == 3
-        distance, _ = cKDTree(full.as_array()[:, :2]).query(tracked.as_array()[:, :2])
+        distance, _ = cKDTree(positions(full)).query(positions(tracked))
         assert distance.max() < 0.02

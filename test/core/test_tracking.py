@@ -8,6 +8,7 @@ from marker_localizer import Detector, DetectorConfig
 from marker_localizer.bench.ground import x_tiling_frame
 from marker_localizer.config import TrackerConfig, param_specs
 from marker_localizer.core import symmetry_path, tracking
+from marker_localizer.core.result import DetectionResult, positions, sigmas
 from marker_localizer.core.tracking import MarkerTracker
 from marker_localizer.evaluation import match_points
 from marker_localizer.synthetic import MarkerPlacement, render_markers
@@ -39,20 +40,25 @@ def _offsets(n_frames: int, step: tuple[float, float], seed: int) -> list[np.nda
     return [np.array(step) * k + rng.normal(0, 3.0, 2) for k in range(n_frames)]
 
 
-def _assert_same_as_full_frame(tracked: np.ndarray, full: np.ndarray, truth: np.ndarray) -> None:
+def _assert_same_as_full_frame(
+    tracked: DetectionResult, full: DetectionResult, truth: np.ndarray
+) -> None:
     """The same markers as a full pass, at its positions; false points only where it has them.
 
     A tracked marker is read by the same stages from its centring on, so its centre
     agrees with a full pass's to well within 0.01 px. A full pass may find a false
     point in the interior that tracking does not search.
     """
-    on_tracked, on_full = match_points(tracked[:, :2], truth), match_points(full[:, :2], truth)
+    tracked_xy, full_xy = positions(tracked), positions(full)
+    on_tracked, on_full = match_points(tracked_xy, truth), match_points(full_xy, truth)
     assert sorted(on_tracked.truth_index) == sorted(on_full.truth_index)
-    tracked_xy = tracked[on_tracked.detection_index[np.argsort(on_tracked.truth_index)], :2]
-    full_xy = full[on_full.detection_index[np.argsort(on_full.truth_index)], :2]
-    np.testing.assert_allclose(tracked_xy, full_xy, atol=0.01)
-    false_tracked = np.delete(tracked[:, :2], on_tracked.detection_index, axis=0)
-    false_full = np.delete(full[:, :2], on_full.detection_index, axis=0)
+    np.testing.assert_allclose(
+        tracked_xy[on_tracked.detection_index[np.argsort(on_tracked.truth_index)]],
+        full_xy[on_full.detection_index[np.argsort(on_full.truth_index)]],
+        atol=0.01,
+    )
+    false_tracked = np.delete(tracked_xy, on_tracked.detection_index, axis=0)
+    false_full = np.delete(full_xy, on_full.detection_index, axis=0)
     for point in false_tracked:
         assert len(false_full) and np.linalg.norm(false_full - point, axis=1).min() < 0.01
 
@@ -68,10 +74,9 @@ def test_tracking_finds_what_full_frame_detection_finds_at_the_same_positions(mo
     full_passes = []
     for k, (image, truth) in enumerate(moving_frames):
         result = tracker.update(image, stamp_s=0.1 * k)
-        tracked = result.as_array()
-        _assert_same_as_full_frame(tracked, detector.detect(image).as_array(), truth)
-        assert len(tracked) == len(truth)
-        assert cKDTree(truth).query(tracked[:, :2])[0].max() < 0.1
+        _assert_same_as_full_frame(result, detector.detect(image), truth)
+        assert len(result) == len(truth)
+        assert cKDTree(truth).query(positions(result))[0].max() < 0.1
         full_passes.append(result.counts["full_frame"])
     # Only the first frame: the second is tracked although no track has a velocity yet.
     assert full_passes == [1, 0, 0, 0, 0, 0]
@@ -87,11 +92,11 @@ def test_the_papers_path_tracks_with_its_own_location_and_sigma(moving_frames, r
     for k, (image, _) in enumerate(moving_frames[:4]):
         tracked, full = tracker.update(image, stamp_s=0.1 * k), detector.detect(image)
         assert tracked.counts["full_frame"] == (k == 0)
-        pairs = match_points(tracked.as_array()[:, :2], full.as_array()[:, :2], gate_px=0.01)
+        pairs = match_points(positions(tracked), positions(full), gate_px=0.01)
         assert len(pairs.truth_index) == len(full) == len(tracked) > 0
         np.testing.assert_allclose(
-            tracked.as_array()[pairs.detection_index, 3],
-            full.as_array()[pairs.truth_index, 3],
+            sigmas(tracked)[pairs.detection_index],
+            sigmas(full)[pairs.truth_index],
             rtol=0.05,
         )
 
@@ -211,7 +216,7 @@ def test_a_marker_in_view_but_rejected_on_one_frame_costs_no_full_pass_and_is_fo
     assert [r.counts["full_frame"] for r in results] == [1, 0, 0, 0, 0, 0]
     assert [len(r) for r in results] == [4, 4, 4, 3, 4, 4]
     # Found again in its window: the same position as the truth, not a new marker.
-    assert cKDTree(frames[4][1]).query(results[4].as_array()[:, :2])[0].max() < 0.1
+    assert cKDTree(frames[4][1]).query(positions(results[4]))[0].max() < 0.1
 
 
 def test_markers_with_a_dull_quadrant_are_tracked_as_the_full_passes_find_them():
@@ -250,7 +255,7 @@ def test_markers_with_a_dull_quadrant_are_tracked_as_the_full_passes_find_them()
         full = detector.detect(scene.image)
         assert tracked.counts["full_frame"] == (k == 0)
         assert len(full) >= 2
-        same = match_points(tracked.as_array()[:, :2], full.as_array()[:, :2], gate_px=0.01)
+        same = match_points(positions(tracked), positions(full), gate_px=0.01)
         assert len(same.truth_index) == len(full) == len(tracked)
 
 
@@ -350,7 +355,7 @@ def test_a_flight_moving_farther_a_frame_than_max_motion_px_is_tracked_from_its_
     passes = []
     for k, (image, truth) in enumerate(frames):
         result = tracker.update(image, stamp_s=0.5 * k)
-        _assert_same_as_full_frame(result.as_array(), detector.detect(image).as_array(), truth)
+        _assert_same_as_full_frame(result, detector.detect(image), truth)
         passes.append(result.counts["full_frame"])
     assert passes == [1, 1, 0, 0, 0]
 
@@ -369,7 +374,7 @@ def test_at_the_largest_max_motion_px_the_anchors_lie_in_the_frames_central_half
     passes = []
     for k, (image, truth) in enumerate(moving_frames):
         result = tracker.update(image, stamp_s=0.1 * k)
-        _assert_same_as_full_frame(result.as_array(), detector.detect(image).as_array(), truth)
+        _assert_same_as_full_frame(result, detector.detect(image), truth)
         passes.append(result.counts["full_frame"])
     assert passes == [1, 0, 0, 0, 0, 0]
 
@@ -383,7 +388,7 @@ def test_markers_entering_and_leaving_across_the_border_are_tracked_as_full_fram
     counts = []
     for k, (image, truth) in enumerate(frames):
         result = tracker.update(image, stamp_s=0.5 * k)
-        _assert_same_as_full_frame(result.as_array(), detector.detect(image).as_array(), truth)
+        _assert_same_as_full_frame(result, detector.detect(image), truth)
         assert result.counts["full_frame"] == (k == 0)
         counts.append(len(result))
     assert counts[0] == 4 and max(counts) == 5 and counts[-1] == 4  # one in, then one out
@@ -406,7 +411,7 @@ def test_tracking_keeps_recall_and_error_of_full_frame_detection_on_a_simulated_
             tracked_frames += 1 - result.counts["full_frame"]
             truth = np.array([(m.x, m.y) for m in view.markers]).reshape(-1, 2)
             for name, found in (("full", detector.detect(view.image)), ("tracking", result)):
-                matching = match_points(found.as_array()[:, :2], truth)
+                matching = match_points(positions(found), truth)
                 matched[name] += matching.n_matched
                 errors[name] += matching.errors_px.tolist()
     assert matched["tracking"] == matched["full"] > 0
