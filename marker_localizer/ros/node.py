@@ -23,7 +23,8 @@ Topics, relative to the node's namespace and remappable as usual:
   input image's header unchanged, empty when no marker was found.
 * out ``<cam>/marker_overlay`` (sensor_msgs/Image, bgr8) when ``publish_overlay``.
 * out ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) every
-  ``diagnostics_period_s``.
+  ``diagnostics_period_s``; a camera's status, named and identified by the camera,
+  gives the topic its frames are read from, remaps applied (``image topic``).
 
 Executor callbacks never block: an image callback only puts the frame into the
 camera's mailbox; worker threads do the rest.
@@ -149,6 +150,7 @@ class MarkerLocalizerNode(Node):
         )
         self._thresholds = diagnostic_thresholds(settings)
         self._camera_info: dict[str, CameraInfo] = {}
+        self._image_topics: dict[str, str] = {}
         self._last_failure_log: dict[str, float] = {}
         # Per camera: when drops were last logged, and the drop counts logged then.
         self._last_drop_log: dict[str, tuple[float, tuple[int, int]]] = {}
@@ -185,7 +187,7 @@ class MarkerLocalizerNode(Node):
         """Subscribe each camera's inputs, start the diagnostics, say what is served."""
         suffix, image_type = IMAGE_TRANSPORTS[settings.image_transport]
         for camera, (image_topic, info_topic) in inputs.items():
-            self.create_subscription(
+            subscription = self.create_subscription(
                 image_type,
                 image_topic,
                 partial(self._on_image, camera),
@@ -193,6 +195,9 @@ class MarkerLocalizerNode(Node):
                 copy.copy(_IMAGE_QOS),
                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             )
+            # As rcl resolved it, remaps applied: the status names the topic the frames
+            # come from, which the camera's name (its hardware_id) does not tell.
+            self._image_topics[camera] = subscription.topic_name
             self.create_subscription(
                 CameraInfo,
                 info_topic,
@@ -236,7 +241,10 @@ class MarkerLocalizerNode(Node):
                 self.get_clock().now().to_msg(),
                 self._thresholds,
                 snapshots=snapshots,
-                camera_values={c: {"camera_info": self._info_text(c)} for c in snapshots},
+                camera_values={
+                    c: {"image topic": self._image_topics[c], "camera_info": self._info_text(c)}
+                    for c in snapshots
+                },
                 camera_info_sizes={
                     c: camera_info_image_size(info) for c, info in self._camera_info.items()
                 },

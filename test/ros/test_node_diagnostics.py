@@ -429,6 +429,44 @@ def test_nodes_of_one_name_in_two_namespaces_publish_statuses_an_aggregator_tell
             spinner.stop()
 
 
+def test_a_cameras_status_names_the_topic_its_frames_come_from_as_remapped(ros):
+    """``-r cam0/image_raw:=/uav1/front/image``: the status keeps its name and hardware_id
+    (the camera's, stable whatever the wiring) and says where its frames are read from,
+    the topic that counts the frame published there."""
+    node = MarkerLocalizerNode(
+        "remap_localizer",
+        namespace="/remap",
+        cli_args=["--ros-args", "-r", "cam0/image_raw:=/uav1/front/image"],
+        parameter_overrides=[
+            Parameter("cameras", value=["cam0", "cam1"]),
+            Parameter("workers", value=1),
+            Parameter("worker_processes", value=False),
+            Parameter("diagnostics_period_s", value=0.1),
+        ],
+    )
+    spinner = Spinner(node)
+    peer = Peer("remap_peer", "/remap")
+    try:
+        peer.listen("/diagnostics", DiagnosticArray)
+        peer.publish("/uav1/front/image", peer.frame(x_marker_64()))
+
+        def statuses():
+            for array_msg in reversed(peer.messages("/diagnostics")):
+                by_camera = {s.hardware_id: s for s in array_msg.status}
+                cam0 = by_camera.get("remap/cam0")
+                if cam0 is not None and values_of(cam0)["frames received"] == "1":
+                    return cam0, by_camera["remap/cam1"]
+            return None
+
+        cam0, cam1 = wait_until(statuses, "cam0's status counting the frame")
+        assert cam0.name == "remap/remap_localizer: cam0"
+        assert values_of(cam0)["image topic"] == "/uav1/front/image"
+        assert values_of(cam1)["image topic"] == "/remap/cam1/image_raw"
+    finally:
+        peer.stop()
+        spinner.stop()
+
+
 def test_frames_lost_before_the_node_show_in_its_diagnostics_with_the_figure(ros):
     """The camera's stamps step 0.1 s; 12 of the 40 frames it stamped never reach the node."""
     settings = {
