@@ -14,9 +14,9 @@ header stamp = the frame's mid-exposure time:
   score 1, the two line angles of the truth, and a ``marker_id`` field (uint32):
   the marker's index in the flight, the same in every frame and camera that sees it,
   so that an evaluation can tell a marker seen again from another one;
-* ``/<cam>/marker_points_partial``: the same for markers the frame border cuts,
-  without ``marker_id``; an evaluation ignores detections there rather than
-  counting them false.
+* ``/<cam>/marker_points_partial``: the same, ``marker_id`` included, for markers
+  the frame border cuts (a marker cut in one frame keeps the id it has where it is
+  whole); an evaluation ignores detections there rather than counting them false.
 
 Once, at the first stamp: ``/tf_static`` (tf2_msgs/TFMessage, offered
 transient-local) with each ``base_link -> <cam>_optical`` extrinsic. tf2_msgs
@@ -139,8 +139,9 @@ def truth_cloud(
 ) -> Any:
     """Truth as the node's PointCloud2: exact centre, sigma 0, score 1, truth angles.
 
-    With ``marker_ids`` (one per truth, :attr:`CameraFrame.marker_ids`), the truth
-    cloud's ``marker_id`` field too (:func:`detections_to_cloud`).
+    With ``marker_ids`` (one per truth, :attr:`CameraFrame.marker_ids` or
+    :attr:`CameraFrame.partial_ids`), the truth cloud's ``marker_id`` field too
+    (:func:`detections_to_cloud`).
     """
     points = [
         Detection(
@@ -238,7 +239,11 @@ def record_flight(
                     t_ns,
                     truth_cloud(header, view.markers, view.marker_ids),
                 )
-                bag.write(f"/{name}/{PARTIAL_SUFFIX}", t_ns, truth_cloud(header, view.partial))
+                bag.write(
+                    f"/{name}/{PARTIAL_SUFFIX}",
+                    t_ns,
+                    truth_cloud(header, view.partial, view.partial_ids),
+                )
                 truth_markers += len(view.markers)
             if progress is not None:
                 progress(done)

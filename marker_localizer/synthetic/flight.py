@@ -505,6 +505,7 @@ class CameraFrame:
         marker_ids: :attr:`GroundMarker.marker_id` of each entry of ``markers``.
         partial: Truth of markers drawn only partly (cut by the frame border):
             not part of the truth, but a detection there is not false either.
+        partial_ids: :attr:`GroundMarker.marker_id` of each entry of ``partial``.
         homography: (3, 3) ground (m) -> image (px) at mid-exposure.
         imaging: The optics and sensor this frame was rendered with.
     """
@@ -514,6 +515,7 @@ class CameraFrame:
     markers: list[MarkerTruth]
     marker_ids: list[int]
     partial: list[MarkerTruth]
+    partial_ids: list[int]
     homography: np.ndarray = field(compare=False)
     imaging: ImagingConditions = field(default_factory=ImagingConditions)
 
@@ -788,7 +790,9 @@ class FlightSimulator:
         radiance *= np.float32(self._frame_gains[index])
         imaging = self._imaging(camera, pose, homography)
         image = apply_imaging(radiance, imaging, rng, self._sensor_gain)
-        return CameraFrame(camera, image, truths, list(full), cut, homography, imaging)
+        return CameraFrame(
+            camera, image, truths, list(full), cut, list(partial), homography, imaging
+        )
 
     def _visible_markers(self, homography: np.ndarray) -> tuple[list[int], list[int]]:
         """Markers wholly inside the frame, and markers that touch it only partly."""

@@ -164,12 +164,14 @@ def test_simulated_bag_has_images_camera_info_truth_and_tf_static_per_camera(fli
     assert abs(nadir.w) < 1e-9
 
 
+@pytest.mark.parametrize("truth_topic", [TRUTH_SUFFIX, PARTIAL_SUFFIX])
 def test_the_recorded_flights_poses_and_markers_project_through_the_bags_calibration_onto_its_truth(
-    flight_bag,
+    flight_bag, truth_topic
 ):
     """What a pose estimator fed the bag is checked against: the aircraft's pose at each
     frame and the markers' world positions, through /tf_static and camera_info alone;
-    each truth point names the marker that projects onto it (its marker_id)."""
+    each truth point names the marker that projects onto it (its marker_id), a marker
+    the frame border cuts (the partial topic) as one wholly inside."""
     flight = recorded_flight(flight_bag)
     with BagReader(flight_bag) as bag:
         messages = list(bag.messages())
@@ -183,7 +185,7 @@ def test_the_recorded_flights_poses_and_markers_project_through_the_bags_calibra
     rotation_body_camera = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
     k = np.reshape(next(m for m in messages if m.topic == "/cam2/camera_info").decode().k, (3, 3))
     world = np.array([[m.x_m, m.y_m, 0.0] for m in flight.markers])
-    truths = [m for m in messages if m.topic == f"/cam2/{TRUTH_SUFFIX}"]
+    truths = [m for m in messages if m.topic == f"/cam2/{truth_topic}"]
     assert [p.stamp_ns for p in flight.poses] == [m.time_ns for m in truths]
     for pose, truth in zip(flight.poses, truths, strict=True):
         rotation = pose.rotation_world_body @ rotation_body_camera
@@ -362,6 +364,35 @@ def test_a_bag_whose_truth_names_no_marker_still_gives_the_frame_clustered_inter
     heading = next(line for line in format_report(report).splitlines() if "accuracy" in line)
     assert RECALL_INTERVAL_ASSUMES in heading and RECALL_INTERVAL_BY_MARKER not in heading
     assert "same markers seen again it is too narrow" in heading
+
+
+@pytest.mark.parametrize("named", [True, False], ids=["partial names its markers", "old layout"])
+def test_a_detection_on_a_marker_the_border_cuts_counts_neither_way_whatever_its_layout(
+    tmp_path, named
+):
+    """Two frames: the found marker listed as cut by the border (id 7 where the partial
+    list names its markers, as simulate now writes it; none, as it wrote it before), the
+    truth a missed marker (id 9). Either way the detection is no false positive and the
+    truth's ids cluster the recall."""
+    pixels = x_marker_frame()
+    with BagWriter(tmp_path / "cut") as bag:
+        bag.add_topic("/cam0/image_raw", "sensor_msgs/msg/Image")
+        bag.add_topic(f"/cam0/{TRUTH_SUFFIX}", "sensor_msgs/msg/PointCloud2")
+        bag.add_topic(f"/cam0/{PARTIAL_SUFFIX}", "sensor_msgs/msg/PointCloud2")
+        for k in range(2):
+            t = (k + 1) * S // 10
+            header = Header(stamp=stamp(t))
+            bag.write("/cam0/image_raw", t, image(pixels, t))
+            bag.write(f"/cam0/{TRUTH_SUFFIX}", t, detections_to_cloud(header, [BLANK_TRUTH], [9]))
+            partial = detections_to_cloud(header, X_MARKER_TRUTH, [7] if named else None)
+            bag.write(f"/cam0/{PARTIAL_SUFFIX}", t, partial)
+    report = replay_bag(tmp_path / "cut", tmp_path / "out", workers=1)
+    camera = report.cameras["cam0"]
+    tally = camera.evaluation
+    assert report.complete and report.undecodable == {}
+    assert (camera.frames, camera.markers) == (2, 2)
+    assert (tally.n_truth, tally.n_matched, tally.n_false_positives) == (2, 0, 0)
+    assert tally.clustered_by_marker and list(tally.marker_ids) == [9, 9]
 
 
 def test_replay_writes_points_with_the_input_header_at_the_input_bag_time(flight_bag, replayed):
