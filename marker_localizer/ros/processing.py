@@ -66,7 +66,7 @@ from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
-from multiprocessing import resource_tracker, shared_memory
+from multiprocessing import forkserver, resource_tracker, shared_memory
 from typing import NamedTuple
 
 import cv2
@@ -224,22 +224,27 @@ def _worker_ready() -> None:
     """Nothing: the task whose return shows that a worker process is up."""
 
 
-def _start_resource_tracker() -> None:
-    """Start multiprocessing's resource tracker deaf to SIGHUP, unless it runs already.
+def _start_helper_processes() -> None:
+    """Start multiprocessing's resource tracker and fork server deaf to the stop signals.
 
-    The tracker ignores SIGINT and SIGTERM, which reach the whole process group
-    (Ctrl-C, a service manager), but not SIGHUP, which a closed terminal sends the
-    group too: it died, the node's first unlink started a fresh one, and that one,
-    told to forget shared memory and semaphores it never knew, wrote a KeyError
-    traceback for each. Started from a thread that blocks SIGHUP, it keeps it
-    blocked (it unblocks only the two it ignores), and ends with the node as it
-    does on SIGINT: its pipe closes.
+    Each unless it runs already. The stop signals reach the whole process group
+    (Ctrl-C, a closed terminal's SIGHUP) or control group (a service manager's
+    SIGTERM), and both helpers must outlive the node's drain: a fresh tracker, told
+    to forget shared memory and semaphores it never knew, writes a KeyError traceback
+    for each; and the pools learn of each worker's end through the fork server, so
+    that its death makes them take their living workers for dead and fail the frames
+    in flight. The tracker ignores SIGINT and SIGTERM but not SIGHUP, the fork server
+    SIGINT alone. Started from a thread that blocks the stop signals, each keeps them
+    blocked (the tracker unblocks only the two it ignores), as do the workers the
+    fork server forks, and ends with the node, whose end closes its pipe. Blocked
+    anew for each: starting the tracker unblocks SIGINT and SIGTERM in its thread.
     """
-    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGHUP})
-    try:
-        resource_tracker.ensure_running()
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+    for ensure_running in (resource_tracker.ensure_running, forkserver.ensure_running):
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            ensure_running()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
 def _started_pools(count: int) -> list[ProcessPoolExecutor]:
@@ -248,10 +253,9 @@ def _started_pools(count: int) -> list[ProcessPoolExecutor]:
     A pool a process: concurrent.futures breaks a whole pool when one of its processes
     dies, and every frame its other processes had in flight failed with it.
     """
-    # Before the fork server, which would start it as it is.
-    _start_resource_tracker()
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(_WORKER_PRELOAD)
+    _start_helper_processes()
     pools = [
         ProcessPoolExecutor(1, mp_context=context, initializer=_start_worker_process)
         for _ in range(count)

@@ -1,5 +1,6 @@
 """The node as a separate process, started as a user starts it: serve, stop on a signal, fail."""
 
+import contextlib
 import json
 import os
 import queue
@@ -313,16 +314,33 @@ def test_a_second_ctrl_c_abandons_the_frame_in_flight_and_says_so_in_one_line(ro
     assert block not in shared_memory_blocks()
 
 
-def test_a_sighup_to_the_process_group_stops_the_node_as_quietly_as_ctrl_c(ros):
-    """A closed terminal sends SIGHUP to the node, its fork server and the resource tracker.
+@pytest.mark.parametrize("stop_signal", [signal.SIGHUP, signal.SIGTERM], ids=lambda s: s.name)
+def test_a_stop_signal_to_the_process_group_drains_the_frame_in_flight_as_quietly_as_ctrl_c(
+    ros, stop_signal
+):
+    """A closed terminal's SIGHUP, a service manager's SIGTERM: to the node, its fork
+    server and the resource tracker alike. A stopped worker process (SIGSTOP) holds a
+    frame until the drain has begun.
 
     The tracker ignores SIGINT and SIGTERM but died of SIGHUP; a fresh one, started by
     the node's first unlink, wrote a KeyError traceback for each block and semaphore
-    the node then unlinked.
+    the node then unlinked. The fork server ignores SIGINT alone and died of either:
+    the pool, which learns of its worker's end through it, took the living worker for
+    dead, and the frame in flight failed instead of being published.
     """
     process = subprocess.Popen(
         node_command(
-            CONSOLE_SCRIPT, "-p", "cameras:=[cam0]", "-p", "workers:=1", "-r", "__ns:=/hup"
+            MODULE,  # this checkout's code: the console script runs the installed one
+            "-p",
+            "cameras:=[cam0]",
+            "-p",
+            "workers:=1",
+            "-p",
+            "shutdown_timeout_s:=600.0",
+            "-p",
+            "diagnostics_period_s:=0.1",
+            "-r",
+            f"__ns:=/group_{stop_signal.name.lower()}",
         ),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
@@ -330,22 +348,40 @@ def test_a_sighup_to_the_process_group_stops_the_node_as_quietly_as_ctrl_c(ros):
         start_new_session=True,  # its own process group, as a terminal's
     )
     err = _Lines(process.stderr)
-    tester = Peer("hup_tester", "/hup")
+    tester = Peer(f"group_{stop_signal.name.lower()}_tester", f"/group_{stop_signal.name.lower()}")
+    workers = set()
     try:
         err.wait_for("serving cameras cam0")
+        workers = worker_process_ids(process.pid)
+        (worker,) = workers
+        os.kill(worker, signal.SIGSTOP)
+        tester.listen("/diagnostics", DiagnosticArray)
         tester.listen("cam0/marker_points", PointCloud2)
         frame = tester.frame(x_marker_64())
         tester.publish("cam0/image_raw", frame)
+        wait_until(
+            lambda: any(
+                values_of(status).get("frames in flight") == "1"
+                for array_msg in tester.messages("/diagnostics")
+                for status in array_msg.status
+            ),
+            "the frame in its worker process",
+        )
+        (block,) = mapped_shared_memory_blocks(process.pid)  # the frame's
+        os.killpg(process.pid, stop_signal)
+        err.wait_for("stopping: waiting up to 600 s for the frames in flight (cam0)")
+        os.kill(worker, signal.SIGCONT)
         tester.result_for("cam0/marker_points", frame.header)
-        (block,) = mapped_shared_memory_blocks(process.pid)  # the worker's frame block
-        os.killpg(process.pid, signal.SIGHUP)
         process.wait(TIMEOUT_S)
     finally:
         process.kill()
+        for stopped in workers:  # stopped, it would not see its node end
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(stopped, signal.SIGCONT)
         tester.stop()
     assert process.returncode == 0
     lines = err.rest()
     assert "stopped" in lines
-    for word in ("Traceback", "KeyError", "relaunching"):
+    for word in ("frame failed", "Traceback", "KeyError", "relaunching"):
         assert word not in lines
     assert block not in shared_memory_blocks()
