@@ -95,7 +95,7 @@ class DetectionResult:
     Iterating over a result yields its :class:`Detection` objects.
 
     Attributes:
-        detections: accepted markers, strongest first.
+        detections: accepted markers, strongest first (:func:`strongest_first`).
         counts: how many points entered or left each stage (``candidates``,
             ``after_suppression``, ``dropped_over_cap``, ``skipped_known``,
             ``rejected_prescreen``, ``dropped_over_verification_cap``,
@@ -247,11 +247,13 @@ def line_directions(detections: Iterable[Detection]) -> NDArray[np.float64]:
 
 
 def strongest_first(rows: NDArray[np.intp], score: NDArray[np.float64]) -> NDArray[np.intp]:
-    """``rows`` (indices into ``score``) by their score, highest first.
+    """``rows`` (indices into ``score``) by their score, highest first; ties in their given order.
 
-    The order of :attr:`DetectionResult.detections`.
+    The order of :attr:`DetectionResult.detections`, on every path and in tracking.
+    The sort is stable so that equal scores come out in one order whatever sort
+    algorithm numpy picks for the array's length.
     """
-    ordered: NDArray[np.intp] = rows[np.argsort(-score[rows])]
+    ordered: NDArray[np.intp] = rows[np.argsort(-score[rows], kind="stable")]
     return ordered
 
 

@@ -100,6 +100,7 @@ from marker_localizer.core.result import (
     line_directions,
     positions,
     scores,
+    strongest_first,
 )
 from marker_localizer.core.screening import non_maximum_suppression, parabolic_offset
 
@@ -841,7 +842,7 @@ def _combine(results: list[DetectionResult], separation_px: float) -> DetectionR
     combined.counts["merged_duplicates"] = combined.counts.get("merged_duplicates", 0) + int(
         (~keep).sum()
     )
-    order = np.flatnonzero(keep)[np.argsort(-score[keep], kind="stable")]
+    order = strongest_first(np.flatnonzero(keep), score)
     combined.detections = [combined.detections[k] for k in order]
     combined.counts["accepted"] = len(combined.detections)
     return combined

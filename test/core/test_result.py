@@ -54,6 +54,16 @@ def test_the_rows_kept_come_strongest_first():
     assert strongest_first(np.zeros(0, np.intp), score).shape == (0,)
 
 
+def test_rows_of_equal_score_keep_the_order_they_were_given_in():
+    # Forty rows, ten to each of four scores: past the length at which numpy's
+    # default sort stops being an insertion sort and moves equal keys.
+    levels = np.array([0.2, 0.9, 0.5, 0.7])
+    score = np.repeat(levels, 10)
+    rows = np.random.default_rng(0).permutation(len(score))
+    expected = np.concatenate([rows[score[rows] == level] for level in np.sort(levels)[::-1]])
+    np.testing.assert_array_equal(strongest_first(rows, score), expected)
+
+
 def test_arrays_of_unequal_rows_are_refused():
     with pytest.raises(ValueError):
         detections_of(
