@@ -408,11 +408,15 @@ class DetectionTally:
 
     @property
     def recall_design_effect(self) -> float:
-        """:func:`frame_design_effect` of the recall's clusters: at least 1.
+        """The design effect :attr:`recall_interval` is widened by: at least 1.
 
-        The markers' counts where :attr:`clustered_by_marker`, else the frames'.
+        Where :attr:`clustered_by_marker`, :func:`marker_design_effect` of the
+        markers' counts (one marker: its sightings, so that they count as one
+        trial); else :func:`frame_design_effect` of the frames'.
         """
-        return frame_design_effect(*self._recall_clusters())
+        if self.clustered_by_marker:
+            return marker_design_effect(*self._marker_counts())
+        return frame_design_effect(self.found_per_frame, self.truth_per_frame)
 
     @property
     def fp_dispersion(self) -> float:
@@ -435,10 +439,8 @@ class DetectionTally:
             return marker_recall_interval(np.asarray(self.found, bool), self.marker_ids)
         return frame_recall_interval(self.found_per_frame, self.truth_per_frame)
 
-    def _recall_clusters(self) -> tuple[Sequence[int], Sequence[int]]:
-        """(found, truth) per cluster of the recall: per marker if all are named, else per frame."""
-        if not self.clustered_by_marker:
-            return self.found_per_frame, self.truth_per_frame
+    def _marker_counts(self) -> tuple[list[int], list[int]]:
+        """(found, truth) per marker named by the truth (:func:`marker_counts`)."""
         return marker_counts(np.asarray(self.found, bool), np.asarray(self.marker_ids))
 
     @property
@@ -569,8 +571,9 @@ def marker_recall_interval(
     Each marker is a cluster of its sightings (every frame and camera that held it
     as truth): a flight sees the same markers frame after frame, and a marker's
     size, contrast and ground make it found, or missed, again. The interval is
-    :func:`frame_recall_interval`'s on the markers' counts (:func:`marker_counts`):
-    the design effect of their spread, Student's t on markers - 1 degrees of freedom.
+    :func:`recall_interval`'s widened by :func:`marker_design_effect` of the
+    markers' counts (:func:`marker_counts`), with Student's t on markers - 1 degrees
+    of freedom.
 
     One marker is one trial however often it was seen (its sightings share
     everything that makes it found), as two markers or more are each one cluster:
@@ -582,9 +585,26 @@ def marker_recall_interval(
         level: the interval's coverage.
     """
     hits, seen = marker_counts(np.asarray(found, bool), np.asarray(marker_ids))
-    if len(seen) == 1:
-        return recall_interval(hits[0], seen[0], level, design_effect=seen[0])
-    return frame_recall_interval(hits, seen, level)
+    return recall_interval(
+        sum(hits),
+        sum(seen),
+        level,
+        design_effect=marker_design_effect(hits, seen),
+        frames=len(seen),
+    )
+
+
+def marker_design_effect(found_per_marker: Sequence[int], truth_per_marker: Sequence[int]) -> float:
+    """The design effect of the recall clustered by marker, from each marker's counts.
+
+    :func:`frame_design_effect` of the markers' counts where two or more markers
+    give their spread. Of one marker, the number of its sightings: they are one
+    trial (:func:`marker_recall_interval`), and Wilson's interval on truth over
+    this design effect is on one.
+    """
+    if len(truth_per_marker) == 1:
+        return float(truth_per_marker[0])
+    return frame_design_effect(found_per_marker, truth_per_marker)
 
 
 def marker_counts(found: np.ndarray, marker_ids: np.ndarray) -> tuple[list[int], list[int]]:

@@ -426,11 +426,27 @@ def _sightings(tally, frames_of_ids, found_ids, named=True):
         tally.add(matching, truth_marker_ids=np.asarray(ids) if named else None)
 
 
+def _one_marker_flight() -> evaluation.DetectionTally:
+    """Marker 7 in ten frames, missed in the fourth."""
+    tally = evaluation.DetectionTally()
+    truth = np.array([[70.0, 0.0]])
+    for frame in range(10):
+        found = truth[:0] if frame == 3 else truth
+        tally.add(evaluation.match_points(found, truth), truth_marker_ids=np.array([7]))
+    return tally
+
+
+def _three_marker_flight() -> evaluation.DetectionTally:
+    """Marker 7 found in the four frames it is in, 9 and 11 missed in their two each."""
+    tally = evaluation.DetectionTally()
+    _sightings(tally, [[7, 9], [7, 9], [7, 11], [7, 11]], {7})
+    return tally
+
+
 def test_a_marker_seen_in_many_frames_is_one_cluster_of_the_recall_interval():
     # Marker 7 found in all four frames it is in, 9 and 11 missed in the two each is in:
     # every frame finds one of two, so the frames do not spread, but the markers do.
-    tally = evaluation.DetectionTally()
-    _sightings(tally, [[7, 9], [7, 9], [7, 11], [7, 11]], {7})
+    tally = _three_marker_flight()
     assert tally.clustered_by_marker
     # Per marker (found, truth): (4, 4), (0, 2), (0, 2); recall 4 / 8. Residuals
     # 4 - 2, 0 - 1, 0 - 1 give 3 / 2 x 6 / 8^2 against 0.25 / 8: a design effect of
@@ -461,14 +477,23 @@ def test_a_marker_seen_in_many_frames_is_one_cluster_of_the_recall_interval():
 def test_one_marker_seen_in_many_frames_is_one_trial_of_the_recall_interval():
     """A landing pad seen in 10 frames and found in 9: one marker, however often seen,
     not 10 independent trials (Wilson's interval of 9 of 10 is 0.60-0.98)."""
-    tally = evaluation.DetectionTally()
-    truth = np.array([[70.0, 0.0]])
-    for frame in range(10):
-        found = truth[:0] if frame == 3 else truth
-        tally.add(evaluation.match_points(found, truth), truth_marker_ids=np.array([7]))
+    tally = _one_marker_flight()
     expected = _wilson(9, 10, 10.0, stats.norm.ppf(0.975))
     assert tally.recall_interval == pytest.approx(expected, abs=1e-12)
     assert expected[1] - expected[0] > 0.7
+    # The design effect said beside the interval is the one it is widened by.
+    assert tally.recall_design_effect == 10.0
+
+
+@pytest.mark.parametrize(
+    ("flight", "quantile"),
+    [(_one_marker_flight, stats.norm.ppf(0.975)), (_three_marker_flight, stats.t.ppf(0.975, 2))],
+    ids=["one marker", "three markers"],
+)
+def test_the_recall_design_effect_reported_is_the_one_its_interval_is_widened_by(flight, quantile):
+    tally = flight()
+    expected = _wilson(tally.n_matched, tally.n_truth, tally.recall_design_effect, quantile)
+    assert tally.recall_interval == pytest.approx(expected, abs=1e-12)
 
 
 def test_tallies_merged_cluster_by_marker_only_where_every_truth_point_names_one():
