@@ -17,6 +17,8 @@ from numpy.typing import NDArray
 Normaliser = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
 
 _Result = TypeVar("_Result")
+#: Rows and columns of the cell of pixels a bilinear sample reads.
+_CELL_PX = 2
 
 
 def corners(
@@ -162,11 +164,17 @@ def _neighbours(
     and fractions below are fresh arrays of their common shape, written in place.
     """
     height, width = image.shape
+    if height < _CELL_PX or width < _CELL_PX:
+        # A row or a column alone (a crop at a frame's edge) holds no cell: it is read
+        # with its edge repeated, as the clamp reads the border, and no sample is valid.
+        cell = ((0, max(_CELL_PX - height, 0)), (0, max(_CELL_PX - width, 0)))
+        v00, v01, v10, v11, fx, fy, valid = _neighbours(np.pad(image, cell, "edge"), x, y)
+        return v00, v01, v10, v11, fx, fy, valid & False
     x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
     x0 = np.floor(x)
     y0 = np.floor(y)
-    column = np.clip(x0, 0, width - 2)
-    row = np.clip(y0, 0, height - 2).astype(np.float64, copy=False)
+    column = np.clip(x0, 0, width - _CELL_PX)
+    row = np.clip(y0, 0, height - _CELL_PX).astype(np.float64, copy=False)
     # A pixel is inside where the clamp left it; a NaN's clamp is NaN, unequal too.
     valid = column == x0
     valid &= row == y0
@@ -227,7 +235,8 @@ def bilinear(
     """Sample ``image`` at (x, y) with bilinear interpolation.
 
     Args:
-        image: (H, W) image of any numeric dtype, H and W at least 2.
+        image: (H, W) image of any numeric dtype, not empty. Of one row or one
+            column, no sample is valid.
         x: column positions (any shape, read as float64), 0 = centre of column 0.
         y: row positions, broadcastable with ``x``.
 

@@ -171,6 +171,25 @@ def test_marker_coordinates_are_in_the_files_stored_order_whatever_its_orientati
     assert plain_tiff == pytest.approx([31.5, 31.5], abs=0.05)
 
 
+def test_images_of_one_row_one_column_and_2_x_2_pixels_give_no_marker_on_the_papers_path_too(
+    tmp_path, capsys
+):
+    # Noisy ground across a shadow's edge: the paper's path finds candidates on the row.
+    row = np.random.default_rng(0).normal(128.0, 40.0, (1, 300)).clip(0, 255).astype(np.uint8)
+    row[:, :150] //= 4
+    paths = [str(tmp_path / f"{name}.png") for name in ("row", "column", "cell")]
+    for path, image in zip(paths, [row, row.T, row[:, 149:151].repeat(2, axis=0)], strict=True):
+        cv2.imwrite(path, image)
+    for params in ([], ["--param", "candidate_detector=curvature"]):
+        assert main(["detect", *paths, "--json", *params]) == 0
+        records = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+        assert [(r["width"], r["height"], r["markers"]) for r in records] == [
+            (300, 1, []),
+            (1, 300, []),
+            (2, 2, []),
+        ]
+
+
 def test_no_image_giving_a_result_is_exit_1(tmp_path, capsys):
     assert main(["detect", str(tmp_path / "missing.png")]) == 1
     assert capsys.readouterr().out == ""

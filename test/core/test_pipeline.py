@@ -675,7 +675,9 @@ def _strip_across_an_x(height: int, width: int, seed: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize(
-    "shape", [(1, 1), (2, 52), (4, 51), (5, 5), (63, 2)], ids=lambda s: f"{s[0]}x{s[1]}"
+    "shape",
+    [(1, 1), (1, 64), (64, 1), (2, 52), (4, 51), (5, 5), (63, 2)],
+    ids=lambda s: f"{s[0]}x{s[1]}",
 )
 @pytest.mark.parametrize(
     "config",
@@ -687,12 +689,22 @@ def _strip_across_an_x(height: int, width: int, seed: int) -> np.ndarray:
     ],
     ids=["default", "template", "ncc", "curvature"],
 )
-def test_images_narrower_than_a_marker_give_an_empty_result_on_every_path(shape, config):
-    """A crop or strip too small for any ring: no marker, and no error or warning."""
+def test_images_narrower_than_a_marker_give_an_empty_result_on_every_path_and_entry(shape, config):
+    """A crop or strip too small for any ring, one row or one column too: no marker,
+    and no error or warning, whether screened, seeded, located or tracked."""
+    detector = Detector(config)
+    height, width = shape
+    # The strip's centre, on the X's, and its far corner, where a ring reads the border.
+    xy = np.array([[(width - 1) / 2, (height - 1) / 2], [width - 1.0, height - 1.0]])
+    seeded = SearchPlan(regions=np.array([[0, 0, width, height]]), seeds=xy)
+    lines = np.tile([np.pi / 4, 3 * np.pi / 4], (len(xy), 1))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         for seed in range(4):
-            assert len(Detector(config).detect(_strip_across_an_x(*shape, seed))) == 0
+            image = _strip_across_an_x(*shape, seed)
+            assert len(detector.detect(image)) == len(detector.detect(image, seeded)) == 0
+            assert len(detector.locate(image, xy, np.full(2, 8.0), lines, np.ones(2))) == 0
+            assert len(MarkerTracker(detector).update(image, stamp_s=0.0)) == 0
 
 
 # Uneven light: a dull quadrant, a shadow's edge (family (g)); both decisions.

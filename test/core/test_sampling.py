@@ -91,6 +91,22 @@ def test_a_sample_that_needs_a_pixel_outside_the_image_is_marked_invalid(x, y):
     assert not valid[0]
 
 
+@pytest.mark.parametrize("shape", [(1, 5), (5, 1), (1, 1)], ids=lambda s: f"{s[0]}x{s[1]}")
+def test_an_image_of_one_row_or_one_column_is_read_as_its_edge_repeated_and_no_sample_is_valid(
+    shape,
+):
+    # A bilinear cell is 2 x 2: along the side of one pixel the row or column is
+    # repeated, as the clamp reads the border, and along the other it is interpolated.
+    image = plane(10.0, 20.0, 1.0, shape).astype(np.uint8)
+    x, y = np.array([0.0, 0.5, 3.25, 0.0]), np.array([0.0, 0.0, 0.5, 2.75])
+    values, _, _, valid = bilinear_with_gradient(image, x, y)
+    inside_x, inside_y = np.minimum(x, shape[1] - 1), np.minimum(y, shape[0] - 1)
+    np.testing.assert_allclose(values, 10.0 * inside_x + 20.0 * inside_y + 1.0)
+    assert not valid.any()
+    assert bilinear(image, x, y)[0] == pytest.approx(values)
+    assert not bilinear(image, np.float64(0.0), np.float64(0.0))[1]
+
+
 def test_samples_keep_the_shape_of_the_positions():
     image = plane(1.0, 2.0, 3.0)
     x = np.full((3, 4, 2), 2.5)
