@@ -256,16 +256,11 @@ class _Lines:
         return "".join(self.seen)
 
 
-def test_a_second_ctrl_c_abandons_the_frame_in_flight_and_says_so_in_one_line(ros):
-    """A stopped worker process (SIGSTOP) stands for a frame longer than the drain's wait.
-
-    The first Ctrl-C starts the drain; the second ends it at once: the worker
-    process killed, the frame's shared memory unlinked (nothing left for Python's
-    resource tracker to warn about), one line, status 130.
-    """
-    process = subprocess.Popen(
+def _one_worker_node(launcher, namespace, **popen_options):
+    """A node of one camera and one worker process that waits 600 s for a frame in flight."""
+    return subprocess.Popen(
         node_command(
-            CONSOLE_SCRIPT,
+            launcher,
             "-p",
             "cameras:=[cam0]",
             "-p",
@@ -275,12 +270,31 @@ def test_a_second_ctrl_c_abandons_the_frame_in_flight_and_says_so_in_one_line(ro
             "-p",
             "diagnostics_period_s:=0.1",
             "-r",
-            "__ns:=/twice",
+            f"__ns:={namespace}",
         ),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
+        **popen_options,
     )
+
+
+def _frame_in_flight(tester):
+    return any(
+        values_of(status).get("frames in flight") == "1"
+        for array_msg in tester.messages("/diagnostics")
+        for status in array_msg.status
+    )
+
+
+def test_a_second_ctrl_c_abandons_the_frame_in_flight_and_says_so_in_one_line(ros):
+    """A stopped worker process (SIGSTOP) stands for a frame longer than the drain's wait.
+
+    The first Ctrl-C starts the drain; the second ends it at once: the worker
+    process killed, the frame's shared memory unlinked (nothing left for Python's
+    resource tracker to warn about), one line, status 130.
+    """
+    process = _one_worker_node(CONSOLE_SCRIPT, "/twice")
     err = _Lines(process.stderr)
     tester = Peer("twice_tester", "/twice")
     try:
@@ -289,15 +303,7 @@ def test_a_second_ctrl_c_abandons_the_frame_in_flight_and_says_so_in_one_line(ro
         os.kill(worker, signal.SIGSTOP)
         tester.listen("/diagnostics", DiagnosticArray)
         tester.publish("cam0/image_raw", tester.frame(x_marker_64()))
-
-        def frame_in_flight():
-            return any(
-                values_of(status).get("frames in flight") == "1"
-                for array_msg in tester.messages("/diagnostics")
-                for status in array_msg.status
-            )
-
-        wait_until(frame_in_flight, "the frame in its worker process")
+        wait_until(lambda: _frame_in_flight(tester), "the frame in its worker process")
         (block,) = mapped_shared_memory_blocks(process.pid)  # the frame's
         process.send_signal(signal.SIGINT)
         err.wait_for("stopping: waiting up to 600 s for the frames in flight (cam0)")
@@ -328,23 +334,9 @@ def test_a_stop_signal_to_the_process_group_drains_the_frame_in_flight_as_quietl
     the pool, which learns of its worker's end through it, took the living worker for
     dead, and the frame in flight failed instead of being published.
     """
-    process = subprocess.Popen(
-        node_command(
-            MODULE,  # this checkout's code: the console script runs the installed one
-            "-p",
-            "cameras:=[cam0]",
-            "-p",
-            "workers:=1",
-            "-p",
-            "shutdown_timeout_s:=600.0",
-            "-p",
-            "diagnostics_period_s:=0.1",
-            "-r",
-            f"__ns:=/group_{stop_signal.name.lower()}",
-        ),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
+    process = _one_worker_node(
+        MODULE,  # this checkout's code: the console script runs the installed one
+        f"/group_{stop_signal.name.lower()}",
         start_new_session=True,  # its own process group, as a terminal's
     )
     err = _Lines(process.stderr)
@@ -359,14 +351,7 @@ def test_a_stop_signal_to_the_process_group_drains_the_frame_in_flight_as_quietl
         tester.listen("cam0/marker_points", PointCloud2)
         frame = tester.frame(x_marker_64())
         tester.publish("cam0/image_raw", frame)
-        wait_until(
-            lambda: any(
-                values_of(status).get("frames in flight") == "1"
-                for array_msg in tester.messages("/diagnostics")
-                for status in array_msg.status
-            ),
-            "the frame in its worker process",
-        )
+        wait_until(lambda: _frame_in_flight(tester), "the frame in its worker process")
         (block,) = mapped_shared_memory_blocks(process.pid)  # the frame's
         os.killpg(process.pid, stop_signal)
         err.wait_for("stopping: waiting up to 600 s for the frames in flight (cam0)")
