@@ -1585,9 +1585,9 @@ def _nearest_crossings(
     """Eq. (9) for every candidate: the crossing of two extended segments nearest to it.
 
     Candidates are batched by their number of segments rounded up to a power of
-    two, the missing segments NaN (no crossing): the loop runs over a few sizes,
-    not over the candidates, and the pairs of a candidate's own segments keep
-    their order, so the nearest crossing found first is the same.
+    two, each batch padded to its longest with NaN segments (no crossing): the loop
+    runs over a few sizes, not over the candidates, and the pairs of a candidate's
+    own segments keep their order, so the nearest crossing found first is the same.
 
     Args:
         segments: per candidate, its (M_k, 4) LSD segments in image coordinates.
@@ -1606,7 +1606,7 @@ def _nearest_crossings(
     size = 1 << np.ceil(np.log2(np.maximum(count, 1))).astype(np.intp)
     for m in np.unique(size[count >= 2]):
         members = np.flatnonzero((size == m) & (count >= 2))
-        batch = np.full((len(members), m, 4), np.nan)
+        batch = np.full((len(members), count[members].max(), 4), np.nan)
         for row, k in enumerate(members):
             batch[row, : count[k]] = segments[k]
         direction = batch[..., 2:] - batch[..., :2]
