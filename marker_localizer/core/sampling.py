@@ -170,11 +170,15 @@ def _neighbours(
         cell = ((0, max(_CELL_PX - height, 0)), (0, max(_CELL_PX - width, 0)))
         v00, v01, v10, v11, fx, fy, valid = _neighbours(np.pad(image, cell, "edge"), x, y)
         return v00, v01, v10, v11, fx, fy, valid & False
-    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+    # Broadcast, and clamped by the method, only as needed: numpy's wrappers cost a
+    # few microseconds a call, a tenth of a call's time on a fit's few hundred samples.
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    if x.shape != y.shape:
+        x, y = np.broadcast_arrays(x, y)
     x0 = np.floor(x)
     y0 = np.floor(y)
-    column = np.clip(x0, 0, width - _CELL_PX)
-    row = np.clip(y0, 0, height - _CELL_PX).astype(np.float64, copy=False)
+    column = x0.clip(0, width - _CELL_PX)
+    row = y0.clip(0, height - _CELL_PX).astype(np.float64, copy=False)
     # A pixel is inside where the clamp left it; a NaN's clamp is NaN, unequal too.
     valid = column == x0
     valid &= row == y0

@@ -323,21 +323,16 @@ def template_correlation(
         image, xy, line_angles, radius_px, max_samples, normalise, full_scale, leave_out_clipped
     )
     values, valid, s1, s2, present = disk.values, disk.valid, disk.s1, disk.s2, disk.present
-    padded_width = values.shape[1]
     count = np.maximum(present.sum(axis=1, keepdims=True), 1)
     centred = (values - (values * present).sum(axis=1, keepdims=True) / count) * (valid & present)
     norm_i2 = (centred**2).sum(axis=1) + 1e-12
     best_ncc = np.zeros(n)
     best_sigma = np.full(n, sigmas_px[0])
     # The blur is the best of ``sigmas_px`` for the X at right angles, whose model is
-    # a product of two steps (cheap); the padding's model is its value at the centre,
-    # as the padding's zero offsets read: that of the last entry, padding wherever a
-    # point has any.
-    s1_read, s2_read = s1[present], s2[present]
+    # a product of two steps (cheap), over whole rows as the X's below: the padding's
+    # distances are its centre's, and the centring leaves out what is not present.
     for sigma in sigmas_px:
-        model = edge_step(s1[:, -1:], sigma) * edge_step(s2[:, -1:], sigma)
-        model = np.repeat(model, padded_width, axis=1)
-        model[present] = edge_step(s1_read, sigma) * edge_step(s2_read, sigma)
+        model = edge_step(s1, sigma) * edge_step(s2, sigma)
         model_centred = _centred(model, present, count)
         model_norm2 = (model_centred**2).sum(axis=1) + 1e-12
         corr = np.abs((centred * model_centred).sum(axis=1)) / np.sqrt(norm_i2 * model_norm2)
@@ -604,7 +599,7 @@ def _disk_reads(
     s1, s2 = (np.repeat(s, width, axis=1) for s in line_distances(zero, zero, line_angles))
     for index, pattern in enumerate(patterns):
         rows = np.flatnonzero(pattern_of == index)
-        dx, dy = (np.broadcast_to(offset, (len(rows), len(pattern))) for offset in pattern.T)
+        dx, dy = pattern.T
         read, inside = bilinear(image, xy[rows, 0, None] + dx, xy[rows, 1, None] + dy)
         if full_scale is not None:
             at_white[rows, : len(pattern)] = clipped(read, full_scale)
