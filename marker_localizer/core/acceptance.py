@@ -116,6 +116,16 @@ FAINT_MAX_MISFIT = 0.02
 #: the floor's").
 GATE_MIN_NCC = 0.97
 GATE_MAX_MISFIT = 0.04
+#: Least ratio of an X's saddle response to the mean saddle response of the ground
+#: around it (:func:`screening.saddle_over_ground`) at which the score floors stand
+#: aside for an X of texture's size (:func:`stands_out`). The floors are set by
+#: texture's saddles, which are the ground's own: they stand out of it little, and a
+#: marker, paint laid on the ground, stands out by its contrast. Set for 0.001 false
+#: points per megapixel of real aerial ground, the issue's budget being 0.025: with the
+#: floors out of the way, the texture X's of its 24 MP that pass every other test (53 at
+#: 2.5-5 px, 54 at 3-30 px) read 46 at most, and an exponential fitted to their tail
+#: over 15 (scale 5.7-6.5) puts 0.001 a megapixel at 56-62.
+MIN_SADDLE_OVER_GROUND = 60.0
 
 
 #: Why :meth:`MarkerModel.match` rejects an X the rings passed, in the order its tests
@@ -129,6 +139,27 @@ JUDGED_REASONS = ("score", "x_end", "misfit", "quartic")
 ACCEPTED = -1
 _MODULATION, _TEMPLATE, _MATCHED_SCORE = range(len(MATCHED_REASONS))
 _SCORE, _X_END, _MISFIT, _QUARTIC = range(len(JUDGED_REASONS))
+
+
+def stands_out(
+    gray: NDArray[Any], xy: NDArray[np.float64], radius: NDArray[np.float64]
+) -> NDArray[np.bool_]:
+    """(N,) the X's of texture's size whose score floors stand aside: their saddle stands out.
+
+    Under :data:`verification.X_END_MAX_EXTENT_PX`, where the floors are set by
+    texture's saddles, an X whose saddle response is :data:`MIN_SADDLE_OVER_GROUND`
+    times its ground's (:func:`screening.saddle_over_ground`) is not of that ground.
+
+    Args:
+        gray: (H, W) grey image, raw levels.
+        xy: (N, 2) centres, px.
+        radius: (N,) extents of the X's, px.
+    """
+    out = np.zeros(len(xy), dtype=bool)
+    small = np.flatnonzero(radius < verification.X_END_MAX_EXTENT_PX)
+    if len(small):
+        out[small] = screening.saddle_over_ground(gray, xy[small]) >= MIN_SADDLE_OVER_GROUND
+    return out
 
 
 def _passed(reason: NDArray[np.int8], reasons: tuple[str, ...], test: str) -> NDArray[np.bool_]:
@@ -270,12 +301,15 @@ class Judgement(NamedTuple):
             that rejected it.
         vouched: under its score floor, the marker's model vouched for it
             (:meth:`MarkerModel.vouches`).
+        stood_out: under its score floor, of texture's size, its saddle stands out of
+            its ground, and its floors stood aside (:func:`stands_out`).
         unread: asked for its plate over :data:`MAX_PLATE_ASKED`, and rejected at
             that test (``quartic``) unread.
     """
 
     reason: NDArray[np.int8]
     vouched: NDArray[np.bool_]
+    stood_out: NDArray[np.bool_]
     unread: NDArray[np.bool_]
 
     def passed(self, test: str) -> NDArray[np.bool_]:
@@ -337,7 +371,8 @@ class MarkerModel:
           docs/accuracy-journal.md, "The template's match without the clipped samples");
         * ``score``: its ring symmetry times that NCC, which the fit's score can only
           lower, reaches the ``lowest`` score of its extent
-          (:meth:`ScoreFloors.lowest`).
+          (:meth:`ScoreFloors.lowest`), or its saddle stands out of its ground
+          (:func:`stands_out`).
 
         Args:
             xy: (N, 2) centres, px.
@@ -396,7 +431,8 @@ class MarkerModel:
         with np.errstate(invalid="ignore"):
             fits = ncc >= gates.min_ncc
         reason[read & ~fits] = _TEMPLATE
-        reason[fits & (ring_score * ncc < lowest)] = _MATCHED_SCORE
+        under = np.flatnonzero(fits & (ring_score * ncc < lowest))
+        reason[under[~stands_out(gray, xy[under], radius[under])]] = _MATCHED_SCORE
         return Match(reason, faint, ncc, unread, vouched.plates_read)
 
     def judge(
@@ -414,13 +450,14 @@ class MarkerModel:
         In order:
 
         * ``score``: the fitted score reaches the :meth:`~ScoreFloors.lowest` of its
-          extent, or the marker's model vouches for it (:meth:`vouches`). Where tiny
-          markers are expected (:attr:`expects_tiny`), one of texture's size
-          under its floor is left to the plate reading instead: on texture the model
-          vouches for such X's too.
+          extent, or its saddle stands out of its ground and both floors stand aside
+          (:func:`stands_out`), or the marker's model vouches for it
+          (:meth:`vouches`). Where tiny markers are expected (:attr:`expects_tiny`), one
+          of texture's size under its floor is left to the plate reading instead: on
+          texture the model vouches for such X's too.
         * ``x_end``: its X ends where its extent says (:func:`verification.x_ends`).
-          One under its :meth:`~ScoreFloors.floor` that the model did not vouch for
-          must have clearly ended, and fails the floor (``score``) if not.
+          One under its :meth:`~ScoreFloors.floor` that neither stood out nor the model
+          vouched for must have clearly ended, and fails the floor (``score``) if not.
         * ``misfit``: the blurred X explains it (:meth:`explains`).
         * ``quartic``: its plate explains it (:meth:`plate_not_worse`), a vouched X
           having shown its plate already; of those it asks (:meth:`plate_asked`), at
@@ -446,7 +483,12 @@ class MarkerModel:
         """
         reason = np.full(len(xy), ACCEPTED, dtype=np.int8)
         floor = floors.floor(radius)
-        weak = score < floors.lowest(radius)
+        lowest = floors.lowest(radius)
+        doubted = np.flatnonzero(score < floor)
+        stood_out = np.zeros(len(xy), dtype=bool)
+        stood_out[doubted] = stands_out(self.gray, xy[doubted], radius[doubted])
+        floor[stood_out] = lowest[stood_out] = -np.inf
+        weak = score < lowest
         vouched = np.zeros(len(xy), dtype=bool)
         held = np.flatnonzero(weak & ~self.read_as_tiny(radius))
         vouched[held] = self.vouches(xy[held], radius[held], angles[held])
@@ -470,7 +512,7 @@ class MarkerModel:
         keep = keep[explained]
         unread = np.zeros(len(xy), dtype=bool)
         if not read_plates:
-            return Judgement(reason, vouched, unread)
+            return Judgement(reason, vouched, stood_out, unread)
         margin = np.where(vouched, np.inf, score - floor)
         asked = self.plate_asked(xy[keep], radius[keep], margin[keep])
         rows = np.flatnonzero(asked)
@@ -483,7 +525,7 @@ class MarkerModel:
         smooth = ~self.plate_not_worse(xy[keep], radius[keep], angles[keep], margin[keep], asked)
         reason[keep[smooth]] = _QUARTIC
         reason[unread] = _QUARTIC
-        return Judgement(reason, vouched, unread)
+        return Judgement(reason, vouched, stood_out, unread)
 
     def vouches(
         self,

@@ -252,6 +252,82 @@ def saddle_response(image: NDArray[Any]) -> NDArray[np.float32]:
     return cast("NDArray[np.float32]", dxy)
 
 
+#: The ground's square ring about a point whose saddle response :func:`saddle_over_ground`
+#: averages: inner and outer half-sides, px. Past the plate of an X of texture's size (a
+#: marker of 5 px and its plate reach 7-8 px), and wide enough for some 3 800 pixels of
+#: ground.
+GROUND_RING_HALF_SIDES_PX = (10, 32)
+#: The rows and columns the 5x5 derivatives of :func:`saddle_response` read beyond the
+#: pixel they are at, px.
+_SADDLE_KERNEL_REACH_PX = 2
+#: Points whose windows :func:`saddle_over_ground` lays into one image: about 5 MiB of
+#: float32 response, which stays in cache between the passes and under the allocator's
+#: threshold for fresh (page-faulted) memory; a frame of real aerial ground asks over a
+#: thousand.
+_GROUND_WINDOWS_PER_PASS = 256
+
+
+def saddle_over_ground(gray: NDArray[Any], xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N,) each point's saddle response over the mean saddle response of its ground.
+
+    With R the saddle response (:func:`saddle_response`) and (x, y) the point's nearest
+    pixel, the ratio is
+
+        max_{|dx|, |dy| <= 1} R(x + dx, y + dy)  /  mean_{(u, v) in ring} max(R(u, v), 0)
+
+    where the ring is the square annulus r_in < max(|u - x|, |v - y|) <= r_out of
+    :data:`GROUND_RING_HALF_SIDES_PX`. R is a squared contrast, so the ratio is one of
+    squared contrasts, which the light and the exposure do not change: a local
+    constant-false-alarm-rate reading of the saddle against the ground it lies on.
+    Infinite where the ground is flat and the point is not. Not a number where the ring
+    or the kernels' reach about it leaves the frame: the frame shows only part of that
+    ground, and of an X there, and a mirror image would repeat the X's own
+    neighbourhood in place of the rest.
+
+    Each point's window (its ring and the kernels' reach) is cut from the frame and the
+    windows are laid side by side into one image of the window's height, whose response
+    is computed in one pass: the pixels a window reads at its centre and on its ring lie
+    within it, so its neighbours do not reach them. The ring's sum is that of its outer
+    box less its inner one, each from the column sums over the box's rows.
+
+    Args:
+        gray: (H, W) grey image, raw levels (uint8, uint16 or float).
+        xy: (N, 2) points, px.
+    """
+    inner, outer = GROUND_RING_HALF_SIDES_PX
+    reach = outer + _SADDLE_KERNEL_REACH_PX
+    side = 2 * reach + 1
+    height, width = gray.shape
+    corner = np.rint(np.asarray(xy, np.float64).reshape(-1, 2)).astype(np.int64) - reach
+    seen = np.flatnonzero(
+        (corner[:, 0] >= 0)
+        & (corner[:, 1] >= 0)
+        & (corner[:, 0] + side <= width)
+        & (corner[:, 1] + side <= height)
+    )
+    ratio = np.full(len(corner), np.nan)
+    if len(seen) == 0:
+        return ratio
+    view = np.lib.stride_tricks.sliding_window_view(gray, (side, side))
+    at = slice(reach - 1, reach + 2)
+    ring_area = (2 * outer + 1) ** 2 - (2 * inner + 1) ** 2
+    for first in range(0, len(seen), _GROUND_WINDOWS_PER_PASS):
+        part = seen[first : first + _GROUND_WINDOWS_PER_PASS]
+        count = len(part)
+        laid = view[corner[part, 1], corner[part, 0]].transpose(1, 0, 2).reshape(side, -1)
+        response = saddle_response(laid.astype(np.float32) if gray.dtype.kind == "f" else laid)
+        peak = response[at].reshape(3, count, side)[:, :, at].max(axis=(0, 2))
+        ground = np.maximum(response, 0.0, out=response)
+        box_sums = []
+        for half_side in (outer, inner):
+            box = slice(reach - half_side, reach + half_side + 1)
+            columns = ground[box].sum(axis=0).reshape(count, side)
+            box_sums.append(columns[:, box].sum(axis=1, dtype=np.float64))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio[part] = peak * ring_area / (box_sums[0] - box_sums[1])
+    return ratio
+
+
 #: Share of a level's pixels above the threshold from which its 3x3 maxima are found
 #: with one dilation of the whole level instead of eight neighbour look-ups per pixel
 #: above it (a gather costs ~10x a dilated pixel, measured on 8 MP). On real sand at

@@ -536,6 +536,13 @@ class SymmetryPath:
             symmetry.score[checked],
             cfg.marker_radius_max_px,
         )
+        # An X of texture's size under its floor whose saddle stands out of its ground
+        # passes it; the template's floor and the fit's weigh it again where it falls
+        # under them (MarkerModel.match, MarkerModel.judge).
+        doubted = np.flatnonzero(weak)
+        weak[doubted] = ~acceptance.stands_out(
+            gray, candidates.xy[doubted], symmetry.radius_px[doubted]
+        )
         counts["rejected_score"] = int(weak.sum())
         result.survivors += [
             ("symmetry", candidates.xy[keep]),

@@ -6,7 +6,7 @@ from scenes import faint_tilted_markers
 
 from marker_localizer import Detector
 from marker_localizer.config import DetectorConfig
-from marker_localizer.core import acceptance, template, verification
+from marker_localizer.core import acceptance, screening, template, verification
 from marker_localizer.core.noise import NoiseModel, estimate_noise
 from marker_localizer.synthetic import MarkerPlacement, render_markers
 
@@ -286,8 +286,9 @@ def test_score_floors_ask_most_of_texture_sized_xs_and_let_an_ended_one_under_by
 
 def test_the_judgement_names_the_test_that_rejects_each_x():
     # Scored clear of their floors, the faint markers are accepted but where their X
-    # or plate says otherwise; scored at nothing, they stand where the model vouches
-    # for them, and ground points, which it never vouches for, fail the floor.
+    # or plate says otherwise; scored at nothing, they stand where their saddle stands
+    # out of their ground or else the model vouches for them, and ground points, which
+    # neither stand out nor are vouched for, fail the floor.
     scene = faint_tilted_markers(0)
     ring = _ring_reading(scene.image, scene.centres)
     model = _model(scene.image)
@@ -300,10 +301,14 @@ def test_the_judgement_names_the_test_that_rejects_each_x():
     assert (clear.passed("x_end") <= clear.passed("score")).all()
 
     unscored = model.judge(*markers, np.zeros(len(scene.centres)), floors, _CELL_PX)
-    assert (unscored.vouched == model.vouches(*markers)).all()
-    assert unscored.vouched.sum() >= 4
-    assert (unscored.reason[~unscored.vouched] == acceptance.JUDGED_REASONS.index("score")).all()
-    assert unscored.passed("score").tolist() == unscored.vouched.tolist()
+    stood_out = acceptance.stands_out(scene.image, *markers[:2])
+    assert unscored.stood_out.tolist() == stood_out.tolist()
+    assert stood_out.sum() >= 3
+    assert (unscored.vouched == (model.vouches(*markers) & ~stood_out)).all()
+    assert unscored.vouched.sum() >= 3
+    stood = unscored.stood_out | unscored.vouched
+    assert (unscored.reason[~stood] == acceptance.JUDGED_REASONS.index("score")).all()
+    assert unscored.passed("score").tolist() == stood.tolist()
 
     points = _ground_points(scene, 40, 0)
     angles = np.random.default_rng(0).uniform(0, np.pi, (len(points), 2))
@@ -311,6 +316,7 @@ def test_the_judgement_names_the_test_that_rejects_each_x():
         points, np.full(len(points), 4.24), angles, np.zeros(len(points)), floors, _CELL_PX
     )
     assert (ground.reason == acceptance.JUDGED_REASONS.index("score")).all()
+    assert not ground.stood_out.any()
 
 
 def test_a_score_under_its_floor_clears_it_only_within_the_allowance_and_where_the_x_has_ended():
@@ -340,7 +346,8 @@ def test_a_score_under_its_floor_clears_it_only_within_the_allowance_and_where_t
 def test_the_template_match_names_the_gate_that_rejects_each_x_the_rings_passed():
     # Faint tilted markers: the paint's gate doubts some, which the model vouches for,
     # and the blurred X matches them; random ground points fail the paint or the
-    # template. Asked for a score no X reaches, every matched marker fails the floor.
+    # template. Asked for a score no X reaches, every matched marker fails the floor but
+    # those whose saddle stands out of their ground.
     config = DetectorConfig(
         marker_radius_min_px=_RADIUS_RANGE_PX[0], marker_radius_max_px=_RADIUS_RANGE_PX[1]
     )
@@ -363,7 +370,10 @@ def test_the_template_match_names_the_gate_that_rejects_each_x_the_rings_passed(
     assert np.isnan(match.ncc[~match.passed("modulation")]).all()
     unreachable = model.match(*markers, np.full(len(scene.centres), 2.0), gates)
     score = acceptance.MATCHED_REASONS.index("score")
-    assert (unreachable.reason[accepted] == score).all()
+    stood_out = acceptance.stands_out(scene.image, scene.centres, ring.radius_px)
+    assert (accepted & stood_out).any()
+    assert (unreachable.reason[accepted & stood_out] == acceptance.ACCEPTED).all()
+    assert (unreachable.reason[accepted & ~stood_out] == score).all()
 
     points = _ground_points(scene, 40, 0)
     angles = np.random.default_rng(0).uniform(0, np.pi, (len(points), 2))
@@ -416,3 +426,57 @@ def test_the_plates_read_for_the_modulation_gates_rejects_stop_at_their_cap(monk
     result = Detector(DetectorConfig()).detect(_fine_chessboard())
     assert sum(reads) == acceptance.MAX_VOUCH_PLATES
     assert result.counts["vouch_over_cap"] > 1000
+
+
+def _tiny_markers_on_texture(seed: int):
+    """18 markers of 3-4 px, tilted up to 40 degrees, on ground texture, 960 x 480 px."""
+    rng = np.random.default_rng(seed)
+    placements = [
+        MarkerPlacement(
+            80 + 160 * (i % 6) + rng.uniform(-15, 15),
+            80 + 160 * (i // 6) + rng.uniform(-15, 15),
+            rng.uniform(3.0, 4.0),
+            rng.uniform(0, np.pi),
+            rng.uniform(0, 40),
+            rng.uniform(0, np.pi),
+            "quarter_disks",
+        )
+        for i in range(18)
+    ]
+    return render_markers(
+        (480, 960),
+        placements,
+        seed,
+        background="texture",
+        contrast=(0.4, 0.5),
+        blur_sigma_px=1.2,
+        noise_sigma_dn=2.0,
+    )
+
+
+def _found_markers(result, centres: np.ndarray) -> set[int]:
+    """The markers with a detection within 1.5 px; no detection may lie off every marker."""
+    xy = np.array([[d.x, d.y] for d in result.detections]).reshape(-1, 2)
+    distance = np.hypot(*(xy[:, None, :] - centres[None]).transpose(2, 0, 1))
+    assert (distance.min(axis=1) <= 1.5).all()
+    return set(distance.argmin(axis=1).tolist())
+
+
+def test_a_tiny_marker_whose_saddle_stands_out_of_busy_ground_passes_its_floors(monkeypatch):
+    # The floors of an X of texture's size are set by the ground's own saddles, and
+    # reject some of these markers; those whose saddle stands out of their ground are
+    # found beside the rest, and none of the texture's X's.
+    config = DetectorConfig(marker_radius_min_px=2.5, marker_radius_max_px=5.0)
+    gained = []
+    for seed in (0, 2):
+        scene = _tiny_markers_on_texture(seed)
+        found = _found_markers(Detector(config).detect(scene.image), scene.centres)
+        with monkeypatch.context() as floors_alone:
+            floors_alone.setattr(acceptance, "MIN_SADDLE_OVER_GROUND", np.inf)
+            alone = _found_markers(Detector(config).detect(scene.image), scene.centres)
+        assert alone <= found
+        extra = sorted(found - alone)
+        ratio = screening.saddle_over_ground(scene.image, scene.centres[extra])
+        assert (ratio >= acceptance.MIN_SADDLE_OVER_GROUND).all()
+        gained += extra
+    assert len(gained) >= 3

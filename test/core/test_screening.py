@@ -687,3 +687,41 @@ def test_rows_in_the_open_keep_the_configured_threshold():
     upper = plain.xy[:, 1] < 70
     assert np.array_equal(plain.xy[upper], shaded.xy[shaded.xy[:, 1] < 70])
     assert len(shaded) >= len(plain)
+
+
+def _tiny_marker_on_texture():
+    """A marker of 4 px at (150.3, 99.6) on ground texture, 300 x 200 px."""
+    placement = MarkerPlacement(150.3, 99.6, 4.0, 0.3, 20.0, 0.0)
+    return render_markers((200, 300), [placement], 0, background="texture")
+
+
+def _ring_mean_on_the_frame(response: np.ndarray, x: int, y: int) -> float:
+    """The mean positive response on the ground's ring about (x, y), read on the frame."""
+    inner, outer = screening.GROUND_RING_HALF_SIDES_PX
+    ground = np.maximum(response, 0.0).astype(np.float64)
+    boxes = [ground[y - h : y + h + 1, x - h : x + h + 1] for h in (outer, inner)]
+    return (boxes[0].sum() - boxes[1].sum()) / (boxes[0].size - boxes[1].size)
+
+
+def test_a_saddle_over_its_ground_is_its_peak_over_its_rings_mean_as_the_frame_reads_them():
+    # Read from windows laid side by side, the ratio is the frame's own response: its
+    # 3x3 peak at the point over the mean of its positive part on the ring.
+    scene = _tiny_marker_on_texture()
+    response = screening.saddle_response(scene.image)
+    points = np.array([[150.3, 99.6], [60.0, 50.0], [240.2, 150.7], [40.0, 160.0]])
+    ratio = screening.saddle_over_ground(scene.image, points)
+    for (x, y), read in zip(np.rint(points).astype(int), ratio, strict=True):
+        peak = response[y - 1 : y + 2, x - 1 : x + 2].max()
+        assert read == pytest.approx(peak / _ring_mean_on_the_frame(response, x, y), rel=1e-5)
+    assert ratio[0] >= 60.0 > ratio[1:].max()
+
+
+def test_a_saddle_over_its_ground_holds_in_any_light_and_is_unread_where_the_frame_cuts_its_ring():
+    scene = _tiny_marker_on_texture()
+    half = screening.GROUND_RING_HALF_SIDES_PX[1]
+    points = np.array([[150.3, 99.6], [half + 2.0, 100.0], [half + 1.0, 100.0], [150.0, 2.0]])
+    ratio = screening.saddle_over_ground(scene.image, points)
+    dimmer = screening.saddle_over_ground(scene.image.astype(np.float32) * 0.5, points)
+    assert np.isfinite(ratio[:2]).all() and np.isnan(ratio[2:]).all()
+    assert dimmer[:2] == pytest.approx(ratio[:2], rel=1e-5)
+    assert np.isnan(dimmer[2:]).all()
