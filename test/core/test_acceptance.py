@@ -468,7 +468,9 @@ def test_a_tiny_marker_whose_saddle_stands_out_of_busy_ground_passes_its_floors(
     # found beside the rest, and none of the texture's X's.
     config = DetectorConfig(marker_radius_min_px=2.5, marker_radius_max_px=5.0)
     gained = []
-    for seed in (0, 2):
+    # Seeds whose scenes hold such markers (7 gained of their 90 with the pinned numpy and
+    # OpenCV, and with the newest, 2.4 and 5.1); most scenes hold none.
+    for seed in (0, 7, 10, 12, 14):
         scene = _tiny_markers_on_texture(seed)
         found = _found_markers(Detector(config).detect(scene.image), scene.centres)
         with monkeypatch.context() as floors_alone:
@@ -479,4 +481,4 @@ def test_a_tiny_marker_whose_saddle_stands_out_of_busy_ground_passes_its_floors(
         ratio = screening.saddle_over_ground(scene.image, scene.centres[extra])
         assert (ratio >= acceptance.MIN_SADDLE_OVER_GROUND).all()
         gained += extra
-    assert len(gained) >= 3
+    assert len(gained) >= 4
