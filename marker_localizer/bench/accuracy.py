@@ -21,9 +21,11 @@ in ``<repo>/../shared/data`` (skipped when absent):
   found, the paper's Table 1 deviation from OpenCV's refined corners, and the
   reference-free row/column residuals (straight line and projective spacing).
 * cirn_uas: both ground targets found per frame, false positives per frame.
-* rendered markers on real ground: family (a)'s markers and look-alikes drawn on
-  crops of the real frames without a diagonal marker (:func:`real_ground_family`),
-  scored as a rendered family: recall on ground no renderer made.
+* rendered markers on real ground: family (a)'s markers and look-alikes, and
+  family (b)'s tiny ones (radius 2.5-5 px, the paper's markers 3-5 px wide over
+  real terrain), drawn on crops of the real frames without a diagonal marker
+  (:func:`real_ground_family`), scored as rendered families: recall on ground no
+  renderer made.
 * aerial_negatives: real ground without any marker; false points per frame and
   per megapixel; and the same frames seen from half the height
   (:func:`closer_frames`), for the reference row. Beside them, a rendered lattice
@@ -104,9 +106,9 @@ CIRN_RANGES: dict[str, CirnReading] = {
 }
 #: What ``--families`` can choose: the rendered families, markers with a dull
 #: quadrant alone at several radius ranges (:mod:`~marker_localizer.bench.dull`), the
-#: rendered markers on real ground, the independent renderer's frames, the real sets
-#: with reference points, the real negatives, the held-out frames of the rendered
-#: families (:func:`run_heldout`).
+#: rendered markers of (a) and (b) on real ground, the independent renderer's frames,
+#: the real sets with reference points, the real negatives, the held-out frames of the
+#: rendered families (:func:`run_heldout`).
 FAMILY_KEYS = (
     "a",
     "b",
@@ -116,6 +118,7 @@ FAMILY_KEYS = (
     "g",
     "dull",
     "ground",
+    "ground_b",
     "independent",
     "real",
     "negatives",
@@ -496,35 +499,45 @@ def families() -> list[Family]:
 REAL_GROUND_TARGET_CLEARANCE_PX = 60.0
 #: Crops drawn before a frame's targets are declared in the way of every one.
 _REAL_GROUND_TRIES = 100
+#: The families drawn on real ground: ``--families`` key -> (the rendered family
+#: whose scene is drawn, its markers in the table's title). (b)'s tiny markers on
+#: real terrain are the paper's regime; the renderer's ground is calmer around them.
+REAL_GROUND_FAMILIES: dict[str, tuple[str, str]] = {
+    "ground": ("a", "markers"),
+    "ground_b": ("b", "tiny markers (radius 2.5-5 px, 24 a frame)"),
+}
 
 
-def real_ground_family(root: Path) -> Family | None:
-    """Family (a)'s markers on real ground; None where no marker-free real frame is found.
+def real_ground_family(root: Path, key: str = "ground") -> Family | None:
+    """A rendered family's markers on real ground; None where no marker-free real frame is found.
 
-    Family (a)'s scene (markers, look-alikes, light, blur, noise, JPEG) drawn on a
-    crop of a real frame in place of the renderer's ground photographs: the
-    aerial frames without markers, and cirn_uas's frames away from their two
-    targets. Frame ``seed`` crops real frame ``seed`` modulo their number, where
-    a stream of its own draws (:func:`real_ground_frame`). Its false points are
-    the real ground's and the look-alikes'.
+    The scene (markers, look-alikes, light, blur, noise, JPEG) of the family
+    :data:`REAL_GROUND_FAMILIES` gives for ``key``, drawn on a crop of a real
+    frame in place of the renderer's ground photographs: the aerial frames
+    without markers, and cirn_uas's frames away from their two targets. Frame
+    ``seed`` crops real frame ``seed`` modulo their number, where a stream of its
+    own draws (:func:`real_ground_frame`). Its false points are the real ground's
+    and the look-alikes'.
     """
+    drawn, markers = REAL_GROUND_FAMILIES[key]
     grounds = _real_grounds(root)
     if not grounds:
         return None
-    family = next(f for f in families() if f.key == "a" and not f.variant)
+    family = next(f for f in families() if f.key == drawn and not f.variant)
     scene = family.scene
     if scene is None:
-        raise ConfigError("family (a) is not drawn from a SceneConfig")
+        raise ConfigError(f"family ({drawn}) is not drawn from a SceneConfig")
 
     def render(seed: int) -> RenderedScene:
         return real_ground_frame(scene, grounds, seed)
 
     return replace(
         family,
-        key="ground",
-        title="(ground) family (a)'s markers and look-alikes drawn on real ground: 1280x960 "
-        f"crops of the {len(grounds)} real frames without a diagonal marker (aerial_negatives, "
-        "cirn_uas away from its targets), their grey levels as the ground's reflectance",
+        key=key,
+        title=f"({key}) family ({drawn})'s {markers} and look-alikes drawn on real ground: "
+        f"{scene.width}x{scene.height} crops of the {len(grounds)} real frames without a "
+        "diagonal marker (aerial_negatives, cirn_uas away from its targets), their grey "
+        "levels as the ground's reflectance",
         render=render,
     )
 
@@ -533,7 +546,7 @@ def real_ground_family(root: Path) -> Family | None:
 def _real_grounds(root: Path) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
     """(grey frame, (K, 2) points a crop keeps clear of) of every marker-free real frame.
 
-    Read once a run: the family tables and the held-out frames both build the family.
+    Read once a run: the family tables and the held-out frames both build the families.
     """
     grounds: list[tuple[np.ndarray, np.ndarray]] = [
         (f.image, np.zeros((0, 2))) for f in real_data.iter_aerial_negatives(root)
@@ -1387,9 +1400,12 @@ def frames_for(family: Family, options: Options) -> int:
 
 
 def _families(options: Options) -> list[Family]:
-    """The rendered families, and family (a) on real ground where the real frames are."""
-    ground = real_ground_family(options.data_root) if options.data_root is not None else None
-    return families() + ([ground] if ground is not None else [])
+    """The rendered families, and (a) and (b) on real ground where the real frames are."""
+    root = options.data_root
+    grounds = (
+        [real_ground_family(root, key) for key in REAL_GROUND_FAMILIES] if root is not None else []
+    )
+    return families() + [g for g in grounds if g is not None]
 
 
 def _detectors(options: Options) -> list[PointDetector]:
@@ -1415,8 +1431,11 @@ def run_synthetic(
     detectors = _detectors(options)
     results: dict[str, Any] = {}
     chosen = [f for f in _families(options) if f.key in options.families]
-    if "ground" in options.families and not any(f.key == "ground" for f in chosen):
-        report("Family (a) on real ground: no real frame without markers found, skipped.")
+    for key, (drawn, _) in REAL_GROUND_FAMILIES.items():
+        if key in options.families and not any(f.key == key for f in chosen):
+            report(
+                f"Family ({drawn}) on real ground: no real frame without markers found, skipped."
+            )
     if chosen:
         report(f"Shared by the {BASE_CONDITIONS}")
     for family in chosen:

@@ -552,6 +552,13 @@ def test_family_a_on_real_ground_says_it_is_skipped_without_the_real_frames():
     assert printed == ["Family (a) on real ground: no real frame without markers found, skipped."]
 
 
+def test_family_b_on_real_ground_says_it_is_skipped_without_the_real_frames():
+    printed: list[str] = []
+    options = accuracy.Options(families=("ground_b",), data_root=None)
+    assert accuracy.run_synthetic(options, printed.append, []) == {}
+    assert printed == ["Family (b) on real ground: no real frame without markers found, skipped."]
+
+
 # --------------------------------------------------------------------------- real data
 
 
@@ -655,6 +662,45 @@ def test_family_a_on_real_ground_draws_its_markers_and_their_bounds_on_each_real
     scene = family.render(aerial)  # the first cirn_uas frame, away from its targets
     assert scene.image.shape == (960, 1280) and len(scene.markers) == 12
     assert np.isfinite(scene.crlb_px).all() and (scene.crlb_px > 0).all()
+
+
+@needs_shared_data
+def test_family_b_on_real_ground_draws_bs_tiny_markers_on_the_crop_of_as_real_ground():
+    tiny = accuracy.real_ground_family(SHARED_DATA, "ground_b")
+    assert tiny is not None and tiny.radius_range == (2.5, 5.0)
+    assert "(ground_b) family (b)'s tiny markers" in tiny.title
+    aerial = len(list(real_data.iter_aerial_negatives(SHARED_DATA)))
+    scene = tiny.render(aerial)  # the first cirn_uas frame, away from its targets
+    assert scene.image.shape == (960, 1280) and len(scene.markers) == 24
+    assert all(2.5 <= m.radius_px <= 5.0 for m in scene.markers)
+    assert np.isfinite(scene.crlb_px).all() and (scene.crlb_px > 0).all()
+    # The same markers family (b) draws from that seed on the renderer's ground ...
+    (b,) = (f for f in accuracy.families() if f.key == "b")
+    assert np.array_equal(scene.centres, b.render(aerial).centres)
+    # ... on the real crop family (a) on real ground draws from that seed: away from
+    # every marker and look-alike, the two frames show the same ground under light,
+    # gamma and noise of their own (the renderer's ground shares next to nothing).
+    ground = accuracy.real_ground_family(SHARED_DATA)
+    assert ground is not None
+    other = ground.render(aerial)
+    away = np.ones(scene.image.shape, bool)
+    points = [(m.x, m.y) for m in (*scene.markers, *other.markers)]
+    points += [(x, y) for _, x, y in (*scene.negatives, *other.negatives)]
+    rows, cols = np.mgrid[: scene.image.shape[0], : scene.image.shape[1]]
+    for x, y in points:
+        away &= np.hypot(cols - x, rows - y) > 80
+    assert away.mean() > 0.2
+    share = np.corrcoef(scene.image[away].astype(float), other.image[away].astype(float))[0, 1]
+    assert share > 0.7
+
+
+@needs_shared_data
+def test_families_ground_b_and_heldout_read_held_out_frames_of_family_b_on_real_ground_alone():
+    options, _ = accuracy.parse_args(["--families", "ground_b,heldout", "--frames", "1"])
+    figures = accuracy.run_heldout(replace(options, data_root=SHARED_DATA), [].append)
+    (tiny,) = figures.values()
+    assert list(figures) == ["rendered (ground_b)"]
+    assert (tiny["frames"], tiny["truth"]) == (1, 24)
 
 
 def test_real_ground_seen_from_half_the_height_spans_twice_the_pixels_with_its_levels():
