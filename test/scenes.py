@@ -24,6 +24,36 @@ SMALL_SCENE = SceneConfig(
 )
 
 
+def jittered_grid(
+    rng: np.random.Generator,
+    count: int,
+    columns: int,
+    pitch_px: float,
+    jitter_px: float,
+    radius_px: tuple[float, float],
+    tilt_deg: tuple[float, float],
+) -> list[MarkerPlacement]:
+    """``count`` quarter-disk markers on a grid of ``columns``, ``pitch_px`` apart.
+
+    Each is moved up to ``jitter_px`` either way, with a radius, rotation, tilt and
+    tilt axis drawn uniformly (from ``radius_px``, [0, pi), ``tilt_deg``, [0, pi)),
+    in that order from ``rng``.
+    """
+    margin = pitch_px / 2
+    return [
+        MarkerPlacement(
+            margin + pitch_px * (i % columns) + rng.uniform(-jitter_px, jitter_px),
+            margin + pitch_px * (i // columns) + rng.uniform(-jitter_px, jitter_px),
+            rng.uniform(*radius_px),
+            rng.uniform(0, np.pi),
+            rng.uniform(*tilt_deg),
+            rng.uniform(0, np.pi),
+            "quarter_disks",
+        )
+        for i in range(count)
+    ]
+
+
 def faint_tilted_markers(seed: int) -> RenderedScene:
     """A frame of 15 faint markers of 7-8.5 px tilted 45-55 degrees on ground texture.
 
@@ -32,18 +62,7 @@ def faint_tilted_markers(seed: int) -> RenderedScene:
     of the range 6-40 px.
     """
     rng = np.random.default_rng(seed)
-    placements = [
-        MarkerPlacement(
-            100 + 200 * (i % 5) + rng.uniform(-20, 20),
-            100 + 200 * (i // 5) + rng.uniform(-20, 20),
-            rng.uniform(7.0, 8.5),
-            rng.uniform(0, np.pi),
-            rng.uniform(45, 55),
-            rng.uniform(0, np.pi),
-            "quarter_disks",
-        )
-        for i in range(15)
-    ]
+    placements = jittered_grid(rng, 15, 5, 200.0, 20.0, (7.0, 8.5), (45.0, 55.0))
     return render_markers(
         (640, 1040),
         placements,

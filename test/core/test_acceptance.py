@@ -2,7 +2,7 @@
 
 import cv2
 import numpy as np
-from scenes import faint_tilted_markers
+from scenes import faint_tilted_markers, jittered_grid
 
 from marker_localizer import Detector
 from marker_localizer.config import DetectorConfig
@@ -431,18 +431,7 @@ def test_the_plates_read_for_the_modulation_gates_rejects_stop_at_their_cap(monk
 def _tiny_markers_on_texture(seed: int):
     """18 markers of 3-4 px, tilted up to 40 degrees, on ground texture, 960 x 480 px."""
     rng = np.random.default_rng(seed)
-    placements = [
-        MarkerPlacement(
-            80 + 160 * (i % 6) + rng.uniform(-15, 15),
-            80 + 160 * (i // 6) + rng.uniform(-15, 15),
-            rng.uniform(3.0, 4.0),
-            rng.uniform(0, np.pi),
-            rng.uniform(0, 40),
-            rng.uniform(0, np.pi),
-            "quarter_disks",
-        )
-        for i in range(18)
-    ]
+    placements = jittered_grid(rng, 18, 6, 160.0, 15.0, (3.0, 4.0), (0.0, 40.0))
     return render_markers(
         (480, 960),
         placements,
