@@ -1367,7 +1367,8 @@ def robust_mean_std(
 
 
 def _weighted_median(values: NDArray[np.float64], weights: NDArray[np.float64]) -> float:
-    order = np.argsort(values)
+    # Stable: tied values' weights summed in one order, so the half falls on one side.
+    order = np.argsort(values, kind="stable")
     cumulative = np.cumsum(weights[order])
     return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
@@ -1796,7 +1797,7 @@ def even_order(
     """(N,) the points in the order :func:`even_cap` keeps them: a cap to K keeps the first K.
 
     Round by round (every cell's strongest, then every cell's second strongest, ...),
-    the strongest first within a round.
+    the strongest first within a round; of equally strong points, the first first.
 
     Args:
         xy: (N, 2) points, px.
@@ -1807,7 +1808,8 @@ def even_order(
         return np.zeros(0, np.intp)
     cell = grid_cells(xy, cell_px)
     per_cell = np.bincount(cell)
-    order = np.argsort(strongest_first_in_cell(cell, strength))
+    # Of equally strong points of a cell the first ranks first, as in cell_cap_mask.
+    order = stable_order(strongest_first_in_cell(cell, strength))
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order)) - (np.cumsum(per_cell) - per_cell)[cell[order]]
     return cast("NDArray[np.intp]", np.lexsort((-strength, rank)))

@@ -1013,19 +1013,22 @@ def _asked_of_the_model(
 
     Those whose levels differ, all; the others (``tested``) where their pairs show a
     cast shadow's edge (:func:`shadow.find_edges` as it asks of a candidate, within
-    ``reach_px``). At most ``max_modelled``, the highest levels' ``statistic`` first;
-    ``uneven_over_cap`` in ``tally`` counts the rest.
+    ``reach_px``). At most ``max_modelled``, the highest levels' ``statistic`` first,
+    then those without one (NaN), each tie in the queue's order; ``uneven_over_cap``
+    in ``tally`` counts the rest.
     """
     asked = ~tested
     if tested.any():
         asked[tested] = shadow.find_edges(
             image, xy[tested], reach_px[tested], line_angles[tested], full_scale
         ).found
-    if asked.sum() > max_modelled:
-        first = np.argsort(-np.where(asked, np.nan_to_num(statistic, nan=-np.inf), -np.inf))
-        over = np.sort(first[max_modelled:], kind="stable")
+    rows = np.flatnonzero(asked)
+    if len(rows) > max_modelled:
+        # Ties in queue order, stably: the X's kept must not hang on the sort's build.
+        first = np.argsort(-np.nan_to_num(statistic[rows], nan=-np.inf), kind="stable")
+        over = rows[first[max_modelled:]]
         if tally is not None:
-            tally["uneven_over_cap"] = tally.get("uneven_over_cap", 0) + int(asked[over].sum())
+            tally["uneven_over_cap"] = tally.get("uneven_over_cap", 0) + len(over)
         asked[over] = False
     return np.flatnonzero(asked)
 

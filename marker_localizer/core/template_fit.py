@@ -542,7 +542,9 @@ def find_shadow_edges(
     start[:, 3] = _SHADOW_START_WIDTH_PX
     for angle in np.arange(_SHADOW_DIRECTIONS) * (2.0 * np.pi / _SHADOW_DIRECTIONS):
         along = np.where(present, d[..., 0] * np.cos(angle) + d[..., 1] * np.sin(angle), np.inf)
-        order = np.argsort(along, axis=1)
+        # Stable: pixels level along the direction (every column of the grid at 0 degrees)
+        # enter the sums in one order, so the split found does not hang on the sort.
+        order = np.argsort(along, axis=1, kind="stable")
         r = np.take_along_axis(ratio, order, axis=1)
         w = np.take_along_axis(present, order, axis=1).astype(np.float64)
         t = np.take_along_axis(along, order, axis=1)

@@ -792,7 +792,8 @@ def _associate(
         return owner
     distance, nearest = cKDTree(points).query(predicted, distance_upper_bound=gate_px)
     taken = np.zeros(len(points), dtype=bool)
-    for index in np.argsort(distance):
+    # Of predictions as near one point, the first listed takes it.
+    for index in np.argsort(distance, kind="stable"):
         if not np.isfinite(distance[index]):
             break  # the rest are farther than the gate too
         if searched[index] and not taken[nearest[index]]:

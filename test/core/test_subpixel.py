@@ -1003,6 +1003,49 @@ def test_the_model_is_fitted_to_at_most_max_modelled_xs_and_the_rest_are_counted
     assert same.sum() == 1
 
 
+def _kept_by_the_model_cap(statistic: np.ndarray, tested: np.ndarray, max_modelled: int):
+    """The queued X's the model's cap keeps, and its tally, on a flat frame.
+
+    A flat frame shows no cast shadow's edge: the X's ``tested`` for one are not asked.
+    """
+    count = len(statistic)
+    tally: dict[str, int] = {}
+    kept = subpixel._asked_of_the_model(
+        np.full((64, 64), 128.0),
+        np.full((count, 2), 32.0),
+        np.tile([0.3, 1.9], (count, 1)),
+        np.full(count, 10.0),
+        statistic,
+        tested,
+        255.0,
+        max_modelled,
+        tally,
+    )
+    return kept, tally
+
+
+def test_the_model_cap_keeps_tied_xs_in_the_order_they_were_queued():
+    # Forty X's in four runs of ten, two runs tied at the lowest statistic: the cap
+    # keeps the highest, and of the tie those queued first, whatever order a sort
+    # would leave equal keys in.
+    statistic = np.repeat([40.0, 20.0, 30.0, 20.0], 10)
+    kept, tally = _kept_by_the_model_cap(statistic, np.zeros(40, dtype=bool), 25)
+    np.testing.assert_array_equal(kept, [*range(15), *range(20, 30)])
+    assert tally["uneven_over_cap"] == 15
+
+
+def test_the_model_cap_fills_with_xs_without_a_statistic_before_it_counts_one_over():
+    # X's 0-9 were tested for a shadow's edge and show none: they are not asked.
+    # Of the thirty asked, ten have a statistic and twenty none (NaN): those ten
+    # come first, then those without one in queue order, up to the cap.
+    statistic = np.concatenate([np.full(20, 50.0), np.full(20, np.nan)])
+    statistic[10:20] = np.arange(10.0)
+    tested = np.arange(40) < 10
+    kept, tally = _kept_by_the_model_cap(statistic, tested, 25)
+    np.testing.assert_array_equal(kept, np.arange(10, 35))
+    assert tally["uneven_over_cap"] == 5
+
+
 def _thresholded_markers(seed: int) -> tuple[np.ndarray, np.ndarray]:
     """A noise-free frame of 15 blurred X's (8-24 px), thresholded at mid-grey; their centres."""
     rng = np.random.default_rng(seed)
