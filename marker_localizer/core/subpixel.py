@@ -1343,8 +1343,7 @@ def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
     # the fit's arrays keep the offsets' memory order, and with it their sums' order).
     offsets = np.repeat(disk[None], len(line_angles), axis=0)
     if len(disk) > _LINE_FIT_MAX_PAIRS:
-        nearest = np.argpartition(distance, _LINE_FIT_MAX_PAIRS - 1, axis=1)
-        nearest = nearest[:, :_LINE_FIT_MAX_PAIRS]
+        nearest = _nearest_in_order(distance, _LINE_FIT_MAX_PAIRS)
         distance, s1, s2 = (np.take_along_axis(a, nearest, axis=1) for a in (distance, s1, s2))
         offsets = disk[nearest]
     present = distance <= _LINE_BAND_REACH
@@ -1355,6 +1354,20 @@ def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
         np.full(len(line_angles), _grid_spacing(radius_px, _LINE_FIT_MAX_SAMPLES)),
         np.stack([s1, s2], axis=-1),
     )
+
+
+def _nearest_in_order(distance: NDArray[np.float64], count: int) -> NDArray[np.intp]:
+    """(N, count) indices of each row's ``count`` smallest ``distance``, ascending.
+
+    Of distances tied at the last place, the first in the row. An argpartition's
+    choice among such ties, and the order it leaves its picks in, which the fit's
+    sums follow, differ between numpy's builds and SIMD targets.
+    """
+    kth = np.partition(distance, count - 1, axis=1)[:, count - 1 : count]
+    chosen = distance < kth
+    tied = distance == kth
+    chosen |= tied & (np.cumsum(tied, axis=1) <= count - chosen.sum(axis=1, keepdims=True))
+    return np.nonzero(chosen)[1].reshape(len(distance), count)
 
 
 def _step_blur(

@@ -1003,6 +1003,25 @@ def test_the_model_is_fitted_to_at_most_max_modelled_xs_and_the_rest_are_counted
     assert same.sum() == 1
 
 
+def test_the_line_band_takes_pairs_tied_at_its_edge_in_the_disk_order():
+    # Lines along the pixel grid: many pairs of the half disk lie as near them as the
+    # last the band has room for. It takes the nearest, of those tied at its edge the
+    # first in the disk's order, and keeps them in that order, which the fit's sums
+    # follow: the same pairs summed alike on every build of numpy.
+    radius = 13.0
+    disk, _ = subpixel.symmetric_offsets(radius, subpixel._LINE_FIT_MAX_SAMPLES)
+    lines = np.array([[0.0, np.pi / 2]])
+    band = subpixel._line_band(radius, lines)
+    s1, s2 = template.line_distances(disk[:, 0], disk[:, 1], lines)
+    distance = np.minimum(np.abs(s1), np.abs(s2))[0]
+    room = len(band.offsets[0])
+    edge = np.sort(distance)[room - 1]
+    nearer, at_edge = np.flatnonzero(distance < edge), np.flatnonzero(distance == edge)
+    assert len(nearer) + len(at_edge) > room  # the tie straddles the band's edge
+    taken = np.sort(np.r_[nearer, at_edge[: room - len(nearer)]])
+    np.testing.assert_array_equal(band.offsets[0], disk[taken])
+
+
 def _kept_by_the_model_cap(statistic: np.ndarray, tested: np.ndarray, max_modelled: int):
     """The queued X's the model's cap keeps, and its tally, on a flat frame.
 
