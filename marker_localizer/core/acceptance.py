@@ -195,6 +195,8 @@ class Match(NamedTuple):
             that rejected it.
         faint: the modulation gate rejected it and the marker's model vouched for it
             (:meth:`MarkerModel.vouches`).
+        stood_out: under the ``lowest`` score of its extent, of texture's size, its
+            saddle stands out of its ground, and the floor stood aside (:func:`stands_out`).
         ncc: the template's NCC; NaN where the paint failed first.
         unread: the modulation gate rejected it, and its plate, which the model
             would have read, was over the pass's :data:`MAX_VOUCH_PLATES`.
@@ -203,6 +205,7 @@ class Match(NamedTuple):
 
     reason: NDArray[np.int8]
     faint: NDArray[np.bool_]
+    stood_out: NDArray[np.bool_]
     ncc: NDArray[np.float64]
     unread: NDArray[np.bool_]
     plates_read: int
@@ -301,8 +304,10 @@ class Judgement(NamedTuple):
             that rejected it.
         vouched: under its score floor, the marker's model vouched for it
             (:meth:`MarkerModel.vouches`).
-        stood_out: under its score floor, of texture's size, its saddle stands out of
-            its ground, and its floors stood aside (:func:`stands_out`).
+        stood_out: its score floor, with the allowance for an X that has clearly
+            ended, would have rejected it (:meth:`ScoreFloors.clears`), and, of
+            texture's size, its saddle stands out of its ground: the floors stood
+            aside (:func:`stands_out`).
         unread: asked for its plate over :data:`MAX_PLATE_ASKED`, and rejected at
             that test (``quartic``) unread.
     """
@@ -432,8 +437,10 @@ class MarkerModel:
             fits = ncc >= gates.min_ncc
         reason[read & ~fits] = _TEMPLATE
         under = np.flatnonzero(fits & (ring_score * ncc < lowest))
-        reason[under[~stands_out(gray, xy[under], radius[under])]] = _MATCHED_SCORE
-        return Match(reason, faint, ncc, unread, vouched.plates_read)
+        stood_out = np.zeros(len(xy), dtype=bool)
+        stood_out[under] = stands_out(gray, xy[under], radius[under])
+        reason[under[~stood_out[under]]] = _MATCHED_SCORE
+        return Match(reason, faint, stood_out, ncc, unread, vouched.plates_read)
 
     def judge(
         self,
@@ -488,6 +495,11 @@ class MarkerModel:
         stood_out = np.zeros(len(xy), dtype=bool)
         stood_out[doubted] = stands_out(self.gray, xy[doubted], radius[doubted])
         floor[stood_out] = lowest[stood_out] = -np.inf
+        # Of those, the ones the floor would have passed as clearly ended did not need it.
+        aside = np.flatnonzero(stood_out)
+        stood_out[aside] = ~floors.clears(
+            self.gray, xy[aside], radius[aside], angles[aside], score[aside], self.max_radius_px
+        )
         weak = score < lowest
         vouched = np.zeros(len(xy), dtype=bool)
         held = np.flatnonzero(weak & ~self.read_as_tiny(radius))

@@ -112,7 +112,12 @@ class DetectionResult:
             ``merged_duplicates``, ``recentred``, ``found_recentred``,
             ``kept_faint`` and ``kept_under_floor`` (X's the modulation gate or
             the fit's score floor rejected that the marker's model vouches for,
-            :meth:`acceptance.MarkerModel.vouches`), ``dull_read`` and ``kept_dull`` (X's
+            :meth:`acceptance.MarkerModel.vouches`), ``kept_standing_out`` (the
+            detections that a score floor, the ring symmetry's, the template's or the
+            fit's, would have rejected and that passed it because their saddle stands
+            out of their ground, :func:`acceptance.stands_out`; once each, at however
+            many floors; the first reading's and a tracked pass's, as the other counts
+            of the checks), ``dull_read`` and ``kept_dull`` (X's
             the ring check rejected that were read again from the light slope's
             centre, and those of them it took, :func:`second_reading.read_dull`;
             ``dull_over_cap`` those over :data:`second_reading.MAX_DULL_READ`),

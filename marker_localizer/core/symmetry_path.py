@@ -246,7 +246,7 @@ class SymmetryPath:
         result = frame.result
         _, centred = self._centring(frame, Candidates.seeded(xy, self._seed_scale_px))
         with frame.timer("verification"):
-            centred, radius, angles, score, tiny = self._verify(frame, centred)
+            centred, radius, angles, score, stood_out, tiny = self._verify(frame, centred)
         with frame.timer("subpixel"):
             result.detections = self.locate(
                 frame,
@@ -256,6 +256,7 @@ class SymmetryPath:
                 score,
                 check_lines=self._lines_after_fit,
                 read_ground=False,
+                stood_out=stood_out,
             )
         self._confirm_plates(frame, tiny)
         result.counts["accepted"] = len(result.detections)
@@ -310,10 +311,16 @@ class SymmetryPath:
         :meth:`_read_plates`.
         """
         with frame.timer("verification"):
-            candidates, radius, angles, score, tiny = self._verify(frame, candidates)
+            candidates, radius, angles, score, stood_out, tiny = self._verify(frame, candidates)
         with frame.timer("subpixel"):
             located = self.locate(
-                frame, candidates.xy, radius, angles, score, check_lines=self._lines_after_fit
+                frame,
+                candidates.xy,
+                radius,
+                angles,
+                score,
+                check_lines=self._lines_after_fit,
+                stood_out=stood_out,
             )
         return located, tiny
 
@@ -504,12 +511,20 @@ class SymmetryPath:
     def _verify(
         self, frame: Frame, candidates: Candidates
     ) -> tuple[
-        Candidates, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], _RingPassed
+        Candidates,
+        NDArray[np.float64],
+        NDArray[np.float64],
+        NDArray[np.float64],
+        NDArray[np.bool_],
+        _RingPassed,
     ]:
         """Section 3.2, geometric checks, and the adaptive-template NCC of section 3.3.1.
 
-        Also returns the X's of texture's size (:data:`verification.X_END_MAX_EXTENT_PX`)
-        that passed the ring check and its floor, for :meth:`_read_plates`.
+        Returns the candidates that passed, their extents, line directions and
+        scores, which of them the ring symmetry's or the template's floor stood
+        aside for (:func:`acceptance.stands_out`), and the X's of texture's size
+        (:data:`verification.X_END_MAX_EXTENT_PX`) that passed the ring check and
+        its floor, for :meth:`_read_plates`.
         """
         cfg = self.config
         gray, result = frame.gray, frame.result
@@ -540,9 +555,11 @@ class SymmetryPath:
         # passes it; the template's floor and the fit's weigh it again where it falls
         # under them (MarkerModel.match, MarkerModel.judge).
         doubted = np.flatnonzero(weak)
-        weak[doubted] = ~acceptance.stands_out(
+        stood_out: NDArray[np.bool_] = np.zeros(len(weak), dtype=bool)
+        stood_out[doubted] = acceptance.stands_out(
             gray, candidates.xy[doubted], symmetry.radius_px[doubted]
         )
+        weak &= ~stood_out
         counts["rejected_score"] = int(weak.sum())
         result.survivors += [
             ("symmetry", candidates.xy[keep]),
@@ -558,28 +575,30 @@ class SymmetryPath:
             symmetry.line_angles[tiny],
             symmetry.score[tiny],
         )
-        chosen, ncc = self._match_templates(
+        chosen, ncc, stood_out_of_template = self._match_templates(
             frame,
             candidates.xy,
             symmetry,
             self._floors.lowest(symmetry.radius_px),
             np.flatnonzero(passed),
         )
-        candidates, radius, angles, score = (
+        candidates, radius, angles, score, stood_out = (
             candidates.take(chosen),
             symmetry.radius_px[chosen],
             symmetry.line_angles[chosen],
             symmetry.score[chosen] * ncc,
+            stood_out[chosen] | stood_out_of_template,
         )
         if not self._lines_after_fit:
             ok, angles = self._double_lines(frame, candidates.xy, radius, angles)
-            candidates, radius, angles, score = (
+            candidates, radius, angles, score, stood_out = (
                 candidates.take(ok),
                 radius[ok],
                 angles[ok],
                 score[ok],
+                stood_out[ok],
             )
-        return candidates, radius, angles, score, ring_passed
+        return candidates, radius, angles, score, stood_out, ring_passed
 
     @property
     def _expects_tiny(self) -> bool:
@@ -776,7 +795,7 @@ class SymmetryPath:
         symmetry: verification.SymmetryCheck,
         lowest: NDArray[np.float64],
         passed: NDArray[np.intp],
-    ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    ) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.bool_]]:
         """The paint's and the template's gates, and the score floor, up to the cap.
 
         The candidates ``passed`` (indices into ``xy``) are matched in the order
@@ -792,7 +811,8 @@ class SymmetryPath:
         reasons.
 
         Returns:
-            The indices (ascending) of the candidates that pass, and their NCC.
+            The indices (ascending) of the candidates that pass, their NCC, and which of
+            them the floor stood aside for (:attr:`acceptance.Match.stood_out`).
         """
         cfg = self.config
         result = frame.result
@@ -802,6 +822,7 @@ class SymmetryPath:
         ]
         matched: list[NDArray[np.intp]] = []
         matched_ncc: list[NDArray[np.float64]] = []
+        matched_stood_out: list[NDArray[np.bool_]] = []
         # Indices passing the modulation gate, and the NCC too, for the survivors.
         modulated: list[NDArray[np.intp]] = []
         correlated_too: list[NDArray[np.intp]] = []
@@ -835,9 +856,11 @@ class SymmetryPath:
             correlated_too.append(batch[match.passed("template")])
             matched.append(batch[accepted])
             matched_ncc.append(match.ncc[accepted])
+            matched_stood_out.append(match.stood_out[accepted])
             found += int(accepted.sum())
         chosen = np.concatenate([np.zeros(0, np.intp), *matched])[:MAX_CONFIRMED]
         ncc = np.concatenate([np.zeros(0), *matched_ncc])[:MAX_CONFIRMED]
+        stood_out = np.concatenate([np.zeros(0, bool), *matched_stood_out])[:MAX_CONFIRMED]
         counts["dropped_over_verification_cap"] = (
             counts.get("dropped_over_verification_cap", 0)
             + len(order)
@@ -853,7 +876,7 @@ class SymmetryPath:
             result.survivors.append((test, xy[np.concatenate([np.zeros(0, np.intp), *kept])]))
         result.survivors.append(("fit_cap", xy[chosen]))
         ascending = np.argsort(chosen)
-        return chosen[ascending], ncc[ascending]
+        return chosen[ascending], ncc[ascending], stood_out[ascending]
 
     def locate(
         self,
@@ -864,6 +887,7 @@ class SymmetryPath:
         score: NDArray[np.float64],
         check_lines: bool = False,
         read_ground: bool = True,
+        stood_out: NDArray[np.bool_] | None = None,
     ) -> list[Detection]:
         """Section 3.3: sub-pixel centres and final gates (:func:`subpixel.locate_markers`).
 
@@ -873,9 +897,14 @@ class SymmetryPath:
         suppression of duplicates, strongest first. Without ``read_ground`` the
         ground around each X, its plate and the lattice test
         (:meth:`_standing_alone`), is not read: markers a pass has judged there.
+        ``stood_out``: (N,) the X's a floor before the fit (the ring symmetry's, the
+        template's) stood aside for (:func:`acceptance.stands_out`); None: none. The
+        detections that one of those floors or the fit's would have rejected but for
+        their standing out are counted once each in ``kept_standing_out``.
         """
         result = frame.result
         counts = result.counts
+        counts.setdefault("kept_standing_out", 0)
         if len(xy) == 0:
             counts["rejected_refinement"] = 0
             counts.setdefault("rejected_score", 0)
@@ -894,6 +923,8 @@ class SymmetryPath:
             read_plates=read_ground,
         )
         counts["kept_under_floor"] = counts.get("kept_under_floor", 0) + int(judged.vouched.sum())
+        aside = np.zeros(len(xy), dtype=bool) if stood_out is None else stood_out.copy()
+        aside[located] |= judged.stood_out
         counts["plate_asked_over_cap"] = counts.get("plate_asked_over_cap", 0) + int(
             judged.unread.sum()
         )
@@ -918,24 +949,23 @@ class SymmetryPath:
         keep = keep[unique]
         result.survivors.append(("merging", fit.xy[keep]))
         keep = strongest_first(keep, fit.score)
-        return self._standing_alone(
+        detections = self._detections(
             frame,
-            self._detections(
-                frame,
-                fit.xy[keep],
-                fit.sigma[keep],
-                fit.score[keep],
-                radius[keep],
-                angles[keep],
-                score[keep],
-            ),
-            read_ground,
+            fit.xy[keep],
+            fit.sigma[keep],
+            fit.score[keep],
+            radius[keep],
+            angles[keep],
+            score[keep],
         )
+        alone = self._standing_alone(frame, detections, read_ground)
+        counts["kept_standing_out"] += int((aside[keep] & alone).sum())
+        return [detection for detection, kept in zip(detections, alone, strict=True) if kept]
 
     def _standing_alone(
         self, frame: Frame, detections: list[Detection], read_ground: bool
-    ) -> list[Detection]:
-        """The detections whose ground does not repeat them, at their final centres and lines.
+    ) -> NDArray[np.bool_]:
+        """(N,) which detections' ground does not repeat them, at their final centres and lines.
 
         :meth:`acceptance.MarkerModel.stands_alone`, where ``lattice_check`` asks for it
         and ``read_ground`` (see :meth:`locate`); counts ``rejected_lattice``. Read
@@ -951,9 +981,8 @@ class SymmetryPath:
             )
         counts = frame.result.counts
         counts["rejected_lattice"] = counts.get("rejected_lattice", 0) + int((~alone).sum())
-        kept = [detection for detection, keep in zip(detections, alone, strict=True) if keep]
-        frame.result.survivors.append(("lattice", positions(kept)))
-        return kept
+        frame.result.survivors.append(("lattice", positions(detections)[alone]))
+        return alone
 
     def _gating_fit(
         self,

@@ -898,6 +898,34 @@ def test_where_no_tiny_marker_is_expected_a_tiny_x_under_its_floor_is_a_tilted_m
     assert len(unvouched) == len(result) - vouched.counts["kept_under_floor"]
 
 
+@pytest.mark.parametrize(
+    ("key", "seed", "standing_out"), [("c", 685, 1), ("d", 109, 1), ("d", 101, 0)]
+)
+def test_the_detections_a_floor_kept_because_their_saddle_stands_out_are_counted(
+    monkeypatch, key: str, seed: int, standing_out: int
+):
+    # Families (c) at 6-40 px and (d) at 4-40 px: markers whose X reads texture's
+    # size score under a floor, and pass it because their saddle stands out of their
+    # ground (c 685, d 109: one each). Held to the floors, and with the marker's model,
+    # which vouches for such X's in their stead, held too, a frame loses exactly the
+    # detections counted as kept for standing out or vouched for, and no other. An X
+    # that the floor's allowance passes as clearly ended needed no standing out and is
+    # not counted (d 101: two such, nothing lost).
+    family = next(f for f in families() if f.key == key and not f.variant)
+    frame = family.render(seed)
+    detector = _family_detector(family)
+
+    result = detector.detect(frame.image)
+    monkeypatch.setattr(acceptance, "MIN_SADDLE_OVER_GROUND", np.inf)
+    monkeypatch.setattr(acceptance, "FAINT_MIN_NCC", 1.1)
+    held = detector.detect(frame.image)
+    counts = result.counts
+    assert held.counts["kept_standing_out"] == held.counts["kept_under_floor"] == 0
+    assert {tuple(p) for p in positions(held)} <= {tuple(p) for p in positions(result)}
+    assert len(held) == len(result) - counts["kept_standing_out"] - counts["kept_under_floor"]
+    assert counts["kept_standing_out"] == standing_out
+
+
 def test_a_marker_whose_rings_stop_a_rung_short_of_its_x_is_not_taken_for_texture():
     # Family (d)'s clutter frames at 4-40 px: markers of 7.1-8.1 px whose rings
     # measure 4 px, texture's size, and whose X goes on beyond that; it ends a ring
