@@ -164,8 +164,11 @@ def peak_offset(
 #: Gain of OpenCV's 5x5 Sobel second-derivative kernels (f_xx, f_yy, f_xy alike):
 #: [1 0 -2 0 1] (4 f'') times the [1 4 6 4 1] smoothing (16).
 _SOBEL5_GAIN = 64.0
-#: The smoothing that turns OpenCV's 3x3 Sobel kernels into its 5x5 ones (per axis).
-_BINOMIAL_3 = np.array([1.0, 2.0, 1.0], np.float32)
+#: OpenCV's 5x5 Sobel kernels along one axis (:func:`cv2.getDerivKernels`): the second
+#: derivative's [1 0 -2 0 1], the smoothing across it [1 4 6 4 1], the first derivative's
+#: [-1 -2 0 2 1].
+_SOBEL5_SECOND, _SOBEL5_SMOOTHING = cv2.getDerivKernels(2, 0, 5, ktype=cv2.CV_32F)
+_SOBEL5_FIRST = cv2.getDerivKernels(1, 0, 5, ktype=cv2.CV_32F)[0]
 #: Saddle strength of a blurred X per unit contrast: f_xy = C / (pi sigma_t^2) at
 #: its centre, sigma_t^2 = 1 px^2 (the 5x5 kernel's smoothing) + sigma_b^2 (the blur).
 _SADDLE_PER_CONTRAST = 1.0 / np.pi
@@ -235,16 +238,17 @@ def saddle_response(image: NDArray[Any]) -> NDArray[np.float32]:
     Returns:
         (H, W) float32 response, positive at saddles (squared grey units).
     """
-    size = 5
     if image.dtype.kind in "ui" and image.dtype.itemsize <= 2:
-        # Each 5x5 kernel is the 3x3 one after a [1 2 1] x [1 2 1] binomial, which the
-        # three then share. Integer images keep every sum an integer below 2^24, exact
-        # in float32, so the derivatives are those of the 5x5 kernels bit for bit.
-        image = cv2.sepFilter2D(image, cv2.CV_32F, _BINOMIAL_3, _BINOMIAL_3)
-        size = 3
-    minus_dxx = cv2.Sobel(image, cv2.CV_32F, 2, 0, ksize=size, scale=-1.0)
-    dyy = cv2.Sobel(image, cv2.CV_32F, 0, 2, ksize=size)
-    dxy = cv2.Sobel(image, cv2.CV_32F, 1, 1, ksize=size)
+        # The kernels' two passes read the integer image itself, which costs half of
+        # Sobel's passes over a float32 copy. Every sum is an integer below 2^24, exact
+        # in float32, so the derivatives are Sobel's bit for bit.
+        minus_dxx = cv2.sepFilter2D(image, cv2.CV_32F, -_SOBEL5_SECOND, _SOBEL5_SMOOTHING)
+        dyy = cv2.sepFilter2D(image, cv2.CV_32F, _SOBEL5_SMOOTHING, _SOBEL5_SECOND)
+        dxy = cv2.sepFilter2D(image, cv2.CV_32F, _SOBEL5_FIRST, _SOBEL5_FIRST)
+    else:
+        minus_dxx = cv2.Sobel(image, cv2.CV_32F, 2, 0, ksize=5, scale=-1.0)
+        dyy = cv2.Sobel(image, cv2.CV_32F, 0, 2, ksize=5)
+        dxy = cv2.Sobel(image, cv2.CV_32F, 1, 1, ksize=5)
     # In place with OpenCV: numpy temporaries would double the passes over 12 MP, and
     # adding the product of -f_xx and f_yy saves the subtraction's pass.
     cv2.multiply(dxy, dxy, dst=dxy)

@@ -83,8 +83,8 @@ def test_a_tilted_marker_whose_saddle_peak_splits_gets_a_candidate_at_its_centre
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 @pytest.mark.parametrize("shape", [(4, 9), (5, 5), (70, 131)])
 def test_integer_images_give_the_response_of_their_float_copy_bit_for_bit(dtype, shape):
-    # The float copy takes the 5x5 Sobel kernels themselves; an integer image their
-    # 3x3 factors after one shared binomial.
+    # The float copy takes cv2.Sobel's 5x5 kernels; an integer image their 1-D passes
+    # on its own levels.
     high = np.iinfo(dtype).max
     image = np.random.default_rng(7).integers(0, high, shape, endpoint=True).astype(dtype)
     image[0, :2] = high  # the extremes, next to corners the borders reflect
