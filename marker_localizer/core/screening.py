@@ -350,8 +350,7 @@ def _local_maxima(
 ) -> tuple[NDArray[np.intp], NDArray[np.floating[Any]]]:
     """Flat indices and values of the 3x3 local maxima above ``threshold``, off the border.
 
-    ``threshold`` is one value, an (H, 1) column of one per row, or (H, S) one per row
-    and span (:func:`_exceeds`).
+    ``threshold`` is one value, an (H, 1) column of one per row, or (H, W) one per pixel.
 
     Ties go to the first pixel in raster order, so a plateau yields one peak. When
     few pixels are above the threshold (a friendly frame) only they are compared
@@ -360,7 +359,7 @@ def _local_maxima(
     before them are looked up. Both give the same peaks.
     """
     width = response.shape[1]
-    above = _exceeds(response, threshold)
+    above = response > threshold
     # Border pixels lack neighbours: none is a peak.
     above[0] = above[-1] = False
     above[:, 0] = above[:, -1] = False
@@ -404,35 +403,15 @@ _STRIP_HALO_ROWS = 3
 _SHADOW_SPAN_PX = 64
 
 
-def _exceeds(
-    response: NDArray[np.floating[Any]], threshold: float | NDArray[np.floating[Any]]
-) -> NDArray[np.bool_]:
-    """(h, W) where ``response`` exceeds ``threshold``.
+def _spread(threshold: float | NDArray[np.float32], width: int) -> float | NDArray[np.float32]:
+    """A threshold as a response ``width`` px wide compares with it.
 
-    ``threshold`` is one value, an (h, 1) column of one per row, or (h, S) one per row
-    and span of :data:`_SHADOW_SPAN_PX` columns, which each span's columns are compared
-    with as a broadcast axis: a threshold repeated out to the response's width would
-    cost a pass of its own over every strip.
+    A scalar or an (h, 1) column as it is; (h, S) spans of :data:`_SHADOW_SPAN_PX`
+    columns as (h, width).
     """
-    if np.ndim(threshold) < 2 or np.shape(threshold)[1] == 1:
-        return response > threshold
-    spans = cast("NDArray[np.floating[Any]]", threshold)
-    height, width = response.shape
-    whole = width // _SHADOW_SPAN_PX
-    above = np.empty((height, -(-width // _SHADOW_SPAN_PX), _SHADOW_SPAN_PX), dtype=bool)
-    np.greater(
-        response[:, : whole * _SHADOW_SPAN_PX].reshape(height, whole, _SHADOW_SPAN_PX),
-        spans[:, :whole, None],
-        out=above[:, :whole],
-    )
-    rest = width - whole * _SHADOW_SPAN_PX
-    if rest:
-        np.greater(
-            response[:, whole * _SHADOW_SPAN_PX :],
-            spans[:, whole, None],
-            out=above[:, whole, :rest],
-        )
-    return above.reshape(height, -1)[:, :width]
+    if np.ndim(threshold) == 2 and np.shape(threshold)[1] > 1:
+        return np.repeat(threshold, _SHADOW_SPAN_PX, axis=1)[:, :width]
+    return threshold
 
 
 def _limit(
@@ -474,9 +453,10 @@ def _unexamined(
     """
     if bound <= 0:
         return 0
+    width = response.shape[1]
     return int(
-        np.count_nonzero(_exceeds(response, threshold))
-        - np.count_nonzero(_exceeds(response, _limit(threshold, bound, lift)))
+        np.count_nonzero(response > _spread(threshold, width))
+        - np.count_nonzero(response > _spread(_limit(threshold, bound, lift), width))
     )
 
 
@@ -563,7 +543,7 @@ def _strip_peaks(
     above, below = max(start - 1, 0), min(stop + 1, height)
     compared = threshold if np.ndim(threshold) == 0 else threshold[above:below]  # type: ignore[index]
     near = None if lift is None else lift[above:below]
-    limit = _limit(compared, bound, near)
+    limit = _spread(_limit(compared, bound, near), width)
     local, value = _local_maxima(strip[above - first : below - first], limit)
     # The neighbours the peaks' sub-pixel refinement reads, while the strip is at hand.
     flat = strip[above - first :].reshape(-1)

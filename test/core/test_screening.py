@@ -336,18 +336,6 @@ def _maxima_by_hand(response, threshold):
     return found
 
 
-@pytest.mark.parametrize("width", [4096, 1632, 63, 130])
-def test_a_threshold_per_span_holds_for_every_column_of_its_span_and_the_last_part_span(width):
-    rng = np.random.default_rng(11)
-    response = rng.normal(size=(5, width)).astype(np.float32)
-    spans = -(-width // screening._SHADOW_SPAN_PX)
-    threshold = rng.normal(size=(5, spans)).astype(np.float32)
-    column = np.arange(width) // screening._SHADOW_SPAN_PX
-    np.testing.assert_array_equal(
-        screening._exceeds(response, threshold), response > threshold[:, column]
-    )
-
-
 @pytest.mark.parametrize("threshold", [0.5, 18.5], ids=["busy", "quiet"])
 def test_local_maxima_are_the_3x3_maxima_with_ties_to_the_first_pixel_on_busy_and_quiet_ground(
     threshold,
