@@ -179,11 +179,8 @@ def simulate(argv: Sequence[str]) -> int:
     args = build_simulate_parser().parse_args(argv)
     config = config_from_args(args)
     simulator = FlightSimulator(config, seed=args.seed)
-    bar = ProgressBar(config.n_frames, "simulate")
-    try:
+    with ProgressBar(config.n_frames, "simulate") as bar:
         summary = record_flight(simulator, args.out, storage=args.storage, progress=bar.update)
-    finally:
-        bar.close()
     sys.stdout.write(
         f"wrote {summary.path} ({args.storage}): {summary.frame_sets} x "
         f"{len(summary.cameras)} cameras at {config.width}x{config.height} px, "
@@ -264,8 +261,7 @@ def replay(argv: Sequence[str]) -> int:
     tracking = tracker_config(args.params_file)
     # With --worker-threads the detector runs in this process (marker_localizer.blas).
     single_thread_blas()
-    bar = ProgressBar(0, "replay")
-    try:
+    with ProgressBar(0, "replay") as bar:
         report = replay_bag(
             args.bag,
             args.out,
@@ -277,8 +273,6 @@ def replay(argv: Sequence[str]) -> int:
             match_distance_px=args.match_distance,
             progress=bar.update,
         )
-    finally:
-        bar.close()
     sys.stdout.write(format_report(report) + "\n")
     return 0 if report.complete else EXIT_INCOMPLETE
 
@@ -359,15 +353,14 @@ def play(argv: Sequence[str]) -> int:
     # shut the context down under the publishers).
     context = Context()
     rclpy.init(args=ros_argv, context=context, signal_handler_options=SignalHandlerOptions.NO)
-    bar = ProgressBar(0, "play")
     try:
-        node = rclpy.create_node(PLAYER_NODE_NAME, context=context)
-        try:
-            report = play_bag(args.bag, node, options, progress=bar.update)
-        finally:
-            node.destroy_node()
+        with ProgressBar(0, "play") as bar:
+            node = rclpy.create_node(PLAYER_NODE_NAME, context=context)
+            try:
+                report = play_bag(args.bag, node, options, progress=bar.update)
+            finally:
+                node.destroy_node()
     finally:
-        bar.close()
         rclpy.try_shutdown(context=context)
     sys.stdout.write(format_play_report(args.bag, report) + "\n")
     return EXIT_INCOMPLETE if report.damage else 0

@@ -5,11 +5,15 @@ from __future__ import annotations
 import math
 import sys
 import time
+from types import TracebackType
 from typing import IO
 
 
 class ProgressBar:
     """A one-line progress bar on a terminal, silent when the stream is not a TTY.
+
+    A context manager: leaving it ends the bar's line, however the work ended, so
+    that an error's message starts a line of its own.
 
     Args:
         total: Number of steps (0: unknown, only the count is shown).
@@ -54,6 +58,17 @@ class ProgressBar:
             text = f"{self.label} {done} {rate:.1f}/s"
         self._stream.write(f"\r{text}\x1b[K")
         self._stream.flush()
+
+    def __enter__(self) -> ProgressBar:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
 
     def close(self) -> None:
         """End the bar's line."""

@@ -29,3 +29,14 @@ def test_a_total_given_with_an_update_replaces_the_unknown_one():
     assert "play 1 " in terminal.getvalue()  # no total yet: the count alone
     bar.update(2, 8)
     assert "2/8" in terminal.getvalue()
+
+
+def test_leaving_the_bar_ends_its_line_even_when_the_work_fails():
+    terminal = Terminal()
+    try:
+        with ProgressBar(3, "replay", stream=terminal, min_interval_s=0.0) as bar:
+            bar.update(1)
+            raise RuntimeError("the bag ended early")
+    except RuntimeError:
+        pass
+    assert terminal.getvalue().endswith("\n")
