@@ -77,13 +77,35 @@ def test_a_demo_replaces_its_own_bags_and_refuses_to_remove_anything_else(tmp_pa
     assert not (mine / "markers").exists()
 
 
-def _without_ros(monkeypatch):
+@pytest.fixture
+def modules():
+    """A monkeypatch for ``sys.modules`` that leaves our packages whole when undone.
+
+    Undoing puts back the modules a test took out, but not their packages' attributes,
+    which the modules imported afresh in the test replaced, nor does it drop the modules
+    first imported in the test. Left so, ``marker_localizer.bag.play`` could sit in
+    ``sys.modules`` while ``marker_localizer.bag`` had no attribute ``play``, and a later
+    test's ``monkeypatch.setattr("marker_localizer.bag.play.BagReader", ...)`` failed.
+    """
+    before = set(sys.modules)
+    with pytest.MonkeyPatch.context() as patch:
+        yield patch
+    ours = [name for name in sys.modules if name.startswith("marker_localizer.")]
+    for name in ours:
+        if name not in before:
+            del sys.modules[name]
+        elif sys.modules[name] is not None:
+            package, _, child = name.rpartition(".")
+            setattr(sys.modules[package], child, sys.modules[name])
+
+
+def _without_ros(modules):
     """This process as a pip venv without ROS: importing rclpy or a message package fails,
     and what imported them is imported afresh."""
     for name in [n for n in sys.modules if re.match(_ROS_MODULE, n)]:
-        monkeypatch.delitem(sys.modules, name)
+        modules.delitem(sys.modules, name)
     for top in ("rclpy", "builtin_interfaces", "std_msgs", "sensor_msgs", "rcl_interfaces"):
-        monkeypatch.setitem(sys.modules, top, None)
+        modules.setitem(sys.modules, top, None)
 
 
 #: Our modules that import a benchmark's or the bag tools' packages.
@@ -107,10 +129,10 @@ _ROS_MODULE = (
     ],
 )
 def test_a_command_that_needs_ros_says_what_to_install_where_it_is_missing(
-    command, label, monkeypatch, capsys
+    command, label, modules, capsys
 ):
     """As after a plain ``pip install .``: one line, naming the command, not a traceback."""
-    _without_ros(monkeypatch)
+    _without_ros(modules)
     assert main([*command.split(), "--help"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1
@@ -126,14 +148,14 @@ def test_a_command_that_needs_ros_says_what_to_install_where_it_is_missing(
     ],
 )
 def test_a_command_missing_another_package_names_that_package_not_ros(
-    command, module, distribution, monkeypatch, capsys
+    command, module, distribution, modules, capsys
 ):
     """As where rosdep could not pip install rosbags: installing ROS would not help."""
     if command == "replay":
         pytest.importorskip("rclpy")  # without it, the first module replay misses is rclpy
     for name in [n for n in sys.modules if re.match(rf"{module}(\.|$)|{_OURS}", n)]:
-        monkeypatch.delitem(sys.modules, name)
-    monkeypatch.setitem(sys.modules, module, None)
+        modules.delitem(sys.modules, name)
+    modules.setitem(sys.modules, module, None)
     assert main([*command.split(), "--help"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1
@@ -153,18 +175,18 @@ def test_a_params_file_without_pyyaml_names_pyyaml(tmp_path, monkeypatch, capsys
     assert err.startswith("marker-localizer: error: needs the Python package PyYAML (")
 
 
-def test_the_node_says_what_to_install_where_ros_is_missing(monkeypatch, capsys):
-    _without_ros(monkeypatch)
+def test_the_node_says_what_to_install_where_ros_is_missing(modules, capsys):
+    _without_ros(modules)
     assert node_main() == 1
     assert capsys.readouterr().err.startswith(
         "marker_localizer_node: error: needs ROS 2 Jazzy's Python packages"
     )
 
 
-def test_python_m_parameters_says_what_to_install_where_ros_is_missing(monkeypatch, capsys):
+def test_python_m_parameters_says_what_to_install_where_ros_is_missing(modules, capsys):
     """``python -m marker_localizer.ros.parameters`` (runpy is what ``-m`` runs) in a venv
     without ROS: one line and status 1, not the traceback of its imports."""
-    _without_ros(monkeypatch)
+    _without_ros(modules)
     with pytest.raises(SystemExit) as exit_info:
         runpy.run_module("marker_localizer.ros.parameters", run_name="__main__")
     assert exit_info.value.code == 1
