@@ -1344,13 +1344,14 @@ def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
     disk, _ = symmetric_offsets(radius_px, _LINE_FIT_MAX_SAMPLES)
     s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], line_angles)
     distance = np.minimum(np.abs(s1), np.abs(s2)) / LINE_BAND_PX
-    # A half disk of no more pairs than that is every point's band as it is (a copy each:
-    # the fit's arrays keep the offsets' memory order, and with it their sums' order).
-    offsets = np.repeat(disk[None], len(line_angles), axis=0)
     if len(disk) > _LINE_FIT_MAX_PAIRS:
         nearest = _nearest_in_order(distance, _LINE_FIT_MAX_PAIRS)
         distance, s1, s2 = (np.take_along_axis(a, nearest, axis=1) for a in (distance, s1, s2))
         offsets = disk[nearest]
+    else:
+        # A half disk of no more pairs is every point's band as it is (a copy each: the
+        # fit's arrays keep the offsets' memory order, and with it their sums' order).
+        offsets = np.repeat(disk[None], len(line_angles), axis=0)
     present = distance <= _LINE_BAND_REACH
     return _LineBand(
         offsets,
