@@ -16,6 +16,7 @@ checks' constants rest on".
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple, cast
@@ -2314,11 +2315,10 @@ def disk_recurrence(
             continue
         ncc, inside = read
         span = ncc.shape[0] // 2
-        rows, columns = _recurrence_offsets(span, extent)
+        rows, columns, here, opposite = _recurrence_offsets(span, extent)
         # A copy's partner may lie a pixel off where it is expected: a lattice is warped.
         # (Where no partner was read the map holds -1, and so does its dilation.)
         partner = cv2.dilate(ncc, _OPPOSITE_SLACK)
-        opposite = (span - rows, span - columns)
         pairs = partner[opposite]
         if cut:
             partner_read = cv2.dilate(inside, _OPPOSITE_SLACK) > 0
@@ -2330,7 +2330,7 @@ def disk_recurrence(
             )
             further = np.where(on_map, partner[twice], -1.0)
             pairs = np.where(partner_read[opposite], pairs, further)
-        copies = np.minimum(ncc[span + rows, span + columns], pairs)
+        copies = np.minimum(ncc[here], pairs)
         recurrence[k] = max(float(copies.max(initial=0.0)), 0.0)
     return recurrence
 
@@ -2345,8 +2345,9 @@ def _recurrence_window(
     pixels.
     """
     column, row = centre
-    end = np.ceil((np.array([column, row]) + reach + 1) / shrink).astype(int)
-    return (column - reach, row - reach), (int(end[0]), int(end[1]))
+    # In Python's floats, a few per X: numpy's calls cost more than the arithmetic.
+    end = (math.ceil((column + reach + 1) / shrink), math.ceil((row + reach + 1) / shrink))
+    return (column - reach, row - reach), end
 
 
 def _recurrence_map(
@@ -2364,7 +2365,7 @@ def _recurrence_map(
     # The neighbourhood area-reduced about the X's centre, as far as the image goes.
     unclipped, end = _recurrence_window(centre, reach, shrink)
     low = (max(0, unclipped[0]), max(0, unclipped[1]))
-    corner = np.floor(np.array(low) / shrink).astype(int)
+    corner = (math.floor(low[0] / shrink), math.floor(low[1] / shrink))
     crop = image[corner[1] : min(end[1], height), corner[0] : min(end[0], width)]
     window: NDArray[Any] = crop.astype(np.float32)
     if shrink < 1.0:
@@ -2376,7 +2377,11 @@ def _recurrence_map(
     ):
         return None
     patch = window[inner[1] - disk : inner[1] + disk + 1, inner[0] - disk : inner[0] + disk + 1]
-    ncc = np.nan_to_num(cv2.matchTemplate(window, patch, cv2.TM_CCOEFF_NORMED), nan=-1.0)
+    ncc = cv2.matchTemplate(window, patch, cv2.TM_CCOEFF_NORMED)
+    # Not finite only where the window is not (the check's one pass costs less than
+    # nan_to_num's three).
+    if not np.isfinite(ncc).all():
+        ncc = np.nan_to_num(ncc, copy=False, nan=-1.0)
     # On a square about the X's own position, so that an offset's opposite is its
     # mirror through the centre.
     span = reach - disk
@@ -2396,16 +2401,32 @@ def _recurrence_map(
 _OPPOSITE_SLACK = np.ones((3, 3), np.uint8)
 
 
+class _RecurrenceOffsets(NamedTuple):
+    """A (2 span + 1)^2 map's offsets :data:`RECURRENCE_REACH` extents out.
+
+    ``rows`` and ``columns`` (M,) from the map's centre; ``here`` and ``opposite`` the
+    map's indices of each offset and of its mirror through the centre.
+    """
+
+    rows: NDArray[np.intp]
+    columns: NDArray[np.intp]
+    here: tuple[NDArray[np.intp], NDArray[np.intp]]
+    opposite: tuple[NDArray[np.intp], NDArray[np.intp]]
+
+
 @functools.lru_cache(maxsize=256)
-def _recurrence_offsets(span: int, extent: float) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """(rows, columns) of a (2 span + 1)^2 map's offsets :data:`RECURRENCE_REACH` extents out."""
+def _recurrence_offsets(span: int, extent: float) -> _RecurrenceOffsets:
+    """:class:`_RecurrenceOffsets` of a map of ``span``, for an X of ``extent``, px."""
     offset = np.hypot(*(np.mgrid[: 2 * span + 1, : 2 * span + 1] - span)) / extent
     near, far = RECURRENCE_REACH
-    rows, columns = np.nonzero((offset >= near) & (offset <= far))
-    rows, columns = rows - span, columns - span
+    ring_rows, ring_columns = np.nonzero((offset >= near) & (offset <= far))
+    here = (ring_rows, ring_columns)
+    rows, columns = ring_rows - span, ring_columns - span
+    offsets = _RecurrenceOffsets(rows, columns, here, (span - rows, span - columns))
     # Shared by every caller through the cache (and every thread): read-only.
-    rows.flags.writeable = columns.flags.writeable = False
-    return rows, columns
+    for index in (rows, columns, *here, *offsets.opposite):
+        index.flags.writeable = False
+    return offsets
 
 
 #: Reach along each of an X's four half-lines, beyond its extent, where
