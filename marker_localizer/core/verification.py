@@ -230,16 +230,24 @@ def ring_symmetry(profiles: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _circular_smooth(profile: NDArray[np.float64]) -> NDArray[np.float64]:
     """Smooth along the angle axis with a [1, 2, 1] / 4 kernel (the paper's DoG pre-filter)."""
-    # Slices of the profile with its two ends wrapped round: views, not gathers.
-    wrapped: NDArray[np.float64] = np.concatenate(
-        [profile[..., -1:], profile, profile[..., :1]], axis=-1
-    )
-    # 0.25 (previous + 2 profile + next), summed in that order in one array.
+    # 0.25 ((2 profile + previous) + next), summed in that order in one array: along
+    # the raveled rings, two additions of one long run each (slices of a ring's 36
+    # samples cost a loop a ring); then each ring's ends, whose neighbours there were
+    # the next ring's and the last one's, summed again with their own.
     smooth = 2.0 * profile
-    smooth += wrapped[..., :-2]
-    smooth += wrapped[..., 2:]
+    flat, samples = smooth.reshape(-1), profile.reshape(-1)
+    flat[1:] += samples[:-1]
+    flat[:-1] += samples[1:]
+    first = 2.0 * profile[..., 0]
+    first += profile[..., -1]
+    first += profile[..., 1]
+    last = 2.0 * profile[..., -1]
+    last += profile[..., -2]
+    last += profile[..., 0]
+    smooth[..., 0] = first
+    smooth[..., -1] = last
     smooth *= 0.25
-    return smooth
+    return cast("NDArray[np.float64]", smooth)
 
 
 class RingAnalysis(NamedTuple):
@@ -376,7 +384,12 @@ def _four_crossings(
         crossings (sector boundaries), radians, the M rings in order.
     """
     above = f > level[..., None]
-    crossing = above != np.roll(above, -1, axis=-1)
+    # Each sample against the next along the raveled rings, then each ring's last
+    # against its first: a compare of one long run in place of np.roll's copies.
+    crossing = np.empty_like(above)
+    flat = above.reshape(-1)
+    np.not_equal(flat[:-1], flat[1:], out=crossing.reshape(-1)[:-1])
+    np.not_equal(above[..., -1], above[..., 0], out=crossing[..., -1])
     four = (crossing.sum(axis=-1) == 4) & (contrast > 0)
     # The crossings lie between samples k and k+1 (linear interpolation).
     crossed = np.flatnonzero(crossing & four[..., None])
@@ -620,7 +633,12 @@ def _count_symmetric_rings(
 
 def _angle_difference(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Absolute difference of line directions modulo pi."""
-    return np.abs(_wrapped(2.0 * (a - b))) / 2.0
+    return _line_difference(a - b)
+
+
+def _line_difference(difference: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:func:`_angle_difference` of line directions ``difference`` apart (radians)."""
+    return np.abs(_wrapped(2.0 * difference)) / 2.0
 
 
 def _pairing_differences(
@@ -630,15 +648,19 @@ def _pairing_differences(
 
     Two measurements of an X may list its lines in either order.
     """
-    same = np.maximum(
-        _angle_difference(angles[..., 0], reference[..., 0]),
-        _angle_difference(angles[..., 1], reference[..., 1]),
+    # The four differences wrapped in one pass over one array, each as
+    # _angle_difference wraps it alone.
+    first, second = angles[..., 0], angles[..., 1]
+    differences = np.stack(
+        np.broadcast_arrays(
+            first - reference[..., 0],
+            second - reference[..., 1],
+            first - reference[..., 1],
+            second - reference[..., 0],
+        )
     )
-    swap = np.maximum(
-        _angle_difference(angles[..., 0], reference[..., 1]),
-        _angle_difference(angles[..., 1], reference[..., 0]),
-    )
-    return same, swap
+    same_0, same_1, swap_0, swap_1 = _line_difference(differences)
+    return np.maximum(same_0, same_1), np.maximum(swap_0, swap_1)
 
 
 def line_pair_difference(
