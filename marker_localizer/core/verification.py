@@ -247,7 +247,7 @@ def _circular_smooth(profile: NDArray[np.float64]) -> NDArray[np.float64]:
     smooth[..., 0] = first
     smooth[..., -1] = last
     smooth *= 0.25
-    return cast("NDArray[np.float64]", smooth)
+    return smooth
 
 
 class RingAnalysis(NamedTuple):
