@@ -149,7 +149,9 @@ def apply_gamma(
     ``out``: where to write the result (``luminance`` itself may be given).
     """
     floored = np.maximum(luminance, 1e-6, out=out)
-    return cast(NDArray[_Float], np.power(floored, np.clip(alpha * mean, *gamma_limits), out=out))
+    # Clipped by the method: np.clip's wrapper costs microseconds a call, and the rings
+    # and disks of a few points are normalised call by call.
+    return cast(NDArray[_Float], np.power(floored, (alpha * mean).clip(*gamma_limits), out=out))
 
 
 def structure_map(
@@ -386,6 +388,9 @@ class LocalGamma:
         # The maps raveled one after the other (no padding: a wide band and a tall one
         # would each be padded to both sizes), so a lookup is one gather for all points.
         self._map_shapes = np.array([m.shape for m in maps], dtype=np.int64)
+        # The first region and its map's shape as Python numbers, for one map's lookups.
+        self._box = tuple(int(v) for v in boxes[0])
+        self._map_shape = tuple(int(v) for v in self._map_shapes[0])
         sizes = self._map_shapes.prod(axis=1)
         self._map_starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
         # float64, which the interpolation takes: its gathers then need no conversion.
@@ -459,39 +464,61 @@ class LocalGamma:
 
     def mean_at(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """Local mean luminance mu(k) in [0, 1] at (N, 2) points (0.5 outside every region)."""
-        owner, x, y, inside = self._map_position(xy)
-        cols = self._map_shapes[owner, 1]
+        start, cols, x, y, inside = self._map_position(xy)
         x0, y0 = np.floor(x), np.floor(y)
-        base = self._map_starts[owner] + y0.astype(np.int64) * cols + x0.astype(np.int64)
+        base = start + y0.astype(np.int64) * cols + x0.astype(np.int64)
         mean = interpolate(*corners(self._maps, base, cols), x - x0, y - y0)
         return np.where(inside, mean, 0.5)
 
     def _map_position(
         self, xy: NDArray[np.float64]
     ) -> tuple[
-        NDArray[np.intp] | slice, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]
+        NDArray[np.int64] | int,
+        NDArray[np.int64] | int,
+        NDArray[np.float64],
+        NDArray[np.float64],
+        NDArray[np.bool_],
     ]:
-        """The map of each of (N, 2) points, (N,) x and y on it, and (N,) whether in a region.
+        """Where each of (N, 2) points is looked up, on the map of the region it lies in.
 
-        Outside every region the point is given the first map.
+        Returns:
+            The start of the point's map in the raveled maps, the map's row length,
+            (N,) x and y on it, and (N,) whether the point lies in a region. Outside
+            every region the point is given the first map.
         """
         boxes = self._boxes
-        inside = (
-            (xy[:, None, 0] >= boxes[:, 0])
-            & (xy[:, None, 0] < boxes[:, 2])
-            & (xy[:, None, 1] >= boxes[:, 1])
-            & (xy[:, None, 1] < boxes[:, 3])
-        )
-        # With one map (the whole frame) its origin and shape broadcast over the points,
-        # where gathering them for each point took a third of the lookup.
-        owner = np.argmax(inside, axis=1) if len(boxes) > 1 else slice(None)
+        if len(boxes) == 1:
+            # One map (the whole frame): its origin and shape are Python numbers for
+            # every point, where the points' (N, 1) tests and gathers of them took half
+            # of a lookup of a few points, and the whole row length reads the corners
+            # as views (sampling.corners).
+            (x_start, y_start, x_end, y_end), (rows, cols) = self._box, self._map_shape
+            inside = (
+                (xy[:, 0] >= x_start)
+                & (xy[:, 0] < x_end)
+                & (xy[:, 1] >= y_start)
+                & (xy[:, 1] < y_end)
+            )
+            start: NDArray[np.int64] | int = 0
+            origin = boxes[0, :2]
+        else:
+            in_box = (
+                (xy[:, None, 0] >= boxes[:, 0])
+                & (xy[:, None, 0] < boxes[:, 2])
+                & (xy[:, None, 1] >= boxes[:, 1])
+                & (xy[:, None, 1] < boxes[:, 3])
+            )
+            inside = cast("NDArray[np.bool_]", in_box.any(axis=1))
+            owner = np.argmax(in_box, axis=1)
+            origin = boxes[owner, :2]
+            rows, cols = self._map_shapes[owner].T
+            start = self._map_starts[owner]
         # INTER_AREA maps x to (x + 0.5) / f - 0.5 on the reduced grid.
-        local = (xy - boxes[owner, :2] + 0.5) / self._reduction - 0.5
-        rows, cols = self._map_shapes[owner].T
+        local = (xy - origin + 0.5) / self._reduction - 0.5
         # Maps are at least 2 x 2, so the four corners stay inside the point's own map.
-        x = np.clip(local[:, 0], 0.0, cols - 1.001)
-        y = np.clip(local[:, 1], 0.0, rows - 1.001)
-        return owner, x, y, cast("NDArray[np.bool_]", inside.any(axis=1))
+        x = local[:, 0].clip(0.0, cols - 1.001)
+        y = local[:, 1].clip(0.0, rows - 1.001)
+        return start, cols, x, y, inside
 
     def __call__(self, values: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """Apply Eq. (2) to raw samples ``values`` (N, ...) taken around the points ``xy``."""
