@@ -230,11 +230,11 @@ def ring_symmetry(profiles: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _circular_smooth(profile: NDArray[np.float64]) -> NDArray[np.float64]:
     """Smooth along the angle axis with a [1, 2, 1] / 4 kernel (the paper's DoG pre-filter)."""
-    # 0.25 ((2 profile + previous) + next), summed in that order in one array: along
-    # the raveled rings, two additions of one long run each (slices of a ring's 36
-    # samples cost a loop a ring); then each ring's ends, whose neighbours there were
-    # the next ring's and the last one's, summed again with their own.
-    smooth = 2.0 * profile
+    # 0.25 ((2 profile + previous) + next), summed in that order in one array (C-ordered,
+    # its raveling a view): along the raveled rings, two additions of one long run each
+    # (slices of a ring's 36 samples cost a loop a ring); then each ring's ends, whose
+    # neighbours there were the next ring's and the last one's, summed again with their own.
+    smooth = np.multiply(2.0, profile, order="C")
     flat, samples = smooth.reshape(-1), profile.reshape(-1)
     flat[1:] += samples[:-1]
     flat[:-1] += samples[1:]
@@ -386,7 +386,7 @@ def _four_crossings(
     above = f > level[..., None]
     # Each sample against the next along the raveled rings, then each ring's last
     # against its first: a compare of one long run in place of np.roll's copies.
-    crossing = np.empty_like(above)
+    crossing = np.empty(above.shape, dtype=bool)
     flat = above.reshape(-1)
     np.not_equal(flat[:-1], flat[1:], out=crossing.reshape(-1)[:-1])
     np.not_equal(above[..., -1], above[..., 0], out=crossing[..., -1])
@@ -633,12 +633,7 @@ def _count_symmetric_rings(
 
 def _angle_difference(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Absolute difference of line directions modulo pi."""
-    return _line_difference(a - b)
-
-
-def _line_difference(difference: NDArray[np.float64]) -> NDArray[np.float64]:
-    """:func:`_angle_difference` of line directions ``difference`` apart (radians)."""
-    return np.abs(_wrapped(2.0 * difference)) / 2.0
+    return np.abs(_wrapped(2.0 * (a - b))) / 2.0
 
 
 def _pairing_differences(
@@ -648,19 +643,15 @@ def _pairing_differences(
 
     Two measurements of an X may list its lines in either order.
     """
-    # The four differences wrapped in one pass over one array, each as
-    # _angle_difference wraps it alone.
-    first, second = angles[..., 0], angles[..., 1]
-    differences = np.stack(
-        np.broadcast_arrays(
-            first - reference[..., 0],
-            second - reference[..., 1],
-            first - reference[..., 1],
-            second - reference[..., 0],
-        )
+    same = np.maximum(
+        _angle_difference(angles[..., 0], reference[..., 0]),
+        _angle_difference(angles[..., 1], reference[..., 1]),
     )
-    same_0, same_1, swap_0, swap_1 = _line_difference(differences)
-    return np.maximum(same_0, same_1), np.maximum(swap_0, swap_1)
+    swap = np.maximum(
+        _angle_difference(angles[..., 0], reference[..., 1]),
+        _angle_difference(angles[..., 1], reference[..., 0]),
+    )
+    return same, swap
 
 
 def line_pair_difference(
