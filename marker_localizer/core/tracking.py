@@ -458,8 +458,8 @@ class MarkerTracker:
             & (corrected[:, 1] <= height - 1)
         )
         bands, interior = self._border_bands(shape, motion)
-        # First each marker read again from where the motion puts it: about a
-        # millisecond per marker, the same centre as a full pass.
+        # First each marker read again from where the motion puts it, to the same centre
+        # as a full pass (its cost a marker: the README's speed table).
         leaving = self._leaving(corrected, shape)
         fitted = self._fitted(leaving)
         if located is None:
