@@ -459,18 +459,19 @@ def _unexamined(
     threshold: float | NDArray[np.float32],
     bound: float,
     lift: NDArray[np.float32] | None = None,
+    examined: int | None = None,
 ) -> int:
     """Pixels of ``response`` above ``threshold`` (per row, or row and span) but below ``bound``.
 
-    ``lift`` as for :func:`_limit`.
+    ``lift`` as for :func:`_limit`; ``examined``, the pixels over the bound where the
+    caller has counted them already.
     """
     if bound <= 0:
         return 0
     width = response.shape[1]
-    return int(
-        np.count_nonzero(response > _spread(threshold, width))
-        - np.count_nonzero(response > _spread(_limit(threshold, bound, lift), width))
-    )
+    if examined is None:
+        examined = np.count_nonzero(response > _spread(_limit(threshold, bound, lift), width))
+    return int(np.count_nonzero(response > _spread(threshold, width)) - examined)
 
 
 class _Strip(NamedTuple):
@@ -559,8 +560,8 @@ def _strip_peaks(
     limit = _spread(_limit(compared, bound, near), width)
     searched = strip[above - first : below - first]
     over_limit = searched > limit
-    # The strip's own rows' pixels over the limit, counted before the border is cleared:
-    # what _unexamined would compare them with again.
+    # The strip's own rows' pixels over the limit, counted before the border is cleared,
+    # so that _unexamined need not compare them with it again.
     examined = np.count_nonzero(over_limit[start - above : stop - above]) if bound > 0 else 0
     local, value = _maxima_among(searched, over_limit)
     # The neighbours the peaks' sub-pixel refinement reads, while the strip is at hand.
@@ -576,7 +577,7 @@ def _strip_peaks(
         local + above * width,
         value,
         neighbours,
-        int(np.count_nonzero(response > _spread(own, width))) - examined if bound > 0 else 0,
+        _unexamined(response, own, bound, examined=examined),
         response.copy() if keep_response else None,
         peak_lift,
     )
