@@ -50,20 +50,31 @@ QUICK_RADII_PX = (8.0,)
 QUICK_DULL_FACTORS = (1.0, 0.7)
 #: Neighbouring markers' centres lie four radii and this much apart, px: each stands alone.
 _GAP_PX = 20.0
+#: Markers' centres lie this far inside the frame, px: the ground the checks read about an
+#: X (out to :data:`~marker_localizer.core.screening.GROUND_RING_HALF_SIDES_PX`'s 32 px and
+#: the kernels' reach) lies in the frame, as it does about nearly every marker of a
+#: 12 MP frame. Lined up along the frame's edge, 6-10 px markers read otherwise.
+_BORDER_PX = 48.0
 
 
 def dull_frame(radius_px: float, dull_factor: float, seed: int) -> RenderedScene:
     """:data:`MARKERS_PER_FRAME` markers of ``radius_px``, each with a dull quadrant.
 
-    On a grid (:data:`_GAP_PX`), each turned and tilted its own way and a fraction
-    of a pixel off the grid, on the ground photographs.
+    On sites of a grid (:data:`_GAP_PX`) spread over the frame inside its border
+    (:data:`_BORDER_PX`), each turned and tilted its own way and a fraction of a pixel
+    off its site, on the ground photographs.
     """
     rng = np.random.default_rng(seed)
     height, width = FRAME_SHAPE
     step = 4.0 * radius_px + _GAP_PX
-    columns = np.arange(step / 2, width - step / 2, step)
-    rows = np.arange(step / 2, height - step / 2, step)
-    sites = list(itertools.product(columns, rows))[:MARKERS_PER_FRAME]
+    grid = list(
+        itertools.product(
+            np.arange(_BORDER_PX, width - _BORDER_PX, step),
+            np.arange(_BORDER_PX, height - _BORDER_PX, step),
+        )
+    )
+    spread = np.linspace(0, len(grid) - 1, MARKERS_PER_FRAME).round().astype(int)
+    sites = [grid[k] for k in spread]
     placements = [
         MarkerPlacement(
             float(x) + rng.uniform(-0.5, 0.5),
