@@ -51,9 +51,9 @@ QUICK_DULL_FACTORS = (1.0, 0.7)
 #: Neighbouring markers' centres lie four radii and this much apart, px: each stands alone.
 _GAP_PX = 20.0
 #: Markers' centres lie this far inside the frame, px: the ground the checks read about an
-#: X (out to :data:`~marker_localizer.core.screening.GROUND_RING_HALF_SIDES_PX`'s 32 px and
-#: the kernels' reach) lies in the frame, as it does about nearly every marker of a
-#: 12 MP frame. Lined up along the frame's edge, 6-10 px markers read otherwise.
+#: X (out to :data:`~marker_localizer.core.screening.GROUND_RING_HALF_SIDES_PX`'s outer
+#: half-side and the kernels' reach beyond it) lies in the frame, as it does about nearly
+#: every marker of a 12 MP frame; along the frame's edge small markers read otherwise.
 _BORDER_PX = 48.0
 
 
