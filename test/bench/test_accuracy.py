@@ -18,7 +18,7 @@ from shared_data import SHARED_DATA, needs_shared_data
 
 from marker_localizer import Detector, DetectorConfig, evaluation
 from marker_localizer.bench import accuracy, dull, peers, real_data
-from marker_localizer.core import symmetry_path
+from marker_localizer.core import screening, symmetry_path
 from marker_localizer.core.result import positions
 from marker_localizer.errors import ConfigError
 from marker_localizer.synthetic import SceneConfig, render_checkerboard, render_scene
@@ -527,6 +527,18 @@ def test_main_runs_one_family_and_saves_json(tmp_path, capsys):
     saved = json.loads(out.read_text())
     (table,) = saved["synthetic"].values()
     assert table[accuracy.REFERENCE_ROW]["recall"] == 1.0
+
+
+def test_the_dull_grid_spreads_its_markers_over_the_frame_with_their_ground_inside_it():
+    # Lined up along the frame's edge, a small X's ground leaves the frame and the
+    # checks read it otherwise than about nearly every marker of a real frame.
+    height, width = dull.FRAME_SHAPE
+    for radius in dull.RADII_PX:
+        scene = dull.dull_frame(radius, 0.7, seed=3)
+        centres = scene.centres
+        assert len(centres) == dull.MARKERS_PER_FRAME
+        assert np.isfinite(screening.saddle_over_ground(scene.image, centres)).all()
+        assert np.ptp(centres[:, 0]) > width / 2 and np.ptp(centres[:, 1]) > height / 2
 
 
 def test_markers_with_a_dull_quadrant_are_read_at_each_range_with_even_paint_as_control():
