@@ -93,8 +93,9 @@ COARSE_SHIFT_PX = 1.0
 _FINAL_RADIUS_FRACTION = 0.9
 _FINAL_MIN_RADIUS_PX = 2.0
 #: The line fit reads an X as far as it reaches all round (:func:`template.line_reaches`),
-#: at most this many times the extent its rings found: one rung of the ring ladder,
-#: whose rungs sit at or under the X's radius ...
+#: and along each line as far as that line reaches, each at most this many times the
+#: extent its rings found: one rung of the ring ladder, whose rungs sit at or under the
+#: X's radius ...
 REACH_MAX_GAIN = float(np.sqrt(2.0))
 #: ... in steps of this share of an octave (rounded down), so that X's of one step
 #: share a call: reading to each X's own reach gains no more on the development seeds.
@@ -132,6 +133,9 @@ _LINE_BAND_REACH = 2.5
 #: half a pixel: enough for a half disk of 40 px (pi 40^2 / 2 / 0.5^2 = 10 053). A
 #: coarser grid loses a third of the precision.
 _LINE_FIT_MAX_SAMPLES = 10_100
+#: ... so the pairs read out to an X's ellipse stay within this radius, px: the largest
+#: half disk whose half-pixel grid holds no more samples.
+_HALF_PIXEL_MAX_RADIUS_PX = float(np.sqrt(_LINE_FIT_MAX_SAMPLES * 0.5**2 * 2.0 / np.pi))
 #: Pairs per point :func:`refine_along_lines` fits at most: those nearest the lines.
 #: The time is the pairs' (about 0.5 us per pair and iteration): every pair of the
 #: band costs frames of many large corners a lot, and fewer pairs cost precision.
@@ -774,9 +778,10 @@ def refine_along_lines(
 
     The gating fit of :func:`locate_markers` tapers its disk and, on large markers,
     reads a coarser grid than half a pixel; both are right for judging a candidate
-    and cost precision on a marker. This fit reads the half-pixel pairs within
-    the same share of the extent nearest the lines (at most
-    :data:`_LINE_FIT_MAX_PAIRS`) and weighs each by its distance from the nearer
+    and cost precision on a marker. This fit reads the half-pixel pairs nearest
+    the lines (at most :data:`_LINE_FIT_MAX_PAIRS`) within the same share of the
+    X's reach all round, and of the ellipse its ends lie on, each line as far as it
+    reaches (:func:`_line_band`), and weighs each by its distance from the nearer
     line (:data:`LINE_BAND_PX`): the edges carry the centre, the quadrants' insides
     only noise. The light's slope is fitted only on disks of
     :data:`GAIN_MIN_RADIUS_PX` and more (measured: docs/method.md,
@@ -848,7 +853,7 @@ def refine_along_lines(
     if len(xy) == 0:
         return xy, sigma, line_angles
     line_angles = _measured_directions(image, xy, radius_px, line_angles, max_radius_px, full_scale)
-    radius_px = _reach_all_round(image, xy, line_angles, radius_px, max_radius_px)
+    radius_px, along = _reach_all_round(image, xy, line_angles, radius_px, max_radius_px)
     radius = np.clip(_FINAL_RADIUS_FRACTION * radius_px, _FINAL_MIN_RADIUS_PX, max_radius_px)
     # Points sharing a radius (the ring ladder's rungs) share a half-disk; each keeps
     # its own pairs nearest its lines.
@@ -870,8 +875,11 @@ def refine_along_lines(
     # centre it starts from (where the statistic does not say the levels differ).
     queued: list[tuple[NDArray[Any], ...]] = []
     rungs = [
-        _line_rung(image, centre, float(key), np.flatnonzero(radius == key), line_angles)
+        _line_rung(
+            image, centre, float(key), rows, line_angles, _FINAL_RADIUS_FRACTION * along[rows]
+        )
         for key in np.unique(radius)
+        for rows in (np.flatnonzero(radius == key),)
     ]
     for (key, rows, band, sloped, prior, level_differ), symmetric in zip(
         rungs, _fit_rungs(fit, centre, rungs), strict=True
@@ -1039,20 +1047,29 @@ def _reach_all_round(
     line_angles: NDArray[np.float64],
     extent_px: NDArray[np.float64],
     max_radius_px: float,
-) -> NDArray[np.float64]:
-    """(N,) how far the line fit reads each X: its rings' extent, or its reach where farther.
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """How far the line fit reads each X: all round (N,), and along each of its lines (N, 2).
 
-    The reach (:func:`template.line_reaches`) is taken up to :data:`REACH_MAX_GAIN`
-    times the extent, on a ladder of :data:`_REACH_STEPS_PER_OCTAVE` steps an octave
-    above it, and never past ``max_radius_px``.
+    All round, its rings' extent, or its reach (:func:`template.line_reaches`) where
+    farther: taken up to :data:`REACH_MAX_GAIN` times the extent, on a ladder of
+    :data:`_REACH_STEPS_PER_OCTAVE` steps an octave above it. Along the lines, each
+    line's own reach (:func:`template.reaches_along_lines`, 0 where none was read).
+    Neither past ``max_radius_px``.
     """
-    reach = template.line_reaches(
+    along = template.reaches_along_lines(
         image, xy, line_angles, extent_px, REACH_MAX_GAIN * float(extent_px.max()) + 1.0
     )
+    reach = template.smaller_semi_axis(along, line_angles)
     gain = np.clip(np.nan_to_num(reach / extent_px, nan=1.0), 1.0, REACH_MAX_GAIN)
     # The small epsilon keeps a full rung (sqrt 2) from rounding down a step.
     steps = np.floor(_REACH_STEPS_PER_OCTAVE * np.log2(gain) + 1e-9) / _REACH_STEPS_PER_OCTAVE
-    return cast("NDArray[np.float64]", np.minimum(extent_px * 2.0**steps, max_radius_px))
+    # Each line no farther than the reach is read for every X of the call: the same
+    # however the X's are batched.
+    bound = np.minimum(REACH_MAX_GAIN * extent_px, max_radius_px)[:, None]
+    return (
+        np.minimum(extent_px * 2.0**steps, max_radius_px),
+        np.minimum(np.nan_to_num(along, nan=0.0), bound),
+    )
 
 
 def _measured_directions(
@@ -1182,9 +1199,14 @@ def _line_rung(
     key: float,
     rows: NDArray[np.intp],
     line_angles: NDArray[np.float64],
+    semi_diameters: NDArray[np.float64],
 ) -> _Rung:
-    """:class:`_Rung` of the points ``rows`` fitted over a disk of radius ``key``, px."""
-    band = _line_band(key, line_angles[rows])
+    """:class:`_Rung` of the points ``rows`` fitted over a disk of radius ``key``, px.
+
+    Their pairs reach out to their ellipses too (``semi_diameters`` (M, 2) along their
+    lines, px: :func:`_line_band`).
+    """
+    band = _line_band(key, line_angles[rows], semi_diameters)
     sloped = bool(key >= GAIN_MIN_RADIUS_PX)
     if not sloped:
         return _Rung(key, rows, band, sloped, None, np.zeros(len(rows), bool))
@@ -1335,17 +1357,38 @@ class _LineBand(NamedTuple):
         return template.edge_step(self.across, blur)
 
 
-def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
+def _line_band(
+    radius_px: float,
+    line_angles: NDArray[np.float64],
+    semi_diameters: NDArray[np.float64] | None = None,
+) -> _LineBand:
     """Each point's pairs of the half disk of ``radius_px`` nearest its lines (N, 2).
+
+    With ``semi_diameters`` (N, 2), px, also those of the ellipse whose conjugate
+    semi-diameters run that far along the lines (:func:`template.within_ellipse`),
+    within the half-pixel grid's largest disk (:data:`_HALF_PIXEL_MAX_RADIUS_PX`).
+    A tilted X's ends lie on an ellipse whose smaller semi-axis is the disk's
+    radius: the pairs out along its lines, past the disk, are the X's edges too
+    (measured: docs/accuracy-journal.md, "The line fit read out to the X's ellipse").
 
     At most :data:`_LINE_FIT_MAX_PAIRS`, each weighed exp(-s^2 / 2) by its distance s
     from the nearer line in :data:`LINE_BAND_PX`, none beyond :data:`_LINE_BAND_REACH`.
     """
-    disk, _ = symmetric_offsets(radius_px, _LINE_FIT_MAX_SAMPLES)
+    # The grid and its pairs' count follow from the radius alone: each point's pairs,
+    # and the order its sums take them in, are the same however the points are batched.
+    outer = radius_px
+    if semi_diameters is not None:
+        outer = max(radius_px, min(REACH_MAX_GAIN * radius_px, _HALF_PIXEL_MAX_RADIUS_PX))
+    disk, _ = symmetric_offsets(outer, _LINE_FIT_MAX_SAMPLES)
     s1, s2 = template.line_distances(disk[None, :, 0], disk[None, :, 1], line_angles)
     distance = np.minimum(np.abs(s1), np.abs(s2)) / LINE_BAND_PX
-    if len(disk) > _LINE_FIT_MAX_PAIRS:
-        nearest = _nearest_in_order(distance, _LINE_FIT_MAX_PAIRS)
+    if semi_diameters is not None and outer > radius_px:
+        inside = ((disk**2).sum(axis=1) <= radius_px**2) | template.within_ellipse(
+            s1, s2, semi_diameters, line_angles
+        )
+        distance = np.where(inside, distance, np.inf)
+    if len(disk) > _LINE_FIT_MAX_PAIRS or outer > radius_px:
+        nearest = _nearest_in_order(distance, min(_LINE_FIT_MAX_PAIRS, len(disk)))
         distance, s1, s2 = (np.take_along_axis(a, nearest, axis=1) for a in (distance, s1, s2))
         offsets = disk[nearest]
     else:
@@ -1357,7 +1400,7 @@ def _line_band(radius_px: float, line_angles: NDArray[np.float64]) -> _LineBand:
         offsets,
         np.where(present, np.exp(-0.5 * distance**2), 0.0),
         present,
-        np.full(len(line_angles), _grid_spacing(radius_px, _LINE_FIT_MAX_SAMPLES)),
+        np.full(len(line_angles), _grid_spacing(outer, _LINE_FIT_MAX_SAMPLES)),
         np.stack([s1, s2], axis=-1),
     )
 

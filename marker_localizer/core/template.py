@@ -1019,6 +1019,24 @@ def line_reaches(
 ) -> NDArray[np.float64]:
     """(N,) how far an X reaches all round: the smaller semi-axis of the ellipse of its ends.
 
+    :func:`smaller_semi_axis` of :func:`reaches_along_lines`: the radius of the
+    largest disk about the centre inside the X. Arguments as for
+    :func:`reaches_along_lines`.
+    """
+    return smaller_semi_axis(
+        reaches_along_lines(image, xy, line_angles, extent_px, max_distance_px), line_angles
+    )
+
+
+def reaches_along_lines(
+    image: NDArray[Any],
+    xy: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+    extent_px: NDArray[np.float64],
+    max_distance_px: float,
+) -> NDArray[np.float64]:
+    """(N, 2) how far an X reaches along each of its lines: the shorter of the line's halves.
+
     :func:`line_extents` without a fit: each half-line's step across it, the
     modulation (a - b) / (a + b) of its two sides, is compared with the step it
     makes inside the X, its median between :data:`_REACH_REFERENCE` of the
@@ -1027,10 +1045,8 @@ def line_reaches(
     dull quadrant (its own step is the reference) nor a light's slope or a shadow
     across the line shortens the reach, where either breaks the rings' grey-level
     symmetry short of the X's end. Under an affine view the X's ends lie on an
-    ellipse whose conjugate semi-diameters run along the two lines (each line's
-    reach the shorter of its halves); its smaller semi-axis B follows from
-    A^2 + B^2 = p^2 + q^2 and A B = p q sin(angle between the lines): the radius of
-    the largest disk about the centre inside the X.
+    ellipse whose conjugate semi-diameters run along the two lines, these reaches
+    long (:func:`smaller_semi_axis`, :func:`within_ellipse`).
 
     Args:
         image: (H, W) grey image, raw levels.
@@ -1058,13 +1074,48 @@ def line_reaches(
         # No step inside (both sides clipped at white, say): nothing to compare with.
         ratio = np.where(valid, modulation / np.where(step != 0.0, step, np.nan)[:, None], 0.0)
         reach[:, k] = _faded_end(ratio, distance, inner)
-    lines = np.minimum(reach[:, :2], reach[:, 2:])
-    squares = (lines**2).sum(axis=1)
-    area = lines.prod(axis=1) * np.abs(np.sin(line_angles[:, 0] - line_angles[:, 1]))
+    lines: NDArray[np.float64] = np.minimum(reach[:, :2], reach[:, 2:])
+    return lines
+
+
+def smaller_semi_axis(
+    semi_diameters: NDArray[np.float64], line_angles: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """(N,) the smaller semi-axis B of ellipses given by conjugate semi-diameters along two lines.
+
+    With p and q the semi-diameters' lengths (N, 2) and the lines' directions (N, 2),
+    radians: A^2 + B^2 = p^2 + q^2 and A B = p q sin(angle between the lines).
+    """
+    squares = (semi_diameters**2).sum(axis=1)
+    area = semi_diameters.prod(axis=1) * np.abs(np.sin(line_angles[:, 0] - line_angles[:, 1]))
     semi_axis: NDArray[np.float64] = np.sqrt(
         np.maximum(squares - np.sqrt(np.maximum(squares**2 - 4.0 * area**2, 0.0)), 0.0) / 2.0
     )
     return semi_axis
+
+
+def within_ellipse(
+    s1: NDArray[np.float64],
+    s2: NDArray[np.float64],
+    semi_diameters: NDArray[np.float64],
+    line_angles: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """(N, K) which offsets lie in the ellipse whose conjugate semi-diameters run along the lines.
+
+    An offset a e1 + b e2 (e_i along line i) lies a |sin| from line 2 and b |sin|
+    from line 1, sin that of the angle between the lines; it is inside where
+    (a / p)^2 + (b / q)^2 <= 1, p and q the semi-diameters along lines 1 and 2.
+
+    Args:
+        s1: (N, K) signed distances of the offsets from line 1 (:func:`line_distances`), px.
+        s2: the same from line 2.
+        semi_diameters: (N, 2) p and q, px.
+        line_angles: (N, 2) the lines' directions, radians.
+    """
+    p, q = semi_diameters[:, 0:1], semi_diameters[:, 1:2]
+    sine = np.abs(np.sin(line_angles[:, 0:1] - line_angles[:, 1:2]))
+    inside: NDArray[np.bool_] = (s2 * q) ** 2 + (s1 * p) ** 2 <= (p * q * sine) ** 2
+    return inside
 
 
 def template_region(

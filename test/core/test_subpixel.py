@@ -574,6 +574,42 @@ def test_an_x_whose_rings_stop_short_is_read_out_to_its_reach(monkeypatch):
     assert read_to_reach < 0.9 * read_to_extent
 
 
+def _steep_x_error(seed: int) -> float:
+    """The line fit's error on a 14 px X tilted 60 degrees at 3 DN, from 0.18 px off, px."""
+    rng = np.random.default_rng(seed)
+    placement = MarkerPlacement(
+        48 + rng.random(),
+        48 + rng.random(),
+        14.0,
+        rng.uniform(0, np.pi),
+        60.0,
+        rng.uniform(0, np.pi),
+        "quarter_disks",
+    )
+    scene = render_markers((96, 96), [placement], seed, blur_sigma_px=1.0, noise_sigma_dn=3.0)
+    truth, angles = scene.centres[0], np.array([scene.markers[0].angles])
+    refit, _, _ = subpixel.refine_along_lines(
+        scene.image,
+        truth[None] + np.array([0.15, -0.1]),
+        np.array([0.1]),
+        np.array([7.0]),
+        angles,
+        full_scale=255.0,
+        max_radius_px=20.0,
+    )
+    return float(np.linalg.norm(refit[0] - truth))
+
+
+def test_a_steeply_tilted_x_is_read_along_its_lines_out_to_its_ellipse(monkeypatch):
+    # Tilted 60 degrees, the X's ends lie on an ellipse of semi-axes 14 and 7 px: the
+    # disk of the smaller one leaves out the edges its lines run on past 7 px
+    # (0.021 -> 0.016 px over these 12).
+    read_to_ellipse = np.mean([_steep_x_error(seed) for seed in range(12)])
+    monkeypatch.setattr(subpixel, "_HALF_PIXEL_MAX_RADIUS_PX", 0.0)
+    read_to_disk = np.mean([_steep_x_error(seed) for seed in range(12)])
+    assert read_to_ellipse < 0.85 * read_to_disk
+
+
 def test_a_noisy_faintly_dull_x_moves_by_the_bias_its_levels_show(monkeypatch):
     # An X of 8 px at 5 DN whose bright quadrant is 0.93 as bright as the other scores
     # mostly under the refit's threshold: where its statistic passes the chi-square's

@@ -204,6 +204,20 @@ def test_a_tilted_x_reaches_all_round_as_far_as_its_ellipse_s_smaller_semi_axis(
     assert reach[0] == pytest.approx(14.0 * np.cos(np.deg2rad(50.0)), abs=1.0)
 
 
+def test_an_ellipse_given_by_two_conjugate_semi_diameters_holds_their_ends_and_its_axes():
+    # The ellipse x = 10 cos u, y = 5 sin u: the points at u and u + pi/2 are the ends
+    # of two conjugate semi-diameters, along which an X's two lines would run.
+    u = 0.5
+    ends = np.array([[10.0 * np.cos(u), 5.0 * np.sin(u)], [-10.0 * np.sin(u), 5.0 * np.cos(u)]])
+    semi_diameters = np.linalg.norm(ends, axis=1)[None]
+    angles = np.arctan2(ends[:, 1], ends[:, 0])[None]
+    assert template.smaller_semi_axis(semi_diameters, angles)[0] == pytest.approx(5.0)
+    points = np.concatenate([ends * 0.99, ends * 1.01, [[0.0, 4.9], [0.0, 5.1], [9.9, 0.0]]])
+    s1, s2 = template.line_distances(points[None, :, 0], points[None, :, 1], angles)
+    inside = template.within_ellipse(s1, s2, semi_diameters, angles)[0]
+    np.testing.assert_array_equal(inside, [True, True, False, False, True, False, True])
+
+
 def _sharp_x_fit(seed: int) -> tuple[float, float]:
     """A sharp X's fit from a start off its centre and lines, and a bounded solver's least cost.
 
