@@ -791,9 +791,9 @@ def refine_along_lines(
     a shadow over two quadrants) the grey levels are not point-symmetric and this
     fit is pulled towards the brighter side, 0.2-0.5 px for a quadrant 0.7-0.5 as
     bright as its opposite. Each point's score statistic for the quadrants' own
-    levels (:func:`_edge_step_chi2`) says where: above :data:`LEVELS_REFIT_MIN_CHI2` the
-    fit runs again with them (two more parameters, linear in :func:`_edge_steps`),
-    along the lines' directions measured afresh from their edges
+    levels (:func:`_edge_step_chi2`, on the disk's pairs) says where: above
+    :data:`LEVELS_REFIT_MIN_CHI2` the fit runs again with them (two more parameters,
+    linear in :func:`_edge_steps`), along the lines' directions measured afresh from their edges
     (:func:`_edge_directions`: the levels' steps must lie on the lines, and the
     ring check's directions are a few degrees off), and may move up to
     :data:`EDGE_STEP_MAX_SHIFT_PX`. Under that threshold, from
@@ -1247,11 +1247,15 @@ def _fit_rungs(
                 np.concatenate([cast("tuple[Any, Any]", r.prior)[0] for r in members]),
                 np.concatenate([cast("tuple[Any, Any]", r.prior)[1] for r in members]),
             )
+        # The levels' statistic reads the disk's pairs alone, where its bars were set: out
+        # along the lines, near a blurred X's ends, the steps fit less, and X's of even
+        # paint would go to the levels' fit.
         solved = fit(
             centre[rows],
             *band[:4],
             model_gain=members[0].sloped,
             test_steps=band.steps(),
+            test_within=np.concatenate([rung.band.within(rung.key) for rung in members]),
             slope_prior=prior,
             groups=np.repeat(np.arange(len(members)), [len(r.rows) for r in members]),
         )
@@ -1346,6 +1350,11 @@ class _LineBand(NamedTuple):
     present: NDArray[np.bool_]
     spacing: NDArray[np.float64]
     across: NDArray[np.float64]
+
+    def within(self, radius_px: float) -> NDArray[np.bool_]:
+        """(N, K) the pairs within ``radius_px`` of the centre."""
+        within: NDArray[np.bool_] = (self.offsets**2).sum(axis=-1) <= radius_px**2
+        return within
 
     def steps(
         self, blur_px: float | NDArray[np.float64] = EDGE_STEP_BLUR_PX
@@ -1936,12 +1945,14 @@ def _gauss_newton_symmetry(
     groups: NDArray[np.intp] | None = None,
     measure_contrast: bool = True,
     bright_pair_only: bool = False,
+    test_within: NDArray[np.bool_] | None = None,
 ) -> _SymmetrySolution:
     # ``groups`` (N,): points fitted together that end as separate calls, one per
     # group, would (a group stops when all its steps do); None: one group. Without
     # ``measure_contrast`` the contrast is NaN: the line fit reads none, and its sort
     # of every sample cost a tenth of that fit. With ``bright_pair_only`` the
-    # ``test_steps`` weigh the bright pair's level alone (:func:`_bright_pair_step`).
+    # ``test_steps`` weigh the bright pair's level alone (:func:`_bright_pair_step`);
+    # with ``test_within`` (N, K) their statistic reads those pairs alone.
     n_params = 2 + 2 * model_gain + 2 * (edge_steps is not None)
     # The slope's prior (:func:`_light_inside`: its mean, and its information per square
     # pixel) enters the normal equations as pairs on this fit's grid would.
@@ -2042,9 +2053,11 @@ def _gauss_newton_symmetry(
         # From the pairs alone, the prior left out: the statistic its thresholds were set on.
         if bright_pair_only:
             test_steps = _bright_pair_step(test_steps, samples, weight)
-        step_chi2, levelled_rms = _edge_step_chi2(
-            residual, weight, weighted, normal, test_steps, cell[:, 0, 0]
-        )
+        tested = (weight, weighted, normal)
+        if test_within is not None:
+            within = weighted * test_within[..., None]
+            tested = (weight * test_within, within, within.transpose(0, 2, 1) @ jacobian)
+        step_chi2, levelled_rms = _edge_step_chi2(residual, *tested, test_steps, cell[:, 0, 0])
     return _SymmetrySolution(
         centre, covariance, residual_rms, contrast, converged, step_chi2, levelled_rms
     )
