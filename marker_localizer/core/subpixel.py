@@ -1063,8 +1063,8 @@ def _reach_all_round(
     gain = np.clip(np.nan_to_num(reach / extent_px, nan=1.0), 1.0, REACH_MAX_GAIN)
     # The small epsilon keeps a full rung (sqrt 2) from rounding down a step.
     steps = np.floor(_REACH_STEPS_PER_OCTAVE * np.log2(gain) + 1e-9) / _REACH_STEPS_PER_OCTAVE
-    # Each line no farther than the reach is read for every X of the call: the same
-    # however the X's are batched.
+    # Each line no farther than REACH_MAX_GAIN times its X's own extent, which the reach
+    # is read out to whatever the call's other X's: the same however they are batched.
     bound = np.minimum(REACH_MAX_GAIN * extent_px, max_radius_px)[:, None]
     return (
         np.minimum(extent_px * 2.0**steps, max_radius_px),
