@@ -1149,17 +1149,17 @@ def template_region(
     regions: list[NDArray[np.float64]] = []
     for k in range(len(shape.xy)):  # per point (not per pixel): each has its own ellipse
         a1, a2 = shape.line_angles[k]
-        axes = np.array([[np.cos(a1), np.cos(a2)], [np.sin(a1), np.sin(a2)]]) * semi[k]
-        det = np.linalg.det(axes)
-        if abs(det) < 1e-9:
+        if abs(semi[k].prod() * np.sin(a2 - a1)) < 1e-9:  # parallel lines span no ellipse
             regions.append(np.zeros((0, 2)))
             continue
         half = int(np.ceil(semi[k].max())) + 1
         grid = np.arange(-half, half + 1, dtype=np.float64)
         gx, gy = np.meshgrid(grid, grid)
         offsets = np.stack([gx.ravel(), gy.ravel()], axis=1)
-        uv = (offsets + np.round(shape.xy[k]) - shape.xy[k]) @ np.linalg.inv(axes).T
-        inside = offsets[(uv**2).sum(axis=1) <= 1.0]
+        d = offsets + np.round(shape.xy[k]) - shape.xy[k]
+        angles = shape.line_angles[k : k + 1]
+        s1, s2 = line_distances(d[None, :, 0], d[None, :, 1], angles)
+        inside = offsets[within_ellipse(s1, s2, semi[k : k + 1], angles)[0]]
         if max_pixels is not None and len(inside) > max_pixels:
             stride = int(np.ceil(np.sqrt(len(inside) / max_pixels)))
             inside = inside[(inside % stride == 0).all(axis=1)]
