@@ -600,7 +600,10 @@ def _solve(
     present = pixels.present.sum(axis=1)
     dof = np.maximum(present - n_params, 1)
     normal = jacobian.transpose(0, 2, 1) @ jacobian
-    invertible = np.linalg.cond(normal) < 1.0 / np.finfo(np.float64).eps
+    # A fit whose model turned NaN (a wedge or shadow term at a correlation of +-1)
+    # is not solved: the SVD of a NaN matrix does not converge, it raises.
+    invertible = np.asarray(np.isfinite(normal).all(axis=(1, 2)))
+    invertible[invertible] = np.linalg.cond(normal[invertible]) < 1.0 / np.finfo(np.float64).eps
     covariance = np.full((n, 2, 2), np.nan)
     if invertible.any():
         inverse = np.linalg.inv(normal[invertible])

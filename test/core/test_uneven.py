@@ -186,6 +186,23 @@ def test_a_fit_that_ends_off_its_best_rejects_its_start_by_a_negative_chi_square
     assert uneven._rejects_start(batch, best, np.zeros(1), np.array([0]))[0] >= 0.0
 
 
+def test_a_fit_whose_model_turns_nan_is_left_unsolved_and_the_others_as_if_alone():
+    # The wedges' trivariate normal is NaN at a correlation of +-1; the SVD that asks
+    # whether the normal matrix inverts raised on it, and took every X of the call.
+    scene = _dull_marker(0, 1.0)
+    marker = scene.markers[0]
+    radius = uneven.RADIUS_FRACTION * marker.foreshortened_radius_px
+    pixels = uneven._pixels(scene.image, scene.centres[0], radius, np.array(marker.angles), 255.0)
+    assert pixels is not None
+    start = uneven._start(uneven._padded([pixels]), np.array([marker.angles]))
+    both = uneven._solve(
+        uneven._padded([pixels, pixels]), np.vstack([start, np.full_like(start, np.nan)]), False
+    )
+    alone = uneven._solve(uneven._padded([pixels]), start, shadowed=False)
+    assert both.solved.tolist() == [True, False]
+    np.testing.assert_array_equal(both.params[0], alone.params[0])
+
+
 def test_an_x_beyond_the_frame_border_is_not_located():
     scene = _dull_marker(0, 1.0)
     marker = scene.markers[0]
