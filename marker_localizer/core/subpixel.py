@@ -40,7 +40,12 @@ from marker_localizer.core.sampling import (
     in_blocks,
     pad_patterns,
 )
-from marker_localizer.core.verification import TEMPLATE_RADIUS_FRACTION, X_END_MAX_EXTENT_PX
+from marker_localizer.core.verification import (
+    TEMPLATE_RADIUS_FRACTION,
+    X_END_MAX_EXTENT_PX,
+    annular_profiles,
+    bright_sector_balance,
+)
 
 #: Template half-size of :func:`ncc_refine`, px: the marker's radius, at least 3 (a
 #: 7 x 7 template still holds the four sectors of a 3 px marker) and at most 15 (the
@@ -180,6 +185,24 @@ LEVELS_REFIT_MIN_CHI2 = 45.0
 #: passes once in a thousand (measured: docs/accuracy-journal.md, "The levels' fit weighed in
 #: by its bias").
 LEVELS_BLEND_MIN_CHI2 = 13.8
+#: Where the rings across an X's disk read a dull bright sector (:func:`_dull_sector`),
+#: the quadrants' own levels are fitted from this much of their statistic, its 5 %
+#: point, not from :data:`LEVELS_REFIT_MIN_CHI2`. On a small X the symmetric fit moves
+#: its centre towards the brighter side and the light's slope takes the rest of a dull
+#: quadrant (the insides of an X of 8 px lie 4-6 px out, where a level and a slope look
+#: alike), so the statistic scores quadrants that lead the dark paint by 0.5-0.7 of
+#: the other's lead 10-44 on the renderer's (g), and the blend leaves them 0.15-0.5 px
+#: off. The rings read the sectors' levels whole (measured: docs/accuracy-journal.md,
+#: "A dull bright sector read on the rings").
+DULL_SECTOR_MIN_CHI2 = 5.99
+#: ... a dull sector: the median ring's :func:`verification.bright_sector_balance`
+#: under this. X's of one paint read 0.98 by the median and fall under it once in 50
+#: on the renderer's (a), (c), (d); (g)'s dull quadrants read 0.60 (measured: as
+#: above).
+DULL_SECTOR_MAX_BALANCE = 0.85
+#: ... on rings at these shares of the disk's radius: inside the X, clear of its
+#: centre, where the ring samples each sector on a few of its 36 angles.
+_BALANCE_RING_FRACTIONS = (0.45, 0.6, 0.75, 0.9)
 #: Where the levels' statistic does not say alone that the levels differ (under
 #: :data:`LEVELS_REFIT_MIN_CHI2`), an X of :data:`MEASURED_MIN_EXTENT_PX` and more on
 #: which the pairs show a cast shadow's edge (:func:`shadow.find_edges` as it asks of a
@@ -792,7 +815,9 @@ def refine_along_lines(
     fit is pulled towards the brighter side, 0.2-0.5 px for a quadrant 0.7-0.5 as
     bright as its opposite. Each point's score statistic for the quadrants' own
     levels (:func:`_edge_step_chi2`, on the disk's pairs) says where: above
-    :data:`LEVELS_REFIT_MIN_CHI2` the fit runs again with them (two more parameters,
+    :data:`LEVELS_REFIT_MIN_CHI2`, or above :data:`DULL_SECTOR_MIN_CHI2` where the rings
+    across the disk read a dull bright sector (:func:`_dull_sector`; on disks of
+    :data:`GAIN_MIN_RADIUS_PX` and more), the fit runs again with them (two more parameters,
     linear in :func:`_edge_steps`), along the lines' directions measured afresh from their edges
     (:func:`_edge_directions`: the levels' steps must lie on the lines, and the
     ring check's directions are a few degrees off), and may move up to
@@ -881,7 +906,7 @@ def refine_along_lines(
         for key in np.unique(radius)
         for rows in (np.flatnonzero(radius == key),)
     ]
-    for (key, rows, band, sloped, prior, level_differ), symmetric in zip(
+    for (key, rows, band, sloped, prior, level_differ, dull_sector), symmetric in zip(
         rungs, _fit_rungs(fit, centre, rungs), strict=True
     ):
         centre[rows], covariance[rows], converged[rows] = (
@@ -889,7 +914,11 @@ def refine_along_lines(
             symmetric.covariance,
             symmetric.converged,
         )
-        uneven_levels = (symmetric.step_chi2 > LEVELS_REFIT_MIN_CHI2) | level_differ
+        uneven_levels = (
+            (symmetric.step_chi2 > LEVELS_REFIT_MIN_CHI2)
+            | level_differ
+            | (dull_sector & (symmetric.step_chi2 > DULL_SECTOR_MIN_CHI2))
+        )
         differ = np.flatnonzero(symmetric.converged & uneven_levels)
         # A symmetric fit that slipped is not weighed in (the gating fit's centre stays).
         held = np.linalg.norm(symmetric.centre - xy[rows], axis=1) <= _LINE_FIT_MAX_SHIFT_PX
@@ -1182,7 +1211,9 @@ class _Rung(NamedTuple):
     ``rows`` (M,) index the points; ``band`` is their pairs (:func:`_line_band`);
     ``sloped`` whether the light's slope is fitted (disks of
     :data:`GAIN_MIN_RADIUS_PX` and more), with ``prior`` from the quadrants' insides
-    (:func:`_light_inside`), none where ``level_differ`` (M,) says their levels differ.
+    (:func:`_light_inside`), none where ``level_differ`` (M,) says their levels differ;
+    ``dull_sector`` (M,) where the rings across the disk read a dull bright sector
+    (:func:`_dull_sector`, on sloped disks).
     """
 
     key: float
@@ -1191,6 +1222,7 @@ class _Rung(NamedTuple):
     sloped: bool
     prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None
     level_differ: NDArray[np.bool_]
+    dull_sector: NDArray[np.bool_]
 
 
 def _line_rung(
@@ -1209,7 +1241,8 @@ def _line_rung(
     band = _line_band(key, line_angles[rows], semi_diameters)
     sloped = bool(key >= GAIN_MIN_RADIUS_PX)
     if not sloped:
-        return _Rung(key, rows, band, sloped, None, np.zeros(len(rows), bool))
+        even = np.zeros(len(rows), bool)
+        return _Rung(key, rows, band, sloped, None, even, even)
     inside = _light_inside(image, centre[rows], key, line_angles[rows])
     # Quadrants whose levels differ tilt the insides' light: no prior there.
     level_differ = inside.level_chi2 > LEVELS_REFIT_MIN_CHI2
@@ -1217,7 +1250,24 @@ def _line_rung(
         np.where(level_differ[:, None], 0.0, inside.slope),
         np.where(level_differ[:, None, None], 0.0, inside.information),
     )
-    return _Rung(key, rows, band, sloped, prior, level_differ)
+    return _Rung(
+        key, rows, band, sloped, prior, level_differ, _dull_sector(image, centre[rows], key)
+    )
+
+
+def _dull_sector(
+    image: NDArray[Any], centre: NDArray[np.float64], radius_px: float
+) -> NDArray[np.bool_]:
+    """(N,) where rings across each disk of ``radius_px`` read a dull bright sector.
+
+    The median of :func:`verification.bright_sector_balance` on rings at
+    :data:`_BALANCE_RING_FRACTIONS` of the radius is under
+    :data:`DULL_SECTOR_MAX_BALANCE`; a ring that leaves the image reads as even.
+    """
+    rings = annular_profiles(image, centre, radius_px * np.array(_BALANCE_RING_FRACTIONS))
+    balance = np.nan_to_num(bright_sector_balance(rings), nan=1.0)
+    dull: NDArray[np.bool_] = np.median(balance, axis=1) < DULL_SECTOR_MAX_BALANCE
+    return dull
 
 
 def _fit_rungs(

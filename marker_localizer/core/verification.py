@@ -478,7 +478,7 @@ def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64
     rings = profiles.reshape(-1, N_ANGLES).astype(np.float64)
     smooth, peak, dark, _ = _smoothed_range(rings)
     top = smooth.argmax(axis=1)
-    duller = np.minimum(smooth[:, :_HALF_TURN], smooth[:, _HALF_TURN:]).max(axis=1)
+    duller = _duller_bright_level(smooth)
     # Each sample's angle from the ring's maximum, which sits at the half turn.
     turned = _TURNED_FROM[top]
     low = smooth <= (0.5 * (dark + duller))[:, None]
@@ -493,6 +493,33 @@ def equalise_bright_sectors(profiles: NDArray[np.float64]) -> NDArray[np.float64
     # The rings are a copy already: the sectors are scaled in place.
     np.copyto(rings, scaled, where=sector)
     return cast("NDArray[np.float64]", rings.reshape(shape).astype(profiles.dtype, copy=False))
+
+
+def bright_sector_balance(profiles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(...,) the duller bright sector's lead over a ring's dark level, over the brighter's.
+
+    On the [1, 2, 1]-smoothed ring (..., 36): the duller bright sector's level as
+    :func:`equalise_bright_sectors` reads it (the highest that two opposite samples
+    both reach) above the ring's minimum, over the ring's maximum above it. An X of one
+    paint reads about 1, one whose bright quadrant is dull about that quadrant's share
+    of the other's lead. NaN on a flat ring and where the ring leaves the image.
+    """
+    rings = profiles.reshape(-1, N_ANGLES).astype(np.float64)
+    smooth, peak, dark, missing = _smoothed_range(rings)
+    span = peak - dark
+    balance = (_duller_bright_level(smooth) - dark) / np.where(span > 0.0, span, np.nan)
+    return cast(
+        "NDArray[np.float64]",
+        np.where(missing, np.nan, balance).reshape(profiles.shape[:-1]),
+    )
+
+
+def _duller_bright_level(smooth: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N,) the highest level two opposite samples of each smoothed ring (N, 36) both reach."""
+    return cast(
+        "NDArray[np.float64]",
+        np.minimum(smooth[:, :_HALF_TURN], smooth[:, _HALF_TURN:]).max(axis=1),
+    )
 
 
 #: Candidates the prescreen's cascade takes at a time (:func:`~marker_localizer.core.

@@ -1197,6 +1197,43 @@ def test_a_range_from_6_px_keeps_the_small_dull_markers_one_from_5_px_finds(tigh
     assert false == 0
 
 
+def test_small_xs_whose_dull_sector_the_rings_read_are_located_by_their_quadrants_levels(
+    monkeypatch,
+):
+    """Family (g), development seeds 300, 314 and 329: four X's of 6-9 px whose dull bright
+    quadrant leads the dark paint by 0.5-0.7 of the other's lead score 28-44 on the pairs'
+    statistic for the quadrants' own levels, under :data:`subpixel.LEVELS_REFIT_MIN_CHI2`,
+    and the blend leaves them 0.2-0.5 px off. Where the rings read the dull sector
+    (:data:`subpixel.DULL_SECTOR_MAX_BALANCE`), their quadrants' own levels take every X
+    under 10 px of those frames within 0.17 px, the same markers found.
+    """
+    family = next(f for f in families() if f.key == "g" and not f.variant)
+    detector = Detector(
+        DetectorConfig(
+            marker_radius_min_px=family.radius_range[0],
+            marker_radius_max_px=family.radius_range[1],
+        )
+    )
+    frames = [family.render(seed) for seed in (300, 314, 329)]
+
+    def small_errors() -> dict[tuple[int, int], float]:
+        errors = {}
+        for index, scene in enumerate(frames):
+            found = positions(detector.detect(scene.image).detections)
+            match = evaluation.match_points(found, scene.centres)
+            for d, t in zip(match.detection_index, match.truth_index, strict=True):
+                if scene.markers[t].radius_px < 10.0:
+                    errors[index, int(t)] = float(np.hypot(*(found[d] - scene.centres[t])))
+        return errors
+
+    with_rings = small_errors()
+    monkeypatch.setattr(subpixel, "DULL_SECTOR_MAX_BALANCE", 0.0)
+    without = small_errors()
+    assert with_rings.keys() == without.keys()
+    assert sum(error > 0.2 for error in without.values()) >= 3
+    assert max(with_rings.values()) < 0.17
+
+
 def test_both_decisions_keep_markers_with_a_dull_quadrant_or_a_shadow_edge(
     uneven_light_frames,
 ):

@@ -493,6 +493,41 @@ def test_equalising_the_bright_sectors_restores_a_dull_quadrants_symmetry_and_no
     assert not equalised.four_sectors[2:, 0].any()
 
 
+def test_the_rings_balance_reads_a_dull_bright_sectors_share_and_an_even_x_as_one():
+    dull = _sector_profile([1.0, 0.1, 0.55, 0.1], [25, 115, 205, 295])
+    even = _sector_profile([1.0, 0.1, 1.0, 0.1], [25, 115, 205, 295])
+    flat = np.full(36, 0.5)
+    cut = even.copy()
+    cut[3] = np.nan  # the ring leaves the image
+    balance = verification.bright_sector_balance(np.stack([[dull, even], [flat, cut]]))
+    np.testing.assert_allclose(balance[0], [0.5, 1.0])
+    assert np.isnan(balance[1]).all()
+
+
+def test_the_rings_balance_of_a_rendered_x_reads_its_dull_quadrant_not_a_lights_slope():
+    # A 16 px X tilted 20 degrees, the ring at half its radius: a dull quadrant reads
+    # its lead over the dark paint as a share of the other's (the renderer's dull
+    # margin); even paint under a light whose gain spans 0.7-1 across the 96 px frame
+    # reads near 1.
+    def reading(dull_factor: float, light: float) -> tuple[float, float]:
+        placement = MarkerPlacement(47.6, 48.3, 16.0, 0.5, 20.0, dull_factor=dull_factor)
+        scene = render_markers(
+            (96, 96),
+            [placement],
+            0,
+            blur_sigma_px=1.0,
+            noise_sigma_dn=1.0,
+            illumination_strength=light,
+        )
+        rings = verification.annular_profiles(scene.image, scene.centres, np.array([8.0]))
+        return float(verification.bright_sector_balance(rings)[0, 0]), scene.markers[0].dull_margin
+
+    for dull_factor in (0.6, 0.8):
+        balance, margin = reading(dull_factor, 0.0)
+        assert abs(balance - margin) < 0.03
+    assert reading(1.0, 0.6)[0] > 0.93
+
+
 def _two_edges_crossing(blur_px: float = 0.0) -> np.ndarray:
     """An X without an end: two straight edges crossing a 64 px window at (31.5, 31.5)."""
     crossing = np.full((64, 64), 200.0, np.float32)
