@@ -1262,7 +1262,8 @@ def _dull_sector(
 
     The median of :func:`verification.bright_sector_balance` on rings at
     :data:`_BALANCE_RING_FRACTIONS` of the radius is under
-    :data:`DULL_SECTOR_MAX_BALANCE`; a ring that leaves the image reads as even.
+    :data:`DULL_SECTOR_MAX_BALANCE`; a flat ring, or one that leaves the image, reads as
+    even.
     """
     rings = annular_profiles(image, centre, radius_px * np.array(_BALANCE_RING_FRACTIONS))
     balance = np.nan_to_num(bright_sector_balance(rings), nan=1.0)

@@ -166,17 +166,24 @@ def test_a_model_asked_to_reject_its_start_takes_it_only_where_the_start_is_off(
     assert from_off == 8
 
 
+def _even_marker_pixels():
+    """The model's pixels of an X of even paint (:func:`_dull_marker` at 1.0), and its lines."""
+    scene = _dull_marker(0, 1.0)
+    marker = scene.markers[0]
+    radius = uneven.RADIUS_FRACTION * marker.foreshortened_radius_px
+    lines = np.array([marker.angles])
+    pixels = uneven._pixels(scene.image, scene.centres[0], radius, lines[0], 255.0)
+    assert pixels is not None
+    return pixels, lines
+
+
 def test_a_fit_that_ends_off_its_best_rejects_its_start_by_a_negative_chi_square():
     # A fit stopped 0.4 px from where the model fits best (as one that slid into
     # another minimum is) fits worse than the same model held at a start on the X:
     # min_centre_chi2=0 turns it away.
-    scene = _dull_marker(0, 1.0)
-    marker = scene.markers[0]
-    radius = uneven.RADIUS_FRACTION * marker.foreshortened_radius_px
-    pixels = uneven._pixels(scene.image, scene.centres[0], radius, np.array(marker.angles), 255.0)
-    assert pixels is not None
+    pixels, lines = _even_marker_pixels()
     batch = uneven._padded([pixels])
-    best = uneven._solve(batch, uneven._start(batch, np.array([marker.angles])), shadowed=False)
+    best = uneven._solve(batch, uneven._start(batch, lines), shadowed=False)
     slid = best.params.copy()
     slid[:, :2] += [0.3, 0.25]
     cost = uneven._residual(slid, batch, shadowed=False)[2]
@@ -187,14 +194,11 @@ def test_a_fit_that_ends_off_its_best_rejects_its_start_by_a_negative_chi_square
 
 
 def test_a_fit_whose_model_turns_nan_is_left_unsolved_and_the_others_as_if_alone():
-    # The wedges' trivariate normal is NaN at a correlation of +-1; the SVD that asks
-    # whether the normal matrix inverts raised on it, and took every X of the call.
-    scene = _dull_marker(0, 1.0)
-    marker = scene.markers[0]
-    radius = uneven.RADIUS_FRACTION * marker.foreshortened_radius_px
-    pixels = uneven._pixels(scene.image, scene.centres[0], radius, np.array(marker.angles), 255.0)
-    assert pixels is not None
-    start = uneven._start(uneven._padded([pixels]), np.array([marker.angles]))
+    # A model turns NaN where the wedges' trivariate normal meets a correlation of +-1
+    # (here: from a start of NaN); the SVD that asked whether its normal matrix
+    # inverts raised, and took every X of the call with it.
+    pixels, lines = _even_marker_pixels()
+    start = uneven._start(uneven._padded([pixels]), lines)
     both = uneven._solve(
         uneven._padded([pixels, pixels]), np.vstack([start, np.full_like(start, np.nan)]), False
     )
