@@ -90,6 +90,30 @@ class Candidates(NamedTuple):
         keep[np.flatnonzero(self.strength == weakest)[: limit - np.count_nonzero(keep)]] = True
         return self.take(keep)
 
+    def without_duplicates(self, radius_px: float) -> tuple[Candidates, int]:
+        """One candidate per X: those with no stronger one within ``radius_px``.
+
+        :func:`non_maximum_suppression`, except that each candidate kept takes the
+        widest scale of those within ``radius_px`` of it, as
+        :func:`density_mean_shift`'s merge does: the levels whose saddles were centred on
+        one X all found it, and the widest says which readings it is owed
+        (:func:`~marker_localizer.core.second_reading.screened_wide`). A marker of 12 px
+        with a dull bright quadrant, from a 6 px minimum, is screened at the first two
+        levels searched, and the first level's candidate is the stronger and the
+        narrower: it lost the equalised rings, and the marker (docs/accuracy-journal.md,
+        "A duplicate merged at the centring keeps its widest level").
+
+        Returns:
+            The candidates kept, in their order, and how many were merged into them.
+        """
+        keep = non_maximum_suppression(self.xy, self.strength, radius_px)
+        scale = self.scale_px.copy()
+        pairs = _pairs_within(self.xy, radius_px)
+        np.maximum.at(scale, pairs[:, 0], self.scale_px[pairs[:, 1]])
+        np.maximum.at(scale, pairs[:, 1], self.scale_px[pairs[:, 0]])
+        kept = Candidates(self.xy, self.strength, scale).take(keep)
+        return kept, len(self) - len(kept)
+
     def __len__(self) -> int:
         return int(self.strength.shape[0])
 
@@ -1616,8 +1640,7 @@ def non_maximum_suppression(
     """
     if len(xy) == 0:
         return np.zeros(0, dtype=bool)
-    tree = cKDTree(xy)
-    pairs = tree.query_pairs(radius_px, output_type="ndarray")
+    pairs = _pairs_within(xy, radius_px)
     if group is not None and len(pairs):
         pairs = pairs[group[pairs[:, 0]] == group[pairs[:, 1]]]
     keep = np.ones(len(xy), dtype=bool)
@@ -1628,6 +1651,14 @@ def non_maximum_suppression(
         weaker = np.where(tie, np.maximum(i, j), weaker)
         keep[weaker] = False
     return keep
+
+
+def _pairs_within(xy: NDArray[np.float64], radius_px: float) -> NDArray[np.intp]:
+    """(P, 2) the index pairs i < j of the points ``xy`` within ``radius_px`` of each other."""
+    if len(xy) == 0:
+        return np.zeros((0, 2), dtype=np.intp)
+    pairs: NDArray[np.intp] = cKDTree(xy).query_pairs(radius_px, output_type="ndarray")
+    return pairs
 
 
 def curvature_density(

@@ -497,14 +497,15 @@ class SymmetryPath:
         """Each candidate at its local centre of point symmetry, those centred apart.
 
         ``fit`` is :func:`subpixel.coarse_centre` of the candidates: their centres, and
-        where it found one. :meth:`_recentre_lost` reads it again.
+        where it found one. :meth:`_recentre_lost` reads it again. Candidates centred
+        together are one, screened as widely as the widest of them
+        (:meth:`Candidates.without_duplicates`).
         """
         xy, inside = fit
         result.counts["rejected_centring"] = int((~inside).sum())
         moved = Candidates(xy, candidates.strength, candidates.scale_px).take(inside)
-        keep = screening.non_maximum_suppression(moved.xy, moved.strength, _CENTRED_DUPLICATE_PX)
-        result.counts["merged_duplicates"] = int((~keep).sum())
-        centred = moved.take(keep)
+        centred, merged = moved.without_duplicates(_CENTRED_DUPLICATE_PX)
+        result.counts["merged_duplicates"] = merged
         result.survivors.append(("centring", centred.xy))
         return centred
 

@@ -737,7 +737,12 @@ def _recall_and_false(config: DetectorConfig, frames) -> tuple[float, float]:
 
 
 def _wide_dull_markers(
-    seeds, dull_factors, radii=(16, 28), radius_range=(10.0, 30.0), max_tilt_deg=40.0
+    seeds,
+    dull_factors,
+    radii=(16, 28),
+    radius_range=(10.0, 30.0),
+    max_tilt_deg=40.0,
+    blur_sigma_px=1.0,
 ):
     """Found and false points over frames of six markers, each with a dull quadrant."""
     found = false = 0
@@ -757,7 +762,9 @@ def _wide_dull_markers(
             )
             for i in range(6)
         ]
-        scene = render_markers((640, 960), placements, seed, blur_sigma_px=1.0, noise_sigma_dn=2.0)
+        scene = render_markers(
+            (640, 960), placements, seed, blur_sigma_px=blur_sigma_px, noise_sigma_dn=2.0
+        )
         config = DetectorConfig(
             marker_radius_min_px=radius_range[0], marker_radius_max_px=radius_range[1]
         )
@@ -1133,6 +1140,26 @@ def test_equalised_rings_count_from_7_px_where_texture_stops():
     # they had to reach 9 px, 22 from 7 px; texture's reach 6 px).
     found, false = _wide_dull_markers(range(4), (0.6, 0.8), (10, 16), (6.0, 20.0))
     assert found >= 22
+    assert false == 0
+
+
+def _sharp_dull_markers_of_11_to_13_px(radius_range):
+    """Found and false points: 24 markers of 11-13 px, one bright quadrant 0.58-0.62 as
+    bright as the other, tilted up to 20 degrees, sharp (blur 0.5 px), on flat ground."""
+    return _wide_dull_markers(range(4), (0.58, 0.62), (11.0, 13.0), radius_range, 20.0, 0.5)
+
+
+@pytest.mark.parametrize("radius_range", [(6.0, 40.0), (7.0, 24.0)])
+def test_a_dull_x_screened_at_two_levels_is_read_as_the_wider_level_reads_it(radius_range):
+    # From a 6-8 px minimum the first level searched is the half-resolution one, whose
+    # candidates are labelled with that minimum, under the wide readings' 8 px; the
+    # next level's candidate at the same X is wide. Centred together they are one
+    # candidate, the first level's the stronger: it keeps the wider level's scale, and
+    # with it the equalised rings that a dull quadrant under the rings' mid level needs
+    # (16 of these 24 found at 6-40 and at 7-24 px where the stronger candidate's own
+    # scale stood, 23 and 24 with the wider level's; 24 at 4-40 px).
+    found, false = _sharp_dull_markers_of_11_to_13_px(radius_range)
+    assert found >= 21
     assert false == 0
 
 

@@ -243,6 +243,30 @@ def test_non_maximum_suppression_keeps_the_strongest_of_close_points():
     assert keep.tolist() == [False, True, True]
 
 
+def test_candidates_centred_together_are_one_screened_as_widely_as_the_widest():
+    candidates = screening.Candidates(
+        np.array([[10.0, 10.0], [11.0, 10.0], [40.0, 40.0], [40.5, 40.0]]),
+        np.array([2.0, 1.0, 0.5, 0.9]),
+        np.array([6.0, 16.0, 8.0, 4.0]),
+    )
+    kept, merged = candidates.without_duplicates(1.5)
+    assert merged == 2
+    # The stronger's position and strength, the wider's scale.
+    assert kept.xy.tolist() == [[10.0, 10.0], [40.5, 40.0]]
+    assert kept.strength.tolist() == [2.0, 0.9]
+    assert kept.scale_px.tolist() == [16.0, 8.0]
+
+
+def test_candidates_apart_keep_their_own_scales():
+    candidates = screening.Candidates(
+        np.array([[10.0, 10.0], [12.0, 10.0]]), np.array([2.0, 1.0]), np.array([6.0, 16.0])
+    )
+    kept, merged = candidates.without_duplicates(1.5)
+    assert merged == 0
+    assert kept.scale_px.tolist() == [6.0, 16.0]
+    assert screening.Candidates.empty().without_duplicates(1.5)[1] == 0
+
+
 def test_density_mean_shift_merges_duplicates_of_one_corner():
     candidates = screening.Candidates(
         np.array([[10.0, 10.0], [11.0, 10.5], [40.0, 40.0]]),
