@@ -106,9 +106,9 @@ class Candidates(NamedTuple):
         Returns:
             The candidates kept, in their order, and how many were merged into them.
         """
-        keep = non_maximum_suppression(self.xy, self.strength, radius_px)
-        scale = self.scale_px.copy()
         pairs = _pairs_within(self.xy, radius_px)
+        keep = _unsuppressed(pairs, self.strength)
+        scale = self.scale_px.copy()
         np.maximum.at(scale, pairs[:, 0], self.scale_px[pairs[:, 1]])
         np.maximum.at(scale, pairs[:, 1], self.scale_px[pairs[:, 0]])
         kept = Candidates(self.xy, self.strength, scale).take(keep)
@@ -1638,12 +1638,15 @@ def non_maximum_suppression(
 
     With ``group`` (N,) labels, a point only suppresses points of its own group.
     """
-    if len(xy) == 0:
-        return np.zeros(0, dtype=bool)
     pairs = _pairs_within(xy, radius_px)
     if group is not None and len(pairs):
         pairs = pairs[group[pairs[:, 0]] == group[pairs[:, 1]]]
-    keep = np.ones(len(xy), dtype=bool)
+    return _unsuppressed(pairs, strength)
+
+
+def _unsuppressed(pairs: NDArray[np.intp], strength: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """(N,) the points that are the stronger of every pair they are in (of equals, the first)."""
+    keep = np.ones(len(strength), dtype=bool)
     if len(pairs):
         i, j = pairs[:, 0], pairs[:, 1]
         weaker = np.where(strength[i] < strength[j], i, j)
