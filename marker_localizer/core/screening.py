@@ -93,26 +93,26 @@ class Candidates(NamedTuple):
     def without_duplicates(self, radius_px: float) -> tuple[Candidates, int]:
         """One candidate per X: those with no stronger one within ``radius_px``.
 
-        :func:`non_maximum_suppression`, except that each candidate kept takes the
-        widest scale of those within ``radius_px`` of it, as
-        :func:`density_mean_shift`'s merge does: the levels whose saddles were centred on
-        one X all found it, and the widest says which readings it is owed
-        (:func:`~marker_localizer.core.second_reading.screened_wide`). A marker of 12 px
-        with a dull bright quadrant, from a 6 px minimum, is screened at the first two
-        levels searched, and the first level's candidate is the stronger and the
+        :func:`non_maximum_suppression`, each candidate merged into the nearest one kept,
+        which takes the widest scale of those merged into it: the levels whose saddles
+        fell together on one X all found it, and the widest says which readings it is
+        owed (:func:`~marker_localizer.core.second_reading.screened_wide`). A marker of
+        12 px with a dull bright quadrant, from a 6 px minimum, is screened at the first
+        two levels searched, and the first level's candidate is the stronger and the
         narrower: it lost the equalised rings, and the marker (docs/accuracy-journal.md,
         "A duplicate merged at the centring keeps its widest level").
 
         Returns:
             The candidates kept, in their order, and how many were merged into them.
         """
-        pairs = _pairs_within(self.xy, radius_px)
-        keep = _unsuppressed(pairs, self.strength)
-        scale = self.scale_px.copy()
-        np.maximum.at(scale, pairs[:, 0], self.scale_px[pairs[:, 1]])
-        np.maximum.at(scale, pairs[:, 1], self.scale_px[pairs[:, 0]])
-        kept = Candidates(self.xy, self.strength, scale).take(keep)
-        return kept, len(self) - len(kept)
+        kept = self.take(non_maximum_suppression(self.xy, self.strength, radius_px))
+        merged = len(self) - len(kept)
+        if merged:
+            _, owner = cKDTree(kept.xy).query(self.xy)
+            scale = np.zeros(len(kept))
+            np.maximum.at(scale, owner, self.scale_px)
+            kept = Candidates(kept.xy, kept.strength, scale)
+        return kept, merged
 
     def __len__(self) -> int:
         return int(self.strength.shape[0])
@@ -1638,15 +1638,13 @@ def non_maximum_suppression(
 
     With ``group`` (N,) labels, a point only suppresses points of its own group.
     """
-    pairs = _pairs_within(xy, radius_px)
+    if len(xy) == 0:
+        return np.zeros(0, dtype=bool)
+    tree = cKDTree(xy)
+    pairs = tree.query_pairs(radius_px, output_type="ndarray")
     if group is not None and len(pairs):
         pairs = pairs[group[pairs[:, 0]] == group[pairs[:, 1]]]
-    return _unsuppressed(pairs, strength)
-
-
-def _unsuppressed(pairs: NDArray[np.intp], strength: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """(N,) the points that are the stronger of every pair they are in (of equals, the first)."""
-    keep = np.ones(len(strength), dtype=bool)
+    keep = np.ones(len(xy), dtype=bool)
     if len(pairs):
         i, j = pairs[:, 0], pairs[:, 1]
         weaker = np.where(strength[i] < strength[j], i, j)
@@ -1654,14 +1652,6 @@ def _unsuppressed(pairs: NDArray[np.intp], strength: NDArray[np.float64]) -> NDA
         weaker = np.where(tie, np.maximum(i, j), weaker)
         keep[weaker] = False
     return keep
-
-
-def _pairs_within(xy: NDArray[np.float64], radius_px: float) -> NDArray[np.intp]:
-    """(P, 2) the index pairs i < j of the points ``xy`` within ``radius_px`` of each other."""
-    if len(xy) == 0:
-        return np.zeros((0, 2), dtype=np.intp)
-    pairs: NDArray[np.intp] = cKDTree(xy).query_pairs(radius_px, output_type="ndarray")
-    return pairs
 
 
 def curvature_density(
@@ -1722,13 +1712,10 @@ def density_mean_shift(
             / w_sum[:, None]
         )
         xy = new_xy
-    keep = non_maximum_suppression(xy, candidates.strength, merge_px)
-    tree = cKDTree(xy[keep])
-    _, owner = tree.query(xy)
-    kept_index = np.flatnonzero(keep)
-    scale = np.zeros(int(keep.sum()))
-    np.maximum.at(scale, owner, candidates.scale_px)
-    return Candidates(xy[kept_index], candidates.strength[kept_index], scale)
+    merged, _ = Candidates(xy, candidates.strength, candidates.scale_px).without_duplicates(
+        merge_px
+    )
+    return merged
 
 
 def grid_entropy(xy: NDArray[np.float64], cell_px: int) -> float:
